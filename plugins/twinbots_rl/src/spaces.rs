@@ -1,0 +1,81 @@
+//! Gymnasium-style spaces. Every action and observation travels as a flat `f32` slice; a
+//! discrete choice is its index written as a float (exact up to 2^24).
+
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Space {
+    /// One choice among `n`: `{0, 1, ..., n-1}`.
+    Discrete { n: usize },
+    /// A box `[low, high]` per dimension; bounds may be infinite.
+    Box { low: Vec<f32>, high: Vec<f32> },
+    /// Several independent choices, the i-th among `nvec[i]`.
+    MultiDiscrete { nvec: Vec<usize> },
+}
+
+impl Space {
+    /// A box with the same bounds in every one of `dim` dimensions.
+    pub fn uniform_box(dim: usize, low: f32, high: f32) -> Self {
+        Space::Box {
+            low: vec![low; dim],
+            high: vec![high; dim],
+        }
+    }
+
+    /// Length of the flat vector that holds one element.
+    pub fn dim(&self) -> usize {
+        match self {
+            Space::Discrete { .. } => 1,
+            Space::Box { low, .. } => low.len(),
+            Space::MultiDiscrete { nvec } => nvec.len(),
+        }
+    }
+
+    /// Whether `x` is an element of the space.
+    pub fn contains(&self, x: &[f32]) -> bool {
+        if x.len() != self.dim() {
+            return false;
+        }
+        let choice = |v: f32, n: usize| v.fract() == 0.0 && v >= 0.0 && (v as usize) < n;
+        match self {
+            Space::Discrete { n } => choice(x[0], *n),
+            Space::Box { low, high } => x
+                .iter()
+                .zip(low.iter().zip(high))
+                .all(|(v, (lo, hi))| *v >= *lo && *v <= *hi),
+            Space::MultiDiscrete { nvec } => x.iter().zip(nvec).all(|(v, n)| choice(*v, *n)),
+        }
+    }
+
+    /// A uniformly random element (boxes with infinite bounds sample a unit normal there).
+    pub fn sample(&self, rng: &mut impl Rng) -> Vec<f32> {
+        match self {
+            Space::Discrete { n } => vec![rng.random_range(0..*n) as f32],
+            Space::Box { low, high } => low
+                .iter()
+                .zip(high)
+                .map(|(lo, hi)| {
+                    if lo.is_finite() && hi.is_finite() {
+                        rng.random_range(*lo..=*hi)
+                    } else {
+                        rand_distr::Distribution::sample(&rand_distr::StandardNormal, rng)
+                    }
+                })
+                .collect(),
+            Space::MultiDiscrete { nvec } => {
+                nvec.iter().map(|n| rng.random_range(0..*n) as f32).collect()
+            }
+        }
+    }
+}
+
+impl std::fmt::Display for Space {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Space::Discrete { n } => write!(f, "Discrete({n})"),
+            Space::Box { low, .. } => write!(f, "Box({})", low.len()),
+            Space::MultiDiscrete { nvec } => write!(f, "MultiDiscrete({nvec:?})"),
+        }
+    }
+}

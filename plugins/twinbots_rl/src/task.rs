@@ -1,0 +1,179 @@
+//! A task in the manner of Isaac Lab's manager-based envs: observation, reward and termination
+//! systems that write an arena's [`Episode`], and reset events that run when an episode ends.
+//!
+//! Per arena entity: the [`Action`] to apply and the [`Episode`] it produced. The generic part
+//! (tallying scores, auto-reset with the final observation kept) lives here; a robot plugin adds
+//! its terms to [`TaskSet`] and its reset events to [`ResetSet`].
+
+use bevy::ecs::schedule::ScheduleLabel;
+use bevy::prelude::*;
+use twinbots_sim::{SimSet, Supervisor};
+
+use crate::spaces::Space;
+
+/// What a robot's task promises: its spaces and when it counts as solved.
+#[derive(Resource, Clone, Debug)]
+pub struct TaskSpec {
+    pub name: String,
+    pub observation_space: Space,
+    pub action_space: Space,
+    pub solved: Option<SolvedCriterion>,
+}
+
+/// Solved when the mean score of the last `window` episodes exceeds `threshold`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolvedCriterion {
+    pub window: usize,
+    pub threshold: f32,
+}
+
+impl SolvedCriterion {
+    /// Whether these episode scores (oldest first) meet the criterion.
+    pub fn is_met(&self, scores: &[f32]) -> bool {
+        if scores.len() < self.window {
+            return false;
+        }
+        let last = &scores[scores.len() - self.window..];
+        last.iter().sum::<f32>() / self.window as f32 > self.threshold
+    }
+}
+
+/// The action the task applies on the next control step (flat, see [`Space`]).
+#[derive(Component, Clone, Debug, Default, PartialEq)]
+pub struct Action(pub Vec<f32>);
+
+/// The score and length of a finished episode.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EpisodeSummary {
+    pub score: f32,
+    pub length: u32,
+}
+
+/// What the last control step produced in an arena.
+#[derive(Component, Clone, Debug, Default, PartialEq)]
+pub struct Episode {
+    pub observation: Vec<f32>,
+    pub reward: f32,
+    pub terminated: bool,
+    pub truncated: bool,
+    /// Steps and summed reward of the running episode.
+    pub length: u32,
+    pub score: f32,
+    /// Set on the step an episode ended and the arena was auto-reset: its last observation
+    /// (for bootstrapping truncated episodes) and its summary.
+    pub final_observation: Option<Vec<f32>>,
+    pub finished: Option<EpisodeSummary>,
+    /// Asks for the arena to be reset by the next [`EnvReset`] run.
+    pub needs_reset: bool,
+}
+
+/// Order of the task's terms inside [`SimSet::Task`].
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum TaskSet {
+    Observe,
+    Reward,
+    Terminate,
+    /// Scores and lengths are tallied (generic).
+    Tally,
+}
+
+/// Runs reset for every arena whose [`Episode::needs_reset`] is set.
+#[derive(ScheduleLabel, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct EnvReset;
+
+/// Order inside [`EnvReset`].
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum ResetSet {
+    /// The Supervisor puts the arena back to its initial state (generic).
+    Restore,
+    /// The task's reset events (randomisation of the start state).
+    Events,
+    /// Sensors sample the new state (generic).
+    Sense,
+    /// The task's observation term runs again, so the reset observation is fresh.
+    Observe,
+    /// Flags are cleared (generic).
+    Finish,
+}
+
+/// The generic episode machinery. Robot plugins add their terms.
+pub struct TaskPlugin;
+
+impl Plugin for TaskPlugin {
+    fn build(&self, app: &mut App) {
+        app.configure_sets(
+            Update,
+            (TaskSet::Observe, TaskSet::Reward, TaskSet::Terminate, TaskSet::Tally)
+                .chain()
+                .in_set(SimSet::Task),
+        )
+        .add_systems(Update, tally_episodes.in_set(TaskSet::Tally))
+        .add_systems(Update, auto_reset.in_set(SimSet::Reset))
+        .add_schedule(Schedule::new(EnvReset))
+        .configure_sets(
+            EnvReset,
+            (
+                ResetSet::Restore,
+                ResetSet::Events,
+                ResetSet::Sense,
+                ResetSet::Observe,
+                ResetSet::Finish,
+            )
+                .chain(),
+        )
+        .add_systems(
+            EnvReset,
+            (
+                restore_arenas.in_set(ResetSet::Restore),
+                twinbots_sim::devices::sample_position_sensors.in_set(ResetSet::Sense),
+                finish_reset.in_set(ResetSet::Finish),
+            ),
+        );
+    }
+}
+
+fn tally_episodes(mut episodes: Query<&mut Episode>) {
+    for mut e in &mut episodes {
+        e.length += 1;
+        e.score += e.reward;
+        e.final_observation = None;
+        e.finished = None;
+    }
+}
+
+/// Same-step auto-reset (as Stable-Baselines3's VecEnv): a finished episode's last observation
+/// is kept in `final_observation`, and `observation` becomes the first of the next episode.
+fn auto_reset(world: &mut World) {
+    let mut any = false;
+    let mut episodes = world.query::<&mut Episode>();
+    for mut e in episodes.iter_mut(world) {
+        if e.terminated || e.truncated {
+            e.final_observation = Some(e.observation.clone());
+            e.finished = Some(EpisodeSummary {
+                score: e.score,
+                length: e.length,
+            });
+            e.needs_reset = true;
+            any = true;
+        }
+    }
+    if any {
+        world.run_schedule(EnvReset);
+    }
+}
+
+fn restore_arenas(mut supervisor: Supervisor, mut episodes: Query<(Entity, &mut Episode)>) {
+    for (arena, mut e) in &mut episodes {
+        if e.needs_reset {
+            supervisor.reset_arena(arena);
+            e.length = 0;
+            e.score = 0.0;
+        }
+    }
+}
+
+fn finish_reset(mut episodes: Query<&mut Episode>) {
+    for mut e in &mut episodes {
+        e.needs_reset = false;
+    }
+}

@@ -1,0 +1,159 @@
+//! Arenas: independent environment instances, each with its own rapier physics world.
+//!
+//! Nothing is shared between arenas, so acting in one cannot touch another, and an arena can be
+//! put back to exactly its initial state by restoring a snapshot of its world.
+
+use bevy::math::Vec3;
+use bevy::prelude::*;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::rapier::prelude::*;
+
+/// Collision group of the environment (ground, walls, objects of the cell).
+pub const ENVIRONMENT_GROUP: Group = Group::GROUP_1;
+/// Collision group of robot links. Links of a robot do not collide with each other.
+pub const ROBOT_GROUP: Group = Group::GROUP_2;
+
+/// How many arenas a process runs, and the seed they start from. Set by the app before start-up.
+#[derive(Resource, Clone, Copy, Debug)]
+pub struct ArenaConfig {
+    pub count: usize,
+    pub seed: u64,
+}
+
+impl Default for ArenaConfig {
+    fn default() -> Self {
+        Self { count: 1, seed: 0 }
+    }
+}
+
+/// Marks an entity (robot, link, joint, device) as living in the arena entity it names.
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InArena(pub Entity);
+
+/// One environment instance.
+#[derive(Component)]
+pub struct Arena {
+    /// Position among the process's arenas (0-based); the vectorised env's index.
+    pub index: usize,
+    pub world: PhysicsWorld,
+    /// The arena's random stream: a function of (seed, index) only.
+    pub rng: ChaCha8Rng,
+    initial: Option<Snapshot>,
+}
+
+/// Everything of a physics world that evolves; the pipeline and CCD solver are scratch space.
+#[derive(Clone)]
+struct Snapshot {
+    islands: IslandManager,
+    broad_phase: BroadPhaseBvh,
+    narrow_phase: NarrowPhase,
+    bodies: RigidBodySet,
+    colliders: ColliderSet,
+    impulse_joints: ImpulseJointSet,
+    multibody_joints: MultibodyJointSet,
+}
+
+impl Arena {
+    /// An empty arena with Z-up gravity (URDF and Webots convention).
+    pub fn new(index: usize, seed: u64, dt: f32, gravity: Vec3) -> Self {
+        let mut world = PhysicsWorld::new();
+        world.gravity = gravity;
+        world.integration_parameters.dt = dt;
+        Self {
+            index,
+            world,
+            rng: arena_rng(seed, index),
+            initial: None,
+        }
+    }
+
+    /// A flat ground whose top face is the plane z = 0.
+    pub fn add_ground(&mut self, friction: f32) -> ColliderHandle {
+        // A half-space rather than a thin box: no edges for wheels to catch on.
+        self.world.colliders.insert(
+            ColliderBuilder::halfspace(crate::rapier::na::Unit::new_unchecked(Vec3::Z))
+                .friction(friction)
+                .collision_groups(InteractionGroups::new(
+                    ENVIRONMENT_GROUP,
+                    Group::ALL,
+                    InteractionTestMode::And,
+                )),
+        )
+    }
+
+    /// A fixed box of the cell (ground, wall, table), by half extents and centre.
+    pub fn add_static_box(&mut self, half_extents: Vec3, centre: Vec3, friction: f32) -> ColliderHandle {
+        self.world.colliders.insert(
+            ColliderBuilder::cuboid(half_extents.x, half_extents.y, half_extents.z)
+                .translation(centre)
+                .friction(friction)
+                .collision_groups(InteractionGroups::new(
+                    ENVIRONMENT_GROUP,
+                    Group::ALL,
+                    InteractionTestMode::And,
+                )),
+        )
+    }
+
+    /// Records the current world as the state [`Arena::restore_initial`] returns to.
+    pub fn mark_initial(&mut self) {
+        let w = &self.world;
+        self.initial = Some(Snapshot {
+            islands: w.islands.clone(),
+            broad_phase: w.broad_phase.clone(),
+            narrow_phase: w.narrow_phase.clone(),
+            bodies: w.bodies.clone(),
+            colliders: w.colliders.clone(),
+            impulse_joints: w.impulse_joints.clone(),
+            multibody_joints: w.multibody_joints.clone(),
+        });
+    }
+
+    /// Puts the world back to the state recorded by [`Arena::mark_initial`], bit for bit.
+    /// Returns false when no initial state was recorded.
+    pub fn restore_initial(&mut self) -> bool {
+        let Some(s) = self.initial.clone() else {
+            return false;
+        };
+        let w = &mut self.world;
+        w.islands = s.islands;
+        w.broad_phase = s.broad_phase;
+        w.narrow_phase = s.narrow_phase;
+        w.bodies = s.bodies;
+        w.colliders = s.colliders;
+        w.impulse_joints = s.impulse_joints;
+        w.multibody_joints = s.multibody_joints;
+        w.physics_pipeline = PhysicsPipeline::new();
+        w.ccd_solver = CCDSolver::new();
+        true
+    }
+
+    /// Restarts the arena's random stream from a new seed.
+    pub fn reseed(&mut self, seed: u64) {
+        self.rng = arena_rng(seed, self.index);
+    }
+
+    /// FNV-1a over the bits of every body's pose and velocity, in handle order.
+    pub fn state_hash(&self) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for (_, body) in self.world.bodies.iter() {
+            let p = body.position();
+            let (t, r, v, w) = (p.translation, p.rotation, body.linvel(), body.angvel());
+            for x in [t.x, t.y, t.z, r.x, r.y, r.z, r.w, v.x, v.y, v.z, w.x, w.y, w.z] {
+                for b in x.to_bits().to_le_bytes() {
+                    h ^= b as u64;
+                    h = h.wrapping_mul(0x100_0000_01b3);
+                }
+            }
+        }
+        h
+    }
+}
+
+fn arena_rng(seed: u64, index: usize) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(index as u64);
+    rng
+}

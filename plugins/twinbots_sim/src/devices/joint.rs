@@ -1,0 +1,92 @@
+//! Joints as entities: the rapier joint they stand for, and their measured state.
+
+use bevy::math::{Quat, Vec3};
+use bevy::prelude::*;
+
+use crate::arena::{Arena, InArena};
+use crate::rapier::prelude::*;
+use crate::urdf::JointKind;
+
+/// A movable joint of a robot, simulated as a rapier impulse joint whose free axis is the
+/// local X axis of both joint frames.
+#[derive(Component, Clone, Debug)]
+pub struct Joint {
+    pub name: String,
+    pub kind: JointKind,
+    pub robot: Entity,
+    pub handle: ImpulseJointHandle,
+    pub parent_body: RigidBodyHandle,
+    pub child_body: RigidBodyHandle,
+    /// Position stops, if any.
+    pub limits: Option<[f32; 2]>,
+}
+
+/// Position (unwrapped, so continuous joints count turns) and velocity of a joint, measured
+/// after every physics step. Privileged-free: it is what an encoder on the joint sees.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct JointState {
+    pub position: f32,
+    pub velocity: f32,
+    wrapped: f32,
+}
+
+impl Joint {
+    /// World-frame free axis, and (wrapped) position and velocity along it.
+    pub fn measure(&self, world: &PhysicsWorld) -> Option<(Vec3, f32, f32)> {
+        let joint = world.impulse_joints.get(self.handle)?;
+        let b1 = world.bodies.get(self.parent_body)?;
+        let b2 = world.bodies.get(self.child_body)?;
+        let f1 = *b1.position() * joint.data.local_frame1;
+        let f2 = *b2.position() * joint.data.local_frame2;
+        let axis = f1.rotation * Vec3::X;
+        if self.kind.is_rotational() {
+            let rel: Quat = f1.rotation.inverse() * f2.rotation;
+            // Twist about X, with the sign of the shorter way round.
+            let sign = if rel.w < 0.0 { -1.0 } else { 1.0 };
+            let angle = 2.0 * (sign * rel.x).atan2(sign * rel.w);
+            let vel = (b2.angvel() - b1.angvel()).dot(axis);
+            Some((axis, angle, vel))
+        } else {
+            let offset = (f2.translation - f1.translation).dot(axis);
+            let vel = (b2.velocity_at_point(f2.translation) - b1.velocity_at_point(f2.translation))
+                .dot(axis);
+            Some((axis, offset, vel))
+        }
+    }
+}
+
+impl JointState {
+    /// A state measured from scratch (no turn history): used at spawn and after resets.
+    pub fn measured(joint: &Joint, world: &PhysicsWorld) -> Self {
+        let (_, pos, vel) = joint.measure(world).unwrap_or_default();
+        Self {
+            position: pos,
+            velocity: vel,
+            wrapped: pos,
+        }
+    }
+
+    fn update(&mut self, joint: &Joint, world: &PhysicsWorld) {
+        let Some((_, pos, vel)) = joint.measure(world) else { return };
+        if joint.kind.is_rotational() {
+            let mut delta = pos - self.wrapped;
+            delta -= std::f32::consts::TAU * (delta / std::f32::consts::TAU).round();
+            self.position += delta;
+        } else {
+            self.position = pos;
+        }
+        self.wrapped = pos;
+        self.velocity = vel;
+    }
+}
+
+pub(crate) fn measure_joints(
+    arenas: Query<&Arena>,
+    mut joints: Query<(&Joint, &InArena, &mut JointState)>,
+) {
+    for (joint, in_arena, mut state) in &mut joints {
+        if let Ok(arena) = arenas.get(in_arena.0) {
+            state.update(joint, &arena.world);
+        }
+    }
+}

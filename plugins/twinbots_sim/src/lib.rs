@@ -1,0 +1,83 @@
+//! twinbots_sim: the simulated world of a robot cell.
+//!
+//! Arenas (independent environment instances, each its own rapier world), fixed-step physics,
+//! the URDF loader, motors and sensors, and the privileged [`Supervisor`]. One `App::update` is
+//! one control step; see [`SimSet`] for the order of a step.
+
+pub mod arena;
+pub mod devices;
+pub mod physics;
+pub mod spawn;
+pub mod supervisor;
+pub mod urdf;
+
+pub use bevy_rapier3d::rapier;
+
+use bevy::prelude::*;
+
+pub use arena::{Arena, ArenaConfig, InArena};
+pub use devices::{Joint, JointState, Motor, MotorCommand, PositionSensor};
+pub use physics::{PhysicsSubstep, SimClock, SimSettings, SubstepSet};
+pub use spawn::{Link, Robot, SpawnOptions, SpawnedRobot, spawn_robot};
+pub use supervisor::{LinkState, Supervisor};
+
+/// The order of one control step, in `Update`. Nothing in these sets runs on the first update,
+/// which only builds the world.
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum SimSet {
+    /// Actions become motor commands.
+    Actuate,
+    /// `substeps` physics steps.
+    Physics,
+    /// Sensors sample the new state.
+    Sense,
+    /// Tasks compute observations, rewards and episode ends.
+    Task,
+    /// Finished episodes are reset.
+    Reset,
+}
+
+/// Physics stepping, arenas and devices.
+#[derive(Default)]
+pub struct SimPlugin {
+    pub settings: SimSettings,
+}
+
+impl Plugin for SimPlugin {
+    fn build(&self, app: &mut App) {
+        app.insert_resource(self.settings)
+            .init_resource::<ArenaConfig>()
+            .init_resource::<SimClock>()
+            .configure_sets(
+                Update,
+                (
+                    SimSet::Actuate,
+                    SimSet::Physics,
+                    SimSet::Sense,
+                    SimSet::Task,
+                    SimSet::Reset,
+                )
+                    .chain()
+                    .run_if(physics::sim_started),
+            )
+            .add_systems(Update, physics::run_substeps.in_set(SimSet::Physics))
+            .add_systems(Update, devices::sample_position_sensors.in_set(SimSet::Sense))
+            .add_systems(Last, physics::advance_clock);
+
+        let mut substep = Schedule::new(PhysicsSubstep);
+        substep.set_executor(bevy::ecs::schedule::SingleThreadedExecutor::new());
+        app.add_schedule(substep)
+            .configure_sets(
+                PhysicsSubstep,
+                (SubstepSet::Actuate, SubstepSet::Integrate, SubstepSet::Measure).chain(),
+            )
+            .add_systems(
+                PhysicsSubstep,
+                (
+                    devices::drive_motors.in_set(SubstepSet::Actuate),
+                    physics::integrate_arenas.in_set(SubstepSet::Integrate),
+                    devices::measure_joints.in_set(SubstepSet::Measure),
+                ),
+            );
+    }
+}

@@ -1,0 +1,92 @@
+//! Fixed-step physics: a control step is `substeps` physics steps of `dt` seconds, with motors
+//! re-applied before and joint states measured after every physics step.
+
+use bevy::ecs::schedule::ScheduleLabel;
+use bevy::math::Vec3;
+use bevy::prelude::*;
+
+use crate::arena::Arena;
+
+/// The fixed timing of the simulation. Never tied to the wall clock.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct SimSettings {
+    /// Physics step in seconds.
+    pub dt: f32,
+    /// Physics steps per control step.
+    pub substeps: u32,
+    pub gravity: Vec3,
+}
+
+impl SimSettings {
+    /// Seconds of simulated time per control step.
+    pub fn control_dt(&self) -> f32 {
+        self.dt * self.substeps as f32
+    }
+}
+
+impl Default for SimSettings {
+    fn default() -> Self {
+        Self {
+            dt: 0.004,
+            substeps: 8,
+            gravity: Vec3::new(0.0, 0.0, -9.81),
+        }
+    }
+}
+
+/// Counts control steps. The first `App::update` only builds the world (start-up); every later
+/// update is one control step.
+#[derive(Resource, Default, Debug)]
+pub struct SimClock {
+    pub control_steps: u64,
+    started: bool,
+}
+
+impl SimClock {
+    pub fn started(&self) -> bool {
+        self.started
+    }
+}
+
+/// Run condition: true once start-up has built the world.
+pub fn sim_started(clock: Res<SimClock>) -> bool {
+    clock.started
+}
+
+pub(crate) fn advance_clock(mut clock: ResMut<SimClock>) {
+    if clock.started {
+        clock.control_steps += 1;
+    }
+    clock.started = true;
+}
+
+/// The schedule run `substeps` times per control step.
+#[derive(ScheduleLabel, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct PhysicsSubstep;
+
+/// Order inside one physics step.
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum SubstepSet {
+    /// Motors write their joint motors and torques.
+    Actuate,
+    /// Rapier advances every arena by `dt`.
+    Integrate,
+    /// Joint positions and velocities are measured.
+    Measure,
+}
+
+pub(crate) fn run_substeps(world: &mut World) {
+    let substeps = world.resource::<SimSettings>().substeps;
+    for _ in 0..substeps {
+        world.run_schedule(PhysicsSubstep);
+    }
+}
+
+pub(crate) fn integrate_arenas(settings: Res<SimSettings>, mut arenas: Query<&mut Arena>) {
+    for mut arena in &mut arenas {
+        let world = &mut arena.world;
+        world.integration_parameters.dt = settings.dt;
+        world.gravity = settings.gravity;
+        world.step();
+    }
+}

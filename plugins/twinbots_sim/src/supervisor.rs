@@ -1,0 +1,154 @@
+//! The Supervisor: privileged access to the simulated world, as in Webots.
+//!
+//! It reads and moves any body and resets arenas. Real robots have nothing like it, so it is a
+//! separate `SystemParam` that a task must ask for by name; design pattern 3 never does.
+
+use std::collections::{HashMap, VecDeque};
+
+use bevy::ecs::system::SystemParam;
+use bevy::math::Vec3;
+use bevy::prelude::*;
+
+use crate::arena::{Arena, InArena};
+use crate::devices::{Joint, JointState, Motor};
+use crate::rapier::prelude::*;
+use crate::spawn::Link;
+
+/// Pose and velocity of a link frame, in arena coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LinkState {
+    pub pose: Pose,
+    /// Linear velocity of the link frame's origin.
+    pub linvel: Vec3,
+    pub angvel: Vec3,
+}
+
+#[derive(SystemParam)]
+pub struct Supervisor<'w, 's> {
+    arenas: Query<'w, 's, &'static mut Arena>,
+    links: Query<'w, 's, (&'static Link, &'static InArena)>,
+    joints: Query<
+        'w,
+        's,
+        (
+            &'static Joint,
+            &'static InArena,
+            &'static mut JointState,
+            Option<&'static mut Motor>,
+        ),
+    >,
+}
+
+impl Supervisor<'_, '_> {
+    /// The arena component of an arena entity.
+    pub fn arena(&self, arena: Entity) -> Option<&Arena> {
+        self.arenas.get(arena).ok()
+    }
+
+    /// The arena component, mutably (its random stream, its world).
+    pub fn arena_mut(&mut self, arena: Entity) -> Option<Mut<'_, Arena>> {
+        self.arenas.get_mut(arena).ok()
+    }
+
+    /// Pose and velocity of any link.
+    pub fn link_state(&self, link: Entity) -> Option<LinkState> {
+        let (link, in_arena) = self.links.get(link).ok()?;
+        let body = self.arenas.get(in_arena.0).ok()?.world.bodies.get(link.body)?;
+        let pose = *body.position() * link.offset;
+        Some(LinkState {
+            pose,
+            linvel: body.velocity_at_point(pose.translation),
+            angvel: body.angvel(),
+        })
+    }
+
+    /// Teleports a link's body so that the link frame lands on `pose`, keeping its velocity.
+    /// Only that body moves: joints pull the rest along on the next step.
+    pub fn set_link_pose(&mut self, link: Entity, pose: Pose) -> bool {
+        let Ok((link, in_arena)) = self.links.get(link) else { return false };
+        let Ok(mut arena) = self.arenas.get_mut(in_arena.0) else { return false };
+        let Some(body) = arena.world.bodies.get_mut(link.body) else { return false };
+        body.set_position(pose * link.offset.inverse(), true);
+        true
+    }
+
+    /// Sets a link body's linear and angular velocity.
+    pub fn set_link_velocity(&mut self, link: Entity, linvel: Vec3, angvel: Vec3) -> bool {
+        let Ok((link, in_arena)) = self.links.get(link) else { return false };
+        let Ok(mut arena) = self.arenas.get_mut(in_arena.0) else { return false };
+        let Some(body) = arena.world.bodies.get_mut(link.body) else { return false };
+        body.set_linvel(linvel, true);
+        body.set_angvel(angvel, true);
+        true
+    }
+
+    /// Puts a joint at `position` by moving its child body and everything beyond it rigidly,
+    /// with zero relative velocity: a teleport only the Supervisor can do.
+    pub fn set_joint_position(&mut self, joint: Entity, position: f32) -> bool {
+        let Ok((j, in_arena, _, _)) = self.joints.get(joint) else { return false };
+        let (j, arena_entity) = (j.clone(), in_arena.0);
+        // Bodies beyond the joint, through the robot's other joints.
+        let mut children: HashMap<RigidBodyHandle, Vec<RigidBodyHandle>> = HashMap::new();
+        for (other, a, _, _) in &self.joints {
+            if a.0 == arena_entity && other.robot == j.robot {
+                children.entry(other.parent_body).or_default().push(other.child_body);
+            }
+        }
+        let Ok(mut arena) = self.arenas.get_mut(arena_entity) else { return false };
+        let world = &mut arena.world;
+        let Some((axis, current, _)) = j.measure(world) else { return false };
+        let Some(data) = world.impulse_joints.get(j.handle).map(|ij| ij.data) else { return false };
+        let Some(child) = world.bodies.get(j.child_body) else { return false };
+        let anchor = (*child.position() * data.local_frame2).translation;
+        let delta = position - current;
+        let motion = if j.kind.is_rotational() {
+            Pose::from_translation(anchor)
+                * Pose::from_rotation(Quat::from_axis_angle(axis, delta))
+                * Pose::from_translation(-anchor)
+        } else {
+            Pose::from_translation(axis * delta)
+        };
+        let parent_vel = world.bodies.get(j.parent_body).map(|b| (b.linvel(), b.angvel()));
+        let mut queue = VecDeque::from([j.child_body]);
+        while let Some(handle) = queue.pop_front() {
+            if let Some(body) = world.bodies.get_mut(handle) {
+                body.set_position(motion * *body.position(), true);
+                if let Some((v, w)) = parent_vel {
+                    body.set_linvel(v, true);
+                    body.set_angvel(w, true);
+                }
+            }
+            queue.extend(children.get(&handle).into_iter().flatten().copied());
+        }
+        self.remeasure(arena_entity);
+        true
+    }
+
+    /// Puts an arena back to exactly its initial state: every body's pose and velocity, joint
+    /// positions, and motor commands. Returns false for an unknown arena or one never marked.
+    pub fn reset_arena(&mut self, arena: Entity) -> bool {
+        let Ok(mut a) = self.arenas.get_mut(arena) else { return false };
+        if !a.restore_initial() {
+            return false;
+        }
+        for (_, in_arena, _, motor) in &mut self.joints {
+            if in_arena.0 == arena
+                && let Some(mut motor) = motor
+            {
+                motor.command = motor.initial_command;
+            }
+        }
+        self.remeasure(arena);
+        true
+    }
+
+    /// Re-reads joint states from the world after a teleport.
+    fn remeasure(&mut self, arena: Entity) {
+        let Ok(a) = self.arenas.get(arena) else { return };
+        for (joint, in_arena, mut state, _) in &mut self.joints {
+            if in_arena.0 == arena {
+                *state = JointState::measured(joint, &a.world);
+            }
+        }
+    }
+}

@@ -1,0 +1,447 @@
+//! Reading and checking a URDF: roxmltree finds the lines, urdf-rs reads the schema, and the
+//! checks here reject what the simulator cannot build (loops, two parents, missing meshes, ...).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use bevy::math::{EulerRot, Mat3, Quat, Vec3};
+
+use super::error::UrdfError;
+use super::model::*;
+use crate::rapier::math::Pose;
+
+/// Reads and checks a URDF file; meshes are looked up relative to its folder.
+pub fn load_urdf(path: impl AsRef<Path>) -> Result<RobotModel, UrdfError> {
+    let path = path.as_ref();
+    let text = std::fs::read_to_string(path).map_err(|source| UrdfError::Io {
+        file: path.to_path_buf(),
+        source,
+    })?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    parse_urdf(&text, path, base)
+}
+
+/// Checks URDF text. `file` names it in errors; `mesh_dir` is where relative mesh paths start.
+pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel, UrdfError> {
+    let doc = roxmltree::Document::parse(text).map_err(|e| {
+        let pos = e.pos();
+        UrdfError::Xml {
+            file: file.to_path_buf(),
+            line: pos.row,
+            column: pos.col,
+            message: e.to_string(),
+        }
+    })?;
+    let lines = ElementLines::index(&doc);
+    let robot = urdf_rs::read_from_string(text).map_err(|e| UrdfError::Schema {
+        file: file.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    Checker {
+        file,
+        mesh_dir,
+        lines: &lines,
+    }
+    .build(&robot)
+}
+
+/// Line numbers of `<link>` and `<joint>` elements, and which joints have a `<limit>`.
+struct ElementLines {
+    links: HashMap<String, u32>,
+    joints: HashMap<String, u32>,
+    joints_with_limit: Vec<String>,
+}
+
+impl ElementLines {
+    fn index(doc: &roxmltree::Document) -> Self {
+        let mut links = HashMap::new();
+        let mut joints = HashMap::new();
+        let mut joints_with_limit = Vec::new();
+        for node in doc.root_element().children().filter(|n| n.is_element()) {
+            let Some(name) = node.attribute("name") else { continue };
+            let line = doc.text_pos_at(node.range().start).row;
+            match node.tag_name().name() {
+                // The first definition keeps its line; duplicates are reported by name.
+                "link" => {
+                    links.entry(name.to_string()).or_insert(line);
+                }
+                "joint" => {
+                    joints.entry(name.to_string()).or_insert(line);
+                    if node.children().any(|c| c.has_tag_name("limit")) {
+                        joints_with_limit.push(name.to_string());
+                    }
+                }
+                _ => {}
+            }
+        }
+        Self {
+            links,
+            joints,
+            joints_with_limit,
+        }
+    }
+}
+
+struct Checker<'a> {
+    file: &'a Path,
+    mesh_dir: &'a Path,
+    lines: &'a ElementLines,
+}
+
+impl Checker<'_> {
+    fn link_error(&self, name: &str, problem: impl Into<String>) -> UrdfError {
+        UrdfError::Element {
+            file: self.file.to_path_buf(),
+            line: self.lines.links.get(name).copied().unwrap_or(0),
+            element: "link",
+            name: name.to_string(),
+            problem: problem.into(),
+        }
+    }
+
+    fn joint_error(&self, name: &str, problem: impl Into<String>) -> UrdfError {
+        UrdfError::Element {
+            file: self.file.to_path_buf(),
+            line: self.lines.joints.get(name).copied().unwrap_or(0),
+            element: "joint",
+            name: name.to_string(),
+            problem: problem.into(),
+        }
+    }
+
+    fn build(&self, robot: &urdf_rs::Robot) -> Result<RobotModel, UrdfError> {
+        if robot.links.is_empty() {
+            return Err(UrdfError::Schema {
+                file: self.file.to_path_buf(),
+                message: format!("robot '{}' has no <link>", robot.name),
+            });
+        }
+        let mut index = HashMap::new();
+        let mut links = Vec::with_capacity(robot.links.len());
+        for link in &robot.links {
+            if index.insert(link.name.clone(), links.len()).is_some() {
+                return Err(self.link_error(&link.name, "a second link with this name"));
+            }
+            links.push(self.link(link)?);
+        }
+        let mut parent_of: Vec<Option<usize>> = vec![None; links.len()];
+        let mut joints = Vec::with_capacity(robot.joints.len());
+        for joint in &robot.joints {
+            let model = self.joint(joint, &index)?;
+            if let Some(first) = parent_of[model.child] {
+                let first: &JointModel = &joints[first];
+                return Err(self.joint_error(
+                    &joint.name,
+                    format!(
+                        "link '{}' has two parents: joint '{}' already moves it",
+                        joint.child.link, first.name
+                    ),
+                ));
+            }
+            parent_of[model.child] = Some(joints.len());
+            joints.push(model);
+        }
+        self.check_tree(&links, &joints, &parent_of)?;
+        let root = parent_of.iter().position(Option::is_none).unwrap_or(0);
+        self.check_masses(&links, &joints, root)?;
+        Ok(RobotModel {
+            name: robot.name.clone(),
+            links,
+            joints,
+            root,
+        })
+    }
+
+    /// Exactly one root, and following parents from any link ends there (no loop).
+    fn check_tree(
+        &self,
+        links: &[LinkModel],
+        joints: &[JointModel],
+        parent_of: &[Option<usize>],
+    ) -> Result<(), UrdfError> {
+        let roots: Vec<usize> = (0..links.len()).filter(|&l| parent_of[l].is_none()).collect();
+        for start in 0..links.len() {
+            let mut link = start;
+            for _ in 0..=links.len() {
+                match parent_of[link] {
+                    Some(j) => link = joints[j].parent,
+                    None => break,
+                }
+            }
+            if let Some(j) = parent_of[link] {
+                return Err(self.joint_error(
+                    &joints[j].name,
+                    "the joints form a loop: following parents from here never reaches a root link",
+                ));
+            }
+        }
+        if roots.len() > 1 {
+            return Err(self.link_error(
+                &links[roots[1]].name,
+                format!(
+                    "a second root: neither this link nor '{}' is the child of a joint (a robot is one tree)",
+                    links[roots[0]].name
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// A link a joint moves must carry mass, itself or through links fixed to it.
+    fn check_masses(
+        &self,
+        links: &[LinkModel],
+        joints: &[JointModel],
+        root: usize,
+    ) -> Result<(), UrdfError> {
+        for joint in joints.iter().filter(|j| j.kind.is_movable()) {
+            let mut stack = vec![joint.child];
+            let mut mass = 0.0;
+            while let Some(l) = stack.pop() {
+                mass += links[l].inertial.map_or(0.0, |i| i.mass);
+                stack.extend(
+                    joints
+                        .iter()
+                        .filter(|c| c.parent == l && c.kind == JointKind::Fixed)
+                        .map(|c| c.child),
+                );
+            }
+            if mass <= 0.0 {
+                return Err(self.link_error(
+                    &links[joint.child].name,
+                    format!(
+                        "moved by joint '{}' but has no mass: give it an <inertial> with a positive mass",
+                        joint.name
+                    ),
+                ));
+            }
+        }
+        let _ = root;
+        Ok(())
+    }
+
+    fn link(&self, link: &urdf_rs::Link) -> Result<LinkModel, UrdfError> {
+        let inertial = &link.inertial;
+        let mass = inertial.mass.value as f32;
+        if !mass.is_finite() || mass < 0.0 {
+            return Err(self.link_error(&link.name, format!("negative or invalid mass {mass}")));
+        }
+        let i = &inertial.inertia;
+        let inertia = Mat3::from_cols_array(&[
+            i.ixx as f32, i.ixy as f32, i.ixz as f32,
+            i.ixy as f32, i.iyy as f32, i.iyz as f32,
+            i.ixz as f32, i.iyz as f32, i.izz as f32,
+        ]);
+        let diag = [i.ixx, i.iyy, i.izz];
+        if diag.iter().any(|d| !d.is_finite() || *d < 0.0)
+            || diag[0] + diag[1] < diag[2] - 1e-9
+            || diag[1] + diag[2] < diag[0] - 1e-9
+            || diag[0] + diag[2] < diag[1] - 1e-9
+        {
+            return Err(self.link_error(
+                &link.name,
+                "inertia is not physical: ixx, iyy, izz must be non-negative and obey the triangle inequality",
+            ));
+        }
+        let inertial = (mass > 0.0).then(|| Inertial {
+            origin: pose(&inertial.origin),
+            mass,
+            inertia,
+        });
+        let collisions = link
+            .collision
+            .iter()
+            .map(|c| self.geometry(&link.name, &c.origin, &c.geometry))
+            .collect::<Result<_, _>>()?;
+        let visuals = link
+            .visual
+            .iter()
+            .map(|v| {
+                let rgba = v
+                    .material
+                    .as_ref()
+                    .and_then(|m| m.color.as_ref())
+                    .map(|c| c.rgba.0.map(|x| x as f32))
+                    .unwrap_or([0.6, 0.6, 0.6, 1.0]);
+                Ok(Visual {
+                    geometry: self.geometry(&link.name, &v.origin, &v.geometry)?,
+                    rgba,
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(LinkModel {
+            name: link.name.clone(),
+            inertial,
+            collisions,
+            visuals,
+        })
+    }
+
+    fn geometry(
+        &self,
+        link: &str,
+        origin: &urdf_rs::Pose,
+        geometry: &urdf_rs::Geometry,
+    ) -> Result<Geometry, UrdfError> {
+        let positive = |what: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(v as f32)
+            } else {
+                Err(self.link_error(link, format!("{what} must be positive, got {v}")))
+            }
+        };
+        let shape = match geometry {
+            urdf_rs::Geometry::Box { size } => Shape::Box {
+                half_extents: Vec3::new(
+                    positive("box size x", size[0])?,
+                    positive("box size y", size[1])?,
+                    positive("box size z", size[2])?,
+                ) / 2.0,
+            },
+            urdf_rs::Geometry::Cylinder { radius, length } => Shape::Cylinder {
+                radius: positive("cylinder radius", *radius)?,
+                length: positive("cylinder length", *length)?,
+            },
+            urdf_rs::Geometry::Sphere { radius } => Shape::Sphere {
+                radius: positive("sphere radius", *radius)?,
+            },
+            urdf_rs::Geometry::Capsule { .. } => {
+                return Err(self.link_error(link, "capsule geometry is not supported"));
+            }
+            urdf_rs::Geometry::Mesh { filename, scale } => {
+                let scale = scale.as_ref().map_or(Vec3::ONE, |s| vec3(s));
+                Shape::Mesh(Arc::new(self.mesh(link, filename, scale)?))
+            }
+        };
+        Ok(Geometry {
+            origin: pose(origin),
+            shape,
+        })
+    }
+
+    fn mesh(&self, link: &str, filename: &str, scale: Vec3) -> Result<TriangleMesh, UrdfError> {
+        let path = self.resolve_mesh(filename);
+        let is_stl = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("stl"));
+        if !is_stl {
+            return Err(self.link_error(
+                link,
+                format!("mesh '{filename}': only STL meshes are supported"),
+            ));
+        }
+        let mut file = std::fs::File::open(&path).map_err(|e| {
+            self.link_error(
+                link,
+                format!("mesh file '{filename}' not found at {}: {e}", path.display()),
+            )
+        })?;
+        let stl = stl_io::read_stl(&mut file).map_err(|e| {
+            self.link_error(link, format!("mesh file '{}' is not a valid STL: {e}", path.display()))
+        })?;
+        Ok(TriangleMesh {
+            vertices: stl
+                .vertices
+                .iter()
+                .map(|v| Vec3::new(v[0], v[1], v[2]) * scale)
+                .collect(),
+            triangles: stl
+                .faces
+                .iter()
+                .map(|f| f.vertices.map(|i| i as u32))
+                .collect(),
+        })
+    }
+
+    /// `package://pkg/rest` and `file://` URIs, or a path relative to the URDF's folder.
+    fn resolve_mesh(&self, filename: &str) -> PathBuf {
+        if let Some(rest) = filename.strip_prefix("file://") {
+            return PathBuf::from(rest);
+        }
+        if let Some(rest) = filename.strip_prefix("package://") {
+            let rest = rest.split_once('/').map_or(rest, |(_, r)| r);
+            return self.mesh_dir.join(rest);
+        }
+        self.mesh_dir.join(filename)
+    }
+
+    fn joint(
+        &self,
+        joint: &urdf_rs::Joint,
+        index: &HashMap<String, usize>,
+    ) -> Result<JointModel, UrdfError> {
+        let name = &joint.name;
+        let kind = match &joint.joint_type {
+            urdf_rs::JointType::Revolute => JointKind::Revolute,
+            urdf_rs::JointType::Continuous => JointKind::Continuous,
+            urdf_rs::JointType::Prismatic => JointKind::Prismatic,
+            urdf_rs::JointType::Fixed => JointKind::Fixed,
+            other => {
+                return Err(self.joint_error(name, format!("joint type {other:?} is not supported")));
+            }
+        };
+        let find = |role: &str, link: &str| {
+            index.get(link).copied().ok_or_else(|| {
+                self.joint_error(name, format!("<{role} link=\"{link}\">: unknown link"))
+            })
+        };
+        let parent = find("parent", &joint.parent.link)?;
+        let child = find("child", &joint.child.link)?;
+        if parent == child {
+            return Err(self.joint_error(
+                name,
+                format!("joins link '{}' to itself (a loop)", joint.child.link),
+            ));
+        }
+        let axis = vec3(&joint.axis.xyz);
+        if kind.is_movable() && !(axis.length() > 1e-9) {
+            return Err(self.joint_error(name, "<axis xyz> must not be zero"));
+        }
+        let limit = &joint.limit;
+        let has_limit = self.lines.joints_with_limit.iter().any(|j| j == name);
+        let bounded = matches!(kind, JointKind::Revolute | JointKind::Prismatic);
+        if bounded && !has_limit {
+            return Err(self.joint_error(
+                name,
+                "revolute and prismatic joints need <limit lower upper effort velocity>",
+            ));
+        }
+        let (lower, upper) = (limit.lower as f32, limit.upper as f32);
+        if bounded && !(lower <= upper) {
+            return Err(self.joint_error(name, format!("<limit> lower {lower} > upper {upper}")));
+        }
+        let (effort, velocity) = if has_limit {
+            (limit.effort as f32, limit.velocity as f32)
+        } else {
+            (0.0, 0.0)
+        };
+        if !(effort >= 0.0 && velocity >= 0.0) {
+            return Err(self.joint_error(name, "<limit> effort and velocity must be non-negative"));
+        }
+        Ok(JointModel {
+            name: name.clone(),
+            kind,
+            parent,
+            child,
+            origin: pose(&joint.origin),
+            axis: axis.normalize_or(Vec3::X),
+            limits: JointLimits {
+                position: bounded.then_some([lower, upper]),
+                effort,
+                velocity,
+            },
+            damping: joint.dynamics.as_ref().map_or(0.0, |d| d.damping as f32),
+        })
+    }
+}
+
+fn vec3(v: &urdf_rs::Vec3) -> Vec3 {
+    Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32)
+}
+
+/// URDF `rpy` is roll about X, then pitch about Y, then yaw about Z, all about fixed axes.
+fn pose(p: &urdf_rs::Pose) -> Pose {
+    let [roll, pitch, yaw] = p.rpy.0.map(|a| a as f32);
+    Pose::from_parts(vec3(&p.xyz), Quat::from_euler(EulerRot::ZYX, yaw, pitch, roll))
+}

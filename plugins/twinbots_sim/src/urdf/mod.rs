@@ -1,0 +1,9 @@
+//! URDF → robot description ([`RobotModel`]); [`crate::spawn`] turns that into bodies and entities.
+
+mod error;
+mod load;
+mod model;
+
+pub use error::UrdfError;
+pub use load::{load_urdf, parse_urdf};
+pub use model::*;

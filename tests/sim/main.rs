@@ -1,0 +1,8 @@
+//! End-to-end tests of the simulation core and the cart-pole twin (one test binary).
+
+mod common;
+mod determinism;
+mod motors;
+mod pendulum;
+mod reset;
+mod urdf;

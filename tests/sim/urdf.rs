@@ -1,0 +1,170 @@
+//! The URDF loader: each kind of bad input gets its own error naming file, line and element;
+//! a valid URDF's numbers arrive in the components.
+
+use std::path::{Path, PathBuf};
+
+use twinbots_sim::urdf::{JointKind, Shape, UrdfError, load_urdf, parse_urdf};
+use twinbots_sim::{Motor, SimSettings, SpawnOptions};
+
+use crate::common::robot_app;
+
+fn parse(text: &str) -> Result<twinbots_sim::urdf::RobotModel, UrdfError> {
+    parse_urdf(text, Path::new("robots/bad.urdf"), Path::new("/nonexistent-mesh-dir"))
+}
+
+const LINK: &str = r#"<inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial>"#;
+
+fn robot(body: &str) -> String {
+    format!("<robot name=\"t\">\n{}\n</robot>\n", body.replace("INERTIAL", LINK))
+}
+
+fn element_error(err: UrdfError) -> (u32, &'static str, String, String) {
+    let text = err.to_string();
+    assert!(text.starts_with("robots/bad.urdf:"), "error names the file: {text}");
+    match err {
+        UrdfError::Element { line, element, name, problem, .. } => (line, element, name, problem),
+        other => panic!("expected an element error, got {other}"),
+    }
+}
+
+#[test]
+fn malformed_xml_names_file_and_position() {
+    let err = parse("<robot name=\"t\">\n  <link name=\"a\">\n</robot>\n").unwrap_err();
+    match &err {
+        UrdfError::Xml { file, line, .. } => {
+            assert_eq!(file, &PathBuf::from("robots/bad.urdf"));
+            assert_eq!(*line, 3, "the mismatched closing tag is on line 3: {err}");
+        }
+        other => panic!("expected an XML error, got {other}"),
+    }
+}
+
+#[test]
+fn unknown_link_names_the_joint_and_its_line() {
+    let err = parse(&robot(
+        "<link name=\"a\">INERTIAL</link>\n<link name=\"b\">INERTIAL</link>\n\
+         <joint name=\"j\" type=\"fixed\"><parent link=\"a\"/><child link=\"nope\"/></joint>",
+    ))
+    .unwrap_err();
+    let (line, element, name, problem) = element_error(err);
+    assert_eq!((line, element, name.as_str()), (4, "joint", "j"));
+    assert!(problem.contains("unknown link") && problem.contains("nope"), "{problem}");
+}
+
+#[test]
+fn loop_is_rejected() {
+    let err = parse(&robot(
+        "<link name=\"a\">INERTIAL</link>\n<link name=\"b\">INERTIAL</link>\n\
+         <joint name=\"ab\" type=\"fixed\"><parent link=\"a\"/><child link=\"b\"/></joint>\n\
+         <joint name=\"ba\" type=\"fixed\"><parent link=\"b\"/><child link=\"a\"/></joint>",
+    ))
+    .unwrap_err();
+    let (_, element, _, problem) = element_error(err);
+    assert_eq!(element, "joint");
+    assert!(problem.contains("loop"), "{problem}");
+}
+
+#[test]
+fn link_with_two_parents_is_rejected() {
+    let err = parse(&robot(
+        "<link name=\"a\">INERTIAL</link>\n<link name=\"b\">INERTIAL</link>\n<link name=\"c\">INERTIAL</link>\n\
+         <joint name=\"ac\" type=\"fixed\"><parent link=\"a\"/><child link=\"c\"/></joint>\n\
+         <joint name=\"bc\" type=\"fixed\"><parent link=\"b\"/><child link=\"c\"/></joint>",
+    ))
+    .unwrap_err();
+    let (line, element, name, problem) = element_error(err);
+    assert_eq!((line, element, name.as_str()), (6, "joint", "bc"));
+    assert!(problem.contains("two parents") && problem.contains("'ac'"), "{problem}");
+}
+
+#[test]
+fn missing_mesh_file_is_rejected() {
+    let err = parse(&robot(
+        "<link name=\"a\">INERTIAL<visual><geometry><mesh filename=\"meshes/arm.stl\"/></geometry></visual></link>",
+    ))
+    .unwrap_err();
+    let (line, element, name, problem) = element_error(err);
+    assert_eq!((line, element, name.as_str()), (2, "link", "a"));
+    assert!(problem.contains("meshes/arm.stl") && problem.contains("not found"), "{problem}");
+}
+
+#[test]
+fn negative_mass_is_rejected() {
+    let err = parse(&robot(
+        "<link name=\"a\"><inertial><mass value=\"-2\"/><inertia ixx=\"1\" ixy=\"0\" ixz=\"0\" iyy=\"1\" iyz=\"0\" izz=\"1\"/></inertial></link>",
+    ))
+    .unwrap_err();
+    let (_, element, name, problem) = element_error(err);
+    assert_eq!((element, name.as_str()), ("link", "a"));
+    assert!(problem.contains("negative"), "{problem}");
+}
+
+#[test]
+fn revolute_joint_without_limit_is_rejected() {
+    let err = parse(&robot(
+        "<link name=\"a\">INERTIAL</link>\n<link name=\"b\">INERTIAL</link>\n\
+         <joint name=\"j\" type=\"revolute\"><parent link=\"a\"/><child link=\"b\"/><axis xyz=\"0 0 1\"/></joint>",
+    ))
+    .unwrap_err();
+    let (_, element, _, problem) = element_error(err);
+    assert_eq!(element, "joint");
+    assert!(problem.contains("<limit"), "{problem}");
+}
+
+#[test]
+fn unreadable_file_names_the_path() {
+    let err = load_urdf("/no/such/robot.urdf").unwrap_err();
+    assert!(matches!(err, UrdfError::Io { .. }));
+    assert!(err.to_string().contains("/no/such/robot.urdf"));
+}
+
+#[test]
+fn stl_mesh_is_loaded_and_scaled() {
+    let dir = std::env::temp_dir().join(format!("twinbots-stl-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let v = |x: f32, y: f32, z: f32| stl_io::Vector::new([x, y, z]);
+    let tri = |a, b, c| stl_io::Triangle { normal: v(0.0, 0.0, 0.0), vertices: [a, b, c] };
+    let (p0, p1, p2, p3) = (v(0., 0., 0.), v(1., 0., 0.), v(0., 1., 0.), v(0., 0., 1.));
+    let mesh = [tri(p0, p2, p1), tri(p0, p1, p3), tri(p0, p3, p2), tri(p1, p2, p3)];
+    let mut file = std::fs::File::create(dir.join("tetra.stl")).unwrap();
+    stl_io::write_stl(&mut file, mesh.iter()).unwrap();
+    let text = robot(
+        "<link name=\"a\">INERTIAL<collision><geometry><mesh filename=\"tetra.stl\" scale=\"2 2 2\"/></geometry></collision></link>",
+    );
+    let model = parse_urdf(&text, &dir.join("t.urdf"), &dir).unwrap();
+    let Shape::Mesh(mesh) = &model.links[0].collisions[0].shape else { panic!("a mesh") };
+    assert_eq!(mesh.triangles.len(), 4);
+    assert!(mesh.vertices.iter().any(|p| (p.x - 2.0).abs() < 1e-6), "scale applied");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn cartpole_urdf_round_trips_into_components() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(cartpole::URDF_PATH);
+    let model = load_urdf(&path).unwrap();
+    let cart = &model.links[model.link_index("cart").unwrap()];
+    assert_eq!(cart.inertial.unwrap().mass, 2.0);
+    let pole = model.joint("pole_joint").unwrap();
+    assert_eq!(pole.kind, JointKind::Revolute);
+    assert_eq!(pole.limits.position, Some([-1.3, 1.3]));
+    assert_eq!(pole.limits.effort, 0.0, "the pole hinge is passive");
+    assert!((pole.axis - bevy::math::Vec3::Y).length() < 1e-6);
+    let wheel = model.joint("wheel1_joint").unwrap();
+    assert_eq!(wheel.kind, JointKind::Continuous);
+    assert_eq!((wheel.limits.effort, wheel.limits.velocity), (10.0, 10.0));
+
+    let (mut app, arena, spawned) = robot_app(&model, SpawnOptions::default(), SimSettings::default());
+    app.update(); // rapier folds the mass properties in on the first step
+    let world = app.world_mut();
+    let motor = world.get::<Motor>(spawned.joint("wheel1_joint").unwrap()).unwrap();
+    assert_eq!((motor.max_effort, motor.max_velocity), (10.0, 10.0));
+    assert!(world.get::<Motor>(spawned.joint("pole_joint").unwrap()).is_none());
+    assert!(spawned.joint("pole_tip_joint").is_none(), "fixed joints are welded, not simulated");
+    // The pole body carries the pole and the tip ball welded to it: 0.22 kg.
+    let pole_link = world.get::<twinbots_sim::Link>(spawned.link("pole").unwrap()).unwrap().body;
+    let tip_link = world.get::<twinbots_sim::Link>(spawned.link("pole_tip").unwrap()).unwrap().body;
+    assert_eq!(pole_link, tip_link);
+    let a = world.get::<twinbots_sim::Arena>(arena).unwrap();
+    let mass = a.world.bodies[pole_link].mass();
+    assert!((mass - 0.22).abs() < 1e-5, "pole body mass {mass}");
+}
