@@ -1,1 +1,57 @@
-fn main() {}
+//! `twinbots`: train, look at and benchmark robot twins.
+
+mod cli;
+mod registry;
+
+use clap::{Parser, Subcommand, ValueEnum};
+
+#[derive(Parser)]
+#[command(name = "twinbots", version, about = "Robot learning with digital twins")]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// List the registered robots.
+    Robots,
+    /// Measure performance.
+    Bench {
+        #[arg(value_enum)]
+        what: BenchKind,
+        /// Robot to benchmark.
+        #[arg(long, default_value = "cartpole")]
+        robot: String,
+        /// Arena counts to measure, comma-separated.
+        #[arg(long, value_delimiter = ',', default_values_t = vec![1, 16, 64])]
+        arenas: Vec<usize>,
+        /// Control steps per measurement.
+        #[arg(long, default_value_t = 2000)]
+        steps: usize,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum BenchKind {
+    /// Control steps per second with N arenas, and the schedule's cost per step.
+    Physics,
+}
+
+fn main() {
+    // Errors are for people: one clear line, no backtrace.
+    if let Err(error) = run(Args::parse()) {
+        eprintln!("error: {error:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(args: Args) -> anyhow::Result<()> {
+    match args.command {
+        Command::Robots => cli::robots::print(),
+        Command::Bench { what: BenchKind::Physics, robot, arenas, steps } => {
+            cli::bench::print_physics(&robot, &arenas, steps)?
+        }
+    }
+    Ok(())
+}

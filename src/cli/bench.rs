@@ -1,0 +1,75 @@
+//! `twinbots bench physics`: control steps per second with N arenas, and what the Bevy schedule
+//! around the physics costs per step.
+
+use std::time::Instant;
+
+use twinbots_rl::{AppVecEnv, VecEnv};
+use twinbots_sim::SimSettings;
+
+use crate::registry;
+
+pub struct PhysicsBench {
+    pub arenas: usize,
+    /// Vectorised steps per second (each advances every arena by one control step).
+    pub vec_steps_per_s: f64,
+    /// Arena control steps per second: `arenas * vec_steps_per_s`.
+    pub arena_steps_per_s: f64,
+    /// Microseconds per vectorised step spent in physics (the total less `overhead_us`).
+    pub physics_us: f64,
+    /// Microseconds per vectorised step spent around the physics (schedule, motors, sensors, task).
+    pub overhead_us: f64,
+}
+
+/// Steps `robot` with `arenas` arenas for `steps` control steps (alternating actions).
+pub fn physics(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<PhysicsBench> {
+    let entry = registry::find(robot)?;
+    let mut env = AppVecEnv::new((entry.headless_app)(arenas, 0));
+    env.reset(Some(0));
+    let dim = env.action_space().dim();
+    let actions: Vec<Vec<f32>> = (0..2)
+        .map(|k| vec![k as f32; arenas * dim])
+        .collect();
+    // Warm up (allocations, contact graphs), then time the whole control step.
+    for i in 0..20 {
+        env.step(&actions[(i / 4) % 2]);
+    }
+    let start = Instant::now();
+    for i in 0..steps {
+        env.step(&actions[(i / 4) % 2]);
+    }
+    let full = start.elapsed().as_secs_f64();
+
+    // The same control steps with zero physics substeps: what the schedule, motors, sensors,
+    // task terms and resets cost around rapier.
+    env.app_mut().world_mut().resource_mut::<SimSettings>().substeps = 0;
+    let start = Instant::now();
+    for i in 0..steps {
+        env.step(&actions[(i / 4) % 2]);
+    }
+    let around = start.elapsed().as_secs_f64();
+    let per = |t: f64| t / steps as f64 * 1e6;
+    Ok(PhysicsBench {
+        arenas,
+        vec_steps_per_s: steps as f64 / full,
+        arena_steps_per_s: (steps * arenas) as f64 / full,
+        physics_us: per((full - around).max(0.0)),
+        overhead_us: per(around),
+    })
+}
+
+pub fn print_physics(robot: &str, arena_counts: &[usize], steps: usize) -> anyhow::Result<()> {
+    registry::find(robot)?;
+    println!("physics benchmark: {robot}, {steps} control steps per row (one process, one thread)");
+    println!(
+        "{:>7} {:>14} {:>18} {:>16} {:>18}",
+        "arenas", "vec steps/s", "arena steps/s", "rapier µs/step", "schedule µs/step"
+    );
+    for &n in arena_counts {
+        let b = physics(robot, n, steps)?;
+        println!(
+            "{:>7} {:>14.0} {:>18.0} {:>16.1} {:>18.1}",
+            b.arenas, b.vec_steps_per_s, b.arena_steps_per_s, b.physics_us, b.overhead_us
+        );
+    }
+    Ok(())
+}
