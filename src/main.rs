@@ -16,6 +16,25 @@ struct Args {
 enum Command {
     /// List the registered robots.
     Robots,
+    /// Train a robot's task with PPO, headless.
+    Train {
+        /// Robot to train (see `twinbots robots`).
+        robot: String,
+        /// Env steps (summed over arenas); default: the robot's budget.
+        #[arg(long)]
+        timesteps: Option<u64>,
+        /// Parallel arenas; default: the robot's.
+        #[arg(long)]
+        arenas: Option<usize>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Run directory; default runs/<robot>-<time>.
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+        /// Save a checkpoint every this many updates.
+        #[arg(long, default_value_t = 10)]
+        checkpoint_every: usize,
+    },
     /// Measure performance.
     Bench {
         #[arg(value_enum)]
@@ -49,6 +68,19 @@ fn main() {
 fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
         Command::Robots => cli::robots::print(),
+        Command::Train { robot, timesteps, arenas, seed, out, checkpoint_every } => {
+            let entry = registry::find(&robot)?;
+            let out = out.unwrap_or_else(|| cli::train::default_run_dir(&robot));
+            let settings = cli::train::TrainSettings {
+                robot,
+                timesteps: timesteps.unwrap_or(entry.timesteps),
+                arenas: arenas.unwrap_or(entry.arenas),
+                seed,
+                checkpoint_every,
+                ppo: (entry.ppo)(),
+            };
+            cli::train::train(settings, &out)?
+        }
         Command::Bench { what: BenchKind::Physics, robot, arenas, steps } => {
             cli::bench::print_physics(&robot, &arenas, steps)?
         }

@@ -7,6 +7,12 @@ pub struct RobotEntry {
     pub name: &'static str,
     pub description: &'static str,
     pub headless_app: fn(arenas: usize, seed: u64) -> App,
+    /// PPO settings that train this robot well (tuned like RL Zoo's per-env hyperparameters).
+    pub ppo: fn() -> twinbots_rl::PpoConfig,
+    /// Default arena count for training.
+    pub arenas: usize,
+    /// Default training budget (env steps summed over arenas).
+    pub timesteps: u64,
 }
 
 /// Every robot of this build.
@@ -15,6 +21,9 @@ pub fn robots() -> Vec<RobotEntry> {
         name: "cartpole",
         description: "cart-pole twin (deepbots replica): 4 velocity-driven wheels, passive pole; Discrete(2), 32 ms step",
         headless_app: cartpole::headless_app,
+        ppo: cartpole::ppo_config,
+        arenas: 8,
+        timesteps: 1_000_000,
     }]
 }
 

@@ -1,12 +1,17 @@
 //! twinbots_rl: the RL side of twinbots.
 //!
 //! Gymnasium-style [`spaces`], the [`task`] machinery robot plugins fill in (observation, reward
-//! and termination terms, reset events), and the vectorised [`env`] API over arenas.
+//! and termination terms, reset events), the vectorised [`env`] API over arenas, [`ppo`] on
+//! candle, and [`classic`] control envs for testing the algorithms.
 
+pub mod classic;
 pub mod env;
+pub mod normalize;
+pub mod ppo;
 pub mod spaces;
 pub mod task;
 
 pub use env::{AppVecEnv, StepResult, VecEnv};
+pub use ppo::{Callback, Flow, Ppo, PpoConfig, UpdateStats};
 pub use spaces::Space;
 pub use task::{Action, Episode, EpisodeSummary, SolvedCriterion, TaskPlugin, TaskSpec};

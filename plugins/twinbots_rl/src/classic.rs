@@ -1,0 +1,101 @@
+//! Gymnasium's CartPole-v1, from its published equations, in plain Rust: a fast,
+//! physics-engine-free env for testing the algorithms.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::env::{StepResult, VecEnv};
+use crate::spaces::Space;
+use crate::task::EpisodeSummary;
+
+const GRAVITY: f32 = 9.8;
+const MASS_CART: f32 = 1.0;
+const MASS_POLE: f32 = 0.1;
+const TOTAL_MASS: f32 = MASS_CART + MASS_POLE;
+const HALF_LENGTH: f32 = 0.5;
+const POLE_MASS_LENGTH: f32 = MASS_POLE * HALF_LENGTH;
+const FORCE_MAG: f32 = 10.0;
+const TAU: f32 = 0.02;
+const THETA_LIMIT: f32 = 12.0 * 2.0 * std::f32::consts::PI / 360.0;
+const X_LIMIT: f32 = 2.4;
+const MAX_STEPS: u32 = 500;
+
+/// N independent CartPole-v1 envs (Euler integration, +1 per step, truncated at 500 steps).
+pub struct ClassicCartPole {
+    states: Vec<[f32; 4]>,
+    steps: Vec<u32>,
+    rng: ChaCha8Rng,
+    observation_space: Space,
+    action_space: Space,
+}
+
+impl ClassicCartPole {
+    pub fn new(n: usize) -> Self {
+        let high = [X_LIMIT * 2.0, f32::MAX, THETA_LIMIT * 2.0, f32::MAX];
+        Self {
+            states: vec![[0.0; 4]; n],
+            steps: vec![0; n],
+            rng: ChaCha8Rng::seed_from_u64(0),
+            observation_space: Space::Box { low: high.iter().map(|h| -h).collect(), high: high.to_vec() },
+            action_space: Space::Discrete { n: 2 },
+        }
+    }
+
+    fn reset_one(&mut self, i: usize) {
+        self.states[i] = std::array::from_fn(|_| self.rng.random_range(-0.05..0.05));
+        self.steps[i] = 0;
+    }
+}
+
+impl VecEnv for ClassicCartPole {
+    fn num_envs(&self) -> usize {
+        self.states.len()
+    }
+    fn observation_space(&self) -> &Space {
+        &self.observation_space
+    }
+    fn action_space(&self) -> &Space {
+        &self.action_space
+    }
+
+    fn reset(&mut self, seed: Option<u64>) -> Vec<f32> {
+        if let Some(seed) = seed {
+            self.rng = ChaCha8Rng::seed_from_u64(seed);
+        }
+        for i in 0..self.states.len() {
+            self.reset_one(i);
+        }
+        self.states.iter().flatten().copied().collect()
+    }
+
+    fn step(&mut self, actions: &[f32]) -> StepResult {
+        let mut out = StepResult::default();
+        for i in 0..self.states.len() {
+            let [x, x_dot, theta, theta_dot] = self.states[i];
+            let force = if actions[i] >= 0.5 { FORCE_MAG } else { -FORCE_MAG };
+            let (sin, cos) = theta.sin_cos();
+            let temp = (force + POLE_MASS_LENGTH * theta_dot * theta_dot * sin) / TOTAL_MASS;
+            let theta_acc = (GRAVITY * sin - cos * temp)
+                / (HALF_LENGTH * (4.0 / 3.0 - MASS_POLE * cos * cos / TOTAL_MASS));
+            let x_acc = temp - POLE_MASS_LENGTH * theta_acc * cos / TOTAL_MASS;
+            let state = [x + TAU * x_dot, x_dot + TAU * x_acc, theta + TAU * theta_dot, theta_dot + TAU * theta_acc];
+            self.states[i] = state;
+            self.steps[i] += 1;
+            let terminated = state[0].abs() > X_LIMIT || state[2].abs() > THETA_LIMIT;
+            let truncated = !terminated && self.steps[i] >= MAX_STEPS;
+            out.rewards.push(1.0);
+            out.terminated.push(terminated);
+            out.truncated.push(truncated);
+            if terminated || truncated {
+                out.final_obs.push(Some(state.to_vec()));
+                out.episodes.push(Some(EpisodeSummary { score: self.steps[i] as f32, length: self.steps[i] }));
+                self.reset_one(i);
+            } else {
+                out.final_obs.push(None);
+                out.episodes.push(None);
+            }
+        }
+        out.obs = self.states.iter().flatten().copied().collect();
+        out
+    }
+}

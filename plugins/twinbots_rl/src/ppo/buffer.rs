@@ -1,0 +1,72 @@
+//! The rollout buffer and Generalised Advantage Estimation (Schulman et al. 2016):
+//!   δ_t = r_t + γ V(s_{t+1}) (1 − done_t) − V(s_t),   A_t = δ_t + γλ (1 − done_t) A_{t+1},
+//!   R_t = A_t + V(s_t)  (the value target).
+
+/// `n_steps` steps of `n_envs` envs, flat and step-major: index `t * n_envs + e`.
+pub struct RolloutBuffer {
+    pub n_envs: usize,
+    pub obs_dim: usize,
+    pub act_dim: usize,
+    pub obs: Vec<f32>,
+    pub actions: Vec<f32>,
+    pub log_probs: Vec<f32>,
+    pub rewards: Vec<f32>,
+    /// Whether the episode ended *after* this step.
+    pub dones: Vec<bool>,
+    pub values: Vec<f32>,
+    pub advantages: Vec<f32>,
+    pub returns: Vec<f32>,
+}
+
+impl RolloutBuffer {
+    pub fn new(n_envs: usize, obs_dim: usize, act_dim: usize) -> Self {
+        Self {
+            n_envs,
+            obs_dim,
+            act_dim,
+            obs: Vec::new(),
+            actions: Vec::new(),
+            log_probs: Vec::new(),
+            rewards: Vec::new(),
+            dones: Vec::new(),
+            values: Vec::new(),
+            advantages: Vec::new(),
+            returns: Vec::new(),
+        }
+    }
+
+    pub fn clear(&mut self) {
+        for v in [&mut self.obs, &mut self.actions, &mut self.log_probs, &mut self.rewards, &mut self.values, &mut self.advantages, &mut self.returns] {
+            v.clear();
+        }
+        self.dones.clear();
+    }
+
+    pub fn len(&self) -> usize {
+        self.rewards.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rewards.is_empty()
+    }
+
+    /// GAE over the stored steps; `last_values` are V(s) of the observations after the last step.
+    pub fn compute_advantages(&mut self, last_values: &[f32], gamma: f32, lambda: f32) {
+        let n = self.n_envs;
+        let steps = self.len() / n;
+        self.advantages = vec![0.0; self.len()];
+        for e in 0..n {
+            let mut next_adv = 0.0;
+            let mut next_value = last_values[e];
+            for t in (0..steps).rev() {
+                let i = t * n + e;
+                let live = if self.dones[i] { 0.0 } else { 1.0 };
+                let delta = self.rewards[i] + gamma * next_value * live - self.values[i];
+                next_adv = delta + gamma * lambda * live * next_adv;
+                self.advantages[i] = next_adv;
+                next_value = self.values[i];
+            }
+        }
+        self.returns = self.advantages.iter().zip(&self.values).map(|(a, v)| a + v).collect();
+    }
+}

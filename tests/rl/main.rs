@@ -1,0 +1,4 @@
+//! End-to-end tests of the RL side (one test binary).
+
+mod model;
+mod ppo;
