@@ -2,3 +2,4 @@
 
 mod model;
 mod ppo;
+mod train_cli;

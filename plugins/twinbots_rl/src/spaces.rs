@@ -9,7 +9,12 @@ pub enum Space {
     /// One choice among `n`: `{0, 1, ..., n-1}`.
     Discrete { n: usize },
     /// A box `[low, high]` per dimension; bounds may be infinite.
-    Box { low: Vec<f32>, high: Vec<f32> },
+    Box {
+        #[serde(with = "bounds")]
+        low: Vec<f32>,
+        #[serde(with = "bounds")]
+        high: Vec<f32>,
+    },
     /// Several independent choices, the i-th among `nvec[i]`.
     MultiDiscrete { nvec: Vec<usize> },
 }
@@ -77,5 +82,41 @@ impl std::fmt::Display for Space {
             Space::Box { low, .. } => write!(f, "Box({})", low.len()),
             Space::MultiDiscrete { nvec } => write!(f, "MultiDiscrete({nvec:?})"),
         }
+    }
+}
+
+/// JSON has no infinity: infinite bounds are written as the strings "inf" and "-inf".
+mod bounds {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    #[derive(Serialize, Deserialize)]
+    #[serde(untagged)]
+    enum Bound {
+        Finite(f32),
+        Infinite(String),
+    }
+
+    pub fn serialize<S: Serializer>(values: &[f32], s: S) -> Result<S::Ok, S::Error> {
+        let out: Vec<Bound> = values
+            .iter()
+            .map(|&v| match v {
+                f32::INFINITY => Bound::Infinite("inf".into()),
+                f32::NEG_INFINITY => Bound::Infinite("-inf".into()),
+                v => Bound::Finite(v),
+            })
+            .collect();
+        out.serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f32>, D::Error> {
+        Vec::<Bound>::deserialize(d)?
+            .into_iter()
+            .map(|b| match b {
+                Bound::Finite(v) => Ok(v),
+                Bound::Infinite(s) if s == "inf" => Ok(f32::INFINITY),
+                Bound::Infinite(s) if s == "-inf" => Ok(f32::NEG_INFINITY),
+                Bound::Infinite(s) => Err(serde::de::Error::custom(format!("bad bound '{s}'"))),
+            })
+            .collect()
     }
 }
