@@ -3,24 +3,10 @@
 use twinbots_rl::classic::ClassicCartPole;
 use twinbots_rl::{Flow, Ppo, PpoConfig, UpdateStats, VecEnv};
 
-/// RL Zoo's tuned CartPole-v1 hyperparameters for SB3's PPO.
-pub fn zoo_cartpole() -> PpoConfig {
-    PpoConfig {
-        n_steps: 32,
-        batch_size: 256,
-        gae_lambda: 0.8,
-        gamma: 0.98,
-        n_epochs: 20,
-        learning_rate: 1e-3,
-        linear_lr: true,
-        ..Default::default()
-    }
-}
-
 #[test]
 fn ppo_reaches_475_on_classic_cartpole_within_150k_steps() {
     let mut env = ClassicCartPole::new(8);
-    let mut model = Ppo::new(zoo_cartpole(), env.observation_space().clone(), env.action_space().clone(), 1).unwrap();
+    let mut model = Ppo::new(PpoConfig::zoo_cartpole(), env.observation_space().clone(), env.action_space().clone(), 1).unwrap();
     let mut best = f32::MIN;
     let mut history = Vec::new();
     model

@@ -46,16 +46,7 @@ pub fn sim_settings() -> SimSettings {
 /// PPO settings for the twin: RL Zoo's CartPole-v1 settings (short rollouts, many epochs,
 /// linear learning-rate decay); SB3's defaults otherwise.
 pub fn ppo_config() -> twinbots_rl::PpoConfig {
-    twinbots_rl::PpoConfig {
-        n_steps: 32,
-        batch_size: 256,
-        gae_lambda: 0.8,
-        gamma: 0.98,
-        n_epochs: 20,
-        learning_rate: 1e-3,
-        linear_lr: true,
-        ..Default::default()
-    }
+    twinbots_rl::PpoConfig::zoo_cartpole()
 }
 
 /// The parsed cart-pole URDF.

@@ -47,3 +47,20 @@ impl Default for PpoConfig {
         }
     }
 }
+
+impl PpoConfig {
+    /// RL Zoo's tuned CartPole-v1 settings for SB3's PPO: short rollouts, many epochs, linear
+    /// learning-rate decay.
+    pub fn zoo_cartpole() -> Self {
+        Self {
+            n_steps: 32,
+            batch_size: 256,
+            gae_lambda: 0.8,
+            gamma: 0.98,
+            n_epochs: 20,
+            learning_rate: 1e-3,
+            linear_lr: true,
+            ..Self::default()
+        }
+    }
+}
