@@ -168,3 +168,16 @@ fn cartpole_urdf_round_trips_into_components() {
     let mass = a.world.bodies[pole_link].mass();
     assert!((mass - 0.22).abs() < 1e-5, "pole body mass {mass}");
 }
+
+#[test]
+fn flat_stl_mesh_is_rejected() {
+    let dir = std::env::temp_dir().join(format!("twinbots-flat-stl-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let v = |x: f32, y: f32| stl_io::Vector::new([x, y, 0.0]);
+    let flat = [stl_io::Triangle { normal: stl_io::Vector::new([0.0, 0.0, 1.0]), vertices: [v(0., 0.), v(1., 0.), v(0., 1.)] }];
+    stl_io::write_stl(&mut std::fs::File::create(dir.join("flat.stl")).unwrap(), flat.iter()).unwrap();
+    let text = robot("<link name=\"a\">INERTIAL<collision><geometry><mesh filename=\"flat.stl\"/></geometry></collision></link>");
+    let err = parse_urdf(&text, &dir.join("t.urdf"), &dir).unwrap_err().to_string();
+    assert!(err.contains("degenerate") && err.contains("<link name=\"a\">"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -240,7 +240,7 @@ fn collider(shape: &Shape, pose: Pose) -> ColliderBuilder {
             .position(pose * Pose::from_rotation(Quat::from_rotation_x(std::f32::consts::FRAC_PI_2))),
         Shape::Sphere { radius } => ColliderBuilder::ball(*radius).position(pose),
         Shape::Mesh(mesh) => ColliderBuilder::convex_hull(&mesh.vertices)
-            .unwrap_or_else(|| ColliderBuilder::ball(1e-3))
+            .expect("the URDF loader rejects meshes without a convex hull")
             .position(pose),
     }
 }

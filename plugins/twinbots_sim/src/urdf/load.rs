@@ -340,12 +340,22 @@ impl Checker<'_> {
         let stl = stl_io::read_stl(&mut file).map_err(|e| {
             self.link_error(link, format!("mesh file '{}' is not a valid STL: {e}", path.display()))
         })?;
+        let vertices: Vec<Vec3> = stl
+            .vertices
+            .iter()
+            .map(|v| Vec3::new(v[0], v[1], v[2]) * scale)
+            .collect();
+        // Collisions use the mesh's convex hull, so a flat or tiny mesh cannot be simulated.
+        let has_volume = crate::rapier::parry::shape::SharedShape::convex_hull(&vertices)
+            .is_some_and(|hull| hull.mass_properties(1.0).mass() > 1e-12);
+        if !has_volume {
+            return Err(self.link_error(
+                link,
+                format!("mesh file '{}' is degenerate (flat, or fewer than 4 distinct points)", path.display()),
+            ));
+        }
         Ok(TriangleMesh {
-            vertices: stl
-                .vertices
-                .iter()
-                .map(|v| Vec3::new(v[0], v[1], v[2]) * scale)
-                .collect(),
+            vertices,
             triangles: stl
                 .faces
                 .iter()
