@@ -16,12 +16,12 @@ fn policy(obs: &[f32]) -> f32 {
 fn main() {
     let seed = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(0);
     let mut env = AppVecEnv::new(cartpole::headless_app(1, seed));
-    let mut obs = env.reset(Some(seed));
+    let mut obs = env.reset(Some(seed)).unwrap();
     println!("start: x {:+.3} m, pole {:+.3} rad", obs[0], obs[2]);
     let mut max_angle: f32 = 0.0;
     let mut max_x: f32 = 0.0;
     for step in 1..=2000 {
-        let out = env.step(&[policy(&obs)]);
+        let out = env.step(&[policy(&obs)]).unwrap();
         obs = out.obs;
         if let Some(last) = &out.final_obs[0] {
             let ep = out.episodes[0].expect("finished episode has a summary");

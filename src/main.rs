@@ -18,22 +18,40 @@ enum Command {
     Robots,
     /// Train a robot's task with PPO, headless.
     Train {
-        /// Robot to train (see `twinbots robots`).
-        robot: String,
+        /// Robot to train (see `twinbots robots`); not needed with --resume.
+        #[arg(required_unless_present = "resume")]
+        robot: Option<String>,
         /// Env steps (summed over arenas); default: the robot's budget.
         #[arg(long)]
         timesteps: Option<u64>,
         /// Parallel arenas; default: the robot's.
         #[arg(long)]
         arenas: Option<usize>,
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
+        #[arg(long)]
+        seed: Option<u64>,
+        /// A TOML file with settings (timesteps, arenas, seed, checkpoint_every, eval_every,
+        /// eval_episodes, [ppo] hyperparameters); flags override it.
+        #[arg(long)]
+        config: Option<std::path::PathBuf>,
         /// Run directory; default runs/<robot>-<time>.
         #[arg(long)]
         out: Option<std::path::PathBuf>,
         /// Save a checkpoint every this many updates.
-        #[arg(long, default_value_t = 10)]
-        checkpoint_every: usize,
+        #[arg(long)]
+        checkpoint_every: Option<usize>,
+        /// Continue the run in this directory from its newest checkpoint.
+        #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "config", "out"])]
+        resume: Option<std::path::PathBuf>,
+    },
+    /// Replay a trained model and report its episode scores (writes eval.json).
+    Eval {
+        /// Run directory of `twinbots train`.
+        run: std::path::PathBuf,
+        #[arg(long, default_value_t = 100)]
+        episodes: usize,
+        /// Parallel arenas; default: the run's.
+        #[arg(long)]
+        arenas: Option<usize>,
     },
     /// Measure performance.
     Bench {
@@ -68,18 +86,21 @@ fn main() {
 fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
         Command::Robots => cli::robots::print(),
-        Command::Train { robot, timesteps, arenas, seed, out, checkpoint_every } => {
+        Command::Train { resume: Some(run), .. } => cli::train::resume(&run)?,
+        Command::Train { robot, timesteps, arenas, seed, config, out, checkpoint_every, resume: None } => {
+            let robot = robot.unwrap_or_default();
             let entry = registry::find(&robot)?;
-            let out = out.unwrap_or_else(|| cli::train::default_run_dir(&robot));
-            let settings = cli::train::TrainSettings {
-                robot,
-                timesteps: timesteps.unwrap_or(entry.timesteps),
-                arenas: arenas.unwrap_or(entry.arenas),
-                seed,
-                checkpoint_every,
-                ppo: (entry.ppo)(),
+            let file = match config {
+                Some(path) => cli::train::ConfigFile::read(&path)?,
+                None => Default::default(),
             };
+            let flags = cli::train::ConfigFile { timesteps, arenas, seed, checkpoint_every, ..Default::default() };
+            let settings = cli::train::TrainSettings::resolve(&entry, file, flags);
+            let out = out.unwrap_or_else(|| cli::train::default_run_dir(&robot));
             cli::train::train(settings, &out)?
+        }
+        Command::Eval { run, episodes, arenas } => {
+            cli::eval::eval_run(&run, episodes, arenas)?;
         }
         Command::Bench { what: BenchKind::Physics, robot, arenas, steps } => {
             cli::bench::print_physics(&robot, &arenas, steps)?

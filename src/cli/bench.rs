@@ -24,18 +24,18 @@ pub struct PhysicsBench {
 pub fn physics(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<PhysicsBench> {
     let entry = registry::find(robot)?;
     let mut env = AppVecEnv::new((entry.headless_app)(arenas, 0));
-    env.reset(Some(0));
+    env.reset(Some(0))?;
     let dim = env.action_space().dim();
     let actions: Vec<Vec<f32>> = (0..2)
         .map(|k| vec![k as f32; arenas * dim])
         .collect();
     // Warm up (allocations, contact graphs), then time the whole control step.
     for i in 0..20 {
-        env.step(&actions[(i / 4) % 2]);
+        env.step(&actions[(i / 4) % 2])?;
     }
     let start = Instant::now();
     for i in 0..steps {
-        env.step(&actions[(i / 4) % 2]);
+        env.step(&actions[(i / 4) % 2])?;
     }
     let full = start.elapsed().as_secs_f64();
 
@@ -44,7 +44,7 @@ pub fn physics(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<Physi
     env.app_mut().world_mut().resource_mut::<SimSettings>().substeps = 0;
     let start = Instant::now();
     for i in 0..steps {
-        env.step(&actions[(i / 4) % 2]);
+        env.step(&actions[(i / 4) % 2])?;
     }
     let around = start.elapsed().as_secs_f64();
     let per = |t: f64| t / steps as f64 * 1e6;

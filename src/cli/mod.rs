@@ -1,5 +1,6 @@
 //! The subcommands.
 
 pub mod bench;
+pub mod eval;
 pub mod robots;
 pub mod train;

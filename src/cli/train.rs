@@ -1,27 +1,86 @@
 //! `twinbots train <robot>`: PPO on N arenas, headless, into a run directory.
 //!
-//! The run directory holds `config.toml` (the resolved settings), `progress.csv` (one row per
-//! update), `checkpoints/` (atomic, every `checkpoint_every` updates), `model/` (the final model)
-//! and `summary.json`. Training stops at `--timesteps` or when the task's solved criterion holds.
+//! As DESIGN.md's data flow: the learner runs on its own thread and steps the app through the
+//! crossbeam bridge; the Bevy app runs on the main thread. The run directory holds `config.toml`
+//! (the resolved settings), `progress.csv` (one row per update), `evaluations.csv`,
+//! `checkpoints/` (atomic, every `checkpoint_every` updates), `learning_curve.png`, `model/` (the
+//! final model) and `summary.json`. Training stops at `timesteps` or when the task's solved
+//! criterion holds; `--resume` continues from the last checkpoint with its counters.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
-use serde::Serialize;
-use twinbots_rl::{AppVecEnv, Flow, Ppo, PpoConfig, UpdateStats, VecEnv};
+use serde::{Deserialize, Serialize};
+use twinbots_rl::plot::{self, CurvePoint};
+use twinbots_rl::{Flow, Ppo, PpoConfig, UpdateStats, bridge, env};
 
-use crate::registry;
+use crate::cli::eval;
+use crate::registry::{self, RobotEntry};
 
-#[derive(Clone, Debug, Serialize)]
+/// Everything a run is made of; written to `config.toml`, read by `--config` and `--resume`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct TrainSettings {
     pub robot: String,
     pub timesteps: u64,
     pub arenas: usize,
     pub seed: u64,
+    /// Save a checkpoint (and redraw the learning curve) every this many updates.
     pub checkpoint_every: usize,
+    /// Evaluate the deterministic policy every this many updates into `evaluations.csv`
+    /// (0: never). The final model is always evaluated into `eval.json`.
+    pub eval_every: usize,
+    pub eval_episodes: usize,
     pub ppo: PpoConfig,
+}
+
+/// What a `--config` file may set: any subset of the settings but the robot.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConfigFile {
+    pub timesteps: Option<u64>,
+    pub arenas: Option<usize>,
+    pub seed: Option<u64>,
+    pub checkpoint_every: Option<usize>,
+    pub eval_every: Option<usize>,
+    pub eval_episodes: Option<usize>,
+    pub ppo: Option<PpoConfig>,
+}
+
+impl ConfigFile {
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| anyhow::anyhow!("{}: cannot read config: {e}", path.display()))?;
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+}
+
+impl TrainSettings {
+    /// The robot's defaults, then the config file, then command-line flags.
+    pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> Self {
+        let mut s = Self {
+            robot: entry.name.to_string(),
+            timesteps: entry.timesteps,
+            arenas: entry.arenas,
+            seed: 0,
+            checkpoint_every: 10,
+            eval_every: 0,
+            eval_episodes: 10,
+            ppo: (entry.ppo)(),
+        };
+        for layer in [file, flags] {
+            s.timesteps = layer.timesteps.unwrap_or(s.timesteps);
+            s.arenas = layer.arenas.unwrap_or(s.arenas);
+            s.seed = layer.seed.unwrap_or(s.seed);
+            s.checkpoint_every = layer.checkpoint_every.unwrap_or(s.checkpoint_every);
+            s.eval_every = layer.eval_every.unwrap_or(s.eval_every);
+            s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
+            s.ppo = layer.ppo.unwrap_or(s.ppo);
+        }
+        s
+    }
 }
 
 const CSV_HEADER: &str = "update,timesteps,episodes,mean_reward,min_reward,max_reward,mean_length,policy_loss,value_loss,entropy,approx_kl,clip_fraction,learning_rate,steps_per_s";
@@ -42,64 +101,165 @@ pub fn default_run_dir(robot: &str) -> PathBuf {
     PathBuf::from("runs").join(format!("{robot}-{secs}"))
 }
 
+/// The newest checkpoint of a run, if any.
+pub fn latest_checkpoint(run: &Path) -> Option<PathBuf> {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(run.join("checkpoints"))
+        .ok()?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("model.json").is_file() && p.join("model.safetensors").is_file())
+        .collect();
+    dirs.sort();
+    dirs.pop()
+}
+
+/// A fresh run into `out`.
 pub fn train(settings: TrainSettings, out: &Path) -> anyhow::Result<()> {
-    let entry = registry::find(&settings.robot)?;
-    anyhow::ensure!(settings.arenas > 0, "--arenas must be at least 1");
+    anyhow::ensure!(settings.arenas > 0, "arenas must be at least 1");
+    anyhow::ensure!(
+        !out.join("progress.csv").exists(),
+        "{} already holds a run (use --resume to continue it, or another --out)",
+        out.display()
+    );
     std::fs::create_dir_all(out.join("checkpoints"))?;
     std::fs::write(out.join("config.toml"), toml::to_string_pretty(&settings)?)?;
-    let mut csv = std::fs::File::create(out.join("progress.csv"))?;
-    writeln!(csv, "{CSV_HEADER}")?;
+    std::fs::write(out.join("progress.csv"), format!("{CSV_HEADER}\n"))?;
+    run(settings, out, None, Vec::new())
+}
 
-    let mut env = AppVecEnv::new((entry.headless_app)(settings.arenas, settings.seed));
-    let solved = env.task().solved;
-    let mut model = Ppo::new(
-        settings.ppo.clone(),
-        env.observation_space().clone(),
-        env.action_space().clone(),
-        settings.seed,
-    )?;
+/// Continues the run in `run_dir` from its newest checkpoint.
+pub fn resume(run_dir: &Path) -> anyhow::Result<()> {
+    let config = run_dir.join("config.toml");
+    let text = std::fs::read_to_string(&config)
+        .map_err(|e| anyhow::anyhow!("{}: not a run directory: {e}", config.display()))?;
+    let settings: TrainSettings = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
+    let checkpoint = latest_checkpoint(run_dir)
+        .ok_or_else(|| anyhow::anyhow!("{}: no checkpoint to resume from", run_dir.display()))?;
+    let model = Ppo::load(&checkpoint)?;
+    // Keep the progress rows up to the checkpoint; later ones are redone.
+    let csv_path = run_dir.join("progress.csv");
+    let csv = std::fs::read_to_string(&csv_path).unwrap_or_default();
+    let mut kept = vec![CSV_HEADER.to_string()];
+    let mut curve = Vec::new();
+    for line in csv.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let Some(t) = f.get(1).and_then(|t| t.parse::<u64>().ok()) else { continue };
+        if t > model.timesteps {
+            break;
+        }
+        let num = |i: usize| f.get(i).and_then(|x| x.parse::<f32>().ok()).unwrap_or(f32::NAN);
+        curve.push(CurvePoint { timesteps: t, mean_reward: num(3), min_reward: num(4), max_reward: num(5) });
+        kept.push(line.to_string());
+    }
+    twinbots_rl::ppo::write_atomic(&csv_path, (kept.join("\n") + "\n").as_bytes())?;
+    println!("resuming {} from {} ({} steps, {} episodes)", run_dir.display(), checkpoint.display(), model.timesteps, model.episodes);
+    run(settings, run_dir, Some(model), curve)
+}
 
-    let bar = ProgressBar::new(settings.timesteps);
-    bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps {msg}")?
-            .progress_chars("=> "),
-    );
-    let started = Instant::now();
-    let mut solved_at = None;
-    let mut callback = |s: &UpdateStats, m: &Ppo| -> anyhow::Result<Flow> {
-        writeln!(csv, "{}", csv_row(s))?;
-        bar.set_position(s.timesteps.min(settings.timesteps));
-        bar.set_message(format!("{:.0} steps/s, mean reward {:.1} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes));
-        if s.update % settings.checkpoint_every.max(1) == 0 {
-            m.save(out.join("checkpoints").join(format!("step_{:010}", s.timesteps)))?;
+fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, mut curve: Vec<CurvePoint>) -> anyhow::Result<()> {
+    let entry = registry::find(&settings.robot)?;
+    let mut app = (entry.headless_app)(settings.arenas, settings.seed);
+    app.add_plugins(bridge::BridgePlugin);
+    let (_, spec) = env::start(&mut app)?;
+    let mut channel_env = bridge::connect(app.world_mut())?;
+    let model = match model {
+        Some(m) => {
+            m.check_spaces(&spec.observation_space, &spec.action_space)?;
+            m
         }
-        let scores: Vec<f32> = m.recent_scores.iter().copied().collect();
-        if let Some(c) = solved
-            && c.is_met(&scores)
-        {
-            solved_at = Some(s.timesteps);
-            return Ok(Flow::Stop);
-        }
-        Ok(Flow::Continue)
+        None => Ppo::new(settings.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?,
     };
-    model.learn(&mut env, settings.timesteps, &mut callback)?;
-    bar.finish();
-    let wall = started.elapsed().as_secs_f64();
+    let run_dir = out.to_path_buf();
+    let robot = settings.robot.clone();
+    let (settings_arenas, eval_episodes, seed) = (settings.arenas, settings.eval_episodes, settings.seed);
+    let solved = spec.solved;
+    let headless_app = entry.headless_app;
+
+    // The learner's thread: PPO, logging, checkpoints, evaluation.
+    let trainer = std::thread::spawn(move || -> anyhow::Result<(Ppo, Option<u64>, f64)> {
+        let mut model = model;
+        let mut csv = std::fs::OpenOptions::new().append(true).open(run_dir.join("progress.csv"))?;
+        let eval_path = run_dir.join("evaluations.csv");
+        if !eval_path.exists() {
+            std::fs::write(&eval_path, "timesteps,mean_score,std_score,mean_length\n")?;
+        }
+        let mut evals = std::fs::OpenOptions::new().append(true).open(&eval_path)?;
+        let title = format!("{} — PPO, {} arenas, seed {}", settings.robot, settings.arenas, settings.seed);
+        let target = solved.map(|c| c.threshold);
+        let bar = ProgressBar::new(settings.timesteps);
+        bar.set_style(
+            ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps {msg}")?.progress_chars("=> "),
+        );
+        bar.set_position(model.timesteps);
+        let started = Instant::now();
+        let mut solved_at = None;
+        let mut callback = |s: &UpdateStats, m: &Ppo| -> anyhow::Result<Flow> {
+            writeln!(csv, "{}", csv_row(s))?;
+            curve.push(CurvePoint { timesteps: s.timesteps, mean_reward: s.mean_reward, min_reward: s.min_reward, max_reward: s.max_reward });
+            bar.set_position(s.timesteps.min(settings.timesteps));
+            bar.set_message(format!("{:.0} steps/s, mean reward {:.1} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes));
+            if s.update % settings.checkpoint_every.max(1) == 0 {
+                m.save(run_dir.join("checkpoints").join(format!("step_{:010}", s.timesteps)))?;
+                plot::learning_curve(&run_dir.join("learning_curve.png"), &title, &curve, target)?;
+            }
+            if settings.eval_every > 0 && s.update % settings.eval_every == 0 {
+                let r = eval::evaluate(headless_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
+                writeln!(evals, "{},{},{},{}", s.timesteps, r.mean_score, r.std_score, r.mean_length)?;
+            }
+            let scores: Vec<f32> = m.recent_scores.iter().copied().collect();
+            if let Some(c) = solved
+                && c.is_met(&scores)
+            {
+                solved_at = Some(s.timesteps);
+                return Ok(Flow::Stop);
+            }
+            Ok(Flow::Continue)
+        };
+        let remaining = settings.timesteps.saturating_sub(model.timesteps);
+        model.learn(&mut channel_env, remaining, &mut callback)?;
+        bar.finish();
+        plot::learning_curve(&run_dir.join("learning_curve.png"), &title, &curve, target)?;
+        Ok((model, solved_at, started.elapsed().as_secs_f64()))
+    });
+
+    // The app's thread (this one): frames until the learner hangs up.
+    let sim = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| bridge::run_until_closed(&mut app)));
+    drop(app); // closes the bridge, so a learner still waiting gets an error rather than a hang
+    let learned = trainer
+        .join()
+        .map_err(|p| anyhow::anyhow!("the trainer thread panicked: {}", panic_message(&p)))?;
+    if let Err(p) = sim {
+        anyhow::bail!("the simulation panicked: {}", panic_message(&p));
+    }
+    let (model, solved_at, wall) = learned?;
     model.save(out.join("model"))?;
+    let evaluation = eval::evaluate(headless_app, &model, settings_arenas, eval_episodes, seed + 2_000_003)?;
+    std::fs::write(out.join("eval.json"), serde_json::to_string_pretty(&evaluation)?)?;
     let summary = serde_json::json!({
-        "robot": settings.robot,
+        "robot": robot,
         "timesteps": model.timesteps,
         "episodes": model.episodes,
-        "wall_clock_s": wall,
+        "wall_clock_s_this_session": wall,
         "mean_reward_last_100": model.mean_recent_score(),
         "solved": solved_at.is_some(),
         "solved_at_timesteps": solved_at,
+        "evaluation": { "episodes": evaluation.episodes, "mean_score": evaluation.mean_score, "std_score": evaluation.std_score },
     });
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)?)?;
     match solved_at {
         Some(t) => println!("solved after {t} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.mean_recent_score()),
         None => println!("not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}", model.timesteps, model.mean_recent_score()),
     }
+    println!(
+        "evaluation of the final model: score {:.1} ± {:.1} over {} episodes",
+        evaluation.mean_score, evaluation.std_score, evaluation.episodes
+    );
     println!("run directory: {}", out.display());
     Ok(())
+}
+
+fn panic_message(p: &Box<dyn std::any::Any + Send>) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
 }

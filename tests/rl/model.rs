@@ -18,7 +18,7 @@ fn load_of_save_predicts_exactly_as_the_original() {
     let dir = temp_dir("model");
     model.save(&dir).unwrap();
     let mut loaded = Ppo::load(&dir).unwrap();
-    let obs = env.reset(Some(9));
+    let obs = env.reset(Some(9)).unwrap();
     assert_eq!(model.predict(&obs, true).unwrap(), loaded.predict(&obs, true).unwrap());
     assert_eq!(loaded.timesteps, model.timesteps);
     assert_eq!(loaded.obs_rms, model.obs_rms, "normalisation travels with the model");

@@ -38,3 +38,41 @@ fn unknown_robot_lists_the_known_ones() {
     let err = String::from_utf8_lossy(&output.stderr);
     assert!(err.contains("unknown robot 'nosuchbot'") && err.contains("cartpole"), "{err}");
 }
+
+#[test]
+fn a_run_killed_with_sigkill_resumes_from_its_last_checkpoint() {
+    let out = std::env::temp_dir().join(format!("twinbots-resume-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    // 2 arenas × 32-step rollouts = 64 steps per update; a checkpoint every 2 updates.
+    let mut child = twinbots()
+        .args(["train", "cartpole", "--timesteps", "6400", "--arenas", "2", "--checkpoint-every", "2", "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    let checkpoints = || std::fs::read_dir(out.join("checkpoints")).map_or(0, |d| d.count());
+    while checkpoints() < 3 && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    assert!(!out.join("model").exists(), "killed before it finished");
+    let killed_rows = std::fs::read_to_string(out.join("progress.csv")).unwrap().lines().count();
+
+    let output = twinbots().args(["train", "--resume"]).arg(&out).output().unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(String::from_utf8_lossy(&output.stdout).contains("resuming"));
+    let csv = std::fs::read_to_string(out.join("progress.csv")).unwrap();
+    let steps: Vec<u64> = csv.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
+    let updates: Vec<u64> = csv.lines().skip(1).map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
+    // Counters continue: one row per update, 64 steps apart, numbered 1, 2, 3, ... to the end.
+    assert_eq!(steps.len(), 100, "6400 steps / 64 per update; {killed_rows} rows before the kill");
+    assert!(steps.windows(2).all(|w| w[1] == w[0] + 64), "{steps:?}");
+    assert!(updates.iter().enumerate().all(|(i, &u)| u == i as u64 + 1), "{updates:?}");
+    let model = twinbots_rl::Ppo::load(out.join("model")).unwrap();
+    assert_eq!((model.timesteps, model.updates), (6400, 100));
+    assert!(model.episodes > 0);
+    std::fs::remove_dir_all(&out).ok();
+}

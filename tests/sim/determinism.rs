@@ -7,11 +7,11 @@ use twinbots_sim::Arena;
 fn run(seed: u64, steps: usize) -> Vec<u64> {
     let arenas = 3;
     let mut env = AppVecEnv::new(cartpole::headless_app(arenas, seed));
-    env.reset(Some(seed));
+    env.reset(Some(seed)).unwrap();
     let mut actions = rand_chacha::ChaCha8Rng::seed_from_u64(42);
     for _ in 0..steps {
         let a: Vec<f32> = (0..arenas).map(|_| actions.random_range(0..2) as f32).collect();
-        env.step(&a);
+        env.step(&a).unwrap();
     }
     env.arenas()
         .iter()

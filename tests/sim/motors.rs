@@ -81,10 +81,10 @@ fn position_control_reaches_its_target() {
 #[test]
 fn cartpole_wheels_reach_commanded_speed_and_drive_the_cart() {
     let mut env = AppVecEnv::new(cartpole::headless_app(1, 0));
-    env.reset(Some(0));
+    env.reset(Some(0)).unwrap();
     let mut obs = Vec::new();
     for _ in 0..5 {
-        obs = env.step(&[1.0]).obs;
+        obs = env.step(&[1.0]).unwrap().obs;
     }
     let arena = env.arenas()[0];
     let parts = *env.app().world().get::<cartpole::CartPoleParts>(arena).unwrap();

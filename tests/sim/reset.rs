@@ -16,9 +16,9 @@ fn reset_restores_the_initial_state_exactly() {
     let initial = hash(&env, 0);
     let parts = *env.app().world().get::<cartpole::CartPoleParts>(arena).unwrap();
     let initial_pole = *env.app().world().get::<JointState>(parts.pole_joint).unwrap();
-    env.reset(Some(3));
+    env.reset(Some(3)).unwrap();
     for i in 0..40 {
-        env.step(&[(i % 3 == 0) as u8 as f32]);
+        env.step(&[(i % 3 == 0) as u8 as f32]).unwrap();
     }
     assert_ne!(hash(&env, 0), initial, "the arena moved");
     assert!(with_supervisor(env.app_mut(), |s| s.reset_arena(arena)));
@@ -32,9 +32,9 @@ fn reset_restores_the_initial_state_exactly() {
 fn acting_in_one_arena_leaves_the_others_untouched() {
     let run = |arena0_action: f32| {
         let mut env = AppVecEnv::new(cartpole::headless_app(2, 11));
-        env.reset(Some(11));
+        env.reset(Some(11)).unwrap();
         for _ in 0..100 {
-            env.step(&[arena0_action, 0.0]);
+            env.step(&[arena0_action, 0.0]).unwrap();
         }
         (hash(&env, 0), hash(&env, 1))
     };

@@ -58,17 +58,18 @@ impl VecEnv for ClassicCartPole {
         &self.action_space
     }
 
-    fn reset(&mut self, seed: Option<u64>) -> Vec<f32> {
+    fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>> {
         if let Some(seed) = seed {
             self.rng = ChaCha8Rng::seed_from_u64(seed);
         }
         for i in 0..self.states.len() {
             self.reset_one(i);
         }
-        self.states.iter().flatten().copied().collect()
+        Ok(self.states.iter().flatten().copied().collect())
     }
 
-    fn step(&mut self, actions: &[f32]) -> StepResult {
+    fn step(&mut self, actions: &[f32]) -> anyhow::Result<StepResult> {
+        anyhow::ensure!(actions.len() == self.states.len(), "expected {} actions", self.states.len());
         let mut out = StepResult::default();
         for i in 0..self.states.len() {
             let [x, x_dot, theta, theta_dot] = self.states[i];
@@ -96,6 +97,6 @@ impl VecEnv for ClassicCartPole {
             }
         }
         out.obs = self.states.iter().flatten().copied().collect();
-        out
+        Ok(out)
     }
 }

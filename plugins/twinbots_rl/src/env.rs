@@ -1,5 +1,5 @@
-//! The vectorised env API (Gymnasium / Stable-Baselines3 VecEnv semantics) and its direct
-//! implementation over a Bevy app whose arenas are the envs.
+//! The vectorised env API (Gymnasium / Stable-Baselines3 VecEnv semantics), the world-level
+//! operations behind it, and its direct implementation over a Bevy app whose arenas are the envs.
 
 use bevy::prelude::*;
 use twinbots_sim::Arena;
@@ -21,15 +21,108 @@ pub struct StepResult {
     pub episodes: Vec<Option<EpisodeSummary>>,
 }
 
-/// N environments stepped together, with auto-reset.
+/// N environments stepped together, with auto-reset. Errors mean the simulation is gone
+/// (its thread ended or panicked), never bad luck: callers stop.
 pub trait VecEnv {
     fn num_envs(&self) -> usize;
     fn observation_space(&self) -> &Space;
     fn action_space(&self) -> &Space;
     /// Resets every env; `seed` restarts their random streams (env `i` gets stream `i`).
-    fn reset(&mut self, seed: Option<u64>) -> Vec<f32>;
+    fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>>;
     /// Applies `actions` (flat, `num_envs * action_dim`) and advances one control step.
-    fn step(&mut self, actions: &[f32]) -> StepResult;
+    fn step(&mut self, actions: &[f32]) -> anyhow::Result<StepResult>;
+}
+
+/// Arena entities in env order (by `Arena::index`), found once the world is built.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct ArenaOrder(pub Vec<Entity>);
+
+/// Finds the arenas and records their order; call after start-up.
+pub fn index_arenas(world: &mut World) -> Vec<Entity> {
+    let mut arenas: Vec<(usize, Entity)> = world
+        .query::<(Entity, &Arena)>()
+        .iter(world)
+        .map(|(e, a)| (a.index, e))
+        .collect();
+    arenas.sort();
+    let order: Vec<Entity> = arenas.into_iter().map(|(_, e)| e).collect();
+    world.insert_resource(ArenaOrder(order.clone()));
+    order
+}
+
+fn episode(world: &World, arena: Entity) -> &Episode {
+    world.get::<Episode>(arena).expect("every arena has an Episode")
+}
+
+/// The current observations of all arenas, flat.
+pub fn observations(world: &World, arenas: &[Entity]) -> Vec<f32> {
+    arenas.iter().flat_map(|&a| episode(world, a).observation.iter().copied()).collect()
+}
+
+/// Resets every arena (re-seeding their streams if `seed` is given) and returns observations.
+pub fn reset_arenas(world: &mut World, arenas: &[Entity], seed: Option<u64>) -> Vec<f32> {
+    for &arena in arenas {
+        if let Some(seed) = seed
+            && let Some(mut a) = world.get_mut::<Arena>(arena)
+        {
+            a.reseed(seed);
+        }
+        if let Some(mut e) = world.get_mut::<Episode>(arena) {
+            e.needs_reset = true;
+        }
+    }
+    world.run_schedule(EnvReset);
+    observations(world, arenas)
+}
+
+/// Writes each arena's slice of the flat `actions` into its [`Action`].
+pub fn write_actions(world: &mut World, arenas: &[Entity], actions: &[f32]) -> anyhow::Result<()> {
+    let dim = world.resource::<TaskSpec>().action_space.dim();
+    anyhow::ensure!(
+        actions.len() == dim * arenas.len(),
+        "step: got {} action values, expected {} arenas × dimension {dim}",
+        actions.len(),
+        arenas.len()
+    );
+    for (i, &arena) in arenas.iter().enumerate() {
+        if let Some(mut a) = world.get_mut::<Action>(arena) {
+            a.0.clear();
+            a.0.extend_from_slice(&actions[i * dim..(i + 1) * dim]);
+        }
+    }
+    Ok(())
+}
+
+/// What the last control step produced, for all arenas.
+pub fn collect_step(world: &World, arenas: &[Entity]) -> StepResult {
+    let mut out = StepResult {
+        obs: observations(world, arenas),
+        ..default()
+    };
+    for &arena in arenas {
+        let e = episode(world, arena);
+        out.rewards.push(e.reward);
+        out.terminated.push(e.terminated);
+        out.truncated.push(e.truncated);
+        out.final_obs.push(e.final_observation.clone());
+        out.episodes.push(e.finished);
+    }
+    out
+}
+
+/// Builds an app's world: plugins finished, start-up run (arenas exist), no step taken.
+pub fn start(app: &mut App) -> anyhow::Result<(Vec<Entity>, TaskSpec)> {
+    app.finish();
+    app.cleanup();
+    app.update();
+    let spec = app
+        .world()
+        .get_resource::<TaskSpec>()
+        .cloned()
+        .ok_or_else(|| anyhow::anyhow!("the app has no robot task plugin (nothing inserted a TaskSpec)"))?;
+    let arenas = index_arenas(app.world_mut());
+    anyhow::ensure!(!arenas.is_empty(), "the app has no arenas");
+    Ok((arenas, spec))
 }
 
 /// A Bevy app stepped directly on the caller's thread: one `update` per vectorised step.
@@ -42,26 +135,8 @@ pub struct AppVecEnv {
 impl AppVecEnv {
     /// Takes an app with the sim, task and robot plugins added, and builds its world.
     pub fn new(mut app: App) -> Self {
-        app.finish();
-        app.cleanup();
-        app.update(); // start-up: arenas are built, no physics step yet
-        let spec = app
-            .world()
-            .get_resource::<TaskSpec>()
-            .cloned()
-            .expect("the app has a robot task plugin (it inserts TaskSpec)");
-        let mut arenas: Vec<(usize, Entity)> = app
-            .world_mut()
-            .query::<(Entity, &Arena)>()
-            .iter(app.world())
-            .map(|(e, a)| (a.index, e))
-            .collect();
-        arenas.sort();
-        Self {
-            app,
-            arenas: arenas.into_iter().map(|(_, e)| e).collect(),
-            spec,
-        }
+        let (arenas, spec) = start(&mut app).expect("a robot app with arenas");
+        Self { app, arenas, spec }
     }
 
     pub fn app(&self) -> &App {
@@ -80,19 +155,6 @@ impl AppVecEnv {
     pub fn task(&self) -> &TaskSpec {
         &self.spec
     }
-
-    fn episode(&self, i: usize) -> &Episode {
-        self.app
-            .world()
-            .get::<Episode>(self.arenas[i])
-            .expect("every arena has an Episode")
-    }
-
-    fn observations(&self) -> Vec<f32> {
-        (0..self.arenas.len())
-            .flat_map(|i| self.episode(i).observation.iter().copied())
-            .collect()
-    }
 }
 
 impl VecEnv for AppVecEnv {
@@ -108,50 +170,13 @@ impl VecEnv for AppVecEnv {
         &self.spec.action_space
     }
 
-    fn reset(&mut self, seed: Option<u64>) -> Vec<f32> {
-        let world = self.app.world_mut();
-        for &arena in &self.arenas {
-            if let Some(seed) = seed
-                && let Some(mut a) = world.get_mut::<Arena>(arena)
-            {
-                a.reseed(seed);
-            }
-            if let Some(mut e) = world.get_mut::<Episode>(arena) {
-                e.needs_reset = true;
-            }
-        }
-        world.run_schedule(EnvReset);
-        self.observations()
+    fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>> {
+        Ok(reset_arenas(self.app.world_mut(), &self.arenas, seed))
     }
 
-    fn step(&mut self, actions: &[f32]) -> StepResult {
-        let dim = self.spec.action_space.dim();
-        assert_eq!(
-            actions.len(),
-            dim * self.arenas.len(),
-            "step: expected {} actions of dimension {dim}",
-            self.arenas.len()
-        );
-        let world = self.app.world_mut();
-        for (i, &arena) in self.arenas.iter().enumerate() {
-            if let Some(mut a) = world.get_mut::<Action>(arena) {
-                a.0.clear();
-                a.0.extend_from_slice(&actions[i * dim..(i + 1) * dim]);
-            }
-        }
+    fn step(&mut self, actions: &[f32]) -> anyhow::Result<StepResult> {
+        write_actions(self.app.world_mut(), &self.arenas, actions)?;
         self.app.update();
-        let mut out = StepResult {
-            obs: self.observations(),
-            ..default()
-        };
-        for i in 0..self.arenas.len() {
-            let e = self.episode(i);
-            out.rewards.push(e.reward);
-            out.terminated.push(e.terminated);
-            out.truncated.push(e.truncated);
-            out.final_obs.push(e.final_observation.clone());
-            out.episodes.push(e.finished);
-        }
-        out
+        Ok(collect_step(self.app.world(), &self.arenas))
     }
 }

@@ -4,9 +4,11 @@
 //! and termination terms, reset events), the vectorised [`env`] API over arenas, [`ppo`] on
 //! candle, and [`classic`] control envs for testing the algorithms.
 
+pub mod bridge;
 pub mod classic;
 pub mod env;
 pub mod normalize;
+pub mod plot;
 pub mod ppo;
 pub mod spaces;
 pub mod task;

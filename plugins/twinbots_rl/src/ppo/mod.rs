@@ -17,7 +17,7 @@ use rand_chacha::ChaCha8Rng;
 
 pub use buffer::RolloutBuffer;
 pub use config::PpoConfig;
-pub use model_file::ModelError;
+pub use model_file::{ModelError, write_atomic};
 pub use policy::ActorCritic;
 
 use crate::env::VecEnv;
@@ -72,6 +72,7 @@ pub struct Ppo {
     pub seed: u64,
     pub timesteps: u64,
     pub episodes: u64,
+    pub updates: u64,
     /// Scores of the last 100 finished episodes, oldest first.
     pub recent_scores: VecDeque<f32>,
     recent_lengths: VecDeque<f32>,
@@ -107,6 +108,7 @@ impl Ppo {
             seed,
             timesteps: 0,
             episodes: 0,
+            updates: 0,
             recent_scores: VecDeque::new(),
             recent_lengths: VecDeque::new(),
             optimizer,
@@ -131,6 +133,14 @@ impl Ppo {
         Ok(self.clip_to_space(actions))
     }
 
+    /// The policy's most likely action for each observation row; needs no random stream.
+    pub fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        let x = self.prepare(obs)?;
+        let mut unused = ChaCha8Rng::seed_from_u64(0);
+        let (actions, _, _) = self.policy.act(&x, true, &mut unused)?;
+        Ok(self.clip_to_space(actions))
+    }
+
     /// Boxes are clipped before they reach the env; the buffer keeps the unclipped sample so
     /// its log-probability stays right (as SB3).
     fn clip_to_space(&self, mut actions: Vec<f32>) -> Vec<f32> {
@@ -149,7 +159,8 @@ impl Ppo {
     }
 
     /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback` after
-    /// each update.
+    /// each update. A linear learning rate decays over the whole budget, `timesteps` so far
+    /// included, so a resumed run follows the schedule of an uninterrupted one.
     pub fn learn(
         &mut self,
         env: &mut dyn VecEnv,
@@ -165,15 +176,13 @@ impl Ppo {
         let n_envs = env.num_envs();
         let (obs_dim, act_dim) = (self.observation_space.dim(), self.action_space.dim());
         let mut buffer = RolloutBuffer::new(n_envs, obs_dim, act_dim);
-        let start_timesteps = self.timesteps;
         let end = self.timesteps + total_timesteps;
-        let mut obs = env.reset(Some(self.seed.wrapping_add(self.timesteps)));
-        let mut update = 0;
+        let mut obs = env.reset(Some(self.seed.wrapping_add(self.timesteps)))?;
         while self.timesteps < end {
-            update += 1;
+            self.updates += 1;
             let started = Instant::now();
             if c.linear_lr {
-                let progress = (self.timesteps - start_timesteps) as f64 / total_timesteps as f64;
+                let progress = self.timesteps as f64 / end as f64;
                 self.optimizer.set_learning_rate(c.learning_rate * (1.0 - progress).max(0.0));
             }
 
@@ -185,7 +194,7 @@ impl Ppo {
                 }
                 let x = self.prepare(&obs)?;
                 let (actions, log_probs, values) = self.policy.act(&x, false, &mut self.rng)?;
-                let step = env.step(&self.clip_to_space(actions.clone()));
+                let step = env.step(&self.clip_to_space(actions.clone()))?;
                 let mut rewards = step.rewards.clone();
                 // A truncated episode did not end in the MDP: bootstrap its last reward with
                 // γ V(final observation), as SB3 does.
@@ -220,7 +229,7 @@ impl Ppo {
             let losses = self.optimize(&buffer)?;
 
             let stats = UpdateStats {
-                update,
+                update: self.updates as usize,
                 timesteps: self.timesteps,
                 episodes: self.episodes,
                 mean_reward: mean(&self.recent_scores),

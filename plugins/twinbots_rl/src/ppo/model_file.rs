@@ -35,6 +35,7 @@ struct Metadata {
     seed: u64,
     timesteps: u64,
     episodes: u64,
+    updates: u64,
     recent_scores: Vec<f32>,
 }
 
@@ -81,6 +82,7 @@ impl Ppo {
             seed: self.seed,
             timesteps: self.timesteps,
             episodes: self.episodes,
+            updates: self.updates,
             recent_scores: self.recent_scores.iter().copied().collect(),
         };
         let json = serde_json::to_vec_pretty(&meta).map_err(|e| file_error(dir, e))?;
@@ -113,6 +115,7 @@ impl Ppo {
         model.obs_rms = meta.obs_rms;
         model.timesteps = meta.timesteps;
         model.episodes = meta.episodes;
+        model.updates = meta.updates;
         model.recent_scores = VecDeque::from(meta.recent_scores);
         Ok(model)
     }
