@@ -73,6 +73,9 @@ enum Command {
 enum BenchKind {
     /// Control steps per second with N arenas, and the schedule's cost per step.
     Physics,
+    /// PPO update time per 2048 samples; env steps/s through the channel bridge vs directly
+    /// (with the first of --arenas).
+    Rl,
 }
 
 fn main() {
@@ -104,6 +107,9 @@ fn run(args: Args) -> anyhow::Result<()> {
         }
         Command::Bench { what: BenchKind::Physics, robot, arenas, steps } => {
             cli::bench::print_physics(&robot, &arenas, steps)?
+        }
+        Command::Bench { what: BenchKind::Rl, robot, arenas, steps } => {
+            cli::bench::print_rl(&robot, arenas.first().copied().unwrap_or(8), steps)?
         }
     }
     Ok(())

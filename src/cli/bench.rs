@@ -3,7 +3,8 @@
 
 use std::time::Instant;
 
-use twinbots_rl::{AppVecEnv, VecEnv};
+use twinbots_rl::classic::ClassicCartPole;
+use twinbots_rl::{AppVecEnv, Flow, Ppo, PpoConfig, VecEnv, bridge, env};
 use twinbots_sim::SimSettings;
 
 use crate::registry;
@@ -71,5 +72,62 @@ pub fn print_physics(robot: &str, arena_counts: &[usize], steps: usize) -> anyho
             b.arenas, b.vec_steps_per_s, b.arena_steps_per_s, b.physics_us, b.overhead_us
         );
     }
+    Ok(())
+}
+
+/// Seconds of one `learn` call of `steps` steps with `config` on CartPole-v1 (1 env).
+fn time_learn(config: PpoConfig, steps: u64) -> anyhow::Result<f64> {
+    let mut env = ClassicCartPole::new(1);
+    let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 0)?;
+    let start = Instant::now();
+    model.learn(&mut env, steps, &mut |_: &_, _: &_| Ok(Flow::Continue))?;
+    Ok(start.elapsed().as_secs_f64())
+}
+
+/// Steps/s of `robot` with `arenas` arenas stepped directly, then through the channel bridge
+/// from another thread.
+fn direct_vs_bridge(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<(f64, f64)> {
+    let entry = registry::find(robot)?;
+    let actions = move |env: &dyn VecEnv, i: usize| vec![((i / 4) % 2) as f32; arenas * env.action_space().dim()];
+    let mut direct = AppVecEnv::new((entry.headless_app)(arenas, 0));
+    direct.reset(Some(0))?;
+    let start = Instant::now();
+    for i in 0..steps {
+        let a = actions(&direct, i);
+        direct.step(&a)?;
+    }
+    let direct_rate = (steps * arenas) as f64 / start.elapsed().as_secs_f64();
+
+    let mut app = (entry.headless_app)(arenas, 0);
+    app.add_plugins(bridge::BridgePlugin);
+    env::start(&mut app)?;
+    let mut channel = bridge::connect(app.world_mut())?;
+    let trainer = std::thread::spawn(move || -> anyhow::Result<f64> {
+        channel.reset(Some(0))?;
+        let start = Instant::now();
+        for i in 0..steps {
+            let a = actions(&channel, i);
+            channel.step(&a)?;
+        }
+        Ok((steps * arenas) as f64 / start.elapsed().as_secs_f64())
+    });
+    bridge::run_until_closed(&mut app);
+    let bridged_rate = trainer.join().map_err(|_| anyhow::anyhow!("bench trainer panicked"))??;
+    Ok((direct_rate, bridged_rate))
+}
+
+pub fn print_rl(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<()> {
+    registry::find(robot)?;
+    // SB3's defaults: 2048 samples, 10 epochs of minibatches of 64. The rollout alone (0 epochs)
+    // is subtracted to leave the update.
+    let full = time_learn(PpoConfig::default(), 2048)?;
+    let rollout = time_learn(PpoConfig { n_epochs: 0, ..Default::default() }, 2048)?;
+    println!("PPO update of 2048 samples (10 epochs × 32 minibatches of 64, MLP 64-64): {:.0} ms", (full - rollout) * 1e3);
+    println!("PPO rollout of 2048 CartPole-v1 steps with policy inference: {:.0} ms", rollout * 1e3);
+    let (direct, bridged) = direct_vs_bridge(robot, arenas, steps)?;
+    println!(
+        "{robot}, {arenas} arenas: {direct:.0} arena-steps/s stepped directly, {bridged:.0} through the channel bridge ({:.1}% overhead)",
+        (direct / bridged - 1.0) * 100.0
+    );
     Ok(())
 }

@@ -1,5 +1,6 @@
 //! End-to-end tests of the RL side (one test binary).
 
+mod bridge;
 mod model;
 mod ppo;
 mod train_cli;

@@ -1,5 +1,5 @@
-//! Gymnasium's CartPole-v1, from its published equations, in plain Rust: a fast,
-//! physics-engine-free env for testing the algorithms.
+//! Gymnasium's CartPole-v1 and Pendulum-v1, from their published equations, in plain Rust:
+//! fast, physics-engine-free envs for testing the algorithms.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -97,6 +97,101 @@ impl VecEnv for ClassicCartPole {
             }
         }
         out.obs = self.states.iter().flatten().copied().collect();
+        Ok(out)
+    }
+}
+
+/// N independent Pendulum-v1 envs: swing up and hold a 1 m, 1 kg pendulum with torque ≤ 2 N·m.
+/// Observation [cos θ, sin θ, θ̇]; reward −(θ² + 0.1 θ̇² + 0.001 u²); truncated at 200 steps.
+pub struct ClassicPendulum {
+    states: Vec<[f32; 2]>,
+    scores: Vec<f32>,
+    steps: Vec<u32>,
+    rng: ChaCha8Rng,
+    observation_space: Space,
+    action_space: Space,
+}
+
+impl ClassicPendulum {
+    const MAX_SPEED: f32 = 8.0;
+    const MAX_TORQUE: f32 = 2.0;
+    const DT: f32 = 0.05;
+    const G: f32 = 10.0;
+
+    pub fn new(n: usize) -> Self {
+        Self {
+            states: vec![[0.0; 2]; n],
+            scores: vec![0.0; n],
+            steps: vec![0; n],
+            rng: ChaCha8Rng::seed_from_u64(0),
+            observation_space: Space::Box { low: vec![-1.0, -1.0, -8.0], high: vec![1.0, 1.0, 8.0] },
+            action_space: Space::Box { low: vec![-Self::MAX_TORQUE], high: vec![Self::MAX_TORQUE] },
+        }
+    }
+
+    fn reset_one(&mut self, i: usize) {
+        let pi = std::f32::consts::PI;
+        self.states[i] = [self.rng.random_range(-pi..pi), self.rng.random_range(-1.0..1.0)];
+        self.steps[i] = 0;
+        self.scores[i] = 0.0;
+    }
+
+    fn obs(&self) -> Vec<f32> {
+        self.states.iter().flat_map(|[th, thdot]| [th.cos(), th.sin(), *thdot]).collect()
+    }
+}
+
+impl VecEnv for ClassicPendulum {
+    fn num_envs(&self) -> usize {
+        self.states.len()
+    }
+    fn observation_space(&self) -> &Space {
+        &self.observation_space
+    }
+    fn action_space(&self) -> &Space {
+        &self.action_space
+    }
+
+    fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>> {
+        if let Some(seed) = seed {
+            self.rng = ChaCha8Rng::seed_from_u64(seed);
+        }
+        for i in 0..self.states.len() {
+            self.reset_one(i);
+        }
+        Ok(self.obs())
+    }
+
+    fn step(&mut self, actions: &[f32]) -> anyhow::Result<StepResult> {
+        anyhow::ensure!(actions.len() == self.states.len(), "expected {} actions", self.states.len());
+        let mut out = StepResult::default();
+        for i in 0..self.states.len() {
+            let [th, thdot] = self.states[i];
+            let u = actions[i].clamp(-Self::MAX_TORQUE, Self::MAX_TORQUE);
+            let norm = (th + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU) - std::f32::consts::PI;
+            let cost = norm * norm + 0.1 * thdot * thdot + 0.001 * u * u;
+            let thdot = (thdot + (3.0 * Self::G / 2.0 * th.sin() + 3.0 * u) * Self::DT)
+                .clamp(-Self::MAX_SPEED, Self::MAX_SPEED);
+            self.states[i] = [th + thdot * Self::DT, thdot];
+            self.steps[i] += 1;
+            out.rewards.push(-cost);
+            out.terminated.push(false);
+            let truncated = self.steps[i] >= 200;
+            out.truncated.push(truncated);
+            out.final_obs.push(None);
+            out.episodes.push(None);
+        }
+        // Scores are summed here, since an episode's rewards vary.
+        for i in 0..self.states.len() {
+            self.scores[i] += out.rewards[i];
+            if out.truncated[i] {
+                let [th, thdot] = self.states[i];
+                out.final_obs[i] = Some(vec![th.cos(), th.sin(), thdot]);
+                out.episodes[i] = Some(EpisodeSummary { score: self.scores[i], length: self.steps[i] });
+                self.reset_one(i);
+            }
+        }
+        out.obs = self.obs();
         Ok(out)
     }
 }

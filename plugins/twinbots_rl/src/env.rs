@@ -180,3 +180,45 @@ impl VecEnv for AppVecEnv {
         Ok(collect_step(self.app.world(), &self.arenas))
     }
 }
+
+/// Gymnasium's `info` for one env: set on the step an episode ended (auto-reset happened).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Info {
+    pub final_observation: Option<Vec<f32>>,
+    pub episode: Option<EpisodeSummary>,
+}
+
+/// One transition, Gymnasium's `(obs, reward, terminated, truncated, info)`.
+pub type Transition = (Vec<f32>, f32, bool, bool, Info);
+
+/// Gymnasium's single-env surface over a one-env [`VecEnv`]. Finished episodes auto-reset
+/// (the vectorised semantics); the finished episode's last observation is in `info`.
+pub struct SingleEnv<V: VecEnv>(pub V);
+
+impl<V: VecEnv> SingleEnv<V> {
+    pub fn new(env: V) -> anyhow::Result<Self> {
+        anyhow::ensure!(env.num_envs() == 1, "SingleEnv wraps exactly one env, got {}", env.num_envs());
+        Ok(Self(env))
+    }
+
+    /// `reset(seed) -> (obs, info)`
+    pub fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<(Vec<f32>, Info)> {
+        Ok((self.0.reset(seed)?, Info::default()))
+    }
+
+    /// `step(action) -> (obs, reward, terminated, truncated, info)`; the action must lie in the
+    /// action space.
+    pub fn step(&mut self, action: &[f32]) -> anyhow::Result<Transition> {
+        anyhow::ensure!(
+            self.0.action_space().contains(action),
+            "action {action:?} is not in the action space {}",
+            self.0.action_space()
+        );
+        let mut r = self.0.step(action)?;
+        let info = Info {
+            final_observation: r.final_obs.pop().flatten(),
+            episode: r.episodes.pop().flatten(),
+        };
+        Ok((r.obs, r.rewards[0], r.terminated[0], r.truncated[0], info))
+    }
+}

@@ -13,7 +13,7 @@ pub mod ppo;
 pub mod spaces;
 pub mod task;
 
-pub use env::{AppVecEnv, StepResult, VecEnv};
+pub use env::{AppVecEnv, Info, SingleEnv, StepResult, VecEnv};
 pub use ppo::{Callback, Flow, Ppo, PpoConfig, UpdateStats};
 pub use spaces::Space;
 pub use task::{Action, Episode, EpisodeSummary, SolvedCriterion, TaskPlugin, TaskSpec};
