@@ -13,12 +13,23 @@ pub fn model_from(text: &str) -> RobotModel {
 
 /// An app with one arena holding one robot, built (start-up done) and ready to step.
 pub fn robot_app(model: &RobotModel, options: SpawnOptions, settings: SimSettings) -> (App, Entity, SpawnedRobot) {
+    robot_app_with(model, options, settings, |_| {})
+}
+
+/// As [`robot_app`], with `scene` adding the cell's fixed objects to the arena first.
+pub fn robot_app_with(
+    model: &RobotModel,
+    options: SpawnOptions,
+    settings: SimSettings,
+    scene: impl FnOnce(&mut Arena),
+) -> (App, Entity, SpawnedRobot) {
     let mut app = App::new();
     app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings });
     let world = app.world_mut();
     let arena_entity = world.spawn_empty().id();
     let mut arena = Arena::new(0, 0, settings.dt, settings.gravity);
     arena.add_ground(1.0);
+    scene(&mut arena);
     let mut queue = CommandQueue::default();
     let spawned = {
         let mut commands = Commands::new(&mut queue, world);

@@ -2,6 +2,7 @@
 
 mod common;
 mod determinism;
+mod devices;
 mod motors;
 mod pendulum;
 mod reset;

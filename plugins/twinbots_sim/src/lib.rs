@@ -16,7 +16,10 @@ pub use bevy_rapier3d::rapier;
 use bevy::prelude::*;
 
 pub use arena::{Arena, ArenaConfig, InArena};
-pub use devices::{Joint, JointState, Motor, MotorCommand, PositionSensor};
+pub use devices::{
+    Accelerometer, DistanceSensor, Gps, Gyro, InertialUnit, Joint, JointState, Motor, MotorCommand, Mount,
+    PositionSensor, SamplingPeriod, TouchSensor,
+};
 pub use physics::{PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use spawn::{Link, Robot, SpawnOptions, SpawnedRobot, spawn_robot};
 pub use supervisor::{LinkState, Supervisor};
@@ -61,7 +64,19 @@ impl Plugin for SimPlugin {
                     .run_if(physics::sim_started),
             )
             .add_systems(Update, physics::run_substeps.in_set(SimSet::Physics))
-            .add_systems(Update, devices::sample_position_sensors.in_set(SimSet::Sense))
+            .add_systems(
+                Update,
+                (
+                    devices::sample_position_sensors,
+                    devices::sample_distance_sensors,
+                    devices::sample_inertial_units,
+                    devices::sample_gyros,
+                    devices::sample_accelerometers,
+                    devices::sample_gps,
+                    devices::sample_touch_sensors,
+                )
+                    .in_set(SimSet::Sense),
+            )
             .add_systems(Last, physics::advance_clock);
 
         let mut substep = Schedule::new(PhysicsSubstep);
