@@ -5,5 +5,6 @@ mod determinism;
 mod devices;
 mod motors;
 mod pendulum;
+mod radio;
 mod reset;
 mod urdf;

@@ -17,8 +17,8 @@ use bevy::prelude::*;
 
 pub use arena::{Arena, ArenaConfig, InArena};
 pub use devices::{
-    Accelerometer, DistanceSensor, Gps, Gyro, InertialUnit, Joint, JointState, Motor, MotorCommand, Mount,
-    PositionSensor, SamplingPeriod, TouchSensor,
+    Accelerometer, BROADCAST, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint, JointState, Motor,
+    MotorCommand, Mount, Packet, PositionSensor, Receiver, SamplingPeriod, TouchSensor,
 };
 pub use physics::{PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use spawn::{Link, Robot, SpawnOptions, SpawnedRobot, spawn_robot};
@@ -28,6 +28,8 @@ pub use supervisor::{LinkState, Supervisor};
 /// which only builds the world.
 #[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
 pub enum SimSet {
+    /// Radio packets sent during the previous control step are delivered.
+    Radio,
     /// Actions become motor commands.
     Actuate,
     /// `substeps` physics steps.
@@ -54,6 +56,7 @@ impl Plugin for SimPlugin {
             .configure_sets(
                 Update,
                 (
+                    SimSet::Radio,
                     SimSet::Actuate,
                     SimSet::Physics,
                     SimSet::Sense,
@@ -63,6 +66,7 @@ impl Plugin for SimPlugin {
                     .chain()
                     .run_if(physics::sim_started),
             )
+            .add_systems(Update, devices::deliver_radio.in_set(SimSet::Radio))
             .add_systems(Update, physics::run_substeps.in_set(SimSet::Physics))
             .add_systems(
                 Update,

@@ -7,6 +7,7 @@ mod joint;
 mod motor;
 mod mount;
 mod position_sensor;
+mod radio;
 
 pub use distance_sensor::DistanceSensor;
 pub use inertial::{Accelerometer, Gps, Gyro, InertialUnit, TouchSensor};
@@ -14,8 +15,10 @@ pub use joint::{Joint, JointState};
 pub use motor::{Motor, MotorCommand};
 pub use mount::{Mount, MountState, SamplingPeriod, gaussian};
 pub use position_sensor::{PositionSensor, sample_position_sensors};
+pub use radio::{BROADCAST, Emitter, Packet, Receiver};
 
 pub(crate) use distance_sensor::sample_distance_sensors;
 pub(crate) use inertial::{sample_accelerometers, sample_gps, sample_gyros, sample_inertial_units, sample_touch_sensors};
 pub(crate) use joint::measure_joints;
 pub(crate) use motor::drive_motors;
+pub(crate) use radio::deliver_radio;
