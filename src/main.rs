@@ -29,6 +29,10 @@ enum Command {
         arenas: Option<usize>,
         #[arg(long)]
         seed: Option<u64>,
+        /// Design pattern (paper §3): 1 RLRobot + Supervisor, 2 SupervisorRobot + SlaveRobot over
+        /// radio, 3 RobotServer + Communicator.
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=3))]
+        pattern: Option<u8>,
         /// A TOML file with settings (timesteps, arenas, seed, checkpoint_every, eval_every,
         /// eval_episodes, [ppo] hyperparameters); flags override it.
         #[arg(long)]
@@ -40,7 +44,7 @@ enum Command {
         #[arg(long)]
         checkpoint_every: Option<usize>,
         /// Continue the run in this directory from its newest checkpoint.
-        #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "config", "out"])]
+        #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out"])]
         resume: Option<std::path::PathBuf>,
     },
     /// Replay a trained model and report its episode scores (writes eval.json).
@@ -90,14 +94,14 @@ fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
         Command::Robots => cli::robots::print(),
         Command::Train { resume: Some(run), .. } => cli::train::resume(&run)?,
-        Command::Train { robot, timesteps, arenas, seed, config, out, checkpoint_every, resume: None } => {
+        Command::Train { robot, timesteps, arenas, seed, pattern, config, out, checkpoint_every, resume: None } => {
             let robot = robot.unwrap_or_default();
             let entry = registry::find(&robot)?;
             let file = match config {
                 Some(path) => cli::train::ConfigFile::read(&path)?,
                 None => Default::default(),
             };
-            let flags = cli::train::ConfigFile { timesteps, arenas, seed, checkpoint_every, ..Default::default() };
+            let flags = cli::train::ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, ..Default::default() };
             let settings = cli::train::TrainSettings::resolve(&entry, file, flags);
             let out = out.unwrap_or_else(|| cli::train::default_run_dir(&robot));
             cli::train::train(settings, &out)?

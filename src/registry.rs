@@ -1,12 +1,16 @@
 //! The robots this build knows, each a Bevy plugin crate under `plugins/`.
 
 use bevy::app::App;
+use twinbots_rl::DesignPattern;
 
 /// A registered robot: its name, what it is, and how to build a headless app of N arenas.
+#[derive(Clone, Copy)]
 pub struct RobotEntry {
     pub name: &'static str,
     pub description: &'static str,
-    pub headless_app: fn(arenas: usize, seed: u64) -> App,
+    /// The design patterns (paper §3) the robot's task supports.
+    pub patterns: &'static [DesignPattern],
+    build: fn(arenas: usize, seed: u64, pattern: DesignPattern) -> App,
     /// PPO settings that train this robot well (tuned like RL Zoo's per-env hyperparameters).
     pub ppo: fn() -> twinbots_rl::PpoConfig,
     /// Default arena count for training.
@@ -20,11 +24,26 @@ pub fn robots() -> Vec<RobotEntry> {
     vec![RobotEntry {
         name: "cartpole",
         description: "cart-pole twin (deepbots replica): 4 velocity-driven wheels, passive pole; Discrete(2), 32 ms step",
-        headless_app: cartpole::headless_app,
+        patterns: &[DesignPattern::Supervised, DesignPattern::Radio],
+        build: cartpole::headless_app_with,
         ppo: cartpole::ppo_config,
         arenas: 8,
         timesteps: 1_000_000,
     }]
+}
+
+impl RobotEntry {
+    /// A headless app of `arenas` arenas under `pattern`; an unsupported pattern is an error.
+    pub fn headless_app(&self, arenas: usize, seed: u64, pattern: DesignPattern) -> anyhow::Result<App> {
+        anyhow::ensure!(
+            self.patterns.contains(&pattern),
+            "{} does not support design pattern {} (supported: {})",
+            self.name,
+            pattern.number(),
+            self.patterns.iter().map(|p| p.number().to_string()).collect::<Vec<_>>().join(", ")
+        );
+        Ok((self.build)(arenas, seed, pattern))
+    }
 }
 
 /// Looks a robot up by name; the error lists the known ones.

@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use twinbots_rl::classic::ClassicCartPole;
-use twinbots_rl::{AppVecEnv, Flow, Ppo, PpoConfig, VecEnv, bridge, env};
+use twinbots_rl::{AppVecEnv, DesignPattern, Flow, Ppo, PpoConfig, VecEnv, bridge, env};
 use twinbots_sim::SimSettings;
 
 use crate::registry;
@@ -24,7 +24,7 @@ pub struct PhysicsBench {
 /// Steps `robot` with `arenas` arenas for `steps` control steps (alternating actions).
 pub fn physics(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<PhysicsBench> {
     let entry = registry::find(robot)?;
-    let mut env = AppVecEnv::new((entry.headless_app)(arenas, 0));
+    let mut env = AppVecEnv::new(entry.headless_app(arenas, 0, DesignPattern::Supervised)?);
     env.reset(Some(0))?;
     let dim = env.action_space().dim();
     let actions: Vec<Vec<f32>> = (0..2)
@@ -89,7 +89,7 @@ fn time_learn(config: PpoConfig, steps: u64) -> anyhow::Result<f64> {
 fn direct_vs_bridge(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<(f64, f64)> {
     let entry = registry::find(robot)?;
     let actions = move |env: &dyn VecEnv, i: usize| vec![((i / 4) % 2) as f32; arenas * env.action_space().dim()];
-    let mut direct = AppVecEnv::new((entry.headless_app)(arenas, 0));
+    let mut direct = AppVecEnv::new(entry.headless_app(arenas, 0, DesignPattern::Supervised)?);
     direct.reset(Some(0))?;
     let start = Instant::now();
     for i in 0..steps {
@@ -98,7 +98,7 @@ fn direct_vs_bridge(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<
     }
     let direct_rate = (steps * arenas) as f64 / start.elapsed().as_secs_f64();
 
-    let mut app = (entry.headless_app)(arenas, 0);
+    let mut app = entry.headless_app(arenas, 0, DesignPattern::Supervised)?;
     app.add_plugins(bridge::BridgePlugin);
     env::start(&mut app)?;
     let mut channel = bridge::connect(app.world_mut())?;

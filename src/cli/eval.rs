@@ -21,9 +21,15 @@ pub struct EvalResult {
 }
 
 /// Runs the deterministic policy on a fresh app of `arenas` arenas until `episodes` episodes end.
-pub fn evaluate(headless_app: fn(usize, u64) -> App, model: &Ppo, arenas: usize, episodes: usize, seed: u64) -> anyhow::Result<EvalResult> {
+pub fn evaluate(
+    make_app: &dyn Fn(usize, u64) -> anyhow::Result<App>,
+    model: &Ppo,
+    arenas: usize,
+    episodes: usize,
+    seed: u64,
+) -> anyhow::Result<EvalResult> {
     let arenas = arenas.clamp(1, episodes.max(1));
-    let mut env = AppVecEnv::new(headless_app(arenas, seed));
+    let mut env = AppVecEnv::new(make_app(arenas, seed)?);
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut obs = env.reset(Some(seed))?;
     let mut scores = Vec::new();
@@ -65,7 +71,9 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>) -> anyhow::R
         latest_checkpoint(run).ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint", run.display()))?
     };
     let model = Ppo::load(&model_dir)?;
-    let result = evaluate(entry.headless_app, &model, arenas.unwrap_or(settings.arenas), episodes, settings.seed + 2_000_003)?;
+    let pattern = settings.design_pattern()?;
+    let make_app = |arenas: usize, seed: u64| entry.headless_app(arenas, seed, pattern);
+    let result = evaluate(&make_app, &model, arenas.unwrap_or(settings.arenas), episodes, settings.seed + 2_000_003)?;
     println!(
         "{}: {} episodes, score {:.1} ± {:.1} (min {:.0}, max {:.0}), mean length {:.1}",
         settings.robot, result.episodes, result.mean_score, result.std_score, result.min_score, result.max_score, result.mean_length

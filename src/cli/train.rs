@@ -14,7 +14,7 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 use twinbots_rl::plot::{self, CurvePoint};
-use twinbots_rl::{Flow, Ppo, PpoConfig, UpdateStats, bridge, env};
+use twinbots_rl::{DesignPattern, Flow, Ppo, PpoConfig, UpdateStats, bridge, env};
 
 use crate::cli::eval;
 use crate::registry::{self, RobotEntry};
@@ -27,6 +27,8 @@ pub struct TrainSettings {
     pub timesteps: u64,
     pub arenas: usize,
     pub seed: u64,
+    /// Design pattern (paper §3): 1 supervised, 2 supervisor + slave over radio, 3 RobotServer.
+    pub pattern: u8,
     /// Save a checkpoint (and redraw the learning curve) every this many updates.
     pub checkpoint_every: usize,
     /// Evaluate the deterministic policy every this many updates into `evaluations.csv`
@@ -43,6 +45,7 @@ pub struct ConfigFile {
     pub timesteps: Option<u64>,
     pub arenas: Option<usize>,
     pub seed: Option<u64>,
+    pub pattern: Option<u8>,
     pub checkpoint_every: Option<usize>,
     pub eval_every: Option<usize>,
     pub eval_episodes: Option<usize>,
@@ -58,6 +61,11 @@ impl ConfigFile {
 }
 
 impl TrainSettings {
+    pub fn design_pattern(&self) -> anyhow::Result<DesignPattern> {
+        DesignPattern::from_number(self.pattern)
+            .ok_or_else(|| anyhow::anyhow!("pattern must be 1, 2 or 3, got {}", self.pattern))
+    }
+
     /// The robot's defaults, then the config file, then command-line flags.
     pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> Self {
         let mut s = Self {
@@ -65,6 +73,7 @@ impl TrainSettings {
             timesteps: entry.timesteps,
             arenas: entry.arenas,
             seed: 0,
+            pattern: 1,
             checkpoint_every: 10,
             eval_every: 0,
             eval_episodes: 10,
@@ -74,6 +83,7 @@ impl TrainSettings {
             s.timesteps = layer.timesteps.unwrap_or(s.timesteps);
             s.arenas = layer.arenas.unwrap_or(s.arenas);
             s.seed = layer.seed.unwrap_or(s.seed);
+            s.pattern = layer.pattern.unwrap_or(s.pattern);
             s.checkpoint_every = layer.checkpoint_every.unwrap_or(s.checkpoint_every);
             s.eval_every = layer.eval_every.unwrap_or(s.eval_every);
             s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
@@ -157,7 +167,8 @@ pub fn resume(run_dir: &Path) -> anyhow::Result<()> {
 
 fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, mut curve: Vec<CurvePoint>) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
-    let mut app = (entry.headless_app)(settings.arenas, settings.seed);
+    let pattern = settings.design_pattern()?;
+    let mut app = entry.headless_app(settings.arenas, settings.seed, pattern)?;
     app.add_plugins(bridge::BridgePlugin);
     let (_, spec) = env::start(&mut app)?;
     let mut channel_env = bridge::connect(app.world_mut())?;
@@ -172,7 +183,7 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, mut curve: Vec<C
     let robot = settings.robot.clone();
     let (settings_arenas, eval_episodes, seed) = (settings.arenas, settings.eval_episodes, settings.seed);
     let solved = spec.solved;
-    let headless_app = entry.headless_app;
+    let make_app = move |arenas: usize, seed: u64| entry.headless_app(arenas, seed, pattern);
 
     // The learner's thread: PPO, logging, checkpoints, evaluation.
     let trainer = std::thread::spawn(move || -> anyhow::Result<(Ppo, Option<u64>, f64)> {
@@ -202,7 +213,7 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, mut curve: Vec<C
                 plot::learning_curve(&run_dir.join("learning_curve.png"), &title, &curve, target)?;
             }
             if settings.eval_every > 0 && s.update % settings.eval_every == 0 {
-                let r = eval::evaluate(headless_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
+                let r = eval::evaluate(&make_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
                 writeln!(evals, "{},{},{},{}", s.timesteps, r.mean_score, r.std_score, r.mean_length)?;
             }
             let scores: Vec<f32> = m.recent_scores.iter().copied().collect();
@@ -232,7 +243,7 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, mut curve: Vec<C
     }
     let (model, solved_at, wall) = learned?;
     model.save(out.join("model"))?;
-    let evaluation = eval::evaluate(headless_app, &model, settings_arenas, eval_episodes, seed + 2_000_003)?;
+    let evaluation = eval::evaluate(&make_app, &model, settings_arenas, eval_episodes, seed + 2_000_003)?;
     std::fs::write(out.join("eval.json"), serde_json::to_string_pretty(&evaluation)?)?;
     let summary = serde_json::json!({
         "robot": robot,

@@ -2,5 +2,6 @@
 
 mod bridge;
 mod model;
+mod patterns;
 mod ppo;
 mod train_cli;

@@ -11,7 +11,9 @@ use std::path::Path;
 use bevy::prelude::*;
 use rand::Rng;
 use twinbots_rl::task::{ResetSet, TaskSet};
-use twinbots_rl::{Action, Episode, SolvedCriterion, Space, TaskPlugin, TaskSpec};
+use twinbots_rl::{Action, DesignPattern, Episode, SolvedCriterion, Space, TaskPlugin, TaskSpec};
+
+mod radio;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
 use twinbots_sim::{
@@ -55,15 +57,20 @@ pub fn model() -> RobotModel {
         .expect("the built-in cart-pole URDF is valid (checked by the tests)")
 }
 
-/// Everything needed to train or run the cart-pole headless: sim, task machinery and twin.
+/// Everything needed to train or run the cart-pole headless (design pattern 1).
 pub fn headless_app(arenas: usize, seed: u64) -> App {
+    headless_app_with(arenas, seed, DesignPattern::Supervised)
+}
+
+/// As [`headless_app`], under the given design pattern.
+pub fn headless_app_with(arenas: usize, seed: u64, pattern: DesignPattern) -> App {
     let mut app = App::new();
     app.add_plugins(MinimalPlugins)
         .add_plugins(SimPlugin {
             settings: sim_settings(),
         })
         .insert_resource(ArenaConfig { count: arenas, seed })
-        .add_plugins(CartPolePlugin::default());
+        .add_plugins(CartPolePlugin { pattern, ..default() });
     app
 }
 
@@ -72,11 +79,12 @@ pub fn headless_app(arenas: usize, seed: u64) -> App {
 pub struct CartPolePlugin {
     /// Start angles are drawn uniformly from ±this (rad) at every reset.
     pub initial_tilt: f32,
+    pub pattern: DesignPattern,
 }
 
 impl Default for CartPolePlugin {
     fn default() -> Self {
-        Self { initial_tilt: 0.05 }
+        Self { initial_tilt: 0.05, pattern: DesignPattern::Supervised }
     }
 }
 
@@ -85,6 +93,7 @@ impl Default for CartPolePlugin {
 struct CartPoleConfig {
     model: RobotModel,
     initial_tilt: f32,
+    pattern: DesignPattern,
 }
 
 /// The entities of an arena's cart-pole, kept on the arena entity.
@@ -104,6 +113,7 @@ impl Plugin for CartPolePlugin {
         app.insert_resource(CartPoleConfig {
             model: model(),
             initial_tilt: self.initial_tilt,
+            pattern: self.pattern,
         })
         .insert_resource(TaskSpec {
             name: "cartpole".into(),
@@ -115,22 +125,20 @@ impl Plugin for CartPolePlugin {
             }),
         })
         .add_systems(Startup, spawn_arenas)
-        .add_systems(Update, apply_action.in_set(SimSet::Actuate))
         .add_systems(
             Update,
-            (
-                observe.in_set(TaskSet::Observe),
-                reward.in_set(TaskSet::Reward),
-                terminate.in_set(TaskSet::Terminate),
-            ),
+            (reward.in_set(TaskSet::Reward), terminate.in_set(TaskSet::Terminate)),
         )
-        .add_systems(
-            twinbots_rl::task::EnvReset,
-            (
-                tilt_pole.in_set(ResetSet::Events),
-                observe.in_set(ResetSet::Observe),
-            ),
-        );
+        .add_systems(twinbots_rl::task::EnvReset, tilt_pole.in_set(ResetSet::Events));
+        match self.pattern {
+            DesignPattern::Supervised => {
+                app.add_systems(Update, (apply_action.in_set(SimSet::Actuate), observe.in_set(TaskSet::Observe)))
+                    .add_systems(twinbots_rl::task::EnvReset, observe.in_set(ResetSet::Observe));
+            }
+            DesignPattern::Radio => radio::build(app),
+            // The registry refuses pattern 3 until the RobotServer exists.
+            DesignPattern::Server => {}
+        }
     }
 }
 
@@ -154,7 +162,6 @@ fn spawn_arenas(
                 ..default()
             },
         );
-        arena.mark_initial();
         let part = |name: &str, found: Option<Entity>| {
             found.unwrap_or_else(|| panic!("cart-pole URDF has no '{name}'"))
         };
@@ -165,6 +172,10 @@ fn spawn_arenas(
             wheels: ["wheel1_joint", "wheel2_joint", "wheel3_joint", "wheel4_joint"]
                 .map(|w| part(w, robot.joint(w))),
         };
+        if config.pattern == DesignPattern::Radio {
+            radio::equip(&mut commands, arena_entity, &mut arena, &parts);
+        }
+        arena.mark_initial();
         commands.entity(arena_entity).insert((
             arena,
             parts,
@@ -178,18 +189,18 @@ fn spawn_arenas(
 }
 
 /// Action 0 drives all wheels at -5 rad/s, action 1 at +5 rad/s.
+fn drive_wheels(parts: &CartPoleParts, action: f32, motors: &mut Query<&mut Motor>) {
+    let speed = if action >= 0.5 { WHEEL_SPEED } else { -WHEEL_SPEED };
+    for wheel in parts.wheels {
+        if let Ok(mut motor) = motors.get_mut(wheel) {
+            motor.command = MotorCommand::Velocity(speed);
+        }
+    }
+}
+
 fn apply_action(arenas: Query<(&CartPoleParts, &Action)>, mut motors: Query<&mut Motor>) {
     for (parts, action) in &arenas {
-        let speed = if action.0.first().copied().unwrap_or(0.0) >= 0.5 {
-            WHEEL_SPEED
-        } else {
-            -WHEEL_SPEED
-        };
-        for wheel in parts.wheels {
-            if let Ok(mut motor) = motors.get_mut(wheel) {
-                motor.command = MotorCommand::Velocity(speed);
-            }
-        }
+        drive_wheels(parts, action.0.first().copied().unwrap_or(0.0), &mut motors);
     }
 }
 

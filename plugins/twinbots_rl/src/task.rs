@@ -11,6 +11,39 @@ use twinbots_sim::{SimSet, Supervisor};
 
 use crate::spaces::Space;
 
+/// The paper's three ways (§3) to put a robot and its RL model together.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum DesignPattern {
+    /// 1. RLRobot + RLModel: the task reads the robot's sensors and may use the Supervisor.
+    #[default]
+    Supervised,
+    /// 2. SupervisorRobot + SlaveRobot: the slave only has sensors, actuators and a radio; the
+    ///    supervisor robot relays readings to the model and actions back, one step late each way.
+    Radio,
+    /// 3. Supervisor-free: a RobotServer hosts the model; the robot's Communicator talks to it.
+    Server,
+}
+
+impl DesignPattern {
+    /// From the paper's numbering (1, 2, 3).
+    pub fn from_number(n: u8) -> Option<Self> {
+        match n {
+            1 => Some(Self::Supervised),
+            2 => Some(Self::Radio),
+            3 => Some(Self::Server),
+            _ => None,
+        }
+    }
+
+    pub fn number(self) -> u8 {
+        match self {
+            Self::Supervised => 1,
+            Self::Radio => 2,
+            Self::Server => 3,
+        }
+    }
+}
+
 /// What a robot's task promises: its spaces and when it counts as solved.
 #[derive(Resource, Clone, Debug)]
 pub struct TaskSpec {

@@ -62,6 +62,11 @@ impl Supervisor<'_, '_> {
         })
     }
 
+    /// The true position of any joint (privileged: no sensor noise, no sampling period).
+    pub fn joint_position(&self, joint: Entity) -> Option<f32> {
+        self.joints.get(joint).ok().map(|(_, _, state, _)| state.position)
+    }
+
     /// Teleports a link's body so that the link frame lands on `pose`, keeping its velocity.
     /// Only that body moves: joints pull the rest along on the next step.
     pub fn set_link_pose(&mut self, link: Entity, pose: Pose) -> bool {

@@ -42,6 +42,11 @@ impl Emitter {
         self
     }
 
+    /// Drops packets sent this step and not yet delivered (used at episode resets).
+    pub fn cancel_pending(&mut self) {
+        self.outbox.clear();
+    }
+
     /// Queues a packet for transmission at the end of this control step.
     pub fn send(&mut self, data: impl Into<Vec<u8>>) {
         self.outbox.push(data.into());
