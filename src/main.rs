@@ -47,6 +47,42 @@ enum Command {
         #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out"])]
         resume: Option<std::path::PathBuf>,
     },
+    /// Run the RobotServer (design pattern 3): hosts the policy and learner, reached over TCP.
+    Serve {
+        robot: String,
+        /// Address to listen on (port 0: any free port; the first output line tells which).
+        #[arg(long, default_value = "127.0.0.1:7878")]
+        listen: std::net::SocketAddr,
+        /// Robots a rollout is sized for; default: the robot's arena count.
+        #[arg(long)]
+        robots: Option<usize>,
+        #[arg(long)]
+        timesteps: Option<u64>,
+        #[arg(long)]
+        seed: Option<u64>,
+        /// A TOML file of settings, as for `train --config`.
+        #[arg(long)]
+        config: Option<std::path::PathBuf>,
+        /// A complete settings file (a run's config.toml), used as is.
+        #[arg(long, conflicts_with = "config")]
+        settings: Option<std::path::PathBuf>,
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
+    /// Run simulated robots (design pattern 3) against a RobotServer.
+    Robot {
+        robot: String,
+        /// The RobotServer's address.
+        #[arg(long)]
+        server: std::net::SocketAddr,
+        #[arg(long, default_value_t = 1)]
+        arenas: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Seconds to keep trying to reach the server.
+        #[arg(long, default_value_t = 30)]
+        patience: u64,
+    },
     /// Replay a trained model and report its episode scores (writes eval.json).
     Eval {
         /// Run directory of `twinbots train`.
@@ -105,6 +141,28 @@ fn run(args: Args) -> anyhow::Result<()> {
             let settings = cli::train::TrainSettings::resolve(&entry, file, flags);
             let out = out.unwrap_or_else(|| cli::train::default_run_dir(&robot));
             cli::train::train(settings, &out)?
+        }
+        Command::Serve { robot, listen, robots, timesteps, seed, config, settings, out } => {
+            let entry = registry::find(&robot)?;
+            let settings = match settings {
+                Some(path) => {
+                    let text = std::fs::read_to_string(&path)?;
+                    toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+                }
+                None => {
+                    let file = match config {
+                        Some(path) => cli::train::ConfigFile::read(&path)?,
+                        None => Default::default(),
+                    };
+                    let flags = cli::train::ConfigFile { timesteps, arenas: robots, seed, pattern: Some(3), ..Default::default() };
+                    cli::train::TrainSettings::resolve(&entry, file, flags)
+                }
+            };
+            let out = out.unwrap_or_else(|| cli::train::default_run_dir(&format!("{robot}-server")));
+            cli::serve::serve(settings, listen, &out)?
+        }
+        Command::Robot { robot, server, arenas, seed, patience } => {
+            cli::serve::robots(&robot, server, arenas, seed, std::time::Duration::from_secs(patience))?;
         }
         Command::Eval { run, episodes, arenas } => {
             cli::eval::eval_run(&run, episodes, arenas)?;

@@ -11,6 +11,10 @@ pub struct RobotEntry {
     /// The design patterns (paper §3) the robot's task supports.
     pub patterns: &'static [DesignPattern],
     build: fn(arenas: usize, seed: u64, pattern: DesignPattern) -> App,
+    /// The task's spaces and solved criterion.
+    pub task: fn() -> twinbots_rl::TaskSpec,
+    /// A design-pattern-3 robot process (no Supervisor), connecting to a RobotServer.
+    pub server_robot: Option<fn(usize, u64, cartpole::server::ServerAddress) -> App>,
     /// PPO settings that train this robot well (tuned like RL Zoo's per-env hyperparameters).
     pub ppo: fn() -> twinbots_rl::PpoConfig,
     /// Default arena count for training.
@@ -26,6 +30,8 @@ pub fn robots() -> Vec<RobotEntry> {
         description: "cart-pole twin (deepbots replica): 4 velocity-driven wheels, passive pole; Discrete(2), 32 ms step",
         patterns: &[DesignPattern::Supervised, DesignPattern::Radio],
         build: cartpole::headless_app_with,
+        task: cartpole::task_spec,
+        server_robot: Some(cartpole::robot_app),
         ppo: cartpole::ppo_config,
         arenas: 8,
         timesteps: 1_000_000,
@@ -33,8 +39,16 @@ pub fn robots() -> Vec<RobotEntry> {
 }
 
 impl RobotEntry {
+    pub fn task(&self) -> twinbots_rl::TaskSpec {
+        (self.task)()
+    }
+
     /// A headless app of `arenas` arenas under `pattern`; an unsupported pattern is an error.
     pub fn headless_app(&self, arenas: usize, seed: u64, pattern: DesignPattern) -> anyhow::Result<App> {
+        anyhow::ensure!(
+            pattern != DesignPattern::Server,
+            "design pattern 3 has no in-process env: use `twinbots serve` and `twinbots robot`"
+        );
         anyhow::ensure!(
             self.patterns.contains(&pattern),
             "{} does not support design pattern {} (supported: {})",

@@ -3,4 +3,6 @@
 pub mod bench;
 pub mod eval;
 pub mod robots;
+pub mod run_log;
+pub mod serve;
 pub mod train;

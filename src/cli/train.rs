@@ -11,12 +11,12 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
-use twinbots_rl::plot::{self, CurvePoint};
+use twinbots_rl::plot::CurvePoint;
 use twinbots_rl::{DesignPattern, Flow, Ppo, PpoConfig, UpdateStats, bridge, env};
 
 use crate::cli::eval;
+use crate::cli::run_log::{self, RunLog};
 use crate::registry::{self, RobotEntry};
 
 /// Everything a run is made of; written to `config.toml`, read by `--config` and `--resume`.
@@ -93,16 +93,6 @@ impl TrainSettings {
     }
 }
 
-const CSV_HEADER: &str = "update,timesteps,episodes,mean_reward,min_reward,max_reward,mean_length,policy_loss,value_loss,entropy,approx_kl,clip_fraction,learning_rate,steps_per_s";
-
-fn csv_row(s: &UpdateStats) -> String {
-    format!(
-        "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-        s.update, s.timesteps, s.episodes, s.mean_reward, s.min_reward, s.max_reward, s.mean_length,
-        s.policy_loss, s.value_loss, s.entropy, s.approx_kl, s.clip_fraction, s.learning_rate, s.steps_per_s
-    )
-}
-
 /// Default run directory: `runs/<robot>-<unix seconds>`.
 pub fn default_run_dir(robot: &str) -> PathBuf {
     let secs = std::time::SystemTime::now()
@@ -122,8 +112,45 @@ pub fn latest_checkpoint(run: &Path) -> Option<PathBuf> {
     dirs.pop()
 }
 
+/// Pattern 3: starts `twinbots serve` as its own process and runs the robots here.
+fn train_through_server(settings: TrainSettings, out: &Path) -> anyhow::Result<()> {
+    use std::io::BufRead;
+    let exe = std::env::current_exe()?;
+    let config = toml::to_string_pretty(&settings)?;
+    std::fs::create_dir_all(out)?;
+    let config_path = out.with_extension("server.toml");
+    std::fs::write(&config_path, config)?;
+    let mut server = std::process::Command::new(exe)
+        .args(["serve", &settings.robot, "--listen", "127.0.0.1:0", "--settings"])
+        .arg(&config_path)
+        .arg("--out")
+        .arg(out)
+        .stdout(std::process::Stdio::piped())
+        .spawn()?;
+    let stdout = server.stdout.take().ok_or_else(|| anyhow::anyhow!("no server output"))?;
+    let mut lines = std::io::BufReader::new(stdout).lines();
+    let first = lines.next().transpose()?.unwrap_or_default();
+    let addr: std::net::SocketAddr = first
+        .strip_prefix("listening on ")
+        .and_then(|a| a.parse().ok())
+        .ok_or_else(|| anyhow::anyhow!("the server did not start: {first:?}"))?;
+    println!("RobotServer (pid {}) listening on {addr}", server.id());
+    let result = crate::cli::serve::robots(&settings.robot, addr, settings.arenas, settings.seed, std::time::Duration::from_secs(10));
+    for line in lines.map_while(Result::ok) {
+        println!("server: {line}");
+    }
+    let status = server.wait()?;
+    let _ = std::fs::remove_file(&config_path);
+    result?;
+    anyhow::ensure!(status.success(), "the server exited with {status}");
+    Ok(())
+}
+
 /// A fresh run into `out`.
 pub fn train(settings: TrainSettings, out: &Path) -> anyhow::Result<()> {
+    if settings.design_pattern()? == DesignPattern::Server {
+        return train_through_server(settings, out);
+    }
     anyhow::ensure!(settings.arenas > 0, "arenas must be at least 1");
     anyhow::ensure!(
         !out.join("progress.csv").exists(),
@@ -132,7 +159,6 @@ pub fn train(settings: TrainSettings, out: &Path) -> anyhow::Result<()> {
     );
     std::fs::create_dir_all(out.join("checkpoints"))?;
     std::fs::write(out.join("config.toml"), toml::to_string_pretty(&settings)?)?;
-    std::fs::write(out.join("progress.csv"), format!("{CSV_HEADER}\n"))?;
     run(settings, out, None, Vec::new())
 }
 
@@ -148,7 +174,7 @@ pub fn resume(run_dir: &Path) -> anyhow::Result<()> {
     // Keep the progress rows up to the checkpoint; later ones are redone.
     let csv_path = run_dir.join("progress.csv");
     let csv = std::fs::read_to_string(&csv_path).unwrap_or_default();
-    let mut kept = vec![CSV_HEADER.to_string()];
+    let mut kept = vec![run_log::CSV_HEADER.to_string()];
     let mut curve = Vec::new();
     for line in csv.lines().skip(1) {
         let f: Vec<&str> = line.split(',').collect();
@@ -165,7 +191,7 @@ pub fn resume(run_dir: &Path) -> anyhow::Result<()> {
     run(settings, run_dir, Some(model), curve)
 }
 
-fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, mut curve: Vec<CurvePoint>) -> anyhow::Result<()> {
+fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<CurvePoint>) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let pattern = settings.design_pattern()?;
     let mut app = entry.headless_app(settings.arenas, settings.seed, pattern)?;
@@ -188,30 +214,17 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, mut curve: Vec<C
     // The learner's thread: PPO, logging, checkpoints, evaluation.
     let trainer = std::thread::spawn(move || -> anyhow::Result<(Ppo, Option<u64>, f64)> {
         let mut model = model;
-        let mut csv = std::fs::OpenOptions::new().append(true).open(run_dir.join("progress.csv"))?;
         let eval_path = run_dir.join("evaluations.csv");
         if !eval_path.exists() {
             std::fs::write(&eval_path, "timesteps,mean_score,std_score,mean_length\n")?;
         }
         let mut evals = std::fs::OpenOptions::new().append(true).open(&eval_path)?;
-        let title = format!("{} — PPO, {} arenas, seed {}", settings.robot, settings.arenas, settings.seed);
-        let target = solved.map(|c| c.threshold);
-        let bar = ProgressBar::new(settings.timesteps);
-        bar.set_style(
-            ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps {msg}")?.progress_chars("=> "),
-        );
-        bar.set_position(model.timesteps);
+        let title = format!("{} — PPO, pattern {}, {} arenas, seed {}", settings.robot, settings.pattern, settings.arenas, settings.seed);
+        let mut log = RunLog::open(&run_dir, title, solved.map(|c| c.threshold), settings.checkpoint_every, settings.timesteps, model.timesteps, curve)?;
         let started = Instant::now();
         let mut solved_at = None;
         let mut callback = |s: &UpdateStats, m: &Ppo| -> anyhow::Result<Flow> {
-            writeln!(csv, "{}", csv_row(s))?;
-            curve.push(CurvePoint { timesteps: s.timesteps, mean_reward: s.mean_reward, min_reward: s.min_reward, max_reward: s.max_reward });
-            bar.set_position(s.timesteps.min(settings.timesteps));
-            bar.set_message(format!("{:.0} steps/s, mean reward {:.1} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes));
-            if s.update % settings.checkpoint_every.max(1) == 0 {
-                m.save(run_dir.join("checkpoints").join(format!("step_{:010}", s.timesteps)))?;
-                plot::learning_curve(&run_dir.join("learning_curve.png"), &title, &curve, target)?;
-            }
+            log.on_update(s, m)?;
             if settings.eval_every > 0 && s.update % settings.eval_every == 0 {
                 let r = eval::evaluate(&make_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
                 writeln!(evals, "{},{},{},{}", s.timesteps, r.mean_score, r.std_score, r.mean_length)?;
@@ -227,8 +240,7 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, mut curve: Vec<C
         };
         let remaining = settings.timesteps.saturating_sub(model.timesteps);
         model.learn(&mut channel_env, remaining, &mut callback)?;
-        bar.finish();
-        plot::learning_curve(&run_dir.join("learning_curve.png"), &title, &curve, target)?;
+        log.finish()?;
         Ok((model, solved_at, started.elapsed().as_secs_f64()))
     });
 

@@ -4,4 +4,5 @@ mod bridge;
 mod model;
 mod patterns;
 mod ppo;
+mod server;
 mod train_cli;

@@ -24,7 +24,7 @@ pub fn robot_app_with(
     scene: impl FnOnce(&mut Arena),
 ) -> (App, Entity, SpawnedRobot) {
     let mut app = App::new();
-    app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings });
+    app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings, ..default() });
     let world = app.world_mut();
     let arena_entity = world.spawn_empty().id();
     let mut arena = Arena::new(0, 0, settings.dt, settings.gravity);

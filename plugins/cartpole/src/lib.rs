@@ -14,6 +14,7 @@ use twinbots_rl::task::{ResetSet, TaskSet};
 use twinbots_rl::{Action, DesignPattern, Episode, SolvedCriterion, Space, TaskPlugin, TaskSpec};
 
 mod radio;
+pub mod server;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
 use twinbots_sim::{
@@ -68,6 +69,7 @@ pub fn headless_app_with(arenas: usize, seed: u64, pattern: DesignPattern) -> Ap
     app.add_plugins(MinimalPlugins)
         .add_plugins(SimPlugin {
             settings: sim_settings(),
+            ..default()
         })
         .insert_resource(ArenaConfig { count: arenas, seed })
         .add_plugins(CartPolePlugin { pattern, ..default() });
@@ -105,44 +107,69 @@ pub struct CartPoleParts {
     pub wheels: [Entity; 4],
 }
 
+/// The start tilt, for the pattern-3 operator.
+#[derive(Resource, Clone, Copy, Debug)]
+pub(crate) struct CartPoleConfigTilt(pub f32);
+
 impl Plugin for CartPolePlugin {
     fn build(&self, app: &mut App) {
-        if !app.is_plugin_added::<TaskPlugin>() {
-            app.add_plugins(TaskPlugin);
-        }
         app.insert_resource(CartPoleConfig {
             model: model(),
             initial_tilt: self.initial_tilt,
             pattern: self.pattern,
         })
-        .insert_resource(TaskSpec {
-            name: "cartpole".into(),
-            observation_space: Space::uniform_box(4, f32::NEG_INFINITY, f32::INFINITY),
-            action_space: Space::Discrete { n: 2 },
-            solved: Some(SolvedCriterion {
-                window: 100,
-                threshold: MAX_SCORE,
-            }),
-        })
-        .add_systems(Startup, spawn_arenas)
-        .add_systems(
-            Update,
-            (reward.in_set(TaskSet::Reward), terminate.in_set(TaskSet::Terminate)),
-        )
-        .add_systems(twinbots_rl::task::EnvReset, tilt_pole.in_set(ResetSet::Events));
+        .add_systems(Startup, spawn_arenas);
+        if self.pattern == DesignPattern::Server {
+            // No task machinery (it resets through the Supervisor): the robot and the server
+            // run the episodes.
+            app.insert_resource(CartPoleConfigTilt(self.initial_tilt));
+            server::build(app);
+            return;
+        }
+        if !app.is_plugin_added::<TaskPlugin>() {
+            app.add_plugins(TaskPlugin);
+        }
+        app.insert_resource(task_spec())
+            .add_systems(
+                Update,
+                (reward.in_set(TaskSet::Reward), terminate.in_set(TaskSet::Terminate)),
+            )
+            .add_systems(twinbots_rl::task::EnvReset, tilt_pole.in_set(ResetSet::Events));
         match self.pattern {
             DesignPattern::Supervised => {
                 app.add_systems(Update, (apply_action.in_set(SimSet::Actuate), observe.in_set(TaskSet::Observe)))
                     .add_systems(twinbots_rl::task::EnvReset, observe.in_set(ResetSet::Observe));
             }
             DesignPattern::Radio => radio::build(app),
-            // The registry refuses pattern 3 until the RobotServer exists.
             DesignPattern::Server => {}
         }
     }
 }
 
-fn spawn_arenas(
+/// The cart-pole task's spaces and solved criterion.
+pub fn task_spec() -> TaskSpec {
+    TaskSpec {
+        name: "cartpole".into(),
+        observation_space: Space::uniform_box(4, f32::NEG_INFINITY, f32::INFINITY),
+        action_space: Space::Discrete { n: 2 },
+        solved: Some(SolvedCriterion { window: 100, threshold: MAX_SCORE }),
+    }
+}
+
+/// A pattern-3 robot process: `arenas` cart-poles with no Supervisor in the app, each with a
+/// Communicator to the RobotServer at `server`.
+pub fn robot_app(arenas: usize, seed: u64, server: server::ServerAddress) -> App {
+    let mut app = App::new();
+    app.add_plugins(MinimalPlugins)
+        .add_plugins(SimPlugin { settings: sim_settings(), supervisor: false })
+        .insert_resource(twinbots_sim::OperatorAccess)
+        .insert_resource(ArenaConfig { count: arenas, seed })
+        .insert_resource(server)
+        .add_plugins(CartPolePlugin { pattern: DesignPattern::Server, ..default() });
+    app
+}
+
+pub(crate) fn spawn_arenas(
     mut commands: Commands,
     config: Res<CartPoleConfig>,
     arenas: Res<ArenaConfig>,

@@ -22,7 +22,7 @@ pub use devices::{
 };
 pub use physics::{PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use spawn::{Link, Robot, SpawnOptions, SpawnedRobot, spawn_robot};
-pub use supervisor::{LinkState, Supervisor};
+pub use supervisor::{LinkState, Operator, OperatorAccess, Supervisor, SupervisorAccess};
 
 /// The order of one control step, in `Update`. Nothing in these sets runs on the first update,
 /// which only builds the world.
@@ -43,13 +43,23 @@ pub enum SimSet {
 }
 
 /// Physics stepping, arenas and devices.
-#[derive(Default)]
 pub struct SimPlugin {
     pub settings: SimSettings,
+    /// Whether systems may use the [`Supervisor`] (false under design pattern 3).
+    pub supervisor: bool,
+}
+
+impl Default for SimPlugin {
+    fn default() -> Self {
+        Self { settings: SimSettings::default(), supervisor: true }
+    }
 }
 
 impl Plugin for SimPlugin {
     fn build(&self, app: &mut App) {
+        if self.supervisor {
+            app.init_resource::<SupervisorAccess>();
+        }
         app.insert_resource(self.settings)
             .init_resource::<ArenaConfig>()
             .init_resource::<SimClock>()

@@ -23,20 +23,54 @@ pub struct LinkState {
     pub angvel: Vec3,
 }
 
+/// Present in apps that allow the Supervisor (design patterns 1 and 2). Under design pattern 3
+/// the app has none, so any system that asks for a [`Supervisor`] fails the moment it would
+/// first run, naming this resource: privileged access cannot creep into robot code unnoticed.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct SupervisorAccess;
+
+/// Present in apps with a lab operator (see [`Operator`]).
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct OperatorAccess;
+
+type JointQuery<'w, 's> = Query<
+    'w,
+    's,
+    (
+        &'static Joint,
+        &'static InArena,
+        &'static mut JointState,
+        Option<&'static mut Motor>,
+    ),
+>;
+
 #[derive(SystemParam)]
 pub struct Supervisor<'w, 's> {
+    /// Named for the error a pattern-3 app raises: "Parameter `…::design_pattern_3_forbids_the_supervisor`
+    /// failed validation: Resource does not exist".
+    #[allow(dead_code)]
+    design_pattern_3_forbids_the_supervisor: Res<'w, SupervisorAccess>,
     arenas: Query<'w, 's, &'static mut Arena>,
     links: Query<'w, 's, (&'static Link, &'static InArena)>,
-    joints: Query<
-        'w,
-        's,
-        (
-            &'static Joint,
-            &'static InArena,
-            &'static mut JointState,
-            Option<&'static mut Motor>,
-        ),
-    >,
+    joints: JointQuery<'w, 's>,
+}
+
+/// A person in the lab: outside the robot, able to put an object on a hinge (the pendulum) at
+/// a given angle and hold it there. Design pattern 3 resets episodes through explicitly named
+/// operator events like this one, never through the robot.
+#[derive(SystemParam)]
+pub struct Operator<'w, 's> {
+    #[allow(dead_code)]
+    this_app_has_no_lab_operator: Res<'w, OperatorAccess>,
+    arenas: Query<'w, 's, &'static mut Arena>,
+    joints: JointQuery<'w, 's>,
+}
+
+impl Operator<'_, '_> {
+    /// Puts `joint` at `position` with the parts beyond it at rest relative to its parent.
+    pub fn place_joint(&mut self, joint: Entity, position: f32) -> bool {
+        place_joint(&mut self.arenas, &mut self.joints, joint, position)
+    }
 }
 
 impl Supervisor<'_, '_> {
@@ -90,43 +124,7 @@ impl Supervisor<'_, '_> {
     /// Puts a joint at `position` by moving its child body and everything beyond it rigidly,
     /// with zero relative velocity: a teleport only the Supervisor can do.
     pub fn set_joint_position(&mut self, joint: Entity, position: f32) -> bool {
-        let Ok((j, in_arena, _, _)) = self.joints.get(joint) else { return false };
-        let (j, arena_entity) = (j.clone(), in_arena.0);
-        // Bodies beyond the joint, through the robot's other joints.
-        let mut children: HashMap<RigidBodyHandle, Vec<RigidBodyHandle>> = HashMap::new();
-        for (other, a, _, _) in &self.joints {
-            if a.0 == arena_entity && other.robot == j.robot {
-                children.entry(other.parent_body).or_default().push(other.child_body);
-            }
-        }
-        let Ok(mut arena) = self.arenas.get_mut(arena_entity) else { return false };
-        let world = &mut arena.world;
-        let Some((axis, current, _)) = j.measure(world) else { return false };
-        let Some(data) = world.impulse_joints.get(j.handle).map(|ij| ij.data) else { return false };
-        let Some(child) = world.bodies.get(j.child_body) else { return false };
-        let anchor = (*child.position() * data.local_frame2).translation;
-        let delta = position - current;
-        let motion = if j.kind.is_rotational() {
-            Pose::from_translation(anchor)
-                * Pose::from_rotation(Quat::from_axis_angle(axis, delta))
-                * Pose::from_translation(-anchor)
-        } else {
-            Pose::from_translation(axis * delta)
-        };
-        let parent_vel = world.bodies.get(j.parent_body).map(|b| (b.linvel(), b.angvel()));
-        let mut queue = VecDeque::from([j.child_body]);
-        while let Some(handle) = queue.pop_front() {
-            if let Some(body) = world.bodies.get_mut(handle) {
-                body.set_position(motion * *body.position(), true);
-                if let Some((v, w)) = parent_vel {
-                    body.set_linvel(v, true);
-                    body.set_angvel(w, true);
-                }
-            }
-            queue.extend(children.get(&handle).into_iter().flatten().copied());
-        }
-        self.remeasure(arena_entity);
-        true
+        place_joint(&mut self.arenas, &mut self.joints, joint, position)
     }
 
     /// Puts an arena back to exactly its initial state: every body's pose and velocity, joint
@@ -147,13 +145,58 @@ impl Supervisor<'_, '_> {
         true
     }
 
-    /// Re-reads joint states from the world after a teleport.
     fn remeasure(&mut self, arena: Entity) {
-        let Ok(a) = self.arenas.get(arena) else { return };
-        for (joint, in_arena, mut state, _) in &mut self.joints {
-            if in_arena.0 == arena {
-                *state = JointState::measured(joint, &a.world);
+        remeasure(&self.arenas, &mut self.joints, arena);
+    }
+}
+
+/// Moves a joint's child body and everything beyond it rigidly so the joint reads `position`.
+fn place_joint(arenas: &mut Query<&mut Arena>, joints: &mut JointQuery, joint: Entity, position: f32) -> bool {
+    let Ok((j, in_arena, _, _)) = joints.get(joint) else { return false };
+    let (j, arena_entity) = (j.clone(), in_arena.0);
+    // Bodies beyond the joint, through the robot's other joints.
+    let mut children: HashMap<RigidBodyHandle, Vec<RigidBodyHandle>> = HashMap::new();
+    for (other, a, _, _) in joints.iter() {
+        if a.0 == arena_entity && other.robot == j.robot {
+            children.entry(other.parent_body).or_default().push(other.child_body);
+        }
+    }
+    let Ok(mut arena) = arenas.get_mut(arena_entity) else { return false };
+    let world = &mut arena.world;
+    let Some((axis, current, _)) = j.measure(world) else { return false };
+    let Some(data) = world.impulse_joints.get(j.handle).map(|ij| ij.data) else { return false };
+    let Some(child) = world.bodies.get(j.child_body) else { return false };
+    let anchor = (*child.position() * data.local_frame2).translation;
+    let delta = position - current;
+    let motion = if j.kind.is_rotational() {
+        Pose::from_translation(anchor)
+            * Pose::from_rotation(Quat::from_axis_angle(axis, delta))
+            * Pose::from_translation(-anchor)
+    } else {
+        Pose::from_translation(axis * delta)
+    };
+    let parent_vel = world.bodies.get(j.parent_body).map(|b| (b.linvel(), b.angvel()));
+    let mut queue = VecDeque::from([j.child_body]);
+    while let Some(handle) = queue.pop_front() {
+        if let Some(body) = world.bodies.get_mut(handle) {
+            body.set_position(motion * *body.position(), true);
+            if let Some((v, w)) = parent_vel {
+                body.set_linvel(v, true);
+                body.set_angvel(w, true);
             }
+        }
+        queue.extend(children.get(&handle).into_iter().flatten().copied());
+    }
+    remeasure(arenas, joints, arena_entity);
+    true
+}
+
+/// Re-reads joint states from the world after a teleport.
+fn remeasure(arenas: &Query<&mut Arena>, joints: &mut JointQuery, arena: Entity) {
+    let Ok(a) = arenas.get(arena) else { return };
+    for (joint, in_arena, mut state, _) in joints.iter_mut() {
+        if in_arena.0 == arena {
+            *state = JointState::measured(joint, &a.world);
         }
     }
 }

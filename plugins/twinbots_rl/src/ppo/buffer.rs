@@ -50,6 +50,32 @@ impl RolloutBuffer {
         self.rewards.is_empty()
     }
 
+    /// Appends a single-env buffer whose advantages are computed (segments of several robots
+    /// become one training batch).
+    pub fn append(&mut self, other: &RolloutBuffer) {
+        self.obs.extend_from_slice(&other.obs);
+        self.actions.extend_from_slice(&other.actions);
+        self.log_probs.extend_from_slice(&other.log_probs);
+        self.rewards.extend_from_slice(&other.rewards);
+        self.dones.extend_from_slice(&other.dones);
+        self.values.extend_from_slice(&other.values);
+        self.advantages.extend_from_slice(&other.advantages);
+        self.returns.extend_from_slice(&other.returns);
+    }
+
+    /// Keeps only the first `n` steps (a single-env buffer).
+    pub fn truncate(&mut self, n: usize) {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        self.obs.truncate(n * o);
+        self.actions.truncate(n * a);
+        for v in [&mut self.log_probs, &mut self.rewards, &mut self.values] {
+            v.truncate(n);
+        }
+        self.dones.truncate(n);
+        self.advantages.clear();
+        self.returns.clear();
+    }
+
     /// GAE over the stored steps; `last_values` are V(s) of the observations after the last step.
     pub fn compute_advantages(&mut self, last_values: &[f32], gamma: f32, lambda: f32) {
         let n = self.n_envs;

@@ -153,6 +153,53 @@ impl Ppo {
         actions
     }
 
+    /// One observation → (action as sampled, action clipped to the space, log-probability,
+    /// value): what a rollout records, for learners that collect their own data (the RobotServer).
+    pub fn act_one(&mut self, obs: &[f32]) -> anyhow::Result<(Vec<f32>, Vec<f32>, f32, f32)> {
+        if let Some(rms) = &mut self.obs_rms {
+            rms.update(obs);
+        }
+        let x = self.prepare(obs)?;
+        let (action, log_prob, value) = self.policy.act(&x, false, &mut self.rng)?;
+        Ok((action.clone(), self.clip_to_space(action), log_prob[0], value[0]))
+    }
+
+    /// V(obs) for one observation.
+    pub fn value_of(&self, obs: &[f32]) -> anyhow::Result<f32> {
+        Ok(self.policy.value(&self.prepare(obs)?)?.to_vec1::<f32>()?[0])
+    }
+
+    /// Counts a finished episode into the statistics.
+    pub fn record_episode(&mut self, score: f32, length: u32) {
+        self.episodes += 1;
+        push_window(&mut self.recent_scores, score);
+        push_window(&mut self.recent_lengths, length as f32);
+    }
+
+    /// One PPO update on a buffer whose advantages are computed; `timesteps` advances by its
+    /// length. With a linear schedule, the learning rate follows `fraction_done`.
+    pub fn train_on(&mut self, buffer: &RolloutBuffer, fraction_done: f64) -> anyhow::Result<UpdateStats> {
+        let started = Instant::now();
+        if self.config.linear_lr {
+            self.optimizer.set_learning_rate(self.config.learning_rate * (1.0 - fraction_done).clamp(0.0, 1.0));
+        }
+        self.updates += 1;
+        self.timesteps += buffer.len() as u64;
+        let losses = self.optimize(buffer)?;
+        Ok(UpdateStats {
+            update: self.updates as usize,
+            timesteps: self.timesteps,
+            episodes: self.episodes,
+            mean_reward: mean(&self.recent_scores),
+            min_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::min),
+            max_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::max),
+            mean_length: mean(&self.recent_lengths),
+            learning_rate: self.optimizer.learning_rate(),
+            steps_per_s: buffer.len() as f32 / started.elapsed().as_secs_f32(),
+            ..losses
+        })
+    }
+
     /// Mean score of the last 100 finished episodes.
     pub fn mean_recent_score(&self) -> f32 {
         mean(&self.recent_scores)

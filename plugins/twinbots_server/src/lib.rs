@@ -1,0 +1,6 @@
+//! twinbots_server: design pattern 3. The [`server::RobotServer`] hosts the policy and the
+//! learner and is reached over TCP; [`client::Communicator`] is the robot's end.
+
+pub mod client;
+pub mod protocol;
+pub mod server;

@@ -1,0 +1,227 @@
+//! Design pattern 3: the RobotServer's protocol and error paths, disconnects, reconnection with
+//! backoff, two real processes, and the Supervisor's absence.
+
+use std::io::{BufReader, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use twinbots_rl::{Flow, Ppo, PpoConfig};
+use twinbots_server::protocol::{RobotMessage, ServerMessage, VERSION, read_message, write_message};
+use twinbots_server::server::{RobotServer, ServerSettings};
+
+fn server(timesteps: u64) -> RobotServer {
+    let id = cartpole::server::identity();
+    let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space, id.action_space, 0).unwrap();
+    let settings = ServerSettings { robot: "cartpole".into(), rollout: 256, timesteps, solved: None };
+    RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap()
+}
+
+struct Robot {
+    reader: BufReader<TcpStream>,
+    writer: TcpStream,
+}
+
+impl Robot {
+    fn connect(addr: SocketAddr) -> Self {
+        let stream = TcpStream::connect(addr).unwrap();
+        stream.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        Robot { reader: BufReader::new(stream.try_clone().unwrap()), writer: stream }
+    }
+    fn call(&mut self, m: &RobotMessage) -> ServerMessage {
+        write_message(&mut self.writer, m).unwrap();
+        read_message(&mut self.reader).unwrap()
+    }
+    fn raw(&mut self, bytes: &[u8]) -> ServerMessage {
+        self.writer.write_all(bytes).unwrap();
+        read_message(&mut self.reader).unwrap()
+    }
+    fn hello(addr: SocketAddr) -> Self {
+        let mut r = Self::connect(addr);
+        let id = cartpole::server::identity();
+        let reply = r.call(&RobotMessage::Hello {
+            version: VERSION,
+            robot: "cartpole".into(),
+            observation_space: id.observation_space,
+            action_space: id.action_space,
+        });
+        assert!(matches!(reply, ServerMessage::Welcome { .. }), "{reply:?}");
+        r
+    }
+    fn step(&mut self) -> ServerMessage {
+        self.call(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false })
+    }
+}
+
+fn frame(payload: &[u8]) -> Vec<u8> {
+    let mut f = (payload.len() as u32).to_le_bytes().to_vec();
+    f.extend_from_slice(payload);
+    f
+}
+
+#[test]
+fn malformed_and_oversized_messages_get_error_replies_and_the_server_keeps_serving() {
+    let server = server(1_000_000);
+    let mut robot = Robot::hello(server.addr);
+    let other = Robot::hello(server.addr);
+    let is_recoverable_error = |m: &ServerMessage| matches!(m, ServerMessage::Error { fatal: false, .. });
+
+    let reply = robot.raw(&frame(b"{ this is not json"));
+    assert!(is_recoverable_error(&reply), "{reply:?}");
+    let reply = robot.raw(&frame(br#"{"type":"teleport","x":1}"#));
+    assert!(is_recoverable_error(&reply), "unknown message type: {reply:?}");
+    let big = vec![b' '; 100_000];
+    let reply = robot.raw(&frame(&big));
+    match &reply {
+        ServerMessage::Error { message, fatal: false } => assert!(message.contains("exceeds"), "{message}"),
+        other => panic!("{other:?}"),
+    }
+    let reply = robot.call(&RobotMessage::Start { obs: vec![0.0; 3] });
+    assert!(is_recoverable_error(&reply), "wrong observation size: {reply:?}");
+    let reply = robot.step();
+    assert!(is_recoverable_error(&reply), "a step before start: {reply:?}");
+    // Still serving, this robot and the other.
+    let reply = robot.call(&RobotMessage::Start { obs: vec![0.0; 4] });
+    assert!(matches!(&reply, ServerMessage::Action { action } if action.len() == 1), "{reply:?}");
+    assert!(matches!(robot.step(), ServerMessage::Action { .. }));
+    assert_eq!(server.load().0, 2);
+    drop(other);
+}
+
+#[test]
+fn a_bad_hello_is_refused() {
+    let server = server(1_000_000);
+    let id = cartpole::server::identity();
+    let mut r = Robot::connect(server.addr);
+    let reply = r.call(&RobotMessage::Hello {
+        version: VERSION + 1,
+        robot: "cartpole".into(),
+        observation_space: id.observation_space.clone(),
+        action_space: id.action_space.clone(),
+    });
+    assert!(matches!(&reply, ServerMessage::Error { fatal: true, message } if message.contains("version")), "{reply:?}");
+    let mut r = Robot::connect(server.addr);
+    let reply = r.call(&RobotMessage::Hello {
+        version: VERSION,
+        robot: "cartpole".into(),
+        observation_space: id.observation_space,
+        action_space: twinbots_rl::Space::Discrete { n: 3 },
+    });
+    assert!(matches!(&reply, ServerMessage::Error { fatal: true, message } if message.contains("Discrete(3)")), "{reply:?}");
+    // After a fatal error the server closes the connection.
+    let mut byte = [0u8; 1];
+    assert_eq!(r.reader.read(&mut byte).unwrap_or(0), 0);
+}
+
+#[test]
+fn a_robot_that_disconnects_mid_episode_has_that_episode_discarded() {
+    let server = server(1_000_000);
+    let mut a = Robot::hello(server.addr);
+    let mut b = Robot::hello(server.addr);
+    a.call(&RobotMessage::Start { obs: vec![0.0; 4] });
+    for _ in 0..5 {
+        a.step();
+    }
+    b.call(&RobotMessage::Start { obs: vec![0.0; 4] });
+    for _ in 0..3 {
+        b.step();
+    }
+    assert_eq!(server.load(), (2, 8));
+    drop(a); // mid-episode
+    for _ in 0..100 {
+        if server.load().0 == 1 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(server.load(), (1, 3), "robot A's unfinished episode is gone, B's steps remain");
+}
+
+fn twinbots() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_twinbots"))
+}
+
+/// Starts `twinbots serve` and returns the child and the address it listens on.
+fn serve_process(listen: &str, timesteps: u64, out: &std::path::Path) -> (std::process::Child, SocketAddr) {
+    let mut child = twinbots()
+        .args(["serve", "cartpole", "--listen", listen, "--robots", "2", "--timesteps", &timesteps.to_string(), "--out"])
+        .arg(out)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    std::io::BufRead::read_line(&mut stdout, &mut line).unwrap();
+    std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
+    let addr = line.trim().strip_prefix("listening on ").unwrap().parse().unwrap();
+    (child, addr)
+}
+
+fn temp(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("twinbots-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+#[test]
+fn serve_and_robot_as_two_processes_train_a_round_trip() {
+    let out = temp("serve");
+    let (mut server, addr) = serve_process("127.0.0.1:0", 2048, &out);
+    let robots = twinbots()
+        .args(["robot", "cartpole", "--arenas", "2", "--server", &addr.to_string()])
+        .output()
+        .unwrap();
+    assert!(robots.status.success(), "{}", String::from_utf8_lossy(&robots.stderr));
+    assert!(String::from_utf8_lossy(&robots.stdout).contains("robots done"));
+    assert!(server.wait().unwrap().success());
+    let rows = std::fs::read_to_string(out.join("progress.csv")).unwrap().lines().count() - 1;
+    assert_eq!(rows, 2048 / 64, "one update per 32 steps × 2 robots");
+    let model = Ppo::load(out.join("model")).unwrap();
+    assert!(model.timesteps >= 2048 && model.episodes > 0);
+    std::fs::remove_dir_all(&out).ok();
+}
+
+#[test]
+fn a_robot_reconnects_with_backoff_when_its_server_goes_away() {
+    let (out1, out2) = (temp("reconnect-1"), temp("reconnect-2"));
+    let (mut first, addr) = serve_process("127.0.0.1:0", 1_000_000, &out1);
+    let robot = twinbots()
+        .args(["robot", "cartpole", "--server", &addr.to_string(), "--patience", "20"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Let it train a little, then take the server away and bring another up on the same port.
+    std::thread::sleep(Duration::from_millis(1500));
+    first.kill().unwrap();
+    first.wait().unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    let (mut second, _) = serve_process(&addr.to_string(), 1024, &out2);
+    let output = robot.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{stdout}{}", String::from_utf8_lossy(&output.stderr));
+    assert!(stdout.contains("1 reconnections"), "{stdout}");
+    assert!(second.wait().unwrap().success());
+    for d in [out1, out2] {
+        std::fs::remove_dir_all(d).ok();
+    }
+}
+
+#[test]
+fn the_supervisor_cannot_be_used_under_pattern_3() {
+    use bevy::prelude::*;
+    fn robot_code(_: twinbots_sim::Supervisor) {}
+    let mut app = App::new();
+    app.add_plugins(MinimalPlugins)
+        .add_plugins(twinbots_sim::SimPlugin { supervisor: false, ..Default::default() })
+        .add_systems(Update, robot_code);
+    let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| app.update()));
+    let message = caught.expect_err("a system asking for the Supervisor fails");
+    let text = message
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| message.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_default();
+    assert!(text.contains("design_pattern_3_forbids_the_supervisor"), "{text}");
+}
