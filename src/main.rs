@@ -116,6 +116,8 @@ enum BenchKind {
     /// PPO update time per 2048 samples; env steps/s through the channel bridge vs directly
     /// (with the first of --arenas).
     Rl,
+    /// RobotServer step round trip, and steps/s with N robots (--arenas as robot counts).
+    Server,
 }
 
 fn main() {
@@ -170,6 +172,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Bench { what: BenchKind::Physics, robot, arenas, steps } => {
             cli::bench::print_physics(&robot, &arenas, steps)?
         }
+        Command::Bench { what: BenchKind::Server, arenas, steps, .. } => cli::bench::print_server(&arenas, steps)?,
         Command::Bench { what: BenchKind::Rl, robot, arenas, steps } => {
             cli::bench::print_rl(&robot, arenas.first().copied().unwrap_or(8), steps)?
         }

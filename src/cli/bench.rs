@@ -131,3 +131,51 @@ pub fn print_rl(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<()> 
     );
     Ok(())
 }
+
+/// Steps/s one RobotServer sustains with `robots` concurrent robot connections (each a thread
+/// doing `steps` request–reply steps as fast as it can), and the mean round trip.
+fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> {
+    use twinbots_server::client::Communicator;
+    use twinbots_server::protocol::{RobotMessage, ServerMessage};
+    use twinbots_server::server::{RobotServer, ServerSettings};
+    let id = cartpole::server::identity();
+    let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space.clone(), id.action_space.clone(), 0)?;
+    // A rollout never filled: this measures the protocol and the policy's inference only.
+    let settings = ServerSettings { robot: "cartpole".into(), rollout: usize::MAX, timesteps: u64::MAX, solved: None };
+    let server = RobotServer::start("127.0.0.1:0".parse()?, model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue)))?;
+    let addr = server.addr;
+    let start = Instant::now();
+    let threads: Vec<_> = (0..robots)
+        .map(|_| {
+            let id = id.clone();
+            std::thread::spawn(move || -> anyhow::Result<f64> {
+                let mut c = Communicator::new(addr, id, std::time::Duration::from_secs(5));
+                c.connect()?;
+                c.send(&RobotMessage::Start { obs: vec![0.0; 4] })?;
+                c.receive()?;
+                let t = Instant::now();
+                for _ in 0..steps {
+                    c.send(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false })?;
+                    anyhow::ensure!(matches!(c.receive()?, ServerMessage::Action { .. }), "unexpected reply");
+                }
+                Ok(t.elapsed().as_secs_f64() / steps as f64)
+            })
+        })
+        .collect();
+    let mut round_trips = Vec::new();
+    for t in threads {
+        round_trips.push(t.join().map_err(|_| anyhow::anyhow!("robot thread panicked"))??);
+    }
+    let total = start.elapsed().as_secs_f64();
+    Ok(((robots * steps) as f64 / total, round_trips.iter().sum::<f64>() / robots as f64 * 1e6))
+}
+
+pub fn print_server(robot_counts: &[usize], steps: usize) -> anyhow::Result<()> {
+    println!("RobotServer over loopback TCP (protocol + policy inference, no updates), {steps} steps per robot");
+    println!("{:>7} {:>16} {:>20}", "robots", "steps/s (all)", "round trip µs/step");
+    for &n in robot_counts {
+        let (rate, rtt) = server_throughput(n, steps)?;
+        println!("{n:>7} {rate:>16.0} {rtt:>20.1}");
+    }
+    Ok(())
+}

@@ -13,6 +13,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 use twinbots_rl::plot::CurvePoint;
+use twinbots_rl::randomization::{Randomization, RandomizationPlugin};
 use twinbots_rl::{DesignPattern, Flow, Ppo, PpoConfig, UpdateStats, bridge, env};
 
 use crate::cli::eval;
@@ -36,6 +37,9 @@ pub struct TrainSettings {
     pub eval_every: usize,
     pub eval_episodes: usize,
     pub ppo: PpoConfig,
+    /// Domain randomization (patterns 1 and 2): see `twinbots_rl::randomization`.
+    #[serde(default)]
+    pub randomization: Randomization,
 }
 
 /// What a `--config` file may set: any subset of the settings but the robot.
@@ -50,6 +54,7 @@ pub struct ConfigFile {
     pub eval_every: Option<usize>,
     pub eval_episodes: Option<usize>,
     pub ppo: Option<PpoConfig>,
+    pub randomization: Option<Randomization>,
 }
 
 impl ConfigFile {
@@ -78,6 +83,7 @@ impl TrainSettings {
             eval_every: 0,
             eval_episodes: 10,
             ppo: (entry.ppo)(),
+            randomization: Randomization::default(),
         };
         for layer in [file, flags] {
             s.timesteps = layer.timesteps.unwrap_or(s.timesteps);
@@ -88,6 +94,7 @@ impl TrainSettings {
             s.eval_every = layer.eval_every.unwrap_or(s.eval_every);
             s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
             s.ppo = layer.ppo.unwrap_or(s.ppo);
+            s.randomization = layer.randomization.unwrap_or(s.randomization);
         }
         s
     }
@@ -196,6 +203,10 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
     let pattern = settings.design_pattern()?;
     let mut app = entry.headless_app(settings.arenas, settings.seed, pattern)?;
     app.add_plugins(bridge::BridgePlugin);
+    settings.randomization.validate()?;
+    if !settings.randomization.is_off() {
+        app.add_plugins(RandomizationPlugin(settings.randomization.clone()));
+    }
     let (_, spec) = env::start(&mut app)?;
     let mut channel_env = bridge::connect(app.world_mut())?;
     let model = match model {

@@ -4,5 +4,6 @@ mod bridge;
 mod model;
 mod patterns;
 mod ppo;
+mod randomization;
 mod server;
 mod train_cli;

@@ -225,9 +225,12 @@ fn drive_wheels(parts: &CartPoleParts, action: f32, motors: &mut Query<&mut Moto
     }
 }
 
+/// An empty action (an action latency still filling) leaves the wheels as they are.
 fn apply_action(arenas: Query<(&CartPoleParts, &Action)>, mut motors: Query<&mut Motor>) {
     for (parts, action) in &arenas {
-        drive_wheels(parts, action.0.first().copied().unwrap_or(0.0), &mut motors);
+        if let Some(&a) = action.0.first() {
+            drive_wheels(parts, a, &mut motors);
+        }
     }
 }
 

@@ -114,8 +114,8 @@ fn slave_sends_readings(
 
 fn supervisor_sends_action(arenas: Query<(&Action, &RadioLink)>, mut emitters: Query<&mut Emitter>) {
     for (action, radio) in &arenas {
-        if let Ok(mut tx) = emitters.get_mut(radio.supervisor_emitter) {
-            tx.send(vec![(action.0.first().copied().unwrap_or(0.0) >= 0.5) as u8]);
+        if let (Some(&a), Ok(mut tx)) = (action.0.first(), emitters.get_mut(radio.supervisor_emitter)) {
+            tx.send(vec![(a >= 0.5) as u8]);
         }
     }
 }

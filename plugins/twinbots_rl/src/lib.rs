@@ -9,6 +9,7 @@ pub mod classic;
 pub mod env;
 pub mod normalize;
 pub mod plot;
+pub mod randomization;
 pub mod ppo;
 pub mod spaces;
 pub mod task;

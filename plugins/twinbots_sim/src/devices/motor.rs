@@ -34,6 +34,9 @@ pub struct Motor {
     pub max_effort: f32,
     /// Proportional gain of position control (1/s), Webots' default P = 10.
     pub position_gain: f32,
+    /// Fraction of `max_effort` the motor actually delivers (1: as rated; domain
+    /// randomization lowers it to model weak or worn motors).
+    pub strength: f32,
     pub command: MotorCommand,
     /// The command restored when the arena is reset.
     pub initial_command: MotorCommand,
@@ -45,6 +48,7 @@ impl Motor {
             max_velocity,
             max_effort,
             position_gain: 10.0,
+            strength: 1.0,
             command: MotorCommand::Off,
             initial_command: MotorCommand::Off,
         }
@@ -75,7 +79,7 @@ pub(crate) fn drive_motors(
             match target {
                 Some(v) => {
                     j.data.set_motor_velocity(axis, v, VELOCITY_MOTOR_GAIN);
-                    j.data.set_motor_max_force(axis, motor.max_effort);
+                    j.data.set_motor_max_force(axis, motor.max_effort * motor.strength);
                 }
                 None => {
                     j.data.set_motor_velocity(axis, 0.0, 0.0);
@@ -84,7 +88,8 @@ pub(crate) fn drive_motors(
             }
         }
         if let MotorCommand::Torque(t) = motor.command {
-            apply_effort(world, joint, t.clamp(-motor.max_effort, motor.max_effort), settings.dt);
+            let limit = motor.max_effort * motor.strength;
+            apply_effort(world, joint, t.clamp(-limit, limit), settings.dt);
         }
     }
 }
