@@ -92,6 +92,34 @@ enum Command {
         /// Parallel arenas; default: the run's.
         #[arg(long)]
         arenas: Option<usize>,
+        /// Also write the PNG frames of one evaluation episode into this directory.
+        #[arg(long)]
+        record: Option<std::path::PathBuf>,
+        #[arg(long, default_value = "640x480")]
+        size: String,
+        #[arg(long, default_value = "side")]
+        camera: String,
+    },
+    /// Render PNG frames of the digital twin off-screen (no window).
+    Capture {
+        robot: String,
+        /// Drive the robot with this run's trained model (default: zero actions).
+        #[arg(long)]
+        model: Option<std::path::PathBuf>,
+        #[arg(long, default_value_t = 50)]
+        frames: usize,
+        /// Physics control steps between frames.
+        #[arg(long, default_value_t = 1)]
+        every: usize,
+        #[arg(long, default_value = "640x480")]
+        size: String,
+        /// Camera: side, front, iso or top.
+        #[arg(long, default_value = "side")]
+        camera: String,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long)]
+        out: std::path::PathBuf,
     },
     /// Measure performance.
     Bench {
@@ -166,8 +194,15 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Robot { robot, server, arenas, seed, patience } => {
             cli::serve::robots(&robot, server, arenas, seed, std::time::Duration::from_secs(patience))?;
         }
-        Command::Eval { run, episodes, arenas } => {
+        Command::Eval { run, episodes, arenas, record, size, camera } => {
             cli::eval::eval_run(&run, episodes, arenas)?;
+            if let Some(dir) = record {
+                cli::eval::record_episode(&run, &dir, cli::capture::parse_size(&size)?, &camera)?;
+            }
+        }
+        Command::Capture { robot, model, frames, every, size, camera, seed, out } => {
+            let size = cli::capture::parse_size(&size)?;
+            cli::capture::capture(cli::capture::CaptureArgs { robot, model, frames, every, size, camera, seed, out })?
         }
         Command::Bench { what: BenchKind::Physics, robot, arenas, steps } => {
             cli::bench::print_physics(&robot, &arenas, steps)?

@@ -81,3 +81,27 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>) -> anyhow::R
     std::fs::write(run.join("eval.json"), serde_json::to_string_pretty(&result)?)?;
     Ok(result)
 }
+
+/// Writes the frames of one deterministic evaluation episode of the run's model.
+pub fn record_episode(run: &Path, dir: &Path, size: (u32, u32), camera: &str) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(run.join("config.toml"))?;
+    let settings: TrainSettings = toml::from_str(&text)?;
+    let entry = registry::find(&settings.robot)?;
+    let model = crate::cli::capture::load_model(run)?;
+    let mut env = AppVecEnv::new(entry.headless_app(1, settings.seed + 2_000_003, settings.design_pattern()?)?);
+    model.check_spaces(env.observation_space(), env.action_space())?;
+    let mut recorder = crate::cli::capture::Recorder::new(size, crate::cli::capture::camera(camera)?, dir)?;
+    let mut obs = env.reset(Some(settings.seed + 2_000_003))?;
+    recorder.frame(&mut env, 0)?;
+    for step in 1.. {
+        let out = env.step(&model.predict_deterministic(&obs)?)?;
+        obs = out.obs;
+        if out.episodes[0].is_some() {
+            // The arena has auto-reset: the episode's last state is gone; stop at its end.
+            break;
+        }
+        recorder.frame(&mut env, step)?;
+    }
+    println!("recorded {} frames of one episode to {}", recorder.written, dir.display());
+    Ok(())
+}

@@ -1,6 +1,7 @@
 //! The subcommands.
 
 pub mod bench;
+pub mod capture;
 pub mod eval;
 pub mod robots;
 pub mod run_log;

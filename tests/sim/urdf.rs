@@ -181,3 +181,14 @@ fn flat_stl_mesh_is_rejected() {
     assert!(err.contains("degenerate") && err.contains("<link name=\"a\">"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_visual_naming_an_undefined_material_is_rejected() {
+    let err = parse(&robot(
+        "<link name=\"a\">INERTIAL<visual><geometry><sphere radius=\"0.1\"/></geometry><material name=\"chrome\"/></visual></link>",
+    ))
+    .unwrap_err();
+    let (_, element, _, problem) = element_error(err);
+    assert_eq!(element, "link");
+    assert!(problem.contains("'chrome'"), "{problem}");
+}

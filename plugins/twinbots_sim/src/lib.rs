@@ -17,11 +17,11 @@ use bevy::prelude::*;
 
 pub use arena::{Arena, ArenaConfig, InArena};
 pub use devices::{
-    Accelerometer, BROADCAST, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint, JointState, Motor,
+    Accelerometer, BROADCAST, CameraSensor, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint, JointState, Motor,
     MotorCommand, Mount, Packet, PositionSensor, Receiver, SamplingPeriod, TouchSensor,
 };
 pub use physics::{PhysicsSubstep, SimClock, SimSettings, SubstepSet};
-pub use spawn::{Link, Robot, SpawnOptions, SpawnedRobot, spawn_robot};
+pub use spawn::{Link, Robot, SpawnOptions, SpawnedRobot, Visuals, spawn_robot};
 pub use supervisor::{LinkState, Operator, OperatorAccess, Supervisor, SupervisorAccess};
 
 /// The order of one control step, in `Update`. Nothing in these sets runs on the first update,

@@ -27,6 +27,10 @@ pub struct Link {
     pub offset: Pose,
 }
 
+/// What a link looks like (its URDF visuals, in the link frame): read by the renderer.
+#[derive(Component, Clone, Debug, Default)]
+pub struct Visuals(pub Vec<crate::urdf::Visual>);
+
 /// How a robot is placed and attached.
 #[derive(Clone, Copy, Debug)]
 pub struct SpawnOptions {
@@ -152,6 +156,7 @@ pub fn spawn_robot(
                     body,
                     offset: offset[l],
                 },
+                Visuals(link.visuals.clone()),
                 InArena(arena_entity),
             ))
             .id();

@@ -1,6 +1,7 @@
 //! Devices: joints and their motors and sensors, and sensors mounted on links, as components
 //! plus the systems that run them (in `SimSet::Sense`, except motors, which act every substep).
 
+mod camera;
 mod distance_sensor;
 mod inertial;
 mod joint;
@@ -9,6 +10,7 @@ mod mount;
 mod position_sensor;
 mod radio;
 
+pub use camera::CameraSensor;
 pub use distance_sensor::DistanceSensor;
 pub use inertial::{Accelerometer, Gps, Gyro, InertialUnit, TouchSensor};
 pub use joint::{Joint, JointState};

@@ -38,10 +38,16 @@ pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel
         file: file.to_path_buf(),
         message: e.to_string(),
     })?;
+    let materials = robot
+        .materials
+        .iter()
+        .filter_map(|m| m.color.as_ref().map(|c| (m.name.clone(), c.rgba.0.map(|x| x as f32))))
+        .collect();
     Checker {
         file,
         mesh_dir,
         lines: &lines,
+        materials,
     }
     .build(&robot)
 }
@@ -87,6 +93,8 @@ struct Checker<'a> {
     file: &'a Path,
     mesh_dir: &'a Path,
     lines: &'a ElementLines,
+    /// Colours of the robot's top-level `<material>`s, which visuals may name.
+    materials: HashMap<String, [f32; 4]>,
 }
 
 impl Checker<'_> {
@@ -258,12 +266,21 @@ impl Checker<'_> {
             .visual
             .iter()
             .map(|v| {
-                let rgba = v
-                    .material
-                    .as_ref()
-                    .and_then(|m| m.color.as_ref())
-                    .map(|c| c.rgba.0.map(|x| x as f32))
-                    .unwrap_or([0.6, 0.6, 0.6, 1.0]);
+                // Its own colour, else the named top-level material's, else neutral grey.
+                let rgba = match &v.material {
+                    Some(m) => match (&m.color, self.materials.get(&m.name)) {
+                        (Some(c), _) => c.rgba.0.map(|x| x as f32),
+                        (None, Some(named)) => *named,
+                        (None, None) if m.name.is_empty() => [0.6, 0.6, 0.6, 1.0],
+                        (None, None) => {
+                            return Err(self.link_error(
+                                &link.name,
+                                format!("visual uses material '{}', which the robot does not define", m.name),
+                            ));
+                        }
+                    },
+                    None => [0.6, 0.6, 0.6, 1.0],
+                };
                 Ok(Visual {
                     geometry: self.geometry(&link.name, &v.origin, &v.geometry)?,
                     rgba,

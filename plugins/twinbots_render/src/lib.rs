@@ -1,0 +1,10 @@
+//! twinbots_render: seeing the digital twin. Off-screen PNG frames of an arena through a camera,
+//! and camera sensors; the sim itself never needs a GPU, and headless training never adds any
+//! of this.
+
+pub mod cameras;
+pub mod renderer;
+pub mod scene;
+
+pub use cameras::CameraRig;
+pub use renderer::{RenderError, Renderer, View, adapter_required};

@@ -1,0 +1,305 @@
+//! The off-screen renderer: its own Bevy app (DefaultPlugins, no window) that draws a mirrored
+//! arena through a camera into an image and reads the pixels back. It is driven by hand, one
+//! frame per call, after the sim app's step: the image of step i shows step i.
+
+use std::sync::{Arc, Mutex};
+
+use bevy::app::PluginsState;
+use bevy::asset::RenderAssetUsages;
+use bevy::camera::RenderTarget;
+use bevy::core_pipeline::tonemapping::Tonemapping;
+use bevy::prelude::*;
+use bevy::render::gpu_readback::{Readback, ReadbackComplete};
+use bevy::render::render_resource::{Extent3d, PipelineCache, PollType, TextureDimension, TextureFormat, TextureUsages};
+use bevy::render::renderer::{RenderDevice, initialize_renderer};
+use bevy::render::settings::{InstanceFlags, RenderCreation, WgpuSettings};
+use bevy::render::{RenderApp, RenderPlugin};
+use bevy::window::ExitCondition;
+use twinbots_sim::rapier::math::Pose;
+
+use crate::scene::{self, Mirror};
+
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error(
+        "no graphics adapter: pixels need a Vulkan driver (on a machine without a GPU install Mesa's \
+         software driver: apt-get install mesa-vulkan-drivers libvulkan1)"
+    )]
+    NoAdapter,
+    #[error("rendering failed: {0}")]
+    Failed(String),
+}
+
+/// Whether CI asked for render tests to fail rather than skip without an adapter.
+pub fn adapter_required() -> bool {
+    std::env::var_os("TWINBOTS_REQUIRE_ADAPTER").is_some_and(|v| v != "0" && !v.is_empty())
+}
+
+/// Looks for an adapter once, quietly; `None` when there is none.
+fn probe() -> Option<RenderCreation> {
+    let mut settings = WgpuSettings::default();
+    settings.instance_flags |= InstanceFlags::ALLOW_UNDERLYING_NONCOMPLIANT_ADAPTER;
+    let backends = settings.backends?;
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let resources = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        bevy::tasks::block_on(initialize_renderer(backends, None, &settings))
+    }));
+    std::panic::set_hook(hook);
+    resources.ok().map(RenderCreation::from)
+}
+
+/// A camera of the render app, in physics coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct View {
+    /// Camera pose: it looks along its local −Z with +Y up (Bevy's camera convention), which
+    /// [`View::looking_at`] and [`View::from_mount`] set up.
+    pub transform: Transform,
+    pub fov_y: f32,
+}
+
+impl View {
+    /// A camera at `eye` looking at `target` (physics coordinates, Z up).
+    pub fn looking_at(eye: Vec3, target: Vec3, fov_y: f32) -> Self {
+        let transform = Transform::from_translation(scene::point_to_bevy(eye))
+            .looking_at(scene::point_to_bevy(target), Vec3::Y);
+        Self { transform, fov_y }
+    }
+
+    /// A device camera: looks along the mount's +X with the mount's +Z up.
+    pub fn from_mount(pose: Pose, fov_y: f32) -> Self {
+        let forward = pose.rotation * Vec3::X;
+        let up = pose.rotation * Vec3::Z;
+        let eye = scene::point_to_bevy(pose.translation);
+        let transform = Transform::from_translation(eye)
+            .looking_to(scene::point_to_bevy(forward), scene::point_to_bevy(up));
+        Self { transform, fov_y }
+    }
+
+    /// Pixel coordinates (x right, y down) of a physics point in a `width × height` image, or
+    /// `None` behind the camera.
+    pub fn project(&self, point: Vec3, width: u32, height: u32) -> Option<Vec2> {
+        let p = self.transform.compute_affine().inverse().transform_point3(scene::point_to_bevy(point));
+        if p.z >= 0.0 {
+            return None;
+        }
+        let f = 1.0 / (self.fov_y / 2.0).tan();
+        let aspect = width as f32 / height as f32;
+        let ndc = Vec2::new(f * p.x / (-p.z) / aspect, f * p.y / (-p.z));
+        Some(Vec2::new((ndc.x + 1.0) / 2.0 * width as f32, (1.0 - ndc.y) / 2.0 * height as f32))
+    }
+}
+
+#[derive(Resource)]
+struct Target(Handle<Image>);
+
+#[derive(Component)]
+struct MainCamera;
+
+/// An off-screen renderer producing `width × height` RGB images.
+pub struct Renderer {
+    app: App,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Renderer {
+    /// Builds the render app; `RenderError::NoAdapter` when no graphics adapter exists.
+    pub fn new(width: u32, height: u32) -> Result<Self, RenderError> {
+        if width == 0 || height == 0 {
+            return Err(RenderError::Failed(format!("image size {width}×{height} is empty")));
+        }
+        let render_creation = probe().ok_or(RenderError::NoAdapter)?;
+        let mut app = App::new();
+        app.add_plugins(
+            DefaultPlugins
+                .set(WindowPlugin { primary_window: None, exit_condition: ExitCondition::DontExit, ..default() })
+                .set(RenderPlugin { render_creation, synchronous_pipeline_compilation: true, ..default() })
+                .disable::<bevy::winit::WinitPlugin>()
+                .disable::<bevy::log::LogPlugin>(),
+        )
+        .insert_resource(ClearColor(Color::srgb(0.78, 0.84, 0.9)))
+        .insert_resource(GlobalAmbientLight { color: Color::WHITE, brightness: 400.0, affects_lightmapped_meshes: true })
+        .init_resource::<Mirror>();
+        while app.plugins_state() == PluginsState::Adding {
+            bevy::tasks::tick_global_task_pools_on_main_thread();
+        }
+        app.finish();
+        app.cleanup();
+
+        let world = app.world_mut();
+        let mut image = Image::new_uninit(
+            Extent3d { width, height, depth_or_array_layers: 1 },
+            TextureDimension::D2,
+            TextureFormat::Rgba8UnormSrgb,
+            RenderAssetUsages::RENDER_WORLD,
+        );
+        image.texture_descriptor.usage |= TextureUsages::RENDER_ATTACHMENT | TextureUsages::COPY_SRC;
+        let handle = world.resource_mut::<Assets<Image>>().add(image);
+        world.insert_resource(Target(handle.clone()));
+        world.spawn((
+            Camera3d::default(),
+            RenderTarget::from(handle),
+            Msaa::Off,
+            Tonemapping::None,
+            Projection::Perspective(PerspectiveProjection { aspect_ratio: width as f32 / height as f32, ..default() }),
+            Transform::from_xyz(0.0, 1.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
+            MainCamera,
+        ));
+        world.spawn((
+            DirectionalLight { illuminance: 8000.0, shadow_maps_enabled: false, ..default() },
+            Transform::from_xyz(2.0, 6.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
+        ));
+        // The ground: a large plane at physics z = 0.
+        let ground = world.resource_mut::<Assets<Mesh>>().add(Plane3d::default().mesh().size(40.0, 40.0));
+        let grey = world.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial {
+            base_color: Color::srgb(0.45, 0.47, 0.45),
+            perceptual_roughness: 0.9,
+            ..default()
+        });
+        world.spawn((Mesh3d(ground), MeshMaterial3d(grey)));
+        Ok(Self { app, width, height })
+    }
+
+    /// Creates (once) and poses the render entities of `arena` from the sim world.
+    pub fn sync(&mut self, sim: &mut World, arena: Entity) {
+        let visuals = scene::read_visuals(sim, arena);
+        let boxes = scene::read_static_boxes(sim, arena);
+        let world = self.app.world_mut();
+        let fresh = world.resource::<Mirror>().arena != Some(arena);
+        if fresh {
+            let old: Vec<Entity> = {
+                let m = world.resource::<Mirror>();
+                m.links.values().chain(m.statics.iter()).copied().collect()
+            };
+            for e in old {
+                world.despawn(e);
+            }
+            let mut mirror = Mirror { arena: Some(arena), ..default() };
+            for (half, pose) in boxes {
+                let mesh = world.resource_mut::<Assets<Mesh>>().add(Cuboid::new(2.0 * half.x, 2.0 * half.y, 2.0 * half.z));
+                let mat = world.resource_mut::<Assets<StandardMaterial>>().add(Color::srgb(0.6, 0.55, 0.5));
+                mirror.statics.push(world.spawn((Mesh3d(mesh), MeshMaterial3d(mat), scene::to_bevy(pose))).id());
+            }
+            world.insert_resource(mirror);
+        }
+        // Links that left the sim (despawned) leave the picture too.
+        let live: std::collections::HashSet<(Entity, usize)> = visuals.iter().map(|v| v.key).collect();
+        let gone: Vec<((Entity, usize), Entity)> = world
+            .resource::<Mirror>()
+            .links
+            .iter()
+            .filter(|(k, _)| !live.contains(k))
+            .map(|(k, e)| (*k, *e))
+            .collect();
+        for (key, entity) in gone {
+            world.resource_mut::<Mirror>().links.remove(&key);
+            world.entity_mut(entity).despawn();
+        }
+        for v in visuals {
+            let existing = world.resource::<Mirror>().links.get(&v.key).copied();
+            let entity = match existing {
+                Some(e) => e,
+                None => {
+                    let (mesh, local) = scene::mesh_for(&v.visual.geometry.shape);
+                    let mesh = world.resource_mut::<Assets<Mesh>>().add(mesh);
+                    let [r, g, b, a] = v.visual.rgba;
+                    let mat = world.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial {
+                        base_color: Color::srgba(r, g, b, a),
+                        perceptual_roughness: 0.6,
+                        ..default()
+                    });
+                    let parent = world.spawn((Transform::default(), Visibility::default())).id();
+                    world.spawn((Mesh3d(mesh), MeshMaterial3d(mat), local, ChildOf(parent)));
+                    world.resource_mut::<Mirror>().links.insert(v.key, parent);
+                    parent
+                }
+            };
+            if let Some(mut t) = world.get_mut::<Transform>(entity) {
+                *t = scene::to_bevy(v.pose);
+            }
+        }
+    }
+
+    /// Points the camera.
+    pub fn set_view(&mut self, view: View) {
+        let world = self.app.world_mut();
+        let mut cams = world.query_filtered::<(&mut Transform, &mut Projection), With<MainCamera>>();
+        for (mut t, mut p) in cams.iter_mut(world) {
+            *t = view.transform;
+            if let Projection::Perspective(pp) = &mut *p {
+                pp.fov = view.fov_y;
+            }
+        }
+    }
+
+    /// Renders the current scene and returns RGB8 pixels, row-major from the top-left.
+    pub fn render(&mut self) -> Result<Vec<u8>, RenderError> {
+        self.settle()?;
+        let received: Arc<Mutex<Option<Vec<u8>>>> = Arc::default();
+        let sink = received.clone();
+        let target = self.app.world().resource::<Target>().0.clone();
+        let readback = self
+            .app
+            .world_mut()
+            .spawn(Readback::texture(target))
+            .observe(move |ev: On<ReadbackComplete>| {
+                *sink.lock().expect("readback sink") = Some(ev.data.clone());
+            })
+            .id();
+        self.app.update();
+        self.app.world_mut().entity_mut(readback).remove::<Readback>();
+        for _ in 0..8 {
+            self.poll()?;
+            if received.lock().expect("readback sink").is_some() {
+                break;
+            }
+            self.app.update();
+        }
+        self.app.world_mut().despawn(readback);
+        let data = received.lock().expect("readback sink").take().ok_or_else(|| RenderError::Failed("no pixels came back".into()))?;
+        Ok(self.strip(&data))
+    }
+
+    /// Updates until no pipeline is still compiling, so new meshes do not render blank.
+    fn settle(&mut self) -> Result<(), RenderError> {
+        for _ in 0..200 {
+            self.app.update();
+            self.poll()?;
+            let waiting = self
+                .app
+                .sub_app(RenderApp)
+                .world()
+                .resource::<PipelineCache>()
+                .waiting_pipelines()
+                .next()
+                .is_some();
+            if !waiting {
+                return Ok(());
+            }
+        }
+        Err(RenderError::Failed("render pipelines never finished compiling".into()))
+    }
+
+    fn poll(&mut self) -> Result<(), RenderError> {
+        if let Some(exit) = self.app.should_exit() {
+            return Err(RenderError::Failed(format!("the render app stopped: {exit:?}")));
+        }
+        self.app
+            .world()
+            .resource::<RenderDevice>()
+            .poll(PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| RenderError::Failed(format!("{e:?}")))
+    }
+
+    /// RGBA rows padded to 256 bytes → tight RGB rows.
+    fn strip(&self, data: &[u8]) -> Vec<u8> {
+        let row = (self.width * 4) as usize;
+        let padded = RenderDevice::align_copy_bytes_per_row(row);
+        data.chunks(padded)
+            .take(self.height as usize)
+            .flat_map(|r| r[..row].chunks(4).flat_map(|px| [px[0], px[1], px[2]]))
+            .collect()
+    }
+}

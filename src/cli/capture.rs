@@ -1,0 +1,107 @@
+//! `twinbots capture <robot>`: PNG frames of the digital twin, rendered off-screen, driven by a
+//! trained model or zero actions. `eval --record` uses the same recorder. Frame `i` is written
+//! right after physics step `i` (frame 0: the start), so it shows that step.
+
+use std::path::{Path, PathBuf};
+
+use twinbots_render::{Renderer, View};
+use twinbots_rl::{AppVecEnv, DesignPattern, Ppo, VecEnv};
+
+use crate::cli::train::latest_checkpoint;
+use crate::registry;
+
+/// Named cameras of the cell, in physics coordinates (Z up).
+pub fn camera(name: &str) -> anyhow::Result<View> {
+    let fov = 45f32.to_radians();
+    let look = |eye: [f32; 3], target: [f32; 3]| View::looking_at(eye.into(), target.into(), fov);
+    Ok(match name {
+        "side" => look([0.0, -2.6, 0.7], [0.0, 0.0, 0.5]),
+        "front" => look([2.6, 0.0, 0.7], [0.0, 0.0, 0.5]),
+        "iso" => look([1.8, -1.8, 1.4], [0.0, 0.0, 0.4]),
+        "top" => look([0.0, -0.01, 3.0], [0.0, 0.0, 0.0]),
+        other => anyhow::bail!("unknown camera '{other}'; cameras: side, front, iso, top"),
+    })
+}
+
+/// `WxH` → (W, H).
+pub fn parse_size(size: &str) -> anyhow::Result<(u32, u32)> {
+    let (w, h) = size.split_once('x').ok_or_else(|| anyhow::anyhow!("--size must look like 640x480, got '{size}'"))?;
+    let w: u32 = w.parse().map_err(|_| anyhow::anyhow!("--size: bad width '{w}'"))?;
+    let h: u32 = h.parse().map_err(|_| anyhow::anyhow!("--size: bad height '{h}'"))?;
+    anyhow::ensure!(w > 0 && h > 0 && w <= 4096 && h <= 4096, "--size must be between 1x1 and 4096x4096");
+    Ok((w, h))
+}
+
+/// A trained model from a run directory (its final model, else its newest checkpoint).
+pub fn load_model(run: &Path) -> anyhow::Result<Ppo> {
+    let dir = if run.join("model").join("model.json").is_file() {
+        run.join("model")
+    } else {
+        latest_checkpoint(run).ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint", run.display()))?
+    };
+    Ok(Ppo::load(dir)?)
+}
+
+pub struct Recorder {
+    renderer: Renderer,
+    out: PathBuf,
+    pub written: usize,
+}
+
+impl Recorder {
+    pub fn new(size: (u32, u32), view: View, out: &Path) -> anyhow::Result<Self> {
+        std::fs::create_dir_all(out)?;
+        let mut renderer = Renderer::new(size.0, size.1)?;
+        renderer.set_view(view);
+        Ok(Self { renderer, out: out.to_path_buf(), written: 0 })
+    }
+
+    /// Renders arena 0 of `env` as it is now into `frame_<step>.png`.
+    pub fn frame(&mut self, env: &mut AppVecEnv, step: u64) -> anyhow::Result<PathBuf> {
+        let arena = env.arenas()[0];
+        self.renderer.sync(env.app_mut().world_mut(), arena);
+        let rgb = self.renderer.render()?;
+        let path = self.out.join(format!("frame_{step:05}.png"));
+        image::save_buffer(&path, &rgb, self.renderer.width, self.renderer.height, image::ExtendedColorType::Rgb8)?;
+        self.written += 1;
+        Ok(path)
+    }
+}
+
+pub struct CaptureArgs {
+    pub robot: String,
+    pub model: Option<PathBuf>,
+    pub frames: usize,
+    pub every: usize,
+    pub size: (u32, u32),
+    pub camera: String,
+    pub seed: u64,
+    pub out: PathBuf,
+}
+
+pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.every > 0, "--every must be at least 1");
+    let entry = registry::find(&args.robot)?;
+    let view = camera(&args.camera)?;
+    let mut model = args.model.as_deref().map(load_model).transpose()?;
+    let mut env = AppVecEnv::new(entry.headless_app(1, args.seed, DesignPattern::Supervised)?);
+    if let Some(m) = &model {
+        m.check_spaces(env.observation_space(), env.action_space())?;
+    }
+    let mut recorder = Recorder::new(args.size, view, &args.out)?;
+    let mut obs = env.reset(Some(args.seed))?;
+    recorder.frame(&mut env, 0)?;
+    let zero = vec![0.0; env.action_space().dim()];
+    for step in 1..=(args.frames * args.every) as u64 {
+        let action = match &mut model {
+            Some(m) => m.predict_deterministic(&obs)?,
+            None => zero.clone(),
+        };
+        obs = env.step(&action)?.obs;
+        if step % args.every as u64 == 0 {
+            recorder.frame(&mut env, step)?;
+        }
+    }
+    println!("wrote {} frames ({}x{}) to {}", recorder.written, args.size.0, args.size.1, args.out.display());
+    Ok(())
+}
