@@ -146,6 +146,8 @@ enum BenchKind {
     Rl,
     /// RobotServer step round trip, and steps/s with N robots (--arenas as robot counts).
     Server,
+    /// Frames/s of off-screen capture at 640x480 and 64x64.
+    Capture,
 }
 
 fn main() {
@@ -208,6 +210,9 @@ fn run(args: Args) -> anyhow::Result<()> {
             cli::bench::print_physics(&robot, &arenas, steps)?
         }
         Command::Bench { what: BenchKind::Server, arenas, steps, .. } => cli::bench::print_server(&arenas, steps)?,
+        Command::Bench { what: BenchKind::Capture, robot, .. } => {
+            cli::bench::print_capture(&robot, &[(640, 480), (64, 64)], 60)?
+        }
         Command::Bench { what: BenchKind::Rl, robot, arenas, steps } => {
             cli::bench::print_rl(&robot, arenas.first().copied().unwrap_or(8), steps)?
         }

@@ -179,3 +179,28 @@ pub fn print_server(robot_counts: &[usize], steps: usize) -> anyhow::Result<()> 
     }
     Ok(())
 }
+
+/// Frames/s of off-screen capture of `robot` at each size: sync + render + readback + PNG
+/// encoding, one physics step per frame (the step's own cost is excluded).
+pub fn print_capture(robot: &str, sizes: &[(u32, u32)], frames: usize) -> anyhow::Result<()> {
+    let entry = registry::find(robot)?;
+    println!("off-screen capture of {robot}, {frames} frames per size (renderer: whatever adapter wgpu picks)");
+    println!("{:>10} {:>12} {:>16}", "size", "frames/s", "ms/frame");
+    for &(w, h) in sizes {
+        let mut env = AppVecEnv::new(entry.headless_app(1, 0, DesignPattern::Supervised)?);
+        env.reset(Some(0))?;
+        let dir = std::env::temp_dir().join(format!("twinbots-bench-capture-{}", std::process::id()));
+        let mut recorder = crate::cli::capture::Recorder::new((w, h), crate::cli::capture::camera("side")?, &dir)?;
+        recorder.frame(&mut env, 0)?; // warm-up: pipelines compile
+        let mut spent = 0.0;
+        for i in 1..=frames {
+            env.step(&vec![(i % 2) as f32; env.action_space().dim()])?;
+            let t = Instant::now();
+            recorder.frame(&mut env, i as u64)?;
+            spent += t.elapsed().as_secs_f64();
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+        println!("{:>10} {:>12.1} {:>16.1}", format!("{w}x{h}"), frames as f64 / spent, spent / frames as f64 * 1e3);
+    }
+    Ok(())
+}

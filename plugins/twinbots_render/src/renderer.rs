@@ -101,6 +101,8 @@ pub struct Renderer {
     app: App,
     pub width: u32,
     pub height: u32,
+    /// New meshes were added: their pipelines must compile before a frame is read.
+    fresh_meshes: bool,
 }
 
 impl Renderer {
@@ -158,7 +160,7 @@ impl Renderer {
             ..default()
         });
         world.spawn((Mesh3d(ground), MeshMaterial3d(grey)));
-        Ok(Self { app, width, height })
+        Ok(Self { app, width, height, fresh_meshes: true })
     }
 
     /// Creates (once) and poses the render entities of `arena` from the sim world.
@@ -182,6 +184,7 @@ impl Renderer {
                 mirror.statics.push(world.spawn((Mesh3d(mesh), MeshMaterial3d(mat), scene::to_bevy(pose))).id());
             }
             world.insert_resource(mirror);
+            self.fresh_meshes = true;
         }
         // Links that left the sim (despawned) leave the picture too.
         let live: std::collections::HashSet<(Entity, usize)> = visuals.iter().map(|v| v.key).collect();
@@ -212,6 +215,7 @@ impl Renderer {
                     let parent = world.spawn((Transform::default(), Visibility::default())).id();
                     world.spawn((Mesh3d(mesh), MeshMaterial3d(mat), local, ChildOf(parent)));
                     world.resource_mut::<Mirror>().links.insert(v.key, parent);
+                    self.fresh_meshes = true;
                     parent
                 }
             };
@@ -235,7 +239,9 @@ impl Renderer {
 
     /// Renders the current scene and returns RGB8 pixels, row-major from the top-left.
     pub fn render(&mut self) -> Result<Vec<u8>, RenderError> {
-        self.settle()?;
+        if std::mem::take(&mut self.fresh_meshes) {
+            self.settle()?;
+        }
         let received: Arc<Mutex<Option<Vec<u8>>>> = Arc::default();
         let sink = received.clone();
         let target = self.app.world().resource::<Target>().0.clone();
