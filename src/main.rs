@@ -43,6 +43,9 @@ enum Command {
         /// Save a checkpoint every this many updates.
         #[arg(long)]
         checkpoint_every: Option<usize>,
+        /// Show arena 0 in a window while training (the other arenas train at full speed).
+        #[arg(long)]
+        view: bool,
         /// Continue the run in this directory from its newest checkpoint.
         #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out"])]
         resume: Option<std::path::PathBuf>,
@@ -99,6 +102,16 @@ enum Command {
         size: String,
         #[arg(long, default_value = "side")]
         camera: String,
+    },
+    /// Open a window on the twin: arena 0 in real time (Space pause, N step, R reset, Esc quit,
+    /// drag to orbit, scroll to zoom).
+    View {
+        robot: String,
+        /// Drive the robot with this run's trained model (default: zero actions).
+        #[arg(long)]
+        model: Option<std::path::PathBuf>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
     },
     /// Render PNG frames of the digital twin off-screen (no window).
     Capture {
@@ -161,8 +174,8 @@ fn main() {
 fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
         Command::Robots => cli::robots::print(),
-        Command::Train { resume: Some(run), .. } => cli::train::resume(&run)?,
-        Command::Train { robot, timesteps, arenas, seed, pattern, config, out, checkpoint_every, resume: None } => {
+        Command::Train { resume: Some(run), view, .. } => cli::train::resume(&run, view)?,
+        Command::Train { robot, timesteps, arenas, seed, pattern, config, out, checkpoint_every, view, resume: None } => {
             let robot = robot.unwrap_or_default();
             let entry = registry::find(&robot)?;
             let file = match config {
@@ -172,7 +185,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             let flags = cli::train::ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, ..Default::default() };
             let settings = cli::train::TrainSettings::resolve(&entry, file, flags);
             let out = out.unwrap_or_else(|| cli::train::default_run_dir(&robot));
-            cli::train::train(settings, &out)?
+            cli::train::train(settings, &out, view)?
         }
         Command::Serve { robot, listen, robots, timesteps, seed, config, settings, out } => {
             let entry = registry::find(&robot)?;
@@ -202,6 +215,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 cli::eval::record_episode(&run, &dir, cli::capture::parse_size(&size)?, &camera)?;
             }
         }
+        Command::View { robot, model, seed } => cli::view::view(&robot, model.as_deref(), seed)?,
         Command::Capture { robot, model, frames, every, size, camera, seed, out } => {
             let size = cli::capture::parse_size(&size)?;
             cli::capture::capture(cli::capture::CaptureArgs { robot, model, frames, every, size, camera, seed, out })?

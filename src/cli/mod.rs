@@ -6,4 +6,5 @@ pub mod eval;
 pub mod robots;
 pub mod run_log;
 pub mod serve;
+pub mod view;
 pub mod train;

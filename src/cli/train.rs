@@ -154,7 +154,7 @@ fn train_through_server(settings: TrainSettings, out: &Path) -> anyhow::Result<(
 }
 
 /// A fresh run into `out`.
-pub fn train(settings: TrainSettings, out: &Path) -> anyhow::Result<()> {
+pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<()> {
     if settings.design_pattern()? == DesignPattern::Server {
         return train_through_server(settings, out);
     }
@@ -166,11 +166,11 @@ pub fn train(settings: TrainSettings, out: &Path) -> anyhow::Result<()> {
     );
     std::fs::create_dir_all(out.join("checkpoints"))?;
     std::fs::write(out.join("config.toml"), toml::to_string_pretty(&settings)?)?;
-    run(settings, out, None, Vec::new())
+    run(settings, out, None, Vec::new(), view)
 }
 
 /// Continues the run in `run_dir` from its newest checkpoint.
-pub fn resume(run_dir: &Path) -> anyhow::Result<()> {
+pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
     let config = run_dir.join("config.toml");
     let text = std::fs::read_to_string(&config)
         .map_err(|e| anyhow::anyhow!("{}: not a run directory: {e}", config.display()))?;
@@ -195,10 +195,10 @@ pub fn resume(run_dir: &Path) -> anyhow::Result<()> {
     }
     twinbots_rl::ppo::write_atomic(&csv_path, (kept.join("\n") + "\n").as_bytes())?;
     println!("resuming {} from {} ({} steps, {} episodes)", run_dir.display(), checkpoint.display(), model.timesteps, model.episodes);
-    run(settings, run_dir, Some(model), curve)
+    run(settings, run_dir, Some(model), curve, view)
 }
 
-fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<CurvePoint>) -> anyhow::Result<()> {
+fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<CurvePoint>, view: bool) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let pattern = settings.design_pattern()?;
     let mut app = entry.headless_app(settings.arenas, settings.seed, pattern)?;
@@ -218,6 +218,7 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
     };
     let run_dir = out.to_path_buf();
     let robot = settings.robot.clone();
+    let settings_title = settings.robot.clone();
     let (settings_arenas, eval_episodes, seed) = (settings.arenas, settings.eval_episodes, settings.seed);
     let solved = spec.solved;
     let make_app = move |arenas: usize, seed: u64| entry.headless_app(arenas, seed, pattern);
@@ -256,13 +257,24 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
     });
 
     // The app's thread (this one): frames until the learner hangs up.
-    let sim = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| bridge::run_until_closed(&mut app)));
-    drop(app); // closes the bridge, so a learner still waiting gets an error rather than a hang
+    let sim = if view {
+        // The window drives the app in time slices; closing the window stops training.
+        let arena = app.world().resource::<env::ArenaOrder>().0[0];
+        let source = crate::cli::view::TrainingView { app, arena, frames: 0, updates: 0, started: Instant::now(), last_slice_end: None };
+        let shown = twinbots_render::viewer::run(Box::new(source), &format!("twinbots — training {}", settings_title));
+        Ok(shown)
+    } else {
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| bridge::run_until_closed(&mut app)));
+        drop(app); // closes the bridge, so a learner still waiting gets an error rather than a hang
+        r.map(Ok)
+    };
     let learned = trainer
         .join()
         .map_err(|p| anyhow::anyhow!("the trainer thread panicked: {}", panic_message(&p)))?;
-    if let Err(p) = sim {
-        anyhow::bail!("the simulation panicked: {}", panic_message(&p));
+    match sim {
+        Err(p) => anyhow::bail!("the simulation panicked: {}", panic_message(&p)),
+        Ok(Err(e)) => return Err(e),
+        Ok(Ok(())) => {}
     }
     let (model, solved_at, wall) = learned?;
     model.save(out.join("model"))?;

@@ -55,3 +55,41 @@ fn the_camera_sees_an_object_placed_in_front_of_it_and_not_once_it_is_removed() 
     rig.sample(app.world_mut()).unwrap();
     assert!(!red(centre(&app)), "removed: {:?}", centre(&app));
 }
+
+#[test]
+fn with_the_camera_plugin_images_are_fresh_in_every_control_step() {
+    if crate::renderer(8, 8).is_none() {
+        return;
+    }
+    let mut app = App::new();
+    app.add_plugins(MinimalPlugins).add_plugins(SimPlugin::default()).add_plugins(twinbots_render::CameraPlugin);
+    let world = app.world_mut();
+    let arena_entity = world.spawn_empty().id();
+    let mut arena = Arena::new(0, 0, SimSettings::default().dt, SimSettings::default().gravity);
+    let model = |text: &str| parse_urdf(text, "t.urdf".as_ref(), ".".as_ref()).unwrap();
+    let at = |x: f32| SpawnOptions { base: Pose::from_translation(Vec3::new(x, 0.0, 0.5)), fixed_base: true, ..default() };
+    let mut queue = CommandQueue::default();
+    let post = {
+        let mut commands = Commands::new(&mut queue, world);
+        let post = spawn_robot(&mut commands, arena_entity, &mut arena, &model(POST), at(0.0));
+        spawn_robot(&mut commands, arena_entity, &mut arena, &model(TARGET), at(1.0));
+        post
+    };
+    queue.apply(world);
+    arena.mark_initial();
+    world.entity_mut(arena_entity).insert(arena);
+    let camera = world
+        .spawn((
+            CameraSensor::new(40f32.to_radians(), 32, 24),
+            Mount { link: post.link("world").unwrap(), offset: Pose::IDENTITY },
+            InArena(arena_entity),
+        ))
+        .id();
+    app.update(); // start-up
+    for step in 0..3u64 {
+        app.update();
+        let c = app.world().get::<CameraSensor>(camera).unwrap();
+        assert_eq!(c.captured_at, Some(step), "rendered during control step {step}");
+        assert!(red(c.pixel(16, 12).unwrap()));
+    }
+}

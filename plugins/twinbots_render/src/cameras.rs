@@ -46,3 +46,24 @@ impl CameraRig {
         Ok(due.len())
     }
 }
+
+/// Renders camera sensors inside the control step, in `SimSet::Sense` after the other sensors,
+/// so a task's observation terms can read `CameraSensor::image`. Only apps whose robots carry
+/// cameras add it; headless training without cameras never renders anything.
+pub struct CameraPlugin;
+
+impl Plugin for CameraPlugin {
+    fn build(&self, app: &mut App) {
+        app.insert_non_send(CameraRig::default())
+            .add_systems(Update, sample_cameras.in_set(twinbots_sim::SimSet::Sense).after(twinbots_sim::devices::sample_position_sensors));
+    }
+}
+
+fn sample_cameras(world: &mut World) {
+    let Some(mut rig) = world.remove_non_send::<CameraRig>() else { return };
+    if let Err(e) = rig.sample(world) {
+        // No adapter here means the app was misconfigured: say so once, loudly.
+        panic!("camera sensors cannot render: {e}");
+    }
+    world.insert_non_send(rig);
+}

@@ -5,6 +5,7 @@
 pub mod cameras;
 pub mod renderer;
 pub mod scene;
+pub mod viewer;
 
-pub use cameras::CameraRig;
+pub use cameras::{CameraPlugin, CameraRig};
 pub use renderer::{RenderError, Renderer, View, adapter_required};

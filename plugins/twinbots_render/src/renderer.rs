@@ -165,63 +165,8 @@ impl Renderer {
 
     /// Creates (once) and poses the render entities of `arena` from the sim world.
     pub fn sync(&mut self, sim: &mut World, arena: Entity) {
-        let visuals = scene::read_visuals(sim, arena);
-        let boxes = scene::read_static_boxes(sim, arena);
-        let world = self.app.world_mut();
-        let fresh = world.resource::<Mirror>().arena != Some(arena);
-        if fresh {
-            let old: Vec<Entity> = {
-                let m = world.resource::<Mirror>();
-                m.links.values().chain(m.statics.iter()).copied().collect()
-            };
-            for e in old {
-                world.despawn(e);
-            }
-            let mut mirror = Mirror { arena: Some(arena), ..default() };
-            for (half, pose) in boxes {
-                let mesh = world.resource_mut::<Assets<Mesh>>().add(Cuboid::new(2.0 * half.x, 2.0 * half.y, 2.0 * half.z));
-                let mat = world.resource_mut::<Assets<StandardMaterial>>().add(Color::srgb(0.6, 0.55, 0.5));
-                mirror.statics.push(world.spawn((Mesh3d(mesh), MeshMaterial3d(mat), scene::to_bevy(pose))).id());
-            }
-            world.insert_resource(mirror);
+        if scene::sync_into(self.app.world_mut(), sim, arena) {
             self.fresh_meshes = true;
-        }
-        // Links that left the sim (despawned) leave the picture too.
-        let live: std::collections::HashSet<(Entity, usize)> = visuals.iter().map(|v| v.key).collect();
-        let gone: Vec<((Entity, usize), Entity)> = world
-            .resource::<Mirror>()
-            .links
-            .iter()
-            .filter(|(k, _)| !live.contains(k))
-            .map(|(k, e)| (*k, *e))
-            .collect();
-        for (key, entity) in gone {
-            world.resource_mut::<Mirror>().links.remove(&key);
-            world.entity_mut(entity).despawn();
-        }
-        for v in visuals {
-            let existing = world.resource::<Mirror>().links.get(&v.key).copied();
-            let entity = match existing {
-                Some(e) => e,
-                None => {
-                    let (mesh, local) = scene::mesh_for(&v.visual.geometry.shape);
-                    let mesh = world.resource_mut::<Assets<Mesh>>().add(mesh);
-                    let [r, g, b, a] = v.visual.rgba;
-                    let mat = world.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial {
-                        base_color: Color::srgba(r, g, b, a),
-                        perceptual_roughness: 0.6,
-                        ..default()
-                    });
-                    let parent = world.spawn((Transform::default(), Visibility::default())).id();
-                    world.spawn((Mesh3d(mesh), MeshMaterial3d(mat), local, ChildOf(parent)));
-                    world.resource_mut::<Mirror>().links.insert(v.key, parent);
-                    self.fresh_meshes = true;
-                    parent
-                }
-            };
-            if let Some(mut t) = world.get_mut::<Transform>(entity) {
-                *t = scene::to_bevy(v.pose);
-            }
         }
     }
 

@@ -98,3 +98,69 @@ pub fn mesh_for(shape: &Shape) -> (Mesh, Transform) {
         }
     }
 }
+
+/// Creates (once) and poses, in `render`, the entities of `arena` of the `sim` world: a mesh
+/// per link visual and per static box. Returns whether new meshes were made.
+pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> bool {
+    let visuals = read_visuals(sim, arena);
+    let boxes = read_static_boxes(sim, arena);
+    if !render.contains_resource::<Mirror>() {
+        render.init_resource::<Mirror>();
+    }
+    let mut fresh = false;
+    if render.resource::<Mirror>().arena != Some(arena) {
+        let old: Vec<Entity> = {
+            let m = render.resource::<Mirror>();
+            m.links.values().chain(m.statics.iter()).copied().collect()
+        };
+        for e in old {
+            render.despawn(e);
+        }
+        let mut mirror = Mirror { arena: Some(arena), ..default() };
+        for (half, pose) in boxes {
+            let mesh = render.resource_mut::<Assets<Mesh>>().add(Cuboid::new(2.0 * half.x, 2.0 * half.y, 2.0 * half.z));
+            let mat = render.resource_mut::<Assets<StandardMaterial>>().add(Color::srgb(0.6, 0.55, 0.5));
+            mirror.statics.push(render.spawn((Mesh3d(mesh), MeshMaterial3d(mat), to_bevy(pose))).id());
+        }
+        render.insert_resource(mirror);
+        fresh = true;
+    }
+    // Links that left the sim (despawned) leave the picture too.
+    let live: std::collections::HashSet<(Entity, usize)> = visuals.iter().map(|v| v.key).collect();
+    let gone: Vec<((Entity, usize), Entity)> = render
+        .resource::<Mirror>()
+        .links
+        .iter()
+        .filter(|(k, _)| !live.contains(k))
+        .map(|(k, e)| (*k, *e))
+        .collect();
+    for (key, entity) in gone {
+        render.resource_mut::<Mirror>().links.remove(&key);
+        render.entity_mut(entity).despawn();
+    }
+    for v in visuals {
+        let existing = render.resource::<Mirror>().links.get(&v.key).copied();
+        let entity = match existing {
+            Some(e) => e,
+            None => {
+                let (mesh, local) = mesh_for(&v.visual.geometry.shape);
+                let mesh = render.resource_mut::<Assets<Mesh>>().add(mesh);
+                let [r, g, b, a] = v.visual.rgba;
+                let mat = render.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial {
+                    base_color: Color::srgba(r, g, b, a),
+                    perceptual_roughness: 0.6,
+                    ..default()
+                });
+                let parent = render.spawn((Transform::default(), Visibility::default())).id();
+                render.spawn((Mesh3d(mesh), MeshMaterial3d(mat), local, ChildOf(parent)));
+                render.resource_mut::<Mirror>().links.insert(v.key, parent);
+                fresh = true;
+                parent
+            }
+        };
+        if let Some(mut t) = render.get_mut::<Transform>(entity) {
+            *t = to_bevy(v.pose);
+        }
+    }
+    fresh
+}

@@ -1,0 +1,127 @@
+//! `twinbots view <robot>`: the visual mode, playing arena 0 in real time with a trained model
+//! or zero actions. `train --view` shows arena 0 of a training run (see `TrainingView`).
+
+use std::time::{Duration, Instant};
+
+use bevy::prelude::*;
+use twinbots_render::viewer::{self, RealTime, ViewSource};
+use twinbots_rl::{AppVecEnv, DesignPattern, Ppo, VecEnv};
+
+use crate::registry;
+
+/// Plays one arena in real time.
+struct Player {
+    env: AppVecEnv,
+    model: Option<Ppo>,
+    obs: Vec<f32>,
+    clock: RealTime,
+    steps: u64,
+    episodes: u64,
+    score: f32,
+    seed: u64,
+}
+
+impl ViewSource for Player {
+    fn advance(&mut self, _budget: Duration, paused: bool, single_step: bool) -> bool {
+        let n = if paused && single_step { 1 } else { self.clock.steps_due(paused, 8) };
+        for _ in 0..n {
+            let action = match &self.model {
+                Some(m) => m.predict_deterministic(&self.obs).unwrap_or_default(),
+                None => vec![0.0; self.env.action_space().dim()],
+            };
+            let Ok(out) = self.env.step(&action) else { return false };
+            self.obs = out.obs;
+            self.steps += 1;
+            self.score += out.rewards[0];
+            if out.episodes[0].is_some() {
+                self.episodes += 1;
+                self.score = 0.0;
+            }
+        }
+        true
+    }
+    fn reset(&mut self) {
+        self.seed += 1;
+        if let Ok(obs) = self.env.reset(Some(self.seed)) {
+            self.obs = obs;
+            self.score = 0.0;
+        }
+    }
+    fn sim_world(&mut self) -> &mut World {
+        self.env.app_mut().world_mut()
+    }
+    fn arena(&self) -> Entity {
+        self.env.arenas()[0]
+    }
+    fn status(&self) -> String {
+        format!("step {} — episode {} — score {:.0}", self.steps, self.episodes + 1, self.score)
+    }
+}
+
+pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64) -> anyhow::Result<()> {
+    let entry = registry::find(robot)?;
+    let model = model.map(crate::cli::capture::load_model).transpose()?;
+    let mut env = AppVecEnv::new(entry.headless_app(1, seed, DesignPattern::Supervised)?);
+    if let Some(m) = &model {
+        m.check_spaces(env.observation_space(), env.action_space())?;
+    }
+    let obs = env.reset(Some(seed))?;
+    let dt = env.app().world().resource::<twinbots_sim::SimSettings>().control_dt();
+    let player = Player { env, model, obs, clock: RealTime::new(dt), steps: 0, episodes: 0, score: 0.0, seed };
+    viewer::run(Box::new(player), &format!("twinbots — {robot}"))
+}
+
+/// `train --view`: the bridged training app, advanced in time slices between frames so that
+/// every arena keeps training as fast as the window allows; arena 0 is shown.
+pub struct TrainingView {
+    pub app: App,
+    pub arena: Entity,
+    pub frames: u64,
+    pub updates: u64,
+    pub started: Instant,
+    /// When the last slice ended: the gap until the next is what drawing a frame cost.
+    pub last_slice_end: Option<Instant>,
+}
+
+impl ViewSource for TrainingView {
+    fn advance(&mut self, budget: Duration, paused: bool, single_step: bool) -> bool {
+        self.frames += 1;
+        // Train at least 3× as long as a frame takes to draw: ≥ 75 % of the time trains,
+        // whether frames come from a GPU (fast) or a software renderer (slow).
+        let drawing = self.last_slice_end.map_or(Duration::ZERO, |t| t.elapsed());
+        let until = Instant::now() + budget.max(drawing * 3);
+        let result = self.slice(until, paused, single_step);
+        self.last_slice_end = Some(Instant::now());
+        result
+    }
+    fn reset(&mut self) {}
+    fn sim_world(&mut self) -> &mut World {
+        self.app.world_mut()
+    }
+    fn arena(&self) -> Entity {
+        self.arena
+    }
+    fn status(&self) -> String {
+        let secs = self.started.elapsed().as_secs_f64();
+        format!("training — {} frames shown, {:.0} app updates/s", self.frames, self.updates as f64 / secs)
+    }
+}
+
+impl TrainingView {
+    fn slice(&mut self, until: Instant, paused: bool, single_step: bool) -> bool {
+        loop {
+            if paused && !single_step {
+                return true;
+            }
+            self.app.update();
+            self.updates += 1;
+            let closed = self.app.world().get_resource::<twinbots_rl::bridge::BridgeEndpoint>().is_none_or(|e| e.closed);
+            if closed {
+                return false;
+            }
+            if paused || Instant::now() >= until {
+                return true;
+            }
+        }
+    }
+}
