@@ -186,18 +186,7 @@ impl Ppo {
         self.updates += 1;
         self.timesteps += buffer.len() as u64;
         let losses = self.optimize(buffer)?;
-        Ok(UpdateStats {
-            update: self.updates as usize,
-            timesteps: self.timesteps,
-            episodes: self.episodes,
-            mean_reward: mean(&self.recent_scores),
-            min_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::min),
-            max_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::max),
-            mean_length: mean(&self.recent_lengths),
-            learning_rate: self.optimizer.learning_rate(),
-            steps_per_s: buffer.len() as f32 / started.elapsed().as_secs_f32(),
-            ..losses
-        })
+        Ok(self.update_stats(losses, buffer.len(), started))
     }
 
     /// Mean score of the last 100 finished episodes.
@@ -275,23 +264,29 @@ impl Ppo {
             // 3. Optimise the clipped surrogate for n_epochs over shuffled minibatches.
             let losses = self.optimize(&buffer)?;
 
-            let stats = UpdateStats {
-                update: self.updates as usize,
-                timesteps: self.timesteps,
-                episodes: self.episodes,
-                mean_reward: mean(&self.recent_scores),
-                min_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::min),
-                max_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::max),
-                mean_length: mean(&self.recent_lengths),
-                learning_rate: self.optimizer.learning_rate(),
-                steps_per_s: (c.n_steps * n_envs) as f32 / started.elapsed().as_secs_f32(),
-                ..losses
-            };
+            let stats = self.update_stats(losses, c.n_steps * n_envs, started);
             if callback.on_update(&stats, self)? == Flow::Stop {
                 break;
             }
         }
         Ok(())
+    }
+
+    /// An update's row: the losses from `optimize`, the counters and episode statistics now,
+    /// and the throughput of the `samples` collected and learned from since `started`.
+    fn update_stats(&self, losses: UpdateStats, samples: usize, started: Instant) -> UpdateStats {
+        UpdateStats {
+            update: self.updates as usize,
+            timesteps: self.timesteps,
+            episodes: self.episodes,
+            mean_reward: mean(&self.recent_scores),
+            min_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::min),
+            max_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::max),
+            mean_length: mean(&self.recent_lengths),
+            learning_rate: self.optimizer.learning_rate(),
+            steps_per_s: samples as f32 / started.elapsed().as_secs_f32(),
+            ..losses
+        }
     }
 
     fn optimize(&mut self, buffer: &RolloutBuffer) -> anyhow::Result<UpdateStats> {
