@@ -5,6 +5,7 @@ mod determinism;
 mod devices;
 mod motors;
 mod pendulum;
+mod pioneer;
 mod radio;
 mod reset;
 mod urdf;
