@@ -35,6 +35,16 @@ pub fn robots() -> Vec<RobotEntry> {
         ppo: cartpole::ppo_config,
         arenas: 8,
         timesteps: 1_000_000,
+    }, RobotEntry {
+        name: "pioneer3at",
+        description: "Pioneer 3-AT skid-steer base, 16 sonars, inverted pendulum; Box([-6.4],[6.4]) wheel speed, 64 ms step",
+        patterns: &[DesignPattern::Supervised],
+        build: pioneer3at::headless_app_with,
+        task: pioneer3at::task_spec,
+        server_robot: None,
+        ppo: pioneer3at::ppo_config,
+        arenas: 8,
+        timesteps: 1_000_000,
     }]
 }
 

@@ -36,7 +36,7 @@ fn unknown_robot_lists_the_known_ones() {
     let output = twinbots().args(["train", "nosuchbot"]).output().unwrap();
     assert!(!output.status.success());
     let err = String::from_utf8_lossy(&output.stderr);
-    assert!(err.contains("unknown robot 'nosuchbot'") && err.contains("cartpole"), "{err}");
+    assert!(err.contains("unknown robot 'nosuchbot'") && err.contains("cartpole, pioneer3at"), "{err}");
 }
 
 #[test]

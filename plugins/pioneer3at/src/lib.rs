@@ -10,7 +10,7 @@ use std::path::Path;
 use bevy::prelude::*;
 use rand::Rng;
 use twinbots_rl::task::{EnvReset, ResetSet, TaskSet};
-use twinbots_rl::{Action, DesignPattern, Episode, PpoConfig, Space, TaskPlugin, TaskSpec};
+use twinbots_rl::{Action, DesignPattern, Episode, PpoConfig, SolvedCriterion, Space, TaskPlugin, TaskSpec};
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
 use twinbots_sim::{
@@ -53,7 +53,8 @@ pub fn task_spec() -> TaskSpec {
         name: "pioneer3at".into(),
         observation_space: Space::uniform_box(4, f32::NEG_INFINITY, f32::INFINITY),
         action_space: Space::Box { low: vec![-MAX_WHEEL_SPEED], high: vec![MAX_WHEEL_SPEED] },
-        solved: None,
+        // The paper's figure: ≈500 mean episode reward (it needed 32 M steps).
+        solved: Some(SolvedCriterion { window: 100, threshold: 500.0 }),
     }
 }
 
