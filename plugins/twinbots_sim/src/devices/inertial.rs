@@ -5,7 +5,7 @@
 use bevy::math::{EulerRot, Vec3};
 use bevy::prelude::*;
 
-use super::mount::{Mount, SamplingPeriod, gaussian};
+use super::mount::{Mount, MountState, SamplingPeriod, gaussian};
 use crate::arena::{Arena, InArena};
 use crate::physics::{SimClock, SimSettings};
 use crate::spawn::Link;
@@ -53,22 +53,43 @@ pub struct TouchSensor {
 
 type Sampled<'a, T> = (&'a mut T, &'a Mount, &'a InArena, Option<&'a SamplingPeriod>);
 
+/// The loop every mounted sensor shares: find its arena and mount state, then let `read`
+/// update the sensor; `due` says whether its sampling period falls on this step (a sensor that
+/// must track every step, like the accelerometer, decides for itself what to do when not due).
+fn sample_each<T: Component<Mutability = bevy::ecs::component::Mutable>>(
+    step: u64,
+    links: &Query<&Link>,
+    arenas: &mut Query<&mut Arena>,
+    sensors: &mut Query<Sampled<T>>,
+    always: bool,
+    mut read: impl FnMut(&mut T, &MountState, &mut Arena, bool),
+) {
+    for (mut sensor, mount, in_arena, period) in sensors.iter_mut() {
+        let due = SamplingPeriod::due(period, step);
+        if !due && !always {
+            continue;
+        }
+        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
+        let Some(state) = mount.state(links, &arena.world) else { continue };
+        read(&mut sensor, &state, &mut arena, due);
+    }
+}
+
+fn noise3(arena: &mut Arena, std: f32) -> Vec3 {
+    Vec3::from_array([0.0; 3].map(|_| gaussian(&mut arena.rng, std)))
+}
+
 pub(crate) fn sample_inertial_units(
     clock: Res<SimClock>,
     links: Query<&Link>,
     mut arenas: Query<&mut Arena>,
     mut sensors: Query<Sampled<InertialUnit>>,
 ) {
-    for (mut s, mount, in_arena, period) in &mut sensors {
-        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
-        if !SamplingPeriod::due(period, clock.control_steps) {
-            continue;
-        }
-        let Some(state) = mount.state(&links, &arena.world) else { continue };
+    sample_each(clock.control_steps, &links, &mut arenas, &mut sensors, false, |s, state, arena, _| {
         let (yaw, pitch, roll) = state.pose.rotation.to_euler(EulerRot::ZYX);
         let n = s.noise;
         s.roll_pitch_yaw = [roll, pitch, yaw].map(|a| a + gaussian(&mut arena.rng, n));
-    }
+    });
 }
 
 pub(crate) fn sample_gyros(
@@ -77,16 +98,9 @@ pub(crate) fn sample_gyros(
     mut arenas: Query<&mut Arena>,
     mut sensors: Query<Sampled<Gyro>>,
 ) {
-    for (mut s, mount, in_arena, period) in &mut sensors {
-        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
-        if !SamplingPeriod::due(period, clock.control_steps) {
-            continue;
-        }
-        let Some(state) = mount.state(&links, &arena.world) else { continue };
-        let local = state.pose.rotation.inverse() * state.angvel;
-        let n = s.noise;
-        s.value = local + Vec3::from_array([0.0; 3].map(|_| gaussian(&mut arena.rng, n)));
-    }
+    sample_each(clock.control_steps, &links, &mut arenas, &mut sensors, false, |s, state, arena, _| {
+        s.value = state.pose.rotation.inverse() * state.angvel + noise3(arena, s.noise);
+    });
 }
 
 /// Differentiates velocity over the control step, so it runs every step whatever the period.
@@ -98,18 +112,13 @@ pub(crate) fn sample_accelerometers(
     mut sensors: Query<Sampled<Accelerometer>>,
 ) {
     let dt = settings.control_dt();
-    for (mut s, mount, in_arena, period) in &mut sensors {
-        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
-        let Some(state) = mount.state(&links, &arena.world) else { continue };
+    sample_each(clock.control_steps, &links, &mut arenas, &mut sensors, true, |s, state, arena, due| {
         let accel = s.previous_velocity.map_or(Vec3::ZERO, |v| (state.linvel - v) / dt);
         s.previous_velocity = Some(state.linvel);
-        if !SamplingPeriod::due(period, clock.control_steps) {
-            continue;
+        if due {
+            s.value = state.pose.rotation.inverse() * (accel - settings.gravity) + noise3(arena, s.noise);
         }
-        let proper = state.pose.rotation.inverse() * (accel - settings.gravity);
-        let n = s.noise;
-        s.value = proper + Vec3::from_array([0.0; 3].map(|_| gaussian(&mut arena.rng, n)));
-    }
+    });
 }
 
 pub(crate) fn sample_gps(
@@ -118,16 +127,10 @@ pub(crate) fn sample_gps(
     mut arenas: Query<&mut Arena>,
     mut sensors: Query<Sampled<Gps>>,
 ) {
-    for (mut s, mount, in_arena, period) in &mut sensors {
-        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
-        if !SamplingPeriod::due(period, clock.control_steps) {
-            continue;
-        }
-        let Some(state) = mount.state(&links, &arena.world) else { continue };
-        let n = s.noise;
-        s.position = state.pose.translation + Vec3::from_array([0.0; 3].map(|_| gaussian(&mut arena.rng, n)));
+    sample_each(clock.control_steps, &links, &mut arenas, &mut sensors, false, |s, state, arena, _| {
+        s.position = state.pose.translation + noise3(arena, s.noise);
         s.speed = state.linvel.length();
-    }
+    });
 }
 
 pub(crate) fn sample_touch_sensors(
@@ -137,14 +140,9 @@ pub(crate) fn sample_touch_sensors(
     mut arenas: Query<&mut Arena>,
     mut sensors: Query<Sampled<TouchSensor>>,
 ) {
-    for (mut s, mount, in_arena, period) in &mut sensors {
-        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
-        if !SamplingPeriod::due(period, clock.control_steps) {
-            continue;
-        }
-        let Some(state) = mount.state(&links, &arena.world) else { continue };
+    sample_each(clock.control_steps, &links, &mut arenas, &mut sensors, false, |s, state, arena, _| {
         let world = &arena.world;
-        let Some(body) = world.bodies.get(state.body) else { continue };
+        let Some(body) = world.bodies.get(state.body) else { return };
         let pairs = || body.colliders().iter().flat_map(|&c| world.contact_pairs_with(c));
         let touching = pairs().any(|pair| pair.has_any_active_contact());
         let impulse: f32 = pairs().map(|pair| pair.total_impulse_magnitude()).sum();
@@ -153,8 +151,7 @@ pub(crate) fn sample_touch_sensors(
         // 2, 4), so it is scaled by n / (n + 1) to read m·g at rest.
         let n = world.integration_parameters.num_solver_iterations.max(1) as f32;
         let force = impulse / settings.dt * n / (n + 1.0);
-        let noise = s.noise;
         s.touching = touching;
-        s.force = if touching { (force + gaussian(&mut arena.rng, noise)).max(0.0) } else { 0.0 };
-    }
+        s.force = if touching { (force + gaussian(&mut arena.rng, s.noise)).max(0.0) } else { 0.0 };
+    });
 }
