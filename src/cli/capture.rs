@@ -5,9 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use twinbots_render::{Renderer, View};
-use twinbots_rl::{AppVecEnv, DesignPattern, Ppo, VecEnv};
+use twinbots_rl::{AppVecEnv, DesignPattern, VecEnv};
 
-use crate::cli::train::latest_checkpoint;
+use crate::cli::train::load_model;
 use crate::registry;
 
 /// Named cameras of the cell, in physics coordinates (Z up).
@@ -30,16 +30,6 @@ pub fn parse_size(size: &str) -> anyhow::Result<(u32, u32)> {
     let h: u32 = h.parse().map_err(|_| anyhow::anyhow!("--size: bad height '{h}'"))?;
     anyhow::ensure!(w > 0 && h > 0 && w <= 4096 && h <= 4096, "--size must be between 1x1 and 4096x4096");
     Ok((w, h))
-}
-
-/// A trained model from a run directory (its final model, else its newest checkpoint).
-pub fn load_model(run: &Path) -> anyhow::Result<Ppo> {
-    let dir = if run.join("model").join("model.json").is_file() {
-        run.join("model")
-    } else {
-        latest_checkpoint(run).ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint", run.display()))?
-    };
-    Ok(Ppo::load(dir)?)
 }
 
 pub struct Recorder {

@@ -6,7 +6,7 @@ use bevy::app::App;
 use serde::Serialize;
 use twinbots_rl::{AppVecEnv, Ppo, VecEnv};
 
-use crate::cli::train::{TrainSettings, latest_checkpoint};
+use crate::cli::train::{TrainSettings, load_model};
 use crate::registry;
 
 #[derive(Clone, Debug, Serialize)]
@@ -60,17 +60,9 @@ pub fn evaluate(
 /// Loads the run's final model (or its newest checkpoint), evaluates it, prints and writes
 /// `eval.json` into the run directory.
 pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>) -> anyhow::Result<EvalResult> {
-    let config = run.join("config.toml");
-    let text = std::fs::read_to_string(&config)
-        .map_err(|e| anyhow::anyhow!("{}: not a run directory: {e}", config.display()))?;
-    let settings: TrainSettings = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
+    let settings = TrainSettings::read(run)?;
     let entry = registry::find(&settings.robot)?;
-    let model_dir = if run.join("model").join("model.json").is_file() {
-        run.join("model")
-    } else {
-        latest_checkpoint(run).ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint", run.display()))?
-    };
-    let model = Ppo::load(&model_dir)?;
+    let model = load_model(run)?;
     let pattern = settings.design_pattern()?;
     let make_app = |arenas: usize, seed: u64| entry.headless_app(arenas, seed, pattern);
     let result = evaluate(&make_app, &model, arenas.unwrap_or(settings.arenas), episodes, settings.seed + 2_000_003)?;
@@ -84,10 +76,9 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>) -> anyhow::R
 
 /// Writes the frames of one deterministic evaluation episode of the run's model.
 pub fn record_episode(run: &Path, dir: &Path, size: (u32, u32), camera: &str) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(run.join("config.toml"))?;
-    let settings: TrainSettings = toml::from_str(&text)?;
+    let settings = TrainSettings::read(run)?;
     let entry = registry::find(&settings.robot)?;
-    let model = crate::cli::capture::load_model(run)?;
+    let model = load_model(run)?;
     let mut env = AppVecEnv::new(entry.headless_app(1, settings.seed + 2_000_003, settings.design_pattern()?)?);
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut recorder = crate::cli::capture::Recorder::new(size, crate::cli::capture::camera(camera)?, dir)?;

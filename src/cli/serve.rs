@@ -7,6 +7,7 @@
 use std::io::Write;
 use std::net::SocketAddr;
 use std::path::Path;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use twinbots_rl::{Flow, Ppo, UpdateStats};
@@ -31,9 +32,10 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, out: &Path) -> anyhow:
     std::fs::write(out.join("config.toml"), toml::to_string_pretty(&settings)?)?;
     let model = Ppo::new(settings.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?;
     let title = format!("{} — PPO through the RobotServer (pattern 3), seed {}", settings.robot, settings.seed);
-    let mut log = RunLog::open(out, title, spec.solved.map(|c| c.threshold), settings.checkpoint_every, settings.timesteps, 0, Vec::new())?;
+    let log = Arc::new(Mutex::new(RunLog::open(out, title, spec.solved.map(|c| c.threshold), settings.checkpoint_every, settings.timesteps, 0, Vec::new())?));
+    let server_log = log.clone();
     let callback = Box::new(move |s: &UpdateStats, m: &Ppo| -> anyhow::Result<Flow> {
-        log.on_update(s, m)?;
+        server_log.lock().map_err(|_| anyhow::anyhow!("run log lock poisoned"))?.on_update(s, m)?;
         Ok(Flow::Continue)
     });
     let server_settings = ServerSettings {
@@ -61,8 +63,8 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, out: &Path) -> anyhow:
         "ended": reason,
     });
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)?)?;
-    // The curve's last points since the last checkpoint.
-    twinbots_rl::plot::learning_curve(&out.join("learning_curve.png"), &format!("{} — pattern 3", settings.robot), &read_curve(out), spec.solved.map(|c| c.threshold))?;
+    // The curve's last points since the last checkpoint, and the progress bar's end.
+    log.lock().map_err(|_| anyhow::anyhow!("run log lock poisoned"))?.finish()?;
     println!(
         "{reason}: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}",
         model.timesteps,
@@ -72,22 +74,6 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, out: &Path) -> anyhow:
     // Give connected robots a moment to read their `done` before the process exits.
     std::thread::sleep(Duration::from_millis(200));
     Ok(())
-}
-
-fn read_curve(out: &Path) -> Vec<twinbots_rl::plot::CurvePoint> {
-    let csv = std::fs::read_to_string(out.join("progress.csv")).unwrap_or_default();
-    csv.lines()
-        .skip(1)
-        .filter_map(|l| {
-            let f: Vec<f32> = l.split(',').map(|x| x.parse().unwrap_or(f32::NAN)).collect();
-            Some(twinbots_rl::plot::CurvePoint {
-                timesteps: *f.get(1)? as u64,
-                mean_reward: *f.get(3)?,
-                min_reward: *f.get(4)?,
-                max_reward: *f.get(5)?,
-            })
-        })
-        .collect()
 }
 
 /// Runs `arenas` simulated robots against the server at `server` until it says training is

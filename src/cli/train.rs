@@ -66,6 +66,14 @@ impl ConfigFile {
 }
 
 impl TrainSettings {
+    /// The settings a run directory was made with (its `config.toml`).
+    pub fn read(run: &Path) -> anyhow::Result<Self> {
+        let config = run.join("config.toml");
+        let text = std::fs::read_to_string(&config)
+            .map_err(|e| anyhow::anyhow!("{}: not a run directory: {e}", config.display()))?;
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))
+    }
+
     pub fn design_pattern(&self) -> anyhow::Result<DesignPattern> {
         DesignPattern::from_number(self.pattern)
             .ok_or_else(|| anyhow::anyhow!("pattern must be 1, 2 or 3, got {}", self.pattern))
@@ -117,6 +125,16 @@ pub fn latest_checkpoint(run: &Path) -> Option<PathBuf> {
         .collect();
     dirs.sort();
     dirs.pop()
+}
+
+/// A trained model from a run directory: its final model, else its newest checkpoint.
+pub fn load_model(run: &Path) -> anyhow::Result<Ppo> {
+    let dir = if run.join("model").join("model.json").is_file() {
+        run.join("model")
+    } else {
+        latest_checkpoint(run).ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint", run.display()))?
+    };
+    Ok(Ppo::load(dir)?)
 }
 
 /// Pattern 3: starts `twinbots serve` as its own process and runs the robots here.
@@ -171,10 +189,7 @@ pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<
 
 /// Continues the run in `run_dir` from its newest checkpoint.
 pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
-    let config = run_dir.join("config.toml");
-    let text = std::fs::read_to_string(&config)
-        .map_err(|e| anyhow::anyhow!("{}: not a run directory: {e}", config.display()))?;
-    let settings: TrainSettings = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
+    let settings = TrainSettings::read(run_dir)?;
     let checkpoint = latest_checkpoint(run_dir)
         .ok_or_else(|| anyhow::anyhow!("{}: no checkpoint to resume from", run_dir.display()))?;
     let model = Ppo::load(&checkpoint)?;

@@ -92,7 +92,7 @@ impl Default for CartPolePlugin {
 
 /// The model and start-state settings, shared by the systems.
 #[derive(Resource, Clone)]
-struct CartPoleConfig {
+pub(crate) struct CartPoleConfig {
     model: RobotModel,
     initial_tilt: f32,
     pattern: DesignPattern,
@@ -107,10 +107,6 @@ pub struct CartPoleParts {
     pub wheels: [Entity; 4],
 }
 
-/// The start tilt, for the pattern-3 operator.
-#[derive(Resource, Clone, Copy, Debug)]
-pub(crate) struct CartPoleConfigTilt(pub f32);
-
 impl Plugin for CartPolePlugin {
     fn build(&self, app: &mut App) {
         app.insert_resource(CartPoleConfig {
@@ -122,7 +118,6 @@ impl Plugin for CartPolePlugin {
         if self.pattern == DesignPattern::Server {
             // No task machinery (it resets through the Supervisor): the robot and the server
             // run the episodes.
-            app.insert_resource(CartPoleConfigTilt(self.initial_tilt));
             server::build(app);
             return;
         }

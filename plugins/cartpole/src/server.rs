@@ -78,7 +78,7 @@ fn connect_robots(
     mut commands: Commands,
     address: Res<ServerAddress>,
     config: Res<ArenaConfig>,
-    tilt: Res<crate::CartPoleConfigTilt>,
+    cartpole: Res<crate::CartPoleConfig>,
     mut state: ResMut<RobotRunState>,
     arenas: Query<(Entity, &twinbots_sim::Arena)>,
 ) {
@@ -98,7 +98,7 @@ fn connect_robots(
             previous_angle: 0.0,
             awaiting_reply: false,
             rng,
-            initial_tilt: tilt.0,
+            initial_tilt: cartpole.initial_tilt,
         });
     }
 }

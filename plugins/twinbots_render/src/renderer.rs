@@ -17,7 +17,7 @@ use bevy::render::{RenderApp, RenderPlugin};
 use bevy::window::ExitCondition;
 use twinbots_sim::rapier::math::Pose;
 
-use crate::scene::{self, Mirror};
+use crate::scene;
 
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
@@ -121,8 +121,7 @@ impl Renderer {
                 .disable::<bevy::log::LogPlugin>(),
         )
         .insert_resource(ClearColor(Color::srgb(0.78, 0.84, 0.9)))
-        .insert_resource(GlobalAmbientLight { color: Color::WHITE, brightness: 400.0, affects_lightmapped_meshes: true })
-        .init_resource::<Mirror>();
+        .insert_resource(GlobalAmbientLight { color: Color::WHITE, brightness: 400.0, affects_lightmapped_meshes: true });
         while app.plugins_state() == PluginsState::Adding {
             bevy::tasks::tick_global_task_pools_on_main_thread();
         }
