@@ -18,7 +18,7 @@ use bevy::prelude::*;
 pub use arena::{Arena, ArenaConfig, InArena};
 pub use devices::{
     Accelerometer, BROADCAST, CameraSensor, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint, JointState, Motor,
-    MotorCommand, Mount, Packet, PositionSensor, Receiver, SamplingPeriod, TouchSensor,
+    MotorCommand, Mount, Packet, PositionSensor, Receiver, SamplingPeriod, TouchSensor, VacuumGripper,
 };
 pub use physics::{PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use spawn::{Link, Robot, SpawnOptions, SpawnedRobot, Visuals, spawn_robot};
@@ -98,12 +98,12 @@ impl Plugin for SimPlugin {
         app.add_schedule(substep)
             .configure_sets(
                 PhysicsSubstep,
-                (SubstepSet::Actuate, SubstepSet::Integrate, SubstepSet::Measure).chain(),
+                (SubstepSet::Actuate, SubstepSet::Integrate, SubstepSet::Measure, SubstepSet::Record).chain(),
             )
             .add_systems(
                 PhysicsSubstep,
                 (
-                    devices::drive_motors.in_set(SubstepSet::Actuate),
+                    (devices::operate_vacuum_grippers, devices::drive_motors).in_set(SubstepSet::Actuate),
                     physics::integrate_arenas.in_set(SubstepSet::Integrate),
                     devices::measure_joints.in_set(SubstepSet::Measure),
                 ),

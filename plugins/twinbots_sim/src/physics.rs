@@ -15,6 +15,9 @@ pub struct SimSettings {
     /// Physics steps per control step.
     pub substeps: u32,
     pub gravity: Vec3,
+    /// Rapier's solver iterations (substeps) per physics step: more keep long joint chains
+    /// (an arm) tighter, at a cost proportional to them.
+    pub solver_iterations: usize,
 }
 
 impl SimSettings {
@@ -30,6 +33,7 @@ impl Default for SimSettings {
             dt: 0.004,
             substeps: 8,
             gravity: Vec3::new(0.0, 0.0, -9.81),
+            solver_iterations: 4,
         }
     }
 }
@@ -73,6 +77,8 @@ pub enum SubstepSet {
     Integrate,
     /// Joint positions and velocities are measured.
     Measure,
+    /// Recorders that integrate over physics steps (energy meters) read the measured state.
+    Record,
 }
 
 pub(crate) fn run_substeps(world: &mut World) {
@@ -86,6 +92,7 @@ pub(crate) fn integrate_arenas(settings: Res<SimSettings>, mut arenas: Query<&mu
     for mut arena in &mut arenas {
         let world = &mut arena.world;
         world.integration_parameters.dt = settings.dt;
+        world.integration_parameters.num_solver_iterations = settings.solver_iterations;
         world.gravity = settings.gravity;
         world.step();
     }

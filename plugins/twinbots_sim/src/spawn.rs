@@ -9,7 +9,7 @@ use bevy::prelude::*;
 use crate::arena::{Arena, ENVIRONMENT_GROUP, InArena, ROBOT_GROUP};
 use crate::devices::{Joint, JointState, Motor, PositionSensor};
 use crate::rapier::prelude::*;
-use crate::urdf::{JointKind, RobotModel, Shape};
+use crate::urdf::{JointKind, JointModel, RobotModel, Shape};
 
 /// A robot in an arena.
 #[derive(Component, Clone, Debug)]
@@ -32,7 +32,7 @@ pub struct Link {
 pub struct Visuals(pub Vec<crate::urdf::Visual>);
 
 /// How a robot is placed and attached.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct SpawnOptions {
     /// Pose of the root link in the arena.
     pub base: Pose,
@@ -40,6 +40,11 @@ pub struct SpawnOptions {
     pub fixed_base: bool,
     /// Friction coefficient of the robot's colliders.
     pub friction: f32,
+    /// Spawn as part of the cell (a fixture, a workpiece) rather than a robot: its colliders
+    /// join the environment group, so they touch robots and each other.
+    pub environment: bool,
+    /// Starting positions (rad or m) of movable joints, by name; the others start at 0.
+    pub joint_positions: Vec<(String, f32)>,
 }
 
 impl Default for SpawnOptions {
@@ -48,6 +53,8 @@ impl Default for SpawnOptions {
             base: Pose::IDENTITY,
             fixed_base: false,
             friction: 1.0,
+            environment: false,
+            joint_positions: Vec::new(),
         }
     }
 }
@@ -84,9 +91,22 @@ pub fn spawn_robot(
     model: &RobotModel,
     options: SpawnOptions,
 ) -> SpawnedRobot {
+    for (name, _) in &options.joint_positions {
+        // A name that is no movable joint of the model is a bug in the calling plugin.
+        assert!(
+            model.joint(name).is_some_and(|j| j.kind.is_movable()),
+            "SpawnOptions::joint_positions names '{name}', which is no movable joint of robot '{}'",
+            model.name
+        );
+    }
     let robot = commands
         .spawn((Robot { name: model.name.clone() }, InArena(arena_entity)))
         .id();
+    let groups = if options.environment {
+        InteractionGroups::new(ENVIRONMENT_GROUP, Group::ALL, InteractionTestMode::And)
+    } else {
+        InteractionGroups::new(ROBOT_GROUP, ENVIRONMENT_GROUP, InteractionTestMode::And)
+    };
     let order = tree_order(model);
 
     // Which link's body each link belongs to, where its frame sits in that body, and in the world.
@@ -101,7 +121,7 @@ pub fn spawn_robot(
                 world_pose[l] = options.base;
             }
             Some(j) => {
-                world_pose[l] = world_pose[j.parent] * j.origin;
+                world_pose[l] = world_pose[j.parent] * j.origin * joint_motion(j, start_position(&options, j));
                 if j.kind == JointKind::Fixed {
                     owner[l] = owner[j.parent];
                     offset[l] = offset[j.parent] * j.origin;
@@ -140,11 +160,7 @@ pub fn spawn_robot(
             let collider = collider(&geometry.shape, offset[l] * geometry.origin)
                 .friction(options.friction)
                 .density(0.0)
-                .collision_groups(InteractionGroups::new(
-                    ROBOT_GROUP,
-                    ENVIRONMENT_GROUP,
-                    InteractionTestMode::And,
-                ));
+                .collision_groups(groups);
             let w = &mut arena.world;
             w.colliders.insert_with_parent(collider, body, &mut w.bodies);
         }
@@ -195,7 +211,12 @@ pub fn spawn_robot(
             child_body,
             limits: j.limits.position,
         };
-        let state = JointState::measured(&joint, &arena.world);
+        let mut state = JointState::measured(&joint, &arena.world);
+        if j.kind.is_rotational() {
+            // Keep the turns of a starting position beyond ±π (the measurement is wrapped).
+            let start = start_position(&options, j);
+            state.position += std::f32::consts::TAU * ((start - state.position) / std::f32::consts::TAU).round();
+        }
         let mut entity = commands.spawn((joint, state, PositionSensor::default(), InArena(arena_entity)));
         if j.limits.effort > 0.0 {
             entity.insert(Motor::new(j.limits.velocity, j.limits.effort));
@@ -203,6 +224,20 @@ pub fn spawn_robot(
         spawned.joints.insert(j.name.clone(), entity.id());
     }
     spawned
+}
+
+/// The starting position `options` give the joint (0 if none).
+fn start_position(options: &SpawnOptions, joint: &JointModel) -> f32 {
+    options.joint_positions.iter().find(|(name, _)| *name == joint.name).map_or(0.0, |&(_, q)| q)
+}
+
+/// The child frame relative to the joint frame at position `q`.
+fn joint_motion(joint: &JointModel, q: f32) -> Pose {
+    match joint.kind {
+        JointKind::Fixed => Pose::IDENTITY,
+        JointKind::Prismatic => Pose::from_translation(joint.axis * q),
+        JointKind::Revolute | JointKind::Continuous => Pose::from_rotation(Quat::from_axis_angle(joint.axis, q)),
+    }
 }
 
 /// Links ordered so that every parent comes before its children.

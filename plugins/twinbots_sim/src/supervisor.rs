@@ -10,7 +10,7 @@ use bevy::math::Vec3;
 use bevy::prelude::*;
 
 use crate::arena::{Arena, InArena};
-use crate::devices::{Joint, JointState, Motor};
+use crate::devices::{Joint, JointState, Motor, VacuumGripper};
 use crate::rapier::prelude::*;
 use crate::spawn::Link;
 
@@ -53,6 +53,7 @@ pub struct Supervisor<'w, 's> {
     arenas: Query<'w, 's, &'static mut Arena>,
     links: Query<'w, 's, (&'static Link, &'static InArena)>,
     joints: JointQuery<'w, 's>,
+    grippers: Query<'w, 's, (&'static mut VacuumGripper, &'static InArena)>,
 }
 
 /// A person in the lab: outside the robot, able to put an object on a hinge (the pendulum) at
@@ -63,6 +64,7 @@ pub struct Operator<'w, 's> {
     #[allow(dead_code)]
     this_app_has_no_lab_operator: Res<'w, OperatorAccess>,
     arenas: Query<'w, 's, &'static mut Arena>,
+    links: Query<'w, 's, (&'static Link, &'static InArena)>,
     joints: JointQuery<'w, 's>,
 }
 
@@ -71,6 +73,37 @@ impl Operator<'_, '_> {
     pub fn place_joint(&mut self, joint: Entity, position: f32) -> bool {
         place_joint(&mut self.arenas, &mut self.joints, joint, position)
     }
+
+    /// Puts a loose object (a workpiece: the link of a free body) at `pose`, at rest, as an
+    /// operator puts a part back in its fixture.
+    pub fn place_object(&mut self, link: Entity, pose: Pose) -> bool {
+        move_body(&mut self.arenas, &self.links, link, |body, offset| {
+            body.set_position(pose * offset.inverse(), true);
+            body.set_linvel(Vec3::ZERO, true);
+            body.set_angvel(Vec3::ZERO, true);
+        })
+    }
+
+    /// Where a loose object's link frame is now (the operator can see it).
+    pub fn object_pose(&self, link: Entity) -> Option<Pose> {
+        let (link, in_arena) = self.links.get(link).ok()?;
+        let body = self.arenas.get(in_arena.0).ok()?.world.bodies.get(link.body)?;
+        Some(*body.position() * link.offset)
+    }
+}
+
+/// Applies `change` to the body of `link` (given the link's offset in it).
+fn move_body(
+    arenas: &mut Query<&mut Arena>,
+    links: &Query<(&Link, &InArena)>,
+    link: Entity,
+    change: impl FnOnce(&mut RigidBody, Pose),
+) -> bool {
+    let Ok((link, in_arena)) = links.get(link) else { return false };
+    let Ok(mut arena) = arenas.get_mut(in_arena.0) else { return false };
+    let Some(body) = arena.world.bodies.get_mut(link.body) else { return false };
+    change(body, link.offset);
+    true
 }
 
 impl Supervisor<'_, '_> {
@@ -104,21 +137,15 @@ impl Supervisor<'_, '_> {
     /// Teleports a link's body so that the link frame lands on `pose`, keeping its velocity.
     /// Only that body moves: joints pull the rest along on the next step.
     pub fn set_link_pose(&mut self, link: Entity, pose: Pose) -> bool {
-        let Ok((link, in_arena)) = self.links.get(link) else { return false };
-        let Ok(mut arena) = self.arenas.get_mut(in_arena.0) else { return false };
-        let Some(body) = arena.world.bodies.get_mut(link.body) else { return false };
-        body.set_position(pose * link.offset.inverse(), true);
-        true
+        move_body(&mut self.arenas, &self.links, link, |body, offset| body.set_position(pose * offset.inverse(), true))
     }
 
     /// Sets a link body's linear and angular velocity.
     pub fn set_link_velocity(&mut self, link: Entity, linvel: Vec3, angvel: Vec3) -> bool {
-        let Ok((link, in_arena)) = self.links.get(link) else { return false };
-        let Ok(mut arena) = self.arenas.get_mut(in_arena.0) else { return false };
-        let Some(body) = arena.world.bodies.get_mut(link.body) else { return false };
-        body.set_linvel(linvel, true);
-        body.set_angvel(angvel, true);
-        true
+        move_body(&mut self.arenas, &self.links, link, |body, _| {
+            body.set_linvel(linvel, true);
+            body.set_angvel(angvel, true);
+        })
     }
 
     /// Puts a joint at `position` by moving its child body and everything beyond it rigidly,
@@ -128,7 +155,7 @@ impl Supervisor<'_, '_> {
     }
 
     /// Puts an arena back to exactly its initial state: every body's pose and velocity, joint
-    /// positions, and motor commands. Returns false for an unknown arena or one never marked.
+    /// positions, motor commands, and grippers off and empty. Returns false for an unknown arena or one never marked.
     pub fn reset_arena(&mut self, arena: Entity) -> bool {
         let Ok(mut a) = self.arenas.get_mut(arena) else { return false };
         if !a.restore_initial() {
@@ -139,6 +166,12 @@ impl Supervisor<'_, '_> {
                 && let Some(mut motor) = motor
             {
                 motor.command = motor.initial_command;
+                motor.forget_reference();
+            }
+        }
+        for (mut gripper, in_arena) in &mut self.grippers {
+            if in_arena.0 == arena {
+                gripper.forget();
             }
         }
         self.remeasure(arena);
@@ -191,12 +224,15 @@ fn place_joint(arenas: &mut Query<&mut Arena>, joints: &mut JointQuery, joint: E
     true
 }
 
-/// Re-reads joint states from the world after a teleport.
+/// Re-reads joint states from the world after a teleport; holding motors restart from there.
 fn remeasure(arenas: &Query<&mut Arena>, joints: &mut JointQuery, arena: Entity) {
     let Ok(a) = arenas.get(arena) else { return };
-    for (joint, in_arena, mut state, _) in joints.iter_mut() {
+    for (joint, in_arena, mut state, motor) in joints.iter_mut() {
         if in_arena.0 == arena {
             *state = JointState::measured(joint, &a.world);
+            if let Some(mut motor) = motor {
+                motor.forget_reference();
+            }
         }
     }
 }

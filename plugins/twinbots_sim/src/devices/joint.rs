@@ -3,7 +3,9 @@
 use bevy::math::{Quat, Vec3};
 use bevy::prelude::*;
 
+use super::motor::Motor;
 use crate::arena::{Arena, InArena};
+use crate::physics::SimSettings;
 use crate::rapier::prelude::*;
 use crate::urdf::JointKind;
 
@@ -21,16 +23,37 @@ pub struct Joint {
     pub limits: Option<[f32; 2]>,
 }
 
-/// Position (unwrapped, so continuous joints count turns) and velocity of a joint, measured
-/// after every physics step. Privileged-free: it is what an encoder on the joint sees.
+/// Position (unwrapped, so continuous joints count turns), speed and motor effort of a
+/// joint, measured after every physics step. Privileged-free: it is what an encoder and the
+/// motor's current sensing report on a real joint.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct JointState {
     pub position: f32,
     pub velocity: f32,
+    /// Torque (N·m) or force (N) the joint's motor exerted on the child over the last physics
+    /// step, as Webots' torque feedback (0 for a joint without a motor or with it off).
+    pub effort: f32,
     wrapped: f32,
 }
 
 impl Joint {
+    /// The rapier axis the joint moves along.
+    pub fn axis(&self) -> JointAxis {
+        if self.kind.is_rotational() { JointAxis::AngX } else { JointAxis::LinX }
+    }
+
+    /// The effort rapier's motor constraint applied over the last step of `dt` seconds. Rapier
+    /// solves a step as `num_solver_iterations` substeps and keeps the impulse of the last, so
+    /// the effort is that impulse over the substep's length (checked against a link held
+    /// against gravity: it reads m·g·l).
+    pub fn motor_effort(&self, world: &PhysicsWorld, dt: f32) -> f32 {
+        let substeps = world.integration_parameters.num_solver_iterations.max(1) as f32;
+        world
+            .impulse_joints
+            .get(self.handle)
+            .map_or(0.0, |j| j.data.motors[self.axis() as usize].impulse * substeps / dt)
+    }
+
     /// World-frame free axis, and (wrapped) position and velocity along it.
     pub fn measure(&self, world: &PhysicsWorld) -> Option<(Vec3, f32, f32)> {
         let joint = world.impulse_joints.get(self.handle)?;
@@ -62,12 +85,18 @@ impl JointState {
         Self {
             position: pos,
             velocity: vel,
+            effort: 0.0,
             wrapped: pos,
         }
     }
 
-    fn update(&mut self, joint: &Joint, world: &PhysicsWorld) {
-        let Some((_, pos, vel)) = joint.measure(world) else { return };
+    /// Advances the state over a physics step of `dt`. The speed is the position's change over
+    /// the step, as an encoder measures it: rapier reports body velocities without the position
+    /// correction its solver applied, so under a holding motor's load they show a creep the
+    /// joint does not make.
+    fn update(&mut self, joint: &Joint, world: &PhysicsWorld, dt: f32) {
+        let Some((_, pos, _)) = joint.measure(world) else { return };
+        let previous = self.position;
         if joint.kind.is_rotational() {
             let mut delta = pos - self.wrapped;
             delta -= std::f32::consts::TAU * (delta / std::f32::consts::TAU).round();
@@ -76,17 +105,19 @@ impl JointState {
             self.position = pos;
         }
         self.wrapped = pos;
-        self.velocity = vel;
+        self.velocity = (self.position - previous) / dt;
     }
 }
 
 pub(crate) fn measure_joints(
+    settings: Res<SimSettings>,
     arenas: Query<&Arena>,
-    mut joints: Query<(&Joint, &InArena, &mut JointState)>,
+    mut joints: Query<(&Joint, &InArena, &mut JointState, Option<&Motor>)>,
 ) {
-    for (joint, in_arena, mut state) in &mut joints {
+    for (joint, in_arena, mut state, motor) in &mut joints {
         if let Ok(arena) = arenas.get(in_arena.0) {
-            state.update(joint, &arena.world);
+            state.update(joint, &arena.world, settings.dt);
+            state.effort = motor.map_or(0.0, |m| m.applied_effort(joint, &state, &arena.world, settings.dt));
         }
     }
 }

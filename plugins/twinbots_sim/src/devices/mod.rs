@@ -9,6 +9,7 @@ mod motor;
 mod mount;
 mod position_sensor;
 mod radio;
+mod vacuum_gripper;
 
 pub use camera::CameraSensor;
 pub use distance_sensor::DistanceSensor;
@@ -18,9 +19,11 @@ pub use motor::{Motor, MotorCommand};
 pub use mount::{Mount, MountState, SamplingPeriod, gaussian};
 pub use position_sensor::{PositionSensor, sample_position_sensors};
 pub use radio::{BROADCAST, Emitter, Packet, Receiver};
+pub use vacuum_gripper::VacuumGripper;
 
 pub(crate) use distance_sensor::sample_distance_sensors;
 pub(crate) use inertial::{sample_accelerometers, sample_gps, sample_gyros, sample_inertial_units, sample_touch_sensors};
 pub(crate) use joint::measure_joints;
 pub(crate) use motor::drive_motors;
 pub(crate) use radio::deliver_radio;
+pub(crate) use vacuum_gripper::operate_vacuum_grippers;

@@ -11,6 +11,13 @@ use crate::rapier::prelude::*;
 /// Gain of rapier's velocity motor: high, so the motor tracks its target as fast as its torque
 /// limit allows (the torque limit, not this gain, is what bounds it).
 const VELOCITY_MOTOR_GAIN: f32 = 1.0e4;
+/// Stiffness (1/s², per unit of the joint's effective inertia) of a position-holding motor's
+/// position loop; with [`VELOCITY_MOTOR_GAIN`] as its damping, a load that makes a plain velocity
+/// motor creep at v leaves a static error of about v / 500 s (the UR5e's shoulder: 2 mrad).
+const POSITION_HOLD_STIFFNESS: f32 = 1.0e7;
+/// How far (rad or m) a holding motor's reference may run ahead of the joint (a drive's
+/// following-error limit): a blocked or torque-limited joint does not wind its reference up.
+const MAX_FOLLOWING_ERROR: f32 = 0.05;
 
 /// What the motor is asked to do. Values outside the motor's limits are clamped.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -40,6 +47,13 @@ pub struct Motor {
     pub command: MotorCommand,
     /// The command restored when the arena is reset.
     pub initial_command: MotorCommand,
+    /// Velocity and position commands drive a position reference that the motor holds, as an
+    /// industrial servo's position loop does under speed commands (a UR's `speedj`). Without
+    /// it, rapier's velocity motor lets a joint under a static load (an arm against gravity)
+    /// creep slowly, whatever its gain. Off by default (Webots' plain velocity motors: wheels).
+    pub holds_position: bool,
+    /// The held position reference (rad or m), once the motor holds.
+    reference: Option<f32>,
 }
 
 impl Motor {
@@ -51,45 +65,122 @@ impl Motor {
             strength: 1.0,
             command: MotorCommand::Off,
             initial_command: MotorCommand::Off,
+            holds_position: false,
+            reference: None,
         }
     }
 
-    /// The velocity the motor's controller asks for now, bounded by `max_velocity`.
-    pub fn target_velocity(&self, state: &JointState) -> Option<f32> {
+    /// A motor that holds the position its commands lead to (see [`Motor::holds_position`]).
+    pub fn holding(mut self) -> Self {
+        self.holds_position = true;
+        self
+    }
+
+    /// Drops the held reference, so it restarts from the joint's position: after the joint
+    /// was moved from outside (a reset, a teleport).
+    pub fn forget_reference(&mut self) {
+        self.reference = None;
+    }
+
+    /// Advances the held reference by `v` over `dt`, kept within the following-error limit of
+    /// the joint's position and within its stops; returns it.
+    fn advance_reference(&mut self, position: f32, v: f32, dt: f32, limits: Option<[f32; 2]>) -> f32 {
+        let r = self.reference.unwrap_or(position) + v * dt;
+        let r = r.clamp(position - MAX_FOLLOWING_ERROR, position + MAX_FOLLOWING_ERROR);
+        let r = limits.map_or(r, |[lo, hi]| r.clamp(lo, hi));
+        self.reference = Some(r);
+        r
+    }
+
+    /// The effort the motor applied over the last physics step: the solved constraint effort
+    /// of velocity and position control, the clamped command of torque control.
+    pub fn applied_effort(&self, joint: &Joint, state: &JointState, world: &PhysicsWorld, dt: f32) -> f32 {
+        match self.command {
+            MotorCommand::Off => 0.0,
+            MotorCommand::Torque(t) => self.torque_within_limits(t, state, joint.limits),
+            MotorCommand::Velocity(_) | MotorCommand::Position(_) => joint.motor_effort(world, dt),
+        }
+    }
+
+    /// A torque command clamped to what the motor can deliver.
+    fn torque_limit(&self, torque: f32) -> f32 {
+        let limit = self.max_effort * self.strength;
+        torque.clamp(-limit, limit)
+    }
+
+    /// The velocity the motor's controller asks for now, bounded by `max_velocity` and by the
+    /// joint's position stops: it never drives past a stop, and brakes ahead of one as position
+    /// control approaches its target (speed at most `position_gain` × distance), so a heavy
+    /// load has time to stop (Webots' minPosition/maxPosition; a UR controller's software
+    /// limits). Rapier enforces stops only within one turn, so for wider ranges (the UR5e's
+    /// ±2π) this is what holds them.
+    pub fn target_velocity(&self, state: &JointState, limits: Option<[f32; 2]>, dt: f32) -> Option<f32> {
+        // A holding motor eases its reference to the target (a servo's trajectory generator),
+        // and its position loop makes the joint follow the reference.
+        let from = if self.holds_position { self.reference.unwrap_or(state.position) } else { state.position };
         let v = match self.command {
             MotorCommand::Velocity(v) => v,
-            MotorCommand::Position(p) => self.position_gain * (p - state.position),
+            MotorCommand::Position(p) => self.position_gain * (p - from),
             MotorCommand::Off | MotorCommand::Torque(_) => return None,
         };
-        Some(v.clamp(-self.max_velocity, self.max_velocity))
+        let v = v.clamp(-self.max_velocity, self.max_velocity);
+        let brake = self.position_gain.min(1.0 / dt);
+        Some(match limits {
+            Some([lo, hi]) => v.clamp(((lo - state.position) * brake).min(0.0), ((hi - state.position) * brake).max(0.0)),
+            None => v,
+        })
+    }
+
+    /// A torque command, clamped to what the motor delivers and cut where it would push the
+    /// joint further past a stop.
+    fn torque_within_limits(&self, torque: f32, state: &JointState, limits: Option<[f32; 2]>) -> f32 {
+        let t = self.torque_limit(torque);
+        match limits {
+            Some([_, hi]) if state.position >= hi => t.min(0.0),
+            Some([lo, _]) if state.position <= lo => t.max(0.0),
+            _ => t,
+        }
     }
 }
 
 pub(crate) fn drive_motors(
     settings: Res<SimSettings>,
     mut arenas: Query<&mut Arena>,
-    motors: Query<(&Joint, &JointState, &Motor, &InArena)>,
+    mut motors: Query<(&Joint, &JointState, &mut Motor, &InArena)>,
 ) {
-    for (joint, state, motor, in_arena) in &motors {
+    for (joint, state, mut motor, in_arena) in &mut motors {
         let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
         let world = &mut arena.world;
-        let axis = if joint.kind.is_rotational() { JointAxis::AngX } else { JointAxis::LinX };
-        let target = motor.target_velocity(state);
+        let axis = joint.axis();
+        let target = motor.target_velocity(state, joint.limits, settings.dt);
+        // The reference a holding motor keeps, as rapier's (wrapped) joint angle.
+        let reference = match target {
+            Some(v) if motor.holds_position => Some(motor.advance_reference(state.position, v, settings.dt, joint.limits)),
+            _ => {
+                motor.forget_reference();
+                None
+            }
+        };
+        let rotational = joint.kind.is_rotational();
         if let Some(j) = world.impulse_joints.get_mut(joint.handle, false) {
-            match target {
-                Some(v) => {
+            match (target, reference) {
+                (Some(v), Some(r)) => {
+                    let r = if rotational { r - std::f32::consts::TAU * (r / std::f32::consts::TAU).round() } else { r };
+                    j.data.set_motor(axis, r, v, POSITION_HOLD_STIFFNESS, VELOCITY_MOTOR_GAIN);
+                    j.data.set_motor_max_force(axis, motor.max_effort * motor.strength);
+                }
+                (Some(v), None) => {
                     j.data.set_motor_velocity(axis, v, VELOCITY_MOTOR_GAIN);
                     j.data.set_motor_max_force(axis, motor.max_effort * motor.strength);
                 }
-                None => {
+                (None, _) => {
                     j.data.set_motor_velocity(axis, 0.0, 0.0);
                     j.data.set_motor_max_force(axis, 0.0);
                 }
             }
         }
         if let MotorCommand::Torque(t) = motor.command {
-            let limit = motor.max_effort * motor.strength;
-            apply_effort(world, joint, t.clamp(-limit, limit), settings.dt);
+            apply_effort(world, joint, motor.torque_within_limits(t, state, joint.limits), settings.dt);
         }
     }
 }
