@@ -24,7 +24,7 @@ fn main() {
         let out = env.step(&[policy(&obs)]).unwrap();
         obs = out.obs;
         if let Some(last) = &out.final_obs[0] {
-            let ep = out.episodes[0].expect("finished episode has a summary");
+            let ep = out.episodes[0].as_ref().expect("finished episode has a summary");
             println!(
                 "episode ended at step {step}: score {}, {} (last x {:+.3} m, pole {:+.3} rad)",
                 ep.score,

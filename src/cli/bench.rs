@@ -155,7 +155,7 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
                 c.receive()?;
                 let t = Instant::now();
                 for _ in 0..steps {
-                    c.send(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false })?;
+                    c.send(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false, success: None })?;
                     anyhow::ensure!(matches!(c.receive()?, ServerMessage::Action { .. }), "unexpected reply");
                 }
                 Ok(t.elapsed().as_secs_f64() / steps as f64)
@@ -190,7 +190,7 @@ pub fn print_capture(robot: &str, sizes: &[(u32, u32)], frames: usize) -> anyhow
         let mut env = AppVecEnv::new(entry.headless_app(1, 0, DesignPattern::Supervised)?);
         env.reset(Some(0))?;
         let dir = std::env::temp_dir().join(format!("twinbots-bench-capture-{}", std::process::id()));
-        let mut recorder = crate::cli::capture::Recorder::new((w, h), crate::cli::capture::camera("side")?, &dir)?;
+        let mut recorder = crate::cli::capture::Recorder::new((w, h), crate::cli::capture::camera(&entry, "side")?, &dir)?;
         recorder.frame(&mut env, 0)?; // warm-up: pipelines compile
         let mut spent = 0.0;
         for i in 1..=frames {

@@ -33,7 +33,7 @@ fn random_pendulum_score(episodes: usize) -> f32 {
     let mut scores = Vec::new();
     while scores.len() < episodes {
         let a = env.action_space().sample(&mut rng);
-        if let Some(ep) = env.step(&a).unwrap().episodes[0] {
+        if let Some(ep) = env.step(&a).unwrap().episodes[0].take() {
             scores.push(ep.score);
         }
     }

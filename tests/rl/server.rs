@@ -49,7 +49,7 @@ impl Robot {
         r
     }
     fn step(&mut self) -> ServerMessage {
-        self.call(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false })
+        self.call(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false, success: None })
     }
 }
 

@@ -147,13 +147,13 @@ pub fn task_spec() -> TaskSpec {
         name: "cartpole".into(),
         observation_space: Space::uniform_box(4, f32::NEG_INFINITY, f32::INFINITY),
         action_space: Space::Discrete { n: 2 },
-        solved: Some(SolvedCriterion { window: 100, threshold: MAX_SCORE }),
+        solved: Some(SolvedCriterion::mean_score(100, MAX_SCORE)),
     }
 }
 
 /// A pattern-3 robot process: `arenas` cart-poles with no Supervisor in the app, each with a
 /// Communicator to the RobotServer at `server`.
-pub fn robot_app(arenas: usize, seed: u64, server: server::ServerAddress) -> App {
+pub fn robot_app(arenas: usize, seed: u64, server: twinbots_server::robot::ServerAddress) -> App {
     let mut app = App::new();
     app.add_plugins(MinimalPlugins)
         .add_plugins(SimPlugin { settings: sim_settings(), supervisor: false })

@@ -5,55 +5,28 @@
 //! the centre with its own motors while the lab operator holds the pole upright, then the
 //! operator lets go at a small random tilt.
 
-use std::net::SocketAddr;
-use std::time::Duration;
-
 use bevy::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use twinbots_rl::Space;
-use twinbots_server::client::{Communicator, Identity};
-use twinbots_server::protocol::{RobotMessage, ServerMessage};
+use twinbots_server::client::Identity;
+use twinbots_server::protocol::RobotMessage;
+use twinbots_server::robot::{Conversation, Phase, RobotRunState, ServerAddress};
 use twinbots_sim::{ArenaConfig, JointState, Motor, MotorCommand, Operator, PositionSensor, SimSet, SimSettings};
 
 use crate::{CartPoleParts, MAX_CART_X, MAX_POLE_ANGLE, MAX_SCORE, WHEEL_SPEED, drive_wheels};
 
 const WHEEL_RADIUS: f32 = 0.04;
 
-/// Where the RobotServer is, and how long a robot keeps trying to reach it.
-#[derive(Resource, Clone, Copy, Debug)]
-pub struct ServerAddress {
-    pub addr: SocketAddr,
-    pub patience: Duration,
-}
-
-/// Set when the robots should stop: `Ok(reason)` when the server finished training.
-#[derive(Resource, Clone, Debug, Default)]
-pub struct RobotRunState {
-    pub stop: Option<Result<String, String>>,
-    /// Episodes the robots finished, and reconnections they made.
-    pub episodes: u64,
-    pub reconnects: u32,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Mode {
-    /// Driving back to x = 0 while the operator holds the pole.
-    Homing,
-    /// Home: the operator has let go; the next step announces the episode.
-    Starting,
-    Running,
-}
-
-/// The robot's controller: its Communicator and what it knows from its own devices.
+/// The robot's controller: its conversation with the server and what it knows from its own
+/// devices. Homing: driving back to x = 0 while the operator holds the pole; starting: the
+/// operator has let go.
 #[derive(Component)]
 pub struct RobotController {
-    communicator: Communicator,
-    mode: Mode,
+    conversation: Conversation,
     score: f32,
     obs: [f32; 4],
     previous_angle: f32,
-    awaiting_reply: bool,
     rng: ChaCha8Rng,
     initial_tilt: f32,
 }
@@ -83,20 +56,20 @@ fn connect_robots(
     arenas: Query<(Entity, &twinbots_sim::Arena)>,
 ) {
     for (entity, arena) in &arenas {
-        let mut communicator = Communicator::new(address.addr, identity(), address.patience);
-        if let Err(e) = communicator.connect() {
-            state.stop = Some(Err(format!("robot {}: {e}", arena.index)));
-            return;
-        }
+        let conversation = match Conversation::connect(&address, identity()) {
+            Ok(c) => c,
+            Err(e) => {
+                state.stop = Some(Err(format!("robot {}: {e}", arena.index)));
+                return;
+            }
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
         rng.set_stream(arena.index as u64);
         commands.entity(entity).insert(RobotController {
-            communicator,
-            mode: Mode::Homing,
+            conversation,
             score: 0.0,
             obs: [0.0; 4],
             previous_angle: 0.0,
-            awaiting_reply: false,
             rng,
             initial_tilt: cartpole.initial_tilt,
         });
@@ -134,64 +107,37 @@ fn exchange(
     }
     for (_, mut robot) in &mut robots {
         let obs = robot.obs.to_vec();
-        let message = match robot.mode {
-            Mode::Homing => continue,
-            Mode::Starting => RobotMessage::Start { obs },
-            Mode::Running => {
+        let message = match robot.conversation.phase {
+            Phase::Homing => continue,
+            Phase::Starting => {
+                robot.score = 0.0;
+                RobotMessage::Start { obs }
+            }
+            Phase::Running => {
                 robot.score += 1.0;
                 let terminated = obs[2].abs() > MAX_POLE_ANGLE || obs[0].abs() > MAX_CART_X;
                 let truncated = !terminated && robot.score > MAX_SCORE;
-                RobotMessage::Step { obs, reward: 1.0, terminated, truncated }
+                RobotMessage::Step { obs, reward: 1.0, terminated, truncated, success: None }
             }
         };
-        robot.awaiting_reply = robot.communicator.send(&message).is_ok();
-        if !robot.awaiting_reply {
-            lost(&mut robot, &mut state);
-        }
+        robot.conversation.send(&message, &mut state);
     }
     for (parts, mut robot) in &mut robots {
-        if !std::mem::take(&mut robot.awaiting_reply) {
-            continue;
+        if let Some(action) = robot.conversation.receive(&mut state) {
+            drive_wheels(parts, action.first().copied().unwrap_or(0.0), &mut motors);
         }
-        match robot.communicator.receive() {
-            Ok(ServerMessage::Action { action }) => {
-                if robot.mode == Mode::Starting {
-                    robot.mode = Mode::Running;
-                    robot.score = 0.0;
-                }
-                drive_wheels(parts, action.first().copied().unwrap_or(0.0), &mut motors);
-            }
-            Ok(ServerMessage::Ack) => {
-                state.episodes += 1;
-                robot.mode = Mode::Homing;
-            }
-            Ok(ServerMessage::Done { reason }) => state.stop = Some(Ok(reason)),
-            Ok(ServerMessage::Error { message, fatal: true }) => state.stop = Some(Err(message)),
-            Ok(ServerMessage::Error { message, .. }) => warn!("server: {message}"),
-            Ok(ServerMessage::Welcome { .. }) => {}
-            Err(_) => lost(&mut robot, &mut state),
-        }
-    }
-}
-
-/// The server went away: reconnect (with backoff) and begin a fresh episode from home.
-fn lost(robot: &mut RobotController, state: &mut RobotRunState) {
-    robot.mode = Mode::Homing;
-    match robot.communicator.connect() {
-        Ok(()) => state.reconnects += 1,
-        Err(e) => state.stop = Some(Err(e.to_string())),
     }
 }
 
 /// Homing with the robot's own motors: a P controller on the odometry drives back to x = 0.
 fn home(mut robots: Query<(&CartPoleParts, &mut RobotController)>, mut motors: Query<&mut Motor>) {
     for (parts, mut robot) in &mut robots {
-        if robot.mode != Mode::Homing {
+        if robot.conversation.phase != Phase::Homing {
             continue;
         }
         let [x, v, ..] = robot.obs;
         if x.abs() < 0.005 && v.abs() < 0.02 {
-            robot.mode = Mode::Starting;
+            robot.conversation.phase = Phase::Starting;
             continue;
         }
         let speed = (-4.0 * x / WHEEL_RADIUS).clamp(-WHEEL_SPEED, WHEEL_SPEED);
@@ -207,18 +153,18 @@ fn home(mut robots: Query<(&CartPoleParts, &mut RobotController)>, mut motors: Q
 /// random tilt when it is home.
 fn operate(mut operator: Operator, mut robots: Query<(&CartPoleParts, &mut RobotController)>) {
     for (parts, mut robot) in &mut robots {
-        match robot.mode {
-            Mode::Homing => {
+        match robot.conversation.phase {
+            Phase::Homing => {
                 operator.place_joint(parts.pole_joint, 0.0);
                 robot.previous_angle = 0.0;
             }
-            Mode::Starting => {
+            Phase::Starting => {
                 let tilt = robot.initial_tilt;
                 let angle = if tilt > 0.0 { robot.rng.random_range(-tilt..=tilt) } else { 0.0 };
                 operator.place_joint(parts.pole_joint, angle);
                 robot.previous_angle = angle;
             }
-            Mode::Running => {}
+            Phase::Running => {}
         }
     }
 }

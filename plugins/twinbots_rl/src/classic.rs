@@ -89,7 +89,7 @@ impl VecEnv for ClassicCartPole {
             out.truncated.push(truncated);
             if terminated || truncated {
                 out.final_obs.push(Some(state.to_vec()));
-                out.episodes.push(Some(EpisodeSummary { score: self.steps[i] as f32, length: self.steps[i] }));
+                out.episodes.push(Some(EpisodeSummary { score: self.steps[i] as f32, length: self.steps[i], ..Default::default() }));
                 self.reset_one(i);
             } else {
                 out.final_obs.push(None);
@@ -187,7 +187,7 @@ impl VecEnv for ClassicPendulum {
             if out.truncated[i] {
                 let [th, thdot] = self.states[i];
                 out.final_obs[i] = Some(vec![th.cos(), th.sin(), thdot]);
-                out.episodes[i] = Some(EpisodeSummary { score: self.scores[i], length: self.steps[i] });
+                out.episodes[i] = Some(EpisodeSummary { score: self.scores[i], length: self.steps[i], ..Default::default() });
                 self.reset_one(i);
             }
         }

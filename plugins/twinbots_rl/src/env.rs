@@ -105,7 +105,7 @@ pub fn collect_step(world: &World, arenas: &[Entity]) -> StepResult {
         out.terminated.push(e.terminated);
         out.truncated.push(e.truncated);
         out.final_obs.push(e.final_observation.clone());
-        out.episodes.push(e.finished);
+        out.episodes.push(e.finished.clone());
     }
     out
 }

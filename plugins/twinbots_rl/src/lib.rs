@@ -17,4 +17,4 @@ pub mod task;
 pub use env::{AppVecEnv, Info, SingleEnv, StepResult, VecEnv};
 pub use ppo::{Callback, Flow, Ppo, PpoConfig, UpdateStats};
 pub use spaces::Space;
-pub use task::{Action, DesignPattern, Episode, EpisodeSummary, SolvedCriterion, TaskPlugin, TaskSpec};
+pub use task::{Action, DesignPattern, Episode, EpisodeSummary, Measure, SolvedCriterion, TaskPlugin, TaskSpec};

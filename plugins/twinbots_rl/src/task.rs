@@ -5,6 +5,8 @@
 //! (tallying scores, auto-reset with the final observation kept) lives here; a robot plugin adds
 //! its terms to [`TaskSet`] and its reset events to [`ResetSet`].
 
+use std::collections::BTreeMap;
+
 use bevy::ecs::schedule::ScheduleLabel;
 use bevy::prelude::*;
 use twinbots_sim::{SimSet, Supervisor};
@@ -53,20 +55,42 @@ pub struct TaskSpec {
     pub solved: Option<SolvedCriterion>,
 }
 
-/// Solved when the mean score of the last `window` episodes exceeds `threshold`.
+/// Solved when the mean of the last `window` episodes' `measure` exceeds `threshold`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SolvedCriterion {
     pub window: usize,
     pub threshold: f32,
+    pub measure: Measure,
+}
+
+/// What a solved criterion averages over episodes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Measure {
+    /// The episode's score (summed reward).
+    #[default]
+    Score,
+    /// 1 for an episode that reached its goal, 0 otherwise: the mean is the success rate.
+    Success,
 }
 
 impl SolvedCriterion {
-    /// Whether these episode scores (oldest first) meet the criterion.
-    pub fn is_met(&self, scores: &[f32]) -> bool {
-        if scores.len() < self.window {
+    /// Mean score of the last `window` episodes above `threshold`.
+    pub fn mean_score(window: usize, threshold: f32) -> Self {
+        Self { window, threshold, measure: Measure::Score }
+    }
+
+    /// Success rate of the last `window` episodes at least `rate`.
+    pub fn success_rate(window: usize, rate: f32) -> Self {
+        // Rates are multiples of 1/window: a hair below makes "at least" exact.
+        Self { window, threshold: rate - 0.5 / window as f32, measure: Measure::Success }
+    }
+
+    /// Whether these episodes' values of `measure` (oldest first) meet the criterion.
+    pub fn is_met(&self, values: &[f32]) -> bool {
+        if values.len() < self.window {
             return false;
         }
-        let last = &scores[scores.len() - self.window..];
+        let last = &values[values.len() - self.window..];
         last.iter().sum::<f32>() / self.window as f32 > self.threshold
     }
 }
@@ -75,11 +99,16 @@ impl SolvedCriterion {
 #[derive(Component, Clone, Debug, Default, PartialEq)]
 pub struct Action(pub Vec<f32>);
 
-/// The score and length of a finished episode.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// The score and length of a finished episode, and what the task reported of it.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct EpisodeSummary {
     pub score: f32,
     pub length: u32,
+    /// Whether it reached the task's goal (Stable-Baselines3's `info["is_success"]`); `None`
+    /// for tasks without a goal.
+    pub success: Option<bool>,
+    /// Named figures of the episode (Isaac Lab's episode log), e.g. energy or cycle time.
+    pub metrics: BTreeMap<String, f32>,
 }
 
 /// What the last control step produced in an arena.
@@ -98,6 +127,10 @@ pub struct Episode {
     pub finished: Option<EpisodeSummary>,
     /// Asks for the arena to be reset by the next [`EnvReset`] run.
     pub needs_reset: bool,
+    /// The running episode's success and figures, as the task's terms report them; they go
+    /// into its summary when it ends.
+    pub success: Option<bool>,
+    pub metrics: BTreeMap<String, f32>,
 }
 
 /// Order of the task's terms inside [`SimSet::Task`].
@@ -185,6 +218,8 @@ fn auto_reset(world: &mut World) {
             e.finished = Some(EpisodeSummary {
                 score: e.score,
                 length: e.length,
+                success: e.success.take(),
+                metrics: std::mem::take(&mut e.metrics),
             });
             e.needs_reset = true;
             any = true;
@@ -201,6 +236,8 @@ fn restore_arenas(mut supervisor: Supervisor, mut episodes: Query<(Entity, &mut 
             supervisor.reset_arena(arena);
             e.length = 0;
             e.score = 0.0;
+            e.success = None;
+            e.metrics.clear();
         }
     }
 }

@@ -1,6 +1,8 @@
 //! twinbots_server: design pattern 3. The [`server::RobotServer`] hosts the policy and the
-//! learner and is reached over TCP; [`client::Communicator`] is the robot's end.
+//! learner and is reached over TCP; [`client::Communicator`] is the robot's end, and
+//! [`robot::Conversation`] its side of the episode protocol.
 
 pub mod client;
 pub mod protocol;
+pub mod robot;
 pub mod server;

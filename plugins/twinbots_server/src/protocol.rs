@@ -35,6 +35,10 @@ pub enum RobotMessage {
         reward: f32,
         terminated: bool,
         truncated: bool,
+        /// On an episode's last step, whether it reached its goal (Gymnasium's
+        /// `info["is_success"]`); optional.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        success: Option<bool>,
     },
     /// The robot leaves; nothing is answered.
     Bye,

@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 
 use twinbots_rl::ppo::RolloutBuffer;
-use twinbots_rl::{Flow, Ppo, SolvedCriterion, UpdateStats};
+use twinbots_rl::{EpisodeSummary, Flow, Ppo, SolvedCriterion, UpdateStats};
 
 use crate::protocol::{FrameError, RobotMessage, ServerMessage, VERSION, read_message, write_message};
 
@@ -222,7 +222,7 @@ impl Learner {
                 self.drop_running_episode(id);
                 Some(self.act(id, obs))
             }
-            RobotMessage::Step { obs, reward, terminated, truncated } => {
+            RobotMessage::Step { obs, reward, terminated, truncated, success } => {
                 if let Some(e) = check(&obs) {
                     return Some(e);
                 }
@@ -244,11 +244,11 @@ impl Learner {
                 traj.length += 1;
                 let ended = terminated || truncated;
                 if ended {
-                    let (score, length) = (traj.score, traj.length);
+                    let summary = EpisodeSummary { score: traj.score, length: traj.length, success, ..Default::default() };
                     traj.episode_begin = traj.buffer.len();
                     traj.score = 0.0;
                     traj.length = 0;
-                    self.ppo.record_episode(score, length);
+                    self.ppo.record_episode(&summary);
                 }
                 let answer = if ended { ServerMessage::Ack } else { self.act(id, obs) };
                 if let Err(e) = self.maybe_update() {
@@ -315,10 +315,9 @@ impl Learner {
         let Some(batch) = batch else { return Ok(()) };
         let fraction = self.ppo.timesteps as f64 / self.settings.timesteps.max(1) as f64;
         let stats = self.ppo.train_on(&batch, fraction)?;
-        let scores: Vec<f32> = self.ppo.recent_scores.iter().copied().collect();
         if (self.callback)(&stats, &self.ppo)? == Flow::Stop {
             self.finished = Some("stopped by the callback".into());
-        } else if self.settings.solved.is_some_and(|c| c.is_met(&scores)) {
+        } else if self.settings.solved.is_some_and(|c| self.ppo.is_solved(&c)) {
             self.finished = Some(format!("solved after {} steps", self.ppo.timesteps));
         } else if self.ppo.timesteps >= self.settings.timesteps {
             self.finished = Some(format!("budget of {} steps spent", self.settings.timesteps));

@@ -23,6 +23,7 @@ pub use policy::ActorCritic;
 use crate::env::VecEnv;
 use crate::normalize::RunningMeanStd;
 use crate::spaces::Space;
+use crate::task::{EpisodeSummary, Measure, SolvedCriterion};
 
 /// One row of `progress.csv`: what an update saw and did.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -35,6 +36,8 @@ pub struct UpdateStats {
     pub min_reward: f32,
     pub max_reward: f32,
     pub mean_length: f32,
+    /// Share of the last 100 finished episodes that reported success (NaN: none reported).
+    pub success_rate: f32,
     pub policy_loss: f32,
     pub value_loss: f32,
     pub entropy: f32,
@@ -76,6 +79,8 @@ pub struct Ppo {
     /// Scores of the last 100 finished episodes, oldest first.
     pub recent_scores: VecDeque<f32>,
     recent_lengths: VecDeque<f32>,
+    /// 1 or 0 for each of the last 100 finished episodes that reported success or failure.
+    pub recent_successes: VecDeque<f32>,
     optimizer: AdamW,
     rng: ChaCha8Rng,
 }
@@ -111,6 +116,7 @@ impl Ppo {
             updates: 0,
             recent_scores: VecDeque::new(),
             recent_lengths: VecDeque::new(),
+            recent_successes: VecDeque::new(),
             optimizer,
             rng: ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_0f_a11),
         })
@@ -170,10 +176,28 @@ impl Ppo {
     }
 
     /// Counts a finished episode into the statistics.
-    pub fn record_episode(&mut self, score: f32, length: u32) {
+    pub fn record_episode(&mut self, episode: &EpisodeSummary) {
         self.episodes += 1;
-        push_window(&mut self.recent_scores, score);
-        push_window(&mut self.recent_lengths, length as f32);
+        push_window(&mut self.recent_scores, episode.score);
+        push_window(&mut self.recent_lengths, episode.length as f32);
+        if let Some(success) = episode.success {
+            push_window(&mut self.recent_successes, if success { 1.0 } else { 0.0 });
+        }
+    }
+
+    /// Success rate of the last 100 finished episodes that reported success, if any did.
+    pub fn recent_success_rate(&self) -> Option<f32> {
+        (!self.recent_successes.is_empty()).then(|| mean(&self.recent_successes))
+    }
+
+    /// Whether the recent episodes meet `criterion`.
+    pub fn is_solved(&self, criterion: &SolvedCriterion) -> bool {
+        let values = match criterion.measure {
+            Measure::Score => &self.recent_scores,
+            Measure::Success => &self.recent_successes,
+        };
+        let values: Vec<f32> = values.iter().copied().collect();
+        criterion.is_met(&values)
     }
 
     /// One PPO update on a buffer whose advantages are computed; `timesteps` advances by its
@@ -241,10 +265,8 @@ impl Ppo {
                         let v = self.policy.value(&self.prepare(final_obs)?)?.to_vec1::<f32>()?[0];
                         rewards[e] += c.gamma * v;
                     }
-                    if let Some(ep) = step.episodes[e] {
-                        self.episodes += 1;
-                        push_window(&mut self.recent_scores, ep.score);
-                        push_window(&mut self.recent_lengths, ep.length as f32);
+                    if let Some(ep) = &step.episodes[e] {
+                        self.record_episode(ep);
                     }
                 }
                 buffer.obs.extend_from_slice(&obs);
@@ -283,6 +305,7 @@ impl Ppo {
             min_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::min),
             max_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::max),
             mean_length: mean(&self.recent_lengths),
+            success_rate: mean(&self.recent_successes),
             learning_rate: self.optimizer.learning_rate(),
             steps_per_s: samples as f32 / started.elapsed().as_secs_f32(),
             ..losses

@@ -37,6 +37,8 @@ struct Metadata {
     episodes: u64,
     updates: u64,
     recent_scores: Vec<f32>,
+    #[serde(default)]
+    recent_successes: Vec<f32>,
 }
 
 fn file_error(path: &Path, e: impl std::fmt::Display) -> ModelError {
@@ -84,6 +86,7 @@ impl Ppo {
             episodes: self.episodes,
             updates: self.updates,
             recent_scores: self.recent_scores.iter().copied().collect(),
+            recent_successes: self.recent_successes.iter().copied().collect(),
         };
         let json = serde_json::to_vec_pretty(&meta).map_err(|e| file_error(dir, e))?;
         let path = dir.join(METADATA_FILE);
@@ -117,6 +120,7 @@ impl Ppo {
         model.episodes = meta.episodes;
         model.updates = meta.updates;
         model.recent_scores = VecDeque::from(meta.recent_scores);
+        model.recent_successes = VecDeque::from(meta.recent_successes);
         Ok(model)
     }
 
