@@ -102,6 +102,10 @@ enum Command {
         size: String,
         #[arg(long, default_value = "side")]
         camera: String,
+        /// Evaluate on another task of the robot's cell (see `twinbots robots`), e.g. the
+        /// UR5e's pick-place with its reach model; default: the task it was trained on.
+        #[arg(long)]
+        task: Option<String>,
     },
     /// Open a window on the twin: arena 0 in real time (Space pause, N step, R reset, Esc quit,
     /// drag to orbit, scroll to zoom).
@@ -112,6 +116,9 @@ enum Command {
         model: Option<std::path::PathBuf>,
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// The task to run (see `twinbots robots`); default: the robot's own.
+        #[arg(long)]
+        task: Option<String>,
     },
     /// Render PNG frames of the digital twin off-screen (no window).
     Capture {
@@ -131,6 +138,9 @@ enum Command {
         camera: String,
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// The task to run (see `twinbots robots`); default: the robot's own.
+        #[arg(long)]
+        task: Option<String>,
         #[arg(long)]
         out: std::path::PathBuf,
     },
@@ -209,16 +219,16 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Robot { robot, server, arenas, seed, patience } => {
             cli::serve::robots(&robot, server, arenas, seed, std::time::Duration::from_secs(patience))?;
         }
-        Command::Eval { run, episodes, arenas, record, size, camera } => {
-            cli::eval::eval_run(&run, episodes, arenas)?;
+        Command::Eval { run, episodes, arenas, record, size, camera, task } => {
+            cli::eval::eval_run(&run, episodes, arenas, task.as_deref())?;
             if let Some(dir) = record {
-                cli::eval::record_episode(&run, &dir, cli::capture::parse_size(&size)?, &camera)?;
+                cli::eval::record_episode(&run, &dir, cli::capture::parse_size(&size)?, &camera, task.as_deref())?;
             }
         }
-        Command::View { robot, model, seed } => cli::view::view(&robot, model.as_deref(), seed)?,
-        Command::Capture { robot, model, frames, every, size, camera, seed, out } => {
+        Command::View { robot, model, seed, task } => cli::view::view(&robot, model.as_deref(), seed, task.as_deref())?,
+        Command::Capture { robot, model, frames, every, size, camera, seed, task, out } => {
             let size = cli::capture::parse_size(&size)?;
-            cli::capture::capture(cli::capture::CaptureArgs { robot, model, frames, every, size, camera, seed, out })?
+            cli::capture::capture(cli::capture::CaptureArgs { robot, model, frames, every, size, camera, seed, task, out })?
         }
         Command::Bench { what: BenchKind::Physics, robot, arenas, steps } => {
             cli::bench::print_physics(&robot, &arenas, steps)?

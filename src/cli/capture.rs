@@ -4,23 +4,18 @@
 
 use std::path::{Path, PathBuf};
 
-use twinbots_render::{Renderer, View};
+use twinbots_render::{Framing, Renderer, View};
 use twinbots_rl::{AppVecEnv, DesignPattern, VecEnv};
 
 use crate::cli::train::load_model;
-use crate::registry;
+use crate::registry::{self, RobotEntry};
 
-/// Named cameras of the cell, in physics coordinates (Z up).
-pub fn camera(name: &str) -> anyhow::Result<View> {
-    let fov = 45f32.to_radians();
-    let look = |eye: [f32; 3], target: [f32; 3]| View::looking_at(eye.into(), target.into(), fov);
-    Ok(match name {
-        "side" => look([0.0, -2.6, 0.7], [0.0, 0.0, 0.5]),
-        "front" => look([2.6, 0.0, 0.7], [0.0, 0.0, 0.5]),
-        "iso" => look([1.8, -1.8, 1.4], [0.0, 0.0, 0.4]),
-        "top" => look([0.0, -0.01, 3.0], [0.0, 0.0, 0.0]),
-        other => anyhow::bail!("unknown camera '{other}'; cameras: side, front, iso, top"),
-    })
+/// A named camera of a robot's cell.
+pub fn camera(entry: &RobotEntry, name: &str) -> anyhow::Result<View> {
+    entry
+        .framing
+        .view(name)
+        .ok_or_else(|| anyhow::anyhow!("unknown camera '{name}'; cameras: {}", Framing::CAMERAS.join(", ")))
 }
 
 /// `WxH` → (W, H).
@@ -66,15 +61,16 @@ pub struct CaptureArgs {
     pub size: (u32, u32),
     pub camera: String,
     pub seed: u64,
+    pub task: Option<String>,
     pub out: PathBuf,
 }
 
 pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.every > 0, "--every must be at least 1");
     let entry = registry::find(&args.robot)?;
-    let view = camera(&args.camera)?;
+    let view = camera(&entry, &args.camera)?;
     let mut model = args.model.as_deref().map(load_model).transpose()?;
-    let mut env = AppVecEnv::new(entry.headless_app(1, args.seed, DesignPattern::Supervised)?);
+    let mut env = AppVecEnv::new(entry.task_app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;
     }

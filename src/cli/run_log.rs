@@ -8,13 +8,14 @@ use indicatif::{ProgressBar, ProgressStyle};
 use twinbots_rl::plot::{self, CurvePoint};
 use twinbots_rl::{Ppo, UpdateStats};
 
-pub const CSV_HEADER: &str = "update,timesteps,episodes,mean_reward,min_reward,max_reward,mean_length,policy_loss,value_loss,entropy,approx_kl,clip_fraction,learning_rate,steps_per_s";
+pub const CSV_HEADER: &str = "update,timesteps,episodes,mean_reward,min_reward,max_reward,mean_length,policy_loss,value_loss,entropy,approx_kl,clip_fraction,learning_rate,steps_per_s,success_rate";
 
 fn csv_row(s: &UpdateStats) -> String {
     format!(
-        "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
         s.update, s.timesteps, s.episodes, s.mean_reward, s.min_reward, s.max_reward, s.mean_length,
-        s.policy_loss, s.value_loss, s.entropy, s.approx_kl, s.clip_fraction, s.learning_rate, s.steps_per_s
+        s.policy_loss, s.value_loss, s.entropy, s.approx_kl, s.clip_fraction, s.learning_rate, s.steps_per_s,
+        s.success_rate
     )
 }
 
@@ -49,7 +50,8 @@ impl RunLog {
         writeln!(self.csv, "{}", csv_row(s))?;
         self.curve.push(CurvePoint { timesteps: s.timesteps, mean_reward: s.mean_reward, min_reward: s.min_reward, max_reward: s.max_reward });
         self.bar.set_position(s.timesteps.min(self.total));
-        self.bar.set_message(format!("{:.0} steps/s, mean reward {:.1} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes));
+        let success = if s.success_rate.is_finite() { format!(", success {:.0} %", 100.0 * s.success_rate) } else { String::new() };
+        self.bar.set_message(format!("{:.0} steps/s, mean reward {:.1}{success} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes));
         if s.update % self.checkpoint_every == 0 {
             model.save(self.dir.join("checkpoints").join(format!("step_{:010}", s.timesteps)))?;
             self.plot()?;

@@ -83,12 +83,12 @@ pub fn robots(robot: &str, server: SocketAddr, arenas: usize, seed: u64, patienc
     let build = entry
         .server_robot
         .ok_or_else(|| anyhow::anyhow!("{robot} has no design-pattern-3 robot"))?;
-    let mut app = build(arenas, seed, cartpole::server::ServerAddress { addr: server, patience });
+    let mut app = build(arenas, seed, twinbots_server::robot::ServerAddress { addr: server, patience });
     app.finish();
     app.cleanup();
     loop {
         app.update();
-        let state = app.world().resource::<cartpole::server::RobotRunState>();
+        let state = app.world().resource::<twinbots_server::robot::RobotRunState>();
         if let Some(stop) = &state.stop {
             let (episodes, reconnects) = (state.episodes, state.reconnects);
             return match stop.clone() {

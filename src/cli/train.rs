@@ -253,12 +253,11 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
         let mut callback = |s: &UpdateStats, m: &Ppo| -> anyhow::Result<Flow> {
             log.on_update(s, m)?;
             if settings.eval_every > 0 && s.update % settings.eval_every == 0 {
-                let r = eval::evaluate(&make_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
+                let r = eval::evaluate(entry.task_name, &make_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
                 writeln!(evals, "{},{},{},{}", s.timesteps, r.mean_score, r.std_score, r.mean_length)?;
             }
-            let scores: Vec<f32> = m.recent_scores.iter().copied().collect();
             if let Some(c) = solved
-                && c.is_met(&scores)
+                && m.is_solved(&c)
             {
                 solved_at = Some(s.timesteps);
                 return Ok(Flow::Stop);
@@ -276,7 +275,7 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
         // The window drives the app in time slices; closing the window stops training.
         let arena = app.world().resource::<env::ArenaOrder>().0[0];
         let source = crate::cli::view::TrainingView { app, arena, frames: 0, updates: 0, started: Instant::now(), last_slice_end: None };
-        let shown = twinbots_render::viewer::run(Box::new(source), &format!("twinbots — training {}", settings_title));
+        let shown = twinbots_render::viewer::run(Box::new(source), &format!("twinbots — training {}", settings_title), entry.framing);
         Ok(shown)
     } else {
         let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| bridge::run_until_closed(&mut app)));
@@ -293,7 +292,7 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
     }
     let (model, solved_at, wall) = learned?;
     model.save(out.join("model"))?;
-    let evaluation = eval::evaluate(&make_app, &model, settings_arenas, eval_episodes, seed + 2_000_003)?;
+    let evaluation = eval::evaluate(entry.task_name, &make_app, &model, settings_arenas, eval_episodes, seed + 2_000_003)?;
     std::fs::write(out.join("eval.json"), serde_json::to_string_pretty(&evaluation)?)?;
     let summary = serde_json::json!({
         "robot": robot,
@@ -303,17 +302,15 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
         "mean_reward_last_100": model.mean_recent_score(),
         "solved": solved_at.is_some(),
         "solved_at_timesteps": solved_at,
-        "evaluation": { "episodes": evaluation.episodes, "mean_score": evaluation.mean_score, "std_score": evaluation.std_score },
+        "success_rate_last_100": model.recent_success_rate(),
+        "evaluation": { "episodes": evaluation.episodes, "mean_score": evaluation.mean_score, "std_score": evaluation.std_score, "success_rate": evaluation.success_rate },
     });
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)?)?;
     match solved_at {
         Some(t) => println!("solved after {t} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.mean_recent_score()),
         None => println!("not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}", model.timesteps, model.mean_recent_score()),
     }
-    println!(
-        "evaluation of the final model: score {:.1} ± {:.1} over {} episodes",
-        evaluation.mean_score, evaluation.std_score, evaluation.episodes
-    );
+    println!("evaluation of the final model, {}", evaluation.describe());
     println!("run directory: {}", out.display());
     Ok(())
 }

@@ -58,17 +58,17 @@ impl ViewSource for Player {
     }
 }
 
-pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64) -> anyhow::Result<()> {
+pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64, task: Option<&str>) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
     let model = model.map(crate::cli::train::load_model).transpose()?;
-    let mut env = AppVecEnv::new(entry.headless_app(1, seed, DesignPattern::Supervised)?);
+    let mut env = AppVecEnv::new(entry.task_app(task, 1, seed, DesignPattern::Supervised)?);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;
     }
     let obs = env.reset(Some(seed))?;
     let dt = env.app().world().resource::<twinbots_sim::SimSettings>().control_dt();
     let player = Player { env, model, obs, clock: RealTime::new(dt), steps: 0, episodes: 0, score: 0.0, seed };
-    viewer::run(Box::new(player), &format!("twinbots — {robot}"))
+    viewer::run(Box::new(player), &format!("twinbots — {robot}"), entry.framing)
 }
 
 /// `train --view`: the bridged training app, advanced in time slices between frames so that

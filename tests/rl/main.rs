@@ -7,3 +7,4 @@ mod ppo;
 mod randomization;
 mod server;
 mod train_cli;
+mod ur5e_tasks;

@@ -1,4 +1,4 @@
-//! End-to-end tests of the simulation core and the cart-pole twin (one test binary).
+//! End-to-end tests of the simulation core and the robot twins (one test binary).
 
 mod common;
 mod determinism;
@@ -8,4 +8,5 @@ mod pendulum;
 mod pioneer;
 mod radio;
 mod reset;
+mod ur5e_cell;
 mod urdf;

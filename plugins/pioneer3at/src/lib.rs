@@ -54,7 +54,7 @@ pub fn task_spec() -> TaskSpec {
         observation_space: Space::uniform_box(4, f32::NEG_INFINITY, f32::INFINITY),
         action_space: Space::Box { low: vec![-MAX_WHEEL_SPEED], high: vec![MAX_WHEEL_SPEED] },
         // The paper's figure: ≈500 mean episode reward (it needed 32 M steps).
-        solved: Some(SolvedCriterion { window: 100, threshold: 500.0 }),
+        solved: Some(SolvedCriterion::mean_score(100, 500.0)),
     }
 }
 

@@ -8,4 +8,4 @@ pub mod scene;
 pub mod viewer;
 
 pub use cameras::{CameraPlugin, CameraRig};
-pub use renderer::{RenderError, Renderer, View, adapter_required};
+pub use renderer::{Framing, RenderError, Renderer, View, adapter_required};

@@ -42,7 +42,7 @@ struct Orbit {
 }
 
 /// Opens the window and runs until it is closed, Esc is pressed, or the source finishes.
-pub fn run(source: Box<dyn ViewSource>, title: &str) -> anyhow::Result<()> {
+pub fn run(source: Box<dyn ViewSource>, title: &str, framing: crate::Framing) -> anyhow::Result<()> {
     if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
         anyhow::bail!("visual mode needs a display (DISPLAY is not set); for frames without one use `twinbots capture`");
     }
@@ -55,17 +55,28 @@ pub fn run(source: Box<dyn ViewSource>, title: &str) -> anyhow::Result<()> {
     .insert_resource(ClearColor(Color::srgb(0.78, 0.84, 0.9)))
     .insert_resource(GlobalAmbientLight { color: Color::WHITE, brightness: 400.0, affects_lightmapped_meshes: true })
     .init_resource::<Controls>()
+    .insert_resource(InitialFraming(framing))
     .add_systems(Startup, setup)
     .add_systems(Update, (keys, advance_and_mirror, orbit_camera).chain());
     app.run();
     Ok(())
 }
 
-fn setup(mut commands: Commands, mut meshes: ResMut<Assets<Mesh>>, mut materials: ResMut<Assets<StandardMaterial>>) {
+/// Where the orbit camera starts.
+#[derive(Resource)]
+struct InitialFraming(crate::Framing);
+
+fn setup(
+    mut commands: Commands,
+    framing: Res<InitialFraming>,
+    mut meshes: ResMut<Assets<Mesh>>,
+    mut materials: ResMut<Assets<StandardMaterial>>,
+) {
+    let framing = framing.0;
     commands.spawn((
         Camera3d::default(),
         Transform::default(),
-        Orbit { yaw: -0.3, pitch: 0.25, distance: 3.0, target: scene::point_to_bevy(Vec3::new(0.0, 0.0, 0.5)) },
+        Orbit { yaw: -0.3, pitch: 0.25, distance: framing.distance * 1.15, target: scene::point_to_bevy(framing.target) },
     ));
     commands.spawn((
         DirectionalLight { illuminance: 8000.0, shadow_maps_enabled: true, ..default() },

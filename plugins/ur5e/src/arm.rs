@@ -1,0 +1,137 @@
+//! What the arm's controller knows and does, shared by every design pattern: joint readings,
+//! the TCP computed from them, the observation and reward of a reach towards a target, and
+//! actions as joint speeds.
+
+use bevy::math::DVec3;
+use bevy::prelude::*;
+use twinbots_sim::rapier::math::Pose;
+use twinbots_sim::{JointState, Motor, MotorCommand, PositionSensor};
+
+use crate::cell::CellParts;
+use crate::kinematics::{self, HOME, JOINT_RANGE};
+
+/// A reach succeeds when the TCP is this close to the target (m)…
+pub const REACH_TOLERANCE: f32 = 0.01;
+/// …the tool points down within this angle (rad)…
+pub const TILT_TOLERANCE: f32 = 0.1;
+/// …and the TCP has come to rest: slower than this (m/s).
+pub const SETTLED_SPEED: f32 = 0.05;
+/// Joint speed (rad/s) of a full-scale action.
+pub const ACTION_SPEED: f32 = std::f32::consts::FRAC_PI_2;
+/// Observation: q (6), q̇ (6), TCP position (3), target − TCP (3), tool axis (3).
+pub const OBSERVATION_DIM: usize = 21;
+/// A joint this close to a stop (rad) counts as at its limit.
+pub const LIMIT_MARGIN: f32 = 0.01;
+/// Homed: every joint this close to home (rad)…
+pub const HOME_TOLERANCE: f32 = 0.01;
+/// …and this slow (rad/s).
+pub const HOME_SPEED: f32 = 0.02;
+
+/// The arm as its encoders report it, and the TCP's pose and velocity computed from that by
+/// the controller's kinematics: no privileged data.
+#[derive(Component, Clone, Debug)]
+pub struct ArmState {
+    pub q: [f32; 6],
+    pub qd: [f32; 6],
+    /// TCP pose in the base frame.
+    pub tcp: Pose,
+    pub tcp_velocity: Vec3,
+}
+
+impl Default for ArmState {
+    fn default() -> Self {
+        Self::from_joints(HOME, [0.0; 6])
+    }
+}
+
+impl ArmState {
+    pub fn from_joints(q: [f32; 6], qd: [f32; 6]) -> Self {
+        let tcp = kinematics::tcp(&q);
+        // J(q)·q̇ by a central difference of the kinematics along q̇.
+        let h = 1e-4f32;
+        let shifted = |sign: f32| {
+            let q: [f32; 6] = std::array::from_fn(|i| q[i] + sign * h * qd[i]);
+            let f = kinematics::flange(&q) * bevy::math::DMat4::from_translation(DVec3::new(0.0, 0.0, kinematics::TOOL_LENGTH));
+            f.w_axis.truncate()
+        };
+        let tcp_velocity = ((shifted(1.0) - shifted(-1.0)) / (2.0 * h as f64)).as_vec3();
+        Self { q, qd, tcp, tcp_velocity }
+    }
+
+    /// Reads the joints' position sensors and encoder speeds.
+    pub fn read(parts: &CellParts, sensors: &Query<(&PositionSensor, &JointState)>) -> Self {
+        let mut q = [0.0; 6];
+        let mut qd = [0.0; 6];
+        for (i, &joint) in parts.joints.iter().enumerate() {
+            if let Ok((sensor, state)) = sensors.get(joint) {
+                q[i] = sensor.value;
+                qd[i] = state.velocity;
+            }
+        }
+        Self::from_joints(q, qd)
+    }
+
+    pub fn distance_to(&self, target: Vec3) -> f32 {
+        (target - self.tcp.translation).length()
+    }
+
+    /// Whether the tool has reached `target`: close, pointing down, at rest.
+    pub fn has_reached(&self, target: Vec3) -> bool {
+        self.distance_to(target) < REACH_TOLERANCE
+            && kinematics::tilt(&self.tcp) < TILT_TOLERANCE
+            && self.tcp_velocity.length() < SETTLED_SPEED
+    }
+
+    /// Whether the arm is home and still.
+    pub fn is_home(&self) -> bool {
+        self.q.iter().zip(HOME).all(|(q, h)| (q - h).abs() < HOME_TOLERANCE) && self.qd.iter().all(|v| v.abs() < HOME_SPEED)
+    }
+
+    /// Whether any joint is at one of its ±2π stops.
+    pub fn at_joint_limit(&self) -> bool {
+        self.q.iter().any(|q| q.abs() >= JOINT_RANGE - LIMIT_MARGIN)
+    }
+
+    /// The policy's input for a reach towards `target`.
+    pub fn observation(&self, target: Vec3, out: &mut Vec<f32>) {
+        let p = self.tcp.translation;
+        let axis = self.tcp.rotation * Vec3::Z;
+        out.clear();
+        out.extend(self.q);
+        out.extend(self.qd);
+        out.extend(p.to_array());
+        out.extend((target - p).to_array());
+        out.extend(axis.to_array());
+    }
+}
+
+/// Reward of a reach step: distance and tilt cost, a small cost of effort, and a bonus on
+/// arrival (which ends the episode, so the policy gains by arriving soon).
+pub fn reach_reward(arm: &ArmState, target: Vec3, action: &[f32], arrived: bool) -> f32 {
+    let effort: f32 = action.iter().map(|a| a.clamp(-1.0, 1.0).powi(2)).sum();
+    let cost = arm.distance_to(target) + 0.2 * kinematics::tilt(&arm.tcp) + 0.01 * effort;
+    if arrived { 10.0 - cost } else { -cost }
+}
+
+/// Joint speed commands for an action in [−1, 1]⁶.
+pub fn joint_speeds(action: &[f32]) -> [f32; 6] {
+    std::array::from_fn(|i| action.get(i).copied().unwrap_or(0.0).clamp(-1.0, 1.0) * ACTION_SPEED)
+}
+
+/// Drives the arm's joints at these speeds.
+pub fn drive(parts: &CellParts, speeds: [f32; 6], motors: &mut Query<&mut Motor>) {
+    for (&joint, speed) in parts.joints.iter().zip(speeds) {
+        if let Ok(mut m) = motors.get_mut(joint) {
+            m.command = MotorCommand::Velocity(speed);
+        }
+    }
+}
+
+/// Position-controls the joints towards `q` (rad), within the motors' speed: homing.
+pub fn drive_to(parts: &CellParts, q: [f32; 6], motors: &mut Query<&mut Motor>) {
+    for (&joint, target) in parts.joints.iter().zip(q) {
+        if let Ok(mut m) = motors.get_mut(joint) {
+            m.command = MotorCommand::Position(target);
+        }
+    }
+}

@@ -1,0 +1,133 @@
+//! The UR5e's tasks end to end: the reach and the pick-and-place are achievable (the classical
+//! resolved-rate controller, acting on the observation alone, succeeds) and report the
+//! digital-twin figures; collisions are counted; runs are deterministic; under design pattern
+//! 3 the arm homes itself before every episode, with no Supervisor in the app.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use twinbots_rl::{AppVecEnv, DesignPattern, EpisodeSummary, Flow, Ppo, VecEnv};
+use twinbots_server::robot::{Phase, RobotRunState, ServerAddress};
+use twinbots_server::server::{RobotServer, ServerSettings};
+
+/// Steps `env` with `policy` until `episodes` episodes have ended; returns them.
+fn run_episodes(env: &mut AppVecEnv, episodes: usize, policy: impl Fn(&[f32]) -> Vec<f32>) -> Vec<EpisodeSummary> {
+    let dim = env.observation_space().dim();
+    let mut obs = env.reset(Some(1)).unwrap();
+    let mut done = Vec::new();
+    while done.len() < episodes {
+        let actions: Vec<f32> = obs.chunks(dim).flat_map(&policy).collect();
+        let step = env.step(&actions).unwrap();
+        done.extend(step.episodes.into_iter().flatten());
+        obs = step.obs;
+    }
+    done
+}
+
+fn figure(ep: &EpisodeSummary, name: &str) -> f32 {
+    *ep.metrics.get(name).unwrap_or_else(|| panic!("episode reports no {name}: {:?}", ep.metrics))
+}
+
+#[test]
+fn the_resolved_rate_controller_solves_the_reach_and_episodes_report_twin_figures() {
+    let mut env = AppVecEnv::new(ur5e::headless_app_with(4, 21, DesignPattern::Supervised));
+    let episodes = run_episodes(&mut env, 20, ur5e::controller::act);
+    for ep in &episodes {
+        assert_eq!(ep.success, Some(true), "{ep:?}");
+        assert!(figure(ep, "final_error_mm") < 10.0);
+        let cycle = figure(ep, "cycle_time_s");
+        assert!(cycle > 0.2 && cycle < 4.0, "cycle time {cycle}");
+        assert!(ep.score > 0.0, "arrival earns the bonus: {}", ep.score);
+        assert!(figure(ep, "energy_j") > 0.0);
+        assert_eq!(figure(ep, "collision_events"), 0.0);
+        assert_eq!(figure(ep, "joint_limit_events"), 0.0);
+    }
+}
+
+#[test]
+fn holding_still_fails_the_reach_and_spends_almost_no_energy() {
+    let mut env = AppVecEnv::new(ur5e::headless_app_with(2, 3, DesignPattern::Supervised));
+    let episodes = run_episodes(&mut env, 2, |_| vec![0.0; 6]);
+    for ep in &episodes {
+        assert_eq!(ep.success, Some(false));
+        assert_eq!(ep.length, ur5e::reach::EPISODE_STEPS);
+        assert!(!ep.metrics.contains_key("cycle_time_s"), "no cycle time without success");
+        assert!(figure(ep, "energy_j") < 1.0, "holding still does (almost) no work: {}", figure(ep, "energy_j"));
+    }
+}
+
+#[test]
+fn driving_the_arm_into_the_table_counts_a_collision_and_costs_energy() {
+    let mut env = AppVecEnv::new(ur5e::headless_app_with(1, 4, DesignPattern::Supervised));
+    // Shoulder lift forward and elbow folding: the tool comes down onto the table.
+    let episodes = run_episodes(&mut env, 1, |_| vec![0.0, 1.0, 0.5, 0.0, 0.0, 0.0]);
+    assert!(figure(&episodes[0], "collision_events") >= 1.0, "{:?}", episodes[0].metrics);
+    assert!(figure(&episodes[0], "energy_j") > 5.0, "{:?}", episodes[0].metrics);
+}
+
+#[test]
+fn pick_and_place_moves_the_part_from_fixture_a_to_fixture_b() {
+    let mut env = AppVecEnv::new(ur5e::pick_place_app(2, 8, DesignPattern::Supervised));
+    let episodes = run_episodes(&mut env, 2, ur5e::controller::act);
+    for ep in &episodes {
+        assert_eq!(ep.success, Some(true), "{ep:?}");
+        let cycle = figure(ep, "cycle_time_s");
+        assert!(cycle > 2.0 && cycle < 16.0, "cycle time {cycle}");
+        assert!(figure(ep, "energy_j") > 0.0);
+        assert_eq!(figure(ep, "collision_events"), 0.0);
+    }
+    // Holding still, the program never gets the part: no success.
+    let mut env = AppVecEnv::new(ur5e::pick_place_app(1, 8, DesignPattern::Supervised));
+    let ep = &run_episodes(&mut env, 1, |_| vec![0.0; 6])[0];
+    assert_eq!(ep.success, Some(false));
+    assert_eq!(ep.length, ur5e::pick_place::EPISODE_STEPS);
+}
+
+#[test]
+fn the_same_seed_gives_the_same_reach_trajectory() {
+    let run = || {
+        let mut env = AppVecEnv::new(ur5e::headless_app_with(2, 9, DesignPattern::Supervised));
+        let episodes = run_episodes(&mut env, 4, ur5e::controller::act);
+        let state: Vec<u64> = env.arenas().iter().map(|&a| env.app().world().get::<twinbots_sim::Arena>(a).unwrap().state_hash()).collect();
+        (episodes.iter().map(|e| (e.score.to_bits(), e.length)).collect::<Vec<_>>(), state)
+    };
+    assert_eq!(run(), run());
+}
+
+#[test]
+fn under_pattern_3_the_arm_homes_itself_before_every_episode() {
+    let id = ur5e::server::identity();
+    let model = Ppo::new(ur5e::ppo_config(), id.observation_space, id.action_space, 0).unwrap();
+    let settings = ServerSettings { robot: "ur5e".into(), rollout: 512, timesteps: 1_000_000, solved: None };
+    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap();
+    let address = ServerAddress { addr: server.addr, patience: Duration::from_secs(5) };
+    let mut app = ur5e::server::robot_app(2, 5, address);
+    app.finish();
+    app.cleanup();
+    app.update();
+    assert!(!app.world().contains_resource::<twinbots_sim::SupervisorAccess>(), "pattern 3 has no Supervisor");
+    let mut robots = app.world_mut().query::<(bevy::prelude::Entity, &ur5e::server::RobotController)>();
+    // Per robot: its phase and reading after the previous step.
+    let mut previous: BTreeMap<bevy::prelude::Entity, (Phase, Option<ur5e::arm::ArmState>)> = BTreeMap::new();
+    let mut starts = 0;
+    let mut steps = 0;
+    while app.world().resource::<RobotRunState>().episodes < 4 {
+        app.update();
+        steps += 1;
+        assert!(steps < 2000, "only {} episodes in {steps} steps", app.world().resource::<RobotRunState>().episodes);
+        assert!(app.world().resource::<RobotRunState>().stop.is_none(), "{:?}", app.world().resource::<RobotRunState>().stop);
+        for (entity, robot) in robots.iter(app.world()) {
+            // Homed, announced and answered within one step: the reading it started on, the
+            // previous step's, was home.
+            let was = previous.insert(entity, (robot.phase(), robot.arm.clone()));
+            if let Some((Phase::Homing, reading)) = was
+                && robot.phase() == Phase::Running
+            {
+                starts += 1;
+                let arm = reading.expect("a robot starts only once it has read its encoders");
+                assert!(arm.is_home(), "an episode started away from home: {:?} at {:?}", arm.q, arm.qd);
+            }
+        }
+    }
+    assert!(starts >= 4, "{starts} episodes started");
+}
