@@ -5,7 +5,7 @@ use std::path::Path;
 
 use bevy::app::App;
 use serde::Serialize;
-use twinbots_rl::{AppVecEnv, DesignPattern, Ppo, VecEnv};
+use twinbots_rl::{AppVecEnv, DesignPattern, Measure, Ppo, SolvedCriterion, VecEnv};
 
 use crate::cli::train::{TrainSettings, load_model};
 use crate::registry;
@@ -29,6 +29,16 @@ pub struct EvalResult {
 }
 
 impl EvalResult {
+    /// Whether these episodes meet a solved criterion: at least its window of them, whose
+    /// mean score (or success rate) exceeds its threshold.
+    pub fn meets(&self, criterion: &SolvedCriterion) -> bool {
+        let value = match criterion.measure {
+            Measure::Score => self.mean_score,
+            Measure::Success => self.success_rate.unwrap_or(0.0),
+        };
+        self.episodes >= criterion.window && value > criterion.threshold
+    }
+
     /// One line per figure, for people.
     pub fn describe(&self) -> String {
         let mut out = format!(

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use twinbots_rl::plot::{self, CurvePoint};
-use twinbots_rl::{Ppo, UpdateStats};
+use twinbots_rl::{Ppo, SolvedCriterion, UpdateStats};
 
 pub const CSV_HEADER: &str = "update,timesteps,episodes,mean_reward,min_reward,max_reward,mean_length,policy_loss,value_loss,entropy,approx_kl,clip_fraction,learning_rate,steps_per_s,success_rate";
 
@@ -24,7 +24,7 @@ pub struct RunLog {
     csv: std::fs::File,
     pub curve: Vec<CurvePoint>,
     title: String,
-    target: Option<f32>,
+    solved: Option<SolvedCriterion>,
     checkpoint_every: usize,
     bar: ProgressBar,
     total: u64,
@@ -32,7 +32,7 @@ pub struct RunLog {
 
 impl RunLog {
     /// Appends to `dir/progress.csv` (writing its header if new); `curve` holds earlier points.
-    pub fn open(dir: &Path, title: String, target: Option<f32>, checkpoint_every: usize, total: u64, start: u64, curve: Vec<CurvePoint>) -> anyhow::Result<Self> {
+    pub fn open(dir: &Path, title: String, solved: Option<SolvedCriterion>, checkpoint_every: usize, total: u64, start: u64, curve: Vec<CurvePoint>) -> anyhow::Result<Self> {
         std::fs::create_dir_all(dir.join("checkpoints"))?;
         let path = dir.join("progress.csv");
         if !path.exists() {
@@ -42,13 +42,19 @@ impl RunLog {
         let bar = ProgressBar::new(total);
         bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps {msg}")?.progress_chars("=> "));
         bar.set_position(start.min(total));
-        Ok(Self { dir: dir.to_path_buf(), csv, curve, title, target, checkpoint_every: checkpoint_every.max(1), bar, total })
+        Ok(Self { dir: dir.to_path_buf(), csv, curve, title, solved, checkpoint_every: checkpoint_every.max(1), bar, total })
     }
 
     /// Logs an update; every `checkpoint_every` updates, saves a checkpoint and redraws the curve.
     pub fn on_update(&mut self, s: &UpdateStats, model: &Ppo) -> anyhow::Result<()> {
         writeln!(self.csv, "{}", csv_row(s))?;
-        self.curve.push(CurvePoint { timesteps: s.timesteps, mean_reward: s.mean_reward, min_reward: s.min_reward, max_reward: s.max_reward });
+        self.curve.push(CurvePoint {
+            timesteps: s.timesteps,
+            mean_reward: s.mean_reward,
+            min_reward: s.min_reward,
+            max_reward: s.max_reward,
+            success_rate: s.success_rate,
+        });
         self.bar.set_position(s.timesteps.min(self.total));
         let success = if s.success_rate.is_finite() { format!(", success {:.0} %", 100.0 * s.success_rate) } else { String::new() };
         self.bar.set_message(format!("{:.0} steps/s, mean reward {:.1}{success} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes));
@@ -60,7 +66,7 @@ impl RunLog {
     }
 
     pub fn plot(&self) -> anyhow::Result<()> {
-        plot::learning_curve(&self.dir.join("learning_curve.png"), &self.title, &self.curve, self.target)
+        plot::learning_curve(&self.dir.join("learning_curve.png"), &self.title, &self.curve, self.solved)
     }
 
     pub fn finish(&self) -> anyhow::Result<()> {

@@ -32,7 +32,7 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, out: &Path) -> anyhow:
     std::fs::write(out.join("config.toml"), toml::to_string_pretty(&settings)?)?;
     let model = Ppo::new(settings.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?;
     let title = format!("{} — PPO through the RobotServer (pattern 3), seed {}", settings.robot, settings.seed);
-    let log = Arc::new(Mutex::new(RunLog::open(out, title, spec.solved.map(|c| c.threshold), settings.checkpoint_every, settings.timesteps, 0, Vec::new())?));
+    let log = Arc::new(Mutex::new(RunLog::open(out, title, spec.solved, settings.checkpoint_every, settings.timesteps, 0, Vec::new())?));
     let server_log = log.clone();
     let callback = Box::new(move |s: &UpdateStats, m: &Ppo| -> anyhow::Result<Flow> {
         server_log.lock().map_err(|_| anyhow::anyhow!("run log lock poisoned"))?.on_update(s, m)?;

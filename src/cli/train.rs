@@ -33,7 +33,9 @@ pub struct TrainSettings {
     /// Save a checkpoint (and redraw the learning curve) every this many updates.
     pub checkpoint_every: usize,
     /// Evaluate the deterministic policy every this many updates into `evaluations.csv`
-    /// (0: never). The final model is always evaluated into `eval.json`.
+    /// (0: never); an evaluation of at least the solved criterion's window of episodes that
+    /// meets it ends training (SB3's EvalCallback with a stop threshold). The final model is
+    /// always evaluated into `eval.json`.
     pub eval_every: usize,
     pub eval_episodes: usize,
     pub ppo: PpoConfig,
@@ -88,8 +90,8 @@ impl TrainSettings {
             seed: 0,
             pattern: 1,
             checkpoint_every: 10,
-            eval_every: 0,
-            eval_episodes: 10,
+            eval_every: entry.eval_every,
+            eval_episodes: entry.eval_episodes,
             ppo: (entry.ppo)(),
             randomization: Randomization::default(),
         };
@@ -205,7 +207,7 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
             break;
         }
         let num = |i: usize| f.get(i).and_then(|x| x.parse::<f32>().ok()).unwrap_or(f32::NAN);
-        curve.push(CurvePoint { timesteps: t, mean_reward: num(3), min_reward: num(4), max_reward: num(5) });
+        curve.push(CurvePoint { timesteps: t, mean_reward: num(3), min_reward: num(4), max_reward: num(5), success_rate: num(14) });
         kept.push(line.to_string());
     }
     twinbots_rl::ppo::write_atomic(&csv_path, (kept.join("\n") + "\n").as_bytes())?;
@@ -239,28 +241,33 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
     let make_app = move |arenas: usize, seed: u64| entry.headless_app(arenas, seed, pattern);
 
     // The learner's thread: PPO, logging, checkpoints, evaluation.
-    let trainer = std::thread::spawn(move || -> anyhow::Result<(Ppo, Option<u64>, f64)> {
+    let trainer = std::thread::spawn(move || -> anyhow::Result<(Ppo, Option<(u64, &'static str)>, f64)> {
         let mut model = model;
         let eval_path = run_dir.join("evaluations.csv");
         if !eval_path.exists() {
-            std::fs::write(&eval_path, "timesteps,mean_score,std_score,mean_length\n")?;
+            std::fs::write(&eval_path, "timesteps,mean_score,std_score,mean_length,success_rate\n")?;
         }
         let mut evals = std::fs::OpenOptions::new().append(true).open(&eval_path)?;
         let title = format!("{} — PPO, pattern {}, {} arenas, seed {}", settings.robot, settings.pattern, settings.arenas, settings.seed);
-        let mut log = RunLog::open(&run_dir, title, solved.map(|c| c.threshold), settings.checkpoint_every, settings.timesteps, model.timesteps, curve)?;
+        let mut log = RunLog::open(&run_dir, title, solved, settings.checkpoint_every, settings.timesteps, model.timesteps, curve)?;
         let started = Instant::now();
         let mut solved_at = None;
         let mut callback = |s: &UpdateStats, m: &Ppo| -> anyhow::Result<Flow> {
             log.on_update(s, m)?;
+            let mut evaluation = None;
             if settings.eval_every > 0 && s.update % settings.eval_every == 0 {
                 let r = eval::evaluate(entry.task_name, &make_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
-                writeln!(evals, "{},{},{},{}", s.timesteps, r.mean_score, r.std_score, r.mean_length)?;
+                let success = r.success_rate.map_or(String::new(), |x| x.to_string());
+                writeln!(evals, "{},{},{},{},{success}", s.timesteps, r.mean_score, r.std_score, r.mean_length)?;
+                evaluation = Some(r);
             }
-            if let Some(c) = solved
-                && m.is_solved(&c)
-            {
-                solved_at = Some(s.timesteps);
-                return Ok(Flow::Stop);
+            if let Some(c) = solved {
+                let by_training = m.is_solved(&c).then_some("training episodes");
+                let by_evaluation = evaluation.as_ref().filter(|r| r.meets(&c)).map(|_| "evaluation");
+                if let Some(by) = by_training.or(by_evaluation) {
+                    solved_at = Some((s.timesteps, by));
+                    return Ok(Flow::Stop);
+                }
             }
             Ok(Flow::Continue)
         };
@@ -301,13 +308,14 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
         "wall_clock_s_this_session": wall,
         "mean_reward_last_100": model.mean_recent_score(),
         "solved": solved_at.is_some(),
-        "solved_at_timesteps": solved_at,
+        "solved_at_timesteps": solved_at.map(|(t, _)| t),
+        "solved_by": solved_at.map(|(_, by)| by),
         "success_rate_last_100": model.recent_success_rate(),
         "evaluation": { "episodes": evaluation.episodes, "mean_score": evaluation.mean_score, "std_score": evaluation.std_score, "success_rate": evaluation.success_rate },
     });
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)?)?;
     match solved_at {
-        Some(t) => println!("solved after {t} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.mean_recent_score()),
+        Some((t, by)) => println!("solved ({by}) after {t} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.mean_recent_score()),
         None => println!("not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}", model.timesteps, model.mean_recent_score()),
     }
     println!("evaluation of the final model, {}", evaluation.describe());

@@ -6,13 +6,13 @@
 //! operator lets go at a small random tilt.
 
 use bevy::prelude::*;
-use rand::{Rng, SeedableRng};
+use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use twinbots_rl::Space;
 use twinbots_server::client::Identity;
 use twinbots_server::protocol::RobotMessage;
 use twinbots_server::robot::{Conversation, Phase, RobotRunState, ServerAddress};
-use twinbots_sim::{ArenaConfig, JointState, Motor, MotorCommand, Operator, PositionSensor, SimSet, SimSettings};
+use twinbots_sim::{JointState, Motor, MotorCommand, Operator, PositionSensor, SimSet, SimSettings};
 
 use crate::{CartPoleParts, MAX_CART_X, MAX_POLE_ANGLE, MAX_SCORE, WHEEL_SPEED, drive_wheels};
 
@@ -47,24 +47,17 @@ pub fn identity() -> Identity {
     }
 }
 
+/// Each arena's robot connects; its controller's random stream is its arena's.
 fn connect_robots(
     mut commands: Commands,
     address: Res<ServerAddress>,
-    config: Res<ArenaConfig>,
     cartpole: Res<crate::CartPoleConfig>,
     mut state: ResMut<RobotRunState>,
     arenas: Query<(Entity, &twinbots_sim::Arena)>,
 ) {
     for (entity, arena) in &arenas {
-        let conversation = match Conversation::connect(&address, identity()) {
-            Ok(c) => c,
-            Err(e) => {
-                state.stop = Some(Err(format!("robot {}: {e}", arena.index)));
-                return;
-            }
-        };
-        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-        rng.set_stream(arena.index as u64);
+        let Some(conversation) = Conversation::connect_robot(&address, identity(), arena.index, &mut state) else { return };
+        let rng = arena.rng.clone();
         commands.entity(entity).insert(RobotController {
             conversation,
             score: 0.0,

@@ -58,17 +58,19 @@ pub struct View {
     pub fov_y: f32,
 }
 
-/// How a robot's cell is framed: the point cameras look at and how far away they stand (m).
+/// How a robot's cell is framed: the point cameras look at, how far away they stand (m), and
+/// which way the robot faces (yaw of its front, rad), so `front` and `iso` see its working side.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Framing {
     pub target: Vec3,
     pub distance: f32,
+    pub facing: f32,
 }
 
 impl Default for Framing {
-    /// A robot on the floor about a metre tall (the cart-pole, the Pioneer).
+    /// A robot on the floor about a metre tall facing +x (the cart-pole, the Pioneer).
     fn default() -> Self {
-        Self { target: Vec3::new(0.0, 0.0, 0.5), distance: 2.6 }
+        Self { target: Vec3::new(0.0, 0.0, 0.5), distance: 2.6, facing: 0.0 }
     }
 }
 
@@ -87,6 +89,7 @@ impl Framing {
             "top" => Vec3::new(0.0, -0.004 * d, d),
             _ => return None,
         };
+        let offset = Quat::from_rotation_z(self.facing) * offset;
         Some(View::looking_at(self.target + offset, self.target, 45f32.to_radians()))
     }
 }

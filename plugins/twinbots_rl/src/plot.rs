@@ -5,6 +5,8 @@ use std::sync::Once;
 
 use plotters::prelude::*;
 
+use crate::task::{Measure, SolvedCriterion};
+
 static FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
 static REGISTER: Once = Once::new();
 
@@ -15,11 +17,17 @@ pub struct CurvePoint {
     pub mean_reward: f32,
     pub min_reward: f32,
     pub max_reward: f32,
+    /// Success rate over the last 100 episodes; NaN for tasks that report none.
+    pub success_rate: f32,
 }
 
 /// Draws mean episode reward (and its min–max band over the last 100 episodes) against
-/// timesteps into `path`, written atomically. Points without episodes yet (NaN) are skipped.
-pub fn learning_curve(path: &Path, title: &str, points: &[CurvePoint], target: Option<f32>) -> anyhow::Result<()> {
+/// timesteps into `path`, written atomically, with the success rate on a second axis when the
+/// task reports one, and the solved threshold on the axis its criterion measures. Points
+/// without episodes yet (NaN) are skipped.
+pub fn learning_curve(path: &Path, title: &str, points: &[CurvePoint], solved: Option<SolvedCriterion>) -> anyhow::Result<()> {
+    let target = solved.filter(|c| c.measure == Measure::Score).map(|c| c.threshold);
+    let success_target = solved.filter(|c| c.measure == Measure::Success).map(|c| c.threshold);
     REGISTER.call_once(|| {
         // The font is compiled in; failing to parse it is a build defect the tests catch.
         let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
@@ -37,12 +45,19 @@ pub fn learning_curve(path: &Path, title: &str, points: &[CurvePoint], target: O
             y_min = y_min.min(t);
         }
         let pad = (y_max - y_min).max(1.0) * 0.05;
+        let successes: Vec<(f64, f64)> = points
+            .iter()
+            .filter(|p| p.success_rate.is_finite())
+            .map(|p| (p.timesteps as f64, p.success_rate as f64))
+            .collect();
         let mut chart = ChartBuilder::on(&root)
             .caption(title, ("sans-serif", 22))
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d(0f64..x_max, (y_min - pad) as f64..(y_max + pad) as f64)?;
+            .right_y_label_area_size(if successes.is_empty() { 0 } else { 60 })
+            .build_cartesian_2d(0f64..x_max, (y_min - pad) as f64..(y_max + pad) as f64)?
+            .set_secondary_coord(0f64..x_max, 0f64..1.02f64);
         chart
             .configure_mesh()
             .x_desc("timesteps")
@@ -69,6 +84,24 @@ pub fn learning_curve(path: &Path, title: &str, points: &[CurvePoint], target: O
                 .draw_series(LineSeries::new([(0.0, t as f64), (x_max, t as f64)], RED.mix(0.7)))?
                 .label("solved threshold")
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        }
+        if !successes.is_empty() {
+            chart
+                .configure_secondary_axes()
+                .y_desc("success rate (last 100 episodes)")
+                .label_style(("sans-serif", 14))
+                .draw()?;
+            let green = RGBColor(0, 140, 60);
+            chart
+                .draw_secondary_series(LineSeries::new(successes, green.stroke_width(2)))?
+                .label("success rate")
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], green.stroke_width(2)));
+            if let Some(t) = success_target {
+                chart
+                    .draw_secondary_series(LineSeries::new([(0.0, t as f64), (x_max, t as f64)], RED.mix(0.7)))?
+                    .label("solved threshold (success rate)")
+                    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+            }
         }
         chart
             .configure_series_labels()

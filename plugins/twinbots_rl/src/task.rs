@@ -247,3 +247,20 @@ fn finish_reset(mut episodes: Query<&mut Episode>) {
         e.needs_reset = false;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_success_rate_criterion_needs_its_window_and_at_least_its_rate() {
+        let c = SolvedCriterion::success_rate(20, 0.95);
+        let mut values = vec![1.0; 19];
+        assert!(!c.is_met(&values), "19 episodes are not a window of 20");
+        values.push(0.0);
+        assert!(c.is_met(&values), "19 of 20 is 95 %");
+        values.push(0.0);
+        assert!(!c.is_met(&values), "18 of the last 20 is 90 %");
+    }
+}
+

@@ -53,6 +53,13 @@ impl Conversation {
         Ok(Self { communicator, phase: Phase::Homing, awaiting_reply: false })
     }
 
+    /// Connects the robot of arena `index`; if it cannot, the robots stop, naming it.
+    pub fn connect_robot(address: &ServerAddress, identity: Identity, index: usize, state: &mut RobotRunState) -> Option<Self> {
+        Self::connect(address, identity)
+            .map_err(|e| state.stop = Some(Err(format!("robot {index}: {e}"))))
+            .ok()
+    }
+
     /// Sends this step's message: `start` when starting, the step's outcome when running.
     /// Send every robot's message before receiving any reply, so the server works on all.
     pub fn send(&mut self, message: &RobotMessage, state: &mut RobotRunState) {

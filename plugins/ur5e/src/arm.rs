@@ -18,8 +18,12 @@ pub const TILT_TOLERANCE: f32 = 0.1;
 pub const SETTLED_SPEED: f32 = 0.05;
 /// Joint speed (rad/s) of a full-scale action.
 pub const ACTION_SPEED: f32 = std::f32::consts::FRAC_PI_2;
-/// Observation: q (6), q̇ (6), TCP position (3), target − TCP (3), tool axis (3).
-pub const OBSERVATION_DIM: usize = 21;
+/// Joints the policy commands: all but wrist 3, which only turns the round suction cup about
+/// its own axis (a yaw no task needs); it holds still. Left free, a policy lets it drift over a
+/// long program until it meets its stop.
+pub const ACTION_DIM: usize = 5;
+/// Observation: q (6), q̇ (6), TCP position (3), target − TCP (3), tool axis (3), last action (5).
+pub const OBSERVATION_DIM: usize = 21 + ACTION_DIM;
 /// A joint this close to a stop (rad) counts as at its limit.
 pub const LIMIT_MARGIN: f32 = 0.01;
 /// Homed: every joint this close to home (rad)…
@@ -93,7 +97,7 @@ impl ArmState {
     }
 
     /// The policy's input for a reach towards `target`.
-    pub fn observation(&self, target: Vec3, out: &mut Vec<f32>) {
+    pub fn observation(&self, target: Vec3, actions: &ActionHistory, out: &mut Vec<f32>) {
         let p = self.tcp.translation;
         let axis = self.tcp.rotation * Vec3::Z;
         out.clear();
@@ -102,20 +106,40 @@ impl ArmState {
         out.extend(p.to_array());
         out.extend((target - p).to_array());
         out.extend(axis.to_array());
+        out.extend(actions.last);
     }
 }
 
-/// Reward of a reach step: distance and tilt cost, a small cost of effort, and a bonus on
-/// arrival (which ends the episode, so the policy gains by arriving soon).
-pub fn reach_reward(arm: &ArmState, target: Vec3, action: &[f32], arrived: bool) -> f32 {
-    let effort: f32 = action.iter().map(|a| a.clamp(-1.0, 1.0).powi(2)).sum();
-    let cost = arm.distance_to(target) + 0.2 * kinematics::tilt(&arm.tcp) + 0.01 * effort;
+/// The actions the arm was last given: the policy sees the last (Isaac Lab's last-action
+/// term), and the reward charges the change from the one before (its action-rate term).
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct ActionHistory {
+    pub last: [f32; ACTION_DIM],
+    pub previous: [f32; ACTION_DIM],
+}
+
+impl ActionHistory {
+    pub fn push(&mut self, action: &[f32]) {
+        self.previous = self.last;
+        self.last = std::array::from_fn(|i| action.get(i).copied().unwrap_or(0.0).clamp(-1.0, 1.0));
+    }
+}
+
+/// Reward of a reach step: the cost of distance (linear, and steeper within a few centimetres,
+/// where precision is won), of tilt, of effort and of jerky actions; a bonus on arrival, which
+/// ends the episode, so the policy gains by arriving soon.
+pub fn reach_reward(arm: &ArmState, target: Vec3, actions: &ActionHistory, arrived: bool) -> f32 {
+    let d = arm.distance_to(target);
+    let effort: f32 = actions.last.iter().map(|a| a * a).sum();
+    let jerk: f32 = actions.last.iter().zip(actions.previous).map(|(a, b)| (a - b).powi(2)).sum();
+    let precision = 0.1 * (1.0 - (-(d / 0.02).powi(2)).exp());
+    let cost = d + precision + 0.2 * kinematics::tilt(&arm.tcp) + 0.01 * effort + 0.02 * jerk;
     if arrived { 10.0 - cost } else { -cost }
 }
 
-/// Joint speed commands for an action in [−1, 1]⁶.
+/// Joint speed commands for an action in [−1, 1]⁵ (wrist 3 at rest).
 pub fn joint_speeds(action: &[f32]) -> [f32; 6] {
-    std::array::from_fn(|i| action.get(i).copied().unwrap_or(0.0).clamp(-1.0, 1.0) * ACTION_SPEED)
+    std::array::from_fn(|i| if i < ACTION_DIM { action.get(i).copied().unwrap_or(0.0).clamp(-1.0, 1.0) * ACTION_SPEED } else { 0.0 })
 }
 
 /// Drives the arm's joints at these speeds.

@@ -24,6 +24,8 @@ pub const FIXTURE_A: Vec3 = Vec3::new(-0.45, 0.20, 0.0);
 pub const FIXTURE_B: Vec3 = Vec3::new(-0.45, -0.35, 0.0);
 /// Thickness of a fixture's plate: the pocket floor's height.
 pub const POCKET_FLOOR: f32 = 0.02;
+/// How far the part can sit off its pocket's centre (m): an 8 cm pocket for a 5 cm part.
+pub const POCKET_PLAY: f32 = 0.015;
 pub const PART_HEIGHT: f32 = 0.05;
 pub const PART_RADIUS: f32 = 0.025;
 /// The suction cup: radius and bellows stroke (m).

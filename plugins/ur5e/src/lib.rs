@@ -4,8 +4,9 @@
 //!
 //! Tasks (Isaac Lab's manager-based shape; the same observation and action for both):
 //! - [`Ur5eTask::Reach`]: tool to a target over the table, pointing down, at rest within 1 cm.
-//!   Action: six joint speeds, Box([-1, 1]⁶) × π/2 rad/s. Observation (21): joint angles and
-//!   speeds from the encoders, the TCP from the controller's kinematics, target − TCP, tool axis.
+//!   Action: speeds of the first five joints, Box([-1, 1]⁵) × π/2 rad/s (wrist 3 only turns the
+//!   round cup; it holds). Observation (26): joint angles and speeds from the encoders, the TCP
+//!   from the controller's kinematics, target − TCP, tool axis, last action.
 //! - [`Ur5eTask::PickPlace`]: the part from fixture A to fixture B, a cell program of waypoints
 //!   driven by a reach policy.
 //!
@@ -27,12 +28,12 @@ use twinbots_rl::task::{EnvReset, ResetSet, TaskSet};
 use twinbots_rl::{Action, DesignPattern, Episode, PpoConfig, SolvedCriterion, Space, TaskPlugin, TaskSpec};
 use twinbots_sim::{Arena, ArenaConfig, JointState, Motor, PhysicsSubstep, PositionSensor, SimPlugin, SimSet, SimSettings, SubstepSet};
 
-use crate::arm::{ArmState, OBSERVATION_DIM};
+use crate::arm::{ACTION_DIM, ActionHistory, ArmState, OBSERVATION_DIM};
 use crate::cell::{CellModels, CellParts, spawn_cell};
 use crate::kinematics::HOME;
 use crate::metrics::TwinMeter;
 use crate::pick_place::Program;
-use crate::reach::ToolTarget;
+use crate::reach::{LastArrival, ToolTarget};
 
 /// Which task the cell runs.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -49,19 +50,29 @@ pub fn sim_settings() -> SimSettings {
     SimSettings { dt: 0.004, substeps: 10, solver_iterations: 8, ..default() }
 }
 
-/// PPO settings: SB3's defaults with observation normalisation and a wider network.
+/// PPO settings: SB3's defaults with observation normalisation, a wider network, and a
+/// smaller starting exploration noise (σ ≈ 0.37 of full speed): a 1 cm reach that ends at rest
+/// needs a quiet policy, which PPO otherwise takes long to reach from σ = 1.
 pub fn ppo_config() -> PpoConfig {
-    PpoConfig { normalize_observations: true, n_steps: 256, batch_size: 256, hidden: vec![128, 128], ..Default::default() }
+    PpoConfig {
+        normalize_observations: true,
+        n_steps: 256,
+        batch_size: 256,
+        hidden: vec![128, 128],
+        log_std_init: -1.0,
+        ..Default::default()
+    }
 }
 
-/// The spaces every UR5e task shares, and reach's criterion: 95 % of the last 100 episodes
-/// succeed.
+/// The spaces every UR5e task shares, and reach's criterion: 98 % of 100 episodes succeed, a
+/// margin over the 95 % the twin must reach (a first crossing of 95 % at one evaluation seed
+/// measured 95.0 % at another).
 pub fn task_spec() -> TaskSpec {
     TaskSpec {
         name: "ur5e".into(),
         observation_space: Space::uniform_box(OBSERVATION_DIM, f32::NEG_INFINITY, f32::INFINITY),
-        action_space: Space::uniform_box(6, -1.0, 1.0),
-        solved: Some(SolvedCriterion::success_rate(100, 0.95)),
+        action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
+        solved: Some(SolvedCriterion::success_rate(100, 0.98)),
     }
 }
 
@@ -104,7 +115,7 @@ impl Plugin for Ur5ePlugin {
             .add_systems(Startup, spawn_arenas)
             .add_systems(Update, apply_action.in_set(SimSet::Actuate))
             .add_systems(PhysicsSubstep, metrics::meter_energy.in_set(SubstepSet::Record))
-            .add_systems(EnvReset, (reset_meter.in_set(ResetSet::Events), (read_arm, observe).chain().in_set(ResetSet::Observe)));
+            .add_systems(EnvReset, (reset_records.in_set(ResetSet::Events), (read_arm, observe).chain().in_set(ResetSet::Observe)));
         match self.task {
             Ur5eTask::Reach => {
                 app.add_systems(
@@ -148,9 +159,11 @@ fn spawn_arenas(
             arena,
             parts,
             ArmState::default(),
+            ActionHistory::default(),
             ToolTarget::default(),
+            LastArrival::default(),
             TwinMeter::default(),
-            Action(vec![0.0; 6]),
+            Action(vec![0.0; ACTION_DIM]),
             Episode { needs_reset: true, ..default() },
         ));
         if *task == Ur5eTask::PickPlace {
@@ -159,10 +172,11 @@ fn spawn_arenas(
     }
 }
 
-fn apply_action(arenas: Query<(&CellParts, &Action)>, mut motors: Query<&mut Motor>) {
-    for (parts, action) in &arenas {
+fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut ActionHistory)>, mut motors: Query<&mut Motor>) {
+    for (parts, action, mut history) in &mut arenas {
         if !action.0.is_empty() {
             arm::drive(parts, arm::joint_speeds(&action.0), &mut motors);
+            history.push(&action.0);
         }
     }
 }
@@ -173,16 +187,18 @@ fn read_arm(sensors: Query<(&PositionSensor, &JointState)>, mut arenas: Query<(&
     }
 }
 
-fn observe(mut arenas: Query<(&ArmState, &ToolTarget, &mut Episode)>) {
-    for (arm, target, mut episode) in &mut arenas {
-        arm.observation(target.0, &mut episode.observation);
+fn observe(mut arenas: Query<(&ArmState, &ToolTarget, &ActionHistory, &mut Episode)>) {
+    for (arm, target, actions, mut episode) in &mut arenas {
+        arm.observation(target.0, actions, &mut episode.observation);
     }
 }
 
-fn reset_meter(mut arenas: Query<(&Episode, &mut TwinMeter)>) {
-    for (episode, mut meter) in &mut arenas {
+/// Reset event: the episode's figures and action history start from nothing.
+fn reset_records(mut arenas: Query<(&Episode, &mut TwinMeter, &mut ActionHistory)>) {
+    for (episode, mut meter, mut actions) in &mut arenas {
         if episode.needs_reset {
             *meter = TwinMeter::default();
+            *actions = ActionHistory::default();
         }
     }
 }

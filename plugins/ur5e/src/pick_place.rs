@@ -5,17 +5,20 @@
 //! It is the reach task with another command term: the same observation and action, so a
 //! reach model runs it unchanged.
 //!
+//! Episodes start near home with the part anywhere its pocket lets it sit.
 //! The episode ends when the program is done (success if the part then stands in fixture B's
 //! pocket), when the part was not seized, or after [`EPISODE_STEPS`].
 
 use bevy::prelude::*;
-use twinbots_rl::{Action, Episode};
+use rand::Rng;
+use twinbots_sim::rapier::math::Pose;
+use twinbots_rl::Episode;
 use twinbots_sim::{SimSettings, Supervisor, VacuumGripper};
 
-use crate::arm::{ArmState, reach_reward};
-use crate::cell::{CellParts, FIXTURE_A, FIXTURE_B, PART_HEIGHT, base_pose, part_seat};
+use crate::arm::{ActionHistory, ArmState, reach_reward};
+use crate::cell::{CellParts, FIXTURE_A, FIXTURE_B, PART_HEIGHT, POCKET_PLAY, base_pose, part_seat};
 use crate::metrics::TwinMeter;
-use crate::reach::ToolTarget;
+use crate::reach::{ToolTarget, sample_start};
 
 pub const EPISODE_STEPS: u32 = 400;
 /// Height of the approach and retract waypoints above the part's top (m).
@@ -26,8 +29,8 @@ pub const GRIP_GAP: f32 = 0.003;
 pub const DROP_HEIGHT: f32 = 0.008;
 /// Control steps the suction is given to seize or release.
 pub const SUCTION_STEPS: u32 = 3;
-/// A placed part's centre lies this close to the pocket's centre (m)…
-pub const PLACE_TOLERANCE: f32 = 0.015;
+/// A placed part's centre lies within the pocket's play of its centre (m)…
+pub const PLACE_TOLERANCE: f32 = POCKET_PLAY + 0.001;
 /// …and it stands upright within this angle (rad).
 pub const UPRIGHT_TOLERANCE: f32 = 0.2;
 
@@ -117,19 +120,35 @@ pub fn run_program(
     }
 }
 
-/// Reset event: the program starts over (the Supervisor's reset has put the part back in A).
-pub fn new_program(mut arenas: Query<(&Episode, &mut Program, &mut ToolTarget)>) {
-    for (episode, mut program, mut target) in &mut arenas {
-        if episode.needs_reset {
-            *program = Program::default();
-            target.0 = waypoint(program.stage);
+/// How far (m) the part may sit off its pocket's centre at the start. With the reach's 1 cm,
+/// the part then never lands more than the pocket's play off its centre.
+pub const PART_PLAY: f32 = 0.005;
+
+/// Reset event: the program starts over, the arm near home and the part anywhere its pocket
+/// in fixture A lets it sit, at any yaw (both put there by the Supervisor).
+pub fn new_program(mut supervisor: Supervisor, mut arenas: Query<(Entity, &Episode, &CellParts, &mut Program, &mut ToolTarget)>) {
+    for (arena, episode, parts, mut program, mut target) in &mut arenas {
+        if !episode.needs_reset {
+            continue;
         }
+        *program = Program::default();
+        target.0 = waypoint(program.stage);
+        let Some(mut a) = supervisor.arena_mut(arena) else { continue };
+        let start = sample_start(&mut a.rng);
+        let offset = Vec3::new(a.rng.random_range(-PART_PLAY..=PART_PLAY), a.rng.random_range(-PART_PLAY..=PART_PLAY), 0.0);
+        let yaw = a.rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI);
+        drop(a);
+        for (&joint, q) in parts.joints.iter().zip(start) {
+            supervisor.set_joint_position(joint, q);
+        }
+        let seat = Pose::from_parts(part_seat(FIXTURE_A) + offset, Quat::from_rotation_z(yaw));
+        supervisor.set_link_pose(parts.part, base_pose() * seat);
     }
 }
 
-pub fn reward(mut arenas: Query<(&ArmState, &ToolTarget, &Action, &mut Episode), With<Program>>) {
-    for (arm, target, action, mut e) in &mut arenas {
-        e.reward = reach_reward(arm, target.0, &action.0, false);
+pub fn reward(mut arenas: Query<(&ArmState, &ToolTarget, &ActionHistory, &mut Episode), With<Program>>) {
+    for (arm, target, actions, mut e) in &mut arenas {
+        e.reward = reach_reward(arm, target.0, actions, false);
     }
 }
 

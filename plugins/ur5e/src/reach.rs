@@ -1,12 +1,13 @@
 //! Reach: move the tool to a target sampled over the table, pointing down, and come to rest
-//! there within 1 cm. The episode ends on arrival (success) or after [`EPISODE_STEPS`].
+//! there within 1 cm. The episode ends on arrival (success) or after [`EPISODE_STEPS`]; the
+//! next starts near home or, after an arrival, half the time where that one ended.
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_rl::{Action, Episode};
+use twinbots_rl::Episode;
 use twinbots_sim::{SimSettings, Supervisor};
 
-use crate::arm::{ArmState, reach_reward};
+use crate::arm::{ActionHistory, ArmState, reach_reward};
 use crate::cell::{CellParts, FIXTURE_A, PART_HEIGHT, POCKET_FLOOR};
 use crate::kinematics::HOME;
 use crate::metrics::TwinMeter;
@@ -27,6 +28,12 @@ pub const START_SPREAD: f32 = 0.05;
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct ToolTarget(pub Vec3);
 
+/// Where the last reach ended, when it succeeded: half the time the next one starts there, as a
+/// cell's next move does, so the policy learns moves from anywhere it may have arrived (a
+/// pick-and-place program chains them); otherwise it starts near home.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct LastArrival(pub Option<[f32; 6]>);
+
 /// A target over the table, not inside the part waiting in fixture A.
 pub fn sample_target(rng: &mut impl Rng) -> Vec3 {
     loop {
@@ -46,15 +53,21 @@ pub fn sample_start(rng: &mut impl Rng) -> [f32; 6] {
     HOME.map(|q| q + rng.random_range(-START_SPREAD..=START_SPREAD))
 }
 
-/// Reset event: a new target, and the arm put at a start pose near home (by the Supervisor).
-pub fn new_reach(mut supervisor: Supervisor, mut arenas: Query<(Entity, &Episode, &CellParts, &mut ToolTarget)>) {
-    for (arena, episode, parts, mut target) in &mut arenas {
+/// Reset event: a new target, and the arm put (by the Supervisor) where the last successful
+/// reach ended or near home (see [`LastArrival`]).
+pub fn new_reach(
+    mut supervisor: Supervisor,
+    mut arenas: Query<(Entity, &Episode, &CellParts, &mut ToolTarget, &mut LastArrival)>,
+) {
+    for (arena, episode, parts, mut target, mut last) in &mut arenas {
         if !episode.needs_reset {
             continue;
         }
         let Some(mut a) = supervisor.arena_mut(arena) else { continue };
         target.0 = sample_target(&mut a.rng);
-        let start = sample_start(&mut a.rng);
+        let near_home = sample_start(&mut a.rng);
+        let chain = a.rng.random::<bool>();
+        let start = last.0.take().filter(|_| chain).unwrap_or(near_home);
         drop(a);
         for (&joint, q) in parts.joints.iter().zip(start) {
             supervisor.set_joint_position(joint, q);
@@ -62,15 +75,16 @@ pub fn new_reach(mut supervisor: Supervisor, mut arenas: Query<(Entity, &Episode
     }
 }
 
-pub fn reward(mut arenas: Query<(&ArmState, &ToolTarget, &Action, &mut Episode)>) {
-    for (arm, target, action, mut e) in &mut arenas {
-        e.reward = reach_reward(arm, target.0, &action.0, arm.has_reached(target.0));
+pub fn reward(mut arenas: Query<(&ArmState, &ToolTarget, &ActionHistory, &mut Episode)>) {
+    for (arm, target, actions, mut e) in &mut arenas {
+        e.reward = reach_reward(arm, target.0, actions, arm.has_reached(target.0));
     }
 }
 
-pub fn terminate(settings: Res<SimSettings>, mut arenas: Query<(&ArmState, &ToolTarget, &TwinMeter, &mut Episode)>) {
-    for (arm, target, meter, mut e) in &mut arenas {
+pub fn terminate(settings: Res<SimSettings>, mut arenas: Query<(&ArmState, &ToolTarget, &TwinMeter, &mut LastArrival, &mut Episode)>) {
+    for (arm, target, meter, mut last, mut e) in &mut arenas {
         let arrived = arm.has_reached(target.0);
+        last.0 = arrived.then_some(arm.q);
         e.terminated = arrived;
         e.truncated = !arrived && e.length + 1 >= EPISODE_STEPS;
         if e.terminated || e.truncated {

@@ -6,7 +6,6 @@
 //! puts it back before the next episode starts.
 
 use bevy::prelude::*;
-use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use twinbots_server::client::Identity;
 use twinbots_server::protocol::RobotMessage;
@@ -14,7 +13,7 @@ use twinbots_server::robot::{Conversation, Phase, RobotRunState, ServerAddress};
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{Arena, ArenaConfig, JointState, Motor, Operator, OperatorAccess, PositionSensor, SimPlugin, SimSet, SimSettings};
 
-use crate::arm::{self, ArmState};
+use crate::arm::{self, ActionHistory, ArmState};
 use crate::cell::{CellModels, CellParts, FIXTURE_A, part_seat, spawn_cell};
 use crate::kinematics::HOME;
 use crate::reach::{EPISODE_STEPS, sample_target};
@@ -53,7 +52,7 @@ pub struct RobotController {
     pub arm: Option<ArmState>,
     pub target: Vec3,
     steps: u32,
-    last_action: Vec<f32>,
+    actions: ActionHistory,
     rng: ChaCha8Rng,
 }
 
@@ -72,29 +71,17 @@ fn spawn_cells(mut commands: Commands, models: Res<CellModels>, config: Res<Aren
     }
 }
 
-fn connect_robots(
-    mut commands: Commands,
-    address: Res<ServerAddress>,
-    config: Res<ArenaConfig>,
-    mut state: ResMut<RobotRunState>,
-    arenas: Query<(Entity, &Arena)>,
-) {
+/// Each arena's robot connects; its controller's random stream is its arena's.
+fn connect_robots(mut commands: Commands, address: Res<ServerAddress>, mut state: ResMut<RobotRunState>, arenas: Query<(Entity, &Arena)>) {
     for (entity, arena) in &arenas {
-        let conversation = match Conversation::connect(&address, identity()) {
-            Ok(c) => c,
-            Err(e) => {
-                state.stop = Some(Err(format!("robot {}: {e}", arena.index)));
-                return;
-            }
-        };
-        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-        rng.set_stream(arena.index as u64);
+        let Some(conversation) = Conversation::connect_robot(&address, identity(), arena.index, &mut state) else { return };
+        let rng = arena.rng.clone();
         commands.entity(entity).insert(RobotController {
             conversation,
             arm: None,
             target: Vec3::ZERO,
             steps: 0,
-            last_action: vec![0.0; 6],
+            actions: ActionHistory::default(),
             rng,
         });
     }
@@ -119,16 +106,17 @@ fn exchange(mut state: ResMut<RobotRunState>, mut robots: Query<(&CellParts, &mu
             Phase::Homing => continue,
             Phase::Starting => {
                 robot.steps = 0;
+                robot.actions = ActionHistory::default();
                 robot.target = sample_target(&mut robot.rng);
-                arm.observation(robot.target, &mut obs);
+                arm.observation(robot.target, &robot.actions, &mut obs);
                 RobotMessage::Start { obs }
             }
             Phase::Running => {
                 robot.steps += 1;
                 let arrived = arm.has_reached(robot.target);
                 let truncated = !arrived && robot.steps >= EPISODE_STEPS;
-                arm.observation(robot.target, &mut obs);
-                let reward = arm::reach_reward(arm, robot.target, &robot.last_action, arrived);
+                arm.observation(robot.target, &robot.actions, &mut obs);
+                let reward = arm::reach_reward(arm, robot.target, &robot.actions, arrived);
                 let success = (arrived || truncated).then_some(arrived);
                 RobotMessage::Step { obs, reward, terminated: arrived, truncated, success }
             }
@@ -138,7 +126,7 @@ fn exchange(mut state: ResMut<RobotRunState>, mut robots: Query<(&CellParts, &mu
     for (parts, mut robot) in &mut robots {
         if let Some(action) = robot.conversation.receive(&mut state) {
             arm::drive(parts, arm::joint_speeds(&action), &mut motors);
-            robot.last_action = action;
+            robot.actions.push(&action);
         }
     }
 }

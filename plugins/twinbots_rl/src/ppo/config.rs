@@ -24,6 +24,8 @@ pub struct PpoConfig {
     /// Running mean/std normalisation of observations (SB3's VecNormalize), saved with the model.
     pub normalize_observations: bool,
     pub hidden: Vec<usize>,
+    /// Starting log standard deviation of a Gaussian policy (SB3's `log_std_init`).
+    pub log_std_init: f32,
 }
 
 impl Default for PpoConfig {
@@ -44,6 +46,7 @@ impl Default for PpoConfig {
             normalize_advantage: true,
             normalize_observations: false,
             hidden: vec![64, 64],
+            log_std_init: 0.0,
         }
     }
 }

@@ -101,7 +101,7 @@ impl std::fmt::Debug for Ppo {
 impl Ppo {
     pub fn new(config: PpoConfig, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
         let obs_dim = observation_space.dim();
-        let policy = ActorCritic::new(obs_dim, &action_space, &config.hidden, seed)?;
+        let policy = ActorCritic::new(obs_dim, &action_space, &config.hidden, config.log_std_init, seed)?;
         let obs_rms = config.normalize_observations.then(|| RunningMeanStd::new(obs_dim));
         let optimizer = adam(&policy, config.learning_rate)?;
         Ok(Self {

@@ -81,7 +81,8 @@ pub struct Evaluation {
 }
 
 impl ActorCritic {
-    pub fn new(obs_dim: usize, action_space: &Space, hidden: &[usize], seed: u64) -> Result<Self> {
+    /// Networks for `obs_dim` inputs; a box's Gaussian starts with log std `log_std_init`.
+    pub fn new(obs_dim: usize, action_space: &Space, hidden: &[usize], log_std_init: f32, seed: u64) -> Result<Self> {
         let dev = Device::Cpu;
         let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
         let (out, head) = match action_space {
@@ -90,7 +91,7 @@ impl ActorCritic {
                 low.len(),
                 Head::Gaussian {
                     dim: low.len(),
-                    log_std: Var::from_tensor(&Tensor::zeros(low.len(), DType::F32, &dev)?)?,
+                    log_std: Var::from_tensor(&Tensor::full(log_std_init, low.len(), &dev)?)?,
                 },
             ),
             Space::MultiDiscrete { .. } => candle_core::bail!("MultiDiscrete actions are not supported by PPO yet"),

@@ -153,7 +153,7 @@ pub(crate) fn drive_motors(
         let world = &mut arena.world;
         let axis = joint.axis();
         let target = motor.target_velocity(state, joint.limits, settings.dt);
-        // The reference a holding motor keeps, as rapier's (wrapped) joint angle.
+        // The reference a holding motor keeps.
         let reference = match target {
             Some(v) if motor.holds_position => Some(motor.advance_reference(state.position, v, settings.dt, joint.limits)),
             _ => {
@@ -165,6 +165,7 @@ pub(crate) fn drive_motors(
         if let Some(j) = world.impulse_joints.get_mut(joint.handle, false) {
             match (target, reference) {
                 (Some(v), Some(r)) => {
+                    // Rapier's motor targets the wrapped joint angle.
                     let r = if rotational { r - std::f32::consts::TAU * (r / std::f32::consts::TAU).round() } else { r };
                     j.data.set_motor(axis, r, v, POSITION_HOLD_STIFFNESS, VELOCITY_MOTOR_GAIN);
                     j.data.set_motor_max_force(axis, motor.max_effort * motor.strength);

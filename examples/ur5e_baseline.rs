@@ -1,0 +1,40 @@
+//! The UR5e cell driven by the classical resolved-rate controller (no learning): success rate,
+//! cycle time, energy, joint-limit and collision events of the reach and of pick-and-place, the
+//! figures `twinbots eval` reports for a trained model, for comparison.
+//!
+//! `cargo run --release --example ur5e_baseline [episodes]`
+
+use std::collections::BTreeMap;
+
+use bevy::app::App;
+use twinbots_rl::{AppVecEnv, DesignPattern, VecEnv};
+
+fn run(name: &str, app: App, episodes: usize) {
+    let mut env = AppVecEnv::new(app);
+    let dim = env.observation_space().dim();
+    let mut obs = env.reset(Some(7)).expect("reset");
+    let (mut done, mut successes) = (0, 0);
+    let mut figures: BTreeMap<String, Vec<f32>> = BTreeMap::new();
+    while done < episodes {
+        let actions: Vec<f32> = obs.chunks(dim).flat_map(ur5e::controller::act).collect();
+        let step = env.step(&actions).expect("step");
+        for ep in step.episodes.into_iter().flatten().take(episodes - done) {
+            done += 1;
+            successes += usize::from(ep.success == Some(true));
+            for (k, v) in ep.metrics {
+                figures.entry(k).or_default().push(v);
+            }
+        }
+        obs = step.obs;
+    }
+    println!("{name}: {episodes} episodes, success rate {:.1} %", 100.0 * successes as f32 / episodes as f32);
+    for (k, v) in figures {
+        println!("  {k}: {:.3}", v.iter().sum::<f32>() / v.len() as f32);
+    }
+}
+
+fn main() {
+    let episodes = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(100);
+    run("reach", ur5e::headless_app_with(8, 7, DesignPattern::Supervised), episodes);
+    run("pick-place", ur5e::pick_place_app(8, 7, DesignPattern::Supervised), episodes.min(16));
+}
