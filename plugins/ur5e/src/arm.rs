@@ -133,7 +133,7 @@ pub fn reach_reward(arm: &ArmState, target: Vec3, actions: &ActionHistory, arriv
     let effort: f32 = actions.last.iter().map(|a| a * a).sum();
     let jerk: f32 = actions.last.iter().zip(actions.previous).map(|(a, b)| (a - b).powi(2)).sum();
     let precision = 0.1 * (1.0 - (-(d / 0.02).powi(2)).exp());
-    let cost = d + precision + 0.2 * kinematics::tilt(&arm.tcp) + 0.01 * effort + 0.02 * jerk;
+    let cost = d + precision + 0.5 * kinematics::tilt(&arm.tcp) + 0.01 * effort + 0.02 * jerk;
     if arrived { 10.0 - cost } else { -cost }
 }
 

@@ -64,15 +64,15 @@ pub fn ppo_config() -> PpoConfig {
     }
 }
 
-/// The spaces every UR5e task shares, and reach's criterion: 98 % of 100 episodes succeed, a
-/// margin over the 95 % the twin must reach (a first crossing of 95 % at one evaluation seed
-/// measured 95.0 % at another).
+/// The spaces every UR5e task shares, and reach's criterion: 98 % of 200 episodes succeed, a
+/// margin over the 95 % the twin must reach (a first crossing of 95 % in 100 episodes measured
+/// 95.0 % at another seed, and of 98 % in 100, 94.4 % over 500).
 pub fn task_spec() -> TaskSpec {
     TaskSpec {
         name: "ur5e".into(),
         observation_space: Space::uniform_box(OBSERVATION_DIM, f32::NEG_INFINITY, f32::INFINITY),
         action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
-        solved: Some(SolvedCriterion::success_rate(100, 0.98)),
+        solved: Some(SolvedCriterion::success_rate(200, 0.98)),
     }
 }
 

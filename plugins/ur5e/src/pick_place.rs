@@ -1,5 +1,6 @@
 //! Pick-and-place: move the part from fixture A to fixture B with the vacuum gripper. The cell
-//! program is a sequence of tool targets (approach, descend, lift, transfer, lower, retract)
+//! program is a sequence of tool targets (approach, descend, lift, transfer, align, lower,
+//! retract)
 //! with the suction switched on and off between them, as a UR program of MoveL waypoints and
 //! digital outputs; the trained reach policy moves the arm from each waypoint to the next.
 //! It is the reach task with another command term: the same observation and action, so a
@@ -27,6 +28,9 @@ pub const CLEARANCE: f32 = 0.10;
 pub const GRIP_GAP: f32 = 0.003;
 /// The part is let go this far above the pocket floor (m).
 pub const DROP_HEIGHT: f32 = 0.008;
+/// Before lowering it, the part is aligned over the pocket this high above its seat (m): its
+/// bottom clear of the rails, so the last descent is short and straight.
+pub const ALIGN_HEIGHT: f32 = 0.04;
 /// Control steps the suction is given to seize or release.
 pub const SUCTION_STEPS: u32 = 3;
 /// A placed part's centre lies within the pocket's play of its centre (m)…
@@ -41,6 +45,8 @@ pub enum Stage {
     Grip,
     Lift,
     Transfer,
+    /// Over fixture B's pocket, the part just clear of its rails.
+    Align,
     Lower,
     Release,
     Retract,
@@ -71,6 +77,7 @@ pub fn waypoint(stage: Stage) -> Vec3 {
         Stage::Approach | Stage::Lift => top(FIXTURE_A) + Vec3::Z * CLEARANCE,
         Stage::Descend | Stage::Grip | Stage::Failed => top(FIXTURE_A) + Vec3::Z * GRIP_GAP,
         Stage::Transfer | Stage::Retract | Stage::Done => top(FIXTURE_B) + Vec3::Z * CLEARANCE,
+        Stage::Align => top(FIXTURE_B) + Vec3::Z * ALIGN_HEIGHT,
         Stage::Lower | Stage::Release => top(FIXTURE_B) + Vec3::Z * DROP_HEIGHT,
     }
 }
@@ -86,7 +93,8 @@ impl Program {
             Stage::Grip if holding => Some(Stage::Lift),
             Stage::Grip if self.waited >= SUCTION_STEPS => Some(Stage::Failed),
             Stage::Lift if reached => Some(Stage::Transfer),
-            Stage::Transfer if reached => Some(Stage::Lower),
+            Stage::Transfer if reached => Some(Stage::Align),
+            Stage::Align if reached => Some(Stage::Lower),
             Stage::Lower if reached => Some(Stage::Release),
             Stage::Release if self.waited >= SUCTION_STEPS => Some(Stage::Retract),
             Stage::Retract if reached => Some(Stage::Done),
@@ -100,7 +108,7 @@ impl Program {
             None if matches!(self.stage, Stage::Grip | Stage::Release) => self.waited += 1,
             None => {}
         }
-        matches!(self.stage, Stage::Grip | Stage::Lift | Stage::Transfer | Stage::Lower)
+        matches!(self.stage, Stage::Grip | Stage::Lift | Stage::Transfer | Stage::Align | Stage::Lower)
     }
 
     pub fn is_over(&self) -> bool {
