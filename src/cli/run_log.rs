@@ -5,7 +5,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use twinbots_rl::plot::{self, CurvePoint};
+use twinbots_rl::plot::{self, CurvePoint, EvaluationPoint};
 use twinbots_rl::{Ppo, SolvedCriterion, UpdateStats};
 
 pub const CSV_HEADER: &str = "update,timesteps,episodes,mean_reward,min_reward,max_reward,mean_length,policy_loss,value_loss,entropy,approx_kl,clip_fraction,learning_rate,steps_per_s,success_rate";
@@ -23,6 +23,7 @@ pub struct RunLog {
     dir: PathBuf,
     csv: std::fs::File,
     pub curve: Vec<CurvePoint>,
+    pub evaluations: Vec<EvaluationPoint>,
     title: String,
     solved: Option<SolvedCriterion>,
     checkpoint_every: usize,
@@ -42,7 +43,7 @@ impl RunLog {
         let bar = ProgressBar::new(total);
         bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps {msg}")?.progress_chars("=> "));
         bar.set_position(start.min(total));
-        Ok(Self { dir: dir.to_path_buf(), csv, curve, title, solved, checkpoint_every: checkpoint_every.max(1), bar, total })
+        Ok(Self { dir: dir.to_path_buf(), csv, curve, evaluations: Vec::new(), title, solved, checkpoint_every: checkpoint_every.max(1), bar, total })
     }
 
     /// Logs an update; every `checkpoint_every` updates, saves a checkpoint and redraws the curve.
@@ -66,7 +67,7 @@ impl RunLog {
     }
 
     pub fn plot(&self) -> anyhow::Result<()> {
-        plot::learning_curve(&self.dir.join("learning_curve.png"), &self.title, &self.curve, self.solved)
+        plot::learning_curve(&self.dir.join("learning_curve.png"), &self.title, &self.curve, &self.evaluations, self.solved)
     }
 
     pub fn finish(&self) -> anyhow::Result<()> {

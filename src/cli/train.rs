@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
-use twinbots_rl::plot::CurvePoint;
+use twinbots_rl::plot::{CurvePoint, EvaluationPoint};
 use twinbots_rl::randomization::{Randomization, RandomizationPlugin};
 use twinbots_rl::{DesignPattern, Flow, Ppo, PpoConfig, UpdateStats, bridge, env};
 
@@ -259,6 +259,11 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
                 let r = eval::evaluate(entry.task_name, &make_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
                 let success = r.success_rate.map_or(String::new(), |x| x.to_string());
                 writeln!(evals, "{},{},{},{},{success}", s.timesteps, r.mean_score, r.std_score, r.mean_length)?;
+                log.evaluations.push(EvaluationPoint {
+                    timesteps: s.timesteps,
+                    mean_score: r.mean_score,
+                    success_rate: r.success_rate.unwrap_or(f32::NAN),
+                });
                 evaluation = Some(r);
             }
             if let Some(c) = solved {

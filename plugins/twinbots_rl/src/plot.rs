@@ -21,11 +21,26 @@ pub struct CurvePoint {
     pub success_rate: f32,
 }
 
+/// A periodic evaluation of the deterministic policy.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EvaluationPoint {
+    pub timesteps: u64,
+    pub mean_score: f32,
+    /// NaN for tasks that report no success.
+    pub success_rate: f32,
+}
+
 /// Draws mean episode reward (and its min–max band over the last 100 episodes) against
 /// timesteps into `path`, written atomically, with the success rate on a second axis when the
-/// task reports one, and the solved threshold on the axis its criterion measures. Points
-/// without episodes yet (NaN) are skipped.
-pub fn learning_curve(path: &Path, title: &str, points: &[CurvePoint], solved: Option<SolvedCriterion>) -> anyhow::Result<()> {
+/// task reports one, periodic evaluations as points, and the solved threshold on the axis its
+/// criterion measures. Points without episodes yet (NaN) are skipped.
+pub fn learning_curve(
+    path: &Path,
+    title: &str,
+    points: &[CurvePoint],
+    evaluations: &[EvaluationPoint],
+    solved: Option<SolvedCriterion>,
+) -> anyhow::Result<()> {
     let target = solved.filter(|c| c.measure == Measure::Score).map(|c| c.threshold);
     let success_target = solved.filter(|c| c.measure == Measure::Success).map(|c| c.threshold);
     REGISTER.call_once(|| {
@@ -49,6 +64,16 @@ pub fn learning_curve(path: &Path, title: &str, points: &[CurvePoint], solved: O
             .iter()
             .filter(|p| p.success_rate.is_finite())
             .map(|p| (p.timesteps as f64, p.success_rate as f64))
+            .collect();
+        let evaluated_successes: Vec<(f64, f64)> = evaluations
+            .iter()
+            .filter(|e| e.success_rate.is_finite())
+            .map(|e| (e.timesteps as f64, e.success_rate as f64))
+            .collect();
+        let evaluated_scores: Vec<(f64, f64)> = evaluations
+            .iter()
+            .filter(|e| e.mean_score.is_finite() && !e.success_rate.is_finite())
+            .map(|e| (e.timesteps as f64, e.mean_score as f64))
             .collect();
         let mut chart = ChartBuilder::on(&root)
             .caption(title, ("sans-serif", 22))
@@ -85,6 +110,12 @@ pub fn learning_curve(path: &Path, title: &str, points: &[CurvePoint], solved: O
                 .label("solved threshold")
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
         }
+        if !evaluated_scores.is_empty() {
+            chart
+                .draw_series(evaluated_scores.iter().map(|&p| Circle::new(p, 4, BLACK.filled())))?
+                .label("evaluation (deterministic)")
+                .legend(|(x, y)| Circle::new((x + 10, y), 4, BLACK.filled()));
+        }
         if !successes.is_empty() {
             chart
                 .configure_secondary_axes()
@@ -94,8 +125,16 @@ pub fn learning_curve(path: &Path, title: &str, points: &[CurvePoint], solved: O
             let green = RGBColor(0, 140, 60);
             chart
                 .draw_secondary_series(LineSeries::new(successes, green.stroke_width(2)))?
-                .label("success rate")
+                .label("success rate (training episodes)")
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], green.stroke_width(2)));
+            if !evaluated_successes.is_empty() {
+                chart
+                    .draw_secondary_series(LineSeries::new(evaluated_successes.clone(), green.mix(0.6)))?;
+                chart
+                    .draw_secondary_series(evaluated_successes.iter().map(move |&p| Circle::new(p, 4, green.filled())))?
+                    .label("evaluation success rate (deterministic)")
+                    .legend(move |(x, y)| Circle::new((x + 10, y), 4, green.filled()));
+            }
             if let Some(t) = success_target {
                 chart
                     .draw_secondary_series(LineSeries::new([(0.0, t as f64), (x_max, t as f64)], RED.mix(0.7)))?
@@ -108,7 +147,7 @@ pub fn learning_curve(path: &Path, title: &str, points: &[CurvePoint], solved: O
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .label_font(("sans-serif", 14))
-            .position(SeriesLabelPosition::LowerRight)
+            .position(SeriesLabelPosition::UpperLeft)
             .draw()?;
         root.present()?;
     }
