@@ -26,11 +26,10 @@ pub mod server;
 use bevy::prelude::*;
 use twinbots_rl::task::{EnvReset, ResetSet, TaskSet};
 use twinbots_rl::{Action, DesignPattern, Episode, PpoConfig, SolvedCriterion, Space, TaskPlugin, TaskSpec};
-use twinbots_sim::{Arena, ArenaConfig, JointState, Motor, PhysicsSubstep, PositionSensor, SimPlugin, SimSet, SimSettings, SubstepSet};
+use twinbots_sim::{ArenaConfig, JointState, Motor, PhysicsSubstep, PositionSensor, SimPlugin, SimSet, SimSettings, SubstepSet};
 
 use crate::arm::{ACTION_DIM, ActionHistory, ArmState, OBSERVATION_DIM};
-use crate::cell::{CellModels, CellParts, spawn_cell};
-use crate::kinematics::HOME;
+use crate::cell::{CellModels, CellParts};
 use crate::metrics::TwinMeter;
 use crate::pick_place::Program;
 use crate::reach::{LastArrival, ToolTarget};
@@ -150,14 +149,8 @@ fn spawn_arenas(
     config: Res<ArenaConfig>,
     settings: Res<SimSettings>,
 ) {
-    for index in 0..config.count {
-        let arena_entity = commands.spawn_empty().id();
-        let mut arena = Arena::new(index, config.seed, settings.dt, settings.gravity);
-        let parts = spawn_cell(&mut commands, arena_entity, &mut arena, &models, HOME);
-        arena.mark_initial();
+    for (arena_entity, _) in cell::spawn_cells(&mut commands, &models, &config, &settings) {
         commands.entity(arena_entity).insert((
-            arena,
-            parts,
             ArmState::default(),
             ActionHistory::default(),
             ToolTarget::default(),

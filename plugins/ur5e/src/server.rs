@@ -14,7 +14,7 @@ use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{Arena, ArenaConfig, JointState, Motor, Operator, OperatorAccess, PositionSensor, SimPlugin, SimSet, SimSettings};
 
 use crate::arm::{self, ActionHistory, ArmState};
-use crate::cell::{CellModels, CellParts, FIXTURE_A, part_seat, spawn_cell};
+use crate::cell::{self, CellModels, CellParts, FIXTURE_A, part_seat};
 use crate::kinematics::HOME;
 use crate::reach::{EPISODE_STEPS, sample_target};
 
@@ -37,7 +37,7 @@ pub fn robot_app(arenas: usize, seed: u64, server: ServerAddress) -> App {
         .insert_resource(server)
         .init_resource::<RobotRunState>()
         .init_resource::<CellModels>()
-        .add_systems(Startup, (spawn_cells, connect_robots).chain())
+        .add_systems(Startup, (build_cells, connect_robots).chain())
         .add_systems(Update, (home, operate).chain().in_set(SimSet::Actuate))
         .add_systems(Update, (observe, exchange).chain().in_set(SimSet::Task));
     app
@@ -62,13 +62,8 @@ impl RobotController {
     }
 }
 
-fn spawn_cells(mut commands: Commands, models: Res<CellModels>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
-    for index in 0..config.count {
-        let arena_entity = commands.spawn_empty().id();
-        let mut arena = Arena::new(index, config.seed, settings.dt, settings.gravity);
-        let parts = spawn_cell(&mut commands, arena_entity, &mut arena, &models, HOME);
-        commands.entity(arena_entity).insert((arena, parts));
-    }
+fn build_cells(mut commands: Commands, models: Res<CellModels>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
+    cell::spawn_cells(&mut commands, &models, &config, &settings);
 }
 
 /// Each arena's robot connects; its controller's random stream is its arena's.
