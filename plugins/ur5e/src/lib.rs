@@ -154,14 +154,14 @@ fn spawn_arenas(
             ArmState::default(),
             ActionHistory::default(),
             ToolTarget::default(),
-            LastArrival::default(),
             TwinMeter::default(),
             Action(vec![0.0; ACTION_DIM]),
             Episode { needs_reset: true, ..default() },
         ));
-        if *task == Ur5eTask::PickPlace {
-            commands.entity(arena_entity).insert(Program::default());
-        }
+        match *task {
+            Ur5eTask::Reach => commands.entity(arena_entity).insert(LastArrival::default()),
+            Ur5eTask::PickPlace => commands.entity(arena_entity).insert(Program::default()),
+        };
     }
 }
 
