@@ -98,15 +98,18 @@ impl JointState {
         let Some((_, pos, _)) = joint.measure(world) else { return };
         let previous = self.position;
         if joint.kind.is_rotational() {
-            let mut delta = pos - self.wrapped;
-            delta -= std::f32::consts::TAU * (delta / std::f32::consts::TAU).round();
-            self.position += delta;
+            self.position += wrap_angle(pos - self.wrapped);
         } else {
             self.position = pos;
         }
         self.wrapped = pos;
         self.velocity = (self.position - previous) / dt;
     }
+}
+
+/// An angle brought into [−π, π] by whole turns.
+pub(crate) fn wrap_angle(angle: f32) -> f32 {
+    angle - std::f32::consts::TAU * (angle / std::f32::consts::TAU).round()
 }
 
 pub(crate) fn measure_joints(

@@ -3,7 +3,7 @@
 
 use bevy::prelude::*;
 
-use super::joint::{Joint, JointState};
+use super::joint::{Joint, JointState, wrap_angle};
 use crate::arena::{Arena, InArena};
 use crate::physics::SimSettings;
 use crate::rapier::prelude::*;
@@ -68,12 +68,6 @@ impl Motor {
             holds_position: false,
             reference: None,
         }
-    }
-
-    /// A motor that holds the position its commands lead to (see [`Motor::holds_position`]).
-    pub fn holding(mut self) -> Self {
-        self.holds_position = true;
-        self
     }
 
     /// Drops the held reference, so it restarts from the joint's position: after the joint
@@ -166,7 +160,7 @@ pub(crate) fn drive_motors(
             match (target, reference) {
                 (Some(v), Some(r)) => {
                     // Rapier's motor targets the wrapped joint angle.
-                    let r = if rotational { r - std::f32::consts::TAU * (r / std::f32::consts::TAU).round() } else { r };
+                    let r = if rotational { wrap_angle(r) } else { r };
                     j.data.set_motor(axis, r, v, POSITION_HOLD_STIFFNESS, VELOCITY_MOTOR_GAIN);
                     j.data.set_motor_max_force(axis, motor.max_effort * motor.strength);
                 }
