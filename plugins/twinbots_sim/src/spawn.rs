@@ -215,7 +215,7 @@ pub fn spawn_robot(
         if j.kind.is_rotational() {
             // Keep the turns of a starting position beyond ±π (the measurement is wrapped).
             let start = start_position(&options, j);
-            state.position = start - crate::devices::wrap_angle(start - state.position);
+            state.position += std::f32::consts::TAU * ((start - state.position) / std::f32::consts::TAU).round();
         }
         let mut entity = commands.spawn((joint, state, PositionSensor::default(), InArena(arena_entity)));
         if j.limits.effort > 0.0 {
