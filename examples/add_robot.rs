@@ -1,6 +1,7 @@
-//! Adding a robot without touching the core crates: a torque-driven pendulum arm ("swing-up"),
-//! its URDF, its task as a Bevy plugin (observation, reward and termination terms and a reset
-//! event), then PPO on 4 arenas of it. See docs/adding-a-robot.md.
+//! Adding a robot without touching the core crates: a torque-driven pendulum arm ("swing-up").
+//! Its URDF, what its controller reads (`SwingState`), its task as terms, a plugin that spawns
+//! it and connects its devices, and its description; then PPO on 4 arenas of it. See
+//! docs/adding-a-robot.md.
 //!
 //! Run: `cargo run --release --example add_robot`
 
@@ -8,13 +9,11 @@ use std::path::Path;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_rl::task::{EnvReset, ResetSet, TaskSet};
-use twinbots_rl::{Action, AppVecEnv, Episode, Flow, Ppo, PpoConfig, Space, TaskPlugin, TaskSpec, VecEnv};
-use twinbots_sim::urdf::{RobotModel, parse_urdf};
-use twinbots_sim::{
-    Arena, ArenaConfig, JointState, Motor, MotorCommand, PositionSensor, SimPlugin, SimSet, SimSettings, SpawnOptions,
-    Supervisor, spawn_robot,
-};
+use twinbots_rl::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_rl::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
+use twinbots_rl::*;
+use twinbots_sim::urdf::parse_urdf;
+use twinbots_sim::{ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, Supervisor, spawn_robot};
 
 // 1. The robot: a 1 kg, 0.5 m arm on a motorised hinge 1 m above the ground, torque ≤ 2 N·m.
 const URDF: &str = r#"<robot name="swing_arm">
@@ -33,100 +32,112 @@ const URDF: &str = r#"<robot name="swing_arm">
 
 const MAX_TORQUE: f32 = 2.0;
 
-// 2. Its parts, kept on each arena entity.
-#[derive(Component, Clone, Copy)]
-struct Arm {
-    shoulder: Entity,
+// 2. What the controller knows: the arm's angle (θ = 0 upright) and speed from its encoder, the
+//    torque it applied, and the start angle the next episode drew.
+#[derive(Component, Clone, Copy, Default)]
+struct SwingState {
+    angle: f32,
+    speed: f32,
+    torque: f32,
+    start: f32,
 }
 
-#[derive(Resource, Clone)]
-struct ArmModel(RobotModel);
+// 3. The task as terms (Gymnasium's Pendulum): observe [cos θ, sin θ, θ̇], pay for angle, speed
+//    and torque, 200 steps, start anywhere.
+fn swing_up() -> TaskDefinition<SwingState> {
+    TaskDefinition {
+        name: "swing_arm".into(),
+        terms: TaskTerms {
+            observations: vec![
+                ObservationTerm::scalar("cos_angle", |s: &SwingState| s.angle.cos()).bounded(-1.0, 1.0),
+                ObservationTerm::scalar("sin_angle", |s: &SwingState| s.angle.sin()).bounded(-1.0, 1.0),
+                ObservationTerm::scalar("speed", |s: &SwingState| s.speed),
+            ],
+            rewards: vec![
+                RewardTerm::new("angle", -1.0, |s: &SwingState| s.angle.sin().atan2(s.angle.cos()).powi(2)),
+                RewardTerm::new("speed", -0.1, |s: &SwingState| s.speed * s.speed),
+                RewardTerm::new("torque", -0.001, |s: &SwingState| s.torque * s.torque),
+            ],
+            terminations: vec![],
+            time_limit: Some(200),
+            start_events: vec![StartEvent::new("start_angle", |s: &mut SwingState, rng| s.start = rng.random_range(-3.1..3.1))],
+        },
+        action_space: Space::Box { low: vec![-MAX_TORQUE], high: vec![MAX_TORQUE] },
+        solved: None,
+    }
+}
 
-// 3. The plugin: spawn, act, observe, reward, terminate, reset.
+// 4. The plugin: spawn the arm in every arena, apply actions, read the devices, put the drawn
+//    start in place at a reset.
+#[derive(Component, Clone, Copy)]
+struct Shoulder(Entity);
+
 struct SwingArmPlugin;
 
 impl Plugin for SwingArmPlugin {
     fn build(&self, app: &mut App) {
-        let model = parse_urdf(URDF, Path::new("swing_arm.urdf"), Path::new(".")).expect("valid URDF");
-        app.add_plugins(TaskPlugin)
-            .insert_resource(ArmModel(model))
-            .insert_resource(TaskSpec {
-                name: "swing_arm".into(),
-                observation_space: Space::uniform_box(3, f32::NEG_INFINITY, f32::INFINITY),
-                action_space: Space::Box { low: vec![-MAX_TORQUE], high: vec![MAX_TORQUE] },
-                solved: None,
-            })
+        app.add_plugins(TaskTermsPlugin::new(swing_up(), DesignPattern::Supervised))
             .add_systems(Startup, spawn)
-            .add_systems(Update, act.in_set(SimSet::Actuate))
-            .add_systems(Update, (observe.in_set(TaskSet::Observe), reward.in_set(TaskSet::Reward), end.in_set(TaskSet::Terminate)))
-            .add_systems(EnvReset, (random_start.in_set(ResetSet::Events), observe.in_set(ResetSet::Observe)));
+            .add_systems(Update, (act.in_set(SimSet::Actuate), read.in_set(TaskSet::Read)))
+            .add_systems(EnvReset, (place.in_set(ResetSet::Place), read.in_set(ResetSet::Read)));
     }
 }
 
-fn spawn(mut commands: Commands, model: Res<ArmModel>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
-    for index in 0..config.count {
-        let entity = commands.spawn_empty().id();
-        let mut arena = Arena::new(index, config.seed, settings.dt, settings.gravity);
-        let robot = spawn_robot(&mut commands, entity, &mut arena, &model.0, SpawnOptions::default());
-        arena.mark_initial();
-        let shoulder = robot.joint("shoulder").expect("the URDF has a shoulder");
-        commands.entity(entity).insert((arena, Arm { shoulder }, Action(vec![0.0]), Episode { needs_reset: true, ..default() }));
-    }
+fn spawn(mut commands: Commands, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
+    let model = parse_urdf(URDF, Path::new("swing_arm.urdf"), Path::new(".")).expect("valid URDF");
+    spawn_arenas(&mut commands, &config, &settings, |commands, entity, arena| {
+        let robot = spawn_robot(commands, entity, arena, &model, SpawnOptions::default());
+        (Shoulder(robot.joint("shoulder").expect("the URDF has a shoulder")), SwingState::default())
+    });
 }
 
-fn act(arms: Query<(&Arm, &Action)>, mut motors: Query<&mut Motor>) {
-    for (arm, action) in &arms {
-        if let (Some(&torque), Ok(mut m)) = (action.0.first(), motors.get_mut(arm.shoulder)) {
+fn act(mut arms: Query<(&Shoulder, &Action, &mut SwingState)>, mut motors: Query<&mut Motor>) {
+    for (shoulder, action, mut state) in &mut arms {
+        if let (Some(&torque), Ok(mut m)) = (action.0.first(), motors.get_mut(shoulder.0)) {
             m.command = MotorCommand::Torque(torque);
+            state.torque = torque;
         }
     }
 }
 
-/// θ = 0 is upright; [cos θ, sin θ, θ̇] from the encoder, as Gymnasium's Pendulum.
-fn observe(sensors: Query<(&PositionSensor, &JointState)>, mut arms: Query<(&Arm, &mut Episode)>) {
-    for (arm, mut e) in &mut arms {
-        let Ok((pos, state)) = sensors.get(arm.shoulder) else { continue };
-        e.observation = vec![pos.value.cos(), pos.value.sin(), state.velocity];
-    }
-}
-
-fn reward(mut arms: Query<(&Action, &mut Episode), With<Arm>>) {
-    for (action, mut e) in &mut arms {
-        let angle = e.observation[1].atan2(e.observation[0]);
-        let u = action.0.first().copied().unwrap_or(0.0);
-        e.reward = -(angle * angle + 0.1 * e.observation[2].powi(2) + 0.001 * u * u);
-    }
-}
-
-fn end(mut arms: Query<&mut Episode, With<Arm>>) {
-    for mut e in &mut arms {
-        e.terminated = false;
-        e.truncated = e.length + 1 >= 200;
-    }
-}
-
-/// Reset event: the arm starts at a random angle.
-fn random_start(mut supervisor: Supervisor, arms: Query<(Entity, &Arm, &Episode)>) {
-    for (arena, arm, e) in &arms {
-        if e.needs_reset {
-            let angle = supervisor.arena_mut(arena).map_or(0.0, |mut a| a.rng.random_range(-3.1..3.1));
-            supervisor.set_joint_position(arm.shoulder, angle);
+fn read(sensors: Query<(&PositionSensor, &JointState)>, mut arms: Query<(&Shoulder, &mut SwingState)>) {
+    for (shoulder, mut state) in &mut arms {
+        if let Ok((position, joint)) = sensors.get(shoulder.0) {
+            (state.angle, state.speed) = (position.value, joint.velocity);
         }
+    }
+}
+
+fn place(mut supervisor: Supervisor, arms: Query<(&Shoulder, &SwingState), With<Resetting>>) {
+    for (shoulder, state) in &arms {
+        supervisor.set_joint_position(shoulder.0, state.start);
+    }
+}
+
+// 5. The description every front reads (one registration line puts it into the CLI's registry).
+fn swing_arm() -> RobotDescription {
+    RobotDescription {
+        name: "swing_arm",
+        description: "a torque-driven pendulum arm (swing-up)",
+        tasks: vec![TaskDescription { name: "swing-up", description: "swing up and balance", spec: || swing_up().spec(), server: false }],
+        patterns: vec![DesignPattern::Supervised],
+        framing: Framing::default(),
+        defaults: TrainingDefaults {
+            ppo: PpoConfig { n_steps: 1024, gamma: 0.9, learning_rate: 1e-3, normalize_observations: true, ..Default::default() },
+            ..Default::default()
+        },
+        build: |request| headless_app(SimSettings { dt: 0.01, substeps: 5, ..default() }, request, SwingArmPlugin),
     }
 }
 
 fn main() -> anyhow::Result<()> {
-    // 4. An app of 4 arenas, and PPO on it through the vectorised env.
-    let mut app = App::new();
-    app.add_plugins(MinimalPlugins)
-        .add_plugins(SimPlugin { settings: SimSettings { dt: 0.01, substeps: 5, ..default() }, ..default() })
-        .insert_resource(ArenaConfig { count: 4, seed: 1 })
-        .add_plugins(SwingArmPlugin);
-    let mut env = AppVecEnv::new(app);
-    let config = PpoConfig { n_steps: 1024, gamma: 0.9, learning_rate: 1e-3, normalize_observations: true, ..Default::default() };
-    let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 1)?;
+    let mut registry = Registry::default();
+    registry.register(swing_arm())?;
+    let robot = registry.find("swing_arm")?;
+    let mut env = AppVecEnv::new(robot.app(None, 4, 1, DesignPattern::Supervised)?);
+    let mut model = Ppo::new(robot.defaults.ppo.clone(), env.observation_space().clone(), env.action_space().clone(), 1)?;
     let mut first = None;
-    model.learn(&mut env, 120_000, &mut |s: &twinbots_rl::UpdateStats, _: &Ppo| {
+    model.learn(&mut env, 120_000, &mut |s: &UpdateStats, _: &Ppo| {
         if s.episodes > 0 && first.is_none() {
             first = Some(s.mean_reward);
         }

@@ -24,7 +24,7 @@ pub struct PhysicsBench {
 /// Steps `robot` with `arenas` arenas for `steps` control steps (alternating actions).
 pub fn physics(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<PhysicsBench> {
     let entry = registry::find(robot)?;
-    let mut env = AppVecEnv::new(entry.headless_app(arenas, 0, DesignPattern::Supervised)?);
+    let mut env = AppVecEnv::new(entry.app(None, arenas, 0, DesignPattern::Supervised)?);
     env.reset(Some(0))?;
     let dim = env.action_space().dim();
     let actions: Vec<Vec<f32>> = (0..2)
@@ -89,7 +89,7 @@ fn time_learn(config: PpoConfig, steps: u64) -> anyhow::Result<f64> {
 fn direct_vs_bridge(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<(f64, f64)> {
     let entry = registry::find(robot)?;
     let actions = move |env: &dyn VecEnv, i: usize| vec![((i / 4) % 2) as f32; arenas * env.action_space().dim()];
-    let mut direct = AppVecEnv::new(entry.headless_app(arenas, 0, DesignPattern::Supervised)?);
+    let mut direct = AppVecEnv::new(entry.app(None, arenas, 0, DesignPattern::Supervised)?);
     direct.reset(Some(0))?;
     let start = Instant::now();
     for i in 0..steps {
@@ -98,7 +98,7 @@ fn direct_vs_bridge(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<
     }
     let direct_rate = (steps * arenas) as f64 / start.elapsed().as_secs_f64();
 
-    let mut app = entry.headless_app(arenas, 0, DesignPattern::Supervised)?;
+    let mut app = entry.app(None, arenas, 0, DesignPattern::Supervised)?;
     app.add_plugins(bridge::BridgePlugin);
     env::start(&mut app)?;
     let mut channel = bridge::connect(app.world_mut())?;
@@ -138,7 +138,12 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
     use twinbots_server::client::Communicator;
     use twinbots_server::protocol::{RobotMessage, ServerMessage};
     use twinbots_server::server::{RobotServer, ServerSettings};
-    let id = cartpole::server::identity();
+    let spec = cartpole::task_spec();
+    let id = twinbots_server::client::Identity {
+        robot: "cartpole".into(),
+        observation_space: spec.observation_space,
+        action_space: spec.action_space,
+    };
     let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space.clone(), id.action_space.clone(), 0)?;
     // A rollout never filled: this measures the protocol and the policy's inference only.
     let settings = ServerSettings { robot: "cartpole".into(), rollout: usize::MAX, timesteps: u64::MAX, solved: None };
@@ -187,7 +192,7 @@ pub fn print_capture(robot: &str, sizes: &[(u32, u32)], frames: usize) -> anyhow
     println!("off-screen capture of {robot}, {frames} frames per size (renderer: whatever adapter wgpu picks)");
     println!("{:>10} {:>12} {:>16}", "size", "frames/s", "ms/frame");
     for &(w, h) in sizes {
-        let mut env = AppVecEnv::new(entry.headless_app(1, 0, DesignPattern::Supervised)?);
+        let mut env = AppVecEnv::new(entry.app(None, 1, 0, DesignPattern::Supervised)?);
         env.reset(Some(0))?;
         let dir = std::env::temp_dir().join(format!("twinbots-bench-capture-{}", std::process::id()));
         let mut recorder = crate::cli::capture::Recorder::new((w, h), crate::cli::capture::camera(&entry, "side")?, &dir)?;

@@ -12,9 +12,7 @@ use crate::registry::{self, RobotEntry};
 
 /// A named camera of a robot's cell.
 pub fn camera(entry: &RobotEntry, name: &str) -> anyhow::Result<View> {
-    entry
-        .framing
-        .view(name)
+    View::framed(&entry.framing, name)
         .ok_or_else(|| anyhow::anyhow!("unknown camera '{name}'; cameras: {}", Framing::CAMERAS.join(", ")))
 }
 
@@ -70,7 +68,7 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     let entry = registry::find(&args.robot)?;
     let view = camera(&entry, &args.camera)?;
     let mut model = args.model.as_deref().map(load_model).transpose()?;
-    let mut env = AppVecEnv::new(entry.task_app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?);
+    let mut env = AppVecEnv::new(entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;
     }

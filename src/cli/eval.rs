@@ -121,11 +121,11 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let entry = registry::find(&settings.robot)?;
     let model = load_model(run)?;
     let pattern = eval_pattern(&settings)?;
-    let name = task.unwrap_or(entry.task_name);
-    let make_app = |arenas: usize, seed: u64| entry.task_app(Some(name), arenas, seed, pattern);
+    let name = task.unwrap_or(entry.main_task().name);
+    let make_app = |arenas: usize, seed: u64| entry.app(Some(name), arenas, seed, pattern);
     let result = evaluate(name, &make_app, &model, arenas.unwrap_or(settings.arenas), episodes, settings.seed + 2_000_003)?;
     println!("{}: {}", settings.robot, result.describe());
-    let file = if name == entry.task_name { "eval.json".to_string() } else { format!("eval-{name}.json") };
+    let file = if name == entry.main_task().name { "eval.json".to_string() } else { format!("eval-{name}.json") };
     std::fs::write(run.join(file), serde_json::to_string_pretty(&result)?)?;
     Ok(result)
 }
@@ -135,7 +135,7 @@ pub fn record_episode(run: &Path, dir: &Path, size: (u32, u32), camera: &str, ta
     let settings = TrainSettings::read(run)?;
     let entry = registry::find(&settings.robot)?;
     let model = load_model(run)?;
-    let mut env = AppVecEnv::new(entry.task_app(task, 1, settings.seed + 2_000_003, eval_pattern(&settings)?)?);
+    let mut env = AppVecEnv::new(entry.app(task, 1, settings.seed + 2_000_003, eval_pattern(&settings)?)?);
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut recorder = crate::cli::capture::Recorder::new(size, crate::cli::capture::camera(&entry, camera)?, dir)?;
     let mut obs = env.reset(Some(settings.seed + 2_000_003))?;

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use twinbots_rl::{Flow, Ppo, UpdateStats};
+use twinbots_rl::{DesignPattern, Flow, Ppo, UpdateStats};
 use twinbots_server::server::{RobotServer, ServerSettings};
 
 use crate::cli::run_log::RunLog;
@@ -22,7 +22,7 @@ use crate::registry;
 pub fn serve(settings: TrainSettings, listen: SocketAddr, out: &Path) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let spec = entry.task();
-    anyhow::ensure!(entry.server_robot.is_some(), "{} has no design-pattern-3 robot", entry.name);
+    anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{} has no design-pattern-3 robot", entry.name);
     anyhow::ensure!(
         !out.join("progress.csv").exists(),
         "{} already holds a run (choose another --out)",
@@ -80,10 +80,9 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, out: &Path) -> anyhow:
 /// over. Returns the server's reason.
 pub fn robots(robot: &str, server: SocketAddr, arenas: usize, seed: u64, patience: Duration) -> anyhow::Result<String> {
     let entry = registry::find(robot)?;
-    let build = entry
-        .server_robot
-        .ok_or_else(|| anyhow::anyhow!("{robot} has no design-pattern-3 robot"))?;
-    let mut app = build(arenas, seed, twinbots_server::robot::ServerAddress { addr: server, patience });
+    anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
+    let mut app = entry.app(None, arenas, seed, DesignPattern::Server)?;
+    app.insert_resource(twinbots_server::robot::ServerAddress { addr: server, patience });
     app.finish();
     app.cleanup();
     loop {

@@ -85,14 +85,14 @@ impl TrainSettings {
     pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> Self {
         let mut s = Self {
             robot: entry.name.to_string(),
-            timesteps: entry.timesteps,
-            arenas: entry.arenas,
+            timesteps: entry.defaults.timesteps,
+            arenas: entry.defaults.arenas,
             seed: 0,
             pattern: 1,
             checkpoint_every: 10,
-            eval_every: entry.eval_every,
-            eval_episodes: entry.eval_episodes,
-            ppo: (entry.ppo)(),
+            eval_every: entry.defaults.eval_every,
+            eval_episodes: entry.defaults.eval_episodes,
+            ppo: entry.defaults.ppo.clone(),
             randomization: Randomization::default(),
         };
         for layer in [file, flags] {
@@ -218,7 +218,11 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
 fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<CurvePoint>, view: bool) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let pattern = settings.design_pattern()?;
-    let mut app = entry.headless_app(settings.arenas, settings.seed, pattern)?;
+    anyhow::ensure!(
+        pattern != DesignPattern::Server,
+        "design pattern 3 has no in-process env: use `twinbots serve` and `twinbots robot`"
+    );
+    let mut app = entry.app(None, settings.arenas, settings.seed, pattern)?;
     app.add_plugins(bridge::BridgePlugin);
     settings.randomization.validate()?;
     if !settings.randomization.is_off() {
@@ -238,10 +242,16 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
     let settings_title = settings.robot.clone();
     let (settings_arenas, eval_episodes, seed) = (settings.arenas, settings.eval_episodes, settings.seed);
     let solved = spec.solved;
-    let make_app = move |arenas: usize, seed: u64| entry.headless_app(arenas, seed, pattern);
+    let task_name = entry.main_task().name;
+    let make_app = {
+        let entry = entry.clone();
+        std::sync::Arc::new(move |arenas: usize, seed: u64| entry.app(None, arenas, seed, pattern))
+    };
+    let learner_app = make_app.clone();
 
     // The learner's thread: PPO, logging, checkpoints, evaluation.
     let trainer = std::thread::spawn(move || -> anyhow::Result<(Ppo, Option<(u64, &'static str)>, f64)> {
+        let make_app = learner_app;
         let mut model = model;
         let eval_path = run_dir.join("evaluations.csv");
         if !eval_path.exists() {
@@ -256,7 +266,7 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
             log.on_update(s, m)?;
             let mut evaluation = None;
             if settings.eval_every > 0 && s.update % settings.eval_every == 0 {
-                let r = eval::evaluate(entry.task_name, &make_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
+                let r = eval::evaluate(task_name, &*make_app, m, settings.arenas, settings.eval_episodes, settings.seed + 1_000_003)?;
                 let success = r.success_rate.map_or(String::new(), |x| x.to_string());
                 writeln!(evals, "{},{},{},{},{success}", s.timesteps, r.mean_score, r.std_score, r.mean_length)?;
                 log.evaluations.push(EvaluationPoint {
@@ -304,7 +314,7 @@ fn run(settings: TrainSettings, out: &Path, model: Option<Ppo>, curve: Vec<Curve
     }
     let (model, solved_at, wall) = learned?;
     model.save(out.join("model"))?;
-    let evaluation = eval::evaluate(entry.task_name, &make_app, &model, settings_arenas, eval_episodes, seed + 2_000_003)?;
+    let evaluation = eval::evaluate(task_name, &*make_app, &model, settings_arenas, eval_episodes, seed + 2_000_003)?;
     std::fs::write(out.join("eval.json"), serde_json::to_string_pretty(&evaluation)?)?;
     let summary = serde_json::json!({
         "robot": robot,

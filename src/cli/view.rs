@@ -61,7 +61,7 @@ impl ViewSource for Player {
 pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64, task: Option<&str>) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
     let model = model.map(crate::cli::train::load_model).transpose()?;
-    let mut env = AppVecEnv::new(entry.task_app(task, 1, seed, DesignPattern::Supervised)?);
+    let mut env = AppVecEnv::new(entry.app(task, 1, seed, DesignPattern::Supervised)?);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;
     }

@@ -1,6 +1,7 @@
 //! End-to-end tests of the RL side (one test binary).
 
 mod bridge;
+mod custom_robot;
 mod model;
 mod patterns;
 mod ppo;

@@ -11,7 +11,7 @@ use twinbots_server::protocol::{RobotMessage, ServerMessage, VERSION, read_messa
 use twinbots_server::server::{RobotServer, ServerSettings};
 
 fn server(timesteps: u64) -> RobotServer {
-    let id = cartpole::server::identity();
+    let id = cartpole::task_spec();
     let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space, id.action_space, 0).unwrap();
     let settings = ServerSettings { robot: "cartpole".into(), rollout: 256, timesteps, solved: None };
     RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap()
@@ -38,7 +38,7 @@ impl Robot {
     }
     fn hello(addr: SocketAddr) -> Self {
         let mut r = Self::connect(addr);
-        let id = cartpole::server::identity();
+        let id = cartpole::task_spec();
         let reply = r.call(&RobotMessage::Hello {
             version: VERSION,
             robot: "cartpole".into(),
@@ -91,7 +91,7 @@ fn malformed_and_oversized_messages_get_error_replies_and_the_server_keeps_servi
 #[test]
 fn a_bad_hello_is_refused() {
     let server = server(1_000_000);
-    let id = cartpole::server::identity();
+    let id = cartpole::task_spec();
     let mut r = Robot::connect(server.addr);
     let reply = r.call(&RobotMessage::Hello {
         version: VERSION + 1,

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use twinbots_rl::{AppVecEnv, DesignPattern, EpisodeSummary, Flow, Ppo, VecEnv};
-use twinbots_server::robot::{Phase, RobotRunState, ServerAddress};
+use twinbots_server::robot::{Controller, Phase, RobotRunState, ServerAddress};
 use twinbots_server::server::{RobotServer, ServerSettings};
 
 /// Steps `env` with `policy` until `episodes` episodes have ended; returns them.
@@ -95,17 +95,18 @@ fn the_same_seed_gives_the_same_reach_trajectory() {
 
 #[test]
 fn under_pattern_3_the_arm_homes_itself_before_every_episode() {
-    let id = ur5e::server::identity();
+    let id = ur5e::task_spec();
     let model = Ppo::new(ur5e::ppo_config(), id.observation_space, id.action_space, 0).unwrap();
     let settings = ServerSettings { robot: "ur5e".into(), rollout: 512, timesteps: 1_000_000, solved: None };
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap();
     let address = ServerAddress { addr: server.addr, patience: Duration::from_secs(5) };
-    let mut app = ur5e::server::robot_app(2, 5, address);
+    let mut app = ur5e::headless_app_with(2, 5, DesignPattern::Server);
+    app.insert_resource(address);
     app.finish();
     app.cleanup();
     app.update();
     assert!(!app.world().contains_resource::<twinbots_sim::SupervisorAccess>(), "pattern 3 has no Supervisor");
-    let mut robots = app.world_mut().query::<(bevy::prelude::Entity, &ur5e::server::RobotController)>();
+    let mut robots = app.world_mut().query::<(bevy::prelude::Entity, &Controller, &ur5e::CellState)>();
     // Per robot: its phase and reading after the previous step.
     let mut previous: BTreeMap<bevy::prelude::Entity, (Phase, Option<ur5e::arm::ArmState>)> = BTreeMap::new();
     let mut starts = 0;
@@ -115,10 +116,10 @@ fn under_pattern_3_the_arm_homes_itself_before_every_episode() {
         steps += 1;
         assert!(steps < 2000, "only {} episodes in {steps} steps", app.world().resource::<RobotRunState>().episodes);
         assert!(app.world().resource::<RobotRunState>().stop.is_none(), "{:?}", app.world().resource::<RobotRunState>().stop);
-        for (entity, robot) in robots.iter(app.world()) {
+        for (entity, robot, state) in robots.iter(app.world()) {
             // Homed, announced and answered within one step: the reading it started on, the
             // previous step's, was home.
-            let was = previous.insert(entity, (robot.phase(), robot.arm.clone()));
+            let was = previous.insert(entity, (robot.phase(), state.read.then(|| state.arm.clone())));
             if let Some((Phase::Homing, reading)) = was
                 && robot.phase() == Phase::Running
             {

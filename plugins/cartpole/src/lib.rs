@@ -3,24 +3,27 @@
 //! A 2 kg cart on four velocity-controlled wheels rolls on the ground; a passive pole swings on
 //! a hinge with a position sensor. Action: Discrete(2), all wheels at -5 or +5 rad/s.
 //! Observation: cart x, cart velocity, pole angle, pole angular velocity. Reward +1 per step;
-//! terminated past 15° or ±0.4 m; truncated once the score exceeds 1950 (design pattern 1: the
-//! cart's x and velocity and the pole's angular velocity come from the Supervisor).
+//! terminated past 15° or ±0.4 m; truncated once the score exceeds 1950. The task's terms
+//! ([`balance_task`]) are the same under every design pattern; where the controller's
+//! [`CartPoleState`] comes from is the pattern's: the Supervisor (1), the radio link (2,
+//! [`radio`]), or the robot's own encoders (3, [`server`]).
 
 use std::path::Path;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_rl::task::{ResetSet, TaskSet};
-use twinbots_rl::{Action, DesignPattern, Episode, SolvedCriterion, Space, TaskPlugin, TaskSpec};
+use twinbots_rl::robot::{self, AppRequest, RobotDescription, TaskDescription, TrainingDefaults};
+use twinbots_rl::task::{ResetSet, Resetting, TaskSet, spawn_arenas};
+use twinbots_rl::{
+    Action, DesignPattern, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskSpec,
+    TaskTerms, TaskTermsPlugin, TerminationTerm,
+};
 
 mod radio;
 pub mod server;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
-use twinbots_sim::{
-    Arena, ArenaConfig, MotorCommand, Motor, PositionSensor, SimPlugin, SimSet, SimSettings,
-    SpawnOptions, Supervisor, spawn_robot,
-};
+use twinbots_sim::{ArenaConfig, Framing, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, Supervisor, spawn_robot};
 
 /// The robot's URDF, compiled in so the twin works from any directory.
 pub const URDF: &str = include_str!("../../../assets/robots/cartpole/cartpole.urdf");
@@ -36,6 +39,8 @@ pub const MAX_CART_X: f32 = 0.4;
 pub const MAX_SCORE: f32 = 1950.0;
 /// Height of the cart's centre: the wheels' radius, so they touch the ground.
 pub const CART_HEIGHT: f32 = 0.04;
+/// Start angles are drawn uniformly from ±this (rad) at every reset.
+pub const INITIAL_TILT: f32 = 0.05;
 
 /// Timing of the twin: 4 ms physics, 8 substeps, a 32 ms control step as in the paper.
 pub fn sim_settings() -> SimSettings {
@@ -46,16 +51,70 @@ pub fn sim_settings() -> SimSettings {
     }
 }
 
-/// PPO settings for the twin: RL Zoo's CartPole-v1 settings (short rollouts, many epochs,
-/// linear learning-rate decay); SB3's defaults otherwise.
-pub fn ppo_config() -> twinbots_rl::PpoConfig {
-    twinbots_rl::PpoConfig::zoo_cartpole()
-}
-
 /// The parsed cart-pole URDF.
 pub fn model() -> RobotModel {
     parse_urdf(URDF, Path::new(URDF_PATH), Path::new("assets/robots/cartpole"))
         .expect("the built-in cart-pole URDF is valid (checked by the tests)")
+}
+
+/// What the cart-pole's controller knows at a step, and the start the next episode draws.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct CartPoleState {
+    /// Cart position (m) and velocity (m/s) along the track.
+    pub x: f32,
+    pub v: f32,
+    /// Pole angle from upright (rad) and its rate (rad/s).
+    pub angle: f32,
+    pub rate: f32,
+    /// The pole's angle when the episode starts (rad).
+    pub start_tilt: f32,
+}
+
+/// The balancing task (deepbots' CartPole): +1 per step, including the last; terminated past
+/// 15° or ±0.4 m; the score can reach 1951 (truncated once it exceeds 1950); each episode starts
+/// with the pole at a random angle within ±`initial_tilt`.
+pub fn balance_task(initial_tilt: f32) -> TaskDefinition<CartPoleState> {
+    TaskDefinition {
+        name: "cartpole".into(),
+        terms: TaskTerms {
+            observations: vec![
+                ObservationTerm::scalar("cart_x", |s: &CartPoleState| s.x),
+                ObservationTerm::scalar("cart_velocity", |s: &CartPoleState| s.v),
+                ObservationTerm::scalar("pole_angle", |s: &CartPoleState| s.angle),
+                ObservationTerm::scalar("pole_rate", |s: &CartPoleState| s.rate),
+            ],
+            rewards: vec![RewardTerm::new("alive", 1.0, |_| 1.0)],
+            terminations: vec![
+                TerminationTerm::new("pole_fallen", |s: &CartPoleState| s.angle.abs() > MAX_POLE_ANGLE),
+                TerminationTerm::new("cart_off_track", |s: &CartPoleState| s.x.abs() > MAX_CART_X),
+            ],
+            time_limit: Some(MAX_SCORE as u32 + 1),
+            start_events: vec![StartEvent::new("pole_tilt", move |s: &mut CartPoleState, rng| {
+                s.start_tilt = if initial_tilt > 0.0 { rng.random_range(-initial_tilt..=initial_tilt) } else { 0.0 };
+            })],
+        },
+        action_space: Space::Discrete { n: 2 },
+        solved: Some(SolvedCriterion::mean_score(100, MAX_SCORE)),
+    }
+}
+
+/// The cart-pole task's spaces and solved criterion.
+pub fn task_spec() -> TaskSpec {
+    balance_task(INITIAL_TILT).spec()
+}
+
+/// How the cart-pole describes itself to the registry.
+pub fn robot() -> RobotDescription {
+    RobotDescription {
+        name: "cartpole",
+        description: "cart-pole twin (deepbots replica): 4 velocity-driven wheels, passive pole; Discrete(2), 32 ms step",
+        tasks: vec![TaskDescription { name: "balance", description: "keep the pole up (deepbots' CartPole)", spec: task_spec, server: true }],
+        patterns: vec![DesignPattern::Supervised, DesignPattern::Radio],
+        framing: Framing::default(),
+        // RL Zoo's CartPole-v1 settings (short rollouts, many epochs, linear learning-rate decay).
+        defaults: TrainingDefaults { ppo: twinbots_rl::PpoConfig::zoo_cartpole(), ..default() },
+        build: |request| robot::headless_app(sim_settings(), request, CartPolePlugin { pattern: request.pattern, ..default() }),
+    }
 }
 
 /// Everything needed to train or run the cart-pole headless (design pattern 1).
@@ -63,17 +122,10 @@ pub fn headless_app(arenas: usize, seed: u64) -> App {
     headless_app_with(arenas, seed, DesignPattern::Supervised)
 }
 
-/// As [`headless_app`], under the given design pattern.
+/// As [`headless_app`], under the given design pattern (3: a robot process that needs a
+/// `ServerAddress` resource).
 pub fn headless_app_with(arenas: usize, seed: u64, pattern: DesignPattern) -> App {
-    let mut app = App::new();
-    app.add_plugins(MinimalPlugins)
-        .add_plugins(SimPlugin {
-            settings: sim_settings(),
-            ..default()
-        })
-        .insert_resource(ArenaConfig { count: arenas, seed })
-        .add_plugins(CartPolePlugin { pattern, ..default() });
-    app
+    (robot().build)(&AppRequest { task: "balance", arenas, seed, pattern })
 }
 
 /// The cart-pole twin and its balancing task.
@@ -86,17 +138,13 @@ pub struct CartPolePlugin {
 
 impl Default for CartPolePlugin {
     fn default() -> Self {
-        Self { initial_tilt: 0.05, pattern: DesignPattern::Supervised }
+        Self { initial_tilt: INITIAL_TILT, pattern: DesignPattern::Supervised }
     }
 }
 
-/// The model and start-state settings, shared by the systems.
+/// The model, shared by the systems.
 #[derive(Resource, Clone)]
-pub(crate) struct CartPoleConfig {
-    model: RobotModel,
-    initial_tilt: f32,
-    pattern: DesignPattern,
-}
+pub(crate) struct CartPoleModel(RobotModel);
 
 /// The entities of an arena's cart-pole, kept on the arena entity.
 #[derive(Component, Clone, Copy, Debug)]
@@ -107,107 +155,61 @@ pub struct CartPoleParts {
     pub wheels: [Entity; 4],
 }
 
+/// Which design pattern the arenas are built for.
+#[derive(Resource, Clone, Copy, Debug)]
+pub(crate) struct Pattern(DesignPattern);
+
 impl Plugin for CartPolePlugin {
     fn build(&self, app: &mut App) {
-        app.insert_resource(CartPoleConfig {
-            model: model(),
-            initial_tilt: self.initial_tilt,
-            pattern: self.pattern,
-        })
-        .add_systems(Startup, spawn_arenas);
-        if self.pattern == DesignPattern::Server {
-            // No task machinery (it resets through the Supervisor): the robot and the server
-            // run the episodes.
-            server::build(app);
-            return;
-        }
-        if !app.is_plugin_added::<TaskPlugin>() {
-            app.add_plugins(TaskPlugin);
-        }
-        app.insert_resource(task_spec())
-            .add_systems(
-                Update,
-                (reward.in_set(TaskSet::Reward), terminate.in_set(TaskSet::Terminate)),
-            )
-            .add_systems(twinbots_rl::task::EnvReset, tilt_pole.in_set(ResetSet::Events));
+        app.insert_resource(CartPoleModel(model()))
+            .insert_resource(Pattern(self.pattern))
+            .add_plugins(TaskTermsPlugin::new(balance_task(self.initial_tilt), self.pattern))
+            .add_systems(Startup, spawn_cartpoles);
         match self.pattern {
             DesignPattern::Supervised => {
-                app.add_systems(Update, (apply_action.in_set(SimSet::Actuate), observe.in_set(TaskSet::Observe)))
-                    .add_systems(twinbots_rl::task::EnvReset, observe.in_set(ResetSet::Observe));
+                app.add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_supervised.in_set(TaskSet::Read)))
+                    .add_systems(twinbots_rl::task::EnvReset, (place_pole.in_set(ResetSet::Place), read_supervised.in_set(ResetSet::Read)));
             }
-            DesignPattern::Radio => radio::build(app),
-            DesignPattern::Server => {}
+            DesignPattern::Radio => {
+                app.add_systems(twinbots_rl::task::EnvReset, place_pole.in_set(ResetSet::Place));
+                radio::build(app);
+            }
+            DesignPattern::Server => {
+                app.add_systems(Update, apply_action.in_set(SimSet::Actuate));
+                server::build(app);
+            }
         }
     }
 }
 
-/// The cart-pole task's spaces and solved criterion.
-pub fn task_spec() -> TaskSpec {
-    TaskSpec {
-        name: "cartpole".into(),
-        observation_space: Space::uniform_box(4, f32::NEG_INFINITY, f32::INFINITY),
-        action_space: Space::Discrete { n: 2 },
-        solved: Some(SolvedCriterion::mean_score(100, MAX_SCORE)),
-    }
-}
-
-/// A pattern-3 robot process: `arenas` cart-poles with no Supervisor in the app, each with a
-/// Communicator to the RobotServer at `server`.
-pub fn robot_app(arenas: usize, seed: u64, server: twinbots_server::robot::ServerAddress) -> App {
-    let mut app = App::new();
-    app.add_plugins(MinimalPlugins)
-        .add_plugins(SimPlugin { settings: sim_settings(), supervisor: false })
-        .insert_resource(twinbots_sim::OperatorAccess)
-        .insert_resource(ArenaConfig { count: arenas, seed })
-        .insert_resource(server)
-        .add_plugins(CartPolePlugin { pattern: DesignPattern::Server, ..default() });
-    app
-}
-
-pub(crate) fn spawn_arenas(
+pub(crate) fn spawn_cartpoles(
     mut commands: Commands,
-    config: Res<CartPoleConfig>,
+    model: Res<CartPoleModel>,
+    pattern: Res<Pattern>,
     arenas: Res<ArenaConfig>,
     settings: Res<SimSettings>,
 ) {
-    for index in 0..arenas.count {
-        let arena_entity = commands.spawn_empty().id();
-        let mut arena = Arena::new(index, arenas.seed, settings.dt, settings.gravity);
+    spawn_arenas(&mut commands, &arenas, &settings, |commands, arena_entity, arena| {
         arena.add_ground(1.0);
         let robot = spawn_robot(
-            &mut commands,
+            commands,
             arena_entity,
-            &mut arena,
-            &config.model,
-            SpawnOptions {
-                base: Pose::from_translation(Vec3::new(0.0, 0.0, CART_HEIGHT)),
-                ..default()
-            },
+            arena,
+            &model.0,
+            SpawnOptions { base: Pose::from_translation(Vec3::new(0.0, 0.0, CART_HEIGHT)), ..default() },
         );
-        let part = |name: &str, found: Option<Entity>| {
-            found.unwrap_or_else(|| panic!("cart-pole URDF has no '{name}'"))
-        };
+        let part = |name: &str, found: Option<Entity>| found.unwrap_or_else(|| panic!("cart-pole URDF has no '{name}'"));
         let parts = CartPoleParts {
             cart: part("cart", robot.link("cart")),
             pole_link: part("pole", robot.link("pole")),
             pole_joint: part("pole_joint", robot.joint("pole_joint")),
-            wheels: ["wheel1_joint", "wheel2_joint", "wheel3_joint", "wheel4_joint"]
-                .map(|w| part(w, robot.joint(w))),
+            wheels: ["wheel1_joint", "wheel2_joint", "wheel3_joint", "wheel4_joint"].map(|w| part(w, robot.joint(w))),
         };
-        if config.pattern == DesignPattern::Radio {
-            radio::equip(&mut commands, arena_entity, &mut arena, &parts);
+        if pattern.0 == DesignPattern::Radio {
+            radio::equip(commands, arena_entity, arena, &parts);
         }
-        arena.mark_initial();
-        commands.entity(arena_entity).insert((
-            arena,
-            parts,
-            Action(vec![0.0]),
-            Episode {
-                needs_reset: true,
-                ..default()
-            },
-        ));
-    }
+        (parts, CartPoleState::default())
+    });
 }
 
 /// Action 0 drives all wheels at -5 rad/s, action 1 at +5 rad/s.
@@ -220,7 +222,8 @@ fn drive_wheels(parts: &CartPoleParts, action: f32, motors: &mut Query<&mut Moto
     }
 }
 
-/// An empty action (an action latency still filling) leaves the wheels as they are.
+/// An empty action (none yet, an action latency still filling, a pattern-3 robot between
+/// episodes) leaves the wheels as they are.
 fn apply_action(arenas: Query<(&CartPoleParts, &Action)>, mut motors: Query<&mut Motor>) {
     for (parts, action) in &arenas {
         if let Some(&a) = action.0.first() {
@@ -229,58 +232,23 @@ fn apply_action(arenas: Query<(&CartPoleParts, &Action)>, mut motors: Query<&mut
     }
 }
 
-fn observe(
-    supervisor: Supervisor,
-    sensors: Query<&PositionSensor>,
-    mut arenas: Query<(&CartPoleParts, &mut Episode)>,
-) {
-    for (parts, mut episode) in &mut arenas {
-        let (Some(cart), Some(pole)) = (
-            supervisor.link_state(parts.cart),
-            supervisor.link_state(parts.pole_link),
-        ) else {
+/// Pattern 1: the cart's x and velocity and the pole's rate from the Supervisor, the angle
+/// from the hinge's position sensor.
+fn read_supervised(supervisor: Supervisor, sensors: Query<&PositionSensor>, mut arenas: Query<(&CartPoleParts, &mut CartPoleState)>) {
+    for (parts, mut state) in &mut arenas {
+        let (Some(cart), Some(pole)) = (supervisor.link_state(parts.cart), supervisor.link_state(parts.pole_link)) else {
             continue;
         };
-        let angle = sensors.get(parts.pole_joint).map_or(0.0, |s| s.value);
-        episode.observation.clear();
-        episode.observation.extend([
-            cart.pose.translation.x,
-            cart.linvel.x,
-            angle,
-            pole.angvel.y,
-        ]);
+        state.x = cart.pose.translation.x;
+        state.v = cart.linvel.x;
+        state.angle = sensors.get(parts.pole_joint).map_or(0.0, |s| s.value);
+        state.rate = pole.angvel.y;
     }
 }
 
-fn reward(mut arenas: Query<&mut Episode, With<CartPoleParts>>) {
-    for mut episode in &mut arenas {
-        episode.reward = 1.0;
-    }
-}
-
-fn terminate(mut arenas: Query<&mut Episode, With<CartPoleParts>>) {
-    for mut e in &mut arenas {
-        let (x, angle) = (e.observation[0], e.observation[2]);
-        e.terminated = angle.abs() > MAX_POLE_ANGLE || x.abs() > MAX_CART_X;
-        e.truncated = !e.terminated && e.score + e.reward > MAX_SCORE;
-    }
-}
-
-/// Reset event: the pole starts at a small random angle from the arena's random stream.
-fn tilt_pole(
-    config: Res<CartPoleConfig>,
-    mut supervisor: Supervisor,
-    mut arenas: Query<(Entity, &CartPoleParts, &Episode)>,
-) {
-    for (arena, parts, episode) in &mut arenas {
-        if !episode.needs_reset {
-            continue;
-        }
-        let tilt = config.initial_tilt;
-        let angle = match supervisor.arena_mut(arena) {
-            Some(mut a) if tilt > 0.0 => a.rng.random_range(-tilt..=tilt),
-            _ => 0.0,
-        };
-        supervisor.set_joint_position(parts.pole_joint, angle);
+/// Patterns 1 and 2: the Supervisor puts the pole at the drawn start angle.
+fn place_pole(mut supervisor: Supervisor, arenas: Query<(&CartPoleParts, &CartPoleState), With<Resetting>>) {
+    for (parts, state) in &arenas {
+        supervisor.set_joint_position(parts.pole_joint, state.start_tilt);
     }
 }

@@ -11,15 +11,15 @@
 use std::path::Path;
 
 use bevy::prelude::*;
-use twinbots_rl::task::{EnvReset, ResetSet, TaskSet};
-use twinbots_rl::{Action, Episode};
+use twinbots_rl::Action;
+use twinbots_rl::task::{EnvReset, ResetSet, Resetting, TaskSet};
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::parse_urdf;
 use twinbots_sim::{
     Arena, Emitter, InArena, Motor, Mount, PositionSensor, Receiver, SimSet, SpawnOptions, Supervisor, spawn_robot,
 };
 
-use crate::{CartPoleParts, drive_wheels};
+use crate::{CartPoleParts, CartPoleState, drive_wheels};
 
 /// Channel the slave sends readings on.
 pub const READINGS_CHANNEL: i32 = 1;
@@ -66,14 +66,11 @@ pub(crate) fn build(app: &mut App) {
         Update,
         (
             (supervisor_sends_action, slave_applies_action).in_set(SimSet::Actuate),
-            slave_sends_readings.in_set(SimSet::Task).before(TaskSet::Observe),
-            supervisor_observes.in_set(TaskSet::Observe),
+            slave_sends_readings.in_set(SimSet::Task).before(TaskSet::Read),
+            supervisor_reads.in_set(TaskSet::Read),
         ),
     )
-    .add_systems(
-        EnvReset,
-        (clear_radio.in_set(ResetSet::Events), supervisor_observes.in_set(ResetSet::Observe)),
-    );
+    .add_systems(EnvReset, (clear_radio.in_set(ResetSet::Place), supervisor_reads.in_set(ResetSet::Read)));
 }
 
 // --- the slave robot: sensors, motors, radio; nothing privileged ---
@@ -120,12 +117,12 @@ fn supervisor_sends_action(arenas: Query<(&Action, &RadioLink)>, mut emitters: Q
     }
 }
 
-fn supervisor_observes(
+fn supervisor_reads(
     supervisor: Supervisor,
-    mut arenas: Query<(&CartPoleParts, &RadioLink, &mut LastReadings, &mut Episode)>,
+    mut arenas: Query<(&CartPoleParts, &RadioLink, &mut LastReadings, &mut CartPoleState)>,
     mut receivers: Query<&mut Receiver>,
 ) {
-    for (parts, radio, mut last, mut episode) in &mut arenas {
+    for (parts, radio, mut last, mut state) in &mut arenas {
         if let Ok(mut rx) = receivers.get_mut(radio.supervisor_receiver) {
             while let Some(packet) = rx.next_packet() {
                 if let [a0, a1, a2, a3, w0, w1, w2, w3] = packet.data[..] {
@@ -137,25 +134,23 @@ fn supervisor_observes(
             continue;
         };
         // Right after a reset no readings have arrived yet: the supervisor looks for itself.
-        let angle = match last.0 {
+        state.angle = match last.0 {
             Some([angle, _]) => angle,
             None => supervisor.joint_position(parts.pole_joint).unwrap_or(0.0),
         };
-        episode.observation.clear();
-        episode.observation.extend([cart.pose.translation.x, cart.linvel.x, angle, pole.angvel.y]);
+        state.x = cart.pose.translation.x;
+        state.v = cart.linvel.x;
+        state.rate = pole.angvel.y;
     }
 }
 
 /// A reset arena starts with empty queues: nothing from the last episode is in the air.
 fn clear_radio(
-    mut arenas: Query<(&RadioLink, &mut LastReadings, &Episode)>,
+    mut arenas: Query<(&RadioLink, &mut LastReadings), With<Resetting>>,
     mut receivers: Query<&mut Receiver>,
     mut emitters: Query<&mut Emitter>,
 ) {
-    for (radio, mut last, episode) in &mut arenas {
-        if !episode.needs_reset {
-            continue;
-        }
+    for (radio, mut last) in &mut arenas {
         last.0 = None;
         for rx in [radio.slave_receiver, radio.supervisor_receiver] {
             if let Ok(mut rx) = receivers.get_mut(rx) {

@@ -9,13 +9,17 @@ use std::path::Path;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_rl::task::{EnvReset, ResetSet, TaskSet};
-use twinbots_rl::{Action, DesignPattern, Episode, PpoConfig, SolvedCriterion, Space, TaskPlugin, TaskSpec};
+use twinbots_rl::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_rl::task::{EnvReset, ResetSet, TaskSet, spawn_arenas};
+use twinbots_rl::{
+    Action, DesignPattern, ObservationTerm, PpoConfig, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskSpec,
+    TaskTerms, TaskTermsPlugin, TerminationTerm,
+};
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
 use twinbots_sim::{
-    Arena, ArenaConfig, DistanceSensor, InArena, Motor, MotorCommand, Mount, PositionSensor, SimPlugin, SimSet,
-    SimSettings, SpawnOptions, Supervisor, spawn_robot,
+    Arena, ArenaConfig, DistanceSensor, Framing, InArena, Motor, MotorCommand, Mount, PositionSensor, SimSet, SimSettings,
+    SpawnOptions, Supervisor, spawn_robot,
 };
 
 pub const URDF: &str = include_str!("../../../assets/robots/pioneer3at/pioneer3at.urdf");
@@ -28,6 +32,10 @@ pub const AXLE_HEIGHT: f32 = 0.11;
 pub const MAX_ANGLE: f32 = 0.3;
 pub const MAX_X: f32 = 5.0;
 pub const EPISODE_STEPS: u32 = 600;
+/// The start kick: this many control steps…
+pub const KICK_STEPS: u32 = 5;
+/// …at a wheel speed of this size (rad/s), either way.
+pub const KICK_SPEED: [f32; 2] = [2.0, 2.5];
 /// Bearings (deg) of the 16 sonars, front ring then rear ring, as on the real robot.
 pub const SONAR_BEARINGS: [f32; 16] =
     [90.0, 50.0, 30.0, 10.0, -10.0, -30.0, -50.0, -90.0, -90.0, -130.0, -150.0, -170.0, 170.0, 150.0, 130.0, 90.0];
@@ -43,28 +51,76 @@ pub fn model() -> RobotModel {
         .expect("the built-in Pioneer 3-AT URDF is valid (checked by the tests)")
 }
 
-/// PPO settings: SB3's defaults with observation normalisation (a continuous-control task).
-pub fn ppo_config() -> PpoConfig {
-    PpoConfig { normalize_observations: true, n_steps: 512, ..Default::default() }
+/// What the Pioneer's controller knows at a step, and the start kick it is giving.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct PioneerState {
+    /// Base position (m) and velocity (m/s) along its driving direction.
+    pub x: f32,
+    pub vx: f32,
+    /// Pendulum angle (rad) and rate (rad/s).
+    pub angle: f32,
+    pub rate: f32,
+    /// Control steps of the start kick left, and its wheel speed (rad/s).
+    pub kick_steps: u32,
+    pub kick_speed: f32,
 }
 
-pub fn task_spec() -> TaskSpec {
-    TaskSpec {
+/// The paper's pendulum task: reward 1 − 2|θ| − |x|/10; terminated at |θ| > 0.3 rad or
+/// |x| > 5 m; truncated after 600 steps; every episode begins with a random kick (all wheels at
+/// ±2.0…2.5 rad/s for 5 control steps) so episodes start from varied angles.
+pub fn balance_task() -> TaskDefinition<PioneerState> {
+    TaskDefinition {
         name: "pioneer3at".into(),
-        observation_space: Space::uniform_box(4, f32::NEG_INFINITY, f32::INFINITY),
+        terms: TaskTerms {
+            observations: vec![
+                ObservationTerm::scalar("base_x", |s: &PioneerState| s.x),
+                ObservationTerm::scalar("base_velocity", |s: &PioneerState| s.vx),
+                ObservationTerm::scalar("pole_angle", |s: &PioneerState| s.angle),
+                ObservationTerm::scalar("pole_rate", |s: &PioneerState| s.rate),
+            ],
+            rewards: vec![
+                RewardTerm::new("alive", 1.0, |_| 1.0),
+                RewardTerm::new("pole_angle", -2.0, |s: &PioneerState| s.angle.abs()),
+                RewardTerm::new("distance", -0.1, |s: &PioneerState| s.x.abs()),
+            ],
+            terminations: vec![
+                TerminationTerm::new("pole_fallen", |s: &PioneerState| s.angle.abs() > MAX_ANGLE),
+                TerminationTerm::new("out_of_range", |s: &PioneerState| s.x.abs() > MAX_X),
+            ],
+            time_limit: Some(EPISODE_STEPS),
+            start_events: vec![StartEvent::new("kick", |s: &mut PioneerState, rng| {
+                let speed = rng.random_range(KICK_SPEED[0]..=KICK_SPEED[1]);
+                let sign = if rng.random::<bool>() { 1.0 } else { -1.0 };
+                (s.kick_steps, s.kick_speed) = (KICK_STEPS, sign * speed);
+            })],
+        },
         action_space: Space::Box { low: vec![-MAX_WHEEL_SPEED], high: vec![MAX_WHEEL_SPEED] },
         // The paper's figure: ≈500 mean episode reward (it needed 32 M steps).
         solved: Some(SolvedCriterion::mean_score(100, 500.0)),
     }
 }
 
-pub fn headless_app_with(arenas: usize, seed: u64, _pattern: DesignPattern) -> App {
-    let mut app = App::new();
-    app.add_plugins(MinimalPlugins)
-        .add_plugins(SimPlugin { settings: sim_settings(), ..default() })
-        .insert_resource(ArenaConfig { count: arenas, seed })
-        .add_plugins(Pioneer3atPlugin);
-    app
+pub fn task_spec() -> TaskSpec {
+    balance_task().spec()
+}
+
+/// How the Pioneer describes itself to the registry.
+pub fn robot() -> RobotDescription {
+    RobotDescription {
+        name: "pioneer3at",
+        description: "Pioneer 3-AT skid-steer base, 16 sonars, inverted pendulum; Box([-6.4],[6.4]) wheel speed, 64 ms step",
+        tasks: vec![TaskDescription { name: "balance", description: "balance the pendulum on the driving base", spec: task_spec, server: false }],
+        patterns: vec![DesignPattern::Supervised],
+        framing: Framing::default(),
+        // SB3's defaults with observation normalisation (a continuous-control task).
+        defaults: TrainingDefaults { ppo: PpoConfig { normalize_observations: true, n_steps: 512, ..default() }, ..default() },
+        build: |request| headless_app(sim_settings(), request, Pioneer3atPlugin),
+    }
+}
+
+/// A headless app of the pendulum task (design pattern 1).
+pub fn headless_app_with(arenas: usize, seed: u64, pattern: DesignPattern) -> App {
+    (robot().build)(&twinbots_rl::AppRequest { task: "balance", arenas, seed, pattern })
 }
 
 /// The entities of an arena's Pioneer, on the arena entity.
@@ -78,13 +134,6 @@ pub struct PioneerParts {
     pub sonars: Vec<Entity>,
 }
 
-/// The start kick: steps left and the wheel speed it drives.
-#[derive(Component, Clone, Copy, Debug, Default)]
-struct Kick {
-    steps_left: u32,
-    speed: f32,
-}
-
 #[derive(Resource, Clone)]
 struct PioneerModel(RobotModel);
 
@@ -92,18 +141,11 @@ pub struct Pioneer3atPlugin;
 
 impl Plugin for Pioneer3atPlugin {
     fn build(&self, app: &mut App) {
-        if !app.is_plugin_added::<TaskPlugin>() {
-            app.add_plugins(TaskPlugin);
-        }
         app.insert_resource(PioneerModel(model()))
-            .insert_resource(task_spec())
-            .add_systems(Startup, spawn_arenas)
-            .add_systems(Update, apply_action.in_set(SimSet::Actuate))
-            .add_systems(
-                Update,
-                (observe.in_set(TaskSet::Observe), reward.in_set(TaskSet::Reward), terminate.in_set(TaskSet::Terminate)),
-            )
-            .add_systems(EnvReset, (kick.in_set(ResetSet::Events), observe.in_set(ResetSet::Observe)));
+            .add_plugins(TaskTermsPlugin::new(balance_task(), DesignPattern::Supervised))
+            .add_systems(Startup, spawn_pioneers)
+            .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_supervised.in_set(TaskSet::Read)))
+            .add_systems(EnvReset, read_supervised.in_set(ResetSet::Read));
     }
 }
 
@@ -135,15 +177,12 @@ pub fn spawn_pioneer(commands: &mut Commands, arena_entity: Entity, arena: &mut 
     }
 }
 
-fn spawn_arenas(mut commands: Commands, model: Res<PioneerModel>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
-    for index in 0..config.count {
-        let arena_entity = commands.spawn_empty().id();
-        let mut arena = Arena::new(index, config.seed, settings.dt, settings.gravity);
+fn spawn_pioneers(mut commands: Commands, model: Res<PioneerModel>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
+    spawn_arenas(&mut commands, &config, &settings, |commands, arena_entity, arena| {
         arena.add_ground(1.0);
-        let parts = spawn_pioneer(&mut commands, arena_entity, &mut arena, &model.0, Pose::from_translation(Vec3::new(0.0, 0.0, AXLE_HEIGHT)));
-        arena.mark_initial();
-        commands.entity(arena_entity).insert((arena, parts, Kick::default(), Action(vec![0.0]), Episode { needs_reset: true, ..default() }));
-    }
+        let base = Pose::from_translation(Vec3::new(0.0, 0.0, AXLE_HEIGHT));
+        (spawn_pioneer(commands, arena_entity, arena, &model.0, base), PioneerState::default())
+    });
 }
 
 /// Drives all four wheels at one speed (rad/s).
@@ -155,11 +194,12 @@ pub fn drive(parts: &PioneerParts, speeds: [f32; 4], motors: &mut Query<&mut Mot
     }
 }
 
-fn apply_action(mut arenas: Query<(&PioneerParts, &Action, &mut Kick)>, mut motors: Query<&mut Motor>) {
-    for (parts, action, mut kick) in &mut arenas {
-        let speed = if kick.steps_left > 0 {
-            kick.steps_left -= 1;
-            kick.speed
+/// The start kick's speed while it lasts, the action after.
+fn apply_action(mut arenas: Query<(&PioneerParts, &Action, &mut PioneerState)>, mut motors: Query<&mut Motor>) {
+    for (parts, action, mut state) in &mut arenas {
+        let speed = if state.kick_steps > 0 {
+            state.kick_steps -= 1;
+            state.kick_speed
         } else if let Some(&a) = action.0.first() {
             a
         } else {
@@ -169,42 +209,16 @@ fn apply_action(mut arenas: Query<(&PioneerParts, &Action, &mut Kick)>, mut moto
     }
 }
 
-fn observe(supervisor: Supervisor, sensors: Query<&PositionSensor>, mut arenas: Query<(&PioneerParts, &mut Episode)>) {
-    for (parts, mut episode) in &mut arenas {
+/// The base's x and velocity and the pole's rate from the Supervisor, the angle from the
+/// pendulum's position sensor.
+fn read_supervised(supervisor: Supervisor, sensors: Query<&PositionSensor>, mut arenas: Query<(&PioneerParts, &mut PioneerState)>) {
+    for (parts, mut state) in &mut arenas {
         let (Some(base), Some(pole)) = (supervisor.link_state(parts.base), supervisor.link_state(parts.pole_link)) else {
             continue;
         };
-        let angle = sensors.get(parts.pendulum).map_or(0.0, |s| s.value);
-        episode.observation.clear();
-        episode.observation.extend([base.pose.translation.x, base.linvel.x, angle, pole.angvel.y]);
-    }
-}
-
-fn reward(mut arenas: Query<&mut Episode, With<PioneerParts>>) {
-    for mut e in &mut arenas {
-        let (x, angle) = (e.observation[0], e.observation[2]);
-        e.reward = 1.0 - 2.0 * angle.abs() - x.abs() / 10.0;
-    }
-}
-
-fn terminate(mut arenas: Query<&mut Episode, With<PioneerParts>>) {
-    for mut e in &mut arenas {
-        let (x, angle) = (e.observation[0], e.observation[2]);
-        e.terminated = angle.abs() > MAX_ANGLE || x.abs() > MAX_X;
-        e.truncated = !e.terminated && e.length + 1 >= EPISODE_STEPS;
-    }
-}
-
-/// Reset event: the next 5 control steps drive all wheels at a random ±2.0…2.5 rad/s.
-fn kick(mut supervisor: Supervisor, mut arenas: Query<(Entity, &Episode, &mut Kick)>) {
-    for (arena, episode, mut kick) in &mut arenas {
-        if !episode.needs_reset {
-            continue;
-        }
-        if let Some(mut a) = supervisor.arena_mut(arena) {
-            let speed = a.rng.random_range(2.0..=2.5);
-            let sign = if a.rng.random::<bool>() { 1.0 } else { -1.0 };
-            *kick = Kick { steps_left: 5, speed: sign * speed };
-        }
+        state.x = base.pose.translation.x;
+        state.vx = base.linvel.x;
+        state.angle = sensors.get(parts.pendulum).map_or(0.0, |s| s.value);
+        state.rate = pole.angvel.y;
     }
 }

@@ -58,43 +58,14 @@ pub struct View {
     pub fov_y: f32,
 }
 
-/// How a robot's cell is framed: the point cameras look at, how far away they stand (m), and
-/// which way the robot faces (yaw of its front, rad), so `front` and `iso` see its working side.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Framing {
-    pub target: Vec3,
-    pub distance: f32,
-    pub facing: f32,
-}
-
-impl Default for Framing {
-    /// A robot on the floor about a metre tall facing +x (the cart-pole, the Pioneer).
-    fn default() -> Self {
-        Self { target: Vec3::new(0.0, 0.0, 0.5), distance: 2.6, facing: 0.0 }
-    }
-}
-
-impl Framing {
-    /// Names of the cell's cameras.
-    pub const CAMERAS: [&str; 4] = ["side", "front", "iso", "top"];
-
-    /// A named camera of the cell (physics coordinates, Z up): `side` (from −y), `front` (from
-    /// +x), `iso` or `top`.
-    pub fn view(&self, name: &str) -> Option<View> {
-        let d = self.distance;
-        let offset = match name {
-            "side" => Vec3::new(0.0, -d, 0.08 * d),
-            "front" => Vec3::new(d, 0.0, 0.08 * d),
-            "iso" => Vec3::new(0.7 * d, -0.7 * d, 0.35 * d),
-            "top" => Vec3::new(0.0, -0.004 * d, d),
-            _ => return None,
-        };
-        let offset = Quat::from_rotation_z(self.facing) * offset;
-        Some(View::looking_at(self.target + offset, self.target, 45f32.to_radians()))
-    }
-}
+pub use twinbots_sim::Framing;
 
 impl View {
+    /// A named camera of a robot's cell (see [`Framing::eye`]).
+    pub fn framed(framing: &Framing, name: &str) -> Option<Self> {
+        Some(Self::looking_at(framing.eye(name)?, framing.target, 45f32.to_radians()))
+    }
+
     /// A camera at `eye` looking at `target` (physics coordinates, Z up).
     pub fn looking_at(eye: Vec3, target: Vec3, fov_y: f32) -> Self {
         let transform = Transform::from_translation(scene::point_to_bevy(eye))

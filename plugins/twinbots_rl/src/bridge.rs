@@ -1,8 +1,8 @@
-//! The channel bridge (DESIGN.md, "Data flow"): the learner runs on its own thread with a
-//! [`ChannelVecEnv`]; the Bevy app runs on the main thread with [`BridgePlugin`], which each
-//! control step waits for the actions of all arenas, lets the step run, and sends back what it
-//! produced. Either side ending (returning, panicking, dropping its end) ends the other with an
-//! error message instead of a hang.
+//! The channel bridge (docs/architecture.md, "Training: threads and the bridge"): the learner
+//! runs on its own thread with a [`ChannelVecEnv`]; the Bevy app runs on the main thread with
+//! [`BridgePlugin`], which each control step waits for the actions of all arenas, lets the step
+//! run, and sends back what it produced. Either side ending (returning, panicking, dropping its
+//! end) ends the other with an error message instead of a hang.
 
 use bevy::prelude::*;
 use crossbeam_channel::{Receiver, Sender, bounded};

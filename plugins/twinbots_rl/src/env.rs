@@ -5,7 +5,7 @@ use bevy::prelude::*;
 use twinbots_sim::Arena;
 
 use crate::spaces::Space;
-use crate::task::{Action, EnvReset, Episode, EpisodeSummary, TaskSpec};
+use crate::task::{Action, Episode, EpisodeSummary, TaskSpec};
 
 /// What one vectorised step returns. Vectors are flat: env `i`'s observation is
 /// `obs[i * obs_dim..(i + 1) * obs_dim]`.
@@ -61,17 +61,14 @@ pub fn observations(world: &World, arenas: &[Entity]) -> Vec<f32> {
 
 /// Resets every arena (re-seeding their streams if `seed` is given) and returns observations.
 pub fn reset_arenas(world: &mut World, arenas: &[Entity], seed: Option<u64>) -> Vec<f32> {
-    for &arena in arenas {
-        if let Some(seed) = seed
-            && let Some(mut a) = world.get_mut::<Arena>(arena)
-        {
-            a.reseed(seed);
-        }
-        if let Some(mut e) = world.get_mut::<Episode>(arena) {
-            e.needs_reset = true;
+    if let Some(seed) = seed {
+        for &arena in arenas {
+            if let Some(mut a) = world.get_mut::<Arena>(arena) {
+                a.reseed(seed);
+            }
         }
     }
-    world.run_schedule(EnvReset);
+    crate::task::reset(world, arenas);
     observations(world, arenas)
 }
 

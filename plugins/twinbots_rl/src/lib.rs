@@ -11,10 +11,15 @@ pub mod normalize;
 pub mod plot;
 pub mod randomization;
 pub mod ppo;
+pub mod robot;
 pub mod spaces;
 pub mod task;
 
 pub use env::{AppVecEnv, Info, SingleEnv, StepResult, VecEnv};
 pub use ppo::{Callback, Flow, Ppo, PpoConfig, UpdateStats};
+pub use robot::{AppRequest, Registry, RobotDescription, TaskDescription, TrainingDefaults};
 pub use spaces::Space;
-pub use task::{Action, DesignPattern, Episode, EpisodeSummary, Measure, SolvedCriterion, TaskPlugin, TaskSpec};
+pub use task::{
+    Action, DesignPattern, Episode, EpisodeSummary, Measure, ObservationTerm, RewardTerm, SolvedCriterion, StartEvent, TaskPlugin,
+    TaskDefinition, TaskSpec, TaskTerms, TaskTermsPlugin, TerminationTerm,
+};

@@ -13,7 +13,7 @@ use rand::Rng;
 use serde::{Deserialize, Serialize};
 use twinbots_sim::{Arena, InArena, Motor, PositionSensor, SimSet};
 
-use crate::task::{Action, EnvReset, Episode, ResetSet, TaskSpec};
+use crate::task::{Action, EnvReset, ResetSet, Resetting, TaskSpec};
 
 /// `[randomization]` in a run's TOML. Ranges are `[low, high]`, drawn uniformly per episode.
 #[derive(Resource, Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -87,7 +87,7 @@ impl Plugin for RandomizationPlugin {
             .add_systems(PostStartup, (add_state, set_sensor_noise))
             // Radio runs first in a step: actions are replaced or delayed before anything reads them.
             .add_systems(Update, randomize_actions.in_set(SimSet::Radio))
-            .add_systems(EnvReset, randomize_episode.in_set(ResetSet::Events));
+            .add_systems(EnvReset, randomize_episode.in_set(ResetSet::Place));
     }
 }
 
@@ -111,13 +111,10 @@ fn set_sensor_noise(config: Res<Randomization>, mut sensors: Query<&mut Position
 /// start window.
 fn randomize_episode(
     config: Res<Randomization>,
-    mut arenas: Query<(Entity, &mut Arena, &Episode, Option<&mut RandomizationState>)>,
+    mut arenas: Query<(Entity, &mut Arena, Option<&mut RandomizationState>), With<Resetting>>,
     mut motors: Query<(&mut Motor, &InArena)>,
 ) {
-    for (entity, mut arena, episode, state) in &mut arenas {
-        if !episode.needs_reset {
-            continue;
-        }
+    for (entity, mut arena, state) in &mut arenas {
         let arena = &mut *arena;
         let mass = uniform(&mut arena.rng, config.mass_scale);
         let friction = config.friction.map(|f| uniform(&mut arena.rng, f));

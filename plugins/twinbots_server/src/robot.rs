@@ -3,11 +3,22 @@
 //! reports each step's outcome and applies the action it gets back, and after an episode's
 //! last step goes home again. A lost server is reconnected with backoff and the episode
 //! begins afresh from home.
+//!
+//! [`ServerRobotPlugin`] runs that cycle for any robot whose task is defined by terms: the same
+//! [`Terms`] as under patterns 1 and 2 turn the controller's state into what is sent. The robot
+//! plugin brings only what is its own: a reader of its devices (in `TaskSet::Read`), a homing
+//! routine (in [`RobotCycleSet::Home`], setting [`AtHome`]), and, where a cell needs one, an
+//! operator who puts the drawn start in place (in [`RobotCycleSet::Operate`]).
 
 use std::net::SocketAddr;
 use std::time::Duration;
 
+use bevy::ecs::component::Mutable;
 use bevy::prelude::*;
+use rand_chacha::ChaCha8Rng;
+use twinbots_rl::task::{Terms, configure_task_sets};
+use twinbots_rl::{Action, Episode, TaskSpec};
+use twinbots_sim::{Arena, SimSet};
 
 use crate::client::{Communicator, CommunicatorError, Identity};
 use crate::protocol::{RobotMessage, ServerMessage};
@@ -100,6 +111,150 @@ impl Conversation {
         match self.communicator.connect() {
             Ok(()) => state.reconnects += 1,
             Err(e) => state.stop = Some(Err(e.to_string())),
+        }
+    }
+}
+
+/// A pattern-3 robot's controller on its arena: its conversation with the server and its own
+/// random stream (the arena's, cloned when it connects; the robot draws its episodes' starts
+/// from it).
+#[derive(Component)]
+pub struct Controller {
+    conversation: Conversation,
+    pub rng: ChaCha8Rng,
+}
+
+impl Controller {
+    pub fn phase(&self) -> Phase {
+        self.conversation.phase
+    }
+}
+
+/// Written by the robot's homing routine while it homes: whether it is home and still.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct AtHome(pub bool);
+
+/// Order of a pattern-3 robot's episode cycle inside `SimSet::Actuate`.
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum RobotCycleSet {
+    /// The robot drives itself home and says when it is there ([`AtHome`]).
+    Home,
+    /// A robot at home begins an episode: the task's start events draw its start (generic).
+    Start,
+    /// The lab operator puts the drawn start in place (re-seats a part, lets go of a pole).
+    Operate,
+}
+
+/// The pattern-3 episode cycle of robots with controller state `S` and a `Terms<S>` task
+/// (inserted by the task's `TaskTermsPlugin` under `DesignPattern::Server`). Needs a
+/// [`ServerAddress`] resource; every arena gets a [`Controller`] and an [`AtHome`] after start-up.
+pub struct ServerRobotPlugin<S> {
+    /// The robot kind the server expects in `hello.robot`.
+    pub robot: String,
+    state: std::marker::PhantomData<fn() -> S>,
+}
+
+impl<S> ServerRobotPlugin<S> {
+    pub fn new(robot: &str) -> Self {
+        Self { robot: robot.into(), state: std::marker::PhantomData }
+    }
+}
+
+/// The robot kind announced in `hello`.
+#[derive(Resource, Clone, Debug)]
+struct RobotKind(String);
+
+impl<S: Component<Mutability = Mutable>> Plugin for ServerRobotPlugin<S> {
+    fn build(&self, app: &mut App) {
+        configure_task_sets(app);
+        app.init_resource::<RobotRunState>()
+            .insert_resource(RobotKind(self.robot.clone()))
+            .configure_sets(
+                Update,
+                (RobotCycleSet::Home, RobotCycleSet::Start, RobotCycleSet::Operate).chain().in_set(SimSet::Actuate),
+            )
+            .add_systems(PostStartup, connect_robots)
+            .add_systems(Update, begin_episodes::<S>.in_set(RobotCycleSet::Start))
+            .add_systems(Update, exchange::<S>.in_set(twinbots_rl::task::TaskSet::Evaluate));
+    }
+}
+
+/// What a robot of this app announces: its kind and its task's spaces.
+pub fn identity(world: &World) -> Identity {
+    let spec = world.resource::<TaskSpec>();
+    Identity {
+        robot: world.resource::<RobotKind>().0.clone(),
+        observation_space: spec.observation_space.clone(),
+        action_space: spec.action_space.clone(),
+    }
+}
+
+/// Each arena's robot connects; its controller's random stream is its arena's.
+fn connect_robots(world: &mut World) {
+    let address = *world.resource::<ServerAddress>();
+    let identity = identity(world);
+    let arenas: Vec<(Entity, usize, ChaCha8Rng)> =
+        world.query::<(Entity, &Arena)>().iter(world).map(|(e, a)| (e, a.index, a.rng.clone())).collect();
+    for (entity, index, rng) in arenas {
+        let mut state = world.resource_mut::<RobotRunState>();
+        let Some(conversation) = Conversation::connect_robot(&address, identity.clone(), index, &mut state) else { return };
+        world.entity_mut(entity).insert((Controller { conversation, rng }, AtHome(false)));
+    }
+}
+
+/// A robot that is home begins an episode: its start is drawn by the task's start events.
+fn begin_episodes<S: Component<Mutability = Mutable>>(terms: Res<Terms<S>>, mut robots: Query<(&mut Controller, &mut AtHome, &mut S)>) {
+    for (mut controller, mut home, mut state) in &mut robots {
+        if controller.conversation.phase == Phase::Homing && home.0 {
+            home.0 = false;
+            controller.conversation.phase = Phase::Starting;
+            terms.0.start(&mut state, &mut controller.rng);
+        }
+    }
+}
+
+/// One request and reply per robot per step, all requests out before any reply is awaited.
+/// The step's outcome comes from the task's terms; the action received is applied by the
+/// robot's actuation next step, as under the other patterns. Between episodes the robot has
+/// no action (its homing drives it).
+fn exchange<S: Component>(
+    terms: Res<Terms<S>>,
+    mut run: ResMut<RobotRunState>,
+    mut robots: Query<(&S, &mut Controller, &mut Episode, &mut Action)>,
+) {
+    if run.stop.is_some() {
+        return;
+    }
+    for (state, mut controller, mut episode, _) in &mut robots {
+        let e = &mut *episode;
+        let message = match controller.conversation.phase {
+            Phase::Homing => continue,
+            Phase::Starting => {
+                e.begin();
+                terms.0.observe(state, &mut e.observation);
+                RobotMessage::Start { obs: e.observation.clone() }
+            }
+            Phase::Running => {
+                terms.0.observe(state, &mut e.observation);
+                let outcome = terms.0.evaluate(state, e.length, &mut e.reward_sums);
+                e.reward = outcome.reward;
+                e.tally();
+                RobotMessage::Step {
+                    obs: e.observation.clone(),
+                    reward: outcome.reward,
+                    terminated: outcome.terminated,
+                    truncated: outcome.truncated,
+                    success: outcome.success,
+                }
+            }
+        };
+        controller.conversation.send(&message, &mut run);
+    }
+    for (_, mut controller, _, mut action) in &mut robots {
+        match controller.conversation.receive(&mut run) {
+            Some(a) => action.0 = a,
+            None if controller.conversation.phase == Phase::Homing => action.0.clear(),
+            None => {}
         }
     }
 }

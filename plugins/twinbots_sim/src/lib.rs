@@ -6,6 +6,7 @@
 
 pub mod arena;
 pub mod devices;
+pub mod framing;
 pub mod physics;
 pub mod spawn;
 pub mod supervisor;
@@ -20,6 +21,7 @@ pub use devices::{
     Accelerometer, BROADCAST, CameraSensor, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint, JointState, Motor,
     MotorCommand, Mount, Packet, PositionSensor, Receiver, SamplingPeriod, TouchSensor, VacuumGripper,
 };
+pub use framing::Framing;
 pub use physics::{PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use spawn::{Link, Robot, SpawnOptions, SpawnedRobot, Visuals, spawn_robot};
 pub use supervisor::{LinkState, Operator, OperatorAccess, Supervisor, SupervisorAccess};

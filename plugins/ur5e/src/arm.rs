@@ -1,6 +1,5 @@
 //! What the arm's controller knows and does, shared by every design pattern: joint readings,
-//! the TCP computed from them, the observation and reward of a reach towards a target, and
-//! actions as joint speeds.
+//! the TCP computed from them, and actions as joint speeds.
 
 use bevy::math::DVec3;
 use bevy::prelude::*;
@@ -22,8 +21,6 @@ pub const ACTION_SPEED: f32 = std::f32::consts::FRAC_PI_2;
 /// its own axis (a yaw no task needs); it holds still. Left free, a policy lets it drift over a
 /// long program until it meets its stop.
 pub const ACTION_DIM: usize = 5;
-/// Observation: q (6), q̇ (6), TCP position (3), target − TCP (3), tool axis (3), last action (5).
-pub const OBSERVATION_DIM: usize = 21 + ACTION_DIM;
 /// A joint this close to a stop (rad) counts as at its limit.
 pub const LIMIT_MARGIN: f32 = 0.01;
 /// Homed: every joint this close to home (rad)…
@@ -95,19 +92,6 @@ impl ArmState {
     pub fn at_joint_limit(&self) -> bool {
         self.q.iter().any(|q| q.abs() >= JOINT_RANGE - LIMIT_MARGIN)
     }
-
-    /// The policy's input for a reach towards `target`.
-    pub fn observation(&self, target: Vec3, actions: &ActionHistory, out: &mut Vec<f32>) {
-        let p = self.tcp.translation;
-        let axis = self.tcp.rotation * Vec3::Z;
-        out.clear();
-        out.extend(self.q);
-        out.extend(self.qd);
-        out.extend(p.to_array());
-        out.extend((target - p).to_array());
-        out.extend(axis.to_array());
-        out.extend(actions.last);
-    }
 }
 
 /// The actions the arm was last given: the policy sees the last (Isaac Lab's last-action
@@ -123,18 +107,6 @@ impl ActionHistory {
         self.previous = self.last;
         self.last = std::array::from_fn(|i| action.get(i).copied().unwrap_or(0.0).clamp(-1.0, 1.0));
     }
-}
-
-/// Reward of a reach step: the cost of distance (linear, and steeper within a few centimetres,
-/// where precision is won), of tilt, of effort and of jerky actions; a bonus on arrival, which
-/// ends the episode, so the policy gains by arriving soon.
-pub fn reach_reward(arm: &ArmState, target: Vec3, actions: &ActionHistory, arrived: bool) -> f32 {
-    let d = arm.distance_to(target);
-    let effort: f32 = actions.last.iter().map(|a| a * a).sum();
-    let jerk: f32 = actions.last.iter().zip(actions.previous).map(|(a, b)| (a - b).powi(2)).sum();
-    let precision = 0.1 * (1.0 - (-(d / 0.02).powi(2)).exp());
-    let cost = d + precision + 0.5 * kinematics::tilt(&arm.tcp) + 0.01 * effort + 0.02 * jerk;
-    if arrived { 10.0 - cost } else { -cost }
 }
 
 /// Joint speed commands for an action in [−1, 1]⁵ (wrist 3 at rest).

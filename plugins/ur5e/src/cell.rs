@@ -114,24 +114,3 @@ pub fn spawn_cell(commands: &mut Commands, arena_entity: Entity, arena: &mut Are
     let gripper = commands.spawn((VacuumGripper::new(CUP_RADIUS, CUP_STROKE), cup, InArena(arena_entity))).id();
     CellParts { robot: robot.robot(), joints, tcp, gripper, part: get(part.link("part"), "part"), base }
 }
-
-/// Builds the cell into each of the process's arenas, the arm at home, and records that state
-/// as what a reset restores; returns the arena entities (each holding its [`Arena`] and
-/// [`CellParts`]).
-pub fn spawn_cells(
-    commands: &mut Commands,
-    models: &CellModels,
-    config: &twinbots_sim::ArenaConfig,
-    settings: &twinbots_sim::SimSettings,
-) -> Vec<(Entity, CellParts)> {
-    (0..config.count)
-        .map(|index| {
-            let arena_entity = commands.spawn_empty().id();
-            let mut arena = Arena::new(index, config.seed, settings.dt, settings.gravity);
-            let parts = spawn_cell(commands, arena_entity, &mut arena, models, crate::kinematics::HOME);
-            arena.mark_initial();
-            commands.entity(arena_entity).insert((arena, parts.clone()));
-            (arena_entity, parts)
-        })
-        .collect()
-}

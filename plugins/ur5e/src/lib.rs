@@ -2,13 +2,15 @@
 //! kinematics, masses and limits, bolted to a table with two nest fixtures and a part, a
 //! vacuum gripper on its flange.
 //!
-//! Tasks (Isaac Lab's manager-based shape; the same observation and action for both):
-//! - [`Ur5eTask::Reach`]: tool to a target over the table, pointing down, at rest within 1 cm.
-//!   Action: speeds of the first five joints, Box([-1, 1]⁵) × π/2 rad/s (wrist 3 only turns the
-//!   round cup; it holds). Observation (26): joint angles and speeds from the encoders, the TCP
-//!   from the controller's kinematics, target − TCP, tool axis, last action.
-//! - [`Ur5eTask::PickPlace`]: the part from fixture A to fixture B, a cell program of waypoints
-//!   driven by a reach policy.
+//! Tasks (Isaac Lab's manager-based shape; the same observation and action for both, over the
+//! controller's [`CellState`]):
+//! - reach ([`reach::reach_task`]): tool to a target over the table, pointing down, at rest
+//!   within 1 cm. Action: speeds of the first five joints, Box([-1, 1]⁵) × π/2 rad/s (wrist 3
+//!   only turns the round cup; it holds). Observation: joint angles and speeds from the
+//!   encoders, the TCP from the controller's kinematics, target − TCP, tool axis, last action
+//!   (its size and names come from the terms).
+//! - pick-and-place ([`pick_place::pick_place_task`]): the part from fixture A to fixture B, a
+//!   cell program of waypoints driven by a reach policy.
 //!
 //! Every episode reports the digital-twin figures (success, cycle time, energy, joint-limit and
 //! collision events). Design pattern 1 resets by the Supervisor; pattern 3 ([`server`]) homes
@@ -22,17 +24,20 @@ pub mod metrics;
 pub mod pick_place;
 pub mod reach;
 pub mod server;
+pub mod state;
 
+use bevy::math::Vec3;
 use bevy::prelude::*;
-use twinbots_rl::task::{EnvReset, ResetSet, TaskSet};
-use twinbots_rl::{Action, DesignPattern, Episode, PpoConfig, SolvedCriterion, Space, TaskPlugin, TaskSpec};
-use twinbots_sim::{ArenaConfig, JointState, Motor, PhysicsSubstep, PositionSensor, SimPlugin, SimSet, SimSettings, SubstepSet};
+use twinbots_rl::robot::{AppRequest, RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_rl::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
+use twinbots_rl::{Action, DesignPattern, PpoConfig, TaskSpec, TaskTermsPlugin};
+use twinbots_sim::{
+    ArenaConfig, Framing, JointState, Motor, PhysicsSubstep, PositionSensor, SimSet, SimSettings, SubstepSet, Supervisor,
+};
 
-use crate::arm::{ACTION_DIM, ActionHistory, ArmState, OBSERVATION_DIM};
 use crate::cell::{CellModels, CellParts};
 use crate::metrics::TwinMeter;
-use crate::pick_place::Program;
-use crate::reach::{LastArrival, ToolTarget};
+pub use crate::state::CellState;
 
 /// Which task the cell runs.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -63,135 +68,133 @@ pub fn ppo_config() -> PpoConfig {
     }
 }
 
-/// The spaces every UR5e task shares, and reach's criterion: 98 % of 200 episodes succeed, a
-/// margin over the 95 % the twin must reach (a first crossing of 95 % in 100 episodes measured
-/// 95.0 % at another seed, and of 98 % in 100, 94.4 % over 500).
+/// The reach task's spaces and criterion (pick-and-place shares the spaces).
 pub fn task_spec() -> TaskSpec {
-    TaskSpec {
-        name: "ur5e".into(),
-        observation_space: Space::uniform_box(OBSERVATION_DIM, f32::NEG_INFINITY, f32::INFINITY),
-        action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
-        solved: Some(SolvedCriterion::success_rate(200, 0.98)),
+    reach::reach_task().spec()
+}
+
+fn pick_place_spec() -> TaskSpec {
+    pick_place::pick_place_task().spec()
+}
+
+/// How the UR5e cell describes itself to the registry.
+pub fn robot() -> RobotDescription {
+    RobotDescription {
+        name: "ur5e",
+        description: "UR5e digital twin in an assembly cell (table, 2 fixtures, part, vacuum gripper); reach: Box([-1,1]^5) joint speeds, 40 ms step",
+        tasks: vec![
+            TaskDescription { name: "reach", description: "tool to a target over the table, pointing down, at rest within 1 cm", spec: task_spec, server: true },
+            TaskDescription {
+                name: "pick-place",
+                description: "the part from fixture A to fixture B: a cell program of waypoints driven by the reach policy",
+                spec: pick_place_spec,
+                server: false,
+            },
+        ],
+        patterns: vec![DesignPattern::Supervised],
+        // The arm works towards −x (its zero pose): cameras face it from there.
+        framing: Framing { target: Vec3::new(-0.3, -0.05, 1.0), distance: 2.0, facing: std::f32::consts::PI },
+        defaults: TrainingDefaults {
+            ppo: ppo_config(),
+            timesteps: 3_000_000,
+            // The stochastic policy's training episodes lag its deterministic success far behind
+            // (exploration noise spoils a 1 cm rest): judge the criterion on 200 evaluation
+            // episodes every 20 updates (≈ 41 k steps), as SB3's EvalCallback does.
+            eval_every: 20,
+            eval_episodes: 200,
+            ..default()
+        },
+        build: |request| {
+            let task = if request.task == "pick-place" { Ur5eTask::PickPlace } else { Ur5eTask::Reach };
+            headless_app(sim_settings(), request, Ur5ePlugin { task, pattern: request.pattern })
+        },
     }
 }
 
-/// A headless reach app of `arenas` arenas (design pattern 1).
-pub fn headless_app_with(arenas: usize, seed: u64, _pattern: DesignPattern) -> App {
-    app_for(Ur5eTask::Reach, arenas, seed)
+/// A headless reach app of `arenas` arenas (3: a robot process that needs a `ServerAddress`).
+pub fn headless_app_with(arenas: usize, seed: u64, pattern: DesignPattern) -> App {
+    (robot().build)(&AppRequest { task: "reach", arenas, seed, pattern })
 }
 
 /// A headless pick-and-place app (design pattern 1), for evaluating a reach model.
-pub fn pick_place_app(arenas: usize, seed: u64, _pattern: DesignPattern) -> App {
-    app_for(Ur5eTask::PickPlace, arenas, seed)
-}
-
-fn app_for(task: Ur5eTask, arenas: usize, seed: u64) -> App {
-    let mut app = App::new();
-    app.add_plugins(MinimalPlugins)
-        .add_plugins(SimPlugin { settings: sim_settings(), ..default() })
-        .insert_resource(ArenaConfig { count: arenas, seed })
-        .add_plugins(Ur5ePlugin { task });
-    app
+pub fn pick_place_app(arenas: usize, seed: u64, pattern: DesignPattern) -> App {
+    (robot().build)(&AppRequest { task: "pick-place", arenas, seed, pattern })
 }
 
 pub struct Ur5ePlugin {
     pub task: Ur5eTask,
+    pub pattern: DesignPattern,
 }
 
 impl Plugin for Ur5ePlugin {
     fn build(&self, app: &mut App) {
-        if !app.is_plugin_added::<TaskPlugin>() {
-            app.add_plugins(TaskPlugin);
-        }
-        let mut spec = task_spec();
-        if self.task == Ur5eTask::PickPlace {
-            spec.name = "ur5e-pick-place".into();
-            spec.solved = None;
-        }
+        let definition = match self.task {
+            Ur5eTask::Reach => reach::reach_task(),
+            Ur5eTask::PickPlace => pick_place::pick_place_task(),
+        };
         app.init_resource::<CellModels>()
-            .insert_resource(spec)
             .insert_resource(self.task)
-            .add_systems(Startup, spawn_arenas)
-            .add_systems(Update, apply_action.in_set(SimSet::Actuate))
-            .add_systems(PhysicsSubstep, metrics::meter_energy.in_set(SubstepSet::Record))
-            .add_systems(EnvReset, (reset_records.in_set(ResetSet::Events), (read_arm, observe).chain().in_set(ResetSet::Observe)));
+            .add_plugins(TaskTermsPlugin::new(definition, self.pattern))
+            .add_systems(Startup, spawn_cells)
+            .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)));
+        if self.pattern == DesignPattern::Server {
+            server::build(app);
+            return;
+        }
+        // The twin's figures (energy, limit and collision events) and starts put in place by
+        // the Supervisor.
+        app.add_systems(PhysicsSubstep, metrics::meter_energy.in_set(SubstepSet::Record))
+            .add_systems(Update, metrics::count_events.after(read_arm).in_set(TaskSet::Read))
+            .add_systems(EnvReset, ((reset_meter, place_arm).in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
         match self.task {
             Ur5eTask::Reach => {
-                app.add_systems(
-                    Update,
-                    (
-                        (read_arm, metrics::count_events, observe).chain().in_set(TaskSet::Observe),
-                        reach::reward.in_set(TaskSet::Reward),
-                        reach::terminate.in_set(TaskSet::Terminate),
-                    ),
-                )
-                .add_systems(EnvReset, reach::new_reach.in_set(ResetSet::Events));
+                app.add_systems(Update, reach::report.in_set(TaskSet::Report));
             }
             Ur5eTask::PickPlace => {
-                app.add_systems(
-                    Update,
-                    (
-                        (read_arm, pick_place::run_program, metrics::count_events, observe).chain().in_set(TaskSet::Observe),
-                        pick_place::reward.in_set(TaskSet::Reward),
-                        pick_place::terminate.in_set(TaskSet::Terminate),
-                    ),
-                )
-                .add_systems(EnvReset, pick_place::new_program.in_set(ResetSet::Events));
+                app.add_systems(Update, (pick_place::apply_suction.in_set(SimSet::Actuate), pick_place::report.in_set(TaskSet::Report)))
+                    .add_systems(Update, pick_place::run_program.after(read_arm).in_set(TaskSet::Read))
+                    .add_systems(EnvReset, pick_place::place_part.in_set(ResetSet::Place));
             }
         }
     }
 }
 
-fn spawn_arenas(
-    mut commands: Commands,
-    task: Res<Ur5eTask>,
-    models: Res<CellModels>,
-    config: Res<ArenaConfig>,
-    settings: Res<SimSettings>,
-) {
-    for (arena_entity, _) in cell::spawn_cells(&mut commands, &models, &config, &settings) {
-        commands.entity(arena_entity).insert((
-            ArmState::default(),
-            ActionHistory::default(),
-            ToolTarget::default(),
-            TwinMeter::default(),
-            Action(vec![0.0; ACTION_DIM]),
-            Episode { needs_reset: true, ..default() },
-        ));
-        match *task {
-            Ur5eTask::Reach => commands.entity(arena_entity).insert(LastArrival::default()),
-            Ur5eTask::PickPlace => commands.entity(arena_entity).insert(Program::default()),
-        };
-    }
+fn spawn_cells(mut commands: Commands, models: Res<CellModels>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
+    spawn_arenas(&mut commands, &config, &settings, |commands, arena_entity, arena| {
+        let parts = cell::spawn_cell(commands, arena_entity, arena, &models, kinematics::HOME);
+        (parts, CellState::default(), TwinMeter::default())
+    });
 }
 
-fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut ActionHistory)>, mut motors: Query<&mut Motor>) {
-    for (parts, action, mut history) in &mut arenas {
+fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState)>, mut motors: Query<&mut Motor>) {
+    for (parts, action, mut state) in &mut arenas {
         if !action.0.is_empty() {
             arm::drive(parts, arm::joint_speeds(&action.0), &mut motors);
-            history.push(&action.0);
+            state.actions.push(&action.0);
         }
     }
 }
 
-fn read_arm(sensors: Query<(&PositionSensor, &JointState)>, mut arenas: Query<(&CellParts, &mut ArmState)>) {
-    for (parts, mut arm) in &mut arenas {
-        *arm = ArmState::read(parts, &sensors);
+/// The arm from its position sensors and encoders, through the controller's own kinematics.
+fn read_arm(sensors: Query<(&PositionSensor, &JointState)>, mut arenas: Query<(&CellParts, &mut CellState)>) {
+    for (parts, mut state) in &mut arenas {
+        state.arm = arm::ArmState::read(parts, &sensors);
+        state.read = true;
     }
 }
 
-fn observe(mut arenas: Query<(&ArmState, &ToolTarget, &ActionHistory, &mut Episode)>) {
-    for (arm, target, actions, mut episode) in &mut arenas {
-        arm.observation(target.0, actions, &mut episode.observation);
+/// Reset: the episode's figures start from nothing.
+fn reset_meter(mut arenas: Query<&mut TwinMeter, With<Resetting>>) {
+    for mut meter in &mut arenas {
+        *meter = TwinMeter::default();
     }
 }
 
-/// Reset event: the episode's figures and action history start from nothing.
-fn reset_records(mut arenas: Query<(&Episode, &mut TwinMeter, &mut ActionHistory)>) {
-    for (episode, mut meter, mut actions) in &mut arenas {
-        if episode.needs_reset {
-            *meter = TwinMeter::default();
-            *actions = ActionHistory::default();
+/// Patterns 1 and 2: the Supervisor puts the arm at the drawn start pose.
+fn place_arm(mut supervisor: Supervisor, arenas: Query<(&CellParts, &CellState), With<Resetting>>) {
+    for (parts, state) in &arenas {
+        for (&joint, q) in parts.joints.iter().zip(state.start_pose) {
+            supervisor.set_joint_position(joint, q);
         }
     }
 }

@@ -7,8 +7,8 @@ use twinbots_sim::rapier::prelude::*;
 use twinbots_sim::{Arena, JointState, Link, SimSettings, VacuumGripper};
 use twinbots_rl::Episode;
 
-use crate::arm::ArmState;
 use crate::cell::CellParts;
+use crate::state::CellState;
 
 /// Per arena: what the running episode has cost so far.
 #[derive(Component, Clone, Debug, Default, PartialEq)]
@@ -69,13 +69,13 @@ pub fn arm_touches_cell(world: &PhysicsWorld, arm_bodies: &[RigidBodyHandle], gr
 pub fn count_events(
     links: Query<&Link>,
     grippers: Query<&twinbots_sim::Mount, With<VacuumGripper>>,
-    mut arenas: Query<(&Arena, &CellParts, &ArmState, &mut TwinMeter)>,
+    mut arenas: Query<(&Arena, &CellParts, &CellState, &mut TwinMeter)>,
 ) {
-    for (arena, parts, arm, mut meter) in &mut arenas {
+    for (arena, parts, state, mut meter) in &mut arenas {
         let arm_bodies: Vec<RigidBodyHandle> = links.iter().filter(|l| l.robot == parts.robot).map(|l| l.body).collect();
         let gripper_body = grippers.get(parts.gripper).ok().and_then(|m| links.get(m.link).ok()).map(|l| l.body);
         let Ok(part) = links.get(parts.part) else { continue };
         let touching = arm_touches_cell(&arena.world, &arm_bodies, gripper_body, part.body);
-        meter.observe(arm.at_joint_limit(), touching);
+        meter.observe(state.arm.at_joint_limit(), touching);
     }
 }

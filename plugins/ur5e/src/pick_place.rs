@@ -12,14 +12,17 @@
 
 use bevy::prelude::*;
 use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use twinbots_rl::task::Resetting;
+use twinbots_rl::{Episode, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
 use twinbots_sim::rapier::math::Pose;
-use twinbots_rl::Episode;
 use twinbots_sim::{SimSettings, Supervisor, VacuumGripper};
 
-use crate::arm::{ActionHistory, ArmState, reach_reward};
+use crate::arm::{ACTION_DIM, ActionHistory, ArmState};
 use crate::cell::{CellParts, FIXTURE_A, FIXTURE_B, PART_HEIGHT, POCKET_PLAY, base_pose, part_seat};
 use crate::metrics::TwinMeter;
-use crate::reach::{ToolTarget, sample_start};
+use crate::reach::{motion_costs, observations, sample_start};
+use crate::state::CellState;
 
 pub const EPISODE_STEPS: u32 = 400;
 /// Height of the approach and retract waypoints above the part's top (m).
@@ -116,47 +119,65 @@ impl Program {
     }
 }
 
-/// Runs each arena's program and sets its tool target and suction.
-pub fn run_program(
-    mut grippers: Query<&mut VacuumGripper>,
-    mut arenas: Query<(&CellParts, &ArmState, &mut Program, &mut ToolTarget)>,
-) {
-    for (parts, arm, mut program, mut target) in &mut arenas {
-        let Ok(mut gripper) = grippers.get_mut(parts.gripper) else { continue };
-        gripper.on = program.step(arm, gripper.held().is_some());
-        target.0 = waypoint(program.stage);
+/// Runs each arena's program on the controller's reading: the next tool target and whether the
+/// suction should be on (applied by [`apply_suction`] at the next actuation).
+pub fn run_program(grippers: Query<&VacuumGripper>, mut arenas: Query<(&CellParts, &mut CellState)>) {
+    for (parts, mut state) in &mut arenas {
+        let Ok(gripper) = grippers.get(parts.gripper) else { continue };
+        let state = &mut *state;
+        state.suction = state.program.step(&state.arm, gripper.held().is_some());
+        state.target = waypoint(state.program.stage);
+    }
+}
+
+/// The suction's digital output, as the program last asked.
+pub fn apply_suction(mut grippers: Query<&mut VacuumGripper>, arenas: Query<(&CellParts, &CellState)>) {
+    for (parts, state) in &arenas {
+        if let Ok(mut gripper) = grippers.get_mut(parts.gripper) {
+            gripper.on = state.suction;
+        }
     }
 }
 
 /// How far (m) the part may sit off its pocket's centre at the start. With the reach's 1 cm,
-/// the part then never lands more than the pocket's play off its centre.
+/// the part then never lands more than the pocket's play of its centre.
 pub const PART_PLAY: f32 = 0.005;
 
-/// Reset event: the program starts over, the arm near home and the part anywhere its pocket
-/// in fixture A lets it sit, at any yaw (both put there by the Supervisor).
-pub fn new_program(mut supervisor: Supervisor, mut arenas: Query<(Entity, &Episode, &CellParts, &mut Program, &mut ToolTarget)>) {
-    for (arena, episode, parts, mut program, mut target) in &mut arenas {
-        if !episode.needs_reset {
-            continue;
-        }
-        *program = Program::default();
-        target.0 = waypoint(program.stage);
-        let Some(mut a) = supervisor.arena_mut(arena) else { continue };
-        let start = sample_start(&mut a.rng);
-        let offset = Vec3::new(a.rng.random_range(-PART_PLAY..=PART_PLAY), a.rng.random_range(-PART_PLAY..=PART_PLAY), 0.0);
-        let yaw = a.rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI);
-        drop(a);
-        for (&joint, q) in parts.joints.iter().zip(start) {
-            supervisor.set_joint_position(joint, q);
-        }
-        let seat = Pose::from_parts(part_seat(FIXTURE_A) + offset, Quat::from_rotation_z(yaw));
-        supervisor.set_link_pose(parts.part, base_pose() * seat);
+/// Pick-and-place as a task: the reach's observation and motion costs (the same spaces, so a
+/// reach model runs it), over when the program is, at most [`EPISODE_STEPS`]. Its success is
+/// judged by the evaluator ([`report`]), not by a term.
+pub fn pick_place_task() -> TaskDefinition<CellState> {
+    TaskDefinition {
+        name: "ur5e-pick-place".into(),
+        terms: TaskTerms {
+            observations: observations(),
+            rewards: motion_costs(),
+            terminations: vec![TerminationTerm::new("program_over", |s: &CellState| s.program.is_over())],
+            time_limit: Some(EPISODE_STEPS),
+            start_events: vec![StartEvent::new("new_program", new_program)],
+        },
+        action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
+        solved: None,
     }
 }
 
-pub fn reward(mut arenas: Query<(&ArmState, &ToolTarget, &ActionHistory, &mut Episode), With<Program>>) {
-    for (arm, target, actions, mut e) in &mut arenas {
-        e.reward = reach_reward(arm, target.0, actions, false);
+/// Start event: the program starts over, the arm near home and the part anywhere its pocket
+/// in fixture A lets it sit, at any yaw.
+fn new_program(s: &mut CellState, rng: &mut ChaCha8Rng) {
+    s.program = Program::default();
+    s.target = waypoint(s.program.stage);
+    s.suction = false;
+    s.actions = ActionHistory::default();
+    s.start_pose = sample_start(rng);
+    s.part_offset = Vec3::new(rng.random_range(-PART_PLAY..=PART_PLAY), rng.random_range(-PART_PLAY..=PART_PLAY), 0.0);
+    s.part_yaw = rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI);
+}
+
+/// Patterns 1 and 2: the Supervisor seats the part where the start drew it.
+pub fn place_part(mut supervisor: Supervisor, arenas: Query<(&CellParts, &CellState), With<Resetting>>) {
+    for (parts, state) in &arenas {
+        let seat = Pose::from_parts(part_seat(FIXTURE_A) + state.part_offset, Quat::from_rotation_z(state.part_yaw));
+        supervisor.set_link_pose(parts.part, base_pose() * seat);
     }
 }
 
@@ -171,16 +192,15 @@ fn part_placed(supervisor: &Supervisor, parts: &CellParts) -> bool {
         && (pose.rotation * Vec3::Z).angle_between(Vec3::Z) < UPRIGHT_TOLERANCE
 }
 
-pub fn terminate(
+/// The figures of a program that ended: success (the part placed), cycle time, the meter's.
+pub fn report(
     settings: Res<SimSettings>,
     supervisor: Supervisor,
-    mut arenas: Query<(&CellParts, &Program, &TwinMeter, &mut Episode)>,
+    mut arenas: Query<(&CellParts, &CellState, &TwinMeter, &mut Episode)>,
 ) {
-    for (parts, program, meter, mut e) in &mut arenas {
-        e.terminated = program.is_over();
-        e.truncated = !e.terminated && e.length + 1 >= EPISODE_STEPS;
+    for (parts, state, meter, mut e) in &mut arenas {
         if e.terminated || e.truncated {
-            let placed = program.stage == Stage::Done && part_placed(&supervisor, parts);
+            let placed = state.program.stage == Stage::Done && part_placed(&supervisor, parts);
             e.success = Some(placed);
             let cycle_time = placed.then(|| (e.length + 1) as f32 * settings.control_dt());
             meter.report(&mut e, cycle_time);

@@ -4,13 +4,14 @@
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_rl::Episode;
-use twinbots_sim::{SimSettings, Supervisor};
+use twinbots_rl::{Episode, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
+use twinbots_sim::SimSettings;
 
-use crate::arm::{ActionHistory, ArmState, reach_reward};
-use crate::cell::{CellParts, FIXTURE_A, PART_HEIGHT, POCKET_FLOOR};
-use crate::kinematics::HOME;
+use crate::arm::{ACTION_DIM, ActionHistory};
+use crate::cell::{FIXTURE_A, PART_HEIGHT, POCKET_FLOOR};
+use crate::kinematics::{self, HOME, JOINT_RANGE};
 use crate::metrics::TwinMeter;
+use crate::state::CellState;
 
 /// Control steps before a reach is given up (4 s).
 pub const EPISODE_STEPS: u32 = 100;
@@ -22,17 +23,6 @@ pub const TARGET_HALF_ANGLE: f32 = 0.8;
 pub const TARGET_HEIGHT: [f32; 2] = [0.05, 0.35];
 /// Start poses: home with every joint off by up to this much (rad).
 pub const START_SPREAD: f32 = 0.05;
-
-/// Where the task sends the tool: a point in the base frame, the tool pointing down (Isaac
-/// Lab's command term).
-#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
-pub struct ToolTarget(pub Vec3);
-
-/// Where the last reach ended, when it succeeded: half the time the next one starts there, as a
-/// cell's next move does, so the policy learns moves from anywhere it may have arrived (a
-/// pick-and-place program chains them); otherwise it starts near home.
-#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
-pub struct LastArrival(pub Option<[f32; 6]>);
 
 /// A target over the table, not inside the part waiting in fixture A.
 pub fn sample_target(rng: &mut impl Rng) -> Vec3 {
@@ -53,44 +43,80 @@ pub fn sample_start(rng: &mut impl Rng) -> [f32; 6] {
     HOME.map(|q| q + rng.random_range(-START_SPREAD..=START_SPREAD))
 }
 
-/// Reset event: a new target, and the arm put (by the Supervisor) where the last successful
-/// reach ended or near home (see [`LastArrival`]).
-pub fn new_reach(
-    mut supervisor: Supervisor,
-    mut arenas: Query<(Entity, &Episode, &CellParts, &mut ToolTarget, &mut LastArrival)>,
-) {
-    for (arena, episode, parts, mut target, mut last) in &mut arenas {
-        if !episode.needs_reset {
-            continue;
-        }
-        let Some(mut a) = supervisor.arena_mut(arena) else { continue };
-        target.0 = sample_target(&mut a.rng);
-        let near_home = sample_start(&mut a.rng);
-        let chain = a.rng.random::<bool>();
-        let start = last.0.take().filter(|_| chain).unwrap_or(near_home);
-        drop(a);
-        for (&joint, q) in parts.joints.iter().zip(start) {
-            supervisor.set_joint_position(joint, q);
-        }
+/// The observation every UR5e task shares (no privileged data): joint angles (position
+/// sensors) and speeds (encoders), the TCP from the controller's own kinematics, target − TCP,
+/// the tool axis, and the last action (Isaac Lab's reach observes it too; the action-rate cost
+/// needs it).
+pub fn observations() -> Vec<ObservationTerm<CellState>> {
+    vec![
+        ObservationTerm::new("joint_positions", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.q)).bounded(-JOINT_RANGE, JOINT_RANGE),
+        ObservationTerm::new("joint_velocities", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.qd)),
+        ObservationTerm::new("tcp_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.tcp.translation.to_array())),
+        ObservationTerm::new("target_offset", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.target - s.arm.tcp.translation).to_array())),
+        ObservationTerm::new("tool_axis", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.arm.tcp.rotation * Vec3::Z).to_array()))
+            .bounded(-1.0, 1.0),
+        ObservationTerm::new("last_action", ACTION_DIM, |s: &CellState, out: &mut Vec<f32>| out.extend(s.actions.last)).bounded(-1.0, 1.0),
+    ]
+}
+
+/// The cost of a motion towards the target: of distance (linear, and steeper within a few
+/// centimetres, where precision is won), of tilt, of effort and of jerky actions. Every term
+/// is a cost, so lingering never pays.
+pub fn motion_costs() -> Vec<RewardTerm<CellState>> {
+    fn distance(s: &CellState) -> f32 {
+        s.arm.distance_to(s.target)
+    }
+    vec![
+        RewardTerm::new("distance", -1.0, distance),
+        RewardTerm::new("precision", -0.1, |s: &CellState| 1.0 - (-(distance(s) / 0.02).powi(2)).exp()),
+        RewardTerm::new("tilt", -0.5, |s: &CellState| kinematics::tilt(&s.arm.tcp)),
+        RewardTerm::new("effort", -0.01, |s: &CellState| s.actions.last.iter().map(|a| a * a).sum()),
+        RewardTerm::new("action_rate", -0.02, |s: &CellState| {
+            s.actions.last.iter().zip(s.actions.previous).map(|(a, b)| (a - b).powi(2)).sum()
+        }),
+    ]
+}
+
+/// The reach task: motion costs, a bonus on arrival (which ends the episode, so the policy gains
+/// by arriving soon), a 100-step limit. Solved when 98 % of 200 evaluation episodes succeed, a
+/// margin over the 95 % the twin must reach (a first crossing of 95 % in 100 episodes measured
+/// 95.0 % at another seed, and of 98 % in 100, 94.4 % over 500).
+pub fn reach_task() -> TaskDefinition<CellState> {
+    let mut rewards = motion_costs();
+    rewards.push(RewardTerm::new("arrival", 10.0, |s: &CellState| f32::from(u8::from(s.arm.has_reached(s.target)))));
+    TaskDefinition {
+        name: "ur5e".into(),
+        terms: TaskTerms {
+            observations: observations(),
+            rewards,
+            terminations: vec![TerminationTerm::goal("arrived", |s: &CellState| s.arm.has_reached(s.target))],
+            time_limit: Some(EPISODE_STEPS),
+            start_events: vec![StartEvent::new("new_reach", new_reach)],
+        },
+        action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
+        solved: Some(SolvedCriterion::success_rate(200, 0.98)),
     }
 }
 
-pub fn reward(mut arenas: Query<(&ArmState, &ToolTarget, &ActionHistory, &mut Episode)>) {
-    for (arm, target, actions, mut e) in &mut arenas {
-        e.reward = reach_reward(arm, target.0, actions, arm.has_reached(target.0));
-    }
+/// Start event: a new target; the arm starts where the last reach ended if it arrived (half
+/// the time, as a cell's next move does, so the policy learns moves from anywhere it may have
+/// arrived: a pick-and-place program chains them), near home otherwise.
+fn new_reach(s: &mut CellState, rng: &mut rand_chacha::ChaCha8Rng) {
+    let arrived = s.arm.has_reached(s.target).then_some(s.arm.q);
+    s.target = sample_target(rng);
+    let near_home = sample_start(rng);
+    let chain = rng.random::<bool>();
+    s.start_pose = arrived.filter(|_| chain).unwrap_or(near_home);
+    s.actions = ActionHistory::default();
 }
 
-pub fn terminate(settings: Res<SimSettings>, mut arenas: Query<(&ArmState, &ToolTarget, &TwinMeter, &mut LastArrival, &mut Episode)>) {
-    for (arm, target, meter, mut last, mut e) in &mut arenas {
-        let arrived = arm.has_reached(target.0);
-        last.0 = arrived.then_some(arm.q);
-        e.terminated = arrived;
-        e.truncated = !arrived && e.length + 1 >= EPISODE_STEPS;
+/// The figures of a reach that ended: its final error, its cycle time (time to arrival) if it
+/// succeeded, and the twin meter's.
+pub fn report(settings: Res<SimSettings>, mut arenas: Query<(&CellState, &TwinMeter, &mut Episode)>) {
+    for (state, meter, mut e) in &mut arenas {
         if e.terminated || e.truncated {
-            e.success = Some(arrived);
-            let cycle_time = arrived.then(|| (e.length + 1) as f32 * settings.control_dt());
-            e.metrics.insert("final_error_mm".into(), 1000.0 * arm.distance_to(target.0));
+            let cycle_time = (e.success == Some(true)).then(|| (e.length + 1) as f32 * settings.control_dt());
+            e.metrics.insert("final_error_mm".into(), 1000.0 * state.arm.distance_to(state.target));
             meter.report(&mut e, cycle_time);
         }
     }
