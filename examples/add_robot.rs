@@ -16,31 +16,17 @@ use twinbots_sim::urdf::parse_urdf;
 use twinbots_sim::{ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, Supervisor, spawn_robot};
 
 // 1. The robot: a 1 kg, 0.5 m arm on a motorised hinge 1 m above the ground, torque ≤ 2 N·m.
-const URDF: &str = r#"<robot name="swing_arm">
-  <link name="world"/>
-  <link name="arm">
-    <inertial><origin xyz="0 0 0.25"/><mass value="1"/>
-      <inertia ixx="0.021" ixy="0" ixz="0" iyy="0.021" iyz="0" izz="0.0005"/></inertial>
-    <visual><origin xyz="0 0 0.25"/><geometry><box size="0.04 0.04 0.5"/></geometry>
-      <material name="teal"><color rgba="0.1 0.6 0.6 1"/></material></visual>
-  </link>
-  <joint name="shoulder" type="continuous">
-    <parent link="world"/><child link="arm"/><origin xyz="0 0 1"/><axis xyz="0 1 0"/>
-    <limit effort="2" velocity="8"/>
-  </joint>
-</robot>"#;
-
-const MAX_TORQUE: f32 = 2.0;
+const URDF: &str = r#"<robot name="swing_arm"><link name="world"/>
+  <link name="arm"><inertial><origin xyz="0 0 0.25"/><mass value="1"/>
+    <inertia ixx="0.021" ixy="0" ixz="0" iyy="0.021" iyz="0" izz="0.0005"/></inertial>
+    <visual><origin xyz="0 0 0.25"/><geometry><box size="0.04 0.04 0.5"/></geometry></visual></link>
+  <joint name="shoulder" type="continuous"><parent link="world"/><child link="arm"/>
+    <origin xyz="0 0 1"/><axis xyz="0 1 0"/><limit effort="2" velocity="8"/></joint></robot>"#;
 
 // 2. What the controller knows: the arm's angle (θ = 0 upright) and speed from its encoder, the
 //    torque it applied, and the start angle the next episode drew.
 #[derive(Component, Clone, Copy, Default)]
-struct SwingState {
-    angle: f32,
-    speed: f32,
-    torque: f32,
-    start: f32,
-}
+struct SwingState { angle: f32, speed: f32, torque: f32, start: f32 }
 
 // 3. The task as terms (Gymnasium's Pendulum): observe [cos θ, sin θ, θ̇], pay for angle, speed
 //    and torque, 200 steps, start anywhere.
@@ -58,11 +44,11 @@ fn swing_up() -> TaskDefinition<SwingState> {
                 RewardTerm::new("speed", -0.1, |s: &SwingState| s.speed * s.speed),
                 RewardTerm::new("torque", -0.001, |s: &SwingState| s.torque * s.torque),
             ],
-            terminations: vec![],
             time_limit: Some(200),
             start_events: vec![StartEvent::new("start_angle", |s: &mut SwingState, rng| s.start = rng.random_range(-3.1..3.1))],
+            ..default()
         },
-        action_space: Space::Box { low: vec![-MAX_TORQUE], high: vec![MAX_TORQUE] },
+        action_space: Space::Box { low: vec![-2.0], high: vec![2.0] },
         solved: None,
     }
 }
@@ -71,7 +57,6 @@ fn swing_up() -> TaskDefinition<SwingState> {
 //    start in place at a reset.
 #[derive(Component, Clone, Copy)]
 struct Shoulder(Entity);
-
 struct SwingArmPlugin;
 
 impl Plugin for SwingArmPlugin {
@@ -138,9 +123,7 @@ fn main() -> anyhow::Result<()> {
     let mut model = Ppo::new(robot.defaults.ppo.clone(), env.observation_space().clone(), env.action_space().clone(), 1)?;
     let mut first = None;
     model.learn(&mut env, 120_000, &mut |s: &UpdateStats, _: &Ppo| {
-        if s.episodes > 0 && first.is_none() {
-            first = Some(s.mean_reward);
-        }
+        first = first.or((s.episodes > 0).then_some(s.mean_reward));
         println!("{:>7} steps  mean episode reward {:>8.1}", s.timesteps, s.mean_reward);
         Ok(Flow::Continue)
     })?;
