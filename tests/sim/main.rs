@@ -1,5 +1,6 @@
 //! End-to-end tests of the simulation core and the robot twins (one test binary).
 
+mod accuracy;
 mod common;
 mod determinism;
 mod devices;

@@ -89,10 +89,11 @@ fn cartpole_wheels_reach_commanded_speed_and_drive_the_cart() {
     let arena = env.arenas()[0];
     let parts = *env.app().world().get::<cartpole::CartPoleParts>(arena).unwrap();
     // The encoder reads the rotation over the physics step; the solver's contact corrections
-    // leave it 1–2 % short of the motor's velocity target.
+    // leave it up to 3 % short of the motor's velocity target at the twin's 16 ms physics steps
+    // (1–2 % at 4 ms; measured 0.1–2.6 %), while the cart rolls at the commanded speed.
     for wheel in parts.wheels {
         let state = env.app().world().get::<JointState>(wheel).unwrap();
-        assert!((state.velocity - 5.0).abs() < 0.1, "wheel speed {}", state.velocity);
+        assert!((state.velocity - 5.0).abs() < 0.15, "wheel speed {}", state.velocity);
     }
     // 5 rad/s on 0.04 m wheels rolls the cart at 0.2 m/s.
     assert!((obs[1] - 0.2).abs() < 0.01, "cart speed {}", obs[1]);
