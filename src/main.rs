@@ -1,7 +1,7 @@
 //! `twinbots`: train, look at and benchmark robot twins.
 
 mod cli;
-mod registry;
+use twinbots::registry;
 
 use clap::{Parser, Subcommand, ValueEnum};
 

@@ -1,0 +1,4 @@
+//! twinbots as a library: the registry of the robots this build knows, shared by the CLI
+//! (`src/main.rs`) and the Python extension (`python/`).
+
+pub mod registry;
