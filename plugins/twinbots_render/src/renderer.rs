@@ -9,9 +9,13 @@ use bevy::asset::RenderAssetUsages;
 use bevy::camera::RenderTarget;
 use bevy::core_pipeline::tonemapping::Tonemapping;
 use bevy::prelude::*;
-use bevy::render::gpu_readback::{Readback, ReadbackComplete};
-use bevy::render::render_resource::{Extent3d, PipelineCache, PollType, TextureDimension, TextureFormat, TextureUsages};
-use bevy::render::renderer::{RenderDevice, initialize_renderer};
+use bevy::render::render_asset::RenderAssets;
+use bevy::render::render_resource::{
+    Buffer, BufferDescriptor, BufferUsages, CommandEncoderDescriptor, Extent3d, MapMode, PipelineCache, PollType,
+    TexelCopyBufferInfo, TexelCopyBufferLayout, TextureDimension, TextureFormat, TextureUsages,
+};
+use bevy::render::renderer::{RenderDevice, RenderQueue, initialize_renderer};
+use bevy::render::texture::GpuImage;
 use bevy::render::settings::{InstanceFlags, RenderCreation, WgpuSettings};
 use bevy::render::{RenderApp, RenderPlugin};
 use bevy::window::ExitCondition;
@@ -110,6 +114,8 @@ pub struct Renderer {
     pub height: u32,
     /// New meshes were added: their pipelines must compile before a frame is read.
     fresh_meshes: bool,
+    /// Where frames are copied to be read (made on the first frame).
+    readback_buffer: Option<Buffer>,
 }
 
 impl Renderer {
@@ -166,7 +172,7 @@ impl Renderer {
             ..default()
         });
         world.spawn((Mesh3d(ground), MeshMaterial3d(grey)));
-        Ok(Self { app, width, height, fresh_meshes: true })
+        Ok(Self { app, width, height, fresh_meshes: true, readback_buffer: None })
     }
 
     /// Creates (once) and poses the render entities of `arena` from the sim world.
@@ -193,29 +199,55 @@ impl Renderer {
         if std::mem::take(&mut self.fresh_meshes) {
             self.settle()?;
         }
-        let received: Arc<Mutex<Option<Vec<u8>>>> = Arc::default();
-        let sink = received.clone();
-        let target = self.app.world().resource::<Target>().0.clone();
-        let readback = self
-            .app
-            .world_mut()
-            .spawn(Readback::texture(target))
-            .observe(move |ev: On<ReadbackComplete>| {
-                *sink.lock().expect("readback sink") = Some(ev.data.clone());
-            })
-            .id();
+        // One update draws the frame into the target texture; it is copied out at once. (Bevy's
+        // `Readback` delivers only on the next update, which would draw the scene again.)
         self.app.update();
-        self.app.world_mut().entity_mut(readback).remove::<Readback>();
-        for _ in 0..8 {
-            self.poll()?;
-            if received.lock().expect("readback sink").is_some() {
-                break;
-            }
-            self.app.update();
+        self.poll()?;
+        self.read_target()
+    }
+
+    /// Copies the target texture into a mappable buffer (kept between frames) and reads it.
+    fn read_target(&mut self) -> Result<Vec<u8>, RenderError> {
+        let handle = self.app.world().resource::<Target>().0.clone();
+        let world = self.app.sub_app(RenderApp).world();
+        let image = world
+            .resource::<RenderAssets<GpuImage>>()
+            .get(&handle)
+            .ok_or_else(|| RenderError::Failed("the render target is not on the GPU".into()))?;
+        let device = world.resource::<RenderDevice>();
+        let padded = RenderDevice::align_copy_bytes_per_row((self.width * 4) as usize);
+        let size = (padded * self.height as usize) as u64;
+        let buffer = self.readback_buffer.get_or_insert_with(|| {
+            device.create_buffer(&BufferDescriptor {
+                label: Some("twinbots frame readback"),
+                size,
+                usage: BufferUsages::MAP_READ | BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        });
+        let mut encoder = device.create_command_encoder(&CommandEncoderDescriptor { label: Some("twinbots frame copy") });
+        encoder.copy_texture_to_buffer(
+            image.texture.as_image_copy(),
+            TexelCopyBufferInfo {
+                buffer,
+                layout: TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded as u32), rows_per_image: None },
+            },
+            Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
+        );
+        world.resource::<RenderQueue>().submit([encoder.finish()]);
+        let slice = buffer.slice(..);
+        let mapped: Arc<Mutex<Option<Result<(), String>>>> = Arc::default();
+        let done = mapped.clone();
+        slice.map_async(MapMode::Read, move |r| *done.lock().expect("map flag") = Some(r.map_err(|e| e.to_string())));
+        device.poll(PollType::wait_indefinitely()).map_err(|e| RenderError::Failed(format!("{e:?}")))?;
+        match mapped.lock().expect("map flag").take() {
+            Some(Ok(())) => {}
+            Some(Err(e)) => return Err(RenderError::Failed(format!("reading the frame back: {e}"))),
+            None => return Err(RenderError::Failed("no pixels came back".into())),
         }
-        self.app.world_mut().despawn(readback);
-        let data = received.lock().expect("readback sink").take().ok_or_else(|| RenderError::Failed("no pixels came back".into()))?;
-        Ok(self.strip(&data))
+        let rgb = strip(&slice.get_mapped_range(), self.width, self.height);
+        buffer.unmap();
+        Ok(rgb)
     }
 
     /// Updates until no pipeline is still compiling, so new meshes do not render blank.
@@ -250,13 +282,17 @@ impl Renderer {
             .map_err(|e| RenderError::Failed(format!("{e:?}")))
     }
 
-    /// RGBA rows padded to 256 bytes → tight RGB rows.
-    fn strip(&self, data: &[u8]) -> Vec<u8> {
-        let row = (self.width * 4) as usize;
-        let padded = RenderDevice::align_copy_bytes_per_row(row);
-        data.chunks(padded)
-            .take(self.height as usize)
-            .flat_map(|r| r[..row].chunks(4).flat_map(|px| [px[0], px[1], px[2]]))
-            .collect()
+}
+
+/// RGBA rows padded to 256 bytes → tight RGB rows.
+fn strip(data: &[u8], width: u32, height: u32) -> Vec<u8> {
+    let row = (width * 4) as usize;
+    let padded = RenderDevice::align_copy_bytes_per_row(row);
+    let mut rgb = Vec::with_capacity((width * height * 3) as usize);
+    for r in data.chunks(padded).take(height as usize) {
+        for px in r[..row].chunks_exact(4) {
+            rgb.extend_from_slice(&px[..3]);
+        }
     }
+    rgb
 }
