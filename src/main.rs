@@ -189,31 +189,28 @@ fn run(args: Args) -> anyhow::Result<()> {
             let robot = robot.unwrap_or_default();
             let entry = registry::find(&robot)?;
             let file = match config {
-                Some(path) => cli::train::ConfigFile::read(&path)?,
+                Some(path) => cli::runs::ConfigFile::read(&path)?,
                 None => Default::default(),
             };
-            let flags = cli::train::ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, ..Default::default() };
-            let settings = cli::train::TrainSettings::resolve(&entry, file, flags);
-            let out = out.unwrap_or_else(|| cli::train::default_run_dir(&robot));
+            let flags = cli::runs::ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, ..Default::default() };
+            let settings = cli::runs::TrainSettings::resolve(&entry, file, flags);
+            let out = out.unwrap_or_else(|| cli::runs::default_run_dir(&robot));
             cli::train::train(settings, &out, view)?
         }
         Command::Serve { robot, listen, robots, timesteps, seed, config, settings, out } => {
             let entry = registry::find(&robot)?;
             let settings = match settings {
-                Some(path) => {
-                    let text = std::fs::read_to_string(&path)?;
-                    toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
-                }
+                Some(path) => cli::runs::TrainSettings::read_file(&path)?,
                 None => {
                     let file = match config {
-                        Some(path) => cli::train::ConfigFile::read(&path)?,
+                        Some(path) => cli::runs::ConfigFile::read(&path)?,
                         None => Default::default(),
                     };
-                    let flags = cli::train::ConfigFile { timesteps, arenas: robots, seed, pattern: Some(3), ..Default::default() };
-                    cli::train::TrainSettings::resolve(&entry, file, flags)
+                    let flags = cli::runs::ConfigFile { timesteps, arenas: robots, seed, pattern: Some(3), ..Default::default() };
+                    cli::runs::TrainSettings::resolve(&entry, file, flags)
                 }
             };
-            let out = out.unwrap_or_else(|| cli::train::default_run_dir(&format!("{robot}-server")));
+            let out = out.unwrap_or_else(|| cli::runs::default_run_dir(&format!("{robot}-server")));
             cli::serve::serve(settings, listen, &out)?
         }
         Command::Robot { robot, server, arenas, seed, patience } => {

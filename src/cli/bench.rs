@@ -146,7 +146,7 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
     };
     let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space.clone(), id.action_space.clone(), 0)?;
     // A rollout never filled: this measures the protocol and the policy's inference only.
-    let settings = ServerSettings { robot: "cartpole".into(), rollout: usize::MAX, timesteps: u64::MAX, solved: None };
+    let settings = ServerSettings { robot: "cartpole".into(), rollout: usize::MAX, timesteps: u64::MAX };
     let server = RobotServer::start("127.0.0.1:0".parse()?, model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue)))?;
     let addr = server.addr;
     let start = Instant::now();

@@ -5,9 +5,8 @@
 use std::path::{Path, PathBuf};
 
 use twinbots_render::{Framing, Renderer, View};
-use twinbots_rl::{AppVecEnv, DesignPattern, VecEnv};
+use twinbots_rl::{AppVecEnv, DesignPattern, RunDir, VecEnv};
 
-use crate::cli::train::load_model;
 use crate::registry::{self, RobotEntry};
 
 /// A named camera of a robot's cell.
@@ -67,7 +66,7 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.every > 0, "--every must be at least 1");
     let entry = registry::find(&args.robot)?;
     let view = camera(&entry, &args.camera)?;
-    let mut model = args.model.as_deref().map(load_model).transpose()?;
+    let mut model = args.model.as_deref().map(|run| RunDir::new(run).load_model()).transpose()?;
     let mut env = AppVecEnv::new(entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;

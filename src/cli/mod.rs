@@ -4,7 +4,7 @@ pub mod bench;
 pub mod capture;
 pub mod eval;
 pub mod robots;
-pub mod run_log;
+pub mod runs;
 pub mod serve;
 pub mod view;
 pub mod train;

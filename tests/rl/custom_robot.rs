@@ -159,24 +159,19 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     assert_eq!(model.updates, 4);
     assert!(model.episodes > 0, "episodes of at most 50 steps ended in 2048 steps");
 
-    // Evaluated: the deterministic policy's episodes report their score, success and reward terms.
+    // Evaluated by the project's evaluation: score, success rate, and the score divided among
+    // the reward terms.
     let mut eval = AppVecEnv::new(robot.app(None, 2, 7, DesignPattern::Supervised).unwrap());
-    let mut obs = eval.reset(Some(7)).unwrap();
-    let mut episodes = Vec::new();
-    while episodes.len() < 6 {
-        let step = eval.step(&model.predict_deterministic(&obs).unwrap()).unwrap();
-        episodes.extend(step.episodes.into_iter().flatten());
-        obs = step.obs;
-    }
-    for ep in &episodes {
-        assert!(ep.success.is_some(), "a goal task reports success");
-        let terms: f32 = ep.rewards.values().sum();
-        assert!((terms - ep.score).abs() < 1e-3 * ep.score.abs().max(1.0), "{:?} vs score {}", ep.rewards, ep.score);
-    }
+    let result = evaluate_policy("turn", &model, &mut eval, 6, 7).unwrap();
+    assert_eq!(result.episodes, 6);
+    assert!(result.success_rate.is_some_and(|r| (0.0..=1.0).contains(&r)), "a goal task reports success");
+    let terms: f32 = result.rewards.values().sum();
+    assert_eq!(result.rewards.len(), 2, "{:?}", result.rewards);
+    assert!((terms - result.mean_score).abs() < 1e-3 * result.mean_score.abs().max(1.0), "{:?} vs {}", result.rewards, result.mean_score);
 
     // Served under pattern 3: robots that home themselves, no Supervisor, the same terms.
     let learner = Ppo::new(robot.defaults.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), 1).unwrap();
-    let settings = ServerSettings { robot: "turntable".into(), rollout: 256, timesteps: 1024, solved: None };
+    let settings = ServerSettings { robot: "turntable".into(), rollout: 256, timesteps: 1024 };
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap();
     let mut app = robot.app(None, 2, 3, DesignPattern::Server).unwrap();
     app.insert_resource(ServerAddress { addr: server.addr, patience: Duration::from_secs(5) });

@@ -13,7 +13,7 @@ use twinbots_server::server::{RobotServer, ServerSettings};
 fn server(timesteps: u64) -> RobotServer {
     let id = cartpole::task_spec();
     let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space, id.action_space, 0).unwrap();
-    let settings = ServerSettings { robot: "cartpole".into(), rollout: 256, timesteps, solved: None };
+    let settings = ServerSettings { robot: "cartpole".into(), rollout: 256, timesteps };
     RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap()
 }
 
@@ -135,6 +135,44 @@ fn a_robot_that_disconnects_mid_episode_has_that_episode_discarded() {
         std::thread::sleep(Duration::from_millis(10));
     }
     assert_eq!(server.load(), (1, 3), "robot A's unfinished episode is gone, B's steps remain");
+}
+
+#[test]
+fn the_server_trains_with_callbacks_and_stops_once_solved() {
+    use twinbots_rl::callbacks::StopTrainingOnSolved;
+    use twinbots_rl::{CallbackList, SolvedBy, SolvedCriterion, TrainingEnd, UpdateStats};
+    let id = cartpole::task_spec();
+    let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space, id.action_space, 0).unwrap();
+    let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let seen = rows.clone();
+    let callbacks = CallbackList::new()
+        .with(move |s: &UpdateStats, _: &Ppo| {
+            seen.lock().unwrap().push((s.update, s.timesteps, s.episodes));
+            Ok(Flow::Continue)
+        })
+        .with(StopTrainingOnSolved::new(SolvedCriterion::mean_score(1, 2.0)));
+    let settings = ServerSettings { robot: "cartpole".into(), rollout: 8, timesteps: 1_000_000 };
+    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(callbacks)).unwrap();
+    let mut robot = Robot::hello(server.addr);
+    let episode = |robot: &mut Robot| {
+        robot.call(&RobotMessage::Start { obs: vec![0.0; 4] });
+        for _ in 0..3 {
+            assert!(matches!(robot.step(), ServerMessage::Action { .. }));
+        }
+        let last = RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: true, truncated: false, success: None };
+        assert!(matches!(robot.call(&last), ServerMessage::Ack));
+    };
+    // Two episodes of 4 steps (score 4 > 2) fill the rollout of 8: one update, then solved.
+    episode(&mut robot);
+    episode(&mut robot);
+    match robot.call(&RobotMessage::Start { obs: vec![0.0; 4] }) {
+        ServerMessage::Done { reason } => assert_eq!(reason, "solved (training episodes) after 8 steps"),
+        other => panic!("{other:?}"),
+    }
+    let (model, end) = server.wait().unwrap();
+    assert_eq!(end, TrainingEnd::Solved { timesteps: 8, by: SolvedBy::TrainingEpisodes });
+    assert_eq!((model.timesteps, model.updates, model.episodes), (8, 1, 2));
+    assert_eq!(*rows.lock().unwrap(), [(1, 8, 2)]);
 }
 
 fn twinbots() -> Command {

@@ -64,9 +64,9 @@ fn a_run_killed_with_sigkill_resumes_from_its_last_checkpoint() {
     let output = twinbots().args(["train", "--resume"]).arg(&out).output().unwrap();
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     assert!(String::from_utf8_lossy(&output.stdout).contains("resuming"));
-    let csv = std::fs::read_to_string(out.join("progress.csv")).unwrap();
-    let steps: Vec<u64> = csv.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
-    let updates: Vec<u64> = csv.lines().skip(1).map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
+    let progress = twinbots_rl::RunDir::new(&out).read_progress().unwrap();
+    let steps: Vec<u64> = progress.iter().map(|row| row.timesteps).collect();
+    let updates: Vec<u64> = progress.iter().map(|row| row.update as u64).collect();
     // Counters continue: one row per update, 64 steps apart, numbered 1, 2, 3, ... to the end.
     assert_eq!(steps.len(), 100, "6400 steps / 64 per update; {killed_rows} rows before the kill");
     assert!(steps.windows(2).all(|w| w[1] == w[0] + 64), "{steps:?}");

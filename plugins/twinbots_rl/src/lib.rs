@@ -2,22 +2,29 @@
 //!
 //! Gymnasium-style [`spaces`], the [`task`] machinery robot plugins fill in (observation, reward
 //! and termination terms, reset events), the vectorised [`env`] API over arenas, [`ppo`] on
-//! candle, and [`classic`] control envs for testing the algorithms.
+//! candle with its [`callbacks`] and [`evaluation`], the [`run_dir`] a training run leaves
+//! behind, and [`classic`] control envs for testing the algorithms.
 
 pub mod bridge;
+pub mod callbacks;
 pub mod classic;
 pub mod env;
+pub mod evaluation;
 pub mod normalize;
 pub mod plot;
 pub mod randomization;
 pub mod ppo;
 pub mod robot;
+pub mod run_dir;
 pub mod spaces;
 pub mod task;
 
+pub use callbacks::{Callback, CallbackList, Flow, SolvedBy, TrainingEnd};
 pub use env::{AppVecEnv, Info, SingleEnv, StepResult, VecEnv};
-pub use ppo::{Callback, Flow, Ppo, PpoConfig, UpdateStats};
+pub use evaluation::{EvalResult, evaluate_policy};
+pub use ppo::{Ppo, PpoConfig, UpdateStats};
 pub use robot::{AppRequest, Registry, RobotDescription, TaskDescription, TrainingDefaults};
+pub use run_dir::RunDir;
 pub use spaces::Space;
 pub use task::{
     Action, DesignPattern, Episode, EpisodeSummary, Measure, ObservationTerm, RewardTerm, SolvedCriterion, StartEvent, TaskPlugin,

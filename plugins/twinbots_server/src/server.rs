@@ -1,25 +1,25 @@
 //! The RobotServer: accepts robots over TCP, serves each from its own thread, and trains one PPO
 //! model on the experience they all send.
 //!
-//! Each connection keeps its transitions since the last update. Once all connections together
-//! hold `rollout` transitions, the thread that completed the rollout runs the PPO update while
-//! it holds the learner (the others wait, so every action is taken by a known policy). A robot
-//! that disconnects mid-episode loses the part of that episode not yet used in an update: it is
-//! never mixed into training.
+//! Each connection keeps its transitions since the last update in a one-env rollout buffer,
+//! filled with the pieces `Ppo::learn` collects with (`observe`, `policy_step`,
+//! `bootstrapped_reward`, `RolloutBuffer::push`), one robot message at a time. Once all
+//! connections together hold `rollout` transitions, the thread that completed the rollout runs
+//! the PPO update while it holds the learner (the others wait, so every action is taken by a
+//! known policy), then the callbacks, as `learn` does. A robot that disconnects mid-episode
+//! loses the part of that episode not yet used in an update: it is never mixed into training.
 
 use std::collections::HashMap;
 use std::io::{BufReader, BufWriter};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
+use std::time::Instant;
 
-use twinbots_rl::ppo::RolloutBuffer;
-use twinbots_rl::{EpisodeSummary, Flow, Ppo, SolvedCriterion, UpdateStats};
+use twinbots_rl::ppo::{PolicyStep, RolloutBuffer};
+use twinbots_rl::{Callback, EpisodeSummary, Ppo, TrainingEnd};
 
 use crate::protocol::{FrameError, RobotMessage, ServerMessage, VERSION, read_message, write_message};
-
-/// Called after every update; `Flow::Stop` ends training.
-pub type UpdateCallback = Box<dyn FnMut(&UpdateStats, &Ppo) -> anyhow::Result<Flow> + Send>;
 
 /// What the server trains.
 pub struct ServerSettings {
@@ -27,16 +27,15 @@ pub struct ServerSettings {
     pub robot: String,
     /// Transitions per PPO update, summed over robots.
     pub rollout: usize,
-    /// Stop after this many transitions.
+    /// Stop after this many transitions (the model's `timesteps`, earlier sessions included).
     pub timesteps: u64,
-    pub solved: Option<SolvedCriterion>,
 }
 
 /// One robot's experience since the last update.
 struct Trajectory {
     buffer: RolloutBuffer,
-    /// The observation awaiting its outcome: (obs, sampled action, log-prob, value).
-    pending: Option<(Vec<f32>, Vec<f32>, f32, f32)>,
+    /// What the policy did on the observation awaiting its outcome.
+    pending: Option<PolicyStep>,
     /// Index in `buffer` where the running episode began.
     episode_begin: usize,
     score: f32,
@@ -47,8 +46,10 @@ struct Learner {
     ppo: Ppo,
     settings: ServerSettings,
     trajectories: HashMap<u64, Trajectory>,
-    callback: UpdateCallback,
-    finished: Option<String>,
+    callbacks: Box<dyn Callback + Send>,
+    /// When collecting the next update's rollout began.
+    collecting_since: Instant,
+    end: Option<TrainingEnd>,
     error: Option<String>,
 }
 
@@ -59,14 +60,22 @@ pub struct RobotServer {
 }
 
 impl RobotServer {
-    /// Binds `listen` (port 0 picks a free port) and starts accepting robots.
-    pub fn start(listen: SocketAddr, ppo: Ppo, settings: ServerSettings, callback: UpdateCallback) -> anyhow::Result<Self> {
+    /// Binds `listen` (port 0 picks a free port) and starts accepting robots. `callbacks` hear
+    /// the training as `Ppo::learn`'s do (a `twinbots_rl::CallbackList` composes several).
+    pub fn start(listen: SocketAddr, ppo: Ppo, settings: ServerSettings, mut callbacks: Box<dyn Callback + Send>) -> anyhow::Result<Self> {
         let listener = TcpListener::bind(listen).map_err(|e| anyhow::anyhow!("cannot listen on {listen}: {e}"))?;
         let addr = listener.local_addr()?;
-        let learner = Arc::new((
-            Mutex::new(Learner { ppo, settings, trajectories: HashMap::new(), callback, finished: None, error: None }),
-            Condvar::new(),
-        ));
+        callbacks.on_training_start(&ppo)?;
+        let learner = Learner {
+            ppo,
+            settings,
+            trajectories: HashMap::new(),
+            callbacks,
+            collecting_since: Instant::now(),
+            end: None,
+            error: None,
+        };
+        let learner = Arc::new((Mutex::new(learner), Condvar::new()));
         let shared = learner.clone();
         std::thread::spawn(move || {
             let ids = AtomicU64::new(1);
@@ -86,25 +95,23 @@ impl RobotServer {
         (learner.trajectories.len(), held)
     }
 
-    /// Blocks until training ends (budget spent, solved, or a learner error); returns the model
-    /// and why it ended.
-    pub fn wait(self) -> anyhow::Result<(Ppo, String)> {
+    /// Blocks until training ends (budget spent, solved, stopped by a callback, or a learner
+    /// error), tells the callbacks, and returns a snapshot of the model and why it ended.
+    /// Robots still connected get `done` on their next message.
+    pub fn wait(self) -> anyhow::Result<(Ppo, TrainingEnd)> {
         let (lock, done) = &*self.learner;
         let mut learner = lock.lock().map_err(|_| anyhow::anyhow!("learner lock poisoned"))?;
-        while learner.finished.is_none() && learner.error.is_none() {
+        loop {
+            if let Some(e) = learner.error.take() {
+                anyhow::bail!("training failed: {e}");
+            }
+            if let Some(end) = learner.end.clone() {
+                let learner = &mut *learner;
+                learner.callbacks.on_training_end(&learner.ppo)?;
+                return Ok((learner.ppo.snapshot()?, end));
+            }
             learner = done.wait(learner).map_err(|_| anyhow::anyhow!("learner lock poisoned"))?;
         }
-        if let Some(e) = learner.error.take() {
-            anyhow::bail!("training failed: {e}");
-        }
-        let reason = learner.finished.clone().unwrap_or_default();
-        // Robots still connected get `done` on their next message; the model is cloned out
-        // through a save/load round trip (candle variables are shared handles).
-        let dir = std::env::temp_dir().join(format!("twinbots-server-model-{}", std::process::id()));
-        learner.ppo.save(&dir)?;
-        let model = Ppo::load(&dir)?;
-        let _ = std::fs::remove_dir_all(&dir);
-        Ok((model, reason))
     }
 }
 
@@ -125,7 +132,7 @@ fn serve_robot(stream: TcpStream, id: u64, shared: Arc<(Mutex<Learner>, Condvar)
     let (lock, done) = &*shared;
 
     // Handshake: version, robot kind and spaces must match.
-    let (obs_dim, act_dim) = match read_message::<RobotMessage>(&mut reader) {
+    let obs_dim = match read_message::<RobotMessage>(&mut reader) {
         Ok(RobotMessage::Hello { version, robot, observation_space, action_space }) => {
             let Ok(mut learner) = lock.lock() else { return };
             let problem = if version != VERSION {
@@ -139,9 +146,8 @@ fn serve_robot(stream: TcpStream, id: u64, shared: Arc<(Mutex<Learner>, Condvar)
                 reply(&mut writer, &error(problem, true));
                 return;
             }
-            let dims = (observation_space.dim(), action_space.dim());
             learner.trajectories.insert(id, Trajectory {
-                buffer: RolloutBuffer::new(1, dims.0, dims.1),
+                buffer: RolloutBuffer::new(1, observation_space.dim(), action_space.dim()),
                 pending: None,
                 episode_begin: 0,
                 score: 0.0,
@@ -151,7 +157,7 @@ fn serve_robot(stream: TcpStream, id: u64, shared: Arc<(Mutex<Learner>, Condvar)
             if !reply(&mut writer, &ServerMessage::Welcome { version: VERSION, robot_id: id }) {
                 return;
             }
-            dims
+            observation_space.dim()
         }
         Ok(_) => {
             reply(&mut writer, &error("the first message must be 'hello'", true));
@@ -178,8 +184,8 @@ fn serve_robot(stream: TcpStream, id: u64, shared: Arc<(Mutex<Learner>, Condvar)
         };
         let answer = {
             let Ok(mut learner) = lock.lock() else { break };
-            let answer = learner.handle(id, message, obs_dim, act_dim);
-            if learner.finished.is_some() || learner.error.is_some() {
+            let answer = learner.handle(id, message, obs_dim);
+            if learner.end.is_some() || learner.error.is_some() {
                 done.notify_all();
             }
             answer
@@ -202,9 +208,9 @@ fn serve_robot(stream: TcpStream, id: u64, shared: Arc<(Mutex<Learner>, Condvar)
 
 impl Learner {
     /// The answer to one message; `None` ends the connection.
-    fn handle(&mut self, id: u64, message: RobotMessage, obs_dim: usize, act_dim: usize) -> Option<ServerMessage> {
-        if let Some(reason) = &self.finished {
-            return Some(ServerMessage::Done { reason: reason.clone() });
+    fn handle(&mut self, id: u64, message: RobotMessage, obs_dim: usize) -> Option<ServerMessage> {
+        if let Some(end) = &self.end {
+            return Some(ServerMessage::Done { reason: end.to_string() });
         }
         let check = |obs: &[f32]| {
             (obs.len() != obs_dim).then(|| error(format!("observation has {} values, expected {obs_dim}", obs.len()), false))
@@ -220,56 +226,68 @@ impl Learner {
                     return Some(e);
                 }
                 self.drop_running_episode(id);
-                Some(self.act(id, obs))
+                Some(self.act(id, &obs))
             }
             RobotMessage::Step { obs, reward, terminated, truncated, success } => {
                 if let Some(e) = check(&obs) {
                     return Some(e);
                 }
-                let gamma = self.ppo.config.gamma;
-                // A truncated episode's last reward is bootstrapped with γ V(final observation).
-                let bootstrap = if truncated && !terminated { self.ppo.value_of(&obs).unwrap_or(0.0) * gamma } else { 0.0 };
-                let traj = self.trajectories.get_mut(&id)?;
-                let Some((prev_obs, action, log_prob, value)) = traj.pending.take() else {
-                    return Some(error("'step' before 'start': no action is waiting for its outcome", false));
-                };
-                let b = &mut traj.buffer;
-                b.obs.extend(prev_obs);
-                b.actions.extend(action.iter().copied().take(act_dim));
-                b.log_probs.push(log_prob);
-                b.values.push(value);
-                b.rewards.push(reward + bootstrap);
-                b.dones.push(terminated || truncated);
-                traj.score += reward;
-                traj.length += 1;
-                let ended = terminated || truncated;
-                if ended {
-                    let summary = EpisodeSummary { score: traj.score, length: traj.length, success, ..Default::default() };
-                    traj.episode_begin = traj.buffer.len();
-                    traj.score = 0.0;
-                    traj.length = 0;
-                    self.ppo.record_episode(&summary);
-                }
-                let answer = if ended { ServerMessage::Ack } else { self.act(id, obs) };
-                if let Err(e) = self.maybe_update() {
-                    self.error = Some(e.to_string());
-                    return Some(error(format!("learner failed: {e}"), true));
-                }
-                Some(answer)
+                Some(self.record_step(id, obs, reward, terminated, truncated, success))
             }
         }
     }
 
-    fn act(&mut self, id: u64, obs: Vec<f32>) -> ServerMessage {
-        match self.ppo.act_one(&obs) {
-            Ok((sampled, clipped, log_prob, value)) => {
-                if let Some(traj) = self.trajectories.get_mut(&id) {
-                    traj.pending = Some((obs, sampled, log_prob, value));
-                }
-                ServerMessage::Action { action: clipped }
-            }
-            Err(e) => error(format!("policy failed: {e}"), true),
+    /// Records the outcome of the robot's pending action, as `Ppo::collect_rollout` records a
+    /// step, and answers with the next action (or `ack` once the episode is over).
+    fn record_step(&mut self, id: u64, obs: Vec<f32>, reward: f32, terminated: bool, truncated: bool, success: Option<bool>) -> ServerMessage {
+        // `obs` is the episode's last observation if it ended.
+        let stored_reward = match self.ppo.bootstrapped_reward(reward, terminated, truncated, Some(&obs)) {
+            Ok(r) => r,
+            Err(e) => return self.fail(e),
+        };
+        let Some(traj) = self.trajectories.get_mut(&id) else {
+            return error("this robot is not known", true);
+        };
+        let Some(step) = traj.pending.take() else {
+            return error("'step' before 'start': no action is waiting for its outcome", false);
+        };
+        let ended = terminated || truncated;
+        traj.buffer.push(&step, &[stored_reward], &[ended]);
+        traj.score += reward;
+        traj.length += 1;
+        if ended {
+            let summary = EpisodeSummary { score: traj.score, length: traj.length, success, ..Default::default() };
+            traj.episode_begin = traj.buffer.len();
+            traj.score = 0.0;
+            traj.length = 0;
+            self.ppo.record_episode(&summary);
         }
+        let answer = if ended { ServerMessage::Ack } else { self.act(id, &obs) };
+        if let Err(e) = self.maybe_update() {
+            return self.fail(e);
+        }
+        answer
+    }
+
+    /// The policy's action on a fresh observation, which waits for its outcome.
+    fn act(&mut self, id: u64, raw_obs: &[f32]) -> ServerMessage {
+        let obs = self.ppo.observe(raw_obs);
+        match self.ppo.policy_step(obs) {
+            Ok(step) => {
+                let action = step.env_actions.clone();
+                if let Some(traj) = self.trajectories.get_mut(&id) {
+                    traj.pending = Some(step);
+                }
+                ServerMessage::Action { action }
+            }
+            Err(e) => self.fail(e),
+        }
+    }
+
+    /// A learner failure ends training: `wait` reports it.
+    fn fail(&mut self, e: anyhow::Error) -> ServerMessage {
+        self.error = Some(e.to_string());
+        error(format!("learner failed: {e}"), true)
     }
 
     fn drop_running_episode(&mut self, id: u64) {
@@ -282,46 +300,36 @@ impl Learner {
         }
     }
 
-    /// Runs a PPO update once the robots together hold a rollout.
+    /// Once the robots together hold a rollout: advantages per robot, one PPO update on all of
+    /// it, then the callbacks, which may end training, as may the budget.
     fn maybe_update(&mut self) -> anyhow::Result<()> {
         let held: usize = self.trajectories.values().map(|t| t.buffer.len()).sum();
         if held < self.settings.rollout {
             return Ok(());
         }
         let (gamma, lambda) = (self.ppo.config.gamma, self.ppo.config.gae_lambda);
-        let mut batch: Option<RolloutBuffer> = None;
-        let mut values = HashMap::new();
-        for (&id, traj) in &self.trajectories {
-            // Bootstrap from the observation awaiting its outcome (if the episode goes on).
-            let last = match &traj.pending {
-                Some((obs, ..)) => self.ppo.value_of(obs)?,
+        let mut batch = RolloutBuffer::new(1, self.ppo.observation_space.dim(), self.ppo.action_space.dim());
+        for traj in self.trajectories.values_mut().filter(|t| !t.buffer.is_empty()) {
+            // GAE bootstrapped from V(the observation awaiting its outcome); a segment that
+            // ends with its episode needs no bootstrap (its last step is done).
+            let last_value = match &traj.pending {
+                Some(step) => self.ppo.values(&step.obs)?[0],
                 None => 0.0,
             };
-            values.insert(id, last);
-        }
-        for (id, traj) in self.trajectories.iter_mut() {
-            if traj.buffer.is_empty() {
-                continue;
-            }
-            traj.buffer.compute_advantages(&[values[id]], gamma, lambda);
-            match &mut batch {
-                Some(b) => b.append(&traj.buffer),
-                None => batch = Some(std::mem::replace(&mut traj.buffer, RolloutBuffer::new(1, 0, 0))),
-            }
-            let (o, a) = (batch.as_ref().map_or(0, |b| b.obs_dim), batch.as_ref().map_or(0, |b| b.act_dim));
-            traj.buffer = RolloutBuffer::new(1, o, a);
+            traj.buffer.compute_advantages(&[last_value], gamma, lambda);
+            batch.append(&traj.buffer);
+            traj.buffer.clear();
             traj.episode_begin = 0;
         }
-        let Some(batch) = batch else { return Ok(()) };
-        let fraction = self.ppo.timesteps as f64 / self.settings.timesteps.max(1) as f64;
-        let stats = self.ppo.train_on(&batch, fraction)?;
-        if (self.callback)(&stats, &self.ppo)? == Flow::Stop {
-            self.finished = Some("stopped by the callback".into());
-        } else if self.settings.solved.is_some_and(|c| self.ppo.is_solved(&c)) {
-            self.finished = Some(format!("solved after {} steps", self.ppo.timesteps));
-        } else if self.ppo.timesteps >= self.settings.timesteps {
-            self.finished = Some(format!("budget of {} steps spent", self.settings.timesteps));
-        }
+        self.ppo.update_learning_rate(self.settings.timesteps);
+        // Counted once learned from: a robot's unfinished episode may still be dropped.
+        self.ppo.timesteps += batch.len() as u64;
+        let stats = self.ppo.train(&batch, self.collecting_since)?;
+        self.collecting_since = Instant::now();
+        let flow = self.callbacks.on_update(&stats, &self.ppo)?;
+        let timesteps = self.ppo.timesteps;
+        self.end = TrainingEnd::after(flow, timesteps)
+            .or_else(|| (timesteps >= self.settings.timesteps).then_some(TrainingEnd::BudgetSpent { timesteps }));
         Ok(())
     }
 }

@@ -2,11 +2,15 @@
 //!   δ_t = r_t + γ V(s_{t+1}) (1 − done_t) − V(s_t),   A_t = δ_t + γλ (1 − done_t) A_{t+1},
 //!   R_t = A_t + V(s_t)  (the value target).
 
+use super::rollout::PolicyStep;
+
 /// `n_steps` steps of `n_envs` envs, flat and step-major: index `t * n_envs + e`.
 pub struct RolloutBuffer {
     pub n_envs: usize,
     pub obs_dim: usize,
     pub act_dim: usize,
+    /// Observations as the policy saw them: normalised with the statistics in force when they
+    /// were collected (SB3's VecNormalize), so an update's first ratio π/π_old is exactly 1.
     pub obs: Vec<f32>,
     pub actions: Vec<f32>,
     pub log_probs: Vec<f32>,
@@ -40,6 +44,17 @@ impl RolloutBuffer {
             v.clear();
         }
         self.dones.clear();
+    }
+
+    /// Records one step of every env: what the policy did on its observations (`step`), and
+    /// the rewards and episode ends that followed.
+    pub fn push(&mut self, step: &PolicyStep, rewards: &[f32], dones: &[bool]) {
+        self.obs.extend_from_slice(&step.obs);
+        self.actions.extend_from_slice(&step.actions);
+        self.log_probs.extend_from_slice(&step.log_probs);
+        self.values.extend_from_slice(&step.values);
+        self.rewards.extend_from_slice(rewards);
+        self.dones.extend_from_slice(dones);
     }
 
     pub fn len(&self) -> usize {

@@ -103,6 +103,21 @@ impl ActorCritic {
         Ok(Self { pi, vf, head })
     }
 
+    /// A copy whose variables share nothing with these (candle's `Var`s are shared handles:
+    /// cloning one would train both copies).
+    pub fn deep_copy(&self) -> Result<Self> {
+        let copy = |v: &Var| Var::from_tensor(&v.as_tensor().copy()?);
+        let mlp = |m: &Mlp| -> Result<Mlp> {
+            let layers = m.layers.iter().map(|l| Ok(Dense { weight: copy(&l.weight)?, bias: copy(&l.bias)? })).collect::<Result<_>>()?;
+            Ok(Mlp { layers })
+        };
+        let head = match &self.head {
+            Head::Categorical { n } => Head::Categorical { n: *n },
+            Head::Gaussian { dim, log_std } => Head::Gaussian { dim: *dim, log_std: copy(log_std)? },
+        };
+        Ok(Self { pi: mlp(&self.pi)?, vf: mlp(&self.vf)?, head })
+    }
+
     /// Every trainable variable, in a fixed order (the save format's order too).
     pub fn named_vars(&self) -> Vec<(String, Var)> {
         let mut out = Vec::new();

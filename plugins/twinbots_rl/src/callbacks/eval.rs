@@ -1,0 +1,71 @@
+//! Periodic evaluation of the deterministic policy (SB3's `EvalCallback`, with
+//! `StopTrainingOnRewardThreshold` as its stop criterion).
+
+use super::{Callback, Flow, SolvedBy};
+use crate::env::VecEnv;
+use crate::evaluation::{EvalResult, evaluate_policy};
+use crate::ppo::{Ppo, UpdateStats};
+use crate::run_dir::RunDir;
+use crate::task::SolvedCriterion;
+
+/// Builds a fresh env to evaluate on, its streams seeded with the given seed.
+pub type EnvFactory = Box<dyn FnMut(u64) -> anyhow::Result<Box<dyn VecEnv>> + Send>;
+
+/// Every `every` updates, runs `episodes` episodes of the deterministic policy on a fresh env
+/// (the same seed each time, so evaluations compare), appends the result to the run's
+/// `evaluations.csv` if given one, and stops training once an evaluation meets the solved
+/// criterion if given one. Training episodes can lag far behind the deterministic policy
+/// (exploration noise spoils a precise task), which is why SB3 judges on evaluations.
+pub struct EvalCallback {
+    task: String,
+    make_env: EnvFactory,
+    every: usize,
+    episodes: usize,
+    seed: u64,
+    log: Option<RunDir>,
+    stop_when: Option<SolvedCriterion>,
+    /// The latest evaluation.
+    pub last: Option<EvalResult>,
+}
+
+impl EvalCallback {
+    /// Evaluates the task named `task` on envs from `make_env` every `every` updates (0:
+    /// never), `episodes` episodes each, seeded with `seed`.
+    pub fn new(
+        task: &str,
+        make_env: impl FnMut(u64) -> anyhow::Result<Box<dyn VecEnv>> + Send + 'static,
+        every: usize,
+        episodes: usize,
+        seed: u64,
+    ) -> Self {
+        Self { task: task.to_string(), make_env: Box::new(make_env), every, episodes, seed, log: None, stop_when: None, last: None }
+    }
+
+    /// Appends every evaluation to `run`'s `evaluations.csv`.
+    pub fn log_to(mut self, run: RunDir) -> Self {
+        self.log = Some(run);
+        self
+    }
+
+    /// Stops training once an evaluation of at least `criterion.window` episodes meets it.
+    pub fn stop_when_solved(mut self, criterion: SolvedCriterion) -> Self {
+        self.stop_when = Some(criterion);
+        self
+    }
+}
+
+impl Callback for EvalCallback {
+    fn on_update(&mut self, stats: &UpdateStats, model: &Ppo) -> anyhow::Result<Flow> {
+        if self.every == 0 || stats.update % self.every != 0 {
+            return Ok(Flow::Continue);
+        }
+        let mut env = (self.make_env)(self.seed)?;
+        let result = evaluate_policy(&self.task, model, env.as_mut(), self.episodes, self.seed)?;
+        if let Some(run) = &self.log {
+            run.append_evaluation(stats.timesteps, &result)?;
+        }
+        let solved = self.stop_when.is_some_and(|c| result.meets(&c));
+        self.last = Some(result);
+        Ok(if solved { Flow::Solved(SolvedBy::Evaluation) } else { Flow::Continue })
+    }
+}

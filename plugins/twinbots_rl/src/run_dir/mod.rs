@@ -1,0 +1,334 @@
+//! A run directory: what a training run leaves behind, read and written by name.
+//!
+//! ```text
+//! runs/<robot>-<time>/
+//!   config.toml                      the resolved settings (the caller's type)
+//!   progress.csv                     one row per update (`UpdateStats`), read by column name
+//!   evaluations.csv                  periodic evaluations of the deterministic policy
+//!   checkpoints/step_<timesteps>/    models saved while training, each renamed into place whole
+//!   model/                           the final model
+//!   learning_curve.png
+//!   eval.json                        the final model's evaluation
+//!   summary.json                     how the run went (`Summary`)
+//! ```
+//!
+//! Every file is written whole through a temporary file and a rename, or appended one row at a
+//! time, so a run killed at any moment leaves files that `--resume` can read.
+
+mod summary;
+mod table;
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+pub use summary::{EvaluationSummary, Summary};
+pub use table::{Row, Table};
+
+use crate::evaluation::EvalResult;
+use crate::ppo::{Ppo, UpdateStats, write_atomic};
+
+pub const CONFIG: &str = "config.toml";
+pub const PROGRESS: &str = "progress.csv";
+pub const EVALUATIONS: &str = "evaluations.csv";
+pub const CHECKPOINTS: &str = "checkpoints";
+pub const MODEL: &str = "model";
+pub const LEARNING_CURVE: &str = "learning_curve.png";
+pub const EVAL: &str = "eval.json";
+pub const SUMMARY: &str = "summary.json";
+
+/// One row of `evaluations.csv`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EvaluationRow {
+    pub timesteps: u64,
+    pub mean_score: f32,
+    pub std_score: f32,
+    pub mean_length: f32,
+    /// For tasks that report success.
+    pub success_rate: Option<f32>,
+}
+
+/// A run directory's path and the files in it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RunDir {
+    path: PathBuf,
+}
+
+impl RunDir {
+    pub fn new(path: impl Into<PathBuf>) -> Self {
+        Self { path: path.into() }
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The path of the file (or folder) `name` in the run.
+    pub fn file(&self, name: &str) -> PathBuf {
+        self.path.join(name)
+    }
+
+    /// Creates the directory and its `checkpoints/`.
+    pub fn create(&self) -> anyhow::Result<()> {
+        let checkpoints = self.file(CHECKPOINTS);
+        std::fs::create_dir_all(&checkpoints).map_err(|e| anyhow::anyhow!("{}: {e}", checkpoints.display()))
+    }
+
+    /// Whether a run has already logged here.
+    pub fn holds_run(&self) -> bool {
+        self.file(PROGRESS).exists()
+    }
+
+    /// Writes the run's settings into `config.toml`.
+    pub fn write_config<T: Serialize>(&self, config: &T) -> anyhow::Result<()> {
+        let path = self.file(CONFIG);
+        write_atomic(&path, toml::to_string_pretty(config)?.as_bytes()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    /// The settings the run was made with; a misspelt key is an error naming it and its line
+    /// (when `T` denies unknown fields).
+    pub fn read_config<T: DeserializeOwned>(&self) -> anyhow::Result<T> {
+        let path = self.file(CONFIG);
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| anyhow::anyhow!("{}: not a run directory: {e}", path.display()))?;
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    /// Saves the final model into `model/`.
+    pub fn save_model(&self, model: &Ppo) -> anyhow::Result<()> {
+        Ok(model.save(self.file(MODEL))?)
+    }
+
+    /// Saves `model` as `checkpoints/step_<timesteps>/`: written under another name and
+    /// renamed into place, so a checkpoint is either complete or absent.
+    pub fn save_checkpoint(&self, model: &Ppo) -> anyhow::Result<PathBuf> {
+        let name = format!("step_{:010}", model.timesteps);
+        let dir = self.file(CHECKPOINTS).join(&name);
+        let partial = self.file(CHECKPOINTS).join(format!("{name}.partial"));
+        let _ = std::fs::remove_dir_all(&partial);
+        model.save(&partial)?;
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::rename(&partial, &dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
+        Ok(dir)
+    }
+
+    /// The newest complete checkpoint, if any.
+    pub fn latest_checkpoint(&self) -> Option<PathBuf> {
+        let mut dirs: Vec<PathBuf> = std::fs::read_dir(self.file(CHECKPOINTS))
+            .ok()?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                let name = p.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+                name.starts_with("step_") && !name.ends_with(".partial")
+            })
+            .filter(|p| p.join(crate::ppo::METADATA_FILE).is_file() && p.join(crate::ppo::WEIGHTS_FILE).is_file())
+            .collect();
+        dirs.sort();
+        dirs.pop()
+    }
+
+    /// The run's trained model: its final model, else its newest checkpoint.
+    pub fn load_model(&self) -> anyhow::Result<Ppo> {
+        let model = self.file(MODEL);
+        let dir = if model.join(crate::ppo::METADATA_FILE).is_file() {
+            model
+        } else {
+            self.latest_checkpoint().ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint", self.path.display()))?
+        };
+        Ok(Ppo::load(dir)?)
+    }
+
+    /// Appends an update's row to `progress.csv` (with the header if the file is new).
+    pub fn append_progress(&self, stats: &UpdateStats) -> anyhow::Result<()> {
+        append_row(&self.file(PROGRESS), &progress_cells(stats))
+    }
+
+    /// Every row of `progress.csv`, read by column name (rows cut short by a crash are skipped).
+    pub fn read_progress(&self) -> anyhow::Result<Vec<UpdateStats>> {
+        let table = Table::read(&self.file(PROGRESS))?;
+        Ok(complete_rows(&table).map(|r| stats_of(&r)).collect())
+    }
+
+    /// An error if `progress.csv` exists with other columns than this build writes (rows
+    /// appended to it would not match its header).
+    pub fn check_progress_columns(&self) -> anyhow::Result<()> {
+        let table = Table::read(&self.file(PROGRESS))?;
+        let ours: Vec<&str> = progress_cells(&UpdateStats::default()).iter().map(|(name, _)| *name).collect();
+        anyhow::ensure!(
+            table.header.is_empty() || table.header == ours,
+            "{}: its columns ({}) are not the ones this build writes ({})",
+            self.file(PROGRESS).display(), table.header.join(","), ours.join(",")
+        );
+        Ok(())
+    }
+
+    /// Appends an evaluation at `timesteps` to `evaluations.csv`.
+    pub fn append_evaluation(&self, timesteps: u64, result: &EvalResult) -> anyhow::Result<()> {
+        let success = result.success_rate.map_or(String::new(), |x| x.to_string());
+        append_row(&self.file(EVALUATIONS), &[
+            ("timesteps", timesteps.to_string()),
+            ("mean_score", result.mean_score.to_string()),
+            ("std_score", result.std_score.to_string()),
+            ("mean_length", result.mean_length.to_string()),
+            ("success_rate", success),
+        ])
+    }
+
+    /// Every row of `evaluations.csv`, read by column name.
+    pub fn read_evaluations(&self) -> anyhow::Result<Vec<EvaluationRow>> {
+        let table = Table::read(&self.file(EVALUATIONS))?;
+        Ok(complete_rows(&table)
+            .map(|r| EvaluationRow {
+                timesteps: r.get("timesteps").unwrap_or(0),
+                mean_score: r.number("mean_score"),
+                std_score: r.number("std_score"),
+                mean_length: r.number("mean_length"),
+                success_rate: r.get("success_rate"),
+            })
+            .collect())
+    }
+
+    /// Drops the rows of `progress.csv` and `evaluations.csv` logged after `timesteps` (and
+    /// any cut short), so that a run resumed from a checkpoint at `timesteps` logs them again.
+    pub fn truncate_after(&self, timesteps: u64) -> anyhow::Result<()> {
+        for path in [self.file(PROGRESS), self.file(EVALUATIONS)] {
+            if !path.exists() {
+                continue;
+            }
+            let table = Table::read(&path)?;
+            let mut kept = table.header.join(",") + "\n";
+            for row in complete_rows(&table).filter(|r| r.get::<u64>("timesteps").is_some_and(|t| t <= timesteps)) {
+                kept += row.line;
+                kept.push('\n');
+            }
+            write_atomic(&path, kept.as_bytes()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        }
+        Ok(())
+    }
+
+    /// Writes `value` as pretty JSON into the run's file `name` (`eval.json`, `summary.json`…).
+    pub fn write_json<T: Serialize>(&self, name: &str, value: &T) -> anyhow::Result<()> {
+        let path = self.file(name);
+        write_atomic(&path, &serde_json::to_vec_pretty(value)?).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    pub fn write_summary(&self, summary: &Summary) -> anyhow::Result<()> {
+        self.write_json(SUMMARY, summary)
+    }
+
+    pub fn read_summary(&self) -> anyhow::Result<Summary> {
+        let path = self.file(SUMMARY);
+        let text = std::fs::read_to_string(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+}
+
+/// An update's cells, named: the names are `progress.csv`'s header.
+fn progress_cells(s: &UpdateStats) -> [(&'static str, String); 15] {
+    [
+        ("update", s.update.to_string()),
+        ("timesteps", s.timesteps.to_string()),
+        ("episodes", s.episodes.to_string()),
+        ("mean_reward", s.mean_reward.to_string()),
+        ("min_reward", s.min_reward.to_string()),
+        ("max_reward", s.max_reward.to_string()),
+        ("mean_length", s.mean_length.to_string()),
+        ("policy_loss", s.policy_loss.to_string()),
+        ("value_loss", s.value_loss.to_string()),
+        ("entropy", s.entropy.to_string()),
+        ("approx_kl", s.approx_kl.to_string()),
+        ("clip_fraction", s.clip_fraction.to_string()),
+        ("learning_rate", s.learning_rate.to_string()),
+        ("steps_per_s", s.steps_per_s.to_string()),
+        ("success_rate", s.success_rate.to_string()),
+    ]
+}
+
+fn stats_of(r: &Row) -> UpdateStats {
+    UpdateStats {
+        update: r.get("update").unwrap_or(0),
+        timesteps: r.get("timesteps").unwrap_or(0),
+        episodes: r.get("episodes").unwrap_or(0),
+        mean_reward: r.number("mean_reward"),
+        min_reward: r.number("min_reward"),
+        max_reward: r.number("max_reward"),
+        mean_length: r.number("mean_length"),
+        policy_loss: r.number("policy_loss"),
+        value_loss: r.number("value_loss"),
+        entropy: r.number("entropy"),
+        approx_kl: r.number("approx_kl"),
+        clip_fraction: r.number("clip_fraction"),
+        learning_rate: r.get("learning_rate").unwrap_or(f64::NAN),
+        steps_per_s: r.number("steps_per_s"),
+        success_rate: r.number("success_rate"),
+    }
+}
+
+/// Rows with a cell for every column and a timestep count: a crash mid-write leaves neither.
+fn complete_rows(table: &Table) -> impl Iterator<Item = Row<'_>> {
+    table.rows().filter(|r| r.line.split(',').count() == table.header.len() && r.get::<u64>("timesteps").is_some())
+}
+
+/// Appends one row of named cells to the CSV file at `path`, writing the header first if the
+/// file is new. The row goes out in one write, so a crash cannot leave half of it.
+fn append_row(path: &Path, cells: &[(&str, String)]) -> anyhow::Result<()> {
+    let io = |e: std::io::Error| anyhow::anyhow!("{}: {e}", path.display());
+    let mut file = std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(io)?;
+    let mut text = String::new();
+    if file.metadata().map_err(io)?.len() == 0 {
+        text += &cells.iter().map(|(name, _)| *name).collect::<Vec<_>>().join(",");
+        text.push('\n');
+    }
+    text += &cells.iter().map(|(_, value)| value.as_str()).collect::<Vec<_>>().join(",");
+    text.push('\n');
+    file.write_all(text.as_bytes()).map_err(io)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp_run(name: &str) -> RunDir {
+        let path = std::env::temp_dir().join(format!("twinbots-run-dir-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&path);
+        let run = RunDir::new(path);
+        run.create().unwrap();
+        run
+    }
+
+    #[test]
+    fn progress_rows_read_back_by_name_and_truncate_to_a_checkpoint() {
+        let run = temp_run("progress");
+        for update in 1..=4 {
+            let stats = UpdateStats { update, timesteps: 64 * update as u64, mean_reward: update as f32, success_rate: f32::NAN, ..Default::default() };
+            run.append_progress(&stats).unwrap();
+        }
+        // A crash in the middle of a row.
+        std::fs::OpenOptions::new().append(true).open(run.file(PROGRESS)).unwrap().write_all(b"5,320,1").unwrap();
+        let rows = run.read_progress().unwrap();
+        assert_eq!(rows.iter().map(|s| s.timesteps).collect::<Vec<_>>(), [64, 128, 192, 256]);
+        assert_eq!(rows[2].mean_reward, 3.0);
+        assert!(rows[0].success_rate.is_nan());
+        run.check_progress_columns().unwrap();
+
+        run.truncate_after(128).unwrap();
+        let rows = run.read_progress().unwrap();
+        assert_eq!(rows.iter().map(|s| s.update).collect::<Vec<_>>(), [1, 2]);
+        let text = std::fs::read_to_string(run.file(PROGRESS)).unwrap();
+        assert!(text.starts_with("update,timesteps,episodes,mean_reward,") && text.ends_with("\n"), "{text}");
+        std::fs::remove_dir_all(run.path()).ok();
+    }
+
+    #[test]
+    fn a_progress_file_with_other_columns_is_refused() {
+        let run = temp_run("columns");
+        std::fs::write(run.file(PROGRESS), "timesteps,update\n64,1\n").unwrap();
+        let err = run.check_progress_columns().unwrap_err().to_string();
+        assert!(err.contains("timesteps,update"), "{err}");
+        // It still reads, by name.
+        assert_eq!(run.read_progress().unwrap()[0].update, 1);
+        std::fs::remove_dir_all(run.path()).ok();
+    }
+}

@@ -1,0 +1,69 @@
+//! `summary.json`: how a run went, the same for `train` and `serve`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::callbacks::TrainingEnd;
+use crate::evaluation::EvalResult;
+use crate::ppo::Ppo;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    pub robot: String,
+    /// Design pattern (paper §3) it trained under.
+    pub pattern: u8,
+    pub timesteps: u64,
+    pub episodes: u64,
+    /// Wall-clock seconds of this session: a resumed run counts from its resumption.
+    pub wall_clock_s_this_session: f64,
+    /// Over the last 100 training episodes (none: no episode ended).
+    pub mean_reward_last_100: Option<f32>,
+    /// Over the last 100 training episodes that reported success.
+    pub success_rate_last_100: Option<f32>,
+    /// Why training ended, in words.
+    pub ended: String,
+    pub solved: bool,
+    pub solved_at_timesteps: Option<u64>,
+    /// What the solved criterion was judged on: "training episodes" or "evaluation".
+    pub solved_by: Option<String>,
+    /// The final model's evaluation, where the run had an in-process env to evaluate on.
+    pub evaluation: Option<EvaluationSummary>,
+}
+
+/// The headline figures of an [`EvalResult`] (the whole of it is in `eval.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvaluationSummary {
+    pub episodes: usize,
+    pub mean_score: f32,
+    pub std_score: f32,
+    pub success_rate: Option<f32>,
+}
+
+impl Summary {
+    /// The summary of a run of `robot` under `pattern` that left `model` and ended as `end`.
+    pub fn new(robot: &str, pattern: u8, model: &Ppo, end: &TrainingEnd, wall_clock_s: f64, evaluation: Option<&EvalResult>) -> Self {
+        let mean = model.mean_recent_score();
+        let solved_at = match end {
+            TrainingEnd::Solved { timesteps, by } => Some((*timesteps, by.to_string())),
+            _ => None,
+        };
+        Self {
+            robot: robot.to_string(),
+            pattern,
+            timesteps: model.timesteps,
+            episodes: model.episodes,
+            wall_clock_s_this_session: wall_clock_s,
+            mean_reward_last_100: mean.is_finite().then_some(mean),
+            success_rate_last_100: model.recent_success_rate(),
+            ended: end.to_string(),
+            solved: solved_at.is_some(),
+            solved_at_timesteps: solved_at.as_ref().map(|(t, _)| *t),
+            solved_by: solved_at.map(|(_, by)| by),
+            evaluation: evaluation.map(|e| EvaluationSummary {
+                episodes: e.episodes,
+                mean_score: e.mean_score,
+                std_score: e.std_score,
+                success_rate: e.success_rate,
+            }),
+        }
+    }
+}

@@ -1,0 +1,177 @@
+//! What the commands share about training runs: the settings a run is made of (its
+//! `config.toml`), how they resolve, the env a model is evaluated on, and the callbacks `train`
+//! and `serve` train with. It imports no other command, so every command can import it.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use twinbots_rl::callbacks::{
+    CheckpointCallback, EvalCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, StopTrainingOnSolved,
+};
+use twinbots_rl::randomization::Randomization;
+use twinbots_rl::{AppVecEnv, CallbackList, DesignPattern, PpoConfig, RunDir, SolvedCriterion, VecEnv};
+
+use crate::registry::RobotEntry;
+
+/// Everything a run is made of; written to `config.toml`, read by `--config` and `--resume`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainSettings {
+    pub robot: String,
+    pub timesteps: u64,
+    pub arenas: usize,
+    pub seed: u64,
+    /// Design pattern (paper §3): 1 supervised, 2 supervisor + slave over radio, 3 RobotServer.
+    pub pattern: u8,
+    /// Save a checkpoint (and redraw the learning curve) every this many updates.
+    pub checkpoint_every: usize,
+    /// Evaluate the deterministic policy every this many updates into `evaluations.csv`
+    /// (0: never); an evaluation of at least the solved criterion's window of episodes that
+    /// meets it ends training (SB3's EvalCallback with a stop threshold). The final model is
+    /// always evaluated into `eval.json`.
+    pub eval_every: usize,
+    pub eval_episodes: usize,
+    pub ppo: PpoConfig,
+    /// Domain randomization (patterns 1 and 2): see `twinbots_rl::randomization`.
+    #[serde(default)]
+    pub randomization: Randomization,
+}
+
+/// What a `--config` file may set: any subset of the settings but the robot.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConfigFile {
+    pub timesteps: Option<u64>,
+    pub arenas: Option<usize>,
+    pub seed: Option<u64>,
+    pub pattern: Option<u8>,
+    pub checkpoint_every: Option<usize>,
+    pub eval_every: Option<usize>,
+    pub eval_episodes: Option<usize>,
+    pub ppo: Option<PpoConfig>,
+    pub randomization: Option<Randomization>,
+}
+
+impl ConfigFile {
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| anyhow::anyhow!("{}: cannot read config: {e}", path.display()))?;
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+}
+
+impl TrainSettings {
+    /// The settings a run directory was made with (its `config.toml`).
+    pub fn of_run(run: &RunDir) -> anyhow::Result<Self> {
+        run.read_config()
+    }
+
+    /// A complete settings file (such as a run's `config.toml`) anywhere.
+    pub fn read_file(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    pub fn design_pattern(&self) -> anyhow::Result<DesignPattern> {
+        DesignPattern::from_number(self.pattern)
+            .ok_or_else(|| anyhow::anyhow!("pattern must be 1, 2 or 3, got {}", self.pattern))
+    }
+
+    /// The pattern the run's model runs under in this process (evaluation): its own, except
+    /// that a pattern-3 model runs under pattern 1 (the policy is the same; only where it is
+    /// hosted differs).
+    pub fn in_process_pattern(&self) -> anyhow::Result<DesignPattern> {
+        Ok(match self.design_pattern()? {
+            DesignPattern::Server => DesignPattern::Supervised,
+            p => p,
+        })
+    }
+
+    /// The seed of the periodic evaluations (the same each time, so they compare).
+    pub fn periodic_eval_seed(&self) -> u64 {
+        self.seed + 1_000_003
+    }
+
+    /// The seed of the final model's evaluation (`eval.json`, `twinbots eval`).
+    pub fn final_eval_seed(&self) -> u64 {
+        self.seed + 2_000_003
+    }
+
+    /// The robot's defaults, then the config file, then command-line flags.
+    pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> Self {
+        let mut s = Self {
+            robot: entry.name.to_string(),
+            timesteps: entry.defaults.timesteps,
+            arenas: entry.defaults.arenas,
+            seed: 0,
+            pattern: 1,
+            checkpoint_every: 10,
+            eval_every: entry.defaults.eval_every,
+            eval_episodes: entry.defaults.eval_episodes,
+            ppo: entry.defaults.ppo.clone(),
+            randomization: Randomization::default(),
+        };
+        for layer in [file, flags] {
+            s.timesteps = layer.timesteps.unwrap_or(s.timesteps);
+            s.arenas = layer.arenas.unwrap_or(s.arenas);
+            s.seed = layer.seed.unwrap_or(s.seed);
+            s.pattern = layer.pattern.unwrap_or(s.pattern);
+            s.checkpoint_every = layer.checkpoint_every.unwrap_or(s.checkpoint_every);
+            s.eval_every = layer.eval_every.unwrap_or(s.eval_every);
+            s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
+            s.ppo = layer.ppo.unwrap_or(s.ppo);
+            s.randomization = layer.randomization.unwrap_or(s.randomization);
+        }
+        s
+    }
+
+    /// The callbacks of a run into `run`, in order: `progress.csv`, the progress bar, the stop
+    /// on solved training episodes, periodic evaluation (which may stop training too),
+    /// checkpoints, and the learning curve (last: it draws what the others wrote).
+    pub fn callbacks(&self, run: &RunDir, entry: &RobotEntry, title: String, solved: Option<SolvedCriterion>) -> anyhow::Result<CallbackList> {
+        let mut callbacks = CallbackList::new()
+            .with(ProgressCsvCallback::new(run.clone()))
+            .with(ProgressBarCallback::new(self.timesteps)?);
+        if let Some(criterion) = solved {
+            callbacks.push(StopTrainingOnSolved::new(criterion));
+        }
+        if self.eval_every > 0 {
+            let (arenas, episodes, pattern) = (self.arenas, self.eval_episodes, self.in_process_pattern()?);
+            let robot = entry.clone();
+            let make_env = move |seed: u64| -> anyhow::Result<Box<dyn VecEnv>> {
+                Ok(Box::new(evaluation_env(&robot, None, arenas, episodes, seed, pattern)?))
+            };
+            let mut evaluation = EvalCallback::new(entry.main_task().name, make_env, self.eval_every, episodes, self.periodic_eval_seed())
+                .log_to(run.clone());
+            if let Some(criterion) = solved {
+                evaluation = evaluation.stop_when_solved(criterion);
+            }
+            callbacks.push(evaluation);
+        }
+        callbacks.push(CheckpointCallback::new(run.clone(), self.checkpoint_every));
+        callbacks.push(LearningCurveCallback::new(run.clone(), title, solved, self.checkpoint_every));
+        Ok(callbacks)
+    }
+}
+
+/// A fresh app of `arenas` arenas (no more than `episodes`) of the robot's `task` (`None`: its
+/// own) to evaluate a model on.
+pub fn evaluation_env(
+    entry: &RobotEntry,
+    task: Option<&str>,
+    arenas: usize,
+    episodes: usize,
+    seed: u64,
+    pattern: DesignPattern,
+) -> anyhow::Result<AppVecEnv> {
+    let arenas = arenas.clamp(1, episodes.max(1));
+    Ok(AppVecEnv::new(entry.app(task, arenas, seed, pattern)?))
+}
+
+/// Default run directory: `runs/<robot>-<unix seconds>`.
+pub fn default_run_dir(robot: &str) -> PathBuf {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    PathBuf::from("runs").join(format!("{robot}-{secs}"))
+}
