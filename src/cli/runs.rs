@@ -13,6 +13,11 @@ use twinbots_rl::{AppVecEnv, CallbackList, DesignPattern, PpoConfig, RunDir, Sol
 
 use crate::registry::RobotEntry;
 
+/// Evaluation arenas are seeded away from the training seed, so they never replay training's
+/// episodes (primes, far apart: no run's seed range reaches them).
+pub const PERIODIC_EVAL_SEED_OFFSET: u64 = 1_000_003;
+pub const FINAL_EVAL_SEED_OFFSET: u64 = 2_000_003;
+
 /// Everything a run is made of; written to `config.toml`, read by `--config` and `--resume`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -89,12 +94,12 @@ impl TrainSettings {
 
     /// The seed of the periodic evaluations (the same each time, so they compare).
     pub fn periodic_eval_seed(&self) -> u64 {
-        self.seed + 1_000_003
+        self.seed + PERIODIC_EVAL_SEED_OFFSET
     }
 
     /// The seed of the final model's evaluation (`eval.json`, `twinbots eval`).
     pub fn final_eval_seed(&self) -> u64 {
-        self.seed + 2_000_003
+        self.seed + FINAL_EVAL_SEED_OFFSET
     }
 
     /// The robot's defaults, then the config file, then command-line flags.

@@ -54,6 +54,10 @@ pub struct UpdateStats {
     pub steps_per_s: f32,
 }
 
+/// The action-sampling and minibatch stream is the seed mixed with this, so it differs from
+/// the stream that initialised the network's weights (seeded with the seed itself).
+const ACTION_STREAM_SALT: u64 = 0x5eed_0f_a11;
+
 /// A PPO agent: the policy, its optimiser state and the counters that make a run resumable.
 pub struct Ppo {
     pub config: PpoConfig,
@@ -107,7 +111,7 @@ impl Ppo {
             recent_lengths: VecDeque::new(),
             recent_successes: VecDeque::new(),
             optimizer,
-            rng: ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_0f_a11),
+            rng: ChaCha8Rng::seed_from_u64(seed ^ ACTION_STREAM_SALT),
         })
     }
 
