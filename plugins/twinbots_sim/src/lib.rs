@@ -105,7 +105,8 @@ impl Plugin for SimPlugin {
                 (
                     (devices::operate_vacuum_grippers, devices::drive_motors).in_set(SubstepSet::Actuate),
                     physics::integrate_arenas.in_set(SubstepSet::Integrate),
-                    devices::measure_joints.in_set(SubstepSet::Measure),
+                    // The motor's effort reading needs the joint's new position (a torque is cut at a stop).
+                    (devices::measure_joints, devices::measure_motor_efforts).chain().in_set(SubstepSet::Measure),
                 ),
             );
     }

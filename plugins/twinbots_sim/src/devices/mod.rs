@@ -24,6 +24,6 @@ pub use vacuum_gripper::VacuumGripper;
 pub(crate) use distance_sensor::sample_distance_sensors;
 pub(crate) use inertial::{sample_accelerometers, sample_gps, sample_gyros, sample_inertial_units, sample_touch_sensors};
 pub(crate) use joint::measure_joints;
-pub(crate) use motor::drive_motors;
+pub(crate) use motor::{drive_motors, measure_motor_efforts};
 pub(crate) use radio::deliver_radio;
 pub(crate) use vacuum_gripper::operate_vacuum_grippers;
