@@ -1,11 +1,52 @@
 //! Fixed-step physics: a control step is `substeps` physics steps of `dt` seconds, with motors
 //! re-applied before and joint states measured after every physics step.
 
-use bevy::ecs::schedule::ScheduleLabel;
+use bevy::ecs::schedule::{ScheduleLabel, SingleThreadedExecutor};
 use bevy::math::Vec3;
 use bevy::prelude::*;
 
-use crate::arena::Arena;
+use crate::SimSet;
+use crate::arena::{Arena, ArenaConfig};
+
+/// Arenas, the order of a control step ([`SimSet`]) and fixed-step physics: `substeps` runs of
+/// the [`PhysicsSubstep`] schedule per control step, every arena's world stepped in each.
+pub struct PhysicsPlugin {
+    pub settings: SimSettings,
+}
+
+impl Plugin for PhysicsPlugin {
+    fn build(&self, app: &mut App) {
+        app.insert_resource(self.settings)
+            .init_resource::<ArenaConfig>()
+            .init_resource::<SimClock>()
+            .configure_sets(
+                Update,
+                (
+                    SimSet::Radio,
+                    SimSet::ProcessActions,
+                    SimSet::Actuate,
+                    SimSet::Physics,
+                    SimSet::Sense,
+                    SimSet::Task,
+                    SimSet::Reset,
+                )
+                    .chain()
+                    .run_if(sim_started),
+            )
+            .add_systems(Update, run_substeps.in_set(SimSet::Physics))
+            .add_systems(Last, advance_clock)
+            // Run from an exclusive system many times per control step: the single-threaded
+            // executor costs least, and the parallelism is inside `integrate_arenas`.
+            .edit_schedule(PhysicsSubstep, |substep| {
+                substep.set_executor(SingleThreadedExecutor::new());
+            })
+            .configure_sets(
+                PhysicsSubstep,
+                (SubstepSet::Actuate, SubstepSet::Integrate, SubstepSet::Measure, SubstepSet::Record).chain(),
+            )
+            .add_systems(PhysicsSubstep, integrate_arenas.in_set(SubstepSet::Integrate));
+    }
+}
 
 /// The fixed timing of the simulation. Never tied to the wall clock.
 #[derive(Resource, Clone, Copy, Debug, PartialEq)]
@@ -83,6 +124,10 @@ pub enum SubstepSet {
 
 pub(crate) fn run_substeps(world: &mut World) {
     let substeps = world.resource::<SimSettings>().substeps;
+    // The control step moves every world on, so the devices that are due sample after it.
+    for mut arena in world.query::<&mut Arena>().iter_mut(world) {
+        arena.unsampled.stepped = true;
+    }
     for _ in 0..substeps {
         world.run_schedule(PhysicsSubstep);
     }
