@@ -13,6 +13,7 @@ pub mod randomization;
 pub mod ppo;
 pub mod spaces;
 pub mod task;
+pub mod threads;
 
 pub use env::{AppVecEnv, Info, SingleEnv, StepResult, VecEnv};
 pub use ppo::{Callback, Flow, Ppo, PpoConfig, UpdateStats};
