@@ -48,7 +48,7 @@ pub struct Arena {
 /// What happened to an arena's world since its devices last sampled.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct WorldChanges {
-    /// Physics stepped it: devices that are due sample.
+    /// A control step moved it on (`SimSet::Physics`): devices that are due sample.
     pub stepped: bool,
     /// A snapshot restored it (an episode reset): every device samples, whatever its period,
     /// and nothing differentiates across the jump.

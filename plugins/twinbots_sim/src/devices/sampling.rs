@@ -1,6 +1,6 @@
 //! When devices sample. One rule for every device and every schedule: a device reads a world
-//! that changed since the devices last sampled. After physics steps it samples if its
-//! [`SamplingPeriod`] is due; after an arena was restored (an episode reset) every device of
+//! that changed since the devices last sampled. After a control step's physics it samples if
+//! its [`SamplingPeriod`] is due; after an arena was restored (an episode reset) every device of
 //! that arena samples, whatever its period, so the reset observation reads the new episode's
 //! first state. An arena that did not change does not sample again, so sampling at a reset
 //! neither draws noise from, nor disturbs differentiating sensors of, arenas that were not
