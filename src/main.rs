@@ -174,6 +174,8 @@ enum BenchKind {
 }
 
 fn main() {
+    // Before any other thread starts: the pools for arenas and candle, sized for this machine.
+    twinbots_rl::threads::configure();
     // Errors are for people: one clear line, no backtrace.
     if let Err(error) = run(Args::parse()) {
         eprintln!("error: {error:#}");

@@ -1,5 +1,6 @@
 //! `twinbots bench physics`: control steps per second with N arenas, and what the Bevy schedule
-//! around the physics costs per step.
+//! around the physics costs per step. Arenas step side by side on the worker pool (see
+//! `twinbots_rl::threads`); `RAYON_NUM_THREADS=1` measures them on one thread.
 
 use std::time::Instant;
 
@@ -60,7 +61,8 @@ pub fn physics(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<Physi
 
 pub fn print_physics(robot: &str, arena_counts: &[usize], steps: usize) -> anyhow::Result<()> {
     registry::find(robot)?;
-    println!("physics benchmark: {robot}, {steps} control steps per row (one process, one thread)");
+    let threads = twinbots_rl::threads::configure();
+    println!("physics benchmark: {robot}, {steps} control steps per row (one process; arenas step on {threads} threads)");
     println!(
         "{:>7} {:>14} {:>18} {:>16} {:>18}",
         "arenas", "vec steps/s", "arena steps/s", "rapier µs/step", "schedule µs/step"

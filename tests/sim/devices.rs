@@ -154,3 +154,35 @@ fn sampling_period_holds_readings_between_samples() {
     let changes = heights.windows(2).filter(|w| w[0] != w[1]).count();
     assert_eq!(changes, 1, "{heights:?}");
 }
+
+/// A reset schedule as a task's (`EnvReset`) would have it: devices sample after the restore.
+#[derive(bevy::ecs::schedule::ScheduleLabel, Clone, Debug, PartialEq, Eq, Hash)]
+struct ResetSense;
+
+#[test]
+fn a_reset_samples_every_device_of_the_arena_whatever_its_period() {
+    let (mut app, arena, robot) = robot_app(&model_from(PROBE), SpawnOptions {
+        base: Pose::from_translation(Vec3::new(0.0, 0.0, 50.0)),
+        ..Default::default()
+    }, SimSettings::default());
+    app.add_systems(ResetSense, twinbots_sim::devices::sample_devices());
+    let base = robot.link("base").unwrap();
+    let gps = app.world_mut().spawn((Gps::default(), Mount { link: base, offset: Pose::IDENTITY }, InArena(arena), SamplingPeriod(4))).id();
+    let acc = mount(&mut app, arena, base, Accelerometer::default());
+    for _ in 0..6 {
+        app.update();
+    }
+    let fallen = app.world().get::<Gps>(gps).unwrap().position.z;
+    assert!(fallen < 49.9, "falling: {fallen}");
+    assert!(crate::common::with_supervisor(&mut app, |s| s.reset_arena(arena)));
+    app.world_mut().run_schedule(ResetSense);
+    // Step 6 is not a step of the GPS's period, but the reset reads the start state at once.
+    assert_eq!(app.world().get::<Gps>(gps).unwrap().position.z, 50.0);
+    // At rest again: +g, with no acceleration read across the jump from free fall.
+    let a = app.world().get::<Accelerometer>(acc).unwrap().value;
+    assert!((a - Vec3::new(0.0, 0.0, 9.81)).length() < 1e-4, "after the reset: {a}");
+    // Nothing changed since: sampling again reads nothing new.
+    app.world_mut().get_mut::<Gps>(gps).unwrap().position.z = -1.0;
+    app.world_mut().run_schedule(ResetSense);
+    assert_eq!(app.world().get::<Gps>(gps).unwrap().position.z, -1.0, "an arena not reset does not sample again");
+}

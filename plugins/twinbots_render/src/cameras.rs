@@ -55,7 +55,7 @@ pub struct CameraPlugin;
 impl Plugin for CameraPlugin {
     fn build(&self, app: &mut App) {
         app.insert_non_send(CameraRig::default())
-            .add_systems(Update, sample_cameras.in_set(twinbots_sim::SimSet::Sense).after(twinbots_sim::devices::sample_position_sensors));
+            .add_systems(Update, sample_cameras.in_set(twinbots_sim::SimSet::Sense).after(twinbots_sim::devices::DeviceSampling));
     }
 }
 

@@ -18,6 +18,7 @@ pub mod robot;
 pub mod run_dir;
 pub mod spaces;
 pub mod task;
+pub mod threads;
 
 pub use callbacks::{Callback, CallbackList, Flow, SolvedBy, TrainingEnd};
 pub use env::{AppVecEnv, Info, SingleEnv, StepResult, VecEnv};

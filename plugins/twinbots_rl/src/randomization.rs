@@ -85,8 +85,9 @@ impl Plugin for RandomizationPlugin {
     fn build(&self, app: &mut App) {
         app.insert_resource(self.0.clone())
             .add_systems(PostStartup, (add_state, set_sensor_noise))
-            // Radio runs first in a step: actions are replaced or delayed before anything reads them.
-            .add_systems(Update, randomize_actions.in_set(SimSet::Radio))
+            // Actions are replaced or delayed before anything applies them, or radios them to a
+            // slave robot (design pattern 2).
+            .add_systems(Update, randomize_actions.in_set(SimSet::ProcessActions))
             .add_systems(EnvReset, randomize_episode.in_set(ResetSet::Place));
     }
 }

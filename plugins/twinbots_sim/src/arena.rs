@@ -41,6 +41,18 @@ pub struct Arena {
     /// The arena's random stream: a function of (seed, index) only.
     pub rng: ChaCha8Rng,
     initial: Option<Snapshot>,
+    /// How the world changed since its devices last sampled (see `devices::DeviceSampling`).
+    pub(crate) unsampled: WorldChanges,
+}
+
+/// What happened to an arena's world since its devices last sampled.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct WorldChanges {
+    /// A control step moved it on (`SimSet::Physics`): devices that are due sample.
+    pub stepped: bool,
+    /// A snapshot restored it (an episode reset): every device samples, whatever its period,
+    /// and nothing differentiates across the jump.
+    pub restored: bool,
 }
 
 /// Everything of a physics world that evolves; the pipeline and CCD solver are scratch space.
@@ -66,6 +78,7 @@ impl Arena {
             world,
             rng: arena_rng(seed, index),
             initial: None,
+            unsampled: WorldChanges::default(),
         }
     }
 
@@ -127,6 +140,7 @@ impl Arena {
         w.multibody_joints = s.multibody_joints;
         w.physics_pipeline = PhysicsPipeline::new();
         w.ccd_solver = CCDSolver::new();
+        self.unsampled.restored = true;
         true
     }
 

@@ -14,17 +14,19 @@ pub mod urdf;
 
 pub use bevy_rapier3d::rapier;
 
-use bevy::prelude::*;
-
 pub use arena::{Arena, ArenaConfig, InArena};
 pub use devices::{
-    Accelerometer, BROADCAST, CameraSensor, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint, JointState, Motor,
-    MotorCommand, Mount, Packet, PositionSensor, Receiver, SamplingPeriod, TouchSensor, VacuumGripper,
+    Accelerometer, BROADCAST, CameraSensor, DevicesPlugin, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint,
+    JointState, Motor, MotorCommand, Mount, Packet, PositionSensor, RadioPlugin, Receiver, SamplingPeriod, TouchSensor,
+    VacuumGripper,
 };
 pub use framing::Framing;
-pub use physics::{PhysicsSubstep, SimClock, SimSettings, SubstepSet};
+pub use physics::{PhysicsPlugin, PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use spawn::{Link, Robot, SpawnOptions, SpawnedRobot, Visuals, spawn_robot};
-pub use supervisor::{LinkState, Operator, OperatorAccess, Supervisor, SupervisorAccess};
+pub use supervisor::{LinkState, Operator, OperatorAccess, Supervisor, SupervisorAccess, SupervisorPlugin};
+
+use bevy::app::PluginGroupBuilder;
+use bevy::prelude::*;
 
 /// The order of one control step, in `Update`. Nothing in these sets runs on the first update,
 /// which only builds the world.
@@ -32,6 +34,10 @@ pub use supervisor::{LinkState, Operator, OperatorAccess, Supervisor, Supervisor
 pub enum SimSet {
     /// Radio packets sent during the previous control step are delivered.
     Radio,
+    /// The step's actions are processed before anything applies them (Isaac Lab's
+    /// `process_action`): domain randomisation replaces or delays them here. After `Radio`, so
+    /// the actions a supervisor robot radios (design pattern 2) are the processed ones.
+    ProcessActions,
     /// Actions become motor commands.
     Actuate,
     /// `substeps` physics steps.
@@ -44,71 +50,35 @@ pub enum SimSet {
     Reset,
 }
 
-/// Physics stepping, arenas and devices.
-pub struct SimPlugin {
+/// The simulation as Bevy plugins: [`PhysicsPlugin`] (arenas, the control step, fixed-step
+/// physics), [`DevicesPlugin`] (motors and sensors), [`RadioPlugin`] (emitters and receivers)
+/// and [`SupervisorPlugin`] (privileged access). Design pattern 3 apps go without the
+/// Supervisor: `SimPlugins { supervisor: false, .. }`, or
+/// `SimPlugins::default().build().disable::<SupervisorPlugin>()`.
+#[derive(Clone, Copy, Debug)]
+pub struct SimPlugins {
     pub settings: SimSettings,
     /// Whether systems may use the [`Supervisor`] (false under design pattern 3).
     pub supervisor: bool,
 }
 
-impl Default for SimPlugin {
+/// The name robot plugins build the simulation with: `SimPlugin { settings, supervisor }` is
+/// the [`SimPlugins`] group.
+pub type SimPlugin = SimPlugins;
+
+impl Default for SimPlugins {
     fn default() -> Self {
         Self { settings: SimSettings::default(), supervisor: true }
     }
 }
 
-impl Plugin for SimPlugin {
-    fn build(&self, app: &mut App) {
-        if self.supervisor {
-            app.init_resource::<SupervisorAccess>();
-        }
-        app.insert_resource(self.settings)
-            .init_resource::<ArenaConfig>()
-            .init_resource::<SimClock>()
-            .configure_sets(
-                Update,
-                (
-                    SimSet::Radio,
-                    SimSet::Actuate,
-                    SimSet::Physics,
-                    SimSet::Sense,
-                    SimSet::Task,
-                    SimSet::Reset,
-                )
-                    .chain()
-                    .run_if(physics::sim_started),
-            )
-            .add_systems(Update, devices::deliver_radio.in_set(SimSet::Radio))
-            .add_systems(Update, physics::run_substeps.in_set(SimSet::Physics))
-            .add_systems(
-                Update,
-                (
-                    devices::sample_position_sensors,
-                    devices::sample_distance_sensors,
-                    devices::sample_inertial_units,
-                    devices::sample_gyros,
-                    devices::sample_accelerometers,
-                    devices::sample_gps,
-                    devices::sample_touch_sensors,
-                )
-                    .in_set(SimSet::Sense),
-            )
-            .add_systems(Last, physics::advance_clock);
-
-        let mut substep = Schedule::new(PhysicsSubstep);
-        substep.set_executor(bevy::ecs::schedule::SingleThreadedExecutor::new());
-        app.add_schedule(substep)
-            .configure_sets(
-                PhysicsSubstep,
-                (SubstepSet::Actuate, SubstepSet::Integrate, SubstepSet::Measure, SubstepSet::Record).chain(),
-            )
-            .add_systems(
-                PhysicsSubstep,
-                (
-                    (devices::operate_vacuum_grippers, devices::drive_motors).in_set(SubstepSet::Actuate),
-                    physics::integrate_arenas.in_set(SubstepSet::Integrate),
-                    devices::measure_joints.in_set(SubstepSet::Measure),
-                ),
-            );
+impl PluginGroup for SimPlugins {
+    fn build(self) -> PluginGroupBuilder {
+        let group = PluginGroupBuilder::start::<Self>()
+            .add(PhysicsPlugin { settings: self.settings })
+            .add(DevicesPlugin)
+            .add(RadioPlugin)
+            .add(SupervisorPlugin);
+        if self.supervisor { group } else { group.disable::<SupervisorPlugin>() }
     }
 }

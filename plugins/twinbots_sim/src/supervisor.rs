@@ -29,6 +29,16 @@ pub struct LinkState {
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct SupervisorAccess;
 
+/// Grants the [`Supervisor`] (design patterns 1 and 2). Pattern-3 apps leave it out, and any
+/// system that asks for the Supervisor there fails on its first run.
+pub struct SupervisorPlugin;
+
+impl Plugin for SupervisorPlugin {
+    fn build(&self, app: &mut App) {
+        app.init_resource::<SupervisorAccess>();
+    }
+}
+
 /// Present in apps with a lab operator (see [`Operator`]).
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct OperatorAccess;

@@ -253,7 +253,7 @@ impl Plugin for TaskPlugin {
                 EnvReset,
                 (
                     restore_arenas.in_set(ResetSet::Restore),
-                    twinbots_sim::devices::sample_position_sensors.in_set(ResetSet::Sense),
+                    twinbots_sim::devices::sample_devices().in_set(ResetSet::Sense),
                 ),
             );
     }

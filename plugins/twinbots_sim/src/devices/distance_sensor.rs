@@ -4,6 +4,7 @@
 use bevy::prelude::*;
 
 use super::mount::{Mount, SamplingPeriod, gaussian};
+use super::sampling::samples_now;
 use crate::arena::{Arena, InArena};
 use crate::physics::SimClock;
 use crate::rapier::prelude::*;
@@ -69,10 +70,10 @@ pub(crate) fn sample_distance_sensors(
     mut sensors: Query<(&mut DistanceSensor, &Mount, &InArena, Option<&SamplingPeriod>)>,
 ) {
     for (mut sensor, mount, in_arena, period) in &mut sensors {
-        if !SamplingPeriod::due(period, clock.control_steps) {
+        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
+        if !samples_now(&arena, period, clock.control_steps) {
             continue;
         }
-        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
         let Some(state) = mount.state(&links, &arena.world) else { continue };
         let Ok(link) = links.get(mount.link) else { continue };
         let robot = link.robot;

@@ -6,6 +6,7 @@ use bevy::math::{EulerRot, Vec3};
 use bevy::prelude::*;
 
 use super::mount::{Mount, MountState, SamplingPeriod, gaussian};
+use super::sampling::{samples_now, world_changed, world_restored};
 use crate::arena::{Arena, InArena};
 use crate::physics::{SimClock, SimSettings};
 use crate::spawn::Link;
@@ -65,11 +66,11 @@ fn sample_each<T: Component<Mutability = bevy::ecs::component::Mutable>>(
     mut read: impl FnMut(&mut T, &MountState, &mut Arena, bool),
 ) {
     for (mut sensor, mount, in_arena, period) in sensors.iter_mut() {
-        let due = SamplingPeriod::due(period, step);
-        if !due && !always {
+        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
+        let due = samples_now(&arena, period, step);
+        if !due && !(always && world_changed(&arena)) {
             continue;
         }
-        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
         let Some(state) = mount.state(links, &arena.world) else { continue };
         read(&mut sensor, &state, &mut arena, due);
     }
@@ -113,6 +114,10 @@ pub(crate) fn sample_accelerometers(
 ) {
     let dt = settings.control_dt();
     sample_each(clock.control_steps, &links, &mut arenas, &mut sensors, true, |s, state, arena, due| {
+        if world_restored(arena) {
+            // The world jumped to a new episode: no acceleration is read across the jump.
+            s.previous_velocity = None;
+        }
         let accel = s.previous_velocity.map_or(Vec3::ZERO, |v| (state.linvel - v) / dt);
         s.previous_velocity = Some(state.linvel);
         if due {

@@ -3,7 +3,6 @@
 use bevy::math::{Quat, Vec3};
 use bevy::prelude::*;
 
-use super::motor::Motor;
 use crate::arena::{Arena, InArena};
 use crate::physics::SimSettings;
 use crate::rapier::prelude::*;
@@ -25,13 +24,15 @@ pub struct Joint {
 
 /// Position (unwrapped, so continuous joints count turns), speed and motor effort of a
 /// joint, measured after every physics step. Privileged-free: it is what an encoder and the
-/// motor's current sensing report on a real joint.
+/// motor's current sensing report on a real joint. The joint measures position and speed; its
+/// [`Motor`](super::Motor), if any, measures the effort.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct JointState {
     pub position: f32,
     pub velocity: f32,
     /// Torque (N·m) or force (N) the joint's motor exerted on the child over the last physics
-    /// step, as Webots' torque feedback (0 for a joint without a motor or with it off).
+    /// step, as Webots' torque feedback (0 for a joint without a motor or with it off). Written
+    /// by the motor module after the joint's position and speed.
     pub effort: f32,
     wrapped: f32,
 }
@@ -40,18 +41,6 @@ impl Joint {
     /// The rapier axis the joint moves along.
     pub fn axis(&self) -> JointAxis {
         if self.kind.is_rotational() { JointAxis::AngX } else { JointAxis::LinX }
-    }
-
-    /// The effort rapier's motor constraint applied over the last step of `dt` seconds. Rapier
-    /// solves a step as `num_solver_iterations` substeps and keeps the impulse of the last, so
-    /// the effort is that impulse over the substep's length (checked against a link held
-    /// against gravity: it reads m·g·l).
-    pub fn motor_effort(&self, world: &PhysicsWorld, dt: f32) -> f32 {
-        let substeps = world.integration_parameters.num_solver_iterations.max(1) as f32;
-        world
-            .impulse_joints
-            .get(self.handle)
-            .map_or(0.0, |j| j.data.motors[self.axis() as usize].impulse * substeps / dt)
     }
 
     /// World-frame free axis, and (wrapped) position and velocity along it.
@@ -115,12 +104,11 @@ pub(crate) fn wrap_angle(angle: f32) -> f32 {
 pub(crate) fn measure_joints(
     settings: Res<SimSettings>,
     arenas: Query<&Arena>,
-    mut joints: Query<(&Joint, &InArena, &mut JointState, Option<&Motor>)>,
+    mut joints: Query<(&Joint, &InArena, &mut JointState)>,
 ) {
-    for (joint, in_arena, mut state, motor) in &mut joints {
+    for (joint, in_arena, mut state) in &mut joints {
         if let Ok(arena) = arenas.get(in_arena.0) {
             state.update(joint, &arena.world, settings.dt);
-            state.effort = motor.map_or(0.0, |m| m.applied_effort(joint, &state, &arena.world, settings.dt));
         }
     }
 }

@@ -1,6 +1,11 @@
 //! Devices: joints and their motors and sensors, and sensors mounted on links, as components
 //! plus the systems that run them (in `SimSet::Sense`, except motors, which act every substep).
 
+use bevy::prelude::*;
+
+use crate::SimSet;
+use crate::physics::{PhysicsSubstep, SubstepSet};
+
 mod camera;
 mod distance_sensor;
 mod inertial;
@@ -9,6 +14,7 @@ mod motor;
 mod mount;
 mod position_sensor;
 mod radio;
+mod sampling;
 mod vacuum_gripper;
 
 pub use camera::CameraSensor;
@@ -17,13 +23,23 @@ pub use inertial::{Accelerometer, Gps, Gyro, InertialUnit, TouchSensor};
 pub use joint::{Joint, JointState};
 pub use motor::{Motor, MotorCommand};
 pub use mount::{Mount, MountState, SamplingPeriod, gaussian};
-pub use position_sensor::{PositionSensor, sample_position_sensors};
-pub use radio::{BROADCAST, Emitter, Packet, Receiver};
+pub use position_sensor::PositionSensor;
+pub use radio::{BROADCAST, Emitter, Packet, RadioPlugin, Receiver};
+pub use sampling::{DeviceSampling, sample_devices};
 pub use vacuum_gripper::VacuumGripper;
 
-pub(crate) use distance_sensor::sample_distance_sensors;
-pub(crate) use inertial::{sample_accelerometers, sample_gps, sample_gyros, sample_inertial_units, sample_touch_sensors};
-pub(crate) use joint::measure_joints;
-pub(crate) use motor::drive_motors;
-pub(crate) use radio::deliver_radio;
-pub(crate) use vacuum_gripper::operate_vacuum_grippers;
+/// Motors, grippers and joint measurement in every physics step; sensors in `SimSet::Sense`.
+pub struct DevicesPlugin;
+
+impl Plugin for DevicesPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_systems(Update, sample_devices().in_set(SimSet::Sense)).add_systems(
+            PhysicsSubstep,
+            (
+                (vacuum_gripper::operate_vacuum_grippers, motor::drive_motors).in_set(SubstepSet::Actuate),
+                // The motor's effort reading needs the joint's new position (a torque is cut at a stop).
+                (joint::measure_joints, motor::measure_motor_efforts).chain().in_set(SubstepSet::Measure),
+            ),
+        );
+    }
+}

@@ -92,7 +92,7 @@ impl Motor {
         match self.command {
             MotorCommand::Off => 0.0,
             MotorCommand::Torque(t) => self.torque_within_limits(t, state, joint.limits),
-            MotorCommand::Velocity(_) | MotorCommand::Position(_) => joint.motor_effort(world, dt),
+            MotorCommand::Velocity(_) | MotorCommand::Position(_) => solved_effort(joint, world, dt),
         }
     }
 
@@ -176,6 +176,32 @@ pub(crate) fn drive_motors(
         }
         if let MotorCommand::Torque(t) = motor.command {
             apply_effort(world, joint, motor.torque_within_limits(t, state, joint.limits), settings.dt);
+        }
+    }
+}
+
+/// The effort rapier's motor constraint applied over the last step of `dt` seconds. Rapier
+/// solves a step as `num_solver_iterations` substeps and keeps the impulse of the last, so the
+/// effort is that impulse over the substep's length (checked against a link held against
+/// gravity: it reads m·g·l).
+fn solved_effort(joint: &Joint, world: &PhysicsWorld, dt: f32) -> f32 {
+    let substeps = world.integration_parameters.num_solver_iterations.max(1) as f32;
+    world
+        .impulse_joints
+        .get(joint.handle)
+        .map_or(0.0, |j| j.data.motors[joint.axis() as usize].impulse * substeps / dt)
+}
+
+/// Writes what each motor applied over the physics step into its joint's state, after the
+/// joint's position was measured (a torque command is cut at a stop the joint now touches).
+pub(crate) fn measure_motor_efforts(
+    settings: Res<SimSettings>,
+    arenas: Query<&Arena>,
+    mut motors: Query<(&Joint, &InArena, &mut JointState, &Motor)>,
+) {
+    for (joint, in_arena, mut state, motor) in &mut motors {
+        if let Ok(arena) = arenas.get(in_arena.0) {
+            state.effort = motor.applied_effort(joint, &state, &arena.world, settings.dt);
         }
     }
 }

@@ -5,6 +5,7 @@ use bevy::prelude::*;
 
 use super::joint::JointState;
 use super::mount::gaussian;
+use super::sampling::samples_now;
 use crate::arena::{Arena, InArena};
 
 /// The latest reading of a joint's position sensor (rad or m).
@@ -15,15 +16,17 @@ pub struct PositionSensor {
     pub noise: f32,
 }
 
-pub fn sample_position_sensors(
+/// Samples every control step (position sensors have no period).
+pub(crate) fn sample_position_sensors(
     mut arenas: Query<&mut Arena>,
     mut sensors: Query<(&JointState, &mut PositionSensor, &InArena)>,
 ) {
     for (state, mut sensor, in_arena) in &mut sensors {
-        let noise = match arenas.get_mut(in_arena.0) {
-            Ok(mut arena) if sensor.noise > 0.0 => gaussian(&mut arena.rng, sensor.noise),
-            _ => 0.0,
-        };
+        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
+        if !samples_now(&arena, None, 0) {
+            continue;
+        }
+        let noise = gaussian(&mut arena.rng, sensor.noise);
         sensor.value = state.position + noise;
     }
 }

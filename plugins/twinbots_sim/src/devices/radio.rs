@@ -9,8 +9,18 @@ use bevy::math::Vec3;
 use bevy::prelude::*;
 
 use super::mount::Mount;
+use crate::SimSet;
 use crate::arena::{Arena, InArena};
 use crate::spawn::Link;
+
+/// Radio delivery, first in every control step (`SimSet::Radio`).
+pub struct RadioPlugin;
+
+impl Plugin for RadioPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_systems(Update, deliver_radio.in_set(SimSet::Radio));
+    }
+}
 
 /// The channel that reaches (or listens to) every channel.
 pub const BROADCAST: i32 = -1;
@@ -122,7 +132,7 @@ fn listens(receiver: i32, sender: i32) -> bool {
 }
 
 /// Delivers every packet sent during the previous control step.
-pub(crate) fn deliver_radio(
+fn deliver_radio(
     links: Query<&Link>,
     arenas: Query<&Arena>,
     mut emitters: Query<(&mut Emitter, &Mount, &InArena)>,

@@ -1,0 +1,50 @@
+//! The process's thread pools, set up once, deliberately, for the machine it runs on.
+//!
+//! One pool does the CPU-parallel work: rayon's global pool, sized to the cores this process
+//! may use. Arenas step side by side on it (`twinbots_sim::physics`), and candle's matrix
+//! products (gemm) split over it when they are large enough to gain (gemm keeps products below
+//! about 48·48·256 multiply-adds, the 64-64 MLPs of our policies, on one thread).
+//!
+//! Candle sizes gemm's parallelism on every matrix product by reading `RAYON_NUM_THREADS`;
+//! when it is unset, candle counts the physical cores by parsing `/proc/cpuinfo`, again on
+//! every product. That read costs ~60 µs (measured on a 2-core VM), several times per policy
+//! forward pass: it made 2048 steps of rollout inference take ~700 ms instead of ~50 ms.
+//! [`configure`] sets the variable once, so candle never counts again.
+//!
+//! Bevy is built without its `multi_threaded` feature: its schedules run on the thread that
+//! calls `App::update` and its task pools start no threads, so there is nothing of Bevy's to
+//! size here.
+
+use std::num::NonZeroUsize;
+use std::sync::OnceLock;
+
+/// The variable candle and rayon both read for their thread count.
+const THREAD_COUNT_VAR: &str = "RAYON_NUM_THREADS";
+
+/// Sets up the thread pools and returns how many threads they use. Call it first thing in
+/// `main`, before any other thread starts (it may set an environment variable); later calls
+/// return the first call's answer. A `RAYON_NUM_THREADS` set by the user is kept; otherwise the
+/// count is the cores this process may run on (its CPU affinity and cgroup quota).
+pub fn configure() -> usize {
+    static THREADS: OnceLock<usize> = OnceLock::new();
+    *THREADS.get_or_init(|| {
+        let threads = std::env::var(THREAD_COUNT_VAR)
+            .ok()
+            .and_then(|v| v.parse::<usize>().ok())
+            .filter(|&n| n > 0)
+            .unwrap_or_else(|| {
+                let cores = std::thread::available_parallelism().map_or(1, NonZeroUsize::get);
+                // SAFETY: `configure` runs at start-up, before the process starts other
+                // threads (see its contract), so nothing reads the environment concurrently.
+                unsafe { std::env::set_var(THREAD_COUNT_VAR, cores.to_string()) };
+                cores
+            });
+        // Fails only if the global pool already exists (something used rayon first, e.g. an
+        // earlier test in the same process); that pool then keeps its size.
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("twinbots-worker-{i}"))
+            .build_global();
+        threads
+    })
+}
