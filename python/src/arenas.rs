@@ -9,6 +9,7 @@ use twinbots_render::{Renderer, View};
 use twinbots_rl::randomization::{Randomization, RandomizationPlugin};
 use twinbots_rl::{AppVecEnv, DesignPattern, RobotDescription, StepResult, TaskSpec, VecEnv};
 
+use crate::actions::check_and_clip;
 use crate::convert::{OnThisThread, episode_dict, no_panic, runtime_error, space_dict, task_dict, value_error};
 use crate::frames::Frames;
 
@@ -140,8 +141,8 @@ impl Arenas {
         self.observations(py, obs)
     }
 
-    /// Applies `actions` (flat float32, `num_envs × action_dim`, already validated by the
-    /// Python side) and advances one control step. Envs flagged in `restart` only begin their
+    /// Applies `actions` (flat float32, `num_envs × action_dim`; NaN, infinities and invalid
+    /// choices raise `ValueError`, boxes are clipped) and advances one control step. Envs flagged in `restart` only begin their
     /// next episode: they are reset after the step, so the action they got has no effect
     /// (Gymnasium's NEXT_STEP autoreset). Returns `(obs, rewards, terminated, truncated,
     /// ended)`, `ended` a list of `(env, final_obs, episode)` for episodes that ended.
@@ -152,7 +153,7 @@ impl Arenas {
         actions: PyReadonlyArray1<'py, f32>,
         restart: Option<Vec<usize>>,
     ) -> PyResult<Bound<'py, PyTuple>> {
-        let actions = actions.as_slice().map_err(|e| value_error(anyhow::anyhow!("actions must be contiguous: {e}")))?.to_vec();
+        let mut actions = actions.as_slice().map_err(|e| value_error(anyhow::anyhow!("actions must be contiguous: {e}")))?.to_vec();
         let dim = self.spec.action_space.dim();
         if actions.len() != self.num_envs * dim {
             return Err(value_error(anyhow::anyhow!(
@@ -161,9 +162,7 @@ impl Arenas {
                 self.num_envs
             )));
         }
-        if let Some(i) = actions.iter().position(|a| !a.is_finite()) {
-            return Err(value_error(anyhow::anyhow!("action value {} of env {} is {}", i % dim, i / dim, actions[i])));
-        }
+        check_and_clip(&self.spec.action_space, &mut actions).map_err(value_error)?;
         let restart = restart.unwrap_or_default();
         if let Some(&i) = restart.iter().find(|&&i| i >= self.num_envs) {
             return Err(value_error(anyhow::anyhow!("restart: env {i} does not exist ({} envs)", self.num_envs)));

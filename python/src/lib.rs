@@ -3,6 +3,7 @@
 //! is a [`policy::Policy`]; the Gymnasium and Stable-Baselines3 faces are Python
 //! (`python/twinbots/`), which also validates what users pass before it reaches Rust.
 
+mod actions;
 mod arenas;
 mod bench;
 mod convert;

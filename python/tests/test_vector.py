@@ -112,3 +112,40 @@ def test_pattern_2_runs():
     envs = twinbots.make_vec("cartpole", num_envs=2, seed=0, pattern=2)
     envs.reset(seed=0)
     envs.step(np.array([0, 1]))
+
+
+def test_infos_match_gymnasiums_own_layout():
+    """The one-pass info builder gives what `VectorEnv._add_info` builds env by env."""
+    from twinbots._infos import episode_info, vector_infos
+
+    ended = [
+        (1, np.ones(3, np.float32), {"score": 2.5, "length": 7, "success": True, "metrics": {"energy": 1.0}, "rewards": {"alive": 2.5}}),
+        (3, np.zeros(3, np.float32), {"score": -1.0, "length": 9, "success": False, "metrics": {}, "rewards": {"alive": -1.0}}),
+    ]
+    envs = twinbots.make_vec("cartpole", num_envs=4, seed=0)
+    expected = {}
+    for i, final_obs, summary in ended:
+        info = episode_info(summary)
+        expected = envs._add_info(expected, {"final_obs": final_obs, "final_info": info, **info}, i)
+    got = vector_infos(4, ended, final_obs=True)
+
+    def same(a, b):
+        assert set(a) == set(b)
+        for k in a:
+            if isinstance(a[k], dict):
+                same(a[k], b[k])
+            elif a[k].dtype == object:
+                assert all((x is None and y is None) or np.array_equal(x, y) for x, y in zip(a[k], b[k]))
+            else:
+                np.testing.assert_array_equal(a[k], b[k])
+                assert a[k].dtype == b[k].dtype, k
+
+    same(got, expected)
+
+
+def test_gymnasium_make_vec_uses_the_rust_arenas():
+    import gymnasium as gym
+
+    envs = gym.make_vec("twinbots/cartpole-v0", num_envs=3, vectorization_mode="vector_entry_point", seed=1)
+    assert isinstance(envs, twinbots.TwinbotsVectorEnv) and envs.num_envs == 3
+    assert envs.reset(seed=1)[0].shape == (3, 4)

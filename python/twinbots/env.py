@@ -85,4 +85,5 @@ class TwinbotsEnv(gym.Env):
         return self.arenas.render()
 
     def close(self):
-        self.arenas.close()
+        if hasattr(self, "arenas"):  # not when __init__ failed
+            self.arenas.close()

@@ -66,7 +66,8 @@ class TwinbotsSB3VecEnv(VecEnv):
         return obs, rewards, dones, infos
 
     def close(self) -> None:
-        self.arenas.close()
+        if hasattr(self, "arenas"):  # not when __init__ failed
+            self.arenas.close()
 
     def get_images(self) -> Sequence[np.ndarray | None]:
         """Arena 0's frame (the renderer draws one arena); None for the others."""

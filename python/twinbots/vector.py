@@ -12,7 +12,7 @@ from gymnasium.vector.utils import batch_space
 
 from . import _native
 from ._config import Config, config_text
-from ._infos import episode_info
+from ._infos import vector_infos
 from ._spaces import ActionCheck, to_space
 
 
@@ -95,15 +95,11 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         if not ended:
             self._restart = []
             return obs, rewards, terminated, truncated, {}
-        infos: dict[str, Any] = {}
-        if self.autoreset_mode == AutoresetMode.SAME_STEP:
-            for i, final_obs, summary in ended:
-                info = episode_info(summary)
-                infos = self._add_info(infos, {"final_obs": final_obs, "final_info": info, **info}, i)
-        else:
-            for i, final_obs, summary in ended:
+        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
+        infos = vector_infos(self.num_envs, ended, final_obs=same_step)
+        if not same_step:
+            for i, final_obs, _ in ended:
                 obs[i] = final_obs  # the next step begins env i's next episode
-                infos = self._add_info(infos, episode_info(summary), i)
         self._restart = [i for i, _, _ in ended] if self.autoreset_mode == AutoresetMode.NEXT_STEP else []
         return obs, rewards, terminated, truncated, infos
 
@@ -114,7 +110,8 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         return self.arenas.render()
 
     def close_extras(self, **kwargs):
-        self.arenas.close()
+        if hasattr(self, "arenas"):  # not when __init__ failed (close() runs from __del__)
+            self.arenas.close()
 
 
 def _initial_seed(seed: int | None) -> int:
