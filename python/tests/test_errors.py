@@ -81,3 +81,21 @@ def test_stepping_a_closed_env(envs):
 
 def test_render_without_render_mode_is_none(envs):
     assert envs.render() is None
+
+
+def test_another_thread_gets_a_runtime_error(envs):
+    import threading
+
+    caught = []
+
+    def step():
+        try:
+            envs.step(np.array([0, 1]))
+        except BaseException as e:  # noqa: BLE001 - the point is which exception arrives
+            caught.append(e)
+
+    t = threading.Thread(target=step)
+    t.start()
+    t.join()
+    assert len(caught) == 1 and type(caught[0]) is RuntimeError and "thread" in str(caught[0])
+    envs.step(np.array([0, 1]))  # still fine on its own thread

@@ -81,3 +81,9 @@ def test_rgb_array_renders_or_says_why():
     frame = env.render()
     assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
     assert frame.std() > 0, "a frame with something in it"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        gymnasium_check_env(env.unwrapped)  # with its render check
+    envs = twinbots.make_vec("cartpole", num_envs=2, seed=0, render_mode="rgb_array")
+    envs.reset(seed=0)
+    assert envs.render().shape == (480, 640, 3)

@@ -10,6 +10,7 @@ import gymnasium as gym
 from . import _native
 from ._config import Config, config_text
 from ._infos import episode_info
+from ._thread import get_ident, wrong_thread
 from ._spaces import ActionCheck, to_space
 from .vector import _initial_seed
 
@@ -36,6 +37,7 @@ class TwinbotsEnv(gym.Env):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.arenas = _native.Arenas(robot, 1, _initial_seed(seed), task, pattern, config_text(config))
+        self._owner = get_ident()
         self.task = self.arenas.task
         self.observation_space = to_space(self.arenas.observation_space)
         self.action_space = to_space(self.arenas.action_space)
@@ -49,6 +51,8 @@ class TwinbotsEnv(gym.Env):
         self._reset_once = False
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
         super().reset(seed=seed)
         if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
             raise ValueError(f"seed must be a non-negative int, got {seed!r}")
@@ -62,6 +66,8 @@ class TwinbotsEnv(gym.Env):
         return obs, {}
 
     def step(self, action):
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
         if not self._reset_once:
             raise RuntimeError("call reset() before step()")
         if self._ended:
@@ -82,8 +88,10 @@ class TwinbotsEnv(gym.Env):
         if self.render_mode is None:
             gym.logger.warn("render() without a render_mode: create the env with render_mode='rgb_array'")
             return None
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
         return self.arenas.render()
 
     def close(self):
-        if hasattr(self, "arenas"):  # not when __init__ failed
+        if hasattr(self, "arenas") and get_ident() == self._owner:  # not when __init__ failed
             self.arenas.close()

@@ -16,6 +16,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 from . import _native
 from ._config import Config, config_text
 from ._infos import episode_info
+from ._thread import get_ident, wrong_thread
 from ._spaces import ActionCheck, to_space
 from .vector import _initial_seed
 
@@ -32,6 +33,7 @@ class TwinbotsSB3VecEnv(VecEnv):
         if not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
             raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
         self.arenas = _native.Arenas(robot, int(n_envs), _initial_seed(seed), task, pattern, config_text(config))
+        self._owner = get_ident()
         self.render_mode = render_mode  # read back by SB3's __init__ through get_attr
         super().__init__(int(n_envs), to_space(self.arenas.observation_space), to_space(self.arenas.action_space))
         self.render_mode = render_mode
@@ -44,6 +46,8 @@ class TwinbotsSB3VecEnv(VecEnv):
             self.seed(seed)
 
     def reset(self):
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
         seed = self._seeds[0] if self._seeds and self._seeds[0] is not None else None
         obs = self.arenas.reset(seed)
         self._reset_seeds()
@@ -51,6 +55,8 @@ class TwinbotsSB3VecEnv(VecEnv):
         return obs
 
     def step_async(self, actions: np.ndarray) -> None:
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
         self._actions = self._check(actions)
 
     def step_wait(self):
@@ -66,7 +72,7 @@ class TwinbotsSB3VecEnv(VecEnv):
         return obs, rewards, dones, infos
 
     def close(self) -> None:
-        if hasattr(self, "arenas"):  # not when __init__ failed
+        if hasattr(self, "arenas") and get_ident() == self._owner:  # not when __init__ failed
             self.arenas.close()
 
     def get_images(self) -> Sequence[np.ndarray | None]:

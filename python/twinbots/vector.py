@@ -13,6 +13,7 @@ from gymnasium.vector.utils import batch_space
 from . import _native
 from ._config import Config, config_text
 from ._infos import vector_infos
+from ._thread import get_ident, wrong_thread
 from ._spaces import ActionCheck, to_space
 
 
@@ -57,6 +58,7 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
             raise ValueError("autoreset_mode DISABLED is not supported: the arenas reset themselves (SAME_STEP or NEXT_STEP)")
         seed = _initial_seed(seed)
         self.arenas = _native.Arenas(robot, int(num_envs), seed, task, pattern, config_text(config))
+        self._owner = get_ident()
         self.num_envs = int(num_envs)
         self.task = self.arenas.task
         self.single_observation_space = to_space(self.arenas.observation_space)
@@ -77,6 +79,8 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Resets every env. `seed` (an int) seeds them all: env i draws from stream i of it."""
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
         if seed is not None:
             if not isinstance(seed, (int, np.integer)) or seed < 0:
                 raise ValueError(f"seed must be a non-negative int (env i gets stream i of it), got {seed!r}")
@@ -88,6 +92,8 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         return self.arenas.reset(None if seed is None else int(seed)), {}
 
     def step(self, actions):
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
         if not self._reset_once:
             raise RuntimeError("call reset() before step()")
         flat = self._check(actions)
@@ -107,10 +113,12 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         """Arena 0 as an RGB image (`render_mode="rgb_array"`)."""
         if self.render_mode is None:
             return None
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
         return self.arenas.render()
 
     def close_extras(self, **kwargs):
-        if hasattr(self, "arenas"):  # not when __init__ failed (close() runs from __del__)
+        if hasattr(self, "arenas") and get_ident() == self._owner:  # not when __init__ failed (close() runs from __del__)
             self.arenas.close()
 
 
