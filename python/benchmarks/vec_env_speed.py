@@ -1,0 +1,76 @@
+"""Steps per second of the cart-pole twin through the Python VectorEnv at 1, 8 and 64 envs,
+against the same arenas stepped by a Rust loop (the Python layer's overhead), and Gymnasium's
+MuJoCo InvertedPendulum-v5 (SyncVectorEnv) beside them.
+
+    python benchmarks/vec_env_speed.py [--steps 2000] [--envs 1 8 64]
+
+Env steps per second = vectorised steps × envs / s. Both sides step the same actions: a fixed
+random sequence of pushes, cycled; auto-resets included."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+import twinbots
+from twinbots import _native
+
+
+def python_steps_per_second(num_envs: int, actions: np.ndarray, steps: int) -> float:
+    envs = twinbots.make_vec("cartpole", num_envs=num_envs, seed=0)
+    envs.reset(seed=0)
+    rows = [a.astype(np.int64) for a in actions]
+    start = time.perf_counter()
+    for t in range(steps):
+        envs.step(rows[t % len(rows)])
+    elapsed = time.perf_counter() - start
+    envs.close()
+    return steps * num_envs / elapsed
+
+
+def mujoco_steps_per_second(num_envs: int, steps: int) -> float | None:
+    try:
+        import gymnasium as gym
+
+        envs = gym.make_vec("InvertedPendulum-v5", num_envs=num_envs, vectorization_mode="sync")
+    except Exception as e:  # mujoco not installed
+        print(f"  (MuJoCo InvertedPendulum-v5 unavailable: {e})")
+        return None
+    envs.reset(seed=0)
+    rng = np.random.default_rng(0)
+    rows = [rng.uniform(-3, 3, size=(num_envs, 1)).astype(np.float32) for _ in range(256)]
+    start = time.perf_counter()
+    for t in range(steps):
+        envs.step(rows[t % len(rows)])
+    elapsed = time.perf_counter() - start
+    envs.close()
+    return steps * num_envs / elapsed
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=2000, help="vectorised steps per measurement")
+    parser.add_argument("--envs", type=int, nargs="+", default=[1, 8, 64])
+    parser.add_argument("--repeats", type=int, default=5, help="best of this many measurements")
+    args = parser.parse_args()
+
+    print(f"{'envs':>5} {'Rust loop':>12} {'Python VectorEnv':>17} {'overhead':>9} {'MuJoCo InvPendulum-v5':>22}")
+    for n in args.envs:
+        steps = max(200, args.steps // max(1, n // 8))  # about the same wall time per row
+        rng = np.random.default_rng(0)
+        actions = rng.integers(0, 2, size=(256, n)).astype(np.float32)
+        # Interleaved, best of each: other load on the machine hits both sides alike.
+        rust = python = 0.0
+        for _ in range(args.repeats):
+            rust = max(rust, _native.rust_steps_per_second("cartpole", n, actions, steps, 0))
+            python = max(python, python_steps_per_second(n, actions, steps))
+        mujoco = mujoco_steps_per_second(n, steps)
+        overhead = 100.0 * (1.0 - python / rust)
+        mj = f"{mujoco:>22,.0f}" if mujoco else f"{'-':>22}"
+        print(f"{n:>5} {rust:>12,.0f} {python:>17,.0f} {overhead:>8.1f}% {mj}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,252 @@
+//! `Arenas`: N arenas of one robot task in one Bevy app, stepped together in Rust. This is the
+//! engine under `twinbots.make_vec` (Gymnasium), the single envs and the SB3 adapter.
+
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList, PyTuple};
+use twinbots_render::{Renderer, View};
+use twinbots_rl::randomization::{Randomization, RandomizationPlugin};
+use twinbots_rl::{AppVecEnv, DesignPattern, RobotDescription, StepResult, TaskSpec, VecEnv};
+
+use crate::actions::check_and_clip;
+use crate::convert::{OnThisThread, episode_dict, no_panic, runtime_error, space_dict, task_dict, value_error};
+use crate::frames::Frames;
+
+#[pyclass(unsendable, module = "twinbots._native")]
+pub struct Arenas {
+    /// `None` once closed.
+    env: Option<AppVecEnv>,
+    robot: RobotDescription,
+    spec: TaskSpec,
+    num_envs: usize,
+    pattern: u8,
+    frames: Option<Frames>,
+}
+
+/// The `[randomization]` table of a TOML text (the file `twinbots train --config` reads; its
+/// other settings are training settings and are not used here).
+fn randomization(config: &str) -> anyhow::Result<Randomization> {
+    let table: toml::Table = toml::from_str(config).map_err(|e| anyhow::anyhow!("config is not valid TOML: {e}"))?;
+    let Some(section) = table.get("randomization") else { return Ok(Randomization::default()) };
+    let r: Randomization = section.clone().try_into().map_err(|e| anyhow::anyhow!("config [randomization]: {e}"))?;
+    r.validate()?;
+    Ok(r)
+}
+
+impl Arenas {
+    fn env(&mut self) -> PyResult<&mut AppVecEnv> {
+        self.env
+            .as_mut()
+            .ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("this env is closed (close() was called)"))
+    }
+
+    /// Runs `f` on the app with the GIL released; a panic closes the env (its world may be
+    /// half-updated) and comes back as an error.
+    fn run_detached<T: Send>(
+        &mut self,
+        py: Python<'_>,
+        what: &str,
+        f: impl FnOnce(&mut AppVecEnv) -> anyhow::Result<T> + Send,
+    ) -> PyResult<T> {
+        let env = OnThisThread(self.env()?);
+        let result = py.detach(move || {
+            let env = env;
+            no_panic(what, || f(env.0))
+        });
+        if result.is_err() {
+            self.env = None;
+        }
+        result.map_err(runtime_error)
+    }
+}
+
+#[pymethods]
+impl Arenas {
+    /// `Arenas(robot, num_envs, seed=0, task=None, pattern=1, config=None)`: `task` None is the
+    /// robot's main task; `config` is TOML text whose `[randomization]` table applies.
+    #[new]
+    #[pyo3(signature = (robot, num_envs, seed=0, task=None, pattern=1, config=None))]
+    fn new(robot: &str, num_envs: usize, seed: u64, task: Option<&str>, pattern: u8, config: Option<&str>) -> PyResult<Self> {
+        let entry = twinbots::registry::find(robot).map_err(value_error)?;
+        if num_envs == 0 {
+            return Err(value_error(anyhow::anyhow!("num_envs must be at least 1")));
+        }
+        let design = match DesignPattern::from_number(pattern) {
+            Some(p @ (DesignPattern::Supervised | DesignPattern::Radio)) => p,
+            _ => {
+                return Err(value_error(anyhow::anyhow!(
+                    "pattern must be 1 (Supervisor) or 2 (radio), got {pattern}; pattern 3 runs a real robot's process against `twinbots serve`"
+                )));
+            }
+        };
+        let randomization = config.map(randomization).transpose().map_err(value_error)?;
+        let mut app = entry.app(task, num_envs, seed, design).map_err(value_error)?;
+        if let Some(r) = randomization.filter(|r| !r.is_off()) {
+            app.add_plugins(RandomizationPlugin(r));
+        }
+        let env = no_panic("building the arenas", || Ok(AppVecEnv::new(app))).map_err(runtime_error)?;
+        let spec = env.task().clone();
+        Ok(Self { env: Some(env), robot: entry, spec, num_envs, pattern, frames: None })
+    }
+
+    #[getter]
+    fn num_envs(&self) -> usize {
+        self.num_envs
+    }
+
+    #[getter]
+    fn robot(&self) -> &'static str {
+        self.robot.name
+    }
+
+    #[getter]
+    fn pattern(&self) -> u8 {
+        self.pattern
+    }
+
+    /// The task: name, spaces, observation names, reward terms, solved criterion.
+    #[getter]
+    fn task<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        task_dict(py, &self.spec)
+    }
+
+    #[getter]
+    fn observation_space<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        space_dict(py, &self.spec.observation_space)
+    }
+
+    #[getter]
+    fn action_space<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        space_dict(py, &self.spec.action_space)
+    }
+
+    /// Seconds of simulated time per step.
+    #[getter]
+    fn control_dt(&mut self) -> PyResult<f32> {
+        let env = self.env()?;
+        Ok(env.app().world().resource::<twinbots_sim::SimSettings>().control_dt())
+    }
+
+    #[getter]
+    fn closed(&self) -> bool {
+        self.env.is_none()
+    }
+
+    /// Resets every arena (re-seeding their streams if `seed` is given: arena i gets stream i
+    /// of the seed) and returns the observations, shape `(num_envs, obs_dim)`.
+    #[pyo3(signature = (seed=None))]
+    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let obs = self.run_detached(py, "reset", move |env| env.reset(seed))?;
+        self.observations(py, obs)
+    }
+
+    /// Applies `actions` (flat float32, `num_envs × action_dim`; NaN, infinities and invalid
+    /// choices raise `ValueError`, boxes are clipped) and advances one control step. Envs flagged in `restart` only begin their
+    /// next episode: they are reset after the step, so the action they got has no effect
+    /// (Gymnasium's NEXT_STEP autoreset). Returns `(obs, rewards, terminated, truncated,
+    /// ended)`, `ended` a list of `(env, final_obs, episode)` for episodes that ended.
+    #[pyo3(signature = (actions, restart=None))]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        actions: PyReadonlyArray1<'py, f32>,
+        restart: Option<Vec<usize>>,
+    ) -> PyResult<Bound<'py, PyTuple>> {
+        let mut actions = actions.as_slice().map_err(|e| value_error(anyhow::anyhow!("actions must be contiguous: {e}")))?.to_vec();
+        let dim = self.spec.action_space.dim();
+        if actions.len() != self.num_envs * dim {
+            return Err(value_error(anyhow::anyhow!(
+                "got {} action values, expected {} envs × {dim}",
+                actions.len(),
+                self.num_envs
+            )));
+        }
+        check_and_clip(&self.spec.action_space, &mut actions).map_err(value_error)?;
+        let restart = restart.unwrap_or_default();
+        if let Some(&i) = restart.iter().find(|&&i| i >= self.num_envs) {
+            return Err(value_error(anyhow::anyhow!("restart: env {i} does not exist ({} envs)", self.num_envs)));
+        }
+        let result = self.run_detached(py, "step", move |env| {
+            let mut r = env.step(&actions)?;
+            if !restart.is_empty() {
+                restart_after_step(env, &restart, &mut r);
+            }
+            Ok(r)
+        })?;
+        self.step_tuple(py, result)
+    }
+
+    /// Frees the app (and the renderer); any later call raises `RuntimeError`.
+    fn close(&mut self) {
+        self.env = None;
+        self.frames = None;
+    }
+
+    /// Prepares off-screen rendering of arena 0 (`camera`: "iso", "front", "side", "top").
+    /// Raises `RuntimeError` when this machine has no graphics adapter.
+    #[pyo3(signature = (width=640, height=480, camera="iso"))]
+    fn enable_rendering(&mut self, width: u32, height: u32, camera: &str) -> PyResult<()> {
+        let view = View::framed(&self.robot.framing, camera).ok_or_else(|| {
+            value_error(anyhow::anyhow!("unknown camera '{camera}'; cameras: {}", twinbots_render::Framing::CAMERAS.join(", ")))
+        })?;
+        if width == 0 || height == 0 || width > 4096 || height > 4096 {
+            return Err(value_error(anyhow::anyhow!("image size must be between 1x1 and 4096x4096, got {width}x{height}")));
+        }
+        let renderer = no_panic("creating the renderer", || Ok(Renderer::new(width, height)?)).map_err(runtime_error)?;
+        self.frames = Some(Frames::new(renderer, view));
+        Ok(())
+    }
+
+    /// Arena 0 as it is now: an RGB image, shape `(height, width, 3)`, uint8.
+    fn render<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<u8>>> {
+        let env = self.env.as_mut().ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("this env is closed"))?;
+        let frames = self
+            .frames
+            .as_mut()
+            .ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("rendering is off: create the env with render_mode=\"rgb_array\""))?;
+        let image = no_panic("rendering", || frames.render(env)).map_err(runtime_error)?;
+        Ok(image.into_pyarray(py))
+    }
+}
+
+/// The restarted envs' step is discarded: they are reset again (a fresh start, not stepped),
+/// and report a zero reward and no ending.
+fn restart_after_step(env: &mut AppVecEnv, restart: &[usize], r: &mut StepResult) {
+    let arenas: Vec<_> = restart.iter().map(|&i| env.arenas()[i]).collect();
+    let all = env.arenas().to_vec();
+    let world = env.app_mut().world_mut();
+    twinbots_rl::task::reset(world, &arenas);
+    r.obs = twinbots_rl::env::observations(world, &all);
+    for &i in restart {
+        r.rewards[i] = 0.0;
+        r.terminated[i] = false;
+        r.truncated[i] = false;
+        r.final_obs[i] = None;
+        r.episodes[i] = None;
+    }
+}
+
+impl Arenas {
+    /// Flat observations as a `(num_envs, obs_dim)` array that owns the Rust buffer (no copy).
+    fn observations<'py>(&self, py: Python<'py>, obs: Vec<f32>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let dim = self.spec.observation_space.dim();
+        let array = Array2::from_shape_vec((self.num_envs, dim), obs)
+            .map_err(|e| runtime_error(anyhow::anyhow!("observation of the wrong size from the simulation: {e}")))?;
+        Ok(array.into_pyarray(py))
+    }
+
+    fn step_tuple<'py>(&self, py: Python<'py>, r: StepResult) -> PyResult<Bound<'py, PyTuple>> {
+        let ended = PyList::empty(py);
+        for (i, (final_obs, episode)) in r.final_obs.into_iter().zip(r.episodes).enumerate() {
+            if let (Some(final_obs), Some(episode)) = (final_obs, episode) {
+                ended.append((i, final_obs.into_pyarray(py), episode_dict(py, &episode)?))?;
+            }
+        }
+        let obs = self.observations(py, r.obs)?;
+        let rewards: Bound<'py, PyArray1<f32>> = r.rewards.into_pyarray(py);
+        let terminated: Bound<'py, PyArray1<bool>> = r.terminated.into_pyarray(py);
+        let truncated: Bound<'py, PyArray1<bool>> = r.truncated.into_pyarray(py);
+        PyTuple::new(py, [obs.into_any(), rewards.into_any(), terminated.into_any(), truncated.into_any(), ended.into_any()])
+    }
+}

@@ -1,0 +1,28 @@
+//! `twinbots._native`: the Rust half of the Python package. The arenas of a robot's task are an
+//! [`arenas::Arenas`] (a vectorised env stepped in Rust with the GIL released), a trained model
+//! is a [`policy::Policy`]; the Gymnasium and Stable-Baselines3 faces are Python
+//! (`python/twinbots/`), which also validates what users pass before it reaches Rust.
+
+mod actions;
+mod arenas;
+mod bench;
+mod convert;
+mod frames;
+mod policy;
+
+use pyo3::prelude::*;
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<arenas::Arenas>()?;
+    m.add_class::<policy::Policy>()?;
+    m.add_function(wrap_pyfunction!(robots, m)?)?;
+    m.add_function(wrap_pyfunction!(bench::rust_steps_per_second, m)?)?;
+    Ok(())
+}
+
+/// Every built-in robot: a list of dicts (name, description, tasks, patterns).
+#[pyfunction]
+fn robots(py: Python<'_>) -> PyResult<Vec<Bound<'_, pyo3::types::PyDict>>> {
+    twinbots::registry::robots().iter().map(|r| convert::robot_dict(py, r)).collect()
+}

@@ -1,0 +1,70 @@
+"""`load_policy` acts as the Rust side does: the same episodes as `twinbots eval`."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import twinbots
+
+
+def cli() -> str | None:
+    """The `twinbots` CLI of this build (scripts/test-python points TWINBOTS_BIN at it)."""
+    return os.environ.get("TWINBOTS_BIN") or shutil.which("twinbots")
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    exe = cli()
+    if exe is None:
+        pytest.skip("no twinbots CLI (set TWINBOTS_BIN) to train a model with")
+    out = tmp_path_factory.mktemp("run") / "cartpole"
+    subprocess.run([exe, "train", "cartpole", "--timesteps", "4096", "--arenas", "4", "--seed", "11", "--out", str(out)],
+                   check=True, capture_output=True)
+    return out
+
+
+def test_predict_matches_twinbots_eval(run_dir):
+    exe = cli()
+    report = subprocess.run([exe, "eval", str(run_dir), "--episodes", "3", "--arenas", "1"],
+                            check=True, capture_output=True, text=True).stdout
+    rust_mean = float(re.search(r"score ([0-9.]+) ±", report).group(1))
+    rust_length = float(re.search(r"mean length ([0-9.]+)", report).group(1))
+
+    policy = twinbots.load_policy(run_dir)
+    assert policy.action_space == twinbots.make("cartpole").action_space
+    config = (Path(run_dir) / "config.toml").read_text()
+    seed = int(re.search(r"^seed = (\d+)", config, re.M).group(1)) + 2_000_003  # eval's seed
+    envs = twinbots.make_vec("cartpole", num_envs=1, seed=seed)
+    obs, _ = envs.reset(seed=seed)
+    scores, lengths = [], []
+    while len(scores) < 3:
+        actions, _ = policy.predict(obs, deterministic=True)
+        obs, _, _, _, infos = envs.step(actions)
+        if "episode" in infos:
+            scores.append(infos["episode"]["r"][0])
+            lengths.append(infos["episode"]["l"][0])
+    assert np.mean(lengths) == pytest.approx(rust_length, abs=0.05)
+    assert np.mean(scores) == pytest.approx(rust_mean, abs=0.05)
+
+
+def test_predict_single_and_batch(run_dir):
+    policy = twinbots.load_policy(run_dir)
+    obs = np.zeros((5, 4), dtype=np.float32)
+    batch, state = policy.predict(obs)
+    assert state is None and batch.shape == (5,) and batch.dtype == np.int64
+    single, _ = policy.predict(obs[0])
+    assert single == batch[0]
+    with pytest.raises(ValueError, match="4"):
+        policy.predict(np.zeros((2, 3), dtype=np.float32))
+
+
+def test_missing_model_is_a_value_error(tmp_path):
+    with pytest.raises(ValueError, match="no model"):
+        twinbots.load_policy(tmp_path)

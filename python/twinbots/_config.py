@@ -1,0 +1,40 @@
+"""`config=`: domain randomization as in `twinbots train --config` (its `[randomization]`
+table), given as a TOML file, TOML text, or a dict of the table's entries."""
+
+from __future__ import annotations
+
+import os
+from typing import Union
+
+Config = Union[None, str, os.PathLike, dict]
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise ValueError(f"config: unsupported value {v!r} (numbers and [low, high] lists only)")
+
+
+def config_text(config: Config) -> str | None:
+    """TOML text for the extension, or None."""
+    if config is None:
+        return None
+    if isinstance(config, dict):
+        table = config.get("randomization", config)
+        if not isinstance(table, dict):
+            raise ValueError("config: 'randomization' must be a table of settings")
+        lines = ["[randomization]"] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+        return "\n".join(lines) + "\n"
+    if isinstance(config, os.PathLike) or (isinstance(config, str) and "\n" not in config and "=" not in config):
+        try:
+            with open(config, encoding="utf-8") as f:
+                return f.read()
+        except OSError as e:
+            raise ValueError(f"config: cannot read {config}: {e}") from e
+    if isinstance(config, str):
+        return config
+    raise ValueError(f"config must be a TOML file, TOML text or a dict, got {type(config).__name__}")

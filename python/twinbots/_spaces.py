@@ -1,0 +1,52 @@
+"""Gymnasium spaces from the task's own declaration, and the checks an action passes before the
+simulation sees it."""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+
+def to_space(d: dict) -> spaces.Space:
+    """A Gymnasium space from the extension's description (the Rust `Space`)."""
+    kind = d["kind"]
+    if kind == "box":
+        return spaces.Box(
+            low=np.asarray(d["low"], dtype=np.float32),
+            high=np.asarray(d["high"], dtype=np.float32),
+            dtype=np.float32,
+        )
+    if kind == "discrete":
+        return spaces.Discrete(d["n"])
+    if kind == "multi_discrete":
+        return spaces.MultiDiscrete(np.asarray(d["nvec"], dtype=np.int64))
+    raise ValueError(f"unknown space kind {kind!r}")
+
+
+class ActionCheck:
+    """Turns the actions of `num_envs` envs into the flat float32 vector the extension takes,
+    or raises `ValueError` for a wrong shape or dtype. The values themselves (NaN, infinity, a
+    choice out of range or fractional) are checked by the extension before any arena sees
+    them, where it costs nanoseconds; boxes are clipped to their bounds there."""
+
+    def __init__(self, space: spaces.Space, num_envs: int):
+        self.space = space
+        self.num_envs = num_envs
+        self.discrete = isinstance(space, spaces.Discrete)
+        if isinstance(space, spaces.Box):
+            self.shape = (num_envs, *space.shape)
+        elif self.discrete:
+            self.shape = (num_envs,)
+        else:
+            self.shape = (num_envs, len(space.nvec))
+
+    def __call__(self, actions) -> np.ndarray:
+        a = np.asarray(actions)
+        if a.shape != self.shape:
+            if self.discrete and a.shape == (self.num_envs, 1):
+                a = a[:, 0]  # SB3 and some policies keep a trailing axis of 1
+            else:
+                raise ValueError(f"actions have shape {a.shape}, expected {self.shape} for {self.space}")
+        if a.dtype.kind not in "fiu":
+            raise ValueError(f"actions must be real numbers, got dtype {a.dtype}")
+        return a.astype(np.float32, copy=False).reshape(-1)

@@ -1,0 +1,16 @@
+"""An env's simulation lives on the thread that created it (a Bevy app is not shared between
+threads; the extension's `Arenas` is pinned to its thread). Using it from another thread is a
+`RuntimeError` here, before the extension's own check would raise a `PanicException`."""
+
+from __future__ import annotations
+
+import threading
+
+get_ident = threading.get_ident
+
+
+def wrong_thread(owner: int) -> RuntimeError:
+    return RuntimeError(
+        f"this twinbots env was created on thread {owner} and cannot be used on thread {get_ident()}: "
+        "create one env per thread (or use gymnasium's AsyncVectorEnv / SB3's SubprocVecEnv for processes)"
+    )

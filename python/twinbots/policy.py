@@ -1,0 +1,39 @@
+"""`load_policy`: the model `twinbots train` wrote, acting in Python exactly as in Rust."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from . import _native
+from ._spaces import to_space
+
+
+class Policy:
+    """A trained PPO policy (its observation normaliser included). `predict` follows
+    Stable-Baselines3: `action, state = policy.predict(obs, deterministic=True)`, `state` always
+    None; `obs` is one observation or a batch."""
+
+    def __init__(self, path: str | os.PathLike):
+        self._model = _native.Policy(os.fspath(path))
+        self.path = self._model.path
+        self.observation_space = to_space(self._model.observation_space)
+        self.action_space = to_space(self._model.action_space)
+
+    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+        x = np.asarray(obs, dtype=np.float32)
+        single = x.ndim == len(self.observation_space.shape)
+        batch = x.reshape(1, -1) if single else x
+        if batch.ndim != 2:
+            raise ValueError(f"observations have shape {x.shape}, expected {self.observation_space.shape} or (batch, *that)")
+        actions = self._model.predict(np.ascontiguousarray(batch), deterministic)
+        if self.action_space.shape == ():  # Discrete: one whole number per observation
+            actions = actions[:, 0].astype(np.int64)
+        return (actions[0] if single else actions), None
+
+
+def load_policy(run_dir: str | os.PathLike) -> Policy:
+    """The model of a `twinbots train` run directory (its final model, else its newest
+    checkpoint), or of a model directory itself."""
+    return Policy(run_dir)

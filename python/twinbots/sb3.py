@@ -1,0 +1,110 @@
+"""Stable-Baselines3: the arenas as an SB3 `VecEnv` (SB3's own autoreset, SAME_STEP).
+
+    from stable_baselines3 import PPO
+    from twinbots.sb3 import make_vec_env
+    model = PPO("MlpPolicy", make_vec_env("cartpole", n_envs=8, seed=0)).learn(100_000)
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Sequence
+
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+from . import _native
+from ._config import Config, config_text
+from ._infos import episode_info
+from ._thread import get_ident, wrong_thread
+from ._spaces import ActionCheck, to_space
+from .vector import _initial_seed
+
+
+class TwinbotsSB3VecEnv(VecEnv):
+    """N arenas in SB3's `VecEnv` protocol. On the step an episode ends, that env's info holds
+    `terminal_observation`, `TimeLimit.truncated` (truncated and not terminated), `episode`
+    (`r`, `l`, `t`: what SB3's `Monitor` writes, so `ep_info_buffer` and the logger's
+    `rollout/ep_rew_mean` work without a `VecMonitor`), `is_success` for tasks with a goal, and
+    the task's figures (see `twinbots._infos.episode_info`)."""
+
+    def __init__(self, robot: str, n_envs: int = 1, seed: int | None = None, task: str | None = None,
+                 pattern: int = 1, config: Config = None, render_mode: str | None = None):
+        if not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
+            raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
+        self.arenas = _native.Arenas(robot, int(n_envs), _initial_seed(seed), task, pattern, config_text(config))
+        self._owner = get_ident()
+        self.render_mode = render_mode  # read back by SB3's __init__ through get_attr
+        super().__init__(int(n_envs), to_space(self.arenas.observation_space), to_space(self.arenas.action_space))
+        self.render_mode = render_mode
+        if render_mode == "rgb_array":
+            self.arenas.enable_rendering()
+        self._check = ActionCheck(self.action_space, self.num_envs)
+        self._actions: np.ndarray | None = None
+        self._start = time.time()
+        if seed is not None:
+            self.seed(seed)
+
+    def reset(self):
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
+        seed = self._seeds[0] if self._seeds and self._seeds[0] is not None else None
+        obs = self.arenas.reset(seed)
+        self._reset_seeds()
+        self._reset_options()
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
+        self._actions = self._check(actions)
+
+    def step_wait(self):
+        obs, rewards, terminated, truncated, ended = self.arenas.step(self._actions)
+        dones = terminated | truncated
+        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        for i, final_obs, summary in ended:
+            info = episode_info(summary)
+            info["episode"]["t"] = round(time.time() - self._start, 6)
+            info["terminal_observation"] = final_obs
+            info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+            infos[i] = info
+        return obs, rewards, dones, infos
+
+    def close(self) -> None:
+        if hasattr(self, "arenas") and get_ident() == self._owner:  # not when __init__ failed
+            self.arenas.close()
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        """Arena 0's frame (the renderer draws one arena); None for the others."""
+        if self.render_mode != "rgb_array":
+            raise RuntimeError("rendering is off: create the env with render_mode='rgb_array'")
+        return [self.arenas.render()] + [None] * (self.num_envs - 1)
+
+    # The arenas are one Rust app, not N Python envs: there are no per-env attributes or wrappers.
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        if attr_name == "render_mode":
+            return [self.render_mode] * len(self._indices(indices))
+        raise AttributeError(f"twinbots arenas have no attribute {attr_name!r}")
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        raise AttributeError(f"cannot set {attr_name!r}: twinbots arenas have no per-env attributes")
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        raise AttributeError(f"twinbots arenas have no per-env method {method_name!r}")
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False] * len(self._indices(indices))
+
+    def _indices(self, indices) -> list[int]:
+        if indices is None:
+            return list(range(self.arenas.num_envs))
+        if isinstance(indices, int):
+            return [indices]
+        return list(indices)
+
+
+def make_vec_env(robot: str, n_envs: int = 1, seed: int | None = None, task: str | None = None,
+                 pattern: int = 1, config: Config = None, render_mode: str | None = None) -> TwinbotsSB3VecEnv:
+    """`n_envs` arenas of `robot` as an SB3 `VecEnv` (the arguments as `twinbots.make_vec`)."""
+    return TwinbotsSB3VecEnv(robot, n_envs, seed, task, pattern, config, render_mode)

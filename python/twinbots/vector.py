@@ -1,0 +1,131 @@
+"""`TwinbotsVectorEnv`: N arenas of a twin as a `gymnasium.vector.VectorEnv`, stepped in Rust."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import gymnasium as gym
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from . import _native
+from ._config import Config, config_text
+from ._infos import vector_infos
+from ._thread import get_ident, wrong_thread
+from ._spaces import ActionCheck, to_space
+
+
+def _autoreset_mode(mode) -> AutoresetMode:
+    if isinstance(mode, AutoresetMode):
+        return mode
+    try:
+        return AutoresetMode(mode) if mode in ("SameStep", "NextStep") else AutoresetMode[str(mode).upper()]
+    except (KeyError, ValueError):
+        raise ValueError(f"autoreset_mode must be SAME_STEP or NEXT_STEP, got {mode!r}") from None
+
+
+class TwinbotsVectorEnv(gym.vector.VectorEnv):
+    """`num_envs` arenas of `robot`'s `task`, simulated together in one Rust app.
+
+    Autoreset is SAME_STEP by default (the simulation's own): an env whose episode ended
+    returns the first observation of its next episode, with the last one in
+    `info["final_obs"]` and the episode's figures in `info["final_info"]` (and `episode`,
+    `is_success`, ... at the top level, masked by `_episode`, ...). NEXT_STEP returns the last
+    observation and begins the next episode on the following step, whose action that env
+    ignores."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"]}
+
+    def __init__(
+        self,
+        robot: str,
+        num_envs: int = 1,
+        seed: int | None = None,
+        task: str | None = None,
+        pattern: int = 1,
+        config: Config = None,
+        render_mode: str | None = None,
+        autoreset_mode: str | AutoresetMode = AutoresetMode.SAME_STEP,
+    ):
+        if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.autoreset_mode = _autoreset_mode(autoreset_mode)
+        if self.autoreset_mode == AutoresetMode.DISABLED:
+            raise ValueError("autoreset_mode DISABLED is not supported: the arenas reset themselves (SAME_STEP or NEXT_STEP)")
+        seed = _initial_seed(seed)
+        self.arenas = _native.Arenas(robot, int(num_envs), seed, task, pattern, config_text(config))
+        self._owner = get_ident()
+        self.num_envs = int(num_envs)
+        self.task = self.arenas.task
+        self.single_observation_space = to_space(self.arenas.observation_space)
+        self.single_action_space = to_space(self.arenas.action_space)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.metadata = {
+            "autoreset_mode": self.autoreset_mode,
+            "render_modes": ["rgb_array"],
+            "render_fps": round(1.0 / self.arenas.control_dt),
+        }
+        self.render_mode = render_mode
+        if render_mode == "rgb_array":
+            self.arenas.enable_rendering()
+        self._check = ActionCheck(self.single_action_space, self.num_envs)
+        self._restart: list[int] = []  # NEXT_STEP: envs whose next step begins a new episode
+        self._reset_once = False
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Resets every env. `seed` (an int) seeds them all: env i draws from stream i of it."""
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
+        if seed is not None:
+            if not isinstance(seed, (int, np.integer)) or seed < 0:
+                raise ValueError(f"seed must be a non-negative int (env i gets stream i of it), got {seed!r}")
+            self._np_random, self._np_random_seed = seeding.np_random(int(seed))
+        if options:
+            raise ValueError(f"reset options are not supported, got {options!r}")
+        self._restart = []
+        self._reset_once = True
+        return self.arenas.reset(None if seed is None else int(seed)), {}
+
+    def step(self, actions):
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
+        if not self._reset_once:
+            raise RuntimeError("call reset() before step()")
+        flat = self._check(actions)
+        obs, rewards, terminated, truncated, ended = self.arenas.step(flat, self._restart or None)
+        if not ended:
+            self._restart = []
+            return obs, rewards, terminated, truncated, {}
+        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
+        infos = vector_infos(self.num_envs, ended, final_obs=same_step)
+        if not same_step:
+            for i, final_obs, _ in ended:
+                obs[i] = final_obs  # the next step begins env i's next episode
+        self._restart = [i for i, _, _ in ended] if self.autoreset_mode == AutoresetMode.NEXT_STEP else []
+        return obs, rewards, terminated, truncated, infos
+
+    def render(self):
+        """Arena 0 as an RGB image (`render_mode="rgb_array"`)."""
+        if self.render_mode is None:
+            return None
+        if get_ident() != self._owner:
+            raise wrong_thread(self._owner)
+        return self.arenas.render()
+
+    def close_extras(self, **kwargs):
+        if hasattr(self, "arenas") and get_ident() == self._owner:  # not when __init__ failed (close() runs from __del__)
+            self.arenas.close()
+
+
+def _initial_seed(seed: int | None) -> int:
+    """The app's seed: `seed`, or fresh entropy when none is given (as Gymnasium does)."""
+    if seed is None:
+        return int(np.random.SeedSequence().entropy % (2**63))
+    if not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative int, got {seed!r}")
+    return int(seed)
