@@ -14,6 +14,9 @@ use pyo3::prelude::*;
 
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    // The thread pools, sized for this machine before the arenas or candle start any (candle
+    // would otherwise recount the cores on every matrix product).
+    twinbots_rl::threads::configure();
     m.add_class::<arenas::Arenas>()?;
     m.add_class::<policy::Policy>()?;
     m.add_function(wrap_pyfunction!(robots, m)?)?;
