@@ -13,7 +13,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use twinbots_rl::randomization::RandomizationPlugin;
-use twinbots_rl::run_dir::{EVAL, Summary};
+use twinbots_rl::run_dir::{EVAL, Summary, TimeBreakdown};
 use twinbots_rl::{DesignPattern, Ppo, RunDir, TrainingEnd, bridge, env, evaluate_policy};
 
 use crate::cli::runs::{TrainSettings, evaluation_env};
@@ -121,6 +121,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Ppo>, view: bool)
     });
 
     // The app's thread (this one): frames until the learner hangs up.
+    let mut simulation_s = None;
     let sim = if view {
         // The window drives the app in time slices; closing the window stops training.
         let arena = app.world().resource::<env::ArenaOrder>().0[0];
@@ -129,6 +130,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Ppo>, view: bool)
         Ok(shown)
     } else {
         let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| bridge::run_until_closed(&mut app)));
+        simulation_s = app.world().get_resource::<bridge::SimulationTime>().map(|t| t.seconds);
         drop(app); // closes the bridge, so a learner still waiting gets an error rather than a hang
         r.map(Ok)
     };
@@ -146,12 +148,17 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Ppo>, view: bool)
     let mut eval_env = evaluation_env(&entry, None, settings.arenas, settings.eval_episodes, seed, settings.in_process_pattern()?)?;
     let evaluation = evaluate_policy(entry.main_task().name, &model, &mut eval_env, settings.eval_episodes, seed)?;
     run_dir.write_json(EVAL, &evaluation)?;
-    run_dir.write_summary(&Summary::new(&settings.robot, settings.pattern, &model, &end, wall, Some(&evaluation)))?;
+    let mut summary = Summary::new(&settings.robot, settings.pattern, &model, &end, wall, Some(&evaluation));
+    summary.time_breakdown = simulation_s.map(|sim| TimeBreakdown::new(&model.times, sim, wall));
+    run_dir.write_summary(&summary)?;
     match end {
         TrainingEnd::Solved { timesteps, by } => {
             println!("solved ({by}) after {timesteps} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.mean_recent_score())
         }
         _ => println!("not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}", model.timesteps, model.mean_recent_score()),
+    }
+    if let Some(time) = &summary.time_breakdown {
+        println!("time: {}", time.describe());
     }
     println!("evaluation of the final model, {}", evaluation.describe());
     println!("run directory: {}", run_dir.path().display());

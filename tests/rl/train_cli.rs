@@ -26,6 +26,14 @@ fn short_training_run_writes_its_run_directory() {
     assert!(out.join("config.toml").is_file() && out.join("summary.json").is_file());
     let checkpoints = std::fs::read_dir(out.join("checkpoints")).unwrap().count();
     assert_eq!(checkpoints, 4, "every 4th of 16 updates");
+    // Where the time went: every part measured, together no more than the wall clock.
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let time = &summary["time_breakdown"];
+    let part = |name: &str| time[name].as_f64().unwrap_or_else(|| panic!("no {name} in {summary}"));
+    let parts = ["simulation_s", "inference_s", "update_s", "bridge_s", "logging_s", "other_s"].map(part);
+    assert!(parts[..4].iter().all(|&s| s > 0.0), "{time}");
+    let wall = summary["wall_clock_s_this_session"].as_f64().unwrap();
+    assert!((parts.iter().sum::<f64>() - wall).abs() < 0.01 * wall + 1e-3, "{time} vs wall {wall}");
     let model = twinbots_rl::Ppo::load(out.join("model")).unwrap();
     assert_eq!(model.timesteps, 1024);
     std::fs::remove_dir_all(&out).ok();

@@ -47,7 +47,8 @@ impl Plugin for BridgePlugin {
                 .run_if(resource_exists::<BridgeEndpoint>)
                 .run_if(twinbots_sim::physics::sim_started),
         )
-        .add_systems(PostUpdate, send_step_results.run_if(resource_exists::<BridgeEndpoint>));
+        .add_systems(PostUpdate, send_step_results.run_if(resource_exists::<BridgeEndpoint>))
+        .init_resource::<SimulationTime>();
     }
 }
 
@@ -89,6 +90,15 @@ pub fn run_until_closed(app: &mut App) {
     }
 }
 
+/// Seconds the app spent simulating for the trainer (steps from their actions to their results,
+/// and resets), without the time it waited for requests: the trainer's env time less this is
+/// the bridge's own cost.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct SimulationTime {
+    pub seconds: f64,
+    step_started: Option<std::time::Instant>,
+}
+
 /// Waits for the trainer: answers resets at once; a step's actions are written and the frame
 /// goes on to simulate it.
 fn receive_requests(world: &mut World) {
@@ -97,9 +107,15 @@ fn receive_requests(world: &mut World) {
         let endpoint = world.resource::<BridgeEndpoint>();
         let request = endpoint.requests.recv();
         let reply = match request {
-            Ok(Request::Reset { seed }) => Ok(Reply::Reset(reset_arenas(world, &arenas, seed))),
+            Ok(Request::Reset { seed }) => {
+                let started = std::time::Instant::now();
+                let obs = reset_arenas(world, &arenas, seed);
+                world.resource_mut::<SimulationTime>().seconds += started.elapsed().as_secs_f64();
+                Ok(Reply::Reset(obs))
+            }
             Ok(Request::Step { actions }) => match write_actions(world, &arenas, &actions) {
                 Ok(()) => {
+                    world.resource_mut::<SimulationTime>().step_started = Some(std::time::Instant::now());
                     world.resource_mut::<BridgeEndpoint>().pending = true;
                     return;
                 }
@@ -123,6 +139,10 @@ fn send_step_results(world: &mut World) {
     }
     let arenas = &world.resource::<crate::env::ArenaOrder>().0;
     let result = collect_step(world, arenas);
+    let mut time = world.resource_mut::<SimulationTime>();
+    if let Some(started) = time.step_started.take() {
+        time.seconds += started.elapsed().as_secs_f64();
+    }
     let mut endpoint = world.resource_mut::<BridgeEndpoint>();
     endpoint.pending = false;
     if endpoint.replies.send(Ok(Reply::Step(result))).is_err() {

@@ -76,6 +76,23 @@ pub struct Ppo {
     pub recent_successes: VecDeque<f32>,
     optimizer: AdamW,
     rng: ChaCha8Rng,
+    /// Where this process's training time went (not saved with the model).
+    pub times: TrainingTimes,
+}
+
+/// Seconds the learner spent on each part of training, summed since the model was made or
+/// loaded: what `train` reports at its end and in `summary.json`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TrainingTimes {
+    /// Policy forward passes of the rollouts (actions, values, bootstrap values, normalising).
+    pub inference_s: f64,
+    /// Waiting for the env's steps and resets: the simulation, and for a bridged env the
+    /// channel around it.
+    pub env_s: f64,
+    /// Advantages and the gradient steps of the updates.
+    pub update_s: f64,
+    /// The callbacks: progress logs, the curve, evaluations, checkpoints.
+    pub callbacks_s: f64,
 }
 
 const WINDOW: usize = 100;
@@ -112,6 +129,7 @@ impl Ppo {
             recent_successes: VecDeque::new(),
             optimizer,
             rng: ChaCha8Rng::seed_from_u64(seed ^ ACTION_STREAM_SALT),
+            times: TrainingTimes::default(),
         })
     }
 
@@ -136,6 +154,7 @@ impl Ppo {
             recent_successes: self.recent_successes.clone(),
             optimizer,
             rng: self.rng.clone(),
+            times: self.times,
         })
     }
 
@@ -208,13 +227,17 @@ impl Ppo {
             self.collect_rollout(env, &mut obs, &mut buffer)?;
 
             // 2. Advantages by GAE, bootstrapped from V(s_T).
+            let update_started = Instant::now();
             let last_values = self.values(&obs)?;
             buffer.compute_advantages(&last_values, self.config.gamma, self.config.gae_lambda);
 
             // 3. Optimise the clipped surrogate for n_epochs over shuffled minibatches.
             let stats = self.train(&buffer, started)?;
+            let callbacks_started = Instant::now();
+            self.times.update_s += (callbacks_started - update_started).as_secs_f64();
 
             ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);
+            self.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
         }
         callback.on_training_end(self)?;
         Ok(ended.unwrap_or(TrainingEnd::BudgetSpent { timesteps: self.timesteps }))

@@ -2,6 +2,8 @@
 //! sampling actions, bootstrapping truncated episodes, and filling the rollout buffer. `learn`
 //! drives it over a `VecEnv`; the RobotServer uses the same pieces one robot message at a time.
 
+use std::time::Instant;
+
 use candle_core::{Device, Tensor};
 
 use super::{Ppo, RolloutBuffer};
@@ -93,8 +95,13 @@ impl Ppo {
         let n_envs = env.num_envs();
         buffer.clear();
         for _ in 0..self.config.n_steps {
+            let inference_started = Instant::now();
             let step = self.policy_step(std::mem::take(obs))?;
+            let env_started = Instant::now();
             let outcome = env.step(&step.env_actions)?;
+            let env_done = Instant::now();
+            self.times.inference_s += (env_started - inference_started).as_secs_f64();
+            self.times.env_s += (env_done - env_started).as_secs_f64();
             let mut rewards = Vec::with_capacity(n_envs);
             for e in 0..n_envs {
                 let (terminated, truncated) = (outcome.terminated[e], outcome.truncated[e]);
@@ -107,6 +114,8 @@ impl Ppo {
             buffer.push(&step, &rewards, &dones);
             *obs = self.observe(&outcome.obs);
             self.timesteps += n_envs as u64;
+            // Bootstrap values of truncated episodes and normalising are inference too.
+            self.times.inference_s += env_done.elapsed().as_secs_f64();
         }
         Ok(())
     }

@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
-pub use summary::{EvaluationSummary, Summary};
+pub use summary::{EvaluationSummary, Summary, TimeBreakdown};
 pub use table::{Row, Table};
 
 use crate::evaluation::EvalResult;

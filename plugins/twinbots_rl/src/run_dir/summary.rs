@@ -27,6 +27,46 @@ pub struct Summary {
     pub solved_by: Option<String>,
     /// The final model's evaluation, where the run had an in-process env to evaluate on.
     pub evaluation: Option<EvaluationSummary>,
+    /// Where this session's wall clock went (`train`, headless).
+    #[serde(default)]
+    pub time_breakdown: Option<TimeBreakdown>,
+}
+
+/// Seconds of a training session by part. `simulation` is the app's stepping and resetting,
+/// `bridge` the channel around it (the learner's wait for the env less the simulation),
+/// `logging` the callbacks (progress, curve, evaluations, checkpoints), `other` the rest of the
+/// wall clock (start-up, the final save).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TimeBreakdown {
+    pub simulation_s: f64,
+    pub inference_s: f64,
+    pub update_s: f64,
+    pub bridge_s: f64,
+    pub logging_s: f64,
+    pub other_s: f64,
+}
+
+impl TimeBreakdown {
+    /// From the learner's times, the app's simulation time and the session's wall clock.
+    pub fn new(learner: &crate::ppo::TrainingTimes, simulation_s: f64, wall_clock_s: f64) -> Self {
+        let bridge_s = (learner.env_s - simulation_s).max(0.0);
+        let accounted = simulation_s + bridge_s + learner.inference_s + learner.update_s + learner.callbacks_s;
+        Self {
+            simulation_s,
+            inference_s: learner.inference_s,
+            update_s: learner.update_s,
+            bridge_s,
+            logging_s: learner.callbacks_s,
+            other_s: (wall_clock_s - accounted).max(0.0),
+        }
+    }
+
+    pub fn describe(&self) -> String {
+        format!(
+            "simulation {:.1} s, policy inference {:.1} s, PPO updates {:.1} s, bridge {:.1} s, logging/evaluation/checkpoints {:.1} s, other {:.1} s",
+            self.simulation_s, self.inference_s, self.update_s, self.bridge_s, self.logging_s, self.other_s
+        )
+    }
 }
 
 /// The headline figures of an [`EvalResult`] (the whole of it is in `eval.json`).
@@ -64,6 +104,7 @@ impl Summary {
                 std_score: e.std_score,
                 success_rate: e.success_rate,
             }),
+            time_breakdown: None,
         }
     }
 }
