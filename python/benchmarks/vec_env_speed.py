@@ -18,16 +18,21 @@ import twinbots
 from twinbots import _native
 
 
-def python_steps_per_second(num_envs: int, actions: np.ndarray, steps: int) -> float:
-    envs = twinbots.make_vec("cartpole", num_envs=num_envs, seed=0)
+def timed_steps_per_second(envs, rows: list, steps: int) -> float:
+    """Env steps/s of `steps` vector steps of `envs` (reset first), cycling through `rows` of
+    actions; closes the envs. The same loop for every library measured."""
     envs.reset(seed=0)
-    rows = [a.astype(np.int64) for a in actions]
     start = time.perf_counter()
     for t in range(steps):
         envs.step(rows[t % len(rows)])
     elapsed = time.perf_counter() - start
     envs.close()
-    return steps * num_envs / elapsed
+    return steps * envs.num_envs / elapsed
+
+
+def python_steps_per_second(num_envs: int, actions: np.ndarray, steps: int) -> float:
+    envs = twinbots.make_vec("cartpole", num_envs=num_envs, seed=0)
+    return timed_steps_per_second(envs, [a.astype(np.int64) for a in actions], steps)
 
 
 def mujoco_steps_per_second(num_envs: int, steps: int) -> float | None:
@@ -38,15 +43,9 @@ def mujoco_steps_per_second(num_envs: int, steps: int) -> float | None:
     except Exception as e:  # mujoco not installed
         print(f"  (MuJoCo InvertedPendulum-v5 unavailable: {e})")
         return None
-    envs.reset(seed=0)
     rng = np.random.default_rng(0)
     rows = [rng.uniform(-3, 3, size=(num_envs, 1)).astype(np.float32) for _ in range(256)]
-    start = time.perf_counter()
-    for t in range(steps):
-        envs.step(rows[t % len(rows)])
-    elapsed = time.perf_counter() - start
-    envs.close()
-    return steps * num_envs / elapsed
+    return timed_steps_per_second(envs, rows, steps)
 
 
 def main():
