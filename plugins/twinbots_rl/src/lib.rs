@@ -10,6 +10,7 @@ pub mod callbacks;
 pub mod classic;
 pub mod env;
 pub mod evaluation;
+pub mod nn;
 pub mod normalize;
 pub mod plot;
 pub mod randomization;

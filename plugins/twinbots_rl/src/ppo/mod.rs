@@ -16,7 +16,6 @@ mod update;
 use std::collections::VecDeque;
 use std::time::Instant;
 
-use candle_nn::{AdamW, Optimizer};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -28,6 +27,7 @@ pub use rollout::PolicyStep;
 
 use crate::callbacks::{Callback, TrainingEnd};
 use crate::env::VecEnv;
+use crate::nn::Adam;
 use crate::normalize::RunningMeanStd;
 use crate::spaces::Space;
 use crate::task::{EpisodeSummary, Measure, SolvedCriterion};
@@ -74,7 +74,7 @@ pub struct Ppo {
     recent_lengths: VecDeque<f32>,
     /// 1 or 0 for each of the last 100 finished episodes that reported success or failure.
     pub recent_successes: VecDeque<f32>,
-    optimizer: AdamW,
+    optimizer: Adam,
     rng: ChaCha8Rng,
     /// Where this process's training time went (not saved with the model).
     pub times: TrainingTimes,
@@ -113,7 +113,7 @@ impl Ppo {
         let obs_dim = observation_space.dim();
         let policy = ActorCritic::new(obs_dim, &action_space, &config.hidden, config.log_std_init, seed)?;
         let obs_rms = config.normalize_observations.then(|| RunningMeanStd::new(obs_dim));
-        let optimizer = update::adam(&policy, config.learning_rate)?;
+        let optimizer = update::adam(&policy, config.learning_rate);
         Ok(Self {
             config,
             observation_space,
@@ -133,12 +133,11 @@ impl Ppo {
         })
     }
 
-    /// An independent copy (weights, normalisation, counters, random stream) to evaluate or
-    /// save while the original trains on. Its optimiser starts afresh, as after `load`: candle
-    /// keeps Adam's moment estimates private.
+    /// An independent copy (weights, optimiser state, normalisation, counters, random stream)
+    /// to evaluate or save while the original trains on.
     pub fn snapshot(&self) -> anyhow::Result<Ppo> {
         let policy = self.policy.deep_copy()?;
-        let optimizer = update::adam(&policy, self.optimizer.learning_rate())?;
+        let optimizer = self.optimizer.for_copies(policy.named_vars().into_iter().map(|(_, v)| v).collect())?;
         Ok(Self {
             config: self.config.clone(),
             observation_space: self.observation_space.clone(),

@@ -3,11 +3,11 @@
 
 use std::time::Instant;
 
-use candle_core::{DType, Device, Tensor, Var};
-use candle_nn::{AdamW, Optimizer, ParamsAdamW};
+use candle_core::{Device, Tensor, Var};
 use rand::seq::SliceRandom;
 
 use super::{ActorCritic, Ppo, RolloutBuffer, UpdateStats, mean};
+use crate::nn::{Adam, AdamConfig};
 use crate::spaces::Space;
 
 /// The loss of one minibatch and what an update reports about it.
@@ -17,8 +17,7 @@ pub(super) struct MinibatchLoss {
     pub policy_loss: Tensor,
     pub value_loss: Tensor,
     pub entropy: Tensor,
-    /// π(a|s) / π_old(a|s) per sample.
-    pub ratio: Tensor,
+    /// log π(a|s) − log π_old(a|s) per sample.
     pub log_ratio: Tensor,
 }
 
@@ -63,14 +62,13 @@ impl Ppo {
             indices.shuffle(&mut self.rng);
             for chunk in indices.chunks(c.batch_size) {
                 let mb = self.minibatch_loss(buffer, chunk)?;
-                let mut grads = mb.loss.backward()?;
-                clip_grad_norm(&mut grads, &self.policy.named_vars(), c.max_grad_norm)?;
-                self.optimizer.step(&grads)?;
+                self.optimizer.step(&mb.loss.backward()?, Some(c.max_grad_norm))?;
 
+                let log_ratio = mb.log_ratio.to_vec1::<f32>()?;
+                let n = log_ratio.len().max(1) as f32;
                 // approx KL (Schulman's k3 estimator): E[(r - 1) - log r]
-                let approx_kl = ((&mb.ratio - 1.0)? - &mb.log_ratio)?.mean_all()?.to_scalar::<f32>()?;
-                let clipped = ((&mb.ratio - 1.0)?.abs()?.gt(c.clip_range as f64)?)
-                    .to_dtype(DType::F32)?.mean_all()?.to_scalar::<f32>()?;
+                let approx_kl = log_ratio.iter().map(|&l| l.exp() - 1.0 - l).sum::<f32>() / n;
+                let clipped = log_ratio.iter().filter(|&&l| (l.exp() - 1.0).abs() > c.clip_range).count() as f32 / n;
                 pg_sum += mb.policy_loss.to_scalar::<f32>()?;
                 v_sum += mb.value_loss.to_scalar::<f32>()?;
                 ent_sum += mb.entropy.to_scalar::<f32>()?;
@@ -134,34 +132,14 @@ impl Ppo {
         let value_loss = (&eval.value - &returns)?.sqr()?.mean_all()?;
         let entropy = eval.entropy.mean_all()?;
         let loss = ((&policy_loss - (&entropy * c.ent_coef as f64)?)? + (&value_loss * c.vf_coef as f64)?)?;
-        Ok(MinibatchLoss { loss, policy_loss, value_loss, entropy, ratio, log_ratio })
+        Ok(MinibatchLoss { loss, policy_loss, value_loss, entropy, log_ratio })
     }
 }
 
-pub(super) fn adam(policy: &ActorCritic, lr: f64) -> anyhow::Result<AdamW> {
+/// Plain Adam as in SB3 (eps 1e-5, no weight decay).
+pub(super) fn adam(policy: &ActorCritic, learning_rate: f64) -> Adam {
     let vars: Vec<Var> = policy.named_vars().into_iter().map(|(_, v)| v).collect();
-    // Plain Adam as in SB3 (eps 1e-5, no weight decay).
-    Ok(AdamW::new(vars, ParamsAdamW { lr, beta1: 0.9, beta2: 0.999, eps: 1e-5, weight_decay: 0.0 })?)
-}
-
-/// Scales all gradients so their global L2 norm is at most `max_norm`.
-fn clip_grad_norm(grads: &mut candle_core::backprop::GradStore, vars: &[(String, Var)], max_norm: f32) -> anyhow::Result<()> {
-    let mut total = 0.0f32;
-    for (_, v) in vars {
-        if let Some(g) = grads.get(v.as_tensor()) {
-            total += g.sqr()?.sum_all()?.to_scalar::<f32>()?;
-        }
-    }
-    let norm = total.sqrt();
-    if norm > max_norm {
-        let scale = (max_norm / (norm + 1e-6)) as f64;
-        for (_, v) in vars {
-            if let Some(g) = grads.remove(v.as_tensor()) {
-                grads.insert(v.as_tensor(), (g * scale)?);
-            }
-        }
-    }
-    Ok(())
+    Adam::new(vars, AdamConfig { learning_rate, ..AdamConfig::default() })
 }
 
 #[cfg(test)]
@@ -192,7 +170,7 @@ mod tests {
 
         let all: Vec<usize> = (0..buffer.len()).collect();
         let mb = model.minibatch_loss(&buffer, &all).unwrap();
-        (&mb.ratio - 1.0).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap()
+        (mb.log_ratio.exp().unwrap() - 1.0).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap()
     }
 
     #[test]
