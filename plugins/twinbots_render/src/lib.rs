@@ -5,7 +5,9 @@
 pub mod cameras;
 pub mod renderer;
 pub mod scene;
+pub mod shading;
 pub mod viewer;
 
 pub use cameras::{CameraPlugin, CameraRig};
+pub use shading::{LambertMaterial, ShadingPlugin};
 pub use renderer::{Framing, RenderError, Renderer, View, adapter_required};

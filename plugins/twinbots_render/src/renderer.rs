@@ -22,6 +22,10 @@ use bevy::window::ExitCondition;
 use twinbots_sim::rapier::math::Pose;
 
 use crate::scene;
+use crate::shading::{LambertMaterial, ShadingPlugin};
+
+/// The ground plane's colour (sRGB).
+pub const GROUND_COLOR: Color = Color::srgb(0.45, 0.47, 0.45);
 
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
@@ -133,8 +137,8 @@ impl Renderer {
                 .disable::<bevy::winit::WinitPlugin>()
                 .disable::<bevy::log::LogPlugin>(),
         )
-        .insert_resource(ClearColor(Color::srgb(0.78, 0.84, 0.9)))
-        .insert_resource(GlobalAmbientLight { color: Color::WHITE, brightness: 400.0, affects_lightmapped_meshes: true });
+        .add_plugins(ShadingPlugin)
+        .insert_resource(ClearColor(Color::srgb(0.78, 0.84, 0.9)));
         while app.plugins_state() == PluginsState::Adding {
             bevy::tasks::tick_global_task_pools_on_main_thread();
         }
@@ -166,11 +170,7 @@ impl Renderer {
         ));
         // The ground: a large plane at physics z = 0.
         let ground = world.resource_mut::<Assets<Mesh>>().add(Plane3d::default().mesh().size(40.0, 40.0));
-        let grey = world.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial {
-            base_color: Color::srgb(0.45, 0.47, 0.45),
-            perceptual_roughness: 0.9,
-            ..default()
-        });
+        let grey = world.resource_mut::<Assets<LambertMaterial>>().add(LambertMaterial::new(GROUND_COLOR));
         world.spawn((Mesh3d(ground), MeshMaterial3d(grey)));
         Ok(Self { app, width, height, fresh_meshes: true, readback_buffer: None })
     }

@@ -13,6 +13,8 @@ use twinbots_sim::rapier::prelude::ShapeType;
 use twinbots_sim::urdf::{Shape, Visual};
 use twinbots_sim::{Arena, InArena, Link, Visuals};
 
+use crate::shading::LambertMaterial;
+
 /// The rotation taking Z-up physics coordinates to Bevy's Y-up.
 pub fn z_up_to_y_up() -> Quat {
     Quat::from_rotation_x(-FRAC_PI_2)
@@ -119,7 +121,7 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> bool {
         let mut mirror = Mirror { arena: Some(arena), ..default() };
         for (half, pose) in boxes {
             let mesh = render.resource_mut::<Assets<Mesh>>().add(Cuboid::new(2.0 * half.x, 2.0 * half.y, 2.0 * half.z));
-            let mat = render.resource_mut::<Assets<StandardMaterial>>().add(Color::srgb(0.6, 0.55, 0.5));
+            let mat = render.resource_mut::<Assets<LambertMaterial>>().add(LambertMaterial::new(Color::srgb(0.6, 0.55, 0.5)));
             mirror.statics.push(render.spawn((Mesh3d(mesh), MeshMaterial3d(mat), to_bevy(pose))).id());
         }
         render.insert_resource(mirror);
@@ -146,11 +148,7 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> bool {
                 let (mesh, local) = mesh_for(&v.visual.geometry.shape);
                 let mesh = render.resource_mut::<Assets<Mesh>>().add(mesh);
                 let [r, g, b, a] = v.visual.rgba;
-                let mat = render.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial {
-                    base_color: Color::srgba(r, g, b, a),
-                    perceptual_roughness: 0.6,
-                    ..default()
-                });
+                let mat = render.resource_mut::<Assets<LambertMaterial>>().add(LambertMaterial::new(Color::srgba(r, g, b, a)));
                 let parent = render.spawn((Transform::default(), Visibility::default())).id();
                 render.spawn((Mesh3d(mesh), MeshMaterial3d(mat), local, ChildOf(parent)));
                 render.resource_mut::<Mirror>().links.insert(v.key, parent);

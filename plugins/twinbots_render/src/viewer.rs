@@ -9,6 +9,7 @@ use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
 use bevy::prelude::*;
 
 use crate::scene;
+use crate::shading::{LambertMaterial, ShadingPlugin};
 
 /// What the viewer shows and drives.
 pub trait ViewSource: 'static {
@@ -51,9 +52,9 @@ pub fn run(source: Box<dyn ViewSource>, title: &str, framing: crate::Framing) ->
         primary_window: Some(Window { title: title.into(), resolution: (1024u32, 720u32).into(), ..default() }),
         ..default()
     }))
+    .add_plugins(ShadingPlugin)
     .insert_non_send(Source(source))
     .insert_resource(ClearColor(Color::srgb(0.78, 0.84, 0.9)))
-    .insert_resource(GlobalAmbientLight { color: Color::WHITE, brightness: 400.0, affects_lightmapped_meshes: true })
     .init_resource::<Controls>()
     .insert_resource(InitialFraming(framing))
     .add_systems(Startup, setup)
@@ -70,7 +71,7 @@ fn setup(
     mut commands: Commands,
     framing: Res<InitialFraming>,
     mut meshes: ResMut<Assets<Mesh>>,
-    mut materials: ResMut<Assets<StandardMaterial>>,
+    mut materials: ResMut<Assets<LambertMaterial>>,
 ) {
     let framing = framing.0;
     commands.spawn((
@@ -79,12 +80,12 @@ fn setup(
         Orbit { yaw: -0.3, pitch: 0.25, distance: framing.distance * 1.15, target: scene::point_to_bevy(framing.target) },
     ));
     commands.spawn((
-        DirectionalLight { illuminance: 8000.0, shadow_maps_enabled: true, ..default() },
+        DirectionalLight { illuminance: 8000.0, shadow_maps_enabled: false, ..default() },
         Transform::from_xyz(2.0, 6.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
     ));
     commands.spawn((
         Mesh3d(meshes.add(Plane3d::default().mesh().size(40.0, 40.0))),
-        MeshMaterial3d(materials.add(Color::srgb(0.45, 0.47, 0.45))),
+        MeshMaterial3d(materials.add(LambertMaterial::new(crate::renderer::GROUND_COLOR))),
     ));
 }
 
