@@ -8,6 +8,7 @@ mod arenas;
 mod bench;
 mod convert;
 mod frames;
+mod handover;
 mod policy;
 
 use pyo3::prelude::*;
@@ -21,6 +22,11 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<policy::Policy>()?;
     m.add_function(wrap_pyfunction!(robots, m)?)?;
     m.add_function(wrap_pyfunction!(bench::rust_steps_per_second, m)?)?;
+    m.add_function(wrap_pyfunction!(handover::training_defaults, m)?)?;
+    m.add_function(wrap_pyfunction!(handover::create_run, m)?)?;
+    m.add_function(wrap_pyfunction!(handover::append_progress, m)?)?;
+    m.add_function(wrap_pyfunction!(handover::draw_curve, m)?)?;
+    m.add_function(wrap_pyfunction!(handover::save_model, m)?)?;
     Ok(())
 }
 

@@ -68,30 +68,29 @@ impl LearningCurveCallback {
     }
 
     fn draw(&self) -> anyhow::Result<()> {
-        let curve: Vec<CurvePoint> = self
-            .run
-            .read_progress()?
-            .iter()
-            .map(|s| CurvePoint {
-                timesteps: s.timesteps,
-                mean_reward: s.mean_reward,
-                min_reward: s.min_reward,
-                max_reward: s.max_reward,
-                success_rate: s.success_rate,
-            })
-            .collect();
-        let evaluations: Vec<EvaluationPoint> = self
-            .run
-            .read_evaluations()?
-            .iter()
-            .map(|e| EvaluationPoint {
-                timesteps: e.timesteps,
-                mean_score: e.mean_score,
-                success_rate: e.success_rate.unwrap_or(f32::NAN),
-            })
-            .collect();
-        plot::learning_curve(&self.run.file(LEARNING_CURVE), &self.title, &curve, &evaluations, self.solved)
+        draw_learning_curve(&self.run, &self.title, self.solved)
     }
+}
+
+/// Draws `run`'s learning curve from its `progress.csv` and `evaluations.csv`.
+pub fn draw_learning_curve(run: &RunDir, title: &str, solved: Option<SolvedCriterion>) -> anyhow::Result<()> {
+    let curve: Vec<CurvePoint> = run
+        .read_progress()?
+        .iter()
+        .map(|s| CurvePoint {
+            timesteps: s.timesteps,
+            mean_reward: s.mean_reward,
+            min_reward: s.min_reward,
+            max_reward: s.max_reward,
+            success_rate: s.success_rate,
+        })
+        .collect();
+    let evaluations: Vec<EvaluationPoint> = run
+        .read_evaluations()?
+        .iter()
+        .map(|e| EvaluationPoint { timesteps: e.timesteps, mean_score: e.mean_score, success_rate: e.success_rate.unwrap_or(f32::NAN) })
+        .collect();
+    plot::learning_curve(&run.file(LEARNING_CURVE), title, &curve, &evaluations, solved)
 }
 
 impl Callback for LearningCurveCallback {

@@ -15,7 +15,7 @@ mod eval;
 mod logging;
 
 pub use eval::EvalCallback;
-pub use logging::{CheckpointCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback};
+pub use logging::{CheckpointCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, draw_learning_curve};
 
 use crate::ppo::{Ppo, UpdateStats};
 use crate::task::SolvedCriterion;
