@@ -195,7 +195,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 None => Default::default(),
             };
             let flags = cli::runs::ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, ..Default::default() };
-            let settings = cli::runs::TrainSettings::resolve(&entry, file, flags);
+            let settings = cli::runs::TrainSettings::resolve(&entry, file, flags)?;
             let out = out.unwrap_or_else(|| cli::runs::default_run_dir(&robot));
             cli::train::train(settings, &out, view)?
         }
@@ -209,7 +209,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                         None => Default::default(),
                     };
                     let flags = cli::runs::ConfigFile { timesteps, arenas: robots, seed, pattern: Some(3), ..Default::default() };
-                    cli::runs::TrainSettings::resolve(&entry, file, flags)
+                    cli::runs::TrainSettings::resolve(&entry, file, flags)?
                 }
             };
             let out = out.unwrap_or_else(|| cli::runs::default_run_dir(&format!("{robot}-server")));

@@ -70,7 +70,10 @@ pub fn create_run(run_dir: PathBuf, robot: &str, seed: u64, arenas: usize, times
     settings.insert("checkpoint_every".into(), 10.into());
     settings.insert("eval_every".into(), 0.into());
     settings.insert("eval_episodes".into(), (entry.defaults.eval_episodes as i64).into());
-    let ppo = toml::Table::try_from(&entry.defaults.ppo).map_err(|e| runtime_error(e.into()))?;
+    // RLlib's minibatch is at most its train batch (n_steps × arenas); so is the run's.
+    let mut ppo = entry.defaults.ppo.clone();
+    ppo.batch_size = ppo.batch_size.min(ppo.n_steps * arenas.max(1));
+    let ppo = toml::Table::try_from(&ppo).map_err(|e| runtime_error(e.into()))?;
     settings.insert("ppo".into(), ppo.into());
     run.write_config(&settings).map_err(runtime_error)
 }

@@ -53,7 +53,8 @@ pub struct ConfigFile {
     pub checkpoint_every: Option<usize>,
     pub eval_every: Option<usize>,
     pub eval_episodes: Option<usize>,
-    pub ppo: Option<PpoConfig>,
+    /// Only the keys given: each replaces that key of the robot's tuned settings.
+    pub ppo: Option<toml::Table>,
     pub randomization: Option<Randomization>,
 }
 
@@ -68,13 +69,31 @@ impl ConfigFile {
 impl TrainSettings {
     /// The settings a run directory was made with (its `config.toml`).
     pub fn of_run(run: &RunDir) -> anyhow::Result<Self> {
-        run.read_config()
+        let settings: Self = run.read_config()?;
+        settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", run.file(twinbots_rl::run_dir::CONFIG).display()))?;
+        Ok(settings)
     }
 
     /// A complete settings file (such as a run's `config.toml`) anywhere.
     pub fn read_file(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        let settings: Self = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Ok(settings)
+    }
+
+    /// A clear error naming the first setting outside its range, before anything runs: counts
+    /// of at least one, the PPO settings (`PpoConfig::validate`) and the randomization ranges.
+    /// A minibatch larger than a rollout is allowed: it takes the whole rollout, as in SB3.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        for (key, value) in [("timesteps", self.timesteps), ("arenas", self.arenas as u64), ("checkpoint_every", self.checkpoint_every as u64), ("eval_episodes", self.eval_episodes as u64)] {
+            anyhow::ensure!(value >= 1, "{key} = {value}: must be a whole number ≥ 1");
+        }
+        anyhow::ensure!(self.arenas <= 4096, "arenas = {}: must be at most 4096", self.arenas);
+        self.design_pattern()?;
+        self.ppo.validate()?;
+        self.randomization.validate()?;
+        Ok(())
     }
 
     pub fn design_pattern(&self) -> anyhow::Result<DesignPattern> {
@@ -102,8 +121,9 @@ impl TrainSettings {
         self.seed + FINAL_EVAL_SEED_OFFSET
     }
 
-    /// The robot's defaults, then the config file, then command-line flags.
-    pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> Self {
+    /// The robot's defaults, then the config file, then command-line flags, key by key (a
+    /// `[ppo]` table replaces only the keys it names); the result is validated.
+    pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> anyhow::Result<Self> {
         let mut s = Self {
             robot: entry.name.to_string(),
             timesteps: entry.defaults.timesteps,
@@ -124,10 +144,13 @@ impl TrainSettings {
             s.checkpoint_every = layer.checkpoint_every.unwrap_or(s.checkpoint_every);
             s.eval_every = layer.eval_every.unwrap_or(s.eval_every);
             s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
-            s.ppo = layer.ppo.unwrap_or(s.ppo);
+            if let Some(keys) = layer.ppo {
+                s.ppo = overlay(&s.ppo, keys)?;
+            }
             s.randomization = layer.randomization.unwrap_or(s.randomization);
         }
-        s
+        s.validate()?;
+        Ok(s)
     }
 
     /// The callbacks of a run into `run`, in order: `progress.csv`, the progress bar, the stop
@@ -157,6 +180,13 @@ impl TrainSettings {
         callbacks.push(LearningCurveCallback::new(run.clone(), title, solved, self.checkpoint_every));
         Ok(callbacks)
     }
+}
+
+/// `base` with the keys of `keys` replaced; an unknown key is an error naming it.
+fn overlay(base: &PpoConfig, keys: toml::Table) -> anyhow::Result<PpoConfig> {
+    let mut merged = toml::Table::try_from(base)?;
+    merged.extend(keys);
+    merged.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("[ppo]: {}", e.message()))
 }
 
 /// A fresh app of `arenas` arenas (no more than `episodes`) of the robot's `task` (`None`: its

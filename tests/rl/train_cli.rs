@@ -84,3 +84,47 @@ fn a_run_killed_with_sigkill_resumes_from_its_last_checkpoint() {
     assert!(model.episodes > 0);
     std::fs::remove_dir_all(&out).ok();
 }
+
+#[test]
+fn a_ppo_table_changes_only_its_keys_and_nonsense_is_refused_before_anything_runs() {
+    let dir = std::env::temp_dir().join(format!("twinbots-config-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("config.toml");
+
+    // One key of [ppo] replaces that key only: the cart-pole keeps its tuned n_steps and rate.
+    std::fs::write(&config, "[ppo]\nn_epochs = 5\n").unwrap();
+    let run = dir.join("run");
+    let output = twinbots().args(["train", "cartpole", "--timesteps", "64", "--arenas", "2", "--config"]).arg(&config).arg("--out").arg(&run).output().unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let written = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    for line in ["n_epochs = 5", "n_steps = 32", "learning_rate = 0.001", "batch_size = 256"] {
+        assert!(written.lines().any(|l| l == line), "{line:?} missing from {written}");
+    }
+
+    let refused = [
+        ("[ppo]\nlearning_rate = nan\n", "ppo.learning_rate = NaN: must be a finite number > 0"),
+        ("[ppo]\nlearning_rate = -1.0\n", "ppo.learning_rate = -1"),
+        ("[ppo]\ngamma = 2.0\n", "ppo.gamma = 2: must be in (0, 1]"),
+        ("[ppo]\nbatch_size = 0\n", "ppo.batch_size = 0"),
+        ("[ppo]\nn_steps = 0\n", "ppo.n_steps = 0"),
+        ("[ppo]\nhidden = []\n", "ppo.hidden = []"),
+        ("[ppo]\nn_epoch = 3\n", "unknown field `n_epoch`"),
+        ("[randomization]\nmass_scale = [1.0, inf]\n", "randomization.mass_scale = [1, inf]: must be finite"),
+        ("[randomization]\nfriction = [0.0, inf]\n", "randomization.friction"),
+        ("[randomization]\nsensor_noise = inf\n", "randomization.sensor_noise = inf"),
+        ("timesteps = 0\n", "timesteps = 0: must be a whole number ≥ 1"),
+    ];
+    for (i, (text, expected)) in refused.iter().enumerate() {
+        std::fs::write(&config, text).unwrap();
+        let run = dir.join(format!("refused-{i}"));
+        let output = twinbots().args(["train", "cartpole", "--config"]).arg(&config).arg("--out").arg(&run).output().unwrap();
+        let err = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success() && err.contains(expected), "{text:?}: expected {expected:?} in {err}");
+        assert!(!err.contains("panicked"), "{text:?}: {err}");
+        assert!(!run.exists(), "{text:?}: a run directory was made");
+    }
+    let output = twinbots().args(["train", "cartpole", "--arenas", "0", "--out"]).arg(dir.join("zero")).output().unwrap();
+    assert!(String::from_utf8_lossy(&output.stderr).contains("arenas = 0: must be a whole number ≥ 1"));
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -57,17 +57,28 @@ impl Randomization {
     /// A clear error for ranges that are backwards or out of bounds.
     pub fn validate(&self) -> anyhow::Result<()> {
         let ordered = |name: &str, [lo, hi]: [f32; 2], min: f32| {
-            anyhow::ensure!(lo <= hi && lo >= min, "randomization.{name}: [{lo}, {hi}] must be ordered and ≥ {min}");
+            anyhow::ensure!(
+                lo.is_finite() && hi.is_finite() && lo <= hi && lo >= min,
+                "randomization.{name} = [{lo}, {hi}]: must be finite, ordered and ≥ {min}"
+            );
             Ok(())
         };
         anyhow::ensure!(self.start_window[0] <= self.start_window[1], "randomization.start_window must be ordered");
-        anyhow::ensure!((0.0..=1.0).contains(&self.action_probability), "randomization.action_probability must be in [0, 1]");
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.action_probability),
+            "randomization.action_probability = {}: must be in [0, 1]",
+            self.action_probability
+        );
         ordered("mass_scale", self.mass_scale, f32::MIN_POSITIVE)?;
         ordered("motor_strength", self.motor_strength, 0.0)?;
         if let Some(f) = self.friction {
             ordered("friction", f, 0.0)?;
         }
-        anyhow::ensure!(self.sensor_noise >= 0.0, "randomization.sensor_noise must be ≥ 0");
+        anyhow::ensure!(
+            self.sensor_noise.is_finite() && self.sensor_noise >= 0.0,
+            "randomization.sensor_noise = {}: must be a finite number ≥ 0",
+            self.sensor_noise
+        );
         Ok(())
     }
 }

@@ -82,7 +82,7 @@ def ppo_config(
         )
         .training(
             train_batch_size_per_learner=ppo["n_steps"] * envs_per_runner * runners,
-            minibatch_size=ppo["batch_size"],
+            minibatch_size=min(ppo["batch_size"], ppo["n_steps"] * envs_per_runner * runners),
             num_epochs=ppo["n_epochs"],
             lr=schedule,
             gamma=ppo["gamma"],

@@ -67,3 +67,61 @@ impl PpoConfig {
         }
     }
 }
+
+impl PpoConfig {
+    /// A clear error naming the first setting outside its range (`ppo.<key> = value: allowed
+    /// range`), so that nonsense never reaches the learner.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        let positive = |key: &str, v: f64| check(key, v, v.is_finite() && v > 0.0, "a finite number > 0");
+        let non_negative = |key: &str, v: f64| check(key, v, v.is_finite() && v >= 0.0, "a finite number ≥ 0");
+        let at_least_one = |key: &str, v: usize| check(key, v, v >= 1, "a whole number ≥ 1");
+        positive("learning_rate", self.learning_rate)?;
+        at_least_one("n_steps", self.n_steps)?;
+        at_least_one("batch_size", self.batch_size)?;
+        at_least_one("n_epochs", self.n_epochs)?;
+        check("gamma", self.gamma, self.gamma > 0.0 && self.gamma <= 1.0, "in (0, 1]")?;
+        check("gae_lambda", self.gae_lambda, (0.0..=1.0).contains(&self.gae_lambda), "in [0, 1]")?;
+        positive("clip_range", self.clip_range as f64)?;
+        non_negative("ent_coef", self.ent_coef as f64)?;
+        non_negative("vf_coef", self.vf_coef as f64)?;
+        positive("max_grad_norm", self.max_grad_norm as f64)?;
+        if let Some(kl) = self.target_kl {
+            positive("target_kl", kl as f64)?;
+        }
+        let hidden = format!("{:?}", self.hidden);
+        check("hidden", hidden, !self.hidden.is_empty() && self.hidden.iter().all(|&n| (1..=65_536).contains(&n)), "one or more layer sizes in 1..=65536")?;
+        check("log_std_init", self.log_std_init, self.log_std_init.is_finite() && self.log_std_init.abs() <= 20.0, "a finite number in [-20, 20]")
+    }
+}
+
+fn check(key: &str, value: impl std::fmt::Display, ok: bool, allowed: &str) -> anyhow::Result<()> {
+    anyhow::ensure!(ok, "ppo.{key} = {value}: must be {allowed}");
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_and_tuned_settings_are_valid_and_nonsense_is_named() {
+        PpoConfig::default().validate().unwrap();
+        PpoConfig::zoo_cartpole().validate().unwrap();
+        let cases: Vec<(PpoConfig, &str)> = vec![
+            (PpoConfig { learning_rate: f64::NAN, ..Default::default() }, "ppo.learning_rate = NaN"),
+            (PpoConfig { learning_rate: -1.0, ..Default::default() }, "ppo.learning_rate = -1"),
+            (PpoConfig { gamma: 2.0, ..Default::default() }, "ppo.gamma = 2: must be in (0, 1]"),
+            (PpoConfig { clip_range: -0.5, ..Default::default() }, "ppo.clip_range = -0.5"),
+            (PpoConfig { n_epochs: 0, ..Default::default() }, "ppo.n_epochs = 0"),
+            (PpoConfig { batch_size: 0, ..Default::default() }, "ppo.batch_size = 0"),
+            (PpoConfig { n_steps: 0, ..Default::default() }, "ppo.n_steps = 0"),
+            (PpoConfig { max_grad_norm: f32::NAN, ..Default::default() }, "ppo.max_grad_norm = NaN"),
+            (PpoConfig { hidden: vec![], ..Default::default() }, "ppo.hidden = []"),
+            (PpoConfig { target_kl: Some(f32::INFINITY), ..Default::default() }, "ppo.target_kl = inf"),
+        ];
+        for (config, expected) in cases {
+            let message = config.validate().unwrap_err().to_string();
+            assert!(message.starts_with(expected), "{message:?} does not start with {expected:?}");
+        }
+    }
+}
