@@ -3,6 +3,7 @@
 mod bridge;
 mod custom_robot;
 mod model;
+mod onnx;
 mod patterns;
 mod ppo;
 mod randomization;
