@@ -40,7 +40,8 @@ def ur5e_run(tmp_path_factory):
     """Continuous actions in a box, normalised observations, periodic evaluations."""
     base = tmp_path_factory.mktemp("export")
     config = base / "short.toml"
-    config.write_text("timesteps = 2048\narenas = 2\neval_every = 2\neval_episodes = 2\n[ppo]\nn_steps = 256\n")
+    config.write_text("timesteps = 2048\narenas = 2\neval_every = 2\neval_episodes = 2\n"
+                      "[ppo]\nn_steps = 256\nnormalize_observations = true\n")  # a [ppo] table replaces the defaults
     return train(base / "ur5e", "ur5e", "--config", str(config))
 
 
