@@ -135,3 +135,16 @@ def test_tensorboard_reads_the_task_figures_and_evaluations(ur5e_run):
         assert figure in tags, tags
     for tag in ["eval/mean_reward", "eval/mean_ep_length", "eval/success_rate", "eval/energy_j"]:
         assert [p.step for p in board.Scalars(tag)] == [int(r["timesteps"]) for r in evaluations], tag
+
+
+def test_a_resumed_run_shows_each_update_once_in_tensorboard(tmp_path):
+    """The resumed process logs again what came after its checkpoint; TensorBoard drops the
+    first process's points there (a SessionLog START), so every update is one point."""
+    pytest.importorskip("tensorboard")
+    # 13 updates of 4 × 32 steps; checkpoints every 4: the last one after update 12.
+    run = train(tmp_path / "run", "cartpole", "--timesteps", "1664", "--arenas", "4", "--checkpoint-every", "4")
+    subprocess.run([cli(), "train", "--resume", str(run)], check=True, capture_output=True)
+    assert len(list(run.glob("events.out.tfevents.*"))) == 2
+    progress = rows(run / "progress.csv")
+    steps = [p.step for p in scalars(run).Scalars("train/loss")]
+    assert steps == [int(r["timesteps"]) for r in progress] == list(range(128, 1665, 128))

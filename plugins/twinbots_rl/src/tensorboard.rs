@@ -19,7 +19,7 @@ struct Event {
     wall_time: f64,
     #[prost(int64, tag = "2")]
     step: i64,
-    #[prost(oneof = "EventKind", tags = "3, 5, 6")]
+    #[prost(oneof = "EventKind", tags = "3, 5, 7")]
     kind: Option<EventKind>,
 }
 
@@ -29,7 +29,7 @@ enum EventKind {
     FileVersion(String),
     #[prost(message, tag = "5")]
     Summary(Summary),
-    #[prost(message, tag = "6")]
+    #[prost(message, tag = "7")]
     SessionLog(SessionLog),
 }
 
@@ -56,7 +56,7 @@ enum SummaryData {
     SimpleValue(f32),
 }
 
-/// `tensorflow.SessionLog`. A `START` at step s tells TensorBoard that the run restarted there
+/// `tensorflow.SessionLog`. A `START` at step s tells TensorBoard that the run (re)starts there
 /// (a resumed run): it drops the points it holds from steps ≥ s, which the resumed run logs again.
 #[derive(Clone, PartialEq, prost::Message)]
 struct SessionLog {
@@ -136,7 +136,8 @@ impl EventWriter {
         &self.path
     }
 
-    /// Marks a (re)start of training at `step`.
+    /// Marks a (re)start of training: points at `step` and after, in files written before this
+    /// one, are stale.
     pub fn session_start(&self, step: u64) -> anyhow::Result<()> {
         self.write(step, EventKind::SessionLog(SessionLog { status: SESSION_START }))
     }
@@ -216,8 +217,12 @@ mod tests {
         writer.clone().scalars(200, &[("a/x".into(), 1.5)]).unwrap();
         let bytes = std::fs::read(writer.path()).unwrap();
         assert!(writer.path().file_name().unwrap().to_str().unwrap().starts_with("events.out.tfevents."));
-        let first = Event::decode(read_tfrecords(&bytes).unwrap()[0]).unwrap();
+        let records = read_tfrecords(&bytes).unwrap();
+        let first = Event::decode(records[0]).unwrap();
         assert_eq!(first.kind, Some(EventKind::FileVersion("brain.Event:2".into())));
+        // event.proto's field numbers: session_log is 7 (6 is the deprecated log_message), its
+        // status 1, START = 1: bytes 0x3a (field 7, length-delimited), 2, 0x08 (field 1), 1.
+        assert!(records[1].ends_with(&[0x3a, 0x02, 0x08, 0x01]), "{:x?}", records[1]);
         let scalars = read_scalars(&bytes).unwrap();
         assert_eq!(scalars, vec![(100, "a/x".into(), 0.0), (100, "b".into(), -2.5), (200, "a/x".into(), 1.5)]);
         std::fs::remove_dir_all(&dir).ok();

@@ -28,7 +28,9 @@ impl TensorBoardCallback {
 impl Callback for TensorBoardCallback {
     fn on_training_start(&mut self, model: &Ppo) -> anyhow::Result<()> {
         self.started = Some((Instant::now(), model.timesteps));
-        self.events.session_start(model.timesteps)
+        // A resumed run logs again what came after its checkpoint: TensorBoard drops points
+        // from this step on that an earlier file holds.
+        self.events.session_start(model.timesteps + 1)
     }
 
     fn on_update(&mut self, stats: &UpdateStats, model: &Ppo) -> anyhow::Result<Flow> {
