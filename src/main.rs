@@ -72,19 +72,36 @@ enum Command {
         #[arg(long)]
         out: Option<std::path::PathBuf>,
     },
-    /// Run simulated robots (design pattern 3) against a RobotServer.
+    /// Run simulated robots (design pattern 3: no Supervisor, self-homing) against a
+    /// RobotServer, or on an exported policy each robot runs itself.
+    #[command(group = clap::ArgGroup::new("source").required(true).args(["server", "policy"]))]
     Robot {
         robot: String,
         /// The RobotServer's address.
         #[arg(long)]
-        server: std::net::SocketAddr,
+        server: Option<std::net::SocketAddr>,
+        /// An exported policy (`twinbots export`) that the robots run on board, no server.
+        #[arg(long)]
+        policy: Option<std::path::PathBuf>,
         #[arg(long, default_value_t = 1)]
         arenas: usize,
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// Seconds to keep trying to reach the server.
-        #[arg(long, default_value_t = 30)]
+        #[arg(long, default_value_t = 30, conflicts_with = "policy")]
         patience: u64,
+        /// With --policy: episodes to run before reporting their figures.
+        #[arg(long, default_value_t = 10, conflicts_with = "server")]
+        episodes: usize,
+    },
+    /// Write a run's trained policy as an ONNX graph (observation normalisation folded in),
+    /// with its robot, task, spaces and control period as metadata.
+    Export {
+        /// Run directory of `twinbots train` or `twinbots serve`.
+        run: std::path::PathBuf,
+        /// The ONNX file to write.
+        #[arg(long)]
+        onnx: std::path::PathBuf,
     },
     /// Replay a trained model and report its episode scores (writes eval.json).
     Eval {
@@ -215,8 +232,15 @@ fn run(args: Args) -> anyhow::Result<()> {
             let out = out.unwrap_or_else(|| cli::runs::default_run_dir(&format!("{robot}-server")));
             cli::serve::serve(settings, listen, &out)?
         }
-        Command::Robot { robot, server, arenas, seed, patience } => {
-            cli::serve::robots(&robot, server, arenas, seed, std::time::Duration::from_secs(patience))?;
+        Command::Robot { robot, server: Some(server), arenas, seed, patience, .. } => {
+            cli::robot::against_server(&robot, server, arenas, seed, std::time::Duration::from_secs(patience))?;
+        }
+        Command::Robot { robot, policy: Some(policy), arenas, seed, episodes, .. } => {
+            cli::robot::with_policy(&robot, &policy, arenas, episodes, seed)?;
+        }
+        Command::Robot { .. } => unreachable!("clap requires --server or --policy"),
+        Command::Export { run, onnx } => {
+            cli::export::export_run(&run, &onnx)?;
         }
         Command::Eval { run, episodes, arenas, record, size, camera, task } => {
             cli::eval::eval_run(&run, episodes, arenas, task.as_deref())?;

@@ -47,12 +47,22 @@ def test_seed_makes_resets_reproducible():
 
 
 @pytest.mark.filterwarnings("ignore:Evaluation environment is not wrapped")
-def test_ppo_improves_the_cartpole_twin():
-    """A short PPO run through the adapter: mean episode score clearly above a random policy's."""
+def test_ppo_improves_the_cartpole_twin(tmp_path):
+    """A short PPO run through the adapter: mean episode score clearly above a random policy's.
+    With `tensorboard_log` (docs/python.md), SB3 logs the twin's episodes to TensorBoard."""
+    try:
+        from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    except ImportError:
+        EventAccumulator = None
     env = make_vec_env("cartpole", n_envs=8, seed=0)
     model = PPO("MlpPolicy", env, n_steps=256, batch_size=256, n_epochs=10, learning_rate=1e-3,
-                ent_coef=0.0, seed=0, device="cpu", verbose=0)
+                ent_coef=0.0, seed=0, device="cpu", verbose=0,
+                tensorboard_log=str(tmp_path) if EventAccumulator else None)
     before, _ = evaluate_policy(model, env, n_eval_episodes=16, deterministic=True)
     model.learn(total_timesteps=30_000)
     after, _ = evaluate_policy(model, env, n_eval_episodes=16, deterministic=True)
     assert after > max(2 * before, 100), f"mean score {before:.1f} before, {after:.1f} after 30k steps"
+    if EventAccumulator:
+        board = EventAccumulator(str(tmp_path / "PPO_1"), size_guidance={"scalars": 0})
+        board.Reload()
+        assert len(board.Scalars("rollout/ep_rew_mean")) == 30_000 // (8 * 256) + 1  # one per rollout

@@ -3,6 +3,8 @@
 pub mod bench;
 pub mod capture;
 pub mod eval;
+pub mod export;
+pub mod robot;
 pub mod robots;
 pub mod runs;
 pub mod serve;

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use twinbots_rl::callbacks::{
     CheckpointCallback, EvalCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, StopTrainingOnSolved,
+    TensorBoardCallback,
 };
 use twinbots_rl::randomization::Randomization;
 use twinbots_rl::{AppVecEnv, CallbackList, DesignPattern, PpoConfig, RunDir, SolvedCriterion, VecEnv};
@@ -153,12 +154,15 @@ impl TrainSettings {
         Ok(s)
     }
 
-    /// The callbacks of a run into `run`, in order: `progress.csv`, the progress bar, the stop
-    /// on solved training episodes, periodic evaluation (which may stop training too),
-    /// checkpoints, and the learning curve (last: it draws what the others wrote).
+    /// The callbacks of a run into `run`, in order: `progress.csv`, TensorBoard scalars, the
+    /// progress bar (or lines), the stop on solved training episodes, periodic evaluation
+    /// (which may stop training too; into `evaluations.csv` and TensorBoard), checkpoints, and
+    /// the learning curve (last: it draws what the others wrote).
     pub fn callbacks(&self, run: &RunDir, entry: &RobotEntry, title: String, solved: Option<SolvedCriterion>) -> anyhow::Result<CallbackList> {
+        let events = run.event_writer()?;
         let mut callbacks = CallbackList::new()
             .with(ProgressCsvCallback::new(run.clone()))
+            .with(TensorBoardCallback::new(events.clone()))
             .with(ProgressBarCallback::new(self.timesteps)?);
         if let Some(criterion) = solved {
             callbacks.push(StopTrainingOnSolved::new(criterion));
@@ -170,7 +174,8 @@ impl TrainSettings {
                 Ok(Box::new(evaluation_env(&robot, None, arenas, episodes, seed, pattern)?))
             };
             let mut evaluation = EvalCallback::new(entry.main_task().name, make_env, self.eval_every, episodes, self.periodic_eval_seed())
-                .log_to(run.clone());
+                .log_to(run.clone())
+                .events_to(events);
             if let Some(criterion) = solved {
                 evaluation = evaluation.stop_when_solved(criterion);
             }

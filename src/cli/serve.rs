@@ -2,7 +2,7 @@
 //! policy and the learner, trains on whatever robots connect, and writes a run directory like
 //! `train` does. Its first line of output is `listening on <address>`.
 //!
-//! `twinbots robot <robot> --server <address>`: simulated robots that connect to it.
+//! Robots connect to it with `twinbots robot <robot> --server <address>` (`cli::robot`).
 
 use std::io::Write;
 use std::net::SocketAddr;
@@ -49,29 +49,4 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, out: &Path) -> anyhow:
     // Give connected robots a moment to read their `done` before the process exits.
     std::thread::sleep(Duration::from_millis(200));
     Ok(())
-}
-
-/// Runs `arenas` simulated robots against the server at `server` until it says training is
-/// over. Returns the server's reason.
-pub fn robots(robot: &str, server: SocketAddr, arenas: usize, seed: u64, patience: Duration) -> anyhow::Result<String> {
-    let entry = registry::find(robot)?;
-    anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
-    let mut app = entry.app(None, arenas, seed, DesignPattern::Server)?;
-    app.insert_resource(twinbots_server::robot::ServerAddress { addr: server, patience });
-    app.finish();
-    app.cleanup();
-    loop {
-        app.update();
-        let state = app.world().resource::<twinbots_server::robot::RobotRunState>();
-        if let Some(stop) = &state.stop {
-            let (episodes, reconnects) = (state.episodes, state.reconnects);
-            return match stop.clone() {
-                Ok(reason) => {
-                    println!("robots done ({reason}); {episodes} episodes, {reconnects} reconnections");
-                    Ok(reason)
-                }
-                Err(e) => Err(anyhow::anyhow!("robots stopped: {e}")),
-            };
-        }
-    }
 }

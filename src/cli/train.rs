@@ -42,7 +42,7 @@ fn train_through_server(settings: TrainSettings, out: &Path) -> anyhow::Result<(
         .and_then(|a| a.parse().ok())
         .ok_or_else(|| anyhow::anyhow!("the server did not start: {first:?}"))?;
     println!("RobotServer (pid {}) listening on {addr}", server.id());
-    let result = crate::cli::serve::robots(&settings.robot, addr, settings.arenas, settings.seed, std::time::Duration::from_secs(10));
+    let result = crate::cli::robot::against_server(&settings.robot, addr, settings.arenas, settings.seed, std::time::Duration::from_secs(10));
     for line in lines.map_while(Result::ok) {
         println!("server: {line}");
     }

@@ -2,7 +2,9 @@
 
 mod bridge;
 mod custom_robot;
+mod delivery;
 mod model;
+mod onnx;
 mod patterns;
 mod ppo;
 mod randomization;

@@ -217,6 +217,8 @@ fn serve_and_robot_as_two_processes_train_a_round_trip() {
     assert_eq!(rows, 2048 / 64, "one update per 32 steps × 2 robots");
     let model = Ppo::load(out.join("model")).unwrap();
     assert!(model.timesteps >= 2048 && model.episodes > 0);
+    let losses = crate::train_cli::event_scalars(&out).into_iter().filter(|(_, tag, _)| tag == "train/loss").count();
+    assert_eq!(losses, rows, "the server logs TensorBoard scalars as train does");
     std::fs::remove_dir_all(&out).ok();
 }
 

@@ -11,12 +11,16 @@ fn twinbots() -> Command {
 fn short_training_run_writes_its_run_directory() {
     let out = std::env::temp_dir().join(format!("twinbots-train-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let status = twinbots()
+    let output = twinbots()
         .args(["train", "cartpole", "--timesteps", "1024", "--arenas", "2", "--checkpoint-every", "4", "--out"])
         .arg(&out)
-        .status()
+        .output()
         .unwrap();
-    assert!(status.success());
+    assert!(output.status.success());
+    // stderr is a pipe, not a terminal: progress comes as lines, the last one at the end.
+    let log = String::from_utf8_lossy(&output.stderr);
+    let last = log.lines().last().unwrap_or_default();
+    assert!(last.contains("steps 1024/1024: ") && last.contains("steps/s, mean reward"), "{log}");
     let csv = std::fs::read_to_string(out.join("progress.csv")).unwrap();
     let rows: Vec<&str> = csv.lines().collect();
     assert!(rows[0].starts_with("update,timesteps,episodes,mean_reward"));
@@ -36,7 +40,29 @@ fn short_training_run_writes_its_run_directory() {
     assert!((parts.iter().sum::<f64>() - wall).abs() < 0.01 * wall + 1e-3, "{time} vs wall {wall}");
     let model = twinbots_rl::Ppo::load(out.join("model")).unwrap();
     assert_eq!(model.timesteps, 1024);
+    // TensorBoard: a point of every training scalar per update, at the update's timesteps.
+    let scalars = event_scalars(&out);
+    let steps = |tag: &str| -> Vec<u64> { scalars.iter().filter(|(_, t, _)| t == tag).map(|(s, _, _)| *s).collect() };
+    let every_update: Vec<u64> = (1..=16).map(|u| u * 64).collect();
+    for tag in ["train/loss", "train/approx_kl", "train/clip_fraction", "train/value_loss", "time/fps"] {
+        assert_eq!(steps(tag), every_update, "{tag}");
+    }
+    // Episode means from the first update that saw an episode end.
+    assert!(!steps("rollout/ep_len_mean").is_empty() && steps("rollout/ep_len_mean").ends_with(&[1024]));
+    assert!(steps("train/std").is_empty(), "σ is a Gaussian policy's");
     std::fs::remove_dir_all(&out).ok();
+}
+
+/// Every scalar in the TensorBoard event files of `dir`, as `(step, tag, value)`.
+pub fn event_scalars(dir: &std::path::Path) -> Vec<(u64, String, f32)> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.file_name().unwrap().to_string_lossy().contains("tfevents"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no event file in {}", dir.display());
+    files.iter().flat_map(|f| twinbots_rl::tensorboard::read_scalars(&std::fs::read(f).unwrap()).unwrap()).collect()
 }
 
 #[test]

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use crate::env::VecEnv;
 use crate::ppo::Ppo;
-use crate::task::{Measure, SolvedCriterion};
+use crate::task::{EpisodeSummary, Measure, SolvedCriterion};
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct EvalResult {
@@ -64,42 +64,50 @@ pub fn evaluate_policy(task: &str, model: &Ppo, env: &mut dyn VecEnv, episodes: 
     anyhow::ensure!(episodes > 0, "an evaluation needs at least 1 episode");
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut obs = env.reset(Some(seed))?;
-    let mut scores = Vec::new();
-    let mut lengths = Vec::new();
-    let mut successes = Vec::new();
-    let mut figures: BTreeMap<String, Vec<f32>> = BTreeMap::new();
-    let mut rewards: BTreeMap<String, f32> = BTreeMap::new();
-    while scores.len() < episodes {
+    let mut finished = Vec::with_capacity(episodes);
+    while finished.len() < episodes {
         let step = env.step(&model.predict_deterministic(&obs)?)?;
-        for ep in step.episodes.iter().flatten() {
-            if scores.len() < episodes {
-                scores.push(ep.score);
-                lengths.push(ep.length as f32);
-                successes.extend(ep.success.map(f32::from));
-                for (name, value) in &ep.metrics {
-                    figures.entry(name.clone()).or_default().push(*value);
-                }
-                for (name, value) in &ep.rewards {
-                    *rewards.entry(name.clone()).or_default() += *value;
-                }
+        for ep in step.episodes.into_iter().flatten() {
+            if finished.len() < episodes {
+                finished.push(ep);
             }
         }
         obs = step.obs;
     }
-    let n = scores.len() as f32;
-    let mean = scores.iter().sum::<f32>() / n;
-    let average = |xs: &[f32]| xs.iter().sum::<f32>() / xs.len() as f32;
-    Ok(EvalResult {
-        task: task.to_string(),
-        success_rate: (!successes.is_empty()).then(|| average(&successes)),
-        metrics: figures.iter().map(|(name, xs)| (name.clone(), average(xs))).collect(),
-        rewards: rewards.into_iter().map(|(name, sum)| (name, sum / n)).collect(),
-        episodes: scores.len(),
-        mean_score: mean,
-        std_score: (scores.iter().map(|s| (s - mean).powi(2)).sum::<f32>() / n).sqrt(),
-        min_score: scores.iter().copied().fold(f32::INFINITY, f32::min),
-        max_score: scores.iter().copied().fold(f32::NEG_INFINITY, f32::max),
-        mean_length: lengths.iter().sum::<f32>() / n,
-        scores,
-    })
+    Ok(EvalResult::of_episodes(task, &finished))
+}
+
+impl EvalResult {
+    /// The figures of these finished episodes (at least one), under the name `task`: however
+    /// they were run (an env, a robot running an exported policy on its own).
+    pub fn of_episodes(task: &str, episodes: &[EpisodeSummary]) -> Self {
+        let scores: Vec<f32> = episodes.iter().map(|e| e.score).collect();
+        let successes: Vec<f32> = episodes.iter().filter_map(|e| e.success.map(f32::from)).collect();
+        let mut figures: BTreeMap<String, Vec<f32>> = BTreeMap::new();
+        let mut rewards: BTreeMap<String, f32> = BTreeMap::new();
+        for ep in episodes {
+            for (name, value) in &ep.metrics {
+                figures.entry(name.clone()).or_default().push(*value);
+            }
+            for (name, value) in &ep.rewards {
+                *rewards.entry(name.clone()).or_default() += *value;
+            }
+        }
+        let n = scores.len() as f32;
+        let mean = scores.iter().sum::<f32>() / n;
+        let average = |xs: &[f32]| xs.iter().sum::<f32>() / xs.len() as f32;
+        EvalResult {
+            task: task.to_string(),
+            success_rate: (!successes.is_empty()).then(|| average(&successes)),
+            metrics: figures.iter().map(|(name, xs)| (name.clone(), average(xs))).collect(),
+            rewards: rewards.into_iter().map(|(name, sum)| (name, sum / n)).collect(),
+            episodes: scores.len(),
+            mean_score: mean,
+            std_score: (scores.iter().map(|s| (s - mean).powi(2)).sum::<f32>() / n).sqrt(),
+            min_score: scores.iter().copied().fold(f32::INFINITY, f32::min),
+            max_score: scores.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+            mean_length: episodes.iter().map(|e| e.length as f32).sum::<f32>() / n,
+            scores,
+        }
+    }
 }

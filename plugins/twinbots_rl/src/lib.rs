@@ -3,7 +3,8 @@
 //! Gymnasium-style [`spaces`], the [`task`] machinery robot plugins fill in (observation, reward
 //! and termination terms, reset events), the vectorised [`env`] API over arenas, [`ppo`] on
 //! candle with its [`callbacks`] and [`evaluation`], the [`run_dir`] a training run leaves
-//! behind, and [`classic`] control envs for testing the algorithms.
+//! behind with its [`tensorboard`] event files, and [`classic`] control envs for testing the
+//! algorithms.
 
 pub mod bridge;
 pub mod callbacks;
@@ -19,6 +20,7 @@ pub mod robot;
 pub mod run_dir;
 pub mod spaces;
 pub mod task;
+pub mod tensorboard;
 pub mod threads;
 
 pub use callbacks::{Callback, CallbackList, Flow, SolvedBy, TrainingEnd};

@@ -4,6 +4,11 @@
 //! last step goes home again. A lost server is reconnected with backoff and the episode
 //! begins afresh from home.
 //!
+//! The far end is a [`PolicyLink`]: a RobotServer over TCP (the [`Communicator`], given a
+//! [`ServerAddress`]), or the robot's own copy of a policy (an [`OnBoardPolicy`], which answers
+//! as a server would), so the cycle is the same whether the policy learns elsewhere or runs on
+//! board.
+//!
 //! [`ServerRobotPlugin`] runs that cycle for any robot whose task is defined by terms: the same
 //! [`Terms`] as under patterns 1 and 2 turn the controller's state into what is sent. The robot
 //! plugin brings only what is its own: a reader of its devices (in `TaskSet::Read`), a homing
@@ -16,12 +21,38 @@ use std::time::Duration;
 use bevy::ecs::component::Mutable;
 use bevy::prelude::*;
 use rand_chacha::ChaCha8Rng;
-use twinbots_rl::task::{Terms, configure_task_sets};
+use twinbots_rl::task::{TaskSet, Terms, configure_task_sets};
 use twinbots_rl::{Action, Episode, TaskSpec};
 use twinbots_sim::{Arena, SimSet};
 
 use crate::client::{Communicator, CommunicatorError, Identity};
+pub use crate::onboard::{OnBoardLink, OnBoardPolicy};
 use crate::protocol::{RobotMessage, ServerMessage};
+
+/// The far end of a robot's episode protocol: it hears each step's message and answers as a
+/// RobotServer does (an action, an ack after an episode's last step, done, an error).
+pub trait PolicyLink: Send + Sync {
+    /// Sends a request without waiting for its reply (robots send all theirs first).
+    fn send(&mut self, message: &RobotMessage) -> Result<(), CommunicatorError>;
+    /// The reply to the last request.
+    fn receive(&mut self) -> Result<ServerMessage, CommunicatorError>;
+    /// Re-establishes a lost link (the episode then begins afresh from home).
+    fn connect(&mut self) -> Result<(), CommunicatorError>;
+}
+
+impl PolicyLink for Communicator {
+    fn send(&mut self, message: &RobotMessage) -> Result<(), CommunicatorError> {
+        Communicator::send(self, message)
+    }
+
+    fn receive(&mut self) -> Result<ServerMessage, CommunicatorError> {
+        Communicator::receive(self)
+    }
+
+    fn connect(&mut self) -> Result<(), CommunicatorError> {
+        Communicator::connect(self)
+    }
+}
 
 /// Where the RobotServer is, and how long a robot keeps trying to reach it.
 #[derive(Resource, Clone, Copy, Debug)]
@@ -49,19 +80,25 @@ pub enum Phase {
     Running,
 }
 
-/// One robot's conversation with the RobotServer.
+/// One robot's conversation with where its actions come from.
 pub struct Conversation {
-    communicator: Communicator,
+    link: Box<dyn PolicyLink>,
     pub phase: Phase,
     awaiting_reply: bool,
 }
 
 impl Conversation {
-    /// Connects (retrying until the address's patience runs out) and begins by homing.
+    /// A conversation over `link` (connected), beginning by homing.
+    pub fn over(link: Box<dyn PolicyLink>) -> Self {
+        Self { link, phase: Phase::Homing, awaiting_reply: false }
+    }
+
+    /// Connects to a RobotServer (retrying until the address's patience runs out) and begins
+    /// by homing.
     pub fn connect(address: &ServerAddress, identity: Identity) -> Result<Self, CommunicatorError> {
         let mut communicator = Communicator::new(address.addr, identity, address.patience);
         communicator.connect()?;
-        Ok(Self { communicator, phase: Phase::Homing, awaiting_reply: false })
+        Ok(Self::over(Box::new(communicator)))
     }
 
     /// Connects the robot of arena `index`; if it cannot, the robots stop, naming it.
@@ -74,7 +111,7 @@ impl Conversation {
     /// Sends this step's message: `start` when starting, the step's outcome when running.
     /// Send every robot's message before receiving any reply, so the server works on all.
     pub fn send(&mut self, message: &RobotMessage, state: &mut RobotRunState) {
-        self.awaiting_reply = self.communicator.send(message).is_ok();
+        self.awaiting_reply = self.link.send(message).is_ok();
         if !self.awaiting_reply {
             self.lost(state);
         }
@@ -85,7 +122,7 @@ impl Conversation {
         if !std::mem::take(&mut self.awaiting_reply) {
             return None;
         }
-        match self.communicator.receive() {
+        match self.link.receive() {
             Ok(ServerMessage::Action { action }) => {
                 if self.phase == Phase::Starting {
                     self.phase = Phase::Running;
@@ -108,7 +145,7 @@ impl Conversation {
     /// The server went away: reconnect (with backoff) and begin a fresh episode from home.
     fn lost(&mut self, state: &mut RobotRunState) {
         self.phase = Phase::Homing;
-        match self.communicator.connect() {
+        match self.link.connect() {
             Ok(()) => state.reconnects += 1,
             Err(e) => state.stop = Some(Err(e.to_string())),
         }
@@ -122,6 +159,8 @@ impl Conversation {
 pub struct Controller {
     conversation: Conversation,
     pub rng: ChaCha8Rng,
+    /// This control step's outcome was evaluated by the task's terms (to be tallied).
+    evaluated: bool,
 }
 
 impl Controller {
@@ -147,7 +186,10 @@ pub enum RobotCycleSet {
 
 /// The pattern-3 episode cycle of robots with controller state `S` and a `Terms<S>` task
 /// (inserted by the task's `TaskTermsPlugin` under `DesignPattern::Server`). Needs a
-/// [`ServerAddress`] resource; every arena gets a [`Controller`] and an [`AtHome`] after start-up.
+/// [`ServerAddress`] or an [`OnBoardPolicy`] resource; every arena gets a [`Controller`] and an
+/// [`AtHome`] after start-up. An episode's steps are tallied after the task's reports
+/// (`TaskSet::Tally`), and on its last step `Episode::finished` holds its summary, as under the
+/// in-process patterns.
 pub struct ServerRobotPlugin<S> {
     /// The robot kind the server expects in `hello.robot`.
     pub robot: String,
@@ -175,7 +217,8 @@ impl<S: Component<Mutability = Mutable>> Plugin for ServerRobotPlugin<S> {
             )
             .add_systems(PostStartup, connect_robots)
             .add_systems(Update, begin_episodes::<S>.in_set(RobotCycleSet::Start))
-            .add_systems(Update, exchange::<S>.in_set(twinbots_rl::task::TaskSet::Evaluate));
+            .add_systems(Update, exchange::<S>.in_set(TaskSet::Evaluate))
+            .add_systems(Update, tally_steps.in_set(TaskSet::Tally));
     }
 }
 
@@ -189,16 +232,26 @@ pub fn identity(world: &World) -> Identity {
     }
 }
 
-/// Each arena's robot connects; its controller's random stream is its arena's.
+/// Each arena's robot connects to its server, or takes its copy of the on-board policy; its
+/// controller's random stream is its arena's.
 fn connect_robots(world: &mut World) {
-    let address = *world.resource::<ServerAddress>();
+    let address = world.get_resource::<ServerAddress>().copied();
+    let on_board = world.get_resource::<OnBoardPolicy>().cloned();
     let identity = identity(world);
     let arenas: Vec<(Entity, usize, ChaCha8Rng)> =
         world.query::<(Entity, &Arena)>().iter(world).map(|(e, a)| (e, a.index, a.rng.clone())).collect();
     for (entity, index, rng) in arenas {
         let mut state = world.resource_mut::<RobotRunState>();
-        let Some(conversation) = Conversation::connect_robot(&address, identity.clone(), index, &mut state) else { return };
-        world.entity_mut(entity).insert((Controller { conversation, rng }, AtHome(false)));
+        let conversation = match (&address, &on_board) {
+            (Some(address), _) => Conversation::connect_robot(address, identity.clone(), index, &mut state),
+            (None, Some(policy)) => Some(Conversation::over(Box::new(policy.link()))),
+            (None, None) => {
+                state.stop = Some(Err("a pattern-3 robot needs a ServerAddress or an OnBoardPolicy resource".into()));
+                None
+            }
+        };
+        let Some(conversation) = conversation else { return };
+        world.entity_mut(entity).insert((Controller { conversation, rng, evaluated: false }, AtHome(false)));
     }
 }
 
@@ -214,9 +267,9 @@ fn begin_episodes<S: Component<Mutability = Mutable>>(terms: Res<Terms<S>>, mut 
 }
 
 /// One request and reply per robot per step, all requests out before any reply is awaited.
-/// The step's outcome comes from the task's terms; the action received is applied by the
-/// robot's actuation next step, as under the other patterns. Between episodes the robot has
-/// no action (its homing drives it).
+/// The step's outcome comes from the task's terms (into the arena's `Episode`, where the
+/// task's reports see it); the action received is applied by the robot's actuation next step,
+/// as under the other patterns. Between episodes the robot has no action (its homing drives it).
 fn exchange<S: Component>(
     terms: Res<Terms<S>>,
     mut run: ResMut<RobotRunState>,
@@ -231,14 +284,18 @@ fn exchange<S: Component>(
             Phase::Homing => continue,
             Phase::Starting => {
                 e.begin();
+                (e.terminated, e.truncated) = (false, false);
                 terms.0.observe(state, &mut e.observation);
                 RobotMessage::Start { obs: e.observation.clone() }
             }
             Phase::Running => {
                 terms.0.observe(state, &mut e.observation);
                 let outcome = terms.0.evaluate(state, e.length, &mut e.reward_sums);
-                e.reward = outcome.reward;
-                e.tally();
+                (e.reward, e.terminated, e.truncated) = (outcome.reward, outcome.terminated, outcome.truncated);
+                if outcome.success.is_some() {
+                    e.success = outcome.success;
+                }
+                controller.evaluated = true;
                 RobotMessage::Step {
                     obs: e.observation.clone(),
                     reward: outcome.reward,
@@ -255,6 +312,25 @@ fn exchange<S: Component>(
             Some(a) => action.0 = a,
             None if controller.conversation.phase == Phase::Homing => action.0.clear(),
             None => {}
+        }
+    }
+}
+
+/// Counts each evaluated step into its episode, after the task's reports; an episode that ended
+/// is summed up into `Episode::finished` (for that step only, as the in-process patterns'
+/// auto-reset does) and the robot is between episodes.
+fn tally_steps(spec: Res<TaskSpec>, mut robots: Query<(&mut Controller, &mut Episode)>) {
+    for (mut controller, mut e) in &mut robots {
+        e.final_observation = None;
+        e.finished = None;
+        if !std::mem::take(&mut controller.evaluated) {
+            continue;
+        }
+        e.tally();
+        if e.terminated || e.truncated {
+            e.final_observation = Some(e.observation.clone());
+            e.finished = Some(e.summary(&spec.reward_terms));
+            (e.terminated, e.truncated) = (false, false);
         }
     }
 }

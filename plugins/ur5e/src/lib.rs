@@ -136,20 +136,23 @@ impl Plugin for Ur5ePlugin {
             .insert_resource(self.task)
             .add_plugins(TaskTermsPlugin::new(definition, self.pattern))
             .add_systems(Startup, spawn_cells)
-            .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)));
+            .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)))
+            // The twin's figures (energy, limit and collision events), under every pattern:
+            // what the cell measures of the arm (its motors' feedback, its contacts), not what
+            // the controller observes.
+            .add_systems(PhysicsSubstep, metrics::meter_energy.in_set(SubstepSet::Record))
+            .add_systems(Update, metrics::count_events.after(read_arm).in_set(TaskSet::Read));
+        if self.task == Ur5eTask::Reach {
+            app.add_systems(Update, reach::report.in_set(TaskSet::Report));
+        }
         if self.pattern == DesignPattern::Server {
             server::build(app);
             return;
         }
-        // The twin's figures (energy, limit and collision events) and starts put in place by
-        // the Supervisor.
-        app.add_systems(PhysicsSubstep, metrics::meter_energy.in_set(SubstepSet::Record))
-            .add_systems(Update, metrics::count_events.after(read_arm).in_set(TaskSet::Read))
-            .add_systems(EnvReset, ((reset_meter, place_arm).in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
+        // Starts put in place by the Supervisor.
+        app.add_systems(EnvReset, ((reset_meter, place_arm).in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
         match self.task {
-            Ur5eTask::Reach => {
-                app.add_systems(Update, reach::report.in_set(TaskSet::Report));
-            }
+            Ur5eTask::Reach => {}
             Ur5eTask::PickPlace => {
                 app.add_systems(Update, (pick_place::apply_suction.in_set(SimSet::Actuate), pick_place::report.in_set(TaskSet::Report)))
                     .add_systems(Update, pick_place::run_program.after(read_arm).in_set(TaskSet::Read))

@@ -5,7 +5,8 @@
 //! task's own terms). Episodes restart the way a real cell's do: the arm homes with its own
 //! motors (position control back to home), and if the part has been knocked out of fixture
 //! A, the lab operator puts it back before the next episode starts. (The start pose the start
-//! event also draws is for the Supervisor of pattern 1; a homing arm starts at home.)
+//! event also draws is for the Supervisor of pattern 1; a homing arm starts at home.) The
+//! twin's figures of an episode (energy, events) count from its start, not from its homing.
 
 use bevy::prelude::*;
 use twinbots_server::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerRobotPlugin};
@@ -15,6 +16,7 @@ use twinbots_sim::{Motor, Operator};
 use crate::arm;
 use crate::cell::{CellParts, FIXTURE_A, part_seat};
 use crate::kinematics::HOME;
+use crate::metrics::TwinMeter;
 use crate::state::CellState;
 
 /// The operator re-seats the part when it is this far from its seat (m).
@@ -22,7 +24,7 @@ const PART_OUT_OF_PLACE: f32 = 0.005;
 
 pub(crate) fn build(app: &mut App) {
     app.add_plugins(ServerRobotPlugin::<CellState>::new("ur5e"))
-        .add_systems(Update, (home.in_set(RobotCycleSet::Home), operate.in_set(RobotCycleSet::Operate)));
+        .add_systems(Update, (home.in_set(RobotCycleSet::Home), (operate, reset_meter).in_set(RobotCycleSet::Operate)));
 }
 
 /// Homing with the arm's own motors: position control back to home; once there and still,
@@ -54,6 +56,15 @@ fn operate(mut operator: Operator, robots: Query<(&CellParts, &Controller)>) {
         });
         if out_of_place {
             operator.place_object(parts.part, seat);
+        }
+    }
+}
+
+/// An episode's figures start from nothing when it starts (homing is not part of it).
+fn reset_meter(mut robots: Query<(&Controller, &mut TwinMeter)>) {
+    for (controller, mut meter) in &mut robots {
+        if controller.phase() == Phase::Starting {
+            *meter = TwinMeter::default();
         }
     }
 }

@@ -7,6 +7,7 @@ use crate::evaluation::{EvalResult, evaluate_policy};
 use crate::ppo::{Ppo, UpdateStats};
 use crate::run_dir::RunDir;
 use crate::task::SolvedCriterion;
+use crate::tensorboard::EventWriter;
 
 /// Builds a fresh env to evaluate on, its streams seeded with the given seed.
 pub type EnvFactory = Box<dyn FnMut(u64) -> anyhow::Result<Box<dyn VecEnv>> + Send>;
@@ -23,6 +24,7 @@ pub struct EvalCallback {
     episodes: usize,
     seed: u64,
     log: Option<RunDir>,
+    events: Option<EventWriter>,
     stop_when: Option<SolvedCriterion>,
     /// The latest evaluation.
     pub last: Option<EvalResult>,
@@ -38,12 +40,18 @@ impl EvalCallback {
         episodes: usize,
         seed: u64,
     ) -> Self {
-        Self { task: task.to_string(), make_env: Box::new(make_env), every, episodes, seed, log: None, stop_when: None, last: None }
+        Self { task: task.to_string(), make_env: Box::new(make_env), every, episodes, seed, log: None, events: None, stop_when: None, last: None }
     }
 
     /// Appends every evaluation to `run`'s `evaluations.csv`.
     pub fn log_to(mut self, run: RunDir) -> Self {
         self.log = Some(run);
+        self
+    }
+
+    /// Writes every evaluation's `eval/` scalars into this TensorBoard event file.
+    pub fn events_to(mut self, events: EventWriter) -> Self {
+        self.events = Some(events);
         self
     }
 
@@ -63,6 +71,9 @@ impl Callback for EvalCallback {
         let result = evaluate_policy(&self.task, model, env.as_mut(), self.episodes, self.seed)?;
         if let Some(run) = &self.log {
             run.append_evaluation(stats.timesteps, &result)?;
+        }
+        if let Some(events) = &self.events {
+            events.scalars(stats.timesteps, &super::tensorboard::evaluation_scalars(&result))?;
         }
         let solved = self.stop_when.is_some_and(|c| result.meets(&c));
         self.last = Some(result);

@@ -1,5 +1,8 @@
 //! Callbacks that record a run as it goes: `progress.csv`, checkpoints, the learning curve and
-//! the terminal's progress bar.
+//! the progress shown to people (a bar on a terminal, lines in a log).
+
+use std::io::IsTerminal;
+use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -106,37 +109,92 @@ impl Callback for LearningCurveCallback {
     }
 }
 
-/// A progress bar over the run's budget with steps/s and the latest mean reward (SB3's
-/// `ProgressBarCallback`).
+/// Training's progress for people: on a terminal, a bar over the run's budget with steps/s and
+/// the latest mean reward (SB3's `ProgressBarCallback`); elsewhere (a log file, CI, a pipe),
+/// one line on stderr after the first update, every [`LINE_EVERY`] and at the end, as SB3's
+/// stdout logger does.
 pub struct ProgressBarCallback {
-    bar: ProgressBar,
+    display: Display,
     total: u64,
 }
 
+/// How often the line display writes while training goes on.
+pub const LINE_EVERY: Duration = Duration::from_secs(10);
+
+enum Display {
+    Bar(ProgressBar),
+    Lines { started: Instant, last: Option<Instant>, latest: Option<String> },
+}
+
 impl ProgressBarCallback {
-    /// A bar towards `total` timesteps (the whole run's, so a resumed run starts part-way).
+    /// Progress towards `total` timesteps (the whole run's, so a resumed run starts part-way):
+    /// a bar when stderr is a terminal, lines otherwise.
     pub fn new(total: u64) -> anyhow::Result<Self> {
+        if std::io::stderr().is_terminal() { Self::bar(total) } else { Ok(Self::lines(total)) }
+    }
+
+    pub fn bar(total: u64) -> anyhow::Result<Self> {
         let bar = ProgressBar::new(total);
         bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps {msg}")?.progress_chars("=> "));
-        Ok(Self { bar, total })
+        Ok(Self { display: Display::Bar(bar), total })
     }
+
+    pub fn lines(total: u64) -> Self {
+        Self { display: Display::Lines { started: Instant::now(), last: None, latest: None }, total }
+    }
+}
+
+/// An update's figures in a few words: what the bar shows beside it, and the core of a line.
+fn progress_message(s: &UpdateStats) -> String {
+    let success = if s.success_rate.is_finite() { format!(", success {:.0} %", 100.0 * s.success_rate) } else { String::new() };
+    format!("{:.0} steps/s, mean reward {:.1}{success} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes)
 }
 
 impl Callback for ProgressBarCallback {
     fn on_training_start(&mut self, model: &Ppo) -> anyhow::Result<()> {
-        self.bar.set_position(model.timesteps.min(self.total));
+        match &mut self.display {
+            Display::Bar(bar) => bar.set_position(model.timesteps.min(self.total)),
+            Display::Lines { started, .. } => *started = Instant::now(),
+        }
         Ok(())
     }
 
     fn on_update(&mut self, s: &UpdateStats, _model: &Ppo) -> anyhow::Result<Flow> {
-        self.bar.set_position(s.timesteps.min(self.total));
-        let success = if s.success_rate.is_finite() { format!(", success {:.0} %", 100.0 * s.success_rate) } else { String::new() };
-        self.bar.set_message(format!("{:.0} steps/s, mean reward {:.1}{success} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes));
+        match &mut self.display {
+            Display::Bar(bar) => {
+                bar.set_position(s.timesteps.min(self.total));
+                bar.set_message(progress_message(s));
+            }
+            Display::Lines { started, last, latest } => {
+                let line = format!(
+                    "[{:.0} s] steps {}/{}: {}",
+                    started.elapsed().as_secs_f64(),
+                    s.timesteps,
+                    self.total,
+                    progress_message(s)
+                );
+                if last.is_none_or(|t| t.elapsed() >= LINE_EVERY) {
+                    eprintln!("{line}");
+                    *last = Some(Instant::now());
+                    *latest = None;
+                } else {
+                    *latest = Some(line);
+                }
+            }
+        }
         Ok(Flow::Continue)
     }
 
     fn on_training_end(&mut self, _model: &Ppo) -> anyhow::Result<()> {
-        self.bar.finish();
+        match &mut self.display {
+            Display::Bar(bar) => bar.finish(),
+            // The last update's line, if it has not been written yet.
+            Display::Lines { latest, .. } => {
+                if let Some(line) = latest.take() {
+                    eprintln!("{line}");
+                }
+            }
+        }
         Ok(())
     }
 }

@@ -4,18 +4,22 @@
 //! same lists.
 //!
 //! - [`ProgressCsvCallback`]: a row of `progress.csv` per update;
-//! - [`ProgressBarCallback`]: the terminal's progress bar;
+//! - [`ProgressBarCallback`]: the terminal's progress bar, or a line now and then where stderr
+//!   is not a terminal;
 //! - [`EvalCallback`]: evaluates the deterministic policy every N updates into
 //!   `evaluations.csv`, and may stop training once an evaluation meets the solved criterion;
 //! - [`StopTrainingOnSolved`]: stops once the training episodes meet the solved criterion;
 //! - [`CheckpointCallback`]: saves a checkpoint every N updates;
-//! - [`LearningCurveCallback`]: redraws `learning_curve.png` every N updates and at the end.
+//! - [`LearningCurveCallback`]: redraws `learning_curve.png` every N updates and at the end;
+//! - [`TensorBoardCallback`]: TensorBoard scalars under SB3's tag names every update.
 
 mod eval;
 mod logging;
+mod tensorboard;
 
 pub use eval::EvalCallback;
 pub use logging::{CheckpointCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, draw_learning_curve};
+pub use tensorboard::{TensorBoardCallback, evaluation_scalars, training_scalars};
 
 use crate::ppo::{Ppo, UpdateStats};
 use crate::task::SolvedCriterion;

@@ -13,7 +13,7 @@ mod policy;
 mod rollout;
 mod update;
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 use std::time::Instant;
 
 use rand::SeedableRng;
@@ -74,6 +74,9 @@ pub struct Ppo {
     recent_lengths: VecDeque<f32>,
     /// 1 or 0 for each of the last 100 finished episodes that reported success or failure.
     pub recent_successes: VecDeque<f32>,
+    /// Each figure the task reports (energy, cycle time…), over the last 100 finished episodes
+    /// that reported it (not saved with the model: a resumed run starts these windows afresh).
+    pub recent_metrics: BTreeMap<String, VecDeque<f32>>,
     optimizer: Adam,
     rng: ChaCha8Rng,
     /// Where this process's training time went (not saved with the model).
@@ -127,6 +130,7 @@ impl Ppo {
             recent_scores: VecDeque::new(),
             recent_lengths: VecDeque::new(),
             recent_successes: VecDeque::new(),
+            recent_metrics: BTreeMap::new(),
             optimizer,
             rng: ChaCha8Rng::seed_from_u64(seed ^ ACTION_STREAM_SALT),
             times: TrainingTimes::default(),
@@ -151,6 +155,7 @@ impl Ppo {
             recent_scores: self.recent_scores.clone(),
             recent_lengths: self.recent_lengths.clone(),
             recent_successes: self.recent_successes.clone(),
+            recent_metrics: self.recent_metrics.clone(),
             optimizer,
             rng: self.rng.clone(),
             times: self.times,
@@ -180,6 +185,14 @@ impl Ppo {
         if let Some(success) = episode.success {
             push_window(&mut self.recent_successes, if success { 1.0 } else { 0.0 });
         }
+        for (name, value) in &episode.metrics {
+            push_window(self.recent_metrics.entry(name.clone()).or_default(), *value);
+        }
+    }
+
+    /// The mean of each figure over the last 100 finished episodes that reported it.
+    pub fn recent_metric_means(&self) -> BTreeMap<String, f32> {
+        self.recent_metrics.iter().map(|(name, values)| (name.clone(), mean(values))).collect()
     }
 
     /// Success rate of the last 100 finished episodes that reported success, if any did.

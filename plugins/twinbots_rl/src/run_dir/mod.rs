@@ -10,6 +10,7 @@
 //!   learning_curve.png
 //!   eval.json                        the final model's evaluation
 //!   summary.json                     how the run went (`Summary`)
+//!   events.out.tfevents.*            TensorBoard scalars (one file per process that trained)
 //! ```
 //!
 //! Every file is written whole through a temporary file and a rename, or appended one row at a
@@ -94,6 +95,11 @@ impl RunDir {
         let text = std::fs::read_to_string(&path)
             .map_err(|e| anyhow::anyhow!("{}: not a run directory: {e}", path.display()))?;
         toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    /// A new TensorBoard event file in the run (`tensorboard --logdir runs` shows every run).
+    pub fn event_writer(&self) -> anyhow::Result<crate::tensorboard::EventWriter> {
+        crate::tensorboard::EventWriter::create(&self.path)
     }
 
     /// Saves the final model into `model/`.

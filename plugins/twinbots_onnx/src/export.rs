@@ -1,0 +1,234 @@
+//! A PPO model's deterministic policy as an ONNX graph (docs/export.md draws it):
+//!
+//! ```text
+//! obs [batch, n] float ─▶ normalise (if trained so) ─▶ pi MLP ─▶ ArgMax          ─▶ action [batch] int64
+//!                                                            └▶ Max(low), Min(high) ─▶ action [batch, m] float
+//! ```
+//!
+//! Normalising is `((x − mean) / √(var + 1e-8))` computed in double precision, as
+//! `RunningMeanStd::normalize` does, then clipped to ±10. Each layer is a `Gemm` (x Wᵀ + b),
+//! hidden ones followed by `Tanh`. A discrete policy's mode is the arg max of its logits (the
+//! last of equal ones, as the model's own arg max takes); a Gaussian's mode is its mean,
+//! clipped to the action box as the env receives it (PPO neither squashes nor rescales).
+
+use std::path::Path;
+
+use prost::Message;
+use tract_onnx::pb;
+use tract_onnx::pb::tensor_proto::DataType;
+use twinbots_rl::Space;
+use twinbots_rl::normalize::CLIP;
+use twinbots_rl::ppo::{Ppo, write_atomic};
+
+use crate::metadata::PolicyMetadata;
+
+/// ONNX IR version 8 (ONNX 1.10+) and operator set 17: read by onnxruntime ≥ 1.13 and tract.
+pub const IR_VERSION: i64 = 8;
+pub const OPSET: i64 = 17;
+pub const INPUT: &str = "obs";
+pub const OUTPUT: &str = "action";
+
+/// The ONNX model of `model`'s deterministic policy, described by `metadata` (whose spaces
+/// must be the model's).
+pub fn policy_model(model: &Ppo, metadata: &PolicyMetadata) -> anyhow::Result<pb::ModelProto> {
+    anyhow::ensure!(
+        metadata.observation_space.dim() == model.observation_space.dim() && metadata.action_space == model.action_space,
+        "the model's spaces ({} observations, {}) differ from the description's ({} observations, {})",
+        model.observation_space.dim(),
+        model.action_space,
+        metadata.observation_space.dim(),
+        metadata.action_space
+    );
+    let graph = policy_graph(model)?;
+    Ok(pb::ModelProto {
+        ir_version: IR_VERSION,
+        opset_import: vec![pb::OperatorSetIdProto { domain: String::new(), version: OPSET }],
+        producer_name: "twinbots".into(),
+        producer_version: metadata.twinbots_version.clone(),
+        doc_string: format!("{} ({}): the deterministic policy of a PPO model; see docs/export.md", metadata.robot, metadata.task),
+        graph: Some(graph),
+        metadata_props: metadata
+            .to_props()
+            .into_iter()
+            .map(|(key, value)| pb::StringStringEntryProto { key, value })
+            .collect(),
+        ..Default::default()
+    })
+}
+
+/// The policy's ONNX file, as bytes.
+pub fn policy_bytes(model: &Ppo, metadata: &PolicyMetadata) -> anyhow::Result<Vec<u8>> {
+    Ok(policy_model(model, metadata)?.encode_to_vec())
+}
+
+/// Writes the policy to `path` (through a temporary file and a rename).
+pub fn write_policy(path: &Path, model: &Ppo, metadata: &PolicyMetadata) -> anyhow::Result<()> {
+    write_atomic(path, &policy_bytes(model, metadata)?).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+fn policy_graph(model: &Ppo) -> anyhow::Result<pb::GraphProto> {
+    let n = model.observation_space.dim();
+    let mut g = GraphBuilder::default();
+    let mut x = INPUT.to_string();
+    if let Some(rms) = &model.obs_rms {
+        let std: Vec<f64> = rms.var.iter().map(|v| (v + 1e-8).sqrt()).collect();
+        let mean = g.constant_f64("obs_mean", &rms.mean);
+        let std = g.constant_f64("obs_std", &std);
+        let wide = g.node("Cast", &[&x], vec![int_attr("to", DataType::Double as i64)]);
+        let centred = g.node("Sub", &[&wide, &mean], vec![]);
+        let scaled = g.node("Div", &[&centred, &std], vec![]);
+        let narrow = g.node("Cast", &[&scaled], vec![int_attr("to", DataType::Float as i64)]);
+        let (low, high) = (g.scalar_f32("obs_clip_low", -CLIP), g.scalar_f32("obs_clip_high", CLIP));
+        x = g.node("Clip", &[&narrow, &low, &high], vec![]);
+    }
+    let layers = pi_layers(model)?;
+    for (i, (weight, bias)) in layers.iter().enumerate() {
+        let w = g.constant_f32(&format!("pi.{i}.weight"), &weight.dims, &weight.values);
+        let b = g.constant_f32(&format!("pi.{i}.bias"), &bias.dims, &bias.values);
+        x = g.node("Gemm", &[&x, &w, &b], vec![int_attr("transB", 1)]);
+        if i + 1 < layers.len() {
+            x = g.node("Tanh", &[&x], vec![]);
+        }
+    }
+    let output_type = match &model.action_space {
+        Space::Discrete { .. } => {
+            g.output_node("ArgMax", &[&x], vec![int_attr("axis", 1), int_attr("keepdims", 0), int_attr("select_last_index", 1)]);
+            tensor_type(DataType::Int64, &[batch_dim()])
+        }
+        Space::Box { low, high } => {
+            let low = g.constant_f32("action_low", &[low.len() as i64], low);
+            let high = g.constant_f32("action_high", &[high.len() as i64], high);
+            let floor = g.node("Max", &[&x, &low], vec![]);
+            g.output_node("Min", &[&floor, &high], vec![]);
+            tensor_type(DataType::Float, &[batch_dim(), fixed_dim(model.action_space.dim())])
+        }
+        other => anyhow::bail!("{other} actions cannot be exported"),
+    };
+    Ok(pb::GraphProto {
+        name: "twinbots_policy".into(),
+        node: g.nodes,
+        initializer: g.initializers,
+        input: vec![value_info(INPUT, tensor_type(DataType::Float, &[batch_dim(), fixed_dim(n)]))],
+        output: vec![value_info(OUTPUT, output_type)],
+        ..Default::default()
+    })
+}
+
+/// A tensor's shape and values.
+struct Values {
+    dims: Vec<i64>,
+    values: Vec<f32>,
+}
+
+/// The policy network's layers, (weight [out, in], bias [out]) from the input on, read by the
+/// names the model file uses (`pi.<i>.weight`, `pi.<i>.bias`).
+fn pi_layers(model: &Ppo) -> anyhow::Result<Vec<(Values, Values)>> {
+    let vars = model.policy.named_vars();
+    let read = |name: &str| -> anyhow::Result<Option<Values>> {
+        let Some((_, var)) = vars.iter().find(|(n, _)| n == name) else { return Ok(None) };
+        let t = var.as_tensor();
+        Ok(Some(Values { dims: t.dims().iter().map(|&d| d as i64).collect(), values: t.flatten_all()?.to_vec1::<f32>()? }))
+    };
+    let mut layers = Vec::new();
+    while let Some(weight) = read(&format!("pi.{}.weight", layers.len()))? {
+        let bias = read(&format!("pi.{}.bias", layers.len()))?.ok_or_else(|| anyhow::anyhow!("layer {} has no bias", layers.len()))?;
+        layers.push((weight, bias));
+    }
+    anyhow::ensure!(!layers.is_empty(), "the model has no policy network");
+    Ok(layers)
+}
+
+/// Nodes and constants, named as they are added.
+#[derive(Default)]
+struct GraphBuilder {
+    nodes: Vec<pb::NodeProto>,
+    initializers: Vec<pb::TensorProto>,
+}
+
+impl GraphBuilder {
+    /// Adds a node; returns the name of its output.
+    fn node(&mut self, op: &str, inputs: &[&str], attribute: Vec<pb::AttributeProto>) -> String {
+        let output = format!("{}_{}", op.to_lowercase(), self.nodes.len());
+        self.push(op, inputs, attribute, output.clone());
+        output
+    }
+
+    /// Adds the node whose output is the graph's.
+    fn output_node(&mut self, op: &str, inputs: &[&str], attribute: Vec<pb::AttributeProto>) {
+        self.push(op, inputs, attribute, OUTPUT.into());
+    }
+
+    fn push(&mut self, op: &str, inputs: &[&str], attribute: Vec<pb::AttributeProto>, output: String) {
+        self.nodes.push(pb::NodeProto {
+            name: format!("{op}_{}", self.nodes.len()),
+            op_type: op.into(),
+            input: inputs.iter().map(|s| s.to_string()).collect(),
+            output: vec![output],
+            attribute,
+            ..Default::default()
+        });
+    }
+
+    fn constant_f32(&mut self, name: &str, dims: &[i64], values: &[f32]) -> String {
+        self.initializers.push(pb::TensorProto {
+            name: name.into(),
+            dims: dims.to_vec(),
+            data_type: DataType::Float as i32,
+            float_data: values.to_vec(),
+            ..Default::default()
+        });
+        name.into()
+    }
+
+    fn scalar_f32(&mut self, name: &str, value: f32) -> String {
+        self.constant_f32(name, &[], &[value])
+    }
+
+    fn constant_f64(&mut self, name: &str, values: &[f64]) -> String {
+        self.initializers.push(pb::TensorProto {
+            name: name.into(),
+            dims: vec![values.len() as i64],
+            data_type: DataType::Double as i32,
+            double_data: values.to_vec(),
+            ..Default::default()
+        });
+        name.into()
+    }
+}
+
+fn int_attr(name: &str, value: i64) -> pb::AttributeProto {
+    pb::AttributeProto {
+        name: name.into(),
+        r#type: pb::attribute_proto::AttributeType::Int as i32,
+        i: value,
+        ..Default::default()
+    }
+}
+
+fn batch_dim() -> pb::tensor_shape_proto::Dimension {
+    pb::tensor_shape_proto::Dimension {
+        value: Some(pb::tensor_shape_proto::dimension::Value::DimParam("batch".into())),
+        ..Default::default()
+    }
+}
+
+fn fixed_dim(size: usize) -> pb::tensor_shape_proto::Dimension {
+    pb::tensor_shape_proto::Dimension {
+        value: Some(pb::tensor_shape_proto::dimension::Value::DimValue(size as i64)),
+        ..Default::default()
+    }
+}
+
+fn tensor_type(elem_type: DataType, dims: &[pb::tensor_shape_proto::Dimension]) -> pb::TypeProto {
+    pb::TypeProto {
+        value: Some(pb::type_proto::Value::TensorType(pb::type_proto::Tensor {
+            elem_type: elem_type as i32,
+            shape: Some(pb::TensorShapeProto { dim: dims.to_vec() }),
+        })),
+        ..Default::default()
+    }
+}
+
+fn value_info(name: &str, r#type: pb::TypeProto) -> pb::ValueInfoProto {
+    pb::ValueInfoProto { name: name.into(), r#type: Some(r#type), ..Default::default() }
+}

@@ -1,0 +1,82 @@
+//! `twinbots robot <robot>`: simulated design-pattern-3 robots (no Supervisor; they home
+//! themselves and an operator re-places objects) whose actions come from
+//! - `--server ADDR`: a RobotServer that trains on them, until it says training is over;
+//! - `--policy FILE.onnx`: an exported policy each robot runs itself, as it would beside a real
+//!   controller, for a number of episodes, reporting the task's figures as `eval` does.
+
+use std::net::SocketAddr;
+use std::path::Path;
+use std::time::Duration;
+
+use bevy::prelude::*;
+use twinbots_onnx::OnnxPolicy;
+use twinbots_rl::{DesignPattern, Episode, EvalResult};
+use twinbots_server::robot::{OnBoardPolicy, RobotRunState, ServerAddress};
+
+use crate::registry;
+
+/// A pattern-3 app of `arenas` robots getting their actions from `source` (a [`ServerAddress`]
+/// or an [`OnBoardPolicy`]), started up.
+fn robot_app(robot: &str, arenas: usize, seed: u64, source: impl Resource) -> anyhow::Result<App> {
+    let entry = registry::find(robot)?;
+    anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
+    let mut app = entry.app(None, arenas, seed, DesignPattern::Server)?;
+    app.insert_resource(source);
+    app.finish();
+    app.cleanup();
+    Ok(app)
+}
+
+/// Why the robots stopped, if they did: the server's reason, or an error.
+fn stopped(app: &App) -> Option<Result<String, String>> {
+    app.world().resource::<RobotRunState>().stop.clone()
+}
+
+/// Runs `arenas` simulated robots against the server at `server` until it says training is
+/// over. Returns the server's reason.
+pub fn against_server(robot: &str, server: SocketAddr, arenas: usize, seed: u64, patience: Duration) -> anyhow::Result<String> {
+    let mut app = robot_app(robot, arenas, seed, ServerAddress { addr: server, patience })?;
+    loop {
+        app.update();
+        if let Some(stop) = stopped(&app) {
+            let state = app.world().resource::<RobotRunState>();
+            return match stop {
+                Ok(reason) => {
+                    println!("robots done ({reason}); {} episodes, {} reconnections", state.episodes, state.reconnects);
+                    Ok(reason)
+                }
+                Err(e) => Err(anyhow::anyhow!("robots stopped: {e}")),
+            };
+        }
+    }
+}
+
+/// Runs `arenas` robots on the exported policy at `policy` until `episodes` episodes have
+/// ended, prints their figures as `eval` does and returns them.
+pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, seed: u64) -> anyhow::Result<EvalResult> {
+    anyhow::ensure!(episodes > 0, "--episodes must be at least 1");
+    let onnx = OnnxPolicy::load(policy)?;
+    let entry = registry::find(robot)?;
+    let task = entry.main_task().name;
+    onnx.metadata.check_fits(robot, task, &entry.task())?;
+    if onnx.metadata.design_pattern != 3 {
+        println!(
+            "note: the policy was trained under design pattern {}; these robots observe through their own devices (pattern 3)",
+            onnx.metadata.design_pattern
+        );
+    }
+    let mut app = robot_app(robot, arenas.clamp(1, episodes), seed, OnBoardPolicy::new(move |obs: &[f32]| onnx.act(obs)))?;
+    let mut finished = Vec::with_capacity(episodes);
+    let mut ended = app.world_mut().query::<&Episode>();
+    while finished.len() < episodes {
+        app.update();
+        if let Some(Err(e)) = stopped(&app) {
+            anyhow::bail!("robots stopped: {e}");
+        }
+        let done = ended.iter(app.world()).filter_map(|e| e.finished.clone());
+        finished.extend(done.take(episodes - finished.len()));
+    }
+    let result = EvalResult::of_episodes(task, &finished);
+    println!("{robot} running {}: {}", policy.display(), result.describe());
+    Ok(result)
+}

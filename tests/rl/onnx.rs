@@ -1,0 +1,127 @@
+//! The exported ONNX graph acts as the model does: run by tract on 1,000 random observations,
+//! its actions equal the model's own deterministic ones (to 1e-5; discrete choices identical)
+//! for a discrete, a continuous and a normalised-observation policy. Bad files are clear errors.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use twinbots_onnx::{OnnxPolicy, PolicyMetadata};
+use twinbots_rl::classic::{ClassicCartPole, ClassicPendulum};
+use twinbots_rl::{Flow, Ppo, PpoConfig, Space, VecEnv};
+
+const OBSERVATIONS: usize = 1000;
+
+fn metadata(model: &Ppo) -> PolicyMetadata {
+    PolicyMetadata {
+        twinbots_version: "test".into(),
+        robot: "test".into(),
+        task: "test".into(),
+        design_pattern: 1,
+        observation_space: model.observation_space.clone(),
+        observation_names: (0..model.observation_space.dim()).map(|i| format!("x{i}")).collect(),
+        action_space: model.action_space.clone(),
+        control_period_s: 0.02,
+        normalizes_observations: model.obs_rms.is_some(),
+        timesteps: model.timesteps,
+    }
+}
+
+fn trained(env: &mut dyn VecEnv, config: PpoConfig, steps: u64) -> Ppo {
+    let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 5).unwrap();
+    model.learn(env, steps, &mut |_: &_, _: &_| Ok(Flow::Continue)).unwrap();
+    model
+}
+
+/// Rows of observations around `scale`, a few far out (beyond the normaliser's ±10 clip).
+fn observations(dim: usize, scale: f32, seed: u64) -> Vec<f32> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..OBSERVATIONS * dim)
+        .map(|i| {
+            let far = if i % 97 == 0 { 50.0 } else { 1.0 };
+            rng.random_range(-1.0f32..1.0) * scale * far
+        })
+        .collect()
+}
+
+/// The exported graph's actions and the model's on the same observations.
+fn both(model: &Ppo, obs: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let bytes = twinbots_onnx::policy_bytes(model, &metadata(model)).unwrap();
+    let policy = OnnxPolicy::from_bytes(&bytes).unwrap();
+    (policy.act(obs).unwrap(), model.predict_deterministic(obs).unwrap())
+}
+
+fn largest_difference(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+#[test]
+fn a_discrete_policy_makes_the_same_choices() {
+    let config = PpoConfig { n_steps: 128, ..Default::default() };
+    let model = trained(&mut ClassicCartPole::new(4), config, 2048);
+    let obs = observations(4, 2.0, 1);
+    let (onnx, own) = both(&model, &obs);
+    let differ = onnx.iter().zip(&own).filter(|(a, b)| a != b).count();
+    eprintln!("discrete: {differ} of {OBSERVATIONS} choices differ; max |Δ| {}", largest_difference(&onnx, &own));
+    assert_eq!(differ, 0);
+    assert!(own.contains(&0.0) && own.contains(&1.0), "both choices occur, so the comparison means something");
+}
+
+#[test]
+fn a_continuous_policy_gives_the_same_clipped_actions() {
+    // A box with different bounds per dimension, and an output layer made 100 times larger
+    // than initialised so that a good share of actions fall outside the box and are clipped.
+    let action_space = Space::Box { low: vec![-1.0, -2.0, 0.0], high: vec![1.0, 0.5, 3.0] };
+    let model = Ppo::new(PpoConfig::default(), Space::uniform_box(6, -5.0, 5.0), action_space.clone(), 9).unwrap();
+    for (name, var) in model.policy.named_vars() {
+        if name == "pi.2.weight" {
+            var.set(&var.as_tensor().affine(100.0, 0.0).unwrap()).unwrap();
+        }
+    }
+    let obs = observations(6, 3.0, 2);
+    let (onnx, own) = both(&model, &obs);
+    let delta = largest_difference(&onnx, &own);
+    eprintln!("continuous: max |Δ| {delta:e} over {OBSERVATIONS} observations");
+    assert!(delta <= 1e-5, "max |Δ| {delta}");
+    assert!(action_space.contains(&onnx[..3]));
+    let Space::Box { low, high } = &action_space else { unreachable!() };
+    let clipped = own.iter().enumerate().filter(|(i, a)| **a == low[i % 3] || **a == high[i % 3]).count();
+    assert!(clipped > OBSERVATIONS / 10, "only {clipped} actions were clipped");
+}
+
+#[test]
+fn a_normalised_observation_policy_folds_its_statistics_in() {
+    let config = PpoConfig { n_steps: 128, normalize_observations: true, ..Default::default() };
+    let model = trained(&mut ClassicPendulum::new(4), config, 2048);
+    let rms = model.obs_rms.as_ref().expect("a normalising model");
+    assert!(rms.mean.iter().any(|m| m.abs() > 0.05), "statistics moved from their start: {:?}", rms.mean);
+    let obs = observations(3, 4.0, 3);
+    let (onnx, own) = both(&model, &obs);
+    let delta = largest_difference(&onnx, &own);
+    eprintln!("normalised observations: max |Δ| {delta:e} over {OBSERVATIONS} observations");
+    assert!(delta <= 1e-5, "max |Δ| {delta}");
+    let normalised = model.normalize(&obs);
+    assert!(normalised.iter().any(|x| x.abs() == 10.0), "some observations reach the ±10 clip");
+}
+
+#[test]
+fn files_that_are_not_policies_are_clear_errors() {
+    let dir = std::env::temp_dir().join(format!("twinbots-onnx-errors-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = dir.join("notes.onnx");
+    std::fs::write(&text, "this is not a protobuf at all, just text\n").unwrap();
+    let err = format!("{:#}", OnnxPolicy::load(&text).unwrap_err());
+    assert!(err.contains("notes.onnx") && err.contains("not an ONNX model"), "{err}");
+    let empty = dir.join("empty.onnx");
+    std::fs::write(&empty, b"").unwrap();
+    let err = format!("{:#}", OnnxPolicy::load(&empty).unwrap_err());
+    assert!(err.contains("not an ONNX model (no graph)"), "{err}");
+    // An ONNX model without twinbots' description.
+    let model = Ppo::new(PpoConfig::default(), Space::uniform_box(2, -1.0, 1.0), Space::Discrete { n: 2 }, 0).unwrap();
+    let mut proto = twinbots_onnx::policy_model(&model, &metadata(&model)).unwrap();
+    proto.metadata_props.clear();
+    let err = format!("{:#}", OnnxPolicy::from_bytes(&prost::Message::encode_to_vec(&proto)).unwrap_err());
+    assert_eq!(err, "not a twinbots policy: no metadata 'twinbots.version'");
+    let err = format!("{:#}", OnnxPolicy::load(&dir.join("missing.onnx")).unwrap_err());
+    assert!(err.contains("missing.onnx"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
