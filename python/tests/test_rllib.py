@@ -19,7 +19,7 @@ import ray
 
 from twinbots.rllib import ppo_config, save_model
 from twinbots.rllib.__main__ import main as rllib_main
-from twinbots.rllib.train import progress_row, runner_steps
+from twinbots.rllib.train import EpisodeWindow, progress_row, runner_steps
 
 
 @pytest.fixture
@@ -38,10 +38,11 @@ def local_ray():
 def test_two_env_runners_sample_the_twin_and_the_mean_return_rises(local_ray, tmp_path):
     algo = ppo_config("cartpole", env_runners=2, envs_per_runner=4, seed=0).build_algo()
     try:
-        returns, steps = [], {}
-        for i in range(30):
+        returns, steps, episodes = [], {}, EpisodeWindow(100)
+        for i in range(40):
             result = algo.train()
-            row = progress_row(result, i + 1, 1.0)
+            episodes.add(result)
+            row = progress_row(result, i + 1, 1.0, episodes)
             if "mean_reward" in row:
                 returns.append(row["mean_reward"])
             for runner, n in runner_steps(result).items():
@@ -49,11 +50,11 @@ def test_two_env_runners_sample_the_twin_and_the_mean_return_rises(local_ray, tm
         # Both remote runners (1 and 2) stepped their arenas; the driver's local runner does not sample.
         assert set(steps) == {1, 2}, steps
         assert min(steps.values()) > 1000, steps
-        # A random cart-pole policy lasts ~20 steps. The mean is RLlib's over the last 100
-        # episodes, so it trails the policy: after 30 iterations (7,700 steps) it has doubled.
+        # A random cart-pole policy lasts ~22 steps. The mean is over the last 100 episodes,
+        # so it trails the policy: after 40 iterations (10,000 steps) it is well above that.
         assert len(returns) >= 5
-        assert returns[0] < 40, returns
-        assert max(returns[-5:]) > 1.8 * returns[0], returns
+        assert returns[0] < 30, returns
+        assert max(returns[-5:]) > 1.5 * returns[0], returns
 
         # Handover: the RLlib policy saved as a twinbots model acts like RLlib's module.
         import numpy as np

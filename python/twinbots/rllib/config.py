@@ -13,19 +13,34 @@ from .env import register_env
 
 
 def _runner_callbacks():
-    """Per-runner sample counts and the success rate of finished episodes, as custom metrics
-    (`result["env_runners"]["twinbots"]`)."""
+    """Per-runner sample counts and every finished episode's return, length and success, as
+    custom metrics (`result["env_runners"]["twinbots"]`)."""
     from ray.rllib.callbacks.callbacks import RLlibCallback
 
     class TwinbotsMetrics(RLlibCallback):
-        def on_sample_end(self, *, env_runner=None, metrics_logger=None, samples=(), **kwargs):
-            steps = sum(len(e) for e in samples)
-            metrics_logger.log_value(("twinbots", f"runner_{env_runner.worker_index}_steps"), steps, reduce="sum")
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            # Return and length so far of episodes still running, by episode id: a sample holds
+            # chunks of episodes (of `rollout_fragment_length` steps), not whole ones.
+            self._running: dict[str, tuple[float, int]] = {}
 
-        def on_episode_end(self, *, episode=None, metrics_logger=None, **kwargs):
-            info = episode.get_infos(-1) or {}
-            if "is_success" in info:
-                metrics_logger.log_value(("twinbots", "success_rate"), float(info["is_success"]), window=100)
+        def on_sample_end(self, *, env_runner=None, metrics_logger=None, samples=(), **kwargs):
+            steps = 0
+            for chunk in samples:
+                steps += len(chunk)
+                ret, length = self._running.pop(chunk.id_, (0.0, 0))
+                ret, length = ret + float(chunk.get_return()), length + len(chunk)
+                if not chunk.is_done:
+                    self._running[chunk.id_] = (ret, length)
+                    continue
+                # Every finished episode, not RLlib's means: the driver keeps the last 100
+                # (RLlib's `episode_return_mean` covers only episodes finished in the iteration).
+                metrics_logger.log_value(("twinbots", "episode_returns"), ret, reduce="item_series")
+                metrics_logger.log_value(("twinbots", "episode_lengths"), float(length), reduce="item_series")
+                info = chunk.get_infos(-1) or {}
+                if "is_success" in info:
+                    metrics_logger.log_value(("twinbots", "episode_successes"), float(info["is_success"]), reduce="item_series")
+            metrics_logger.log_value(("twinbots", f"runner_{env_runner.worker_index}_steps"), steps, reduce="sum")
 
     return TwinbotsMetrics
 

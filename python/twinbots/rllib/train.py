@@ -9,6 +9,7 @@ import logging
 import math
 import os
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,34 +36,68 @@ class TrainArgs:
     ray_logs: bool = False
 
 
-def progress_row(result: dict, iteration: int, seconds: float) -> dict:
-    """One `progress.csv` row from an RLlib result (missing figures are left out: NaN)."""
+class EpisodeWindow:
+    """The last `size` finished episodes, from every runner: twinbots' figures (and solved
+    criteria) are over the last 100 episodes, RLlib's `episode_return_mean` only over those
+    that finished in the iteration."""
+
+    def __init__(self, size: int = 100):
+        self.returns: deque[float] = deque(maxlen=size)
+        self.lengths: deque[float] = deque(maxlen=size)
+        self.successes: deque[float] = deque(maxlen=size)
+        self.count = 0
+
+    def add(self, result: dict) -> None:
+        custom = result.get("env_runners", {}).get("twinbots", {})
+
+        def items(key: str) -> list[float]:
+            # An item series of one item comes back as the item itself.
+            value = custom.get(key, [])
+            return list(value) if isinstance(value, (list, tuple)) else [value]
+
+        returns = items("episode_returns")
+        self.returns.extend(returns)
+        self.lengths.extend(items("episode_lengths"))
+        self.successes.extend(items("episode_successes"))
+        self.count += len(returns)
+
+    def figures(self) -> dict:
+        out = {"episodes": self.count}
+        if self.returns:
+            out |= {
+                "mean_reward": sum(self.returns) / len(self.returns),
+                "min_reward": min(self.returns),
+                "max_reward": max(self.returns),
+                "mean_length": sum(self.lengths) / max(len(self.lengths), 1),
+            }
+        if self.successes:
+            out["success_rate"] = sum(self.successes) / len(self.successes)
+        return out
+
+    def is_solved(self, solved: dict | None) -> bool:
+        """The robot's criterion over the last `solved["window"]` episodes."""
+        if solved is None:
+            return False
+        values = self.returns if solved["measure"] == "score" else self.successes
+        recent = list(values)[-solved["window"]:]
+        return len(recent) >= solved["window"] and sum(recent) / len(recent) > solved["threshold"]
+
+
+def progress_row(result: dict, iteration: int, seconds: float, episodes: EpisodeWindow) -> dict:
+    """One `progress.csv` row from an RLlib result and the episode window (missing figures are
+    left out: NaN)."""
     runners = result.get("env_runners", {})
     learner = result.get("learners", {}).get("default_policy", {})
     row = {
         "update": iteration,
         "timesteps": result.get("num_env_steps_sampled_lifetime", runners.get("num_env_steps_sampled_lifetime", 0)),
-        "episodes": runners.get("num_episodes_lifetime", 0),
-        "mean_reward": runners.get("episode_return_mean"),
-        "min_reward": runners.get("episode_return_min"),
-        "max_reward": runners.get("episode_return_max"),
-        "mean_length": runners.get("episode_len_mean"),
         "policy_loss": learner.get("policy_loss"),
         "value_loss": learner.get("vf_loss"),
         "entropy": learner.get("entropy"),
         "learning_rate": learner.get("default_optimizer_learning_rate"),
         "steps_per_s": runners.get("num_env_steps_sampled", 0) / max(seconds, 1e-9),
-        "success_rate": runners.get("twinbots", {}).get("success_rate"),
-    }
+    } | episodes.figures()
     return {k: float(v) for k, v in row.items() if v is not None and not (isinstance(v, float) and math.isnan(v))}
-
-
-def is_solved(row: dict, solved: dict | None) -> bool:
-    """The robot's criterion on RLlib's figures over the last `window` episodes."""
-    if solved is None or row.get("episodes", 0) < solved["window"]:
-        return False
-    value = row.get("mean_reward") if solved["measure"] == "score" else row.get("success_rate")
-    return value is not None and value > solved["threshold"]
 
 
 def runner_steps(result: dict) -> dict[int, int]:
@@ -96,8 +131,6 @@ def train(args: TrainArgs) -> Path:
     run = Path(args.out or f"runs/rllib-{args.robot}-{int(time.time())}")
     config = ppo_config(args.robot, args.task, args.env_runners, args.envs_per_runner, args.seed, timesteps)
     solved = defaults["solved"] if args.task is None else None
-    if solved is not None:
-        config = config.reporting(metrics_num_episodes_for_smoothing=solved["window"])
     arenas = max(args.env_runners, 1) * config.num_envs_per_env_runner
     _native.create_run(os.fspath(run), args.robot, args.seed, arenas, timesteps)
     owns_ray = start_ray(args.address, args.env_runners, args.ray_logs)
@@ -109,11 +142,13 @@ def train(args: TrainArgs) -> Path:
             raise RuntimeError(f"RLlib could not build PPO for {args.robot}: {type(e).__name__}: {e}{hint}") from e
         started = time.time()
         iteration, row, ended, per_runner = 0, {}, "budget spent", {}
+        episodes = EpisodeWindow(solved["window"] if solved else 100)
         while row.get("timesteps", 0) < timesteps:
             t = time.time()
             result = algo.train()
             iteration += 1
-            row = progress_row(result, iteration, time.time() - t)
+            episodes.add(result)
+            row = progress_row(result, iteration, time.time() - t, episodes)
             for k, v in runner_steps(result).items():
                 per_runner[k] = per_runner.get(k, 0) + v
             _native.append_progress(os.fspath(run), row)
@@ -125,7 +160,7 @@ def train(args: TrainArgs) -> Path:
             )
             if iteration % max(args.checkpoint_every, 1) == 0:
                 checkpoint(algo, run, args, row)
-            if is_solved(row, solved):
+            if episodes.is_solved(solved):
                 ended = "solved"
                 break
         wall = time.time() - started
