@@ -22,7 +22,7 @@ from pathlib import Path
 import ray
 
 from twinbots.rllib import ppo_config
-from twinbots.rllib.train import TrainArgs, train
+from twinbots.rllib.train import RUNNER_ENV, TrainArgs, train
 
 
 def sampling_rate(env_runners: int, steps: int) -> float:
@@ -43,8 +43,7 @@ def main() -> None:
     p.add_argument("--sample-steps", type=int, default=8192)
     p.add_argument("--skip-training", action="store_true")
     a = p.parse_args()
-    runtime_env = {"env_vars": {"RAYON_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}}
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR, runtime_env=runtime_env)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR, runtime_env=RUNNER_ENV)
     for runners in (1, 2):
         rate = sampling_rate(runners, a.sample_steps // runners)
         print(f"sampling, {runners} env runner(s) × {8 // runners} arenas: {rate:.0f} env steps/s", flush=True)

@@ -11,7 +11,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use twinbots_rl::callbacks::draw_learning_curve;
 use twinbots_rl::normalize::RunningMeanStd;
-use twinbots_rl::{Measure, Ppo, RunDir, UpdateStats};
+use twinbots::settings::{ConfigFile, TrainSettings};
+use twinbots_rl::{Measure, Ppo, RunDir};
 
 use crate::convert::{runtime_error, space_dict, value_error};
 
@@ -29,19 +30,12 @@ pub fn training_defaults<'py>(py: Python<'py>, robot: &str, task: Option<&str>) 
     d.set_item("ppo", py.import("json")?.call_method1("loads", (ppo,))?)?;
     d.set_item("arenas", entry.defaults.arenas)?;
     d.set_item("timesteps", entry.defaults.timesteps)?;
-    let solved = entry.task().solved.map(|c| {
-        let measure = match c.measure {
-            Measure::Score => "score",
-            Measure::Success => "success",
-        };
-        (measure, c.threshold, c.window)
-    });
-    match solved {
-        Some((measure, threshold, window)) => {
+    match entry.task().solved {
+        Some(c) => {
             let s = PyDict::new(py);
-            s.set_item("measure", measure)?;
-            s.set_item("threshold", threshold)?;
-            s.set_item("window", window)?;
+            s.set_item("measure", if c.measure == Measure::Score { "score" } else { "success" })?;
+            s.set_item("threshold", c.threshold)?;
+            s.set_item("window", c.window)?;
             d.set_item("solved", s)?;
         }
         None => d.set_item("solved", py.None())?,
@@ -49,8 +43,9 @@ pub fn training_defaults<'py>(py: Python<'py>, robot: &str, task: Option<&str>) 
     Ok(d)
 }
 
-/// Creates `run_dir` with the `config.toml` of a pattern-1 run of `robot` (its training
-/// defaults; `arenas` = env runners × envs per runner), as `twinbots train` writes it.
+/// Creates `run_dir` with the `config.toml` of a pattern-1 run of `robot`: its training
+/// defaults with `seed`, `arenas` (= env runners × envs per runner) and `timesteps`, resolved and
+/// validated as `twinbots train` does (`twinbots::settings`).
 #[pyfunction]
 pub fn create_run(run_dir: PathBuf, robot: &str, seed: u64, arenas: usize, timesteps: u64) -> PyResult<()> {
     let entry = twinbots::registry::find(robot).map_err(value_error)?;
@@ -58,23 +53,14 @@ pub fn create_run(run_dir: PathBuf, robot: &str, seed: u64, arenas: usize, times
     if run.holds_run() {
         return Err(value_error(anyhow::anyhow!("{} already holds a run", run_dir.display())));
     }
-    run.create().map_err(runtime_error)?;
-    // The fields of the CLI's `TrainSettings` (src/cli/runs.rs); `twinbots eval` parses them
-    // back, which the Python tests check.
-    let mut settings = toml::Table::new();
-    settings.insert("robot".into(), robot.into());
-    settings.insert("timesteps".into(), (timesteps as i64).into());
-    settings.insert("arenas".into(), (arenas as i64).into());
-    settings.insert("seed".into(), (seed as i64).into());
-    settings.insert("pattern".into(), 1.into());
-    settings.insert("checkpoint_every".into(), 10.into());
-    settings.insert("eval_every".into(), 0.into());
-    settings.insert("eval_episodes".into(), (entry.defaults.eval_episodes as i64).into());
     // RLlib's minibatch is at most its train batch (n_steps × arenas); so is the run's.
-    let mut ppo = entry.defaults.ppo.clone();
-    ppo.batch_size = ppo.batch_size.min(ppo.n_steps * arenas.max(1));
-    let ppo = toml::Table::try_from(&ppo).map_err(|e| runtime_error(e.into()))?;
-    settings.insert("ppo".into(), ppo.into());
+    let batch_size = entry.defaults.ppo.batch_size.min(entry.defaults.ppo.n_steps * arenas.max(1));
+    let mut ppo = toml::Table::new();
+    ppo.insert("batch_size".into(), (batch_size as i64).into());
+    // RLlib runs make no periodic twinbots evaluations.
+    let flags = ConfigFile { timesteps: Some(timesteps), arenas: Some(arenas), seed: Some(seed), pattern: Some(1), eval_every: Some(0), ppo: Some(ppo), ..Default::default() };
+    let settings = TrainSettings::resolve(&entry, ConfigFile::default(), flags).map_err(value_error)?;
+    run.create().map_err(runtime_error)?;
     run.write_config(&settings).map_err(runtime_error)
 }
 
@@ -82,35 +68,7 @@ pub fn create_run(run_dir: PathBuf, robot: &str, seed: u64, arenas: usize, times
 /// rest stay empty as NaN or 0), an unknown name is an error.
 #[pyfunction]
 pub fn append_progress(run_dir: PathBuf, row: HashMap<String, f64>) -> PyResult<()> {
-    let nan = f32::NAN;
-    let mut s = UpdateStats {
-        mean_reward: nan, min_reward: nan, max_reward: nan, mean_length: nan, success_rate: nan,
-        policy_loss: nan, value_loss: nan, entropy: nan, approx_kl: nan, clip_fraction: nan,
-        learning_rate: f64::NAN, steps_per_s: nan,
-        ..Default::default()
-    };
-    for (name, value) in row {
-        let v = value as f32;
-        match name.as_str() {
-            "update" => s.update = value as usize,
-            "timesteps" => s.timesteps = value as u64,
-            "episodes" => s.episodes = value as u64,
-            "mean_reward" => s.mean_reward = v,
-            "min_reward" => s.min_reward = v,
-            "max_reward" => s.max_reward = v,
-            "mean_length" => s.mean_length = v,
-            "policy_loss" => s.policy_loss = v,
-            "value_loss" => s.value_loss = v,
-            "entropy" => s.entropy = v,
-            "approx_kl" => s.approx_kl = v,
-            "clip_fraction" => s.clip_fraction = v,
-            "learning_rate" => s.learning_rate = value,
-            "steps_per_s" => s.steps_per_s = v,
-            "success_rate" => s.success_rate = v,
-            other => return Err(value_error(anyhow::anyhow!("progress.csv has no column '{other}'"))),
-        }
-    }
-    RunDir::new(run_dir).append_progress(&s).map_err(runtime_error)
+    RunDir::new(run_dir).append_progress_columns(&row).map_err(value_error)
 }
 
 /// Draws the run's `learning_curve.png` from its `progress.csv`, with the robot's solved
@@ -151,16 +109,15 @@ pub fn save_model(
             return Err(value_error(anyhow::anyhow!("unknown tensor '{name}'; the model has {}", expected.join(", "))));
         }
     }
-    for (name, var) in model.policy.named_vars() {
-        let array = weights.get(&name).ok_or_else(|| value_error(anyhow::anyhow!("missing tensor '{name}'")))?;
-        let shape: Vec<usize> = array.shape().to_vec();
-        if shape != var.shape().dims() {
-            return Err(value_error(anyhow::anyhow!("tensor '{name}' has shape {shape:?}, the model needs {:?}", var.shape().dims())));
-        }
-        let values: Vec<f32> = array.as_array().iter().copied().collect();
-        let tensor = candle_core::Tensor::from_vec(values, var.shape(), var.device()).map_err(|e| runtime_error(e.into()))?;
-        var.set(&tensor).map_err(|e| runtime_error(e.into()))?;
-    }
+    let tensors = weights
+        .iter()
+        .map(|(name, array)| {
+            let values: Vec<f32> = array.as_array().iter().copied().collect();
+            Ok((name.clone(), candle_core::Tensor::from_vec(values, array.shape(), &candle_core::Device::Cpu)?))
+        })
+        .collect::<anyhow::Result<HashMap<_, _>>>()
+        .map_err(runtime_error)?;
+    model.policy.set_weights(&tensors).map_err(value_error)?;
     model.obs_rms = match (obs_mean, obs_var) {
         (Some(mean), Some(var)) => {
             let dim = spec.observation_space.dim();

@@ -19,7 +19,7 @@ import ray
 
 from twinbots.rllib import ppo_config, save_model
 from twinbots.rllib.__main__ import main as rllib_main
-from twinbots.rllib.train import EpisodeWindow, progress_row, runner_steps
+from twinbots.rllib.train import RUNNER_ENV, EpisodeWindow, progress_row, runner_steps
 
 
 @pytest.fixture
@@ -29,7 +29,7 @@ def local_ray():
         include_dashboard=False,
         log_to_driver=False,
         logging_level=logging.ERROR,
-        runtime_env={"env_vars": {"RAYON_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}},
+        runtime_env=RUNNER_ENV,
     )
     yield
     ray.shutdown()

@@ -30,7 +30,7 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, out: &Path) -> anyhow:
     run_dir.write_config(&settings)?;
     let model = Ppo::new(settings.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?;
     let title = format!("{} — PPO through the RobotServer (pattern 3), seed {}", settings.robot, settings.seed);
-    let callbacks = settings.callbacks(&run_dir, &entry, title, spec.solved)?;
+    let callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     let server_settings = ServerSettings {
         robot: settings.robot.clone(),
         rollout: settings.ppo.n_steps * settings.arenas.max(1),

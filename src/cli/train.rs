@@ -110,7 +110,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Ppo>, view: bool)
         None => Ppo::new(settings.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?,
     };
     let title = format!("{} — PPO, pattern {}, {} arenas, seed {}", settings.robot, settings.pattern, settings.arenas, settings.seed);
-    let mut callbacks = settings.callbacks(&run_dir, &entry, title, spec.solved)?;
+    let mut callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     let remaining = settings.timesteps.saturating_sub(model.timesteps);
 
     // The learner's thread: PPO and its callbacks (logs, evaluations, checkpoints).

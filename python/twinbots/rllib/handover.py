@@ -11,15 +11,16 @@ import numpy as np
 from .. import _native
 
 
-def _our_name(rllib_name: str) -> str | None:
+def _our_name(rllib_name: str, hidden_layers: int) -> str | None:
     """`encoder.actor_encoder.net.mlp.2.weight` → `pi.1.weight`, `pi.net.mlp.0.bias` →
-    `pi.2.bias` (for two hidden layers), `pi.log_std` → `log_std`; None for RLlib's constants."""
+    `pi.<hidden_layers>.bias` (the output layer), `pi.log_std` → `log_std`; None for RLlib's
+    constants."""
     parts = rllib_name.split(".")
     if parts[0] == "encoder" and parts[2:4] == ["net", "mlp"]:
         net = {"actor_encoder": "pi", "critic_encoder": "vf"}[parts[1]]
         return f"{net}.{int(parts[4]) // 2}.{parts[5]}"  # Linear, tanh, Linear, tanh, …
     if parts[0] in ("pi", "vf") and parts[1:3] == ["net", "mlp"]:
-        return f"{parts[0]}.head.{parts[4]}"
+        return f"{parts[0]}.{hidden_layers}.{parts[4]}"
     if "log_std" in rllib_name and "clip" not in rllib_name:
         return "log_std"
     return None
@@ -28,11 +29,9 @@ def _our_name(rllib_name: str) -> str | None:
 def _module_weights(module, hidden_layers: int) -> dict[str, np.ndarray]:
     weights = {}
     for name, tensor in module.state_dict().items():
-        ours = _our_name(name)
-        if ours is None:
-            continue
-        ours = ours.replace(".head.", f".{hidden_layers}.")
-        weights[ours] = tensor.detach().cpu().numpy().astype(np.float32).reshape(tuple(tensor.shape))
+        ours = _our_name(name, hidden_layers)
+        if ours is not None:
+            weights[ours] = tensor.detach().cpu().numpy().astype(np.float32).reshape(tuple(tensor.shape))
     return weights
 
 

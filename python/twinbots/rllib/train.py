@@ -20,6 +20,9 @@ from .handover import save_model
 # RLlib's PPO checkpoint, beside twinbots' `model/` (which `twinbots eval` reads).
 RLLIB_CHECKPOINT = "rllib_checkpoint"
 SUMMARY = "rllib_summary.json"
+# Ray's workers' environment: one core per env runner, so its arenas step on one thread
+# (twinbots' pool, and torch's, would otherwise take every core of the node in every runner).
+RUNNER_ENV = {"env_vars": {"RAYON_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}}
 
 
 @dataclass
@@ -112,14 +115,11 @@ def start_ray(address: str | None, env_runners: int, ray_logs: bool) -> bool:
 
     if ray.is_initialized():
         return False
-    # One core per env runner: its arenas step on one thread (twinbots' pool would otherwise
-    # take every core of the node in every runner).
-    runtime_env = {"env_vars": {"RAYON_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}}
     quiet = {} if ray_logs else {"log_to_driver": False, "logging_level": logging.ERROR}
     if address is None:
-        ray.init(num_cpus=max(os.cpu_count() or 1, env_runners), include_dashboard=False, runtime_env=runtime_env, **quiet)
+        ray.init(num_cpus=max(os.cpu_count() or 1, env_runners), include_dashboard=False, runtime_env=RUNNER_ENV, **quiet)
     else:
-        ray.init(address=address, runtime_env=runtime_env, **quiet)
+        ray.init(address=address, runtime_env=RUNNER_ENV, **quiet)
     return True
 
 
@@ -141,7 +141,7 @@ def train(args: TrainArgs) -> Path:
             hint = "" if args.ray_logs else " (run again with --ray-logs to see the env runners' errors)"
             raise RuntimeError(f"RLlib could not build PPO for {args.robot}: {type(e).__name__}: {e}{hint}") from e
         started = time.time()
-        iteration, row, ended, per_runner = 0, {}, "budget spent", {}
+        iteration, row, ended, per_runner, saved = 0, {}, "budget spent", {}, None
         episodes = EpisodeWindow(solved["window"] if solved else 100)
         while row.get("timesteps", 0) < timesteps:
             t = time.time()
@@ -160,11 +160,13 @@ def train(args: TrainArgs) -> Path:
             )
             if iteration % max(args.checkpoint_every, 1) == 0:
                 checkpoint(algo, run, args, row)
+                saved = iteration
             if episodes.is_solved(solved):
                 ended = "solved"
                 break
         wall = time.time() - started
-        checkpoint(algo, run, args, row)
+        if saved != iteration:
+            checkpoint(algo, run, args, row)
         title = f"{args.robot} (RLlib PPO, {args.env_runners} env runners × {config.num_envs_per_env_runner} arenas)"
         _native.draw_curve(os.fspath(run), args.robot, title)
         summary = {

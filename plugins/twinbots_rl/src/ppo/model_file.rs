@@ -106,15 +106,7 @@ impl Ppo {
             .map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
         let tensors = candle_core::safetensors::load(&weights, &Device::Cpu).map_err(|e| file_error(&weights, e))?;
-        for (name, var) in model.policy.named_vars() {
-            let t = tensors
-                .get(&name)
-                .ok_or_else(|| file_error(&weights, format!("missing tensor '{name}'")))?;
-            if t.shape() != var.shape() {
-                return Err(file_error(&weights, format!("tensor '{name}' has shape {:?}, expected {:?}", t.shape(), var.shape())));
-            }
-            var.set(t).map_err(|e| file_error(&weights, e))?;
-        }
+        model.policy.set_weights(&tensors).map_err(|e| file_error(&weights, e))?;
         model.obs_rms = meta.obs_rms;
         model.timesteps = meta.timesteps;
         model.episodes = meta.episodes;

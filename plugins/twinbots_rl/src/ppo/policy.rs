@@ -137,6 +137,17 @@ impl ActorCritic {
         out
     }
 
+    /// Sets every variable from `tensors` by its name in [`Self::named_vars`]; a missing tensor
+    /// or one of another shape is an error naming it, and extra tensors are ignored.
+    pub fn set_weights(&self, tensors: &std::collections::HashMap<String, Tensor>) -> anyhow::Result<()> {
+        for (name, var) in self.named_vars() {
+            let t = tensors.get(&name).ok_or_else(|| anyhow::anyhow!("missing tensor '{name}'"))?;
+            anyhow::ensure!(t.shape() == var.shape(), "tensor '{name}' has shape {:?}, expected {:?}", t.shape(), var.shape());
+            var.set(t)?;
+        }
+        Ok(())
+    }
+
     pub fn value(&self, obs: &Tensor) -> Result<Tensor> {
         self.vf.forward(obs)?.squeeze(D::Minus1)
     }

@@ -151,6 +151,17 @@ impl RunDir {
         append_row(&self.file(PROGRESS), &progress_cells(stats))
     }
 
+    /// Appends a row given by column name (any of `progress.csv`'s columns; the rest count as
+    /// missing), for updates made outside twinbots (the RLlib path). An unknown name is an error.
+    pub fn append_progress_columns(&self, columns: &std::collections::HashMap<String, f64>) -> anyhow::Result<()> {
+        let known = progress_cells(&UpdateStats::default()).map(|(name, _)| name);
+        if let Some(unknown) = columns.keys().find(|name| !known.contains(&name.as_str())) {
+            anyhow::bail!("progress.csv has no column '{unknown}'; its columns: {}", known.join(", "));
+        }
+        // Whole numbers print without a fraction, so count columns parse as counts.
+        self.append_progress(&stats_from_columns(&|name| columns.get(name).map(|v| v.to_string())))
+    }
+
     /// Every row of `progress.csv`, read by column name (rows cut short by a crash are skipped).
     pub fn read_progress(&self) -> anyhow::Result<Vec<UpdateStats>> {
         let table = Table::read(&self.file(PROGRESS))?;
@@ -253,22 +264,31 @@ fn progress_cells(s: &UpdateStats) -> [(&'static str, String); 15] {
 }
 
 fn stats_of(r: &Row) -> UpdateStats {
+    stats_from_columns(&|name| r.get::<String>(name))
+}
+
+/// An update's figures from its cells by column name: a missing count is 0, a missing figure NaN.
+fn stats_from_columns(cell: &dyn Fn(&str) -> Option<String>) -> UpdateStats {
+    fn column<T: std::str::FromStr>(cell: &dyn Fn(&str) -> Option<String>, name: &str) -> Option<T> {
+        cell(name)?.parse().ok()
+    }
+    let number = |name| column::<f32>(cell, name).unwrap_or(f32::NAN);
     UpdateStats {
-        update: r.get("update").unwrap_or(0),
-        timesteps: r.get("timesteps").unwrap_or(0),
-        episodes: r.get("episodes").unwrap_or(0),
-        mean_reward: r.number("mean_reward"),
-        min_reward: r.number("min_reward"),
-        max_reward: r.number("max_reward"),
-        mean_length: r.number("mean_length"),
-        policy_loss: r.number("policy_loss"),
-        value_loss: r.number("value_loss"),
-        entropy: r.number("entropy"),
-        approx_kl: r.number("approx_kl"),
-        clip_fraction: r.number("clip_fraction"),
-        learning_rate: r.get("learning_rate").unwrap_or(f64::NAN),
-        steps_per_s: r.number("steps_per_s"),
-        success_rate: r.number("success_rate"),
+        update: column(cell, "update").unwrap_or(0),
+        timesteps: column(cell, "timesteps").unwrap_or(0),
+        episodes: column(cell, "episodes").unwrap_or(0),
+        mean_reward: number("mean_reward"),
+        min_reward: number("min_reward"),
+        max_reward: number("max_reward"),
+        mean_length: number("mean_length"),
+        policy_loss: number("policy_loss"),
+        value_loss: number("value_loss"),
+        entropy: number("entropy"),
+        approx_kl: number("approx_kl"),
+        clip_fraction: number("clip_fraction"),
+        learning_rate: column(cell, "learning_rate").unwrap_or(f64::NAN),
+        steps_per_s: number("steps_per_s"),
+        success_rate: number("success_rate"),
     }
 }
 

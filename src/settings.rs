@@ -1,0 +1,161 @@
+//! The settings a training run is made of (its `config.toml`): how they resolve from the
+//! robot's defaults, a `--config` file and flags, and how they are checked. Shared by the CLI
+//! and the Python extension (whose RLlib runs write the same `config.toml`).
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use twinbots_rl::randomization::Randomization;
+use twinbots_rl::{DesignPattern, PpoConfig, RunDir};
+
+use crate::registry::RobotEntry;
+
+/// Evaluation arenas are seeded away from the training seed, so they never replay training's
+/// episodes (primes, far apart: no run's seed range reaches them).
+pub const PERIODIC_EVAL_SEED_OFFSET: u64 = 1_000_003;
+pub const FINAL_EVAL_SEED_OFFSET: u64 = 2_000_003;
+
+/// Everything a run is made of; written to `config.toml`, read by `--config` and `--resume`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainSettings {
+    pub robot: String,
+    pub timesteps: u64,
+    pub arenas: usize,
+    pub seed: u64,
+    /// Design pattern (paper §3): 1 supervised, 2 supervisor + slave over radio, 3 RobotServer.
+    pub pattern: u8,
+    /// Save a checkpoint (and redraw the learning curve) every this many updates.
+    pub checkpoint_every: usize,
+    /// Evaluate the deterministic policy every this many updates into `evaluations.csv`
+    /// (0: never); an evaluation of at least the solved criterion's window of episodes that
+    /// meets it ends training (SB3's EvalCallback with a stop threshold). The final model is
+    /// always evaluated into `eval.json`.
+    pub eval_every: usize,
+    pub eval_episodes: usize,
+    pub ppo: PpoConfig,
+    /// Domain randomization (patterns 1 and 2): see `twinbots_rl::randomization`.
+    #[serde(default)]
+    pub randomization: Randomization,
+}
+
+/// What a `--config` file may set: any subset of the settings but the robot.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConfigFile {
+    pub timesteps: Option<u64>,
+    pub arenas: Option<usize>,
+    pub seed: Option<u64>,
+    pub pattern: Option<u8>,
+    pub checkpoint_every: Option<usize>,
+    pub eval_every: Option<usize>,
+    pub eval_episodes: Option<usize>,
+    /// Only the keys given: each replaces that key of the robot's tuned settings.
+    pub ppo: Option<toml::Table>,
+    pub randomization: Option<Randomization>,
+}
+
+impl ConfigFile {
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| anyhow::anyhow!("{}: cannot read config: {e}", path.display()))?;
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+}
+
+impl TrainSettings {
+    /// The settings a run directory was made with (its `config.toml`).
+    pub fn of_run(run: &RunDir) -> anyhow::Result<Self> {
+        let settings: Self = run.read_config()?;
+        settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", run.file(twinbots_rl::run_dir::CONFIG).display()))?;
+        Ok(settings)
+    }
+
+    /// A complete settings file (such as a run's `config.toml`) anywhere.
+    pub fn read_file(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let settings: Self = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Ok(settings)
+    }
+
+    /// A clear error naming the first setting outside its range, before anything runs: counts
+    /// of at least one, the PPO settings (`PpoConfig::validate`) and the randomization ranges.
+    /// A minibatch larger than a rollout is allowed: it takes the whole rollout, as in SB3.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        for (key, value) in [("timesteps", self.timesteps), ("arenas", self.arenas as u64), ("checkpoint_every", self.checkpoint_every as u64), ("eval_episodes", self.eval_episodes as u64)] {
+            anyhow::ensure!(value >= 1, "{key} = {value}: must be a whole number ≥ 1");
+        }
+        anyhow::ensure!(self.arenas <= 4096, "arenas = {}: must be at most 4096", self.arenas);
+        self.design_pattern()?;
+        self.ppo.validate()?;
+        self.randomization.validate()?;
+        Ok(())
+    }
+
+    pub fn design_pattern(&self) -> anyhow::Result<DesignPattern> {
+        DesignPattern::from_number(self.pattern)
+            .ok_or_else(|| anyhow::anyhow!("pattern must be 1, 2 or 3, got {}", self.pattern))
+    }
+
+    /// The pattern the run's model runs under in this process (evaluation): its own, except
+    /// that a pattern-3 model runs under pattern 1 (the policy is the same; only where it is
+    /// hosted differs).
+    pub fn in_process_pattern(&self) -> anyhow::Result<DesignPattern> {
+        Ok(match self.design_pattern()? {
+            DesignPattern::Server => DesignPattern::Supervised,
+            p => p,
+        })
+    }
+
+    /// The seed of the periodic evaluations (the same each time, so they compare).
+    pub fn periodic_eval_seed(&self) -> u64 {
+        self.seed + PERIODIC_EVAL_SEED_OFFSET
+    }
+
+    /// The seed of the final model's evaluation (`eval.json`, `twinbots eval`).
+    pub fn final_eval_seed(&self) -> u64 {
+        self.seed + FINAL_EVAL_SEED_OFFSET
+    }
+
+    /// The robot's defaults, then the config file, then command-line flags, key by key (a
+    /// `[ppo]` table replaces only the keys it names); the result is validated.
+    pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> anyhow::Result<Self> {
+        let mut s = Self {
+            robot: entry.name.to_string(),
+            timesteps: entry.defaults.timesteps,
+            arenas: entry.defaults.arenas,
+            seed: 0,
+            pattern: 1,
+            checkpoint_every: 10,
+            eval_every: entry.defaults.eval_every,
+            eval_episodes: entry.defaults.eval_episodes,
+            ppo: entry.defaults.ppo.clone(),
+            randomization: Randomization::default(),
+        };
+        for layer in [file, flags] {
+            s.timesteps = layer.timesteps.unwrap_or(s.timesteps);
+            s.arenas = layer.arenas.unwrap_or(s.arenas);
+            s.seed = layer.seed.unwrap_or(s.seed);
+            s.pattern = layer.pattern.unwrap_or(s.pattern);
+            s.checkpoint_every = layer.checkpoint_every.unwrap_or(s.checkpoint_every);
+            s.eval_every = layer.eval_every.unwrap_or(s.eval_every);
+            s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
+            if let Some(keys) = layer.ppo {
+                s.ppo = overlay(&s.ppo, keys)?;
+            }
+            s.randomization = layer.randomization.unwrap_or(s.randomization);
+        }
+        s.validate()?;
+        Ok(s)
+    }
+
+}
+
+/// `base` with the keys of `keys` replaced; an unknown key is an error naming it.
+fn overlay(base: &PpoConfig, keys: toml::Table) -> anyhow::Result<PpoConfig> {
+    let mut merged = toml::Table::try_from(base)?;
+    merged.extend(keys);
+    merged.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("[ppo]: {}", e.message()))
+}
+
