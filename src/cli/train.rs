@@ -74,10 +74,8 @@ pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<
 pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
     let run_dir = RunDir::new(run_dir);
     let settings = TrainSettings::of_run(&run_dir)?;
-    let checkpoint = run_dir
-        .latest_checkpoint()
-        .ok_or_else(|| anyhow::anyhow!("{}: no checkpoint to resume from", run_dir.path().display()))?;
-    let model = Ppo::load(&checkpoint)?;
+    let (checkpoint, model) = run_dir.load_newest_checkpoint()?;
+    run_dir.check_progress_columns()?;
     // Keep the rows logged up to the checkpoint; later ones are redone.
     run_dir.truncate_after(model.timesteps)?;
     println!(

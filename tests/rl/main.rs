@@ -8,6 +8,7 @@ mod onnx;
 mod patterns;
 mod ppo;
 mod randomization;
+mod resume;
 mod server;
 mod train_cli;
 mod ur5e_tasks;

@@ -8,6 +8,7 @@ use bevy::prelude::*;
 use crossbeam_channel::{Receiver, Sender, bounded};
 
 use crate::env::{StepResult, VecEnv, collect_step, reset_arenas, write_actions};
+use crate::replay::{EnvState, StreamState};
 use crate::spaces::Space;
 use crate::task::TaskSpec;
 
@@ -16,13 +17,19 @@ use crate::task::TaskSpec;
 pub enum Request {
     Reset { seed: Option<u64> },
     Step { actions: Vec<f32> },
+    /// The envs' running episodes, for a checkpoint.
+    State,
+    /// New episodes from given streams (a replay's step).
+    Begin { starts: Vec<(usize, StreamState)>, clock: Option<u64> },
 }
 
 /// App → trainer; an `Err` is a request the app refused (e.g. wrong action count).
 #[derive(Clone, Debug)]
 pub enum Reply {
+    /// Observations: of a reset, or of begun episodes.
     Reset(Vec<f32>),
     Step(StepResult),
+    State(Option<EnvState>),
 }
 
 /// The app's end of the bridge.
@@ -121,6 +128,10 @@ fn receive_requests(world: &mut World) {
                 }
                 Err(e) => Err(e.to_string()),
             },
+            Ok(Request::State) => Ok(Reply::State(crate::replay::env_state(world, &arenas))),
+            Ok(Request::Begin { starts, clock }) => {
+                crate::replay::begin_episodes(world, &arenas, &starts, clock).map(Reply::Reset).map_err(|e| e.to_string())
+            }
             Err(_) => {
                 world.resource_mut::<BridgeEndpoint>().closed = true;
                 return;
@@ -181,13 +192,25 @@ impl VecEnv for ChannelVecEnv {
     fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>> {
         match self.call(Request::Reset { seed })? {
             Reply::Reset(obs) => Ok(obs),
-            Reply::Step(_) => anyhow::bail!("bridge protocol error: a step reply to a reset"),
+            other => anyhow::bail!("bridge protocol error: {other:?} in reply to a reset"),
         }
     }
     fn step(&mut self, actions: &[f32]) -> anyhow::Result<StepResult> {
         match self.call(Request::Step { actions: actions.to_vec() })? {
             Reply::Step(result) => Ok(result),
-            Reply::Reset(_) => anyhow::bail!("bridge protocol error: a reset reply to a step"),
+            other => anyhow::bail!("bridge protocol error: {other:?} in reply to a step"),
+        }
+    }
+    fn state(&mut self) -> anyhow::Result<Option<EnvState>> {
+        match self.call(Request::State)? {
+            Reply::State(state) => Ok(state),
+            other => anyhow::bail!("bridge protocol error: {other:?} in reply to a state request"),
+        }
+    }
+    fn begin_episodes(&mut self, starts: &[(usize, StreamState)], clock: Option<u64>) -> anyhow::Result<Vec<f32>> {
+        match self.call(Request::Begin { starts: starts.to_vec(), clock })? {
+            Reply::Reset(obs) => Ok(obs),
+            other => anyhow::bail!("bridge protocol error: {other:?} in reply to new episodes"),
         }
     }
 }

@@ -4,6 +4,7 @@
 use bevy::prelude::*;
 use twinbots_sim::Arena;
 
+use crate::replay::{EnvState, StreamState};
 use crate::spaces::Space;
 use crate::task::{Action, Episode, EpisodeSummary, TaskSpec};
 
@@ -31,6 +32,18 @@ pub trait VecEnv {
     fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>>;
     /// Applies `actions` (flat, `num_envs * action_dim`) and advances one control step.
     fn step(&mut self, actions: &[f32]) -> anyhow::Result<StepResult>;
+    /// The envs' state as their running episodes (`crate::replay`), for a checkpoint; `None`
+    /// for envs that cannot be replayed (a resumed run then starts fresh episodes).
+    fn state(&mut self) -> anyhow::Result<Option<EnvState>> {
+        Ok(None)
+    }
+    /// Starts new episodes in the envs of `starts`, each from its stream state, after setting
+    /// the control-step clock to `clock` if given; returns every env's observation. What
+    /// [`crate::replay::replay`] is made of.
+    fn begin_episodes(&mut self, starts: &[(usize, StreamState)], clock: Option<u64>) -> anyhow::Result<Vec<f32>> {
+        let _ = (starts, clock);
+        anyhow::bail!("this env cannot replay episodes")
+    }
 }
 
 /// Arena entities in env order (by `Arena::index`), found once the world is built.
@@ -82,10 +95,12 @@ pub fn write_actions(world: &mut World, arenas: &[Entity], actions: &[f32]) -> a
         arenas.len()
     );
     for (i, &arena) in arenas.iter().enumerate() {
+        let own = &actions[i * dim..(i + 1) * dim];
         if let Some(mut a) = world.get_mut::<Action>(arena) {
             a.0.clear();
-            a.0.extend_from_slice(&actions[i * dim..(i + 1) * dim]);
+            a.0.extend_from_slice(own);
         }
+        crate::replay::record_actions(world, arena, own);
     }
     Ok(())
 }
@@ -175,6 +190,14 @@ impl VecEnv for AppVecEnv {
         write_actions(self.app.world_mut(), &self.arenas, actions)?;
         self.app.update();
         Ok(collect_step(self.app.world(), &self.arenas))
+    }
+
+    fn state(&mut self) -> anyhow::Result<Option<EnvState>> {
+        Ok(crate::replay::env_state(self.app.world(), &self.arenas))
+    }
+
+    fn begin_episodes(&mut self, starts: &[(usize, StreamState)], clock: Option<u64>) -> anyhow::Result<Vec<f32>> {
+        crate::replay::begin_episodes(self.app.world_mut(), &self.arenas, starts, clock)
     }
 }
 

@@ -53,6 +53,14 @@ impl Space {
         }
     }
 
+    /// An action that asks for nothing: choice 0, or 0 in a box (moved inside its bounds).
+    pub fn neutral(&self) -> Vec<f32> {
+        match self {
+            Space::Box { low, high } => low.iter().zip(high).map(|(lo, hi)| 0f32.clamp(*lo, *hi)).collect(),
+            _ => vec![0.0; self.dim()],
+        }
+    }
+
     /// A uniformly random element (boxes with infinite bounds sample a unit normal there).
     pub fn sample(&self, rng: &mut impl Rng) -> Vec<f32> {
         match self {

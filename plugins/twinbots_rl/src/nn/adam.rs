@@ -58,6 +58,25 @@ impl Adam {
         Ok(Self { vars, first: self.first.clone(), second: self.second.clone(), steps: self.steps, config: self.config })
     }
 
+    /// The moments (first, second; per variable, flat) and the number of steps taken: what a
+    /// checkpoint keeps so a resumed run steps as the uninterrupted one.
+    pub fn moments(&self) -> (&[Vec<f32>], &[Vec<f32>], u64) {
+        (&self.first, &self.second, self.steps)
+    }
+
+    /// Puts back moments taken by [`Adam::moments`]; an error if they do not fit the variables.
+    pub fn restore_moments(&mut self, first: Vec<Vec<f32>>, second: Vec<Vec<f32>>, steps: u64) -> Result<()> {
+        let fits = |m: &[Vec<f32>]| m.len() == self.vars.len() && m.iter().zip(&self.vars).all(|(m, v)| m.len() == v.elem_count());
+        if !fits(&first) || !fits(&second) {
+            candle_core::bail!("the optimiser's saved moments do not fit the network's variables");
+        }
+        if first.iter().chain(&second).flatten().any(|x| !x.is_finite()) {
+            candle_core::bail!("the optimiser's saved moments are not finite");
+        }
+        (self.first, self.second, self.steps) = (first, second, steps);
+        Ok(())
+    }
+
     pub fn learning_rate(&self) -> f64 {
         self.config.learning_rate
     }

@@ -29,6 +29,7 @@ use crate::callbacks::{Callback, TrainingEnd};
 use crate::env::VecEnv;
 use crate::nn::Adam;
 use crate::normalize::RunningMeanStd;
+use crate::replay::EnvState;
 use crate::spaces::Space;
 use crate::task::{EpisodeSummary, Measure, SolvedCriterion};
 
@@ -52,6 +53,9 @@ pub struct UpdateStats {
     pub clip_fraction: f32,
     pub learning_rate: f64,
     pub steps_per_s: f32,
+    /// Gradient steps of this update that were skipped because the loss or a gradient was not
+    /// finite (the weights stayed as they were).
+    pub skipped_steps: usize,
 }
 
 /// The action-sampling and minibatch stream is the seed mixed with this, so it differs from
@@ -79,6 +83,9 @@ pub struct Ppo {
     pub recent_metrics: BTreeMap<String, VecDeque<f32>>,
     optimizer: Adam,
     rng: ChaCha8Rng,
+    /// Where the envs of `learn` stood after the last update, as their running episodes: a
+    /// checkpoint keeps it, so a resumed `learn` replays them and goes on as if never stopped.
+    pub env_state: Option<EnvState>,
     /// Where this process's training time went (not saved with the model).
     pub times: TrainingTimes,
 }
@@ -133,6 +140,7 @@ impl Ppo {
             recent_metrics: BTreeMap::new(),
             optimizer,
             rng: ChaCha8Rng::seed_from_u64(seed ^ ACTION_STREAM_SALT),
+            env_state: None,
             times: TrainingTimes::default(),
         })
     }
@@ -158,6 +166,7 @@ impl Ppo {
             recent_metrics: self.recent_metrics.clone(),
             optimizer,
             rng: self.rng.clone(),
+            env_state: self.env_state.clone(),
             times: self.times,
         })
     }
@@ -227,8 +236,18 @@ impl Ppo {
         );
         let end = self.timesteps + total_timesteps;
         let mut buffer = RolloutBuffer::new(env.num_envs(), self.observation_space.dim(), self.action_space.dim());
-        let first = env.reset(Some(self.seed.wrapping_add(self.timesteps)))?;
-        let mut obs = self.observe(&first);
+        // A model that learnt before continues its envs' episodes (replayed: their observations
+        // are already in the statistics); a new one starts them.
+        let mut obs = match self.env_state.take() {
+            Some(state) => {
+                let raw = crate::replay::replay(env, &state)?;
+                self.normalize(&raw)
+            }
+            None => {
+                let first = env.reset(Some(self.seed.wrapping_add(self.timesteps)))?;
+                self.observe(&first)
+            }
+        };
         callback.on_training_start(self)?;
         let mut ended = None;
         while ended.is_none() && self.timesteps < end {
@@ -245,6 +264,7 @@ impl Ppo {
 
             // 3. Optimise the clipped surrogate for n_epochs over shuffled minibatches.
             let stats = self.train(&buffer, started)?;
+            self.env_state = env.state()?;
             let callbacks_started = Instant::now();
             self.times.update_s += (callbacks_started - update_started).as_secs_f64();
 
@@ -252,6 +272,7 @@ impl Ppo {
             self.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
         }
         callback.on_training_end(self)?;
+        self.env_state = None;
         Ok(ended.unwrap_or(TrainingEnd::BudgetSpent { timesteps: self.timesteps }))
     }
 }

@@ -37,6 +37,12 @@ impl Ppo {
     pub fn train(&mut self, buffer: &RolloutBuffer, collecting_since: Instant) -> anyhow::Result<UpdateStats> {
         self.updates += 1;
         let losses = self.optimize(buffer)?;
+        if losses.skipped_steps > 0 {
+            eprintln!(
+                "update {}: {} gradient step(s) skipped: the loss or a gradient was not finite (NaN or infinity)",
+                self.updates, losses.skipped_steps
+            );
+        }
         Ok(UpdateStats {
             update: self.updates as usize,
             timesteps: self.timesteps,
@@ -58,11 +64,17 @@ impl Ppo {
         let c = self.config.clone();
         let mut indices: Vec<usize> = (0..buffer.len()).collect();
         let (mut pg_sum, mut v_sum, mut ent_sum, mut kl_sum, mut clip_sum, mut batches) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut skipped = 0;
         'epochs: for _ in 0..c.n_epochs {
             indices.shuffle(&mut self.rng);
             for chunk in indices.chunks(c.batch_size) {
                 let mb = self.minibatch_loss(buffer, chunk)?;
-                self.optimizer.step(&mb.loss.backward()?, Some(c.max_grad_norm))?;
+                // A non-finite loss or gradient (e.g. from a poisoned reward) changes nothing and
+                // is counted: one bad sample must not end a run's learning silently.
+                if !self.optimizer.step(&mb.loss.backward()?, Some(c.max_grad_norm))?.applied {
+                    skipped += 1;
+                    continue;
+                }
 
                 let log_ratio = mb.log_ratio.to_vec1::<f32>()?;
                 let n = log_ratio.len().max(1) as f32;
@@ -82,13 +94,15 @@ impl Ppo {
                 }
             }
         }
-        let batches = f32::max(batches, 1.0);
+        // No applied step: the losses are unknown, not zero.
+        let batches = if batches == 0.0 { f32::NAN } else { batches };
         Ok(UpdateStats {
             policy_loss: pg_sum / batches,
             value_loss: v_sum / batches,
             entropy: ent_sum / batches,
             approx_kl: kl_sum / batches,
             clip_fraction: clip_sum / batches,
+            skipped_steps: skipped,
             ..Default::default()
         })
     }

@@ -122,8 +122,13 @@ impl RunDir {
 
     /// The newest complete checkpoint, if any.
     pub fn latest_checkpoint(&self) -> Option<PathBuf> {
-        let mut dirs: Vec<PathBuf> = std::fs::read_dir(self.file(CHECKPOINTS))
-            .ok()?
+        self.checkpoints().pop()
+    }
+
+    /// The complete checkpoints, oldest first.
+    pub fn checkpoints(&self) -> Vec<PathBuf> {
+        let Ok(entries) = std::fs::read_dir(self.file(CHECKPOINTS)) else { return Vec::new() };
+        let mut dirs: Vec<PathBuf> = entries
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter(|p| {
                 let name = p.file_name().and_then(|n| n.to_str()).unwrap_or_default();
@@ -132,18 +137,31 @@ impl RunDir {
             .filter(|p| p.join(crate::ppo::METADATA_FILE).is_file() && p.join(crate::ppo::WEIGHTS_FILE).is_file())
             .collect();
         dirs.sort();
-        dirs.pop()
+        dirs
     }
 
-    /// The run's trained model: its final model, else its newest checkpoint.
+    /// The newest checkpoint that loads: one that does not (damaged, or with non-finite
+    /// weights) is reported on stderr and the one before it tried. Returns its path and model.
+    pub fn load_newest_checkpoint(&self) -> anyhow::Result<(PathBuf, Ppo)> {
+        let checkpoints = self.checkpoints();
+        anyhow::ensure!(!checkpoints.is_empty(), "{}: no checkpoint to resume from", self.path.display());
+        for dir in checkpoints.iter().rev() {
+            match Ppo::load(dir) {
+                Ok(model) => return Ok((dir.clone(), model)),
+                Err(e) => eprintln!("warning: checkpoint {} is unusable ({e}); trying the one before it", dir.display()),
+            }
+        }
+        anyhow::bail!("{}: none of its {} checkpoints loads (see the warnings above)", self.path.display(), checkpoints.len())
+    }
+
+    /// The run's trained model: its final model, else its newest checkpoint that loads.
     pub fn load_model(&self) -> anyhow::Result<Ppo> {
         let model = self.file(MODEL);
-        let dir = if model.join(crate::ppo::METADATA_FILE).is_file() {
-            model
-        } else {
-            self.latest_checkpoint().ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint", self.path.display()))?
-        };
-        Ok(Ppo::load(dir)?)
+        if model.join(crate::ppo::METADATA_FILE).is_file() {
+            return Ok(Ppo::load(model)?);
+        }
+        anyhow::ensure!(!self.checkpoints().is_empty(), "{}: no model or checkpoint", self.path.display());
+        Ok(self.load_newest_checkpoint()?.1)
     }
 
     /// Appends an update's row to `progress.csv` (with the header if the file is new).
@@ -243,7 +261,7 @@ impl RunDir {
 }
 
 /// An update's cells, named: the names are `progress.csv`'s header.
-fn progress_cells(s: &UpdateStats) -> [(&'static str, String); 15] {
+fn progress_cells(s: &UpdateStats) -> [(&'static str, String); 16] {
     [
         ("update", s.update.to_string()),
         ("timesteps", s.timesteps.to_string()),
@@ -260,6 +278,7 @@ fn progress_cells(s: &UpdateStats) -> [(&'static str, String); 15] {
         ("learning_rate", s.learning_rate.to_string()),
         ("steps_per_s", s.steps_per_s.to_string()),
         ("success_rate", s.success_rate.to_string()),
+        ("skipped_steps", s.skipped_steps.to_string()),
     ]
 }
 
@@ -289,6 +308,7 @@ fn stats_from_columns(cell: &dyn Fn(&str) -> Option<String>) -> UpdateStats {
         learning_rate: column(cell, "learning_rate").unwrap_or(f64::NAN),
         steps_per_s: number("steps_per_s"),
         success_rate: number("success_rate"),
+        skipped_steps: column(cell, "skipped_steps").unwrap_or(0),
     }
 }
 

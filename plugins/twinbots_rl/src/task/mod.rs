@@ -353,8 +353,10 @@ fn tally_episodes(mut episodes: Query<&mut Episode>) {
 }
 
 /// Runs [`EnvReset`] on `arenas`: marks them [`Resetting`], runs the schedule, unmarks them.
+/// Each arena's stream is recorded first, so its episode can be replayed (`crate::replay`).
 pub fn reset(world: &mut World, arenas: &[Entity]) {
     for &arena in arenas {
+        crate::replay::record_start(world, arena);
         world.entity_mut(arena).insert(Resetting);
     }
     world.run_schedule(EnvReset);

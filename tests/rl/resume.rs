@@ -1,0 +1,130 @@
+//! Runs you can trust: a run killed with SIGKILL and resumed ends exactly as an uninterrupted
+//! one (optimizer moments, random streams, observation statistics, episode history and the
+//! envs' running episodes restored), and a damaged newest checkpoint is reported and passed over.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn twinbots() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_twinbots"))
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("twinbots-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn train(args: &[&str], config: &Path, out: &Path) -> Command {
+    let mut command = twinbots();
+    command.arg("train").args(args).arg("--config").arg(config).arg("--out").arg(out);
+    command
+}
+
+/// `progress.csv` without its wall-clock column (`steps_per_s`), which no two runs share.
+fn progress_without_timing(run: &Path) -> String {
+    let text = std::fs::read_to_string(run.join("progress.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let timing = header.iter().position(|&c| c == "steps_per_s").unwrap();
+    text.lines()
+        .map(|l| l.split(',').enumerate().filter(|(i, _)| *i != timing).map(|(_, c)| c).collect::<Vec<_>>().join(","))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// Trains `args` with `config` twice: once straight through, once killed (SIGKILL) after its
+/// second checkpoint and resumed; the two runs must end byte for byte alike.
+fn killed_and_resumed_run_matches_an_uninterrupted_one(name: &str, args: &[&str], config_text: &str) {
+    let dir = temp_dir(name);
+    let config = dir.join("config.toml");
+    std::fs::write(&config, config_text).unwrap();
+    let (straight, killed) = (dir.join("straight"), dir.join("killed"));
+
+    let output = train(args, &config, &straight).output().unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+
+    let mut child = train(args, &config, &killed).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let checkpoints = || std::fs::read_dir(killed.join("checkpoints")).map_or(0, |d| d.filter(|e| !e.as_ref().unwrap().file_name().to_string_lossy().ends_with(".partial")).count());
+    while checkpoints() < 2 && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!killed.join("model").exists(), "killed before it finished");
+    let output = twinbots().args(["train", "--resume"]).arg(&killed).output().unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(String::from_utf8_lossy(&output.stdout).contains("resuming"));
+
+    assert_eq!(progress_without_timing(&killed), progress_without_timing(&straight), "progress.csv differs");
+    let mut files = vec!["model/model.safetensors", "model/optimizer.safetensors", "model/model.json", "eval.json"];
+    if config_text.contains("eval_every") {
+        files.push("evaluations.csv");
+    }
+    for file in files {
+        let read = |run: &Path| std::fs::read(run.join(file)).unwrap_or_else(|e| panic!("{}: {e}", run.join(file).display()));
+        assert!(read(&killed) == read(&straight), "{file} differs between the resumed and the uninterrupted run");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_killed_and_resumed_run_ends_byte_for_byte_as_an_uninterrupted_one() {
+    // Domain randomization and sensor noise draw from the arenas' streams every episode and
+    // step; periodic evaluations draw their own episodes.
+    let config = "timesteps = 4800\narenas = 3\nseed = 11\ncheckpoint_every = 3\neval_every = 10\neval_episodes = 2\n\
+                  [randomization]\nmass_scale = [0.8, 1.2]\nsensor_noise = 0.01\naction_latency = 1\n";
+    killed_and_resumed_run_matches_an_uninterrupted_one("resume-exact", &["cartpole"], config);
+}
+
+#[test]
+fn a_killed_and_resumed_pattern_2_run_ends_byte_for_byte_as_an_uninterrupted_one() {
+    // The SupervisorRobot and the SlaveRobot talk over radio with a step of latency each way.
+    let config = "timesteps = 3200\narenas = 2\nseed = 5\ncheckpoint_every = 3\neval_episodes = 1\n";
+    killed_and_resumed_run_matches_an_uninterrupted_one("resume-exact-p2", &["cartpole", "--pattern", "2"], config);
+}
+
+#[test]
+fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_used() {
+    let dir = temp_dir("resume-damaged");
+    let run = dir.join("run");
+    let output = twinbots()
+        .args(["train", "cartpole", "--timesteps", "1280", "--arenas", "2", "--checkpoint-every", "4", "--out"])
+        .arg(&run)
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let mut checkpoints: Vec<PathBuf> = std::fs::read_dir(run.join("checkpoints")).unwrap().map(|e| e.unwrap().path()).collect();
+    checkpoints.sort();
+    assert_eq!(checkpoints.len(), 5, "every 4th of 20 updates");
+    // The newest: its metadata cut short. The one before: a weight turned NaN (0xffffffff).
+    let newest = &checkpoints[4];
+    let meta = std::fs::read(newest.join("model.json")).unwrap();
+    std::fs::write(newest.join("model.json"), &meta[..meta.len() / 2]).unwrap();
+    let poisoned = &checkpoints[3];
+    let mut weights = std::fs::read(poisoned.join("model.safetensors")).unwrap();
+    let n = weights.len();
+    weights[n - 4..].copy_from_slice(&[0xff; 4]);
+    std::fs::write(poisoned.join("model.safetensors"), weights).unwrap();
+    std::fs::remove_dir_all(run.join("model")).unwrap();
+
+    // `eval` of a run without a final model takes its newest checkpoint that loads.
+    let output = twinbots().args(["eval"]).arg(&run).args(["--episodes", "1"]).output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{err}");
+    assert!(err.contains(&format!("checkpoint {} is unusable", newest.display())), "{err}");
+    assert!(err.contains("non-finite values"), "{err}");
+
+    // `--resume` likewise, and goes on from the third newest (768 steps) to the end.
+    let output = twinbots().args(["train", "--resume"]).arg(&run).output().unwrap();
+    let (out, err) = (String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(output.status.success(), "{err}");
+    assert!(err.contains(&format!("checkpoint {} is unusable", poisoned.display())), "{err}");
+    assert!(out.contains("(768 steps"), "{out}");
+    let model = twinbots_rl::Ppo::load(run.join("model")).unwrap();
+    assert_eq!(model.timesteps, 1280);
+    std::fs::remove_dir_all(&dir).ok();
+}
