@@ -49,6 +49,10 @@ enum Command {
         /// Continue the run in this directory from its newest checkpoint.
         #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out"])]
         resume: Option<std::path::PathBuf>,
+        /// Print the settings the run would use (the robot's defaults ← the config file ← the
+        /// flags, key by key) as TOML, and exit without training.
+        #[arg(long)]
+        print_config: bool,
     },
     /// Run the RobotServer (design pattern 3): hosts the policy and learner, reached over TCP.
     Serve {
@@ -203,8 +207,11 @@ fn main() {
 fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
         Command::Robots => cli::robots::print(),
+        Command::Train { resume: Some(run), print_config: true, .. } => {
+            print!("{}", toml::to_string_pretty(&cli::runs::TrainSettings::of_run(&twinbots_rl::RunDir::new(run))?)?)
+        }
         Command::Train { resume: Some(run), view, .. } => cli::train::resume(&run, view)?,
-        Command::Train { robot, timesteps, arenas, seed, pattern, config, out, checkpoint_every, view, resume: None } => {
+        Command::Train { robot, timesteps, arenas, seed, pattern, config, out, checkpoint_every, view, resume: None, print_config } => {
             let robot = robot.unwrap_or_default();
             let entry = registry::find(&robot)?;
             let file = match config {
@@ -213,6 +220,10 @@ fn run(args: Args) -> anyhow::Result<()> {
             };
             let flags = cli::runs::ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, ..Default::default() };
             let settings = cli::runs::TrainSettings::resolve(&entry, file, flags)?;
+            if print_config {
+                print!("{}", toml::to_string_pretty(&settings)?);
+                return Ok(());
+            }
             let out = out.unwrap_or_else(|| cli::runs::default_run_dir(&robot));
             cli::train::train(settings, &out, view)?
         }

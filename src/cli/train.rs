@@ -76,8 +76,6 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
     let settings = TrainSettings::of_run(&run_dir)?;
     let (checkpoint, model) = run_dir.load_newest_checkpoint()?;
     run_dir.check_progress_columns()?;
-    // Keep the rows logged up to the checkpoint; later ones are redone.
-    run_dir.truncate_after(model.timesteps)?;
     println!(
         "resuming {} from {} ({} steps, {} episodes)",
         run_dir.path().display(), checkpoint.display(), model.timesteps, model.episodes
@@ -109,6 +107,10 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Ppo>, view: bool)
     };
     let title = format!("{} — PPO, pattern {}, {} arenas, seed {}", settings.robot, settings.pattern, settings.arenas, settings.seed);
     let mut callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
+    if model.updates > 0 {
+        // Resumed, and everything checked: the rows logged after the checkpoint are redone.
+        run_dir.truncate_after(model.timesteps)?;
+    }
     let remaining = settings.timesteps.saturating_sub(model.timesteps);
 
     // The learner's thread: PPO and its callbacks (logs, evaluations, checkpoints).

@@ -73,3 +73,61 @@ fn ppo_with_gaussian_policy_improves_pendulum_well_beyond_random() {
         "random policy {random:.0}, trained {trained:.0}; curve {curve:?}"
     );
 }
+
+/// The classic cart-pole, except that one step's reward is 1e39 (infinite as f32), as a
+/// poisoned robot would report it.
+struct PoisonedOnce {
+    env: ClassicCartPole,
+    steps: usize,
+    at: usize,
+}
+
+impl VecEnv for PoisonedOnce {
+    fn num_envs(&self) -> usize {
+        self.env.num_envs()
+    }
+    fn observation_space(&self) -> &twinbots_rl::Space {
+        self.env.observation_space()
+    }
+    fn action_space(&self) -> &twinbots_rl::Space {
+        self.env.action_space()
+    }
+    fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>> {
+        self.env.reset(seed)
+    }
+    fn step(&mut self, actions: &[f32]) -> anyhow::Result<twinbots_rl::StepResult> {
+        let mut result = self.env.step(actions)?;
+        self.steps += 1;
+        if self.steps == self.at {
+            result.rewards[0] = "1e39".parse::<f32>().unwrap();
+        }
+        Ok(result)
+    }
+}
+
+#[test]
+fn a_non_finite_reward_skips_the_gradient_steps_it_poisons_counts_them_and_learning_goes_on() {
+    let config = PpoConfig { n_steps: 64, batch_size: 64, n_epochs: 2, ..PpoConfig::default() };
+    let mut env = PoisonedOnce { env: ClassicCartPole::new(2), steps: 0, at: 100 };
+    let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
+    let mut rows = Vec::new();
+    model
+        .learn(&mut env, 64 * 2 * 6, &mut |s: &UpdateStats, _: &Ppo| {
+            rows.push(s.clone());
+            Ok(Flow::Continue)
+        })
+        .unwrap();
+    // Step 100 lies in the second rollout: every minibatch of it holds the infinite return
+    // (GAE spreads it over the steps before), so its steps are all skipped, and only those.
+    let skipped: Vec<usize> = rows.iter().map(|s| s.skipped_steps).collect();
+    assert!(skipped[1] > 0 && skipped.iter().enumerate().all(|(i, &k)| i == 1 || k == 0), "{skipped:?}");
+    assert!(rows[1].policy_loss.is_nan() || rows[1].skipped_steps < 4, "{:?}", rows[1]);
+    // The weights stayed finite, the later updates learnt, and the model acts.
+    for (name, var) in model.policy.named_vars() {
+        let values = var.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert!(values.iter().all(|x| x.is_finite()), "{name} is not finite");
+    }
+    assert!(rows[2..].iter().all(|s| s.policy_loss.is_finite() && s.value_loss.is_finite()), "{rows:?}");
+    let actions = model.predict_deterministic(&[0.0, 0.0, 0.02, 0.0]).unwrap();
+    assert!(actions[0] == 0.0 || actions[0] == 1.0);
+}

@@ -150,6 +150,14 @@ fn a_ppo_table_changes_only_its_keys_and_nonsense_is_refused_before_anything_run
         assert!(!err.contains("panicked"), "{text:?}: {err}");
         assert!(!run.exists(), "{text:?}: a run directory was made");
     }
+    // --print-config shows the merge, key by key: defaults ← file ← flags.
+    std::fs::write(&config, "seed = 9\narenas = 4\n[ppo]\nn_epochs = 5\n").unwrap();
+    let output = twinbots().args(["train", "cartpole", "--arenas", "3", "--print-config", "--config"]).arg(&config).output().unwrap();
+    let printed = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    for line in ["seed = 9", "arenas = 3", "n_epochs = 5", "n_steps = 32", "learning_rate = 0.001"] {
+        assert!(printed.lines().any(|l| l == line), "{line:?} missing from {printed}");
+    }
     let output = twinbots().args(["train", "cartpole", "--arenas", "0", "--out"]).arg(dir.join("zero")).output().unwrap();
     assert!(String::from_utf8_lossy(&output.stderr).contains("arenas = 0: must be a whole number ≥ 1"));
     std::fs::remove_dir_all(&dir).ok();

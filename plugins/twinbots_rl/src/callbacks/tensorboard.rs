@@ -61,6 +61,7 @@ pub fn training_scalars(s: &UpdateStats, model: &Ppo) -> Vec<(String, f32)> {
         ("train/approx_kl".into(), s.approx_kl),
         ("train/clip_fraction".into(), s.clip_fraction),
         ("train/learning_rate".into(), s.learning_rate as f32),
+        ("train/skipped_gradient_steps".into(), s.skipped_steps as f32),
     ];
     if let Some(std) = gaussian_std(model) {
         out.push(("train/std".into(), std));
