@@ -87,6 +87,13 @@ impl TrainSettings {
             anyhow::ensure!(value >= 1, "{key} = {value}: must be a whole number ≥ 1");
         }
         anyhow::ensure!(self.arenas <= 4096, "arenas = {}: must be at most 4096", self.arenas);
+        anyhow::ensure!(self.eval_episodes <= 100_000, "eval_episodes = {}: must be at most 100000", self.eval_episodes);
+        let rollout = self.ppo.n_steps.saturating_mul(self.arenas);
+        anyhow::ensure!(
+            rollout <= twinbots_rl::ppo::MAX_ROLLOUT,
+            "ppo.n_steps × arenas = {} × {} = {rollout}: a rollout must hold at most {} samples",
+            self.ppo.n_steps, self.arenas, twinbots_rl::ppo::MAX_ROLLOUT
+        );
         self.design_pattern()?;
         self.ppo.validate()?;
         self.randomization.validate()?;
@@ -110,12 +117,12 @@ impl TrainSettings {
 
     /// The seed of the periodic evaluations (the same each time, so they compare).
     pub fn periodic_eval_seed(&self) -> u64 {
-        self.seed + PERIODIC_EVAL_SEED_OFFSET
+        self.seed.wrapping_add(PERIODIC_EVAL_SEED_OFFSET)
     }
 
     /// The seed of the final model's evaluation (`eval.json`, `twinbots eval`).
     pub fn final_eval_seed(&self) -> u64 {
-        self.seed + FINAL_EVAL_SEED_OFFSET
+        self.seed.wrapping_add(FINAL_EVAL_SEED_OFFSET)
     }
 
     /// The robot's defaults, then the config file, then command-line flags, key by key (a
@@ -154,8 +161,83 @@ impl TrainSettings {
 
 /// `base` with the keys of `keys` replaced; an unknown key is an error naming it.
 fn overlay(base: &PpoConfig, keys: toml::Table) -> anyhow::Result<PpoConfig> {
-    let mut merged = toml::Table::try_from(base)?;
+    let base = toml::Table::try_from(base)?;
+    // Key by key first, so an error names the key (serde's message for a wrong type does not).
+    for (key, value) in &keys {
+        let mut one = base.clone();
+        one.insert(key.clone(), value.clone());
+        if let Err(e) = one.try_into::<PpoConfig>() {
+            anyhow::bail!("ppo.{key} = {value}: {}", e.message());
+        }
+    }
+    let mut merged = base;
     merged.extend(keys);
     merged.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("[ppo]: {}", e.message()))
 }
 
+
+#[cfg(test)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+
+    use super::*;
+
+    /// Every key a config file may hold, with the kind of value it takes.
+    const KEYS: &[&str] = &[
+        "timesteps", "arenas", "seed", "pattern", "checkpoint_every", "eval_every", "eval_episodes",
+        "ppo.learning_rate", "ppo.linear_lr", "ppo.n_steps", "ppo.batch_size", "ppo.n_epochs", "ppo.gamma", "ppo.gae_lambda",
+        "ppo.clip_range", "ppo.ent_coef", "ppo.vf_coef", "ppo.max_grad_norm", "ppo.target_kl", "ppo.normalize_advantage",
+        "ppo.normalize_observations", "ppo.hidden", "ppo.log_std_init", "ppo.no_such_key",
+        "randomization.start_window", "randomization.action_probability", "randomization.mass_scale", "randomization.friction",
+        "randomization.motor_strength", "randomization.sensor_noise", "randomization.action_latency", "randomization.typo",
+    ];
+    const VALUES: &[&str] = &[
+        "0", "1", "-1", "2", "3", "64", "4096", "4097", "18446744073709551615", "-9223372036854775808", "0.5", "1e-300", "1e300",
+        "1e39", "nan", "inf", "-inf", "true", "\"x\"", "[]", "[0]", "[64, 64]", "[1.0, 0.5]", "[0.5, 1.0]", "[0, inf]", "[nan, 1]",
+        "[1, 2, 3]", "[100000000, 1]", "{}",
+    ];
+
+    /// Random config files made of real keys and hostile values: every one resolves to valid
+    /// settings or to an error naming a key, and none panics.
+    #[test]
+    fn no_config_file_panics_and_every_refusal_names_its_key() {
+        let entry = crate::registry::find("cartpole").unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        let (mut accepted, mut refused) = (0, 0);
+        for _ in 0..20_000 {
+            let mut tables: std::collections::BTreeMap<&str, Vec<String>> = Default::default();
+            for _ in 0..rng.random_range(1..4) {
+                let key = KEYS[rng.random_range(0..KEYS.len())];
+                let value = VALUES[rng.random_range(0..VALUES.len())];
+                let (table, name) = key.split_once('.').unwrap_or(("", key));
+                tables.entry(table).or_default().push(format!("{name} = {value}"));
+            }
+            let mut text = String::new();
+            for (table, lines) in &tables {
+                if !table.is_empty() {
+                    text += &format!("[{table}]\n");
+                }
+                for line in lines {
+                    text += line;
+                    text.push('\n');
+                }
+            }
+            let outcome = toml::from_str::<ConfigFile>(&text)
+                .map_err(anyhow::Error::from)
+                .and_then(|file| TrainSettings::resolve(&entry, file, ConfigFile::default()));
+            match outcome {
+                Ok(settings) => {
+                    settings.validate().unwrap();
+                    accepted += 1;
+                }
+                Err(e) => {
+                    let message = format!("{e:#}");
+                    let named = KEYS.iter().any(|k| message.contains(k.rsplit('.').next().unwrap())) || message.contains("duplicate key");
+                    assert!(named, "{text:?} was refused without naming a key: {message}");
+                    refused += 1;
+                }
+            }
+        }
+        assert!(accepted > 1000 && refused > 1000, "{accepted} accepted, {refused} refused: the values are not a mix");
+    }
+}

@@ -56,27 +56,37 @@ impl Randomization {
 
     /// A clear error for ranges that are backwards or out of bounds.
     pub fn validate(&self) -> anyhow::Result<()> {
-        let ordered = |name: &str, [lo, hi]: [f32; 2], min: f32| {
+        // Upper bounds: beyond them the physics is no longer a robot's (and rapier may fail).
+        let ordered = |name: &str, [lo, hi]: [f32; 2], min: f32, max: f32| {
             anyhow::ensure!(
-                lo.is_finite() && hi.is_finite() && lo <= hi && lo >= min,
-                "randomization.{name} = [{lo}, {hi}]: must be finite, ordered and ≥ {min}"
+                lo.is_finite() && hi.is_finite() && lo <= hi && lo >= min && hi <= max,
+                "randomization.{name} = [{lo}, {hi}]: must be finite, ordered and in [{min}, {max}]"
             );
             Ok(())
         };
-        anyhow::ensure!(self.start_window[0] <= self.start_window[1], "randomization.start_window must be ordered");
+        let [first, last] = self.start_window;
+        anyhow::ensure!(
+            first <= last && last <= 100_000,
+            "randomization.start_window = [{first}, {last}]: must be ordered and at most 100000 steps"
+        );
+        anyhow::ensure!(
+            self.action_latency <= 1000,
+            "randomization.action_latency = {}: must be at most 1000 control steps",
+            self.action_latency
+        );
         anyhow::ensure!(
             (0.0..=1.0).contains(&self.action_probability),
             "randomization.action_probability = {}: must be in [0, 1]",
             self.action_probability
         );
-        ordered("mass_scale", self.mass_scale, f32::MIN_POSITIVE)?;
-        ordered("motor_strength", self.motor_strength, 0.0)?;
+        ordered("mass_scale", self.mass_scale, 1e-3, 1e3)?;
+        ordered("motor_strength", self.motor_strength, 0.0, 100.0)?;
         if let Some(f) = self.friction {
-            ordered("friction", f, 0.0)?;
+            ordered("friction", f, 0.0, 100.0)?;
         }
         anyhow::ensure!(
-            self.sensor_noise.is_finite() && self.sensor_noise >= 0.0,
-            "randomization.sensor_noise = {}: must be a finite number ≥ 0",
+            self.sensor_noise.is_finite() && (0.0..=1e3).contains(&self.sensor_noise),
+            "randomization.sensor_noise = {}: must be a finite number in [0, 1000]",
             self.sensor_noise
         );
         Ok(())

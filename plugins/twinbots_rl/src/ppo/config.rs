@@ -79,6 +79,9 @@ impl PpoConfig {
         at_least_one("n_steps", self.n_steps)?;
         at_least_one("batch_size", self.batch_size)?;
         at_least_one("n_epochs", self.n_epochs)?;
+        // Upper bounds keep a typo from asking for memory or time no machine has.
+        check("n_steps", self.n_steps, self.n_steps <= MAX_ROLLOUT, "at most 16777216")?;
+        check("n_epochs", self.n_epochs, self.n_epochs <= 10_000, "at most 10000")?;
         check("gamma", self.gamma, self.gamma > 0.0 && self.gamma <= 1.0, "in (0, 1]")?;
         check("gae_lambda", self.gae_lambda, (0.0..=1.0).contains(&self.gae_lambda), "in [0, 1]")?;
         positive("clip_range", self.clip_range as f64)?;
@@ -89,10 +92,14 @@ impl PpoConfig {
             positive("target_kl", kl as f64)?;
         }
         let hidden = format!("{:?}", self.hidden);
-        check("hidden", hidden, !self.hidden.is_empty() && self.hidden.iter().all(|&n| (1..=65_536).contains(&n)), "one or more layer sizes in 1..=65536")?;
+        let sizes_ok = (1..=16).contains(&self.hidden.len()) && self.hidden.iter().all(|&n| (1..=4096).contains(&n));
+        check("hidden", hidden, sizes_ok, "1 to 16 layer sizes, each in 1..=4096")?;
         check("log_std_init", self.log_std_init, self.log_std_init.is_finite() && self.log_std_init.abs() <= 20.0, "a finite number in [-20, 20]")
     }
 }
+
+/// The most samples a rollout may hold (n_steps × envs).
+pub const MAX_ROLLOUT: usize = 1 << 24;
 
 fn check(key: &str, value: impl std::fmt::Display, ok: bool, allowed: &str) -> anyhow::Result<()> {
     anyhow::ensure!(ok, "ppo.{key} = {value}: must be {allowed}");

@@ -20,7 +20,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 pub use buffer::RolloutBuffer;
-pub use config::PpoConfig;
+pub use config::{MAX_ROLLOUT, PpoConfig};
 pub use model_file::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
 pub use policy::ActorCritic;
 pub use rollout::PolicyStep;
