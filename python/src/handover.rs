@@ -71,6 +71,13 @@ pub fn append_progress(run_dir: PathBuf, row: HashMap<String, f64>) -> PyResult<
     RunDir::new(run_dir).append_progress_columns(&row).map_err(value_error)
 }
 
+/// Drops the rows of the run's `progress.csv` (and `evaluations.csv`) logged after
+/// `timesteps`, and rows cut short by a kill: a resumed run logs them again.
+#[pyfunction]
+pub fn truncate_progress(run_dir: PathBuf, timesteps: u64) -> PyResult<()> {
+    RunDir::new(run_dir).truncate_after(timesteps).map_err(value_error)
+}
+
 /// Draws the run's `learning_curve.png` from its `progress.csv`, with the robot's solved
 /// criterion, as `twinbots train` does.
 #[pyfunction]

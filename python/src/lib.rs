@@ -25,6 +25,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(handover::training_defaults, m)?)?;
     m.add_function(wrap_pyfunction!(handover::create_run, m)?)?;
     m.add_function(wrap_pyfunction!(handover::append_progress, m)?)?;
+    m.add_function(wrap_pyfunction!(handover::truncate_progress, m)?)?;
     m.add_function(wrap_pyfunction!(handover::draw_curve, m)?)?;
     m.add_function(wrap_pyfunction!(handover::save_model, m)?)?;
     Ok(())

@@ -93,6 +93,31 @@ def test_the_command_writes_a_run_that_twinbots_eval_reads(tmp_path):
         assert "cartpole: balance: 2 episodes" in out.stdout
 
 
+def test_a_run_resumes_from_its_checkpoint_with_its_rows_cut_back_to_it(tmp_path):
+    run = tmp_path / "run"
+    train = ["train", "cartpole", "--env-runners", "1", "--envs-per-runner", "4", "--checkpoint-every", "2", "--out", str(run)]
+    assert rllib_main(train + ["--timesteps", "2000"]) == 0
+    state = json.loads((run / "rllib_checkpoint" / "twinbots_state.json").read_text())
+    before = (run / "progress.csv").read_text().splitlines()
+    assert int(float(before[-1].split(",")[1])) == state["timesteps"] >= 2000
+    # As a kill would leave it: rows logged after the checkpoint (one cut short), budget left.
+    with open(run / "progress.csv", "a") as f:
+        f.write(f"{state['iteration'] + 1},{state['timesteps'] + 1000},1,2,3,4,5,6,7,8,9,10,11,12,13,0\n")
+        f.write(f"{state['iteration'] + 2},{state['timesteps'] + 2000},1,2")
+    args = json.loads((run / "rllib_args.json").read_text())
+    (run / "rllib_args.json").write_text(json.dumps(args | {"timesteps": 4000}))
+
+    assert rllib_main(["train", "--resume", str(run)]) == 0
+    rows = [r.split(",") for r in (run / "progress.csv").read_text().splitlines()[1:]]
+    updates, steps = [int(float(r[0])) for r in rows], [int(float(r[1])) for r in rows]
+    assert updates == list(range(1, len(rows) + 1)), updates
+    assert all(b > a for a, b in zip(steps, steps[1:])) and steps[-1] >= 4000, steps
+    assert (run / "progress.csv").read_text().splitlines()[: len(before)] == before
+    summary = json.loads((run / "rllib_summary.json").read_text())
+    assert summary["iterations"] == len(rows) and summary["timesteps"] == steps[-1]
+    assert rllib_main(["train", "cartpole", "--resume", str(run)]) == 2
+
+
 def test_bad_arguments_are_clear_errors(capsys):
     assert rllib_main(["train", "no-such-robot", "--timesteps", "10"]) == 2
     assert "unknown robot" in capsys.readouterr().err.lower()
