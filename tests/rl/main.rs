@@ -9,5 +9,7 @@ mod patterns;
 mod ppo;
 mod randomization;
 mod server;
+mod server_hostile;
+mod server_load;
 mod train_cli;
 mod ur5e_tasks;
