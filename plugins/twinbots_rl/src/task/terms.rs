@@ -247,6 +247,21 @@ mod tests {
     }
 
     #[test]
+    fn bounded_reward_terms_give_the_task_a_reward_range_and_are_clamped_into_it() {
+        let mut t = terms();
+        assert_eq!(t.reward_range(), (f32::NEG_INFINITY, f32::INFINITY), "terms without bounds are unbounded");
+        t.rewards = vec![
+            RewardTerm::new("alive", 1.0, |_| 1.0).bounded(1.0, 1.0),
+            RewardTerm::new("angle", -2.0, |s: &Cart| s.angle.abs()).bounded(0.0, 0.5),
+            RewardTerm::new("unused", 0.0, |_| 1.0),
+        ];
+        assert_eq!(t.reward_range(), (0.0, 1.0), "a zero weight adds nothing, even unbounded");
+        let mut sums = Vec::new();
+        let outcome = t.evaluate(&Cart { angle: 3.0, ..Default::default() }, 0, &mut sums);
+        assert_eq!(outcome.reward, 0.0, "the angle's value is clamped to 0.5");
+    }
+
+    #[test]
     fn rewards_sum_weighted_terms_and_are_logged_per_term() {
         let t = terms();
         let mut sums = Vec::new();
