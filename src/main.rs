@@ -15,7 +15,12 @@ struct Args {
 #[derive(Subcommand)]
 enum Command {
     /// List the registered robots.
-    Robots,
+    Robots {
+        /// Print each robot's tasks as the RobotServer's `welcome` describes them (spaces with
+        /// bounds, observation names, reward range), as JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Train a robot's task with PPO, headless.
     Train {
         /// Robot to train (see `twinbots robots`); not needed with --resume.
@@ -56,10 +61,26 @@ enum Command {
     },
     /// Run the RobotServer (design pattern 3): hosts the policy and learner, reached over TCP.
     Serve {
-        robot: String,
+        /// Robot to serve (see `twinbots robots`); not needed with --resume.
+        #[arg(required_unless_present = "resume")]
+        robot: Option<String>,
         /// Address to listen on (port 0: any free port; the first output line tells which).
+        /// Loopback by default: robots on other machines need an explicit address such as
+        /// 0.0.0.0:7878, and then a --token.
         #[arg(long, default_value = "127.0.0.1:7878")]
         listen: std::net::SocketAddr,
+        /// Robots connected at once; the next one is refused (`server_full`).
+        #[arg(long, default_value_t = 64)]
+        max_robots: usize,
+        /// A shared secret every robot's hello must carry (default: $TWINBOTS_TOKEN, else none).
+        #[arg(long)]
+        token: Option<String>,
+        /// Seconds a new connection has to send its whole hello.
+        #[arg(long, default_value_t = 10.0)]
+        handshake_timeout: f64,
+        /// Seconds a robot has to send each whole request after the last reply.
+        #[arg(long, default_value_t = 60.0)]
+        read_timeout: f64,
         /// Robots a rollout is sized for; default: the robot's arena count.
         #[arg(long)]
         robots: Option<usize>,
@@ -75,6 +96,13 @@ enum Command {
         settings: Option<std::path::PathBuf>,
         #[arg(long)]
         out: Option<std::path::PathBuf>,
+        /// Continue the server run in this directory from its newest checkpoint.
+        #[arg(long, conflicts_with_all = ["robot", "robots", "timesteps", "seed", "config", "settings", "out"])]
+        resume: Option<std::path::PathBuf>,
+        /// Exit when standard input closes: for a server started by `train --pattern 3`, which
+        /// must not outlive it.
+        #[arg(long, hide = true)]
+        exit_with_stdin: bool,
     },
     /// Run simulated robots (design pattern 3: no Supervisor, self-homing) against a
     /// RobotServer, or on an exported policy each robot runs itself.
@@ -94,6 +122,9 @@ enum Command {
         /// Seconds to keep trying to reach the server.
         #[arg(long, default_value_t = 30, conflicts_with = "policy")]
         patience: u64,
+        /// The server's shared secret (default: $TWINBOTS_TOKEN, else none).
+        #[arg(long, conflicts_with = "policy")]
+        token: Option<String>,
         /// With --policy: episodes to run before reporting their figures.
         #[arg(long, default_value_t = 10, conflicts_with = "server")]
         episodes: usize,
@@ -206,7 +237,8 @@ fn main() {
 
 fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
-        Command::Robots => cli::robots::print(),
+        Command::Robots { json: false } => cli::robots::print(),
+        Command::Robots { json: true } => cli::robots::print_json()?,
         Command::Train { resume: Some(run), print_config: true, .. } => {
             print!("{}", toml::to_string_pretty(&cli::runs::TrainSettings::of_run(&twinbots_rl::RunDir::new(run))?)?)
         }
@@ -227,7 +259,21 @@ fn run(args: Args) -> anyhow::Result<()> {
             let out = out.unwrap_or_else(|| cli::runs::default_run_dir(&robot));
             cli::train::train(settings, &out, view)?
         }
-        Command::Serve { robot, listen, robots, timesteps, seed, config, settings, out } => {
+        Command::Serve { robot, listen, max_robots, token, handshake_timeout, read_timeout, robots, timesteps, seed, config, settings, out, resume, exit_with_stdin } => {
+            if exit_with_stdin {
+                cli::serve::exit_when_stdin_closes();
+            }
+            let limits = twinbots_server::server::ServerLimits {
+                max_robots,
+                token: token.or_else(cli::serve::token_from_env),
+                handshake_timeout: cli::serve::seconds("--handshake-timeout", handshake_timeout)?,
+                read_timeout: cli::serve::seconds("--read-timeout", read_timeout)?,
+                ..Default::default()
+            };
+            if let Some(run) = resume {
+                return cli::serve::resume(&run, listen, limits);
+            }
+            let robot = robot.unwrap_or_default();
             let entry = registry::find(&robot)?;
             let settings = match settings {
                 Some(path) => cli::runs::TrainSettings::read_file(&path)?,
@@ -241,10 +287,11 @@ fn run(args: Args) -> anyhow::Result<()> {
                 }
             };
             let out = out.unwrap_or_else(|| cli::runs::default_run_dir(&format!("{robot}-server")));
-            cli::serve::serve(settings, listen, &out)?
+            cli::serve::serve(settings, listen, limits, &out)?
         }
-        Command::Robot { robot, server: Some(server), arenas, seed, patience, .. } => {
-            cli::robot::against_server(&robot, server, arenas, seed, std::time::Duration::from_secs(patience))?;
+        Command::Robot { robot, server: Some(server), arenas, seed, patience, token, .. } => {
+            let token = token.or_else(cli::serve::token_from_env);
+            cli::robot::against_server_with_token(&robot, server, arenas, seed, std::time::Duration::from_secs(patience), token)?;
         }
         Command::Robot { robot, policy: Some(policy), arenas, seed, episodes, .. } => {
             cli::robot::with_policy(&robot, &policy, arenas, episodes, seed)?;

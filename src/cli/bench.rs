@@ -143,12 +143,14 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
     let spec = cartpole::task_spec();
     let id = twinbots_server::client::Identity {
         robot: "cartpole".into(),
-        observation_space: spec.observation_space,
-        action_space: spec.action_space,
+        observation_space: spec.observation_space.clone(),
+        action_space: spec.action_space.clone(),
+        token: None,
     };
     let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space.clone(), id.action_space.clone(), 0)?;
     // A rollout never filled: this measures the protocol and the policy's inference only.
-    let settings = ServerSettings { robot: "cartpole".into(), rollout: usize::MAX, timesteps: u64::MAX };
+    let mut settings = ServerSettings::new("cartpole", &spec, usize::MAX, u64::MAX);
+    settings.limits.max_robots = robots.max(1);
     let server = RobotServer::start("127.0.0.1:0".parse()?, model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue)))?;
     let addr = server.addr;
     let start = Instant::now();

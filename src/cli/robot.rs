@@ -11,13 +11,15 @@ use std::time::Duration;
 use bevy::prelude::*;
 use twinbots_onnx::OnnxPolicy;
 use twinbots_rl::{DesignPattern, Episode, EvalResult};
-use twinbots_server::robot::{OnBoardPolicy, RobotRunState, ServerAddress};
+use twinbots_server::robot::{OnBoardPolicy, RobotRunState, ServerAddress, ServerToken};
 
 use crate::registry;
 
 /// A pattern-3 app of `arenas` robots getting their actions from `source` (a [`ServerAddress`]
 /// or an [`OnBoardPolicy`]), started up.
 fn robot_app(robot: &str, arenas: usize, seed: u64, source: impl Resource) -> anyhow::Result<App> {
+    // No robot would ever stop the loop that waits for them.
+    anyhow::ensure!(arenas >= 1, "--arenas {arenas}: at least one robot is needed");
     let entry = registry::find(robot)?;
     anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
     let mut app = entry.app(None, arenas, seed, DesignPattern::Server)?;
@@ -35,7 +37,20 @@ fn stopped(app: &App) -> Option<Result<String, String>> {
 /// Runs `arenas` simulated robots against the server at `server` until it says training is
 /// over. Returns the server's reason.
 pub fn against_server(robot: &str, server: SocketAddr, arenas: usize, seed: u64, patience: Duration) -> anyhow::Result<String> {
+    against_server_with_token(robot, server, arenas, seed, patience, None)
+}
+
+/// [`against_server`] for a server that wants a shared secret in every `hello`.
+pub fn against_server_with_token(
+    robot: &str,
+    server: SocketAddr,
+    arenas: usize,
+    seed: u64,
+    patience: Duration,
+    token: Option<String>,
+) -> anyhow::Result<String> {
     let mut app = robot_app(robot, arenas, seed, ServerAddress { addr: server, patience })?;
+    app.insert_resource(ServerToken(token));
     loop {
         app.update();
         if let Some(stop) = stopped(&app) {

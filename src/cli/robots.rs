@@ -1,4 +1,8 @@
-//! `twinbots robots`: what is registered.
+//! `twinbots robots`: what is registered. With `--json`, every task's interface as a
+//! RobotServer's `welcome` gives it (the same `TaskInterface`), so a robot written in another
+//! language can be checked against it before it connects.
+
+use twinbots_server::protocol::TaskInterface;
 
 use crate::registry;
 
@@ -11,4 +15,24 @@ pub fn print() {
             println!("{:<12} also --task {}: {}", "", task.name, task.description);
         }
     }
+}
+
+/// One JSON document: `{"protocol_version": 2, "robots": [{name, description,
+/// design_patterns, tasks: [TaskInterface…]}]}`.
+pub fn print_json() -> anyhow::Result<()> {
+    let robots: Vec<serde_json::Value> = registry::robots()
+        .iter()
+        .map(|robot| {
+            let tasks: Vec<TaskInterface> = robot.tasks.iter().map(|t| TaskInterface::of(robot.name, &(t.spec)())).collect();
+            serde_json::json!({
+                "name": robot.name,
+                "description": robot.description,
+                "design_patterns": robot.all_patterns().iter().map(|p| p.number()).collect::<Vec<_>>(),
+                "tasks": tasks,
+            })
+        })
+        .collect();
+    let document = serde_json::json!({ "protocol_version": twinbots_server::protocol::VERSION, "robots": robots });
+    println!("{}", serde_json::to_string_pretty(&document)?);
+    Ok(())
 }

@@ -11,31 +11,93 @@ use std::time::{Duration, Instant};
 
 use twinbots_rl::run_dir::Summary;
 use twinbots_rl::{DesignPattern, Ppo, RunDir};
-use twinbots_server::server::{RobotServer, ServerSettings};
+use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
 use crate::cli::runs::TrainSettings;
 use crate::registry;
 
+/// Test-only: set to make the learner panic in its first update, so tests can show that a
+/// failing learner ends `serve` with an error instead of leaving it hanging (no settings that
+/// pass validation make a PPO update fail).
+pub const PANIC_IN_UPDATE_ENV: &str = "TWINBOTS_TEST_PANIC_IN_UPDATE";
+
+/// The shared secret from the environment, for `serve` and `robot` when no --token is given
+/// (keeps it out of the process list).
+pub const TOKEN_ENV: &str = "TWINBOTS_TOKEN";
+
+pub fn token_from_env() -> Option<String> {
+    std::env::var(TOKEN_ENV).ok().filter(|t| !t.is_empty())
+}
+
+/// Ends the process (exit 1) once standard input closes, i.e. when the process that started
+/// this server and holds the other end dies, however it dies (even SIGKILL).
+pub fn exit_when_stdin_closes() {
+    std::thread::spawn(|| {
+        use std::io::Read;
+        let mut sink = [0u8; 256];
+        let mut stdin = std::io::stdin();
+        while matches!(stdin.read(&mut sink), Ok(n) if n > 0) {}
+        eprintln!("error: the process that started this server has ended");
+        std::process::exit(1);
+    });
+}
+
+/// A timeout flag's seconds as a duration: finite and positive, or a clear error.
+pub fn seconds(flag: &str, value: f64) -> anyhow::Result<Duration> {
+    anyhow::ensure!(value.is_finite() && value > 0.0 && value < 1e9, "{flag} {value}: must be a number of seconds > 0");
+    Ok(Duration::from_secs_f64(value))
+}
+
 /// Runs a server until training ends. `settings.arenas` is the number of robots a rollout is
 /// sized for (rollout = n_steps × robots). The server trains with the same callbacks as
 /// `train` (periodic evaluation runs the policy in-process, under pattern 1); the final model
-/// is not evaluated here: `twinbots eval <run>` does that.
-pub fn serve(settings: TrainSettings, listen: SocketAddr, out: &Path) -> anyhow::Result<()> {
+/// is not evaluated here: `twinbots eval <run>` does that. A failure anywhere in the server
+/// (learner error, panic in a server thread) returns the error: `main` exits 1 with it.
+pub fn serve(settings: TrainSettings, listen: SocketAddr, limits: ServerLimits, out: &Path) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let spec = entry.task();
     anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{} has no design-pattern-3 robot", entry.name);
+    anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
     let run_dir = RunDir::new(out);
     anyhow::ensure!(!run_dir.holds_run(), "{} already holds a run (choose another --out)", out.display());
     run_dir.create()?;
     run_dir.write_config(&settings)?;
     let model = Ppo::new(settings.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?;
+    host(settings, run_dir, model, listen, limits)
+}
+
+/// Continues the server run in `run` from its newest checkpoint that loads, to its budget. The
+/// robots' episodes start afresh (they are other processes: their state is theirs), so unlike
+/// an in-process run's this resume is not bit-identical to an uninterrupted run.
+pub fn resume(run: &Path, listen: SocketAddr, limits: ServerLimits) -> anyhow::Result<()> {
+    let run_dir = RunDir::new(run);
+    let settings = TrainSettings::of_run(&run_dir)?;
+    anyhow::ensure!(settings.design_pattern()? == DesignPattern::Server, "{}: not a RobotServer run (resume it with `twinbots train --resume`)", run.display());
+    anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
+    let (checkpoint, mut model) = run_dir.load_newest_checkpoint()?;
+    run_dir.check_progress_columns()?;
+    let spec = registry::find(&settings.robot)?.task();
+    model.check_spaces(&spec.observation_space, &spec.action_space)?;
+    model.env_state = None;
+    eprintln!("resuming {} from {} ({} steps, {} episodes)", run.display(), checkpoint.display(), model.timesteps, model.episodes);
+    run_dir.truncate_after(model.timesteps)?;
+    host(settings, run_dir, model, listen, limits)
+}
+
+/// Hosts `model` and its learner until training ends, into `run_dir`.
+fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr, limits: ServerLimits) -> anyhow::Result<()> {
+    let entry = registry::find(&settings.robot)?;
+    let spec = entry.task();
+    let out = run_dir.path().to_path_buf();
     let title = format!("{} — PPO through the RobotServer (pattern 3), seed {}", settings.robot, settings.seed);
-    let callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
-    let server_settings = ServerSettings {
-        robot: settings.robot.clone(),
-        rollout: settings.ppo.n_steps * settings.arenas.max(1),
-        timesteps: settings.timesteps,
-    };
+    let mut callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
+    if std::env::var_os(PANIC_IN_UPDATE_ENV).is_some() {
+        callbacks = callbacks.with(|_: &twinbots_rl::UpdateStats, _: &Ppo| -> anyhow::Result<twinbots_rl::Flow> {
+            panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
+        });
+    }
+    let mut server_settings = ServerSettings::new(&settings.robot, &spec, settings.ppo.n_steps * settings.arenas.max(1), settings.timesteps);
+    server_settings.limits = limits;
     let started = Instant::now();
     let server = RobotServer::start(listen, model, server_settings, Box::new(callbacks))?;
     println!("listening on {}", server.addr);

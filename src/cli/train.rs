@@ -19,21 +19,23 @@ use twinbots_rl::{DesignPattern, Ppo, RunDir, TrainingEnd, bridge, env, evaluate
 use crate::cli::runs::{TrainSettings, evaluation_env};
 use crate::registry;
 
-/// Pattern 3: starts `twinbots serve` as its own process and runs the robots here.
-fn train_through_server(settings: TrainSettings, out: &Path) -> anyhow::Result<()> {
+/// Pattern 3: starts `twinbots serve` as its own process and runs the robots here; `resume`:
+/// the server continues the run in `out` (`serve --resume`).
+fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> anyhow::Result<()> {
     use std::io::BufRead;
     let exe = std::env::current_exe()?;
-    let config = toml::to_string_pretty(&settings)?;
-    std::fs::create_dir_all(out)?;
+    let mut command = std::process::Command::new(exe);
     let config_path = out.with_extension("server.toml");
-    std::fs::write(&config_path, config)?;
-    let mut server = std::process::Command::new(exe)
-        .args(["serve", &settings.robot, "--listen", "127.0.0.1:0", "--settings"])
-        .arg(&config_path)
-        .arg("--out")
-        .arg(out)
-        .stdout(std::process::Stdio::piped())
-        .spawn()?;
+    if resume {
+        command.arg("serve").arg("--resume").arg(out).args(["--listen", "127.0.0.1:0"]);
+    } else {
+        std::fs::create_dir_all(out)?;
+        std::fs::write(&config_path, toml::to_string_pretty(&settings)?)?;
+        command.args(["serve", &settings.robot, "--listen", "127.0.0.1:0", "--settings"]).arg(&config_path).arg("--out").arg(out);
+    }
+    // The server exits when our end of its stdin closes: it cannot outlive this process.
+    command.arg("--exit-with-stdin").stdin(std::process::Stdio::piped());
+    let mut server = command.stdout(std::process::Stdio::piped()).spawn()?;
     let stdout = server.stdout.take().ok_or_else(|| anyhow::anyhow!("no server output"))?;
     let mut lines = std::io::BufReader::new(stdout).lines();
     let first = lines.next().transpose()?.unwrap_or_default();
@@ -43,6 +45,10 @@ fn train_through_server(settings: TrainSettings, out: &Path) -> anyhow::Result<(
         .ok_or_else(|| anyhow::anyhow!("the server did not start: {first:?}"))?;
     println!("RobotServer (pid {}) listening on {addr}", server.id());
     let result = crate::cli::robot::against_server(&settings.robot, addr, settings.arenas, settings.seed, std::time::Duration::from_secs(10));
+    if result.is_err() {
+        // The robots gave up: the server would wait for robots for ever.
+        drop(server.stdin.take());
+    }
     for line in lines.map_while(Result::ok) {
         println!("server: {line}");
     }
@@ -56,7 +62,7 @@ fn train_through_server(settings: TrainSettings, out: &Path) -> anyhow::Result<(
 /// A fresh run into `out`.
 pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<()> {
     if settings.design_pattern()? == DesignPattern::Server {
-        return train_through_server(settings, out);
+        return train_through_server(settings, out, false);
     }
     anyhow::ensure!(settings.arenas > 0, "arenas must be at least 1");
     let run_dir = RunDir::new(out);
@@ -74,6 +80,9 @@ pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<
 pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
     let run_dir = RunDir::new(run_dir);
     let settings = TrainSettings::of_run(&run_dir)?;
+    if settings.design_pattern()? == DesignPattern::Server {
+        return train_through_server(settings, run_dir.path(), true);
+    }
     let (checkpoint, model) = run_dir.load_newest_checkpoint()?;
     run_dir.check_progress_columns()?;
     println!(

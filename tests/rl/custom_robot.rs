@@ -171,7 +171,7 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
 
     // Served under pattern 3: robots that home themselves, no Supervisor, the same terms.
     let learner = Ppo::new(robot.defaults.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), 1).unwrap();
-    let settings = ServerSettings { robot: "turntable".into(), rollout: 256, timesteps: 1024 };
+    let settings = ServerSettings::new("turntable", &spec, 256, 1024);
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap();
     let mut app = robot.app(None, 2, 3, DesignPattern::Server).unwrap();
     app.insert_resource(ServerAddress { addr: server.addr, patience: Duration::from_secs(5) });

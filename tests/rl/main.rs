@@ -10,5 +10,7 @@ mod ppo;
 mod randomization;
 mod resume;
 mod server;
+mod server_hostile;
+mod server_load;
 mod train_cli;
 mod ur5e_tasks;

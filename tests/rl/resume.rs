@@ -128,3 +128,46 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
     assert_eq!(model.timesteps, 1280);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_killed_pattern_3_run_resumes_through_its_server_and_its_server_does_not_outlive_it() {
+    let dir = temp_dir("resume-p3");
+    let run = dir.join("run");
+    let mut child = twinbots()
+        .args(["train", "cartpole", "--pattern", "3", "--timesteps", "4096", "--arenas", "2", "--checkpoint-every", "2", "--out"])
+        .arg(&run)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let checkpoints = || std::fs::read_dir(run.join("checkpoints")).map_or(0, |d| d.count());
+    while checkpoints() < 3 && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    // The server (the learner, another process) notices and ends: the logs stop growing.
+    let size = || std::fs::metadata(run.join("progress.csv")).map_or(0, |m| m.len());
+    let mut last = size();
+    loop {
+        std::thread::sleep(Duration::from_millis(1500));
+        let now = size();
+        if now == last {
+            break;
+        }
+        assert!(Instant::now() < deadline, "the server of a killed run goes on training");
+        last = now;
+    }
+    assert!(!run.join("model").exists(), "killed before it finished");
+
+    let output = twinbots().args(["train", "--resume"]).arg(&run).output().unwrap();
+    assert!(output.status.success(), "{}\n{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    let progress = twinbots_rl::RunDir::new(&run).read_progress().unwrap();
+    let updates: Vec<usize> = progress.iter().map(|row| row.update).collect();
+    assert!(updates.iter().enumerate().all(|(i, &u)| u == i + 1), "{updates:?}");
+    assert!(progress.windows(2).all(|w| w[1].timesteps > w[0].timesteps));
+    let model = twinbots_rl::Ppo::load(run.join("model")).unwrap();
+    assert!(model.timesteps >= 4096 && model.updates as usize == updates.len(), "{} steps, {} updates", model.timesteps, model.updates);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -7,53 +7,67 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use twinbots_rl::{Flow, Ppo, PpoConfig};
-use twinbots_server::protocol::{RobotMessage, ServerMessage, VERSION, read_message, write_message};
-use twinbots_server::server::{RobotServer, ServerSettings};
+use twinbots_server::frame::{read_message, write_message};
+use twinbots_server::protocol::{RobotMessage, ServerMessage, VERSION};
+use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
-fn server(timesteps: u64) -> RobotServer {
-    let id = cartpole::task_spec();
-    let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space, id.action_space, 0).unwrap();
-    let settings = ServerSettings { robot: "cartpole".into(), rollout: 256, timesteps };
-    RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap()
+pub fn server(timesteps: u64) -> RobotServer {
+    server_with(timesteps, 256, ServerLimits::default(), Box::new(|_: &_, _: &_| Ok(Flow::Continue)))
 }
 
-struct Robot {
-    reader: BufReader<TcpStream>,
-    writer: TcpStream,
+/// A cart-pole server with these limits and callbacks.
+pub fn server_with(timesteps: u64, rollout: usize, limits: ServerLimits, callbacks: Box<dyn twinbots_rl::Callback + Send>) -> RobotServer {
+    let spec = cartpole::task_spec();
+    let model = Ppo::new(PpoConfig::zoo_cartpole(), spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
+    let mut settings = ServerSettings::new("cartpole", &spec, rollout, timesteps);
+    settings.limits = limits;
+    RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, callbacks).unwrap()
+}
+
+/// A hand-driven robot connection (a test client that can misbehave).
+pub struct Robot {
+    pub reader: BufReader<TcpStream>,
+    pub writer: TcpStream,
 }
 
 impl Robot {
-    fn connect(addr: SocketAddr) -> Self {
+    pub fn connect(addr: SocketAddr) -> Self {
         let stream = TcpStream::connect(addr).unwrap();
         stream.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
         Robot { reader: BufReader::new(stream.try_clone().unwrap()), writer: stream }
     }
-    fn call(&mut self, m: &RobotMessage) -> ServerMessage {
+    pub fn call(&mut self, m: &RobotMessage) -> ServerMessage {
         write_message(&mut self.writer, m).unwrap();
         read_message(&mut self.reader).unwrap()
     }
-    fn raw(&mut self, bytes: &[u8]) -> ServerMessage {
+    pub fn raw(&mut self, bytes: &[u8]) -> ServerMessage {
         self.writer.write_all(bytes).unwrap();
         read_message(&mut self.reader).unwrap()
     }
-    fn hello(addr: SocketAddr) -> Self {
+    pub fn hello(addr: SocketAddr) -> Self {
         let mut r = Self::connect(addr);
-        let id = cartpole::task_spec();
-        let reply = r.call(&RobotMessage::Hello {
-            version: VERSION,
-            robot: "cartpole".into(),
-            observation_space: id.observation_space,
-            action_space: id.action_space,
-        });
+        let reply = r.call(&hello(None));
         assert!(matches!(reply, ServerMessage::Welcome { .. }), "{reply:?}");
         r
     }
-    fn step(&mut self) -> ServerMessage {
+    pub fn step(&mut self) -> ServerMessage {
         self.call(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false, success: None })
     }
 }
 
-fn frame(payload: &[u8]) -> Vec<u8> {
+/// A cart-pole robot's hello.
+pub fn hello(token: Option<&str>) -> RobotMessage {
+    let id = cartpole::task_spec();
+    RobotMessage::Hello {
+        version: VERSION,
+        robot: "cartpole".into(),
+        observation_space: id.observation_space,
+        action_space: id.action_space,
+        token: token.map(String::from),
+    }
+}
+
+pub fn frame(payload: &[u8]) -> Vec<u8> {
     let mut f = (payload.len() as u32).to_le_bytes().to_vec();
     f.extend_from_slice(payload);
     f
@@ -65,6 +79,7 @@ fn malformed_and_oversized_messages_get_error_replies_and_the_server_keeps_servi
     let mut robot = Robot::hello(server.addr);
     let other = Robot::hello(server.addr);
     let is_recoverable_error = |m: &ServerMessage| matches!(m, ServerMessage::Error { fatal: false, .. });
+    let rejected_before = server.rejections();
 
     let reply = robot.raw(&frame(b"{ this is not json"));
     assert!(is_recoverable_error(&reply), "{reply:?}");
@@ -73,7 +88,7 @@ fn malformed_and_oversized_messages_get_error_replies_and_the_server_keeps_servi
     let big = vec![b' '; 100_000];
     let reply = robot.raw(&frame(&big));
     match &reply {
-        ServerMessage::Error { message, fatal: false } => assert!(message.contains("exceeds"), "{message}"),
+        ServerMessage::Error { message, fatal: false, .. } => assert!(message.contains("exceeds"), "{message}"),
         other => panic!("{other:?}"),
     }
     let reply = robot.call(&RobotMessage::Start { obs: vec![0.0; 3] });
@@ -85,6 +100,7 @@ fn malformed_and_oversized_messages_get_error_replies_and_the_server_keeps_servi
     assert!(matches!(&reply, ServerMessage::Action { action } if action.len() == 1), "{reply:?}");
     assert!(matches!(robot.step(), ServerMessage::Action { .. }));
     assert_eq!(server.load().0, 2);
+    assert_eq!(server.rejections() - rejected_before, 5, "every refusal is logged and counted");
     drop(other);
 }
 
@@ -98,16 +114,18 @@ fn a_bad_hello_is_refused() {
         robot: "cartpole".into(),
         observation_space: id.observation_space.clone(),
         action_space: id.action_space.clone(),
+        token: None,
     });
-    assert!(matches!(&reply, ServerMessage::Error { fatal: true, message } if message.contains("version")), "{reply:?}");
+    assert!(matches!(&reply, ServerMessage::Error { fatal: true, message, .. } if message.contains("version")), "{reply:?}");
     let mut r = Robot::connect(server.addr);
     let reply = r.call(&RobotMessage::Hello {
         version: VERSION,
         robot: "cartpole".into(),
         observation_space: id.observation_space,
         action_space: twinbots_rl::Space::Discrete { n: 3 },
+        token: None,
     });
-    assert!(matches!(&reply, ServerMessage::Error { fatal: true, message } if message.contains("Discrete(3)")), "{reply:?}");
+    assert!(matches!(&reply, ServerMessage::Error { fatal: true, message, .. } if message.contains("Discrete(3)")), "{reply:?}");
     // After a fatal error the server closes the connection.
     let mut byte = [0u8; 1];
     assert_eq!(r.reader.read(&mut byte).unwrap_or(0), 0);
@@ -151,7 +169,7 @@ fn the_server_trains_with_callbacks_and_stops_once_solved() {
             Ok(Flow::Continue)
         })
         .with(StopTrainingOnSolved::new(SolvedCriterion::mean_score(1, 2.0)));
-    let settings = ServerSettings { robot: "cartpole".into(), rollout: 8, timesteps: 1_000_000 };
+    let settings = ServerSettings::new("cartpole", &cartpole::task_spec(), 8, 1_000_000);
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(callbacks)).unwrap();
     let mut robot = Robot::hello(server.addr);
     let episode = |robot: &mut Robot| {
@@ -175,12 +193,12 @@ fn the_server_trains_with_callbacks_and_stops_once_solved() {
     assert_eq!(*rows.lock().unwrap(), [(1, 8, 2)]);
 }
 
-fn twinbots() -> Command {
+pub fn twinbots() -> Command {
     Command::new(env!("CARGO_BIN_EXE_twinbots"))
 }
 
 /// Starts `twinbots serve` and returns the child and the address it listens on.
-fn serve_process(listen: &str, timesteps: u64, out: &std::path::Path) -> (std::process::Child, SocketAddr) {
+pub fn serve_process(listen: &str, timesteps: u64, out: &std::path::Path) -> (std::process::Child, SocketAddr) {
     let mut child = twinbots()
         .args(["serve", "cartpole", "--listen", listen, "--robots", "2", "--timesteps", &timesteps.to_string(), "--out"])
         .arg(out)
@@ -196,7 +214,7 @@ fn serve_process(listen: &str, timesteps: u64, out: &std::path::Path) -> (std::p
     (child, addr)
 }
 
-fn temp(name: &str) -> std::path::PathBuf {
+pub fn temp(name: &str) -> std::path::PathBuf {
     let dir = std::env::temp_dir().join(format!("twinbots-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     dir

@@ -84,7 +84,7 @@ pub fn balance_task(initial_tilt: f32) -> TaskDefinition<CartPoleState> {
                 ObservationTerm::scalar("pole_angle", |s: &CartPoleState| s.angle),
                 ObservationTerm::scalar("pole_rate", |s: &CartPoleState| s.rate),
             ],
-            rewards: vec![RewardTerm::new("alive", 1.0, |_| 1.0)],
+            rewards: vec![RewardTerm::new("alive", 1.0, |_| 1.0).bounded(1.0, 1.0)],
             terminations: vec![
                 TerminationTerm::new("pole_fallen", |s: &CartPoleState| s.angle.abs() > MAX_POLE_ANGLE),
                 TerminationTerm::new("cart_off_track", |s: &CartPoleState| s.x.abs() > MAX_CART_X),

@@ -79,9 +79,11 @@ pub fn balance_task() -> TaskDefinition<PioneerState> {
                 ObservationTerm::scalar("pole_rate", |s: &PioneerState| s.rate),
             ],
             rewards: vec![
-                RewardTerm::new("alive", 1.0, |_| 1.0),
-                RewardTerm::new("pole_angle", -2.0, |s: &PioneerState| s.angle.abs()),
-                RewardTerm::new("distance", -0.1, |s: &PioneerState| s.x.abs()),
+                RewardTerm::new("alive", 1.0, |_| 1.0).bounded(1.0, 1.0),
+                // Both end the episode long before their bounds (0.3 rad, 5 m): the bounds only
+                // give the reward a declared range.
+                RewardTerm::new("pole_angle", -2.0, |s: &PioneerState| s.angle.abs()).bounded(0.0, std::f32::consts::PI),
+                RewardTerm::new("distance", -0.1, |s: &PioneerState| s.x.abs()).bounded(0.0, 2.0 * MAX_X),
             ],
             terminations: vec![
                 TerminationTerm::new("pole_fallen", |s: &PioneerState| s.angle.abs() > MAX_ANGLE),

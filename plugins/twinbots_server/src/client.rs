@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use twinbots_rl::Space;
 
-use crate::protocol::{FrameError, RobotMessage, ServerMessage, VERSION, read_message, write_message};
+use crate::frame::{FrameError, read_message, write_message};
+use crate::protocol::{ErrorCode, RobotMessage, ServerMessage, TaskInterface, VERSION};
 
 #[derive(Debug, thiserror::Error)]
 pub enum CommunicatorError {
@@ -26,6 +27,8 @@ pub struct Identity {
     pub robot: String,
     pub observation_space: Space,
     pub action_space: Space,
+    /// The server's shared secret, if it wants one (`serve --token`).
+    pub token: Option<String>,
 }
 
 /// The Communicator: a persistent connection to a RobotServer.
@@ -36,13 +39,15 @@ pub struct Communicator {
     pub patience: Duration,
     link: Option<(BufReader<TcpStream>, BufWriter<TcpStream>)>,
     pub robot_id: Option<u64>,
+    /// What the server expects of this robot (its `welcome`).
+    pub task: Option<TaskInterface>,
     /// Reconnections after the first connection.
     pub reconnects: u32,
 }
 
 impl Communicator {
     pub fn new(addr: SocketAddr, identity: Identity, patience: Duration) -> Self {
-        Self { addr, identity, patience, link: None, robot_id: None, reconnects: 0 }
+        Self { addr, identity, patience, link: None, robot_id: None, task: None, reconnects: 0 }
     }
 
     pub fn is_connected(&self) -> bool {
@@ -83,14 +88,18 @@ impl Communicator {
             robot: self.identity.robot.clone(),
             observation_space: self.identity.observation_space.clone(),
             action_space: self.identity.action_space.clone(),
+            token: self.identity.token.clone(),
         };
         write_message(&mut writer, &hello).map_err(gone)?;
         match read_message::<ServerMessage>(&mut reader) {
-            Ok(ServerMessage::Welcome { robot_id, .. }) => {
+            Ok(ServerMessage::Welcome { robot_id, task, .. }) => {
                 self.robot_id = Some(robot_id);
+                self.task = Some(task);
                 self.link = Some((reader, writer));
                 Ok(())
             }
+            // A full or busy server may have room later: keep trying within the patience.
+            Ok(ServerMessage::Error { code: ErrorCode::ServerFull | ErrorCode::Unavailable, .. }) => Err(CommunicatorError::Disconnected(self.addr)),
             Ok(ServerMessage::Error { message, .. }) => Err(CommunicatorError::Refused(message)),
             Ok(other) => Err(CommunicatorError::Refused(format!("unexpected reply to hello: {other:?}"))),
             Err(_) => Err(CommunicatorError::Disconnected(self.addr)),

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use bevy::prelude::*;
 
 use crate::client::CommunicatorError;
-use crate::protocol::{RobotMessage, ServerMessage};
+use crate::protocol::{ErrorCode, RobotMessage, ServerMessage, error};
 use crate::robot::PolicyLink;
 
 /// A deterministic policy: the action for one observation (flat, as the task's spaces).
@@ -42,7 +42,7 @@ impl OnBoardLink {
         match (self.policy)(obs) {
             Ok(action) => ServerMessage::Action { action },
             // A policy that cannot act stops the robots, as a server's fatal error does.
-            Err(e) => ServerMessage::Error { message: format!("the on-board policy failed: {e:#}"), fatal: true },
+            Err(e) => error(ErrorCode::LearnerFailed, true, format!("the on-board policy failed: {e:#}")),
         }
     }
 }
@@ -53,8 +53,9 @@ impl PolicyLink for OnBoardLink {
             RobotMessage::Start { obs } => Some(self.act(obs)),
             RobotMessage::Step { terminated, truncated, .. } if *terminated || *truncated => Some(ServerMessage::Ack),
             RobotMessage::Step { obs, .. } => Some(self.act(obs)),
-            RobotMessage::Hello { .. } => Some(ServerMessage::Welcome { version: crate::protocol::VERSION, robot_id: 0 }),
-            RobotMessage::Bye => None,
+            RobotMessage::Abort => Some(ServerMessage::Ack),
+            // Nothing to introduce to or leave: the policy is on board.
+            RobotMessage::Hello { .. } | RobotMessage::Bye => None,
         };
         Ok(())
     }
@@ -88,7 +89,7 @@ mod tests {
         assert_eq!(link.receive().unwrap(), ServerMessage::Ack, "an episode's last step is acknowledged");
         link.send(&RobotMessage::Start { obs: vec![1.0] }).unwrap();
         match link.receive().unwrap() {
-            ServerMessage::Error { message, fatal: true } => assert!(message.contains("two values expected, got 1"), "{message}"),
+            ServerMessage::Error { message, fatal: true, .. } => assert!(message.contains("two values expected, got 1"), "{message}"),
             other => panic!("expected a fatal error, got {other:?}"),
         }
     }

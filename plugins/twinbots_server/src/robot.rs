@@ -27,7 +27,7 @@ use twinbots_sim::{Arena, SimSet};
 
 use crate::client::{Communicator, CommunicatorError, Identity};
 pub use crate::onboard::{OnBoardLink, OnBoardPolicy};
-use crate::protocol::{RobotMessage, ServerMessage};
+use crate::protocol::{ErrorCode, RobotMessage, ServerMessage};
 
 /// The far end of a robot's episode protocol: it hears each step's message and answers as a
 /// RobotServer does (an action, an ack after an episode's last step, done, an error).
@@ -60,6 +60,11 @@ pub struct ServerAddress {
     pub addr: SocketAddr,
     pub patience: Duration,
 }
+
+/// The RobotServer's shared secret (`serve --token`), if it wants one: sent in every robot's
+/// `hello`. Optional beside a [`ServerAddress`].
+#[derive(Resource, Clone, Debug, Default)]
+pub struct ServerToken(pub Option<String>);
 
 /// Set when the robots should stop: `Ok(reason)` when the server finished training.
 #[derive(Resource, Clone, Debug, Default)]
@@ -134,7 +139,10 @@ impl Conversation {
                 self.phase = Phase::Homing;
             }
             Ok(ServerMessage::Done { reason }) => state.stop = Some(Ok(reason)),
-            Ok(ServerMessage::Error { message, fatal: true }) => state.stop = Some(Err(message)),
+            // The server closed an idle connection (a robot that homed for longer than its
+            // read timeout): the link is lost, not the training.
+            Ok(ServerMessage::Error { code: ErrorCode::Timeout, .. }) => self.lost(state),
+            Ok(ServerMessage::Error { message, fatal: true, .. }) => state.stop = Some(Err(message)),
             Ok(ServerMessage::Error { message, .. }) => warn!("server: {message}"),
             Ok(ServerMessage::Welcome { .. }) => {}
             Err(_) => self.lost(state),
@@ -229,6 +237,7 @@ pub fn identity(world: &World) -> Identity {
         robot: world.resource::<RobotKind>().0.clone(),
         observation_space: spec.observation_space.clone(),
         action_space: spec.action_space.clone(),
+        token: world.get_resource::<ServerToken>().and_then(|t| t.0.clone()),
     }
 }
 

@@ -1,108 +1,187 @@
-//! The RobotServer: accepts robots over TCP, serves each from its own thread, and trains one PPO
-//! model on the experience they all send.
+//! The RobotServer: accepts robots over TCP, serves each from its own thread
+//! ([`crate::connection`]), and trains one PPO model ([`crate::learner`]) on the experience they
+//! all send.
 //!
-//! Each connection keeps its transitions since the last update in a one-env rollout buffer,
-//! filled with the pieces `Ppo::learn` collects with (`observe`, `policy_step`,
-//! `bootstrapped_reward`, `RolloutBuffer::push`), one robot message at a time. Once all
-//! connections together hold `rollout` transitions, the thread that completed the rollout runs
-//! the PPO update while it holds the learner (the others wait, so every action is taken by a
-//! known policy), then the callbacks, as `learn` does. A robot that disconnects mid-episode
-//! loses the part of that episode not yet used in an update: it is never mixed into training.
+//! It fails rather than hangs: a panic in the learner, a connection thread or the accept loop,
+//! or a learner error, ends [`RobotServer::wait`] with the reason. A client's mistakes never do:
+//! they are answered, logged with the peer's address, and the other robots go on.
 
-use std::collections::HashMap;
-use std::io::{BufReader, BufWriter};
 use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
-use std::time::Instant;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
 
-use twinbots_rl::ppo::{PolicyStep, RolloutBuffer};
-use twinbots_rl::{Callback, EpisodeSummary, Ppo, TrainingEnd};
+use twinbots_rl::{Callback, Ppo, TaskSpec, TrainingEnd};
 
-use crate::protocol::{FrameError, RobotMessage, ServerMessage, VERSION, read_message, write_message};
+use crate::checks::Rejection;
+use crate::frame::write_message;
+use crate::learner::Learner;
+use crate::protocol::{ErrorCode, TaskInterface};
 
 /// What the server trains.
 pub struct ServerSettings {
-    /// The robot kind it accepts (`hello.robot` must match).
-    pub robot: String,
+    /// The robot and task it serves (`hello` must match its robot and spaces; `welcome`
+    /// carries it; steps are checked against its observation length and reward range).
+    pub task: TaskInterface,
     /// Transitions per PPO update, summed over robots.
     pub rollout: usize,
     /// Stop after this many transitions (the model's `timesteps`, earlier sessions included).
     pub timesteps: u64,
+    pub limits: ServerLimits,
 }
 
-/// One robot's experience since the last update.
-struct Trajectory {
-    buffer: RolloutBuffer,
-    /// What the policy did on the observation awaiting its outcome.
-    pending: Option<PolicyStep>,
-    /// Index in `buffer` where the running episode began.
-    episode_begin: usize,
-    score: f32,
-    length: u32,
+impl ServerSettings {
+    /// Serving `robot`'s task `spec`, with the default limits.
+    pub fn new(robot: &str, spec: &TaskSpec, rollout: usize, timesteps: u64) -> Self {
+        Self { task: TaskInterface::of(robot, spec), rollout, timesteps, limits: ServerLimits::default() }
+    }
 }
 
-struct Learner {
-    ppo: Ppo,
-    settings: ServerSettings,
-    trajectories: HashMap<u64, Trajectory>,
-    callbacks: Box<dyn Callback + Send>,
-    /// When collecting the next update's rollout began.
-    collecting_since: Instant,
-    end: Option<TrainingEnd>,
-    error: Option<String>,
+/// What the server allows a client (docs/protocol.md, Limits).
+#[derive(Clone, Debug)]
+pub struct ServerLimits {
+    /// Connections at once, handshaking ones included; the next is refused (`server_full`).
+    pub max_robots: usize,
+    /// Time for a new connection's whole `hello` to arrive.
+    pub handshake_timeout: Duration,
+    /// Time for each whole request to arrive once the previous one was answered (a robot
+    /// homing or waiting longer is disconnected; the Communicator reconnects).
+    pub read_timeout: Duration,
+    /// A shared secret `hello.token` must equal; `None`: no token needed.
+    pub token: Option<String>,
+    /// Stack size of connection threads in bytes. Tests set an impossible one to show that a
+    /// connection that cannot get a thread is refused while the server goes on.
+    pub connection_stack: usize,
+}
+
+impl Default for ServerLimits {
+    fn default() -> Self {
+        Self {
+            max_robots: 64,
+            handshake_timeout: Duration::from_secs(10),
+            read_timeout: Duration::from_secs(60),
+            token: None,
+            connection_stack: 2 * 1024 * 1024,
+        }
+    }
+}
+
+/// What every thread of the server shares.
+pub(crate) struct Shared {
+    learner: Mutex<Learner>,
+    /// Signalled when training ends or fails.
+    changed: Condvar,
+    pub task: TaskInterface,
+    pub limits: ServerLimits,
+    connected: AtomicUsize,
+    rejections: AtomicU64,
+}
+
+impl Shared {
+    /// The learner. A panic while it was held is caught where it happens and recorded as the
+    /// learner's error, so a poisoned lock only means that: go on to report it.
+    pub fn learner(&self) -> MutexGuard<'_, Learner> {
+        self.learner.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Wakes `wait` if training is over or failed.
+    pub fn notify_if_stopped(&self, learner: &Learner) {
+        if learner.stopped() {
+            self.changed.notify_all();
+        }
+    }
+
+    /// The server must stop: `wait` returns this reason (the first one, if several).
+    pub fn fail(&self, reason: String) {
+        let mut learner = self.learner();
+        learner.error.get_or_insert(reason);
+        self.changed.notify_all();
+    }
+
+    /// Logs a refused message with its peer and counts it.
+    pub fn log_rejection(&self, peer: SocketAddr, who: &str, rejection: &Rejection) {
+        self.rejections.fetch_add(1, Ordering::Relaxed);
+        let fatal = if rejection.fatal { ", connection closed" } else { "" };
+        eprintln!("robot server: refused {peer} ({who}): {:?}{fatal}: {}", rejection.code, rejection.message);
+    }
+}
+
+/// A connection's place under `max_robots`, given back when dropped.
+pub(crate) struct Slot(Arc<Shared>);
+
+impl Slot {
+    fn take(shared: &Arc<Shared>) -> Option<Self> {
+        let max = shared.limits.max_robots;
+        shared.connected.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| (n < max).then_some(n + 1)).ok()?;
+        Some(Self(shared.clone()))
+    }
+}
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        self.0.connected.fetch_sub(1, Ordering::AcqRel);
+    }
 }
 
 /// A running server. `wait` blocks until training is over and returns the model.
 pub struct RobotServer {
     pub addr: SocketAddr,
-    learner: Arc<(Mutex<Learner>, Condvar)>,
+    shared: Arc<Shared>,
 }
 
 impl RobotServer {
     /// Binds `listen` (port 0 picks a free port) and starts accepting robots. `callbacks` hear
     /// the training as `Ppo::learn`'s do (a `twinbots_rl::CallbackList` composes several).
     pub fn start(listen: SocketAddr, ppo: Ppo, settings: ServerSettings, mut callbacks: Box<dyn Callback + Send>) -> anyhow::Result<Self> {
+        anyhow::ensure!(settings.limits.max_robots >= 1, "max_robots must be at least 1");
+        anyhow::ensure!(
+            !settings.limits.handshake_timeout.is_zero() && !settings.limits.read_timeout.is_zero(),
+            "timeouts must be longer than zero"
+        );
         let listener = TcpListener::bind(listen).map_err(|e| anyhow::anyhow!("cannot listen on {listen}: {e}"))?;
         let addr = listener.local_addr()?;
         callbacks.on_training_start(&ppo)?;
-        let learner = Learner {
-            ppo,
-            settings,
-            trajectories: HashMap::new(),
-            callbacks,
-            collecting_since: Instant::now(),
-            end: None,
-            error: None,
-        };
-        let learner = Arc::new((Mutex::new(learner), Condvar::new()));
-        let shared = learner.clone();
-        std::thread::spawn(move || {
-            let ids = AtomicU64::new(1);
-            for stream in listener.incoming().flatten() {
-                let shared = shared.clone();
-                let id = ids.fetch_add(1, Ordering::Relaxed);
-                std::thread::spawn(move || serve_robot(stream, id, shared));
-            }
+        let shared = Arc::new(Shared {
+            learner: Mutex::new(Learner::new(ppo, settings.rollout, settings.timesteps, callbacks)),
+            changed: Condvar::new(),
+            task: settings.task,
+            limits: settings.limits,
+            connected: AtomicUsize::new(0),
+            rejections: AtomicU64::new(0),
         });
-        Ok(Self { addr, learner })
+        let accepting = shared.clone();
+        std::thread::Builder::new()
+            .name("robot-server-accept".into())
+            .spawn(move || {
+                let stopped = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| accept_robots(&listener, &accepting)));
+                let why = match stopped {
+                    Err(panic) => format!("the accept loop panicked: {}", panic_message(&*panic)),
+                    Ok(never) => match never {},
+                };
+                accepting.fail(why);
+            })
+            .map_err(|e| anyhow::anyhow!("cannot start the accept loop: {e}"))?;
+        Ok(Self { addr, shared })
     }
 
     /// Robots connected now, and transitions they hold for the next update.
     pub fn load(&self) -> (usize, usize) {
-        let learner = self.learner.0.lock().expect("learner lock");
-        let held = learner.trajectories.values().map(|t| t.buffer.len()).sum();
-        (learner.trajectories.len(), held)
+        self.shared.learner().load()
     }
 
-    /// Blocks until training ends (budget spent, solved, stopped by a callback, or a learner
-    /// error), tells the callbacks, and returns a snapshot of the model and why it ended.
-    /// Robots still connected get `done` on their next message.
+    /// Messages and connections refused so far (each is logged to stderr with its peer).
+    pub fn rejections(&self) -> u64 {
+        self.shared.rejections.load(Ordering::Relaxed)
+    }
+
+    /// Blocks until training ends (budget spent, solved, stopped by a callback) or fails (a
+    /// learner error, a panic in any server thread), tells the callbacks, and returns a
+    /// snapshot of the model and why it ended. Robots still connected get `done` on their next
+    /// message.
     pub fn wait(self) -> anyhow::Result<(Ppo, TrainingEnd)> {
-        let (lock, done) = &*self.learner;
-        let mut learner = lock.lock().map_err(|_| anyhow::anyhow!("learner lock poisoned"))?;
+        let mut learner = self.shared.learner();
         loop {
-            if let Some(e) = learner.error.take() {
+            if let Some(e) = &learner.error {
                 anyhow::bail!("training failed: {e}");
             }
             if let Some(end) = learner.end.clone() {
@@ -110,226 +189,75 @@ impl RobotServer {
                 learner.callbacks.on_training_end(&learner.ppo)?;
                 return Ok((learner.ppo.snapshot()?, end));
             }
-            learner = done.wait(learner).map_err(|_| anyhow::anyhow!("learner lock poisoned"))?;
+            learner = self.shared.changed.wait(learner).unwrap_or_else(PoisonError::into_inner);
         }
     }
 }
 
-fn reply(w: &mut BufWriter<TcpStream>, message: &ServerMessage) -> bool {
-    write_message(w, message).is_ok()
-}
-
-fn error(message: impl Into<String>, fatal: bool) -> ServerMessage {
-    ServerMessage::Error { message: message.into(), fatal }
-}
-
-/// One robot's connection, from `hello` to disconnect.
-fn serve_robot(stream: TcpStream, id: u64, shared: Arc<(Mutex<Learner>, Condvar)>) {
-    let _ = stream.set_nodelay(true);
-    let Ok(read_half) = stream.try_clone() else { return };
-    let mut reader = BufReader::new(read_half);
-    let mut writer = BufWriter::new(stream);
-    let (lock, done) = &*shared;
-
-    // Handshake: version, robot kind and spaces must match.
-    let obs_dim = match read_message::<RobotMessage>(&mut reader) {
-        Ok(RobotMessage::Hello { version, robot, observation_space, action_space }) => {
-            let Ok(mut learner) = lock.lock() else { return };
-            let problem = if version != VERSION {
-                Some(format!("protocol version {version} is not supported (server speaks {VERSION})"))
-            } else if robot != learner.settings.robot {
-                Some(format!("this server trains '{}', not '{robot}'", learner.settings.robot))
-            } else {
-                learner.ppo.check_spaces(&observation_space, &action_space).err().map(|e| e.to_string())
-            };
-            if let Some(problem) = problem {
-                reply(&mut writer, &error(problem, true));
-                return;
-            }
-            learner.trajectories.insert(id, Trajectory {
-                buffer: RolloutBuffer::new(1, observation_space.dim(), action_space.dim()),
-                pending: None,
-                episode_begin: 0,
-                score: 0.0,
-                length: 0,
-            });
-            drop(learner);
-            if !reply(&mut writer, &ServerMessage::Welcome { version: VERSION, robot_id: id }) {
-                return;
-            }
-            observation_space.dim()
-        }
-        Ok(_) => {
-            reply(&mut writer, &error("the first message must be 'hello'", true));
-            return;
-        }
-        Err(e) => {
-            if e.recoverable() {
-                reply(&mut writer, &error(e.to_string(), true));
-            }
-            return;
-        }
-    };
-
+/// Accepts connections for as long as the process lives; never returns.
+fn accept_robots(listener: &TcpListener, shared: &Arc<Shared>) -> std::convert::Infallible {
+    let mut next_id = 1u64;
     loop {
-        let message = match read_message::<RobotMessage>(&mut reader) {
-            Ok(m) => m,
-            Err(e) if e.recoverable() => {
-                if reply(&mut writer, &error(e.to_string(), false)) {
-                    continue;
-                }
-                break;
+        match listener.accept() {
+            Ok((stream, peer)) => {
+                admit(stream, peer, next_id, shared);
+                next_id += 1;
             }
-            Err(FrameError::Io(_)) | Err(_) => break,
-        };
-        let answer = {
-            let Ok(mut learner) = lock.lock() else { break };
-            let answer = learner.handle(id, message, obs_dim);
-            if learner.end.is_some() || learner.error.is_some() {
-                done.notify_all();
+            Err(e) => {
+                // Out of file descriptors and the like: the condition passes when connections
+                // close. Pause instead of spinning on it.
+                eprintln!("robot server: cannot accept a connection: {e}");
+                std::thread::sleep(Duration::from_millis(50));
             }
-            answer
-        };
-        match answer {
-            Some(message) => {
-                let stop = matches!(message, ServerMessage::Done { .. });
-                if !reply(&mut writer, &message) || stop {
-                    break;
-                }
-            }
-            None => break, // bye
         }
-    }
-    // Whatever the running episode had not yet given to an update is dropped.
-    if let Ok(mut learner) = lock.lock() {
-        learner.trajectories.remove(&id);
     }
 }
 
-impl Learner {
-    /// The answer to one message; `None` ends the connection.
-    fn handle(&mut self, id: u64, message: RobotMessage, obs_dim: usize) -> Option<ServerMessage> {
-        if let Some(end) = &self.end {
-            return Some(ServerMessage::Done { reason: end.to_string() });
-        }
-        let check = |obs: &[f32]| {
-            (obs.len() != obs_dim).then(|| error(format!("observation has {} values, expected {obs_dim}", obs.len()), false))
-        };
-        match message {
-            RobotMessage::Hello { .. } => Some(error("already introduced", false)),
-            RobotMessage::Bye => {
-                self.drop_running_episode(id);
-                None
+/// Serves a new connection on its own thread, or refuses it with a reason when the server is
+/// full or no thread can be started for it.
+fn admit(stream: TcpStream, peer: SocketAddr, id: u64, shared: &Arc<Shared>) {
+    let Some(slot) = Slot::take(shared) else {
+        let max = shared.limits.max_robots;
+        let why = format!("the server is full: {max} robots are connected (serve --max-robots {max})");
+        refuse(stream, peer, shared, Rejection::new(ErrorCode::ServerFull, true, why));
+        return;
+    };
+    // A handle to answer through if the thread cannot start (the stream moves into it).
+    let answer = stream.try_clone();
+    let serving = shared.clone();
+    let spawned = std::thread::Builder::new()
+        .name(format!("robot-{id}"))
+        .stack_size(shared.limits.connection_stack)
+        .spawn(move || {
+            let _slot = slot;
+            let served = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| crate::connection::serve(stream, peer, id, &serving)));
+            if let Err(panic) = served {
+                serving.fail(format!("the connection thread of {peer} panicked: {}", panic_message(&*panic)));
             }
-            RobotMessage::Start { obs } => {
-                if let Some(e) = check(&obs) {
-                    return Some(e);
-                }
-                self.drop_running_episode(id);
-                Some(self.act(id, &obs))
-            }
-            RobotMessage::Step { obs, reward, terminated, truncated, success } => {
-                if let Some(e) = check(&obs) {
-                    return Some(e);
-                }
-                Some(self.record_step(id, obs, reward, terminated, truncated, success))
-            }
+        });
+    if let Err(e) = spawned {
+        let why = format!("the server cannot serve another robot now (no thread: {e}); try again later");
+        match answer {
+            Ok(stream) => refuse(stream, peer, shared, Rejection::new(ErrorCode::Unavailable, true, why)),
+            Err(_) => shared.log_rejection(peer, "new connection", &Rejection::new(ErrorCode::Unavailable, true, why)),
         }
     }
+}
 
-    /// Records the outcome of the robot's pending action, as `Ppo::collect_rollout` records a
-    /// step, and answers with the next action (or `ack` once the episode is over).
-    fn record_step(&mut self, id: u64, obs: Vec<f32>, reward: f32, terminated: bool, truncated: bool, success: Option<bool>) -> ServerMessage {
-        // `obs` is the episode's last observation if it ended.
-        let stored_reward = match self.ppo.bootstrapped_reward(reward, terminated, truncated, Some(&obs)) {
-            Ok(r) => r,
-            Err(e) => return self.fail(e),
-        };
-        let Some(traj) = self.trajectories.get_mut(&id) else {
-            return error("this robot is not known", true);
-        };
-        let Some(step) = traj.pending.take() else {
-            return error("'step' before 'start': no action is waiting for its outcome", false);
-        };
-        let ended = terminated || truncated;
-        traj.buffer.push(&step, &[stored_reward], &[ended]);
-        traj.score += reward;
-        traj.length += 1;
-        if ended {
-            let summary = EpisodeSummary { score: traj.score, length: traj.length, success, ..Default::default() };
-            traj.episode_begin = traj.buffer.len();
-            traj.score = 0.0;
-            traj.length = 0;
-            self.ppo.record_episode(&summary);
-        }
-        let answer = if ended { ServerMessage::Ack } else { self.act(id, &obs) };
-        if let Err(e) = self.maybe_update() {
-            return self.fail(e);
-        }
-        answer
-    }
+/// Answers a connection the server will not serve, from the accepting thread (a short write
+/// timeout: a peer that does not read cannot hold up accepting).
+fn refuse(stream: TcpStream, peer: SocketAddr, shared: &Shared, rejection: Rejection) {
+    shared.log_rejection(peer, "new connection", &rejection);
+    let _ = stream.set_write_timeout(Some(Duration::from_secs(1)));
+    let mut stream = stream;
+    let _ = write_message(&mut stream, &rejection.reply());
+}
 
-    /// The policy's action on a fresh observation, which waits for its outcome.
-    fn act(&mut self, id: u64, raw_obs: &[f32]) -> ServerMessage {
-        let obs = self.ppo.observe(raw_obs);
-        match self.ppo.policy_step(obs) {
-            Ok(step) => {
-                let action = step.env_actions.clone();
-                if let Some(traj) = self.trajectories.get_mut(&id) {
-                    traj.pending = Some(step);
-                }
-                ServerMessage::Action { action }
-            }
-            Err(e) => self.fail(e),
-        }
-    }
-
-    /// A learner failure ends training: `wait` reports it.
-    fn fail(&mut self, e: anyhow::Error) -> ServerMessage {
-        self.error = Some(e.to_string());
-        error(format!("learner failed: {e}"), true)
-    }
-
-    fn drop_running_episode(&mut self, id: u64) {
-        if let Some(traj) = self.trajectories.get_mut(&id) {
-            let keep = traj.episode_begin;
-            traj.buffer.truncate(keep);
-            traj.pending = None;
-            traj.score = 0.0;
-            traj.length = 0;
-        }
-    }
-
-    /// Once the robots together hold a rollout: advantages per robot, one PPO update on all of
-    /// it, then the callbacks, which may end training, as may the budget.
-    fn maybe_update(&mut self) -> anyhow::Result<()> {
-        let held: usize = self.trajectories.values().map(|t| t.buffer.len()).sum();
-        if held < self.settings.rollout {
-            return Ok(());
-        }
-        let (gamma, lambda) = (self.ppo.config.gamma, self.ppo.config.gae_lambda);
-        let mut batch = RolloutBuffer::new(1, self.ppo.observation_space.dim(), self.ppo.action_space.dim());
-        for traj in self.trajectories.values_mut().filter(|t| !t.buffer.is_empty()) {
-            // GAE bootstrapped from V(the observation awaiting its outcome); a segment that
-            // ends with its episode needs no bootstrap (its last step is done).
-            let last_value = match &traj.pending {
-                Some(step) => self.ppo.values(&step.obs)?[0],
-                None => 0.0,
-            };
-            traj.buffer.compute_advantages(&[last_value], gamma, lambda);
-            batch.append(&traj.buffer);
-            traj.buffer.clear();
-            traj.episode_begin = 0;
-        }
-        self.ppo.update_learning_rate(self.settings.timesteps);
-        // Counted once learned from: a robot's unfinished episode may still be dropped.
-        self.ppo.timesteps += batch.len() as u64;
-        let stats = self.ppo.train(&batch, self.collecting_since)?;
-        self.collecting_since = Instant::now();
-        let flow = self.callbacks.on_update(&stats, &self.ppo)?;
-        let timesteps = self.ppo.timesteps;
-        self.end = TrainingEnd::after(flow, timesteps)
-            .or_else(|| (timesteps >= self.settings.timesteps).then_some(TrainingEnd::BudgetSpent { timesteps }));
-        Ok(())
-    }
+/// The text of a panic's payload.
+pub(crate) fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_else(|| "(no message)".into())
 }

@@ -67,13 +67,18 @@ pub fn motion_costs() -> Vec<RewardTerm<CellState>> {
         s.arm.distance_to(s.target)
     }
     vec![
-        RewardTerm::new("distance", -1.0, distance),
-        RewardTerm::new("precision", -0.1, |s: &CellState| 1.0 - (-(distance(s) / 0.02).powi(2)).exp()),
-        RewardTerm::new("tilt", -0.5, |s: &CellState| kinematics::tilt(&s.arm.tcp)),
-        RewardTerm::new("effort", -0.01, |s: &CellState| s.actions.last.iter().map(|a| a * a).sum()),
+        // Declared ranges (a RobotServer checks rewards against them): targets lie within the
+        // arm's reach, so a distance over 3 m is no reach; tilt is an angle; actions are
+        // clamped to [-1, 1] per joint.
+        RewardTerm::new("distance", -1.0, distance).bounded(0.0, 3.0),
+        RewardTerm::new("precision", -0.1, |s: &CellState| 1.0 - (-(distance(s) / 0.02).powi(2)).exp()).bounded(0.0, 1.0),
+        RewardTerm::new("tilt", -0.5, |s: &CellState| kinematics::tilt(&s.arm.tcp)).bounded(0.0, std::f32::consts::PI),
+        RewardTerm::new("effort", -0.01, |s: &CellState| s.actions.last.iter().map(|a| a * a).sum())
+            .bounded(0.0, ACTION_DIM as f32),
         RewardTerm::new("action_rate", -0.02, |s: &CellState| {
             s.actions.last.iter().zip(s.actions.previous).map(|(a, b)| (a - b).powi(2)).sum()
-        }),
+        })
+        .bounded(0.0, 4.0 * ACTION_DIM as f32),
     ]
 }
 
@@ -83,7 +88,7 @@ pub fn motion_costs() -> Vec<RewardTerm<CellState>> {
 /// 95.0 % at another seed, and of 98 % in 100, 94.4 % over 500).
 pub fn reach_task() -> TaskDefinition<CellState> {
     let mut rewards = motion_costs();
-    rewards.push(RewardTerm::new("arrival", 10.0, |s: &CellState| f32::from(u8::from(s.arm.has_reached(s.target)))));
+    rewards.push(RewardTerm::new("arrival", 10.0, |s: &CellState| f32::from(u8::from(s.arm.has_reached(s.target)))).bounded(0.0, 1.0));
     TaskDefinition {
         name: "ur5e".into(),
         terms: TaskTerms {

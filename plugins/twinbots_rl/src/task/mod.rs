@@ -64,6 +64,9 @@ pub struct TaskSpec {
     pub observation_names: Vec<String>,
     /// The reward's terms, whose per-episode sums each episode's summary logs.
     pub reward_terms: Vec<String>,
+    /// The lowest and highest reward of one step ([`TaskTerms::reward_range`]); a RobotServer
+    /// refuses rewards outside it.
+    pub reward_range: (f32, f32),
 }
 
 impl TaskSpec {
@@ -76,6 +79,7 @@ impl TaskSpec {
             solved,
             observation_names: terms.observation_names(),
             reward_terms: terms.reward_names().into_iter().map(String::from).collect(),
+            reward_range: terms.reward_range(),
         }
     }
 }

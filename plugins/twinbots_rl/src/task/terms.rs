@@ -41,12 +41,27 @@ impl<S> ObservationTerm<S> {
 pub struct RewardTerm<S> {
     pub name: &'static str,
     pub weight: f32,
+    /// Range of the value (unbounded by default); a bounded value is clamped into it, so the
+    /// task's reward range ([`TaskTerms::reward_range`]) holds by construction.
+    pub low: f32,
+    pub high: f32,
     value: Box<dyn Fn(&S) -> f32 + Send + Sync>,
 }
 
 impl<S> RewardTerm<S> {
     pub fn new(name: &'static str, weight: f32, value: impl Fn(&S) -> f32 + Send + Sync + 'static) -> Self {
-        Self { name, weight, value: Box::new(value) }
+        Self { name, weight, low: f32::NEG_INFINITY, high: f32::INFINITY, value: Box::new(value) }
+    }
+
+    /// Declares the value's range; values outside it are clamped. A RobotServer refuses
+    /// rewards outside the task's range, so one robot cannot claim more than the task pays.
+    pub fn bounded(mut self, low: f32, high: f32) -> Self {
+        (self.low, self.high) = (low, high);
+        self
+    }
+
+    fn weighted(&self, s: &S) -> f32 {
+        self.weight * (self.value)(s).clamp(self.low, self.high)
     }
 }
 
@@ -99,6 +114,11 @@ impl<S> Default for TaskTerms<S> {
     }
 }
 
+/// weight · bound, where a zero weight makes even an infinite bound nothing (not NaN).
+fn weighted_bound(weight: f32, bound: f32) -> f32 {
+    if weight == 0.0 { 0.0 } else { weight * bound }
+}
+
 /// What the terms make of one step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StepOutcome {
@@ -138,6 +158,15 @@ impl<S> TaskTerms<S> {
         self.rewards.iter().map(|t| t.name).collect()
     }
 
+    /// The lowest and highest reward one step can give: Σ weight · [low, high] over the terms
+    /// (infinite where a term is unbounded on the side its weight selects).
+    pub fn reward_range(&self) -> (f32, f32) {
+        self.rewards.iter().fold((0.0, 0.0), |(lo, hi), t| {
+            let (a, b) = (weighted_bound(t.weight, t.low), weighted_bound(t.weight, t.high));
+            (lo + a.min(b), hi + a.max(b))
+        })
+    }
+
     /// Writes the observation of state `s` into `out` (cleared first).
     pub fn observe(&self, s: &S, out: &mut Vec<f32>) {
         out.clear();
@@ -154,7 +183,7 @@ impl<S> TaskTerms<S> {
         reward_sums.resize(self.rewards.len(), 0.0);
         let mut reward = 0.0;
         for (term, sum) in self.rewards.iter().zip(reward_sums.iter_mut()) {
-            let r = term.weight * (term.value)(s);
+            let r = term.weighted(s);
             *sum += r;
             reward += r;
         }
@@ -215,6 +244,21 @@ mod tests {
         assert_eq!(t.observation_dim(), 3);
         assert_eq!(t.observation_names(), vec!["x", "angle_twice[0]", "angle_twice[1]"]);
         assert_eq!(t.observation_space(), Space::Box { low: vec![f32::NEG_INFINITY, -1.0, -1.0], high: vec![f32::INFINITY, 1.0, 1.0] });
+    }
+
+    #[test]
+    fn bounded_reward_terms_give_the_task_a_reward_range_and_are_clamped_into_it() {
+        let mut t = terms();
+        assert_eq!(t.reward_range(), (f32::NEG_INFINITY, f32::INFINITY), "terms without bounds are unbounded");
+        t.rewards = vec![
+            RewardTerm::new("alive", 1.0, |_| 1.0).bounded(1.0, 1.0),
+            RewardTerm::new("angle", -2.0, |s: &Cart| s.angle.abs()).bounded(0.0, 0.5),
+            RewardTerm::new("unused", 0.0, |_| 1.0),
+        ];
+        assert_eq!(t.reward_range(), (0.0, 1.0), "a zero weight adds nothing, even unbounded");
+        let mut sums = Vec::new();
+        let outcome = t.evaluate(&Cart { angle: 3.0, ..Default::default() }, 0, &mut sums);
+        assert_eq!(outcome.reward, 0.0, "the angle's value is clamped to 0.5");
     }
 
     #[test]
