@@ -9,5 +9,6 @@ mod pendulum;
 mod pioneer;
 mod radio;
 mod reset;
+mod soak;
 mod ur5e_cell;
 mod urdf;
