@@ -5,6 +5,7 @@ mod common;
 mod determinism;
 mod devices;
 mod motors;
+mod pattern3_access;
 mod pendulum;
 mod pioneer;
 mod radio;
