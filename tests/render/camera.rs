@@ -47,7 +47,7 @@ fn camera_scene(setup: impl FnOnce(&mut App), size: (u32, u32)) -> (App, Entity,
 
 #[test]
 fn the_camera_sees_an_object_placed_in_front_of_it_and_not_once_it_is_removed() {
-    if crate::renderer(8, 8).is_none() {
+    if crate::renderer("the_camera_sees_an_object_placed_in_front_of_it_and_not_once_it_is_removed", 8, 8).is_none() {
         return;
     }
     let (mut app, camera, target) = camera_scene(|app| {
@@ -67,7 +67,7 @@ fn the_camera_sees_an_object_placed_in_front_of_it_and_not_once_it_is_removed() 
 
 #[test]
 fn with_the_camera_plugin_images_are_fresh_in_every_control_step() {
-    if crate::renderer(8, 8).is_none() {
+    if crate::renderer("with_the_camera_plugin_images_are_fresh_in_every_control_step", 8, 8).is_none() {
         return;
     }
     let (mut app, camera, _) = camera_scene(|app| {

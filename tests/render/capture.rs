@@ -16,7 +16,7 @@ fn pixel(rgb: &[u8], w: u32, x: u32, y: u32) -> [u8; 3] {
 #[test]
 fn the_pole_appears_where_the_physics_says_it_is() {
     let (w, h) = (320, 240);
-    let Some(mut renderer) = renderer(w, h) else { return };
+    let Some(mut renderer) = renderer("the_pole_appears_where_the_physics_says_it_is", w, h) else { return };
     let mut env = AppVecEnv::new(cartpole::headless_app(1, 5));
     env.reset(Some(5)).unwrap();
     let view = View::looking_at([0.0, -2.6, 0.7].into(), [0.0, 0.0, 0.5].into(), 45f32.to_radians());
@@ -47,7 +47,7 @@ fn the_pole_appears_where_the_physics_says_it_is() {
 
 #[test]
 fn capture_writes_frames_of_the_requested_size_that_change_as_the_pole_moves() {
-    if crate::renderer(8, 8).is_none() {
+    if crate::renderer("capture_writes_frames_of_the_requested_size_that_change_as_the_pole_moves", 8, 8).is_none() {
         return;
     }
     let out = std::env::temp_dir().join(format!("twinbots-capture-{}", std::process::id()));

@@ -6,15 +6,20 @@ mod capture;
 
 use twinbots_render::{RenderError, Renderer, adapter_required};
 
-/// A renderer, or `None` (skip) when there is no adapter and none is required.
-pub fn renderer(width: u32, height: u32) -> Option<Renderer> {
+/// A renderer for the test `test`, or `None` when there is no adapter and none is required:
+/// the test then skips, saying so on stderr in a line that starts with SKIPPED (cargo shows
+/// it as passed). With TWINBOTS_REQUIRE_ADAPTER=1 a missing adapter fails the test.
+pub fn renderer(test: &str, width: u32, height: u32) -> Option<Renderer> {
     match Renderer::new(width, height) {
         Ok(r) => Some(r),
         Err(RenderError::NoAdapter) if !adapter_required() => {
-            eprintln!("skipped: no graphics adapter (set TWINBOTS_REQUIRE_ADAPTER=1 to fail instead)");
+            eprintln!(
+                "SKIPPED render::{test}: no graphics adapter, nothing was checked \
+                 (install mesa-vulkan-drivers; TWINBOTS_REQUIRE_ADAPTER=1 makes this a failure)"
+            );
             None
         }
-        Err(e) => panic!("{e}"),
+        Err(e) => panic!("render::{test}: {e} (TWINBOTS_REQUIRE_ADAPTER is set: an adapter is required)"),
     }
 }
 

@@ -172,3 +172,41 @@ fn train_and_eval_ur5e_from_the_cli_report_success_and_twin_figures() {
     assert!(err.contains("ur5e has no task 'weld'; its tasks: reach, pick-place"), "{err}");
     std::fs::remove_dir_all(&out).ok();
 }
+
+/// Success needs all three conditions (issue 15.5): the TCP within 1 cm, the tool pointing
+/// down (tilt < 0.1 rad) and at rest (slower than 5 cm/s). A state that breaks one of them
+/// alone, the other two clearly met, is not a success.
+#[test]
+fn a_reach_succeeds_only_within_a_centimetre_pointing_down_and_at_rest() {
+    use ur5e::arm::{ArmState, REACH_TOLERANCE, SETTLED_SPEED, TILT_TOLERANCE};
+    use ur5e::kinematics::{HOME, tilt};
+    let still = [0.0; 6];
+    let at = |arm: &ArmState| arm.tcp.translation;
+    let conditions = |arm: &ArmState, target| {
+        (arm.distance_to(target) < REACH_TOLERANCE, tilt(&arm.tcp) < TILT_TOLERANCE, arm.tcp_velocity.length() < SETTLED_SPEED)
+    };
+
+    // All three met: home points straight down, at rest, on its target.
+    let home = ArmState::from_joints(HOME, still);
+    assert_eq!(conditions(&home, at(&home)), (true, true, true));
+    assert!(home.has_reached(at(&home)));
+
+    // 1.5 cm off, pointing down, at rest.
+    let off = at(&home) + bevy::math::Vec3::X * 0.015;
+    assert_eq!(conditions(&home, off), (false, true, true));
+    assert!(!home.has_reached(off), "1.5 cm away counted as arrived");
+
+    // On the target, at rest, but tilted by 0.2 rad (wrist 2 turned).
+    let mut q = HOME;
+    q[4] += 0.2;
+    let tilted = ArmState::from_joints(q, still);
+    assert_eq!(conditions(&tilted, at(&tilted)), (true, false, true));
+    assert!(!tilted.has_reached(at(&tilted)), "a tilted tool counted as arrived");
+
+    // On the target, pointing down, but passing through at 0.2 rad/s of the base (≈ 8 cm/s).
+    let mut qd = still;
+    qd[0] = 0.2;
+    let moving = ArmState::from_joints(HOME, qd);
+    assert_eq!(conditions(&moving, at(&moving)), (true, true, false));
+    assert!(!moving.has_reached(at(&moving)), "a moving tool counted as arrived");
+}

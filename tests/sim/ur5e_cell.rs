@@ -1,6 +1,6 @@
 //! The UR5e twin against its published model: forward kinematics at known joint angles match
 //! the DH model within a millimetre (also after holding against gravity), the ±2π joint
-//! limits and the torque limits hold, homing returns the arm home, and the vacuum gripper
+//! limits, the elbow's ±π and the torque limits hold, homing returns the arm home, and the vacuum gripper
 //! seizes only what is within its stroke.
 
 use bevy::ecs::world::CommandQueue;
@@ -119,6 +119,46 @@ fn joints_stop_at_their_plus_minus_two_pi_limits() {
     command(&mut app, wrist3, MotorCommand::Velocity(-1.0));
     run(&mut app, 10);
     assert!(joint_states(&app, &parts)[5].position < JOINT_RANGE - 0.3);
+}
+
+/// The elbow's hardware range is ±π (ur_description), narrower than the other joints' ±2π.
+#[test]
+fn the_elbow_stops_at_plus_minus_pi_under_commands_and_under_a_push() {
+    use std::f32::consts::PI;
+    let elbow_at = |app: &App, parts: &CellParts| joint_states(app, parts)[2];
+    // Commands: a position target beyond the stop is held at the stop; full speed stops there.
+    let (mut app, _, parts) = cell_app(HOME);
+    command(&mut app, parts.joints[2], MotorCommand::Position(4.0));
+    let mut highest = f32::MIN;
+    for _ in 0..100 {
+        app.update();
+        highest = highest.max(elbow_at(&app, &parts).position);
+    }
+    assert!(highest <= PI + 0.005, "the elbow turned to {highest}");
+    assert!((elbow_at(&app, &parts).position - PI).abs() < 0.01, "rests at π: {}", elbow_at(&app, &parts).position);
+
+    // A push stronger than any motor (the elbow's motor off, 300 N·m on the forearm, as a
+    // collision would): rapier's stop holds the joint at π.
+    let (mut app, arena, parts) = cell_app([0.0, -PI / 2.0, 2.5, -PI / 2.0, -PI / 2.0, 0.0]);
+    command(&mut app, parts.joints[2], MotorCommand::Off);
+    let forearm = {
+        let mut links = app.world_mut().query::<&Link>();
+        links.iter(app.world()).find(|l| l.robot == parts.robot && l.name == "forearm_link").unwrap().body
+    };
+    let joint = app.world().get::<twinbots_sim::Joint>(parts.joints[2]).unwrap().clone();
+    let mut highest = f32::MIN;
+    for _ in 0..50 {
+        {
+            let dt = ur5e::sim_settings().control_dt();
+            let mut arena = app.world_mut().get_mut::<Arena>(arena).unwrap();
+            let (axis, _, _) = joint.measure(&arena.world).unwrap();
+            arena.world.bodies[forearm].apply_torque_impulse(axis * 300.0 * dt, true);
+        }
+        app.update();
+        highest = highest.max(elbow_at(&app, &parts).position);
+    }
+    assert!(highest > PI - 0.05, "the push did not reach the stop: {highest}");
+    assert!(highest <= PI + 0.02, "the push drove the elbow through its stop to {highest}");
 }
 
 /// Gravity's torque about the shoulder-lift axis, from the simulated bodies beyond it.

@@ -195,8 +195,8 @@ pub fn spawn_robot(
             .contacts_enabled(false)
             .build();
         let axis = if j.kind.is_rotational() { JointAxis::AngX } else { JointAxis::LinX };
-        if let Some(limits) = j.limits.position {
-            data.set_limits(axis, limits);
+        if let Some(stops) = crate::devices::stop_window(j.kind, j.limits.position, start_position(&options, j)) {
+            data.set_limits(axis, stops);
         }
         let handle = arena
             .world

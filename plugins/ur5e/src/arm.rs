@@ -7,7 +7,7 @@ use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{JointState, Motor, MotorCommand, PositionSensor};
 
 use crate::cell::CellParts;
-use crate::kinematics::{self, HOME, JOINT_RANGE};
+use crate::kinematics::{self, HOME, JOINT_RANGES};
 
 /// A reach succeeds when the TCP is this close to the target (m)…
 pub const REACH_TOLERANCE: f32 = 0.01;
@@ -88,9 +88,9 @@ impl ArmState {
         self.q.iter().zip(HOME).all(|(q, h)| (q - h).abs() < HOME_TOLERANCE) && self.qd.iter().all(|v| v.abs() < HOME_SPEED)
     }
 
-    /// Whether any joint is at one of its ±2π stops.
+    /// Whether any joint is at one of its stops (±2π, the elbow ±π).
     pub fn at_joint_limit(&self) -> bool {
-        self.q.iter().any(|q| q.abs() >= JOINT_RANGE - LIMIT_MARGIN)
+        self.q.iter().zip(JOINT_RANGES).any(|(q, range)| q.abs() >= range - LIMIT_MARGIN)
     }
 }
 

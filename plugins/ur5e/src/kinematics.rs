@@ -35,8 +35,12 @@ pub const TOOL_LENGTH: f64 = 0.10;
 /// Home: upper arm up, forearm forward, tool pointing straight down 0.39 m above the base.
 pub const HOME: [f32; 6] = [0.0, -HALF_PI as f32, HALF_PI as f32, -HALF_PI as f32, -HALF_PI as f32, 0.0];
 
-/// Position range of every joint (rad): ±2π.
+/// Position range (rad) of every joint but the elbow: ±2π.
 pub const JOINT_RANGE: f32 = std::f32::consts::TAU;
+/// Position range (rad) of the elbow: ±π, its hardware range (ur_description's limit).
+pub const ELBOW_RANGE: f32 = std::f32::consts::PI;
+/// Position range (rad) of each joint, base to wrist: the URDF's `<limit lower upper>`.
+pub const JOINT_RANGES: [f32; 6] = [JOINT_RANGE, JOINT_RANGE, ELBOW_RANGE, JOINT_RANGE, JOINT_RANGE, JOINT_RANGE];
 /// Max joint speed (rad/s).
 pub const MAX_JOINT_SPEED: f32 = std::f32::consts::PI;
 /// Max joint torque (N·m), base to wrist.

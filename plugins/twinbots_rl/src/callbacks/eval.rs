@@ -13,7 +13,9 @@ use crate::tensorboard::EventWriter;
 pub type EnvFactory = Box<dyn FnMut(u64) -> anyhow::Result<Box<dyn VecEnv>> + Send>;
 
 /// Every `every` updates, runs `episodes` episodes of the deterministic policy on a fresh env
-/// (the same seed each time, so evaluations compare), appends the result to the run's
+/// seeded for that evaluation ([`evaluation_seed`]: new targets and starts each time, so a
+/// policy cannot pass by having learnt one fixed set; the same run seed draws the same ones,
+/// also after a resume, which continues the update count), appends the result to the run's
 /// `evaluations.csv` if given one, and stops training once an evaluation meets the solved
 /// criterion if given one. Training episodes can lag far behind the deterministic policy
 /// (exploration noise spoils a precise task), which is why SB3 judges on evaluations.
@@ -62,13 +64,23 @@ impl EvalCallback {
     }
 }
 
+/// The seed of the `index`-th periodic evaluation of a run seeded `seed`: distinct for every
+/// evaluation, a pure function of the two (SplitMix64's mixer over the pair).
+pub fn evaluation_seed(seed: u64, index: u64) -> u64 {
+    let mut z = seed ^ index.wrapping_add(1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
 impl Callback for EvalCallback {
     fn on_update(&mut self, stats: &UpdateStats, model: &Ppo) -> anyhow::Result<Flow> {
         if self.every == 0 || stats.update % self.every != 0 {
             return Ok(Flow::Continue);
         }
-        let mut env = (self.make_env)(self.seed)?;
-        let result = evaluate_policy(&self.task, model, env.as_mut(), self.episodes, self.seed)?;
+        let seed = evaluation_seed(self.seed, (stats.update / self.every) as u64);
+        let mut env = (self.make_env)(seed)?;
+        let result = evaluate_policy(&self.task, model, env.as_mut(), self.episodes, seed)?;
         if let Some(run) = &self.log {
             run.append_evaluation(stats.timesteps, &result)?;
         }
@@ -78,5 +90,19 @@ impl Callback for EvalCallback {
         let solved = self.stop_when.is_some_and(|c| result.meets(&c));
         self.last = Some(result);
         Ok(if solved { Flow::Solved(SolvedBy::Evaluation) } else { Flow::Continue })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::evaluation_seed;
+
+    #[test]
+    fn every_evaluation_draws_new_targets_the_same_for_the_same_run_seed() {
+        let seeds: Vec<u64> = (1..=50).map(|i| evaluation_seed(7, i)).collect();
+        let distinct: std::collections::HashSet<_> = seeds.iter().collect();
+        assert_eq!(distinct.len(), seeds.len(), "two evaluations of one run share a seed");
+        assert_eq!(seeds, (1..=50).map(|i| evaluation_seed(7, i)).collect::<Vec<_>>(), "not deterministic");
+        assert!((1..=50).all(|i| evaluation_seed(8, i) != evaluation_seed(7, i)), "another run seed draws the same");
     }
 }

@@ -17,7 +17,7 @@ mod eval;
 mod logging;
 mod tensorboard;
 
-pub use eval::EvalCallback;
+pub use eval::{EvalCallback, evaluation_seed};
 pub use logging::{CheckpointCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, draw_learning_curve};
 pub use tensorboard::{TensorBoardCallback, evaluation_scalars, training_scalars};
 

@@ -22,6 +22,26 @@ pub struct Joint {
     pub limits: Option<[f32; 2]>,
 }
 
+/// Width (rad) of the window of a rotational joint's range that rapier enforces at a time:
+/// rapier measures angles within one turn and takes a range of 2π or more for "free", so a
+/// wider range (the UR5e's ±2π) is enforced as a window just under a turn wide that follows
+/// the joint and reaches a real stop only when the joint is near it. Its other edge stays
+/// about π from the joint, further than a joint turns in one physics step.
+const STOP_WINDOW: f32 = std::f32::consts::TAU - 0.2;
+
+/// The position stops rapier should enforce while the joint is at `position` (unwrapped):
+/// its range if rapier can hold that range, else the window of it nearest to centred on
+/// `position` (see [`STOP_WINDOW`]). A rotational range of exactly one turn (±π) becomes a
+/// window too: to rapier it would be free.
+pub(crate) fn stop_window(kind: JointKind, limits: Option<[f32; 2]>, position: f32) -> Option<[f32; 2]> {
+    let [lo, hi] = limits?;
+    if !kind.is_rotational() || hi - lo < STOP_WINDOW {
+        return Some([lo, hi]);
+    }
+    let start = (position - STOP_WINDOW / 2.0).clamp(lo, hi - STOP_WINDOW);
+    Some([start, start + STOP_WINDOW])
+}
+
 /// Position (unwrapped, so continuous joints count turns), speed and motor effort of a
 /// joint, measured after every physics step. Privileged-free: it is what an encoder and the
 /// motor's current sensing report on a real joint. The joint measures position and speed; its
@@ -93,6 +113,22 @@ impl JointState {
         }
         self.wrapped = pos;
         self.velocity = (self.position - previous) / dt;
+    }
+}
+
+/// Moves each joint's rapier stops with it (see [`stop_window`]), before the physics step:
+/// rapier's limit constraint, not only the motor, holds a joint at its URDF stops, so a
+/// contact or a load beyond the motor's strength cannot push it through.
+pub(crate) fn place_stops(mut arenas: Query<&mut Arena>, joints: Query<(&Joint, &JointState, &InArena)>) {
+    for (joint, state, in_arena) in &joints {
+        let Some(window) = stop_window(joint.kind, joint.limits, state.position) else { continue };
+        let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
+        if let Some(j) = arena.world.impulse_joints.get_mut(joint.handle, false) {
+            let axis = joint.axis();
+            if j.data.limits(axis).is_none_or(|l| [l.min, l.max] != window) {
+                j.data.set_limits(axis, window);
+            }
+        }
     }
 }
 

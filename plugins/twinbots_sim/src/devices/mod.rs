@@ -21,6 +21,7 @@ pub use camera::CameraSensor;
 pub use distance_sensor::DistanceSensor;
 pub use inertial::{Accelerometer, Gps, Gyro, InertialUnit, TouchSensor};
 pub use joint::{Joint, JointState};
+pub(crate) use joint::stop_window;
 pub use motor::{Motor, MotorCommand};
 pub use mount::{Mount, MountState, SamplingPeriod, gaussian};
 pub use position_sensor::PositionSensor;
@@ -28,7 +29,7 @@ pub use radio::{BROADCAST, Emitter, Packet, RadioPlugin, Receiver};
 pub use sampling::{DeviceSampling, sample_devices};
 pub use vacuum_gripper::VacuumGripper;
 
-/// Motors, grippers and joint measurement in every physics step; sensors in `SimSet::Sense`.
+/// Motors, grippers, joint stops and joint measurement in every physics step; sensors in `SimSet::Sense`.
 pub struct DevicesPlugin;
 
 impl Plugin for DevicesPlugin {
@@ -36,7 +37,7 @@ impl Plugin for DevicesPlugin {
         app.add_systems(Update, sample_devices().in_set(SimSet::Sense)).add_systems(
             PhysicsSubstep,
             (
-                (vacuum_gripper::operate_vacuum_grippers, motor::drive_motors).in_set(SubstepSet::Actuate),
+                (vacuum_gripper::operate_vacuum_grippers, motor::drive_motors, joint::place_stops).in_set(SubstepSet::Actuate),
                 // The motor's effort reading needs the joint's new position (a torque is cut at a stop).
                 (joint::measure_joints, motor::measure_motor_efforts).chain().in_set(SubstepSet::Measure),
             ),

@@ -18,6 +18,8 @@ const POSITION_HOLD_STIFFNESS: f32 = 1.0e7;
 /// How far (rad or m) a holding motor's reference may run ahead of the joint (a drive's
 /// following-error limit): a blocked or torque-limited joint does not wind its reference up.
 const MAX_FOLLOWING_ERROR: f32 = 0.05;
+/// The share of a step's travel by which a holding motor's spring target leads the joint.
+const SPRING_LEAD: f32 = 0.7;
 
 /// What the motor is asked to do. Values outside the motor's limits are clamped.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -114,7 +116,11 @@ impl Motor {
         let from = if self.holds_position { self.reference.unwrap_or(state.position) } else { state.position };
         let v = match self.command {
             MotorCommand::Velocity(v) => v,
-            MotorCommand::Position(p) => self.position_gain * (p - from),
+            // The target itself is kept within the stops (a controller's software limits).
+            MotorCommand::Position(p) => {
+                let p = limits.map_or(p, |[lo, hi]| p.clamp(lo, hi));
+                self.position_gain * (p - from)
+            }
             MotorCommand::Off | MotorCommand::Torque(_) => return None,
         };
         let v = v.clamp(-self.max_velocity, self.max_velocity);
@@ -156,9 +162,21 @@ pub(crate) fn drive_motors(
             }
         };
         let rotational = joint.kind.is_rotational();
+        let rate = spring_rate(world, settings.dt);
         if let Some(j) = world.impulse_joints.get_mut(joint.handle, false) {
             match (target, reference) {
                 (Some(v), Some(r)) => {
+                    // Rapier's position motor turns the following error into a speed of
+                    // `spring_rate` × error on top of `v`, with its target fixed over the
+                    // physics step. The target leads the joint by the share of the step's travel
+                    // that makes a free joint cover `v·dt` ([`SPRING_LEAD`]); a lag beyond it (a
+                    // joint held back by a contact or a load) is passed on only as far as keeps
+                    // the speed it asks for within the velocity limit, so a freed joint is not
+                    // flung at its reference (33 rad/s for the 0.05 rad following-error limit).
+                    let max_v = motor.max_velocity;
+                    let lead = SPRING_LEAD * v * settings.dt;
+                    let lag = (r - state.position - lead).clamp((-max_v - v) / rate, (max_v - v) / rate);
+                    let r = state.position + lead + lag;
                     // Rapier's motor targets the wrapped joint angle.
                     let r = if rotational { wrap_angle(r) } else { r };
                     j.data.set_motor(axis, r, v, POSITION_HOLD_STIFFNESS, VELOCITY_MOTOR_GAIN);
@@ -178,6 +196,14 @@ pub(crate) fn drive_motors(
             apply_effort(world, joint, motor.torque_within_limits(t, state, joint.limits), settings.dt);
         }
     }
+}
+
+/// The speed (1/s) per unit of following error at which rapier's position motor (stiffness
+/// [`POSITION_HOLD_STIFFNESS`], damping [`VELOCITY_MOTOR_GAIN`], acceleration-based) drives a
+/// joint towards its reference: its `erp_inv_dt` over a solver substep of `dt` ÷ iterations.
+fn spring_rate(world: &PhysicsWorld, dt: f32) -> f32 {
+    let substep = dt / world.integration_parameters.num_solver_iterations.max(1) as f32;
+    POSITION_HOLD_STIFFNESS / (substep * POSITION_HOLD_STIFFNESS + VELOCITY_MOTOR_GAIN)
 }
 
 /// The effort rapier's motor constraint applied over the last step of `dt` seconds. Rapier
