@@ -13,3 +13,4 @@ mod reset;
 mod soak;
 mod ur5e_cell;
 mod urdf;
+mod urdf_fuzz;

@@ -192,3 +192,16 @@ fn a_visual_naming_an_undefined_material_is_rejected() {
     assert_eq!(element, "link");
     assert!(problem.contains("'chrome'"), "{problem}");
 }
+
+#[test]
+fn a_non_finite_or_absurd_number_names_its_line_element_and_attribute() {
+    let text = robot(r#"<link name="base">
+  <inertial><origin xyz="0 0 inf"/><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial>
+</link>"#);
+    let (line, element, name, problem) = element_error(parse(&text).unwrap_err());
+    assert_eq!((line, element, name.as_str()), (3, "link", "base"));
+    assert!(problem.contains(r#"<origin xyz="0 0 inf">: inf is not a finite number"#), "{problem}");
+    let text = robot(r#"<link name="base">INERTIAL<collision><geometry><box size="0.1 1e39 0.1"/></geometry></collision></link>"#);
+    let (_, _, _, problem) = element_error(parse(&text).unwrap_err());
+    assert!(problem.contains("1000000000000000000000000000000000000000 is not a finite number") || problem.contains("1e39"), "{problem}");
+}

@@ -33,6 +33,7 @@ pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel
             message: e.to_string(),
         }
     })?;
+    check_numbers(&doc, file)?;
     let lines = ElementLines::index(&doc);
     let robot = urdf_rs::read_from_string(text).map_err(|e| UrdfError::Schema {
         file: file.to_path_buf(),
@@ -50,6 +51,53 @@ pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel
         materials,
     }
     .build(&robot)
+}
+
+/// Attributes that hold numbers (one or several, space-separated) in the URDF schema.
+const NUMBER_ATTRIBUTES: &[&str] = &[
+    "xyz", "rpy", "size", "radius", "length", "value", "ixx", "ixy", "ixz", "iyy", "iyz", "izz", "effort", "velocity", "lower",
+    "upper", "damping", "friction", "scale", "rgba", "multiplier", "offset", "rising", "falling", "k_position", "k_velocity",
+    "soft_lower_limit", "soft_upper_limit",
+];
+
+/// No physical quantity of a robot cell is this large in SI units; beyond it f32 physics loses
+/// all precision (and 1e39 is infinite as f32).
+const LARGEST_NUMBER: f64 = 1e9;
+
+/// Every number of the document finite and within ±1e9, or an error naming the line, the
+/// link or joint it belongs to, the element and the attribute. (urdf-rs reads `nan` and `inf`
+/// as numbers, and the physics would fail on them much later.)
+fn check_numbers(doc: &roxmltree::Document, file: &Path) -> Result<(), UrdfError> {
+    for node in doc.descendants().filter(|n| n.is_element()) {
+        for attribute in node.attributes().filter(|a| NUMBER_ATTRIBUTES.contains(&a.name())) {
+            let bad = attribute
+                .value()
+                .split_whitespace()
+                .filter_map(|token| token.parse::<f64>().ok())
+                .find(|x| !x.is_finite() || x.abs() > LARGEST_NUMBER);
+            let Some(bad) = bad else { continue };
+            let owner = node.ancestors().find(|a| a.has_tag_name("link") || a.has_tag_name("joint") || a.has_tag_name("material"));
+            let (element, name) = match owner {
+                Some(o) if o.has_tag_name("link") => ("link", o.attribute("name").unwrap_or_default()),
+                Some(o) if o.has_tag_name("joint") => ("joint", o.attribute("name").unwrap_or_default()),
+                Some(o) => ("material", o.attribute("name").unwrap_or_default()),
+                None => ("robot", doc.root_element().attribute("name").unwrap_or_default()),
+            };
+            return Err(UrdfError::Element {
+                file: file.to_path_buf(),
+                line: doc.text_pos_at(node.range().start).row,
+                element,
+                name: name.to_string(),
+                problem: format!(
+                    "<{} {}=\"{}\">: {bad} is not a finite number within ±{LARGEST_NUMBER:e}",
+                    node.tag_name().name(),
+                    attribute.name(),
+                    attribute.value()
+                ),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Line numbers of `<link>` and `<joint>` elements, and which joints have a `<limit>`.
