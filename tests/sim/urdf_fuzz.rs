@@ -64,8 +64,17 @@ fn has_hostile_number(text: &str) -> bool {
         kept += rest;
         outside = kept;
     }
-    outside.split("=\"").skip(1).filter_map(|v| v.split('"').next()).any(|value| {
-        value.split_whitespace().filter_map(|t| t.parse::<f64>().ok()).any(|x| !x.is_finite() || x.abs() > 1e9)
+    // Only attributes the URDF schema reads as numbers (a garbled name is ignored by the loader).
+    const NUMBERS: &[&str] = &[
+        "xyz", "rpy", "size", "radius", "length", "value", "ixx", "ixy", "ixz", "iyy", "iyz", "izz", "effort", "velocity", "lower",
+        "upper", "damping", "friction", "scale", "rgba",
+    ];
+    let pieces: Vec<&str> = outside.split("=\"").collect();
+    pieces.windows(2).any(|pair| {
+        let name = pair[0].rsplit(|c: char| c.is_whitespace() || c == '<').next().unwrap_or_default();
+        let value = pair[1].split('"').next().unwrap_or_default();
+        NUMBERS.contains(&name)
+            && value.split_whitespace().filter_map(|t| t.parse::<f64>().ok()).any(|x| !x.is_finite() || x.abs() > 1e9)
     })
 }
 
