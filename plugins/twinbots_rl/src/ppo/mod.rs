@@ -79,7 +79,7 @@ pub struct Ppo {
     /// 1 or 0 for each of the last 100 finished episodes that reported success or failure.
     pub recent_successes: VecDeque<f32>,
     /// Each figure the task reports (energy, cycle time…), over the last 100 finished episodes
-    /// that reported it (not saved with the model: a resumed run starts these windows afresh).
+    /// that reported it.
     pub recent_metrics: BTreeMap<String, VecDeque<f32>>,
     optimizer: Adam,
     rng: ChaCha8Rng,
