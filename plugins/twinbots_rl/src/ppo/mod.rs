@@ -256,6 +256,11 @@ impl Ppo {
 
             // 1. Rollout: n_steps of every env with the current policy.
             self.collect_rollout(env, &mut obs, &mut buffer)?;
+            // Where the envs stand for a checkpoint after this update (the update leaves them
+            // alone): env time, not update time.
+            let recording_started = Instant::now();
+            self.env_state = env.state()?;
+            self.times.env_s += recording_started.elapsed().as_secs_f64();
 
             // 2. Advantages by GAE, bootstrapped from V(s_T).
             let update_started = Instant::now();
@@ -264,7 +269,6 @@ impl Ppo {
 
             // 3. Optimise the clipped surrogate for n_epochs over shuffled minibatches.
             let stats = self.train(&buffer, started)?;
-            self.env_state = env.state()?;
             let callbacks_started = Instant::now();
             self.times.update_s += (callbacks_started - update_started).as_secs_f64();
 
