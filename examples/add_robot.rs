@@ -122,7 +122,7 @@ fn main() -> anyhow::Result<()> {
     let mut env = AppVecEnv::new(robot.app(None, 4, 1, DesignPattern::Supervised)?);
     let mut model = Ppo::new(robot.defaults.ppo.clone(), env.observation_space().clone(), env.action_space().clone(), 1)?;
     let mut first = None;
-    model.learn(&mut env, 120_000, &mut |s: &UpdateStats, _: &Ppo| {
+    model.learn(&mut env, 120_000, &mut |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
         first = first.or((s.episodes > 0).then_some(s.mean_reward));
         println!("{:>7} steps  mean episode reward {:>8.1}", s.timesteps, s.mean_reward);
         Ok(Flow::Continue)

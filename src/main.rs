@@ -21,7 +21,7 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Train a robot's task with PPO, headless.
+    /// Train a robot's task with PPO (or SAC), headless.
     Train {
         /// Robot to train (see `twinbots robots`); not needed with --resume.
         #[arg(required_unless_present = "resume")]
@@ -38,8 +38,11 @@ enum Command {
         /// radio, 3 RobotServer + Communicator.
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=3))]
         pattern: Option<u8>,
+        /// The learner: ppo (default) or sac (continuous actions, patterns 1 and 2).
+        #[arg(long, value_enum)]
+        algo: Option<twinbots::settings::Algo>,
         /// A TOML file with settings (timesteps, arenas, seed, checkpoint_every, eval_every,
-        /// eval_episodes, [ppo] hyperparameters); flags override it.
+        /// eval_episodes, algo, [ppo] / [sac] hyperparameters); flags override it.
         #[arg(long)]
         config: Option<std::path::PathBuf>,
         /// Run directory; default runs/<robot>-<time>.
@@ -52,7 +55,7 @@ enum Command {
         #[arg(long)]
         view: bool,
         /// Continue the run in this directory from its newest checkpoint.
-        #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out"])]
+        #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out", "algo"])]
         resume: Option<std::path::PathBuf>,
         /// Print the settings the run would use (the robot's defaults ← the config file ← the
         /// flags, key by key) as TOML, and exit without training.
@@ -243,14 +246,14 @@ fn run(args: Args) -> anyhow::Result<()> {
             print!("{}", toml::to_string_pretty(&cli::runs::TrainSettings::of_run(&twinbots_rl::RunDir::new(run))?)?)
         }
         Command::Train { resume: Some(run), view, .. } => cli::train::resume(&run, view)?,
-        Command::Train { robot, timesteps, arenas, seed, pattern, config, out, checkpoint_every, view, resume: None, print_config } => {
+        Command::Train { robot, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, resume: None, print_config } => {
             let robot = robot.unwrap_or_default();
             let entry = registry::find(&robot)?;
             let file = match config {
                 Some(path) => cli::runs::ConfigFile::read(&path)?,
                 None => Default::default(),
             };
-            let flags = cli::runs::ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, ..Default::default() };
+            let flags = cli::runs::ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, algo, ..Default::default() };
             let settings = cli::runs::TrainSettings::resolve(&entry, file, flags)?;
             if print_config {
                 print!("{}", toml::to_string_pretty(&settings)?);

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 use twinbots_rl::randomization::Randomization;
-use twinbots_rl::{DesignPattern, PpoConfig, RunDir};
+use twinbots_rl::{DesignPattern, PpoConfig, RunDir, SacConfig};
 
 use crate::registry::RobotEntry;
 
@@ -33,10 +33,25 @@ pub struct TrainSettings {
     /// always evaluated into `eval.json`.
     pub eval_every: usize,
     pub eval_episodes: usize,
+    /// The learner: PPO (on-policy, every pattern) or SAC (off-policy, continuous actions,
+    /// patterns 1 and 2). Runs written before SAC existed are PPO runs.
+    #[serde(default)]
+    pub algo: Algo,
     pub ppo: PpoConfig,
+    #[serde(default)]
+    pub sac: SacConfig,
     /// Domain randomization (patterns 1 and 2): see `twinbots_rl::randomization`.
     #[serde(default)]
     pub randomization: Randomization,
+}
+
+/// The learning algorithm of a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Algo {
+    #[default]
+    Ppo,
+    Sac,
 }
 
 /// What a `--config` file may set: any subset of the settings but the robot.
@@ -50,8 +65,11 @@ pub struct ConfigFile {
     pub checkpoint_every: Option<usize>,
     pub eval_every: Option<usize>,
     pub eval_episodes: Option<usize>,
+    pub algo: Option<Algo>,
     /// Only the keys given: each replaces that key of the robot's tuned settings.
     pub ppo: Option<toml::Table>,
+    /// Likewise for SAC.
+    pub sac: Option<toml::Table>,
     pub randomization: Option<Randomization>,
 }
 
@@ -88,6 +106,14 @@ impl TrainSettings {
         }
         anyhow::ensure!(self.arenas <= 4096, "arenas = {}: must be at most 4096", self.arenas);
         anyhow::ensure!(self.eval_episodes <= 100_000, "eval_episodes = {}: must be at most 100000", self.eval_episodes);
+        if self.algo == Algo::Sac {
+            anyhow::ensure!(
+                self.design_pattern()? != DesignPattern::Server,
+                "algo = sac: design pattern 3 (the RobotServer) trains with PPO only; use pattern 1 or 2"
+            );
+        }
+        // Both tables are checked whichever learner runs: a typo is never kept silently.
+        self.sac.validate()?;
         let rollout = self.ppo.n_steps.saturating_mul(self.arenas);
         anyhow::ensure!(
             rollout <= twinbots_rl::ppo::MAX_ROLLOUT,
@@ -126,8 +152,10 @@ impl TrainSettings {
     }
 
     /// The robot's defaults, then the config file, then command-line flags, key by key (a
-    /// `[ppo]` table replaces only the keys it names); the result is validated.
+    /// `[ppo]` or `[sac]` table replaces only the keys it names); the result is validated. With
+    /// `algo = sac` the robot's SAC defaults (arenas, budget, evaluation interval) come first.
     pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> anyhow::Result<Self> {
+        let algo = flags.algo.or(file.algo).unwrap_or_default();
         let mut s = Self {
             robot: entry.name.to_string(),
             timesteps: entry.defaults.timesteps,
@@ -137,9 +165,21 @@ impl TrainSettings {
             checkpoint_every: 10,
             eval_every: entry.defaults.eval_every,
             eval_episodes: entry.defaults.eval_episodes,
+            algo,
             ppo: entry.defaults.ppo.clone(),
+            sac: entry.defaults.sac.config.clone(),
             randomization: Randomization::default(),
         };
+        if algo == Algo::Sac {
+            let actions = entry.task().action_space;
+            anyhow::ensure!(
+                matches!(actions, twinbots_rl::Space::Box { .. }),
+                "algo = sac: {}'s actions are {actions}; SAC needs continuous (Box) actions: use algo = ppo",
+                entry.name
+            );
+            let sac = &entry.defaults.sac;
+            (s.arenas, s.timesteps, s.eval_every) = (sac.arenas, sac.timesteps, sac.eval_every);
+        }
         for layer in [file, flags] {
             s.timesteps = layer.timesteps.unwrap_or(s.timesteps);
             s.arenas = layer.arenas.unwrap_or(s.arenas);
@@ -149,7 +189,10 @@ impl TrainSettings {
             s.eval_every = layer.eval_every.unwrap_or(s.eval_every);
             s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
             if let Some(keys) = layer.ppo {
-                s.ppo = overlay(&s.ppo, keys)?;
+                s.ppo = overlay(&s.ppo, keys, "ppo")?;
+            }
+            if let Some(keys) = layer.sac {
+                s.sac = overlay(&s.sac, keys, "sac")?;
             }
             s.randomization = layer.randomization.unwrap_or(s.randomization);
         }
@@ -159,20 +202,21 @@ impl TrainSettings {
 
 }
 
-/// `base` with the keys of `keys` replaced; an unknown key is an error naming it.
-fn overlay(base: &PpoConfig, keys: toml::Table) -> anyhow::Result<PpoConfig> {
+/// `base` with the keys of `keys` replaced; an unknown key is an error naming it (in the
+/// table `table`).
+fn overlay<T: Serialize + serde::de::DeserializeOwned>(base: &T, keys: toml::Table, table: &str) -> anyhow::Result<T> {
     let base = toml::Table::try_from(base)?;
     // Key by key first, so an error names the key (serde's message for a wrong type does not).
     for (key, value) in &keys {
         let mut one = base.clone();
         one.insert(key.clone(), value.clone());
-        if let Err(e) = one.try_into::<PpoConfig>() {
-            anyhow::bail!("ppo.{key} = {value}: {}", e.message());
+        if let Err(e) = one.try_into::<T>() {
+            anyhow::bail!("{table}.{key} = {value}: {}", e.message());
         }
     }
     let mut merged = base;
     merged.extend(keys);
-    merged.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("[ppo]: {}", e.message()))
+    merged.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("[{table}]: {}", e.message()))
 }
 
 
@@ -182,19 +226,46 @@ mod tests {
 
     use super::*;
 
+    #[test]
+    fn sac_settings_resolve_from_the_robots_sac_defaults_key_by_key_and_refuse_what_sac_cannot_do() {
+        let ur5e = crate::registry::find("ur5e").unwrap();
+        let file: ConfigFile = toml::from_str("algo = \"sac\"\n[sac]\nbatch_size = 128\n").unwrap();
+        let s = TrainSettings::resolve(&ur5e, file, ConfigFile::default()).unwrap();
+        let defaults = &ur5e.defaults.sac;
+        assert_eq!((s.algo, s.arenas, s.timesteps, s.eval_every), (Algo::Sac, defaults.arenas, defaults.timesteps, defaults.eval_every));
+        assert_eq!(s.sac, SacConfig { batch_size: 128, ..defaults.config.clone() }, "a [sac] key replaced more than itself");
+        let flags = ConfigFile { algo: Some(Algo::Ppo), ..Default::default() };
+        let file: ConfigFile = toml::from_str("algo = \"sac\"\n").unwrap();
+        assert_eq!(TrainSettings::resolve(&ur5e, file, flags).unwrap().algo, Algo::Ppo, "the flag did not win");
+
+        let sac = || ConfigFile { algo: Some(Algo::Sac), ..Default::default() };
+        let cartpole = crate::registry::find("cartpole").unwrap();
+        let err = TrainSettings::resolve(&cartpole, sac(), ConfigFile::default()).unwrap_err().to_string();
+        assert!(err.contains("algo = sac") && err.contains("Box"), "{err}");
+        let pattern3 = ConfigFile { pattern: Some(3), ..Default::default() };
+        let err = TrainSettings::resolve(&ur5e, sac(), pattern3).unwrap_err().to_string();
+        assert!(err.contains("design pattern 3"), "{err}");
+        let file: ConfigFile = toml::from_str("[sac]\ntau = 2.0\n").unwrap();
+        let err = TrainSettings::resolve(&ur5e, file, sac()).unwrap_err().to_string();
+        assert!(err.starts_with("sac.tau = 2"), "{err}");
+    }
+
     /// Every key a config file may hold, with the kind of value it takes.
     const KEYS: &[&str] = &[
         "timesteps", "arenas", "seed", "pattern", "checkpoint_every", "eval_every", "eval_episodes",
         "ppo.learning_rate", "ppo.linear_lr", "ppo.n_steps", "ppo.batch_size", "ppo.n_epochs", "ppo.gamma", "ppo.gae_lambda",
         "ppo.clip_range", "ppo.ent_coef", "ppo.vf_coef", "ppo.max_grad_norm", "ppo.target_kl", "ppo.normalize_advantage",
-        "ppo.normalize_observations", "ppo.hidden", "ppo.log_std_init", "ppo.no_such_key",
+        "ppo.normalize_observations", "ppo.hidden", "ppo.log_std_init", "ppo.no_such_key", "algo",
+        "sac.learning_rate", "sac.buffer_size", "sac.learning_starts", "sac.batch_size", "sac.tau", "sac.gamma", "sac.train_freq",
+        "sac.gradient_steps", "sac.learn_ent_coef", "sac.ent_coef_init", "sac.target_entropy", "sac.target_update_interval",
+        "sac.hidden", "sac.normalize_observations", "sac.log_interval", "sac.her_goals", "sac.typo",
         "randomization.start_window", "randomization.action_probability", "randomization.mass_scale", "randomization.friction",
         "randomization.motor_strength", "randomization.sensor_noise", "randomization.action_latency", "randomization.typo",
     ];
     const VALUES: &[&str] = &[
         "0", "1", "-1", "2", "3", "64", "4096", "4097", "18446744073709551615", "-9223372036854775808", "0.5", "1e-300", "1e300",
         "1e39", "nan", "inf", "-inf", "true", "\"x\"", "[]", "[0]", "[64, 64]", "[1.0, 0.5]", "[0.5, 1.0]", "[0, inf]", "[nan, 1]",
-        "[1, 2, 3]", "[100000000, 1]", "{}",
+        "[1, 2, 3]", "[100000000, 1]", "{}", "\"sac\"", "\"ppo\"",
     ];
 
     /// Random config files made of real keys and hostile values: every one resolves to valid

@@ -82,7 +82,7 @@ fn time_learn(config: PpoConfig, steps: u64) -> anyhow::Result<f64> {
     let mut env = ClassicCartPole::new(1);
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 0)?;
     let start = Instant::now();
-    model.learn(&mut env, steps, &mut |_: &_, _: &_| Ok(Flow::Continue))?;
+    model.learn(&mut env, steps, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue))?;
     Ok(start.elapsed().as_secs_f64())
 }
 
@@ -151,7 +151,7 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
     // A rollout never filled: this measures the protocol and the policy's inference only.
     let mut settings = ServerSettings::new("cartpole", &spec, usize::MAX, u64::MAX);
     settings.limits.max_robots = robots.max(1);
-    let server = RobotServer::start("127.0.0.1:0".parse()?, model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue)))?;
+    let server = RobotServer::start("127.0.0.1:0".parse()?, model, settings, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)))?;
     let addr = server.addr;
     let start = Instant::now();
     let threads: Vec<_> = (0..robots)

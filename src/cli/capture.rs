@@ -66,7 +66,7 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.every > 0, "--every must be at least 1");
     let entry = registry::find(&args.robot)?;
     let view = camera(&entry, &args.camera)?;
-    let mut model = args.model.as_deref().map(|run| RunDir::new(run).load_model()).transpose()?;
+    let model = args.model.as_deref().map(|run| RunDir::new(run).load_agent()).transpose()?;
     let mut env = AppVecEnv::new(entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;
@@ -76,7 +76,7 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     recorder.frame(&mut env, 0)?;
     let zero = vec![0.0; env.action_space().dim()];
     for step in 1..=(args.frames * args.every) as u64 {
-        let action = match &mut model {
+        let action = match &model {
             Some(m) => m.predict_deterministic(&obs)?,
             None => zero.clone(),
         };

@@ -15,12 +15,12 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
     let entry = registry::find(&settings.robot)?;
-    let model = run_dir.load_model()?;
+    let model = run_dir.load_agent()?;
     let name = task.unwrap_or(entry.main_task().name);
     let seed = settings.final_eval_seed();
     let arenas = arenas.unwrap_or(settings.arenas);
     let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, settings.in_process_pattern()?)?;
-    let result = evaluate_policy(name, &model, &mut env, episodes, seed)?;
+    let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
     println!("{}: {}", settings.robot, result.describe());
     let file = if name == entry.main_task().name { twinbots_rl::run_dir::EVAL.to_string() } else { format!("eval-{name}.json") };
     run_dir.write_json(&file, &result)?;
@@ -32,7 +32,7 @@ pub fn record_episode(run: &Path, dir: &Path, size: (u32, u32), camera: &str, ta
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
     let entry = registry::find(&settings.robot)?;
-    let model = run_dir.load_model()?;
+    let model = run_dir.load_agent()?;
     let seed = settings.final_eval_seed();
     let mut env = AppVecEnv::new(entry.app(task, 1, seed, settings.in_process_pattern()?)?);
     model.check_spaces(env.observation_space(), env.action_space())?;

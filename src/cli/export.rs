@@ -16,6 +16,11 @@ pub fn export_run(run: &Path, onnx: &Path) -> anyhow::Result<PolicyMetadata> {
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
     let entry = registry::find(&settings.robot)?;
+    anyhow::ensure!(
+        settings.algo == twinbots::settings::Algo::Ppo,
+        "{}: a {:?} run; `export` writes PPO policies only (SAC's squashed-Gaussian actor is not exported yet)",
+        run.display(), settings.algo
+    );
     let model = run_dir.load_model()?;
     // The robot's own description of its task and timing, as an app of it declares them.
     let app = entry.app(None, 1, settings.seed, settings.in_process_pattern()?)?;

@@ -4,6 +4,7 @@ pub mod bench;
 pub mod capture;
 pub mod eval;
 pub mod export;
+pub mod learner;
 pub mod robot;
 pub mod robots;
 pub mod runs;

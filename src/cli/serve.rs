@@ -74,7 +74,7 @@ pub fn resume(run: &Path, listen: SocketAddr, limits: ServerLimits) -> anyhow::R
     let settings = TrainSettings::of_run(&run_dir)?;
     anyhow::ensure!(settings.design_pattern()? == DesignPattern::Server, "{}: not a RobotServer run (resume it with `twinbots train --resume`)", run.display());
     anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
-    let (checkpoint, mut model) = run_dir.load_newest_checkpoint()?;
+    let (checkpoint, mut model) = run_dir.load_newest_checkpoint::<Ppo>()?;
     run_dir.check_progress_columns()?;
     let spec = registry::find(&settings.robot)?.task();
     model.check_spaces(&spec.observation_space, &spec.action_space)?;
@@ -92,7 +92,7 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     let title = format!("{} — PPO through the RobotServer (pattern 3), seed {}", settings.robot, settings.seed);
     let mut callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     if std::env::var_os(PANIC_IN_UPDATE_ENV).is_some() {
-        callbacks = callbacks.with(|_: &twinbots_rl::UpdateStats, _: &Ppo| -> anyhow::Result<twinbots_rl::Flow> {
+        callbacks = callbacks.with(|_: &twinbots_rl::UpdateStats, _: &dyn twinbots_rl::Agent| -> anyhow::Result<twinbots_rl::Flow> {
             panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
         });
     }

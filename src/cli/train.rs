@@ -1,4 +1,4 @@
-//! `twinbots train <robot>`: PPO on N arenas, headless, into a run directory.
+//! `twinbots train <robot>`: PPO (or `--algo sac`) on N arenas, headless, into a run directory.
 //!
 //! As DESIGN.md's data flow: the learner runs on its own thread and steps the app through the
 //! crossbeam bridge; the Bevy app runs on the main thread. The run directory
@@ -14,8 +14,9 @@ use std::time::Instant;
 
 use twinbots_rl::randomization::RandomizationPlugin;
 use twinbots_rl::run_dir::{EVAL, Summary, TimeBreakdown};
-use twinbots_rl::{DesignPattern, Ppo, RunDir, TrainingEnd, bridge, env, evaluate_policy};
+use twinbots_rl::{DesignPattern, RunDir, TrainingEnd, bridge, env, evaluate_policy};
 
+use crate::cli::learner::{Learner, Trained};
 use crate::cli::runs::{TrainSettings, evaluation_env};
 use crate::registry;
 
@@ -83,16 +84,17 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
     if settings.design_pattern()? == DesignPattern::Server {
         return train_through_server(settings, run_dir.path(), true);
     }
-    let (checkpoint, model) = run_dir.load_newest_checkpoint()?;
+    let spec = registry::find(&settings.robot)?.task();
+    let (checkpoint, model) = Learner::resume(&run_dir, &settings, &spec)?;
     run_dir.check_progress_columns()?;
     println!(
         "resuming {} from {} ({} steps, {} episodes)",
-        run_dir.path().display(), checkpoint.display(), model.timesteps, model.episodes
+        run_dir.path().display(), checkpoint.display(), model.agent().timesteps(), model.agent().episodes()
     );
     run(settings, run_dir, Some(model), view)
 }
 
-fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Ppo>, view: bool) -> anyhow::Result<()> {
+fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Learner>, view: bool) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let pattern = settings.design_pattern()?;
     anyhow::ensure!(
@@ -107,26 +109,32 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Ppo>, view: bool)
     }
     let (_, spec) = env::start(&mut app)?;
     let mut channel_env = bridge::connect(app.world_mut())?;
-    let mut model = match model {
+    // The goal interface is the robot's description's (the app's spec is built from its terms).
+    let spec = twinbots_rl::TaskSpec { goal: entry.task().goal, ..spec };
+    let resumed = model.is_some();
+    let learner = match model {
         Some(m) => {
-            m.check_spaces(&spec.observation_space, &spec.action_space)?;
+            m.agent().check_spaces(&spec.observation_space, &spec.action_space)?;
             m
         }
-        None => Ppo::new(settings.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?,
+        None => Learner::new(&settings, &spec)?,
     };
-    let title = format!("{} — PPO, pattern {}, {} arenas, seed {}", settings.robot, settings.pattern, settings.arenas, settings.seed);
+    let title = format!(
+        "{} — {}, pattern {}, {} arenas, seed {}",
+        settings.robot, learner.agent().algorithm(), settings.pattern, settings.arenas, settings.seed
+    );
     let mut callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
-    if model.updates > 0 {
-        // Resumed, and everything checked: the rows logged after the checkpoint are redone.
-        run_dir.truncate_after(model.timesteps)?;
+    if resumed {
+        // Everything checked: the rows logged after the checkpoint are redone.
+        run_dir.truncate_after(learner.agent().timesteps())?;
     }
-    let remaining = settings.timesteps.saturating_sub(model.timesteps);
+    let remaining = settings.timesteps.saturating_sub(learner.agent().timesteps());
 
-    // The learner's thread: PPO and its callbacks (logs, evaluations, checkpoints).
-    let trainer = std::thread::spawn(move || -> anyhow::Result<(Ppo, TrainingEnd, f64)> {
+    // The learner's thread: PPO or SAC and its callbacks (logs, evaluations, checkpoints).
+    let trainer = std::thread::spawn(move || -> anyhow::Result<(Trained, TrainingEnd, f64)> {
         let started = Instant::now();
-        let end = model.learn(&mut channel_env, remaining, &mut callbacks)?;
-        Ok((model, end, started.elapsed().as_secs_f64()))
+        let (trained, end) = learner.learn(&mut channel_env, remaining, &mut callbacks)?;
+        Ok((trained, end, started.elapsed().as_secs_f64()))
     });
 
     // The app's thread (this one): frames until the learner hangs up.
@@ -151,20 +159,21 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Ppo>, view: bool)
         Ok(Err(e)) => return Err(e),
         Ok(Ok(())) => {}
     }
-    let (model, end, wall) = learned?;
-    run_dir.save_model(&model)?;
+    let (Trained { model, times }, end, wall) = learned?;
+    let model = model.as_ref();
+    run_dir.save_model(model)?;
     let seed = settings.final_eval_seed();
     let mut eval_env = evaluation_env(&entry, None, settings.arenas, settings.eval_episodes, seed, settings.in_process_pattern()?)?;
-    let evaluation = evaluate_policy(entry.main_task().name, &model, &mut eval_env, settings.eval_episodes, seed)?;
+    let evaluation = evaluate_policy(entry.main_task().name, model, &mut eval_env, settings.eval_episodes, seed)?;
     run_dir.write_json(EVAL, &evaluation)?;
-    let mut summary = Summary::new(&settings.robot, settings.pattern, &model, &end, wall, Some(&evaluation));
-    summary.time_breakdown = simulation_s.map(|sim| TimeBreakdown::new(&model.times, sim, wall));
+    let mut summary = Summary::new(&settings.robot, settings.pattern, model, &end, wall, Some(&evaluation));
+    summary.time_breakdown = simulation_s.map(|sim| TimeBreakdown::new(&times, sim, wall));
     run_dir.write_summary(&summary)?;
     match end {
         TrainingEnd::Solved { timesteps, by } => {
-            println!("solved ({by}) after {timesteps} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.mean_recent_score())
+            println!("solved ({by}) after {timesteps} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.history().mean_score())
         }
-        _ => println!("not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}", model.timesteps, model.mean_recent_score()),
+        _ => println!("not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}", model.timesteps(), model.history().mean_score()),
     }
     if let Some(time) = &summary.time_breakdown {
         println!("time: {}", time.describe());

@@ -5,14 +5,14 @@ use std::time::{Duration, Instant};
 
 use bevy::prelude::*;
 use twinbots_render::viewer::{self, RealTime, ViewSource};
-use twinbots_rl::{AppVecEnv, DesignPattern, Ppo, RunDir, VecEnv};
+use twinbots_rl::{AppVecEnv, DesignPattern, RunDir, VecEnv};
 
 use crate::registry;
 
 /// Plays one arena in real time.
 struct Player {
     env: AppVecEnv,
-    model: Option<Ppo>,
+    model: Option<Box<dyn twinbots_rl::Agent + Send>>,
     obs: Vec<f32>,
     clock: RealTime,
     steps: u64,
@@ -60,7 +60,7 @@ impl ViewSource for Player {
 
 pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64, task: Option<&str>) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
-    let model = model.map(|run| RunDir::new(run).load_model()).transpose()?;
+    let model = model.map(|run| RunDir::new(run).load_agent()).transpose()?;
     let mut env = AppVecEnv::new(entry.app(task, 1, seed, DesignPattern::Supervised)?);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;

@@ -155,7 +155,7 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     // Trained for a few updates.
     let mut env = AppVecEnv::new(robot.app(None, robot.defaults.arenas, 0, DesignPattern::Supervised).unwrap());
     let mut model = Ppo::new(robot.defaults.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
-    model.learn(&mut env, 4 * 128 * 4, &mut |_: &UpdateStats, _: &Ppo| Ok(Flow::Continue)).unwrap();
+    model.learn(&mut env, 4 * 128 * 4, &mut |_: &UpdateStats, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)).unwrap();
     assert_eq!(model.updates, 4);
     assert!(model.episodes > 0, "episodes of at most 50 steps ended in 2048 steps");
 
@@ -172,7 +172,7 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     // Served under pattern 3: robots that home themselves, no Supervisor, the same terms.
     let learner = Ppo::new(robot.defaults.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), 1).unwrap();
     let settings = ServerSettings::new("turntable", &spec, 256, 1024);
-    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap();
+    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue))).unwrap();
     let mut app = robot.app(None, 2, 3, DesignPattern::Server).unwrap();
     app.insert_resource(ServerAddress { addr: server.addr, patience: Duration::from_secs(5) });
     app.finish();

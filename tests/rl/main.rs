@@ -8,6 +8,7 @@ mod onnx;
 mod patterns;
 mod ppo;
 mod randomization;
+mod sac;
 mod resume;
 mod server;
 mod server_hostile;

@@ -14,7 +14,7 @@ fn load_of_save_predicts_exactly_as_the_original() {
     let mut env = ClassicCartPole::new(4);
     let config = PpoConfig { n_steps: 64, normalize_observations: true, ..Default::default() };
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
-    model.learn(&mut env, 512, &mut |_: &_, _: &_| Ok(twinbots_rl::Flow::Continue)).unwrap();
+    model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(twinbots_rl::Flow::Continue)).unwrap();
     let dir = temp_dir("model");
     model.save(&dir).unwrap();
     let mut loaded = Ppo::load(&dir).unwrap();
@@ -34,7 +34,7 @@ fn a_snapshot_predicts_as_the_original_and_does_not_train_with_it() {
     let mut env = ClassicCartPole::new(4);
     let config = PpoConfig { n_steps: 64, normalize_observations: true, ..Default::default() };
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
-    model.learn(&mut env, 512, &mut |_: &_, _: &_| Ok(twinbots_rl::Flow::Continue)).unwrap();
+    model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(twinbots_rl::Flow::Continue)).unwrap();
     let mut snapshot = model.snapshot().unwrap();
     let obs = env.reset(Some(9)).unwrap();
     assert_eq!(snapshot.predict(&obs, false).unwrap(), model.predict(&obs, false).unwrap(), "same weights, same stream");
@@ -43,7 +43,7 @@ fn a_snapshot_predicts_as_the_original_and_does_not_train_with_it() {
         m.policy.named_vars().iter().map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap()).collect()
     };
     let before = weights(&snapshot);
-    model.learn(&mut env, 512, &mut |_: &_, _: &_| Ok(twinbots_rl::Flow::Continue)).unwrap();
+    model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(twinbots_rl::Flow::Continue)).unwrap();
     assert_ne!(weights(&model), before, "the original trained on");
     assert_eq!(weights(&snapshot), before, "the snapshot shares no variable with it");
 }

@@ -27,7 +27,7 @@ fn metadata(model: &Ppo) -> PolicyMetadata {
 
 fn trained(env: &mut dyn VecEnv, config: PpoConfig, steps: u64) -> Ppo {
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 5).unwrap();
-    model.learn(env, steps, &mut |_: &_, _: &_| Ok(Flow::Continue)).unwrap();
+    model.learn(env, steps, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)).unwrap();
     model
 }
 

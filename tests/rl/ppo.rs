@@ -10,7 +10,7 @@ fn ppo_reaches_475_on_classic_cartpole_within_150k_steps() {
     let mut best = f32::MIN;
     let mut history = Vec::new();
     model
-        .learn(&mut env, 150_000, &mut |s: &UpdateStats, _: &Ppo| {
+        .learn(&mut env, 150_000, &mut |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
             if s.episodes >= 20 {
                 best = best.max(s.mean_reward);
             }
@@ -61,7 +61,7 @@ fn ppo_with_gaussian_policy_improves_pendulum_well_beyond_random() {
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
     let mut curve = Vec::new();
     model
-        .learn(&mut env, 150_000, &mut |s: &UpdateStats, _: &Ppo| {
+        .learn(&mut env, 150_000, &mut |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
             curve.push(s.mean_reward);
             Ok(Flow::Continue)
         })
@@ -112,7 +112,7 @@ fn a_non_finite_reward_skips_the_gradient_steps_it_poisons_counts_them_and_learn
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
     let mut rows = Vec::new();
     model
-        .learn(&mut env, 64 * 2 * 6, &mut |s: &UpdateStats, _: &Ppo| {
+        .learn(&mut env, 64 * 2 * 6, &mut |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
             rows.push(s.clone());
             Ok(Flow::Continue)
         })

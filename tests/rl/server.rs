@@ -12,7 +12,7 @@ use twinbots_server::protocol::{RobotMessage, ServerMessage, VERSION};
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
 pub fn server(timesteps: u64) -> RobotServer {
-    server_with(timesteps, 256, ServerLimits::default(), Box::new(|_: &_, _: &_| Ok(Flow::Continue)))
+    server_with(timesteps, 256, ServerLimits::default(), Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)))
 }
 
 /// A cart-pole server with these limits and callbacks.
@@ -164,7 +164,7 @@ fn the_server_trains_with_callbacks_and_stops_once_solved() {
     let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
     let seen = rows.clone();
     let callbacks = CallbackList::new()
-        .with(move |s: &UpdateStats, _: &Ppo| {
+        .with(move |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
             seen.lock().unwrap().push((s.update, s.timesteps, s.episodes));
             Ok(Flow::Continue)
         })

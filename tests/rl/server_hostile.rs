@@ -8,7 +8,7 @@ use std::net::SocketAddr;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use twinbots_rl::{Flow, Ppo, UpdateStats};
+use twinbots_rl::{Flow, UpdateStats};
 use twinbots_server::protocol::{ErrorCode, RobotMessage, ServerMessage, VERSION};
 use twinbots_server::server::ServerLimits;
 
@@ -117,7 +117,7 @@ fn a_4_gib_length_prefix_is_refused_at_once_and_the_others_are_served() {
 #[test]
 fn half_a_frame_then_silence_times_out() {
     let limits = ServerLimits { read_timeout: Duration::from_millis(300), handshake_timeout: Duration::from_millis(300), ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &_| Ok(Flow::Continue)));
+    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)));
     // After the handshake: a frame of 100 bytes announced, 10 sent.
     let mut robot = Robot::hello(server.addr);
     let t = Instant::now();
@@ -179,7 +179,7 @@ fn the_65th_robot_is_refused_over_the_cap_of_64() {
 #[test]
 fn a_wrong_or_missing_token_is_refused() {
     let limits = ServerLimits { token: Some("s3cret".into()), ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &_| Ok(Flow::Continue)));
+    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)));
     for (token, why) in [(None, "needs a token"), (Some("guess"), "wrong token"), (Some("s3cre"), "wrong token")] {
         let mut robot = Robot::connect(server.addr);
         let reply = robot.call(&hello(token));
@@ -253,7 +253,7 @@ fn abort_drops_the_running_episode_and_is_acknowledged() {
 
 #[test]
 fn a_panic_in_the_learner_ends_wait_with_the_reason() {
-    let panicking = |_: &UpdateStats, _: &Ppo| -> anyhow::Result<Flow> { panic!("boom in the update") };
+    let panicking = |_: &UpdateStats, _: &dyn twinbots_rl::Agent| -> anyhow::Result<Flow> { panic!("boom in the update") };
     let server = server_with(1_000_000, 8, ServerLimits::default(), Box::new(panicking));
     let mut robot = Robot::hello(server.addr);
     let mut bystander = Robot::hello(server.addr);
@@ -276,7 +276,7 @@ fn a_panic_in_the_learner_ends_wait_with_the_reason() {
 fn a_connection_without_a_thread_is_refused_and_accepting_goes_on() {
     // A stack no system can give: every connection thread fails to start.
     let limits = ServerLimits { connection_stack: 1 << 50, ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &_| Ok(Flow::Continue)));
+    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)));
     for _ in 0..3 {
         let mut robot = Robot::connect(server.addr);
         let reply = robot.call(&hello(None));

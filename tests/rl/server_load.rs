@@ -37,7 +37,7 @@ fn load(robots: usize, steps: usize) -> Figures {
     let model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
     let learned = Arc::new(Mutex::new(Vec::new()));
     let log = learned.clone();
-    let callback = move |s: &UpdateStats, _: &Ppo| {
+    let callback = move |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
         log.lock().unwrap().push((s.timesteps, s.episodes));
         Ok(Flow::Continue)
     };

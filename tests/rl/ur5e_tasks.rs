@@ -98,7 +98,7 @@ fn under_pattern_3_the_arm_homes_itself_before_every_episode() {
     let id = ur5e::task_spec();
     let model = Ppo::new(ur5e::ppo_config(), id.observation_space, id.action_space, 0).unwrap();
     let settings = ServerSettings::new("ur5e", &ur5e::task_spec(), 512, 1_000_000);
-    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &_| Ok(Flow::Continue))).unwrap();
+    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue))).unwrap();
     let address = ServerAddress { addr: server.addr, patience: Duration::from_secs(5) };
     let mut app = ur5e::headless_app_with(2, 5, DesignPattern::Server);
     app.insert_resource(address);

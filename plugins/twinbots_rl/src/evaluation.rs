@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use crate::env::VecEnv;
-use crate::ppo::Ppo;
+use crate::agent::Agent;
 use crate::task::{EpisodeSummary, Measure, SolvedCriterion};
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -60,7 +60,7 @@ impl EvalResult {
 
 /// Runs `model`'s deterministic policy on `env` (reset with `seed`) until `episodes` episodes
 /// have ended, and reports them under the name `task`.
-pub fn evaluate_policy(task: &str, model: &Ppo, env: &mut dyn VecEnv, episodes: usize, seed: u64) -> anyhow::Result<EvalResult> {
+pub fn evaluate_policy(task: &str, model: &dyn Agent, env: &mut dyn VecEnv, episodes: usize, seed: u64) -> anyhow::Result<EvalResult> {
     anyhow::ensure!(episodes > 0, "an evaluation needs at least 1 episode");
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut obs = env.reset(Some(seed))?;

@@ -37,6 +37,13 @@ impl RunningMeanStd {
         self.count += n;
     }
 
+    /// An error unless every statistic is finite (a model with others is unusable).
+    pub fn check_finite(&self) -> anyhow::Result<()> {
+        let finite = self.mean.iter().chain(&self.var).all(|x| x.is_finite()) && self.count.is_finite();
+        anyhow::ensure!(finite, "the observation statistics are not finite: the model is unusable");
+        Ok(())
+    }
+
     /// `(x - mean) / sqrt(var + 1e-8)`, clipped.
     pub fn normalize(&self, batch: &[f32]) -> Vec<f32> {
         let dim = self.mean.len();

@@ -7,6 +7,7 @@ use bevy::prelude::*;
 use twinbots_sim::{ArenaConfig, Framing, OperatorAccess, SimPlugin, SimSettings};
 
 use crate::ppo::PpoConfig;
+use crate::sac::SacConfig;
 use crate::task::{DesignPattern, TaskSpec};
 
 /// What an app is asked for: a task of the robot, under a design pattern, with N arenas.
@@ -45,11 +46,30 @@ pub struct TrainingDefaults {
     /// the size of the final evaluation).
     pub eval_every: usize,
     pub eval_episodes: usize,
+    /// How `train --algo sac` trains it.
+    pub sac: SacDefaults,
 }
 
 impl Default for TrainingDefaults {
     fn default() -> Self {
-        Self { ppo: PpoConfig::default(), arenas: 8, timesteps: 1_000_000, eval_every: 0, eval_episodes: 10 }
+        Self { ppo: PpoConfig::default(), arenas: 8, timesteps: 1_000_000, eval_every: 0, eval_episodes: 10, sac: SacDefaults::default() }
+    }
+}
+
+/// The settings of `train --algo sac` that differ from PPO's: off-policy learning wants fewer
+/// arenas (each step feeds the same gradient steps) and a budget of its own; `eval_every`
+/// counts SAC's rows (`SacConfig::log_interval` steps of each arena).
+#[derive(Clone, Debug)]
+pub struct SacDefaults {
+    pub config: SacConfig,
+    pub arenas: usize,
+    pub timesteps: u64,
+    pub eval_every: usize,
+}
+
+impl Default for SacDefaults {
+    fn default() -> Self {
+        Self { config: SacConfig::default(), arenas: 1, timesteps: 1_000_000, eval_every: 0 }
     }
 }
 

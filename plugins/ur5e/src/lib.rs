@@ -19,6 +19,7 @@
 pub mod arm;
 pub mod cell;
 pub mod controller;
+pub mod goal;
 pub mod kinematics;
 pub mod metrics;
 pub mod pick_place;
@@ -28,9 +29,9 @@ pub mod state;
 
 use bevy::math::Vec3;
 use bevy::prelude::*;
-use twinbots_rl::robot::{AppRequest, RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_rl::robot::{AppRequest, RobotDescription, SacDefaults, TaskDescription, TrainingDefaults, headless_app};
 use twinbots_rl::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
-use twinbots_rl::{Action, DesignPattern, PpoConfig, TaskSpec, TaskTermsPlugin};
+use twinbots_rl::{Action, DesignPattern, PpoConfig, SacConfig, TaskSpec, TaskTermsPlugin};
 use twinbots_sim::{
     ArenaConfig, Framing, JointState, Motor, PhysicsSubstep, PositionSensor, SimSet, SimSettings, SubstepSet, Supervisor,
 };
@@ -68,9 +69,26 @@ pub fn ppo_config() -> PpoConfig {
     }
 }
 
-/// The reach task's spaces and criterion (pick-and-place shares the spaces).
+/// SAC settings (`train ur5e --algo sac`): SB3's defaults with observation normalisation,
+/// 128-unit layers (256 cost 4× the arithmetic per gradient step on a 2-core machine), γ 0.98
+/// (a reach lasts at most 100 steps), 1000 random steps first, HER with 4 future goals per
+/// sample, and one gradient step per env step over 4 arenas.
+pub fn sac_config() -> SacConfig {
+    SacConfig {
+        normalize_observations: true,
+        hidden: vec![128, 128],
+        gamma: 0.98,
+        learning_starts: 1000,
+        gradient_steps: 4,
+        log_interval: 250,
+        her_goals: 4,
+        ..Default::default()
+    }
+}
+
+/// The reach task's spaces, criterion and goal interface (pick-and-place shares the spaces).
 pub fn task_spec() -> TaskSpec {
-    reach::reach_task().spec()
+    TaskSpec { goal: Some(goal::reach_goal()), ..reach::reach_task().spec() }
 }
 
 fn pick_place_spec() -> TaskSpec {
@@ -102,6 +120,8 @@ pub fn robot() -> RobotDescription {
             // episodes every 20 updates (≈ 41 k steps), as SB3's EvalCallback does.
             eval_every: 20,
             eval_episodes: 200,
+            // SAC: 4 arenas, a row every 1000 steps, evaluated every 5 rows (5 k steps).
+            sac: SacDefaults { config: sac_config(), arenas: 4, timesteps: 200_000, eval_every: 5 },
             ..default()
         },
         build: |request| {

@@ -4,7 +4,8 @@
 use super::{Callback, Flow, SolvedBy};
 use crate::env::VecEnv;
 use crate::evaluation::{EvalResult, evaluate_policy};
-use crate::ppo::{Ppo, UpdateStats};
+use crate::agent::Agent;
+use crate::ppo::UpdateStats;
 use crate::run_dir::RunDir;
 use crate::task::SolvedCriterion;
 use crate::tensorboard::EventWriter;
@@ -74,7 +75,7 @@ pub fn evaluation_seed(seed: u64, index: u64) -> u64 {
 }
 
 impl Callback for EvalCallback {
-    fn on_update(&mut self, stats: &UpdateStats, model: &Ppo) -> anyhow::Result<Flow> {
+    fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
         if self.every == 0 || stats.update % self.every != 0 {
             return Ok(Flow::Continue);
         }

@@ -8,7 +8,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::{Callback, Flow};
 use crate::plot::{self, CurvePoint, EvaluationPoint};
-use crate::ppo::{Ppo, UpdateStats};
+use crate::agent::Agent;
+use crate::ppo::UpdateStats;
 use crate::run_dir::{LEARNING_CURVE, RunDir};
 use crate::task::SolvedCriterion;
 
@@ -24,11 +25,11 @@ impl ProgressCsvCallback {
 }
 
 impl Callback for ProgressCsvCallback {
-    fn on_training_start(&mut self, _model: &Ppo) -> anyhow::Result<()> {
+    fn on_training_start(&mut self, _model: &dyn Agent) -> anyhow::Result<()> {
         self.run.check_progress_columns()
     }
 
-    fn on_update(&mut self, stats: &UpdateStats, _model: &Ppo) -> anyhow::Result<Flow> {
+    fn on_update(&mut self, stats: &UpdateStats, _model: &dyn Agent) -> anyhow::Result<Flow> {
         self.run.append_progress(stats)?;
         Ok(Flow::Continue)
     }
@@ -48,7 +49,7 @@ impl CheckpointCallback {
 }
 
 impl Callback for CheckpointCallback {
-    fn on_update(&mut self, stats: &UpdateStats, model: &Ppo) -> anyhow::Result<Flow> {
+    fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
         if stats.update % self.every == 0 {
             self.run.save_checkpoint(model)?;
         }
@@ -97,14 +98,14 @@ pub fn draw_learning_curve(run: &RunDir, title: &str, solved: Option<SolvedCrite
 }
 
 impl Callback for LearningCurveCallback {
-    fn on_update(&mut self, stats: &UpdateStats, _model: &Ppo) -> anyhow::Result<Flow> {
+    fn on_update(&mut self, stats: &UpdateStats, _model: &dyn Agent) -> anyhow::Result<Flow> {
         if stats.update % self.every == 0 {
             self.draw()?;
         }
         Ok(Flow::Continue)
     }
 
-    fn on_training_end(&mut self, _model: &Ppo) -> anyhow::Result<()> {
+    fn on_training_end(&mut self, _model: &dyn Agent) -> anyhow::Result<()> {
         self.draw()
     }
 }
@@ -151,15 +152,15 @@ fn progress_message(s: &UpdateStats) -> String {
 }
 
 impl Callback for ProgressBarCallback {
-    fn on_training_start(&mut self, model: &Ppo) -> anyhow::Result<()> {
+    fn on_training_start(&mut self, model: &dyn Agent) -> anyhow::Result<()> {
         match &mut self.display {
-            Display::Bar(bar) => bar.set_position(model.timesteps.min(self.total)),
+            Display::Bar(bar) => bar.set_position(model.timesteps().min(self.total)),
             Display::Lines { started, .. } => *started = Instant::now(),
         }
         Ok(())
     }
 
-    fn on_update(&mut self, s: &UpdateStats, _model: &Ppo) -> anyhow::Result<Flow> {
+    fn on_update(&mut self, s: &UpdateStats, _model: &dyn Agent) -> anyhow::Result<Flow> {
         match &mut self.display {
             Display::Bar(bar) => {
                 bar.set_position(s.timesteps.min(self.total));
@@ -185,7 +186,7 @@ impl Callback for ProgressBarCallback {
         Ok(Flow::Continue)
     }
 
-    fn on_training_end(&mut self, _model: &Ppo) -> anyhow::Result<()> {
+    fn on_training_end(&mut self, _model: &dyn Agent) -> anyhow::Result<()> {
         match &mut self.display {
             Display::Bar(bar) => bar.finish(),
             // The last update's line, if it has not been written yet.

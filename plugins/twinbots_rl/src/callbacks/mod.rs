@@ -21,7 +21,8 @@ pub use eval::{EvalCallback, evaluation_seed};
 pub use logging::{CheckpointCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, draw_learning_curve};
 pub use tensorboard::{TensorBoardCallback, evaluation_scalars, training_scalars};
 
-use crate::ppo::{Ppo, UpdateStats};
+use crate::agent::Agent;
+use crate::ppo::UpdateStats;
 use crate::task::SolvedCriterion;
 
 /// What a callback tells training after an update.
@@ -90,22 +91,22 @@ impl std::fmt::Display for TrainingEnd {
 }
 
 /// Hears training as it goes. Only `on_update` is required; a closure
-/// `|stats: &UpdateStats, model: &Ppo| -> anyhow::Result<Flow>` is a callback.
+/// `|stats: &UpdateStats, model: &dyn Agent| -> anyhow::Result<Flow>` is a callback.
 pub trait Callback {
     /// Before the first update.
-    fn on_training_start(&mut self, _model: &Ppo) -> anyhow::Result<()> {
+    fn on_training_start(&mut self, _model: &dyn Agent) -> anyhow::Result<()> {
         Ok(())
     }
     /// After every update, with its row of statistics and the updated model.
-    fn on_update(&mut self, stats: &UpdateStats, model: &Ppo) -> anyhow::Result<Flow>;
+    fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow>;
     /// Once training has ended, however it ended (but not after an error).
-    fn on_training_end(&mut self, _model: &Ppo) -> anyhow::Result<()> {
+    fn on_training_end(&mut self, _model: &dyn Agent) -> anyhow::Result<()> {
         Ok(())
     }
 }
 
-impl<F: FnMut(&UpdateStats, &Ppo) -> anyhow::Result<Flow>> Callback for F {
-    fn on_update(&mut self, stats: &UpdateStats, model: &Ppo) -> anyhow::Result<Flow> {
+impl<F: FnMut(&UpdateStats, &dyn Agent) -> anyhow::Result<Flow>> Callback for F {
+    fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
         self(stats, model)
     }
 }
@@ -142,11 +143,11 @@ impl CallbackList {
 }
 
 impl Callback for CallbackList {
-    fn on_training_start(&mut self, model: &Ppo) -> anyhow::Result<()> {
+    fn on_training_start(&mut self, model: &dyn Agent) -> anyhow::Result<()> {
         self.callbacks.iter_mut().try_for_each(|c| c.on_training_start(model))
     }
 
-    fn on_update(&mut self, stats: &UpdateStats, model: &Ppo) -> anyhow::Result<Flow> {
+    fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
         let mut flow = Flow::Continue;
         for callback in &mut self.callbacks {
             let said = callback.on_update(stats, model)?;
@@ -157,7 +158,7 @@ impl Callback for CallbackList {
         Ok(flow)
     }
 
-    fn on_training_end(&mut self, model: &Ppo) -> anyhow::Result<()> {
+    fn on_training_end(&mut self, model: &dyn Agent) -> anyhow::Result<()> {
         self.callbacks.iter_mut().try_for_each(|c| c.on_training_end(model))
     }
 }
@@ -175,8 +176,8 @@ impl StopTrainingOnSolved {
 }
 
 impl Callback for StopTrainingOnSolved {
-    fn on_update(&mut self, _stats: &UpdateStats, model: &Ppo) -> anyhow::Result<Flow> {
-        Ok(if model.is_solved(&self.criterion) { Flow::Solved(SolvedBy::TrainingEpisodes) } else { Flow::Continue })
+    fn on_update(&mut self, _stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
+        Ok(if model.history().is_solved(&self.criterion) { Flow::Solved(SolvedBy::TrainingEpisodes) } else { Flow::Continue })
     }
 }
 
@@ -184,6 +185,7 @@ impl Callback for StopTrainingOnSolved {
 mod tests {
     use super::*;
     use crate::PpoConfig;
+    use crate::ppo::Ppo;
     use crate::spaces::Space;
 
     #[test]
@@ -192,7 +194,7 @@ mod tests {
         let calls = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
         let counter = |answer: Flow| {
             let calls = calls.clone();
-            move |_: &UpdateStats, _: &Ppo| {
+            move |_: &UpdateStats, _: &dyn Agent| {
                 calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 Ok(answer)
             }

@@ -9,11 +9,11 @@
 mod buffer;
 mod config;
 mod model_file;
-mod policy;
+pub(crate) mod policy;
 mod rollout;
 mod update;
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::time::Instant;
 
 use rand::SeedableRng;
@@ -25,13 +25,14 @@ pub use model_file::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
 pub use policy::ActorCritic;
 pub use rollout::PolicyStep;
 
+use crate::agent::EpisodeHistory;
 use crate::callbacks::{Callback, TrainingEnd};
 use crate::env::VecEnv;
 use crate::nn::Adam;
 use crate::normalize::RunningMeanStd;
 use crate::replay::EnvState;
 use crate::spaces::Space;
-use crate::task::{EpisodeSummary, Measure, SolvedCriterion};
+use crate::task::{EpisodeSummary, SolvedCriterion};
 
 /// One row of `progress.csv`: what an update saw and did.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -73,14 +74,8 @@ pub struct Ppo {
     pub timesteps: u64,
     pub episodes: u64,
     pub updates: u64,
-    /// Scores of the last 100 finished episodes, oldest first.
-    pub recent_scores: VecDeque<f32>,
-    recent_lengths: VecDeque<f32>,
-    /// 1 or 0 for each of the last 100 finished episodes that reported success or failure.
-    pub recent_successes: VecDeque<f32>,
-    /// Each figure the task reports (energy, cycle time…), over the last 100 finished episodes
-    /// that reported it.
-    pub recent_metrics: BTreeMap<String, VecDeque<f32>>,
+    /// The last 100 finished training episodes.
+    pub history: EpisodeHistory,
     optimizer: Adam,
     rng: ChaCha8Rng,
     /// Where the envs of `learn` stood after the last update, as their running episodes: a
@@ -104,8 +99,6 @@ pub struct TrainingTimes {
     /// The callbacks: progress logs, the curve, evaluations, checkpoints.
     pub callbacks_s: f64,
 }
-
-const WINDOW: usize = 100;
 
 impl std::fmt::Debug for Ppo {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -134,10 +127,7 @@ impl Ppo {
             timesteps: 0,
             episodes: 0,
             updates: 0,
-            recent_scores: VecDeque::new(),
-            recent_lengths: VecDeque::new(),
-            recent_successes: VecDeque::new(),
-            recent_metrics: BTreeMap::new(),
+            history: EpisodeHistory::default(),
             optimizer,
             rng: ChaCha8Rng::seed_from_u64(seed ^ ACTION_STREAM_SALT),
             env_state: None,
@@ -160,10 +150,7 @@ impl Ppo {
             timesteps: self.timesteps,
             episodes: self.episodes,
             updates: self.updates,
-            recent_scores: self.recent_scores.clone(),
-            recent_lengths: self.recent_lengths.clone(),
-            recent_successes: self.recent_successes.clone(),
-            recent_metrics: self.recent_metrics.clone(),
+            history: self.history.clone(),
             optimizer,
             rng: self.rng.clone(),
             env_state: self.env_state.clone(),
@@ -189,39 +176,27 @@ impl Ppo {
     /// Counts a finished episode into the statistics.
     pub fn record_episode(&mut self, episode: &EpisodeSummary) {
         self.episodes += 1;
-        push_window(&mut self.recent_scores, episode.score);
-        push_window(&mut self.recent_lengths, episode.length as f32);
-        if let Some(success) = episode.success {
-            push_window(&mut self.recent_successes, if success { 1.0 } else { 0.0 });
-        }
-        for (name, value) in &episode.metrics {
-            push_window(self.recent_metrics.entry(name.clone()).or_default(), *value);
-        }
+        self.history.record(episode);
     }
 
     /// The mean of each figure over the last 100 finished episodes that reported it.
     pub fn recent_metric_means(&self) -> BTreeMap<String, f32> {
-        self.recent_metrics.iter().map(|(name, values)| (name.clone(), mean(values))).collect()
+        self.history.metric_means()
     }
 
     /// Success rate of the last 100 finished episodes that reported success, if any did.
     pub fn recent_success_rate(&self) -> Option<f32> {
-        (!self.recent_successes.is_empty()).then(|| mean(&self.recent_successes))
+        self.history.success_rate()
     }
 
     /// Whether the recent episodes meet `criterion`.
     pub fn is_solved(&self, criterion: &SolvedCriterion) -> bool {
-        let values = match criterion.measure {
-            Measure::Score => &self.recent_scores,
-            Measure::Success => &self.recent_successes,
-        };
-        let values: Vec<f32> = values.iter().copied().collect();
-        criterion.is_met(&values)
+        self.history.is_solved(criterion)
     }
 
     /// Mean score of the last 100 finished episodes.
     pub fn mean_recent_score(&self) -> f32 {
-        mean(&self.recent_scores)
+        self.history.mean_score()
     }
 
     /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback`
@@ -281,13 +256,63 @@ impl Ppo {
     }
 }
 
-fn push_window(window: &mut VecDeque<f32>, x: f32) {
-    if window.len() == WINDOW {
-        window.pop_front();
+impl crate::agent::Agent for Ppo {
+    fn algorithm(&self) -> &'static str {
+        "PPO"
     }
-    window.push_back(x);
+    fn observation_space(&self) -> &Space {
+        &self.observation_space
+    }
+    fn action_space(&self) -> &Space {
+        &self.action_space
+    }
+    fn timesteps(&self) -> u64 {
+        self.timesteps
+    }
+    fn episodes(&self) -> u64 {
+        self.episodes
+    }
+    fn history(&self) -> &EpisodeHistory {
+        &self.history
+    }
+    fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        Ppo::predict_deterministic(self, obs)
+    }
+    fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
+        Ppo::save(self, dir)
+    }
+
+    /// SB3's PPO tags: the loss L_clip − c_ent·H + c_V·L_V (here averaged over the update's
+    /// minibatches; SB3 logs its last minibatch's), its parts, KL, clip fraction, σ.
+    fn train_scalars(&self, s: &UpdateStats) -> Vec<(String, f32)> {
+        let c = &self.config;
+        let loss = s.policy_loss - c.ent_coef * s.entropy + c.vf_coef * s.value_loss;
+        let mut out: Vec<(String, f32)> = vec![
+            ("train/loss".into(), loss),
+            ("train/policy_gradient_loss".into(), s.policy_loss),
+            ("train/value_loss".into(), s.value_loss),
+            ("train/entropy_loss".into(), -s.entropy),
+            ("train/approx_kl".into(), s.approx_kl),
+            ("train/clip_fraction".into(), s.clip_fraction),
+        ];
+        if let policy::Head::Gaussian { log_std, .. } = &self.policy.head
+            && let Ok(values) = log_std.as_tensor().to_vec1::<f32>()
+        {
+            out.push(("train/std".into(), values.iter().map(|l| l.exp()).sum::<f32>() / values.len().max(1) as f32));
+        }
+        out
+    }
 }
 
-fn mean(xs: &VecDeque<f32>) -> f32 {
-    if xs.is_empty() { f32::NAN } else { xs.iter().sum::<f32>() / xs.len() as f32 }
+impl crate::agent::LoadAgent for Ppo {
+    fn load(dir: &std::path::Path) -> Result<Self, ModelError> {
+        Ppo::load(dir)
+    }
+}
+
+impl Ppo {
+    /// A clear error when this model cannot drive a robot with these spaces.
+    pub fn check_spaces(&self, observation: &Space, action: &Space) -> Result<(), ModelError> {
+        crate::agent::Agent::check_spaces(self, observation, action)
+    }
 }

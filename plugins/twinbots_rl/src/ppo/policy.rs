@@ -17,7 +17,7 @@ pub struct Dense {
 impl Dense {
     /// PyTorch's default init, U(±1/√fan_in), scaled by `gain`, from our own seeded stream so
     /// the seed fixes the network.
-    fn new(inputs: usize, outputs: usize, gain: f64, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
+    pub(crate) fn new(inputs: usize, outputs: usize, gain: f64, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
         let bound = (1.0 / inputs as f64).sqrt();
         let mut uniform = |n: usize| -> Vec<f32> {
             (0..n).map(|_| (rng.random_range(-bound..bound) * gain) as f32).collect()
@@ -28,7 +28,7 @@ impl Dense {
         })
     }
 
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+    pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
         // The bias enters as 1 bᵀ, a product, rather than a broadcast add: the gradient of a
         // broadcast sums over the batch dimension, which candle does element by element
         // (14 % of a PPO update), while the product's gradient 1ᵀ G is one gemm call.

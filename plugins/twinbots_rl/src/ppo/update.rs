@@ -6,7 +6,7 @@ use std::time::Instant;
 use candle_core::{Device, Tensor, Var};
 use rand::seq::SliceRandom;
 
-use super::{ActorCritic, Ppo, RolloutBuffer, UpdateStats, mean};
+use super::{ActorCritic, Ppo, RolloutBuffer, UpdateStats};
 use crate::nn::{Adam, AdamConfig};
 use crate::spaces::Space;
 
@@ -44,17 +44,15 @@ impl Ppo {
             );
         }
         Ok(UpdateStats {
-            update: self.updates as usize,
-            timesteps: self.timesteps,
-            episodes: self.episodes,
-            mean_reward: mean(&self.recent_scores),
-            min_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::min),
-            max_reward: self.recent_scores.iter().copied().fold(f32::NAN, f32::max),
-            mean_length: mean(&self.recent_lengths),
-            success_rate: mean(&self.recent_successes),
             learning_rate: self.optimizer.learning_rate(),
             steps_per_s: buffer.len() as f32 / collecting_since.elapsed().as_secs_f32(),
-            ..losses
+            policy_loss: losses.policy_loss,
+            value_loss: losses.value_loss,
+            entropy: losses.entropy,
+            approx_kl: losses.approx_kl,
+            clip_fraction: losses.clip_fraction,
+            skipped_steps: losses.skipped_steps,
+            ..self.history.row(self.updates, self.timesteps, self.episodes)
         })
     }
 

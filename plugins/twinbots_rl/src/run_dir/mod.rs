@@ -29,6 +29,7 @@ pub use summary::{EvaluationSummary, Summary, TimeBreakdown};
 pub use table::{Row, Table};
 
 use crate::evaluation::EvalResult;
+use crate::agent::{Agent, LoadAgent};
 use crate::ppo::{Ppo, UpdateStats, write_atomic};
 
 pub const CONFIG: &str = "config.toml";
@@ -103,14 +104,14 @@ impl RunDir {
     }
 
     /// Saves the final model into `model/`.
-    pub fn save_model(&self, model: &Ppo) -> anyhow::Result<()> {
-        Ok(model.save(self.file(MODEL))?)
+    pub fn save_model(&self, model: &dyn Agent) -> anyhow::Result<()> {
+        Ok(model.save(&self.file(MODEL))?)
     }
 
     /// Saves `model` as `checkpoints/step_<timesteps>/`: written under another name and
     /// renamed into place, so a checkpoint is either complete or absent.
-    pub fn save_checkpoint(&self, model: &Ppo) -> anyhow::Result<PathBuf> {
-        let name = format!("step_{:010}", model.timesteps);
+    pub fn save_checkpoint(&self, model: &dyn Agent) -> anyhow::Result<PathBuf> {
+        let name = format!("step_{:010}", model.timesteps());
         let dir = self.file(CHECKPOINTS).join(&name);
         let partial = self.file(CHECKPOINTS).join(format!("{name}.partial"));
         let _ = std::fs::remove_dir_all(&partial);
@@ -142,11 +143,11 @@ impl RunDir {
 
     /// The newest checkpoint that loads: one that does not (damaged, or with non-finite
     /// weights) is reported on stderr and the one before it tried. Returns its path and model.
-    pub fn load_newest_checkpoint(&self) -> anyhow::Result<(PathBuf, Ppo)> {
+    pub fn load_newest_checkpoint<M: LoadAgent>(&self) -> anyhow::Result<(PathBuf, M)> {
         let checkpoints = self.checkpoints();
         anyhow::ensure!(!checkpoints.is_empty(), "{}: no checkpoint to resume from", self.path.display());
         for dir in checkpoints.iter().rev() {
-            match Ppo::load(dir) {
+            match M::load(dir) {
                 Ok(model) => return Ok((dir.clone(), model)),
                 Err(e) => eprintln!("warning: checkpoint {} is unusable ({e}); trying the one before it", dir.display()),
             }
@@ -154,14 +155,34 @@ impl RunDir {
         anyhow::bail!("{}: none of its {} checkpoints loads (see the warnings above)", self.path.display(), checkpoints.len())
     }
 
-    /// The run's trained model: its final model, else its newest checkpoint that loads.
+    /// The run's trained PPO model: its final model, else its newest checkpoint that loads.
     pub fn load_model(&self) -> anyhow::Result<Ppo> {
+        self.load_trained()
+    }
+
+    /// The run's trained model of either algorithm (to evaluate, view or record it).
+    pub fn load_agent(&self) -> anyhow::Result<Box<dyn Agent + Send>> {
+        let model = self.file(MODEL);
+        let saved = if model.join(crate::ppo::METADATA_FILE).is_file() { model } else { self.newest_checkpoint_dir()? };
+        Ok(match crate::agent::saved_algorithm(&saved)?.as_str() {
+            "SAC" => Box::new(self.load_trained::<crate::sac::Sac>()?),
+            _ => Box::new(self.load_trained::<Ppo>()?),
+        })
+    }
+
+    /// The algorithm the run trains with, as its newest model or checkpoint says.
+    fn newest_checkpoint_dir(&self) -> anyhow::Result<PathBuf> {
+        self.latest_checkpoint().ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint", self.path.display()))
+    }
+
+    /// Its final model, else its newest checkpoint that loads.
+    pub fn load_trained<M: LoadAgent>(&self) -> anyhow::Result<M> {
         let model = self.file(MODEL);
         if model.join(crate::ppo::METADATA_FILE).is_file() {
-            return Ok(Ppo::load(model)?);
+            return Ok(M::load(&model)?);
         }
         anyhow::ensure!(!self.checkpoints().is_empty(), "{}: no model or checkpoint", self.path.display());
-        Ok(self.load_newest_checkpoint()?.1)
+        Ok(self.load_newest_checkpoint::<M>()?.1)
     }
 
     /// Appends an update's row to `progress.csv` (with the header if the file is new).

@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::callbacks::TrainingEnd;
 use crate::evaluation::EvalResult;
-use crate::ppo::Ppo;
+use crate::agent::Agent;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
@@ -63,7 +63,7 @@ impl TimeBreakdown {
 
     pub fn describe(&self) -> String {
         format!(
-            "simulation {:.1} s, policy inference {:.1} s, PPO updates {:.1} s, bridge {:.1} s, logging/evaluation/checkpoints {:.1} s, other {:.1} s",
+            "simulation {:.1} s, policy inference {:.1} s, learner updates {:.1} s, bridge {:.1} s, logging/evaluation/checkpoints {:.1} s, other {:.1} s",
             self.simulation_s, self.inference_s, self.update_s, self.bridge_s, self.logging_s, self.other_s
         )
     }
@@ -80,8 +80,8 @@ pub struct EvaluationSummary {
 
 impl Summary {
     /// The summary of a run of `robot` under `pattern` that left `model` and ended as `end`.
-    pub fn new(robot: &str, pattern: u8, model: &Ppo, end: &TrainingEnd, wall_clock_s: f64, evaluation: Option<&EvalResult>) -> Self {
-        let mean = model.mean_recent_score();
+    pub fn new(robot: &str, pattern: u8, model: &dyn Agent, end: &TrainingEnd, wall_clock_s: f64, evaluation: Option<&EvalResult>) -> Self {
+        let mean = model.history().mean_score();
         let solved_at = match end {
             TrainingEnd::Solved { timesteps, by } => Some((*timesteps, by.to_string())),
             _ => None,
@@ -89,11 +89,11 @@ impl Summary {
         Self {
             robot: robot.to_string(),
             pattern,
-            timesteps: model.timesteps,
-            episodes: model.episodes,
+            timesteps: model.timesteps(),
+            episodes: model.episodes(),
             wall_clock_s_this_session: wall_clock_s,
             mean_reward_last_100: mean.is_finite().then_some(mean),
-            success_rate_last_100: model.recent_success_rate(),
+            success_rate_last_100: model.history().success_rate(),
             ended: end.to_string(),
             solved: solved_at.is_some(),
             solved_at_timesteps: solved_at.as_ref().map(|(t, _)| *t),

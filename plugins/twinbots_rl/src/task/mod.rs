@@ -16,7 +16,9 @@ use twinbots_sim::{Arena, ArenaConfig, SimSet, SimSettings, Supervisor};
 
 use crate::spaces::Space;
 
+pub mod goal;
 pub mod terms;
+pub use goal::GoalSpec;
 pub use terms::{ObservationTerm, RewardTerm, StartEvent, StepOutcome, TaskTerms, TerminationTerm};
 
 /// The paper's three ways (§3) to put a robot and its RL model together.
@@ -67,6 +69,9 @@ pub struct TaskSpec {
     /// The lowest and highest reward of one step ([`TaskTerms::reward_range`]); a RobotServer
     /// refuses rewards outside it.
     pub reward_range: (f32, f32),
+    /// For goal-conditioned tasks: where the observation holds its goals, and the reward for a
+    /// substituted goal (what HER relabels with).
+    pub goal: Option<GoalSpec>,
 }
 
 impl TaskSpec {
@@ -80,6 +85,7 @@ impl TaskSpec {
             observation_names: terms.observation_names(),
             reward_terms: terms.reward_names().into_iter().map(String::from).collect(),
             reward_range: terms.reward_range(),
+            goal: None,
         }
     }
 }

@@ -60,7 +60,8 @@ impl<S> RewardTerm<S> {
         self
     }
 
-    fn weighted(&self, s: &S) -> f32 {
+    /// weight × value, the value clamped into its range: the term's share of a step's reward.
+    pub fn weighted(&self, s: &S) -> f32 {
         self.weight * (self.value)(s).clamp(self.low, self.high)
     }
 }

@@ -1,0 +1,201 @@
+//! SAC's networks (SB3's SAC MlpPolicy): an actor with a squashed Gaussian head, and twin Q
+//! critics over (observation, action), each with its target copy. ReLU hidden layers.
+
+use candle_core::{D, Device, Result, Tensor, Var};
+use rand_chacha::ChaCha8Rng;
+
+use crate::ppo::policy::Dense;
+
+/// SB3's bounds on the actor's log standard deviation.
+const LOG_STD_MIN: f64 = -20.0;
+const LOG_STD_MAX: f64 = 2.0;
+
+/// Dense layers with ReLU after every one (`relu_last`) or all but the last.
+pub struct ReluMlp {
+    pub layers: Vec<Dense>,
+    relu_last: bool,
+}
+
+impl ReluMlp {
+    fn new(sizes: &[usize], relu_last: bool, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
+        let layers = sizes.windows(2).map(|w| Dense::new(w[0], w[1], 1.0, rng, dev)).collect::<Result<_>>()?;
+        Ok(Self { layers, relu_last })
+    }
+
+    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        let mut h = x.clone();
+        for (i, layer) in self.layers.iter().enumerate() {
+            h = layer.forward(&h)?;
+            if self.relu_last || i + 1 < self.layers.len() {
+                h = h.relu()?;
+            }
+        }
+        Ok(h)
+    }
+
+    fn named_vars(&self, prefix: &str, out: &mut Vec<(String, Var)>) {
+        for (i, l) in self.layers.iter().enumerate() {
+            out.push((format!("{prefix}.{i}.weight"), l.weight.clone()));
+            out.push((format!("{prefix}.{i}.bias"), l.bias.clone()));
+        }
+    }
+}
+
+/// π(a|s): a = tanh(u), u ~ N(μ(s), σ(s)), both heads on one ReLU body.
+pub struct Actor {
+    body: ReluMlp,
+    mu: Dense,
+    log_std: Dense,
+}
+
+impl Actor {
+    pub fn new(obs_dim: usize, act_dim: usize, hidden: &[usize], rng: &mut ChaCha8Rng) -> Result<Self> {
+        let dev = Device::Cpu;
+        let sizes = [&[obs_dim][..], hidden].concat();
+        let last = *sizes.last().unwrap_or(&obs_dim);
+        Ok(Self {
+            body: ReluMlp::new(&sizes, true, rng, &dev)?,
+            mu: Dense::new(last, act_dim, 1.0, rng, &dev)?,
+            log_std: Dense::new(last, act_dim, 1.0, rng, &dev)?,
+        })
+    }
+
+    fn heads(&self, obs: &Tensor) -> Result<(Tensor, Tensor)> {
+        let h = self.body.forward(obs)?;
+        Ok((self.mu.forward(&h)?, self.log_std.forward(&h)?.clamp(LOG_STD_MIN, LOG_STD_MAX)?))
+    }
+
+    /// The most likely action, tanh(μ(s)), in [-1, 1].
+    pub fn mode(&self, obs: &Tensor) -> Result<Tensor> {
+        self.heads(obs)?.0.tanh()
+    }
+
+    /// Reparameterised samples a = tanh(μ + σ ε) for the standard normal noise `eps`, and
+    /// log π(a|s) = Σ [log N(u; μ, σ) − log(1 − tanh²u)], with gradients.
+    pub fn sample(&self, obs: &Tensor, eps: &Tensor) -> Result<(Tensor, Tensor)> {
+        let (mu, log_std) = self.heads(obs)?;
+        let u = (&mu + (log_std.exp()? * eps)?)?;
+        let half_log_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
+        let gaussian = ((eps.sqr()? * -0.5)? - &log_std)? - half_log_2pi;
+        // log(1 − tanh²u) = 2 (log 2 − u − softplus(−2u)): exact where tanh saturates.
+        let squash = ((softplus(&(&u * -2.0)?)? + &u)?.neg()? + std::f64::consts::LN_2)? * 2.0;
+        let log_prob = (gaussian? - squash?)?.sum(D::Minus1)?;
+        Ok((u.tanh()?, log_prob))
+    }
+
+    pub fn named_vars(&self) -> Vec<(String, Var)> {
+        let mut out = Vec::new();
+        self.body.named_vars("actor.body", &mut out);
+        for (name, l) in [("actor.mu", &self.mu), ("actor.log_std", &self.log_std)] {
+            out.push((format!("{name}.weight"), l.weight.clone()));
+            out.push((format!("{name}.bias"), l.bias.clone()));
+        }
+        out
+    }
+}
+
+/// log(1 + eˣ), stable for large |x|.
+fn softplus(x: &Tensor) -> Result<Tensor> {
+    x.relu()? + (x.abs()?.neg()?.exp()? + 1.0)?.log()?
+}
+
+/// Q₁(s, a) and Q₂(s, a): two independent MLPs (clipped double Q).
+pub struct TwinCritic {
+    q1: ReluMlp,
+    q2: ReluMlp,
+}
+
+impl TwinCritic {
+    pub fn new(obs_dim: usize, act_dim: usize, hidden: &[usize], rng: &mut ChaCha8Rng) -> Result<Self> {
+        let dev = Device::Cpu;
+        let sizes = [&[obs_dim + act_dim][..], hidden, &[1]].concat();
+        Ok(Self { q1: ReluMlp::new(&sizes, false, rng, &dev)?, q2: ReluMlp::new(&sizes, false, rng, &dev)? })
+    }
+
+    /// (Q₁, Q₂), one value per row.
+    pub fn q(&self, obs: &Tensor, actions: &Tensor) -> Result<(Tensor, Tensor)> {
+        let x = Tensor::cat(&[obs, actions], 1)?;
+        Ok((self.q1.forward(&x)?.squeeze(1)?, self.q2.forward(&x)?.squeeze(1)?))
+    }
+
+    /// min(Q₁, Q₂).
+    pub fn min_q(&self, obs: &Tensor, actions: &Tensor) -> Result<Tensor> {
+        let (q1, q2) = self.q(obs, actions)?;
+        q1.minimum(&q2)
+    }
+
+    pub fn named_vars(&self, prefix: &str) -> Vec<(String, Var)> {
+        let mut out = Vec::new();
+        self.q1.named_vars(&format!("{prefix}.q1"), &mut out);
+        self.q2.named_vars(&format!("{prefix}.q2"), &mut out);
+        out
+    }
+
+    /// A copy sharing no variables (the target network starts as the critic).
+    pub fn deep_copy(&self) -> Result<Self> {
+        let copy = |m: &ReluMlp| -> Result<ReluMlp> {
+            let layers = m
+                .layers
+                .iter()
+                .map(|l| Ok(Dense { weight: Var::from_tensor(&l.weight.as_tensor().copy()?)?, bias: Var::from_tensor(&l.bias.as_tensor().copy()?)? }))
+                .collect::<Result<_>>()?;
+            Ok(ReluMlp { layers, relu_last: m.relu_last })
+        };
+        Ok(Self { q1: copy(&self.q1)?, q2: copy(&self.q2)? })
+    }
+}
+
+/// θ' ← τ θ + (1 − τ) θ' for each (target, source) pair, over plain slices.
+pub fn polyak_update(target: &[(String, Var)], source: &[(String, Var)], tau: f32) -> Result<()> {
+    for ((_, t), (_, s)) in target.iter().zip(source) {
+        let mut tv = t.as_tensor().flatten_all()?.to_vec1::<f32>()?;
+        let sv = s.as_tensor().flatten_all()?.to_vec1::<f32>()?;
+        for (a, b) in tv.iter_mut().zip(&sv) {
+            *a += tau * (b - *a);
+        }
+        t.set(&Tensor::from_vec(tv, t.shape(), t.device())?)?;
+    }
+    Ok(())
+}
+
+/// Sets every variable of `named` from `tensors` by name: a missing tensor, another shape or a
+/// non-finite value is an error naming it.
+pub fn set_vars(named: &[(String, Var)], tensors: &std::collections::HashMap<String, Tensor>) -> anyhow::Result<()> {
+    for (name, var) in named {
+        let t = tensors.get(name).ok_or_else(|| anyhow::anyhow!("missing tensor '{name}'"))?;
+        anyhow::ensure!(t.shape() == var.shape(), "tensor '{name}' has shape {:?}, expected {:?}", t.shape(), var.shape());
+        let finite = t.flatten_all()?.to_vec1::<f32>()?.iter().all(|x| x.is_finite());
+        anyhow::ensure!(finite, "tensor '{name}' holds non-finite values (NaN or infinity): these weights are unusable");
+        var.set(t)?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn the_squashed_log_prob_matches_the_change_of_variables_formula() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let actor = Actor::new(3, 2, &[8], &mut rng).unwrap();
+        let obs = Tensor::new(&[[0.3f32, -0.2, 0.9], [1.5, 0.0, -2.0]], &Device::Cpu).unwrap();
+        let eps = Tensor::new(&[[0.5f32, -1.0], [2.5, 0.1]], &Device::Cpu).unwrap();
+        let (a, log_prob) = actor.sample(&obs, &eps).unwrap();
+        let (mu, log_std) = actor.heads(&obs).unwrap();
+        let (a, log_prob) = (a.to_vec2::<f32>().unwrap(), log_prob.to_vec1::<f32>().unwrap());
+        let (mu, log_std, eps) = (mu.to_vec2::<f32>().unwrap(), log_std.to_vec2::<f32>().unwrap(), eps.to_vec2::<f32>().unwrap());
+        for r in 0..2 {
+            let mut expected = 0.0f64;
+            for k in 0..2 {
+                let (m, s, e) = (mu[r][k] as f64, (log_std[r][k] as f64).exp(), eps[r][k] as f64);
+                let u = m + s * e;
+                assert!((u.tanh() - a[r][k] as f64).abs() < 1e-5);
+                let normal = -0.5 * e * e - s.ln() - 0.5 * (2.0 * std::f64::consts::PI).ln();
+                expected += normal - (1.0 - u.tanh().powi(2)).ln();
+            }
+            assert!((expected - log_prob[r] as f64).abs() < 1e-3, "row {r}: {expected} vs {}", log_prob[r]);
+        }
+    }
+}
