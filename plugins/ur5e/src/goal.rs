@@ -45,20 +45,33 @@ fn substitute(obs: &mut [f32], goal: &[f32]) {
     obs[TARGET_OFFSET..TARGET_OFFSET + 3].copy_from_slice(&offset.to_array());
 }
 
-fn goal_reward(_obs: &[f32], next_obs: &[f32], goal: &[f32]) -> f32 {
+fn reward_change(_obs: &[f32], next_obs: &[f32], from: &[f32], to: &[f32]) -> f32 {
     let joints = |at: usize| -> [f32; 6] { std::array::from_fn(|i| next_obs[at + i]) };
-    let state = CellState { arm: ArmState::from_joints(joints(JOINT_POSITIONS), joints(JOINT_VELOCITIES)), target: point(goal), ..Default::default() };
-    target_terms().iter().map(|t| t.weighted(&state)).sum()
+    // The kinematics once for both goals: it is most of a relabelling's cost.
+    let mut state = CellState { arm: ArmState::from_joints(joints(JOINT_POSITIONS), joints(JOINT_VELOCITIES)), ..Default::default() };
+    let mut terms = |goal: &[f32]| {
+        state.target = point(goal);
+        target_terms().iter().map(|t| t.weighted(&state)).sum::<f32>()
+    };
+    let before = terms(from);
+    terms(to) - before
 }
 
 /// The reach task's goal interface.
 pub fn reach_goal() -> GoalSpec {
-    GoalSpec { dim: 3, achieved, desired, substitute, goal_reward }
+    GoalSpec { dim: 3, achieved, desired, substitute, reward_change }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The target terms' reward for the arm of `next_obs` with the target at `goal`.
+    fn goal_reward(next_obs: &[f32], goal: &[f32]) -> f32 {
+        let joints = |at: usize| -> [f32; 6] { std::array::from_fn(|i| next_obs[at + i]) };
+        let state = CellState { arm: ArmState::from_joints(joints(JOINT_POSITIONS), joints(JOINT_VELOCITIES)), target: point(goal), ..Default::default() };
+        target_terms().iter().map(|t| t.weighted(&state)).sum()
+    }
 
     #[test]
     fn the_goal_offsets_match_the_observation_terms() {
@@ -85,9 +98,11 @@ mod tests {
         assert_eq!((goal.achieved)(&obs), tcp.to_array().to_vec());
         // 10 cm away: −1 × 0.1 − 0.1 × (1 − e^{−25}), no arrival; at the TCP itself the
         // distance terms vanish and the arrival bonus is paid only if the tool points down.
-        let far = (goal.goal_reward)(&obs, &obs, &target.to_array());
+        let far = goal_reward(&obs, &target.to_array());
         assert!((far - (-0.1 - 0.1)).abs() < 1e-3, "{far}");
-        let here = (goal.goal_reward)(&obs, &obs, &tcp.to_array());
+        let here = goal_reward(&obs, &tcp.to_array());
+        let change = (goal.reward_change)(&obs, &obs, &target.to_array(), &tcp.to_array());
+        assert!((change - (here - far)).abs() < 1e-4, "{change}");
         let down = crate::kinematics::tilt(&arm.tcp) < crate::arm::TILT_TOLERANCE;
         assert!((here - if down { 10.0 } else { 0.0 }).abs() < 1e-3, "{here} (pointing down: {down})");
     }

@@ -166,7 +166,7 @@ mod tests {
             achieved: |obs| vec![obs[0]],
             desired: |obs| vec![obs[1]],
             substitute: |obs, goal| obs[1] = goal[0],
-            goal_reward: |_, next, goal| -(next[0] - goal[0]).abs(),
+            reward_change: |_, next, from, to| (next[0] - from[0]).abs() - (next[0] - to[0]).abs(),
         }
     }
 

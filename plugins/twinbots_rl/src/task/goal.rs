@@ -13,17 +13,16 @@ pub struct GoalSpec {
     pub desired: fn(obs: &[f32]) -> Vec<f32>,
     /// Rewrites `obs` so that it asks for `goal`.
     pub substitute: fn(obs: &mut [f32], goal: &[f32]),
-    /// The goal-dependent part of the reward of a step from `obs` to `next_obs` under `goal`:
-    /// a step's reward for another goal is its reward − this under its own goal + this under
-    /// the other (the other terms, effort and the like, do not depend on the goal).
-    pub goal_reward: fn(obs: &[f32], next_obs: &[f32], goal: &[f32]) -> f32,
+    /// How much the reward of a step from `obs` to `next_obs` changes when its goal is `to`
+    /// instead of `from`: the goal-dependent terms under `to` less under `from` (the other terms,
+    /// effort and the like, do not depend on the goal).
+    pub reward_change: fn(obs: &[f32], next_obs: &[f32], from: &[f32], to: &[f32]) -> f32,
 }
 
 impl GoalSpec {
     /// The reward a step from `obs` to `next_obs` that earned `reward` would have earned had its
     /// goal been `goal`.
     pub fn relabel_reward(&self, obs: &[f32], next_obs: &[f32], reward: f32, goal: &[f32]) -> f32 {
-        let own = (self.desired)(obs);
-        reward - (self.goal_reward)(obs, next_obs, &own) + (self.goal_reward)(obs, next_obs, goal)
+        reward + (self.reward_change)(obs, next_obs, &(self.desired)(obs), goal)
     }
 }
