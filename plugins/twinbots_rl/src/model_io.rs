@@ -6,8 +6,11 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor, Var};
 
+use crate::agent::{Agent, EpisodeHistory};
 use crate::nn::Adam;
+use crate::normalize::RunningMeanStd;
 use crate::replay::EnvState;
+use crate::spaces::Space;
 
 pub const WEIGHTS_FILE: &str = "model.safetensors";
 pub const METADATA_FILE: &str = "model.json";
@@ -104,6 +107,49 @@ pub fn load_env_state(dir: &Path) -> Result<Option<EnvState>, ModelError> {
     }
     let text = std::fs::read_to_string(&path).map_err(|e| file_error(&path, e))?;
     Ok(Some(serde_json::from_str::<EnvState>(&text).map_err(|e| file_error(&path, e))?))
+}
+
+/// What every `model.json` holds, whatever the algorithm (its own fields follow).
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct ModelHeader {
+    pub format: u32,
+    pub twinbots_version: String,
+    pub algorithm: String,
+    pub observation_space: Space,
+    pub action_space: Space,
+    pub obs_rms: Option<RunningMeanStd>,
+    pub seed: u64,
+    pub timesteps: u64,
+    pub episodes: u64,
+    pub updates: u64,
+    #[serde(flatten)]
+    pub history: EpisodeHistory,
+}
+
+impl ModelHeader {
+    pub fn of(agent: &dyn Agent, format: u32, obs_rms: Option<&RunningMeanStd>, seed: u64, updates: u64) -> Self {
+        Self {
+            format,
+            twinbots_version: env!("CARGO_PKG_VERSION").into(),
+            algorithm: agent.algorithm().into(),
+            observation_space: agent.observation_space().clone(),
+            action_space: agent.action_space().clone(),
+            obs_rms: obs_rms.cloned(),
+            seed,
+            timesteps: agent.timesteps(),
+            episodes: agent.episodes(),
+            updates,
+            history: agent.history().clone(),
+        }
+    }
+
+    /// An error unless the observation statistics are finite.
+    pub fn check(&self, path: &Path) -> Result<(), ModelError> {
+        match &self.obs_rms {
+            Some(rms) => rms.check_finite().map_err(|e| file_error(path, e)),
+            None => Ok(()),
+        }
+    }
 }
 
 /// Writes `value` as pretty JSON to `dir/model.json`, atomically.

@@ -11,30 +11,17 @@ use candle_core::Tensor;
 use serde::{Deserialize, Serialize};
 
 use super::{Ppo, PpoConfig};
-use crate::agent::EpisodeHistory;
 pub use crate::model_io::{METADATA_FILE, ModelError, OPTIMIZER_FILE, WEIGHTS_FILE, write_atomic};
-use crate::model_io::{self, file_error};
-use crate::normalize::RunningMeanStd;
+use crate::model_io::{self, ModelHeader, file_error};
 use crate::replay::StreamState;
-use crate::spaces::Space;
 
 const FORMAT: u32 = 1;
 
 #[derive(Serialize, Deserialize)]
 struct Metadata {
-    format: u32,
-    twinbots_version: String,
-    algorithm: String,
-    observation_space: Space,
-    action_space: Space,
-    hyperparameters: PpoConfig,
-    obs_rms: Option<RunningMeanStd>,
-    seed: u64,
-    timesteps: u64,
-    episodes: u64,
-    updates: u64,
     #[serde(flatten)]
-    history: EpisodeHistory,
+    header: ModelHeader,
+    hyperparameters: PpoConfig,
     /// Where the action-sampling and minibatch stream stands (absent in older models: it
     /// restarts from the seed).
     #[serde(default)]
@@ -56,18 +43,8 @@ impl Ppo {
         model_io::save_tensors(&moments, &dir.join(OPTIMIZER_FILE))?;
         model_io::save_env_state(dir, self.env_state.as_ref())?;
         let meta = Metadata {
-            format: FORMAT,
-            twinbots_version: env!("CARGO_PKG_VERSION").into(),
-            algorithm: "PPO".into(),
-            observation_space: self.observation_space.clone(),
-            action_space: self.action_space.clone(),
+            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates),
             hyperparameters: self.config.clone(),
-            obs_rms: self.obs_rms.clone(),
-            seed: self.seed,
-            timesteps: self.timesteps,
-            episodes: self.episodes,
-            updates: self.updates,
-            history: self.history.clone(),
             action_stream: Some(StreamState::of(&self.rng)),
             optimizer_steps,
         };
@@ -79,21 +56,15 @@ impl Ppo {
         let dir = dir.as_ref();
         let path = dir.join(METADATA_FILE);
         let meta: Metadata = model_io::load_metadata(dir, "PPO", FORMAT)?;
-        let mut model = Ppo::new(meta.hyperparameters, meta.observation_space, meta.action_space, meta.seed)
-            .map_err(|e| file_error(&path, e))?;
+        let h = meta.header;
+        h.check(&path)?;
+        let mut model = Ppo::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed).map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
         let tensors: HashMap<String, Tensor> = model_io::load_tensors(&weights)?;
         model.policy.set_weights(&tensors).map_err(|e| file_error(&weights, e))?;
-        model.obs_rms = meta.obs_rms;
-        model.timesteps = meta.timesteps;
-        model.episodes = meta.episodes;
-        model.updates = meta.updates;
-        model.history = meta.history;
+        (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) = (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
         if let Some(stream) = meta.action_stream {
             model.rng = stream.to_rng().map_err(|e| file_error(&path, e))?;
-        }
-        if let Some(rms) = &model.obs_rms {
-            rms.check_finite().map_err(|e| file_error(&path, e))?;
         }
         // Older models have no optimiser file: Adam then starts afresh.
         let optimizer = dir.join(OPTIMIZER_FILE);

@@ -11,33 +11,20 @@ use candle_core::{Device, Tensor, Var};
 use serde::{Deserialize, Serialize};
 
 use super::{ReplayBuffer, Sac, SacConfig};
-use crate::agent::EpisodeHistory;
-use crate::model_io::{self, METADATA_FILE, ModelError, OPTIMIZER_FILE, WEIGHTS_FILE, file_error};
+use crate::model_io::{self, METADATA_FILE, ModelError, ModelHeader, OPTIMIZER_FILE, WEIGHTS_FILE, file_error};
 use crate::nn::Adam;
-use crate::normalize::RunningMeanStd;
 use crate::replay::StreamState;
-use crate::spaces::Space;
 
 const FORMAT: u32 = 1;
 pub const REPLAY_BUFFER_FILE: &str = "replay_buffer.safetensors";
 
 #[derive(Serialize, Deserialize)]
 struct Metadata {
-    format: u32,
-    twinbots_version: String,
-    algorithm: String,
-    observation_space: Space,
-    action_space: Space,
+    #[serde(flatten)]
+    header: ModelHeader,
     hyperparameters: SacConfig,
-    obs_rms: Option<RunningMeanStd>,
-    seed: u64,
-    timesteps: u64,
-    episodes: u64,
-    updates: u64,
     gradient_steps: u64,
     iterations: u64,
-    #[serde(flatten)]
-    history: EpisodeHistory,
     sampling_stream: StreamState,
     /// Adam's step counts: actor, critic, entropy coefficient.
     optimizer_steps: [u64; 3],
@@ -98,20 +85,10 @@ impl Sac {
         };
         model_io::save_env_state(dir, self.env_state.as_ref())?;
         let meta = Metadata {
-            format: FORMAT,
-            twinbots_version: env!("CARGO_PKG_VERSION").into(),
-            algorithm: "SAC".into(),
-            observation_space: self.observation_space.clone(),
-            action_space: self.action_space.clone(),
+            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates),
             hyperparameters: self.config.clone(),
-            obs_rms: self.obs_rms.clone(),
-            seed: self.seed,
-            timesteps: self.timesteps,
-            episodes: self.episodes,
-            updates: self.updates,
             gradient_steps: self.gradient_steps,
             iterations: self.iterations,
-            history: self.history.clone(),
             sampling_stream: StreamState::of(&self.rng),
             optimizer_steps,
             replay_buffer,
@@ -126,19 +103,13 @@ impl Sac {
         let path = dir.join(METADATA_FILE);
         let meta: Metadata = model_io::load_metadata(dir, "SAC", FORMAT)?;
         meta.hyperparameters.validate().map_err(|e| file_error(&path, e))?;
-        let mut model = Sac::new(meta.hyperparameters, meta.observation_space, meta.action_space, meta.seed).map_err(|e| file_error(&path, e))?;
+        let h = meta.header;
+        h.check(&path)?;
+        let mut model = Sac::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed).map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
         super::networks::set_vars(&model.weights(), &model_io::load_tensors(&weights)?).map_err(|e| file_error(&weights, e))?;
-        if let Some(rms) = &meta.obs_rms {
-            rms.check_finite().map_err(|e| file_error(&path, e))?;
-        }
-        model.obs_rms = meta.obs_rms;
-        model.timesteps = meta.timesteps;
-        model.episodes = meta.episodes;
-        model.updates = meta.updates;
-        model.gradient_steps = meta.gradient_steps;
-        model.iterations = meta.iterations;
-        model.history = meta.history;
+        (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) = (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
+        (model.gradient_steps, model.iterations) = (meta.gradient_steps, meta.iterations);
         model.rng = meta.sampling_stream.to_rng().map_err(|e| file_error(&path, e))?;
         let optimizer = dir.join(OPTIMIZER_FILE);
         let moments = model_io::load_tensors(&optimizer)?;
