@@ -18,8 +18,8 @@ pub fn export_run(run: &Path, onnx: &Path) -> anyhow::Result<PolicyMetadata> {
     let entry = registry::find(&settings.robot)?;
     anyhow::ensure!(
         settings.algo == twinbots::settings::Algo::Ppo,
-        "{}: a {:?} run; `export` writes PPO policies only (SAC's squashed-Gaussian actor is not exported yet)",
-        run.display(), settings.algo
+        "{}: a SAC run; `export` writes PPO policies only (SAC's squashed-Gaussian actor is not exported yet)",
+        run.display()
     );
     let model = run_dir.load_model()?;
     // The robot's own description of its task and timing, as an app of it declares them.
