@@ -37,6 +37,6 @@ pub use robot::{AppRequest, Registry, RobotDescription, SacDefaults, TaskDescrip
 pub use run_dir::RunDir;
 pub use spaces::Space;
 pub use task::{
-    Action, DesignPattern, Episode, EpisodeSummary, GoalSpec, Measure, ObservationTerm, RewardTerm, SolvedCriterion, StartEvent, TaskPlugin,
+    Action, DesignPattern, Episode, EpisodeSummary, GoalChange, GoalSpec, Measure, ObservationTerm, RewardTerm, SolvedCriterion, StartEvent, TaskPlugin,
     TaskDefinition, TaskSpec, TaskTerms, TaskTermsPlugin, TerminationTerm,
 };

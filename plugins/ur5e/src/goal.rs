@@ -7,7 +7,7 @@
 use std::sync::OnceLock;
 
 use bevy::math::Vec3;
-use twinbots_rl::{GoalSpec, RewardTerm};
+use twinbots_rl::{GoalChange, GoalSpec, RewardTerm};
 
 use crate::arm::ArmState;
 use crate::state::CellState;
@@ -45,21 +45,22 @@ fn substitute(obs: &mut [f32], goal: &[f32]) {
     obs[TARGET_OFFSET..TARGET_OFFSET + 3].copy_from_slice(&offset.to_array());
 }
 
-fn reward_change(_obs: &[f32], next_obs: &[f32], from: &[f32], to: &[f32]) -> f32 {
+/// The target terms under each goal, and arrival at each (which ends a reach).
+fn change(_obs: &[f32], next_obs: &[f32], from: &[f32], to: &[f32]) -> GoalChange {
     let joints = |at: usize| -> [f32; 6] { std::array::from_fn(|i| next_obs[at + i]) };
     // The kinematics once for both goals: it is most of a relabelling's cost.
     let mut state = CellState { arm: ArmState::from_joints(joints(JOINT_POSITIONS), joints(JOINT_VELOCITIES)), ..Default::default() };
     let mut terms = |goal: &[f32]| {
         state.target = point(goal);
-        target_terms().iter().map(|t| t.weighted(&state)).sum::<f32>()
+        (target_terms().iter().map(|t| t.weighted(&state)).sum::<f32>(), state.arm.has_reached(state.target))
     };
-    let before = terms(from);
-    terms(to) - before
+    let ((before, ends_at_from), (after, ends_at_to)) = (terms(from), terms(to));
+    GoalChange { reward: after - before, ends_at_from, ends_at_to }
 }
 
 /// The reach task's goal interface.
 pub fn reach_goal() -> GoalSpec {
-    GoalSpec { dim: 3, achieved, desired, substitute, reward_change }
+    GoalSpec { dim: 3, achieved, desired, substitute, change }
 }
 
 #[cfg(test)]
@@ -101,9 +102,11 @@ mod tests {
         let far = goal_reward(&obs, &target.to_array());
         assert!((far - (-0.1 - 0.1)).abs() < 1e-3, "{far}");
         let here = goal_reward(&obs, &tcp.to_array());
-        let change = (goal.reward_change)(&obs, &obs, &target.to_array(), &tcp.to_array());
-        assert!((change - (here - far)).abs() < 1e-4, "{change}");
+        let change = (goal.change)(&obs, &obs, &target.to_array(), &tcp.to_array());
+        assert!((change.reward - (here - far)).abs() < 1e-4, "{change:?}");
+        assert!(!change.ends_at_from);
         let down = crate::kinematics::tilt(&arm.tcp) < crate::arm::TILT_TOLERANCE;
         assert!((here - if down { 10.0 } else { 0.0 }).abs() < 1e-3, "{here} (pointing down: {down})");
+        assert_eq!(change.ends_at_to, down, "arrival at the TCP itself (at rest) ends the reach iff the tool points down");
     }
 }

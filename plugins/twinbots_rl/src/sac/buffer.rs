@@ -10,6 +10,8 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::task::GoalSpec;
+#[cfg(test)]
+use crate::task::GoalChange;
 
 /// `remaining` of a transition whose episode has not ended yet.
 const RUNNING: u32 = u32::MAX;
@@ -117,7 +119,7 @@ impl ReplayBuffer {
 
     /// `batch_size` transitions drawn uniformly; with `her = (goals, n)`, each transition of a
     /// finished episode has its goal replaced, with probability n / (n + 1), by one its episode
-    /// achieved at that step or later ("future"), and its reward recomputed for it.
+    /// achieved at that step or later ("future"), and its reward and `done` recomputed for it.
     pub fn sample(&self, batch_size: usize, rng: &mut ChaCha8Rng, her: Option<(&GoalSpec, usize)>) -> Batch {
         let (o, a) = (self.obs_dim, self.act_dim);
         let mut b = Batch {
@@ -132,7 +134,7 @@ impl ReplayBuffer {
             let i = rng.random_range(0..len);
             let mut obs = self.obs[i * o..(i + 1) * o].to_vec();
             let mut next = self.next_obs[i * o..(i + 1) * o].to_vec();
-            let mut reward = self.rewards[i];
+            let (mut reward, mut done) = (self.rewards[i], self.dones[i] > 0.5);
             if let Some((goal, n)) = her
                 && self.remaining[i] != RUNNING
                 && rng.random_range(0..=n) > 0
@@ -140,7 +142,7 @@ impl ReplayBuffer {
                 let k = rng.random_range(0..=self.remaining[i] as usize);
                 let j = (i + k * self.n_envs) % self.capacity;
                 let achieved = (goal.achieved)(&self.next_obs[j * o..(j + 1) * o]);
-                reward = goal.relabel_reward(&obs, &next, reward, &achieved);
+                (reward, done) = goal.relabel(&obs, &next, reward, done, &achieved);
                 (goal.substitute)(&mut obs, &achieved);
                 (goal.substitute)(&mut next, &achieved);
             }
@@ -148,7 +150,7 @@ impl ReplayBuffer {
             b.next_obs.extend(next);
             b.actions.extend_from_slice(&self.actions[i * a..(i + 1) * a]);
             b.rewards.push(reward);
-            b.dones.push(self.dones[i]);
+            b.dones.push(f32::from(u8::from(done)));
         }
         b
     }
@@ -159,14 +161,19 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
 
-    /// 1-d "positions" with the goal in the second value: reward −|next − goal|.
+    /// 1-d "positions" with the goal in the second value: reward −|next − goal|, and the
+    /// episode ends on the goal.
     fn line_goal() -> GoalSpec {
         GoalSpec {
             dim: 1,
             achieved: |obs| vec![obs[0]],
             desired: |obs| vec![obs[1]],
             substitute: |obs, goal| obs[1] = goal[0],
-            reward_change: |_, next, from, to| (next[0] - from[0]).abs() - (next[0] - to[0]).abs(),
+            change: |_, next, from, to| GoalChange {
+                reward: (next[0] - from[0]).abs() - (next[0] - to[0]).abs(),
+                ends_at_from: next[0] == from[0],
+                ends_at_to: next[0] == to[0],
+            },
         }
     }
 
@@ -195,6 +202,8 @@ mod tests {
                 assert!(obs[0] < 3.0 && obs[1] >= next[0] && obs[1] <= 3.0, "{obs:?} → {next:?}");
                 assert_eq!(obs[1], next[1]);
                 assert_eq!(batch.rewards[r], -(next[0] - obs[1]).abs());
+                // Done exactly where the relabelled goal is reached.
+                assert_eq!(batch.dones[r], f32::from(u8::from(next[0] == obs[1])));
             } else {
                 assert_eq!(batch.rewards[r], -(next[0] - 50.0).abs());
             }

@@ -13,16 +13,26 @@ pub struct GoalSpec {
     pub desired: fn(obs: &[f32]) -> Vec<f32>,
     /// Rewrites `obs` so that it asks for `goal`.
     pub substitute: fn(obs: &mut [f32], goal: &[f32]),
-    /// How much the reward of a step from `obs` to `next_obs` changes when its goal is `to`
-    /// instead of `from`: the goal-dependent terms under `to` less under `from` (the other terms,
-    /// effort and the like, do not depend on the goal).
-    pub reward_change: fn(obs: &[f32], next_obs: &[f32], from: &[f32], to: &[f32]) -> f32,
+    /// What becomes of a step from `obs` to `next_obs` when its goal is `to` instead of `from`.
+    pub change: fn(obs: &[f32], next_obs: &[f32], from: &[f32], to: &[f32]) -> GoalChange,
+}
+
+/// A step under another goal: how its reward changes (the goal-dependent terms under the new
+/// goal less under the old; effort and the like do not depend on the goal), and whether it
+/// reaches either goal in a way that ends the episode (a reach ends on arrival).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GoalChange {
+    pub reward: f32,
+    pub ends_at_from: bool,
+    pub ends_at_to: bool,
 }
 
 impl GoalSpec {
-    /// The reward a step from `obs` to `next_obs` that earned `reward` would have earned had its
-    /// goal been `goal`.
-    pub fn relabel_reward(&self, obs: &[f32], next_obs: &[f32], reward: f32, goal: &[f32]) -> f32 {
-        reward + (self.reward_change)(obs, next_obs, &(self.desired)(obs), goal)
+    /// The reward and `done` a step from `obs` to `next_obs` that earned `reward` and ended the
+    /// MDP or not (`done`) would have had with the goal `goal`: an end the old goal caused is
+    /// undone, one the new goal causes is added, any other end stays.
+    pub fn relabel(&self, obs: &[f32], next_obs: &[f32], reward: f32, done: bool, goal: &[f32]) -> (f32, bool) {
+        let change = (self.change)(obs, next_obs, &(self.desired)(obs), goal);
+        (reward + change.reward, (done && !change.ends_at_from) || change.ends_at_to)
     }
 }

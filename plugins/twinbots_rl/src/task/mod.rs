@@ -18,7 +18,7 @@ use crate::spaces::Space;
 
 pub mod goal;
 pub mod terms;
-pub use goal::GoalSpec;
+pub use goal::{GoalChange, GoalSpec};
 pub use terms::{ObservationTerm, RewardTerm, StartEvent, StepOutcome, TaskTerms, TerminationTerm};
 
 /// The paper's three ways (§3) to put a robot and its RL model together.
