@@ -69,19 +69,22 @@ pub fn ppo_config() -> PpoConfig {
     }
 }
 
-/// SAC settings (`train ur5e --algo sac`): SB3's defaults with observation normalisation,
-/// 128-unit layers (256 cost 4× the arithmetic per gradient step on a 2-core machine), γ 0.98
-/// (a reach lasts at most 100 steps), 1000 random steps first, HER with 4 future goals per
-/// sample, and one gradient step per env step over 4 arenas.
+/// SAC settings (`train ur5e --algo sac`): RL Zoo's SAC + HER settings for FetchReach (lr
+/// 1e-3, γ 0.95, τ 0.05, 64-unit layers, 4 future goals per sample) with observation
+/// normalisation, 1000 random steps first, and two gradient steps per env step over 4 arenas.
+/// Measured against SB3's lr 3e-4 and τ 0.005 (80 % at 30 k steps where these solved at 20 k),
+/// and without HER (66 % at 60 k).
 pub fn sac_config() -> SacConfig {
     SacConfig {
-        normalize_observations: true,
-        hidden: vec![128, 128],
-        gamma: 0.98,
-        learning_starts: 1000,
-        gradient_steps: 4,
-        log_interval: 250,
+        learning_rate: 1e-3,
+        gamma: 0.95,
+        tau: 0.05,
+        hidden: vec![64, 64],
         her_goals: 4,
+        normalize_observations: true,
+        learning_starts: 1000,
+        gradient_steps: 8,
+        log_interval: 250,
         ..Default::default()
     }
 }
