@@ -138,7 +138,7 @@ impl Plugin for Ur5ePlugin {
             .add_systems(Startup, spawn_cells)
             .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)))
             // The twin's figures (energy, limit and collision events), under every pattern:
-            // what the cell measures of the arm (its motors' feedback, its contacts), not what
+            // what the cell measures of the arm (its motors' feedback, its contact sensors), not what
             // the controller observes.
             .add_systems(PhysicsSubstep, metrics::meter_energy.in_set(SubstepSet::Record))
             .add_systems(Update, metrics::count_events.after(read_arm).in_set(TaskSet::Read));

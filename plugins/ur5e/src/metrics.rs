@@ -3,8 +3,7 @@
 //! counted once when it begins), and the cycle time of a successful episode.
 
 use bevy::prelude::*;
-use twinbots_sim::rapier::prelude::*;
-use twinbots_sim::{Arena, JointState, Link, SimSettings, VacuumGripper};
+use twinbots_sim::{ContactSensor, JointState, SimSettings, Touched};
 use twinbots_rl::Episode;
 
 use crate::cell::CellParts;
@@ -50,32 +49,19 @@ pub fn meter_energy(settings: Res<SimSettings>, joints: Query<&JointState>, mut 
     }
 }
 
-/// Whether any link of the arm touches the cell (table, fixtures, parts), not counting the
-/// gripper's body touching the part it is meant to pick.
-pub fn arm_touches_cell(world: &PhysicsWorld, arm_bodies: &[RigidBodyHandle], gripper_body: Option<RigidBodyHandle>, part_body: RigidBodyHandle) -> bool {
-    arm_bodies.iter().filter_map(|&b| Some((b, world.bodies.get(b)?))).any(|(handle, body)| {
-        body.colliders().iter().any(|&own| {
-            world.contact_pairs_with(own).any(|pair| {
-                let other = if pair.collider1 == own { pair.collider2 } else { pair.collider1 };
-                let other_body = world.colliders.get(other).and_then(|c| c.parent());
-                let intended = Some(handle) == gripper_body && other_body == Some(part_body);
-                pair.has_any_active_contact() && !intended
-            })
-        })
+/// Whether any link of the arm touches the cell (table, fixtures, parts), as its contact
+/// sensors report, not counting the cup's body touching the part it is meant to pick.
+pub fn arm_in_collision(parts: &CellParts, sensors: &Query<&ContactSensor>) -> bool {
+    let cup = parts.contact_sensors[parts.contact_sensors.len() - 1];
+    parts.contact_sensors.iter().filter_map(|&s| Some((s, sensors.get(s).ok()?))).any(|(s, sensor)| {
+        if s == cup { sensor.touches_other_than(Touched::Link(parts.part)) } else { sensor.touching() }
     })
 }
 
-/// Counts joint-limit and collision events of this control step.
-pub fn count_events(
-    links: Query<&Link>,
-    grippers: Query<&twinbots_sim::Mount, With<VacuumGripper>>,
-    mut arenas: Query<(&Arena, &CellParts, &CellState, &mut TwinMeter)>,
-) {
-    for (arena, parts, state, mut meter) in &mut arenas {
-        let arm_bodies: Vec<RigidBodyHandle> = links.iter().filter(|l| l.robot == parts.robot).map(|l| l.body).collect();
-        let gripper_body = grippers.get(parts.gripper).ok().and_then(|m| links.get(m.link).ok()).map(|l| l.body);
-        let Ok(part) = links.get(parts.part) else { continue };
-        let touching = arm_touches_cell(&arena.world, &arm_bodies, gripper_body, part.body);
-        meter.observe(state.arm.at_joint_limit(), touching);
+/// Counts joint-limit and collision events of this control step, from the arm's encoders and
+/// contact sensors (devices: no physics world is read, under any design pattern).
+pub fn count_events(sensors: Query<&ContactSensor>, mut arenas: Query<(&CellParts, &CellState, &mut TwinMeter)>) {
+    for (parts, state, mut meter) in &mut arenas {
+        meter.observe(state.arm.at_joint_limit(), arm_in_collision(parts, &sensors));
     }
 }
