@@ -220,7 +220,8 @@ fn homing_returns_the_arm_to_its_home_pose() {
     let (mut app, arena, parts) = cell_app([1.0, -1.2, 1.0, -1.0, -0.8, 1.5]);
     let mut steps = 0;
     while !arm_state(&app, &parts).is_home() {
-        with_motors(&mut app, |motors| arm::drive_to(&parts, HOME, motors));
+        let speeds = arm::homing_speeds(&arm_state(&app, &parts).q);
+        with_motors(&mut app, |motors| arm::drive(&parts, speeds, motors));
         app.update();
         steps += 1;
         assert!(steps < 125, "not home after 5 s: {:?}", arm_state(&app, &parts).q);
