@@ -51,3 +51,17 @@ pub fn with_supervisor<R>(app: &mut App, f: impl for<'w, 's> FnOnce(&mut Supervi
     state.apply(world);
     out
 }
+
+/// Spawns another robot or object into an app's arena (after start-up), as a cell adds one.
+pub fn spawn_into(app: &mut App, arena_entity: Entity, model: &RobotModel, options: SpawnOptions) -> SpawnedRobot {
+    let world = app.world_mut();
+    let mut arena = world.entity_mut(arena_entity).take::<Arena>().expect("the arena exists");
+    let mut queue = CommandQueue::default();
+    let spawned = {
+        let mut commands = Commands::new(&mut queue, world);
+        spawn_robot(&mut commands, arena_entity, &mut arena, model, options)
+    };
+    queue.apply(world);
+    world.entity_mut(arena_entity).insert(arena);
+    spawned
+}

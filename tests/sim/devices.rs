@@ -4,11 +4,11 @@ use bevy::math::{EulerRot, Quat, Vec3};
 use bevy::prelude::*;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{
-    Accelerometer, DistanceSensor, Gps, Gyro, InArena, InertialUnit, Motor, MotorCommand, Mount, SamplingPeriod,
-    SimSettings, SpawnOptions, TouchSensor,
+    Accelerometer, ContactSensor, DistanceSensor, Gps, Gyro, InArena, InertialUnit, Motor, MotorCommand, Mount,
+    SamplingPeriod, SimSettings, SpawnOptions, TouchSensor, Touched,
 };
 
-use crate::common::{model_from, robot_app, robot_app_with};
+use crate::common::{model_from, robot_app, robot_app_with, spawn_into};
 
 /// A 1 kg, 0.2 m cube with a 1 kg·m² flywheel on a Y axle.
 const PROBE: &str = r#"<robot name="probe">
@@ -118,11 +118,13 @@ fn accelerometer_reads_g_at_rest_and_nothing_in_free_fall() {
     assert!(!t.touching && t.force == 0.0, "{t:?}");
 }
 
+/// A 2 kg, 0.2 m cube.
+const CUBE: &str = r#"<robot name="cube"><link name="base">
+  <inertial><mass value="2"/><inertia ixx="0.0133" ixy="0" ixz="0" iyy="0.0133" iyz="0" izz="0.0133"/></inertial>
+  <collision><geometry><box size="0.2 0.2 0.2"/></geometry></collision></link></robot>"#;
+
 #[test]
 fn touch_sensor_reads_the_weight_of_a_resting_body() {
-    const CUBE: &str = r#"<robot name="cube"><link name="base">
-      <inertial><mass value="2"/><inertia ixx="0.0133" ixy="0" ixz="0" iyy="0.0133" iyz="0" izz="0.0133"/></inertial>
-      <collision><geometry><box size="0.2 0.2 0.2"/></geometry></collision></link></robot>"#;
     let options = SpawnOptions { base: Pose::from_translation(Vec3::new(0.0, 0.0, 0.1)), ..Default::default() };
     let (mut app, arena, robot) = robot_app(&model_from(CUBE), options, SimSettings::default());
     let touch = mount(&mut app, arena, robot.link("base").unwrap(), TouchSensor::default());
@@ -185,4 +187,29 @@ fn a_reset_samples_every_device_of_the_arena_whatever_its_period() {
     app.world_mut().get_mut::<Gps>(gps).unwrap().position.z = -1.0;
     app.world_mut().run_schedule(ResetSense);
     assert_eq!(app.world().get::<Gps>(gps).unwrap().position.z, -1.0, "an arena not reset does not sample again");
+}
+
+/// A stack of two cubes on the ground and a third falling from high up: each cube's contact
+/// sensor names what its body touches — the ground (no link), the other cube's link — and the
+/// falling one touches nothing.
+#[test]
+fn contact_sensor_tells_what_its_body_touches() {
+    let cube = model_from(CUBE);
+    // Objects of the cell (the environment group) touch each other; robots' links would not.
+    let at = |z: f32| SpawnOptions { base: Pose::from_translation(Vec3::new(0.0, 0.0, z)), environment: true, ..Default::default() };
+    let (mut app, arena, bottom) = robot_app(&cube, at(0.1), SimSettings::default());
+    let top = spawn_into(&mut app, arena, &cube, at(0.3));
+    let falling = spawn_into(&mut app, arena, &cube, SpawnOptions { base: Pose::from_translation(Vec3::new(3.0, 0.0, 50.0)), ..at(0.0) });
+    let link = |r: &twinbots_sim::SpawnedRobot| r.link("base").unwrap();
+    let sensors = [&bottom, &top, &falling].map(|r| mount(&mut app, arena, link(r), ContactSensor::default()));
+    for _ in 0..30 {
+        app.update();
+    }
+    let read = |e| app.world().get::<ContactSensor>(e).unwrap().clone();
+    let below = read(sensors[0]);
+    assert_eq!(below.contacts.len(), 2, "{below:?}");
+    assert!(below.contacts.contains(&Touched::Fixed) && below.contacts.contains(&Touched::Link(link(&top))), "{below:?}");
+    assert_eq!(read(sensors[1]).contacts, vec![Touched::Link(link(&bottom))]);
+    assert!(read(sensors[1]).touches_other_than(Touched::Fixed) && !read(sensors[1]).touches_other_than(Touched::Link(link(&bottom))));
+    assert!(!read(sensors[2]).touching(), "{:?}", read(sensors[2]));
 }

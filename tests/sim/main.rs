@@ -8,6 +8,7 @@ mod motors;
 mod pattern3_access;
 mod pendulum;
 mod pioneer;
+mod protective_stop;
 mod radio;
 mod reset;
 mod soak;

@@ -6,7 +6,9 @@
 //! stream from its arena's) already has, recognised by system type — and the lab's operator
 //! events (systems holding the narrow `Operator` parameter, which can only place a hinge or an
 //! object) may touch an `Arena`, which holds the physics world. No system may use the
-//! Supervisor, and the app must not grant it (`SupervisorAccess`).
+//! Supervisor, and the app must not grant it (`SupervisorAccess`). There are no exceptions:
+//! what a robot measures of its cell (the UR5e's collisions) comes from devices (its contact
+//! sensors), which the framework's systems fill.
 
 use std::any::TypeId;
 use std::collections::HashSet;
@@ -17,16 +19,6 @@ use twinbots_server::robot::ServerRobotPlugin;
 use twinbots::registry;
 use twinbots_rl::DesignPattern;
 use twinbots_sim::{Arena, OperatorAccess, SimPlugin, SupervisorAccess, SupervisorPlugin};
-
-/// Robot-plugin systems allowed to read an arena under pattern 3, with the reason. Each is a
-/// lab-side measurement of a twin figure that no observation, reward or action sees.
-fn lab_measurements() -> Vec<(TypeId, &'static str)> {
-    vec![(
-        IntoSystem::into_system(ur5e::metrics::count_events).system_type(),
-        "the UR5e's collision_events figure reads the contacts of the physics world (a real UR \
-         detects collisions from its joint currents, not modelled yet); it is only reported",
-    )]
-}
 
 /// A robot state for building the framework's own systems.
 #[derive(Component)]
@@ -57,8 +49,7 @@ struct Privileged {
 /// Every system of every schedule of `app` that reaches privileged state without being
 /// allowed to, as "schedule: system #i: what" (system names need bevy's `debug` feature).
 fn violations(app: &mut App) -> Vec<String> {
-    let mut plumbing = plumbing();
-    plumbing.extend(lab_measurements().into_iter().map(|(t, _)| t));
+    let plumbing = plumbing();
     let world = app.world_mut();
     let privileged = Privileged {
         arena: world.register_component::<Arena>(),

@@ -1,6 +1,10 @@
 //! Random-action soaks of every built-in robot (issue 15.6, 18.4): under uniformly random
 //! actions, every joint stays within its URDF `<limit>` (position range, and for a motor its
-//! velocity limit), and no body's pose or velocity becomes NaN or explodes.
+//! velocity limit, checked every physics step), and no body's pose or velocity becomes NaN or
+//! explodes. The UR5e's wrists can be overpowered (random actions reverse the shoulder and
+//! elbow at full torque every 40 ms, which whips a 28 N·m wrist round); its controller then
+//! makes a protective stop (`ur5e::safety`), and the soak checks that outside a stop no joint
+//! ran past the stop's thresholds, and that every stop brought the arm to rest.
 //!
 //! The suite runs a short soak per robot. The long one (1 M control steps a robot) is ignored
 //! by default:
@@ -13,26 +17,13 @@ use bevy::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use twinbots::registry;
-use twinbots_rl::{AppVecEnv, DesignPattern, VecEnv};
-use twinbots_sim::{Arena, Joint, JointState, Motor};
+use twinbots_rl::{AppVecEnv, DesignPattern, TaskSpec, VecEnv};
+use twinbots_sim::{Arena, InArena, Joint, JointState, Motor, PhysicsSubstep, SimSettings, SubstepSet};
+use ur5e::safety::{OVERSPEED_TIME, PEAK_SPEED_MARGIN, REST_SPEED, SPEED_MARGIN};
 
 /// How far (rad or m) a joint may be measured past a position stop: contacts and the solver
 /// give way a little before the stop holds.
 pub const POSITION_TOLERANCE: f32 = 0.02;
-/// How much faster than its velocity limit (as a fraction of it) a joint driven by its own
-/// motor may be measured: the overshoot of the UR5e's holding servo when a random action
-/// reverses a light wrist within one 4 ms physics step (measured up to 9 %).
-pub const SPEED_TOLERANCE: f32 = 0.10;
-/// How much faster than its velocity limit a joint may turn while something overpowers its
-/// motor (a link pressed against the table by stronger joints back-drives a wrist at its 28
-/// N·m). The real arm would stop on such a collision (a protective stop, not simulated); the
-/// twin bounds it instead of spinning the joint up (24 rad/s, 7.8×, before issue 18). Random
-/// actions reverse the shoulder and elbow at full torque every 40 ms, which no acceleration
-/// limit of a real controller would allow; a wrist's 28 N·m cannot keep up with that and is
-/// whipped round (measured up to 3.1×).
-pub const OVERPOWERED_SPEED_RATIO: f32 = 4.0;
-/// A motor works at its effort limit when its effort is within this fraction of it.
-const SATURATED: f32 = 0.98;
 /// No body of a cell goes this far (m) from the origin, or this fast (m/s, rad/s).
 const BODY_BOUND: f32 = 100.0;
 
@@ -45,14 +36,20 @@ pub struct SoakReport {
     pub episodes: u64,
     /// The largest overrun of a position stop (rad or m), and the joint.
     pub worst_position_overrun: (f32, String),
-    /// The largest speed over a motor's velocity limit (as a fraction of it) while the motor
-    /// works within its effort limit, and the joint: what the motor's own drive did.
-    pub worst_speed_overrun: (f32, String),
-    /// The fastest joint (|velocity| / velocity limit) whose motor was overpowered (working at
-    /// its effort limit: a contact or a load back-drives it), and the joint.
-    pub peak_overpowered_speed_ratio: (f32, String),
-    /// The fastest joint (|velocity| / velocity limit), and the joint.
+    /// Outside a protective stop, every physics step: the fastest joint (|velocity| / velocity
+    /// limit), and the longest time (s) a joint ran over its limit by more than the stop's
+    /// margin, each with the joint. A robot without a safety system is never in a stop: its
+    /// drives must keep within the same bounds by themselves.
+    pub peak_speed_ratio_running: (f32, String),
+    pub longest_overspeed: (f32, String),
+    /// The fastest joint at any physics step, during stops too, and the joint.
     pub peak_speed_ratio: (f32, String),
+    /// Episodes that a protective stop ended (not the time limit); of them, those whose last
+    /// reading had a joint still moving; and the most control steps a stop took to end its
+    /// episode.
+    pub protective_stops: u64,
+    pub stops_not_at_rest: u64,
+    pub longest_braking_steps: u32,
     /// The fastest body (m/s or rad/s) and farthest body (m from the origin).
     pub peak_body_speed: f32,
     pub peak_body_distance: f32,
@@ -71,18 +68,17 @@ impl SoakReport {
         if self.worst_position_overrun.0 > POSITION_TOLERANCE {
             out.push(format!("{} went {:.4} past its stop", self.worst_position_overrun.1, self.worst_position_overrun.0));
         }
-        if self.worst_speed_overrun.0 > SPEED_TOLERANCE {
-            out.push(format!(
-                "{} ran {:.1} % over its velocity limit",
-                self.worst_speed_overrun.1,
-                self.worst_speed_overrun.0 * 100.0
-            ));
+        if self.peak_speed_ratio_running.0 > 1.0 + PEAK_SPEED_MARGIN {
+            let (ratio, joint) = &self.peak_speed_ratio_running;
+            out.push(format!("{joint} ran at {ratio:.2}× its velocity limit, not in a protective stop"));
         }
-        if self.peak_overpowered_speed_ratio.0 > OVERPOWERED_SPEED_RATIO {
-            out.push(format!(
-                "{} was back-driven at {:.2}× its velocity limit",
-                self.peak_overpowered_speed_ratio.1, self.peak_overpowered_speed_ratio.0
-            ));
+        // Half a physics step's slack, as the safety system allows for rounding.
+        if self.longest_overspeed.0 > OVERSPEED_TIME - 0.002 {
+            let (time, joint) = &self.longest_overspeed;
+            out.push(format!("{joint} ran over {:.0} % of its velocity limit for {time:.3} s, not in a protective stop", SPEED_MARGIN * 100.0));
+        }
+        if self.stops_not_at_rest > 0 {
+            out.push(format!("{} of {} protective stops ended with the arm moving", self.stops_not_at_rest, self.protective_stops));
         }
         if self.peak_body_speed > BODY_BOUND || self.peak_body_distance > BODY_BOUND {
             out.push(format!("a body exploded: {} m/s, {} m", self.peak_body_speed, self.peak_body_distance));
@@ -97,10 +93,11 @@ fn keep_max(slot: &mut (f32, String), value: f32, name: &str) {
     }
 }
 
-/// Checks every joint and body of the app's world into `report`.
+/// Checks every joint's position and every body of the app's world into `report` (after a
+/// control step).
 fn inspect(world: &mut World, report: &mut SoakReport) {
-    let mut joints = world.query::<(&Joint, &JointState, Option<&Motor>)>();
-    for (joint, state, motor) in joints.iter(world) {
+    let mut joints = world.query::<(&Joint, &JointState)>();
+    for (joint, state) in joints.iter(world) {
         if !(state.position.is_finite() && state.velocity.is_finite() && state.effort.is_finite()) {
             report.non_finite += 1;
             continue;
@@ -108,16 +105,6 @@ fn inspect(world: &mut World, report: &mut SoakReport) {
         if let Some([lo, hi]) = joint.limits {
             let over = (lo - state.position).max(state.position - hi).max(0.0);
             keep_max(&mut report.worst_position_overrun, over, &joint.name);
-        }
-        if let Some(motor) = motor {
-            let speed = state.velocity.abs();
-            let overpowered = state.effort.abs() >= SATURATED * motor.max_effort * motor.strength;
-            if overpowered {
-                keep_max(&mut report.peak_overpowered_speed_ratio, speed / motor.max_velocity, &joint.name);
-            } else {
-                keep_max(&mut report.worst_speed_overrun, (speed / motor.max_velocity - 1.0).max(0.0), &joint.name);
-            }
-            keep_max(&mut report.peak_speed_ratio, speed / motor.max_velocity, &joint.name);
         }
     }
     let mut arenas = world.query::<&Arena>();
@@ -135,14 +122,54 @@ fn inspect(world: &mut World, report: &mut SoakReport) {
     }
 }
 
+/// Motor speeds of every physics step, taken after the safety system's check.
+#[derive(Resource, Default)]
+struct SpeedLog {
+    peak_running: (f32, String),
+    longest_overspeed: (f32, String),
+    peak: (f32, String),
+    /// Per joint entity: how long it has run over the margin outside a stop.
+    overspeed_for: std::collections::HashMap<Entity, f32>,
+}
+
+fn log_speeds(
+    settings: Res<SimSettings>,
+    mut log: ResMut<SpeedLog>,
+    joints: Query<(Entity, &Joint, &JointState, &Motor, &InArena)>,
+    cells: Query<&ur5e::CellState>,
+) {
+    for (entity, joint, state, motor, in_arena) in &joints {
+        let ratio = state.velocity.abs() / motor.max_velocity;
+        keep_max(&mut log.peak, ratio, &joint.name);
+        if cells.get(in_arena.0).is_ok_and(|cell| cell.safety.stopped()) {
+            log.overspeed_for.remove(&entity);
+            continue;
+        }
+        keep_max(&mut log.peak_running, ratio, &joint.name);
+        let over = log.overspeed_for.entry(entity).or_default();
+        *over = if ratio > 1.0 + SPEED_MARGIN { *over + settings.dt } else { 0.0 };
+        let over = *over;
+        keep_max(&mut log.longest_overspeed, over, &joint.name);
+    }
+}
+
+/// Where a task's observation holds its joint speeds, if it observes them.
+fn joint_speeds(spec: &TaskSpec) -> Vec<usize> {
+    spec.observation_names.iter().enumerate().filter(|(_, n)| n.starts_with("joint_velocities[")).map(|(i, _)| i).collect()
+}
+
 /// Steps `robot`'s main task (pattern 1) with `arenas` arenas under uniformly random actions
-/// drawn from `seed` for `steps` control steps, checking after every step.
+/// drawn from `seed` for `steps` control steps, checking every physics step (speeds) and after
+/// every control step (positions, bodies, episodes that ended in a protective stop).
 pub fn soak(robot: &str, arenas: usize, steps: u64, seed: u64) -> SoakReport {
     let entry = registry::find(robot).expect("a built-in robot");
-    let app = entry.app(None, arenas, seed, DesignPattern::Supervised).expect("pattern 1 is supported");
+    let mut app = entry.app(None, arenas, seed, DesignPattern::Supervised).expect("pattern 1 is supported");
+    app.init_resource::<SpeedLog>().add_systems(PhysicsSubstep, log_speeds.after(SubstepSet::Record));
     let mut env = AppVecEnv::new(app);
+    let speeds = joint_speeds(env.app().world().resource::<TaskSpec>());
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut report = SoakReport { robot: robot.to_string(), ..default() };
+    let mut braking = vec![0u32; arenas];
     let start = std::time::Instant::now();
     env.reset(Some(seed)).expect("reset");
     inspect(env.app_mut().world_mut(), &mut report);
@@ -150,10 +177,28 @@ pub fn soak(robot: &str, arenas: usize, steps: u64, seed: u64) -> SoakReport {
     for _ in 0..steps {
         let actions: Vec<f32> = (0..arenas).flat_map(|_| space.sample(&mut rng)).collect();
         let step = env.step(&actions).expect("the app steps");
-        report.episodes += step.episodes.iter().flatten().count() as u64;
+        for (i, episode) in step.episodes.iter().enumerate() {
+            let Some(episode) = episode else { continue };
+            report.episodes += 1;
+            // A stop ends its episode once the arm is at rest (unless the time limit comes first).
+            if episode.metrics.get("protective_stops").is_some_and(|&n| n > 0.0) && step.terminated[i] {
+                report.protective_stops += 1;
+                report.longest_braking_steps = report.longest_braking_steps.max(braking[i] + 1);
+                let last = step.final_obs[i].as_ref().expect("a finished episode keeps its last observation");
+                report.stops_not_at_rest += u64::from(speeds.iter().any(|&k| last[k].abs() >= REST_SPEED));
+            }
+            braking[i] = 0;
+        }
+        for (i, &arena) in env.arenas().iter().enumerate() {
+            let stopped = env.app().world().get::<ur5e::CellState>(arena).is_some_and(|c| c.safety.stopped());
+            braking[i] += u32::from(stopped);
+        }
         report.arena_steps += arenas as u64;
         inspect(env.app_mut().world_mut(), &mut report);
     }
+    let log = env.app().world().resource::<SpeedLog>();
+    (report.peak_speed_ratio_running, report.longest_overspeed, report.peak_speed_ratio) =
+        (log.peak_running.clone(), log.longest_overspeed.clone(), log.peak.clone());
     report.seconds = start.elapsed().as_secs_f64();
     report
 }
@@ -166,7 +211,9 @@ fn assert_sound(report: &SoakReport) {
 
 #[test]
 fn the_ur5e_stays_within_its_joint_limits_under_random_actions() {
-    assert_sound(&soak("ur5e", 4, 1500, 7));
+    let report = soak("ur5e", 4, 1500, 7);
+    assert_sound(&report);
+    assert!(report.protective_stops > 0, "random actions overpower a wrist: the soak sees protective stops");
 }
 
 #[test]

@@ -6,7 +6,7 @@
 use bevy::ecs::world::CommandQueue;
 use bevy::prelude::*;
 use twinbots_sim::rapier::math::Pose;
-use twinbots_sim::{Arena, JointState, Link, Motor, MotorCommand, SimPlugin, VacuumGripper};
+use twinbots_sim::{Arena, ContactSensor, JointState, Link, Motor, MotorCommand, SimPlugin, Touched, VacuumGripper};
 use ur5e::arm::{self, ArmState};
 use ur5e::cell::{CellModels, CellParts, spawn_cell};
 use ur5e::kinematics::{self, HOME, JOINT_RANGE, MAX_TORQUE};
@@ -220,7 +220,8 @@ fn homing_returns_the_arm_to_its_home_pose() {
     let (mut app, arena, parts) = cell_app([1.0, -1.2, 1.0, -1.0, -0.8, 1.5]);
     let mut steps = 0;
     while !arm_state(&app, &parts).is_home() {
-        with_motors(&mut app, |motors| arm::drive_to(&parts, HOME, motors));
+        let speeds = arm::homing_speeds(&arm_state(&app, &parts).q);
+        with_motors(&mut app, |motors| arm::drive(&parts, speeds, motors));
         app.update();
         steps += 1;
         assert!(steps < 125, "not home after 5 s: {:?}", arm_state(&app, &parts).q);
@@ -262,6 +263,42 @@ fn the_vacuum_gripper_seizes_only_what_is_within_its_stroke() {
     run(&mut app, 25);
     assert!(!holding(&app));
     assert!((part_z(&app) - rest).abs() < 0.003, "the part fell to {}", part_z(&app));
+}
+
+/// Whether the arm is in collision, as the twin's collision figure judges it from the arm's
+/// contact sensors.
+fn in_collision(app: &mut App, parts: &CellParts) -> bool {
+    let world = app.world_mut();
+    let mut state = bevy::ecs::system::SystemState::<Query<&ContactSensor>>::new(world);
+    ur5e::metrics::arm_in_collision(parts, &state.get(world).expect("sensors are always queryable"))
+}
+
+/// The collision figure comes from the arm's contact sensors: the cup set down on the part it
+/// is to pick is no collision, the arm pressed onto the table is.
+#[test]
+fn collisions_are_what_the_arms_contact_sensors_report() {
+    let (mut app, _, parts) = cell_app(HOME);
+    let cup = |app: &App| app.world().get::<ContactSensor>(parts.contact_sensors[6]).unwrap().clone();
+    assert!(!in_collision(&mut app, &parts), "the arm at home touches nothing");
+    let top = ur5e::cell::part_seat(ur5e::cell::FIXTURE_A) + Vec3::Z * ur5e::cell::PART_HEIGHT;
+    move_tool(&mut app, &parts, top);
+    run(&mut app, 5);
+    assert_eq!(cup(&app).contacts, vec![Touched::Link(parts.part)], "the cup rests on the part");
+    assert!(!in_collision(&mut app, &parts), "the cup on the part it picks is no collision");
+
+    // Turned to the side, away from the fixtures, the shoulder lifting forward and the elbow
+    // folding: the arm comes down on the bare table.
+    let side = [HOME[0] + std::f32::consts::FRAC_PI_2, HOME[1], HOME[2], HOME[3], HOME[4], HOME[5]];
+    let (mut app, _, parts) = cell_app(side);
+    let mut steps = 0;
+    while !in_collision(&mut app, &parts) {
+        with_motors(&mut app, |motors| arm::drive(&parts, [0.0, 1.0, 0.5, 0.0, 0.0, 0.0], motors));
+        app.update();
+        steps += 1;
+        assert!(steps < 100, "no collision after 4 s");
+    }
+    let touched: Vec<Touched> = parts.contact_sensors.iter().flat_map(|&s| app.world().get::<ContactSensor>(s).unwrap().contacts.clone()).collect();
+    assert_eq!(touched, vec![Touched::Fixed], "the arm touches the table (no link), and only it");
 }
 
 fn link_arena(app: &App, parts: &CellParts) -> Entity {

@@ -16,9 +16,9 @@ pub use bevy_rapier3d::rapier;
 
 pub use arena::{Arena, ArenaConfig, InArena};
 pub use devices::{
-    Accelerometer, BROADCAST, CameraSensor, DevicesPlugin, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint,
+    Accelerometer, BROADCAST, CameraSensor, ContactSensor, DevicesPlugin, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint,
     JointState, Motor, MotorCommand, Mount, Packet, PositionSensor, RadioPlugin, Receiver, SamplingPeriod, TouchSensor,
-    VacuumGripper,
+    Touched, VacuumGripper,
 };
 pub use framing::Framing;
 pub use physics::{PhysicsPlugin, PhysicsSubstep, SimClock, SimSettings, SubstepSet};

@@ -123,11 +123,16 @@ pub fn drive(parts: &CellParts, speeds: [f32; 6], motors: &mut Query<&mut Motor>
     }
 }
 
-/// Position-controls the joints towards `q` (rad), within the motors' speed: homing.
-pub fn drive_to(parts: &CellParts, q: [f32; 6], motors: &mut Query<&mut Motor>) {
-    for (&joint, target) in parts.joints.iter().zip(q) {
-        if let Ok(mut m) = motors.get_mut(joint) {
-            m.command = MotorCommand::Position(target);
-        }
-    }
+/// Joint speed (rad/s) of homing: the policy's top speed, half the joints' limit. Homing at
+/// the full π rad/s, every joint starting at once drove the wrists and even the shoulder past
+/// their limit, up to 2×, for up to 24 physics steps in a row (measured): a protective stop.
+/// At π/2 the drives overshoot by 1.31× at most, for 2 steps (see [`crate::safety`]).
+pub const HOMING_SPEED: f32 = ACTION_SPEED;
+/// Gain (1/s) of homing's position loop: speed = gain × distance to home, within
+/// [`HOMING_SPEED`]. Closed once a control step, it takes 0.4 of the distance a step.
+const HOMING_GAIN: f32 = 10.0;
+
+/// Joint speeds that take the arm from `q` home: the controller's homing move.
+pub fn homing_speeds(q: &[f32; 6]) -> [f32; 6] {
+    std::array::from_fn(|i| (HOMING_GAIN * (HOME[i] - q[i])).clamp(-HOMING_SPEED, HOMING_SPEED))
 }

@@ -7,7 +7,7 @@ use std::path::Path;
 use bevy::prelude::*;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
-use twinbots_sim::{Arena, InArena, Motor, MotorCommand, Mount, SpawnOptions, VacuumGripper, spawn_robot};
+use twinbots_sim::{Arena, ContactSensor, InArena, Motor, MotorCommand, Mount, SpawnOptions, VacuumGripper, spawn_robot};
 
 use crate::kinematics::JOINTS;
 
@@ -31,6 +31,11 @@ pub const PART_RADIUS: f32 = 0.025;
 /// The suction cup: radius and bellows stroke (m).
 pub const CUP_RADIUS: f32 = 0.02;
 pub const CUP_STROKE: f32 = 0.015;
+
+/// The links that own the arm's rigid bodies, base to wrist: the flange, the gripper and the
+/// tcp are welded to wrist 3's, so its contact sensor also covers the suction cup.
+pub const ARM_BODIES: [&str; 7] =
+    ["base_link", "shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link"];
 
 /// The robot's base in the arena (world) frame.
 pub fn base_pose() -> Pose {
@@ -75,6 +80,8 @@ pub struct CellParts {
     /// The suction cup's face: the tool centre point.
     pub tcp: Entity,
     pub gripper: Entity,
+    /// A contact sensor on each of the arm's bodies ([`ARM_BODIES`]); the last carries the cup.
+    pub contact_sensors: [Entity; 7],
     /// The part's link.
     pub part: Entity,
     /// The robot's base in the arena frame.
@@ -112,5 +119,10 @@ pub fn spawn_cell(commands: &mut Commands, arena_entity: Entity, arena: &mut Are
     // The cup sucks along the tcp's z; a mounted device's forward axis is its +X.
     let cup = Mount { link: tcp, offset: Pose::from_rotation(Quat::from_rotation_arc(Vec3::X, Vec3::Z)) };
     let gripper = commands.spawn((VacuumGripper::new(CUP_RADIUS, CUP_STROKE), cup, InArena(arena_entity))).id();
-    CellParts { robot: robot.robot(), joints, tcp, gripper, part: get(part.link("part"), "part"), base }
+    // The arm's skin: what each of its bodies touches, for the collision figure.
+    let contact_sensors = ARM_BODIES.map(|name| {
+        let mount = Mount { link: get(robot.link(name), name), offset: Pose::IDENTITY };
+        commands.spawn((ContactSensor::default(), mount, InArena(arena_entity))).id()
+    });
+    CellParts { robot: robot.robot(), joints, tcp, gripper, contact_sensors, part: get(part.link("part"), "part"), base }
 }

@@ -13,8 +13,9 @@
 //!   cell program of waypoints driven by a reach policy.
 //!
 //! Every episode reports the digital-twin figures (success, cycle time, energy, joint-limit and
-//! collision events). Design pattern 1 resets by the Supervisor; pattern 3 ([`server`]) homes
-//! the arm with its own motors.
+//! collision events, protective stops). The controller's safety system ([`safety`]) stops the
+//! arm when a joint is driven past its limits, and the episode ends as a failure. Design
+//! pattern 1 resets by the Supervisor; pattern 3 ([`server`]) homes the arm with its own motors.
 
 pub mod arm;
 pub mod cell;
@@ -24,6 +25,7 @@ pub mod kinematics;
 pub mod metrics;
 pub mod pick_place;
 pub mod reach;
+pub mod safety;
 pub mod server;
 pub mod state;
 
@@ -160,10 +162,12 @@ impl Plugin for Ur5ePlugin {
             .add_plugins(TaskTermsPlugin::new(definition, self.pattern))
             .add_systems(Startup, spawn_cells)
             .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)))
-            // The twin's figures (energy, limit and collision events), under every pattern:
-            // what the cell measures of the arm (its motors' feedback, its contacts), not what
+            // The twin's figures (energy, limit and collision events, stops), under every pattern:
+            // what the cell measures of the arm (its motors' feedback, its contact sensors), not what
             // the controller observes.
             .add_systems(PhysicsSubstep, metrics::meter_energy.in_set(SubstepSet::Record))
+            // The controller's safety system watches every physics step, under every pattern.
+            .add_systems(PhysicsSubstep, safety::monitor.in_set(SubstepSet::Record))
             .add_systems(Update, metrics::count_events.after(read_arm).in_set(TaskSet::Read));
         if self.task == Ur5eTask::Reach {
             app.add_systems(Update, reach::report.in_set(TaskSet::Report));
@@ -173,7 +177,7 @@ impl Plugin for Ur5ePlugin {
             return;
         }
         // Starts put in place by the Supervisor.
-        app.add_systems(EnvReset, ((reset_meter, place_arm).in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
+        app.add_systems(EnvReset, ((reset_meter, unlock_stop, place_arm).in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
         match self.task {
             Ur5eTask::Reach => {}
             Ur5eTask::PickPlace => {
@@ -192,9 +196,11 @@ fn spawn_cells(mut commands: Commands, models: Res<CellModels>, config: Res<Aren
     });
 }
 
+/// The policy's action becomes joint speeds, unless the arm is in a protective stop: then it
+/// holds, braked, whatever it is told.
 fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState)>, mut motors: Query<&mut Motor>) {
     for (parts, action, mut state) in &mut arenas {
-        if !action.0.is_empty() {
+        if !action.0.is_empty() && !state.safety.stopped() {
             arm::drive(parts, arm::joint_speeds(&action.0), &mut motors);
             state.actions.push(&action.0);
         }
@@ -206,6 +212,9 @@ fn read_arm(sensors: Query<(&PositionSensor, &JointState)>, mut arenas: Query<(&
     for (parts, mut state) in &mut arenas {
         state.arm = arm::ArmState::read(parts, &sensors);
         state.read = true;
+        if state.safety.stopped() {
+            state.safety.braking_steps += 1;
+        }
     }
 }
 
@@ -213,6 +222,13 @@ fn read_arm(sensors: Query<(&PositionSensor, &JointState)>, mut arenas: Query<(&
 fn reset_meter(mut arenas: Query<&mut TwinMeter, With<Resetting>>) {
     for mut meter in &mut arenas {
         *meter = TwinMeter::default();
+    }
+}
+
+/// Reset: the Supervisor puts the arm back, and its protective stop is unlocked.
+fn unlock_stop(mut arenas: Query<&mut CellState, With<Resetting>>) {
+    for mut state in &mut arenas {
+        state.safety.unlock();
     }
 }
 

@@ -8,7 +8,8 @@
 //!
 //! Episodes start near home with the part anywhere its pocket lets it sit.
 //! The episode ends when the program is done (success if the part then stands in fixture B's
-//! pocket), when the part was not seized, or after [`EPISODE_STEPS`].
+//! pocket), when the part was not seized, in a protective stop (which halts the program), or
+//! after [`EPISODE_STEPS`].
 
 use bevy::prelude::*;
 use rand::Rng;
@@ -124,6 +125,10 @@ impl Program {
 pub fn run_program(grippers: Query<&VacuumGripper>, mut arenas: Query<(&CellParts, &mut CellState)>) {
     for (parts, mut state) in &mut arenas {
         let Ok(gripper) = grippers.get(parts.gripper) else { continue };
+        // A protective stop halts the program, as it does a UR's.
+        if state.safety.stopped() {
+            continue;
+        }
         let state = &mut *state;
         state.suction = state.program.step(&state.arm, gripper.held().is_some());
         state.target = waypoint(state.program.stage);
@@ -152,7 +157,10 @@ pub fn pick_place_task() -> TaskDefinition<CellState> {
         terms: TaskTerms {
             observations: observations(),
             rewards: motion_costs(),
-            terminations: vec![TerminationTerm::new("program_over", |s: &CellState| s.program.is_over())],
+            terminations: vec![
+                TerminationTerm::new("program_over", |s: &CellState| s.program.is_over()),
+                TerminationTerm::new("protective_stop", |s: &CellState| s.protective_stop_ended()),
+            ],
             time_limit: Some(EPISODE_STEPS),
             start_events: vec![StartEvent::new("new_program", new_program)],
         },

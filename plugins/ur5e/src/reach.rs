@@ -1,6 +1,7 @@
 //! Reach: move the tool to a target sampled over the table, pointing down, and come to rest
-//! there within 1 cm. The episode ends on arrival (success) or after [`EPISODE_STEPS`]; the
-//! next starts near home or, after an arrival, half the time where that one ended.
+//! there within 1 cm. The episode ends on arrival (success), in a protective stop (failure) or
+//! after [`EPISODE_STEPS`]; the next starts near home or, after an arrival, half the time where
+//! that one ended.
 
 use bevy::prelude::*;
 use rand::Rng;
@@ -59,20 +60,43 @@ pub fn observations() -> Vec<ObservationTerm<CellState>> {
     ]
 }
 
+/// Weights of the costs of where the tool is, per step: its distance to the target, the
+/// precision term, its tilt.
+const DISTANCE_WEIGHT: f32 = 1.0;
+const PRECISION_WEIGHT: f32 = 0.1;
+const TILT_WEIGHT: f32 = 0.5;
+/// Declared ranges of those costs' values (a RobotServer checks rewards against them; a term
+/// clamps its value into its range): targets lie within the arm's reach, so a distance over
+/// 3 m is no reach; precision is at most 1; tilt is an angle.
+const MAX_DISTANCE: f32 = 3.0;
+const MAX_TILT: f32 = std::f32::consts::PI;
+
+fn distance(s: &CellState) -> f32 {
+    s.arm.distance_to(s.target)
+}
+
+fn precision(s: &CellState) -> f32 {
+    1.0 - (-(distance(s) / 0.02).powi(2)).exp()
+}
+
+fn tilt(s: &CellState) -> f32 {
+    kinematics::tilt(&s.arm.tcp)
+}
+
+/// What one step with the tool where it is costs: the pose terms of [`motion_costs`].
+fn pose_cost(s: &CellState) -> f32 {
+    DISTANCE_WEIGHT * distance(s) + PRECISION_WEIGHT * precision(s) + TILT_WEIGHT * tilt(s)
+}
+
 /// The cost of a motion towards the target: of distance (linear, and steeper within a few
 /// centimetres, where precision is won), of tilt, of effort and of jerky actions. Every term
 /// is a cost, so lingering never pays.
 pub fn motion_costs() -> Vec<RewardTerm<CellState>> {
-    fn distance(s: &CellState) -> f32 {
-        s.arm.distance_to(s.target)
-    }
     vec![
-        // Declared ranges (a RobotServer checks rewards against them): targets lie within the
-        // arm's reach, so a distance over 3 m is no reach; tilt is an angle; actions are
-        // clamped to [-1, 1] per joint.
-        RewardTerm::new("distance", -1.0, distance).bounded(0.0, 3.0),
-        RewardTerm::new("precision", -0.1, |s: &CellState| 1.0 - (-(distance(s) / 0.02).powi(2)).exp()).bounded(0.0, 1.0),
-        RewardTerm::new("tilt", -0.5, |s: &CellState| kinematics::tilt(&s.arm.tcp)).bounded(0.0, std::f32::consts::PI),
+        // Actions are clamped to [-1, 1] per joint.
+        RewardTerm::new("distance", -DISTANCE_WEIGHT, distance).bounded(0.0, MAX_DISTANCE),
+        RewardTerm::new("precision", -PRECISION_WEIGHT, precision).bounded(0.0, 1.0),
+        RewardTerm::new("tilt", -TILT_WEIGHT, tilt).bounded(0.0, MAX_TILT),
         RewardTerm::new("effort", -0.01, |s: &CellState| s.actions.last.iter().map(|a| a * a).sum())
             .bounded(0.0, ACTION_DIM as f32),
         RewardTerm::new("action_rate", -0.02, |s: &CellState| {
@@ -86,15 +110,26 @@ pub fn motion_costs() -> Vec<RewardTerm<CellState>> {
 /// by arriving soon), a 100-step limit. Solved when 98 % of 200 evaluation episodes succeed, a
 /// margin over the 95 % the twin must reach (a first crossing of 95 % in 100 episodes measured
 /// 95.0 % at another seed, and of 98 % in 100, 94.4 % over 500).
+///
+/// A protective stop ([`crate::safety`]) ends the episode too, as a failure, with a penalty of
+/// a whole episode's pose costs where the arm stopped: at least what the rest of the episode
+/// would have cost had it held still there, so ending an episode by a stop never pays (every
+/// other term being a cost, a cheaper stop would).
 pub fn reach_task() -> TaskDefinition<CellState> {
     let mut rewards = motion_costs();
-    rewards.push(RewardTerm::new("arrival", 10.0, |s: &CellState| f32::from(u8::from(s.arm.has_reached(s.target)))).bounded(0.0, 1.0));
+    rewards.push(RewardTerm::new("arrival", 10.0, |s: &CellState| f32::from(u8::from(s.arrived()))).bounded(0.0, 1.0));
+    let stop_penalty = |s: &CellState| if s.protective_stop_ended() { pose_cost(s) } else { 0.0 };
+    let max_pose_cost = DISTANCE_WEIGHT * MAX_DISTANCE + PRECISION_WEIGHT + TILT_WEIGHT * MAX_TILT;
+    rewards.push(RewardTerm::new("protective_stop", -(EPISODE_STEPS as f32), stop_penalty).bounded(0.0, max_pose_cost));
     TaskDefinition {
         name: "ur5e".into(),
         terms: TaskTerms {
             observations: observations(),
             rewards,
-            terminations: vec![TerminationTerm::goal("arrived", |s: &CellState| s.arm.has_reached(s.target))],
+            terminations: vec![
+                TerminationTerm::goal("arrived", |s: &CellState| s.arrived()),
+                TerminationTerm::new("protective_stop", |s: &CellState| s.protective_stop_ended()),
+            ],
             time_limit: Some(EPISODE_STEPS),
             start_events: vec![StartEvent::new("new_reach", new_reach)],
         },
@@ -107,7 +142,7 @@ pub fn reach_task() -> TaskDefinition<CellState> {
 /// the time, as a cell's next move does, so the policy learns moves from anywhere it may have
 /// arrived: a pick-and-place program chains them), near home otherwise.
 fn new_reach(s: &mut CellState, rng: &mut rand_chacha::ChaCha8Rng) {
-    let arrived = s.arm.has_reached(s.target).then_some(s.arm.q);
+    let arrived = s.arrived().then_some(s.arm.q);
     s.target = sample_target(rng);
     let near_home = sample_start(rng);
     let chain = rng.random::<bool>();

@@ -3,8 +3,8 @@
 //! orders (the task's start event, from its own random stream), and talks to a RobotServer
 //! through its Communicator (the generic cycle of `twinbots_server::robot`, with the reach
 //! task's own terms). Episodes restart the way a real cell's do: the arm homes with its own
-//! motors (position control back to home), and if the part has been knocked out of fixture
-//! A, the lab operator puts it back before the next episode starts. (The start pose the start
+//! motors (after a protective stop, once braked to rest and unlocked), and if the part has
+//! been knocked out of fixture A, the lab operator puts it back before the next episode starts. (The start pose the start
 //! event also draws is for the Supervisor of pattern 1; a homing arm starts at home.) The
 //! twin's figures of an episode (energy, events) count from its start, not from its homing.
 
@@ -15,7 +15,6 @@ use twinbots_sim::{Motor, Operator};
 
 use crate::arm;
 use crate::cell::{CellParts, FIXTURE_A, part_seat};
-use crate::kinematics::HOME;
 use crate::metrics::TwinMeter;
 use crate::state::CellState;
 
@@ -27,18 +26,26 @@ pub(crate) fn build(app: &mut App) {
         .add_systems(Update, (home.in_set(RobotCycleSet::Home), (operate, reset_meter).in_set(RobotCycleSet::Operate)));
 }
 
-/// Homing with the arm's own motors: position control back to home; once there and still,
-/// the robot is home and the next step starts an episode.
-fn home(mut robots: Query<(&CellParts, &CellState, &Controller, &mut AtHome)>, mut motors: Query<&mut Motor>) {
-    for (parts, state, controller, mut at_home) in &mut robots {
+/// Homing with the arm's own motors: back to home at [`arm::HOMING_SPEED`]; once there and
+/// still, the robot is home and the next step starts an episode. An arm in a protective stop
+/// first brakes to rest; then the stop is unlocked (as an operator or the cell's PLC does
+/// through UR's dashboard) and it homes.
+fn home(mut robots: Query<(&CellParts, &mut CellState, &Controller, &mut AtHome)>, mut motors: Query<&mut Motor>) {
+    for (parts, mut state, controller, mut at_home) in &mut robots {
         if controller.phase() != Phase::Homing || !state.read {
             continue;
+        }
+        if state.safety.stopped() {
+            if !state.safety.stop_ended(&state.arm.qd) {
+                continue;
+            }
+            state.safety.unlock();
         }
         at_home.0 = state.arm.is_home();
         if at_home.0 {
             arm::drive(parts, [0.0; 6], &mut motors);
         } else {
-            arm::drive_to(parts, HOME, &mut motors);
+            arm::drive(parts, arm::homing_speeds(&state.arm.q), &mut motors);
         }
     }
 }

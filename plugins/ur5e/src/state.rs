@@ -1,11 +1,12 @@
 //! What the cell's controller knows and is doing at a step, under every design pattern: the arm
-//! as its encoders report it, the tool target it is sent to, the actions it was given, the cell
-//! program's progress, and the start the next episode drew.
+//! as its encoders report it, its safety system's state, the tool target it is sent to, the
+//! actions it was given, the cell program's progress, and the start the next episode drew.
 
 use bevy::prelude::*;
 
 use crate::arm::{ActionHistory, ArmState};
 use crate::pick_place::Program;
+use crate::safety::Safety;
 
 /// The state the UR5e tasks' terms read (one per arena).
 #[derive(Component, Clone, Debug, Default)]
@@ -13,6 +14,8 @@ pub struct CellState {
     /// Whether the controller has read its encoders yet: a robot homes only from a reading.
     pub read: bool,
     pub arm: ArmState,
+    /// The safety system: whether the arm is in a protective stop.
+    pub safety: Safety,
     /// Where the task sends the tool: a point in the base frame, the tool pointing down
     /// (Isaac Lab's command term).
     pub target: Vec3,
@@ -26,4 +29,16 @@ pub struct CellState {
     pub start_pose: [f32; 6],
     pub part_offset: Vec3,
     pub part_yaw: f32,
+}
+
+impl CellState {
+    /// Whether the tool has reached the target: a braking arm that comes to rest there has not.
+    pub fn arrived(&self) -> bool {
+        !self.safety.stopped() && self.arm.has_reached(self.target)
+    }
+
+    /// Whether the episode ends in a protective stop now: the stop has run its course.
+    pub fn protective_stop_ended(&self) -> bool {
+        self.safety.stop_ended(&self.arm.qd)
+    }
 }

@@ -7,6 +7,7 @@ use crate::SimSet;
 use crate::physics::{PhysicsSubstep, SubstepSet};
 
 mod camera;
+mod contact_sensor;
 mod distance_sensor;
 mod inertial;
 mod joint;
@@ -18,6 +19,7 @@ mod sampling;
 mod vacuum_gripper;
 
 pub use camera::CameraSensor;
+pub use contact_sensor::{ContactSensor, Touched};
 pub use distance_sensor::DistanceSensor;
 pub use inertial::{Accelerometer, Gps, Gyro, InertialUnit, TouchSensor};
 pub use joint::{Joint, JointState};

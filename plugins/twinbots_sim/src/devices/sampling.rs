@@ -11,11 +11,11 @@ use bevy::ecs::system::ScheduleSystem;
 use bevy::prelude::*;
 
 use super::mount::SamplingPeriod;
-use super::{distance_sensor, inertial, position_sensor};
+use super::{contact_sensor, distance_sensor, inertial, position_sensor};
 use crate::arena::{Arena, WorldChanges};
 
-/// The device-sampling systems (position, distance, inertial, gyro, accelerometer, GPS and
-/// touch sensors), in the order [`sample_devices`] fixes.
+/// The device-sampling systems (position, distance, inertial, gyro, accelerometer, GPS, touch
+/// and contact sensors), in the order [`sample_devices`] fixes.
 #[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
 pub struct DeviceSampling;
 
@@ -35,6 +35,7 @@ pub fn sample_devices() -> ScheduleConfigs<ScheduleSystem> {
             inertial::sample_accelerometers,
             inertial::sample_gps,
             inertial::sample_touch_sensors,
+            contact_sensor::sample_contact_sensors,
         )
             .chain()
             .in_set(DeviceSampling),
