@@ -10,6 +10,7 @@ use bevy::math::Vec3;
 use twinbots_rl::{GoalChange, GoalSpec, RewardTerm};
 
 use crate::arm::ArmState;
+use crate::safety::{MAX_BRAKING_STEPS, StopCause};
 use crate::state::CellState;
 
 /// Where the observation terms put the values the goal is made of (checked against the terms'
@@ -19,9 +20,9 @@ pub const JOINT_VELOCITIES: usize = 6;
 pub const TCP_POSITION: usize = 12;
 pub const TARGET_OFFSET: usize = 15;
 
-/// The reach task's reward terms that depend on the target; the others (tilt, effort, action
-/// rate) do not.
-const TARGET_TERMS: [&str; 3] = ["distance", "precision", "arrival"];
+/// The reach task's reward terms that depend on the target (the protective stop's penalty is
+/// the pose cost where the arm stopped); the others (tilt, effort, action rate) do not.
+const TARGET_TERMS: [&str; 4] = ["distance", "precision", "arrival", "protective_stop"];
 
 fn target_terms() -> &'static [RewardTerm<CellState>] {
     static TERMS: OnceLock<Vec<RewardTerm<CellState>>> = OnceLock::new();
@@ -45,14 +46,20 @@ fn substitute(obs: &mut [f32], goal: &[f32]) {
     obs[TARGET_OFFSET..TARGET_OFFSET + 3].copy_from_slice(&offset.to_array());
 }
 
-/// The target terms under each goal, and arrival at each (which ends a reach).
-fn change(_obs: &[f32], next_obs: &[f32], from: &[f32], to: &[f32]) -> GoalChange {
+/// The target terms under each goal, and arrival at each (which ends a reach). A reach ends
+/// only on arrival or in a protective stop, so a step that ended without arriving at `from`
+/// ended in a stop: its penalty is recomputed for `to`, and it arrives nowhere.
+fn change(_obs: &[f32], next_obs: &[f32], done: bool, from: &[f32], to: &[f32]) -> GoalChange {
     let joints = |at: usize| -> [f32; 6] { std::array::from_fn(|i| next_obs[at + i]) };
     // The kinematics once for both goals: it is most of a relabelling's cost.
     let mut state = CellState { arm: ArmState::from_joints(joints(JOINT_POSITIONS), joints(JOINT_VELOCITIES)), ..Default::default() };
+    if done && !state.arm.has_reached(point(from)) {
+        state.safety.stop = Some(StopCause::Speed { joint: 0, ratio: f32::NAN });
+        state.safety.braking_steps = MAX_BRAKING_STEPS;
+    }
     let mut terms = |goal: &[f32]| {
         state.target = point(goal);
-        (target_terms().iter().map(|t| t.weighted(&state)).sum::<f32>(), state.arm.has_reached(state.target))
+        (target_terms().iter().map(|t| t.weighted(&state)).sum::<f32>(), state.arrived())
     };
     let ((before, ends_at_from), (after, ends_at_to)) = (terms(from), terms(to));
     GoalChange { reward: after - before, ends_at_from, ends_at_to }
@@ -102,11 +109,16 @@ mod tests {
         let far = goal_reward(&obs, &target.to_array());
         assert!((far - (-0.1 - 0.1)).abs() < 1e-3, "{far}");
         let here = goal_reward(&obs, &tcp.to_array());
-        let change = (goal.change)(&obs, &obs, &target.to_array(), &tcp.to_array());
+        let change = (goal.change)(&obs, &obs, false, &target.to_array(), &tcp.to_array());
         assert!((change.reward - (here - far)).abs() < 1e-4, "{change:?}");
         assert!(!change.ends_at_from);
         let down = crate::kinematics::tilt(&arm.tcp) < crate::arm::TILT_TOLERANCE;
         assert!((here - if down { 10.0 } else { 0.0 }).abs() < 1e-3, "{here} (pointing down: {down})");
         assert_eq!(change.ends_at_to, down, "arrival at the TCP itself (at rest) ends the reach iff the tool points down");
+        // A step that ended without arriving ended in a protective stop: its penalty (a whole
+        // episode's pose costs where the arm stopped) follows the goal, and nothing arrives.
+        let stopped = (goal.change)(&obs, &obs, true, &target.to_array(), &tcp.to_array());
+        assert!(!stopped.ends_at_to && !stopped.ends_at_from);
+        assert!(stopped.reward > change.reward + 1.0, "the stop's penalty did not shrink with the distance: {stopped:?} vs {change:?}");
     }
 }

@@ -169,7 +169,7 @@ mod tests {
             achieved: |obs| vec![obs[0]],
             desired: |obs| vec![obs[1]],
             substitute: |obs, goal| obs[1] = goal[0],
-            change: |_, next, from, to| GoalChange {
+            change: |_, next, _, from, to| GoalChange {
                 reward: (next[0] - from[0]).abs() - (next[0] - to[0]).abs(),
                 ends_at_from: next[0] == from[0],
                 ends_at_to: next[0] == to[0],

@@ -13,8 +13,9 @@ pub struct GoalSpec {
     pub desired: fn(obs: &[f32]) -> Vec<f32>,
     /// Rewrites `obs` so that it asks for `goal`.
     pub substitute: fn(obs: &mut [f32], goal: &[f32]),
-    /// What becomes of a step from `obs` to `next_obs` when its goal is `to` instead of `from`.
-    pub change: fn(obs: &[f32], next_obs: &[f32], from: &[f32], to: &[f32]) -> GoalChange,
+    /// What becomes of a step from `obs` to `next_obs`, which ended the MDP or not (`done`),
+    /// when its goal is `to` instead of `from`.
+    pub change: fn(obs: &[f32], next_obs: &[f32], done: bool, from: &[f32], to: &[f32]) -> GoalChange,
 }
 
 /// A step under another goal: how its reward changes (the goal-dependent terms under the new
@@ -32,7 +33,7 @@ impl GoalSpec {
     /// MDP or not (`done`) would have had with the goal `goal`: an end the old goal caused is
     /// undone, one the new goal causes is added, any other end stays.
     pub fn relabel(&self, obs: &[f32], next_obs: &[f32], reward: f32, done: bool, goal: &[f32]) -> (f32, bool) {
-        let change = (self.change)(obs, next_obs, &(self.desired)(obs), goal);
+        let change = (self.change)(obs, next_obs, done, &(self.desired)(obs), goal);
         (reward + change.reward, (done && !change.ends_at_from) || change.ends_at_to)
     }
 }
