@@ -160,19 +160,20 @@ impl RunDir {
         self.load_trained()
     }
 
-    /// The run's trained model of either algorithm (to evaluate, view or record it).
+    /// The run's trained model of either algorithm (to evaluate, view or record it). The
+    /// algorithm is the one its final model, else its newest checkpoint whose `model.json`
+    /// reads, names (a damaged one is passed over, as `load_trained` does).
     pub fn load_agent(&self) -> anyhow::Result<Box<dyn Agent + Send>> {
-        let model = self.file(MODEL);
-        let saved = if model.join(crate::ppo::METADATA_FILE).is_file() { model } else { self.newest_checkpoint_dir()? };
-        Ok(match crate::agent::saved_algorithm(&saved)?.as_str() {
+        let mut saved = vec![self.file(MODEL)];
+        saved.extend(self.checkpoints().into_iter().rev());
+        let algorithm = saved
+            .iter()
+            .find_map(|dir| crate::agent::saved_algorithm(dir).ok())
+            .ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint that reads", self.path.display()))?;
+        Ok(match algorithm.as_str() {
             "SAC" => Box::new(self.load_trained::<crate::sac::Sac>()?),
             _ => Box::new(self.load_trained::<Ppo>()?),
         })
-    }
-
-    /// The algorithm the run trains with, as its newest model or checkpoint says.
-    fn newest_checkpoint_dir(&self) -> anyhow::Result<PathBuf> {
-        self.latest_checkpoint().ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint", self.path.display()))
     }
 
     /// Its final model, else its newest checkpoint that loads.
