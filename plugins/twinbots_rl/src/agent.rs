@@ -8,7 +8,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::ppo::{ModelError, UpdateStats};
+use crate::model_io::{ModelError, file_error};
+use crate::ppo::UpdateStats;
 use crate::spaces::Space;
 use crate::task::{EpisodeSummary, Measure, SolvedCriterion};
 
@@ -146,9 +147,9 @@ pub fn saved_algorithm(dir: &Path) -> Result<String, ModelError> {
     struct Algorithm {
         algorithm: String,
     }
-    let path = dir.join(crate::ppo::METADATA_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|e| ModelError::File { path: path.clone(), message: e.to_string() })?;
-    let a: Algorithm = serde_json::from_str(&text).map_err(|e| ModelError::File { path: path.clone(), message: e.to_string() })?;
+    let path = dir.join(crate::model_io::METADATA_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|e| file_error(&path, e))?;
+    let a: Algorithm = serde_json::from_str(&text).map_err(|e| file_error(&path, e))?;
     Ok(a.algorithm)
 }
 

@@ -57,3 +57,12 @@ impl RunningMeanStd {
             .collect()
     }
 }
+
+/// `raw` normalised with `rms` if the model normalises, else as it is: what every learner feeds
+/// its networks.
+pub fn normalized(rms: Option<&RunningMeanStd>, raw: &[f32]) -> Vec<f32> {
+    match rms {
+        Some(rms) => rms.normalize(raw),
+        None => raw.to_vec(),
+    }
+}

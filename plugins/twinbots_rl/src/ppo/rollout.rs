@@ -44,10 +44,7 @@ impl Ppo {
     /// Observations normalised with the current statistics, which they do not change (a
     /// finished episode's last observation, inference).
     pub fn normalize(&self, raw: &[f32]) -> Vec<f32> {
-        match &self.obs_rms {
-            Some(rms) => rms.normalize(raw),
-            None => raw.to_vec(),
-        }
+        crate::normalize::normalized(self.obs_rms.as_ref(), raw)
     }
 
     /// Rows of normalised observations as a tensor for the networks.

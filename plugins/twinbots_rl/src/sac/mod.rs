@@ -152,16 +152,10 @@ impl Sac {
         self.action_space.dim()
     }
 
-    fn normalize(&self, raw: &[f32]) -> Vec<f32> {
-        match &self.obs_rms {
-            Some(rms) => rms.normalize(raw),
-            None => raw.to_vec(),
-        }
-    }
-
+    /// Rows of raw observations, normalised, as a tensor for the networks.
     fn batch(&self, obs: &[f32]) -> anyhow::Result<Tensor> {
         let dim = self.observation_space.dim();
-        Ok(Tensor::from_vec(self.normalize(obs), (obs.len() / dim, dim), &Device::Cpu)?)
+        Ok(Tensor::from_vec(crate::normalize::normalized(self.obs_rms.as_ref(), obs), (obs.len() / dim, dim), &Device::Cpu)?)
     }
 
     /// Standard normal noise for `rows` actions, from the agent's own stream.

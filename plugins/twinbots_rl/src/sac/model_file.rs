@@ -50,12 +50,18 @@ impl Sac {
         named
     }
 
-    fn optimizers(&mut self) -> [(&'static str, Vec<(String, Var)>, &mut Adam); 3] {
+    /// Each optimiser's prefix in `optimizer.safetensors` and the variables it steps, in the
+    /// order of [`Sac::optimizers`].
+    fn optimized_vars(&self) -> [(&'static str, Vec<(String, Var)>); 3] {
         [
-            ("actor", self.actor.named_vars(), &mut self.actor_optimizer),
-            ("critic", self.critic.named_vars("critic"), &mut self.critic_optimizer),
-            ("ent", vec![("log_ent_coef".into(), self.log_ent_coef.clone())], &mut self.ent_optimizer),
+            ("actor", self.actor.named_vars()),
+            ("critic", self.critic.named_vars("critic")),
+            ("ent", vec![("log_ent_coef".into(), self.log_ent_coef.clone())]),
         ]
+    }
+
+    fn optimizers(&mut self) -> [&mut Adam; 3] {
+        [&mut self.actor_optimizer, &mut self.critic_optimizer, &mut self.ent_optimizer]
     }
 
     /// Saves into the directory `dir` (created if needed).
@@ -65,12 +71,8 @@ impl Sac {
         model_io::save_tensors(&model_io::var_tensors(&self.weights()), &dir.join(WEIGHTS_FILE))?;
         let mut moments = HashMap::new();
         let mut optimizer_steps = [0; 3];
-        let parts: [(&str, Vec<(String, Var)>, &Adam); 3] = [
-            ("actor", self.actor.named_vars(), &self.actor_optimizer),
-            ("critic", self.critic.named_vars("critic"), &self.critic_optimizer),
-            ("ent", vec![("log_ent_coef".into(), self.log_ent_coef.clone())], &self.ent_optimizer),
-        ];
-        for (k, (prefix, named, adam)) in parts.into_iter().enumerate() {
+        let adams = [&self.actor_optimizer, &self.critic_optimizer, &self.ent_optimizer];
+        for (k, ((prefix, named), adam)) in self.optimized_vars().into_iter().zip(adams).enumerate() {
             let mut part = HashMap::new();
             optimizer_steps[k] = model_io::moment_tensors(adam, &named, &mut part, dir)?;
             moments.extend(part.into_iter().map(|(name, t)| (format!("{prefix}.{name}"), t)));
@@ -113,7 +115,8 @@ impl Sac {
         model.rng = meta.sampling_stream.to_rng().map_err(|e| file_error(&path, e))?;
         let optimizer = dir.join(OPTIMIZER_FILE);
         let moments = model_io::load_tensors(&optimizer)?;
-        for (k, (prefix, named, adam)) in model.optimizers().into_iter().enumerate() {
+        let parts = model.optimized_vars();
+        for (k, ((prefix, named), adam)) in parts.into_iter().zip(model.optimizers()).enumerate() {
             let part: HashMap<String, Tensor> =
                 moments.iter().filter_map(|(name, t)| name.strip_prefix(&format!("{prefix}.")).map(|n| (n.to_string(), t.clone()))).collect();
             model_io::restore_moments(adam, &named, &part, meta.optimizer_steps[k], &optimizer)?;
