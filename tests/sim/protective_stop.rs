@@ -1,14 +1,15 @@
 //! The UR5e's protective stop (issue 18): a wrist whipped round past its speed limit by the
-//! shoulder and elbow reversing at full torque stops the arm. It brakes to rest, takes no more
-//! commands, and the episode ends as a failure counted in `protective_stops`, under design
-//! patterns 1 and 3. The classical controller's motion never stops it.
+//! shoulder and elbow reversing at full torque stops the arm. The episode ends the step the
+//! stop trips, as a failure counted in `protective_stops`, under design patterns 1 and 3;
+//! under pattern 3 the robot then brakes to rest, held, takes no commands, and homes once the
+//! stop is unlocked. The classical controller's motion never stops it.
 
 use bevy::prelude::*;
 use twinbots_rl::{AppVecEnv, DesignPattern, Episode, EpisodeSummary, VecEnv};
 use twinbots_server::robot::{Controller, OnBoardPolicy, Phase, RobotRunState};
 use twinbots_sim::{Motor, MotorCommand};
 use ur5e::CellState;
-use ur5e::safety::{REST_SPEED, SPEED_MARGIN, StopCause};
+use ur5e::safety::{MAX_BRAKING_STEPS, REST_SPEED, SPEED_MARGIN, StopCause};
 
 /// Where the reach observation holds the joints' speeds.
 fn joint_speeds_at() -> usize {
@@ -29,81 +30,89 @@ fn figure(ep: &EpisodeSummary, name: &str) -> f32 {
     *ep.metrics.get(name).unwrap_or_else(|| panic!("episode reports no {name}: {:?}", ep.metrics))
 }
 
-/// What a finished stop showed: the cause, and the episode.
-fn assert_stopped_at_rest(cause: Option<StopCause>, episode: &EpisodeSummary, final_speeds: &[f32]) {
+/// What an episode a stop ended shows: a failure, one stop, penalised.
+fn assert_ended_by_a_stop(episode: &EpisodeSummary) {
+    assert_eq!(episode.success, Some(false), "a protective stop is a failure: {episode:?}");
+    assert_eq!(figure(episode, "protective_stops"), 1.0);
+    assert!(episode.rewards["protective_stop"] < 0.0, "the stop is penalised: {:?}", episode.rewards);
+}
+
+/// A wrist, run past the stop's margin.
+fn assert_wrist_overspeed(cause: StopCause) {
     match cause {
-        Some(StopCause::Speed { joint, ratio }) => {
+        StopCause::Speed { joint, ratio } => {
             assert!(joint >= 3, "a 28 N·m wrist is what gets overpowered, not joint {joint}");
             assert!(ratio > 1.0 + SPEED_MARGIN, "stopped at {ratio}× the limit");
         }
         other => panic!("no speed stop: {other:?}"),
     }
-    assert_eq!(episode.success, Some(false), "a protective stop is a failure: {episode:?}");
-    assert_eq!(figure(episode, "protective_stops"), 1.0);
-    assert!(final_speeds.iter().all(|v| v.abs() < REST_SPEED), "the arm is not at rest at the episode's end: {final_speeds:?}");
 }
 
 #[test]
-fn a_wrist_whipped_round_makes_a_protective_stop_and_the_arm_brakes_to_rest() {
+fn a_wrist_whipped_round_makes_a_protective_stop_that_ends_the_episode_at_once() {
     let mut env = AppVecEnv::new(ur5e::headless_app_with(1, 3, DesignPattern::Supervised));
     let arena = env.arenas()[0];
-    let speeds = joint_speeds_at()..joint_speeds_at() + 6;
     let mut obs = env.reset(Some(3)).unwrap();
-    let (mut cause, mut braking) = (None, 0);
-    for _ in 0..ur5e::reach::EPISODE_STEPS {
+    for step_index in 0..ur5e::reach::EPISODE_STEPS {
         let step = env.step(&reversing(&obs)).unwrap();
+        let state = env.app().world().get::<CellState>(arena).unwrap();
         if let Some(episode) = &step.episodes[0] {
             assert!(step.terminated[0], "ended by the stop, not the time limit");
-            let last = step.final_obs[0].as_ref().expect("the last observation is kept");
-            assert_stopped_at_rest(cause, episode, &last[speeds.clone()]);
-            assert!(episode.rewards["protective_stop"] < 0.0, "the stop is penalised: {:?}", episode.rewards);
-            assert!((1..=ur5e::safety::MAX_BRAKING_STEPS).contains(&braking), "braked for {braking} steps");
-            eprintln!("{cause:?}, braked to rest in {braking} control steps");
+            assert_ended_by_a_stop(episode);
+            assert!(state.safety.stop.is_none(), "the reset unlocks the stop");
+            eprintln!("stopped at step {step_index}: {:?}", episode.rewards);
             return;
         }
-        let world = env.app().world();
-        let state = world.get::<CellState>(arena).unwrap();
-        if let Some(stop) = state.safety.stop {
-            // Stopped: the reversing commands are ignored and every joint is held.
-            cause.get_or_insert(stop);
-            braking += 1;
-            let parts = world.get::<ur5e::cell::CellParts>(arena).unwrap();
-            for &joint in &parts.joints {
-                assert_eq!(world.get::<Motor>(joint).unwrap().command, MotorCommand::Velocity(0.0), "a stopped joint holds");
-            }
-        }
+        // The episode ends the step a stop trips: one that goes on is never stopped.
+        assert!(state.safety.stop.is_none(), "stopped at step {step_index}, but the episode goes on");
         obs = step.obs;
     }
-    panic!("no protective stop in a whole episode of reversals (cause {cause:?})");
+    panic!("no protective stop in a whole episode of reversals");
 }
 
 #[test]
-fn under_pattern_3_a_protective_stop_ends_the_episode_and_the_arm_homes_after_it() {
+fn under_pattern_3_a_protective_stop_ends_the_episode_and_the_arm_brakes_to_rest_then_homes() {
     let mut app = ur5e::headless_app_with(1, 3, DesignPattern::Server);
     let policy = OnBoardPolicy::new(|obs: &[f32]| Ok(reversing(obs)));
     app.insert_resource(policy);
     app.finish();
     app.cleanup();
     app.update();
-    let speeds = joint_speeds_at()..joint_speeds_at() + 6;
-    let (mut cause, mut stops) = (None, 0);
+    // Control steps braked since the episode ended, and the speeds last read while stopped.
+    let (mut stops, mut braking, mut last_speeds) = (0, None::<u32>, [0.0f32; 6]);
     for _ in 0..2000 {
         app.update();
         let world = app.world_mut();
         assert!(world.resource::<RobotRunState>().stop.is_none(), "{:?}", world.resource::<RobotRunState>().stop);
         let (controller, state, episode) = world.query::<(&Controller, &CellState, &Episode)>().single(world).unwrap();
-        if let Some(stop) = state.safety.stop {
-            cause.get_or_insert(stop);
-        }
+        let (phase, stop, speeds) = (controller.phase(), state.safety.stop, state.arm.qd);
         if let Some(summary) = &episode.finished {
-            let last = episode.final_observation.as_ref().expect("the last observation is kept");
-            assert_stopped_at_rest(cause.take(), summary, &last[speeds.clone()]);
-            assert_eq!(controller.phase(), Phase::Homing, "after the stop the robot homes");
+            assert_ended_by_a_stop(summary);
+            assert_wrist_overspeed(stop.expect("the episode ends the step the stop trips, still stopped"));
+            assert_eq!(phase, Phase::Homing, "after the stop the robot brakes and homes");
             stops += 1;
-        }
-        if stops == 2 {
-            // Unlocked, homed and stopped again: the cycle goes on.
-            return;
+            braking = Some(0);
+        } else if let Some(steps) = &mut braking {
+            if stop.is_some() {
+                // Braking: every joint is held, whatever the policy would say.
+                *steps += 1;
+                last_speeds = speeds;
+                assert!(*steps <= MAX_BRAKING_STEPS, "braked for {steps} steps");
+                let parts = world.query::<&ur5e::cell::CellParts>().single(world).unwrap().clone();
+                for &joint in &parts.joints {
+                    assert_eq!(world.get::<Motor>(joint).unwrap().command, MotorCommand::Velocity(0.0), "a stopped joint holds");
+                }
+            } else {
+                // Unlocked (and homing) only once the arm had come to rest.
+                let at_rest = last_speeds.iter().all(|v| v.abs() < REST_SPEED);
+                assert!(*steps >= 1 && (at_rest || *steps == MAX_BRAKING_STEPS), "unlocked after {steps} steps at {last_speeds:?}");
+                eprintln!("braked to rest in {steps} control steps");
+                braking = None;
+                if stops == 2 {
+                    // Stopped, braked, unlocked and homed, twice: the cycle goes on.
+                    return;
+                }
+            }
         }
     }
     panic!("{stops} protective stops in 2000 steps");

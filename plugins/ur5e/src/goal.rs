@@ -10,7 +10,7 @@ use bevy::math::Vec3;
 use twinbots_rl::{GoalChange, GoalSpec, RewardTerm};
 
 use crate::arm::ArmState;
-use crate::safety::{MAX_BRAKING_STEPS, StopCause};
+use crate::safety::StopCause;
 use crate::state::CellState;
 
 /// Where the observation terms put the values the goal is made of (checked against the terms'
@@ -55,7 +55,6 @@ fn change(_obs: &[f32], next_obs: &[f32], done: bool, from: &[f32], to: &[f32]) 
     let mut state = CellState { arm: ArmState::from_joints(joints(JOINT_POSITIONS), joints(JOINT_VELOCITIES)), ..Default::default() };
     if done && !state.arm.has_reached(point(from)) {
         state.safety.stop = Some(StopCause::Speed { joint: 0, ratio: f32::NAN });
-        state.safety.braking_steps = MAX_BRAKING_STEPS;
     }
     let mut terms = |goal: &[f32]| {
         state.target = point(goal);

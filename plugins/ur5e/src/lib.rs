@@ -74,8 +74,8 @@ pub fn ppo_config() -> PpoConfig {
 /// SAC settings (`train ur5e --algo sac`): RL Zoo's SAC + HER settings for FetchReach (lr
 /// 1e-3, γ 0.95, τ 0.05, 64-unit layers, 4 future goals per sample) with observation
 /// normalisation, 1000 random steps first, and two gradient steps per env step over 4 arenas.
-/// Measured against SB3's lr 3e-4 and τ 0.005 (80 % at 30 k steps where these solved at 20 k),
-/// and without HER (66 % at 60 k).
+/// With the protective stop they solve the reach in 45,000 steps (seed 0); before it, in 20,000,
+/// where SB3's lr 3e-4 and τ 0.005 reached 80 % at 30 k and no HER 66 % at 60 k.
 pub fn sac_config() -> SacConfig {
     SacConfig {
         learning_rate: 1e-3,

@@ -37,8 +37,10 @@ impl CellState {
         !self.safety.stopped() && self.arm.has_reached(self.target)
     }
 
-    /// Whether the episode ends in a protective stop now: the stop has run its course.
-    pub fn protective_stop_ended(&self) -> bool {
-        self.safety.stop_ended(&self.arm.qd)
+    /// Whether the safety system has stopped the arm. The episode ends there, as a failure:
+    /// the policy no longer drives the arm, and braking to rest and unlocking the stop belong
+    /// to the reset (Isaac Lab's terminations, too, end an episode the step they occur).
+    pub fn in_protective_stop(&self) -> bool {
+        self.safety.stopped()
     }
 }
