@@ -1,27 +1,32 @@
 //! The exported ONNX graph acts as the model does: run by tract on 1,000 random observations,
 //! its actions equal the model's own deterministic ones (to 1e-5; discrete choices identical)
-//! for a discrete, a continuous and a normalised-observation policy. Bad files are clear errors.
+//! for a discrete, a continuous and a normalised-observation PPO policy, and a SAC policy. Bad
+//! files are clear errors.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use twinbots_onnx::{OnnxPolicy, PolicyMetadata};
 use twinbots_rl::classic::{ClassicCartPole, ClassicPendulum};
-use twinbots_rl::{Flow, Ppo, PpoConfig, Space, VecEnv};
+use twinbots_onnx::Trained;
+use twinbots_rl::normalize::RunningMeanStd;
+use twinbots_rl::{Flow, Ppo, PpoConfig, Sac, SacConfig, Space, VecEnv};
 
 const OBSERVATIONS: usize = 1000;
 
-fn metadata(model: &Ppo) -> PolicyMetadata {
+fn metadata<'a>(model: impl Into<Trained<'a>>) -> PolicyMetadata {
+    let model = model.into();
+    let agent = model.agent();
     PolicyMetadata {
         twinbots_version: "test".into(),
         robot: "test".into(),
         task: "test".into(),
         design_pattern: 1,
-        observation_space: model.observation_space.clone(),
-        observation_names: (0..model.observation_space.dim()).map(|i| format!("x{i}")).collect(),
-        action_space: model.action_space.clone(),
+        observation_space: agent.observation_space().clone(),
+        observation_names: (0..agent.observation_space().dim()).map(|i| format!("x{i}")).collect(),
+        action_space: agent.action_space().clone(),
         control_period_s: 0.02,
-        normalizes_observations: model.obs_rms.is_some(),
-        timesteps: model.timesteps,
+        normalizes_observations: model.obs_rms().is_some(),
+        timesteps: agent.timesteps(),
     }
 }
 
@@ -43,10 +48,11 @@ fn observations(dim: usize, scale: f32, seed: u64) -> Vec<f32> {
 }
 
 /// The exported graph's actions and the model's on the same observations.
-fn both(model: &Ppo, obs: &[f32]) -> (Vec<f32>, Vec<f32>) {
+fn both<'a>(model: impl Into<Trained<'a>>, obs: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let model = model.into();
     let bytes = twinbots_onnx::policy_bytes(model, &metadata(model)).unwrap();
     let policy = OnnxPolicy::from_bytes(&bytes).unwrap();
-    (policy.act(obs).unwrap(), model.predict_deterministic(obs).unwrap())
+    (policy.act(obs).unwrap(), model.agent().predict_deterministic(obs).unwrap())
 }
 
 fn largest_difference(a: &[f32], b: &[f32]) -> f32 {
@@ -101,6 +107,31 @@ fn a_normalised_observation_policy_folds_its_statistics_in() {
     assert!(delta <= 1e-5, "max |Δ| {delta}");
     let normalised = model.normalize(&obs);
     assert!(normalised.iter().any(|x| x.abs() == 10.0), "some observations reach the ±10 clip");
+}
+
+#[test]
+fn a_sac_policy_gives_the_same_squashed_and_rescaled_actions() {
+    // A box with different bounds per dimension, observation statistics folded in, and a mean
+    // head made 20 times larger than initialised so that many actions lie near the box's
+    // bounds, where tanh saturates.
+    let action_space = Space::Box { low: vec![-1.0, -2.0, 0.0], high: vec![1.0, 0.5, 3.0] };
+    let config = SacConfig { hidden: vec![32, 32], normalize_observations: true, ..Default::default() };
+    let mut model = Sac::new(config, Space::uniform_box(6, -5.0, 5.0), action_space.clone(), 11).unwrap();
+    model.obs_rms = Some(RunningMeanStd { mean: vec![0.5, -1.0, 0.0, 2.0, 0.1, -0.3], var: vec![4.0, 0.25, 1.0, 9.0, 0.01, 2.0], count: 1e4 });
+    for (name, var) in model.actor.named_vars() {
+        if name == "actor.mu.weight" {
+            var.set(&var.as_tensor().affine(20.0, 0.0).unwrap()).unwrap();
+        }
+    }
+    let obs = observations(6, 3.0, 4);
+    let (onnx, own) = both(&model, &obs);
+    let delta = largest_difference(&onnx, &own);
+    eprintln!("SAC: max |Δ| {delta:e} over {OBSERVATIONS} observations");
+    assert!(delta <= 1e-5, "max |Δ| {delta}");
+    assert!(onnx.chunks(3).all(|a| action_space.contains(a)), "every action lies in the box");
+    let Space::Box { low, high } = &action_space else { unreachable!() };
+    let near_bounds = own.iter().enumerate().filter(|(i, a)| (**a - low[i % 3]).min(high[i % 3] - **a) < 0.01).count();
+    assert!(near_bounds > OBSERVATIONS / 10, "only {near_bounds} actions lie near the bounds");
 }
 
 #[test]
