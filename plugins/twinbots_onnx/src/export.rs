@@ -51,6 +51,7 @@ impl<'a> From<&'a Sac> for Trained<'a> {
 }
 
 impl<'a> Trained<'a> {
+    /// The model through the surface both learners share (spaces, counters, predictions).
     pub fn agent(self) -> &'a dyn Agent {
         match self {
             Self::Ppo(m) => m,
