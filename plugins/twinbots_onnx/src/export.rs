@@ -208,21 +208,21 @@ struct Values {
 }
 
 /// A dense layer's weight [out, in] and bias [out].
-struct Layer {
-    weight: Values,
-    bias: Values,
+struct Layer<'v> {
+    weight: &'v Values,
+    bias: &'v Values,
 }
 
 /// The layer `<name>.weight`, `<name>.bias`, if the model has it.
-fn layer(values: &[(String, Values)], name: &str) -> anyhow::Result<Option<Layer>> {
-    let find = |key: String| values.iter().find(|(n, _)| *n == key).map(|(_, v)| Values { dims: v.dims.clone(), values: v.values.clone() });
+fn layer<'v>(values: &'v [(String, Values)], name: &str) -> anyhow::Result<Option<Layer<'v>>> {
+    let find = |key: String| values.iter().find(|(n, _)| *n == key).map(|(_, v)| v);
     let Some(weight) = find(format!("{name}.weight")) else { return Ok(None) };
     let bias = find(format!("{name}.bias")).ok_or_else(|| anyhow::anyhow!("layer {name} has no bias"))?;
     Ok(Some(Layer { weight, bias }))
 }
 
 /// The layers `<prefix>.0`, `<prefix>.1`, … from the input on.
-fn layers(values: &[(String, Values)], prefix: &str) -> anyhow::Result<Vec<Layer>> {
+fn layers<'v>(values: &'v [(String, Values)], prefix: &str) -> anyhow::Result<Vec<Layer<'v>>> {
     let mut out = Vec::new();
     while let Some(l) = layer(values, &format!("{prefix}.{}", out.len()))? {
         out.push(l);

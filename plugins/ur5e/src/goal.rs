@@ -21,7 +21,7 @@ pub const TCP_POSITION: usize = 12;
 pub const TARGET_OFFSET: usize = 15;
 
 /// The reach task's reward terms that depend on the target (the protective stop's penalty is
-/// the pose cost where the arm stopped); the others (tilt, effort, action rate) do not.
+/// a multiple of the pose cost where the stop tripped); the others (tilt, effort, action rate) do not.
 const TARGET_TERMS: [&str; 4] = ["distance", "precision", "arrival", "protective_stop"];
 
 fn target_terms() -> &'static [RewardTerm<CellState>] {
@@ -114,8 +114,8 @@ mod tests {
         let down = crate::kinematics::tilt(&arm.tcp) < crate::arm::TILT_TOLERANCE;
         assert!((here - if down { 10.0 } else { 0.0 }).abs() < 1e-3, "{here} (pointing down: {down})");
         assert_eq!(change.ends_at_to, down, "arrival at the TCP itself (at rest) ends the reach iff the tool points down");
-        // A step that ended without arriving ended in a protective stop: its penalty (a whole
-        // episode's pose costs where the arm stopped) follows the goal, and nothing arrives.
+        // A step that ended without arriving ended in a protective stop: its penalty (a
+        // multiple of the pose cost where the stop tripped) follows the goal, and nothing arrives.
         let stopped = (goal.change)(&obs, &obs, true, &target.to_array(), &tcp.to_array());
         assert!(!stopped.ends_at_to && !stopped.ends_at_from);
         assert!(stopped.reward > change.reward + 1.0, "the stop's penalty did not shrink with the distance: {stopped:?} vs {change:?}");

@@ -159,7 +159,7 @@ pub fn pick_place_task() -> TaskDefinition<CellState> {
             rewards: motion_costs(),
             terminations: vec![
                 TerminationTerm::new("program_over", |s: &CellState| s.program.is_over()),
-                TerminationTerm::new("protective_stop", |s: &CellState| s.in_protective_stop()),
+                TerminationTerm::new("protective_stop", |s: &CellState| s.safety.stopped()),
             ],
             time_limit: Some(EPISODE_STEPS),
             start_events: vec![StartEvent::new("new_program", new_program)],

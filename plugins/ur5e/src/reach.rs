@@ -125,7 +125,7 @@ pub fn motion_costs() -> Vec<RewardTerm<CellState>> {
 pub fn reach_task() -> TaskDefinition<CellState> {
     let mut rewards = motion_costs();
     rewards.push(RewardTerm::new("arrival", 10.0, |s: &CellState| f32::from(u8::from(s.arrived()))).bounded(0.0, 1.0));
-    let stop_penalty = |s: &CellState| if s.in_protective_stop() { pose_cost(s) } else { 0.0 };
+    let stop_penalty = |s: &CellState| if s.safety.stopped() { pose_cost(s) } else { 0.0 };
     let max_pose_cost = DISTANCE_WEIGHT * MAX_DISTANCE + PRECISION_WEIGHT + TILT_WEIGHT * MAX_TILT;
     rewards.push(RewardTerm::new("protective_stop", -STOP_PENALTY_STEPS, stop_penalty).bounded(0.0, max_pose_cost));
     TaskDefinition {
@@ -135,7 +135,10 @@ pub fn reach_task() -> TaskDefinition<CellState> {
             rewards,
             terminations: vec![
                 TerminationTerm::goal("arrived", |s: &CellState| s.arrived()),
-                TerminationTerm::new("protective_stop", |s: &CellState| s.in_protective_stop()),
+                // The policy no longer drives a stopped arm: braking to rest and unlocking the
+                // stop belong to the reset (Isaac Lab's terminations, too, end an episode the
+                // step they occur).
+                TerminationTerm::new("protective_stop", |s: &CellState| s.safety.stopped()),
             ],
             time_limit: Some(EPISODE_STEPS),
             start_events: vec![StartEvent::new("new_reach", new_reach)],

@@ -5,10 +5,9 @@
 //! until the stop is unlocked. The episode ends the control step the stop trips; braking to
 //! rest and unlocking belong to the reset (a pattern-3 robot brakes, then homes; pattern 1's
 //! Supervisor puts the arm back). (A UR stops with category 0 on a limit violation: drives
-//! off, the joints' holding brakes on. The twin brakes
-//! with its servos at zero speed instead, within their torque limits: its joints have no
-//! brakes, and rapier's plain velocity motor, which would stand in for one, lets the arm sag
-//! under gravity at up to 1 rad/s.)
+//! off, the joints' holding brakes on. The twin brakes with its servos at zero speed instead,
+//! within their torque limits: its joints have no brakes, and rapier's plain velocity motor,
+//! which would stand in for one, lets the arm sag under gravity at up to 1 rad/s.)
 //!
 //! Why a joint gets there although the drives never ask for more than their limits: a 28 N·m
 //! wrist is overpowered when the shoulder and elbow reverse at full torque (random actions do,
@@ -51,9 +50,9 @@ pub const EFFORT_MARGIN: f32 = 0.10;
 /// leaves it.
 pub const REST_SPEED: f32 = 0.02;
 /// Control steps (2 s) after which a pattern-3 robot unlocks its stop and homes even if the arm
-/// is still moving (something keeps pushing it). Measured under random actions: the arm comes to rest within
-/// 11 steps typically, 28 at most in 4,503 stops; the servos holding a fast arm ring a while
-/// (a UR, whose brakes stop it, takes under 0.5 s).
+/// is still moving (something keeps pushing it). Measured under random actions: the arm comes
+/// to rest within 11 steps typically, 28 at most in 4,503 stops; the servos holding a fast arm
+/// ring a while (a UR, whose brakes stop it, takes under 0.5 s).
 pub const MAX_BRAKING_STEPS: u32 = 50;
 
 /// What tripped a protective stop.

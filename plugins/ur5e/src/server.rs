@@ -4,9 +4,10 @@
 //! through its Communicator (the generic cycle of `twinbots_server::robot`, with the reach
 //! task's own terms). Episodes restart the way a real cell's do: the arm homes with its own
 //! motors (after a protective stop, once braked to rest and unlocked), and if the part has
-//! been knocked out of fixture A, the lab operator puts it back before the next episode starts. (The start pose the start
-//! event also draws is for the Supervisor of pattern 1; a homing arm starts at home.) The
-//! twin's figures of an episode (energy, events) count from its start, not from its homing.
+//! been knocked out of fixture A, the lab operator puts it back before the next episode
+//! starts. (The start pose the start event also draws is for the Supervisor of pattern 1; a
+//! homing arm starts at home.) The twin's figures of an episode (energy, events) count from its
+//! start, not from its homing.
 
 use bevy::prelude::*;
 use twinbots_server::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerRobotPlugin};

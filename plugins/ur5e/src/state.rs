@@ -32,15 +32,8 @@ pub struct CellState {
 }
 
 impl CellState {
-    /// Whether the tool has reached the target: a braking arm that comes to rest there has not.
+    /// Whether the tool has reached the target: an arm the safety system has stopped has not.
     pub fn arrived(&self) -> bool {
         !self.safety.stopped() && self.arm.has_reached(self.target)
-    }
-
-    /// Whether the safety system has stopped the arm. The episode ends there, as a failure:
-    /// the policy no longer drives the arm, and braking to rest and unlocking the stop belong
-    /// to the reset (Isaac Lab's terminations, too, end an episode the step they occur).
-    pub fn in_protective_stop(&self) -> bool {
-        self.safety.stopped()
     }
 }
