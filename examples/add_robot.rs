@@ -9,9 +9,11 @@ use std::path::Path;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_rl::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
-use twinbots_rl::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
-use twinbots_rl::*;
+use twinbots_task::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
+use twinbots_api::*;
+use twinbots_learn::*;
+use twinbots_task::*;
 use twinbots_sim::urdf::parse_urdf;
 use twinbots_sim::{ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, Supervisor, spawn_robot};
 
@@ -108,7 +110,10 @@ fn swing_arm() -> RobotDescription {
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),
         defaults: TrainingDefaults {
-            ppo: PpoConfig { n_steps: 1024, gamma: 0.9, learning_rate: 1e-3, normalize_observations: true, ..Default::default() },
+            algos: vec![AlgoDefaults {
+                hyperparams: "n_steps = 1024\ngamma = 0.9\nlearning_rate = 1e-3\nnormalize_observations = true",
+                ..AlgoDefaults::new("ppo")
+            }],
             ..Default::default()
         },
         build: |request| headless_app(SimSettings { dt: 0.01, substeps: 5, ..default() }, request, SwingArmPlugin),
@@ -120,9 +125,9 @@ fn main() -> anyhow::Result<()> {
     registry.register(swing_arm())?;
     let robot = registry.find("swing_arm")?;
     let mut env = AppVecEnv::new(robot.app(None, 4, 1, DesignPattern::Supervised)?);
-    let mut model = Ppo::new(robot.defaults.ppo.clone(), env.observation_space().clone(), env.action_space().clone(), 1)?;
+    let mut model = Ppo::new(robot.defaults.of("ppo").config()?, env.observation_space().clone(), env.action_space().clone(), 1)?;
     let mut first = None;
-    model.learn(&mut env, 120_000, &mut |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
+    model.learn(&mut env, 120_000, &mut |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
         first = first.or((s.episodes > 0).then_some(s.mean_reward));
         println!("{:>7} steps  mean episode reward {:>8.1}", s.timesteps, s.mean_reward);
         Ok(Flow::Continue)

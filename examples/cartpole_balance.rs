@@ -3,7 +3,8 @@
 //!
 //! Run: `cargo run --release --example cartpole_balance [seed]`
 
-use twinbots_rl::{AppVecEnv, VecEnv};
+use twinbots_api::VecEnv;
+use twinbots_task::AppVecEnv;
 
 /// Bang-bang state feedback: drive towards the side the pole is falling to, with small terms
 /// that pull the cart back to the centre.

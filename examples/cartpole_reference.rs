@@ -4,8 +4,10 @@
 //!
 //! `cargo run --release --example cartpole_reference <run-dir> [episodes]`
 
-use twinbots_rl::robot::{AppRequest, headless_app};
-use twinbots_rl::{AppVecEnv, DesignPattern, Ppo, VecEnv};
+use twinbots_task::robot::{AppRequest, headless_app};
+use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_learn::Ppo;
+use twinbots_task::AppVecEnv;
 use twinbots_sim::SimSettings;
 
 fn main() -> anyhow::Result<()> {

@@ -7,7 +7,8 @@
 use std::collections::BTreeMap;
 
 use bevy::app::App;
-use twinbots_rl::{AppVecEnv, DesignPattern, VecEnv};
+use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_task::AppVecEnv;
 
 fn run(name: &str, app: App, episodes: usize) {
     let mut env = AppVecEnv::new(app);

@@ -230,7 +230,7 @@ enum BenchKind {
 
 fn main() {
     // Before any other thread starts: the pools for arenas and candle, sized for this machine.
-    twinbots_rl::threads::configure();
+    twinbots_learn::threads::configure();
     // Errors are for people: one clear line, no backtrace.
     if let Err(error) = run(Args::parse()) {
         eprintln!("error: {error:#}");
@@ -243,7 +243,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Robots { json: false } => cli::robots::print(),
         Command::Robots { json: true } => cli::robots::print_json()?,
         Command::Train { resume: Some(run), print_config: true, .. } => {
-            print!("{}", toml::to_string_pretty(&cli::runs::TrainSettings::of_run(&twinbots_rl::RunDir::new(run))?)?)
+            print!("{}", toml::to_string_pretty(&cli::runs::TrainSettings::of_run(&twinbots_learn::RunDir::new(run))?)?)
         }
         Command::Train { resume: Some(run), view, .. } => cli::train::resume(&run, view)?,
         Command::Train { robot, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, resume: None, print_config } => {

@@ -1,8 +1,8 @@
 //! The robots this build knows: each robot plugin crate under `plugins/` describes itself
 //! (`robot()`); registering it is one line here.
 
-use twinbots_rl::Registry;
-pub use twinbots_rl::RobotDescription as RobotEntry;
+use twinbots_task::Registry;
+pub use twinbots_task::RobotDescription as RobotEntry;
 
 /// Every robot of this build.
 pub fn builtin() -> Registry {

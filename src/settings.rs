@@ -5,8 +5,9 @@
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
-use twinbots_rl::randomization::Randomization;
-use twinbots_rl::{DesignPattern, PpoConfig, RunDir, SacConfig};
+use twinbots_task::randomization::Randomization;
+use twinbots_api::DesignPattern;
+use twinbots_learn::{PpoConfig, RunDir, SacConfig};
 
 use crate::registry::RobotEntry;
 
@@ -40,7 +41,7 @@ pub struct TrainSettings {
     pub ppo: PpoConfig,
     #[serde(default)]
     pub sac: SacConfig,
-    /// Domain randomization (patterns 1 and 2): see `twinbots_rl::randomization`.
+    /// Domain randomization (patterns 1 and 2): see `twinbots_task::randomization`.
     #[serde(default)]
     pub randomization: Randomization,
 }
@@ -52,6 +53,15 @@ pub enum Algo {
     #[default]
     Ppo,
     Sac,
+}
+
+impl Algo {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Ppo => "ppo",
+            Self::Sac => "sac",
+        }
+    }
 }
 
 /// What a `--config` file may set: any subset of the settings but the robot.
@@ -85,7 +95,7 @@ impl TrainSettings {
     /// The settings a run directory was made with (its `config.toml`).
     pub fn of_run(run: &RunDir) -> anyhow::Result<Self> {
         let settings: Self = run.read_config()?;
-        settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", run.file(twinbots_rl::run_dir::CONFIG).display()))?;
+        settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", run.file(twinbots_learn::run_dir::CONFIG).display()))?;
         Ok(settings)
     }
 
@@ -116,9 +126,9 @@ impl TrainSettings {
         self.sac.validate()?;
         let rollout = self.ppo.n_steps.saturating_mul(self.arenas);
         anyhow::ensure!(
-            rollout <= twinbots_rl::ppo::MAX_ROLLOUT,
+            rollout <= twinbots_learn::ppo::MAX_ROLLOUT,
             "ppo.n_steps × arenas = {} × {} = {rollout}: a rollout must hold at most {} samples",
-            self.ppo.n_steps, self.arenas, twinbots_rl::ppo::MAX_ROLLOUT
+            self.ppo.n_steps, self.arenas, twinbots_learn::ppo::MAX_ROLLOUT
         );
         self.design_pattern()?;
         self.ppo.validate()?;
@@ -156,29 +166,29 @@ impl TrainSettings {
     /// `algo = sac` the robot's SAC defaults (arenas, budget, evaluation interval) come first.
     pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> anyhow::Result<Self> {
         let algo = flags.algo.or(file.algo).unwrap_or_default();
+        let chosen = entry.defaults.of(algo.name());
+        let tuned = |e: anyhow::Error| anyhow::anyhow!("robot {}'s training defaults: {e}", entry.name);
         let mut s = Self {
             robot: entry.name.to_string(),
-            timesteps: entry.defaults.timesteps,
-            arenas: entry.defaults.arenas,
+            timesteps: chosen.timesteps,
+            arenas: chosen.arenas,
             seed: 0,
             pattern: 1,
             checkpoint_every: 10,
-            eval_every: entry.defaults.eval_every,
+            eval_every: chosen.eval_every,
             eval_episodes: entry.defaults.eval_episodes,
             algo,
-            ppo: entry.defaults.ppo.clone(),
-            sac: entry.defaults.sac.config.clone(),
+            ppo: entry.defaults.of("ppo").config().map_err(tuned)?,
+            sac: entry.defaults.of("sac").config().map_err(tuned)?,
             randomization: Randomization::default(),
         };
         if algo == Algo::Sac {
             let actions = entry.task().action_space;
             anyhow::ensure!(
-                matches!(actions, twinbots_rl::Space::Box { .. }),
+                matches!(actions, twinbots_api::Space::Box { .. }),
                 "algo = sac: {}'s actions are {actions}; SAC needs continuous (Box) actions: use algo = ppo",
                 entry.name
             );
-            let sac = &entry.defaults.sac;
-            (s.arenas, s.timesteps, s.eval_every) = (sac.arenas, sac.timesteps, sac.eval_every);
         }
         for layer in [file, flags] {
             s.timesteps = layer.timesteps.unwrap_or(s.timesteps);
@@ -231,9 +241,9 @@ mod tests {
         let ur5e = crate::registry::find("ur5e").unwrap();
         let file: ConfigFile = toml::from_str("algo = \"sac\"\n[sac]\nbatch_size = 128\n").unwrap();
         let s = TrainSettings::resolve(&ur5e, file, ConfigFile::default()).unwrap();
-        let defaults = &ur5e.defaults.sac;
+        let defaults = ur5e.defaults.of("sac");
         assert_eq!((s.algo, s.arenas, s.timesteps, s.eval_every), (Algo::Sac, defaults.arenas, defaults.timesteps, defaults.eval_every));
-        assert_eq!(s.sac, SacConfig { batch_size: 128, ..defaults.config.clone() }, "a [sac] key replaced more than itself");
+        assert_eq!(s.sac, SacConfig { batch_size: 128, ..defaults.config().unwrap() }, "a [sac] key replaced more than itself");
         let flags = ConfigFile { algo: Some(Algo::Ppo), ..Default::default() };
         let file: ConfigFile = toml::from_str("algo = \"sac\"\n").unwrap();
         assert_eq!(TrainSettings::resolve(&ur5e, file, flags).unwrap().algo, Algo::Ppo, "the flag did not win");

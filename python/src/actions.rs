@@ -2,7 +2,7 @@
 //! because a loop over a few floats costs nanoseconds in Rust and microseconds in numpy calls,
 //! and the Python layer's overhead per step is what users pay.
 
-use twinbots_rl::Space;
+use twinbots_api::Space;
 
 /// Refuses NaN and infinite values and choices that are fractional or out of range (naming the
 /// env), and clips box actions to their bounds (as Stable-Baselines3 does before stepping).

@@ -6,8 +6,9 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
 use twinbots_render::{Renderer, View};
-use twinbots_rl::randomization::{Randomization, RandomizationPlugin};
-use twinbots_rl::{AppVecEnv, DesignPattern, RobotDescription, StepResult, TaskSpec, VecEnv};
+use twinbots_task::randomization::{Randomization, RandomizationPlugin};
+use twinbots_api::{DesignPattern, StepResult, TaskSpec, VecEnv};
+use twinbots_task::{AppVecEnv, RobotDescription};
 
 use crate::actions::check_and_clip;
 use crate::convert::{OnThisThread, episode_dict, no_panic, runtime_error, space_dict, task_dict, value_error};
@@ -216,8 +217,8 @@ fn restart_after_step(env: &mut AppVecEnv, restart: &[usize], r: &mut StepResult
     let arenas: Vec<_> = restart.iter().map(|&i| env.arenas()[i]).collect();
     let all = env.arenas().to_vec();
     let world = env.app_mut().world_mut();
-    twinbots_rl::task::reset(world, &arenas);
-    r.obs = twinbots_rl::env::observations(world, &all);
+    twinbots_task::task::reset(world, &arenas);
+    r.obs = twinbots_task::task::observations(world, &all);
     for &i in restart {
         r.rewards[i] = 0.0;
         r.terminated[i] = false;

@@ -5,7 +5,8 @@ use std::time::Instant;
 
 use numpy::PyReadonlyArray2;
 use pyo3::prelude::*;
-use twinbots_rl::{AppVecEnv, DesignPattern, VecEnv};
+use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_task::AppVecEnv;
 
 use crate::convert::{OnThisThread, no_panic, runtime_error, value_error};
 

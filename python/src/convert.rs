@@ -5,7 +5,8 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use twinbots_rl::{EpisodeSummary, RobotDescription, Space, TaskSpec};
+use twinbots_api::{EpisodeSummary, Space, TaskSpec};
+use twinbots_task::RobotDescription;
 
 /// The app moves into `py.detach` (which needs `Send`) while the GIL is released. A Bevy `App`
 /// is not `Send` (its runner is a plain boxed closure), but `detach` runs the closure on this

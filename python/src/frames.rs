@@ -2,7 +2,7 @@
 
 use numpy::ndarray::Array3;
 use twinbots_render::{Renderer, View};
-use twinbots_rl::AppVecEnv;
+use twinbots_task::AppVecEnv;
 
 pub struct Frames {
     renderer: Renderer,

@@ -9,10 +9,11 @@ use std::path::PathBuf;
 use numpy::{PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use twinbots_rl::callbacks::draw_learning_curve;
-use twinbots_rl::normalize::RunningMeanStd;
+use twinbots_learn::callbacks::draw_learning_curve;
+use twinbots_learn::normalize::RunningMeanStd;
 use twinbots::settings::{ConfigFile, TrainSettings};
-use twinbots_rl::{Measure, Ppo, RunDir};
+use twinbots_api::Measure;
+use twinbots_learn::{Ppo, PpoConfig, RunDir};
 
 use crate::convert::{runtime_error, space_dict, value_error};
 
@@ -26,10 +27,12 @@ pub fn training_defaults<'py>(py: Python<'py>, robot: &str, task: Option<&str>) 
     let spec = (entry.find_task(task).map_err(value_error)?.spec)();
     let d = PyDict::new(py);
     d.set_item("action_space", space_dict(py, &spec.action_space)?)?;
-    let ppo = serde_json::to_string(&entry.defaults.ppo).map_err(|e| runtime_error(e.into()))?;
+    let defaults = entry.defaults.of("ppo");
+    let config: PpoConfig = defaults.config().map_err(runtime_error)?;
+    let ppo = serde_json::to_string(&config).map_err(|e| runtime_error(e.into()))?;
     d.set_item("ppo", py.import("json")?.call_method1("loads", (ppo,))?)?;
-    d.set_item("arenas", entry.defaults.arenas)?;
-    d.set_item("timesteps", entry.defaults.timesteps)?;
+    d.set_item("arenas", defaults.arenas)?;
+    d.set_item("timesteps", defaults.timesteps)?;
     match entry.task().solved {
         Some(c) => {
             let s = PyDict::new(py);
@@ -54,7 +57,8 @@ pub fn create_run(run_dir: PathBuf, robot: &str, seed: u64, arenas: usize, times
         return Err(value_error(anyhow::anyhow!("{} already holds a run", run_dir.display())));
     }
     // RLlib's minibatch is at most its train batch (n_steps × arenas); so is the run's.
-    let batch_size = entry.defaults.ppo.batch_size.min(entry.defaults.ppo.n_steps * arenas.max(1));
+    let tuned: PpoConfig = entry.defaults.of("ppo").config().map_err(runtime_error)?;
+    let batch_size = tuned.batch_size.min(tuned.n_steps * arenas.max(1));
     let mut ppo = toml::Table::new();
     ppo.insert("batch_size".into(), (batch_size as i64).into());
     // RLlib runs make no periodic twinbots evaluations.
@@ -107,7 +111,7 @@ pub fn save_model(
 ) -> PyResult<()> {
     let entry = twinbots::registry::find(robot).map_err(value_error)?;
     let spec = (entry.find_task(task).map_err(value_error)?.spec)();
-    let mut config = entry.defaults.ppo.clone();
+    let mut config: PpoConfig = entry.defaults.of("ppo").config().map_err(runtime_error)?;
     config.normalize_observations = obs_mean.is_some();
     let mut model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), seed).map_err(runtime_error)?;
     let expected: Vec<String> = model.policy.named_vars().into_iter().map(|(n, _)| n).collect();

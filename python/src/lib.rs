@@ -17,7 +17,7 @@ use pyo3::prelude::*;
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     // The thread pools, sized for this machine before the arenas or candle start any (candle
     // would otherwise recount the cores on every matrix product).
-    twinbots_rl::threads::configure();
+    twinbots_learn::threads::configure();
     m.add_class::<arenas::Arenas>()?;
     m.add_class::<policy::Policy>()?;
     m.add_function(wrap_pyfunction!(robots, m)?)?;

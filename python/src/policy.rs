@@ -6,7 +6,7 @@ use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use twinbots_rl::Ppo;
+use twinbots_learn::Ppo;
 
 use crate::convert::{no_panic, runtime_error, space_dict, value_error};
 

@@ -1,11 +1,13 @@
 //! `twinbots bench physics`: control steps per second with N arenas, and what the Bevy schedule
 //! around the physics costs per step. Arenas step side by side on the worker pool (see
-//! `twinbots_rl::threads`); `RAYON_NUM_THREADS=1` measures them on one thread.
+//! `twinbots_learn::threads`); `RAYON_NUM_THREADS=1` measures them on one thread.
 
 use std::time::Instant;
 
-use twinbots_rl::classic::ClassicCartPole;
-use twinbots_rl::{AppVecEnv, DesignPattern, Flow, Ppo, PpoConfig, VecEnv, bridge, env};
+use twinbots_learn::classic::ClassicCartPole;
+use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_learn::{Flow, Ppo, PpoConfig};
+use twinbots_task::{AppVecEnv, bridge, env};
 use twinbots_sim::SimSettings;
 
 use crate::registry;
@@ -61,7 +63,7 @@ pub fn physics(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<Physi
 
 pub fn print_physics(robot: &str, arena_counts: &[usize], steps: usize) -> anyhow::Result<()> {
     registry::find(robot)?;
-    let threads = twinbots_rl::threads::configure();
+    let threads = twinbots_learn::threads::configure();
     println!("physics benchmark: {robot}, {steps} control steps per row (one process; arenas step on {threads} threads)");
     println!(
         "{:>7} {:>14} {:>18} {:>16} {:>18}",
@@ -82,7 +84,7 @@ fn time_learn(config: PpoConfig, steps: u64) -> anyhow::Result<f64> {
     let mut env = ClassicCartPole::new(1);
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 0)?;
     let start = Instant::now();
-    model.learn(&mut env, steps, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue))?;
+    model.learn(&mut env, steps, &mut |_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))?;
     Ok(start.elapsed().as_secs_f64())
 }
 
@@ -137,11 +139,11 @@ pub fn print_rl(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<()> 
 /// Steps/s one RobotServer sustains with `robots` concurrent robot connections (each a thread
 /// doing `steps` request–reply steps as fast as it can), and the mean round trip.
 fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> {
-    use twinbots_server::client::Communicator;
-    use twinbots_server::protocol::{RobotMessage, ServerMessage};
+    use twinbots_link::client::Communicator;
+    use twinbots_link::protocol::{RobotMessage, ServerMessage};
     use twinbots_server::server::{RobotServer, ServerSettings};
     let spec = cartpole::task_spec();
-    let id = twinbots_server::client::Identity {
+    let id = twinbots_link::client::Identity {
         robot: "cartpole".into(),
         observation_space: spec.observation_space.clone(),
         action_space: spec.action_space.clone(),
@@ -151,7 +153,7 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
     // A rollout never filled: this measures the protocol and the policy's inference only.
     let mut settings = ServerSettings::new("cartpole", &spec, usize::MAX, u64::MAX);
     settings.limits.max_robots = robots.max(1);
-    let server = RobotServer::start("127.0.0.1:0".parse()?, model, settings, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)))?;
+    let server = RobotServer::start("127.0.0.1:0".parse()?, model, settings, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)))?;
     let addr = server.addr;
     let start = Instant::now();
     let threads: Vec<_> = (0..robots)

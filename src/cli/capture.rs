@@ -5,7 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use twinbots_render::{Framing, Renderer, View};
-use twinbots_rl::{AppVecEnv, DesignPattern, RunDir, VecEnv};
+use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_learn::RunDir;
+use twinbots_task::AppVecEnv;
 
 use crate::registry::{self, RobotEntry};
 

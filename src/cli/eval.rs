@@ -2,7 +2,9 @@
 
 use std::path::Path;
 
-use twinbots_rl::{AppVecEnv, EvalResult, RunDir, VecEnv, evaluate_policy};
+use twinbots_api::VecEnv;
+use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
+use twinbots_task::AppVecEnv;
 
 use crate::cli::runs::{TrainSettings, evaluation_env};
 use crate::registry;
@@ -22,7 +24,7 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, settings.in_process_pattern()?)?;
     let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
     println!("{}: {}", settings.robot, result.describe());
-    let file = if name == entry.main_task().name { twinbots_rl::run_dir::EVAL.to_string() } else { format!("eval-{name}.json") };
+    let file = if name == entry.main_task().name { twinbots_learn::run_dir::EVAL.to_string() } else { format!("eval-{name}.json") };
     run_dir.write_json(&file, &result)?;
     Ok(result)
 }

@@ -5,7 +5,8 @@ use std::path::Path;
 
 use twinbots::settings::Algo;
 use twinbots_onnx::{PolicyMetadata, Trained};
-use twinbots_rl::{RunDir, Sac, TaskSpec};
+use twinbots_task::ActiveTask;
+use twinbots_learn::{RunDir, Sac};
 use twinbots_sim::SimSettings;
 
 use crate::cli::runs::TrainSettings;
@@ -30,7 +31,7 @@ pub fn export_run(run: &Path, onnx: &Path) -> anyhow::Result<PolicyMetadata> {
     };
     // The robot's own description of its task and timing, as an app of it declares them.
     let app = entry.app(None, 1, settings.seed, settings.in_process_pattern()?)?;
-    let spec = app.world().resource::<TaskSpec>();
+    let spec = &**app.world().resource::<ActiveTask>();
     let control_period_s = app.world().resource::<SimSettings>().control_dt();
     model.agent().check_spaces(&spec.observation_space, &spec.action_space)?;
     let metadata = PolicyMetadata {

@@ -1,11 +1,12 @@
 //! The learner a run trains with, PPO or SAC (`algo` in its settings): made fresh, taken from a
 //! run's newest checkpoint, and run on the learner's thread. Everything else about a run (the
-//! callbacks, evaluation, the run directory) sees it as a `twinbots_rl::Agent`.
+//! callbacks, evaluation, the run directory) sees it as a `twinbots_learn::Agent`.
 
 use std::path::PathBuf;
 
-use twinbots_rl::ppo::TrainingTimes;
-use twinbots_rl::{Agent, Callback, Ppo, RunDir, Sac, TaskSpec, TrainingEnd, VecEnv};
+use twinbots_learn::ppo::TrainingTimes;
+use twinbots_api::{TaskSpec, VecEnv};
+use twinbots_learn::{Agent, Callback, Ppo, RunDir, Sac, TrainingEnd};
 
 use crate::cli::runs::TrainSettings;
 use twinbots::settings::Algo;

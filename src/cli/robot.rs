@@ -10,8 +10,10 @@ use std::time::Duration;
 
 use bevy::prelude::*;
 use twinbots_onnx::OnnxPolicy;
-use twinbots_rl::{DesignPattern, Episode, EvalResult};
-use twinbots_server::robot::{OnBoardPolicy, RobotRunState, ServerAddress, ServerToken};
+use twinbots_api::DesignPattern;
+use twinbots_learn::EvalResult;
+use twinbots_task::Episode;
+use twinbots_link::robot::{OnBoardPolicy, RobotRunState, ServerAddress, ServerToken};
 
 use crate::registry;
 

@@ -2,7 +2,7 @@
 //! RobotServer's `welcome` gives it (the same `TaskInterface`), so a robot written in another
 //! language can be checked against it before it connects.
 
-use twinbots_server::protocol::TaskInterface;
+use twinbots_link::protocol::TaskInterface;
 
 use crate::registry;
 
@@ -32,7 +32,7 @@ pub fn print_json() -> anyhow::Result<()> {
             })
         })
         .collect();
-    let document = serde_json::json!({ "protocol_version": twinbots_server::protocol::VERSION, "robots": robots });
+    let document = serde_json::json!({ "protocol_version": twinbots_link::protocol::VERSION, "robots": robots });
     println!("{}", serde_json::to_string_pretty(&document)?);
     Ok(())
 }

@@ -5,11 +5,13 @@
 
 use std::path::PathBuf;
 
-use twinbots_rl::callbacks::{
+use twinbots_learn::callbacks::{
     CheckpointCallback, EvalCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, StopTrainingOnSolved,
     TensorBoardCallback,
 };
-use twinbots_rl::{AppVecEnv, CallbackList, DesignPattern, RunDir, SolvedCriterion, VecEnv};
+use twinbots_api::{DesignPattern, SolvedCriterion, VecEnv};
+use twinbots_learn::{CallbackList, RunDir};
+use twinbots_task::AppVecEnv;
 
 pub use twinbots::settings::{ConfigFile, TrainSettings};
 

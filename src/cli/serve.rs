@@ -9,8 +9,9 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use twinbots_rl::run_dir::Summary;
-use twinbots_rl::{DesignPattern, Ppo, RunDir};
+use twinbots_learn::run_dir::Summary;
+use twinbots_api::DesignPattern;
+use twinbots_learn::{Ppo, RunDir};
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
 use crate::cli::runs::TrainSettings;
@@ -92,7 +93,7 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     let title = format!("{} — PPO through the RobotServer (pattern 3), seed {}", settings.robot, settings.seed);
     let mut callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     if std::env::var_os(PANIC_IN_UPDATE_ENV).is_some() {
-        callbacks = callbacks.with(|_: &twinbots_rl::UpdateStats, _: &dyn twinbots_rl::Agent| -> anyhow::Result<twinbots_rl::Flow> {
+        callbacks = callbacks.with(|_: &twinbots_learn::UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<twinbots_learn::Flow> {
             panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
         });
     }

@@ -2,7 +2,7 @@
 //!
 //! As DESIGN.md's data flow: the learner runs on its own thread and steps the app through the
 //! crossbeam bridge; the Bevy app runs on the main thread. The run directory
-//! (`twinbots_rl::run_dir`) holds `config.toml` (the resolved settings), `progress.csv` (one row
+//! (`twinbots_learn::run_dir`) holds `config.toml` (the resolved settings), `progress.csv` (one row
 //! per update), `evaluations.csv`, `checkpoints/` (atomic, every `checkpoint_every` updates),
 //! `learning_curve.png`, `model/` (the final model), `eval.json` and `summary.json`, written by
 //! the run's callbacks (`TrainSettings::callbacks`) and, at the end, here. Training stops at
@@ -12,9 +12,11 @@
 use std::path::Path;
 use std::time::Instant;
 
-use twinbots_rl::randomization::RandomizationPlugin;
-use twinbots_rl::run_dir::{EVAL, Summary, TimeBreakdown};
-use twinbots_rl::{DesignPattern, RunDir, TrainingEnd, bridge, env, evaluate_policy};
+use twinbots_task::randomization::RandomizationPlugin;
+use twinbots_learn::run_dir::{EVAL, Summary, TimeBreakdown};
+use twinbots_api::DesignPattern;
+use twinbots_learn::{RunDir, TrainingEnd, evaluate_policy};
+use twinbots_task::{bridge, env};
 
 use crate::cli::learner::{Learner, Trained};
 use crate::cli::runs::{TrainSettings, evaluation_env};
@@ -110,7 +112,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Learner>, view: b
     let (_, spec) = env::start(&mut app)?;
     let mut channel_env = bridge::connect(app.world_mut())?;
     // The goal interface is the robot's description's (the app's spec is built from its terms).
-    let spec = twinbots_rl::TaskSpec { goal: entry.task().goal, ..spec };
+    let spec = twinbots_api::TaskSpec { goal: entry.task().goal, ..spec };
     let resumed = model.is_some();
     let learner = match model {
         Some(m) => {

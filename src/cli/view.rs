@@ -5,14 +5,16 @@ use std::time::{Duration, Instant};
 
 use bevy::prelude::*;
 use twinbots_render::viewer::{self, RealTime, ViewSource};
-use twinbots_rl::{AppVecEnv, DesignPattern, RunDir, VecEnv};
+use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_learn::RunDir;
+use twinbots_task::AppVecEnv;
 
 use crate::registry;
 
 /// Plays one arena in real time.
 struct Player {
     env: AppVecEnv,
-    model: Option<Box<dyn twinbots_rl::Agent + Send>>,
+    model: Option<Box<dyn twinbots_learn::Agent + Send>>,
     obs: Vec<f32>,
     clock: RealTime,
     steps: u64,
@@ -115,7 +117,7 @@ impl TrainingView {
             }
             self.app.update();
             self.updates += 1;
-            let closed = self.app.world().get_resource::<twinbots_rl::bridge::BridgeEndpoint>().is_none_or(|e| e.closed);
+            let closed = self.app.world().get_resource::<twinbots_task::bridge::BridgeEndpoint>().is_none_or(|e| e.closed);
             if closed {
                 return false;
             }

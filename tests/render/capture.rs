@@ -3,7 +3,8 @@
 use std::process::Command;
 
 use twinbots_render::View;
-use twinbots_rl::{AppVecEnv, VecEnv};
+use twinbots_api::VecEnv;
+use twinbots_task::AppVecEnv;
 use twinbots_sim::{Arena, Link};
 
 use crate::{orange, renderer};

@@ -1,8 +1,9 @@
 //! The channel bridge: steps match direct stepping, and either side ending ends the other.
 
 use bevy::prelude::*;
-use twinbots_rl::bridge::{self, BridgePlugin};
-use twinbots_rl::{AppVecEnv, SingleEnv, VecEnv, env};
+use twinbots_task::bridge::{self, BridgePlugin};
+use twinbots_api::{SingleEnv, VecEnv};
+use twinbots_task::{AppVecEnv, env};
 use twinbots_sim::SimSet;
 
 fn bridged_app(arenas: usize) -> (App, bridge::ChannelVecEnv) {

@@ -7,10 +7,12 @@ use std::time::Duration;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_rl::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
-use twinbots_rl::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
-use twinbots_rl::*;
-use twinbots_server::robot::{AtHome, Controller, Phase, RobotCycleSet, RobotRunState, ServerAddress, ServerRobotPlugin};
+use twinbots_task::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
+use twinbots_api::*;
+use twinbots_learn::*;
+use twinbots_task::*;
+use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, RobotRunState, ServerAddress, ServerRobotPlugin};
 use twinbots_server::server::{RobotServer, ServerSettings};
 use twinbots_sim::urdf::parse_urdf;
 use twinbots_sim::{
@@ -135,7 +137,10 @@ fn turntable() -> RobotDescription {
         tasks: vec![TaskDescription { name: "turn", description: "turn to a target angle", spec: || turn_task().spec(), server: true }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),
-        defaults: TrainingDefaults { ppo: PpoConfig { n_steps: 128, batch_size: 64, ..Default::default() }, arenas: 4, ..Default::default() },
+        defaults: TrainingDefaults {
+            algos: vec![AlgoDefaults { arenas: 4, hyperparams: "n_steps = 128\nbatch_size = 64", ..AlgoDefaults::new("ppo") }],
+            ..Default::default()
+        },
         build: |request| headless_app(SimSettings { dt: 0.01, substeps: 4, ..default() }, request, TurntablePlugin(request.pattern)),
     }
 }
@@ -153,9 +158,9 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     assert!(robot.app(None, 1, 0, DesignPattern::Radio).unwrap_err().to_string().contains("supported: 1, 3"));
 
     // Trained for a few updates.
-    let mut env = AppVecEnv::new(robot.app(None, robot.defaults.arenas, 0, DesignPattern::Supervised).unwrap());
-    let mut model = Ppo::new(robot.defaults.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
-    model.learn(&mut env, 4 * 128 * 4, &mut |_: &UpdateStats, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)).unwrap();
+    let mut env = AppVecEnv::new(robot.app(None, robot.defaults.of("ppo").arenas, 0, DesignPattern::Supervised).unwrap());
+    let mut model = Ppo::new(robot.defaults.of("ppo").config().unwrap(), spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
+    model.learn(&mut env, 4 * 128 * 4, &mut |_: &UpdateStats, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)).unwrap();
     assert_eq!(model.updates, 4);
     assert!(model.episodes > 0, "episodes of at most 50 steps ended in 2048 steps");
 
@@ -170,9 +175,9 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     assert!((terms - result.mean_score).abs() < 1e-3 * result.mean_score.abs().max(1.0), "{:?} vs {}", result.rewards, result.mean_score);
 
     // Served under pattern 3: robots that home themselves, no Supervisor, the same terms.
-    let learner = Ppo::new(robot.defaults.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), 1).unwrap();
+    let learner = Ppo::new(robot.defaults.of("ppo").config().unwrap(), spec.observation_space.clone(), spec.action_space.clone(), 1).unwrap();
     let settings = ServerSettings::new("turntable", &spec, 256, 1024);
-    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue))).unwrap();
+    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))).unwrap();
     let mut app = robot.app(None, 2, 3, DesignPattern::Server).unwrap();
     app.insert_resource(ServerAddress { addr: server.addr, patience: Duration::from_secs(5) });
     app.finish();

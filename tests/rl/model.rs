@@ -1,7 +1,8 @@
 //! The model lifecycle: save/load round trips exactly; spaces are checked.
 
-use twinbots_rl::classic::ClassicCartPole;
-use twinbots_rl::{Ppo, PpoConfig, Space, VecEnv};
+use twinbots_learn::classic::ClassicCartPole;
+use twinbots_api::{Space, VecEnv};
+use twinbots_learn::{Ppo, PpoConfig};
 
 fn temp_dir(name: &str) -> std::path::PathBuf {
     let dir = std::env::temp_dir().join(format!("twinbots-{name}-{}", std::process::id()));
@@ -14,7 +15,7 @@ fn load_of_save_predicts_exactly_as_the_original() {
     let mut env = ClassicCartPole::new(4);
     let config = PpoConfig { n_steps: 64, normalize_observations: true, ..Default::default() };
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
-    model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(twinbots_rl::Flow::Continue)).unwrap();
+    model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_learn::Agent| Ok(twinbots_learn::Flow::Continue)).unwrap();
     let dir = temp_dir("model");
     model.save(&dir).unwrap();
     let mut loaded = Ppo::load(&dir).unwrap();
@@ -34,7 +35,7 @@ fn a_snapshot_predicts_as_the_original_and_does_not_train_with_it() {
     let mut env = ClassicCartPole::new(4);
     let config = PpoConfig { n_steps: 64, normalize_observations: true, ..Default::default() };
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
-    model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(twinbots_rl::Flow::Continue)).unwrap();
+    model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_learn::Agent| Ok(twinbots_learn::Flow::Continue)).unwrap();
     let mut snapshot = model.snapshot().unwrap();
     let obs = env.reset(Some(9)).unwrap();
     assert_eq!(snapshot.predict(&obs, false).unwrap(), model.predict(&obs, false).unwrap(), "same weights, same stream");
@@ -43,7 +44,7 @@ fn a_snapshot_predicts_as_the_original_and_does_not_train_with_it() {
         m.policy.named_vars().iter().map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap()).collect()
     };
     let before = weights(&snapshot);
-    model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(twinbots_rl::Flow::Continue)).unwrap();
+    model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_learn::Agent| Ok(twinbots_learn::Flow::Continue)).unwrap();
     assert_ne!(weights(&model), before, "the original trained on");
     assert_eq!(weights(&snapshot), before, "the snapshot shares no variable with it");
 }

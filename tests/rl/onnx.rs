@@ -6,10 +6,11 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use twinbots_onnx::{OnnxPolicy, PolicyMetadata};
-use twinbots_rl::classic::{ClassicCartPole, ClassicPendulum};
+use twinbots_learn::classic::{ClassicCartPole, ClassicPendulum};
 use twinbots_onnx::Trained;
-use twinbots_rl::normalize::RunningMeanStd;
-use twinbots_rl::{Flow, Ppo, PpoConfig, Sac, SacConfig, Space, VecEnv};
+use twinbots_learn::normalize::RunningMeanStd;
+use twinbots_api::{Space, VecEnv};
+use twinbots_learn::{Flow, Ppo, PpoConfig, Sac, SacConfig};
 
 const OBSERVATIONS: usize = 1000;
 
@@ -32,7 +33,7 @@ fn metadata<'a>(model: impl Into<Trained<'a>>) -> PolicyMetadata {
 
 fn trained(env: &mut dyn VecEnv, config: PpoConfig, steps: u64) -> Ppo {
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 5).unwrap();
-    model.learn(env, steps, &mut |_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)).unwrap();
+    model.learn(env, steps, &mut |_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)).unwrap();
     model
 }
 

@@ -1,6 +1,7 @@
 //! The paper's design patterns on the cart-pole.
 
-use twinbots_rl::{AppVecEnv, DesignPattern, VecEnv};
+use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_task::AppVecEnv;
 use twinbots_sim::{Motor, MotorCommand, PositionSensor};
 
 fn radio_env() -> AppVecEnv {

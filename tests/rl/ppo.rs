@@ -1,7 +1,8 @@
 //! PPO learns.
 
-use twinbots_rl::classic::ClassicCartPole;
-use twinbots_rl::{Flow, Ppo, PpoConfig, UpdateStats, VecEnv};
+use twinbots_learn::classic::ClassicCartPole;
+use twinbots_api::VecEnv;
+use twinbots_learn::{Flow, Ppo, PpoConfig, UpdateStats};
 
 #[test]
 fn ppo_reaches_475_on_classic_cartpole_within_150k_steps() {
@@ -10,7 +11,7 @@ fn ppo_reaches_475_on_classic_cartpole_within_150k_steps() {
     let mut best = f32::MIN;
     let mut history = Vec::new();
     model
-        .learn(&mut env, 150_000, &mut |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
+        .learn(&mut env, 150_000, &mut |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
             if s.episodes >= 20 {
                 best = best.max(s.mean_reward);
             }
@@ -27,7 +28,7 @@ fn ppo_reaches_475_on_classic_cartpole_within_150k_steps() {
 /// The mean score of `episodes` episodes of uniformly random torques.
 fn random_pendulum_score(episodes: usize) -> f32 {
     use rand::SeedableRng;
-    let mut env = twinbots_rl::classic::ClassicPendulum::new(1);
+    let mut env = twinbots_learn::classic::ClassicPendulum::new(1);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     env.reset(Some(5)).unwrap();
     let mut scores = Vec::new();
@@ -43,7 +44,7 @@ fn random_pendulum_score(episodes: usize) -> f32 {
 #[test]
 fn ppo_with_gaussian_policy_improves_pendulum_well_beyond_random() {
     let random = random_pendulum_score(50);
-    let mut env = twinbots_rl::classic::ClassicPendulum::new(4);
+    let mut env = twinbots_learn::classic::ClassicPendulum::new(4);
     // RL Zoo's Pendulum-v1 settings for PPO (without gSDE).
     let config = PpoConfig {
         n_steps: 1024,
@@ -61,7 +62,7 @@ fn ppo_with_gaussian_policy_improves_pendulum_well_beyond_random() {
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
     let mut curve = Vec::new();
     model
-        .learn(&mut env, 150_000, &mut |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
+        .learn(&mut env, 150_000, &mut |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
             curve.push(s.mean_reward);
             Ok(Flow::Continue)
         })
@@ -86,16 +87,16 @@ impl VecEnv for PoisonedOnce {
     fn num_envs(&self) -> usize {
         self.env.num_envs()
     }
-    fn observation_space(&self) -> &twinbots_rl::Space {
+    fn observation_space(&self) -> &twinbots_api::Space {
         self.env.observation_space()
     }
-    fn action_space(&self) -> &twinbots_rl::Space {
+    fn action_space(&self) -> &twinbots_api::Space {
         self.env.action_space()
     }
     fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>> {
         self.env.reset(seed)
     }
-    fn step(&mut self, actions: &[f32]) -> anyhow::Result<twinbots_rl::StepResult> {
+    fn step(&mut self, actions: &[f32]) -> anyhow::Result<twinbots_api::StepResult> {
         let mut result = self.env.step(actions)?;
         self.steps += 1;
         if self.steps == self.at {
@@ -112,7 +113,7 @@ fn a_non_finite_reward_skips_the_gradient_steps_it_poisons_counts_them_and_learn
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
     let mut rows = Vec::new();
     model
-        .learn(&mut env, 64 * 2 * 6, &mut |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
+        .learn(&mut env, 64 * 2 * 6, &mut |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
             rows.push(s.clone());
             Ok(Flow::Continue)
         })

@@ -1,7 +1,8 @@
 //! Domain randomization: physical parameters per episode, d_randomize on actions, latency.
 
-use twinbots_rl::randomization::{Randomization, RandomizationPlugin};
-use twinbots_rl::{AppVecEnv, VecEnv};
+use twinbots_task::randomization::{Randomization, RandomizationPlugin};
+use twinbots_api::VecEnv;
+use twinbots_task::AppVecEnv;
 use twinbots_sim::{Arena, JointState, Motor, MotorCommand, PositionSensor};
 
 fn env(r: Randomization) -> (AppVecEnv, cartpole::CartPoleParts) {

@@ -136,7 +136,7 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
     assert!(output.status.success(), "{err}");
     assert!(err.contains(&format!("checkpoint {} is unusable", poisoned.display())), "{err}");
     assert!(out.contains("(768 steps"), "{out}");
-    let model = twinbots_rl::Ppo::load(run.join("model")).unwrap();
+    let model = twinbots_learn::Ppo::load(run.join("model")).unwrap();
     assert_eq!(model.timesteps, 1280);
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -175,11 +175,11 @@ fn a_killed_pattern_3_run_resumes_through_its_server_and_its_server_does_not_out
 
     let output = twinbots().args(["train", "--resume"]).arg(&run).output().unwrap();
     assert!(output.status.success(), "{}\n{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
-    let progress = twinbots_rl::RunDir::new(&run).read_progress().unwrap();
+    let progress = twinbots_learn::RunDir::new(&run).read_progress().unwrap();
     let updates: Vec<usize> = progress.iter().map(|row| row.update).collect();
     assert!(updates.iter().enumerate().all(|(i, &u)| u == i + 1), "{updates:?}");
     assert!(progress.windows(2).all(|w| w[1].timesteps > w[0].timesteps));
-    let model = twinbots_rl::Ppo::load(run.join("model")).unwrap();
+    let model = twinbots_learn::Ppo::load(run.join("model")).unwrap();
     assert!(model.timesteps >= 4096 && model.updates as usize == updates.len(), "{} steps, {} updates", model.timesteps, model.updates);
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -2,8 +2,9 @@
 
 use std::time::Instant;
 
-use twinbots_rl::classic::ClassicPendulum;
-use twinbots_rl::{Agent, Flow, Sac, SacConfig, UpdateStats, VecEnv};
+use twinbots_learn::classic::ClassicPendulum;
+use twinbots_api::VecEnv;
+use twinbots_learn::{Agent, Flow, Sac, SacConfig, UpdateStats};
 
 /// SB3's SAC defaults but for 64-unit layers (256 cost 16× the arithmetic: a gradient step took
 /// ~50 ms on the 2-core CI machine), on the analytic Pendulum-v1 (SB3 reaches about −150 in
@@ -76,9 +77,9 @@ fn damaged_sac_files_are_named_and_a_ppo_loader_refuses_a_sac_model() {
     let dir = std::env::temp_dir().join(format!("twinbots-sac-damaged-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     model.save(&dir).unwrap();
-    let err = twinbots_rl::Ppo::load(&dir).unwrap_err().to_string();
+    let err = twinbots_learn::Ppo::load(&dir).unwrap_err().to_string();
     assert!(err.contains("a SAC model, not PPO"), "{err}");
-    assert_eq!(twinbots_rl::load_agent(&dir).unwrap().algorithm(), "SAC");
+    assert_eq!(twinbots_learn::load_agent(&dir).unwrap().algorithm(), "SAC");
     std::fs::write(dir.join("replay_buffer.safetensors"), b"not a buffer").unwrap();
     let err = Sac::load(&dir).unwrap_err().to_string();
     assert!(err.contains("replay_buffer.safetensors"), "{err}");
@@ -87,7 +88,7 @@ fn damaged_sac_files_are_named_and_a_ppo_loader_refuses_a_sac_model() {
 
 #[test]
 fn sac_refuses_discrete_actions_and_a_her_option_without_a_goal() {
-    let env = twinbots_rl::classic::ClassicCartPole::new(1);
+    let env = twinbots_learn::classic::ClassicCartPole::new(1);
     let err = Sac::new(SacConfig::default(), env.observation_space().clone(), env.action_space().clone(), 0).unwrap_err().to_string();
     assert!(err.contains("continuous (Box) actions"), "{err}");
     let env = ClassicPendulum::new(1);

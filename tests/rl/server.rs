@@ -6,17 +6,17 @@ use std::net::{SocketAddr, TcpStream};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use twinbots_rl::{Flow, Ppo, PpoConfig};
-use twinbots_server::frame::{read_message, write_message};
-use twinbots_server::protocol::{RobotMessage, ServerMessage, VERSION};
+use twinbots_learn::{Flow, Ppo, PpoConfig};
+use twinbots_link::frame::{read_message, write_message};
+use twinbots_link::protocol::{RobotMessage, ServerMessage, VERSION};
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
 pub fn server(timesteps: u64) -> RobotServer {
-    server_with(timesteps, 256, ServerLimits::default(), Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)))
+    server_with(timesteps, 256, ServerLimits::default(), Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)))
 }
 
 /// A cart-pole server with these limits and callbacks.
-pub fn server_with(timesteps: u64, rollout: usize, limits: ServerLimits, callbacks: Box<dyn twinbots_rl::Callback + Send>) -> RobotServer {
+pub fn server_with(timesteps: u64, rollout: usize, limits: ServerLimits, callbacks: Box<dyn twinbots_learn::Callback + Send>) -> RobotServer {
     let spec = cartpole::task_spec();
     let model = Ppo::new(PpoConfig::zoo_cartpole(), spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
     let mut settings = ServerSettings::new("cartpole", &spec, rollout, timesteps);
@@ -122,7 +122,7 @@ fn a_bad_hello_is_refused() {
         version: VERSION,
         robot: "cartpole".into(),
         observation_space: id.observation_space,
-        action_space: twinbots_rl::Space::Discrete { n: 3 },
+        action_space: twinbots_api::Space::Discrete { n: 3 },
         token: None,
     });
     assert!(matches!(&reply, ServerMessage::Error { fatal: true, message, .. } if message.contains("Discrete(3)")), "{reply:?}");
@@ -157,14 +157,15 @@ fn a_robot_that_disconnects_mid_episode_has_that_episode_discarded() {
 
 #[test]
 fn the_server_trains_with_callbacks_and_stops_once_solved() {
-    use twinbots_rl::callbacks::StopTrainingOnSolved;
-    use twinbots_rl::{CallbackList, SolvedBy, SolvedCriterion, TrainingEnd, UpdateStats};
+    use twinbots_learn::callbacks::StopTrainingOnSolved;
+    use twinbots_api::SolvedCriterion;
+    use twinbots_learn::{CallbackList, SolvedBy, TrainingEnd, UpdateStats};
     let id = cartpole::task_spec();
     let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space, id.action_space, 0).unwrap();
     let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
     let seen = rows.clone();
     let callbacks = CallbackList::new()
-        .with(move |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
+        .with(move |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
             seen.lock().unwrap().push((s.update, s.timesteps, s.episodes));
             Ok(Flow::Continue)
         })

@@ -8,8 +8,8 @@ use std::net::SocketAddr;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use twinbots_rl::{Flow, UpdateStats};
-use twinbots_server::protocol::{ErrorCode, RobotMessage, ServerMessage, VERSION};
+use twinbots_learn::{Flow, UpdateStats};
+use twinbots_link::protocol::{ErrorCode, RobotMessage, ServerMessage, VERSION};
 use twinbots_server::server::ServerLimits;
 
 use crate::server::{Robot, frame, hello, server, server_with, serve_process, temp, twinbots};
@@ -77,8 +77,9 @@ fn non_finite_observations_are_refused() {
 
 #[test]
 fn rewards_outside_the_tasks_range_are_refused_so_no_robot_can_claim_solved() {
-    use twinbots_rl::callbacks::StopTrainingOnSolved;
-    use twinbots_rl::{CallbackList, SolvedCriterion};
+    use twinbots_learn::callbacks::StopTrainingOnSolved;
+    use twinbots_api::SolvedCriterion;
+    use twinbots_learn::CallbackList;
     // The cart-pole pays exactly 1 per step; a robot claiming 1000 per step once ended
     // training as "solved after 128 steps".
     let callbacks = CallbackList::new().with(StopTrainingOnSolved::new(SolvedCriterion::mean_score(1, 100.0)));
@@ -117,7 +118,7 @@ fn a_4_gib_length_prefix_is_refused_at_once_and_the_others_are_served() {
 #[test]
 fn half_a_frame_then_silence_times_out() {
     let limits = ServerLimits { read_timeout: Duration::from_millis(300), handshake_timeout: Duration::from_millis(300), ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)));
+    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
     // After the handshake: a frame of 100 bytes announced, 10 sent.
     let mut robot = Robot::hello(server.addr);
     let t = Instant::now();
@@ -142,13 +143,13 @@ fn half_a_frame_then_silence_times_out() {
             }
         }
     });
-    let reply: ServerMessage = twinbots_server::frame::read_message(&mut robot.reader).unwrap();
+    let reply: ServerMessage = twinbots_link::frame::read_message(&mut robot.reader).unwrap();
     assert_eq!(code(&reply), (ErrorCode::Timeout, true));
     assert!(t.elapsed() < Duration::from_millis(1500), "{:?}", t.elapsed());
     trickle.join().unwrap();
     // Before the handshake: connected, silent.
     let mut silent = Robot::connect(server.addr);
-    let reply: ServerMessage = twinbots_server::frame::read_message(&mut silent.reader).unwrap();
+    let reply: ServerMessage = twinbots_link::frame::read_message(&mut silent.reader).unwrap();
     assert_eq!(code(&reply), (ErrorCode::Timeout, true));
     assert_eq!(server.load().0, 0);
 }
@@ -179,7 +180,7 @@ fn the_65th_robot_is_refused_over_the_cap_of_64() {
 #[test]
 fn a_wrong_or_missing_token_is_refused() {
     let limits = ServerLimits { token: Some("s3cret".into()), ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)));
+    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
     for (token, why) in [(None, "needs a token"), (Some("guess"), "wrong token"), (Some("s3cre"), "wrong token")] {
         let mut robot = Robot::connect(server.addr);
         let reply = robot.call(&hello(token));
@@ -228,7 +229,7 @@ fn welcome_carries_the_tasks_interface_as_robots_json_prints_it() {
     assert_eq!(cartpole["tasks"][0], serde_json::to_value(&task).unwrap(), "the same description");
     for robot in robots {
         for task in robot["tasks"].as_array().unwrap() {
-            let task: twinbots_server::protocol::TaskInterface = serde_json::from_value(task.clone()).unwrap();
+            let task: twinbots_link::protocol::TaskInterface = serde_json::from_value(task.clone()).unwrap();
             assert_eq!(task.observation_names.len(), task.observation_space.dim(), "{}", task.task);
             assert!(task.reward_range.high.is_finite(), "{}: a declared upper bound", task.task);
         }
@@ -253,7 +254,7 @@ fn abort_drops_the_running_episode_and_is_acknowledged() {
 
 #[test]
 fn a_panic_in_the_learner_ends_wait_with_the_reason() {
-    let panicking = |_: &UpdateStats, _: &dyn twinbots_rl::Agent| -> anyhow::Result<Flow> { panic!("boom in the update") };
+    let panicking = |_: &UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<Flow> { panic!("boom in the update") };
     let server = server_with(1_000_000, 8, ServerLimits::default(), Box::new(panicking));
     let mut robot = Robot::hello(server.addr);
     let mut bystander = Robot::hello(server.addr);
@@ -276,7 +277,7 @@ fn a_panic_in_the_learner_ends_wait_with_the_reason() {
 fn a_connection_without_a_thread_is_refused_and_accepting_goes_on() {
     // A stack no system can give: every connection thread fails to start.
     let limits = ServerLimits { connection_stack: 1 << 50, ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue)));
+    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
     for _ in 0..3 {
         let mut robot = Robot::connect(server.addr);
         let reply = robot.call(&hello(None));

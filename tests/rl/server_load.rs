@@ -10,9 +10,9 @@
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use twinbots_rl::{Flow, Ppo, PpoConfig, UpdateStats};
-use twinbots_server::client::{Communicator, Identity};
-use twinbots_server::protocol::{RobotMessage, ServerMessage};
+use twinbots_learn::{Flow, Ppo, PpoConfig, UpdateStats};
+use twinbots_link::client::{Communicator, Identity};
+use twinbots_link::protocol::{RobotMessage, ServerMessage};
 use twinbots_server::server::{RobotServer, ServerSettings};
 
 /// Steps of each episode; every robot's steps are a whole number of episodes.
@@ -37,7 +37,7 @@ fn load(robots: usize, steps: usize) -> Figures {
     let model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
     let learned = Arc::new(Mutex::new(Vec::new()));
     let log = learned.clone();
-    let callback = move |s: &UpdateStats, _: &dyn twinbots_rl::Agent| {
+    let callback = move |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
         log.lock().unwrap().push((s.timesteps, s.episodes));
         Ok(Flow::Continue)
     };

@@ -38,7 +38,7 @@ fn short_training_run_writes_its_run_directory() {
     assert!(parts[..4].iter().all(|&s| s > 0.0), "{time}");
     let wall = summary["wall_clock_s_this_session"].as_f64().unwrap();
     assert!((parts.iter().sum::<f64>() - wall).abs() < 0.01 * wall + 1e-3, "{time} vs wall {wall}");
-    let model = twinbots_rl::Ppo::load(out.join("model")).unwrap();
+    let model = twinbots_learn::Ppo::load(out.join("model")).unwrap();
     assert_eq!(model.timesteps, 1024);
     // TensorBoard: a point of every training scalar per update, at the update's timesteps.
     let scalars = event_scalars(&out);
@@ -62,7 +62,7 @@ pub fn event_scalars(dir: &std::path::Path) -> Vec<(u64, String, f32)> {
         .collect();
     files.sort();
     assert!(!files.is_empty(), "no event file in {}", dir.display());
-    files.iter().flat_map(|f| twinbots_rl::tensorboard::read_scalars(&std::fs::read(f).unwrap()).unwrap()).collect()
+    files.iter().flat_map(|f| twinbots_learn::tensorboard::read_scalars(&std::fs::read(f).unwrap()).unwrap()).collect()
 }
 
 #[test]
@@ -98,14 +98,14 @@ fn a_run_killed_with_sigkill_resumes_from_its_last_checkpoint() {
     let output = twinbots().args(["train", "--resume"]).arg(&out).output().unwrap();
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     assert!(String::from_utf8_lossy(&output.stdout).contains("resuming"));
-    let progress = twinbots_rl::RunDir::new(&out).read_progress().unwrap();
+    let progress = twinbots_learn::RunDir::new(&out).read_progress().unwrap();
     let steps: Vec<u64> = progress.iter().map(|row| row.timesteps).collect();
     let updates: Vec<u64> = progress.iter().map(|row| row.update as u64).collect();
     // Counters continue: one row per update, 64 steps apart, numbered 1, 2, 3, ... to the end.
     assert_eq!(steps.len(), 100, "6400 steps / 64 per update; {killed_rows} rows before the kill");
     assert!(steps.windows(2).all(|w| w[1] == w[0] + 64), "{steps:?}");
     assert!(updates.iter().enumerate().all(|(i, &u)| u == i as u64 + 1), "{updates:?}");
-    let model = twinbots_rl::Ppo::load(out.join("model")).unwrap();
+    let model = twinbots_learn::Ppo::load(out.join("model")).unwrap();
     assert_eq!((model.timesteps, model.updates), (6400, 100));
     assert!(model.episodes > 0);
     std::fs::remove_dir_all(&out).ok();

@@ -6,8 +6,10 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use twinbots_rl::{AppVecEnv, DesignPattern, EpisodeSummary, Flow, Ppo, VecEnv};
-use twinbots_server::robot::{Controller, Phase, RobotRunState, ServerAddress};
+use twinbots_api::{DesignPattern, EpisodeSummary, VecEnv};
+use twinbots_learn::{Flow, Ppo};
+use twinbots_task::AppVecEnv;
+use twinbots_link::robot::{Controller, Phase, RobotRunState, ServerAddress};
 use twinbots_server::server::{RobotServer, ServerSettings};
 
 /// Steps `env` with `policy` until `episodes` episodes have ended; returns them.
@@ -96,9 +98,9 @@ fn the_same_seed_gives_the_same_reach_trajectory() {
 #[test]
 fn under_pattern_3_the_arm_homes_itself_before_every_episode() {
     let id = ur5e::task_spec();
-    let model = Ppo::new(ur5e::ppo_config(), id.observation_space, id.action_space, 0).unwrap();
+    let model = Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), id.observation_space, id.action_space, 0).unwrap();
     let settings = ServerSettings::new("ur5e", &ur5e::task_spec(), 512, 1_000_000);
-    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &dyn twinbots_rl::Agent| Ok(Flow::Continue))).unwrap();
+    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))).unwrap();
     let address = ServerAddress { addr: server.addr, patience: Duration::from_secs(5) };
     let mut app = ur5e::headless_app_with(2, 5, DesignPattern::Server);
     app.insert_resource(address);

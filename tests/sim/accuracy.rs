@@ -5,8 +5,9 @@
 //! kinematics tests (tests/sim/ur5e_cell.rs).
 
 use rand::{Rng, SeedableRng};
-use twinbots_rl::robot::{AppRequest, headless_app};
-use twinbots_rl::{AppVecEnv, DesignPattern, VecEnv};
+use twinbots_task::robot::{AppRequest, headless_app};
+use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_task::AppVecEnv;
 use twinbots_sim::SimSettings;
 
 /// Which twin a rollout runs.

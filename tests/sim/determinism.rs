@@ -1,8 +1,9 @@
 //! Same seed and actions, same trajectory, bit for bit; another seed, another trajectory.
 
 use rand::{Rng, SeedableRng};
-use twinbots_rl::randomization::{Randomization, RandomizationPlugin};
-use twinbots_rl::{AppVecEnv, VecEnv};
+use twinbots_task::randomization::{Randomization, RandomizationPlugin};
+use twinbots_api::VecEnv;
+use twinbots_task::AppVecEnv;
 use twinbots_sim::Arena;
 
 fn run(seed: u64, steps: usize) -> Vec<u64> {

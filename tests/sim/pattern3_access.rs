@@ -15,9 +15,9 @@ use std::collections::HashSet;
 
 use bevy::ecs::component::ComponentId;
 use bevy::prelude::*;
-use twinbots_server::robot::ServerRobotPlugin;
+use twinbots_link::robot::ServerRobotPlugin;
 use twinbots::registry;
-use twinbots_rl::DesignPattern;
+use twinbots_api::DesignPattern;
 use twinbots_sim::{Arena, OperatorAccess, SimPlugin, SupervisorAccess, SupervisorPlugin};
 
 /// A robot state for building the framework's own systems.

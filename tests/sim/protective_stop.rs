@@ -5,8 +5,9 @@
 //! stop is unlocked. The classical controller's motion never stops it.
 
 use bevy::prelude::*;
-use twinbots_rl::{AppVecEnv, DesignPattern, Episode, EpisodeSummary, VecEnv};
-use twinbots_server::robot::{Controller, OnBoardPolicy, Phase, RobotRunState};
+use twinbots_api::{DesignPattern, EpisodeSummary, VecEnv};
+use twinbots_task::{AppVecEnv, Episode};
+use twinbots_link::robot::{Controller, OnBoardPolicy, Phase, RobotRunState};
 use twinbots_sim::{Motor, MotorCommand};
 use ur5e::CellState;
 use ur5e::safety::{MAX_BRAKING_STEPS, REST_SPEED, SPEED_MARGIN, StopCause};

@@ -1,6 +1,7 @@
 //! The Supervisor resets an arena to exactly its initial state, and arenas are independent.
 
-use twinbots_rl::{AppVecEnv, VecEnv};
+use twinbots_api::VecEnv;
+use twinbots_task::AppVecEnv;
 use twinbots_sim::{Arena, JointState, Motor, MotorCommand};
 
 use crate::common::with_supervisor;

@@ -1,0 +1,212 @@
+//! Callbacks: what runs around training, in Stable-Baselines3's shape. A [`Callback`] hears
+//! when training starts, after every update, and when it ends; after an update it may stop
+//! training. A [`CallbackList`] composes them, and `Ppo::learn` and the RobotServer call the
+//! same lists.
+//!
+//! - [`ProgressCsvCallback`]: a row of `progress.csv` per update;
+//! - [`ProgressBarCallback`]: the terminal's progress bar, or a line now and then where stderr
+//!   is not a terminal;
+//! - [`EvalCallback`]: evaluates the deterministic policy every N updates into
+//!   `evaluations.csv`, and may stop training once an evaluation meets the solved criterion;
+//! - [`StopTrainingOnSolved`]: stops once the training episodes meet the solved criterion;
+//! - [`CheckpointCallback`]: saves a checkpoint every N updates;
+//! - [`LearningCurveCallback`]: redraws `learning_curve.png` every N updates and at the end;
+//! - [`TensorBoardCallback`]: TensorBoard scalars under SB3's tag names every update.
+
+mod eval;
+mod logging;
+mod tensorboard;
+
+pub use eval::{EvalCallback, evaluation_seed};
+pub use logging::{CheckpointCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, draw_learning_curve};
+pub use tensorboard::{TensorBoardCallback, evaluation_scalars, training_scalars};
+
+use crate::agent::Agent;
+use crate::ppo::UpdateStats;
+use twinbots_api::SolvedCriterion;
+
+/// What a callback tells training after an update.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Flow {
+    Continue,
+    /// Stop, for the callback's own reason.
+    Stop,
+    /// Stop: the task's solved criterion holds, judged on this.
+    Solved(SolvedBy),
+}
+
+/// What a solved criterion was judged on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SolvedBy {
+    /// The last training episodes (the stochastic policy, as it learns).
+    TrainingEpisodes,
+    /// An evaluation of the deterministic policy.
+    Evaluation,
+}
+
+impl std::fmt::Display for SolvedBy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            SolvedBy::TrainingEpisodes => "training episodes",
+            SolvedBy::Evaluation => "evaluation",
+        })
+    }
+}
+
+/// Why training ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TrainingEnd {
+    /// The timestep budget is spent.
+    BudgetSpent { timesteps: u64 },
+    /// The task's solved criterion held.
+    Solved { timesteps: u64, by: SolvedBy },
+    /// A callback stopped it.
+    Stopped { timesteps: u64 },
+}
+
+impl TrainingEnd {
+    /// How training ends after an update that left the model at `timesteps`, by a callback's
+    /// word (`None`: it goes on, unless its budget is spent).
+    pub fn after(flow: Flow, timesteps: u64) -> Option<Self> {
+        match flow {
+            Flow::Continue => None,
+            Flow::Stop => Some(Self::Stopped { timesteps }),
+            Flow::Solved(by) => Some(Self::Solved { timesteps, by }),
+        }
+    }
+
+    pub fn is_solved(&self) -> bool {
+        matches!(self, Self::Solved { .. })
+    }
+}
+
+impl std::fmt::Display for TrainingEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::BudgetSpent { timesteps } => write!(f, "budget spent after {timesteps} steps"),
+            Self::Solved { timesteps, by } => write!(f, "solved ({by}) after {timesteps} steps"),
+            Self::Stopped { timesteps } => write!(f, "stopped by a callback after {timesteps} steps"),
+        }
+    }
+}
+
+/// Hears training as it goes. Only `on_update` is required; a closure
+/// `|stats: &UpdateStats, model: &dyn Agent| -> anyhow::Result<Flow>` is a callback.
+pub trait Callback {
+    /// Before the first update.
+    fn on_training_start(&mut self, _model: &dyn Agent) -> anyhow::Result<()> {
+        Ok(())
+    }
+    /// After every update, with its row of statistics and the updated model.
+    fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow>;
+    /// Once training has ended, however it ended (but not after an error).
+    fn on_training_end(&mut self, _model: &dyn Agent) -> anyhow::Result<()> {
+        Ok(())
+    }
+}
+
+impl<F: FnMut(&UpdateStats, &dyn Agent) -> anyhow::Result<Flow>> Callback for F {
+    fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
+        self(stats, model)
+    }
+}
+
+/// Callbacks called in order. After an update every one runs (a checkpoint is still saved on
+/// the update that solves the task); the first that asks to stop gives the reason.
+#[derive(Default)]
+pub struct CallbackList {
+    callbacks: Vec<Box<dyn Callback + Send>>,
+}
+
+impl CallbackList {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds `callback` at the end of the list.
+    pub fn with(mut self, callback: impl Callback + Send + 'static) -> Self {
+        self.callbacks.push(Box::new(callback));
+        self
+    }
+
+    pub fn push(&mut self, callback: impl Callback + Send + 'static) {
+        self.callbacks.push(Box::new(callback));
+    }
+
+    pub fn len(&self) -> usize {
+        self.callbacks.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.callbacks.is_empty()
+    }
+}
+
+impl Callback for CallbackList {
+    fn on_training_start(&mut self, model: &dyn Agent) -> anyhow::Result<()> {
+        self.callbacks.iter_mut().try_for_each(|c| c.on_training_start(model))
+    }
+
+    fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
+        let mut flow = Flow::Continue;
+        for callback in &mut self.callbacks {
+            let said = callback.on_update(stats, model)?;
+            if flow == Flow::Continue {
+                flow = said;
+            }
+        }
+        Ok(flow)
+    }
+
+    fn on_training_end(&mut self, model: &dyn Agent) -> anyhow::Result<()> {
+        self.callbacks.iter_mut().try_for_each(|c| c.on_training_end(model))
+    }
+}
+
+/// Stops training once the last training episodes meet the task's solved criterion (e.g. the
+/// cart-pole's mean score of the last 100 episodes above 1950).
+pub struct StopTrainingOnSolved {
+    pub criterion: SolvedCriterion,
+}
+
+impl StopTrainingOnSolved {
+    pub fn new(criterion: SolvedCriterion) -> Self {
+        Self { criterion }
+    }
+}
+
+impl Callback for StopTrainingOnSolved {
+    fn on_update(&mut self, _stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
+        Ok(if model.history().is_solved(&self.criterion) { Flow::Solved(SolvedBy::TrainingEpisodes) } else { Flow::Continue })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::PpoConfig;
+    use crate::ppo::Ppo;
+    use twinbots_api::spaces::Space;
+
+    #[test]
+    fn every_callback_of_a_list_runs_and_the_first_to_stop_says_why() {
+        let model = Ppo::new(PpoConfig::default(), Space::uniform_box(2, -1.0, 1.0), Space::Discrete { n: 2 }, 0).unwrap();
+        let calls = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let counter = |answer: Flow| {
+            let calls = calls.clone();
+            move |_: &UpdateStats, _: &dyn Agent| {
+                calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                Ok(answer)
+            }
+        };
+        let mut list = CallbackList::new()
+            .with(counter(Flow::Continue))
+            .with(counter(Flow::Solved(SolvedBy::Evaluation)))
+            .with(counter(Flow::Stop));
+        let flow = list.on_update(&UpdateStats::default(), &model).unwrap();
+        assert_eq!(flow, Flow::Solved(SolvedBy::Evaluation));
+        assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), 3);
+        let end = TrainingEnd::after(flow, 640).unwrap();
+        assert_eq!(end.to_string(), "solved (evaluation) after 640 steps");
+    }
+}

@@ -1,0 +1,113 @@
+//! Evaluating a policy (SB3's `evaluate_policy`): the deterministic policy on a vectorised env
+//! until a number of episodes end, with their scores, success and the task's figures.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use twinbots_api::env::VecEnv;
+use crate::agent::Agent;
+use twinbots_api::{EpisodeSummary, Measure, SolvedCriterion};
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EvalResult {
+    /// The task evaluated, as the caller names it (a robot's own, or a variant such as the
+    /// UR5e's pick-place).
+    pub task: String,
+    pub episodes: usize,
+    pub mean_score: f32,
+    pub std_score: f32,
+    pub min_score: f32,
+    pub max_score: f32,
+    pub mean_length: f32,
+    /// Share of episodes that reached their goal, for tasks that report success.
+    pub success_rate: Option<f32>,
+    /// Each figure the task reports (energy, events, cycle time…), averaged over the episodes
+    /// that report it: cycle time over the successful ones.
+    pub metrics: BTreeMap<String, f32>,
+    /// Each reward term's sum per episode, averaged: how the mean score divides among the
+    /// task's terms.
+    pub rewards: BTreeMap<String, f32>,
+    pub scores: Vec<f32>,
+}
+
+impl EvalResult {
+    /// Whether these episodes meet a solved criterion: at least its window of them, whose
+    /// mean score (or success rate) exceeds its threshold.
+    pub fn meets(&self, criterion: &SolvedCriterion) -> bool {
+        let value = match criterion.measure {
+            Measure::Score => self.mean_score,
+            Measure::Success => self.success_rate.unwrap_or(0.0),
+        };
+        self.episodes >= criterion.window && value > criterion.threshold
+    }
+
+    /// One line per figure, for people.
+    pub fn describe(&self) -> String {
+        let mut out = format!(
+            "{}: {} episodes, score {:.1} ± {:.1} (min {:.0}, max {:.0}), mean length {:.1}",
+            self.task, self.episodes, self.mean_score, self.std_score, self.min_score, self.max_score, self.mean_length
+        );
+        if let Some(rate) = self.success_rate {
+            out += &format!("\n  success rate {:.1} %", 100.0 * rate);
+        }
+        for (name, value) in &self.metrics {
+            out += &format!("\n  {name}: {value:.3}");
+        }
+        out
+    }
+}
+
+/// Runs `model`'s deterministic policy on `env` (reset with `seed`) until `episodes` episodes
+/// have ended, and reports them under the name `task`.
+pub fn evaluate_policy(task: &str, model: &dyn Agent, env: &mut dyn VecEnv, episodes: usize, seed: u64) -> anyhow::Result<EvalResult> {
+    anyhow::ensure!(episodes > 0, "an evaluation needs at least 1 episode");
+    model.check_spaces(env.observation_space(), env.action_space())?;
+    let mut obs = env.reset(Some(seed))?;
+    let mut finished = Vec::with_capacity(episodes);
+    while finished.len() < episodes {
+        let step = env.step(&model.predict_deterministic(&obs)?)?;
+        for ep in step.episodes.into_iter().flatten() {
+            if finished.len() < episodes {
+                finished.push(ep);
+            }
+        }
+        obs = step.obs;
+    }
+    Ok(EvalResult::of_episodes(task, &finished))
+}
+
+impl EvalResult {
+    /// The figures of these finished episodes (at least one), under the name `task`: however
+    /// they were run (an env, a robot running an exported policy on its own).
+    pub fn of_episodes(task: &str, episodes: &[EpisodeSummary]) -> Self {
+        let scores: Vec<f32> = episodes.iter().map(|e| e.score).collect();
+        let successes: Vec<f32> = episodes.iter().filter_map(|e| e.success.map(f32::from)).collect();
+        let mut figures: BTreeMap<String, Vec<f32>> = BTreeMap::new();
+        let mut rewards: BTreeMap<String, f32> = BTreeMap::new();
+        for ep in episodes {
+            for (name, value) in &ep.metrics {
+                figures.entry(name.clone()).or_default().push(*value);
+            }
+            for (name, value) in &ep.rewards {
+                *rewards.entry(name.clone()).or_default() += *value;
+            }
+        }
+        let n = scores.len() as f32;
+        let mean = scores.iter().sum::<f32>() / n;
+        let average = |xs: &[f32]| xs.iter().sum::<f32>() / xs.len() as f32;
+        EvalResult {
+            task: task.to_string(),
+            success_rate: (!successes.is_empty()).then(|| average(&successes)),
+            metrics: figures.iter().map(|(name, xs)| (name.clone(), average(xs))).collect(),
+            rewards: rewards.into_iter().map(|(name, sum)| (name, sum / n)).collect(),
+            episodes: scores.len(),
+            mean_score: mean,
+            std_score: (scores.iter().map(|s| (s - mean).powi(2)).sum::<f32>() / n).sqrt(),
+            min_score: scores.iter().copied().fold(f32::INFINITY, f32::min),
+            max_score: scores.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+            mean_length: episodes.iter().map(|e| e.length as f32).sum::<f32>() / n,
+            scores,
+        }
+    }
+}

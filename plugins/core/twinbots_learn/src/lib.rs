@@ -1,0 +1,29 @@
+//! twinbots_learn: the learners of twinbots, on candle. No Bevy: they see an env only through
+//! `twinbots_api::VecEnv`.
+//!
+//! [`ppo`] and [`sac`] (both [`agent::Agent`]s) on the [`nn`] pieces, with their [`callbacks`]
+//! and [`evaluation`], the [`run_dir`] a training run leaves behind with its [`tensorboard`]
+//! event files and [`plot`]s, [`classic`] control envs for testing the algorithms, and the
+//! process's [`threads`].
+
+pub mod agent;
+pub mod callbacks;
+pub mod classic;
+pub mod evaluation;
+pub mod model_io;
+pub mod nn;
+pub mod normalize;
+pub mod plot;
+pub mod ppo;
+pub mod run_dir;
+pub mod sac;
+pub mod tensorboard;
+pub mod threads;
+
+pub use twinbots_api as api;
+pub use agent::{Agent, EpisodeHistory, LoadAgent, load_agent};
+pub use callbacks::{Callback, CallbackList, Flow, SolvedBy, TrainingEnd};
+pub use evaluation::{EvalResult, evaluate_policy};
+pub use ppo::{Ppo, PpoConfig, UpdateStats};
+pub use run_dir::RunDir;
+pub use sac::{Sac, SacConfig};

@@ -1,0 +1,179 @@
+//! The pieces every model file is written and read with: atomic writes, safetensors, Adam's
+//! moments, the envs' running episodes (`env_state.json`) and the errors that name the file.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use candle_core::{Device, Tensor, Var};
+
+use crate::agent::{Agent, EpisodeHistory};
+use crate::nn::Adam;
+use crate::normalize::RunningMeanStd;
+use twinbots_api::env_state::EnvState;
+use twinbots_api::spaces::Space;
+
+pub const WEIGHTS_FILE: &str = "model.safetensors";
+pub const METADATA_FILE: &str = "model.json";
+pub const OPTIMIZER_FILE: &str = "optimizer.safetensors";
+pub const ENV_STATE_FILE: &str = "env_state.json";
+
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("{path}: {message}")]
+    File { path: PathBuf, message: String },
+    #[error("the model was trained for {what} {model}, but this robot has {robot}")]
+    SpaceMismatch { what: &'static str, model: String, robot: String },
+}
+
+pub fn file_error(path: &Path, e: impl std::fmt::Display) -> ModelError {
+    ModelError::File { path: path.to_path_buf(), message: e.to_string() }
+}
+
+/// Writes `bytes` to `path` through a temporary file and a rename, so a crash never leaves a
+/// half-written file under the final name.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = path.with_extension("tmp");
+    {
+        use std::io::Write;
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path)
+}
+
+/// Writes tensors as safetensors to `path` through a temporary file and a rename.
+pub fn save_tensors(tensors: &HashMap<String, Tensor>, path: &Path) -> Result<(), ModelError> {
+    let tmp = path.with_extension("tmp");
+    candle_core::safetensors::save(tensors, &tmp).map_err(|e| file_error(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| file_error(path, e))
+}
+
+pub fn load_tensors(path: &Path) -> Result<HashMap<String, Tensor>, ModelError> {
+    candle_core::safetensors::load(path, &Device::Cpu).map_err(|e| file_error(path, e))
+}
+
+/// Variables' current values by name.
+pub fn var_tensors(named: &[(String, Var)]) -> HashMap<String, Tensor> {
+    named.iter().map(|(name, var)| (name.clone(), var.as_tensor().clone())).collect()
+}
+
+/// Adam's moments as tensors `m.<name>` and `v.<name>` (in `out`), for the variables `named`
+/// it optimises (in its order); returns its step count.
+pub fn moment_tensors(adam: &Adam, named: &[(String, Var)], out: &mut HashMap<String, Tensor>, path: &Path) -> Result<u64, ModelError> {
+    let (first, second, steps) = adam.moments();
+    for (((name, var), m), v) in named.iter().zip(first).zip(second) {
+        let tensor = |x: &Vec<f32>| Tensor::from_vec(x.clone(), var.shape().clone(), &Device::Cpu).map_err(|e| file_error(path, e));
+        out.insert(format!("m.{name}"), tensor(m)?);
+        out.insert(format!("v.{name}"), tensor(v)?);
+    }
+    Ok(steps)
+}
+
+/// Puts back into `adam` the moments [`moment_tensors`] wrote for `named`.
+pub fn restore_moments(adam: &mut Adam, named: &[(String, Var)], tensors: &HashMap<String, Tensor>, steps: u64, path: &Path) -> Result<(), ModelError> {
+    let take = |prefix: &str| -> Result<Vec<Vec<f32>>, ModelError> {
+        named
+            .iter()
+            .map(|(name, _)| {
+                let t = tensors.get(&format!("{prefix}.{name}")).ok_or_else(|| file_error(path, format!("missing tensor '{prefix}.{name}'")))?;
+                t.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|e| file_error(path, e))
+            })
+            .collect()
+    };
+    let (first, second) = (take("m")?, take("v")?);
+    adam.restore_moments(first, second, steps).map_err(|e| file_error(path, e))
+}
+
+/// Writes `env_state.json` into `dir`, or removes a stale one when there is no state.
+pub fn save_env_state(dir: &Path, state: Option<&EnvState>) -> Result<(), ModelError> {
+    let path = dir.join(ENV_STATE_FILE);
+    match state {
+        Some(state) => {
+            let json = serde_json::to_vec(state).map_err(|e| file_error(&path, e))?;
+            write_atomic(&path, &json).map_err(|e| file_error(&path, e))
+        }
+        None => {
+            let _ = std::fs::remove_file(&path);
+            Ok(())
+        }
+    }
+}
+
+pub fn load_env_state(dir: &Path) -> Result<Option<EnvState>, ModelError> {
+    let path = dir.join(ENV_STATE_FILE);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| file_error(&path, e))?;
+    Ok(Some(serde_json::from_str::<EnvState>(&text).map_err(|e| file_error(&path, e))?))
+}
+
+/// What every `model.json` holds, whatever the algorithm (its own fields follow).
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct ModelHeader {
+    pub format: u32,
+    pub twinbots_version: String,
+    pub algorithm: String,
+    pub observation_space: Space,
+    pub action_space: Space,
+    pub obs_rms: Option<RunningMeanStd>,
+    pub seed: u64,
+    pub timesteps: u64,
+    pub episodes: u64,
+    pub updates: u64,
+    #[serde(flatten)]
+    pub history: EpisodeHistory,
+}
+
+impl ModelHeader {
+    pub fn of(agent: &dyn Agent, format: u32, obs_rms: Option<&RunningMeanStd>, seed: u64, updates: u64) -> Self {
+        Self {
+            format,
+            twinbots_version: env!("CARGO_PKG_VERSION").into(),
+            algorithm: agent.algorithm().into(),
+            observation_space: agent.observation_space().clone(),
+            action_space: agent.action_space().clone(),
+            obs_rms: obs_rms.cloned(),
+            seed,
+            timesteps: agent.timesteps(),
+            episodes: agent.episodes(),
+            updates,
+            history: agent.history().clone(),
+        }
+    }
+
+    /// An error unless the observation statistics are finite.
+    pub fn check(&self, path: &Path) -> Result<(), ModelError> {
+        match &self.obs_rms {
+            Some(rms) => rms.check_finite().map_err(|e| file_error(path, e)),
+            None => Ok(()),
+        }
+    }
+}
+
+/// Writes `value` as pretty JSON to `dir/model.json`, atomically.
+pub fn save_metadata(dir: &Path, value: &impl serde::Serialize) -> Result<(), ModelError> {
+    let json = serde_json::to_vec_pretty(value).map_err(|e| file_error(dir, e))?;
+    let path = dir.join(METADATA_FILE);
+    write_atomic(&path, &json).map_err(|e| file_error(&path, e))
+}
+
+/// Reads `dir/model.json`, checking its format number and that `algorithm` saved it.
+pub fn load_metadata<T: serde::de::DeserializeOwned>(dir: &Path, algorithm: &str, format: u32) -> Result<T, ModelError> {
+    #[derive(serde::Deserialize)]
+    struct Header {
+        format: u32,
+        algorithm: String,
+    }
+    let path = dir.join(METADATA_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|e| file_error(&path, e))?;
+    let header: Header = serde_json::from_str(&text).map_err(|e| file_error(&path, e))?;
+    if header.algorithm != algorithm {
+        return Err(file_error(&path, format!("a {} model, not {algorithm} (load it with twinbots_learn::agent::load_agent)", header.algorithm)));
+    }
+    if header.format != format {
+        return Err(file_error(&path, format!("model format {} (this build reads {format})", header.format)));
+    }
+    serde_json::from_str(&text).map_err(|e| file_error(&path, e))
+}

@@ -1,0 +1,156 @@
+//! Learning curves as PNG (plotters, with the DejaVu Sans font shipped in `assets/fonts`).
+
+use std::path::Path;
+use std::sync::Once;
+
+use plotters::prelude::*;
+
+use twinbots_api::{Measure, SolvedCriterion};
+
+static FONT: &[u8] = include_bytes!("../../../../assets/fonts/DejaVuSans.ttf");
+static REGISTER: Once = Once::new();
+
+/// One point of a learning curve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurvePoint {
+    pub timesteps: u64,
+    pub mean_reward: f32,
+    pub min_reward: f32,
+    pub max_reward: f32,
+    /// Success rate over the last 100 episodes; NaN for tasks that report none.
+    pub success_rate: f32,
+}
+
+/// A periodic evaluation of the deterministic policy.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EvaluationPoint {
+    pub timesteps: u64,
+    pub mean_score: f32,
+    /// NaN for tasks that report no success.
+    pub success_rate: f32,
+}
+
+/// Draws mean episode reward (and its min–max band over the last 100 episodes) against
+/// timesteps into `path`, written atomically, with the success rate on a second axis when the
+/// task reports one, periodic evaluations as points, and the solved threshold on the axis its
+/// criterion measures. Points without episodes yet (NaN) are skipped.
+pub fn learning_curve(
+    path: &Path,
+    title: &str,
+    points: &[CurvePoint],
+    evaluations: &[EvaluationPoint],
+    solved: Option<SolvedCriterion>,
+) -> anyhow::Result<()> {
+    let target = solved.filter(|c| c.measure == Measure::Score).map(|c| c.threshold);
+    let success_target = solved.filter(|c| c.measure == Measure::Success).map(|c| c.threshold);
+    REGISTER.call_once(|| {
+        // The font is compiled in; failing to parse it is a build defect the tests catch.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    });
+    let points: Vec<CurvePoint> = points.iter().copied().filter(|p| p.mean_reward.is_finite()).collect();
+    let tmp = path.with_extension("tmp.png");
+    {
+        let root = BitMapBackend::new(&tmp, (900, 540)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let x_max = points.last().map_or(1, |p| p.timesteps).max(1) as f64;
+        let mut y_max = points.iter().map(|p| p.max_reward).fold(1.0f32, f32::max);
+        let mut y_min = points.iter().map(|p| p.min_reward).fold(0.0f32, f32::min);
+        if let Some(t) = target {
+            y_max = y_max.max(t);
+            y_min = y_min.min(t);
+        }
+        let pad = (y_max - y_min).max(1.0) * 0.05;
+        let successes: Vec<(f64, f64)> = points
+            .iter()
+            .filter(|p| p.success_rate.is_finite())
+            .map(|p| (p.timesteps as f64, p.success_rate as f64))
+            .collect();
+        let evaluated_successes: Vec<(f64, f64)> = evaluations
+            .iter()
+            .filter(|e| e.success_rate.is_finite())
+            .map(|e| (e.timesteps as f64, e.success_rate as f64))
+            .collect();
+        let evaluated_scores: Vec<(f64, f64)> = evaluations
+            .iter()
+            .filter(|e| e.mean_score.is_finite() && !e.success_rate.is_finite())
+            .map(|e| (e.timesteps as f64, e.mean_score as f64))
+            .collect();
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .right_y_label_area_size(if successes.is_empty() { 0 } else { 60 })
+            .build_cartesian_2d(0f64..x_max, (y_min - pad) as f64..(y_max + pad) as f64)?
+            .set_secondary_coord(0f64..x_max, 0f64..1.02f64);
+        chart
+            .configure_mesh()
+            .x_desc("timesteps")
+            .y_desc("episode reward (last 100 episodes)")
+            .label_style(("sans-serif", 14))
+            .draw()?;
+        let band: Vec<(f64, f64)> = points
+            .iter()
+            .map(|p| (p.timesteps as f64, p.max_reward as f64))
+            .chain(points.iter().rev().map(|p| (p.timesteps as f64, p.min_reward as f64)))
+            .collect();
+        if !band.is_empty() {
+            chart.draw_series(std::iter::once(Polygon::new(band, BLUE.mix(0.15))))?;
+        }
+        chart
+            .draw_series(LineSeries::new(
+                points.iter().map(|p| (p.timesteps as f64, p.mean_reward as f64)),
+                BLUE.stroke_width(2),
+            ))?
+            .label("mean")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        if let Some(t) = target {
+            chart
+                .draw_series(LineSeries::new([(0.0, t as f64), (x_max, t as f64)], RED.mix(0.7)))?
+                .label("solved threshold")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        }
+        if !evaluated_scores.is_empty() {
+            chart
+                .draw_series(evaluated_scores.iter().map(|&p| Circle::new(p, 4, BLACK.filled())))?
+                .label("evaluation (deterministic)")
+                .legend(|(x, y)| Circle::new((x + 10, y), 4, BLACK.filled()));
+        }
+        if !successes.is_empty() {
+            chart
+                .configure_secondary_axes()
+                .y_desc("success rate (last 100 episodes)")
+                .label_style(("sans-serif", 14))
+                .draw()?;
+            let green = RGBColor(0, 140, 60);
+            chart
+                .draw_secondary_series(LineSeries::new(successes, green.stroke_width(2)))?
+                .label("success rate (training episodes)")
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], green.stroke_width(2)));
+            if !evaluated_successes.is_empty() {
+                chart
+                    .draw_secondary_series(LineSeries::new(evaluated_successes.clone(), green.mix(0.6)))?;
+                chart
+                    .draw_secondary_series(evaluated_successes.iter().map(move |&p| Circle::new(p, 4, green.filled())))?
+                    .label("evaluation success rate (deterministic)")
+                    .legend(move |(x, y)| Circle::new((x + 10, y), 4, green.filled()));
+            }
+            if let Some(t) = success_target {
+                chart
+                    .draw_secondary_series(LineSeries::new([(0.0, t as f64), (x_max, t as f64)], RED.mix(0.7)))?
+                    .label("solved threshold (success rate)")
+                    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+            }
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()?;
+        root.present()?;
+    }
+    std::fs::rename(&tmp, path)?;
+    Ok(())
+}

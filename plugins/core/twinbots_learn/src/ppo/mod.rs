@@ -1,0 +1,318 @@
+//! Proximal Policy Optimization (Schulman et al. 2017), read top to bottom like CleanRL's
+//! `ppo.py`, with Stable-Baselines3's surface: `learn`, `predict`, `save`, `load`, callbacks.
+//!
+//! `learn` is the loop: collect a rollout (`rollout.rs`), compute advantages (`buffer.rs`), and
+//! update (`update.rs`). Learners that collect their own experience (the RobotServer) call the
+//! same pieces: `observe`, `policy_step`, `bootstrapped_reward`, `RolloutBuffer::push`,
+//! `values`, `update_learning_rate`, `train`.
+
+mod buffer;
+mod config;
+mod model_file;
+pub(crate) mod policy;
+mod rollout;
+mod update;
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+pub use buffer::RolloutBuffer;
+pub use config::{MAX_ROLLOUT, PpoConfig};
+pub use model_file::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
+pub use policy::ActorCritic;
+pub use rollout::PolicyStep;
+
+use crate::agent::EpisodeHistory;
+use crate::callbacks::{Callback, TrainingEnd};
+use twinbots_api::env::VecEnv;
+use crate::nn::Adam;
+use crate::normalize::RunningMeanStd;
+use twinbots_api::env_state::EnvState;
+use twinbots_api::spaces::Space;
+use twinbots_api::{EpisodeSummary, SolvedCriterion};
+
+/// One row of `progress.csv`: what an update saw and did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct UpdateStats {
+    pub update: usize,
+    pub timesteps: u64,
+    pub episodes: u64,
+    /// Over the last 100 finished episodes.
+    pub mean_reward: f32,
+    pub min_reward: f32,
+    pub max_reward: f32,
+    pub mean_length: f32,
+    /// Share of the last 100 finished episodes that reported success (NaN: none reported).
+    pub success_rate: f32,
+    pub policy_loss: f32,
+    pub value_loss: f32,
+    pub entropy: f32,
+    pub approx_kl: f32,
+    pub clip_fraction: f32,
+    pub learning_rate: f64,
+    pub steps_per_s: f32,
+    /// Gradient steps of this update that were skipped because the loss or a gradient was not
+    /// finite (the weights stayed as they were).
+    pub skipped_steps: usize,
+}
+
+/// The action-sampling and minibatch stream is the seed mixed with this, so it differs from
+/// the stream that initialised the network's weights (seeded with the seed itself).
+const ACTION_STREAM_SALT: u64 = 0x5eed_0f_a11;
+
+/// A PPO agent: the policy, its optimiser state and the counters that make a run resumable.
+pub struct Ppo {
+    pub config: PpoConfig,
+    pub observation_space: Space,
+    pub action_space: Space,
+    pub policy: ActorCritic,
+    pub obs_rms: Option<RunningMeanStd>,
+    pub seed: u64,
+    pub timesteps: u64,
+    pub episodes: u64,
+    pub updates: u64,
+    /// The last 100 finished training episodes.
+    pub history: EpisodeHistory,
+    optimizer: Adam,
+    rng: ChaCha8Rng,
+    /// Where the envs of `learn` stood after the last update, as their running episodes: a
+    /// checkpoint keeps it, so a resumed `learn` replays them and goes on as if never stopped.
+    pub env_state: Option<EnvState>,
+    /// Where this process's training time went (not saved with the model).
+    pub times: TrainingTimes,
+}
+
+/// Seconds the learner spent on each part of training, summed since the model was made or
+/// loaded: what `train` reports at its end and in `summary.json`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TrainingTimes {
+    /// Policy forward passes of the rollouts (actions, values, bootstrap values, normalising).
+    pub inference_s: f64,
+    /// Waiting for the env's steps and resets: the simulation, and for a bridged env the
+    /// channel around it.
+    pub env_s: f64,
+    /// Advantages and the gradient steps of the updates.
+    pub update_s: f64,
+    /// The callbacks: progress logs, the curve, evaluations, checkpoints.
+    pub callbacks_s: f64,
+}
+
+impl std::fmt::Debug for Ppo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Ppo")
+            .field("observation_space", &self.observation_space)
+            .field("action_space", &self.action_space)
+            .field("timesteps", &self.timesteps)
+            .field("episodes", &self.episodes)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Ppo {
+    pub fn new(config: PpoConfig, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
+        let obs_dim = observation_space.dim();
+        let policy = ActorCritic::new(obs_dim, &action_space, &config.hidden, config.log_std_init, seed)?;
+        let obs_rms = config.normalize_observations.then(|| RunningMeanStd::new(obs_dim));
+        let optimizer = update::adam(&policy, config.learning_rate);
+        Ok(Self {
+            config,
+            observation_space,
+            action_space,
+            policy,
+            obs_rms,
+            seed,
+            timesteps: 0,
+            episodes: 0,
+            updates: 0,
+            history: EpisodeHistory::default(),
+            optimizer,
+            rng: ChaCha8Rng::seed_from_u64(seed ^ ACTION_STREAM_SALT),
+            env_state: None,
+            times: TrainingTimes::default(),
+        })
+    }
+
+    /// An independent copy (weights, optimiser state, normalisation, counters, random stream)
+    /// to evaluate or save while the original trains on.
+    pub fn snapshot(&self) -> anyhow::Result<Ppo> {
+        let policy = self.policy.deep_copy()?;
+        let optimizer = self.optimizer.for_copies(policy.named_vars().into_iter().map(|(_, v)| v).collect())?;
+        Ok(Self {
+            config: self.config.clone(),
+            observation_space: self.observation_space.clone(),
+            action_space: self.action_space.clone(),
+            policy,
+            obs_rms: self.obs_rms.clone(),
+            seed: self.seed,
+            timesteps: self.timesteps,
+            episodes: self.episodes,
+            updates: self.updates,
+            history: self.history.clone(),
+            optimizer,
+            rng: self.rng.clone(),
+            env_state: self.env_state.clone(),
+            times: self.times,
+        })
+    }
+
+    /// The action for each raw observation row (flat in, flat out), clipped to a box's bounds.
+    pub fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
+        let x = self.batch(&self.normalize(obs))?;
+        let (actions, _, _) = self.policy.act(&x, deterministic, &mut self.rng)?;
+        Ok(self.clip_to_space(actions))
+    }
+
+    /// The policy's most likely action for each raw observation row; needs no random stream.
+    pub fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        let x = self.batch(&self.normalize(obs))?;
+        let mut unused = ChaCha8Rng::seed_from_u64(0);
+        let (actions, _, _) = self.policy.act(&x, true, &mut unused)?;
+        Ok(self.clip_to_space(actions))
+    }
+
+    /// Counts a finished episode into the statistics.
+    pub fn record_episode(&mut self, episode: &EpisodeSummary) {
+        self.episodes += 1;
+        self.history.record(episode);
+    }
+
+    /// The mean of each figure over the last 100 finished episodes that reported it.
+    pub fn recent_metric_means(&self) -> BTreeMap<String, f32> {
+        self.history.metric_means()
+    }
+
+    /// Success rate of the last 100 finished episodes that reported success, if any did.
+    pub fn recent_success_rate(&self) -> Option<f32> {
+        self.history.success_rate()
+    }
+
+    /// Whether the recent episodes meet `criterion`.
+    pub fn is_solved(&self, criterion: &SolvedCriterion) -> bool {
+        self.history.is_solved(criterion)
+    }
+
+    /// Mean score of the last 100 finished episodes.
+    pub fn mean_recent_score(&self) -> f32 {
+        self.history.mean_score()
+    }
+
+    /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback`
+    /// after each update, and says why it stopped. A linear learning rate decays over the
+    /// whole budget, `timesteps` so far included, so a resumed run follows the schedule of an
+    /// uninterrupted one.
+    pub fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+        anyhow::ensure!(
+            env.observation_space().dim() == self.observation_space.dim() && env.action_space() == &self.action_space,
+            "the env's spaces ({} obs, {} actions) differ from the model's ({} obs, {} actions)",
+            env.observation_space().dim(), env.action_space(), self.observation_space.dim(), self.action_space
+        );
+        let end = self.timesteps + total_timesteps;
+        let mut buffer = RolloutBuffer::new(env.num_envs(), self.observation_space.dim(), self.action_space.dim());
+        // A model that learnt before continues its envs' episodes (replayed: their observations
+        // are already in the statistics); a new one starts them.
+        let mut obs = match self.env_state.take() {
+            Some(state) => {
+                let raw = twinbots_api::replay(env, &state)?;
+                self.normalize(&raw)
+            }
+            None => {
+                let first = env.reset(Some(self.seed.wrapping_add(self.timesteps)))?;
+                self.observe(&first)
+            }
+        };
+        callback.on_training_start(self)?;
+        let mut ended = None;
+        while ended.is_none() && self.timesteps < end {
+            let started = Instant::now();
+            self.update_learning_rate(end);
+
+            // 1. Rollout: n_steps of every env with the current policy.
+            self.collect_rollout(env, &mut obs, &mut buffer)?;
+            // Where the envs stand for a checkpoint after this update (the update leaves them
+            // alone): env time, not update time.
+            let recording_started = Instant::now();
+            self.env_state = env.state()?;
+            self.times.env_s += recording_started.elapsed().as_secs_f64();
+
+            // 2. Advantages by GAE, bootstrapped from V(s_T).
+            let update_started = Instant::now();
+            let last_values = self.values(&obs)?;
+            buffer.compute_advantages(&last_values, self.config.gamma, self.config.gae_lambda);
+
+            // 3. Optimise the clipped surrogate for n_epochs over shuffled minibatches.
+            let stats = self.train(&buffer, started)?;
+            let callbacks_started = Instant::now();
+            self.times.update_s += (callbacks_started - update_started).as_secs_f64();
+
+            ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);
+            self.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
+        }
+        callback.on_training_end(self)?;
+        self.env_state = None;
+        Ok(ended.unwrap_or(TrainingEnd::BudgetSpent { timesteps: self.timesteps }))
+    }
+}
+
+impl crate::agent::Agent for Ppo {
+    fn algorithm(&self) -> &'static str {
+        "PPO"
+    }
+    fn observation_space(&self) -> &Space {
+        &self.observation_space
+    }
+    fn action_space(&self) -> &Space {
+        &self.action_space
+    }
+    fn timesteps(&self) -> u64 {
+        self.timesteps
+    }
+    fn episodes(&self) -> u64 {
+        self.episodes
+    }
+    fn history(&self) -> &EpisodeHistory {
+        &self.history
+    }
+    fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        Ppo::predict_deterministic(self, obs)
+    }
+    fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
+        Ppo::save(self, dir)
+    }
+
+    /// SB3's PPO tags: the loss L_clip − c_ent·H + c_V·L_V (here averaged over the update's
+    /// minibatches; SB3 logs its last minibatch's), its parts, KL, clip fraction, σ.
+    fn train_scalars(&self, s: &UpdateStats) -> Vec<(String, f32)> {
+        let c = &self.config;
+        let loss = s.policy_loss - c.ent_coef * s.entropy + c.vf_coef * s.value_loss;
+        let mut out: Vec<(String, f32)> = vec![
+            ("train/loss".into(), loss),
+            ("train/policy_gradient_loss".into(), s.policy_loss),
+            ("train/value_loss".into(), s.value_loss),
+            ("train/entropy_loss".into(), -s.entropy),
+            ("train/approx_kl".into(), s.approx_kl),
+            ("train/clip_fraction".into(), s.clip_fraction),
+        ];
+        if let policy::Head::Gaussian { log_std, .. } = &self.policy.head
+            && let Ok(values) = log_std.as_tensor().to_vec1::<f32>()
+        {
+            out.push(("train/std".into(), values.iter().map(|l| l.exp()).sum::<f32>() / values.len().max(1) as f32));
+        }
+        out
+    }
+}
+
+impl crate::agent::LoadAgent for Ppo {
+    fn load(dir: &std::path::Path) -> Result<Self, ModelError> {
+        Ppo::load(dir)
+    }
+}
+
+impl Ppo {
+    /// A clear error when this model cannot drive a robot with these spaces.
+    pub fn check_spaces(&self, observation: &Space, action: &Space) -> Result<(), ModelError> {
+        crate::agent::Agent::check_spaces(self, observation, action)
+    }
+}

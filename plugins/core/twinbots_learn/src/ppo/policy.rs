@@ -1,0 +1,227 @@
+//! The actor-critic: separate policy and value MLPs (SB3's MlpPolicy: two hidden layers of 64,
+//! tanh), a categorical head for discrete actions and a diagonal Gaussian for boxes.
+
+use candle_core::{D, DType, Device, Result, Tensor, Var};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+use twinbots_api::spaces::Space;
+
+/// A dense layer `y = x W^T + b`.
+pub struct Dense {
+    pub weight: Var,
+    pub bias: Var,
+}
+
+impl Dense {
+    /// PyTorch's default init, U(±1/√fan_in), scaled by `gain`, from our own seeded stream so
+    /// the seed fixes the network.
+    pub(crate) fn new(inputs: usize, outputs: usize, gain: f64, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
+        let bound = (1.0 / inputs as f64).sqrt();
+        let mut uniform = |n: usize| -> Vec<f32> {
+            (0..n).map(|_| (rng.random_range(-bound..bound) * gain) as f32).collect()
+        };
+        Ok(Self {
+            weight: Var::from_tensor(&Tensor::from_vec(uniform(inputs * outputs), (outputs, inputs), dev)?)?,
+            bias: Var::from_tensor(&Tensor::from_vec(uniform(outputs), outputs, dev)?)?,
+        })
+    }
+
+    pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        // The bias enters as 1 bᵀ, a product, rather than a broadcast add: the gradient of a
+        // broadcast sums over the batch dimension, which candle does element by element
+        // (14 % of a PPO update), while the product's gradient 1ᵀ G is one gemm call.
+        let ones = Tensor::ones((x.dim(0)?, 1), x.dtype(), x.device())?;
+        x.matmul(&self.weight.as_tensor().t()?)? + ones.matmul(&self.bias.as_tensor().unsqueeze(0)?)?
+    }
+}
+
+/// Hidden layers with tanh, then a linear output.
+pub struct Mlp {
+    pub layers: Vec<Dense>,
+}
+
+impl Mlp {
+    fn new(sizes: &[usize], out_gain: f64, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
+        let last = sizes.len() - 2;
+        let layers = sizes
+            .windows(2)
+            .enumerate()
+            .map(|(i, w)| Dense::new(w[0], w[1], if i == last { out_gain } else { 1.0 }, rng, dev))
+            .collect::<Result<_>>()?;
+        Ok(Self { layers })
+    }
+
+    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        let mut h = x.clone();
+        for (i, layer) in self.layers.iter().enumerate() {
+            h = layer.forward(&h)?;
+            if i + 1 < self.layers.len() {
+                h = crate::nn::tanh(&h)?;
+            }
+        }
+        Ok(h)
+    }
+}
+
+/// The action distribution's family.
+pub enum Head {
+    Categorical { n: usize },
+    Gaussian { dim: usize, log_std: Var },
+}
+
+pub struct ActorCritic {
+    pub pi: Mlp,
+    pub vf: Mlp,
+    pub head: Head,
+}
+
+/// Log-probabilities and entropies of a batch of actions under the current policy.
+pub struct Evaluation {
+    pub log_prob: Tensor,
+    pub entropy: Tensor,
+    pub value: Tensor,
+}
+
+impl ActorCritic {
+    /// Networks for `obs_dim` inputs; a box's Gaussian starts with log std `log_std_init`.
+    pub fn new(obs_dim: usize, action_space: &Space, hidden: &[usize], log_std_init: f32, seed: u64) -> Result<Self> {
+        let dev = Device::Cpu;
+        let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
+        let (out, head) = match action_space {
+            Space::Discrete { n } => (*n, Head::Categorical { n: *n }),
+            Space::Box { low, .. } => (
+                low.len(),
+                Head::Gaussian {
+                    dim: low.len(),
+                    log_std: Var::from_tensor(&Tensor::full(log_std_init, low.len(), &dev)?)?,
+                },
+            ),
+            Space::MultiDiscrete { .. } => candle_core::bail!("MultiDiscrete actions are not supported by PPO yet"),
+        };
+        let sizes = |o: usize| [&[obs_dim][..], hidden, &[o]].concat();
+        // SB3's gains: 0.01 for the policy output (a near-uniform start), 1 for the value.
+        let pi = Mlp::new(&sizes(out), 0.01, &mut rng, &dev)?;
+        let vf = Mlp::new(&sizes(1), 1.0, &mut rng, &dev)?;
+        Ok(Self { pi, vf, head })
+    }
+
+    /// A copy whose variables share nothing with these (candle's `Var`s are shared handles:
+    /// cloning one would train both copies).
+    pub fn deep_copy(&self) -> Result<Self> {
+        let copy = |v: &Var| Var::from_tensor(&v.as_tensor().copy()?);
+        let mlp = |m: &Mlp| -> Result<Mlp> {
+            let layers = m.layers.iter().map(|l| Ok(Dense { weight: copy(&l.weight)?, bias: copy(&l.bias)? })).collect::<Result<_>>()?;
+            Ok(Mlp { layers })
+        };
+        let head = match &self.head {
+            Head::Categorical { n } => Head::Categorical { n: *n },
+            Head::Gaussian { dim, log_std } => Head::Gaussian { dim: *dim, log_std: copy(log_std)? },
+        };
+        Ok(Self { pi: mlp(&self.pi)?, vf: mlp(&self.vf)?, head })
+    }
+
+    /// Every trainable variable, in a fixed order (the save format's order too).
+    pub fn named_vars(&self) -> Vec<(String, Var)> {
+        let mut out = Vec::new();
+        for (net, mlp) in [("pi", &self.pi), ("vf", &self.vf)] {
+            for (i, l) in mlp.layers.iter().enumerate() {
+                out.push((format!("{net}.{i}.weight"), l.weight.clone()));
+                out.push((format!("{net}.{i}.bias"), l.bias.clone()));
+            }
+        }
+        if let Head::Gaussian { log_std, .. } = &self.head {
+            out.push(("log_std".into(), log_std.clone()));
+        }
+        out
+    }
+
+    /// Sets every variable from `tensors` by its name in [`Self::named_vars`]; a missing tensor
+    /// or one of another shape or with non-finite values is an error naming it, and extra tensors
+    /// are ignored.
+    pub fn set_weights(&self, tensors: &std::collections::HashMap<String, Tensor>) -> anyhow::Result<()> {
+        for (name, var) in self.named_vars() {
+            let t = tensors.get(&name).ok_or_else(|| anyhow::anyhow!("missing tensor '{name}'"))?;
+            anyhow::ensure!(t.shape() == var.shape(), "tensor '{name}' has shape {:?}, expected {:?}", t.shape(), var.shape());
+            let finite = t.flatten_all()?.to_dtype(candle_core::DType::F32)?.to_vec1::<f32>()?.iter().all(|x| x.is_finite());
+            anyhow::ensure!(finite, "tensor '{name}' holds non-finite values (NaN or infinity): these weights are unusable");
+            var.set(t)?;
+        }
+        Ok(())
+    }
+
+    pub fn value(&self, obs: &Tensor) -> Result<Tensor> {
+        self.vf.forward(obs)?.squeeze(D::Minus1)
+    }
+
+    /// Samples (or, deterministic, takes the mode of) one action per row of `obs`.
+    /// Returns flat actions, their log-probabilities, and the values.
+    pub fn act(&self, obs: &Tensor, deterministic: bool, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+        let out = self.pi.forward(obs)?;
+        let value = self.value(obs)?.to_vec1::<f32>()?;
+        match &self.head {
+            Head::Categorical { n } => {
+                let log_p = candle_nn::ops::log_softmax(&out, D::Minus1)?.to_vec2::<f32>()?;
+                let mut actions = Vec::with_capacity(log_p.len());
+                let mut log_probs = Vec::with_capacity(log_p.len());
+                for row in log_p {
+                    let a = if deterministic {
+                        (0..*n).max_by(|&i, &j| row[i].total_cmp(&row[j])).unwrap_or(0)
+                    } else {
+                        let u: f32 = rng.random();
+                        let mut acc = 0.0;
+                        (0..*n).find(|&i| {
+                            acc += row[i].exp();
+                            u < acc
+                        }).unwrap_or(n - 1)
+                    };
+                    actions.push(a as f32);
+                    log_probs.push(row[a]);
+                }
+                Ok((actions, log_probs, value))
+            }
+            Head::Gaussian { dim, log_std } => {
+                let mean = out.to_vec2::<f32>()?;
+                let log_std = log_std.as_tensor().to_vec1::<f32>()?;
+                let mut actions = Vec::with_capacity(mean.len() * dim);
+                let mut log_probs = Vec::with_capacity(mean.len());
+                for row in mean {
+                    let mut lp = 0.0;
+                    for k in 0..*dim {
+                        let z: f32 = if deterministic { 0.0 } else { StandardNormal.sample(rng) };
+                        actions.push(row[k] + z * log_std[k].exp());
+                        lp += -0.5 * z * z - log_std[k] - 0.5 * (2.0 * std::f32::consts::PI).ln();
+                    }
+                    log_probs.push(lp);
+                }
+                Ok((actions, log_probs, value))
+            }
+        }
+    }
+
+    /// Log-probabilities, entropies and values for stored (obs, action) pairs, with gradients.
+    pub fn evaluate(&self, obs: &Tensor, actions: &Tensor) -> Result<Evaluation> {
+        let out = self.pi.forward(obs)?;
+        let value = self.value(obs)?;
+        let (log_prob, entropy) = match &self.head {
+            Head::Categorical { .. } => {
+                let log_p = candle_nn::ops::log_softmax(&out, D::Minus1)?;
+                let idx = actions.to_dtype(DType::U32)?.unsqueeze(1)?;
+                let log_prob = log_p.gather(&idx, 1)?.squeeze(1)?;
+                let entropy = (log_p.exp()? * &log_p)?.sum(1)?.neg()?;
+                (log_prob, entropy)
+            }
+            Head::Gaussian { log_std, .. } => {
+                let log_std = log_std.as_tensor();
+                let z = actions.broadcast_sub(&out)?.broadcast_div(&log_std.exp()?)?;
+                let half_log_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
+                let log_prob = ((z.sqr()? * -0.5)?.broadcast_sub(log_std)? - half_log_2pi)?.sum(1)?;
+                let entropy = (log_std + (0.5 + half_log_2pi))?.sum_all()?;
+                let entropy = entropy.broadcast_as(log_prob.shape())?.contiguous()?;
+                (log_prob, entropy)
+            }
+        };
+        Ok(Evaluation { log_prob, entropy, value })
+    }
+}

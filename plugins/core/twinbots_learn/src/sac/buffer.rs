@@ -1,0 +1,226 @@
+//! The replay buffer: a ring of transitions from N envs stepped together, raw observations (a
+//! sample is normalised with the statistics in force when it is drawn), and, for hindsight
+//! experience replay, how many later steps of its own episode each transition has.
+//!
+//! Every push adds one transition per env, so env `e`'s steps lie `n_envs` apart: the ring's
+//! capacity is a multiple of `n_envs`, and the step `k` later of the same env is `k × n_envs`
+//! further on.
+
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+
+use twinbots_api::GoalSpec;
+#[cfg(test)]
+use twinbots_api::GoalChange;
+
+/// `remaining` of a transition whose episode has not ended yet.
+const RUNNING: u32 = u32::MAX;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReplayBuffer {
+    pub n_envs: usize,
+    pub obs_dim: usize,
+    pub act_dim: usize,
+    pub capacity: usize,
+    /// Where the next transition goes, and whether the ring has wrapped.
+    pub pos: usize,
+    pub full: bool,
+    pub obs: Vec<f32>,
+    pub next_obs: Vec<f32>,
+    /// Actions as the actor gives them, in [-1, 1].
+    pub actions: Vec<f32>,
+    pub rewards: Vec<f32>,
+    /// 1 where the MDP ended (terminated; a truncation bootstraps).
+    pub dones: Vec<f32>,
+    /// Steps of the same episode after this one, once the episode has ended.
+    pub remaining: Vec<u32>,
+    /// Each env's steps so far in its running episode.
+    pub episode_steps: Vec<u32>,
+}
+
+/// A sampled minibatch, rows flat.
+pub struct Batch {
+    pub obs: Vec<f32>,
+    pub actions: Vec<f32>,
+    pub rewards: Vec<f32>,
+    pub next_obs: Vec<f32>,
+    pub dones: Vec<f32>,
+}
+
+impl ReplayBuffer {
+    pub fn new(capacity: usize, n_envs: usize, obs_dim: usize, act_dim: usize) -> Self {
+        let capacity = (capacity / n_envs).max(1) * n_envs;
+        Self {
+            n_envs,
+            obs_dim,
+            act_dim,
+            capacity,
+            pos: 0,
+            full: false,
+            obs: Vec::new(),
+            next_obs: Vec::new(),
+            actions: Vec::new(),
+            rewards: Vec::new(),
+            dones: Vec::new(),
+            remaining: Vec::new(),
+            episode_steps: vec![0; n_envs],
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        if self.full { self.capacity } else { self.pos }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// One step of every env: `next_obs` is each step's outcome (a finished episode's last
+    /// observation, not the next episode's first); `ended` marks episodes that ended
+    /// (terminated or truncated), `terminated` those that ended in the MDP.
+    pub fn push(&mut self, obs: &[f32], actions: &[f32], rewards: &[f32], next_obs: &[f32], terminated: &[bool], ended: &[bool]) {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        for e in 0..self.n_envs {
+            let i = self.pos;
+            let put = |dst: &mut Vec<f32>, src: &[f32], width: usize| {
+                if dst.len() < (i + 1) * width {
+                    dst.extend_from_slice(src);
+                } else {
+                    dst[i * width..(i + 1) * width].copy_from_slice(src);
+                }
+            };
+            put(&mut self.obs, &obs[e * o..(e + 1) * o], o);
+            put(&mut self.next_obs, &next_obs[e * o..(e + 1) * o], o);
+            put(&mut self.actions, &actions[e * a..(e + 1) * a], a);
+            put(&mut self.rewards, &[rewards[e]], 1);
+            put(&mut self.dones, &[f32::from(u8::from(terminated[e]))], 1);
+            if self.remaining.len() <= i {
+                self.remaining.push(RUNNING);
+            } else {
+                self.remaining[i] = RUNNING;
+            }
+            self.episode_steps[e] += 1;
+            if ended[e] {
+                // The episode's steps, newest first, learn how many followed them.
+                let steps = (self.episode_steps[e] as usize).min(self.capacity / self.n_envs);
+                for k in 0..steps {
+                    let j = (i + self.capacity - k * self.n_envs) % self.capacity;
+                    self.remaining[j] = k as u32;
+                }
+                self.episode_steps[e] = 0;
+            }
+            self.pos += 1;
+            if self.pos == self.capacity {
+                self.pos = 0;
+                self.full = true;
+            }
+        }
+    }
+
+    /// `batch_size` transitions drawn uniformly; with `her = (goals, n)`, each transition of a
+    /// finished episode has its goal replaced, with probability n / (n + 1), by one its episode
+    /// achieved at that step or later ("future"), and its reward and `done` recomputed for it.
+    pub fn sample(&self, batch_size: usize, rng: &mut ChaCha8Rng, her: Option<(&GoalSpec, usize)>) -> Batch {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        let mut b = Batch {
+            obs: Vec::with_capacity(batch_size * o),
+            actions: Vec::with_capacity(batch_size * a),
+            rewards: Vec::with_capacity(batch_size),
+            next_obs: Vec::with_capacity(batch_size * o),
+            dones: Vec::with_capacity(batch_size),
+        };
+        let len = self.len();
+        for _ in 0..batch_size {
+            let i = rng.random_range(0..len);
+            let mut obs = self.obs[i * o..(i + 1) * o].to_vec();
+            let mut next = self.next_obs[i * o..(i + 1) * o].to_vec();
+            let (mut reward, mut done) = (self.rewards[i], self.dones[i] > 0.5);
+            if let Some((goal, n)) = her
+                && self.remaining[i] != RUNNING
+                && rng.random_range(0..=n) > 0
+            {
+                let k = rng.random_range(0..=self.remaining[i] as usize);
+                let j = (i + k * self.n_envs) % self.capacity;
+                let achieved = (goal.achieved)(&self.next_obs[j * o..(j + 1) * o]);
+                (reward, done) = goal.relabel(&obs, &next, reward, done, &achieved);
+                (goal.substitute)(&mut obs, &achieved);
+                (goal.substitute)(&mut next, &achieved);
+            }
+            b.obs.extend(obs);
+            b.next_obs.extend(next);
+            b.actions.extend_from_slice(&self.actions[i * a..(i + 1) * a]);
+            b.rewards.push(reward);
+            b.dones.push(f32::from(u8::from(done)));
+        }
+        b
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    /// 1-d "positions" with the goal in the second value: reward −|next − goal|, and the
+    /// episode ends on the goal.
+    fn line_goal() -> GoalSpec {
+        GoalSpec {
+            dim: 1,
+            achieved: |obs| vec![obs[0]],
+            desired: |obs| vec![obs[1]],
+            substitute: |obs, goal| obs[1] = goal[0],
+            change: |_, next, _, from, to| GoalChange {
+                reward: (next[0] - from[0]).abs() - (next[0] - to[0]).abs(),
+                ends_at_from: next[0] == from[0],
+                ends_at_to: next[0] == to[0],
+            },
+        }
+    }
+
+    #[test]
+    fn relabelled_goals_come_from_later_steps_of_the_same_episode() {
+        // Two envs; env 0 walks 0,1,2,3 (episode ends after 3 steps, then a running one), env 1
+        // walks 100,101,... never ending. Goal 50 everywhere.
+        let mut buffer = ReplayBuffer::new(64, 2, 2, 1);
+        for t in 0..6 {
+            let x0 = (t % 3) as f32 + if t >= 3 { 10.0 } else { 0.0 };
+            let obs = [x0, 50.0, 100.0 + t as f32, 50.0];
+            let next = [x0 + 1.0, 50.0, 101.0 + t as f32, 50.0];
+            let rewards = [-(x0 + 1.0 - 50.0).abs(), -(101.0 + t as f32 - 50.0).abs()];
+            buffer.push(&obs, &[0.0, 0.0], &rewards, &next, &[false, false], &[t == 2, false]);
+        }
+        assert_eq!(&buffer.remaining[..6], &[2, RUNNING, 1, RUNNING, 0, RUNNING]);
+        let goal = line_goal();
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let batch = buffer.sample(4000, &mut rng, Some((&goal, 4)));
+        let mut relabelled = 0;
+        for r in 0..4000 {
+            let (obs, next) = (&batch.obs[2 * r..2 * r + 2], &batch.next_obs[2 * r..2 * r + 2]);
+            if obs[1] != 50.0 {
+                relabelled += 1;
+                // Env 0's first episode only (x in 0..3), a goal it reached at this step or later.
+                assert!(obs[0] < 3.0 && obs[1] >= next[0] && obs[1] <= 3.0, "{obs:?} → {next:?}");
+                assert_eq!(obs[1], next[1]);
+                assert_eq!(batch.rewards[r], -(next[0] - obs[1]).abs());
+                // Done exactly where the relabelled goal is reached.
+                assert_eq!(batch.dones[r], f32::from(u8::from(next[0] == obs[1])));
+            } else {
+                assert_eq!(batch.rewards[r], -(next[0] - 50.0).abs());
+            }
+        }
+        // 3 of 12 transitions are finished, relabelled 4 times in 5: 20 %.
+        assert!((600..1000).contains(&relabelled), "{relabelled}");
+    }
+
+    #[test]
+    fn the_ring_overwrites_the_oldest_and_keeps_envs_apart() {
+        let mut buffer = ReplayBuffer::new(5, 2, 1, 1);
+        assert_eq!(buffer.capacity, 4);
+        for t in 0..3 {
+            let x = t as f32;
+            buffer.push(&[x, -x], &[0.0, 0.0], &[0.0, 0.0], &[x, -x], &[false, false], &[false, false]);
+        }
+        assert_eq!(buffer.len(), 4);
+        assert_eq!(buffer.obs, vec![2.0, -2.0, 1.0, -1.0]);
+    }
+}

@@ -1,0 +1,370 @@
+//! Soft Actor-Critic (Haarnoja et al. 2018, with the automatic entropy tuning of the follow-up
+//! paper), read top to bottom like CleanRL's `sac_continuous_action.py`, with
+//! Stable-Baselines3's surface and defaults: `learn`, `predict`, `save`, `load`, callbacks,
+//! and hindsight experience replay (Andrychowicz et al. 2017) for goal-conditioned tasks.
+//!
+//! `learn` steps every env once per iteration: random actions until `learning_starts`, then the
+//! actor's samples; each step goes into the replay buffer (`buffer.rs`); every `train_freq`
+//! iterations it takes `gradient_steps` gradient steps (`update.rs`); every `log_interval`
+//! iterations it writes a row and calls the callbacks (the "update" they count).
+
+mod buffer;
+mod config;
+mod model_file;
+mod networks;
+mod update;
+
+use std::time::Instant;
+
+use candle_core::{Device, Tensor, Var};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+pub use buffer::{Batch, ReplayBuffer};
+pub use config::SacConfig;
+pub use networks::{Actor, TwinCritic};
+
+use crate::agent::{Agent, EpisodeHistory, LoadAgent};
+use crate::callbacks::{Callback, TrainingEnd};
+use twinbots_api::env::VecEnv;
+use crate::nn::{Adam, AdamConfig};
+use crate::normalize::RunningMeanStd;
+use crate::ppo::{ModelError, TrainingTimes, UpdateStats};
+use twinbots_api::env_state::EnvState;
+use twinbots_api::spaces::Space;
+use twinbots_api::{EpisodeSummary, GoalSpec};
+
+/// The sampling stream is the seed mixed with this (the weights come from the seed itself).
+const SAMPLING_STREAM_SALT: u64 = 0x5ac_5eed;
+
+/// What the last row's gradient steps did (SB3's `train/` figures for SAC).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SacLosses {
+    pub actor_loss: f32,
+    pub critic_loss: f32,
+    /// α, the entropy coefficient.
+    pub ent_coef: f32,
+    pub ent_coef_loss: f32,
+    /// −log π(a|s) of the actor's samples: an estimate of the policy's entropy.
+    pub entropy: f32,
+    pub gradient_steps: u64,
+}
+
+/// A SAC agent: actor, twin critics and their targets, α, the optimisers, the replay buffer
+/// and the counters that make a run resumable.
+pub struct Sac {
+    pub config: SacConfig,
+    pub observation_space: Space,
+    pub action_space: Space,
+    pub actor: Actor,
+    pub critic: TwinCritic,
+    pub critic_target: TwinCritic,
+    /// log α (learnt when `learn_ent_coef`).
+    pub log_ent_coef: Var,
+    pub obs_rms: Option<RunningMeanStd>,
+    pub seed: u64,
+    pub timesteps: u64,
+    pub episodes: u64,
+    /// Rows written (the callbacks' updates).
+    pub updates: u64,
+    /// Gradient steps taken.
+    pub gradient_steps: u64,
+    /// Iterations of `learn` (steps of each env).
+    pub iterations: u64,
+    pub history: EpisodeHistory,
+    pub buffer: Option<ReplayBuffer>,
+    /// Relabels goals (HER) when the config asks for it; not saved: the caller gives it again.
+    pub goal: Option<GoalSpec>,
+    actor_optimizer: Adam,
+    critic_optimizer: Adam,
+    ent_optimizer: Adam,
+    rng: ChaCha8Rng,
+    /// Where the envs stood at the last row (see `Ppo::env_state`).
+    pub env_state: Option<EnvState>,
+    pub last_losses: SacLosses,
+    pub times: TrainingTimes,
+}
+
+impl std::fmt::Debug for Sac {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Sac")
+            .field("observation_space", &self.observation_space)
+            .field("action_space", &self.action_space)
+            .field("timesteps", &self.timesteps)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Sac {
+    pub fn new(config: SacConfig, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
+        let Space::Box { low, .. } = &action_space else {
+            anyhow::bail!("SAC needs continuous (Box) actions, not {action_space}: use PPO")
+        };
+        let (obs_dim, act_dim) = (observation_space.dim(), low.len());
+        let mut init = ChaCha8Rng::seed_from_u64(seed);
+        let actor = Actor::new(obs_dim, act_dim, &config.hidden, &mut init)?;
+        let critic = TwinCritic::new(obs_dim, act_dim, &config.hidden, &mut init)?;
+        let critic_target = critic.deep_copy()?;
+        let log_ent_coef = Var::from_tensor(&Tensor::new(&[config.ent_coef_init.ln()], &Device::Cpu)?)?;
+        let adam = |vars: Vec<Var>| Adam::new(vars, AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() });
+        let vars = |named: Vec<(String, Var)>| named.into_iter().map(|(_, v)| v).collect::<Vec<_>>();
+        Ok(Self {
+            actor_optimizer: adam(vars(actor.named_vars())),
+            critic_optimizer: adam(vars(critic.named_vars("critic"))),
+            ent_optimizer: adam(vec![log_ent_coef.clone()]),
+            obs_rms: config.normalize_observations.then(|| RunningMeanStd::new(obs_dim)),
+            config,
+            observation_space,
+            action_space,
+            actor,
+            critic,
+            critic_target,
+            log_ent_coef,
+            seed,
+            timesteps: 0,
+            episodes: 0,
+            updates: 0,
+            gradient_steps: 0,
+            iterations: 0,
+            history: EpisodeHistory::default(),
+            buffer: None,
+            goal: None,
+            rng: ChaCha8Rng::seed_from_u64(seed ^ SAMPLING_STREAM_SALT),
+            env_state: None,
+            last_losses: SacLosses::default(),
+            times: TrainingTimes::default(),
+        })
+    }
+
+    /// Relabels goals with `goal` (when `her_goals` > 0); a task without one cannot use HER.
+    pub fn with_goal(mut self, goal: Option<GoalSpec>) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            self.config.her_goals == 0 || goal.is_some(),
+            "sac.her_goals = {}: this task is not goal-conditioned (it declares no achieved and desired goal)",
+            self.config.her_goals
+        );
+        self.goal = goal;
+        Ok(self)
+    }
+
+    fn act_dim(&self) -> usize {
+        self.action_space.dim()
+    }
+
+    /// Rows of raw observations, normalised, as a tensor for the networks.
+    fn batch(&self, obs: &[f32]) -> anyhow::Result<Tensor> {
+        let dim = self.observation_space.dim();
+        Ok(Tensor::from_vec(crate::normalize::normalized(self.obs_rms.as_ref(), obs), (obs.len() / dim, dim), &Device::Cpu)?)
+    }
+
+    /// Standard normal noise for `rows` actions, from the agent's own stream.
+    fn noise(&mut self, rows: usize) -> anyhow::Result<Tensor> {
+        let n = rows * self.act_dim();
+        let eps: Vec<f32> = (0..n).map(|_| StandardNormal.sample(&mut self.rng)).collect();
+        Ok(Tensor::from_vec(eps, (rows, self.act_dim()), &Device::Cpu)?)
+    }
+
+    /// [-1, 1] → the action space's bounds.
+    fn to_env(&self, unit: &[f32]) -> Vec<f32> {
+        let Space::Box { low, high } = &self.action_space else { return unit.to_vec() };
+        unit.iter().enumerate().map(|(i, u)| {
+            let k = i % low.len();
+            low[k] + (u.clamp(-1.0, 1.0) + 1.0) * 0.5 * (high[k] - low[k])
+        }).collect()
+    }
+
+    /// The action for each raw observation row: tanh(μ) when `deterministic`, else a sample.
+    pub fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
+        if deterministic {
+            return self.predict_deterministic(obs);
+        }
+        let x = self.batch(obs)?;
+        let eps = self.noise(x.dim(0)?)?;
+        let (a, _) = self.actor.sample(&x, &eps)?;
+        Ok(self.to_env(&a.flatten_all()?.to_vec1::<f32>()?))
+    }
+
+    /// tanh(μ(s)) for each raw observation row, in the action space's bounds.
+    pub fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        let a = self.actor.mode(&self.batch(obs)?)?;
+        Ok(self.to_env(&a.flatten_all()?.to_vec1::<f32>()?))
+    }
+
+    /// α now.
+    pub fn ent_coef(&self) -> anyhow::Result<f32> {
+        Ok(self.log_ent_coef.as_tensor().exp()?.to_vec1::<f32>()?[0])
+    }
+
+    /// Counts a finished episode into the statistics.
+    pub fn record_episode(&mut self, episode: &EpisodeSummary) {
+        self.episodes += 1;
+        self.history.record(episode);
+    }
+
+    /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback` after
+    /// every row, and says why it stopped.
+    pub fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+        self.check_spaces(env.observation_space(), env.action_space())?;
+        let n_envs = env.num_envs();
+        let (obs_dim, act_dim) = (self.observation_space.dim(), self.act_dim());
+        let buffer = self.buffer.get_or_insert_with(|| ReplayBuffer::new(self.config.buffer_size, n_envs, obs_dim, act_dim));
+        anyhow::ensure!(buffer.n_envs == n_envs, "the replay buffer was filled by {} envs, this env has {n_envs}", buffer.n_envs);
+        let end = self.timesteps + total_timesteps;
+        // A model that learnt before continues its envs' episodes (replayed); a new one starts.
+        let mut obs = match self.env_state.take() {
+            Some(state) => twinbots_api::replay(env, &state)?,
+            None => {
+                let first = env.reset(Some(self.seed.wrapping_add(self.timesteps)))?;
+                if let Some(rms) = &mut self.obs_rms {
+                    rms.update(&first);
+                }
+                first
+            }
+        };
+        callback.on_training_start(self)?;
+        let mut ended = None;
+        let mut row_started = Instant::now();
+        let mut row = SacLosses::default();
+        let mut skipped = 0;
+        while ended.is_none() && self.timesteps < end {
+            // 1. Act: uniform random actions until learning starts, then the actor's samples.
+            let inference_started = Instant::now();
+            let unit: Vec<f32> = if self.timesteps < self.config.learning_starts {
+                (0..n_envs * act_dim).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect()
+            } else {
+                let x = self.batch(&obs)?;
+                let eps = self.noise(n_envs)?;
+                self.actor.sample(&x, &eps)?.0.flatten_all()?.to_vec1::<f32>()?
+            };
+            let env_started = Instant::now();
+            let out = env.step(&self.to_env(&unit))?;
+            self.times.inference_s += (env_started - inference_started).as_secs_f64();
+            self.times.env_s += env_started.elapsed().as_secs_f64();
+
+            // 2. Store (s, a, r, s', done): a finished episode's s' is its last observation; a
+            // truncated one is not done, so its value bootstraps.
+            let mut next_obs = out.obs.clone();
+            let mut ends = vec![false; n_envs];
+            for e in 0..n_envs {
+                ends[e] = out.terminated[e] || out.truncated[e];
+                if let Some(last) = &out.final_obs[e] {
+                    next_obs[e * obs_dim..(e + 1) * obs_dim].copy_from_slice(last);
+                }
+                if let Some(episode) = &out.episodes[e] {
+                    self.record_episode(episode);
+                }
+            }
+            if let Some(buffer) = &mut self.buffer {
+                buffer.push(&obs, &unit, &out.rewards, &next_obs, &out.terminated, &ends);
+            }
+            if let Some(rms) = &mut self.obs_rms {
+                rms.update(&out.obs);
+            }
+            obs = out.obs;
+            self.timesteps += n_envs as u64;
+            self.iterations += 1;
+
+            // 3. Learn from the buffer.
+            if self.timesteps >= self.config.learning_starts && self.iterations % self.config.train_freq as u64 == 0 {
+                let update_started = Instant::now();
+                for _ in 0..self.config.gradient_steps {
+                    match self.gradient_step()? {
+                        Some(losses) => {
+                            row.actor_loss += losses.actor_loss;
+                            row.critic_loss += losses.critic_loss;
+                            row.ent_coef_loss += losses.ent_coef_loss;
+                            row.entropy += losses.entropy;
+                            row.ent_coef = losses.ent_coef;
+                            row.gradient_steps += 1;
+                        }
+                        None => skipped += 1,
+                    }
+                }
+                self.times.update_s += update_started.elapsed().as_secs_f64();
+            }
+
+            // 4. A row and the callbacks.
+            if self.iterations % self.config.log_interval as u64 == 0 {
+                let callbacks_started = Instant::now();
+                self.updates += 1;
+                self.env_state = env.state()?;
+                let n = row.gradient_steps.max(1) as f32;
+                let nan_if_none = |x: f32| if row.gradient_steps == 0 { f32::NAN } else { x / n };
+                self.last_losses = SacLosses {
+                    actor_loss: nan_if_none(row.actor_loss),
+                    critic_loss: nan_if_none(row.critic_loss),
+                    ent_coef_loss: nan_if_none(row.ent_coef_loss),
+                    entropy: nan_if_none(row.entropy),
+                    ent_coef: self.ent_coef()?,
+                    gradient_steps: self.gradient_steps,
+                };
+                if skipped > 0 {
+                    eprintln!("row {}: {skipped} gradient step(s) skipped: a loss or gradient was not finite", self.updates);
+                }
+                let stats = UpdateStats {
+                    policy_loss: self.last_losses.actor_loss,
+                    value_loss: self.last_losses.critic_loss,
+                    entropy: self.last_losses.entropy,
+                    approx_kl: f32::NAN,
+                    clip_fraction: f32::NAN,
+                    learning_rate: self.config.learning_rate,
+                    steps_per_s: (self.config.log_interval * n_envs) as f32 / row_started.elapsed().as_secs_f32(),
+                    skipped_steps: skipped,
+                    ..self.history.row(self.updates, self.timesteps, self.episodes)
+                };
+                ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);
+                (row, skipped, row_started) = (SacLosses::default(), 0, Instant::now());
+                self.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
+            }
+        }
+        callback.on_training_end(self)?;
+        self.env_state = None;
+        Ok(ended.unwrap_or(TrainingEnd::BudgetSpent { timesteps: self.timesteps }))
+    }
+}
+
+impl Agent for Sac {
+    fn algorithm(&self) -> &'static str {
+        "SAC"
+    }
+    fn observation_space(&self) -> &Space {
+        &self.observation_space
+    }
+    fn action_space(&self) -> &Space {
+        &self.action_space
+    }
+    fn timesteps(&self) -> u64 {
+        self.timesteps
+    }
+    fn episodes(&self) -> u64 {
+        self.episodes
+    }
+    fn history(&self) -> &EpisodeHistory {
+        &self.history
+    }
+    fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        Sac::predict_deterministic(self, obs)
+    }
+    fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
+        Sac::save(self, dir)
+    }
+    /// SB3's SAC tags.
+    fn train_scalars(&self, _stats: &UpdateStats) -> Vec<(String, f32)> {
+        let l = &self.last_losses;
+        vec![
+            ("train/actor_loss".into(), l.actor_loss),
+            ("train/critic_loss".into(), l.critic_loss),
+            ("train/ent_coef".into(), l.ent_coef),
+            ("train/ent_coef_loss".into(), l.ent_coef_loss),
+            ("train/entropy".into(), l.entropy),
+            ("train/n_updates".into(), l.gradient_steps as f32),
+        ]
+    }
+}
+
+impl LoadAgent for Sac {
+    fn load(dir: &std::path::Path) -> Result<Self, ModelError> {
+        Sac::load(dir)
+    }
+}

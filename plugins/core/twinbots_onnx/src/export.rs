@@ -1,0 +1,335 @@
+//! A trained model's deterministic policy as an ONNX graph (docs/export.md draws it):
+//!
+//! ```text
+//! obs [batch, n] float ─▶ normalise (if trained so) ─▶ PPO: pi MLP ─▶ ArgMax               ─▶ action [batch] int64
+//!                                                                  └▶ Max(low), Min(high)  ─▶ action [batch, m] float
+//!                                                  └▶ SAC: actor body ─▶ mu ─▶ Tanh ─▶ rescale to [low, high] ─▶ action [batch, m] float
+//! ```
+//!
+//! Normalising is `((x − mean) / √(var + 1e-8))` computed in double precision, as
+//! `RunningMeanStd::normalize` does, then clipped to ±10. Each layer is a `Gemm` (x Wᵀ + b). PPO's
+//! hidden layers are followed by `Tanh`; a discrete policy's mode is the arg max of its logits
+//! (the last of equal ones, as the model's own arg max takes); a Gaussian's mode is its mean,
+//! clipped to the action box as the env receives it (PPO neither squashes nor rescales). SAC's
+//! hidden layers are followed by `Relu`; its mode is tanh of its Gaussian's mean, rescaled from
+//! [−1, 1] to the box (`low + (a + 1) · (high − low) / 2`, as the model hands actions to the env).
+
+use std::path::Path;
+
+use prost::Message;
+use tract_onnx::pb;
+use tract_onnx::pb::tensor_proto::DataType;
+use twinbots_learn::normalize::{CLIP, RunningMeanStd};
+use twinbots_learn::ppo::{Ppo, write_atomic};
+use twinbots_api::Space;
+use twinbots_learn::{Agent, Sac};
+
+use crate::metadata::PolicyMetadata;
+
+/// ONNX IR version 8 (ONNX 1.10+) and operator set 17: read by onnxruntime ≥ 1.13 and tract.
+pub const IR_VERSION: i64 = 8;
+pub const OPSET: i64 = 17;
+pub const INPUT: &str = "obs";
+pub const OUTPUT: &str = "action";
+
+/// A trained model whose deterministic policy can be exported.
+#[derive(Clone, Copy, Debug)]
+pub enum Trained<'a> {
+    Ppo(&'a Ppo),
+    Sac(&'a Sac),
+}
+
+impl<'a> From<&'a Ppo> for Trained<'a> {
+    fn from(model: &'a Ppo) -> Self {
+        Self::Ppo(model)
+    }
+}
+
+impl<'a> From<&'a Sac> for Trained<'a> {
+    fn from(model: &'a Sac) -> Self {
+        Self::Sac(model)
+    }
+}
+
+impl<'a> Trained<'a> {
+    /// The model through the surface both learners share (spaces, counters, predictions).
+    pub fn agent(self) -> &'a dyn Agent {
+        match self {
+            Self::Ppo(m) => m,
+            Self::Sac(m) => m,
+        }
+    }
+
+    /// The running observation statistics the graph folds in, if the model normalises.
+    pub fn obs_rms(self) -> Option<&'a RunningMeanStd> {
+        match self {
+            Self::Ppo(m) => m.obs_rms.as_ref(),
+            Self::Sac(m) => m.obs_rms.as_ref(),
+        }
+    }
+
+    /// The policy's tensors by the names its model file uses.
+    fn named_values(self) -> anyhow::Result<Vec<(String, Values)>> {
+        let vars = match self {
+            Self::Ppo(m) => m.policy.named_vars(),
+            Self::Sac(m) => m.actor.named_vars(),
+        };
+        vars.into_iter()
+            .map(|(name, var)| {
+                let t = var.as_tensor();
+                Ok((name, Values { dims: t.dims().iter().map(|&d| d as i64).collect(), values: t.flatten_all()?.to_vec1::<f32>()? }))
+            })
+            .collect()
+    }
+}
+
+/// The ONNX model of `model`'s deterministic policy, described by `metadata` (whose spaces
+/// must be the model's).
+pub fn policy_model<'a>(model: impl Into<Trained<'a>>, metadata: &PolicyMetadata) -> anyhow::Result<pb::ModelProto> {
+    let model = model.into();
+    let agent = model.agent();
+    anyhow::ensure!(
+        metadata.observation_space.dim() == agent.observation_space().dim() && metadata.action_space == *agent.action_space(),
+        "the model's spaces ({} observations, {}) differ from the description's ({} observations, {})",
+        agent.observation_space().dim(),
+        agent.action_space(),
+        metadata.observation_space.dim(),
+        metadata.action_space
+    );
+    let graph = policy_graph(model)?;
+    Ok(pb::ModelProto {
+        ir_version: IR_VERSION,
+        opset_import: vec![pb::OperatorSetIdProto { domain: String::new(), version: OPSET }],
+        producer_name: "twinbots".into(),
+        producer_version: metadata.twinbots_version.clone(),
+        doc_string: format!("{} ({}): the deterministic policy of a {} model; see docs/export.md", metadata.robot, metadata.task, agent.algorithm()),
+        graph: Some(graph),
+        metadata_props: metadata
+            .to_props()
+            .into_iter()
+            .map(|(key, value)| pb::StringStringEntryProto { key, value })
+            .collect(),
+        ..Default::default()
+    })
+}
+
+/// The policy's ONNX file, as bytes.
+pub fn policy_bytes<'a>(model: impl Into<Trained<'a>>, metadata: &PolicyMetadata) -> anyhow::Result<Vec<u8>> {
+    Ok(policy_model(model, metadata)?.encode_to_vec())
+}
+
+/// Writes the policy to `path` (through a temporary file and a rename).
+pub fn write_policy<'a>(path: &Path, model: impl Into<Trained<'a>>, metadata: &PolicyMetadata) -> anyhow::Result<()> {
+    write_atomic(path, &policy_bytes(model, metadata)?).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+fn policy_graph(model: Trained) -> anyhow::Result<pb::GraphProto> {
+    let (observation_space, action_space) = (model.agent().observation_space(), model.agent().action_space());
+    let mut g = GraphBuilder::default();
+    let mut x = INPUT.to_string();
+    if let Some(rms) = model.obs_rms() {
+        let std: Vec<f64> = rms.var.iter().map(|v| (v + 1e-8).sqrt()).collect();
+        let mean = g.constant_f64("obs_mean", &rms.mean);
+        let std = g.constant_f64("obs_std", &std);
+        let wide = g.node("Cast", &[&x], vec![int_attr("to", DataType::Double as i64)]);
+        let centred = g.node("Sub", &[&wide, &mean], vec![]);
+        let scaled = g.node("Div", &[&centred, &std], vec![]);
+        let narrow = g.node("Cast", &[&scaled], vec![int_attr("to", DataType::Float as i64)]);
+        let (low, high) = (g.scalar_f32("obs_clip_low", -CLIP), g.scalar_f32("obs_clip_high", CLIP));
+        x = g.node("Clip", &[&narrow, &low, &high], vec![]);
+    }
+    let values = model.named_values()?;
+    let output_type = match model {
+        Trained::Ppo(_) => {
+            let layers = layers(&values, "pi")?;
+            for (i, layer) in layers.iter().enumerate() {
+                x = g.dense(&format!("pi.{i}"), &x, layer);
+                if i + 1 < layers.len() {
+                    x = g.node("Tanh", &[&x], vec![]);
+                }
+            }
+            ppo_head(&mut g, &x, action_space)?
+        }
+        Trained::Sac(_) => {
+            for (i, layer) in layers(&values, "actor.body")?.iter().enumerate() {
+                let h = g.dense(&format!("actor.body.{i}"), &x, layer);
+                x = g.node("Relu", &[&h], vec![]);
+            }
+            let mu = layer(&values, "actor.mu")?.ok_or_else(|| anyhow::anyhow!("the model has no actor.mu layer"))?;
+            let mean = g.dense("actor.mu", &x, &mu);
+            let squashed = g.node("Tanh", &[&mean], vec![]);
+            sac_head(&mut g, &squashed, action_space)?
+        }
+    };
+    Ok(pb::GraphProto {
+        name: "twinbots_policy".into(),
+        node: g.nodes,
+        initializer: g.initializers,
+        input: vec![value_info(INPUT, tensor_type(DataType::Float, &[batch_dim(), fixed_dim(observation_space.dim())]))],
+        output: vec![value_info(OUTPUT, output_type)],
+        ..Default::default()
+    })
+}
+
+/// PPO's mode: the logits' arg max, or the Gaussian's mean clipped to the box.
+fn ppo_head(g: &mut GraphBuilder, x: &str, action_space: &Space) -> anyhow::Result<pb::TypeProto> {
+    Ok(match action_space {
+        Space::Discrete { .. } => {
+            g.output_node("ArgMax", &[x], vec![int_attr("axis", 1), int_attr("keepdims", 0), int_attr("select_last_index", 1)]);
+            tensor_type(DataType::Int64, &[batch_dim()])
+        }
+        Space::Box { low, high } => {
+            let low = g.constant_f32("action_low", &[low.len() as i64], low);
+            let high = g.constant_f32("action_high", &[high.len() as i64], high);
+            let floor = g.node("Max", &[x, &low], vec![]);
+            g.output_node("Min", &[&floor, &high], vec![]);
+            tensor_type(DataType::Float, &[batch_dim(), fixed_dim(action_space.dim())])
+        }
+        other => anyhow::bail!("{other} actions cannot be exported"),
+    })
+}
+
+/// SAC's mode, tanh(μ) in [−1, 1], rescaled to the box: low + (a + 1) · (high − low) / 2.
+fn sac_head(g: &mut GraphBuilder, squashed: &str, action_space: &Space) -> anyhow::Result<pb::TypeProto> {
+    let Space::Box { low, high } = action_space else { anyhow::bail!("a SAC policy acts in a box, not {action_space}") };
+    let half_range: Vec<f32> = low.iter().zip(high).map(|(l, h)| 0.5 * (h - l)).collect();
+    let one = g.scalar_f32("one", 1.0);
+    let half_range = g.constant_f32("action_half_range", &[low.len() as i64], &half_range);
+    let low = g.constant_f32("action_low", &[low.len() as i64], low);
+    let shifted = g.node("Add", &[squashed, &one], vec![]);
+    let scaled = g.node("Mul", &[&shifted, &half_range], vec![]);
+    g.output_node("Add", &[&low, &scaled], vec![]);
+    Ok(tensor_type(DataType::Float, &[batch_dim(), fixed_dim(action_space.dim())]))
+}
+
+/// A tensor's shape and values.
+struct Values {
+    dims: Vec<i64>,
+    values: Vec<f32>,
+}
+
+/// A dense layer's weight [out, in] and bias [out].
+struct Layer<'v> {
+    weight: &'v Values,
+    bias: &'v Values,
+}
+
+/// The layer `<name>.weight`, `<name>.bias`, if the model has it.
+fn layer<'v>(values: &'v [(String, Values)], name: &str) -> anyhow::Result<Option<Layer<'v>>> {
+    let find = |key: String| values.iter().find(|(n, _)| *n == key).map(|(_, v)| v);
+    let Some(weight) = find(format!("{name}.weight")) else { return Ok(None) };
+    let bias = find(format!("{name}.bias")).ok_or_else(|| anyhow::anyhow!("layer {name} has no bias"))?;
+    Ok(Some(Layer { weight, bias }))
+}
+
+/// The layers `<prefix>.0`, `<prefix>.1`, … from the input on.
+fn layers<'v>(values: &'v [(String, Values)], prefix: &str) -> anyhow::Result<Vec<Layer<'v>>> {
+    let mut out = Vec::new();
+    while let Some(l) = layer(values, &format!("{prefix}.{}", out.len()))? {
+        out.push(l);
+    }
+    anyhow::ensure!(!out.is_empty(), "the model has no {prefix} network");
+    Ok(out)
+}
+
+/// Nodes and constants, named as they are added.
+#[derive(Default)]
+struct GraphBuilder {
+    nodes: Vec<pb::NodeProto>,
+    initializers: Vec<pb::TensorProto>,
+}
+
+impl GraphBuilder {
+    /// A `Gemm` (x Wᵀ + b) with the layer's tensors as constants `<name>.weight`, `<name>.bias`.
+    fn dense(&mut self, name: &str, x: &str, layer: &Layer) -> String {
+        let w = self.constant_f32(&format!("{name}.weight"), &layer.weight.dims, &layer.weight.values);
+        let b = self.constant_f32(&format!("{name}.bias"), &layer.bias.dims, &layer.bias.values);
+        self.node("Gemm", &[x, &w, &b], vec![int_attr("transB", 1)])
+    }
+
+    /// Adds a node; returns the name of its output.
+    fn node(&mut self, op: &str, inputs: &[&str], attribute: Vec<pb::AttributeProto>) -> String {
+        let output = format!("{}_{}", op.to_lowercase(), self.nodes.len());
+        self.push(op, inputs, attribute, output.clone());
+        output
+    }
+
+    /// Adds the node whose output is the graph's.
+    fn output_node(&mut self, op: &str, inputs: &[&str], attribute: Vec<pb::AttributeProto>) {
+        self.push(op, inputs, attribute, OUTPUT.into());
+    }
+
+    fn push(&mut self, op: &str, inputs: &[&str], attribute: Vec<pb::AttributeProto>, output: String) {
+        self.nodes.push(pb::NodeProto {
+            name: format!("{op}_{}", self.nodes.len()),
+            op_type: op.into(),
+            input: inputs.iter().map(|s| s.to_string()).collect(),
+            output: vec![output],
+            attribute,
+            ..Default::default()
+        });
+    }
+
+    fn constant_f32(&mut self, name: &str, dims: &[i64], values: &[f32]) -> String {
+        self.initializers.push(pb::TensorProto {
+            name: name.into(),
+            dims: dims.to_vec(),
+            data_type: DataType::Float as i32,
+            float_data: values.to_vec(),
+            ..Default::default()
+        });
+        name.into()
+    }
+
+    fn scalar_f32(&mut self, name: &str, value: f32) -> String {
+        self.constant_f32(name, &[], &[value])
+    }
+
+    fn constant_f64(&mut self, name: &str, values: &[f64]) -> String {
+        self.initializers.push(pb::TensorProto {
+            name: name.into(),
+            dims: vec![values.len() as i64],
+            data_type: DataType::Double as i32,
+            double_data: values.to_vec(),
+            ..Default::default()
+        });
+        name.into()
+    }
+}
+
+fn int_attr(name: &str, value: i64) -> pb::AttributeProto {
+    pb::AttributeProto {
+        name: name.into(),
+        r#type: pb::attribute_proto::AttributeType::Int as i32,
+        i: value,
+        ..Default::default()
+    }
+}
+
+fn batch_dim() -> pb::tensor_shape_proto::Dimension {
+    pb::tensor_shape_proto::Dimension {
+        value: Some(pb::tensor_shape_proto::dimension::Value::DimParam("batch".into())),
+        ..Default::default()
+    }
+}
+
+fn fixed_dim(size: usize) -> pb::tensor_shape_proto::Dimension {
+    pb::tensor_shape_proto::Dimension {
+        value: Some(pb::tensor_shape_proto::dimension::Value::DimValue(size as i64)),
+        ..Default::default()
+    }
+}
+
+fn tensor_type(elem_type: DataType, dims: &[pb::tensor_shape_proto::Dimension]) -> pb::TypeProto {
+    pb::TypeProto {
+        value: Some(pb::type_proto::Value::TensorType(pb::type_proto::Tensor {
+            elem_type: elem_type as i32,
+            shape: Some(pb::TensorShapeProto { dim: dims.to_vec() }),
+        })),
+        ..Default::default()
+    }
+}
+
+fn value_info(name: &str, r#type: pb::TypeProto) -> pb::ValueInfoProto {
+    pb::ValueInfoProto { name: name.into(), r#type: Some(r#type), ..Default::default() }
+}

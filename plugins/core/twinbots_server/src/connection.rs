@@ -1,0 +1,128 @@
+//! One robot's connection, from `hello` to disconnect, on its own thread.
+//!
+//! Every request must arrive whole within the read timeout (the handshake timeout for
+//! `hello`), is checked ([`crate::checks`]) before the learner sees it, and gets exactly one
+//! reply (none for `bye`). Refusals are logged with the peer's address; only fatal ones, and
+//! a peer that is gone, end the connection.
+
+use std::io::{BufReader, BufWriter};
+use std::net::{SocketAddr, TcpStream};
+use std::time::Duration;
+
+use twinbots_link::checks::{Admission, Rejection, check_hello, check_request};
+use crate::closing::close_after_reply;
+use twinbots_link::deadline::DeadlineStream;
+use twinbots_link::frame::{FrameError, read_frame, read_message, write_message};
+use twinbots_link::protocol::{ErrorCode, RobotMessage, ServerMessage, VERSION, error};
+use crate::shared::{Shared, panic_message};
+
+/// How long a closing connection waits for what its client already sent (see `closing`).
+const LINGER: Duration = Duration::from_millis(200);
+
+struct Connection<'a> {
+    peer: SocketAddr,
+    id: u64,
+    shared: &'a Shared,
+    writer: BufWriter<TcpStream>,
+}
+
+impl Connection<'_> {
+    /// Sends a reply; false if the peer is gone.
+    fn reply(&mut self, message: &ServerMessage) -> bool {
+        write_message(&mut self.writer, message).is_ok()
+    }
+
+    /// Answers a refused message and logs it; false if the connection must end.
+    fn refuse(&mut self, rejection: &Rejection) -> bool {
+        self.shared.log_rejection(self.peer, &format!("robot {}", self.id), rejection);
+        self.reply(&rejection.reply()) && !rejection.fatal
+    }
+
+    /// Answers a frame that could not be read; false if the connection must end.
+    fn refuse_frame(&mut self, e: &FrameError) -> bool {
+        match Rejection::of_frame(e) {
+            Some(rejection) => self.refuse(&rejection),
+            None => false, // the peer is gone: nobody to answer
+        }
+    }
+
+    /// The learner's answer; a panic inside it is caught here, while the lock is held, and
+    /// becomes the learner's error: training ends and `wait` reports it.
+    fn ask_learner(&self, message: RobotMessage) -> Option<ServerMessage> {
+        let mut learner = self.shared.learner();
+        let answer = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| learner.handle(self.id, message)));
+        let answer = answer.unwrap_or_else(|panic| {
+            let why = format!("the learner panicked: {}", panic_message(&*panic));
+            learner.error.get_or_insert(why.clone());
+            Some(error(ErrorCode::LearnerFailed, true, why))
+        });
+        self.shared.notify_if_stopped(&learner);
+        answer
+    }
+}
+
+pub(crate) fn serve(stream: TcpStream, peer: SocketAddr, id: u64, shared: &Shared) {
+    let limits = &shared.limits;
+    let _ = stream.set_nodelay(true);
+    // A robot that stops reading cannot hold its thread forever either.
+    let _ = stream.set_write_timeout(Some(limits.read_timeout));
+    let Ok(read_half) = stream.try_clone() else { return };
+    let Ok(closer) = stream.try_clone() else { return };
+    let mut reader = BufReader::new(DeadlineStream::new(read_half));
+    let mut conn = Connection { peer, id, shared, writer: BufWriter::new(stream) };
+
+    reader.get_mut().expire_in(limits.handshake_timeout);
+    let admitted = read_frame(&mut reader)
+        .map_err(|e| Rejection::of_frame(&e))
+        .and_then(|payload| {
+            let admission = Admission { task: &shared.task, token: limits.token.as_deref() };
+            check_hello(&payload, &admission).map_err(Some)
+        });
+    match admitted {
+        Ok(_) => shared.learner().join(id),
+        Err(rejection) => {
+            if let Some(rejection) = rejection {
+                conn.refuse(&Rejection { fatal: true, ..rejection });
+                close_after_reply(&closer, LINGER);
+            }
+            return;
+        }
+    }
+    let welcome = ServerMessage::Welcome { version: VERSION, robot_id: id, task: shared.task.clone() };
+    if conn.reply(&welcome) {
+        converse(&mut conn, &mut reader, limits.read_timeout);
+    }
+    shared.learner().leave(id);
+    close_after_reply(&closer, LINGER);
+}
+
+/// Request after request until the robot leaves, training ends or an error is fatal.
+fn converse(conn: &mut Connection, reader: &mut BufReader<DeadlineStream>, read_timeout: Duration) {
+    loop {
+        reader.get_mut().expire_in(read_timeout);
+        let message = match read_message::<RobotMessage>(reader) {
+            Ok(m) => m,
+            Err(e) => {
+                if conn.refuse_frame(&e) {
+                    continue;
+                }
+                return;
+            }
+        };
+        if let Err(rejection) = check_request(&message, &conn.shared.task) {
+            if conn.refuse(&rejection) {
+                continue;
+            }
+            return;
+        }
+        let Some(answer) = conn.ask_learner(message) else { return }; // bye
+        if let ServerMessage::Error { code, message, fatal } = &answer {
+            let rejection = Rejection::new(*code, *fatal, message.clone());
+            conn.shared.log_rejection(conn.peer, &format!("robot {}", conn.id), &rejection);
+        }
+        let last = matches!(answer, ServerMessage::Done { .. } | ServerMessage::Error { fatal: true, .. });
+        if !conn.reply(&answer) || last {
+            return;
+        }
+    }
+}

@@ -1,0 +1,11 @@
+//! twinbots_server: design pattern 3's RobotServer. It hosts the policy and the learner and is
+//! reached over TCP by robots' Communicators (`twinbots_link`, which also holds the protocol).
+//!
+//! [`server`] (accepting, limits, failing loudly), `connection` (one robot's thread), `learner`
+//! (PPO on what robots send), `closing` (a last reply before the socket closes).
+
+mod closing;
+mod connection;
+mod learner;
+pub mod server;
+mod shared;

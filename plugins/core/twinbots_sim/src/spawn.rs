@@ -1,0 +1,267 @@
+//! Building a [`RobotModel`] into an arena: one rigid body per group of links welded by fixed
+//! joints, one impulse joint per movable joint, and an entity per link and joint.
+
+use std::collections::HashMap;
+
+use bevy::math::{Mat3, Quat, Vec3};
+use bevy::prelude::*;
+
+use crate::arena::{Arena, ENVIRONMENT_GROUP, InArena, ROBOT_GROUP};
+use crate::devices::{Joint, JointState, Motor, PositionSensor};
+use crate::robot::{Link, Robot, Visuals};
+use crate::rapier::prelude::*;
+use crate::urdf::{JointKind, JointModel, RobotModel, Shape};
+
+/// How a robot is placed and attached.
+#[derive(Clone, Debug)]
+pub struct SpawnOptions {
+    /// Pose of the root link in the arena.
+    pub base: Pose,
+    /// Weld the root to the world. A root link named `world` is always welded.
+    pub fixed_base: bool,
+    /// Friction coefficient of the robot's colliders.
+    pub friction: f32,
+    /// Spawn as part of the cell (a fixture, a workpiece) rather than a robot: its colliders
+    /// join the environment group, so they touch robots and each other.
+    pub environment: bool,
+    /// Starting positions (rad or m) of movable joints, by name; the others start at 0.
+    pub joint_positions: Vec<(String, f32)>,
+}
+
+impl Default for SpawnOptions {
+    fn default() -> Self {
+        Self {
+            base: Pose::IDENTITY,
+            fixed_base: false,
+            friction: 1.0,
+            environment: false,
+            joint_positions: Vec::new(),
+        }
+    }
+}
+
+/// The entities a spawn created, by URDF name.
+#[derive(Clone, Debug, Default)]
+pub struct SpawnedRobot {
+    pub robot: Option<Entity>,
+    pub links: HashMap<String, Entity>,
+    pub joints: HashMap<String, Entity>,
+}
+
+impl SpawnedRobot {
+    pub fn robot(&self) -> Entity {
+        self.robot.expect("spawned robot has an entity")
+    }
+    /// The entity of a link; `None` if the URDF has no such link.
+    pub fn link(&self, name: &str) -> Option<Entity> {
+        self.links.get(name).copied()
+    }
+    /// The entity of a joint; `None` if the URDF has no such joint.
+    pub fn joint(&self, name: &str) -> Option<Entity> {
+        self.joints.get(name).copied()
+    }
+}
+
+/// Adds the robot's bodies and joints to `arena` and spawns its entities, all tagged
+/// [`InArena`]`(arena_entity)`. Movable joints get a [`JointState`] and [`PositionSensor`];
+/// those with a positive `<limit effort>` also get a [`Motor`].
+pub fn spawn_robot(
+    commands: &mut Commands,
+    arena_entity: Entity,
+    arena: &mut Arena,
+    model: &RobotModel,
+    options: SpawnOptions,
+) -> SpawnedRobot {
+    for (name, _) in &options.joint_positions {
+        // A name that is no movable joint of the model is a bug in the calling plugin.
+        assert!(
+            model.joint(name).is_some_and(|j| j.kind.is_movable()),
+            "SpawnOptions::joint_positions names '{name}', which is no movable joint of robot '{}'",
+            model.name
+        );
+    }
+    let robot = commands
+        .spawn((Robot { name: model.name.clone() }, InArena(arena_entity)))
+        .id();
+    let groups = if options.environment {
+        InteractionGroups::new(ENVIRONMENT_GROUP, Group::ALL, InteractionTestMode::And)
+    } else {
+        InteractionGroups::new(ROBOT_GROUP, ENVIRONMENT_GROUP, InteractionTestMode::And)
+    };
+    let order = tree_order(model);
+
+    // Which link's body each link belongs to, where its frame sits in that body, and in the world.
+    let n = model.links.len();
+    let mut owner = vec![usize::MAX; n];
+    let mut offset = vec![Pose::IDENTITY; n];
+    let mut world_pose = vec![Pose::IDENTITY; n];
+    for &l in &order {
+        match model.parent_joint(l) {
+            None => {
+                owner[l] = l;
+                world_pose[l] = options.base;
+            }
+            Some(j) => {
+                world_pose[l] = world_pose[j.parent] * j.origin * joint_motion(j, start_position(&options, j));
+                if j.kind == JointKind::Fixed {
+                    owner[l] = owner[j.parent];
+                    offset[l] = offset[j.parent] * j.origin;
+                } else {
+                    owner[l] = l;
+                }
+            }
+        }
+    }
+
+    let root = model.root;
+    let fixed = options.fixed_base || model.links[root].name == "world";
+    let mut bodies: HashMap<usize, RigidBodyHandle> = HashMap::new();
+    for &l in order.iter().filter(|&&l| owner[l] == l) {
+        let mass = body_mass(model, &owner, &offset, l);
+        let builder = if l == root && fixed {
+            RigidBodyBuilder::fixed()
+        } else {
+            RigidBodyBuilder::dynamic()
+        };
+        let mut builder = builder.pose(world_pose[l]).can_sleep(false);
+        if let Some(mass) = mass {
+            builder = builder.additional_mass_properties(mass);
+        }
+        bodies.insert(l, arena.world.bodies.insert(builder));
+    }
+
+    let mut spawned = SpawnedRobot {
+        robot: Some(robot),
+        ..default()
+    };
+    for &l in &order {
+        let body = bodies[&owner[l]];
+        let link = &model.links[l];
+        for geometry in &link.collisions {
+            let collider = collider(&geometry.shape, offset[l] * geometry.origin)
+                .friction(options.friction)
+                .density(0.0)
+                .collision_groups(groups);
+            let w = &mut arena.world;
+            w.colliders.insert_with_parent(collider, body, &mut w.bodies);
+        }
+        let entity = commands
+            .spawn((
+                Link {
+                    name: link.name.clone(),
+                    robot,
+                    body,
+                    offset: offset[l],
+                },
+                Visuals(link.visuals.clone()),
+                InArena(arena_entity),
+            ))
+            .id();
+        spawned.links.insert(link.name.clone(), entity);
+    }
+
+    for j in model.joints.iter().filter(|j| j.kind.is_movable()) {
+        let parent_body = bodies[&owner[j.parent]];
+        let child_body = bodies[&j.child];
+        // Rapier's free axis is local X: turn X onto the URDF axis in both frames.
+        let align = Pose::from_rotation(Quat::from_rotation_arc(Vec3::X, j.axis));
+        let locked = if j.kind.is_rotational() {
+            JointAxesMask::LOCKED_REVOLUTE_AXES
+        } else {
+            JointAxesMask::LOCKED_PRISMATIC_AXES
+        };
+        let mut data = GenericJointBuilder::new(locked)
+            .local_frame1(offset[j.parent] * j.origin * align)
+            .local_frame2(align)
+            .contacts_enabled(false)
+            .build();
+        let axis = if j.kind.is_rotational() { JointAxis::AngX } else { JointAxis::LinX };
+        if let Some(stops) = crate::devices::stop_window(j.kind, j.limits.position, start_position(&options, j)) {
+            data.set_limits(axis, stops);
+        }
+        let handle = arena
+            .world
+            .impulse_joints
+            .insert(parent_body, child_body, data, true);
+        let joint = Joint {
+            name: j.name.clone(),
+            kind: j.kind,
+            robot,
+            handle,
+            parent_body,
+            child_body,
+            limits: j.limits.position,
+        };
+        let mut state = JointState::measured(&joint, &arena.world);
+        if j.kind.is_rotational() {
+            // Keep the turns of a starting position beyond ±π (the measurement is wrapped).
+            let start = start_position(&options, j);
+            state.position += std::f32::consts::TAU * ((start - state.position) / std::f32::consts::TAU).round();
+        }
+        let mut entity = commands.spawn((joint, state, PositionSensor::default(), InArena(arena_entity)));
+        if j.limits.effort > 0.0 {
+            entity.insert(Motor::new(j.limits.velocity, j.limits.effort));
+        }
+        spawned.joints.insert(j.name.clone(), entity.id());
+    }
+    spawned
+}
+
+/// The starting position `options` give the joint (0 if none).
+fn start_position(options: &SpawnOptions, joint: &JointModel) -> f32 {
+    options.joint_positions.iter().find(|(name, _)| *name == joint.name).map_or(0.0, |&(_, q)| q)
+}
+
+/// The child frame relative to the joint frame at position `q`.
+fn joint_motion(joint: &JointModel, q: f32) -> Pose {
+    match joint.kind {
+        JointKind::Fixed => Pose::IDENTITY,
+        JointKind::Prismatic => Pose::from_translation(joint.axis * q),
+        JointKind::Revolute | JointKind::Continuous => Pose::from_rotation(Quat::from_axis_angle(joint.axis, q)),
+    }
+}
+
+/// Links ordered so that every parent comes before its children.
+fn tree_order(model: &RobotModel) -> Vec<usize> {
+    let mut order = vec![model.root];
+    let mut i = 0;
+    while i < order.len() {
+        let l = order[i];
+        order.extend(model.joints.iter().filter(|j| j.parent == l).map(|j| j.child));
+        i += 1;
+    }
+    order
+}
+
+/// The summed mass properties of the links welded into `body`, in that body's frame.
+fn body_mass(
+    model: &RobotModel,
+    owner: &[usize],
+    offset: &[Pose],
+    body: usize,
+) -> Option<MassProperties> {
+    let mut total: Option<MassProperties> = None;
+    for l in (0..model.links.len()).filter(|&l| owner[l] == body) {
+        let Some(inertial) = model.links[l].inertial else { continue };
+        let frame = offset[l] * inertial.origin;
+        let r = Mat3::from_quat(frame.rotation);
+        let inertia = r * inertial.inertia * r.transpose();
+        let mp = MassProperties::with_inertia_matrix(frame.translation, inertial.mass, inertia);
+        total = Some(total.map_or(mp, |t| t + mp));
+    }
+    total
+}
+
+/// A rapier collider for a URDF shape placed at `pose` in its body.
+fn collider(shape: &Shape, pose: Pose) -> ColliderBuilder {
+    match shape {
+        Shape::Box { half_extents: h } => ColliderBuilder::cuboid(h.x, h.y, h.z).position(pose),
+        // URDF cylinders run along Z, rapier's along Y.
+        Shape::Cylinder { radius, length } => ColliderBuilder::cylinder(length / 2.0, *radius)
+            .position(pose * Pose::from_rotation(Quat::from_rotation_x(std::f32::consts::FRAC_PI_2))),
+        Shape::Sphere { radius } => ColliderBuilder::ball(*radius).position(pose),
+        Shape::Mesh(mesh) => ColliderBuilder::convex_hull(&mesh.vertices)
+            .expect("the URDF loader rejects meshes without a convex hull")
+            .position(pose),
+    }
+}

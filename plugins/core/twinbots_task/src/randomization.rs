@@ -1,0 +1,202 @@
+//! Domain randomization, set in the run's TOML (`[randomization]`).
+//!
+//! The paper's `d_randomize`: random actions for a random window at each episode start, and
+//! random actions injected with a probability during training. Beyond it, physical
+//! randomization drawn at every reset: link masses, friction, motor strength; and sensor noise
+//! and action latency throughout. Everything is drawn from the arena's random stream, so a seed
+//! still fixes the trajectory. (Design pattern 1 and 2 envs; pattern-3 robots run their own.)
+
+use std::collections::VecDeque;
+
+use bevy::prelude::*;
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+use twinbots_sim::{Arena, InArena, Motor, PositionSensor, SimSet};
+
+use crate::task::{Action, ActiveTask, EnvReset, ResetSet, Resetting};
+
+/// `[randomization]` in a run's TOML. Ranges are `[low, high]`, drawn uniformly per episode.
+#[derive(Resource, Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Randomization {
+    /// d_randomize: the first k steps of an episode take random actions, k in this range.
+    pub start_window: [u32; 2],
+    /// d_randomize: probability that any step's action is replaced by a random one.
+    pub action_probability: f32,
+    /// Scale of every body's mass (and inertia).
+    pub mass_scale: [f32; 2],
+    /// Friction coefficient of every collider.
+    pub friction: Option<[f32; 2]>,
+    /// Fraction of their rated effort that motors deliver.
+    pub motor_strength: [f32; 2],
+    /// Standard deviation of position-sensor noise (rad or m).
+    pub sensor_noise: f32,
+    /// Control steps between an action and its effect.
+    pub action_latency: u32,
+}
+
+impl Default for Randomization {
+    fn default() -> Self {
+        Self {
+            start_window: [0, 0],
+            action_probability: 0.0,
+            mass_scale: [1.0, 1.0],
+            friction: None,
+            motor_strength: [1.0, 1.0],
+            sensor_noise: 0.0,
+            action_latency: 0,
+        }
+    }
+}
+
+impl Randomization {
+    pub fn is_off(&self) -> bool {
+        self == &Self::default()
+    }
+
+    /// A clear error for ranges that are backwards or out of bounds.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        // Upper bounds: beyond them the physics is no longer a robot's (and rapier may fail).
+        let ordered = |name: &str, [lo, hi]: [f32; 2], min: f32, max: f32| {
+            anyhow::ensure!(
+                lo.is_finite() && hi.is_finite() && lo <= hi && lo >= min && hi <= max,
+                "randomization.{name} = [{lo}, {hi}]: must be finite, ordered and in [{min}, {max}]"
+            );
+            Ok(())
+        };
+        let [first, last] = self.start_window;
+        anyhow::ensure!(
+            first <= last && last <= 100_000,
+            "randomization.start_window = [{first}, {last}]: must be ordered and at most 100000 steps"
+        );
+        anyhow::ensure!(
+            self.action_latency <= 1000,
+            "randomization.action_latency = {}: must be at most 1000 control steps",
+            self.action_latency
+        );
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.action_probability),
+            "randomization.action_probability = {}: must be in [0, 1]",
+            self.action_probability
+        );
+        ordered("mass_scale", self.mass_scale, 1e-3, 1e3)?;
+        ordered("motor_strength", self.motor_strength, 0.0, 100.0)?;
+        if let Some(f) = self.friction {
+            ordered("friction", f, 0.0, 100.0)?;
+        }
+        anyhow::ensure!(
+            self.sensor_noise.is_finite() && (0.0..=1e3).contains(&self.sensor_noise),
+            "randomization.sensor_noise = {}: must be a finite number in [0, 1000]",
+            self.sensor_noise
+        );
+        Ok(())
+    }
+}
+
+/// Per-arena state: steps of random start left, and actions waiting out the latency.
+#[derive(Component, Default)]
+struct RandomizationState {
+    random_steps_left: u32,
+    pending: VecDeque<Vec<f32>>,
+}
+
+pub struct RandomizationPlugin(pub Randomization);
+
+impl Plugin for RandomizationPlugin {
+    fn build(&self, app: &mut App) {
+        app.insert_resource(self.0.clone())
+            .add_systems(PostStartup, (add_state, set_sensor_noise))
+            // Actions are replaced or delayed before anything applies them, or radios them to a
+            // slave robot (design pattern 2).
+            .add_systems(Update, randomize_actions.in_set(SimSet::ProcessActions))
+            .add_systems(EnvReset, randomize_episode.in_set(ResetSet::Place));
+    }
+}
+
+fn uniform(rng: &mut impl Rng, [lo, hi]: [f32; 2]) -> f32 {
+    if hi > lo { rng.random_range(lo..=hi) } else { lo }
+}
+
+fn add_state(mut commands: Commands, arenas: Query<Entity, With<Arena>>) {
+    for arena in &arenas {
+        commands.entity(arena).insert(RandomizationState::default());
+    }
+}
+
+fn set_sensor_noise(config: Res<Randomization>, mut sensors: Query<&mut PositionSensor>) {
+    for mut s in &mut sensors {
+        s.noise = config.sensor_noise;
+    }
+}
+
+/// At every reset: masses, friction and motor strength for the new episode, and its random
+/// start window.
+fn randomize_episode(
+    config: Res<Randomization>,
+    mut arenas: Query<(Entity, &mut Arena, Option<&mut RandomizationState>), With<Resetting>>,
+    mut motors: Query<(&mut Motor, &InArena)>,
+) {
+    for (entity, mut arena, state) in &mut arenas {
+        let arena = &mut *arena;
+        let mass = uniform(&mut arena.rng, config.mass_scale);
+        let friction = config.friction.map(|f| uniform(&mut arena.rng, f));
+        let strength = uniform(&mut arena.rng, config.motor_strength);
+        let window = config.start_window;
+        let random_steps = if window[1] > window[0] { arena.rng.random_range(window[0]..=window[1]) } else { window[0] };
+        if mass != 1.0 {
+            use twinbots_sim::rapier::dynamics::RigidBodyAdditionalMassProps as Extra;
+            for (_, body) in arena.world.bodies.iter_mut() {
+                // Links carry their URDF inertials as "additional" mass properties (their
+                // colliders have no density), restored to nominal by every reset.
+                let extra = body.mass_properties().additional_local_mprops.as_deref().cloned();
+                if let Some(Extra::MassProps(mut props)) = extra {
+                    props.set_mass(props.mass() * mass, true);
+                    body.set_additional_mass_properties(props, true);
+                }
+            }
+        }
+        if let Some(f) = friction {
+            for (_, collider) in arena.world.colliders.iter_mut() {
+                collider.set_friction(f);
+            }
+        }
+        for (mut motor, in_arena) in &mut motors {
+            if in_arena.0 == entity {
+                motor.strength = strength;
+            }
+        }
+        if let Some(mut state) = state {
+            state.random_steps_left = random_steps;
+            state.pending.clear();
+        }
+    }
+}
+
+/// d_randomize on actions, then latency: what the task applies this step.
+fn randomize_actions(
+    config: Res<Randomization>,
+    spec: Res<ActiveTask>,
+    mut arenas: Query<(&mut Arena, &mut Action, &mut RandomizationState)>,
+) {
+    for (mut arena, mut action, mut state) in &mut arenas {
+        let random = if state.random_steps_left > 0 {
+            state.random_steps_left -= 1;
+            true
+        } else {
+            config.action_probability > 0.0 && arena.rng.random::<f32>() < config.action_probability
+        };
+        if random {
+            action.0 = spec.action_space.sample(&mut arena.rng);
+        }
+        if config.action_latency > 0 {
+            state.pending.push_back(action.0.clone());
+            if state.pending.len() > config.action_latency as usize {
+                action.0 = state.pending.pop_front().unwrap_or_default();
+            } else {
+                // Until the first action arrives, the previous command stands (no new action).
+                action.0 = state.pending.front().cloned().unwrap_or_default();
+                action.0.clear();
+            }
+        }
+    }
+}

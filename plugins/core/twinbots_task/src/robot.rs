@@ -1,0 +1,219 @@
+//! Robots that describe themselves: each robot plugin says once what it is (its tasks with
+//! their spaces and solved criteria, the design patterns it supports, its training defaults,
+//! how cameras frame it) and how to build an app of it. Every front (the CLI, the RobotServer's
+//! handshake, evaluation) reads that description from a [`Registry`]; none keeps its own copy.
+
+use bevy::prelude::*;
+use twinbots_sim::{ArenaConfig, Framing, OperatorAccess, SimPlugin, SimSettings};
+
+use twinbots_api::{DesignPattern, TaskSpec};
+
+/// What an app is asked for: a task of the robot, under a design pattern, with N arenas.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AppRequest<'a> {
+    pub task: &'a str,
+    pub arenas: usize,
+    pub seed: u64,
+    pub pattern: DesignPattern,
+}
+
+/// Builds a headless app for a request the description allows. Under design pattern 3 it is a
+/// robot process (no Supervisor): the caller inserts the server's address
+/// (`twinbots_link::robot::ServerAddress`) before start-up.
+pub type BuildApp = fn(&AppRequest) -> App;
+
+/// A task of a robot's cell.
+#[derive(Clone, Copy, Debug)]
+pub struct TaskDescription {
+    pub name: &'static str,
+    pub description: &'static str,
+    /// Its spaces and solved criterion, built from its terms.
+    pub spec: fn() -> TaskSpec,
+    /// Whether design pattern 3 runs this task (a robot process that homes itself).
+    pub server: bool,
+}
+
+/// How `train` trains the robot unless told otherwise, as RL Zoo's hyperparameter files do:
+/// the algorithm it picks, the size of its evaluations, and, per algorithm the robot is tuned
+/// for, the run's shape and the keys of the algorithm's `[<algo>]` table. The robot names
+/// algorithms and keys only; the learners (`twinbots_learn`'s algorithm table) read them, so
+/// a robot crate needs no learner.
+#[derive(Clone, Debug)]
+pub struct TrainingDefaults {
+    /// The algorithm `train` uses without `--algo`.
+    pub algo: &'static str,
+    /// Episodes of an evaluation (periodic and final).
+    pub eval_episodes: usize,
+    /// The robot's tuning per algorithm; an algorithm without an entry runs on
+    /// [`AlgoDefaults::new`]'s shape and the algorithm's own hyperparameters.
+    pub algos: Vec<AlgoDefaults>,
+}
+
+impl Default for TrainingDefaults {
+    fn default() -> Self {
+        Self { algo: "ppo", eval_episodes: 10, algos: Vec::new() }
+    }
+}
+
+impl TrainingDefaults {
+    /// The robot's tuning of `algo` (lower case, as in `--algo`), or the plain shape.
+    pub fn of(&self, algo: &'static str) -> AlgoDefaults {
+        self.algos.iter().find(|a| a.algo == algo).cloned().unwrap_or_else(|| AlgoDefaults::new(algo))
+    }
+}
+
+/// One algorithm's tuning for a robot.
+#[derive(Clone, Debug)]
+pub struct AlgoDefaults {
+    /// The algorithm's name, lower case (`ppo`, `sac`).
+    pub algo: &'static str,
+    pub arenas: usize,
+    /// Training budget (env steps summed over arenas).
+    pub timesteps: u64,
+    /// Periodic evaluation every this many of the algorithm's log rows (0: never).
+    pub eval_every: usize,
+    /// Keys of the algorithm's `[<algo>]` table, as TOML, over the algorithm's own defaults
+    /// (RL Zoo's `hyperparams/<algo>.yml` entry for this env).
+    pub hyperparams: &'static str,
+}
+
+impl AlgoDefaults {
+    /// 8 arenas, a budget of a million steps, no periodic evaluation, the algorithm's own
+    /// hyperparameters.
+    pub fn new(algo: &'static str) -> Self {
+        Self { algo, arenas: 8, timesteps: 1_000_000, eval_every: 0, hyperparams: "" }
+    }
+
+    /// The algorithm's config `T` with this robot's hyperparameters over `T::default()`; an
+    /// unknown key or a wrong value is an error naming the algorithm and the key.
+    pub fn config<T: serde::Serialize + serde::de::DeserializeOwned + Default>(&self) -> anyhow::Result<T> {
+        let keys: toml::Table = toml::from_str(self.hyperparams)
+            .map_err(|e| anyhow::anyhow!("[{}] hyperparameters do not read: {}", self.algo, e.message()))?;
+        let mut table = toml::Table::try_from(T::default())?;
+        table.extend(keys);
+        table.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("[{}]: {}", self.algo, e.message()))
+    }
+}
+
+/// A robot as its plugin describes it.
+#[derive(Clone, Debug)]
+pub struct RobotDescription {
+    pub name: &'static str,
+    pub description: &'static str,
+    /// Its tasks; the first is the one `train` learns, the others run a model trained on it
+    /// unchanged (the same spaces), such as the UR5e's pick-and-place driven by its reach model.
+    pub tasks: Vec<TaskDescription>,
+    /// The design patterns (paper §3) its in-process tasks support (1 and/or 2); pattern 3 is
+    /// wherever a task says `server`.
+    pub patterns: Vec<DesignPattern>,
+    pub framing: Framing,
+    pub defaults: TrainingDefaults,
+    pub build: BuildApp,
+}
+
+impl RobotDescription {
+    /// The task `train` learns.
+    pub fn main_task(&self) -> &TaskDescription {
+        &self.tasks[0]
+    }
+
+    /// The spec of the task `train` learns.
+    pub fn task(&self) -> TaskSpec {
+        (self.main_task().spec)()
+    }
+
+    pub fn task_names(&self) -> Vec<&'static str> {
+        self.tasks.iter().map(|t| t.name).collect()
+    }
+
+    /// The named task (`None`: the main one); an unknown name lists the known ones.
+    pub fn find_task(&self, name: Option<&str>) -> anyhow::Result<&TaskDescription> {
+        let Some(name) = name else { return Ok(self.main_task()) };
+        self.tasks
+            .iter()
+            .find(|t| t.name == name)
+            .ok_or_else(|| anyhow::anyhow!("{} has no task '{name}'; its tasks: {}", self.name, self.task_names().join(", ")))
+    }
+
+    /// Every design pattern some task of the robot supports.
+    pub fn all_patterns(&self) -> Vec<DesignPattern> {
+        let mut all = self.patterns.clone();
+        if self.tasks.iter().any(|t| t.server) {
+            all.push(DesignPattern::Server);
+        }
+        all
+    }
+
+    /// Whether the named task (`None`: the main one) runs under `pattern`.
+    pub fn supports(&self, task: Option<&str>, pattern: DesignPattern) -> anyhow::Result<bool> {
+        let task = self.find_task(task)?;
+        Ok(match pattern {
+            DesignPattern::Server => task.server,
+            p => self.patterns.contains(&p),
+        })
+    }
+
+    /// A headless app of the named task (`None`: the main one) under `pattern`; an unknown
+    /// task or an unsupported pattern is an error.
+    pub fn app(&self, task: Option<&str>, arenas: usize, seed: u64, pattern: DesignPattern) -> anyhow::Result<App> {
+        let description = self.find_task(task)?;
+        if !self.supports(task, pattern)? {
+            let supported: Vec<String> = self.all_patterns().iter().map(|p| p.number().to_string()).collect();
+            anyhow::bail!(
+                "{} ({}) does not support design pattern {} (supported: {})",
+                self.name,
+                description.name,
+                pattern.number(),
+                supported.join(", ")
+            );
+        }
+        anyhow::ensure!(arenas > 0, "an app needs at least one arena");
+        Ok((self.build)(&AppRequest { task: description.name, arenas, seed, pattern }))
+    }
+}
+
+/// The robots a program knows. The application registers the built-in ones; a program (or a
+/// test) can register its own beside them.
+#[derive(Clone, Debug, Default)]
+pub struct Registry {
+    robots: Vec<RobotDescription>,
+}
+
+impl Registry {
+    /// Adds a robot; a name already taken is an error.
+    pub fn register(&mut self, robot: RobotDescription) -> anyhow::Result<()> {
+        anyhow::ensure!(self.robots.iter().all(|r| r.name != robot.name), "a robot named '{}' is already registered", robot.name);
+        anyhow::ensure!(!robot.tasks.is_empty(), "robot '{}' has no task", robot.name);
+        self.robots.push(robot);
+        Ok(())
+    }
+
+    /// Registered robots, in registration order.
+    pub fn robots(&self) -> &[RobotDescription] {
+        &self.robots
+    }
+
+    /// Looks a robot up by name; the error lists the known ones.
+    pub fn find(&self, name: &str) -> anyhow::Result<&RobotDescription> {
+        self.robots.iter().find(|r| r.name == name).ok_or_else(|| {
+            let known: Vec<&str> = self.robots.iter().map(|r| r.name).collect();
+            anyhow::anyhow!("unknown robot '{name}'; known robots: {}", known.join(", "))
+        })
+    }
+}
+
+/// The headless app every robot builds on: Bevy's minimal plugins, the simulation with the
+/// robot's timing (the Supervisor only outside pattern 3, where the lab operator is allowed
+/// instead), the request's arenas, and the robot's own plugin.
+pub fn headless_app(settings: SimSettings, request: &AppRequest, robot: impl Plugin) -> App {
+    let server = request.pattern == DesignPattern::Server;
+    let mut app = App::new();
+    app.add_plugins(MinimalPlugins)
+        .add_plugins(SimPlugin { settings, supervisor: !server })
+        .insert_resource(ArenaConfig { count: request.arenas, seed: request.seed });
+    if server {
+        app.insert_resource(OperatorAccess);
+    }
+    app.add_plugins(robot);
+    app
+}

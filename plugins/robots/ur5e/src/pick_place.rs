@@ -1,0 +1,129 @@
+//! Pick-and-place: move the part from fixture A to fixture B with the vacuum gripper. The cell
+//! program is a sequence of tool targets (approach, descend, lift, transfer, align, lower,
+//! retract)
+//! with the suction switched on and off between them, as a UR program of MoveL waypoints and
+//! digital outputs; the trained reach policy moves the arm from each waypoint to the next.
+//! It is the reach task with another command term: the same observation and action, so a
+//! reach model runs it unchanged.
+//!
+//! Episodes start near home with the part anywhere its pocket lets it sit.
+//! The episode ends when the program is done (success if the part then stands in fixture B's
+//! pocket), when the part was not seized, in a protective stop (which halts the program), or
+//! after [`EPISODE_STEPS`].
+
+use bevy::prelude::*;
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use twinbots_task::task::Resetting;
+use twinbots_task::{Episode, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
+use twinbots_sim::rapier::math::Pose;
+use twinbots_sim::{SimSettings, Supervisor, VacuumGripper};
+
+use crate::arm::{ACTION_DIM, ActionHistory};
+use crate::cell::{CellParts, FIXTURE_A, FIXTURE_B, POCKET_PLAY, base_pose, part_seat};
+use crate::metrics::TwinMeter;
+use crate::reach::{motion_costs, observations, sample_start};
+use crate::state::CellState;
+pub use crate::program::{ALIGN_HEIGHT, CLEARANCE, DROP_HEIGHT, GRIP_GAP, Program, SUCTION_STEPS, Stage, waypoint};
+
+pub const EPISODE_STEPS: u32 = 400;
+/// A placed part's centre lies within the pocket's play of its centre (m)…
+pub const PLACE_TOLERANCE: f32 = POCKET_PLAY + 0.001;
+/// …and it stands upright within this angle (rad).
+pub const UPRIGHT_TOLERANCE: f32 = 0.2;
+
+/// Runs each arena's program on the controller's reading: the next tool target and whether the
+/// suction should be on (applied by [`apply_suction`] at the next actuation).
+pub fn run_program(grippers: Query<&VacuumGripper>, mut arenas: Query<(&CellParts, &mut CellState)>) {
+    for (parts, mut state) in &mut arenas {
+        let Ok(gripper) = grippers.get(parts.gripper) else { continue };
+        // A protective stop halts the program, as it does a UR's.
+        if state.safety.stopped() {
+            continue;
+        }
+        let state = &mut *state;
+        state.suction = state.program.step(&state.arm, gripper.held().is_some());
+        state.target = waypoint(state.program.stage);
+    }
+}
+
+/// The suction's digital output, as the program last asked.
+pub fn apply_suction(mut grippers: Query<&mut VacuumGripper>, arenas: Query<(&CellParts, &CellState)>) {
+    for (parts, state) in &arenas {
+        if let Ok(mut gripper) = grippers.get_mut(parts.gripper) {
+            gripper.on = state.suction;
+        }
+    }
+}
+
+/// How far (m) the part may sit off its pocket's centre at the start. With the reach's 1 cm,
+/// the part then never lands more than the pocket's play of its centre.
+pub const PART_PLAY: f32 = 0.005;
+
+/// Pick-and-place as a task: the reach's observation and motion costs (the same spaces, so a
+/// reach model runs it), over when the program is, at most [`EPISODE_STEPS`]. Its success is
+/// judged by the evaluator ([`report`]), not by a term.
+pub fn pick_place_task() -> TaskDefinition<CellState> {
+    TaskDefinition {
+        name: "ur5e-pick-place".into(),
+        terms: TaskTerms {
+            observations: observations(),
+            rewards: motion_costs(),
+            terminations: vec![
+                TerminationTerm::new("program_over", |s: &CellState| s.program.is_over()),
+                TerminationTerm::new("protective_stop", |s: &CellState| s.safety.stopped()),
+            ],
+            time_limit: Some(EPISODE_STEPS),
+            start_events: vec![StartEvent::new("new_program", new_program)],
+        },
+        action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
+        solved: None,
+    }
+}
+
+/// Start event: the program starts over, the arm near home and the part anywhere its pocket
+/// in fixture A lets it sit, at any yaw.
+fn new_program(s: &mut CellState, rng: &mut ChaCha8Rng) {
+    s.program = Program::default();
+    s.target = waypoint(s.program.stage);
+    s.suction = false;
+    s.actions = ActionHistory::default();
+    s.start_pose = sample_start(rng);
+    s.part_offset = Vec3::new(rng.random_range(-PART_PLAY..=PART_PLAY), rng.random_range(-PART_PLAY..=PART_PLAY), 0.0);
+    s.part_yaw = rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI);
+}
+
+/// Patterns 1 and 2: the Supervisor seats the part where the start drew it.
+pub fn place_part(mut supervisor: Supervisor, arenas: Query<(&CellParts, &CellState), With<Resetting>>) {
+    for (parts, state) in &arenas {
+        let seat = Pose::from_parts(part_seat(FIXTURE_A) + state.part_offset, Quat::from_rotation_z(state.part_yaw));
+        supervisor.set_link_pose(parts.part, base_pose() * seat);
+    }
+}
+
+/// Whether the part stands in fixture B's pocket: judged by the evaluator, who may look.
+fn part_placed(supervisor: &Supervisor, parts: &CellParts) -> bool {
+    let Some(part) = supervisor.link_state(parts.part) else { return false };
+    let pose = base_pose().inverse() * part.pose;
+    let seat = part_seat(FIXTURE_B);
+    let off_centre = (pose.translation - seat).truncate().length();
+    off_centre < PLACE_TOLERANCE
+        && (pose.translation.z - seat.z).abs() < 0.005
+        && (pose.rotation * Vec3::Z).angle_between(Vec3::Z) < UPRIGHT_TOLERANCE
+}
+
+/// The figures of a program that ended: success (the part placed), cycle time, the meter's.
+pub fn report(
+    settings: Res<SimSettings>,
+    supervisor: Supervisor,
+    mut arenas: Query<(&CellParts, &CellState, &TwinMeter, &mut Episode)>,
+) {
+    for (parts, state, meter, mut e) in &mut arenas {
+        if e.terminated || e.truncated {
+            let placed = state.program.stage == Stage::Done && part_placed(&supervisor, parts);
+            e.success = Some(placed);
+            let cycle_time = placed.then(|| (e.length + 1) as f32 * settings.control_dt());
+            meter.report(&mut e, cycle_time);
+        }
+    }
+}
