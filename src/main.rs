@@ -14,6 +14,8 @@ struct Args {
 
 #[derive(Subcommand)]
 enum Command {
+    /// List the learning algorithms (`--algo` and the settings' `[<algo>]` tables name them).
+    Algos,
     /// List the registered robots.
     Robots {
         /// Print each robot's tasks as the RobotServer's `welcome` describes them (spaces with
@@ -38,9 +40,9 @@ enum Command {
         /// radio, 3 RobotServer + Communicator.
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=3))]
         pattern: Option<u8>,
-        /// The learner: ppo (default) or sac (continuous actions, patterns 1 and 2).
-        #[arg(long, value_enum)]
-        algo: Option<twinbots::settings::Algo>,
+        /// The learner, by name (`twinbots algos` lists them); default: the robot's (ppo).
+        #[arg(long, value_parser = parse_algo)]
+        algo: Option<String>,
         /// A TOML file with settings (timesteps, arenas, seed, checkpoint_every, eval_every,
         /// eval_episodes, algo, [ppo] / [sac] hyperparameters); flags override it.
         #[arg(long)]
@@ -228,6 +230,11 @@ enum BenchKind {
     Capture,
 }
 
+/// `--algo`'s value: a name of the algorithm table, or an error listing them.
+fn parse_algo(name: &str) -> Result<String, String> {
+    twinbots_learn::algos::find(name).map(|a| a.name.to_string()).map_err(|e| e.to_string())
+}
+
 fn main() {
     // Before any other thread starts: the pools for arenas and candle, sized for this machine.
     twinbots_learn::threads::configure();
@@ -240,6 +247,11 @@ fn main() {
 
 fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
+        Command::Algos => {
+            for a in twinbots_learn::ALGOS {
+                println!("{:<6} {}", a.name, a.summary);
+            }
+        }
         Command::Robots { json: false } => cli::robots::print(),
         Command::Robots { json: true } => cli::robots::print_json()?,
         Command::Train { resume: Some(run), print_config: true, .. } => {

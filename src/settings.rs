@@ -2,12 +2,15 @@
 //! robot's defaults, a `--config` file and flags, and how they are checked. Shared by the CLI
 //! and the Python extension (whose RLlib runs write the same `config.toml`).
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
-use twinbots_task::randomization::Randomization;
 use twinbots_api::DesignPattern;
-use twinbots_learn::{PpoConfig, RunDir, SacConfig};
+use twinbots_learn::algos;
+use twinbots_learn::learner::{Algorithm, config_from};
+use twinbots_learn::RunDir;
+use twinbots_task::randomization::Randomization;
 
 use crate::registry::RobotEntry;
 
@@ -16,9 +19,11 @@ use crate::registry::RobotEntry;
 pub const PERIODIC_EVAL_SEED_OFFSET: u64 = 1_000_003;
 pub const FINAL_EVAL_SEED_OFFSET: u64 = 2_000_003;
 
+/// The plain settings, as a config file names them (the algorithms' tables come on top).
+const KEYS: &str = "timesteps, arenas, seed, pattern, checkpoint_every, eval_every, eval_episodes, algo, [randomization]";
+
 /// Everything a run is made of; written to `config.toml`, read by `--config` and `--resume`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct TrainSettings {
     pub robot: String,
     pub timesteps: u64,
@@ -34,39 +39,25 @@ pub struct TrainSettings {
     /// always evaluated into `eval.json`.
     pub eval_every: usize,
     pub eval_episodes: usize,
-    /// The learner: PPO (on-policy, every pattern) or SAC (off-policy, continuous actions,
-    /// patterns 1 and 2). Runs written before SAC existed are PPO runs.
-    #[serde(default)]
-    pub algo: Algo,
-    pub ppo: PpoConfig,
-    #[serde(default)]
-    pub sac: SacConfig,
+    /// The learner: a name of `twinbots_learn::algos::ALGOS` (`twinbots algos` lists them).
+    /// Runs written before there was a choice are PPO runs.
+    #[serde(default = "first_algorithm")]
+    pub algo: String,
     /// Domain randomization (patterns 1 and 2): see `twinbots_task::randomization`.
     #[serde(default)]
     pub randomization: Randomization,
+    /// The algorithms' hyperparameters, each its `[<algo>]` table: the run's own in full, and
+    /// any other a config file named (checked, and kept for a later run).
+    #[serde(flatten)]
+    pub hyperparams: BTreeMap<String, toml::Value>,
 }
 
-/// The learning algorithm of a run.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Algo {
-    #[default]
-    Ppo,
-    Sac,
-}
-
-impl Algo {
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Ppo => "ppo",
-            Self::Sac => "sac",
-        }
-    }
+fn first_algorithm() -> String {
+    algos::ALGOS[0].name.into()
 }
 
 /// What a `--config` file may set: any subset of the settings but the robot.
 #[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ConfigFile {
     pub timesteps: Option<u64>,
     pub arenas: Option<usize>,
@@ -75,19 +66,35 @@ pub struct ConfigFile {
     pub checkpoint_every: Option<usize>,
     pub eval_every: Option<usize>,
     pub eval_episodes: Option<usize>,
-    pub algo: Option<Algo>,
-    /// Only the keys given: each replaces that key of the robot's tuned settings.
-    pub ppo: Option<toml::Table>,
-    /// Likewise for SAC.
-    pub sac: Option<toml::Table>,
+    pub algo: Option<String>,
     pub randomization: Option<Randomization>,
+    /// `[<algo>]` tables, only the keys given: each replaces that key of the robot's tuned
+    /// settings (and of the algorithm's defaults).
+    #[serde(flatten)]
+    pub hyperparams: BTreeMap<String, toml::Value>,
+}
+
+/// `value` as the table `[name]` of a known algorithm; anything else is an error naming the key.
+fn algorithm_table<'v>(name: &str, value: &'v toml::Value) -> anyhow::Result<(&'static Algorithm, &'v toml::Table)> {
+    let algorithm = algos::find(name).map_err(|_| {
+        anyhow::anyhow!("unknown field `{name}`: a config file holds {KEYS} and the tables [{}]", algos::names().join("], ["))
+    })?;
+    let table = value.as_table().ok_or_else(|| anyhow::anyhow!("{name} = {value}: must be a table ([{name}] and its keys)"))?;
+    Ok((algorithm, table))
 }
 
 impl ConfigFile {
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| anyhow::anyhow!("{}: cannot read config: {e}", path.display()))?;
-        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        Self::parse(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    /// A config file's text. Read as TOML first, so a value TOML cannot hold is reported at its
+    /// line (the algorithms' tables are kept whole, which loses the place in serde's error).
+    pub fn parse(text: &str) -> anyhow::Result<Self> {
+        let table: toml::Table = toml::from_str(text)?;
+        Ok(table.try_into()?)
     }
 }
 
@@ -108,7 +115,8 @@ impl TrainSettings {
     }
 
     /// A clear error naming the first setting outside its range, before anything runs: counts
-    /// of at least one, the PPO settings (`PpoConfig::validate`) and the randomization ranges.
+    /// of at least one, every algorithm table (its `Algorithm::config`) and the randomization
+    /// ranges.
     /// A minibatch larger than a rollout is allowed: it takes the whole rollout, as in SB3.
     pub fn validate(&self) -> anyhow::Result<()> {
         for (key, value) in [("timesteps", self.timesteps), ("arenas", self.arenas as u64), ("checkpoint_every", self.checkpoint_every as u64), ("eval_episodes", self.eval_episodes as u64)] {
@@ -116,22 +124,21 @@ impl TrainSettings {
         }
         anyhow::ensure!(self.arenas <= 4096, "arenas = {}: must be at most 4096", self.arenas);
         anyhow::ensure!(self.eval_episodes <= 100_000, "eval_episodes = {}: must be at most 100000", self.eval_episodes);
-        if self.algo == Algo::Sac {
+        let algorithm = algos::find(&self.algo).map_err(|e| anyhow::anyhow!("algo = {:?}: {e}", self.algo))?;
+        if !algorithm.serves {
+            let serving: Vec<&str> = algos::ALGOS.iter().filter(|a| a.serves).map(|a| a.name).collect();
             anyhow::ensure!(
                 self.design_pattern()? != DesignPattern::Server,
-                "algo = sac: design pattern 3 (the RobotServer) trains with PPO only; use pattern 1 or 2"
+                "algo = {}: design pattern 3 (the RobotServer) trains with {} only; use pattern 1 or 2",
+                self.algo, serving.join(", ")
             );
         }
-        // Both tables are checked whichever learner runs: a typo is never kept silently.
-        self.sac.validate()?;
-        let rollout = self.ppo.n_steps.saturating_mul(self.arenas);
-        anyhow::ensure!(
-            rollout <= twinbots_learn::ppo::MAX_ROLLOUT,
-            "ppo.n_steps × arenas = {} × {} = {rollout}: a rollout must hold at most {} samples",
-            self.ppo.n_steps, self.arenas, twinbots_learn::ppo::MAX_ROLLOUT
-        );
+        // Every table is checked, whichever learner runs: a typo is never kept silently.
+        for (name, value) in &self.hyperparams {
+            let (algorithm, table) = algorithm_table(name, value)?;
+            (algorithm.config)(table, self.arenas)?;
+        }
         self.design_pattern()?;
-        self.ppo.validate()?;
         self.randomization.validate()?;
         Ok(())
     }
@@ -161,13 +168,34 @@ impl TrainSettings {
         self.seed.wrapping_add(FINAL_EVAL_SEED_OFFSET)
     }
 
-    /// The robot's defaults, then the config file, then command-line flags, key by key (a
-    /// `[ppo]` or `[sac]` table replaces only the keys it names); the result is validated. With
-    /// `algo = sac` the robot's SAC defaults (arenas, budget, evaluation interval) come first.
+    /// The run's algorithm.
+    pub fn algorithm(&self) -> anyhow::Result<&'static Algorithm> {
+        algos::find(&self.algo)
+    }
+
+    /// The `[<name>]` table in full (the algorithm's defaults where the settings name none).
+    pub fn table_of(&self, name: &str) -> anyhow::Result<toml::Table> {
+        let algorithm = algos::find(name)?;
+        let keys = match self.hyperparams.get(name) {
+            Some(value) => algorithm_table(name, value)?.1.clone(),
+            None => toml::Table::new(),
+        };
+        (algorithm.config)(&keys, self.arenas)
+    }
+
+    /// The `[<name>]` table as the algorithm's own config type (`PpoConfig`).
+    pub fn config_of<T: Serialize + serde::de::DeserializeOwned + Default>(&self, name: &str) -> anyhow::Result<T> {
+        config_from(&self.table_of(name)?, name)
+    }
+
+    /// The robot's defaults, then the config file, then command-line flags, key by key (an
+    /// `[<algo>]` table replaces only the keys it names, over the robot's tuning of that
+    /// algorithm); the result is validated. The robot's defaults for the chosen algorithm
+    /// (arenas, budget, evaluation interval) come first.
     pub fn resolve(entry: &RobotEntry, file: ConfigFile, flags: ConfigFile) -> anyhow::Result<Self> {
-        let algo = flags.algo.or(file.algo).unwrap_or_default();
-        let chosen = entry.defaults.of(algo.name());
-        let tuned = |e: anyhow::Error| anyhow::anyhow!("robot {}'s training defaults: {e}", entry.name);
+        let name = flags.algo.clone().or(file.algo.clone()).unwrap_or_else(|| entry.defaults.algo.to_string());
+        let algorithm = algos::find(&name).map_err(|e| anyhow::anyhow!("algo = {name:?}: {e}"))?;
+        let chosen = entry.defaults.of(algorithm.name);
         let mut s = Self {
             robot: entry.name.to_string(),
             timesteps: chosen.timesteps,
@@ -177,19 +205,24 @@ impl TrainSettings {
             checkpoint_every: 10,
             eval_every: chosen.eval_every,
             eval_episodes: entry.defaults.eval_episodes,
-            algo,
-            ppo: entry.defaults.of("ppo").config().map_err(tuned)?,
-            sac: entry.defaults.of("sac").config().map_err(tuned)?,
+            algo: algorithm.name.to_string(),
             randomization: Randomization::default(),
+            hyperparams: BTreeMap::new(),
         };
-        if algo == Algo::Sac {
+        if algorithm.continuous_only {
             let actions = entry.task().action_space;
             anyhow::ensure!(
                 matches!(actions, twinbots_api::Space::Box { .. }),
-                "algo = sac: {}'s actions are {actions}; SAC needs continuous (Box) actions: use algo = ppo",
-                entry.name
+                "algo = {}: {}'s actions are {actions}; {} needs continuous (Box) actions: use algo = {}",
+                algorithm.name, entry.name, algorithm.name.to_uppercase(), algos::ALGOS[0].name
             );
         }
+        // Each table named anywhere starts from the robot's tuning of that algorithm.
+        let tuned = |algorithm: &Algorithm| -> anyhow::Result<toml::Table> {
+            toml::from_str(entry.defaults.of(algorithm.name).hyperparams)
+                .map_err(|e| anyhow::anyhow!("robot {}'s {} hyperparameters do not read: {e}", entry.name, algorithm.name))
+        };
+        let mut tables: BTreeMap<String, toml::Table> = BTreeMap::from([(algorithm.name.to_string(), tuned(algorithm)?)]);
         for layer in [file, flags] {
             s.timesteps = layer.timesteps.unwrap_or(s.timesteps);
             s.arenas = layer.arenas.unwrap_or(s.arenas);
@@ -198,41 +231,31 @@ impl TrainSettings {
             s.checkpoint_every = layer.checkpoint_every.unwrap_or(s.checkpoint_every);
             s.eval_every = layer.eval_every.unwrap_or(s.eval_every);
             s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
-            if let Some(keys) = layer.ppo {
-                s.ppo = overlay(&s.ppo, keys, "ppo")?;
-            }
-            if let Some(keys) = layer.sac {
-                s.sac = overlay(&s.sac, keys, "sac")?;
-            }
             s.randomization = layer.randomization.unwrap_or(s.randomization);
+            for (name, value) in &layer.hyperparams {
+                let (algorithm, keys) = algorithm_table(name, value)?;
+                let table = match tables.remove(name) {
+                    Some(table) => table,
+                    None => tuned(algorithm)?,
+                };
+                let mut merged = table;
+                merged.extend(keys.clone());
+                tables.insert(name.clone(), merged);
+            }
+        }
+        for (name, keys) in tables {
+            let algorithm = algos::find(&name)?;
+            s.hyperparams.insert(name, toml::Value::Table((algorithm.config)(&keys, s.arenas)?));
         }
         s.validate()?;
         Ok(s)
     }
-
 }
-
-/// `base` with the keys of `keys` replaced; an unknown key is an error naming it (in the
-/// table `table`).
-fn overlay<T: Serialize + serde::de::DeserializeOwned>(base: &T, keys: toml::Table, table: &str) -> anyhow::Result<T> {
-    let base = toml::Table::try_from(base)?;
-    // Key by key first, so an error names the key (serde's message for a wrong type does not).
-    for (key, value) in &keys {
-        let mut one = base.clone();
-        one.insert(key.clone(), value.clone());
-        if let Err(e) = one.try_into::<T>() {
-            anyhow::bail!("{table}.{key} = {value}: {}", e.message());
-        }
-    }
-    let mut merged = base;
-    merged.extend(keys);
-    merged.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("[{table}]: {}", e.message()))
-}
-
 
 #[cfg(test)]
 mod tests {
     use rand::{Rng, SeedableRng};
+    use twinbots_learn::SacConfig;
 
     use super::*;
 
@@ -242,13 +265,14 @@ mod tests {
         let file: ConfigFile = toml::from_str("algo = \"sac\"\n[sac]\nbatch_size = 128\n").unwrap();
         let s = TrainSettings::resolve(&ur5e, file, ConfigFile::default()).unwrap();
         let defaults = ur5e.defaults.of("sac");
-        assert_eq!((s.algo, s.arenas, s.timesteps, s.eval_every), (Algo::Sac, defaults.arenas, defaults.timesteps, defaults.eval_every));
-        assert_eq!(s.sac, SacConfig { batch_size: 128, ..defaults.config().unwrap() }, "a [sac] key replaced more than itself");
-        let flags = ConfigFile { algo: Some(Algo::Ppo), ..Default::default() };
+        assert_eq!((s.algo.as_str(), s.arenas, s.timesteps, s.eval_every), ("sac", defaults.arenas, defaults.timesteps, defaults.eval_every));
+        let tuned: SacConfig = defaults.config().unwrap();
+        assert_eq!(s.config_of::<SacConfig>("sac").unwrap(), SacConfig { batch_size: 128, ..tuned }, "a [sac] key replaced more than itself");
+        let flags = ConfigFile { algo: Some("ppo".into()), ..Default::default() };
         let file: ConfigFile = toml::from_str("algo = \"sac\"\n").unwrap();
-        assert_eq!(TrainSettings::resolve(&ur5e, file, flags).unwrap().algo, Algo::Ppo, "the flag did not win");
+        assert_eq!(TrainSettings::resolve(&ur5e, file, flags).unwrap().algo, "ppo", "the flag did not win");
 
-        let sac = || ConfigFile { algo: Some(Algo::Sac), ..Default::default() };
+        let sac = || ConfigFile { algo: Some("sac".into()), ..Default::default() };
         let cartpole = crate::registry::find("cartpole").unwrap();
         let err = TrainSettings::resolve(&cartpole, sac(), ConfigFile::default()).unwrap_err().to_string();
         assert!(err.contains("algo = sac") && err.contains("Box"), "{err}");
@@ -303,8 +327,7 @@ mod tests {
                     text.push('\n');
                 }
             }
-            let outcome = toml::from_str::<ConfigFile>(&text)
-                .map_err(anyhow::Error::from)
+            let outcome = ConfigFile::parse(&text)
                 .and_then(|file| TrainSettings::resolve(&entry, file, ConfigFile::default()));
             match outcome {
                 Ok(settings) => {

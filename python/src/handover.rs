@@ -13,7 +13,7 @@ use twinbots_learn::callbacks::draw_learning_curve;
 use twinbots_learn::normalize::RunningMeanStd;
 use twinbots::settings::{ConfigFile, TrainSettings};
 use twinbots_api::Measure;
-use twinbots_learn::{Ppo, PpoConfig, RunDir};
+use twinbots_learn::{Ppo, PpoConfig, RunDir, ppo};
 
 use crate::convert::{runtime_error, space_dict, value_error};
 
@@ -27,10 +27,10 @@ pub fn training_defaults<'py>(py: Python<'py>, robot: &str, task: Option<&str>) 
     let spec = (entry.find_task(task).map_err(value_error)?.spec)();
     let d = PyDict::new(py);
     d.set_item("action_space", space_dict(py, &spec.action_space)?)?;
-    let defaults = entry.defaults.of("ppo");
+    let defaults = entry.defaults.of(ppo::NAME);
     let config: PpoConfig = defaults.config().map_err(runtime_error)?;
     let ppo = serde_json::to_string(&config).map_err(|e| runtime_error(e.into()))?;
-    d.set_item("ppo", py.import("json")?.call_method1("loads", (ppo,))?)?;
+    d.set_item(ppo::NAME, py.import("json")?.call_method1("loads", (ppo,))?)?;
     d.set_item("arenas", defaults.arenas)?;
     d.set_item("timesteps", defaults.timesteps)?;
     match entry.task().solved {
@@ -57,12 +57,12 @@ pub fn create_run(run_dir: PathBuf, robot: &str, seed: u64, arenas: usize, times
         return Err(value_error(anyhow::anyhow!("{} already holds a run", run_dir.display())));
     }
     // RLlib's minibatch is at most its train batch (n_steps × arenas); so is the run's.
-    let tuned: PpoConfig = entry.defaults.of("ppo").config().map_err(runtime_error)?;
+    let tuned: PpoConfig = entry.defaults.of(ppo::NAME).config().map_err(runtime_error)?;
     let batch_size = tuned.batch_size.min(tuned.n_steps * arenas.max(1));
     let mut ppo = toml::Table::new();
     ppo.insert("batch_size".into(), (batch_size as i64).into());
     // RLlib runs make no periodic twinbots evaluations.
-    let flags = ConfigFile { timesteps: Some(timesteps), arenas: Some(arenas), seed: Some(seed), pattern: Some(1), eval_every: Some(0), ppo: Some(ppo), ..Default::default() };
+    let flags = ConfigFile { timesteps: Some(timesteps), arenas: Some(arenas), seed: Some(seed), pattern: Some(1), eval_every: Some(0), hyperparams: [(ppo::NAME.to_string(), toml::Value::Table(ppo))].into(), ..Default::default() };
     let settings = TrainSettings::resolve(&entry, ConfigFile::default(), flags).map_err(value_error)?;
     run.create().map_err(runtime_error)?;
     run.write_config(&settings).map_err(runtime_error)
@@ -111,7 +111,7 @@ pub fn save_model(
 ) -> PyResult<()> {
     let entry = twinbots::registry::find(robot).map_err(value_error)?;
     let spec = (entry.find_task(task).map_err(value_error)?.spec)();
-    let mut config: PpoConfig = entry.defaults.of("ppo").config().map_err(runtime_error)?;
+    let mut config: PpoConfig = entry.defaults.of(ppo::NAME).config().map_err(runtime_error)?;
     config.normalize_observations = obs_mean.is_some();
     let mut model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), seed).map_err(runtime_error)?;
     let expected: Vec<String> = model.policy.named_vars().into_iter().map(|(n, _)| n).collect();

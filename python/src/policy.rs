@@ -1,51 +1,29 @@
 //! `Policy`: a model that `twinbots train` wrote, for acting from Python exactly as Rust does.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use twinbots_learn::Ppo;
+use twinbots_learn::{Learner, algos};
 
 use crate::convert::{no_panic, runtime_error, space_dict, value_error};
 
 #[pyclass(unsendable, module = "twinbots._native")]
 pub struct Policy {
-    model: Ppo,
+    model: Box<dyn Learner>,
     /// The directory the weights came from.
     dir: PathBuf,
-}
-
-/// A run directory's final model (`model/`), else its newest checkpoint, else `path` itself if
-/// it is a model directory; the same choice as `twinbots eval`.
-fn model_dir(path: &Path) -> anyhow::Result<PathBuf> {
-    if path.join("model").join("model.json").is_file() {
-        return Ok(path.join("model"));
-    }
-    let newest_checkpoint = std::fs::read_dir(path.join("checkpoints")).ok().and_then(|entries| {
-        let mut dirs: Vec<PathBuf> = entries
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.join("model.json").is_file() && p.join("model.safetensors").is_file())
-            .collect();
-        dirs.sort();
-        dirs.pop()
-    });
-    if let Some(dir) = newest_checkpoint {
-        return Ok(dir);
-    }
-    if path.join("model.json").is_file() {
-        return Ok(path.to_path_buf());
-    }
-    anyhow::bail!("{}: no model (expected a run directory of `twinbots train`, with model/ or checkpoints/)", path.display())
 }
 
 #[pymethods]
 impl Policy {
     #[new]
     fn new(path: PathBuf) -> PyResult<Self> {
-        let dir = model_dir(&path).map_err(value_error)?;
-        let model = no_panic("loading the model", || Ok(Ppo::load(&dir)?)).map_err(runtime_error)?;
+        // The same choice as `twinbots eval`: the final model, else the newest checkpoint that
+        // loads (a damaged one is passed over), of whichever algorithm saved it.
+        let (dir, model) = no_panic("loading the model", || algos::load_path(&path)).map_err(value_error)?;
         Ok(Self { model, dir })
     }
 
@@ -54,14 +32,20 @@ impl Policy {
         self.dir.clone()
     }
 
+    /// The algorithm that trained it, as its model file says (`"PPO"`, `"SAC"`, `"TD3"`).
+    #[getter]
+    fn algorithm(&self) -> &'static str {
+        self.model.algorithm()
+    }
+
     #[getter]
     fn observation_space<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        space_dict(py, &self.model.observation_space)
+        space_dict(py, &self.model.observation_space())
     }
 
     #[getter]
     fn action_space<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        space_dict(py, &self.model.action_space)
+        space_dict(py, &self.model.action_space())
     }
 
     /// Actions for a batch of observations `(batch, obs_dim)` (float32), as `(batch,
@@ -70,7 +54,7 @@ impl Policy {
     #[pyo3(signature = (obs, deterministic=true))]
     fn predict<'py>(&mut self, py: Python<'py>, obs: PyReadonlyArray2<'py, f32>, deterministic: bool) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (rows, cols) = (obs.shape()[0], obs.shape()[1]);
-        let dim = self.model.observation_space.dim();
+        let dim = self.model.observation_space().dim();
         if cols != dim {
             return Err(value_error(anyhow::anyhow!("observations have {cols} values, the model expects {dim}")));
         }
@@ -80,7 +64,7 @@ impl Policy {
         }
         let model = &mut self.model;
         let actions = no_panic("predict", || {
-            if deterministic { model.predict_deterministic(&flat) } else { model.predict(&flat, false) }
+            model.predict(&flat, deterministic)
         })
         .map_err(runtime_error)?;
         let action_dim = actions.len() / rows.max(1);

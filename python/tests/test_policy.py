@@ -68,3 +68,31 @@ def test_predict_single_and_batch(run_dir):
 def test_missing_model_is_a_value_error(tmp_path):
     with pytest.raises(ValueError, match="no model"):
         twinbots.load_policy(tmp_path)
+
+
+def test_a_sac_run_loads_and_a_damaged_newest_checkpoint_is_passed_over_as_eval_does(tmp_path):
+    """Any algorithm of the table loads; the checkpoint chosen is the one `twinbots eval` takes."""
+    exe = cli()
+    if exe is None:
+        pytest.skip("no twinbots CLI (set TWINBOTS_BIN) to train a model with")
+    config = tmp_path / "sac.toml"
+    config.write_text("eval_episodes = 2\ncheckpoint_every = 1\n[sac]\nlearning_starts = 100\nlog_interval = 100\nbatch_size = 32\n")
+    run = tmp_path / "run"
+    subprocess.run([exe, "train", "ur5e", "--algo", "sac", "--timesteps", "300", "--arenas", "1", "--config", str(config), "--out", str(run)],
+                   check=True, capture_output=True)
+    checkpoints = sorted((run / "checkpoints").iterdir())
+    assert len(checkpoints) >= 2, checkpoints
+    # Without its final model, the run's newest checkpoint is next; damage it.
+    shutil.rmtree(run / "model")
+    (checkpoints[-1] / "model.safetensors").write_bytes(b"not a tensor file")
+    policy = twinbots.load_policy(run)
+    assert policy.algorithm == "SAC"
+    assert Path(policy.path) == checkpoints[-2]
+    assert policy.action_space == twinbots.make("ur5e").action_space
+    report = subprocess.run([exe, "eval", str(run), "--episodes", "1", "--arenas", "1"], capture_output=True, text=True)
+    assert report.returncode == 0, report.stderr
+    assert checkpoints[-1].name in report.stderr and "unusable" in report.stderr
+    obs = np.zeros((3, policy.observation_space.shape[0]), dtype=np.float32)
+    first, _ = policy.predict(obs, deterministic=True)
+    again, _ = policy.predict(obs, deterministic=True)
+    assert first.shape == (3, policy.action_space.shape[0]) and np.array_equal(first, again)

@@ -11,13 +11,15 @@ from ._spaces import to_space
 
 
 class Policy:
-    """A trained PPO policy (its observation normaliser included). `predict` follows
+    """A trained policy of any algorithm (`twinbots algos`; its observation normaliser
+    included); `algorithm` says which trained it. `predict` follows
     Stable-Baselines3: `action, state = policy.predict(obs, deterministic=True)`, `state` always
     None; `obs` is one observation or a batch."""
 
     def __init__(self, path: str | os.PathLike):
         self._model = _native.Policy(os.fspath(path))
         self.path = self._model.path
+        self.algorithm = self._model.algorithm
         self.observation_space = to_space(self._model.observation_space)
         self.action_space = to_space(self._model.action_space)
 
@@ -35,5 +37,6 @@ class Policy:
 
 def load_policy(run_dir: str | os.PathLike) -> Policy:
     """The model of a `twinbots train` run directory (its final model, else its newest
-    checkpoint), or of a model directory itself."""
+    checkpoint that loads: a damaged one is passed over, as `twinbots eval` does), or of a model
+    directory itself, whichever algorithm trained it."""
     return Policy(run_dir)

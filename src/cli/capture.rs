@@ -68,7 +68,7 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.every > 0, "--every must be at least 1");
     let entry = registry::find(&args.robot)?;
     let view = camera(&entry, &args.camera)?;
-    let model = args.model.as_deref().map(|run| RunDir::new(run).load_agent()).transpose()?;
+    let model = args.model.as_deref().map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
     let mut env = AppVecEnv::new(entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;

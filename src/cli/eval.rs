@@ -17,7 +17,7 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
     let entry = registry::find(&settings.robot)?;
-    let model = run_dir.load_agent()?;
+    let model = twinbots_learn::algos::load_run(&run_dir)?;
     let name = task.unwrap_or(entry.main_task().name);
     let seed = settings.final_eval_seed();
     let arenas = arenas.unwrap_or(settings.arenas);
@@ -34,7 +34,7 @@ pub fn record_episode(run: &Path, dir: &Path, size: (u32, u32), camera: &str, ta
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
     let entry = registry::find(&settings.robot)?;
-    let model = run_dir.load_agent()?;
+    let model = twinbots_learn::algos::load_run(&run_dir)?;
     let seed = settings.final_eval_seed();
     let mut env = AppVecEnv::new(entry.app(task, 1, seed, settings.in_process_pattern()?)?);
     model.check_spaces(env.observation_space(), env.action_space())?;

@@ -11,10 +11,11 @@ use std::time::{Duration, Instant};
 
 use twinbots_learn::run_dir::Summary;
 use twinbots_api::DesignPattern;
-use twinbots_learn::{Ppo, RunDir};
+use twinbots_learn::run_dir::EVAL;
+use twinbots_learn::{Ppo, PpoConfig, RunDir, evaluate_policy, ppo};
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
-use crate::cli::runs::TrainSettings;
+use crate::cli::runs::{TrainSettings, evaluation_env};
 use crate::registry;
 
 /// Test-only: set to make the learner panic in its first update, so tests can show that a
@@ -51,8 +52,8 @@ pub fn seconds(flag: &str, value: f64) -> anyhow::Result<Duration> {
 
 /// Runs a server until training ends. `settings.arenas` is the number of robots a rollout is
 /// sized for (rollout = n_steps × robots). The server trains with the same callbacks as
-/// `train` (periodic evaluation runs the policy in-process, under pattern 1); the final model
-/// is not evaluated here: `twinbots eval <run>` does that. A failure anywhere in the server
+/// `train` (periodic evaluation runs the policy in-process, under pattern 1), and evaluates the
+/// final model in-process into `eval.json` as `train` does. A failure anywhere in the server
 /// (learner error, panic in a server thread) returns the error: `main` exits 1 with it.
 pub fn serve(settings: TrainSettings, listen: SocketAddr, limits: ServerLimits, out: &Path) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
@@ -63,7 +64,10 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, limits: ServerLimits, 
     anyhow::ensure!(!run_dir.holds_run(), "{} already holds a run (choose another --out)", out.display());
     run_dir.create()?;
     run_dir.write_config(&settings)?;
-    let model = Ppo::new(settings.ppo.clone(), spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?;
+    // The RobotServer learns from robots' steps as they come: PPO's pieces (`settings.validate`
+    // refuses pattern 3 for an algorithm whose `serves` is false).
+    let config: PpoConfig = settings.config_of(ppo::NAME)?;
+    let model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?;
     host(settings, run_dir, model, listen, limits)
 }
 
@@ -97,7 +101,8 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
             panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
         });
     }
-    let mut server_settings = ServerSettings::new(&settings.robot, &spec, settings.ppo.n_steps * settings.arenas.max(1), settings.timesteps);
+    let n_steps = settings.config_of::<PpoConfig>(ppo::NAME)?.n_steps;
+    let mut server_settings = ServerSettings::new(&settings.robot, &spec, n_steps * settings.arenas.max(1), settings.timesteps);
     server_settings.limits = limits;
     let started = Instant::now();
     let server = RobotServer::start(listen, model, server_settings, Box::new(callbacks))?;
@@ -106,7 +111,12 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     let (model, end) = server.wait()?;
     let wall = started.elapsed().as_secs_f64();
     run_dir.save_model(&model)?;
-    run_dir.write_summary(&Summary::new(&settings.robot, 3, &model, &end, wall, None))?;
+    // The final model, evaluated in-process (pattern 1 runs the same policy) as `train` does.
+    let seed = settings.final_eval_seed();
+    let mut eval_env = evaluation_env(&entry, None, settings.arenas, settings.eval_episodes, seed, settings.in_process_pattern()?)?;
+    let evaluation = evaluate_policy(entry.main_task().name, &model, &mut eval_env, settings.eval_episodes, seed)?;
+    run_dir.write_json(EVAL, &evaluation)?;
+    run_dir.write_summary(&Summary::new(&settings.robot, 3, &model, &end, wall, Some(&evaluation)))?;
     println!("{end} in {wall:.1} s, mean of last 100 episodes {:.1}", model.mean_recent_score());
     println!("run directory: {}", out.display());
     // Give connected robots a moment to read their `done` before the process exits.

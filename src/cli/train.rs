@@ -18,7 +18,8 @@ use twinbots_api::DesignPattern;
 use twinbots_learn::{RunDir, TrainingEnd, evaluate_policy};
 use twinbots_task::{bridge, env};
 
-use crate::cli::learner::{Learner, Trained};
+use crate::cli::learner;
+use twinbots_learn::Learner;
 use crate::cli::runs::{TrainSettings, evaluation_env};
 use crate::registry;
 
@@ -87,16 +88,16 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
         return train_through_server(settings, run_dir.path(), true);
     }
     let spec = registry::find(&settings.robot)?.task();
-    let (checkpoint, model) = Learner::resume(&run_dir, &settings, &spec)?;
+    let (checkpoint, model) = learner::resume(&run_dir, &settings, &spec)?;
     run_dir.check_progress_columns()?;
     println!(
         "resuming {} from {} ({} steps, {} episodes)",
-        run_dir.path().display(), checkpoint.display(), model.agent().timesteps(), model.agent().episodes()
+        run_dir.path().display(), checkpoint.display(), model.timesteps(), model.episodes()
     );
     run(settings, run_dir, Some(model), view)
 }
 
-fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Learner>, view: bool) -> anyhow::Result<()> {
+fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Box<dyn Learner>>, view: bool) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let pattern = settings.design_pattern()?;
     anyhow::ensure!(
@@ -114,29 +115,29 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Learner>, view: b
     // The goal interface is the robot's description's (the app's spec is built from its terms).
     let spec = twinbots_api::TaskSpec { goal: entry.task().goal, ..spec };
     let resumed = model.is_some();
-    let learner = match model {
+    let mut learner = match model {
         Some(m) => {
-            m.agent().check_spaces(&spec.observation_space, &spec.action_space)?;
+            m.check_spaces(&spec.observation_space, &spec.action_space)?;
             m
         }
-        None => Learner::new(&settings, &spec)?,
+        None => learner::new(&settings, &spec)?,
     };
     let title = format!(
         "{} — {}, pattern {}, {} arenas, seed {}",
-        settings.robot, learner.agent().algorithm(), settings.pattern, settings.arenas, settings.seed
+        settings.robot, learner.algorithm(), settings.pattern, settings.arenas, settings.seed
     );
     let mut callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     if resumed {
         // Everything checked: the rows logged after the checkpoint are redone.
-        run_dir.truncate_after(learner.agent().timesteps())?;
+        run_dir.truncate_after(learner.timesteps())?;
     }
-    let remaining = settings.timesteps.saturating_sub(learner.agent().timesteps());
+    let remaining = settings.timesteps.saturating_sub(learner.timesteps());
 
-    // The learner's thread: PPO or SAC and its callbacks (logs, evaluations, checkpoints).
-    let trainer = std::thread::spawn(move || -> anyhow::Result<(Trained, TrainingEnd, f64)> {
+    // The learner's thread: the algorithm and its callbacks (logs, evaluations, checkpoints).
+    let trainer = std::thread::spawn(move || -> anyhow::Result<(Box<dyn Learner>, TrainingEnd, f64)> {
         let started = Instant::now();
-        let (trained, end) = learner.learn(&mut channel_env, remaining, &mut callbacks)?;
-        Ok((trained, end, started.elapsed().as_secs_f64()))
+        let end = learner.learn(&mut channel_env, remaining, &mut callbacks)?;
+        Ok((learner, end, started.elapsed().as_secs_f64()))
     });
 
     // The app's thread (this one): frames until the learner hangs up.
@@ -161,8 +162,9 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Learner>, view: b
         Ok(Err(e)) => return Err(e),
         Ok(Ok(())) => {}
     }
-    let (Trained { model, times }, end, wall) = learned?;
-    let model = model.as_ref();
+    let (learner, end, wall) = learned?;
+    let times = learner.times();
+    let model: &dyn twinbots_learn::Agent = learner.as_ref();
     run_dir.save_model(model)?;
     let seed = settings.final_eval_seed();
     let mut eval_env = evaluation_env(&entry, None, settings.arenas, settings.eval_episodes, seed, settings.in_process_pattern()?)?;

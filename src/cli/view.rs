@@ -14,7 +14,7 @@ use crate::registry;
 /// Plays one arena in real time.
 struct Player {
     env: AppVecEnv,
-    model: Option<Box<dyn twinbots_learn::Agent + Send>>,
+    model: Option<Box<dyn twinbots_learn::Learner>>,
     obs: Vec<f32>,
     clock: RealTime,
     steps: u64,
@@ -62,7 +62,7 @@ impl ViewSource for Player {
 
 pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64, task: Option<&str>) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
-    let model = model.map(|run| RunDir::new(run).load_agent()).transpose()?;
+    let model = model.map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
     let mut env = AppVecEnv::new(entry.app(task, 1, seed, DesignPattern::Supervised)?);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;

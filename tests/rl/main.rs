@@ -9,6 +9,7 @@ mod patterns;
 mod ppo;
 mod randomization;
 mod sac;
+mod td3;
 mod resume;
 mod server;
 mod server_hostile;

@@ -7,16 +7,13 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use twinbots_onnx::{OnnxPolicy, PolicyMetadata};
 use twinbots_learn::classic::{ClassicCartPole, ClassicPendulum};
-use twinbots_onnx::Trained;
 use twinbots_learn::normalize::RunningMeanStd;
 use twinbots_api::{Space, VecEnv};
-use twinbots_learn::{Flow, Ppo, PpoConfig, Sac, SacConfig};
+use twinbots_learn::{Agent, Flow, Ppo, PpoConfig, Sac, SacConfig};
 
 const OBSERVATIONS: usize = 1000;
 
-fn metadata<'a>(model: impl Into<Trained<'a>>) -> PolicyMetadata {
-    let model = model.into();
-    let agent = model.agent();
+fn metadata(agent: &dyn Agent) -> PolicyMetadata {
     PolicyMetadata {
         twinbots_version: "test".into(),
         robot: "test".into(),
@@ -26,7 +23,7 @@ fn metadata<'a>(model: impl Into<Trained<'a>>) -> PolicyMetadata {
         observation_names: (0..agent.observation_space().dim()).map(|i| format!("x{i}")).collect(),
         action_space: agent.action_space().clone(),
         control_period_s: 0.02,
-        normalizes_observations: model.obs_rms().is_some(),
+        normalizes_observations: agent.policy_net().unwrap().obs_rms.is_some(),
         timesteps: agent.timesteps(),
     }
 }
@@ -49,11 +46,10 @@ fn observations(dim: usize, scale: f32, seed: u64) -> Vec<f32> {
 }
 
 /// The exported graph's actions and the model's on the same observations.
-fn both<'a>(model: impl Into<Trained<'a>>, obs: &[f32]) -> (Vec<f32>, Vec<f32>) {
-    let model = model.into();
+fn both(model: &dyn Agent, obs: &[f32]) -> (Vec<f32>, Vec<f32>) {
     let bytes = twinbots_onnx::policy_bytes(model, &metadata(model)).unwrap();
     let policy = OnnxPolicy::from_bytes(&bytes).unwrap();
-    (policy.act(obs).unwrap(), model.agent().predict_deterministic(obs).unwrap())
+    (policy.act(obs).unwrap(), model.predict_deterministic(obs).unwrap())
 }
 
 fn largest_difference(a: &[f32], b: &[f32]) -> f32 {

@@ -7,23 +7,38 @@
 //! process's [`threads`].
 
 pub mod agent;
+pub mod algos;
 pub mod callbacks;
 pub mod classic;
 pub mod evaluation;
+pub mod history;
+pub mod learner;
+pub mod model_header;
 pub mod model_io;
 pub mod nn;
 pub mod normalize;
+pub mod off_policy;
 pub mod plot;
+pub mod policy_net;
 pub mod ppo;
 pub mod run_dir;
 pub mod sac;
+pub mod stats;
+pub mod td3;
 pub mod tensorboard;
 pub mod threads;
 
 pub use twinbots_api as api;
-pub use agent::{Agent, EpisodeHistory, LoadAgent, load_agent};
-pub use callbacks::{Callback, CallbackList, Flow, SolvedBy, TrainingEnd};
+pub use agent::{Agent, LoadAgent};
+pub use algos::{ALGOS, load_agent};
+pub use callbacks::{Callback, CallbackList};
+pub use history::EpisodeHistory;
+pub use learner::{Algorithm, Learner};
+pub use policy_net::PolicyNet;
+pub use stats::{Flow, SolvedBy, TrainingEnd, TrainingTimes};
 pub use evaluation::{EvalResult, evaluate_policy};
-pub use ppo::{Ppo, PpoConfig, UpdateStats};
+pub use ppo::{Ppo, PpoConfig};
+pub use stats::UpdateStats;
 pub use run_dir::RunDir;
 pub use sac::{Sac, SacConfig};
+pub use td3::{Td3, Td3Config};

@@ -6,11 +6,8 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor, Var};
 
-use crate::agent::{Agent, EpisodeHistory};
 use crate::nn::Adam;
-use crate::normalize::RunningMeanStd;
 use twinbots_api::env_state::EnvState;
-use twinbots_api::spaces::Space;
 
 pub const WEIGHTS_FILE: &str = "model.safetensors";
 pub const METADATA_FILE: &str = "model.json";
@@ -85,6 +82,35 @@ pub fn restore_moments(adam: &mut Adam, named: &[(String, Var)], tensors: &HashM
     adam.restore_moments(first, second, steps).map_err(|e| file_error(path, e))
 }
 
+/// Several optimisers' moments in one `optimizer.safetensors` in `dir`, each's tensors prefixed
+/// `<prefix>.` (`actor.m.<name>`); returns their step counts, in order.
+pub fn save_optimizers(parts: Vec<(&str, Vec<(String, Var)>, &Adam)>, dir: &Path) -> Result<Vec<u64>, ModelError> {
+    let mut moments = HashMap::new();
+    let mut steps = Vec::new();
+    for (prefix, named, adam) in parts {
+        let mut part = HashMap::new();
+        steps.push(moment_tensors(adam, &named, &mut part, dir)?);
+        moments.extend(part.into_iter().map(|(name, t)| (format!("{prefix}.{name}"), t)));
+    }
+    save_tensors(&moments, &dir.join(OPTIMIZER_FILE))?;
+    Ok(steps)
+}
+
+/// Puts back what [`save_optimizers`] saved in `dir`, with the step counts it returned.
+pub fn restore_optimizers(parts: Vec<(&str, Vec<(String, Var)>, &mut Adam)>, steps: &[u64], dir: &Path) -> Result<(), ModelError> {
+    let path = dir.join(OPTIMIZER_FILE);
+    let moments = load_tensors(&path)?;
+    if steps.len() != parts.len() {
+        return Err(file_error(&dir.join(METADATA_FILE), format!("{} optimiser step counts for {} optimisers", steps.len(), parts.len())));
+    }
+    for ((prefix, named, adam), &count) in parts.into_iter().zip(steps) {
+        let part: HashMap<String, Tensor> =
+            moments.iter().filter_map(|(name, t)| name.strip_prefix(&format!("{prefix}.")).map(|n| (n.to_string(), t.clone()))).collect();
+        restore_moments(adam, &named, &part, count, &path)?;
+    }
+    Ok(())
+}
+
 /// Writes `env_state.json` into `dir`, or removes a stale one when there is no state.
 pub fn save_env_state(dir: &Path, state: Option<&EnvState>) -> Result<(), ModelError> {
     let path = dir.join(ENV_STATE_FILE);
@@ -109,49 +135,6 @@ pub fn load_env_state(dir: &Path) -> Result<Option<EnvState>, ModelError> {
     Ok(Some(serde_json::from_str::<EnvState>(&text).map_err(|e| file_error(&path, e))?))
 }
 
-/// What every `model.json` holds, whatever the algorithm (its own fields follow).
-#[derive(serde::Serialize, serde::Deserialize)]
-pub struct ModelHeader {
-    pub format: u32,
-    pub twinbots_version: String,
-    pub algorithm: String,
-    pub observation_space: Space,
-    pub action_space: Space,
-    pub obs_rms: Option<RunningMeanStd>,
-    pub seed: u64,
-    pub timesteps: u64,
-    pub episodes: u64,
-    pub updates: u64,
-    #[serde(flatten)]
-    pub history: EpisodeHistory,
-}
-
-impl ModelHeader {
-    pub fn of(agent: &dyn Agent, format: u32, obs_rms: Option<&RunningMeanStd>, seed: u64, updates: u64) -> Self {
-        Self {
-            format,
-            twinbots_version: env!("CARGO_PKG_VERSION").into(),
-            algorithm: agent.algorithm().into(),
-            observation_space: agent.observation_space().clone(),
-            action_space: agent.action_space().clone(),
-            obs_rms: obs_rms.cloned(),
-            seed,
-            timesteps: agent.timesteps(),
-            episodes: agent.episodes(),
-            updates,
-            history: agent.history().clone(),
-        }
-    }
-
-    /// An error unless the observation statistics are finite.
-    pub fn check(&self, path: &Path) -> Result<(), ModelError> {
-        match &self.obs_rms {
-            Some(rms) => rms.check_finite().map_err(|e| file_error(path, e)),
-            None => Ok(()),
-        }
-    }
-}
-
 /// Writes `value` as pretty JSON to `dir/model.json`, atomically.
 pub fn save_metadata(dir: &Path, value: &impl serde::Serialize) -> Result<(), ModelError> {
     let json = serde_json::to_vec_pretty(value).map_err(|e| file_error(dir, e))?;
@@ -170,7 +153,7 @@ pub fn load_metadata<T: serde::de::DeserializeOwned>(dir: &Path, algorithm: &str
     let text = std::fs::read_to_string(&path).map_err(|e| file_error(&path, e))?;
     let header: Header = serde_json::from_str(&text).map_err(|e| file_error(&path, e))?;
     if header.algorithm != algorithm {
-        return Err(file_error(&path, format!("a {} model, not {algorithm} (load it with twinbots_learn::agent::load_agent)", header.algorithm)));
+        return Err(file_error(&path, format!("a {} model, not {algorithm} (load it with twinbots_learn::algos::load_agent)", header.algorithm)));
     }
     if header.format != format {
         return Err(file_error(&path, format!("model format {} (this build reads {format})", header.format)));

@@ -1,13 +1,15 @@
 //! A trained model's deterministic policy as an ONNX graph (docs/export.md draws it):
 //!
 //! ```text
-//! obs [batch, n] float ─▶ normalise (if trained so) ─▶ PPO: pi MLP ─▶ ArgMax               ─▶ action [batch] int64
-//!                                                                  └▶ Max(low), Min(high)  ─▶ action [batch, m] float
-//!                                                  └▶ SAC: actor body ─▶ mu ─▶ Tanh ─▶ rescale to [low, high] ─▶ action [batch, m] float
+//! obs [batch, n] float ─▶ normalise (if trained so) ─▶ MLP ─▶ ArgMax                                  ─▶ action [batch] int64
+//!                                                        └▶ Max(low), Min(high)                     ─▶ action [batch, m] float
+//!                                                        └▶ Tanh ─▶ rescale to [low, high]          ─▶ action [batch, m] float
 //! ```
 //!
 //! Normalising is `((x − mean) / √(var + 1e-8))` computed in double precision, as
-//! `RunningMeanStd::normalize` does, then clipped to ±10. Each layer is a `Gemm` (x Wᵀ + b). PPO's
+//! `RunningMeanStd::normalize` does, then clipped to ±10. Each layer is a `Gemm` (x Wᵀ + b). The
+//! graph is built from the model's `PolicyNet` (its layers, hidden activation and head), so it
+//! knows no algorithm by name; the heads are those of the algorithms so far. PPO's
 //! hidden layers are followed by `Tanh`; a discrete policy's mode is the arg max of its logits
 //! (the last of equal ones, as the model's own arg max takes); a Gaussian's mode is its mean,
 //! clipped to the action box as the env receives it (PPO neither squashes nor rescales). SAC's
@@ -19,10 +21,11 @@ use std::path::Path;
 use prost::Message;
 use tract_onnx::pb;
 use tract_onnx::pb::tensor_proto::DataType;
-use twinbots_learn::normalize::{CLIP, RunningMeanStd};
-use twinbots_learn::ppo::{Ppo, write_atomic};
 use twinbots_api::Space;
-use twinbots_learn::{Agent, Sac};
+use twinbots_learn::Agent;
+use twinbots_learn::model_io::write_atomic;
+use twinbots_learn::normalize::CLIP;
+use twinbots_learn::policy_net::{Activation, DenseLayer, PolicyHead};
 
 use crate::metadata::PolicyMetadata;
 
@@ -32,62 +35,9 @@ pub const OPSET: i64 = 17;
 pub const INPUT: &str = "obs";
 pub const OUTPUT: &str = "action";
 
-/// A trained model whose deterministic policy can be exported.
-#[derive(Clone, Copy, Debug)]
-pub enum Trained<'a> {
-    Ppo(&'a Ppo),
-    Sac(&'a Sac),
-}
-
-impl<'a> From<&'a Ppo> for Trained<'a> {
-    fn from(model: &'a Ppo) -> Self {
-        Self::Ppo(model)
-    }
-}
-
-impl<'a> From<&'a Sac> for Trained<'a> {
-    fn from(model: &'a Sac) -> Self {
-        Self::Sac(model)
-    }
-}
-
-impl<'a> Trained<'a> {
-    /// The model through the surface both learners share (spaces, counters, predictions).
-    pub fn agent(self) -> &'a dyn Agent {
-        match self {
-            Self::Ppo(m) => m,
-            Self::Sac(m) => m,
-        }
-    }
-
-    /// The running observation statistics the graph folds in, if the model normalises.
-    pub fn obs_rms(self) -> Option<&'a RunningMeanStd> {
-        match self {
-            Self::Ppo(m) => m.obs_rms.as_ref(),
-            Self::Sac(m) => m.obs_rms.as_ref(),
-        }
-    }
-
-    /// The policy's tensors by the names its model file uses.
-    fn named_values(self) -> anyhow::Result<Vec<(String, Values)>> {
-        let vars = match self {
-            Self::Ppo(m) => m.policy.named_vars(),
-            Self::Sac(m) => m.actor.named_vars(),
-        };
-        vars.into_iter()
-            .map(|(name, var)| {
-                let t = var.as_tensor();
-                Ok((name, Values { dims: t.dims().iter().map(|&d| d as i64).collect(), values: t.flatten_all()?.to_vec1::<f32>()? }))
-            })
-            .collect()
-    }
-}
-
 /// The ONNX model of `model`'s deterministic policy, described by `metadata` (whose spaces
 /// must be the model's).
-pub fn policy_model<'a>(model: impl Into<Trained<'a>>, metadata: &PolicyMetadata) -> anyhow::Result<pb::ModelProto> {
-    let model = model.into();
-    let agent = model.agent();
+pub fn policy_model(agent: &dyn Agent, metadata: &PolicyMetadata) -> anyhow::Result<pb::ModelProto> {
     anyhow::ensure!(
         metadata.observation_space.dim() == agent.observation_space().dim() && metadata.action_space == *agent.action_space(),
         "the model's spaces ({} observations, {}) differ from the description's ({} observations, {})",
@@ -96,7 +46,7 @@ pub fn policy_model<'a>(model: impl Into<Trained<'a>>, metadata: &PolicyMetadata
         metadata.observation_space.dim(),
         metadata.action_space
     );
-    let graph = policy_graph(model)?;
+    let graph = policy_graph(agent)?;
     Ok(pb::ModelProto {
         ir_version: IR_VERSION,
         opset_import: vec![pb::OperatorSetIdProto { domain: String::new(), version: OPSET }],
@@ -114,20 +64,21 @@ pub fn policy_model<'a>(model: impl Into<Trained<'a>>, metadata: &PolicyMetadata
 }
 
 /// The policy's ONNX file, as bytes.
-pub fn policy_bytes<'a>(model: impl Into<Trained<'a>>, metadata: &PolicyMetadata) -> anyhow::Result<Vec<u8>> {
+pub fn policy_bytes(model: &dyn Agent, metadata: &PolicyMetadata) -> anyhow::Result<Vec<u8>> {
     Ok(policy_model(model, metadata)?.encode_to_vec())
 }
 
 /// Writes the policy to `path` (through a temporary file and a rename).
-pub fn write_policy<'a>(path: &Path, model: impl Into<Trained<'a>>, metadata: &PolicyMetadata) -> anyhow::Result<()> {
+pub fn write_policy(path: &Path, model: &dyn Agent, metadata: &PolicyMetadata) -> anyhow::Result<()> {
     write_atomic(path, &policy_bytes(model, metadata)?).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
-fn policy_graph(model: Trained) -> anyhow::Result<pb::GraphProto> {
-    let (observation_space, action_space) = (model.agent().observation_space(), model.agent().action_space());
+fn policy_graph(model: &dyn Agent) -> anyhow::Result<pb::GraphProto> {
+    let (observation_space, action_space) = (model.observation_space(), model.action_space());
+    let net = model.policy_net()?;
     let mut g = GraphBuilder::default();
     let mut x = INPUT.to_string();
-    if let Some(rms) = model.obs_rms() {
+    if let Some(rms) = &net.obs_rms {
         let std: Vec<f64> = rms.var.iter().map(|v| (v + 1e-8).sqrt()).collect();
         let mean = g.constant_f64("obs_mean", &rms.mean);
         let std = g.constant_f64("obs_std", &std);
@@ -138,27 +89,23 @@ fn policy_graph(model: Trained) -> anyhow::Result<pb::GraphProto> {
         let (low, high) = (g.scalar_f32("obs_clip_low", -CLIP), g.scalar_f32("obs_clip_high", CLIP));
         x = g.node("Clip", &[&narrow, &low, &high], vec![]);
     }
-    let values = model.named_values()?;
-    let output_type = match model {
-        Trained::Ppo(_) => {
-            let layers = layers(&values, "pi")?;
-            for (i, layer) in layers.iter().enumerate() {
-                x = g.dense(&format!("pi.{i}"), &x, layer);
-                if i + 1 < layers.len() {
-                    x = g.node("Tanh", &[&x], vec![]);
-                }
-            }
-            ppo_head(&mut g, &x, action_space)?
+    anyhow::ensure!(!net.layers.is_empty(), "the policy has no layers");
+    for (i, layer) in net.layers.iter().enumerate() {
+        x = g.dense(layer, &x);
+        if i + 1 < net.layers.len() {
+            x = g.node(match net.hidden { Activation::Tanh => "Tanh", Activation::Relu => "Relu" }, &[&x], vec![]);
         }
-        Trained::Sac(_) => {
-            for (i, layer) in layers(&values, "actor.body")?.iter().enumerate() {
-                let h = g.dense(&format!("actor.body.{i}"), &x, layer);
-                x = g.node("Relu", &[&h], vec![]);
-            }
-            let mu = layer(&values, "actor.mu")?.ok_or_else(|| anyhow::anyhow!("the model has no actor.mu layer"))?;
-            let mean = g.dense("actor.mu", &x, &mu);
-            let squashed = g.node("Tanh", &[&mean], vec![]);
-            sac_head(&mut g, &squashed, action_space)?
+    }
+    let output_type = match net.head {
+        PolicyHead::ArgMax => {
+            anyhow::ensure!(matches!(action_space, Space::Discrete { .. }), "an arg-max head needs discrete actions, not {action_space}");
+            g.output_node("ArgMax", &[&x], vec![int_attr("axis", 1), int_attr("keepdims", 0), int_attr("select_last_index", 1)]);
+            tensor_type(DataType::Int64, &[batch_dim()])
+        }
+        PolicyHead::ClipToBox => clip_head(&mut g, &x, action_space)?,
+        PolicyHead::TanhToBox => {
+            let squashed = g.node("Tanh", &[&x], vec![]);
+            squash_head(&mut g, &squashed, action_space)?
         }
     };
     Ok(pb::GraphProto {
@@ -171,27 +118,19 @@ fn policy_graph(model: Trained) -> anyhow::Result<pb::GraphProto> {
     })
 }
 
-/// PPO's mode: the logits' arg max, or the Gaussian's mean clipped to the box.
-fn ppo_head(g: &mut GraphBuilder, x: &str, action_space: &Space) -> anyhow::Result<pb::TypeProto> {
-    Ok(match action_space {
-        Space::Discrete { .. } => {
-            g.output_node("ArgMax", &[x], vec![int_attr("axis", 1), int_attr("keepdims", 0), int_attr("select_last_index", 1)]);
-            tensor_type(DataType::Int64, &[batch_dim()])
-        }
-        Space::Box { low, high } => {
-            let low = g.constant_f32("action_low", &[low.len() as i64], low);
-            let high = g.constant_f32("action_high", &[high.len() as i64], high);
-            let floor = g.node("Max", &[x, &low], vec![]);
-            g.output_node("Min", &[&floor, &high], vec![]);
-            tensor_type(DataType::Float, &[batch_dim(), fixed_dim(action_space.dim())])
-        }
-        other => anyhow::bail!("{other} actions cannot be exported"),
-    })
+/// A Gaussian's mode: its mean, clipped to the box.
+fn clip_head(g: &mut GraphBuilder, x: &str, action_space: &Space) -> anyhow::Result<pb::TypeProto> {
+    let Space::Box { low, high } = action_space else { anyhow::bail!("a clipped head acts in a box, not {action_space}") };
+    let low = g.constant_f32("action_low", &[low.len() as i64], low);
+    let high = g.constant_f32("action_high", &[high.len() as i64], high);
+    let floor = g.node("Max", &[x, &low], vec![]);
+    g.output_node("Min", &[&floor, &high], vec![]);
+    Ok(tensor_type(DataType::Float, &[batch_dim(), fixed_dim(action_space.dim())]))
 }
 
-/// SAC's mode, tanh(μ) in [−1, 1], rescaled to the box: low + (a + 1) · (high − low) / 2.
-fn sac_head(g: &mut GraphBuilder, squashed: &str, action_space: &Space) -> anyhow::Result<pb::TypeProto> {
-    let Space::Box { low, high } = action_space else { anyhow::bail!("a SAC policy acts in a box, not {action_space}") };
+/// A squashed mode, tanh(μ) in [−1, 1], rescaled to the box: low + (a + 1) · (high − low) / 2.
+fn squash_head(g: &mut GraphBuilder, squashed: &str, action_space: &Space) -> anyhow::Result<pb::TypeProto> {
+    let Space::Box { low, high } = action_space else { anyhow::bail!("a squashed policy acts in a box, not {action_space}") };
     let half_range: Vec<f32> = low.iter().zip(high).map(|(l, h)| 0.5 * (h - l)).collect();
     let one = g.scalar_f32("one", 1.0);
     let half_range = g.constant_f32("action_half_range", &[low.len() as i64], &half_range);
@@ -200,36 +139,6 @@ fn sac_head(g: &mut GraphBuilder, squashed: &str, action_space: &Space) -> anyho
     let scaled = g.node("Mul", &[&shifted, &half_range], vec![]);
     g.output_node("Add", &[&low, &scaled], vec![]);
     Ok(tensor_type(DataType::Float, &[batch_dim(), fixed_dim(action_space.dim())]))
-}
-
-/// A tensor's shape and values.
-struct Values {
-    dims: Vec<i64>,
-    values: Vec<f32>,
-}
-
-/// A dense layer's weight [out, in] and bias [out].
-struct Layer<'v> {
-    weight: &'v Values,
-    bias: &'v Values,
-}
-
-/// The layer `<name>.weight`, `<name>.bias`, if the model has it.
-fn layer<'v>(values: &'v [(String, Values)], name: &str) -> anyhow::Result<Option<Layer<'v>>> {
-    let find = |key: String| values.iter().find(|(n, _)| *n == key).map(|(_, v)| v);
-    let Some(weight) = find(format!("{name}.weight")) else { return Ok(None) };
-    let bias = find(format!("{name}.bias")).ok_or_else(|| anyhow::anyhow!("layer {name} has no bias"))?;
-    Ok(Some(Layer { weight, bias }))
-}
-
-/// The layers `<prefix>.0`, `<prefix>.1`, … from the input on.
-fn layers<'v>(values: &'v [(String, Values)], prefix: &str) -> anyhow::Result<Vec<Layer<'v>>> {
-    let mut out = Vec::new();
-    while let Some(l) = layer(values, &format!("{prefix}.{}", out.len()))? {
-        out.push(l);
-    }
-    anyhow::ensure!(!out.is_empty(), "the model has no {prefix} network");
-    Ok(out)
 }
 
 /// Nodes and constants, named as they are added.
@@ -241,9 +150,10 @@ struct GraphBuilder {
 
 impl GraphBuilder {
     /// A `Gemm` (x Wᵀ + b) with the layer's tensors as constants `<name>.weight`, `<name>.bias`.
-    fn dense(&mut self, name: &str, x: &str, layer: &Layer) -> String {
-        let w = self.constant_f32(&format!("{name}.weight"), &layer.weight.dims, &layer.weight.values);
-        let b = self.constant_f32(&format!("{name}.bias"), &layer.bias.dims, &layer.bias.values);
+    fn dense(&mut self, layer: &DenseLayer, x: &str) -> String {
+        let name = &layer.name;
+        let w = self.constant_f32(&format!("{name}.weight"), &[layer.outputs as i64, layer.inputs as i64], &layer.weight);
+        let b = self.constant_f32(&format!("{name}.bias"), &[layer.outputs as i64], &layer.bias);
         self.node("Gemm", &[x, &w, &b], vec![int_attr("transB", 1)])
     }
 

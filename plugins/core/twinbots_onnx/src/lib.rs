@@ -6,6 +6,6 @@ pub mod export;
 pub mod metadata;
 pub mod policy;
 
-pub use export::{Trained, policy_bytes, policy_model, write_policy};
+pub use export::{policy_bytes, policy_model, write_policy};
 pub use metadata::PolicyMetadata;
 pub use policy::OnnxPolicy;

@@ -5,7 +5,7 @@ use super::{Callback, Flow, SolvedBy};
 use twinbots_api::env::VecEnv;
 use crate::evaluation::{EvalResult, evaluate_policy};
 use crate::agent::Agent;
-use crate::ppo::UpdateStats;
+use crate::stats::UpdateStats;
 use crate::run_dir::RunDir;
 use twinbots_api::SolvedCriterion;
 use crate::tensorboard::EventWriter;

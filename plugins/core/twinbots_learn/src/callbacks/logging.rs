@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use super::{Callback, Flow};
 use crate::plot::{self, CurvePoint, EvaluationPoint};
 use crate::agent::Agent;
-use crate::ppo::UpdateStats;
+use crate::stats::UpdateStats;
 use crate::run_dir::{LEARNING_CURVE, RunDir};
 use twinbots_api::SolvedCriterion;
 

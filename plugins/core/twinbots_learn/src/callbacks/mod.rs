@@ -22,73 +22,9 @@ pub use logging::{CheckpointCallback, LearningCurveCallback, ProgressBarCallback
 pub use tensorboard::{TensorBoardCallback, evaluation_scalars, training_scalars};
 
 use crate::agent::Agent;
-use crate::ppo::UpdateStats;
+pub use crate::stats::{Flow, SolvedBy, TrainingEnd};
+use crate::stats::UpdateStats;
 use twinbots_api::SolvedCriterion;
-
-/// What a callback tells training after an update.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Flow {
-    Continue,
-    /// Stop, for the callback's own reason.
-    Stop,
-    /// Stop: the task's solved criterion holds, judged on this.
-    Solved(SolvedBy),
-}
-
-/// What a solved criterion was judged on.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SolvedBy {
-    /// The last training episodes (the stochastic policy, as it learns).
-    TrainingEpisodes,
-    /// An evaluation of the deterministic policy.
-    Evaluation,
-}
-
-impl std::fmt::Display for SolvedBy {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            SolvedBy::TrainingEpisodes => "training episodes",
-            SolvedBy::Evaluation => "evaluation",
-        })
-    }
-}
-
-/// Why training ended.
-#[derive(Clone, Debug, PartialEq)]
-pub enum TrainingEnd {
-    /// The timestep budget is spent.
-    BudgetSpent { timesteps: u64 },
-    /// The task's solved criterion held.
-    Solved { timesteps: u64, by: SolvedBy },
-    /// A callback stopped it.
-    Stopped { timesteps: u64 },
-}
-
-impl TrainingEnd {
-    /// How training ends after an update that left the model at `timesteps`, by a callback's
-    /// word (`None`: it goes on, unless its budget is spent).
-    pub fn after(flow: Flow, timesteps: u64) -> Option<Self> {
-        match flow {
-            Flow::Continue => None,
-            Flow::Stop => Some(Self::Stopped { timesteps }),
-            Flow::Solved(by) => Some(Self::Solved { timesteps, by }),
-        }
-    }
-
-    pub fn is_solved(&self) -> bool {
-        matches!(self, Self::Solved { .. })
-    }
-}
-
-impl std::fmt::Display for TrainingEnd {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::BudgetSpent { timesteps } => write!(f, "budget spent after {timesteps} steps"),
-            Self::Solved { timesteps, by } => write!(f, "solved ({by}) after {timesteps} steps"),
-            Self::Stopped { timesteps } => write!(f, "stopped by a callback after {timesteps} steps"),
-        }
-    }
-}
 
 /// Hears training as it goes. Only `on_update` is required; a closure
 /// `|stats: &UpdateStats, model: &dyn Agent| -> anyhow::Result<Flow>` is a callback.
@@ -178,35 +114,5 @@ impl StopTrainingOnSolved {
 impl Callback for StopTrainingOnSolved {
     fn on_update(&mut self, _stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
         Ok(if model.history().is_solved(&self.criterion) { Flow::Solved(SolvedBy::TrainingEpisodes) } else { Flow::Continue })
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::PpoConfig;
-    use crate::ppo::Ppo;
-    use twinbots_api::spaces::Space;
-
-    #[test]
-    fn every_callback_of_a_list_runs_and_the_first_to_stop_says_why() {
-        let model = Ppo::new(PpoConfig::default(), Space::uniform_box(2, -1.0, 1.0), Space::Discrete { n: 2 }, 0).unwrap();
-        let calls = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
-        let counter = |answer: Flow| {
-            let calls = calls.clone();
-            move |_: &UpdateStats, _: &dyn Agent| {
-                calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                Ok(answer)
-            }
-        };
-        let mut list = CallbackList::new()
-            .with(counter(Flow::Continue))
-            .with(counter(Flow::Solved(SolvedBy::Evaluation)))
-            .with(counter(Flow::Stop));
-        let flow = list.on_update(&UpdateStats::default(), &model).unwrap();
-        assert_eq!(flow, Flow::Solved(SolvedBy::Evaluation));
-        assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), 3);
-        let end = TrainingEnd::after(flow, 640).unwrap();
-        assert_eq!(end.to_string(), "solved (evaluation) after 640 steps");
     }
 }

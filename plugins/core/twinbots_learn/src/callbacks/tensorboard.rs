@@ -6,7 +6,7 @@ use std::time::Instant;
 use super::{Callback, Flow};
 use crate::evaluation::EvalResult;
 use crate::agent::Agent;
-use crate::ppo::UpdateStats;
+use crate::stats::UpdateStats;
 use crate::tensorboard::EventWriter;
 
 /// After every update, one point of each training scalar at the run's timestep count (SB3's

@@ -3,7 +3,9 @@
 //! docs/architecture.md): a tanh activation that vectorises, and Adam over plain slices.
 
 mod adam;
+mod dense;
 mod tanh;
 
 pub use adam::{Adam, AdamConfig, GradientStep};
+pub use dense::Dense;
 pub use tanh::{fast_tanh, tanh};

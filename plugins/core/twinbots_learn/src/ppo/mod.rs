@@ -21,43 +21,51 @@ use rand_chacha::ChaCha8Rng;
 
 pub use buffer::RolloutBuffer;
 pub use config::{MAX_ROLLOUT, PpoConfig};
-pub use model_file::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
+pub use crate::model_io::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
+pub use crate::stats::{TrainingTimes, UpdateStats};
 pub use policy::ActorCritic;
 pub use rollout::PolicyStep;
 
-use crate::agent::EpisodeHistory;
-use crate::callbacks::{Callback, TrainingEnd};
+use crate::callbacks::Callback;
+use crate::learner::{Algorithm, config_from};
+use crate::history::EpisodeHistory;
+use crate::stats::TrainingEnd;
 use twinbots_api::env::VecEnv;
 use crate::nn::Adam;
 use crate::normalize::RunningMeanStd;
+use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use twinbots_api::env_state::EnvState;
 use twinbots_api::spaces::Space;
 use twinbots_api::{EpisodeSummary, SolvedCriterion};
 
-/// One row of `progress.csv`: what an update saw and did.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct UpdateStats {
-    pub update: usize,
-    pub timesteps: u64,
-    pub episodes: u64,
-    /// Over the last 100 finished episodes.
-    pub mean_reward: f32,
-    pub min_reward: f32,
-    pub max_reward: f32,
-    pub mean_length: f32,
-    /// Share of the last 100 finished episodes that reported success (NaN: none reported).
-    pub success_rate: f32,
-    pub policy_loss: f32,
-    pub value_loss: f32,
-    pub entropy: f32,
-    pub approx_kl: f32,
-    pub clip_fraction: f32,
-    pub learning_rate: f64,
-    pub steps_per_s: f32,
-    /// Gradient steps of this update that were skipped because the loss or a gradient was not
-    /// finite (the weights stayed as they were).
-    pub skipped_steps: usize,
-}
+/// The name `--algo` and the settings' `[ppo]` table use, and the one its models are saved
+/// under (`model.json`'s `algorithm`).
+pub const NAME: &str = "ppo";
+pub const SAVED_AS: &str = "PPO";
+
+/// PPO's line in [`crate::algos::ALGOS`].
+pub const ALGORITHM: Algorithm = Algorithm {
+    name: NAME,
+    saved_as: SAVED_AS,
+    summary: "Proximal Policy Optimization: on-policy, discrete or continuous actions, every design pattern",
+    continuous_only: false,
+    serves: true,
+    config: |keys, arenas| {
+        let config: PpoConfig = config_from(keys, NAME)?;
+        config.validate()?;
+        let rollout = config.n_steps.saturating_mul(arenas);
+        anyhow::ensure!(
+            rollout <= MAX_ROLLOUT,
+            "ppo.n_steps × arenas = {} × {arenas} = {rollout}: a rollout must hold at most {MAX_ROLLOUT} samples",
+            config.n_steps
+        );
+        Ok(toml::Table::try_from(&config)?)
+    },
+    new: |config, spec, seed| {
+        Ok(Box::new(Ppo::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?))
+    },
+    load: |dir| Ok(Box::new(Ppo::load(dir)?)),
+};
 
 /// The action-sampling and minibatch stream is the seed mixed with this, so it differs from
 /// the stream that initialised the network's weights (seeded with the seed itself).
@@ -83,21 +91,6 @@ pub struct Ppo {
     pub env_state: Option<EnvState>,
     /// Where this process's training time went (not saved with the model).
     pub times: TrainingTimes,
-}
-
-/// Seconds the learner spent on each part of training, summed since the model was made or
-/// loaded: what `train` reports at its end and in `summary.json`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct TrainingTimes {
-    /// Policy forward passes of the rollouts (actions, values, bootstrap values, normalising).
-    pub inference_s: f64,
-    /// Waiting for the env's steps and resets: the simulation, and for a bridged env the
-    /// channel around it.
-    pub env_s: f64,
-    /// Advantages and the gradient steps of the updates.
-    pub update_s: f64,
-    /// The callbacks: progress logs, the curve, evaluations, checkpoints.
-    pub callbacks_s: f64,
 }
 
 impl std::fmt::Debug for Ppo {
@@ -258,7 +251,7 @@ impl Ppo {
 
 impl crate::agent::Agent for Ppo {
     fn algorithm(&self) -> &'static str {
-        "PPO"
+        SAVED_AS
     }
     fn observation_space(&self) -> &Space {
         &self.observation_space
@@ -277,6 +270,18 @@ impl crate::agent::Agent for Ppo {
     }
     fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         Ppo::predict_deterministic(self, obs)
+    }
+    fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
+        Ppo::predict(self, obs, deterministic)
+    }
+    fn policy_net(&self) -> anyhow::Result<PolicyNet> {
+        let layers = self.policy.pi.layers.iter().enumerate().map(|(i, l)| l.values(&format!("pi.{i}"))).collect::<candle_core::Result<_>>()?;
+        let head = match &self.action_space {
+            Space::Discrete { .. } => PolicyHead::ArgMax,
+            Space::Box { .. } => PolicyHead::ClipToBox,
+            other => anyhow::bail!("{other} actions cannot be exported"),
+        };
+        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), layers, hidden: Activation::Tanh, head })
     }
     fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
         Ppo::save(self, dir)
@@ -301,6 +306,15 @@ impl crate::agent::Agent for Ppo {
             out.push(("train/std".into(), values.iter().map(|l| l.exp()).sum::<f32>() / values.len().max(1) as f32));
         }
         out
+    }
+}
+
+impl crate::learner::Learner for Ppo {
+    fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+        Ppo::learn(self, env, total_timesteps, callback)
+    }
+    fn times(&self) -> TrainingTimes {
+        self.times
     }
 }
 

@@ -11,8 +11,8 @@ use candle_core::Tensor;
 use serde::{Deserialize, Serialize};
 
 use super::{Ppo, PpoConfig};
-pub use crate::model_io::{METADATA_FILE, ModelError, OPTIMIZER_FILE, WEIGHTS_FILE, write_atomic};
-use crate::model_io::{self, ModelHeader, file_error};
+use crate::model_header::ModelHeader;
+use crate::model_io::{self, METADATA_FILE, ModelError, OPTIMIZER_FILE, WEIGHTS_FILE, file_error};
 use twinbots_api::env_state::StreamState;
 
 const FORMAT: u32 = 1;
@@ -55,7 +55,7 @@ impl Ppo {
     pub fn load(dir: impl AsRef<Path>) -> Result<Ppo, ModelError> {
         let dir = dir.as_ref();
         let path = dir.join(METADATA_FILE);
-        let meta: Metadata = model_io::load_metadata(dir, "PPO", FORMAT)?;
+        let meta: Metadata = model_io::load_metadata(dir, super::SAVED_AS, FORMAT)?;
         let h = meta.header;
         h.check(&path)?;
         let mut model = Ppo::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed).map_err(|e| file_error(&path, e))?;

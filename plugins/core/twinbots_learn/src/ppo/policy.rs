@@ -8,34 +8,7 @@ use rand_distr::{Distribution, StandardNormal};
 
 use twinbots_api::spaces::Space;
 
-/// A dense layer `y = x W^T + b`.
-pub struct Dense {
-    pub weight: Var,
-    pub bias: Var,
-}
-
-impl Dense {
-    /// PyTorch's default init, U(±1/√fan_in), scaled by `gain`, from our own seeded stream so
-    /// the seed fixes the network.
-    pub(crate) fn new(inputs: usize, outputs: usize, gain: f64, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
-        let bound = (1.0 / inputs as f64).sqrt();
-        let mut uniform = |n: usize| -> Vec<f32> {
-            (0..n).map(|_| (rng.random_range(-bound..bound) * gain) as f32).collect()
-        };
-        Ok(Self {
-            weight: Var::from_tensor(&Tensor::from_vec(uniform(inputs * outputs), (outputs, inputs), dev)?)?,
-            bias: Var::from_tensor(&Tensor::from_vec(uniform(outputs), outputs, dev)?)?,
-        })
-    }
-
-    pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        // The bias enters as 1 bᵀ, a product, rather than a broadcast add: the gradient of a
-        // broadcast sums over the batch dimension, which candle does element by element
-        // (14 % of a PPO update), while the product's gradient 1ᵀ G is one gemm call.
-        let ones = Tensor::ones((x.dim(0)?, 1), x.dtype(), x.device())?;
-        x.matmul(&self.weight.as_tensor().t()?)? + ones.matmul(&self.bias.as_tensor().unsqueeze(0)?)?
-    }
-}
+use crate::nn::Dense;
 
 /// Hidden layers with tanh, then a linear output.
 pub struct Mlp {

@@ -30,7 +30,8 @@ pub use table::{Row, Table};
 
 use crate::evaluation::EvalResult;
 use crate::agent::{Agent, LoadAgent};
-use crate::ppo::{Ppo, UpdateStats, write_atomic};
+use crate::model_io::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
+use crate::stats::UpdateStats;
 
 pub const CONFIG: &str = "config.toml";
 pub const PROGRESS: &str = "progress.csv";
@@ -135,7 +136,7 @@ impl RunDir {
                 let name = p.file_name().and_then(|n| n.to_str()).unwrap_or_default();
                 name.starts_with("step_") && !name.ends_with(".partial")
             })
-            .filter(|p| p.join(crate::ppo::METADATA_FILE).is_file() && p.join(crate::ppo::WEIGHTS_FILE).is_file())
+            .filter(|p| p.join(METADATA_FILE).is_file() && p.join(WEIGHTS_FILE).is_file())
             .collect();
         dirs.sort();
         dirs
@@ -144,10 +145,16 @@ impl RunDir {
     /// The newest checkpoint that loads: one that does not (damaged, or with non-finite
     /// weights) is reported on stderr and the one before it tried. Returns its path and model.
     pub fn load_newest_checkpoint<M: LoadAgent>(&self) -> anyhow::Result<(PathBuf, M)> {
+        self.newest_checkpoint_with(M::load)
+    }
+
+    /// [`Self::load_newest_checkpoint`] with the loader `load` (an algorithm's, from
+    /// `crate::algos`).
+    pub fn newest_checkpoint_with<M>(&self, load: impl Fn(&Path) -> Result<M, ModelError>) -> anyhow::Result<(PathBuf, M)> {
         let checkpoints = self.checkpoints();
         anyhow::ensure!(!checkpoints.is_empty(), "{}: no checkpoint to resume from", self.path.display());
         for dir in checkpoints.iter().rev() {
-            match M::load(dir) {
+            match load(dir) {
                 Ok(model) => return Ok((dir.clone(), model)),
                 Err(e) => eprintln!("warning: checkpoint {} is unusable ({e}); trying the one before it", dir.display()),
             }
@@ -155,35 +162,27 @@ impl RunDir {
         anyhow::bail!("{}: none of its {} checkpoints loads (see the warnings above)", self.path.display(), checkpoints.len())
     }
 
-    /// The run's trained PPO model: its final model, else its newest checkpoint that loads.
-    pub fn load_model(&self) -> anyhow::Result<Ppo> {
-        self.load_trained()
-    }
-
-    /// The run's trained model of either algorithm (to evaluate, view or record it). The
-    /// algorithm is the one its final model, else its newest checkpoint whose `model.json`
-    /// reads, names (a damaged one is passed over, as `load_trained` does).
-    pub fn load_agent(&self) -> anyhow::Result<Box<dyn Agent + Send>> {
-        let mut saved = vec![self.file(MODEL)];
-        saved.extend(self.checkpoints().into_iter().rev());
-        let algorithm = saved
-            .iter()
-            .find_map(|dir| crate::agent::saved_algorithm(dir).ok())
-            .ok_or_else(|| anyhow::anyhow!("{}: no model or checkpoint that reads", self.path.display()))?;
-        Ok(match algorithm.as_str() {
-            "SAC" => Box::new(self.load_trained::<crate::sac::Sac>()?),
-            _ => Box::new(self.load_trained::<Ppo>()?),
-        })
-    }
-
     /// Its final model, else its newest checkpoint that loads.
     pub fn load_trained<M: LoadAgent>(&self) -> anyhow::Result<M> {
+        Ok(self.trained_with(M::load)?.1)
+    }
+
+    /// [`Self::load_trained`] with the loader `load`; returns where the model came from too.
+    pub fn trained_with<M>(&self, load: impl Fn(&Path) -> Result<M, ModelError>) -> anyhow::Result<(PathBuf, M)> {
         let model = self.file(MODEL);
-        if model.join(crate::ppo::METADATA_FILE).is_file() {
-            return Ok(M::load(&model)?);
+        if model.join(METADATA_FILE).is_file() {
+            return Ok((model.clone(), load(&model)?));
         }
         anyhow::ensure!(!self.checkpoints().is_empty(), "{}: no model or checkpoint", self.path.display());
-        Ok(self.load_newest_checkpoint::<M>()?.1)
+        self.newest_checkpoint_with(load)
+    }
+
+    /// Where the run's trained model may be: its final model, then its checkpoints, newest
+    /// first.
+    pub fn saved_models(&self) -> Vec<PathBuf> {
+        let mut saved = vec![self.file(MODEL)];
+        saved.extend(self.checkpoints().into_iter().rev());
+        saved
     }
 
     /// Appends an update's row to `progress.csv` (with the header if the file is new).

@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::callbacks::TrainingEnd;
+use crate::stats::TrainingEnd;
 use crate::evaluation::EvalResult;
 use crate::agent::Agent;
 
@@ -48,7 +48,7 @@ pub struct TimeBreakdown {
 
 impl TimeBreakdown {
     /// From the learner's times, the app's simulation time and the session's wall clock.
-    pub fn new(learner: &crate::ppo::TrainingTimes, simulation_s: f64, wall_clock_s: f64) -> Self {
+    pub fn new(learner: &crate::stats::TrainingTimes, simulation_s: f64, wall_clock_s: f64) -> Self {
         let bridge_s = (learner.env_s - simulation_s).max(0.0);
         let accounted = simulation_s + bridge_s + learner.inference_s + learner.update_s + learner.callbacks_s;
         Self {

@@ -10,7 +10,7 @@
 
 mod buffer;
 mod config;
-mod model_file;
+pub(crate) mod model_file;
 mod networks;
 mod update;
 
@@ -23,17 +23,46 @@ use rand_distr::{Distribution, StandardNormal};
 
 pub use buffer::{Batch, ReplayBuffer};
 pub use config::SacConfig;
-pub use networks::{Actor, TwinCritic};
+pub use networks::{Actor, ReluMlp, TwinCritic, polyak_update, set_vars};
 
-use crate::agent::{Agent, EpisodeHistory, LoadAgent};
-use crate::callbacks::{Callback, TrainingEnd};
+use crate::agent::{Agent, LoadAgent};
+use crate::learner::{Algorithm, Learner, config_from};
+use crate::policy_net::{Activation, PolicyHead, PolicyNet};
+use crate::callbacks::Callback;
+use crate::history::EpisodeHistory;
+use crate::stats::TrainingEnd;
 use twinbots_api::env::VecEnv;
 use crate::nn::{Adam, AdamConfig};
 use crate::normalize::RunningMeanStd;
-use crate::ppo::{ModelError, TrainingTimes, UpdateStats};
+use crate::model_io::ModelError;
+use crate::stats::{TrainingTimes, UpdateStats};
 use twinbots_api::env_state::EnvState;
 use twinbots_api::spaces::Space;
 use twinbots_api::{EpisodeSummary, GoalSpec};
+
+/// The name `--algo` and the settings' `[sac]` table use, and the one its models are saved
+/// under (`model.json`'s `algorithm`).
+pub const NAME: &str = "sac";
+pub const SAVED_AS: &str = "SAC";
+
+/// SAC's line in [`crate::algos::ALGOS`].
+pub const ALGORITHM: Algorithm = Algorithm {
+    name: NAME,
+    saved_as: SAVED_AS,
+    summary: "Soft Actor-Critic: off-policy, continuous actions, with HER for goal-conditioned tasks; patterns 1 and 2",
+    continuous_only: true,
+    serves: false,
+    config: |keys, _arenas| {
+        let config: SacConfig = config_from(keys, NAME)?;
+        config.validate()?;
+        Ok(toml::Table::try_from(&config)?)
+    },
+    new: |config, spec, seed| {
+        let sac = Sac::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?;
+        Ok(Box::new(sac.with_goal(spec.goal.clone())?))
+    },
+    load: |dir| Ok(Box::new(Sac::load(dir)?)),
+};
 
 /// The sampling stream is the seed mixed with this (the weights come from the seed itself).
 const SAMPLING_STREAM_SALT: u64 = 0x5ac_5eed;
@@ -139,12 +168,7 @@ impl Sac {
 
     /// Relabels goals with `goal` (when `her_goals` > 0); a task without one cannot use HER.
     pub fn with_goal(mut self, goal: Option<GoalSpec>) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            self.config.her_goals == 0 || goal.is_some(),
-            "sac.her_goals = {}: this task is not goal-conditioned (it declares no achieved and desired goal)",
-            self.config.her_goals
-        );
-        self.goal = goal;
+        Learner::set_goal(&mut self, goal)?;
         Ok(self)
     }
 
@@ -167,12 +191,9 @@ impl Sac {
 
     /// [-1, 1] → the action space's bounds.
     fn to_env(&self, unit: &[f32]) -> Vec<f32> {
-        let Space::Box { low, high } = &self.action_space else { return unit.to_vec() };
-        unit.iter().enumerate().map(|(i, u)| {
-            let k = i % low.len();
-            low[k] + (u.clamp(-1.0, 1.0) + 1.0) * 0.5 * (high[k] - low[k])
-        }).collect()
+        crate::off_policy::to_env(&self.action_space, unit)
     }
+
 
     /// The action for each raw observation row: tanh(μ) when `deterministic`, else a sample.
     pub fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
@@ -242,22 +263,12 @@ impl Sac {
             self.times.inference_s += (env_started - inference_started).as_secs_f64();
             self.times.env_s += env_started.elapsed().as_secs_f64();
 
-            // 2. Store (s, a, r, s', done): a finished episode's s' is its last observation; a
-            // truncated one is not done, so its value bootstraps.
-            let mut next_obs = out.obs.clone();
-            let mut ends = vec![false; n_envs];
-            for e in 0..n_envs {
-                ends[e] = out.terminated[e] || out.truncated[e];
-                if let Some(last) = &out.final_obs[e] {
-                    next_obs[e * obs_dim..(e + 1) * obs_dim].copy_from_slice(last);
-                }
-                if let Some(episode) = &out.episodes[e] {
-                    self.record_episode(episode);
-                }
-            }
-            if let Some(buffer) = &mut self.buffer {
-                buffer.push(&obs, &unit, &out.rewards, &next_obs, &out.terminated, &ends);
-            }
+            // 2. Store (s, a, r, s', done).
+            let (buffer, history, episodes) = (self.buffer.as_mut(), &mut self.history, &mut self.episodes);
+            crate::off_policy::store_step(buffer, &obs, &unit, &out, |episode| {
+                *episodes += 1;
+                history.record(episode);
+            });
             if let Some(rms) = &mut self.obs_rms {
                 rms.update(&out.obs);
             }
@@ -326,7 +337,7 @@ impl Sac {
 
 impl Agent for Sac {
     fn algorithm(&self) -> &'static str {
-        "SAC"
+        SAVED_AS
     }
     fn observation_space(&self) -> &Space {
         &self.observation_space
@@ -346,6 +357,12 @@ impl Agent for Sac {
     fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         Sac::predict_deterministic(self, obs)
     }
+    fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
+        Sac::predict(self, obs, deterministic)
+    }
+    fn policy_net(&self) -> anyhow::Result<PolicyNet> {
+        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), layers: self.actor.mode_layers()?, hidden: Activation::Relu, head: PolicyHead::TanhToBox })
+    }
     fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
         Sac::save(self, dir)
     }
@@ -360,6 +377,24 @@ impl Agent for Sac {
             ("train/entropy".into(), l.entropy),
             ("train/n_updates".into(), l.gradient_steps as f32),
         ]
+    }
+}
+
+impl Learner for Sac {
+    fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+        Sac::learn(self, env, total_timesteps, callback)
+    }
+    fn times(&self) -> TrainingTimes {
+        self.times
+    }
+    fn set_goal(&mut self, goal: Option<GoalSpec>) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.config.her_goals == 0 || goal.is_some(),
+            "sac.her_goals = {}: this task is not goal-conditioned (it declares no achieved and desired goal)",
+            self.config.her_goals
+        );
+        self.goal = goal;
+        Ok(())
     }
 }
 

@@ -11,7 +11,8 @@ use candle_core::{Device, Tensor, Var};
 use serde::{Deserialize, Serialize};
 
 use super::{ReplayBuffer, Sac, SacConfig};
-use crate::model_io::{self, METADATA_FILE, ModelError, ModelHeader, OPTIMIZER_FILE, WEIGHTS_FILE, file_error};
+use crate::model_header::ModelHeader;
+use crate::model_io::{self, METADATA_FILE, ModelError, WEIGHTS_FILE, file_error};
 use crate::nn::Adam;
 use twinbots_api::env_state::StreamState;
 
@@ -33,7 +34,7 @@ struct Metadata {
 
 /// Where the replay buffer's ring stands (its contents are in `replay_buffer.safetensors`).
 #[derive(Serialize, Deserialize)]
-struct BufferRing {
+pub(crate) struct BufferRing {
     n_envs: usize,
     capacity: usize,
     pos: usize,
@@ -69,22 +70,11 @@ impl Sac {
         let dir = dir.as_ref();
         std::fs::create_dir_all(dir).map_err(|e| file_error(dir, e))?;
         model_io::save_tensors(&model_io::var_tensors(&self.weights()), &dir.join(WEIGHTS_FILE))?;
-        let mut moments = HashMap::new();
-        let mut optimizer_steps = [0; 3];
+        let [actor, critic, ent] = self.optimized_vars();
         let adams = [&self.actor_optimizer, &self.critic_optimizer, &self.ent_optimizer];
-        for (k, ((prefix, named), adam)) in self.optimized_vars().into_iter().zip(adams).enumerate() {
-            let mut part = HashMap::new();
-            optimizer_steps[k] = model_io::moment_tensors(adam, &named, &mut part, dir)?;
-            moments.extend(part.into_iter().map(|(name, t)| (format!("{prefix}.{name}"), t)));
-        }
-        model_io::save_tensors(&moments, &dir.join(OPTIMIZER_FILE))?;
-        let replay_buffer = match &self.buffer {
-            Some(buffer) => {
-                save_buffer(buffer, &dir.join(REPLAY_BUFFER_FILE))?;
-                Some(BufferRing { n_envs: buffer.n_envs, capacity: buffer.capacity, pos: buffer.pos, full: buffer.full, episode_steps: buffer.episode_steps.clone() })
-            }
-            None => None,
-        };
+        let steps = model_io::save_optimizers(vec![(actor.0, actor.1, adams[0]), (critic.0, critic.1, adams[1]), (ent.0, ent.1, adams[2])], dir)?;
+        let optimizer_steps = [steps[0], steps[1], steps[2]];
+        let replay_buffer = save_replay(self.buffer.as_ref(), dir)?;
         model_io::save_env_state(dir, self.env_state.as_ref())?;
         let meta = Metadata {
             header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates),
@@ -103,7 +93,7 @@ impl Sac {
     pub fn load(dir: impl AsRef<Path>) -> Result<Sac, ModelError> {
         let dir = dir.as_ref();
         let path = dir.join(METADATA_FILE);
-        let meta: Metadata = model_io::load_metadata(dir, "SAC", FORMAT)?;
+        let meta: Metadata = model_io::load_metadata(dir, super::SAVED_AS, FORMAT)?;
         meta.hyperparameters.validate().map_err(|e| file_error(&path, e))?;
         let h = meta.header;
         h.check(&path)?;
@@ -113,31 +103,36 @@ impl Sac {
         (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) = (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
         (model.gradient_steps, model.iterations) = (meta.gradient_steps, meta.iterations);
         model.rng = meta.sampling_stream.to_rng().map_err(|e| file_error(&path, e))?;
-        let optimizer = dir.join(OPTIMIZER_FILE);
-        let moments = model_io::load_tensors(&optimizer)?;
-        let parts = model.optimized_vars();
-        for (k, ((prefix, named), adam)) in parts.into_iter().zip(model.optimizers()).enumerate() {
-            let part: HashMap<String, Tensor> =
-                moments.iter().filter_map(|(name, t)| name.strip_prefix(&format!("{prefix}.")).map(|n| (n.to_string(), t.clone()))).collect();
-            model_io::restore_moments(adam, &named, &part, meta.optimizer_steps[k], &optimizer)?;
-        }
-        if let Some(ring) = meta.replay_buffer {
-            let obs_dim = model.observation_space.dim();
-            let act_dim = model.action_space.dim();
-            let mut buffer = ReplayBuffer::new(ring.capacity, ring.n_envs, obs_dim, act_dim);
-            let file = dir.join(REPLAY_BUFFER_FILE);
-            load_buffer(&mut buffer, &file)?;
-            let len = if ring.full { ring.capacity } else { ring.pos };
-            let fits = buffer.capacity == ring.capacity && ring.pos < ring.capacity.max(1) && buffer.rewards.len() == len && ring.episode_steps.len() == ring.n_envs;
-            if !fits {
-                return Err(file_error(&file, "the replay buffer does not match its ring position in model.json"));
-            }
-            (buffer.pos, buffer.full, buffer.episode_steps) = (ring.pos, ring.full, ring.episode_steps);
-            model.buffer = Some(buffer);
-        }
+        let [actor, critic, ent] = model.optimized_vars();
+        let [a, c, e] = model.optimizers();
+        model_io::restore_optimizers(vec![(actor.0, actor.1, a), (critic.0, critic.1, c), (ent.0, ent.1, e)], &meta.optimizer_steps, dir)?;
+        model.buffer = load_replay(meta.replay_buffer, dir, model.observation_space.dim(), model.action_space.dim())?;
         model.env_state = model_io::load_env_state(dir)?;
         Ok(model)
     }
+}
+
+/// Saves `buffer` (if any) into `dir`'s `replay_buffer.safetensors`; returns its ring position
+/// for `model.json`.
+pub(crate) fn save_replay(buffer: Option<&ReplayBuffer>, dir: &Path) -> Result<Option<BufferRing>, ModelError> {
+    let Some(buffer) = buffer else { return Ok(None) };
+    save_buffer(buffer, &dir.join(REPLAY_BUFFER_FILE))?;
+    Ok(Some(BufferRing { n_envs: buffer.n_envs, capacity: buffer.capacity, pos: buffer.pos, full: buffer.full, episode_steps: buffer.episode_steps.clone() }))
+}
+
+/// The replay buffer [`save_replay`] saved into `dir` at `ring`, checked against it.
+pub(crate) fn load_replay(ring: Option<BufferRing>, dir: &Path, obs_dim: usize, act_dim: usize) -> Result<Option<ReplayBuffer>, ModelError> {
+    let Some(ring) = ring else { return Ok(None) };
+    let mut buffer = ReplayBuffer::new(ring.capacity, ring.n_envs, obs_dim, act_dim);
+    let file = dir.join(REPLAY_BUFFER_FILE);
+    load_buffer(&mut buffer, &file)?;
+    let len = if ring.full { ring.capacity } else { ring.pos };
+    let fits = buffer.capacity == ring.capacity && ring.pos < ring.capacity.max(1) && buffer.rewards.len() == len && ring.episode_steps.len() == ring.n_envs;
+    if !fits {
+        return Err(file_error(&file, "the replay buffer does not match its ring position in model.json"));
+    }
+    (buffer.pos, buffer.full, buffer.episode_steps) = (ring.pos, ring.full, ring.episode_steps);
+    Ok(Some(buffer))
 }
 
 fn save_buffer(buffer: &ReplayBuffer, path: &Path) -> Result<(), ModelError> {

@@ -4,7 +4,7 @@
 use candle_core::{D, Device, Result, Tensor, Var};
 use rand_chacha::ChaCha8Rng;
 
-use crate::ppo::policy::Dense;
+use crate::nn::Dense;
 
 /// SB3's bounds on the actor's log standard deviation.
 const LOG_STD_MIN: f64 = -20.0;
@@ -13,16 +13,16 @@ const LOG_STD_MAX: f64 = 2.0;
 /// Dense layers with ReLU after every one (`relu_last`) or all but the last.
 pub struct ReluMlp {
     pub layers: Vec<Dense>,
-    relu_last: bool,
+    pub(crate) relu_last: bool,
 }
 
 impl ReluMlp {
-    fn new(sizes: &[usize], relu_last: bool, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
+    pub(crate) fn new(sizes: &[usize], relu_last: bool, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
         let layers = sizes.windows(2).map(|w| Dense::new(w[0], w[1], 1.0, rng, dev)).collect::<Result<_>>()?;
         Ok(Self { layers, relu_last })
     }
 
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+    pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let mut h = x.clone();
         for (i, layer) in self.layers.iter().enumerate() {
             h = layer.forward(&h)?;
@@ -33,7 +33,7 @@ impl ReluMlp {
         Ok(h)
     }
 
-    fn named_vars(&self, prefix: &str, out: &mut Vec<(String, Var)>) {
+    pub(crate) fn named_vars(&self, prefix: &str, out: &mut Vec<(String, Var)>) {
         for (i, l) in self.layers.iter().enumerate() {
             out.push((format!("{prefix}.{i}.weight"), l.weight.clone()));
             out.push((format!("{prefix}.{i}.bias"), l.bias.clone()));
@@ -81,6 +81,13 @@ impl Actor {
         let squash = ((softplus(&(&u * -2.0)?)? + &u)?.neg()? + std::f64::consts::LN_2)? * 2.0;
         let log_prob = (gaussian? - squash?)?.sum(D::Minus1)?;
         Ok((u.tanh()?, log_prob))
+    }
+
+    /// The layers of the deterministic action tanh(μ(s)): the body, then μ.
+    pub fn mode_layers(&self) -> Result<Vec<crate::policy_net::DenseLayer>> {
+        let mut layers = self.body.layers.iter().enumerate().map(|(i, l)| l.values(&format!("actor.body.{i}"))).collect::<Result<Vec<_>>>()?;
+        layers.push(self.mu.values("actor.mu")?);
+        Ok(layers)
     }
 
     pub fn named_vars(&self) -> Vec<(String, Var)> {

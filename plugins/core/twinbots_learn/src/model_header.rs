@@ -1,0 +1,52 @@
+//! What every `model.json` holds, whatever the algorithm (its own fields follow).
+
+use std::path::Path;
+
+use twinbots_api::spaces::Space;
+
+use crate::agent::Agent;
+use crate::history::EpisodeHistory;
+use crate::model_io::{ModelError, file_error};
+use crate::normalize::RunningMeanStd;
+
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct ModelHeader {
+    pub format: u32,
+    pub twinbots_version: String,
+    pub algorithm: String,
+    pub observation_space: Space,
+    pub action_space: Space,
+    pub obs_rms: Option<RunningMeanStd>,
+    pub seed: u64,
+    pub timesteps: u64,
+    pub episodes: u64,
+    pub updates: u64,
+    #[serde(flatten)]
+    pub history: EpisodeHistory,
+}
+
+impl ModelHeader {
+    pub fn of(agent: &dyn Agent, format: u32, obs_rms: Option<&RunningMeanStd>, seed: u64, updates: u64) -> Self {
+        Self {
+            format,
+            twinbots_version: env!("CARGO_PKG_VERSION").into(),
+            algorithm: agent.algorithm().into(),
+            observation_space: agent.observation_space().clone(),
+            action_space: agent.action_space().clone(),
+            obs_rms: obs_rms.cloned(),
+            seed,
+            timesteps: agent.timesteps(),
+            episodes: agent.episodes(),
+            updates,
+            history: agent.history().clone(),
+        }
+    }
+
+    /// An error unless the observation statistics are finite.
+    pub fn check(&self, path: &Path) -> Result<(), ModelError> {
+        match &self.obs_rms {
+            Some(rms) => rms.check_finite().map_err(|e| file_error(path, e)),
+            None => Ok(()),
+        }
+    }
+}

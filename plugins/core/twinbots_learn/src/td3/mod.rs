@@ -1,0 +1,394 @@
+//! Twin Delayed DDPG (Fujimoto et al. 2018), read top to bottom like CleanRL's `td3_continuous_
+//! action.py`, with Stable-Baselines3's surface and defaults: a deterministic actor explored
+//! with Gaussian noise, twin critics whose smaller estimate makes the target, noise on the
+//! target actor's actions, and actor and target updates every `policy_delay` critic updates.
+//! Its replay buffer and critics are SAC's (`crate::sac`).
+
+mod config;
+mod model_file;
+
+use std::time::Instant;
+
+use candle_core::{Device, Tensor, Var};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use twinbots_api::env::VecEnv;
+use twinbots_api::env_state::EnvState;
+use twinbots_api::spaces::Space;
+
+pub use config::Td3Config;
+
+use crate::agent::{Agent, LoadAgent};
+use crate::callbacks::Callback;
+use crate::history::EpisodeHistory;
+use crate::learner::{Algorithm, Learner, config_from};
+use crate::model_io::ModelError;
+use crate::nn::{Adam, AdamConfig, Dense};
+use crate::normalize::RunningMeanStd;
+use crate::policy_net::{Activation, PolicyHead, PolicyNet};
+use crate::sac::{ReluMlp, ReplayBuffer, TwinCritic, polyak_update};
+use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats};
+
+/// The name `--algo` and the settings' `[td3]` table use, and the one its models are saved
+/// under (`model.json`'s `algorithm`).
+pub const NAME: &str = "td3";
+pub const SAVED_AS: &str = "TD3";
+
+/// TD3's line in [`crate::algos::ALGOS`].
+pub const ALGORITHM: Algorithm = Algorithm {
+    name: NAME,
+    saved_as: SAVED_AS,
+    summary: "Twin Delayed DDPG: off-policy, deterministic policy, continuous actions; patterns 1 and 2",
+    continuous_only: true,
+    serves: false,
+    config: |keys, _arenas| {
+        let config: Td3Config = config_from(keys, NAME)?;
+        config.validate()?;
+        Ok(toml::Table::try_from(&config)?)
+    },
+    new: |config, spec, seed| Ok(Box::new(Td3::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?)),
+    load: |dir| Ok(Box::new(Td3::load(dir)?)),
+};
+
+/// The noise stream is the seed mixed with this (the weights come from the seed itself).
+const NOISE_STREAM_SALT: u64 = 0x7d3_5eed;
+
+/// What the last row's gradient steps did (SB3's `train/` figures for TD3).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Td3Losses {
+    pub actor_loss: f32,
+    pub critic_loss: f32,
+    pub gradient_steps: u64,
+}
+
+/// A TD3 agent: actor and twin critics with their targets, the optimisers, the replay buffer
+/// and the counters that make a run resumable.
+pub struct Td3 {
+    pub config: Td3Config,
+    pub observation_space: Space,
+    pub action_space: Space,
+    /// μ(s) = tanh(actor(s)), in [−1, 1] per action.
+    pub actor: ReluMlp,
+    pub actor_target: ReluMlp,
+    pub critic: TwinCritic,
+    pub critic_target: TwinCritic,
+    pub obs_rms: Option<RunningMeanStd>,
+    pub seed: u64,
+    pub timesteps: u64,
+    pub episodes: u64,
+    /// Rows written (the callbacks' updates).
+    pub updates: u64,
+    /// Critic updates taken.
+    pub gradient_steps: u64,
+    /// Iterations of `learn` (steps of each env).
+    pub iterations: u64,
+    pub history: EpisodeHistory,
+    pub buffer: Option<ReplayBuffer>,
+    actor_optimizer: Adam,
+    critic_optimizer: Adam,
+    rng: ChaCha8Rng,
+    /// Where the envs stood at the last row (see `Ppo::env_state`).
+    pub env_state: Option<EnvState>,
+    pub last_losses: Td3Losses,
+    pub times: TrainingTimes,
+}
+
+/// A copy of `mlp` sharing no variables (a target network starts as its network).
+fn deep_copy(mlp: &ReluMlp) -> candle_core::Result<ReluMlp> {
+    let copy = |v: &Var| Var::from_tensor(&v.as_tensor().copy()?);
+    let layers = mlp.layers.iter().map(|l| Ok(Dense { weight: copy(&l.weight)?, bias: copy(&l.bias)? })).collect::<candle_core::Result<_>>()?;
+    Ok(ReluMlp { layers, relu_last: mlp.relu_last })
+}
+
+fn named(mlp: &ReluMlp, prefix: &str) -> Vec<(String, Var)> {
+    let mut out = Vec::new();
+    mlp.named_vars(prefix, &mut out);
+    out
+}
+
+impl Td3 {
+    pub fn new(config: Td3Config, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
+        let Space::Box { low, .. } = &action_space else {
+            anyhow::bail!("TD3 needs continuous (Box) actions, not {action_space}: use PPO")
+        };
+        config.validate()?;
+        let (obs_dim, act_dim) = (observation_space.dim(), low.len());
+        let mut init = ChaCha8Rng::seed_from_u64(seed);
+        let sizes: Vec<usize> = std::iter::once(obs_dim).chain(config.hidden.iter().copied()).chain(std::iter::once(act_dim)).collect();
+        let actor = ReluMlp::new(&sizes, false, &mut init, &Device::Cpu)?;
+        let critic = TwinCritic::new(obs_dim, act_dim, &config.hidden, &mut init)?;
+        let adam = |vars: Vec<(String, Var)>| {
+            Adam::new(vars.into_iter().map(|(_, v)| v).collect(), AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() })
+        };
+        Ok(Self {
+            actor_optimizer: adam(named(&actor, "actor")),
+            critic_optimizer: adam(critic.named_vars("critic")),
+            actor_target: deep_copy(&actor)?,
+            critic_target: critic.deep_copy()?,
+            actor,
+            critic,
+            obs_rms: config.normalize_observations.then(|| RunningMeanStd::new(obs_dim)),
+            seed,
+            timesteps: 0,
+            episodes: 0,
+            updates: 0,
+            gradient_steps: 0,
+            iterations: 0,
+            history: EpisodeHistory::default(),
+            buffer: None,
+            rng: ChaCha8Rng::seed_from_u64(seed ^ NOISE_STREAM_SALT),
+            env_state: None,
+            last_losses: Td3Losses::default(),
+            times: TrainingTimes::default(),
+            config,
+            observation_space,
+            action_space,
+        })
+    }
+
+    fn act_dim(&self) -> usize {
+        self.action_space.dim()
+    }
+
+    /// Rows of raw observations, normalised, as a tensor for the networks.
+    fn batch(&self, obs: &[f32]) -> anyhow::Result<Tensor> {
+        let dim = self.observation_space.dim();
+        Ok(Tensor::from_vec(crate::normalize::normalized(self.obs_rms.as_ref(), obs), (obs.len() / dim, dim), &Device::Cpu)?)
+    }
+
+    /// Gaussian noise of standard deviation `std`, clipped to ± `clip`, for `n` actions.
+    fn noise(&mut self, n: usize, std: f32, clip: f32) -> Vec<f32> {
+        (0..n).map(|_| { let e: f32 = StandardNormal.sample(&mut self.rng); (e * std).clamp(-clip, clip) }).collect()
+    }
+
+    /// [-1, 1] → the action space's bounds.
+    fn to_env(&self, unit: &[f32]) -> Vec<f32> {
+        crate::off_policy::to_env(&self.action_space, unit)
+    }
+
+
+    /// μ(s) in [−1, 1] for each raw observation row.
+    fn unit_actions(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        Ok(self.actor.forward(&self.batch(obs)?)?.tanh()?.flatten_all()?.to_vec1::<f32>()?)
+    }
+
+    /// μ(s) for each raw observation row, in the action space's bounds.
+    pub fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        Ok(self.to_env(&self.unit_actions(obs)?))
+    }
+
+    /// μ(s), plus the exploration noise unless `deterministic`.
+    pub fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
+        let mut unit = self.unit_actions(obs)?;
+        if !deterministic {
+            let noise = self.noise(unit.len(), self.config.action_noise, f32::INFINITY);
+            unit.iter_mut().zip(noise).for_each(|(a, n)| *a = (*a + n).clamp(-1.0, 1.0));
+        }
+        Ok(self.to_env(&unit))
+    }
+
+    /// One critic update, and every `policy_delay`-th one an actor and target update; `None`
+    /// when a loss or gradient was not finite (those weights stay, the step counts as skipped).
+    pub fn gradient_step(&mut self) -> anyhow::Result<Option<Td3Losses>> {
+        let Some(buffer) = &self.buffer else { return Ok(None) };
+        if buffer.is_empty() {
+            return Ok(None);
+        }
+        let batch = buffer.sample(self.config.batch_size, &mut self.rng, None);
+        let (b, act_dim, dev) = (batch.rewards.len(), self.act_dim(), Device::Cpu);
+        let (obs, next_obs) = (self.batch(&batch.obs)?, self.batch(&batch.next_obs)?);
+        let actions = Tensor::from_vec(batch.actions, (b, act_dim), &dev)?;
+        let rewards = Tensor::from_vec(batch.rewards, b, &dev)?;
+        let not_done = (Tensor::from_vec(batch.dones, b, &dev)?.neg()? + 1.0)?;
+
+        // Target policy smoothing: ã = clip(μ'(s') + clip(ε, −c, c), −1, 1), ε ~ N(0, σ̃).
+        let smoothing = self.noise(b * act_dim, self.config.target_policy_noise, self.config.target_noise_clip);
+        let next_actions = (self.actor_target.forward(&next_obs)?.tanh()? + Tensor::from_vec(smoothing, (b, act_dim), &dev)?)?.clamp(-1f32, 1f32)?;
+        // Critics: y = r + γ (1 − done) min(Q'₁, Q'₂)(s', ã); loss Σᵢ MSE(Qᵢ(s, a), y), as SB3.
+        let next_q = self.critic_target.min_q(&next_obs, &next_actions)?;
+        let target = (rewards + (not_done * next_q)? * self.config.gamma as f64)?.detach();
+        let (q1, q2) = self.critic.q(&obs, &actions)?;
+        let critic_loss = ((&q1 - &target)?.sqr()?.mean_all()? + (&q2 - &target)?.sqr()?.mean_all()?)?;
+        let mut applied = self.critic_optimizer.step(&critic_loss.backward()?, None)?.applied;
+        self.gradient_steps += 1;
+
+        // Delayed: the actor ascends Q₁(s, μ(s)), then the targets follow by Polyak.
+        let mut actor_loss = f32::NAN;
+        if self.gradient_steps % self.config.policy_delay as u64 == 0 {
+            let (q_pi, _) = self.critic.q(&obs, &self.actor.forward(&obs)?.tanh()?)?;
+            let loss = q_pi.mean_all()?.neg()?;
+            actor_loss = loss.to_scalar::<f32>()?;
+            applied &= self.actor_optimizer.step(&loss.backward()?, None)?.applied;
+            polyak_update(&self.critic_target.named_vars("target"), &self.critic.named_vars("critic"), self.config.tau)?;
+            polyak_update(&named(&self.actor_target, "actor_target"), &named(&self.actor, "actor"), self.config.tau)?;
+        }
+        if !applied {
+            return Ok(None);
+        }
+        Ok(Some(Td3Losses { actor_loss, critic_loss: critic_loss.to_scalar::<f32>()?, gradient_steps: self.gradient_steps }))
+    }
+
+    /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback` after
+    /// every row, and says why it stopped.
+    pub fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+        self.check_spaces(env.observation_space(), env.action_space())?;
+        let n_envs = env.num_envs();
+        let (obs_dim, act_dim) = (self.observation_space.dim(), self.act_dim());
+        let buffer = self.buffer.get_or_insert_with(|| ReplayBuffer::new(self.config.buffer_size, n_envs, obs_dim, act_dim));
+        anyhow::ensure!(buffer.n_envs == n_envs, "the replay buffer was filled by {} envs, this env has {n_envs}", buffer.n_envs);
+        let end = self.timesteps + total_timesteps;
+        let mut obs = match self.env_state.take() {
+            Some(state) => twinbots_api::replay(env, &state)?,
+            None => {
+                let first = env.reset(Some(self.seed.wrapping_add(self.timesteps)))?;
+                if let Some(rms) = &mut self.obs_rms {
+                    rms.update(&first);
+                }
+                first
+            }
+        };
+        callback.on_training_start(self)?;
+        let (mut ended, mut row_started, mut row, mut skipped) = (None, Instant::now(), Td3Losses::default(), 0);
+        let mut actor_updates = 0u64;
+        while ended.is_none() && self.timesteps < end {
+            // 1. Act: uniform random actions until learning starts, then μ(s) + noise.
+            let inference_started = Instant::now();
+            let unit: Vec<f32> = if self.timesteps < self.config.learning_starts {
+                (0..n_envs * act_dim).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect()
+            } else {
+                let mut unit = self.unit_actions(&obs)?;
+                let noise = self.noise(unit.len(), self.config.action_noise, f32::INFINITY);
+                unit.iter_mut().zip(noise).for_each(|(a, n)| *a = (*a + n).clamp(-1.0, 1.0));
+                unit
+            };
+            let env_started = Instant::now();
+            let out = env.step(&self.to_env(&unit))?;
+            self.times.inference_s += (env_started - inference_started).as_secs_f64();
+            self.times.env_s += env_started.elapsed().as_secs_f64();
+
+            // 2. Store (s, a, r, s', done).
+            let (buffer, history, episodes) = (self.buffer.as_mut(), &mut self.history, &mut self.episodes);
+            crate::off_policy::store_step(buffer, &obs, &unit, &out, |episode| {
+                *episodes += 1;
+                history.record(episode);
+            });
+            if let Some(rms) = &mut self.obs_rms {
+                rms.update(&out.obs);
+            }
+            obs = out.obs;
+            self.timesteps += n_envs as u64;
+            self.iterations += 1;
+
+            // 3. Learn from the buffer.
+            if self.timesteps >= self.config.learning_starts && self.iterations % self.config.train_freq as u64 == 0 {
+                let update_started = Instant::now();
+                for _ in 0..self.config.gradient_steps {
+                    match self.gradient_step()? {
+                        Some(losses) => {
+                            row.critic_loss += losses.critic_loss;
+                            if losses.actor_loss.is_finite() {
+                                row.actor_loss += losses.actor_loss;
+                                actor_updates += 1;
+                            }
+                            row.gradient_steps += 1;
+                        }
+                        None => skipped += 1,
+                    }
+                }
+                self.times.update_s += update_started.elapsed().as_secs_f64();
+            }
+
+            // 4. A row and the callbacks.
+            if self.iterations % self.config.log_interval as u64 == 0 {
+                let callbacks_started = Instant::now();
+                self.updates += 1;
+                self.env_state = env.state()?;
+                let mean = |sum: f32, n: u64| if n == 0 { f32::NAN } else { sum / n as f32 };
+                self.last_losses = Td3Losses {
+                    actor_loss: mean(row.actor_loss, actor_updates),
+                    critic_loss: mean(row.critic_loss, row.gradient_steps),
+                    gradient_steps: self.gradient_steps,
+                };
+                if skipped > 0 {
+                    eprintln!("row {}: {skipped} gradient step(s) skipped: a loss or gradient was not finite", self.updates);
+                }
+                let stats = UpdateStats {
+                    policy_loss: self.last_losses.actor_loss,
+                    value_loss: self.last_losses.critic_loss,
+                    entropy: f32::NAN,
+                    approx_kl: f32::NAN,
+                    clip_fraction: f32::NAN,
+                    learning_rate: self.config.learning_rate,
+                    steps_per_s: (self.config.log_interval * n_envs) as f32 / row_started.elapsed().as_secs_f32(),
+                    skipped_steps: skipped,
+                    ..self.history.row(self.updates, self.timesteps, self.episodes)
+                };
+                ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);
+                (row, skipped, row_started, actor_updates) = (Td3Losses::default(), 0, Instant::now(), 0);
+                self.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
+            }
+        }
+        callback.on_training_end(self)?;
+        self.env_state = None;
+        Ok(ended.unwrap_or(TrainingEnd::BudgetSpent { timesteps: self.timesteps }))
+    }
+}
+
+impl Agent for Td3 {
+    fn algorithm(&self) -> &'static str {
+        SAVED_AS
+    }
+    fn observation_space(&self) -> &Space {
+        &self.observation_space
+    }
+    fn action_space(&self) -> &Space {
+        &self.action_space
+    }
+    fn timesteps(&self) -> u64 {
+        self.timesteps
+    }
+    fn episodes(&self) -> u64 {
+        self.episodes
+    }
+    fn history(&self) -> &EpisodeHistory {
+        &self.history
+    }
+    fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        Td3::predict_deterministic(self, obs)
+    }
+    fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
+        Td3::predict(self, obs, deterministic)
+    }
+    fn policy_net(&self) -> anyhow::Result<PolicyNet> {
+        let layers = self.actor.layers.iter().enumerate().map(|(i, l)| l.values(&format!("actor.{i}"))).collect::<candle_core::Result<_>>()?;
+        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), layers, hidden: Activation::Relu, head: PolicyHead::TanhToBox })
+    }
+    fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
+        Td3::save(self, dir)
+    }
+    /// SB3's TD3 tags.
+    fn train_scalars(&self, _stats: &UpdateStats) -> Vec<(String, f32)> {
+        let l = &self.last_losses;
+        vec![
+            ("train/actor_loss".into(), l.actor_loss),
+            ("train/critic_loss".into(), l.critic_loss),
+            ("train/n_updates".into(), l.gradient_steps as f32),
+        ]
+    }
+}
+
+impl Learner for Td3 {
+    fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+        Td3::learn(self, env, total_timesteps, callback)
+    }
+    fn times(&self) -> TrainingTimes {
+        self.times
+    }
+}
+
+impl LoadAgent for Td3 {
+    fn load(dir: &std::path::Path) -> Result<Self, ModelError> {
+        Td3::load(dir)
+    }
+}
