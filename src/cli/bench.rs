@@ -12,6 +12,45 @@ use twinbots_sim::SimSettings;
 
 use crate::registry;
 
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    #[arg(value_enum)]
+    pub what: BenchKind,
+    /// Robot to benchmark.
+    #[arg(long, default_value = "cartpole")]
+    pub robot: String,
+    /// Arena counts to measure, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = vec![1, 16, 64])]
+    pub arenas: Vec<usize>,
+    /// Control steps per measurement.
+    #[arg(long, default_value_t = 2000)]
+    pub steps: usize,
+}
+
+/// `twinbots bench`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    match args.what {
+        BenchKind::Physics => print_physics(&args.robot, &args.arenas, args.steps),
+        BenchKind::Server => print_server(&args.arenas, args.steps),
+        BenchKind::Capture => print_capture(&args.robot, &[(640, 480), (64, 64)], 60),
+        BenchKind::Rl => print_rl(&args.robot, args.arenas.first().copied().unwrap_or(8), args.steps),
+    }
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum BenchKind {
+    /// Control steps per second with N arenas, and the schedule's cost per step.
+    Physics,
+    /// PPO update time per 2048 samples; env steps/s through the channel bridge vs directly
+    /// (with the first of --arenas).
+    Rl,
+    /// RobotServer step round trip, and steps/s with N robots (--arenas as robot counts).
+    Server,
+    /// Frames/s of off-screen capture at 640x480 and 64x64.
+    Capture,
+}
+
 pub struct PhysicsBench {
     pub arenas: usize,
     /// Vectorised steps per second (each advances every arena by one control step).

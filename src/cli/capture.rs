@@ -11,6 +11,38 @@ use twinbots_task::AppVecEnv;
 
 use crate::registry::{self, RobotEntry};
 
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    pub robot: String,
+    /// Drive the robot with this run's trained model (default: zero actions).
+    #[arg(long)]
+    pub model: Option<std::path::PathBuf>,
+    #[arg(long, default_value_t = 50)]
+    pub frames: usize,
+    /// Physics control steps between frames.
+    #[arg(long, default_value_t = 1)]
+    pub every: usize,
+    #[arg(long, default_value = "640x480")]
+    pub size: String,
+    /// Camera: side, front, iso or top.
+    #[arg(long, default_value = "side")]
+    pub camera: String,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// The task to run (see `twinbots robots`); default: the robot's own.
+    #[arg(long)]
+    pub task: Option<String>,
+    #[arg(long)]
+    pub out: std::path::PathBuf,
+}
+
+/// `twinbots capture`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let Args { robot, model, frames, every, size, camera, seed, task, out } = args;
+    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out })
+}
+
 /// A named camera of a robot's cell.
 pub fn camera(entry: &RobotEntry, name: &str) -> anyhow::Result<View> {
     View::framed(&entry.framing, name)

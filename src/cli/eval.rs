@@ -9,6 +9,38 @@ use twinbots_task::AppVecEnv;
 use crate::cli::runs::{TrainSettings, evaluation_env};
 use crate::registry;
 
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run directory of `twinbots train`.
+    pub run: std::path::PathBuf,
+    #[arg(long, default_value_t = 100)]
+    pub episodes: usize,
+    /// Parallel arenas; default: the run's.
+    #[arg(long)]
+    pub arenas: Option<usize>,
+    /// Also write the PNG frames of one evaluation episode into this directory.
+    #[arg(long)]
+    pub record: Option<std::path::PathBuf>,
+    #[arg(long, default_value = "640x480")]
+    pub size: String,
+    #[arg(long, default_value = "side")]
+    pub camera: String,
+    /// Evaluate on another task of the robot's cell (see `twinbots robots`), e.g. the
+    /// UR5e's pick-place with its reach model; default: the task it was trained on.
+    #[arg(long)]
+    pub task: Option<String>,
+}
+
+/// `twinbots eval`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    eval_run(&args.run, args.episodes, args.arenas, args.task.as_deref())?;
+    if let Some(dir) = &args.record {
+        record_episode(&args.run, dir, crate::cli::capture::parse_size(&args.size)?, &args.camera, args.task.as_deref())?;
+    }
+    Ok(())
+}
+
 /// Loads the run's final model (or its newest checkpoint), evaluates it on the run's task or
 /// on another `task` of the robot's cell, prints the figures and writes `eval.json` (or
 /// `eval-<task>.json`) into the run directory.

@@ -11,6 +11,21 @@ use twinbots_sim::SimSettings;
 use crate::cli::runs::TrainSettings;
 use crate::registry;
 
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run directory of `twinbots train` or `twinbots serve`.
+    pub run: std::path::PathBuf,
+    /// The ONNX file to write.
+    #[arg(long)]
+    pub onnx: std::path::PathBuf,
+}
+
+/// `twinbots export`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    export_run(&args.run, &args.onnx).map(|_| ())
+}
+
 /// Writes the run's model (its final one, else its newest checkpoint) to `onnx` and returns the
 /// description written with it.
 pub fn export_run(run: &Path, onnx: &Path) -> anyhow::Result<PolicyMetadata> {

@@ -1,5 +1,6 @@
 //! The subcommands.
 
+pub mod algos;
 pub mod bench;
 pub mod capture;
 pub mod eval;

@@ -17,6 +17,44 @@ use twinbots_link::robot::{OnBoardPolicy, RobotRunState, ServerAddress, ServerTo
 
 use crate::registry;
 
+/// The command's arguments.
+#[derive(clap::Args)]
+#[command(group = clap::ArgGroup::new("source").required(true).args(["server", "policy"]))]
+pub struct Args {
+    pub robot: String,
+    /// The RobotServer's address.
+    #[arg(long)]
+    pub server: Option<std::net::SocketAddr>,
+    /// An exported policy (`twinbots export`) that the robots run on board, no server.
+    #[arg(long)]
+    pub policy: Option<std::path::PathBuf>,
+    #[arg(long, default_value_t = 1)]
+    pub arenas: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Seconds to keep trying to reach the server.
+    #[arg(long, default_value_t = 30, conflicts_with = "policy")]
+    pub patience: u64,
+    /// The server's shared secret (default: $TWINBOTS_TOKEN, else none).
+    #[arg(long, conflicts_with = "policy")]
+    pub token: Option<String>,
+    /// With --policy: episodes to run before reporting their figures.
+    #[arg(long, default_value_t = 10, conflicts_with = "server")]
+    pub episodes: usize,
+}
+
+/// `twinbots robot`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    match (args.server, args.policy) {
+        (Some(server), _) => {
+            let token = args.token.or_else(crate::cli::serve::token_from_env);
+            against_server_with_token(&args.robot, server, args.arenas, args.seed, Duration::from_secs(args.patience), token).map(|_| ())
+        }
+        (None, Some(policy)) => with_policy(&args.robot, &policy, args.arenas, args.episodes, args.seed).map(|_| ()),
+        (None, None) => unreachable!("clap requires --server or --policy"),
+    }
+}
+
 /// A pattern-3 app of `arenas` robots getting their actions from `source` (a [`ServerAddress`]
 /// or an [`OnBoardPolicy`]), started up.
 fn robot_app(robot: &str, arenas: usize, seed: u64, source: impl Resource) -> anyhow::Result<App> {

@@ -6,6 +6,23 @@ use twinbots_link::protocol::TaskInterface;
 
 use crate::registry;
 
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Print each robot's tasks as the RobotServer's `welcome` describes them (spaces with
+    /// bounds, observation names, reward range), as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `twinbots robots`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    if args.json { print_json() } else {
+        print();
+        Ok(())
+    }
+}
+
 pub fn print() {
     for robot in registry::robots() {
         println!("{:<12} {}", robot.name, robot.description);

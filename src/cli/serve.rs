@@ -15,8 +15,88 @@ use twinbots_learn::run_dir::EVAL;
 use twinbots_learn::{Ppo, PpoConfig, RunDir, evaluate_policy, ppo};
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
-use crate::cli::runs::{TrainSettings, evaluation_env};
+use crate::cli::runs::{ConfigFile, TrainSettings, evaluation_env};
 use crate::registry;
+
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Robot to serve (see `twinbots robots`); not needed with --resume.
+    #[arg(required_unless_present = "resume")]
+    pub robot: Option<String>,
+    /// Address to listen on (port 0: any free port; the first output line tells which).
+    /// Loopback by default: robots on other machines need an explicit address such as
+    /// 0.0.0.0:7878, and then a --token.
+    #[arg(long, default_value = "127.0.0.1:7878")]
+    pub listen: std::net::SocketAddr,
+    /// Robots connected at once; the next one is refused (`server_full`).
+    #[arg(long, default_value_t = 64)]
+    pub max_robots: usize,
+    /// A shared secret every robot's hello must carry (default: $TWINBOTS_TOKEN, else none).
+    #[arg(long)]
+    pub token: Option<String>,
+    /// Seconds a new connection has to send its whole hello.
+    #[arg(long, default_value_t = 10.0)]
+    pub handshake_timeout: f64,
+    /// Seconds a robot has to send each whole request after the last reply.
+    #[arg(long, default_value_t = 60.0)]
+    pub read_timeout: f64,
+    /// Robots a rollout is sized for; default: the robot's arena count.
+    #[arg(long)]
+    pub robots: Option<usize>,
+    #[arg(long)]
+    pub timesteps: Option<u64>,
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// A TOML file of settings, as for `train --config`.
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    /// A complete settings file (a run's config.toml), used as is.
+    #[arg(long, conflicts_with = "config")]
+    pub settings: Option<std::path::PathBuf>,
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+    /// Continue the server run in this directory from its newest checkpoint.
+    #[arg(long, conflicts_with_all = ["robot", "robots", "timesteps", "seed", "config", "settings", "out"])]
+    pub resume: Option<std::path::PathBuf>,
+    /// Exit when standard input closes: for a server started by `train --pattern 3`, which
+    /// must not outlive it.
+    #[arg(long, hide = true)]
+    pub exit_with_stdin: bool,
+}
+
+/// `twinbots serve`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let Args { robot, listen, max_robots, token, handshake_timeout, read_timeout, robots, timesteps, seed, config, settings, out, resume, exit_with_stdin } = args;
+    if exit_with_stdin {
+        exit_when_stdin_closes();
+    }
+    let limits = ServerLimits {
+        max_robots,
+        token: token.or_else(token_from_env),
+        handshake_timeout: seconds("--handshake-timeout", handshake_timeout)?,
+        read_timeout: seconds("--read-timeout", read_timeout)?,
+        ..Default::default()
+    };
+    if let Some(run) = resume {
+        return self::resume(&run, listen, limits);
+    }
+    let robot = robot.unwrap_or_default();
+    let entry = registry::find(&robot)?;
+    let settings = match settings {
+        Some(path) => TrainSettings::read_file(&path)?,
+        None => {
+            let file = match config {
+                Some(path) => ConfigFile::read(&path)?,
+                None => Default::default(),
+            };
+            let flags = ConfigFile { timesteps, arenas: robots, seed, pattern: Some(3), ..Default::default() };
+            TrainSettings::resolve(&entry, file, flags)?
+        }
+    };
+    let out = out.unwrap_or_else(|| crate::cli::runs::default_run_dir(&format!("{robot}-server")));
+    serve(settings, listen, limits, &out)
+}
 
 /// Test-only: set to make the learner panic in its first update, so tests can show that a
 /// failing learner ends `serve` with an error instead of leaving it hanging (no settings that

@@ -20,8 +20,82 @@ use twinbots_task::{bridge, env};
 
 use crate::cli::learner;
 use twinbots_learn::Learner;
-use crate::cli::runs::{TrainSettings, evaluation_env};
+use crate::cli::runs::{ConfigFile, TrainSettings, evaluation_env};
 use crate::registry;
+
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Robot to train (see `twinbots robots`); not needed with --resume.
+    #[arg(required_unless_present = "resume")]
+    pub robot: Option<String>,
+    /// Env steps (summed over arenas); default: the robot's budget.
+    #[arg(long)]
+    pub timesteps: Option<u64>,
+    /// Parallel arenas; default: the robot's.
+    #[arg(long)]
+    pub arenas: Option<usize>,
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Design pattern (paper §3): 1 RLRobot + Supervisor, 2 SupervisorRobot + SlaveRobot over
+    /// radio, 3 RobotServer + Communicator.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=3))]
+    pub pattern: Option<u8>,
+    /// The learner, by name (`twinbots algos` lists them); default: the robot's (ppo).
+    #[arg(long, value_parser = parse_algo)]
+    pub algo: Option<String>,
+    /// A TOML file with settings (timesteps, arenas, seed, checkpoint_every, eval_every,
+    /// eval_episodes, algo, [ppo] / [sac] hyperparameters); flags override it.
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    /// Run directory; default runs/<robot>-<time>.
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+    /// Save a checkpoint every this many updates.
+    #[arg(long)]
+    pub checkpoint_every: Option<usize>,
+    /// Show arena 0 in a window while training (the other arenas train at full speed).
+    #[arg(long)]
+    pub view: bool,
+    /// Continue the run in this directory from its newest checkpoint.
+    #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out", "algo"])]
+    pub resume: Option<std::path::PathBuf>,
+    /// Print the settings the run would use (the robot's defaults ← the config file ← the
+    /// flags, key by key) as TOML, and exit without training.
+    #[arg(long)]
+    pub print_config: bool,
+}
+
+/// `twinbots train`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let Args { robot, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, resume, print_config } = args;
+    if let Some(run) = resume {
+        if print_config {
+            print!("{}", toml::to_string_pretty(&TrainSettings::of_run(&RunDir::new(run))?)?);
+            return Ok(());
+        }
+        return self::resume(&run, view);
+    }
+    let robot = robot.unwrap_or_default();
+    let entry = registry::find(&robot)?;
+    let file = match config {
+        Some(path) => ConfigFile::read(&path)?,
+        None => Default::default(),
+    };
+    let flags = ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, algo, ..Default::default() };
+    let settings = TrainSettings::resolve(&entry, file, flags)?;
+    if print_config {
+        print!("{}", toml::to_string_pretty(&settings)?);
+        return Ok(());
+    }
+    let out = out.unwrap_or_else(|| crate::cli::runs::default_run_dir(&robot));
+    train(settings, &out, view)
+}
+
+/// `--algo`'s value: a name of the algorithm table, or an error listing them.
+fn parse_algo(name: &str) -> Result<String, String> {
+    twinbots_learn::algos::find(name).map(|a| a.name.to_string()).map_err(|e| e.to_string())
+}
 
 /// Pattern 3: starts `twinbots serve` as its own process and runs the robots here; `resume`:
 /// the server continues the run in `out` (`serve --resume`).

@@ -11,6 +11,25 @@ use twinbots_task::AppVecEnv;
 
 use crate::registry;
 
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    pub robot: String,
+    /// Drive the robot with this run's trained model (default: zero actions).
+    #[arg(long)]
+    pub model: Option<std::path::PathBuf>,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// The task to run (see `twinbots robots`); default: the robot's own.
+    #[arg(long)]
+    pub task: Option<String>,
+}
+
+/// `twinbots view`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    view(&args.robot, args.model.as_deref(), args.seed, args.task.as_deref())
+}
+
 /// Plays one arena in real time.
 struct Player {
     env: AppVecEnv,

@@ -21,6 +21,7 @@ pub mod off_policy;
 pub mod plot;
 pub mod policy_net;
 pub mod ppo;
+pub mod replay_buffer;
 pub mod run_dir;
 pub mod sac;
 pub mod stats;

@@ -3,7 +3,7 @@
 
 use twinbots_api::{EpisodeSummary, Space, StepResult};
 
-use crate::sac::ReplayBuffer;
+use crate::replay_buffer::ReplayBuffer;
 
 /// Actions in [−1, 1] (clipped) → the action box's bounds: `low + (a + 1) · (high − low) / 2`.
 pub fn to_env(space: &Space, unit: &[f32]) -> Vec<f32> {

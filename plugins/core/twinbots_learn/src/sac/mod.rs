@@ -4,11 +4,11 @@
 //! and hindsight experience replay (Andrychowicz et al. 2017) for goal-conditioned tasks.
 //!
 //! `learn` steps every env once per iteration: random actions until `learning_starts`, then the
-//! actor's samples; each step goes into the replay buffer (`buffer.rs`); every `train_freq`
-//! iterations it takes `gradient_steps` gradient steps (`update.rs`); every `log_interval`
-//! iterations it writes a row and calls the callbacks (the "update" they count).
+//! actor's samples; each step goes into the replay buffer (`crate::replay_buffer`, shared with
+//! TD3); every `train_freq` iterations it takes `gradient_steps` gradient steps (`update.rs`);
+//! every `log_interval` iterations it writes a row and calls the callbacks (the "update" they
+//! count).
 
-mod buffer;
 mod config;
 pub(crate) mod model_file;
 mod networks;
@@ -21,7 +21,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
-pub use buffer::{Batch, ReplayBuffer};
+pub use crate::replay_buffer::{Batch, ReplayBuffer};
 pub use config::SacConfig;
 pub use networks::{Actor, ReluMlp, TwinCritic, polyak_update, set_vars};
 
