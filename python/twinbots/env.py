@@ -10,7 +10,7 @@ import gymnasium as gym
 from . import _native
 from ._config import Config, config_text
 from ._infos import episode_info
-from ._thread import get_ident, wrong_thread
+from ._thread import get_ident, on_owner_thread
 from ._spaces import ActionCheck, to_space
 from .vector import _initial_seed
 
@@ -50,9 +50,8 @@ class TwinbotsEnv(gym.Env):
         self._ended = False
         self._reset_once = False
 
+    @on_owner_thread
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        if get_ident() != self._owner:
-            raise wrong_thread(self._owner)
         super().reset(seed=seed)
         if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
             raise ValueError(f"seed must be a non-negative int, got {seed!r}")
@@ -65,9 +64,8 @@ class TwinbotsEnv(gym.Env):
         self._next_start, self._ended, self._reset_once = None, False, True
         return obs, {}
 
+    @on_owner_thread
     def step(self, action):
-        if get_ident() != self._owner:
-            raise wrong_thread(self._owner)
         if not self._reset_once:
             raise RuntimeError("call reset() before step()")
         if self._ended:
@@ -83,13 +81,12 @@ class TwinbotsEnv(gym.Env):
         self._next_start = None
         return obs[0], float(rewards[0]), bool(terminated[0]), bool(truncated[0]), info
 
+    @on_owner_thread
     def render(self):
         """Arena 0 as an RGB image `(height, width, 3)`, with `render_mode="rgb_array"`."""
         if self.render_mode is None:
             gym.logger.warn("render() without a render_mode: create the env with render_mode='rgb_array'")
             return None
-        if get_ident() != self._owner:
-            raise wrong_thread(self._owner)
         return self.arenas.render()
 
     def close(self):

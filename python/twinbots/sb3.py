@@ -16,7 +16,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 from . import _native
 from ._config import Config, config_text
 from ._infos import episode_info
-from ._thread import get_ident, wrong_thread
+from ._thread import get_ident, on_owner_thread
 from ._spaces import ActionCheck, to_space
 from .vector import _initial_seed
 
@@ -45,18 +45,16 @@ class TwinbotsSB3VecEnv(VecEnv):
         if seed is not None:
             self.seed(seed)
 
+    @on_owner_thread
     def reset(self):
-        if get_ident() != self._owner:
-            raise wrong_thread(self._owner)
         seed = self._seeds[0] if self._seeds and self._seeds[0] is not None else None
         obs = self.arenas.reset(seed)
         self._reset_seeds()
         self._reset_options()
         return obs
 
+    @on_owner_thread
     def step_async(self, actions: np.ndarray) -> None:
-        if get_ident() != self._owner:
-            raise wrong_thread(self._owner)
         self._actions = self._check(actions)
 
     def step_wait(self):

@@ -13,7 +13,7 @@ from gymnasium.vector.utils import batch_space
 from . import _native
 from ._config import Config, config_text
 from ._infos import vector_infos
-from ._thread import get_ident, wrong_thread
+from ._thread import get_ident, on_owner_thread
 from ._spaces import ActionCheck, to_space
 
 
@@ -77,10 +77,9 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         self._restart: list[int] = []  # NEXT_STEP: envs whose next step begins a new episode
         self._reset_once = False
 
+    @on_owner_thread
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Resets every env. `seed` (an int) seeds them all: env i draws from stream i of it."""
-        if get_ident() != self._owner:
-            raise wrong_thread(self._owner)
         if seed is not None:
             if not isinstance(seed, (int, np.integer)) or seed < 0:
                 raise ValueError(f"seed must be a non-negative int (env i gets stream i of it), got {seed!r}")
@@ -91,9 +90,8 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         self._reset_once = True
         return self.arenas.reset(None if seed is None else int(seed)), {}
 
+    @on_owner_thread
     def step(self, actions):
-        if get_ident() != self._owner:
-            raise wrong_thread(self._owner)
         if not self._reset_once:
             raise RuntimeError("call reset() before step()")
         flat = self._check(actions)
@@ -109,12 +107,11 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         self._restart = [i for i, _, _ in ended] if self.autoreset_mode == AutoresetMode.NEXT_STEP else []
         return obs, rewards, terminated, truncated, infos
 
+    @on_owner_thread
     def render(self):
         """Arena 0 as an RGB image (`render_mode="rgb_array"`)."""
         if self.render_mode is None:
             return None
-        if get_ident() != self._owner:
-            raise wrong_thread(self._owner)
         return self.arenas.render()
 
     def close_extras(self, **kwargs):
