@@ -7,12 +7,11 @@ from typing import Any
 import numpy as np
 import gymnasium as gym
 
-from . import _native
-from ._config import Config, config_text
+from ._arenas import open_arenas
+from ._config import Config
 from ._infos import episode_info
 from ._thread import get_ident, on_owner_thread
 from ._spaces import ActionCheck, to_space
-from .vector import _initial_seed
 
 
 class TwinbotsEnv(gym.Env):
@@ -34,17 +33,13 @@ class TwinbotsEnv(gym.Env):
         width: int = 640,
         height: int = 480,
     ):
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        self.arenas = _native.Arenas(robot, 1, _initial_seed(seed), task, pattern, config_text(config))
+        self.arenas = open_arenas(robot, 1, seed, task, pattern, config, render_mode, width=width, height=height, camera=camera)
         self._owner = get_ident()
         self.task = self.arenas.task
         self.observation_space = to_space(self.arenas.observation_space)
         self.action_space = to_space(self.arenas.action_space)
         self.metadata = {"render_modes": ["rgb_array"], "render_fps": round(1.0 / self.arenas.control_dt)}
         self.render_mode = render_mode
-        if render_mode == "rgb_array":
-            self.arenas.enable_rendering(width, height, camera)
         self._check = ActionCheck(self.action_space, 1)
         self._next_start: np.ndarray | None = None  # the arena's fresh start after an episode ended
         self._ended = False

@@ -13,12 +13,11 @@ from typing import Any, Sequence
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-from . import _native
-from ._config import Config, config_text
+from ._arenas import open_arenas
+from ._config import Config
 from ._infos import episode_info
 from ._thread import get_ident, on_owner_thread
 from ._spaces import ActionCheck, to_space
-from .vector import _initial_seed
 
 
 class TwinbotsSB3VecEnv(VecEnv):
@@ -30,15 +29,11 @@ class TwinbotsSB3VecEnv(VecEnv):
 
     def __init__(self, robot: str, n_envs: int = 1, seed: int | None = None, task: str | None = None,
                  pattern: int = 1, config: Config = None, render_mode: str | None = None):
-        if not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
-            raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
-        self.arenas = _native.Arenas(robot, int(n_envs), _initial_seed(seed), task, pattern, config_text(config))
+        self.arenas = open_arenas(robot, n_envs, seed, task, pattern, config, render_mode, count_name="n_envs")
         self._owner = get_ident()
         self.render_mode = render_mode  # read back by SB3's __init__ through get_attr
         super().__init__(int(n_envs), to_space(self.arenas.observation_space), to_space(self.arenas.action_space))
         self.render_mode = render_mode
-        if render_mode == "rgb_array":
-            self.arenas.enable_rendering()
         self._check = ActionCheck(self.action_space, self.num_envs)
         self._actions: np.ndarray | None = None
         self._start = time.time()

@@ -10,8 +10,8 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from . import _native
-from ._config import Config, config_text
+from ._arenas import open_arenas
+from ._config import Config
 from ._infos import vector_infos
 from ._thread import get_ident, on_owner_thread
 from ._spaces import ActionCheck, to_space
@@ -49,15 +49,10 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         render_mode: str | None = None,
         autoreset_mode: str | AutoresetMode = AutoresetMode.SAME_STEP,
     ):
-        if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
         if self.autoreset_mode == AutoresetMode.DISABLED:
             raise ValueError("autoreset_mode DISABLED is not supported: the arenas reset themselves (SAME_STEP or NEXT_STEP)")
-        seed = _initial_seed(seed)
-        self.arenas = _native.Arenas(robot, int(num_envs), seed, task, pattern, config_text(config))
+        self.arenas = open_arenas(robot, num_envs, seed, task, pattern, config, render_mode)
         self._owner = get_ident()
         self.num_envs = int(num_envs)
         self.task = self.arenas.task
@@ -71,8 +66,6 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
             "render_fps": round(1.0 / self.arenas.control_dt),
         }
         self.render_mode = render_mode
-        if render_mode == "rgb_array":
-            self.arenas.enable_rendering()
         self._check = ActionCheck(self.single_action_space, self.num_envs)
         self._restart: list[int] = []  # NEXT_STEP: envs whose next step begins a new episode
         self._reset_once = False
@@ -117,12 +110,3 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
     def close_extras(self, **kwargs):
         if hasattr(self, "arenas") and get_ident() == self._owner:  # not when __init__ failed (close() runs from __del__)
             self.arenas.close()
-
-
-def _initial_seed(seed: int | None) -> int:
-    """The app's seed: `seed`, or fresh entropy when none is given (as Gymnasium does)."""
-    if seed is None:
-        return int(np.random.SeedSequence().entropy % (2**63))
-    if not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative int, got {seed!r}")
-    return int(seed)

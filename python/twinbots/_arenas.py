@@ -1,0 +1,33 @@
+"""The native arenas every env of the package steps, opened one way: the arguments checked,
+the seed (fresh entropy when none is given, as Gymnasium does), the randomization settings,
+and rendering when asked. The env that opens them keeps to their thread (`_thread`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _native
+from ._config import Config, config_text
+
+
+def initial_seed(seed: int | None) -> int:
+    """The app's seed: `seed`, or fresh entropy when none is given (as Gymnasium does)."""
+    if seed is None:
+        return int(np.random.SeedSequence().entropy % (2**63))
+    if not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative int, got {seed!r}")
+    return int(seed)
+
+
+def open_arenas(robot: str, count: int, seed: int | None, task: str | None, pattern: int, config: Config,
+                render_mode: str | None, count_name: str = "num_envs", **rendering) -> _native.Arenas:
+    """`count` arenas of `robot`'s `task` under design pattern `pattern`; `rendering` (width,
+    height, camera) applies with `render_mode="rgb_array"`."""
+    if not isinstance(count, (int, np.integer)) or count < 1:
+        raise ValueError(f"{count_name} must be a positive integer, got {count!r}")
+    if render_mode not in (None, "rgb_array"):
+        raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+    arenas = _native.Arenas(robot, int(count), initial_seed(seed), task, pattern, config_text(config))
+    if render_mode == "rgb_array":
+        arenas.enable_rendering(**rendering)
+    return arenas
