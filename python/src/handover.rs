@@ -72,7 +72,8 @@ pub fn create_run(run_dir: PathBuf, robot: &str, seed: u64, arenas: usize, times
 /// rest stay empty as NaN or 0), an unknown name is an error.
 #[pyfunction]
 pub fn append_progress(run_dir: PathBuf, row: HashMap<String, f64>) -> PyResult<()> {
-    RunDir::new(run_dir).append_progress_columns(&row).map_err(value_error)
+    // RLlib trains PPO: its rows carry PPO's figures.
+    RunDir::new(run_dir).append_progress_columns(&row, ppo::TRAIN_FIGURES).map_err(value_error)
 }
 
 /// Drops the rows of the run's `progress.csv` (and `evaluations.csv`) logged after

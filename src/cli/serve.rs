@@ -160,7 +160,7 @@ pub fn resume(run: &Path, listen: SocketAddr, limits: ServerLimits) -> anyhow::R
     anyhow::ensure!(settings.design_pattern()? == DesignPattern::Server, "{}: not a RobotServer run (resume it with `twinbots train --resume`)", run.display());
     anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
     let (checkpoint, mut model) = run_dir.load_newest_checkpoint::<Ppo>()?;
-    run_dir.check_progress_columns()?;
+    run_dir.check_progress_columns(ppo::TRAIN_FIGURES)?;
     let spec = registry::find(&settings.robot)?.task();
     model.check_spaces(&spec.observation_space, &spec.action_space)?;
     model.env_state = None;

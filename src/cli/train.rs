@@ -163,7 +163,7 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
     }
     let spec = registry::find(&settings.robot)?.task();
     let (checkpoint, model) = learner::resume(&run_dir, &settings, &spec)?;
-    run_dir.check_progress_columns()?;
+    run_dir.check_progress_columns(model.train_figures())?;
     println!(
         "resuming {} from {} ({} steps, {} episodes)",
         run_dir.path().display(), checkpoint.display(), model.timesteps(), model.episodes()

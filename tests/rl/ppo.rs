@@ -122,13 +122,13 @@ fn a_non_finite_reward_skips_the_gradient_steps_it_poisons_counts_them_and_learn
     // (GAE spreads it over the steps before), so its steps are all skipped, and only those.
     let skipped: Vec<usize> = rows.iter().map(|s| s.skipped_steps).collect();
     assert!(skipped[1] > 0 && skipped.iter().enumerate().all(|(i, &k)| i == 1 || k == 0), "{skipped:?}");
-    assert!(rows[1].policy_loss.is_nan() || rows[1].skipped_steps < 4, "{:?}", rows[1]);
+    assert!(rows[1].train("policy_loss").is_nan() || rows[1].skipped_steps < 4, "{:?}", rows[1]);
     // The weights stayed finite, the later updates learnt, and the model acts.
     for (name, var) in model.policy.named_vars() {
         let values = var.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap();
         assert!(values.iter().all(|x| x.is_finite()), "{name} is not finite");
     }
-    assert!(rows[2..].iter().all(|s| s.policy_loss.is_finite() && s.value_loss.is_finite()), "{rows:?}");
+    assert!(rows[2..].iter().all(|s| s.train("policy_loss").is_finite() && s.train("value_loss").is_finite()), "{rows:?}");
     let actions = model.predict_deterministic(&[0.0, 0.0, 0.02, 0.0]).unwrap();
     assert!(actions[0] == 0.0 || actions[0] == 1.0);
 }

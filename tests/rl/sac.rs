@@ -18,8 +18,8 @@ fn sac_reaches_minus_200_on_pendulum_within_20k_steps() {
     let mut rows = Vec::new();
     model
         .learn(&mut env, 20_000, &mut |s: &UpdateStats, _: &dyn Agent| {
-            rows.push((s.timesteps, s.mean_reward, s.policy_loss, s.value_loss));
-            eprintln!("{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)", s.timesteps, s.mean_reward, s.policy_loss, s.value_loss, started.elapsed().as_secs_f32());
+            rows.push((s.timesteps, s.mean_reward, s.train("actor_loss"), s.train("critic_loss")));
+            eprintln!("{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)", s.timesteps, s.mean_reward, s.train("actor_loss"), s.train("critic_loss"), started.elapsed().as_secs_f32());
             Ok(Flow::Continue)
         })
         .unwrap();

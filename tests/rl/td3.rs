@@ -22,7 +22,7 @@ fn td3_reaches_minus_200_on_pendulum_within_20k_steps() {
     model
         .learn(&mut env, 20_000, &mut |s: &UpdateStats, _: &dyn Agent| {
             rows.push((s.timesteps, s.mean_reward));
-            eprintln!("{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)", s.timesteps, s.mean_reward, s.policy_loss, s.value_loss, started.elapsed().as_secs_f32());
+            eprintln!("{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)", s.timesteps, s.mean_reward, s.train("actor_loss"), s.train("critic_loss"), started.elapsed().as_secs_f32());
             Ok(Flow::Continue)
         })
         .unwrap();

@@ -34,6 +34,9 @@ pub trait Agent {
     fn policy_net(&self) -> anyhow::Result<PolicyNet>;
     /// Saves into the directory `dir` (created if needed), every file atomically.
     fn save(&self, dir: &Path) -> Result<(), ModelError>;
+    /// The names of its `UpdateStats::train` figures, in the order it gives them (its columns
+    /// of `progress.csv`).
+    fn train_figures(&self) -> &'static [&'static str];
     /// The algorithm's own `train/` TensorBoard scalars for an update's row.
     fn train_scalars(&self, stats: &UpdateStats) -> Vec<(String, f32)>;
 

@@ -1,7 +1,6 @@
 //! What a learner reports, whichever algorithm it is: a row of statistics per update, where its
 //! time went, and why training ended.
 
-
 /// One row of `progress.csv`: what an update saw and did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct UpdateStats {
@@ -15,16 +14,30 @@ pub struct UpdateStats {
     pub mean_length: f32,
     /// Share of the last 100 finished episodes that reported success (NaN: none reported).
     pub success_rate: f32,
-    pub policy_loss: f32,
-    pub value_loss: f32,
-    pub entropy: f32,
-    pub approx_kl: f32,
-    pub clip_fraction: f32,
+    /// The algorithm's own figures of the update, by name, in the order it always gives them
+    /// (SB3's `logger.record("train/<name>", …)`): PPO's `policy_loss`, `value_loss`, `entropy`,
+    /// `approx_kl`, `clip_fraction`; SAC's and TD3's `actor_loss`, `critic_loss`, …. Each is a
+    /// column of `progress.csv` (NaN where an update has none).
+    pub train: Vec<(String, f32)>,
     pub learning_rate: f64,
     pub steps_per_s: f32,
     /// Gradient steps of this update that were skipped because the loss or a gradient was not
     /// finite (the weights stayed as they were).
     pub skipped_steps: usize,
+}
+
+impl UpdateStats {
+    /// The algorithm's figure `name` (NaN if it gave none).
+    pub fn train(&self, name: &str) -> f32 {
+        self.train.iter().find(|(n, _)| n == name).map_or(f32::NAN, |(_, v)| *v)
+    }
+}
+
+/// An algorithm's figures `names` (its `TRAIN_FIGURES`) with their `values`, as
+/// [`UpdateStats::train`] holds them.
+pub fn figures(names: &[&str], values: &[f32]) -> Vec<(String, f32)> {
+    debug_assert_eq!(names.len(), values.len());
+    names.iter().zip(values).map(|(n, v)| (n.to_string(), *v)).collect()
 }
 
 /// Seconds the learner spent on each part of training, summed since the model was made or

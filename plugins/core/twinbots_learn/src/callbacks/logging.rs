@@ -25,8 +25,8 @@ impl ProgressCsvCallback {
 }
 
 impl Callback for ProgressCsvCallback {
-    fn on_training_start(&mut self, _model: &dyn Agent) -> anyhow::Result<()> {
-        self.run.check_progress_columns()
+    fn on_training_start(&mut self, model: &dyn Agent) -> anyhow::Result<()> {
+        self.run.check_progress_columns(model.train_figures())
     }
 
     fn on_update(&mut self, stats: &UpdateStats, _model: &dyn Agent) -> anyhow::Result<Flow> {

@@ -42,6 +42,8 @@ use twinbots_api::{EpisodeSummary, SolvedCriterion};
 /// under (`model.json`'s `algorithm`).
 pub const NAME: &str = "ppo";
 pub const SAVED_AS: &str = "PPO";
+/// Its figures in `progress.csv` (`UpdateStats::train`), in order.
+pub const TRAIN_FIGURES: &[&str] = &["policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction"];
 
 /// PPO's line in [`crate::algos::ALGOS`].
 pub const ALGORITHM: Algorithm = Algorithm {
@@ -253,6 +255,9 @@ impl crate::agent::Agent for Ppo {
     fn algorithm(&self) -> &'static str {
         SAVED_AS
     }
+    fn train_figures(&self) -> &'static [&'static str] {
+        TRAIN_FIGURES
+    }
     fn observation_space(&self) -> &Space {
         &self.observation_space
     }
@@ -291,14 +296,15 @@ impl crate::agent::Agent for Ppo {
     /// minibatches; SB3 logs its last minibatch's), its parts, KL, clip fraction, σ.
     fn train_scalars(&self, s: &UpdateStats) -> Vec<(String, f32)> {
         let c = &self.config;
-        let loss = s.policy_loss - c.ent_coef * s.entropy + c.vf_coef * s.value_loss;
+        let (policy_loss, value_loss, entropy) = (s.train("policy_loss"), s.train("value_loss"), s.train("entropy"));
+        let loss = policy_loss - c.ent_coef * entropy + c.vf_coef * value_loss;
         let mut out: Vec<(String, f32)> = vec![
             ("train/loss".into(), loss),
-            ("train/policy_gradient_loss".into(), s.policy_loss),
-            ("train/value_loss".into(), s.value_loss),
-            ("train/entropy_loss".into(), -s.entropy),
-            ("train/approx_kl".into(), s.approx_kl),
-            ("train/clip_fraction".into(), s.clip_fraction),
+            ("train/policy_gradient_loss".into(), policy_loss),
+            ("train/value_loss".into(), value_loss),
+            ("train/entropy_loss".into(), -entropy),
+            ("train/approx_kl".into(), s.train("approx_kl")),
+            ("train/clip_fraction".into(), s.train("clip_fraction")),
         ];
         if let policy::Head::Gaussian { log_std, .. } = &self.policy.head
             && let Ok(values) = log_std.as_tensor().to_vec1::<f32>()

@@ -6,7 +6,8 @@ use std::time::Instant;
 use candle_core::{Device, Tensor, Var};
 use rand::seq::SliceRandom;
 
-use super::{ActorCritic, Ppo, RolloutBuffer, UpdateStats};
+use super::{ActorCritic, Ppo, RolloutBuffer, TRAIN_FIGURES, UpdateStats};
+use crate::stats::figures;
 use crate::nn::{Adam, AdamConfig};
 use twinbots_api::spaces::Space;
 
@@ -46,12 +47,8 @@ impl Ppo {
         Ok(UpdateStats {
             learning_rate: self.optimizer.learning_rate(),
             steps_per_s: buffer.len() as f32 / collecting_since.elapsed().as_secs_f32(),
-            policy_loss: losses.policy_loss,
-            value_loss: losses.value_loss,
-            entropy: losses.entropy,
-            approx_kl: losses.approx_kl,
-            clip_fraction: losses.clip_fraction,
             skipped_steps: losses.skipped_steps,
+            train: losses.train,
             ..self.history.row(self.updates, self.timesteps, self.episodes)
         })
     }
@@ -95,11 +92,8 @@ impl Ppo {
         // No applied step: the losses are unknown, not zero.
         let batches = if batches == 0.0 { f32::NAN } else { batches };
         Ok(UpdateStats {
-            policy_loss: pg_sum / batches,
-            value_loss: v_sum / batches,
-            entropy: ent_sum / batches,
-            approx_kl: kl_sum / batches,
-            clip_fraction: clip_sum / batches,
+            // In the order of `TRAIN_FIGURES`.
+            train: figures(TRAIN_FIGURES, &[pg_sum / batches, v_sum / batches, ent_sum / batches, kl_sum / batches, clip_sum / batches]),
             skipped_steps: skipped,
             ..Default::default()
         })

@@ -3,7 +3,8 @@
 //! ```text
 //! runs/<robot>-<time>/
 //!   config.toml                      the resolved settings (the caller's type)
-//!   progress.csv                     one row per update (`UpdateStats`), read by column name
+//!   progress.csv                     one row per update (`UpdateStats`, the algorithm's own
+//!                                    figures among its columns), read by column name
 //!   evaluations.csv                  periodic evaluations of the deterministic policy
 //!   checkpoints/step_<timesteps>/    models saved while training, each renamed into place whole
 //!   model/                           the final model
@@ -187,31 +188,33 @@ impl RunDir {
 
     /// Appends an update's row to `progress.csv` (with the header if the file is new).
     pub fn append_progress(&self, stats: &UpdateStats) -> anyhow::Result<()> {
-        append_row(&self.file(PROGRESS), &progress_cells(stats))
+        let cells = progress_cells(stats);
+        append_row(&self.file(PROGRESS), &cells.iter().map(|(n, v)| (n.as_str(), v.clone())).collect::<Vec<_>>())
     }
 
-    /// Appends a row given by column name (any of `progress.csv`'s columns; the rest count as
-    /// missing), for updates made outside twinbots (the RLlib path). An unknown name is an error.
-    pub fn append_progress_columns(&self, columns: &std::collections::HashMap<String, f64>) -> anyhow::Result<()> {
-        let known = progress_cells(&UpdateStats::default()).map(|(name, _)| name);
-        if let Some(unknown) = columns.keys().find(|name| !known.contains(&name.as_str())) {
+    /// Appends a row given by column name (the common columns and an algorithm's figures
+    /// `train`, e.g. `ppo::TRAIN_FIGURES`; the rest count as missing), for updates made outside
+    /// twinbots (the RLlib path). An unknown name is an error.
+    pub fn append_progress_columns(&self, columns: &std::collections::HashMap<String, f64>, train: &[&str]) -> anyhow::Result<()> {
+        let known = progress_columns(train);
+        if let Some(unknown) = columns.keys().find(|name| !known.contains(name)) {
             anyhow::bail!("progress.csv has no column '{unknown}'; its columns: {}", known.join(", "));
         }
         // Whole numbers print without a fraction, so count columns parse as counts.
-        self.append_progress(&stats_from_columns(&|name| columns.get(name).map(|v| v.to_string())))
+        self.append_progress(&stats_from_columns(&|name| columns.get(name).map(|v| v.to_string()), &known))
     }
 
     /// Every row of `progress.csv`, read by column name (rows cut short by a crash are skipped).
     pub fn read_progress(&self) -> anyhow::Result<Vec<UpdateStats>> {
         let table = Table::read(&self.file(PROGRESS))?;
-        Ok(complete_rows(&table).map(|r| stats_of(&r)).collect())
+        Ok(complete_rows(&table).map(|r| stats_from_columns(&|name| r.get::<String>(name), &table.header)).collect())
     }
 
-    /// An error if `progress.csv` exists with other columns than this build writes (rows
-    /// appended to it would not match its header).
-    pub fn check_progress_columns(&self) -> anyhow::Result<()> {
+    /// An error if `progress.csv` exists with other columns than this build writes for an
+    /// algorithm whose figures are `train` (rows appended to it would not match its header).
+    pub fn check_progress_columns(&self, train: &[&str]) -> anyhow::Result<()> {
         let table = Table::read(&self.file(PROGRESS))?;
-        let ours: Vec<&str> = progress_cells(&UpdateStats::default()).iter().map(|(name, _)| *name).collect();
+        let ours = progress_columns(train);
         anyhow::ensure!(
             table.header.is_empty() || table.header == ours,
             "{}: its columns ({}) are not the ones this build writes ({})",
@@ -281,38 +284,44 @@ impl RunDir {
     }
 }
 
+/// `progress.csv`'s columns around the algorithm's own figures (which come between).
+const LEADING: [&str; 7] = ["update", "timesteps", "episodes", "mean_reward", "min_reward", "max_reward", "mean_length"];
+const TRAILING: [&str; 4] = ["learning_rate", "steps_per_s", "success_rate", "skipped_steps"];
+
+/// The header of `progress.csv` for an algorithm whose figures are `train`.
+fn progress_columns(train: &[&str]) -> Vec<String> {
+    LEADING.iter().chain(train).chain(&TRAILING).map(|c| c.to_string()).collect()
+}
+
 /// An update's cells, named: the names are `progress.csv`'s header.
-fn progress_cells(s: &UpdateStats) -> [(&'static str, String); 16] {
-    [
-        ("update", s.update.to_string()),
-        ("timesteps", s.timesteps.to_string()),
-        ("episodes", s.episodes.to_string()),
-        ("mean_reward", s.mean_reward.to_string()),
-        ("min_reward", s.min_reward.to_string()),
-        ("max_reward", s.max_reward.to_string()),
-        ("mean_length", s.mean_length.to_string()),
-        ("policy_loss", s.policy_loss.to_string()),
-        ("value_loss", s.value_loss.to_string()),
-        ("entropy", s.entropy.to_string()),
-        ("approx_kl", s.approx_kl.to_string()),
-        ("clip_fraction", s.clip_fraction.to_string()),
-        ("learning_rate", s.learning_rate.to_string()),
-        ("steps_per_s", s.steps_per_s.to_string()),
-        ("success_rate", s.success_rate.to_string()),
-        ("skipped_steps", s.skipped_steps.to_string()),
+fn progress_cells(s: &UpdateStats) -> Vec<(String, String)> {
+    let mut cells: Vec<(String, String)> = [
+        s.update.to_string(),
+        s.timesteps.to_string(),
+        s.episodes.to_string(),
+        s.mean_reward.to_string(),
+        s.min_reward.to_string(),
+        s.max_reward.to_string(),
+        s.mean_length.to_string(),
     ]
+    .into_iter()
+    .zip(LEADING)
+    .map(|(value, name)| (name.to_string(), value))
+    .collect();
+    cells.extend(s.train.iter().map(|(name, value)| (name.clone(), value.to_string())));
+    let trailing = [s.learning_rate.to_string(), s.steps_per_s.to_string(), s.success_rate.to_string(), s.skipped_steps.to_string()];
+    cells.extend(TRAILING.iter().zip(trailing).map(|(name, value)| (name.to_string(), value)));
+    cells
 }
 
-fn stats_of(r: &Row) -> UpdateStats {
-    stats_from_columns(&|name| r.get::<String>(name))
-}
-
-/// An update's figures from its cells by column name: a missing count is 0, a missing figure NaN.
-fn stats_from_columns(cell: &dyn Fn(&str) -> Option<String>) -> UpdateStats {
+/// An update's figures from its cells by column name (`columns`: the header): a missing count
+/// is 0, a missing figure NaN; every column that is not a common one is the algorithm's.
+fn stats_from_columns(cell: &dyn Fn(&str) -> Option<String>, columns: &[String]) -> UpdateStats {
     fn column<T: std::str::FromStr>(cell: &dyn Fn(&str) -> Option<String>, name: &str) -> Option<T> {
         cell(name)?.parse().ok()
     }
-    let number = |name| column::<f32>(cell, name).unwrap_or(f32::NAN);
+    let number = |name: &str| column::<f32>(cell, name).unwrap_or(f32::NAN);
+    let common = |name: &String| LEADING.contains(&name.as_str()) || TRAILING.contains(&name.as_str());
     UpdateStats {
         update: column(cell, "update").unwrap_or(0),
         timesteps: column(cell, "timesteps").unwrap_or(0),
@@ -321,11 +330,7 @@ fn stats_from_columns(cell: &dyn Fn(&str) -> Option<String>) -> UpdateStats {
         min_reward: number("min_reward"),
         max_reward: number("max_reward"),
         mean_length: number("mean_length"),
-        policy_loss: number("policy_loss"),
-        value_loss: number("value_loss"),
-        entropy: number("entropy"),
-        approx_kl: number("approx_kl"),
-        clip_fraction: number("clip_fraction"),
+        train: columns.iter().filter(|c| !common(c)).map(|c| (c.clone(), number(c))).collect(),
         learning_rate: column(cell, "learning_rate").unwrap_or(f64::NAN),
         steps_per_s: number("steps_per_s"),
         success_rate: number("success_rate"),
@@ -378,7 +383,7 @@ mod tests {
         assert_eq!(rows.iter().map(|s| s.timesteps).collect::<Vec<_>>(), [64, 128, 192, 256]);
         assert_eq!(rows[2].mean_reward, 3.0);
         assert!(rows[0].success_rate.is_nan());
-        run.check_progress_columns().unwrap();
+        run.check_progress_columns(&[]).unwrap();
 
         run.truncate_after(128).unwrap();
         let rows = run.read_progress().unwrap();
@@ -392,7 +397,7 @@ mod tests {
     fn a_progress_file_with_other_columns_is_refused() {
         let run = temp_run("columns");
         std::fs::write(run.file(PROGRESS), "timesteps,update\n64,1\n").unwrap();
-        let err = run.check_progress_columns().unwrap_err().to_string();
+        let err = run.check_progress_columns(&[]).unwrap_err().to_string();
         assert!(err.contains("timesteps,update"), "{err}");
         // It still reads, by name.
         assert_eq!(run.read_progress().unwrap()[0].update, 1);

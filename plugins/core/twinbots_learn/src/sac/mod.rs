@@ -44,6 +44,8 @@ use twinbots_api::{EpisodeSummary, GoalSpec};
 /// under (`model.json`'s `algorithm`).
 pub const NAME: &str = "sac";
 pub const SAVED_AS: &str = "SAC";
+/// Its figures in `progress.csv` (`UpdateStats::train`), in order.
+pub const TRAIN_FIGURES: &[&str] = &["actor_loss", "critic_loss", "ent_coef", "ent_coef_loss", "entropy"];
 
 /// SAC's line in [`crate::algos::ALGOS`].
 pub const ALGORITHM: Algorithm = Algorithm {
@@ -314,11 +316,10 @@ impl Sac {
                     eprintln!("row {}: {skipped} gradient step(s) skipped: a loss or gradient was not finite", self.updates);
                 }
                 let stats = UpdateStats {
-                    policy_loss: self.last_losses.actor_loss,
-                    value_loss: self.last_losses.critic_loss,
-                    entropy: self.last_losses.entropy,
-                    approx_kl: f32::NAN,
-                    clip_fraction: f32::NAN,
+                    train: crate::stats::figures(TRAIN_FIGURES, &{
+                        let l = &self.last_losses;
+                        [l.actor_loss, l.critic_loss, l.ent_coef, l.ent_coef_loss, l.entropy]
+                    }),
                     learning_rate: self.config.learning_rate,
                     steps_per_s: (self.config.log_interval * n_envs) as f32 / row_started.elapsed().as_secs_f32(),
                     skipped_steps: skipped,
@@ -338,6 +339,9 @@ impl Sac {
 impl Agent for Sac {
     fn algorithm(&self) -> &'static str {
         SAVED_AS
+    }
+    fn train_figures(&self) -> &'static [&'static str] {
+        TRAIN_FIGURES
     }
     fn observation_space(&self) -> &Space {
         &self.observation_space

@@ -34,6 +34,8 @@ use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats};
 /// under (`model.json`'s `algorithm`).
 pub const NAME: &str = "td3";
 pub const SAVED_AS: &str = "TD3";
+/// Its figures in `progress.csv` (`UpdateStats::train`), in order.
+pub const TRAIN_FIGURES: &[&str] = &["actor_loss", "critic_loss"];
 
 /// TD3's line in [`crate::algos::ALGOS`].
 pub const ALGORITHM: Algorithm = Algorithm {
@@ -314,11 +316,7 @@ impl Td3 {
                     eprintln!("row {}: {skipped} gradient step(s) skipped: a loss or gradient was not finite", self.updates);
                 }
                 let stats = UpdateStats {
-                    policy_loss: self.last_losses.actor_loss,
-                    value_loss: self.last_losses.critic_loss,
-                    entropy: f32::NAN,
-                    approx_kl: f32::NAN,
-                    clip_fraction: f32::NAN,
+                    train: crate::stats::figures(TRAIN_FIGURES, &[self.last_losses.actor_loss, self.last_losses.critic_loss]),
                     learning_rate: self.config.learning_rate,
                     steps_per_s: (self.config.log_interval * n_envs) as f32 / row_started.elapsed().as_secs_f32(),
                     skipped_steps: skipped,
@@ -338,6 +336,9 @@ impl Td3 {
 impl Agent for Td3 {
     fn algorithm(&self) -> &'static str {
         SAVED_AS
+    }
+    fn train_figures(&self) -> &'static [&'static str] {
+        TRAIN_FIGURES
     }
     fn observation_space(&self) -> &Space {
         &self.observation_space
