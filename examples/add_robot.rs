@@ -52,6 +52,7 @@ fn swing_up() -> TaskDefinition<SwingState> {
         },
         action_space: Space::Box { low: vec![-2.0], high: vec![2.0] },
         solved: None,
+        goal: None,
     }
 }
 

@@ -186,8 +186,6 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Box<dyn Learner>>
     }
     let (_, spec) = env::start(&mut app)?;
     let mut channel_env = bridge::connect(app.world_mut())?;
-    // The goal interface is the robot's description's (the app's spec is built from its terms).
-    let spec = twinbots_api::TaskSpec { goal: entry.task().goal, ..spec };
     let resumed = model.is_some();
     let mut learner = match model {
         Some(m) => {

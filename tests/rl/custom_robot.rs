@@ -70,6 +70,7 @@ fn turn_task() -> TaskDefinition<TableState> {
         },
         action_space: Space::Box { low: vec![-1.0], high: vec![1.0] },
         solved: Some(SolvedCriterion::success_rate(20, 0.9)),
+        goal: None,
     }
 }
 

@@ -96,6 +96,7 @@ pub fn balance_task(initial_tilt: f32) -> TaskDefinition<CartPoleState> {
         },
         action_space: Space::Discrete { n: 2 },
         solved: Some(SolvedCriterion::mean_score(100, MAX_SCORE)),
+        goal: None,
     }
 }
 

@@ -99,6 +99,7 @@ pub fn balance_task() -> TaskDefinition<PioneerState> {
         action_space: Space::Box { low: vec![-MAX_WHEEL_SPEED], high: vec![MAX_WHEEL_SPEED] },
         // The paper's figure: ≈500 mean episode reward (it needed 32 M steps).
         solved: Some(SolvedCriterion::mean_score(100, 500.0)),
+        goal: None,
     }
 }
 

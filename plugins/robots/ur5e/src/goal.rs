@@ -7,18 +7,33 @@
 use std::sync::OnceLock;
 
 use bevy::math::Vec3;
-use twinbots_task::{GoalChange, GoalSpec, RewardTerm};
+use twinbots_task::{GoalChange, GoalSpec, RewardTerm, TaskDefinition, TaskTerms};
 
 use crate::arm::ArmState;
 use crate::safety::StopCause;
 use crate::state::CellState;
 
-/// Where the observation terms put the values the goal is made of (checked against the terms'
-/// names by a test).
-pub const JOINT_POSITIONS: usize = 0;
-pub const JOINT_VELOCITIES: usize = 6;
-pub const TCP_POSITION: usize = 12;
-pub const TARGET_OFFSET: usize = 15;
+/// Where the observation terms the goal is made of start, from the reach task's own terms.
+struct Offsets {
+    joint_positions: usize,
+    joint_velocities: usize,
+    tcp_position: usize,
+    target_offset: usize,
+}
+
+fn offsets() -> &'static Offsets {
+    static OFFSETS: OnceLock<Offsets> = OnceLock::new();
+    OFFSETS.get_or_init(|| {
+        let terms = TaskTerms { observations: crate::reach::observations(), ..Default::default() };
+        let at = |name: &str| terms.observation_offset(name).unwrap_or_else(|| panic!("the reach task observes no {name}"));
+        Offsets {
+            joint_positions: at("joint_positions"),
+            joint_velocities: at("joint_velocities"),
+            tcp_position: at("tcp_position"),
+            target_offset: at("target_offset"),
+        }
+    })
+}
 
 /// The reach task's reward terms that depend on the target (the protective stop's penalty is
 /// a multiple of the pose cost where the stop tripped); the others (tilt, effort, action rate) do not.
@@ -34,16 +49,19 @@ fn point(values: &[f32]) -> Vec3 {
 }
 
 fn achieved(obs: &[f32]) -> Vec<f32> {
-    obs[TCP_POSITION..TCP_POSITION + 3].to_vec()
+    let tcp = offsets().tcp_position;
+    obs[tcp..tcp + 3].to_vec()
 }
 
 fn desired(obs: &[f32]) -> Vec<f32> {
-    (point(&obs[TCP_POSITION..]) + point(&obs[TARGET_OFFSET..])).to_array().to_vec()
+    let o = offsets();
+    (point(&obs[o.tcp_position..]) + point(&obs[o.target_offset..])).to_array().to_vec()
 }
 
 fn substitute(obs: &mut [f32], goal: &[f32]) {
-    let offset = point(goal) - point(&obs[TCP_POSITION..]);
-    obs[TARGET_OFFSET..TARGET_OFFSET + 3].copy_from_slice(&offset.to_array());
+    let o = offsets();
+    let offset = point(goal) - point(&obs[o.tcp_position..]);
+    obs[o.target_offset..o.target_offset + 3].copy_from_slice(&offset.to_array());
 }
 
 /// The target terms under each goal, and arrival at each (which ends a reach). A reach ends
@@ -52,7 +70,8 @@ fn substitute(obs: &mut [f32], goal: &[f32]) {
 fn change(_obs: &[f32], next_obs: &[f32], done: bool, from: &[f32], to: &[f32]) -> GoalChange {
     let joints = |at: usize| -> [f32; 6] { std::array::from_fn(|i| next_obs[at + i]) };
     // The kinematics once for both goals: it is most of a relabelling's cost.
-    let mut state = CellState { arm: ArmState::from_joints(joints(JOINT_POSITIONS), joints(JOINT_VELOCITIES)), ..Default::default() };
+    let o = offsets();
+    let mut state = CellState { arm: ArmState::from_joints(joints(o.joint_positions), joints(o.joint_velocities)), ..Default::default() };
     if done && !state.arm.has_reached(point(from)) {
         state.safety.stop = Some(StopCause::Speed { joint: 0, ratio: f32::NAN });
     }
@@ -69,6 +88,11 @@ pub fn reach_goal() -> GoalSpec {
     GoalSpec { dim: 3, achieved, desired, substitute, change }
 }
 
+/// The reach task with its goal interface: what the cell trains and what its spec says.
+pub fn reach_with_goal() -> TaskDefinition<CellState> {
+    TaskDefinition { goal: Some(reach_goal()), ..crate::reach::reach_task() }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -76,18 +100,19 @@ mod tests {
     /// The target terms' reward for the arm of `next_obs` with the target at `goal`.
     fn goal_reward(next_obs: &[f32], goal: &[f32]) -> f32 {
         let joints = |at: usize| -> [f32; 6] { std::array::from_fn(|i| next_obs[at + i]) };
-        let state = CellState { arm: ArmState::from_joints(joints(JOINT_POSITIONS), joints(JOINT_VELOCITIES)), target: point(goal), ..Default::default() };
+        let o = offsets();
+        let state = CellState { arm: ArmState::from_joints(joints(o.joint_positions), joints(o.joint_velocities)), target: point(goal), ..Default::default() };
         target_terms().iter().map(|t| t.weighted(&state)).sum()
     }
 
     #[test]
-    fn the_goal_offsets_match_the_observation_terms() {
-        let names = crate::reach::reach_task().spec().observation_names;
-        let at = |prefix: &str| names.iter().position(|n| n.starts_with(prefix)).unwrap();
-        assert_eq!(at("joint_positions"), JOINT_POSITIONS);
-        assert_eq!(at("joint_velocities"), JOINT_VELOCITIES);
-        assert_eq!(at("tcp_position"), TCP_POSITION);
-        assert_eq!(at("target_offset"), TARGET_OFFSET);
+    fn the_goal_is_read_where_the_spec_names_its_values_and_the_spec_carries_the_goal() {
+        let spec = reach_with_goal().spec();
+        assert!(spec.goal.is_some(), "the task's spec is its only source, goal included");
+        let o = offsets();
+        for (name, at) in [("joint_positions[0]", o.joint_positions), ("joint_velocities[0]", o.joint_velocities), ("tcp_position[0]", o.tcp_position), ("target_offset[0]", o.target_offset)] {
+            assert_eq!(spec.observation_names[at], name);
+        }
     }
 
     #[test]
@@ -96,7 +121,8 @@ mod tests {
         let tcp = arm.tcp.translation;
         let mut obs = vec![0.0; 26];
         obs[..6].copy_from_slice(&crate::kinematics::HOME);
-        obs[TCP_POSITION..TCP_POSITION + 3].copy_from_slice(&tcp.to_array());
+        let tcp_at = offsets().tcp_position;
+        obs[tcp_at..tcp_at + 3].copy_from_slice(&tcp.to_array());
         let goal = reach_goal();
         let target = tcp + Vec3::new(0.1, 0.0, 0.0);
         (goal.substitute)(&mut obs, &target.to_array());

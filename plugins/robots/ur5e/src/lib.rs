@@ -86,7 +86,7 @@ log_interval = 250";
 
 /// The reach task's spaces, criterion and goal interface (pick-and-place shares the spaces).
 pub fn task_spec() -> TaskSpec {
-    TaskSpec { goal: Some(goal::reach_goal()), ..reach::reach_task().spec() }
+    goal::reach_with_goal().spec()
 }
 
 fn pick_place_spec() -> TaskSpec {
@@ -147,7 +147,7 @@ pub struct Ur5ePlugin {
 impl Plugin for Ur5ePlugin {
     fn build(&self, app: &mut App) {
         let definition = match self.task {
-            Ur5eTask::Reach => reach::reach_task(),
+            Ur5eTask::Reach => goal::reach_with_goal(),
             Ur5eTask::PickPlace => pick_place::pick_place_task(),
         };
         app.init_resource::<CellModels>()

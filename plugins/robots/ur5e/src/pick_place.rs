@@ -78,6 +78,7 @@ pub fn pick_place_task() -> TaskDefinition<CellState> {
         },
         action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
         solved: None,
+        goal: None,
     }
 }
 

@@ -145,6 +145,8 @@ pub fn reach_task() -> TaskDefinition<CellState> {
         },
         action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
         solved: Some(SolvedCriterion::success_rate(200, 0.98)),
+        // Set by `crate::goal::reach_with_goal` (the goal interface reads these terms).
+        goal: None,
     }
 }
 

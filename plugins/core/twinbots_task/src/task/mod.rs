@@ -156,13 +156,15 @@ pub fn configure_task_sets(app: &mut App) {
     );
 }
 
-/// A task: its name, its terms over the controller state `S`, its action space and when it
-/// counts as solved.
+/// A task: its name, its terms over the controller state `S`, its action space, when it
+/// counts as solved and, for a goal-conditioned task, its goal interface (what HER relabels
+/// with). Its [`TaskSpec`] is derived from these alone.
 pub struct TaskDefinition<S> {
     pub name: String,
     pub terms: TaskTerms<S>,
     pub action_space: Space,
     pub solved: Option<SolvedCriterion>,
+    pub goal: Option<GoalSpec>,
 }
 
 impl<S> TaskDefinition<S> {
@@ -175,7 +177,7 @@ impl<S> TaskDefinition<S> {
             observation_names: self.terms.observation_names(),
             reward_terms: self.terms.reward_names().into_iter().map(String::from).collect(),
             reward_range: self.terms.reward_range(),
-            goal: None,
+            goal: self.goal,
         }
     }
 }

@@ -155,6 +155,18 @@ impl<S> TaskTerms<S> {
             .collect()
     }
 
+    /// Where the observation term `name` starts in the flat observation, if the task has it.
+    pub fn observation_offset(&self, name: &str) -> Option<usize> {
+        let mut at = 0;
+        for t in &self.observations {
+            if t.name == name {
+                return Some(at);
+            }
+            at += t.size;
+        }
+        None
+    }
+
     pub fn reward_names(&self) -> Vec<&'static str> {
         self.rewards.iter().map(|t| t.name).collect()
     }
