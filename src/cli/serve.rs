@@ -9,13 +9,11 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use twinbots_learn::run_dir::Summary;
 use twinbots_api::DesignPattern;
-use twinbots_learn::run_dir::EVAL;
-use twinbots_learn::{Ppo, PpoConfig, RunDir, evaluate_policy, ppo};
+use twinbots_learn::{Ppo, PpoConfig, RunDir, ppo};
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
-use crate::cli::runs::{ConfigFile, TrainSettings, evaluation_env};
+use crate::cli::runs::{ConfigFile, TrainSettings};
 use crate::registry;
 
 /// The command's arguments.
@@ -140,10 +138,7 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, limits: ServerLimits, 
     let spec = entry.task();
     anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{} has no design-pattern-3 robot", entry.name);
     anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
-    let run_dir = RunDir::new(out);
-    anyhow::ensure!(!run_dir.holds_run(), "{} already holds a run (choose another --out)", out.display());
-    run_dir.create()?;
-    run_dir.write_config(&settings)?;
+    let run_dir = crate::cli::runs::create(&settings, out)?;
     // The RobotServer learns from robots' steps as they come: PPO's pieces (`settings.validate`
     // refuses pattern 3 for an algorithm whose `serves` is false).
     let config: PpoConfig = settings.config_of(ppo::NAME)?;
@@ -190,13 +185,8 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     std::io::stdout().flush()?;
     let (model, end) = server.wait()?;
     let wall = started.elapsed().as_secs_f64();
-    run_dir.save_model(&model)?;
     // The final model, evaluated in-process (pattern 1 runs the same policy) as `train` does.
-    let seed = settings.final_eval_seed();
-    let mut eval_env = evaluation_env(&entry, None, settings.arenas, settings.eval_episodes, seed, settings.in_process_pattern()?)?;
-    let evaluation = evaluate_policy(entry.main_task().name, &model, &mut eval_env, settings.eval_episodes, seed)?;
-    run_dir.write_json(EVAL, &evaluation)?;
-    run_dir.write_summary(&Summary::new(&settings.robot, 3, &model, &end, wall, Some(&evaluation)))?;
+    crate::cli::runs::finish(&settings, &run_dir, &entry, &model, &end, wall, None)?;
     println!("{end} in {wall:.1} s, mean of last 100 episodes {:.1}", model.mean_recent_score());
     println!("run directory: {}", out.display());
     // Give connected robots a moment to read their `done` before the process exits.

@@ -13,14 +13,14 @@ use std::path::Path;
 use std::time::Instant;
 
 use twinbots_task::randomization::RandomizationPlugin;
-use twinbots_learn::run_dir::{EVAL, Summary, TimeBreakdown};
+use twinbots_learn::run_dir::TimeBreakdown;
 use twinbots_api::DesignPattern;
-use twinbots_learn::{RunDir, TrainingEnd, evaluate_policy};
+use twinbots_learn::{RunDir, TrainingEnd};
 use twinbots_task::{bridge, env};
 
 use crate::cli::learner;
 use twinbots_learn::Learner;
-use crate::cli::runs::{ConfigFile, TrainSettings, evaluation_env};
+use crate::cli::runs::{ConfigFile, TrainSettings};
 use crate::registry;
 
 /// The command's arguments.
@@ -143,14 +143,7 @@ pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<
         return train_through_server(settings, out, false);
     }
     anyhow::ensure!(settings.arenas > 0, "arenas must be at least 1");
-    let run_dir = RunDir::new(out);
-    anyhow::ensure!(
-        !run_dir.holds_run(),
-        "{} already holds a run (use --resume to continue it, or another --out)",
-        out.display()
-    );
-    run_dir.create()?;
-    run_dir.write_config(&settings)?;
+    let run_dir = crate::cli::runs::create(&settings, out)?;
     run(settings, run_dir, None, view)
 }
 
@@ -237,14 +230,8 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Box<dyn Learner>>
     let (learner, end, wall) = learned?;
     let times = learner.times();
     let model: &dyn twinbots_learn::Agent = learner.as_ref();
-    run_dir.save_model(model)?;
-    let seed = settings.final_eval_seed();
-    let mut eval_env = evaluation_env(&entry, None, settings.arenas, settings.eval_episodes, seed, settings.in_process_pattern()?)?;
-    let evaluation = evaluate_policy(entry.main_task().name, model, &mut eval_env, settings.eval_episodes, seed)?;
-    run_dir.write_json(EVAL, &evaluation)?;
-    let mut summary = Summary::new(&settings.robot, settings.pattern, model, &end, wall, Some(&evaluation));
-    summary.time_breakdown = simulation_s.map(|sim| TimeBreakdown::new(&times, sim, wall));
-    run_dir.write_summary(&summary)?;
+    let time = simulation_s.map(|sim| TimeBreakdown::new(&times, sim, wall));
+    let (evaluation, summary) = crate::cli::runs::finish(&settings, &run_dir, &entry, model, &end, wall, time)?;
     match end {
         TrainingEnd::Solved { timesteps, by } => {
             println!("solved ({by}) after {timesteps} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.history().mean_score())

@@ -17,6 +17,10 @@ pub struct StepResult {
     /// `obs` entry is already the first of the next one).
     pub final_obs: Vec<Option<Vec<f32>>>,
     pub episodes: Vec<Option<EpisodeSummary>>,
+    /// For envs whose episode terminated this step: the termination term that ended it (a
+    /// step's `info`, which a goal's reward may depend on: `GoalSpec::change`). Empty where the
+    /// env does not say.
+    pub ended_by: Vec<Option<String>>,
 }
 
 /// N environments stepped together, with auto-reset. Errors mean the simulation is gone

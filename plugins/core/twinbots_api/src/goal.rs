@@ -13,9 +13,10 @@ pub struct GoalSpec {
     pub desired: fn(obs: &[f32]) -> Vec<f32>,
     /// Rewrites `obs` so that it asks for `goal`.
     pub substitute: fn(obs: &mut [f32], goal: &[f32]),
-    /// What becomes of a step from `obs` to `next_obs`, which ended the MDP or not (`done`),
-    /// when its goal is `to` instead of `from`.
-    pub change: fn(obs: &[f32], next_obs: &[f32], done: bool, from: &[f32], to: &[f32]) -> GoalChange,
+    /// What becomes of a step from `obs` to `next_obs`, which the termination term `ended_by`
+    /// ended (or none), when its goal is `to` instead of `from` (SB3's `compute_reward(achieved,
+    /// desired, info)`, with the stored step's information).
+    pub change: fn(obs: &[f32], next_obs: &[f32], ended_by: Option<&str>, from: &[f32], to: &[f32]) -> GoalChange,
 }
 
 /// A step under another goal: how its reward changes (the goal-dependent terms under the new
@@ -29,11 +30,12 @@ pub struct GoalChange {
 }
 
 impl GoalSpec {
-    /// The reward and `done` a step from `obs` to `next_obs` that earned `reward` and ended the
-    /// MDP or not (`done`) would have had with the goal `goal`: an end the old goal caused is
-    /// undone, one the new goal causes is added, any other end stays.
-    pub fn relabel(&self, obs: &[f32], next_obs: &[f32], reward: f32, done: bool, goal: &[f32]) -> (f32, bool) {
-        let change = (self.change)(obs, next_obs, done, &(self.desired)(obs), goal);
+    /// The reward and `done` a step from `obs` to `next_obs` that earned `reward`, ended the
+    /// MDP or not (`done`) and was ended by the termination term `ended_by`, would have had
+    /// with the goal `goal`: an end the old goal caused is undone, one the new goal causes is
+    /// added, any other end stays.
+    pub fn relabel(&self, obs: &[f32], next_obs: &[f32], reward: f32, done: bool, ended_by: Option<&str>, goal: &[f32]) -> (f32, bool) {
+        let change = (self.change)(obs, next_obs, ended_by, &(self.desired)(obs), goal);
         (reward + change.reward, (done && !change.ends_at_from) || change.ends_at_to)
     }
 }

@@ -35,6 +35,6 @@ pub fn store_step(buffer: Option<&mut ReplayBuffer>, obs: &[f32], actions: &[f32
         }
     }
     if let Some(buffer) = buffer {
-        buffer.push(obs, actions, &out.rewards, &next_obs, &out.terminated, &ends);
+        buffer.push(obs, actions, &out.rewards, &next_obs, &out.terminated, &ends, &out.ended_by);
     }
 }

@@ -34,6 +34,12 @@ pub struct ReplayBuffer {
     pub dones: Vec<f32>,
     /// Steps of the same episode after this one, once the episode has ended.
     pub remaining: Vec<u32>,
+    /// The termination term that ended the MDP at this step, as 1 + its index in
+    /// `terminations` (0: none, or the env did not say): the step information a goal's reward
+    /// is recomputed with.
+    pub ended_by: Vec<u8>,
+    /// The termination terms' names `ended_by` refers to, in the order first met.
+    pub terminations: Vec<String>,
     /// Each env's steps so far in its running episode.
     pub episode_steps: Vec<u32>,
 }
@@ -63,6 +69,8 @@ impl ReplayBuffer {
             rewards: Vec::new(),
             dones: Vec::new(),
             remaining: Vec::new(),
+            ended_by: Vec::new(),
+            terminations: Vec::new(),
             episode_steps: vec![0; n_envs],
         }
     }
@@ -77,8 +85,10 @@ impl ReplayBuffer {
 
     /// One step of every env: `next_obs` is each step's outcome (a finished episode's last
     /// observation, not the next episode's first); `ended` marks episodes that ended
-    /// (terminated or truncated), `terminated` those that ended in the MDP.
-    pub fn push(&mut self, obs: &[f32], actions: &[f32], rewards: &[f32], next_obs: &[f32], terminated: &[bool], ended: &[bool]) {
+    /// (terminated or truncated), `terminated` those that ended in the MDP, `ended_by` the
+    /// termination term that ended each (empty where the env does not say).
+    #[allow(clippy::too_many_arguments)]
+    pub fn push(&mut self, obs: &[f32], actions: &[f32], rewards: &[f32], next_obs: &[f32], terminated: &[bool], ended: &[bool], ended_by: &[Option<String>]) {
         let (o, a) = (self.obs_dim, self.act_dim);
         for e in 0..self.n_envs {
             let i = self.pos;
@@ -94,6 +104,12 @@ impl ReplayBuffer {
             put(&mut self.actions, &actions[e * a..(e + 1) * a], a);
             put(&mut self.rewards, &[rewards[e]], 1);
             put(&mut self.dones, &[f32::from(u8::from(terminated[e]))], 1);
+            let term = ended_by.get(e).and_then(|t| t.as_deref()).map_or(0, |name| self.term_code(name));
+            if self.ended_by.len() <= i {
+                self.ended_by.push(term);
+            } else {
+                self.ended_by[i] = term;
+            }
             if self.remaining.len() <= i {
                 self.remaining.push(RUNNING);
             } else {
@@ -113,6 +129,17 @@ impl ReplayBuffer {
             if self.pos == self.capacity {
                 self.pos = 0;
                 self.full = true;
+            }
+        }
+    }
+
+    /// `name`'s code in `ended_by` (1 + its index in `terminations`, added when first met).
+    fn term_code(&mut self, name: &str) -> u8 {
+        match self.terminations.iter().position(|t| t == name) {
+            Some(k) => k as u8 + 1,
+            None => {
+                self.terminations.push(name.to_string());
+                self.terminations.len().min(u8::MAX as usize) as u8
             }
         }
     }
@@ -142,7 +169,11 @@ impl ReplayBuffer {
                 let k = rng.random_range(0..=self.remaining[i] as usize);
                 let j = (i + k * self.n_envs) % self.capacity;
                 let achieved = (goal.achieved)(&self.next_obs[j * o..(j + 1) * o]);
-                (reward, done) = goal.relabel(&obs, &next, reward, done, &achieved);
+                let ended_by = match self.ended_by.get(i) {
+                    Some(&code) if code > 0 => self.terminations.get(code as usize - 1).map(String::as_str),
+                    _ => None,
+                };
+                (reward, done) = goal.relabel(&obs, &next, reward, done, ended_by, &achieved);
                 (goal.substitute)(&mut obs, &achieved);
                 (goal.substitute)(&mut next, &achieved);
             }
@@ -187,7 +218,7 @@ mod tests {
             let obs = [x0, 50.0, 100.0 + t as f32, 50.0];
             let next = [x0 + 1.0, 50.0, 101.0 + t as f32, 50.0];
             let rewards = [-(x0 + 1.0 - 50.0).abs(), -(101.0 + t as f32 - 50.0).abs()];
-            buffer.push(&obs, &[0.0, 0.0], &rewards, &next, &[false, false], &[t == 2, false]);
+            buffer.push(&obs, &[0.0, 0.0], &rewards, &next, &[false, false], &[t == 2, false], &[]);
         }
         assert_eq!(&buffer.remaining[..6], &[2, RUNNING, 1, RUNNING, 0, RUNNING]);
         let goal = line_goal();
@@ -218,9 +249,31 @@ mod tests {
         assert_eq!(buffer.capacity, 4);
         for t in 0..3 {
             let x = t as f32;
-            buffer.push(&[x, -x], &[0.0, 0.0], &[0.0, 0.0], &[x, -x], &[false, false], &[false, false]);
+            buffer.push(&[x, -x], &[0.0, 0.0], &[0.0, 0.0], &[x, -x], &[false, false], &[false, false], &[]);
         }
         assert_eq!(buffer.len(), 4);
         assert_eq!(buffer.obs, vec![2.0, -2.0, 1.0, -1.0]);
+    }
+
+    #[test]
+    fn the_goal_is_told_which_termination_ended_a_stored_step() {
+        // One env, one-step episodes: the first ended by "stop", the second by "arrived", the
+        // third by no term (the env did not say). The goal's reward change is −100 for a stopped step.
+        let goal = GoalSpec {
+            change: |_, _, ended_by, _, _| GoalChange { reward: if ended_by == Some("stop") { -100.0 } else { 0.0 }, ends_at_from: false, ends_at_to: false },
+            ..line_goal()
+        };
+        let mut buffer = ReplayBuffer::new(8, 1, 2, 1);
+        for (k, ended_by) in [Some("stop".to_string()), Some("arrived".into()), None].into_iter().enumerate() {
+            let x = k as f32;
+            buffer.push(&[x, 50.0], &[0.0], &[0.0], &[x, 50.0], &[true], &[true], &[ended_by]);
+        }
+        assert_eq!(buffer.terminations, ["stop", "arrived"]);
+        assert_eq!(buffer.ended_by, [1, 2, 0]);
+        let batch = buffer.sample(300, &mut ChaCha8Rng::seed_from_u64(2), Some((&goal, 1_000_000)));
+        for r in 0..300 {
+            let stopped = batch.obs[2 * r] == 0.0;
+            assert_eq!(batch.rewards[r], if stopped { -100.0 } else { 0.0 }, "row {r}: {:?}", &batch.obs[2 * r..2 * r + 2]);
+        }
     }
 }

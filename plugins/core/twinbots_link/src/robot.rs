@@ -276,7 +276,7 @@ fn exchange<S: Component>(
             Phase::Running => {
                 terms.0.observe(state, &mut e.observation);
                 let outcome = terms.0.evaluate(state, e.length, &mut e.reward_sums);
-                (e.reward, e.terminated, e.truncated) = (outcome.reward, outcome.terminated, outcome.truncated);
+                (e.reward, e.terminated, e.truncated, e.ended_by) = (outcome.reward, outcome.terminated, outcome.truncated, outcome.ended_by);
                 if outcome.success.is_some() {
                     e.success = outcome.success;
                 }

@@ -74,6 +74,7 @@ pub fn collect_step(world: &World, arenas: &[Entity]) -> StepResult {
         out.truncated.push(e.truncated);
         out.final_obs.push(e.final_observation.clone());
         out.episodes.push(e.finished.clone());
+        out.ended_by.push(e.ended_by.map(String::from));
     }
     out
 }

@@ -2,7 +2,7 @@
 //! experience replay: the goal achieved is the TCP, the goal desired is the target, and the
 //! reward for another target recomputes the reach task's own target terms from the observation
 //! (the joints' angles and speeds give the controller's TCP, tilt and speed, exactly as
-//! `ArmState::read` does).
+//! `ArmState::read` does) and the step's record (whether the protective stop ended it).
 
 use std::sync::OnceLock;
 
@@ -64,16 +64,16 @@ fn substitute(obs: &mut [f32], goal: &[f32]) {
     obs[o.target_offset..o.target_offset + 3].copy_from_slice(&offset.to_array());
 }
 
-/// The target terms under each goal, and arrival at each (which ends a reach). A reach ends
-/// only on arrival or in a protective stop, so a step that ended without arriving at `from`
-/// ended in a stop: its penalty is recomputed for `to`, and it arrives nowhere.
-fn change(_obs: &[f32], next_obs: &[f32], done: bool, from: &[f32], to: &[f32]) -> GoalChange {
+/// The target terms under each goal, and arrival at each (which ends a reach). A step its
+/// record says the protective stop ended keeps the stop: its penalty (a multiple of the pose
+/// cost where it tripped) is recomputed for `to`, and it arrives nowhere.
+fn change(_obs: &[f32], next_obs: &[f32], ended_by: Option<&str>, from: &[f32], to: &[f32]) -> GoalChange {
     let joints = |at: usize| -> [f32; 6] { std::array::from_fn(|i| next_obs[at + i]) };
     // The kinematics once for both goals: it is most of a relabelling's cost.
     let o = offsets();
     let mut state = CellState { arm: ArmState::from_joints(joints(o.joint_positions), joints(o.joint_velocities)), ..Default::default() };
-    if done && !state.arm.has_reached(point(from)) {
-        state.safety.stop = Some(StopCause::Speed { joint: 0, ratio: f32::NAN });
+    if ended_by == Some(crate::reach::STOP_TERM) {
+        state.safety.stop = Some(StopCause::Recorded);
     }
     let mut terms = |goal: &[f32]| {
         state.target = point(goal);
@@ -134,15 +134,15 @@ mod tests {
         let far = goal_reward(&obs, &target.to_array());
         assert!((far - (-0.1 - 0.1)).abs() < 1e-3, "{far}");
         let here = goal_reward(&obs, &tcp.to_array());
-        let change = (goal.change)(&obs, &obs, false, &target.to_array(), &tcp.to_array());
+        let change = (goal.change)(&obs, &obs, None, &target.to_array(), &tcp.to_array());
         assert!((change.reward - (here - far)).abs() < 1e-4, "{change:?}");
         assert!(!change.ends_at_from);
         let down = crate::kinematics::tilt(&arm.tcp) < crate::arm::TILT_TOLERANCE;
         assert!((here - if down { 10.0 } else { 0.0 }).abs() < 1e-3, "{here} (pointing down: {down})");
         assert_eq!(change.ends_at_to, down, "arrival at the TCP itself (at rest) ends the reach iff the tool points down");
-        // A step that ended without arriving ended in a protective stop: its penalty (a
-        // multiple of the pose cost where the stop tripped) follows the goal, and nothing arrives.
-        let stopped = (goal.change)(&obs, &obs, true, &target.to_array(), &tcp.to_array());
+        // A step the protective stop ended (its record says so): its penalty (a multiple of
+        // the pose cost where the stop tripped) follows the goal, and nothing arrives.
+        let stopped = (goal.change)(&obs, &obs, Some(crate::reach::STOP_TERM), &target.to_array(), &tcp.to_array());
         assert!(!stopped.ends_at_to && !stopped.ends_at_from);
         assert!(stopped.reward > change.reward + 1.0, "the stop's penalty did not shrink with the distance: {stopped:?} vs {change:?}");
     }

@@ -14,6 +14,9 @@ use crate::kinematics::{self, HOME, JOINT_RANGE};
 use crate::metrics::TwinMeter;
 use crate::state::CellState;
 
+/// The name of the termination term a protective stop ends an episode with.
+pub const STOP_TERM: &str = "protective_stop";
+
 /// Control steps before a reach is given up (4 s).
 pub const EPISODE_STEPS: u32 = 100;
 /// Targets: this far from the base's axis (m)…
@@ -138,7 +141,7 @@ pub fn reach_task() -> TaskDefinition<CellState> {
                 // The policy no longer drives a stopped arm: braking to rest and unlocking the
                 // stop belong to the reset (Isaac Lab's terminations, too, end an episode the
                 // step they occur).
-                TerminationTerm::new("protective_stop", |s: &CellState| s.safety.stopped()),
+                TerminationTerm::new(STOP_TERM, |s: &CellState| s.safety.stopped()),
             ],
             time_limit: Some(EPISODE_STEPS),
             start_events: vec![StartEvent::new("new_reach", new_reach)],

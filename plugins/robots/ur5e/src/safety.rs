@@ -59,6 +59,9 @@ pub enum StopCause {
     Speed { joint: usize, ratio: f32 },
     /// Joint `joint`'s motor exerted `ratio` × its effort limit.
     Effort { joint: usize, ratio: f32 },
+    /// A stop known from a stored step's record (its episode ended by the stop's termination
+    /// term), as hindsight relabelling rebuilds the state: which joint tripped is not kept.
+    Recorded,
 }
 
 /// The safety system's state: how long each joint has overspeeded, and the stop, once made.

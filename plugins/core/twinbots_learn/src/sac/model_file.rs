@@ -40,6 +40,10 @@ pub(crate) struct BufferRing {
     pos: usize,
     full: bool,
     episode_steps: Vec<u32>,
+    /// The names the buffer's `ended_by` codes stand for (absent in buffers saved before they
+    /// were kept: their steps count as ended by no term).
+    #[serde(default)]
+    terminations: Vec<String>,
 }
 
 impl Sac {
@@ -117,7 +121,14 @@ impl Sac {
 pub(crate) fn save_replay(buffer: Option<&ReplayBuffer>, dir: &Path) -> Result<Option<BufferRing>, ModelError> {
     let Some(buffer) = buffer else { return Ok(None) };
     save_buffer(buffer, &dir.join(REPLAY_BUFFER_FILE))?;
-    Ok(Some(BufferRing { n_envs: buffer.n_envs, capacity: buffer.capacity, pos: buffer.pos, full: buffer.full, episode_steps: buffer.episode_steps.clone() }))
+    Ok(Some(BufferRing {
+        n_envs: buffer.n_envs,
+        capacity: buffer.capacity,
+        pos: buffer.pos,
+        full: buffer.full,
+        episode_steps: buffer.episode_steps.clone(),
+        terminations: buffer.terminations.clone(),
+    }))
 }
 
 /// The replay buffer [`save_replay`] saved into `dir` at `ring`, checked against it.
@@ -131,7 +142,10 @@ pub(crate) fn load_replay(ring: Option<BufferRing>, dir: &Path, obs_dim: usize, 
     if !fits {
         return Err(file_error(&file, "the replay buffer does not match its ring position in model.json"));
     }
-    (buffer.pos, buffer.full, buffer.episode_steps) = (ring.pos, ring.full, ring.episode_steps);
+    if buffer.ended_by.iter().any(|&code| code as usize > ring.terminations.len()) {
+        return Err(file_error(&file, "the replay buffer's ended_by codes name more termination terms than model.json lists"));
+    }
+    (buffer.pos, buffer.full, buffer.episode_steps, buffer.terminations) = (ring.pos, ring.full, ring.episode_steps, ring.terminations);
     Ok(Some(buffer))
 }
 
@@ -147,6 +161,8 @@ fn save_buffer(buffer: &ReplayBuffer, path: &Path) -> Result<(), ModelError> {
     tensors.insert("dones".to_string(), t(&buffer.dones, 1)?);
     let remaining = Tensor::from_vec(buffer.remaining.clone(), len, &dev).map_err(|e| file_error(path, e))?;
     tensors.insert("remaining".to_string(), remaining);
+    let ended_by = Tensor::from_vec(buffer.ended_by.clone(), len, &dev).map_err(|e| file_error(path, e))?;
+    tensors.insert("ended_by".to_string(), ended_by);
     model_io::save_tensors(&tensors, path)
 }
 
@@ -167,11 +183,16 @@ fn load_buffer(buffer: &mut ReplayBuffer, path: &Path) -> Result<(), ModelError>
     buffer.dones = floats("dones")?;
     buffer.remaining = get("remaining")?.to_vec1::<u32>().map_err(|e| file_error(path, e))?;
     let n = buffer.rewards.len();
+    buffer.ended_by = match tensors.get("ended_by") {
+        Some(t) => t.to_vec1::<u8>().map_err(|e| file_error(path, e))?,
+        None => vec![0; n],
+    };
     let consistent = buffer.obs.len() == n * buffer.obs_dim
         && buffer.next_obs.len() == n * buffer.obs_dim
         && buffer.actions.len() == n * buffer.act_dim
         && buffer.dones.len() == n
-        && buffer.remaining.len() == n;
+        && buffer.remaining.len() == n
+        && buffer.ended_by.len() == n;
     if !consistent {
         return Err(file_error(path, "the replay buffer's tensors differ in length"));
     }

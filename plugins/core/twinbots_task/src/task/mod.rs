@@ -36,6 +36,8 @@ pub struct Episode {
     pub reward: f32,
     pub terminated: bool,
     pub truncated: bool,
+    /// The termination term that ended the episode this step, if one did.
+    pub ended_by: Option<&'static str>,
     /// Steps and summed reward of the running episode.
     pub length: u32,
     pub score: f32,
@@ -226,6 +228,7 @@ fn evaluate_terms<S: Component>(terms: Res<Terms<S>>, mut arenas: Query<(&S, &mu
         e.reward = outcome.reward;
         e.terminated = outcome.terminated;
         e.truncated = outcome.truncated;
+        e.ended_by = outcome.ended_by;
         if outcome.success.is_some() {
             e.success = outcome.success;
         }

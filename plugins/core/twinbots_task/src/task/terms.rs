@@ -128,6 +128,8 @@ pub struct StepOutcome {
     pub truncated: bool,
     /// Set on an episode's last step for tasks with a goal term: whether one fired.
     pub success: Option<bool>,
+    /// The first termination term (in the task's order) that fired, if any.
+    pub ended_by: Option<&'static str>,
 }
 
 impl<S> TaskTerms<S> {
@@ -202,16 +204,18 @@ impl<S> TaskTerms<S> {
         }
         let mut terminated = false;
         let mut goal = false;
+        let mut ended_by = None;
         for term in &self.terminations {
             if (term.when)(s) {
                 terminated = true;
                 goal |= term.goal;
+                ended_by = ended_by.or(Some(term.name));
             }
         }
         let truncated = !terminated && self.time_limit.is_some_and(|n| steps_before + 1 >= n);
         let has_goal = self.terminations.iter().any(|t| t.goal);
         let success = (has_goal && (terminated || truncated)).then_some(goal);
-        StepOutcome { reward, terminated, truncated, success }
+        StepOutcome { reward, terminated, truncated, success, ended_by }
     }
 
     /// Runs the start events on `s`, drawing from `rng`.
