@@ -13,7 +13,7 @@ use twinbots_learn::callbacks::draw_learning_curve;
 use twinbots_learn::normalize::RunningMeanStd;
 use twinbots::settings::{ConfigFile, TrainSettings};
 use twinbots_api::Measure;
-use twinbots_learn::{Ppo, PpoConfig, RunDir, ppo};
+use twinbots_learn::{Ppo, PpoConfig, RunDir, SolvedBy, TrainingEnd, ppo};
 
 use crate::convert::{runtime_error, space_dict, value_error};
 
@@ -89,6 +89,25 @@ pub fn truncate_progress(run_dir: PathBuf, timesteps: u64) -> PyResult<()> {
 pub fn draw_curve(run_dir: PathBuf, robot: &str, title: &str) -> PyResult<()> {
     let entry = twinbots::registry::find(robot).map_err(value_error)?;
     draw_learning_curve(&RunDir::new(run_dir), title, entry.task().solved).map_err(runtime_error)
+}
+
+/// Ends the run in `run_dir` as every twinbots run ends (`twinbots::run::finish`): its model
+/// (`model/`) evaluated in-process into `eval.json` and summed up in `summary.json`; `solved`:
+/// whether training stopped on the task's criterion, `wall_s` its wall-clock seconds. Returns
+/// the evaluation's one-line description.
+#[pyfunction]
+pub fn finish_run(py: Python<'_>, run_dir: PathBuf, solved: bool, wall_s: f64) -> PyResult<String> {
+    let run = RunDir::new(&run_dir);
+    let settings = TrainSettings::of_run(&run).map_err(value_error)?;
+    let entry = twinbots::registry::find(&settings.robot).map_err(value_error)?;
+    py.detach(|| {
+        let model = twinbots_learn::algos::load_run(&run)?;
+        let timesteps = model.timesteps();
+        let end = if solved { TrainingEnd::Solved { timesteps, by: SolvedBy::TrainingEpisodes } } else { TrainingEnd::BudgetSpent { timesteps } };
+        let (evaluation, _) = twinbots::run::finish(&settings, &run, &entry, model.as_ref(), &end, wall_s, None)?;
+        Ok(evaluation.describe())
+    })
+    .map_err(runtime_error)
 }
 
 /// Saves a policy trained outside twinbots as the run's model (`model/`): `weights` maps the

@@ -28,6 +28,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(handover::truncate_progress, m)?)?;
     m.add_function(wrap_pyfunction!(handover::draw_curve, m)?)?;
     m.add_function(wrap_pyfunction!(handover::save_model, m)?)?;
+    m.add_function(wrap_pyfunction!(handover::finish_run, m)?)?;
     Ok(())
 }
 

@@ -79,8 +79,12 @@ def test_the_command_writes_a_run_that_twinbots_eval_reads(tmp_path):
     run = tmp_path / "run"
     # Starts (and stops) its own local Ray: the fixture's is not running in this test.
     assert rllib_main(["train", "cartpole", "--env-runners", "2", "--envs-per-runner", "4", "--timesteps", "3000", "--out", str(run)]) == 0
-    for name in ("config.toml", "progress.csv", "learning_curve.png", "model/model.json", "model/model.safetensors", "rllib_checkpoint", "rllib_summary.json"):
+    for name in ("config.toml", "progress.csv", "learning_curve.png", "model/model.json", "model/model.safetensors", "rllib_checkpoint",
+                 "rllib_summary.json", "eval.json", "summary.json"):
         assert (run / name).exists(), name
+    # Ended as every twinbots run ends (`twinbots::run::finish`): the final model evaluated.
+    evaluation = json.loads((run / "eval.json").read_text())
+    assert evaluation["episodes"] >= 1 and json.loads((run / "summary.json").read_text())["robot"] == "cartpole"
     summary = json.loads((run / "rllib_summary.json").read_text())
     assert summary["timesteps"] >= 3000 and set(summary["steps_per_runner"]) == {"1", "2"}
     rows = (run / "progress.csv").read_text().splitlines()

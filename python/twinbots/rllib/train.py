@@ -253,7 +253,10 @@ def _run(args: TrainArgs, run: Path, config, checkpoint: Path | None) -> Path:
             "mean_reward": row.get("mean_reward"),
         }
         (run / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
+        # As every twinbots run ends: the model evaluated into eval.json, and summary.json.
+        evaluation = _native.finish_run(os.fspath(run), ended == "solved", wall)
         print(f"{ended} after {summary['timesteps']} steps in {wall:.1f} s; run directory: {run}")
+        print(f"evaluation of the final model, {evaluation}")
         algo.stop()
     finally:
         if owns_ray:
