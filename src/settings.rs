@@ -219,8 +219,7 @@ impl TrainSettings {
         }
         // Each table named anywhere starts from the robot's tuning of that algorithm.
         let tuned = |algorithm: &Algorithm| -> anyhow::Result<toml::Table> {
-            toml::from_str(entry.defaults.of(algorithm.name).hyperparams)
-                .map_err(|e| anyhow::anyhow!("robot {}'s {} hyperparameters do not read: {e}", entry.name, algorithm.name))
+            entry.defaults.of(algorithm.name).keys().map_err(|e| anyhow::anyhow!("robot {}: {e}", entry.name))
         };
         let mut tables: BTreeMap<String, toml::Table> = BTreeMap::from([(algorithm.name.to_string(), tuned(algorithm)?)]);
         for layer in [file, flags] {

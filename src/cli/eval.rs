@@ -6,7 +6,8 @@ use twinbots_api::VecEnv;
 use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
 use twinbots_task::AppVecEnv;
 
-use crate::cli::runs::{TrainSettings, evaluation_env};
+use twinbots::run::evaluation_env;
+use twinbots::settings::TrainSettings;
 use crate::registry;
 
 /// The command's arguments.

@@ -8,7 +8,7 @@ use twinbots_task::ActiveTask;
 use twinbots_learn::RunDir;
 use twinbots_sim::SimSettings;
 
-use crate::cli::runs::TrainSettings;
+use twinbots::settings::TrainSettings;
 use crate::registry;
 
 /// The command's arguments.

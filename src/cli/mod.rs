@@ -8,7 +8,6 @@ pub mod export;
 pub mod learner;
 pub mod robot;
 pub mod robots;
-pub mod runs;
 pub mod serve;
 pub mod view;
 pub mod train;

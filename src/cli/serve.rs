@@ -13,7 +13,7 @@ use twinbots_api::DesignPattern;
 use twinbots_learn::{Ppo, PpoConfig, RunDir, ppo};
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
-use crate::cli::runs::{ConfigFile, TrainSettings};
+use twinbots::settings::{ConfigFile, TrainSettings};
 use crate::registry;
 
 /// The command's arguments.
@@ -92,7 +92,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             TrainSettings::resolve(&entry, file, flags)?
         }
     };
-    let out = out.unwrap_or_else(|| crate::cli::runs::default_run_dir(&format!("{robot}-server")));
+    let out = out.unwrap_or_else(|| twinbots::run::default_run_dir(&format!("{robot}-server")));
     serve(settings, listen, limits, &out)
 }
 
@@ -138,7 +138,7 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, limits: ServerLimits, 
     let spec = entry.task();
     anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{} has no design-pattern-3 robot", entry.name);
     anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
-    let run_dir = crate::cli::runs::create(&settings, out)?;
+    let run_dir = twinbots::run::create(&settings, out)?;
     // The RobotServer learns from robots' steps as they come: PPO's pieces (`settings.validate`
     // refuses pattern 3 for an algorithm whose `serves` is false).
     let config: PpoConfig = settings.config_of(ppo::NAME)?;
@@ -170,7 +170,7 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     let spec = entry.task();
     let out = run_dir.path().to_path_buf();
     let title = format!("{} — PPO through the RobotServer (pattern 3), seed {}", settings.robot, settings.seed);
-    let mut callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
+    let mut callbacks = twinbots::run::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     if std::env::var_os(PANIC_IN_UPDATE_ENV).is_some() {
         callbacks = callbacks.with(|_: &twinbots_learn::UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<twinbots_learn::Flow> {
             panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
@@ -186,7 +186,7 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     let (model, end) = server.wait()?;
     let wall = started.elapsed().as_secs_f64();
     // The final model, evaluated in-process (pattern 1 runs the same policy) as `train` does.
-    crate::cli::runs::finish(&settings, &run_dir, &entry, &model, &end, wall, None)?;
+    twinbots::run::finish(&settings, &run_dir, &entry, &model, &end, wall, None)?;
     println!("{end} in {wall:.1} s, mean of last 100 episodes {:.1}", model.mean_recent_score());
     println!("run directory: {}", out.display());
     // Give connected robots a moment to read their `done` before the process exits.

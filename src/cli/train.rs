@@ -20,7 +20,7 @@ use twinbots_task::{bridge, env};
 
 use crate::cli::learner;
 use twinbots_learn::Learner;
-use crate::cli::runs::{ConfigFile, TrainSettings};
+use twinbots::settings::{ConfigFile, TrainSettings};
 use crate::registry;
 
 /// The command's arguments.
@@ -88,7 +88,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         print!("{}", toml::to_string_pretty(&settings)?);
         return Ok(());
     }
-    let out = out.unwrap_or_else(|| crate::cli::runs::default_run_dir(&robot));
+    let out = out.unwrap_or_else(|| twinbots::run::default_run_dir(&robot));
     train(settings, &out, view)
 }
 
@@ -143,7 +143,7 @@ pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<
         return train_through_server(settings, out, false);
     }
     anyhow::ensure!(settings.arenas > 0, "arenas must be at least 1");
-    let run_dir = crate::cli::runs::create(&settings, out)?;
+    let run_dir = twinbots::run::create(&settings, out)?;
     run(settings, run_dir, None, view)
 }
 
@@ -191,7 +191,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Box<dyn Learner>>
         "{} — {}, pattern {}, {} arenas, seed {}",
         settings.robot, learner.algorithm(), settings.pattern, settings.arenas, settings.seed
     );
-    let mut callbacks = crate::cli::runs::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
+    let mut callbacks = twinbots::run::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     if resumed {
         // Everything checked: the rows logged after the checkpoint are redone.
         run_dir.truncate_after(learner.timesteps())?;
@@ -231,7 +231,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Box<dyn Learner>>
     let times = learner.times();
     let model: &dyn twinbots_learn::Agent = learner.as_ref();
     let time = simulation_s.map(|sim| TimeBreakdown::new(&times, sim, wall));
-    let (evaluation, summary) = crate::cli::runs::finish(&settings, &run_dir, &entry, model, &end, wall, time)?;
+    let (evaluation, summary) = twinbots::run::finish(&settings, &run_dir, &entry, model, &end, wall, time)?;
     match end {
         TrainingEnd::Solved { timesteps, by } => {
             println!("solved ({by}) after {timesteps} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.history().mean_score())

@@ -84,13 +84,16 @@ impl AlgoDefaults {
         Self { algo, arenas: 8, timesteps: 1_000_000, eval_every: 0, hyperparams: "" }
     }
 
+    /// The robot's hyperparameters for the algorithm: the keys of its `[<algo>]` table.
+    pub fn keys(&self) -> anyhow::Result<toml::Table> {
+        toml::from_str(self.hyperparams).map_err(|e| anyhow::anyhow!("[{}] hyperparameters do not read: {}", self.algo, e.message()))
+    }
+
     /// The algorithm's config `T` with this robot's hyperparameters over `T::default()`; an
     /// unknown key or a wrong value is an error naming the algorithm and the key.
     pub fn config<T: serde::Serialize + serde::de::DeserializeOwned + Default>(&self) -> anyhow::Result<T> {
-        let keys: toml::Table = toml::from_str(self.hyperparams)
-            .map_err(|e| anyhow::anyhow!("[{}] hyperparameters do not read: {}", self.algo, e.message()))?;
         let mut table = toml::Table::try_from(T::default())?;
-        table.extend(keys);
+        table.extend(self.keys()?);
         table.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("[{}]: {}", self.algo, e.message()))
     }
 }

@@ -163,12 +163,8 @@ impl RunDir {
         anyhow::bail!("{}: none of its {} checkpoints loads (see the warnings above)", self.path.display(), checkpoints.len())
     }
 
-    /// Its final model, else its newest checkpoint that loads.
-    pub fn load_trained<M: LoadAgent>(&self) -> anyhow::Result<M> {
-        Ok(self.trained_with(M::load)?.1)
-    }
-
-    /// [`Self::load_trained`] with the loader `load`; returns where the model came from too.
+    /// Its final model, else its newest checkpoint that loads (with the loader `load`, an
+    /// algorithm's from `crate::algos`); returns where the model came from too.
     pub fn trained_with<M>(&self, load: impl Fn(&Path) -> Result<M, ModelError>) -> anyhow::Result<(PathBuf, M)> {
         let model = self.file(MODEL);
         if model.join(METADATA_FILE).is_file() {

@@ -38,7 +38,7 @@ use crate::model_io::ModelError;
 use crate::stats::{TrainingTimes, UpdateStats};
 use twinbots_api::env_state::EnvState;
 use twinbots_api::spaces::Space;
-use twinbots_api::{EpisodeSummary, GoalSpec};
+use twinbots_api::GoalSpec;
 
 /// The name `--algo` and the settings' `[sac]` table use, and the one its models are saved
 /// under (`model.json`'s `algorithm`).
@@ -217,12 +217,6 @@ impl Sac {
     /// α now.
     pub fn ent_coef(&self) -> anyhow::Result<f32> {
         Ok(self.log_ent_coef.as_tensor().exp()?.to_vec1::<f32>()?[0])
-    }
-
-    /// Counts a finished episode into the statistics.
-    pub fn record_episode(&mut self, episode: &EpisodeSummary) {
-        self.episodes += 1;
-        self.history.record(episode);
     }
 
     /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback` after
