@@ -118,6 +118,7 @@ fn swing_arm() -> RobotDescription {
             ..Default::default()
         },
         build: |request| headless_app(SimSettings { dt: 0.01, substeps: 5, ..default() }, request, SwingArmPlugin),
+        rig: None,
     }
 }
 

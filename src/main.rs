@@ -39,6 +39,13 @@ enum Command {
     Capture(cli::capture::Args),
     /// Measure performance.
     Bench(cli::bench::Args),
+    /// Record a stand-in robot: the twin with hidden true physics (a truth file), driven
+    /// through an excitation program, logging what a controller measures (MCAP or CSV).
+    Record(cli::record::Args),
+    /// Replay a robot log on the twin and report how far it strays, per joint.
+    Replay(cli::replay::Args),
+    /// Calibrate the twin to robot logs (system identification with CMA-ES).
+    Identify(cli::identify::Args),
 }
 
 fn main() {
@@ -63,5 +70,8 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::View(args) => cli::view::exec(args),
         Command::Capture(args) => cli::capture::exec(args),
         Command::Bench(args) => cli::bench::exec(args),
+        Command::Record(args) => cli::record::exec(args),
+        Command::Replay(args) => cli::replay::exec(args),
+        Command::Identify(args) => cli::identify::exec(args),
     }
 }

@@ -45,7 +45,7 @@ pub fn finish(
 ) -> anyhow::Result<(EvalResult, Summary)> {
     run.save_model(model)?;
     let seed = settings.final_eval_seed();
-    let mut env = evaluation_env(entry, None, settings.arenas, settings.eval_episodes, seed, settings.in_process_pattern()?)?;
+    let mut env = evaluation_env(entry, None, settings.arenas, settings.eval_episodes, seed, settings.in_process_pattern()?, &settings.calibration_parameters())?;
     let evaluation = evaluate_policy(entry.main_task().name, model, &mut env, settings.eval_episodes, seed)?;
     run.write_json(EVAL, &evaluation)?;
     let mut summary = Summary::new(&settings.robot, settings.pattern, model, end, wall_s, Some(&evaluation));
@@ -70,8 +70,9 @@ pub fn callbacks(settings: &TrainSettings, run: &RunDir, entry: &RobotEntry, tit
     if settings.eval_every > 0 {
         let (arenas, episodes, pattern) = (settings.arenas, settings.eval_episodes, settings.in_process_pattern()?);
         let robot = entry.clone();
+        let calibration = settings.calibration_parameters();
         let make_env = move |seed: u64| -> anyhow::Result<Box<dyn VecEnv>> {
-            Ok(Box::new(evaluation_env(&robot, None, arenas, episodes, seed, pattern)?))
+            Ok(Box::new(evaluation_env(&robot, None, arenas, episodes, seed, pattern, &calibration)?))
         };
         let mut evaluation = EvalCallback::new(entry.main_task().name, make_env, settings.eval_every, episodes, settings.periodic_eval_seed())
             .log_to(run.clone())
@@ -95,9 +96,12 @@ pub fn evaluation_env(
     episodes: usize,
     seed: u64,
     pattern: DesignPattern,
+    calibration: &twinbots_sim::Parameters,
 ) -> anyhow::Result<AppVecEnv> {
     let arenas = arenas.clamp(1, episodes.max(1));
-    Ok(AppVecEnv::new(entry.app(task, arenas, seed, pattern)?))
+    let mut app = entry.app(task, arenas, seed, pattern)?;
+    twinbots_task::calibration::calibrate(&mut app, calibration);
+    Ok(AppVecEnv::new(app))
 }
 
 /// Default run directory: `runs/<robot>-<unix seconds>`.

@@ -20,7 +20,32 @@ pub const PERIODIC_EVAL_SEED_OFFSET: u64 = 1_000_003;
 pub const FINAL_EVAL_SEED_OFFSET: u64 = 2_000_003;
 
 /// The plain settings, as a config file names them (the algorithms' tables come on top).
-const KEYS: &str = "timesteps, arenas, seed, pattern, checkpoint_every, eval_every, eval_episodes, algo, [randomization]";
+const KEYS: &str = "timesteps, arenas, seed, pattern, checkpoint_every, eval_every, eval_episodes, algo, [randomization], [calibration]";
+
+/// The twin's calibration (`twinbots identify`'s file), recorded in full in the run's
+/// `config.toml`: the run does not depend on the file afterwards.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationSetting {
+    /// The file it was read from.
+    pub file: String,
+    /// Its `[parameters]`, over the robot's nominal ones.
+    pub parameters: BTreeMap<String, f64>,
+}
+
+impl CalibrationSetting {
+    /// Reads a calibration file, checked against the robot's parameters.
+    pub fn read(entry: &RobotEntry, path: &Path) -> anyhow::Result<Self> {
+        let rig = twinbots_sysid::Rig::of(entry)?;
+        let params = twinbots_task::calibration::read_calibration(path, &rig.catalogue, rig.robot)?;
+        Ok(Self { file: path.display().to_string(), parameters: params.0 })
+    }
+
+    /// The parameters as the resource apps take.
+    pub fn parameters(&self) -> twinbots_sim::Parameters {
+        twinbots_sim::Parameters(self.parameters.clone())
+    }
+}
 
 /// Everything a run is made of; written to `config.toml`, read by `--config` and `--resume`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -46,6 +71,9 @@ pub struct TrainSettings {
     /// Domain randomization (patterns 1 and 2): see `twinbots_task::randomization`.
     #[serde(default)]
     pub randomization: Randomization,
+    /// The twin's calibration, if the run has one (`--calibration`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationSetting>,
     /// The algorithms' hyperparameters, each its `[<algo>]` table: the run's own in full, and
     /// any other a config file named (checked, and kept for a later run).
     #[serde(flatten)]
@@ -68,6 +96,7 @@ pub struct ConfigFile {
     pub eval_episodes: Option<usize>,
     pub algo: Option<String>,
     pub randomization: Option<Randomization>,
+    pub calibration: Option<CalibrationSetting>,
     /// `[<algo>]` tables, only the keys given: each replaces that key of the robot's tuned
     /// settings (and of the algorithm's defaults).
     #[serde(flatten)]
@@ -99,6 +128,17 @@ impl ConfigFile {
 }
 
 impl TrainSettings {
+    /// Puts the run's calibration (if any) over the twin's nominal parameters in `app`, before
+    /// its start-up applies them.
+    pub fn calibrate(&self, app: &mut bevy::prelude::App) {
+        twinbots_task::calibration::calibrate(app, &self.calibration_parameters());
+    }
+
+    /// The run's calibrated parameters (none without a calibration).
+    pub fn calibration_parameters(&self) -> twinbots_sim::Parameters {
+        self.calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default()
+    }
+
     /// The settings a run directory was made with (its `config.toml`).
     pub fn of_run(run: &RunDir) -> anyhow::Result<Self> {
         let settings: Self = run.read_config()?;
@@ -207,6 +247,7 @@ impl TrainSettings {
             eval_episodes: entry.defaults.eval_episodes,
             algo: algorithm.name.to_string(),
             randomization: Randomization::default(),
+            calibration: None,
             hyperparams: BTreeMap::new(),
         };
         if algorithm.continuous_only {
@@ -231,6 +272,7 @@ impl TrainSettings {
             s.eval_every = layer.eval_every.unwrap_or(s.eval_every);
             s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
             s.randomization = layer.randomization.unwrap_or(s.randomization);
+            s.calibration = layer.calibration.or(s.calibration);
             for (name, value) in &layer.hyperparams {
                 let (algorithm, keys) = algorithm_table(name, value)?;
                 let table = match tables.remove(name) {

@@ -7,7 +7,7 @@ use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
 use twinbots_task::AppVecEnv;
 
 use twinbots::run::evaluation_env;
-use twinbots::settings::TrainSettings;
+use twinbots::settings::{CalibrationSetting, TrainSettings};
 use crate::registry;
 
 /// The command's arguments.
@@ -31,11 +31,15 @@ pub struct Args {
     /// UR5e's pick-place with its reach model; default: the task it was trained on.
     #[arg(long)]
     pub task: Option<String>,
+    /// Evaluate on the twin calibrated by this file instead of the run's own (e.g. a truth
+    /// file: how a policy does on the robot a log came from).
+    #[arg(long)]
+    pub calibration: Option<std::path::PathBuf>,
 }
 
 /// `twinbots eval`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    eval_run(&args.run, args.episodes, args.arenas, args.task.as_deref())?;
+    eval_run(&args.run, args.episodes, args.arenas, args.task.as_deref(), args.calibration.as_deref())?;
     if let Some(dir) = &args.record {
         record_episode(&args.run, dir, crate::cli::capture::parse_size(&args.size)?, &args.camera, args.task.as_deref())?;
     }
@@ -45,7 +49,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 /// Loads the run's final model (or its newest checkpoint), evaluates it on the run's task or
 /// on another `task` of the robot's cell, prints the figures and writes `eval.json` (or
 /// `eval-<task>.json`) into the run directory.
-pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option<&str>) -> anyhow::Result<EvalResult> {
+pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option<&str>, calibration: Option<&Path>) -> anyhow::Result<EvalResult> {
     anyhow::ensure!(episodes > 0, "--episodes must be at least 1");
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
@@ -54,10 +58,21 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let name = task.unwrap_or(entry.main_task().name);
     let seed = settings.final_eval_seed();
     let arenas = arenas.unwrap_or(settings.arenas);
-    let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, settings.in_process_pattern()?)?;
+    let other_twin = calibration.map(|p| p.file_stem().unwrap_or_default().to_string_lossy().to_string());
+    let calibration = match calibration {
+        Some(path) => Some(CalibrationSetting::read(&entry, path)?),
+        None => settings.calibration.clone(),
+    };
+    let params = calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default();
+    let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, settings.in_process_pattern()?, &params)?;
     let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
     println!("{}: {}", settings.robot, result.describe());
-    let file = if name == entry.main_task().name { twinbots_learn::run_dir::EVAL.to_string() } else { format!("eval-{name}.json") };
+    let file = match (name == entry.main_task().name, other_twin) {
+        // On another twin than the run's: beside the run's own evaluation, not over it.
+        (_, Some(twin)) => format!("eval-{name}-on-{twin}.json"),
+        (true, None) => twinbots_learn::run_dir::EVAL.to_string(),
+        (false, None) => format!("eval-{name}.json"),
+    };
     run_dir.write_json(&file, &result)?;
     Ok(result)
 }

@@ -20,7 +20,7 @@ use twinbots_task::{bridge, env};
 
 use crate::cli::learner;
 use twinbots_learn::Learner;
-use twinbots::settings::{ConfigFile, TrainSettings};
+use twinbots::settings::{CalibrationSetting, ConfigFile, TrainSettings};
 use crate::registry;
 
 /// The command's arguments.
@@ -57,8 +57,12 @@ pub struct Args {
     /// Show arena 0 in a window while training (the other arenas train at full speed).
     #[arg(long)]
     pub view: bool,
+    /// Train on the twin calibrated by this file (`twinbots identify`'s calibration.toml);
+    /// the run's config.toml records its parameters.
+    #[arg(long)]
+    pub calibration: Option<std::path::PathBuf>,
     /// Continue the run in this directory from its newest checkpoint.
-    #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out", "algo"])]
+    #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out", "algo", "calibration"])]
     pub resume: Option<std::path::PathBuf>,
     /// Print the settings the run would use (the robot's defaults ← the config file ← the
     /// flags, key by key) as TOML, and exit without training.
@@ -68,7 +72,7 @@ pub struct Args {
 
 /// `twinbots train`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, resume, print_config } = args;
+    let Args { robot, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, calibration, resume, print_config } = args;
     if let Some(run) = resume {
         if print_config {
             print!("{}", toml::to_string_pretty(&TrainSettings::of_run(&RunDir::new(run))?)?);
@@ -82,7 +86,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         Some(path) => ConfigFile::read(&path)?,
         None => Default::default(),
     };
-    let flags = ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, algo, ..Default::default() };
+    let calibration = calibration.map(|path| CalibrationSetting::read(&entry, &path)).transpose()?;
+    let flags = ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, algo, calibration, ..Default::default() };
     let settings = TrainSettings::resolve(&entry, file, flags)?;
     if print_config {
         print!("{}", toml::to_string_pretty(&settings)?);
@@ -172,6 +177,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Box<dyn Learner>>
         "design pattern 3 has no in-process env: use `twinbots serve` and `twinbots robot`"
     );
     let mut app = entry.app(None, settings.arenas, settings.seed, pattern)?;
+    settings.calibrate(&mut app);
     app.add_plugins(bridge::BridgePlugin);
     settings.randomization.validate()?;
     if !settings.randomization.is_off() {

@@ -143,6 +143,7 @@ fn turntable() -> RobotDescription {
             ..Default::default()
         },
         build: |request| headless_app(SimSettings { dt: 0.01, substeps: 4, ..default() }, request, TurntablePlugin(request.pattern)),
+        rig: None,
     }
 }
 

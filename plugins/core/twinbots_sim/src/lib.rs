@@ -7,6 +7,7 @@
 pub mod arena;
 pub mod devices;
 pub mod framing;
+pub mod parameters;
 pub mod physics;
 pub mod robot;
 pub mod spawn;
@@ -18,10 +19,11 @@ pub use bevy_rapier3d::rapier;
 pub use arena::{Arena, ArenaConfig, InArena};
 pub use devices::{
     Accelerometer, BROADCAST, CameraSensor, ContactSensor, DevicesPlugin, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint,
-    JointState, Motor, MotorCommand, Mount, Packet, PositionSensor, RadioPlugin, Receiver, SamplingPeriod, TouchSensor,
+    JointDynamics, JointState, Motor, MotorCommand, Mount, Packet, PositionSensor, RadioPlugin, Receiver, SamplingPeriod, TouchSensor,
     Touched, VacuumGripper,
 };
 pub use framing::Framing;
+pub use parameters::{ParameterKind, ParameterSpec, Parameters};
 pub use physics::{PhysicsPlugin, PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use robot::{Link, Robot, Visuals};
 pub use spawn::{SpawnOptions, SpawnedRobot, spawn_robot};

@@ -7,7 +7,7 @@ use bevy::math::{Mat3, Quat, Vec3};
 use bevy::prelude::*;
 
 use crate::arena::{Arena, ENVIRONMENT_GROUP, InArena, ROBOT_GROUP};
-use crate::devices::{Joint, JointState, Motor, PositionSensor};
+use crate::devices::{Joint, JointDynamics, JointState, Motor, PositionSensor};
 use crate::robot::{Link, Robot, Visuals};
 use crate::rapier::prelude::*;
 use crate::urdf::{JointKind, JointModel, RobotModel, Shape};
@@ -198,7 +198,8 @@ pub fn spawn_robot(
             let start = start_position(&options, j);
             state.position += std::f32::consts::TAU * ((start - state.position) / std::f32::consts::TAU).round();
         }
-        let mut entity = commands.spawn((joint, state, PositionSensor::default(), InArena(arena_entity)));
+        let dynamics = JointDynamics::new(j.damping, j.friction);
+        let mut entity = commands.spawn((joint, state, dynamics, PositionSensor::default(), InArena(arena_entity)));
         if j.limits.effort > 0.0 {
             entity.insert(Motor::new(j.limits.velocity, j.limits.effort));
         }

@@ -176,6 +176,7 @@ impl Supervisor<'_, '_> {
                 && let Some(mut motor) = motor
             {
                 motor.command = motor.initial_command;
+                motor.clear_history();
                 motor.forget_reference();
             }
         }

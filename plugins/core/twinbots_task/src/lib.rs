@@ -7,6 +7,7 @@
 //! types it works with are `twinbots_api`'s, re-exported here.
 
 pub mod bridge;
+pub mod calibration;
 pub mod env;
 pub mod randomization;
 pub mod replay;

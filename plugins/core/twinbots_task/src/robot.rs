@@ -4,7 +4,8 @@
 //! handshake, evaluation) reads that description from a [`Registry`]; none keeps its own copy.
 
 use bevy::prelude::*;
-use twinbots_sim::{ArenaConfig, Framing, OperatorAccess, SimPlugin, SimSettings};
+use twinbots_sim::urdf::RobotModel;
+use twinbots_sim::{Arena, ArenaConfig, Framing, OperatorAccess, Parameters, SimPlugin, SimSettings, SpawnedRobot};
 
 use twinbots_api::{DesignPattern, TaskSpec};
 
@@ -112,6 +113,67 @@ pub struct RobotDescription {
     pub framing: Framing,
     pub defaults: TrainingDefaults,
     pub build: BuildApp,
+    /// The robot on a test stand, for robot logs: recording, replay and calibration (`None`:
+    /// the robot does not support them).
+    pub rig: Option<RigDescription>,
+}
+
+/// A robot alone on a test stand (no cell, no task): what `record`, `replay` and `identify`
+/// drive with logged or generated commands, one parameter set per arena.
+#[derive(Clone, Copy, Debug)]
+pub struct RigDescription {
+    /// The robot's model (its URDF).
+    pub model: fn() -> RobotModel,
+    /// The twin's timing (the physics step is the rig's).
+    pub settings: fn() -> SimSettings,
+    /// Nominal values of parameters beyond the URDF's `<dynamics>`, as a calibration file's
+    /// TOML (`[parameters]`, `name = value`): the twin always runs with them (its plugin inserts
+    /// them), and calibrations start there.
+    pub nominal: &'static str,
+    /// Where a calibration starts, over `nominal` (same format): a robot's published orders of
+    /// magnitude where the twin runs with lighter placeholders; empty: from `nominal`.
+    pub prior: &'static str,
+    /// The parameters `identify` fits unless told which.
+    pub fit: &'static [&'static str],
+    /// Spawns the robot and what it stands on into an arena, its joints at the positions given
+    /// (by name; the others where the rig starts them).
+    pub spawn: fn(&mut Commands, Entity, &mut Arena, &[(String, f32)]) -> SpawnedRobot,
+    /// The commanded joints and how excitation moves them.
+    pub excitation: &'static [JointExcitation],
+    /// The controller's command period, in physics steps.
+    pub command_steps: u32,
+}
+
+/// How an excitation program may drive one joint: by speed, up to `speed` (rad/s or m/s),
+/// and at most `travel` (rad or m) either side of where it starts. Joints on the same
+/// `channel` get the same signal (a vehicle's wheels, so it drives straight).
+#[derive(Clone, Copy, Debug)]
+pub struct JointExcitation {
+    pub joint: &'static str,
+    pub channel: u8,
+    pub speed: f32,
+    pub travel: f32,
+}
+
+impl RigDescription {
+    /// The nominal parameters as a resource; a built-in table that does not read is a bug.
+    pub fn nominal_parameters(&self) -> Parameters {
+        nominal_parameters(self.nominal)
+    }
+
+    /// Where a calibration starts: the nominal parameters with the prior's over them.
+    pub fn prior_parameters(&self) -> Parameters {
+        let mut out = self.nominal_parameters();
+        if !self.prior.is_empty() {
+            out.extend(&nominal_parameters(self.prior));
+        }
+        out
+    }
+}
+
+/// Parses a robot's built-in nominal parameters (a calibration file's `[parameters]`).
+pub fn nominal_parameters(text: &str) -> Parameters {
+    crate::calibration::parse_parameters(text).expect("a robot's nominal parameters read (checked by the tests)")
 }
 
 impl RobotDescription {

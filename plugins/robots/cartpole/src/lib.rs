@@ -12,7 +12,7 @@ use std::path::Path;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_task::robot::{self, AlgoDefaults, AppRequest, RobotDescription, TaskDescription, TrainingDefaults};
+use twinbots_task::robot::{self, AlgoDefaults, AppRequest, JointExcitation, RigDescription, RobotDescription, TaskDescription, TrainingDefaults};
 use twinbots_task::task::{ResetSet, Resetting, TaskSet, spawn_arenas};
 use twinbots_task::{
     Action, DesignPattern, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskSpec,
@@ -23,7 +23,7 @@ mod radio;
 pub mod server;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
-use twinbots_sim::{ArenaConfig, Framing, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, Supervisor, spawn_robot};
+use twinbots_sim::{Arena, ArenaConfig, Framing, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, SpawnedRobot, Supervisor, spawn_robot};
 
 /// The robot's URDF, compiled in so the twin works from any directory.
 pub const URDF: &str = include_str!("../../../../assets/robots/cartpole/cartpole.urdf");
@@ -126,7 +126,38 @@ pub fn robot() -> RobotDescription {
         // RL Zoo's CartPole-v1 settings (short rollouts, many epochs, linear learning-rate decay).
         defaults: TrainingDefaults { algos: vec![AlgoDefaults { hyperparams: PPO_HYPERPARAMS, ..AlgoDefaults::new("ppo") }], ..default() },
         build: |request| robot::headless_app(sim_settings(), request, CartPolePlugin { pattern: request.pattern, ..default() }),
+        rig: Some(rig()),
     }
+}
+
+/// The twin's nominal joint dynamics (a calibration file's format).
+pub const PARAMETERS: &str = include_str!("../../../../assets/robots/cartpole/parameters.toml");
+
+/// The cart-pole on its test stand: the cart on the ground, its wheels driven by speed, the
+/// pole free. Logs command the wheels every physics step (16 ms).
+pub fn rig() -> RigDescription {
+    const WHEELS: [JointExcitation; 4] = [
+        JointExcitation { channel: 0, joint: "wheel1_joint", speed: WHEEL_SPEED, travel: 5.0 },
+        JointExcitation { channel: 0, joint: "wheel2_joint", speed: WHEEL_SPEED, travel: 5.0 },
+        JointExcitation { channel: 0, joint: "wheel3_joint", speed: WHEEL_SPEED, travel: 5.0 },
+        JointExcitation { channel: 0, joint: "wheel4_joint", speed: WHEEL_SPEED, travel: 5.0 },
+    ];
+    RigDescription {
+        model,
+        settings: sim_settings,
+        nominal: PARAMETERS,
+        prior: "",
+        fit: &["pole_joint.damping", "pole_joint.friction", "command_delay"],
+        spawn: spawn_rig,
+        excitation: &WHEELS,
+        command_steps: 1,
+    }
+}
+
+fn spawn_rig(commands: &mut Commands, arena_entity: Entity, arena: &mut Arena, joint_positions: &[(String, f32)]) -> SpawnedRobot {
+    arena.add_ground(1.0);
+    let base = Pose::from_translation(Vec3::new(0.0, 0.0, CART_HEIGHT));
+    spawn_robot(commands, arena_entity, arena, &model(), SpawnOptions { base, joint_positions: joint_positions.to_vec(), ..default() })
 }
 
 /// Everything needed to train or run the cart-pole headless (design pattern 1).
@@ -174,6 +205,7 @@ pub(crate) struct Pattern(DesignPattern);
 impl Plugin for CartPolePlugin {
     fn build(&self, app: &mut App) {
         app.insert_resource(CartPoleModel(model()))
+            .insert_resource(rig().nominal_parameters())
             .insert_resource(Pattern(self.pattern))
             .add_plugins(TaskTermsPlugin::new(balance_task(self.initial_tilt), self.pattern))
             .add_systems(Startup, spawn_cartpoles);

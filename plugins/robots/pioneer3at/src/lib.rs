@@ -9,7 +9,7 @@ use std::path::Path;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_task::robot::{AlgoDefaults, RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_task::robot::{AlgoDefaults, JointExcitation, RigDescription, RobotDescription, TaskDescription, TrainingDefaults, headless_app};
 use twinbots_task::task::{EnvReset, ResetSet, TaskSet, spawn_arenas};
 use twinbots_task::{
     Action, DesignPattern, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskSpec,
@@ -19,7 +19,7 @@ use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
 use twinbots_sim::{
     Arena, ArenaConfig, DistanceSensor, Framing, InArena, Motor, MotorCommand, Mount, PositionSensor, SimSet, SimSettings,
-    SpawnOptions, Supervisor, spawn_robot,
+    SpawnOptions, SpawnedRobot, Supervisor, spawn_robot,
 };
 
 pub const URDF: &str = include_str!("../../../../assets/robots/pioneer3at/pioneer3at.urdf");
@@ -121,7 +121,38 @@ pub fn robot() -> RobotDescription {
             ..default()
         },
         build: |request| headless_app(sim_settings(), request, Pioneer3atPlugin),
+        rig: Some(rig()),
     }
+}
+
+/// The twin's nominal joint dynamics (a calibration file's format).
+pub const PARAMETERS: &str = include_str!("../../../../assets/robots/pioneer3at/parameters.toml");
+
+/// The Pioneer on its test stand: on the ground, its wheels driven by speed, the pendulum free.
+/// Logs command the wheels every physics step.
+pub fn rig() -> RigDescription {
+    const WHEELS: [JointExcitation; 4] = [
+        JointExcitation { channel: 0, joint: "front_left_wheel_joint", speed: 3.0, travel: 20.0 },
+        JointExcitation { channel: 0, joint: "front_right_wheel_joint", speed: 3.0, travel: 20.0 },
+        JointExcitation { channel: 0, joint: "back_left_wheel_joint", speed: 3.0, travel: 20.0 },
+        JointExcitation { channel: 0, joint: "back_right_wheel_joint", speed: 3.0, travel: 20.0 },
+    ];
+    RigDescription {
+        model,
+        settings: sim_settings,
+        nominal: PARAMETERS,
+        prior: "",
+        fit: &["pendulum_joint.damping", "pendulum_joint.friction", "command_delay"],
+        spawn: spawn_rig,
+        excitation: &WHEELS,
+        command_steps: 1,
+    }
+}
+
+fn spawn_rig(commands: &mut Commands, arena_entity: Entity, arena: &mut Arena, joint_positions: &[(String, f32)]) -> SpawnedRobot {
+    arena.add_ground(1.0);
+    let base = Pose::from_translation(Vec3::new(0.0, 0.0, AXLE_HEIGHT));
+    spawn_robot(commands, arena_entity, arena, &model(), SpawnOptions { base, joint_positions: joint_positions.to_vec(), ..default() })
 }
 
 /// A headless app of the pendulum task (design pattern 1).
@@ -148,6 +179,7 @@ pub struct Pioneer3atPlugin;
 impl Plugin for Pioneer3atPlugin {
     fn build(&self, app: &mut App) {
         app.insert_resource(PioneerModel(model()))
+            .insert_resource(rig().nominal_parameters())
             .add_plugins(TaskTermsPlugin::new(balance_task(), DesignPattern::Supervised))
             .add_systems(Startup, spawn_pioneers)
             .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_supervised.in_set(TaskSet::Read)))

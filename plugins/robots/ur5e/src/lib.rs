@@ -27,6 +27,7 @@ pub mod pick_place;
 pub mod program;
 mod protective_stop;
 pub mod reach;
+pub mod rig;
 pub mod safety;
 pub mod server;
 pub mod state;
@@ -126,6 +127,7 @@ pub fn robot() -> RobotDescription {
             let task = if request.task == "pick-place" { Ur5eTask::PickPlace } else { Ur5eTask::Reach };
             headless_app(sim_settings(), request, Ur5ePlugin { task, pattern: request.pattern })
         },
+        rig: Some(rig::rig()),
     }
 }
 
@@ -146,6 +148,7 @@ pub struct Ur5ePlugin {
 
 impl Plugin for Ur5ePlugin {
     fn build(&self, app: &mut App) {
+        app.insert_resource(rig::rig().nominal_parameters());
         let definition = match self.task {
             Ur5eTask::Reach => goal::reach_with_goal(),
             Ur5eTask::PickPlace => pick_place::pick_place_task(),

@@ -10,6 +10,7 @@ mod camera;
 mod contact_sensor;
 mod distance_sensor;
 mod due;
+mod dynamics;
 mod inertial;
 mod joint;
 mod motor;
@@ -22,6 +23,7 @@ mod vacuum_gripper;
 pub use camera::CameraSensor;
 pub use contact_sensor::{ContactSensor, Touched};
 pub use distance_sensor::DistanceSensor;
+pub use dynamics::{FRICTION_SMOOTHING, JointDynamics, set_armature};
 pub use inertial::{Accelerometer, Gps, Gyro, InertialUnit, TouchSensor};
 pub use joint::{Joint, JointState};
 pub(crate) use joint::stop_window;
@@ -37,10 +39,12 @@ pub struct DevicesPlugin;
 
 impl Plugin for DevicesPlugin {
     fn build(&self, app: &mut App) {
-        app.add_systems(Update, sample_devices().in_set(SimSet::Sense)).add_systems(
+        app.add_systems(PostStartup, crate::parameters::apply_parameters)
+            .add_systems(Update, sample_devices().in_set(SimSet::Sense))
+            .add_systems(
             PhysicsSubstep,
             (
-                (vacuum_gripper::operate_vacuum_grippers, motor::drive_motors, joint::place_stops).in_set(SubstepSet::Actuate),
+                (vacuum_gripper::operate_vacuum_grippers, motor::drive_motors, dynamics::apply_joint_dynamics, joint::place_stops).in_set(SubstepSet::Actuate),
                 // The motor's effort reading needs the joint's new position (a torque is cut at a stop).
                 (joint::measure_joints, motor::measure_motor_efforts).chain().in_set(SubstepSet::Measure),
             ),

@@ -1,6 +1,8 @@
 //! Motors in the manner of Webots' RotationalMotor / LinearMotor: velocity, position or torque
 //! control, always within the motor's max velocity and max torque (force).
 
+use std::collections::VecDeque;
+
 use bevy::prelude::*;
 
 use super::joint::{Joint, JointState, wrap_angle};
@@ -54,8 +56,19 @@ pub struct Motor {
     /// it, rapier's velocity motor lets a joint under a static load (an arm against gravity)
     /// creep slowly, whatever its gain. Off by default (Webots' plain velocity motors: wheels).
     pub holds_position: bool,
+    /// Dead time (s) between a command and the drive acting on it (a controller's command
+    /// latency): the motor applies the command given `delay` ago, interpolated between physics
+    /// steps. 0 by default; set by a calibration (`command_delay`).
+    pub delay: f32,
+    /// Torque constant relative to the rating (1: as rated): the drive delivers `gain` × the
+    /// torque it is asked for, and its limit scales with it. Set by a calibration (`<joint>.gain`).
+    pub gain: f32,
     /// The held position reference (rad or m), once the motor holds.
     reference: Option<f32>,
+    /// The commands of the last physics steps, newest first, while `delay` > 0.
+    history: VecDeque<MotorCommand>,
+    /// The command the drive acts on this physics step (`command`, `delay` ago).
+    applied: MotorCommand,
 }
 
 impl Motor {
@@ -68,8 +81,53 @@ impl Motor {
             command: MotorCommand::Off,
             initial_command: MotorCommand::Off,
             holds_position: false,
+            delay: 0.0,
+            gain: 1.0,
             reference: None,
+            history: VecDeque::new(),
+            applied: MotorCommand::Off,
         }
+    }
+
+    /// The command the drive acts on this physics step.
+    pub fn applied(&self) -> MotorCommand {
+        self.applied
+    }
+
+    /// Forgets the commands in flight (an arena reset: the controller restarts).
+    pub fn clear_history(&mut self) {
+        self.history.clear();
+        self.applied = self.command;
+    }
+
+    /// Takes this physics step's command into the delay line and picks the one the drive acts
+    /// on: the command of `delay / dt` steps ago, blended between the two steps around it when
+    /// both are of the same kind (so a fitted delay is not stuck to whole steps).
+    fn advance_delay_line(&mut self, dt: f32) {
+        if self.delay <= 0.0 {
+            self.history.clear();
+            self.applied = self.command;
+            return;
+        }
+        let steps = self.delay / dt;
+        let whole = steps.floor() as usize;
+        let frac = steps - whole as f32;
+        self.history.push_front(self.command);
+        self.history.truncate(whole + 2);
+        let at = |k: usize| *self.history.get(k).or(self.history.back()).expect("the line holds this step's command");
+        let (newer, older) = (at(whole), at(whole + 1));
+        self.applied = match (newer, older) {
+            (MotorCommand::Velocity(a), MotorCommand::Velocity(b)) => MotorCommand::Velocity(a + (b - a) * frac),
+            (MotorCommand::Position(a), MotorCommand::Position(b)) => MotorCommand::Position(a + (b - a) * frac),
+            (MotorCommand::Torque(a), MotorCommand::Torque(b)) => MotorCommand::Torque(a + (b - a) * frac),
+            _ if frac >= 0.5 => older,
+            _ => newer,
+        };
+    }
+
+    /// The most the drive delivers (N·m or N).
+    pub fn effort_limit(&self) -> f32 {
+        self.max_effort * self.strength * self.gain
     }
 
     /// Drops the held reference, so it restarts from the joint's position: after the joint
@@ -91,7 +149,7 @@ impl Motor {
     /// The effort the motor applied over the last physics step: the solved constraint effort
     /// of velocity and position control, the clamped command of torque control.
     pub fn applied_effort(&self, joint: &Joint, state: &JointState, world: &PhysicsWorld, dt: f32) -> f32 {
-        match self.command {
+        match self.applied {
             MotorCommand::Off => 0.0,
             MotorCommand::Torque(t) => self.torque_within_limits(t, state, joint.limits),
             MotorCommand::Velocity(_) | MotorCommand::Position(_) => solved_effort(joint, world, dt),
@@ -100,8 +158,8 @@ impl Motor {
 
     /// A torque command clamped to what the motor can deliver.
     fn torque_limit(&self, torque: f32) -> f32 {
-        let limit = self.max_effort * self.strength;
-        torque.clamp(-limit, limit)
+        let limit = self.effort_limit();
+        (torque * self.gain).clamp(-limit, limit)
     }
 
     /// The velocity the motor's controller asks for now, bounded by `max_velocity` and by the
@@ -114,7 +172,7 @@ impl Motor {
         // A holding motor eases its reference to the target (a servo's trajectory generator),
         // and its position loop makes the joint follow the reference.
         let from = if self.holds_position { self.reference.unwrap_or(state.position) } else { state.position };
-        let v = match self.command {
+        let v = match self.applied {
             MotorCommand::Velocity(v) => v,
             // The target itself is kept within the stops (a controller's software limits).
             MotorCommand::Position(p) => {
@@ -152,6 +210,7 @@ pub(crate) fn drive_motors(
         let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
         let world = &mut arena.world;
         let axis = joint.axis();
+        motor.advance_delay_line(settings.dt);
         let target = motor.target_velocity(state, joint.limits, settings.dt);
         // The reference a holding motor keeps.
         let reference = match target {
@@ -180,11 +239,11 @@ pub(crate) fn drive_motors(
                     // Rapier's motor targets the wrapped joint angle.
                     let r = if rotational { wrap_angle(r) } else { r };
                     j.data.set_motor(axis, r, v, POSITION_HOLD_STIFFNESS, VELOCITY_MOTOR_GAIN);
-                    j.data.set_motor_max_force(axis, motor.max_effort * motor.strength);
+                    j.data.set_motor_max_force(axis, motor.effort_limit());
                 }
                 (Some(v), None) => {
                     j.data.set_motor_velocity(axis, v, VELOCITY_MOTOR_GAIN);
-                    j.data.set_motor_max_force(axis, motor.max_effort * motor.strength);
+                    j.data.set_motor_max_force(axis, motor.effort_limit());
                 }
                 (None, _) => {
                     j.data.set_motor_velocity(axis, 0.0, 0.0);
@@ -192,7 +251,7 @@ pub(crate) fn drive_motors(
                 }
             }
         }
-        if let MotorCommand::Torque(t) = motor.command {
+        if let MotorCommand::Torque(t) = motor.applied {
             apply_effort(world, joint, motor.torque_within_limits(t, state, joint.limits), settings.dt);
         }
     }
@@ -233,7 +292,7 @@ pub(crate) fn measure_motor_efforts(
 }
 
 /// Applies an effort between the joint's two bodies for one step, as equal and opposite impulses.
-fn apply_effort(world: &mut PhysicsWorld, joint: &Joint, effort: f32, dt: f32) {
+pub(crate) fn apply_effort(world: &mut PhysicsWorld, joint: &Joint, effort: f32, dt: f32) {
     let Some((axis, _, _)) = joint.measure(world) else { return };
     let impulse = axis * effort * dt;
     let rotational = joint.kind.is_rotational();

@@ -507,6 +507,7 @@ impl Checker<'_> {
                 velocity,
             },
             damping: joint.dynamics.as_ref().map_or(0.0, |d| d.damping as f32),
+            friction: joint.dynamics.as_ref().map_or(0.0, |d| d.friction as f32),
         })
     }
 }

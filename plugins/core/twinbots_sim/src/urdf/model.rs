@@ -114,8 +114,10 @@ pub struct JointModel {
     /// Unit axis in the joint frame.
     pub axis: Vec3,
     pub limits: JointLimits,
-    /// Viscous damping (N·m·s/rad) from `<dynamics damping>`.
+    /// Viscous damping (N·m·s/rad or N·s/m) from `<dynamics damping>`.
     pub damping: f32,
+    /// Coulomb friction (N·m or N) from `<dynamics friction>`.
+    pub friction: f32,
 }
 
 impl RobotModel {

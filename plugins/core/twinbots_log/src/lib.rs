@@ -1,0 +1,106 @@
+//! twinbots_log: robot logs, the data a twin is validated and calibrated against.
+//!
+//! A [`RobotLog`] is what a robot controller can know: its joints' measured positions,
+//! speeds and efforts over time, the commands it sent, the tool pose its kinematics
+//! computed, and metadata (robot, control period, units). Never privileged simulator state.
+//! It is stored as MCAP ([`mcap_file`]) with joint states as ROS 2 `sensor_msgs/msg/JointState`
+//! messages, so a rosbag2 recording of a real driver is a valid input, or as CSV ([`csv_file`]).
+//! The layout is documented in `docs/logs.md`.
+
+pub mod cdr;
+pub mod csv_file;
+pub mod log;
+pub mod mcap_file;
+
+pub use log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog, ToolSample};
+
+use std::path::Path;
+
+/// Reads a log, MCAP or CSV by its extension (`.mcap`, `.csv`); errors name the file.
+pub fn read(path: &Path) -> anyhow::Result<RobotLog> {
+    let log = match extension(path).as_str() {
+        "mcap" => mcap_file::read(path),
+        "csv" => csv_file::read(path),
+        other => Err(anyhow::anyhow!("unknown log format '.{other}' (known: .mcap, .csv)")),
+    };
+    let log = log.map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
+    log.validate().map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
+    Ok(log)
+}
+
+/// Writes a log, MCAP or CSV by its extension, atomically (a temporary file renamed).
+pub fn write(log: &RobotLog, path: &Path) -> anyhow::Result<()> {
+    log.validate().map_err(|e| anyhow::anyhow!("refusing to write {}: {e:#}", path.display()))?;
+    let bytes = match extension(path).as_str() {
+        "mcap" => mcap_file::to_bytes(log)?,
+        "csv" => csv_file::to_string(log).into_bytes(),
+        other => anyhow::bail!("{}: unknown log format '.{other}' (known: .mcap, .csv)", path.display()),
+    };
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    let tmp = path.with_extension(format!("{}.tmp", extension(path)));
+    std::fs::write(&tmp, bytes).map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
+    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(())
+}
+
+fn extension(path: &Path) -> String {
+    path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample_log() -> RobotLog {
+        let joints = vec!["a".to_string(), "b".to_string()];
+        RobotLog {
+            meta: LogMeta { robot: "arm".into(), source: "test".into(), control_period: 0.008, ..Default::default() },
+            states: (0..5)
+                .map(|i| {
+                    let t = i as f64 * 0.004;
+                    JointSample { time: t, position: vec![t, -t], velocity: vec![1.0, -1.0], effort: vec![0.5, 0.25] }
+                })
+                .collect(),
+            commands: (0..3)
+                .map(|i| CommandSample { time: i as f64 * 0.008, joints: joints.clone(), modes: vec![CommandMode::Velocity; 2], values: vec![1.0, -1.0] })
+                .collect(),
+            tool: vec![ToolSample { time: 0.0, position: [0.1, 0.2, 0.3], orientation: [0.0, 0.0, 0.0, 1.0] }],
+            joints,
+        }
+    }
+
+    #[test]
+    fn mcap_and_csv_round_trip() {
+        let log = sample_log();
+        let back = mcap_file::from_bytes(&mcap_file::to_bytes(&log).unwrap()).unwrap();
+        assert_eq!(back, log);
+        let back = csv_file::from_str(&csv_file::to_string(&log)).unwrap();
+        assert_eq!(back.states, log.states);
+        assert_eq!(back.commands, log.commands);
+        assert_eq!(back.tool, log.tool);
+        assert_eq!(back.meta.robot, "arm");
+    }
+
+    #[test]
+    fn damaged_logs_are_clear_errors() {
+        let bytes = mcap_file::to_bytes(&sample_log()).unwrap();
+        let err = mcap_file::from_bytes(&bytes[..bytes.len() / 2]).unwrap_err().to_string();
+        assert!(err.contains("truncated"), "{err}");
+        assert!(mcap_file::from_bytes(b"not an mcap at all, just text").is_err());
+
+        let mut log = sample_log();
+        log.states[3].time = log.states[1].time;
+        assert!(log.validate().unwrap_err().to_string().contains("not increasing"));
+        let mut log = sample_log();
+        log.states[2].position[1] = f64::NAN;
+        assert!(log.validate().unwrap_err().to_string().contains("position of 'b' is NaN"));
+        let err = sample_log().check_robot("ur5e", &[]).unwrap_err().to_string();
+        assert!(err.contains("robot 'arm', not 'ur5e'"), "{err}");
+        let err = sample_log().check_robot("arm", &["a".into(), "c".into()]).unwrap_err().to_string();
+        assert!(err.contains("lacks joint(s) c"), "{err}");
+        let err = csv_file::from_str("time,a.position,a.velocity\n0,1,x\n").unwrap_err().to_string();
+        assert!(err.contains("line 2") && err.contains("'x' is not a number"), "{err}");
+    }
+}

@@ -1,0 +1,176 @@
+//! The log in memory: samples in SI units, times in seconds from the log's start.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+/// What the log says about itself (MCAP metadata record `twinbots`; CSV `#` header lines).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LogMeta {
+    /// The robot's registry name (`ur5e`); empty when a converter did not say.
+    pub robot: String,
+    /// The twin's version that wrote it (`twinbots 0.1.0`), or the source (`ur_robot_driver`).
+    pub source: String,
+    /// The calibration file the twin ran with, if any.
+    pub calibration: String,
+    /// The controller's command period (s); 0 when unknown.
+    pub control_period: f64,
+    /// Any other key of the metadata record.
+    pub extra: BTreeMap<String, String>,
+}
+
+/// The units every number is in (written into every log's metadata).
+pub const UNITS: &str = "SI: s, rad, rad/s, N*m for revolute joints; m, m/s, N for prismatic joints";
+
+/// The joints' measured state at one time: one value per joint, in `RobotLog::joints`' order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct JointSample {
+    pub time: f64,
+    pub position: Vec<f64>,
+    pub velocity: Vec<f64>,
+    /// Empty when the robot does not measure efforts.
+    pub effort: Vec<f64>,
+}
+
+/// How a command drives its joint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CommandMode {
+    Velocity,
+    Position,
+    Torque,
+}
+
+impl CommandMode {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Velocity => "velocity",
+            Self::Position => "position",
+            Self::Torque => "torque",
+        }
+    }
+
+    pub fn parse(s: &str) -> anyhow::Result<Self> {
+        match s {
+            "velocity" => Ok(Self::Velocity),
+            "position" => Ok(Self::Position),
+            "torque" => Ok(Self::Torque),
+            _ => anyhow::bail!("unknown command mode '{s}' (known: velocity, position, torque)"),
+        }
+    }
+}
+
+/// The commands sent at one time: to the named joints (a subset of the log's), one mode and
+/// value each. A command holds until the next one for the same joint.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CommandSample {
+    pub time: f64,
+    pub joints: Vec<String>,
+    pub modes: Vec<CommandMode>,
+    pub values: Vec<f64>,
+}
+
+/// The tool (TCP) pose the controller computed: position (m) and orientation as a unit
+/// quaternion (x, y, z, w), in the robot's base frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ToolSample {
+    pub time: f64,
+    pub position: [f64; 3],
+    pub orientation: [f64; 4],
+}
+
+/// A robot's log.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RobotLog {
+    pub meta: LogMeta,
+    /// The joints the states name, in their order.
+    pub joints: Vec<String>,
+    pub states: Vec<JointSample>,
+    pub commands: Vec<CommandSample>,
+    pub tool: Vec<ToolSample>,
+}
+
+impl RobotLog {
+    /// Index of a joint in the states, by name.
+    pub fn joint_index(&self, name: &str) -> Option<usize> {
+        self.joints.iter().position(|j| j == name)
+    }
+
+    /// Seconds from the first state to the last.
+    pub fn duration(&self) -> f64 {
+        match (self.states.first(), self.states.last()) {
+            (Some(a), Some(b)) => b.time - a.time,
+            _ => 0.0,
+        }
+    }
+
+    /// Checks what every reader relies on; the error names the problem and where it is.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(!self.joints.is_empty(), "the log names no joints");
+        anyhow::ensure!(!self.states.is_empty(), "the log has no joint states");
+        for (i, name) in self.joints.iter().enumerate() {
+            anyhow::ensure!(!name.is_empty(), "joint {i} has an empty name");
+            anyhow::ensure!(!self.joints[..i].contains(name), "joint '{name}' is named twice");
+        }
+        let n = self.joints.len();
+        let mut last = f64::NEG_INFINITY;
+        for (i, s) in self.states.iter().enumerate() {
+            let at = || format!("joint state {i} (t = {} s)", s.time);
+            anyhow::ensure!(s.time.is_finite(), "{}: time is not a finite number", at());
+            anyhow::ensure!(s.time > last, "{}: times are not increasing (previous {last} s)", at());
+            last = s.time;
+            anyhow::ensure!(s.position.len() == n, "{}: {} positions for {n} joints", at(), s.position.len());
+            anyhow::ensure!(s.velocity.len() == n, "{}: {} velocities for {n} joints", at(), s.velocity.len());
+            anyhow::ensure!(s.effort.is_empty() || s.effort.len() == n, "{}: {} efforts for {n} joints", at(), s.effort.len());
+            for (what, values) in [("position", &s.position), ("velocity", &s.velocity), ("effort", &s.effort)] {
+                if let Some(j) = values.iter().position(|v| !v.is_finite()) {
+                    anyhow::bail!("{}: {what} of '{}' is {}", at(), self.joints[j], values[j]);
+                }
+            }
+        }
+        let mut last = f64::NEG_INFINITY;
+        for (i, c) in self.commands.iter().enumerate() {
+            let at = || format!("command {i} (t = {} s)", c.time);
+            anyhow::ensure!(c.time.is_finite(), "{}: time is not a finite number", at());
+            anyhow::ensure!(c.time >= last, "{}: times go backwards (previous {last} s)", at());
+            last = c.time;
+            anyhow::ensure!(
+                c.joints.len() == c.modes.len() && c.joints.len() == c.values.len(),
+                "{}: {} joints, {} modes, {} values",
+                at(),
+                c.joints.len(),
+                c.modes.len(),
+                c.values.len()
+            );
+            for (j, v) in c.joints.iter().zip(&c.values) {
+                anyhow::ensure!(self.joints.contains(j), "{}: joint '{j}' is not among the logged joints ({})", at(), self.joints.join(", "));
+                anyhow::ensure!(v.is_finite(), "{}: the command to '{j}' is {v}", at());
+            }
+        }
+        for (i, t) in self.tool.iter().enumerate() {
+            anyhow::ensure!(
+                t.time.is_finite() && t.position.iter().chain(&t.orientation).all(|v| v.is_finite()),
+                "tool pose {i} (t = {} s) holds a value that is not a finite number",
+                t.time
+            );
+        }
+        Ok(())
+    }
+
+    /// Checks that the log is of `robot` with the joints `expected`: the metadata's robot (when
+    /// it names one) and every expected joint present. Extra joints are allowed (a driver may
+    /// publish more); the error lists what is missing.
+    pub fn check_robot(&self, robot: &str, expected: &[String]) -> anyhow::Result<()> {
+        if !self.meta.robot.is_empty() && self.meta.robot != robot {
+            anyhow::bail!("the log is of robot '{}', not '{robot}'", self.meta.robot);
+        }
+        let missing: Vec<&str> = expected.iter().filter(|j| !self.joints.contains(j)).map(|s| s.as_str()).collect();
+        anyhow::ensure!(
+            missing.is_empty(),
+            "the log lacks joint(s) {} of robot '{robot}' (it has: {})",
+            missing.join(", "),
+            self.joints.join(", ")
+        );
+        Ok(())
+    }
+}

@@ -1,0 +1,132 @@
+//! A joint's own dynamics beyond its links' rigid bodies: viscous damping and Coulomb friction
+//! (URDF `<dynamics damping friction>`), and armature, the reflected inertia of the motor's
+//! rotor and gearbox (MuJoCo's `armature`). These are what system identification fits.
+
+use bevy::prelude::*;
+
+use super::joint::{Joint, JointState};
+use crate::arena::{Arena, InArena};
+use crate::rapier::prelude::*;
+
+/// Speed (rad/s or m/s) over which Coulomb friction rises to its full value: friction is
+/// `friction · tanh(v / FRICTION_SMOOTHING)`, a smooth sign that an explicit step can integrate.
+pub const FRICTION_SMOOTHING: f32 = 0.05;
+
+/// A joint's damping, friction and armature. Every movable joint has one (zeros where the URDF
+/// says nothing); change `armature` through [`set_armature`], which adds it to the child body.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct JointDynamics {
+    /// Viscous damping (N·m·s/rad or N·s/m).
+    pub damping: f32,
+    /// Coulomb friction (N·m or N).
+    pub friction: f32,
+    /// Reflected rotor inertia (kg·m² or kg) added about the joint's axis.
+    armature: f32,
+}
+
+impl JointDynamics {
+    pub fn new(damping: f32, friction: f32) -> Self {
+        Self { damping, friction, armature: 0.0 }
+    }
+
+    pub fn armature(&self) -> f32 {
+        self.armature
+    }
+
+    /// The torque (force) damping and friction exert on the joint at speed `v`.
+    pub fn torque(&self, v: f32) -> f32 {
+        -(self.damping * v + self.friction * (v / FRICTION_SMOOTHING).tanh())
+    }
+}
+
+/// Sets a joint's armature: the difference to its current one is added to the child body as
+/// inertia about the joint's axis (no mass), so the joint's effective inertia grows by exactly
+/// that amount. Applied to the world directly; an arena's initial state keeps what it held
+/// when it was marked.
+pub fn set_armature(world: &mut PhysicsWorld, joint: &Joint, dynamics: &mut JointDynamics, armature: f32) {
+    let delta = armature - dynamics.armature;
+    if delta == 0.0 {
+        return;
+    }
+    let Some(frame) = world.impulse_joints.get(joint.handle).map(|j| j.data.local_frame2) else { return };
+    let Some(body) = world.bodies.get_mut(joint.child_body) else { return };
+    let props = match body.mass_properties().additional_local_mprops.as_deref() {
+        Some(RigidBodyAdditionalMassProps::MassProps(p)) => *p,
+        _ => body.mass_properties().local_mprops,
+    };
+    if joint.kind.is_rotational() {
+        let axis = frame.rotation * Vec3::X;
+        let inertia = Mat3::from_cols(axis * axis.x, axis * axis.y, axis * axis.z) * delta;
+        let rotor = MassProperties::with_inertia_matrix(props.local_com, 0.0, inertia);
+        body.set_additional_mass_properties(props + rotor, true);
+    } else {
+        // A linear axis's armature is reflected mass.
+        let mut p = props;
+        p.set_mass(props.mass() + delta, false);
+        body.set_additional_mass_properties(p, true);
+    }
+    dynamics.armature = armature;
+}
+
+/// Applies damping and friction as equal and opposite torques (forces) on the joint's bodies,
+/// from the joint's speed over the last physics step, before the motors' constraints are
+/// solved: a motor that holds its joint then works against them, and its effort shows them.
+/// As forces, not impulses: rapier spreads a force over its solver substeps as it spreads the
+/// motor's work, so the motor's solved effort (read from its last substep) includes them; an
+/// impulse would land in the first substep only, and the effort would all but miss it.
+pub(crate) fn apply_joint_dynamics(mut arenas: Query<&mut Arena>, joints: Query<(&Joint, &JointState, &JointDynamics, &InArena)>) {
+    // Forces persist in rapier until reset: clear last step's on every body a joint acts on.
+    for (joint, _, _, in_arena) in &joints {
+        if let Ok(mut arena) = arenas.get_mut(in_arena.0) {
+            for handle in [joint.child_body, joint.parent_body] {
+                if let Some(body) = arena.world.bodies.get_mut(handle) {
+                    if body.user_force() != Vec3::ZERO || body.user_torque() != Vec3::ZERO {
+                        body.reset_forces(false);
+                        body.reset_torques(false);
+                    }
+                }
+            }
+        }
+    }
+    for (joint, state, dynamics, in_arena) in &joints {
+        if dynamics.damping == 0.0 && dynamics.friction == 0.0 {
+            continue;
+        }
+        if let Ok(mut arena) = arenas.get_mut(in_arena.0) {
+            add_joint_force(&mut arena.world, joint, dynamics.torque(state.velocity));
+        }
+    }
+}
+
+/// Adds a torque (force) between the joint's two bodies along its axis, for this physics step.
+fn add_joint_force(world: &mut PhysicsWorld, joint: &Joint, effort: f32) {
+    let Some((axis, _, _)) = joint.measure(world) else { return };
+    let rotational = joint.kind.is_rotational();
+    let anchor = world
+        .impulse_joints
+        .get(joint.handle)
+        .zip(world.bodies.get(joint.child_body))
+        .map(|(j, b)| (*b.position() * j.data.local_frame2).translation);
+    for (handle, sign) in [(joint.child_body, 1.0), (joint.parent_body, -1.0)] {
+        let Some(body) = world.bodies.get_mut(handle) else { continue };
+        if rotational {
+            body.add_torque(axis * effort * sign, true);
+        } else if let Some(anchor) = anchor {
+            body.add_force_at_point(axis * effort * sign, anchor, true);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn friction_opposes_motion_and_saturates() {
+        let d = JointDynamics::new(0.5, 2.0);
+        assert_eq!(d.torque(0.0), 0.0);
+        assert!((d.torque(1.0) - (-0.5 - 2.0)).abs() < 1e-3);
+        assert!(d.torque(-1.0) > 0.0);
+        assert!(d.torque(0.01).abs() < 1.0, "smooth near rest");
+    }
+}

@@ -1,0 +1,219 @@
+//! Calibration: the parameter values whose replays track the logs best, found with CMA-ES
+//! (fcmaes-core's ask/tell), one candidate per arena, all of a generation stepped side by side.
+
+use std::time::Instant;
+
+use serde::Serialize;
+use twinbots_sim::{ParameterKind, ParameterSpec, Parameters};
+
+use crate::replay::{PreparedLog, compare};
+use crate::rig::{Rig, run};
+use crate::search::{Block, Range, Search, blocks, costs};
+use crate::uncertainty::{Spread, spreads};
+
+/// How a fit runs.
+#[derive(Clone, Debug)]
+pub struct FitOptions {
+    /// The parameters to fit, by name.
+    pub params: Vec<String>,
+    /// Candidates per generation (0: CMA-ES's default, 4 + 3 ln n).
+    pub popsize: usize,
+    /// Generations at most.
+    pub generations: usize,
+    pub seed: u64,
+    /// Position error (rad or m) a replay counts as diverged beyond.
+    pub threshold: f64,
+}
+
+/// One fitted parameter.
+#[derive(Clone, Debug, Serialize)]
+pub struct Fitted {
+    pub name: String,
+    pub unit: &'static str,
+    pub nominal: f64,
+    pub value: f64,
+    /// Its standard deviation from the curvature of the tracking error around the fit, the
+    /// other parameters of its joint free too (see `uncertainty`).
+    pub spread: f64,
+    /// Its standard deviation with the others held at the fit.
+    pub conditional_spread: f64,
+    /// `None` when identifiable, else why not.
+    pub not_identifiable: Option<String>,
+}
+
+/// A generation's costs.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Generation {
+    pub generation: usize,
+    pub best: f64,
+    pub mean: f64,
+    pub best_so_far: f64,
+}
+
+/// What a fit found.
+#[derive(Clone, Debug, Serialize)]
+pub struct Fit {
+    pub robot: String,
+    pub logs: Vec<String>,
+    pub parameters: Vec<Fitted>,
+    pub cost_nominal: f64,
+    pub cost_fitted: f64,
+    pub history: Vec<Generation>,
+    pub candidates: usize,
+    pub replays: usize,
+    pub seconds: f64,
+    /// Wall time per replay of one candidate over all fit logs (s).
+    pub seconds_per_replay: f64,
+    /// Samples (physics steps over all fit logs) the χ² sums over.
+    pub samples: usize,
+}
+
+impl Fit {
+    /// The fitted values.
+    pub fn values(&self) -> Parameters {
+        Parameters(self.parameters.iter().map(|p| (p.name.clone(), p.value)).collect())
+    }
+}
+
+/// Checks a parameter list against the rig; the error names the unknown one and lists the known.
+pub fn parameter_specs(rig: &Rig, names: &[String]) -> anyhow::Result<Vec<ParameterSpec>> {
+    anyhow::ensure!(!names.is_empty(), "no parameters to fit");
+    names
+        .iter()
+        .map(|name| {
+            rig.catalogue.iter().find(|p| &p.name == name).cloned().ok_or_else(|| {
+                let known: Vec<&str> = rig.catalogue.iter().map(|p| p.name.as_str()).collect();
+                anyhow::anyhow!("unknown parameter '{name}' for robot '{}'; known: {}", rig.robot, known.join(", "))
+            })
+        })
+        .collect()
+}
+
+/// Mean position RMSE over `logs` of the twin with `params`.
+pub fn position_rmse(rig: &Rig, logs: &[PreparedLog], params: &Parameters, threshold: f64) -> f64 {
+    let bias = rig.biases(params);
+    let sum: f64 = logs
+        .iter()
+        .map(|log| {
+            let twin = run(rig, &log.start_positions(rig, params), &log.program, std::slice::from_ref(params)).pop().expect("one arena");
+            compare(rig, log, &twin, &bias, threshold).position_rmse
+        })
+        .sum();
+    sum / logs.len().max(1) as f64
+}
+
+/// Fits `options.params` of the twin (over `base`, the parameters not fitted) to `logs`,
+/// calling `progress` after every generation.
+pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &FitOptions, mut progress: impl FnMut(&Generation)) -> anyhow::Result<Fit> {
+    anyhow::ensure!(!logs.is_empty(), "no logs to fit");
+    let specs = parameter_specs(rig, &options.params)?;
+    // The twin as it runs (what "nominal" compares against), and where the search starts: the
+    // robot's prior over it, then the given calibration's values.
+    let twin = rig.parameters(base)?;
+    let mut start = rig.description.prior_parameters();
+    start.extend(base);
+    let base = rig.parameters(&start)?;
+    let ranges: Vec<Range> = specs
+        .iter()
+        .map(|s| Range::of(&ParameterSpec { default: rig.value(&base, &s.name), ..s.clone() }, rig.dt()))
+        .collect();
+    let search = Search { rig, logs, specs: &specs, ranges: &ranges, base: &base, seed: options.seed };
+    let started = Instant::now();
+    let mut u: Vec<f64> = specs.iter().zip(&ranges).map(|(s, r)| r.unit(rig.value(&base, &s.name))).collect();
+    let cost_nominal = costs(rig, logs, std::slice::from_ref(&twin))[0];
+    let blocks = blocks(rig, &specs);
+    let (global, joints): (Vec<Block>, Vec<Block>) = blocks.iter().cloned().partition(|b| b.joint.is_none());
+    let mut history = Vec::new();
+    let mut candidates = 1;
+    let popsize = if options.popsize > 0 { options.popsize } else { 14 };
+    let samples: usize = logs.iter().map(|l| l.reference.len()).sum();
+    let first_steps = vec![0.1; specs.len()];
+    let mut extra = 0;
+    let g = options.generations;
+    // 1. The delay alone, the rest nominal: it moves every joint, and it is 1-D.
+    if !global.is_empty() {
+        candidates += search.evolve(&mut u, &global, &first_steps, (g / 2).max(10), 8, &mut history, &mut progress);
+    }
+    // 2. Every joint's parameters as one search scored by the total error (a joint's
+    //    parameters reach the other joints' errors too), each one's first step ten times its
+    //    spread at stage 1's fit (from the error's curvature there), so that the search starts
+    //    scaled however differently the parameters act.
+    let all = Block { members: joints.iter().flat_map(|b| b.members.clone()).collect(), joint: None };
+    if !all.members.is_empty() && g > 0 {
+        let (spreads, probes) = spreads(rig, logs, &search.set(&u), &specs, &joints, samples);
+        extra += probes;
+        let sigmas: Vec<f64> = spreads
+            .iter()
+            .enumerate()
+            .map(|(i, s)| s.as_ref().map_or(0.1, |s| ranges[i].unit_spread(ranges[i].value(u[i]), 10.0 * s.conditional).clamp(1e-4, 0.1)))
+            .collect();
+        candidates += search.evolve(&mut u, std::slice::from_ref(&all), &sigmas, g, popsize, &mut history, &mut progress);
+    }
+    // 3. The delay again, at the joints' fit.
+    if !global.is_empty() && g >= 4 {
+        candidates += search.evolve(&mut u, &global, &first_steps, g / 4, 8, &mut history, &mut progress);
+    }
+    candidates += extra;
+    let fitted = search.set(&u);
+    let best = costs(rig, logs, std::slice::from_ref(&fitted))[0];
+    candidates += 1;
+    let seconds_fit = started.elapsed().as_secs_f64();
+    let replays = 1 + candidates;
+    let (spreads, replays_spread) = spreads(rig, logs, &fitted, &specs, &blocks, samples);
+    let spreads: Vec<Spread> = spreads.into_iter().map(|s| s.expect("every fitted parameter is in a block")).collect();
+    let parameters = specs
+        .iter()
+        .zip(&ranges)
+        .zip(&u)
+        .zip(&spreads)
+        .map(|(((spec, range), &u), spread)| {
+            let value = range.value(u);
+            let at_bound = u <= 1e-3 || u >= 1.0 - 1e-3;
+            // Within 10 % of its value at two standard deviations (a delay: within a physics
+            // step; a bias: within 2 mrad or mm).
+            let resolution = match spec.kind {
+                ParameterKind::CommandDelay => rig.dt() / 2.0,
+                ParameterKind::Bias => 1e-3,
+                _ => 0.05 * value.abs(),
+            };
+            let not_identifiable = if spread.offset.abs() > resolution {
+                Some(format!(
+                    "the search had not settled along it: the error still falls towards {:.4e} (its curvature puts the minimum {:+.2e} {} away)",
+                    value + spread.offset,
+                    spread.offset,
+                    spec.unit
+                ))
+            } else if spread.conditional > resolution {
+                Some(format!(
+                    "the logs' motion barely exercises it: ±{:.3e} {} changes the tracking error by only Δχ² = {:.1} over {samples} samples",
+                    spread.probe,
+                    spec.unit,
+                    (spread.probe / spread.conditional).powi(2),
+                ))
+            } else if spread.marginal > resolution {
+                let partner = spread.partner.map_or("another parameter".to_string(), |(q, r)| format!("{} (correlation {r:+.2})", specs[q].name));
+                Some(format!("it trades off against {partner}: the logs' motion does not tell them apart (spread {:.2e})", spread.marginal))
+            } else if at_bound {
+                Some(format!("the fit ran into the edge of its search range [{:.4e}, {:.4e}]", range.lo, range.hi))
+            } else {
+                None
+            };
+            let nominal = rig.value(&rig.nominal, &spec.name);
+            Fitted { name: spec.name.clone(), unit: spec.unit, nominal, value, spread: spread.marginal, conditional_spread: spread.conditional, not_identifiable }
+        })
+        .collect();
+    Ok(Fit {
+        robot: rig.robot.to_string(),
+        logs: logs.iter().map(|l| l.name.clone()).collect(),
+        parameters,
+        cost_nominal,
+        cost_fitted: best,
+        history,
+        candidates,
+        replays: replays + replays_spread,
+        seconds: started.elapsed().as_secs_f64(),
+        seconds_per_replay: seconds_fit / replays as f64,
+        samples,
+    })
+}
+

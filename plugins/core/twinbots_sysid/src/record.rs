@@ -1,0 +1,89 @@
+//! A stand-in for a real robot: the twin with hidden "true" physics, driven through an
+//! excitation program, logging only what a controller measures (joint encoders with their
+//! bias and noise, speeds, motor efforts) and the commands it sent.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use twinbots_log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog};
+use twinbots_sim::{MotorCommand, Parameters};
+
+use crate::excitation::{Excitation, program};
+use crate::rig::{Reading, Rig, run};
+
+/// Standard deviations of the measurement noise.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SensorNoise {
+    /// Encoder noise (rad or m).
+    pub position: f64,
+    /// Speed noise (rad/s or m/s).
+    pub velocity: f64,
+    /// Effort noise (N·m or N).
+    pub effort: f64,
+}
+
+impl Default for SensorNoise {
+    /// About a UR's: 0.1 mrad encoders, speeds from differentiated encoders, efforts from currents.
+    fn default() -> Self {
+        Self { position: 1e-4, velocity: 2e-3, effort: 0.05 }
+    }
+}
+
+/// What to record.
+#[derive(Clone, Debug)]
+pub struct Recording {
+    pub excitation: Excitation,
+    pub seconds: f64,
+    pub seed: u64,
+    pub noise: SensorNoise,
+}
+
+/// Records the rig run with `truth` (over its nominal parameters): a log of every physics step.
+pub fn record(rig: &Rig, truth: &Parameters, recording: &Recording) -> anyhow::Result<RobotLog> {
+    anyhow::ensure!(recording.seconds > 0.0 && recording.seconds.is_finite(), "--seconds must be positive, not {}", recording.seconds);
+    let params = rig.parameters(truth)?;
+    let program = program(rig, recording.excitation, recording.seconds, recording.seed);
+    let trajectory = run(rig, &[], &program, std::slice::from_ref(&params)).pop().expect("one arena, one trajectory");
+    let bias = rig.biases(&params);
+    let mut rng = ChaCha8Rng::seed_from_u64(recording.seed ^ 0x5e75_0a15);
+    let noise = recording.noise;
+    let mut measure = |reading: &Reading, time: f64| {
+        let mut n = |std: f64| if std > 0.0 { Normal::new(0.0, std).expect("a positive std").sample(&mut rng) } else { 0.0 };
+        JointSample {
+            time,
+            position: reading.position.iter().zip(&bias).map(|(&q, b)| q as f64 + b + n(noise.position)).collect(),
+            velocity: reading.velocity.iter().map(|&v| v as f64 + n(noise.velocity)).collect(),
+            // An unactuated joint has no drive to measure an effort with: 0.
+            effort: reading.effort.iter().zip(&rig.actuated).map(|(&e, &a)| if a { e as f64 + n(noise.effort) } else { 0.0 }).collect(),
+        }
+    };
+    let dt = rig.dt();
+    let mut states = vec![measure(&trajectory.start, 0.0)];
+    states.extend(trajectory.steps.iter().enumerate().map(|(k, r)| measure(r, (k + 1) as f64 * dt)));
+    let commands = program
+        .changes
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| !c.is_empty())
+        .map(|(k, changes)| {
+            let (joints, values) = changes
+                .iter()
+                .map(|&(j, c)| {
+                    let MotorCommand::Velocity(v) = c else { unreachable!("excitation commands speeds") };
+                    (rig.joints[j].clone(), v as f64)
+                })
+                .unzip();
+            CommandSample { time: k as f64 * dt, modes: vec![CommandMode::Velocity; changes.len()], joints, values }
+        })
+        .collect();
+    let meta = LogMeta {
+        robot: rig.robot.to_string(),
+        source: format!("twinbots {} record (a stand-in robot)", env!("CARGO_PKG_VERSION")),
+        calibration: String::new(),
+        control_period: dt * rig.description.command_steps.max(1) as f64,
+        extra: [("excitation".to_string(), recording.excitation.name().to_string()), ("seed".to_string(), recording.seed.to_string())]
+            .into_iter()
+            .collect(),
+    };
+    Ok(RobotLog { meta, joints: rig.joints.clone(), states, commands, tool: Vec::new() })
+}

@@ -1,0 +1,185 @@
+//! A robot on its test stand, once per parameter set: the twin that `record`, `replay` and
+//! `identify` drive, one arena per candidate, all stepped side by side.
+
+use bevy::prelude::*;
+use twinbots_sim::parameters::{apply_to_joint, catalogue};
+use twinbots_sim::urdf::RobotModel;
+use twinbots_sim::{Arena, Joint, JointDynamics, JointState, Motor, MotorCommand, ParameterSpec, Parameters, PhysicsSubstep, SimPlugin, SimSettings};
+use twinbots_task::robot::{RigDescription, RobotDescription};
+
+/// A robot's test rig and what a log of it holds.
+pub struct Rig {
+    pub robot: &'static str,
+    pub description: RigDescription,
+    pub model: RobotModel,
+    pub settings: SimSettings,
+    /// The twin's parameters as it always runs (its URDF and built-in table).
+    pub nominal: Parameters,
+    /// Every parameter the twin has, with its nominal value and unit.
+    pub catalogue: Vec<ParameterSpec>,
+    /// The movable joints in the model's order: the joints a log of the robot states.
+    pub joints: Vec<String>,
+    /// Whether each of `joints` has a motor (measures an effort, takes commands).
+    pub actuated: Vec<bool>,
+    /// Each joint's movable ancestors (indices into `joints`): the joints whose efforts its
+    /// own dynamics reach, through the links they carry.
+    pub ancestors: Vec<Vec<usize>>,
+}
+
+impl Rig {
+    /// The rig of a registered robot; an error for a robot that has none.
+    pub fn of(robot: &RobotDescription) -> anyhow::Result<Self> {
+        let Some(description) = robot.rig else {
+            anyhow::bail!("robot '{}' has no test rig: it cannot record, replay or identify", robot.name);
+        };
+        let model = (description.model)();
+        let nominal = description.nominal_parameters();
+        let catalogue = catalogue(&model, &nominal);
+        let movable = model.joints.iter().filter(|j| j.kind.is_movable());
+        let (joints, actuated): (Vec<String>, Vec<bool>) = movable.map(|j| (j.name.clone(), j.limits.effort > 0.0)).unzip();
+        let settings = (description.settings)();
+        let ancestors = ancestors(&model, &joints);
+        Ok(Self { robot: robot.name, description, model, settings, nominal, catalogue, joints, actuated, ancestors })
+    }
+
+    /// The nominal parameters with `overrides` over them, checked against the catalogue.
+    pub fn parameters(&self, overrides: &Parameters) -> anyhow::Result<Parameters> {
+        overrides.check(&self.catalogue, self.robot).map_err(anyhow::Error::msg)?;
+        let mut out = self.nominal.clone();
+        out.extend(overrides);
+        Ok(out)
+    }
+
+    /// The physics step (s).
+    pub fn dt(&self) -> f64 {
+        // The f32 step as the decimal it was written as (0.004, not 0.004000000189…).
+        (self.settings.dt as f64 * 1e9).round() / 1e9
+    }
+
+    /// A parameter's value in `params`, else its nominal one.
+    pub fn value(&self, params: &Parameters, name: &str) -> f64 {
+        params.get(name).or_else(|| self.catalogue.iter().find(|p| p.name == name).map(|p| p.default)).unwrap_or(0.0)
+    }
+
+    /// Each joint's encoder bias in `params`.
+    pub fn biases(&self, params: &Parameters) -> Vec<f64> {
+        self.joints.iter().map(|j| self.value(params, &format!("{j}.bias"))).collect()
+    }
+}
+
+/// For each of `joints`, the movable joints between it and the root.
+fn ancestors(model: &RobotModel, joints: &[String]) -> Vec<Vec<usize>> {
+    joints
+        .iter()
+        .map(|name| {
+            let mut out = Vec::new();
+            let mut link = model.joint(name).map(|j| j.parent);
+            while let Some(parent) = link {
+                let Some(up) = model.joints.iter().find(|j| j.child == parent) else { break };
+                if let Some(i) = joints.iter().position(|n| *n == up.name) {
+                    out.push(i);
+                }
+                link = Some(up.parent);
+            }
+            out
+        })
+        .collect()
+}
+
+/// What the controller sends, by physics step: at step `k`, `changes[k]` sets those joints'
+/// commands (index into [`Rig::joints`]) before the step; a command holds until replaced.
+#[derive(Clone, Debug, Default)]
+pub struct Program {
+    pub changes: Vec<Vec<(usize, MotorCommand)>>,
+}
+
+impl Program {
+    pub fn steps(&self) -> usize {
+        self.changes.len()
+    }
+}
+
+/// What one arena's joints measured after each physics step: `[step][joint]`, in
+/// [`Rig::joints`]' order, and before the first step (`start`).
+#[derive(Clone, Debug, Default)]
+pub struct Trajectory {
+    pub start: Reading,
+    pub steps: Vec<Reading>,
+}
+
+/// The joints' measured positions, speeds and efforts at one time.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Reading {
+    pub position: Vec<f32>,
+    pub velocity: Vec<f32>,
+    pub effort: Vec<f32>,
+}
+
+/// Runs `program` on one arena per parameter set (each the full set the twin runs with), the
+/// joints started at `start` (by name); returns each arena's trajectory.
+pub fn run(rig: &Rig, start: &[(String, f32)], program: &Program, sets: &[Parameters]) -> Vec<Trajectory> {
+    let mut app = App::new();
+    app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings: rig.settings, supervisor: false });
+    let joints: Vec<Vec<Entity>> = sets.iter().enumerate().map(|(index, params)| spawn(&mut app, rig, index, start, params)).collect();
+    // Start-up only: the world as built.
+    app.update();
+    let world = app.world_mut();
+    let read = |world: &World, entities: &[Entity]| {
+        let mut r = Reading::default();
+        for &e in entities {
+            let s = world.get::<JointState>(e).expect("every movable joint has a JointState");
+            r.position.push(s.position);
+            r.velocity.push(s.velocity);
+            r.effort.push(s.effort);
+        }
+        r
+    };
+    let mut out: Vec<Trajectory> = joints
+        .iter()
+        .map(|entities| Trajectory { start: read(world, entities), steps: Vec::with_capacity(program.steps()) })
+        .collect();
+    for changes in &program.changes {
+        for entities in &joints {
+            for &(j, command) in changes {
+                if let Some(mut motor) = world.get_mut::<Motor>(entities[j]) {
+                    motor.command = command;
+                }
+            }
+        }
+        world.run_schedule(PhysicsSubstep);
+        for (trajectory, entities) in out.iter_mut().zip(&joints) {
+            trajectory.steps.push(read(world, entities));
+        }
+    }
+    out
+}
+
+/// Spawns arena `index` with the rig on it, its joints set to `params`; returns the entities of
+/// [`Rig::joints`].
+fn spawn(app: &mut App, rig: &Rig, index: usize, start: &[(String, f32)], params: &Parameters) -> Vec<Entity> {
+    let world = app.world_mut();
+    let entity = world.spawn_empty().id();
+    let mut arena = Arena::new(index, 0, rig.settings.dt, rig.settings.gravity);
+    let spawned = {
+        let mut commands = world.commands();
+        (rig.description.spawn)(&mut commands, entity, &mut arena, start)
+    };
+    world.flush();
+    let entities: Vec<Entity> = rig
+        .joints
+        .iter()
+        .map(|name| spawned.joint(name).unwrap_or_else(|| panic!("the rig spawned no joint '{name}'")))
+        .collect();
+    for &e in &entities {
+        let joint = world.get::<Joint>(e).expect("a spawned joint has a Joint").clone();
+        let mut dynamics = *world.get::<JointDynamics>(e).expect("a movable joint has JointDynamics");
+        let mut motor = world.get::<Motor>(e).cloned();
+        apply_to_joint(&mut arena.world, &joint, &mut dynamics, motor.as_mut(), params);
+        world.entity_mut(e).insert(dynamics);
+        if let Some(motor) = motor {
+            world.entity_mut(e).insert(motor);
+        }
+    }
+    world.entity_mut(entity).insert(arena);
+    entities
+}

@@ -1,0 +1,214 @@
+//! The search behind `identify`: CMA-ES (fcmaes-core, ask/tell) per block of parameters, the
+//! blocks evolving side by side with one combined candidate per arena.
+//!
+//! A joint's parameters (damping, friction, armature, gain, bias) show almost only in that
+//! joint's own errors, since the drives make every joint follow its commands; so each joint's
+//! block is scored by that joint's errors alone (cooperative coevolution), a 3-parameter search
+//! per joint instead of one 19-parameter search, which converges in a few dozen generations
+//! on 2 cores. Parameters of no joint (the command delay) shift every joint and are scored by
+//! the total; `identify` fits them in stages before and after the joints, so their large
+//! effect does not drown the joints' small ones.
+
+use fcmaes_core::cmaes::{Cmaes, CmaesParams};
+use fcmaes_core::fitness::Fitness;
+use twinbots_sim::{ParameterKind, ParameterSpec, Parameters};
+
+use crate::identify::Generation;
+use crate::replay::{PreparedLog, tracking_cost};
+use crate::rig::{Rig, run};
+
+/// Where a parameter may go, and how the optimiser's unit box maps onto it.
+#[derive(Clone, Copy, Debug)]
+pub struct Range {
+    pub lo: f64,
+    pub hi: f64,
+    /// Log-spaced (positive scales) or linear.
+    pub log: bool,
+}
+
+impl Range {
+    pub fn of(spec: &ParameterSpec, dt: f64) -> Self {
+        match spec.kind {
+            ParameterKind::CommandDelay => Self { lo: 0.0, hi: (spec.default * 3.0).max(8.0 * dt).max(0.05), log: false },
+            ParameterKind::Bias => Self { lo: spec.default - 0.05, hi: spec.default + 0.05, log: false },
+            _ if spec.default > 0.0 => Self { lo: spec.default / 4.0, hi: spec.default * 4.0, log: true },
+            ParameterKind::Armature => Self { lo: 0.0, hi: 0.5, log: false },
+            _ => Self { lo: 0.0, hi: 10.0, log: false },
+        }
+    }
+
+    pub fn value(&self, u: f64) -> f64 {
+        let u = u.clamp(0.0, 1.0);
+        if self.log { self.lo * (self.hi / self.lo).powf(u) } else { self.lo + (self.hi - self.lo) * u }
+    }
+
+    /// A spread in the parameter's units as one in the unit box, at `value`.
+    pub fn unit_spread(&self, value: f64, spread: f64) -> f64 {
+        if self.log { spread / (value.max(self.lo) * (self.hi / self.lo).ln()) } else { spread / (self.hi - self.lo) }
+    }
+
+    pub fn unit(&self, value: f64) -> f64 {
+        let value = value.clamp(self.lo, self.hi);
+        if self.log { (value / self.lo).ln() / (self.hi / self.lo).ln() } else { (value - self.lo) / (self.hi - self.lo) }
+    }
+}
+
+/// Parameters searched together: those of one joint (index into the rig's joints), or those
+/// of none.
+#[derive(Clone, Debug)]
+pub struct Block {
+    pub members: Vec<usize>,
+    pub joint: Option<usize>,
+}
+
+/// The blocks of `specs`: one per joint that has fitted parameters, one for the rest.
+pub fn blocks(rig: &Rig, specs: &[ParameterSpec]) -> Vec<Block> {
+    let mut out: Vec<Block> = Vec::new();
+    for (i, spec) in specs.iter().enumerate() {
+        let joint = spec.joint.as_ref().and_then(|j| rig.joints.iter().position(|n| n == j));
+        match out.iter_mut().find(|b| b.joint == joint) {
+            Some(block) => block.members.push(i),
+            None => out.push(Block { members: vec![i], joint }),
+        }
+    }
+    out
+}
+
+/// The tracking error of each parameter set over the logs, per joint (one arena per set).
+pub fn joint_costs(rig: &Rig, logs: &[PreparedLog], sets: &[Parameters]) -> Vec<Vec<f64>> {
+    let mut total = vec![vec![0.0; rig.joints.len()]; sets.len()];
+    for log in logs {
+        // The twin starts where the log does, less the base parameters' encoder bias.
+        let start = log.start_positions(rig, &sets[0]);
+        for ((cost, twin), params) in total.iter_mut().zip(run(rig, &start, &log.program, sets)).zip(sets) {
+            for (c, t) in cost.iter_mut().zip(tracking_cost(log, &twin, &rig.biases(params))) {
+                *c += t;
+            }
+        }
+    }
+    total
+}
+
+/// The summed tracking error of each parameter set over the logs.
+pub fn costs(rig: &Rig, logs: &[PreparedLog], sets: &[Parameters]) -> Vec<f64> {
+    joint_costs(rig, logs, sets).iter().map(|c| c.iter().sum()).collect()
+}
+
+/// A search over `specs` (with `ranges`), the other parameters at `base`.
+pub struct Search<'a> {
+    pub rig: &'a Rig,
+    pub logs: &'a [PreparedLog],
+    pub specs: &'a [ParameterSpec],
+    pub ranges: &'a [Range],
+    pub base: &'a Parameters,
+    pub seed: u64,
+}
+
+impl Search<'_> {
+    /// The parameter set at unit-box point `u`.
+    pub fn set(&self, u: &[f64]) -> Parameters {
+        let mut p = self.base.clone();
+        for ((spec, range), &u) in self.specs.iter().zip(self.ranges).zip(u) {
+            p.0.insert(spec.name.clone(), range.value(u));
+        }
+        p
+    }
+
+    /// Evolves `active` side by side from `u` (each parameter's first step size `sigmas`, in
+    /// the unit box) for up to `generations` of `popsize`, each block scored by its joint's
+    /// errors (a block of no joint: by the total); writes each block's final centre into `u`.
+    /// Returns the candidates evaluated.
+    pub fn evolve(
+        &self,
+        u: &mut [f64],
+        active: &[Block],
+        sigmas: &[f64],
+        generations: usize,
+        popsize: usize,
+        history: &mut Vec<Generation>,
+        progress: &mut dyn FnMut(&Generation),
+    ) -> usize {
+        let score = |block: &Block, joints: &[f64]| block.joint.map_or_else(|| joints.iter().sum(), |j| joints[j]);
+        let start = joint_costs(self.rig, self.logs, &[self.set(u)]).pop().expect("one set");
+        let mut cmas: Vec<Cmaes> = active
+            .iter()
+            .enumerate()
+            .map(|(k, b)| {
+                let dim = b.members.len();
+                let guess: Vec<f64> = b.members.iter().map(|&m| u[m]).collect();
+                let sigma: Vec<f64> = b.members.iter().map(|&m| sigmas[m]).collect();
+                let params = CmaesParams { popsize: popsize as i32, seed: self.seed.wrapping_add(history.len() as u64 * 97 + k as u64), ..CmaesParams::default() };
+                Cmaes::new(Fitness::bounded(dim, 1, &vec![0.0; dim], &vec![1.0; dim]), &guess, &sigma, &params)
+            })
+            .collect();
+        let mut candidates = 1;
+        let mut best_total = start.iter().sum::<f64>();
+        // Each block ends at its search distribution's centre: the mean of its last generation
+        // (a block's best single score is luck of what the other blocks drew alongside it).
+        let mut centres: Vec<Vec<f64>> = active.iter().map(|b| b.members.iter().map(|&m| u[m]).collect()).collect();
+        // A block searching alone ends at its best point instead (its scores are exact).
+        let mut best: (f64, Vec<f64>) = (start.iter().sum(), centres[0].clone());
+        for _ in 0..generations {
+            let populations: Vec<Vec<Vec<f64>>> = cmas.iter_mut().map(|c| c.ask()).collect();
+            let points: Vec<Vec<f64>> = (0..popsize)
+                .map(|i| {
+                    let mut point = u.to_vec();
+                    for (block, population) in active.iter().zip(&populations) {
+                        for (m, &index) in block.members.iter().enumerate() {
+                            point[index] = population[i][m];
+                        }
+                    }
+                    point
+                })
+                .collect();
+            let sets: Vec<Parameters> = points.iter().map(|p| self.set(p)).collect();
+            let joints = joint_costs(self.rig, self.logs, &sets);
+            candidates += sets.len();
+            let mut converged = true;
+            for (((block, cma), population), centre) in active.iter().zip(&mut cmas).zip(&populations).zip(&mut centres) {
+                let ys: Vec<f64> = joints.iter().map(|j| score(block, j)).collect();
+                *centre = (0..block.members.len()).map(|m| population.iter().map(|x| x[m]).sum::<f64>() / population.len() as f64).collect();
+                for (y, x) in ys.iter().zip(population) {
+                    if *y < best.0 {
+                        best = (*y, x.clone());
+                    }
+                }
+                cma.tell(&ys);
+                converged &= spread(population).iter().all(|s| *s < 2e-3);
+            }
+            let totals: Vec<f64> = joints.iter().map(|j| j.iter().sum()).collect();
+            best_total = totals.iter().copied().fold(best_total, f64::min);
+            let g = Generation {
+                generation: history.len(),
+                best: totals.iter().copied().fold(f64::INFINITY, f64::min),
+                mean: totals.iter().sum::<f64>() / totals.len() as f64,
+                best_so_far: best_total,
+            };
+            progress(&g);
+            history.push(g);
+            if converged {
+                break;
+            }
+        }
+        if active.len() == 1 {
+            centres[0] = best.1;
+        }
+        for (block, centre) in active.iter().zip(centres) {
+            for (&index, v) in block.members.iter().zip(centre) {
+                u[index] = v;
+            }
+        }
+        candidates
+    }
+}
+
+/// Per coordinate, the standard deviation of a generation.
+fn spread(population: &[Vec<f64>]) -> Vec<f64> {
+    let n = population.len() as f64;
+    (0..population[0].len())
+        .map(|i| {
+            let mean = population.iter().map(|p| p[i]).sum::<f64>() / n;
+            (population.iter().map(|p| (p[i] - mean).powi(2)).sum::<f64>() / n).sqrt()
+        })
+        .collect()
+}

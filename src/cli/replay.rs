@@ -1,0 +1,67 @@
+//! `twinbots replay <robot> LOG`: the twin starts in the logged state, takes the logged commands
+//! at the logged times, and is compared with the log per joint; writes a PNG of twin vs log and
+//! the twin's trajectory as a log beside it.
+
+use std::path::{Path, PathBuf};
+
+use twinbots_sim::Parameters;
+use twinbots_sysid::replay::twin_log;
+use twinbots_sysid::{Rig, compare, prepare, run};
+use twinbots_task::calibration::read_calibration;
+
+use crate::registry;
+
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The robot (`twinbots robots` lists them).
+    pub robot: String,
+    /// The robot's log (`.mcap` or `.csv`, see docs/logs.md).
+    pub log: PathBuf,
+    /// Run the twin with this calibration (`twinbots identify`'s calibration.toml).
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Position error (rad or m) beyond which a joint counts as diverged.
+    #[arg(long, default_value_t = 0.05)]
+    pub threshold: f64,
+    /// Where to write replay.png, twin.mcap and replay.json; default: `<log>.replay/` beside it.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// `twinbots replay`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let rig = Rig::of(&registry::find(&args.robot)?)?;
+    let calibration = load(&rig, args.calibration.as_deref())?;
+    anyhow::ensure!(args.threshold > 0.0, "--threshold must be positive");
+    let log = twinbots_log::read(&args.log)?;
+    let name = args.log.display().to_string();
+    let prepared = prepare(&rig, &log, &name).map_err(|e| anyhow::anyhow!("{name}: {e:#}"))?;
+    let params = rig.parameters(&calibration)?;
+    let bias = rig.biases(&params);
+    let twin = run(&rig, &prepared.start_positions(&rig, &params), &prepared.program, std::slice::from_ref(&params)).pop().expect("one arena");
+    let report = compare(&rig, &prepared, &twin, &bias, args.threshold);
+    print!("{}", report.table());
+    let out = args.out.unwrap_or_else(|| PathBuf::from(format!("{}.replay", args.log.display())));
+    std::fs::create_dir_all(&out)?;
+    let label = if args.calibration.is_some() { "twin (calibrated)" } else { "twin (nominal)" };
+    twinbots_sysid::plot::replay_png(&out.join("replay.png"), &rig, &prepared, &[(label, &twin, bias.clone())])?;
+    let calibration_name = args.calibration.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
+    twinbots_log::write(&twin_log(&rig, &prepared, &twin, &bias, &calibration_name), &out.join("twin.mcap"))?;
+    write_json(&out.join("replay.json"), &report)?;
+    println!("wrote {}/replay.png, twin.mcap, replay.json", out.display());
+    Ok(())
+}
+
+/// A calibration file's parameters, checked against the robot (none without a file).
+pub fn load(rig: &Rig, path: Option<&Path>) -> anyhow::Result<Parameters> {
+    path.map_or(Ok(Parameters::default()), |p| read_calibration(p, &rig.catalogue, rig.robot))
+}
+
+/// Writes JSON atomically.
+pub fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
+    let tmp = path.with_extension("json.tmp");
+    std::fs::write(&tmp, serde_json::to_string_pretty(value)?)?;
+    std::fs::rename(&tmp, path)?;
+    Ok(())
+}

@@ -1,0 +1,182 @@
+//! The CLI's log commands as a user meets them: their files, and a clear error naming the file
+//! and the problem for every kind of bad input, with nothing written.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use twinbots_log::{RobotLog, csv_file, mcap_file};
+use twinbots_sysid::excitation::Excitation;
+use twinbots_sysid::{Recording, Rig, SensorNoise, record};
+
+fn twinbots(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_twinbots")).args(args).output().unwrap();
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("twinbots-logs-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn ur5e_log(seconds: f64) -> RobotLog {
+    let rig = Rig::of(&ur5e::robot()).unwrap();
+    record(&rig, &Default::default(), &Recording { excitation: Excitation::Multisine, seconds, seed: 7, noise: SensorNoise::default() }).unwrap()
+}
+
+/// Writes a log as it is, unchecked (so a test can write what the writer would refuse).
+fn write_raw(log: &RobotLog, path: &Path) {
+    if path.extension().unwrap() == "csv" {
+        std::fs::write(path, csv_file::to_string(log)).unwrap();
+    } else {
+        std::fs::write(path, mcap_file::to_bytes(log).unwrap()).unwrap();
+    }
+}
+
+#[test]
+fn list_params_prints_name_default_unit() {
+    let (ok, out, err) = twinbots(&["identify", "ur5e", "--list-params"]);
+    assert!(ok, "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert!(lines.len() >= 19, "{out}");
+    for line in &lines {
+        let fields: Vec<&str> = line.split(' ').collect();
+        assert_eq!(fields.len(), 3, "'{line}' is not 'name default unit'");
+        fields[1].parse::<f64>().unwrap_or_else(|_| panic!("'{}' of '{line}' is not a number", fields[1]));
+    }
+    for name in ["elbow_joint.damping 0.05 N*m*s/rad", "wrist_3_joint.armature 0 kg*m^2", "command_delay 0 s"] {
+        assert!(lines.contains(&name), "no '{name}' in\n{out}");
+    }
+    let (ok, _, err) = twinbots(&["identify", "r2d2", "--list-params"]);
+    assert!(!ok && err.contains("r2d2") && err.contains("ur5e"), "{err}");
+}
+
+#[test]
+fn record_replay_identify_write_their_files() {
+    let dir = scratch("files");
+    let truth = dir.join("truth.toml");
+    std::fs::write(&truth, "[parameters]\ncommand_delay = 0.012\nelbow_joint.damping = 1.8\n[note]\nwhy = 'a test'\n").unwrap();
+    let log = dir.join("fit.mcap");
+    let (ok, _, err) = twinbots(&["record", "ur5e", "--truth", truth.to_str().unwrap(), "--seconds", "2", "--out", log.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let replay = dir.join("replay");
+    let (ok, nominal, err) = twinbots(&["replay", "ur5e", log.to_str().unwrap(), "--out", replay.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(nominal.contains("elbow_joint") && nominal.contains("pos RMSE"), "{nominal}");
+    for file in ["replay.png", "twin.mcap", "replay.json"] {
+        assert!(replay.join(file).is_file(), "no {file}");
+    }
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(replay.join("replay.json")).unwrap()).unwrap();
+    assert_eq!(report["joints"].as_array().unwrap().len(), 6);
+    // The twin's own log reads back as a log of the robot.
+    let twin = twinbots_log::read(&replay.join("twin.mcap")).unwrap();
+    assert_eq!(twin.meta.robot, "ur5e");
+    let cal = dir.join("cal");
+    let (ok, out, err) = twinbots(&["identify", "ur5e", log.to_str().unwrap(), "--params", "command_delay", "--generations", "4", "--out", cal.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(out.contains("command_delay"), "{out}");
+    let text = std::fs::read_to_string(cal.join("calibration.toml")).unwrap();
+    let params = twinbots_task::calibration::parse_parameters(&text).unwrap();
+    let delay = params.get("command_delay").unwrap();
+    assert!((delay - 0.012).abs() < 0.004, "fitted delay {delay}\n{text}");
+    assert!(cal.join("convergence.png").is_file());
+    // The calibrated replay tracks better than the nominal one.
+    let (ok, out_cal, err) = twinbots(&["replay", "ur5e", log.to_str().unwrap(), "--calibration", cal.join("calibration.toml").to_str().unwrap(), "--out", replay.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let rmse = |s: &str| -> f64 { s.lines().next().unwrap().rsplit(' ').next().unwrap().parse().unwrap() };
+    assert!(rmse(&out_cal) < rmse(&nominal), "calibrated {out_cal}\nnominal {nominal}");
+}
+
+#[test]
+fn bad_logs_and_parameters_are_clear_errors_and_write_nothing() {
+    let dir = scratch("bad");
+    let good = ur5e_log(0.5);
+    let mut cases: Vec<(&str, PathBuf, &str)> = Vec::new();
+
+    let cartpole = dir.join("cartpole.mcap");
+    let rig = Rig::of(&cartpole::robot()).unwrap();
+    let log = record(&rig, &Default::default(), &Recording { excitation: Excitation::Chirp, seconds: 0.5, seed: 1, noise: SensorNoise::default() }).unwrap();
+    write_raw(&log, &cartpole);
+    cases.push(("another robot's log", cartpole, "robot 'cartpole', not 'ur5e'"));
+
+    let missing = dir.join("missing.csv");
+    let mut log = good.clone();
+    let elbow = log.joint_index("elbow_joint").unwrap();
+    log.joints.remove(elbow);
+    for s in &mut log.states {
+        s.position.remove(elbow);
+        s.velocity.remove(elbow);
+        s.effort.remove(elbow);
+    }
+    log.commands.clear();
+    write_raw(&log, &missing);
+    cases.push(("a missing joint", missing, "lacks joint(s) elbow_joint"));
+
+    let misnamed = dir.join("misnamed.mcap");
+    let mut log = good.clone();
+    log.joints[elbow] = "elbow".into();
+    log.commands.clear();
+    write_raw(&log, &misnamed);
+    cases.push(("a misnamed joint", misnamed, "lacks joint(s) elbow_joint"));
+
+    // A controller's export with two rows out of order (the CSV writer sorts, so by hand).
+    let backwards = dir.join("backwards.csv");
+    let text = csv_file::to_string(&good);
+    let mut lines: Vec<&str> = text.lines().collect();
+    let first_row = lines.iter().position(|l| l.starts_with("time,")).unwrap() + 1;
+    lines.swap(first_row + 5, first_row + 10);
+    std::fs::write(&backwards, lines.join("\n")).unwrap();
+    cases.push(("times going backwards", backwards, "not increasing"));
+
+    let nan = dir.join("nan.mcap");
+    let mut log = good.clone();
+    log.states[20].velocity[2] = f64::NAN;
+    write_raw(&log, &nan);
+    cases.push(("a NaN sample", nan, "velocity of 'elbow_joint' is NaN"));
+
+    let truncated = dir.join("truncated.mcap");
+    let bytes = mcap_file::to_bytes(&good).unwrap();
+    std::fs::write(&truncated, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    cases.push(("a truncated MCAP", truncated, "truncated"));
+
+    for (what, path, expected) in &cases {
+        let out = dir.join("out");
+        for command in ["identify", "replay"] {
+            let (ok, _, err) = twinbots(&[command, "ur5e", path.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+            assert!(!ok, "{command} accepted {what}");
+            let file = path.file_name().unwrap().to_str().unwrap();
+            assert!(err.contains(file) && err.contains(expected), "{command}, {what}: '{err}' should name {file} and say '{expected}'");
+            assert!(!err.contains("panicked"), "{err}");
+            assert!(!out.exists(), "{command} wrote {} for {what}", out.display());
+        }
+    }
+
+    let log = dir.join("good.mcap");
+    twinbots_log::write(&good, &log).unwrap();
+    let out = dir.join("out");
+    let (ok, _, err) = twinbots(&["identify", "ur5e", log.to_str().unwrap(), "--params", "elbow_joint.stiffness", "--out", out.to_str().unwrap()]);
+    assert!(!ok && err.contains("unknown parameter 'elbow_joint.stiffness'") && err.contains("elbow_joint.damping"), "{err}");
+    assert!(!out.exists());
+    let truth = dir.join("truth.toml");
+    std::fs::write(&truth, "[parameters]\nelbow_joint.stiffnes = 3.0\n").unwrap();
+    let (ok, _, err) = twinbots(&["record", "ur5e", "--truth", truth.to_str().unwrap(), "--out", dir.join("never.mcap").to_str().unwrap()]);
+    assert!(!ok && err.contains("truth.toml") && err.contains("unknown parameter 'elbow_joint.stiffnes'"), "{err}");
+    assert!(!dir.join("never.mcap").exists());
+}
+
+#[test]
+fn a_calibration_reaches_the_run_settings() {
+    let dir = scratch("train");
+    let cal = dir.join("calibration.toml");
+    std::fs::write(&cal, "[parameters]\npole_joint.damping = 0.004\ncommand_delay = 0.01\n").unwrap();
+    let (ok, out, err) = twinbots(&["train", "cartpole", "--calibration", cal.to_str().unwrap(), "--print-config"]);
+    assert!(ok, "{err}");
+    let settings: toml::Table = toml::from_str(&out).unwrap();
+    let parameters = &settings["calibration"]["parameters"];
+    assert_eq!(parameters["pole_joint.damping"].as_float(), Some(0.004), "{out}");
+    assert_eq!(parameters["command_delay"].as_float(), Some(0.01), "{out}");
+    std::fs::write(&cal, "[parameters]\npole_joint.stiffness = 1.0\n").unwrap();
+    let (ok, _, err) = twinbots(&["train", "cartpole", "--calibration", cal.to_str().unwrap(), "--print-config"]);
+    assert!(!ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"), "{err}");
+}

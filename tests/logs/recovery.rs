@@ -1,0 +1,84 @@
+//! Known-truth recovery: record a stand-in robot whose physics are perturbed from the twin's,
+//! then identify. Prints the recovered values; asserts what the fit must get right.
+
+use twinbots_sim::Parameters;
+use twinbots_sysid::excitation::Excitation;
+use twinbots_sysid::identify::{FitOptions, position_rmse};
+use twinbots_sysid::{Recording, Rig, SensorNoise, identify, prepare, record};
+
+/// Every parameter the rig fits off where a calibration starts (the robot's prior) by up to
+/// ±30 %, and a 12 ms delay.
+pub fn perturbed_truth(rig: &Rig) -> Parameters {
+    let factors = [1.3, 0.7, 1.25, 0.75, 1.2, 0.8];
+    let prior = rig.description.prior_parameters();
+    let mut truth = Parameters::default();
+    for (i, name) in rig.description.fit.iter().enumerate() {
+        let nominal = rig.value(&prior, name);
+        truth.0.insert(name.to_string(), if nominal > 0.0 { nominal * factors[i % factors.len()] } else { nominal });
+    }
+    truth.0.insert("command_delay".into(), 0.012);
+    truth
+}
+
+fn recording(excitation: Excitation, seconds: f64, seed: u64) -> Recording {
+    Recording { excitation, seconds, seed, noise: SensorNoise::default() }
+}
+
+/// Fits `robot` to a multisine log of its perturbed truth and checks the fit on a chirp.
+fn recover(robot: &twinbots_task::RobotDescription, seconds: f64, generations: usize) -> (Rig, Parameters, twinbots_sysid::Fit, f64, f64) {
+    let rig = Rig::of(robot).unwrap();
+    let truth = perturbed_truth(&rig);
+    let fit_log = record(&rig, &truth, &recording(Excitation::Multisine, seconds, 1)).unwrap();
+    let held_out = record(&rig, &truth, &recording(Excitation::Chirp, seconds / 2.0, 2)).unwrap();
+    let fit_log = prepare(&rig, &fit_log, "fit").unwrap();
+    let held_out = prepare(&rig, &held_out, "held-out").unwrap();
+    let params = rig.description.fit.iter().map(|s| s.to_string()).collect();
+    let options = FitOptions { params, popsize: 0, generations, seed: 3, threshold: 0.05 };
+    let fit = identify(&rig, std::slice::from_ref(&fit_log), &Parameters::default(), &options, |_| {}).unwrap();
+    let mut calibrated = rig.nominal.clone();
+    calibrated.extend(&fit.values());
+    let before = position_rmse(&rig, std::slice::from_ref(&held_out), &rig.nominal, 0.05);
+    let after = position_rmse(&rig, std::slice::from_ref(&held_out), &calibrated, 0.05);
+    eprintln!("{}: tracking error {:.3} -> {:.3}; held-out position RMSE {before:.6} -> {after:.6}", rig.robot, fit.cost_nominal, fit.cost_fitted);
+    for p in &fit.parameters {
+        let t = truth.get(&p.name).unwrap();
+        let verdict = p.not_identifiable.as_deref().unwrap_or("identified");
+        eprintln!("  {:<30} truth {t:>10.5} fit {:>10.5} ({:+6.1} %)  {verdict}", p.name, p.value, (p.value / t - 1.0) * 100.0);
+    }
+    (rig, truth, fit, before, after)
+}
+
+#[test]
+fn ur5e_calibration_finds_the_delay_and_cuts_held_out_error() {
+    let (rig, _, fit, before, after) = recover(&ur5e::robot(), 20.0, 30);
+    let delay = fit.parameters.iter().find(|p| p.name == "command_delay").unwrap();
+    assert!((delay.value - 0.012).abs() < rig.dt(), "delay {} s, truth 0.012 s", delay.value);
+    assert!(fit.cost_fitted < fit.cost_nominal * 0.01, "tracking error {} -> {}", fit.cost_nominal, fit.cost_fitted);
+    assert!(after < before * 0.2, "held-out position RMSE {before} -> {after}: not an 80 % drop");
+    // Not yet asserted (issue 26 stays open): every parameter within 10 % of its truth or
+    // reported not identifiable. The fit prints each against its truth above.
+    assert!(fit.parameters.iter().all(|p| p.spread.is_finite() || p.not_identifiable.is_some()));
+}
+
+#[test]
+fn wheeled_robots_record_replay_and_identify() {
+    for robot in [cartpole::robot(), pioneer3at::robot()] {
+        let (rig, _, fit, _, _) = recover(&robot, 10.0, 6);
+        let delay = fit.parameters.iter().find(|p| p.name == "command_delay").unwrap();
+        assert!((delay.value - 0.012).abs() < rig.dt(), "{}: delay {} s, truth 0.012 s", rig.robot, delay.value);
+        assert!(fit.cost_fitted <= fit.cost_nominal, "{}: the fit made the twin worse", rig.robot);
+    }
+}
+
+#[test]
+fn same_seed_same_log_and_logs_replay_exactly_on_their_own_physics() {
+    let rig = Rig::of(&ur5e::robot()).unwrap();
+    let truth = perturbed_truth(&rig);
+    let quiet = Recording { noise: SensorNoise { position: 0.0, velocity: 0.0, effort: 0.0 }, ..recording(Excitation::Multisine, 2.0, 5) };
+    let a = record(&rig, &truth, &quiet).unwrap();
+    assert_eq!(a, record(&rig, &truth, &quiet).unwrap(), "same seed, same log");
+    // Replayed on the very physics that recorded it, a noise-free log is matched exactly.
+    let prepared = prepare(&rig, &a, "quiet").unwrap();
+    let costs = twinbots_sysid::search::costs(&rig, std::slice::from_ref(&prepared), &[rig.parameters(&truth).unwrap(), rig.nominal.clone()]);
+    assert!(costs[0] < 1e-6 * costs[1], "truth {} vs nominal {}", costs[0], costs[1]);
+}
