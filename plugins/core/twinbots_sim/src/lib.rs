@@ -23,7 +23,7 @@ pub use devices::{
     Touched, VacuumGripper,
 };
 pub use framing::Framing;
-pub use parameters::{ParameterKind, ParameterSpec, Parameters};
+pub use parameters::{ParameterKind, ParameterSpec, Parameters, ParametersPlugin};
 pub use physics::{PhysicsPlugin, PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use robot::{Link, Robot, Visuals};
 pub use spawn::{SpawnOptions, SpawnedRobot, spawn_robot};
@@ -55,7 +55,8 @@ pub enum SimSet {
 }
 
 /// The simulation as Bevy plugins: [`PhysicsPlugin`] (arenas, the control step, fixed-step
-/// physics), [`DevicesPlugin`] (motors and sensors), [`RadioPlugin`] (emitters and receivers)
+/// physics), [`DevicesPlugin`] (motors and sensors), [`ParametersPlugin`] (a calibration's
+/// joint dynamics), [`RadioPlugin`] (emitters and receivers)
 /// and [`SupervisorPlugin`] (privileged access). Design pattern 3 apps go without the
 /// Supervisor: `SimPlugins { supervisor: false, .. }`, or
 /// `SimPlugins::default().build().disable::<SupervisorPlugin>()`.
@@ -81,6 +82,7 @@ impl PluginGroup for SimPlugins {
         let group = PluginGroupBuilder::start::<Self>()
             .add(PhysicsPlugin { settings: self.settings })
             .add(DevicesPlugin)
+            .add(ParametersPlugin)
             .add(RadioPlugin)
             .add(SupervisorPlugin);
         if self.supervisor { group } else { group.disable::<SupervisorPlugin>() }

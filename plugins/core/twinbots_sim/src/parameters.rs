@@ -127,6 +127,15 @@ pub fn apply_to_joint(world: &mut PhysicsWorld, joint: &Joint, dynamics: &mut Jo
     }
 }
 
+/// Applies the app's [`Parameters`] at start-up (part of [`crate::SimPlugins`]).
+pub struct ParametersPlugin;
+
+impl Plugin for ParametersPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_systems(PostStartup, apply_parameters);
+    }
+}
+
 /// Start-up: the app's [`Parameters`] on every arena's joints, then each arena's state as
 /// built and calibrated becomes the one its resets restore.
 pub(crate) fn apply_parameters(

@@ -8,6 +8,7 @@ use twinbots_sim::{ParameterKind, ParameterSpec, Parameters};
 
 use crate::replay::{PreparedLog, compare};
 use crate::rig::{Rig, run};
+pub use crate::search::Generation;
 use crate::search::{Block, Range, Search, blocks, costs};
 use crate::uncertainty::{Spread, spreads};
 
@@ -39,15 +40,6 @@ pub struct Fitted {
     pub conditional_spread: f64,
     /// `None` when identifiable, else why not.
     pub not_identifiable: Option<String>,
-}
-
-/// A generation's costs.
-#[derive(Clone, Copy, Debug, Serialize)]
-pub struct Generation {
-    pub generation: usize,
-    pub best: f64,
-    pub mean: f64,
-    pub best_so_far: f64,
 }
 
 /// What a fit found.

@@ -5,7 +5,7 @@ use std::sync::Once;
 
 use plotters::prelude::*;
 
-use crate::identify::Generation;
+use crate::search::Generation;
 use crate::replay::PreparedLog;
 use crate::rig::{Rig, Trajectory};
 

@@ -1,21 +1,24 @@
-//! The search behind `identify`: CMA-ES (fcmaes-core, ask/tell) per block of parameters, the
-//! blocks evolving side by side with one combined candidate per arena.
-//!
-//! A joint's parameters (damping, friction, armature, gain, bias) show almost only in that
-//! joint's own errors, since the drives make every joint follow its commands; so each joint's
-//! block is scored by that joint's errors alone (cooperative coevolution), a 3-parameter search
-//! per joint instead of one 19-parameter search, which converges in a few dozen generations
-//! on 2 cores. Parameters of no joint (the command delay) shift every joint and are scored by
-//! the total; `identify` fits them in stages before and after the joints, so their large
-//! effect does not drown the joints' small ones.
+//! The search behind `identify`: CMA-ES (fcmaes-core, ask/tell) over blocks of parameters in a
+//! unit box each, one candidate per arena, every candidate scored by its total tracking error.
+//! Blocks group parameters by joint (what the curvature in `uncertainty` is measured over);
+//! `identify` decides which blocks search together, and in what order.
 
 use fcmaes_core::cmaes::{Cmaes, CmaesParams};
 use fcmaes_core::fitness::Fitness;
+use serde::Serialize;
 use twinbots_sim::{ParameterKind, ParameterSpec, Parameters};
 
-use crate::identify::Generation;
 use crate::replay::{PreparedLog, tracking_cost};
 use crate::rig::{Rig, run};
+
+/// A generation's costs.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Generation {
+    pub generation: usize,
+    pub best: f64,
+    pub mean: f64,
+    pub best_so_far: f64,
+}
 
 /// Where a parameter may go, and how the optimiser's unit box maps onto it.
 #[derive(Clone, Copy, Debug)]
@@ -115,8 +118,8 @@ impl Search<'_> {
     }
 
     /// Evolves `active` side by side from `u` (each parameter's first step size `sigmas`, in
-    /// the unit box) for up to `generations` of `popsize`, each block scored by its joint's
-    /// errors (a block of no joint: by the total); writes each block's final centre into `u`.
+    /// the unit box) for up to `generations` of `popsize`, every candidate scored by its total
+    /// error; writes the best point into `u` (several blocks: each block's final centre).
     /// Returns the candidates evaluated.
     pub fn evolve(
         &self,
@@ -128,7 +131,6 @@ impl Search<'_> {
         history: &mut Vec<Generation>,
         progress: &mut dyn FnMut(&Generation),
     ) -> usize {
-        let score = |block: &Block, joints: &[f64]| block.joint.map_or_else(|| joints.iter().sum(), |j| joints[j]);
         let start = joint_costs(self.rig, self.logs, &[self.set(u)]).pop().expect("one set");
         let mut cmas: Vec<Cmaes> = active
             .iter()
@@ -166,7 +168,7 @@ impl Search<'_> {
             candidates += sets.len();
             let mut converged = true;
             for (((block, cma), population), centre) in active.iter().zip(&mut cmas).zip(&populations).zip(&mut centres) {
-                let ys: Vec<f64> = joints.iter().map(|j| score(block, j)).collect();
+                let ys: Vec<f64> = joints.iter().map(|j| j.iter().sum()).collect();
                 *centre = (0..block.members.len()).map(|m| population.iter().map(|x| x[m]).sum::<f64>() / population.len() as f64).collect();
                 for (y, x) in ys.iter().zip(population) {
                     if *y < best.0 {

@@ -5,6 +5,7 @@
 use bevy::prelude::*;
 
 use super::joint::{Joint, JointState};
+use super::motor::act_between;
 use crate::arena::{Arena, InArena};
 use crate::rapier::prelude::*;
 
@@ -100,21 +101,7 @@ pub(crate) fn apply_joint_dynamics(mut arenas: Query<&mut Arena>, joints: Query<
 
 /// Adds a torque (force) between the joint's two bodies along its axis, for this physics step.
 fn add_joint_force(world: &mut PhysicsWorld, joint: &Joint, effort: f32) {
-    let Some((axis, _, _)) = joint.measure(world) else { return };
-    let rotational = joint.kind.is_rotational();
-    let anchor = world
-        .impulse_joints
-        .get(joint.handle)
-        .zip(world.bodies.get(joint.child_body))
-        .map(|(j, b)| (*b.position() * j.data.local_frame2).translation);
-    for (handle, sign) in [(joint.child_body, 1.0), (joint.parent_body, -1.0)] {
-        let Some(body) = world.bodies.get_mut(handle) else { continue };
-        if rotational {
-            body.add_torque(axis * effort * sign, true);
-        } else if let Some(anchor) = anchor {
-            body.add_force_at_point(axis * effort * sign, anchor, true);
-        }
-    }
+    act_between(world, joint, effort, |body, torque| body.add_torque(torque, true), |body, force, at| body.add_force_at_point(force, at, true));
 }
 
 #[cfg(test)]

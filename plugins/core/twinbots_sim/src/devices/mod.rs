@@ -39,8 +39,7 @@ pub struct DevicesPlugin;
 
 impl Plugin for DevicesPlugin {
     fn build(&self, app: &mut App) {
-        app.add_systems(PostStartup, crate::parameters::apply_parameters)
-            .add_systems(Update, sample_devices().in_set(SimSet::Sense))
+        app.add_systems(Update, sample_devices().in_set(SimSet::Sense))
             .add_systems(
             PhysicsSubstep,
             (

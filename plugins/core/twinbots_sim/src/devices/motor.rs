@@ -293,8 +293,22 @@ pub(crate) fn measure_motor_efforts(
 
 /// Applies an effort between the joint's two bodies for one step, as equal and opposite impulses.
 pub(crate) fn apply_effort(world: &mut PhysicsWorld, joint: &Joint, effort: f32, dt: f32) {
+    act_between(world, joint, effort * dt, |body, torque| body.apply_torque_impulse(torque, true), |body, force, at| {
+        body.apply_impulse_at_point(force, at, true)
+    });
+}
+
+/// Acts along the joint's axis on its child (+`amount`) and its parent (−`amount`): `turn`
+/// with a torque vector for a rotational joint, `push` with a force vector at the joint's
+/// anchor for a linear one.
+pub(crate) fn act_between(
+    world: &mut PhysicsWorld,
+    joint: &Joint,
+    amount: f32,
+    turn: impl Fn(&mut RigidBody, Vec3),
+    push: impl Fn(&mut RigidBody, Vec3, Vec3),
+) {
     let Some((axis, _, _)) = joint.measure(world) else { return };
-    let impulse = axis * effort * dt;
     let rotational = joint.kind.is_rotational();
     let anchor = world
         .impulse_joints
@@ -304,9 +318,9 @@ pub(crate) fn apply_effort(world: &mut PhysicsWorld, joint: &Joint, effort: f32,
     for (handle, sign) in [(joint.child_body, 1.0), (joint.parent_body, -1.0)] {
         let Some(body) = world.bodies.get_mut(handle) else { continue };
         if rotational {
-            body.apply_torque_impulse(impulse * sign, true);
+            turn(body, axis * amount * sign);
         } else if let Some(anchor) = anchor {
-            body.apply_impulse_at_point(impulse * sign, anchor, true);
+            push(body, axis * amount * sign, anchor);
         }
     }
 }
