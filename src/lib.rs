@@ -3,5 +3,6 @@
 //! (`src/main.rs`) and the Python extension (`python/`).
 
 pub mod registry;
+pub mod robot_log;
 pub mod run;
 pub mod settings;

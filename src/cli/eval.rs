@@ -6,6 +6,7 @@ use twinbots_api::VecEnv;
 use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
 use twinbots_task::AppVecEnv;
 
+use twinbots::robot_log::LogRecorder;
 use twinbots::run::evaluation_env;
 use twinbots::settings::{CalibrationSetting, TrainSettings};
 use crate::registry;
@@ -31,6 +32,10 @@ pub struct Args {
     /// UR5e's pick-place with its reach model; default: the task it was trained on.
     #[arg(long)]
     pub task: Option<String>,
+    /// Also write one deterministic episode of arena 0 as a robot log (`.mcap` or `.csv`, see
+    /// docs/logs.md): what its controller measured and commanded, every control step.
+    #[arg(long)]
+    pub log: Option<std::path::PathBuf>,
     /// Evaluate on the twin calibrated by this file instead of the run's own (e.g. a truth
     /// file: how a policy does on the robot a log came from).
     #[arg(long)]
@@ -40,6 +45,9 @@ pub struct Args {
 /// `twinbots eval`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     eval_run(&args.run, args.episodes, args.arenas, args.task.as_deref(), args.calibration.as_deref())?;
+    if let Some(path) = &args.log {
+        log_episode(&args.run, path, args.task.as_deref(), args.calibration.as_deref())?;
+    }
     if let Some(dir) = &args.record {
         record_episode(&args.run, dir, crate::cli::capture::parse_size(&args.size)?, &args.camera, args.task.as_deref())?;
     }
@@ -75,6 +83,42 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     };
     run_dir.write_json(&file, &result)?;
     Ok(result)
+}
+
+/// Writes one deterministic evaluation episode of the run's model as a robot log.
+pub fn log_episode(run: &Path, path: &Path, task: Option<&str>, calibration: Option<&Path>) -> anyhow::Result<()> {
+    let run_dir = RunDir::new(run);
+    let settings = TrainSettings::of_run(&run_dir)?;
+    let entry = registry::find(&settings.robot)?;
+    let model = twinbots_learn::algos::load_run(&run_dir)?;
+    let seed = settings.final_eval_seed();
+    let calibration = match calibration {
+        Some(path) => Some(CalibrationSetting::read(&entry, path)?),
+        None => settings.calibration.clone(),
+    };
+    let mut app = entry.app(task, 1, seed, settings.in_process_pattern()?)?;
+    twinbots_task::calibration::calibrate(&mut app, &calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default());
+    let mut env = AppVecEnv::new(app);
+    model.check_spaces(env.observation_space(), env.action_space())?;
+    let mut obs = env.reset(Some(seed))?;
+    let arena = env.arenas()[0];
+    let control_dt = env.app().world().resource::<twinbots_sim::SimSettings>().control_dt() as f64;
+    let file = calibration.as_ref().map(|c| c.file.clone()).unwrap_or_default();
+    let order = twinbots_sysid::Rig::of(&entry).map(|rig| rig.joints).unwrap_or_default();
+    let mut recorder = LogRecorder::new(env.app_mut().world_mut(), &settings.robot, arena, &order, &file);
+    loop {
+        let out = env.step(&model.predict_deterministic(&obs)?)?;
+        obs = out.obs;
+        if out.episodes[0].is_some() {
+            // The arena has auto-reset: its state is the next episode's; the log ends here.
+            break;
+        }
+        recorder.sample(env.app().world(), control_dt);
+    }
+    let log = recorder.finish();
+    twinbots_log::write(&log, path)?;
+    println!("logged {} states and {} commands of one episode to {}", log.states.len(), log.commands.len(), path.display());
+    Ok(())
 }
 
 /// Writes the frames of one deterministic evaluation episode of the run's model.

@@ -180,3 +180,25 @@ fn a_calibration_reaches_the_run_settings() {
     let (ok, _, err) = twinbots(&["train", "cartpole", "--calibration", cal.to_str().unwrap(), "--print-config"]);
     assert!(!ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"), "{err}");
 }
+
+#[test]
+fn eval_logs_an_episode_that_replays() {
+    let dir = scratch("eval");
+    let run = dir.join("run");
+    let (ok, _, err) = twinbots(&["train", "cartpole", "--timesteps", "512", "--out", run.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let log = dir.join("episode.mcap");
+    let (ok, out, err) = twinbots(&["eval", run.to_str().unwrap(), "--episodes", "1", "--log", log.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(out.contains("logged"), "{out}");
+    let read = twinbots_log::read(&log).unwrap();
+    assert_eq!(read.meta.robot, "cartpole");
+    assert_eq!(read.joints, ["wheel1_joint", "wheel2_joint", "wheel3_joint", "wheel4_joint", "pole_joint"]);
+    assert!(read.states.len() > 5 && !read.commands.is_empty(), "{} states, {} commands", read.states.len(), read.commands.len());
+    assert!((read.meta.control_period - 0.032).abs() < 1e-9, "{}", read.meta.control_period);
+    // The twin's own episode, replayed on its rig: the wheels follow their logged commands.
+    let (ok, out, err) = twinbots(&["replay", "cartpole", log.to_str().unwrap(), "--out", dir.join("replay").to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let wheel: Vec<f64> = out.lines().find(|l| l.starts_with("wheel1_joint")).unwrap().split_whitespace().skip(1).take(1).map(|v| v.parse().unwrap()).collect();
+    assert!(wheel[0] < 0.05, "wheel 1 position RMSE {} rad\n{out}", wheel[0]);
+}
