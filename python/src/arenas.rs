@@ -64,11 +64,12 @@ impl Arenas {
 
 #[pymethods]
 impl Arenas {
-    /// `Arenas(robot, num_envs, seed=0, task=None, pattern=1, config=None)`: `task` None is the
-    /// robot's main task; `config` is TOML text whose `[randomization]` table applies.
+    /// `Arenas(robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None)`:
+    /// `task` None is the robot's main task; `config` is TOML text whose `[randomization]`
+    /// table applies; `calibration` a calibration file (`twinbots identify`'s) the twin runs with.
     #[new]
-    #[pyo3(signature = (robot, num_envs, seed=0, task=None, pattern=1, config=None))]
-    fn new(robot: &str, num_envs: usize, seed: u64, task: Option<&str>, pattern: u8, config: Option<&str>) -> PyResult<Self> {
+    #[pyo3(signature = (robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None))]
+    fn new(robot: &str, num_envs: usize, seed: u64, task: Option<&str>, pattern: u8, config: Option<&str>, calibration: Option<std::path::PathBuf>) -> PyResult<Self> {
         let entry = twinbots::registry::find(robot).map_err(value_error)?;
         if num_envs == 0 {
             return Err(value_error(anyhow::anyhow!("num_envs must be at least 1")));
@@ -82,7 +83,11 @@ impl Arenas {
             }
         };
         let randomization = config.map(randomization).transpose().map_err(value_error)?;
+        let calibration = calibration.map(|path| twinbots::settings::CalibrationSetting::read(&entry, &path)).transpose().map_err(value_error)?;
         let mut app = entry.app(task, num_envs, seed, design).map_err(value_error)?;
+        if let Some(c) = &calibration {
+            twinbots_task::calibration::calibrate(&mut app, &c.parameters());
+        }
         if let Some(r) = randomization.filter(|r| !r.is_off()) {
             app.add_plugins(RandomizationPlugin(r));
         }

@@ -134,3 +134,27 @@ def test_log_written_by_the_mcap_packages_replays_and_identifies(tmp_path):
     text = (out / "calibration.toml").read_text()
     delay = next(float(line.split("=")[1].split("#")[0]) for line in text.splitlines() if line.startswith('"command_delay"'))
     assert delay == pytest.approx(0.012, abs=0.004)
+
+
+def test_make_vec_runs_a_calibrated_twin(tmp_path):
+    import numpy as np
+
+    import twinbots
+
+    slow = tmp_path / "slow.toml"
+    slow.write_text("[parameters]\ncommand_delay = 0.03\n")
+    actions = np.full((1, 5), 0.8, dtype=np.float32)
+    finals = []
+    for calibration in (None, slow):
+        env = twinbots.make_vec("ur5e", 1, seed=3, calibration=calibration)
+        env.reset(seed=3)
+        for _ in range(3):
+            obs = env.step(actions)[0]
+        finals.append(obs)
+        env.close()
+    # The same seed and actions: only the 30 ms command delay tells the runs apart.
+    assert not np.allclose(finals[0], finals[1])
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[parameters]\nelbow_joint.stiffness = 1.0\n")
+    with pytest.raises(ValueError, match="unknown parameter 'elbow_joint.stiffness'"):
+        twinbots.make_vec("ur5e", 1, calibration=bad)

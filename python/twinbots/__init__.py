@@ -32,13 +32,16 @@ def make_vec(
     config: Config = None,
     render_mode: str | None = None,
     autoreset_mode="SAME_STEP",
+    calibration=None,
 ) -> TwinbotsVectorEnv:
     """`num_envs` arenas of `robot` as a `gymnasium.vector.VectorEnv` stepped in Rust.
 
     `task`: None for the robot's main task; `pattern`: the paper's design pattern 1
     (Supervisor) or 2 (radio); `config`: domain randomization (a TOML file or text with a
-    `[randomization]` table, or a dict of it); `autoreset_mode`: "SAME_STEP" or "NEXT_STEP"."""
-    return TwinbotsVectorEnv(robot, num_envs, seed, task, pattern, config, render_mode, autoreset_mode)
+    `[randomization]` table, or a dict of it); `autoreset_mode`: "SAME_STEP" or "NEXT_STEP";
+    `calibration`: a calibration file (`twinbots identify`'s calibration.toml) the twin runs
+    with."""
+    return TwinbotsVectorEnv(robot, num_envs, seed, task, pattern, config, render_mode, autoreset_mode, calibration)
 
 
 def make(robot: str, task: str | None = None, **kwargs) -> TwinbotsEnv:

@@ -4,6 +4,8 @@ and rendering when asked. The env that opens them keeps to their thread (`_threa
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from . import _native
@@ -20,14 +22,17 @@ def initial_seed(seed: int | None) -> int:
 
 
 def open_arenas(robot: str, count: int, seed: int | None, task: str | None, pattern: int, config: Config,
-                render_mode: str | None, count_name: str = "num_envs", **rendering) -> _native.Arenas:
-    """`count` arenas of `robot`'s `task` under design pattern `pattern`; `rendering` (width,
-    height, camera) applies with `render_mode="rgb_array"`."""
+                render_mode: str | None, count_name: str = "num_envs", calibration=None, **rendering) -> _native.Arenas:
+    """`count` arenas of `robot`'s `task` under design pattern `pattern`, the twin calibrated by
+    the file `calibration` if given; `rendering` (width, height, camera) applies with
+    `render_mode="rgb_array"`."""
     if not isinstance(count, (int, np.integer)) or count < 1:
         raise ValueError(f"{count_name} must be a positive integer, got {count!r}")
     if render_mode not in (None, "rgb_array"):
         raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-    arenas = _native.Arenas(robot, int(count), initial_seed(seed), task, pattern, config_text(config))
+    if calibration is not None:
+        calibration = os.fspath(calibration)
+    arenas = _native.Arenas(robot, int(count), initial_seed(seed), task, pattern, config_text(config), calibration)
     if render_mode == "rgb_array":
         arenas.enable_rendering(**rendering)
     return arenas

@@ -114,7 +114,8 @@ impl Motor {
         let frac = steps - whole as f32;
         self.history.push_front(self.command);
         self.history.truncate(whole + 2);
-        let at = |k: usize| *self.history.get(k).or(self.history.back()).expect("the line holds this step's command");
+        // Before the line's first command (a reset, a start) the drive acts on its initial one.
+        let at = |k: usize| self.history.get(k).copied().unwrap_or(self.initial_command);
         let (newer, older) = (at(whole), at(whole + 1));
         self.applied = match (newer, older) {
             (MotorCommand::Velocity(a), MotorCommand::Velocity(b)) => MotorCommand::Velocity(a + (b - a) * frac),
