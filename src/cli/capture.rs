@@ -35,12 +35,15 @@ pub struct Args {
     pub task: Option<String>,
     #[arg(long)]
     pub out: std::path::PathBuf,
+    /// Render the twin calibrated by this file (`twinbots identify`'s calibration.toml).
+    #[arg(long)]
+    pub calibration: Option<std::path::PathBuf>,
 }
 
 /// `twinbots capture`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, model, frames, every, size, camera, seed, task, out } = args;
-    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out })
+    let Args { robot, model, frames, every, size, camera, seed, task, out, calibration } = args;
+    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out, calibration })
 }
 
 /// A named camera of a robot's cell.
@@ -94,6 +97,7 @@ pub struct CaptureArgs {
     pub seed: u64,
     pub task: Option<String>,
     pub out: PathBuf,
+    pub calibration: Option<PathBuf>,
 }
 
 pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
@@ -101,7 +105,10 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     let entry = registry::find(&args.robot)?;
     let view = camera(&entry, &args.camera)?;
     let model = args.model.as_deref().map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
-    let mut env = AppVecEnv::new(entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?);
+    let calibration = args.calibration.as_deref().map(|p| twinbots::settings::CalibrationSetting::read(&entry, p)).transpose()?;
+    let mut app = entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?;
+    twinbots_task::calibration::calibrate(&mut app, &calibration.map(|c| c.parameters()).unwrap_or_default());
+    let mut env = AppVecEnv::new(app);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;
     }
