@@ -143,7 +143,8 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     }
     // 3. The delay again, at the joints' fit.
     if !global.is_empty() && g >= 4 {
-        candidates += search.evolve(&mut u, &global, &first_steps, g / 4, 8, &mut history, &mut progress);
+        // Near its fit already: small first steps.
+        candidates += search.evolve(&mut u, &global, &vec![0.02; specs.len()], g / 4, 8, &mut history, &mut progress);
     }
     candidates += extra;
     let fitted = search.set(&u);

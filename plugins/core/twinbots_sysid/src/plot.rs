@@ -33,42 +33,59 @@ fn write_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&DrawingArea<BitMa
     Ok(())
 }
 
-/// One panel per joint: the logged position and each labelled twin's, against time.
+/// One row per joint: the logged position and each labelled twin's against time (left), and
+/// each twin's position error, twin − log (right: at the left's scale they overlap).
 pub fn replay_png(path: &Path, rig: &Rig, log: &PreparedLog, twins: &[(&str, &Trajectory, Vec<f64>)]) -> anyhow::Result<()> {
     let rows = rig.joints.len();
-    write_png(path, (1000, 220 * rows as u32 + 40), |root| {
+    write_png(path, (1400, 220 * rows as u32 + 40), |root| {
         let root = root.titled(&format!("{}: twin vs log ({})", rig.robot, log.name), ("sans-serif", 20))?;
         let dt = rig.dt();
         let colours = [RED, BLUE, GREEN];
-        for (j, area) in root.split_evenly((rows, 1)).iter().enumerate() {
-            let logged: Vec<(f64, f64)> = log.reference.iter().enumerate().map(|(k, r)| ((k + 1) as f64 * dt, r.position[j] as f64)).collect();
+        for (j, row) in root.split_evenly((rows, 1)).iter().enumerate() {
+            let (left, right) = row.split_horizontally(row.dim_in_pixel().0 as i32 / 2);
+            let time = |k: usize| (k + 1) as f64 * dt;
+            let logged: Vec<(f64, f64)> = log.reference.iter().enumerate().map(|(k, r)| (time(k), r.position[j] as f64)).collect();
             let twin_series: Vec<Vec<(f64, f64)>> = twins
                 .iter()
-                .map(|(_, t, bias)| t.steps.iter().enumerate().map(|(k, r)| ((k + 1) as f64 * dt, r.position[j] as f64 + bias[j])).collect())
+                .map(|(_, t, bias)| t.steps.iter().enumerate().map(|(k, r)| (time(k), r.position[j] as f64 + bias[j])).collect())
                 .collect();
-            let all = logged.iter().chain(twin_series.iter().flatten()).map(|p| p.1);
-            let (lo, hi) = all.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
-            let pad = ((hi - lo) * 0.05).max(1e-3);
+            let errors: Vec<Vec<(f64, f64)>> = twin_series
+                .iter()
+                .map(|series| series.iter().zip(&logged).map(|(t, l)| (t.0, t.1 - l.1)).collect())
+                .collect();
             let t_max = logged.last().map_or(1.0, |p| p.0);
-            let mut chart = ChartBuilder::on(area)
-                .margin(6)
-                .x_label_area_size(24)
-                .y_label_area_size(60)
-                .caption(&rig.joints[j], ("sans-serif", 14))
-                .build_cartesian_2d(0.0..t_max, (lo - pad)..(hi + pad))?;
-            chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
-            chart
-                .draw_series(LineSeries::new(logged, BLACK.stroke_width(2)))?
-                .label("log")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(2)));
-            for ((label, _, _), (series, colour)) in twins.iter().zip(twin_series.into_iter().zip(colours.iter().cycle())) {
-                let colour = *colour;
-                chart
-                    .draw_series(LineSeries::new(series, colour.stroke_width(1)))?
-                    .label(*label)
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+            let mut panels = [
+                (&left, format!("{} (rad or m)", rig.joints[j]), std::iter::once(logged.clone()).chain(twin_series).collect::<Vec<_>>(), true),
+                (&right, format!("{}: twin − log", rig.joints[j]), errors, false),
+            ];
+            for (area, caption, series, with_log) in panels.iter_mut() {
+                let all = series.iter().flatten().map(|p| p.1);
+                let (lo, hi) = all.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
+                let (lo, hi) = if lo.is_finite() { (lo, hi) } else { (-1.0, 1.0) };
+                let pad = ((hi - lo) * 0.05).max(1e-6);
+                let mut chart = ChartBuilder::on(*area)
+                    .margin(6)
+                    .x_label_area_size(24)
+                    .y_label_area_size(70)
+                    .caption(caption.as_str(), ("sans-serif", 14))
+                    .build_cartesian_2d(0.0..t_max, (lo - pad)..(hi + pad))?;
+                chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
+                let mut lines = series.iter();
+                if *with_log {
+                    chart
+                        .draw_series(LineSeries::new(lines.next().expect("the log's line").clone(), BLACK.stroke_width(2)))?
+                        .label("log")
+                        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(2)));
+                }
+                for ((label, _, _), (line, colour)) in twins.iter().zip(lines.zip(colours.iter().cycle())) {
+                    let colour = *colour;
+                    chart
+                        .draw_series(LineSeries::new(line.clone(), colour.stroke_width(1)))?
+                        .label(*label)
+                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+                }
+                chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).label_font(("sans-serif", 11)).draw()?;
             }
-            chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).label_font(("sans-serif", 11)).draw()?;
         }
         Ok(())
     })

@@ -132,6 +132,8 @@ pub fn robot() -> RobotDescription {
 
 /// The twin's nominal joint dynamics (a calibration file's format).
 pub const PARAMETERS: &str = include_str!("../../../../assets/robots/cartpole/parameters.toml");
+/// Where a calibration starts.
+pub const PRIOR: &str = include_str!("../../../../assets/robots/cartpole/prior.toml");
 
 /// The cart-pole on its test stand: the cart on the ground, its wheels driven by speed, the
 /// pole free. Logs command the wheels every physics step (16 ms).
@@ -146,7 +148,7 @@ pub fn rig() -> RigDescription {
         model,
         settings: sim_settings,
         nominal: PARAMETERS,
-        prior: "",
+        prior: PRIOR,
         fit: &["pole_joint.damping", "pole_joint.friction", "command_delay"],
         spawn: spawn_rig,
         excitation: &WHEELS,

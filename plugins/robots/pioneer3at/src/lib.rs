@@ -127,6 +127,8 @@ pub fn robot() -> RobotDescription {
 
 /// The twin's nominal joint dynamics (a calibration file's format).
 pub const PARAMETERS: &str = include_str!("../../../../assets/robots/pioneer3at/parameters.toml");
+/// Where a calibration starts.
+pub const PRIOR: &str = include_str!("../../../../assets/robots/pioneer3at/prior.toml");
 
 /// The Pioneer on its test stand: on the ground, its wheels driven by speed, the pendulum free.
 /// Logs command the wheels every physics step.
@@ -141,7 +143,7 @@ pub fn rig() -> RigDescription {
         model,
         settings: sim_settings,
         nominal: PARAMETERS,
-        prior: "",
+        prior: PRIOR,
         fit: &["pendulum_joint.damping", "pendulum_joint.friction", "command_delay"],
         spawn: spawn_rig,
         excitation: &WHEELS,
