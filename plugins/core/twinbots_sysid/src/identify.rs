@@ -81,6 +81,11 @@ pub fn parameter_specs(rig: &Rig, names: &[String]) -> anyhow::Result<Vec<Parame
         .collect()
 }
 
+/// A spread `s` in the unit box at `u`, in the parameter's units (the wider side).
+fn searched_spread(range: &Range, u: f64, s: f64) -> f64 {
+    (range.value((u + s).min(1.0)) - range.value(u)).abs().max((range.value(u) - range.value((u - s).max(0.0))).abs())
+}
+
 /// Mean position RMSE over `logs` of the twin with `params`.
 pub fn position_rmse(rig: &Rig, logs: &[PreparedLog], params: &Parameters, threshold: f64) -> f64 {
     let bias = rig.biases(params);
@@ -121,10 +126,12 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     let samples: usize = logs.iter().map(|l| l.reference.len()).sum();
     let first_steps = vec![0.1; specs.len()];
     let mut extra = 0;
+    // The joints' search's last spread per parameter (unit box): 0 where it was not searched.
+    let mut unsettled = vec![0.0; specs.len()];
     let g = options.generations;
     // 1. The delay alone, the rest nominal: it moves every joint, and it is 1-D.
     if !global.is_empty() {
-        candidates += search.evolve(&mut u, &global, &first_steps, (g / 2).max(10), 8, &mut history, &mut progress);
+        candidates += search.evolve(&mut u, &global, &first_steps, (g / 2).max(10), 8, &mut history, &mut progress).0;
     }
     // 2. Every joint's parameters as one search scored by the total error (a joint's
     //    parameters reach the other joints' errors too), each one's first step ten times its
@@ -139,12 +146,14 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
             .enumerate()
             .map(|(i, s)| s.as_ref().map_or(0.1, |s| ranges[i].unit_spread(ranges[i].value(u[i]), 10.0 * s.conditional).clamp(1e-4, 0.1)))
             .collect();
-        candidates += search.evolve(&mut u, std::slice::from_ref(&all), &sigmas, g, popsize, &mut history, &mut progress);
+        let (n, spread) = search.evolve(&mut u, std::slice::from_ref(&all), &sigmas, g, popsize, &mut history, &mut progress);
+        candidates += n;
+        unsettled = spread;
     }
     // 3. The delay again, at the joints' fit.
     if !global.is_empty() && g >= 4 {
         // Near its fit already: small first steps.
-        candidates += search.evolve(&mut u, &global, &vec![0.02; specs.len()], g / 4, 8, &mut history, &mut progress);
+        candidates += search.evolve(&mut u, &global, &vec![0.02; specs.len()], g / 4, 8, &mut history, &mut progress).0;
     }
     candidates += extra;
     let fitted = search.set(&u);
@@ -159,7 +168,8 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
         .zip(&ranges)
         .zip(&u)
         .zip(&spreads)
-        .map(|(((spec, range), &u), spread)| {
+        .enumerate()
+        .map(|(i, (((spec, range), &u), spread))| {
             let value = range.value(u);
             let at_bound = u <= 1e-3 || u >= 1.0 - 1e-3;
             // Within 10 % of its value at two standard deviations (a delay: within a physics
@@ -176,6 +186,8 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
                     spread.offset,
                     spec.unit
                 ))
+            } else if let Some(last) = Some(searched_spread(range, u, unsettled[i])).filter(|s| *s > resolution) {
+                Some(format!("the search had not settled along it: its last generation still spread ±{last:.2e} {}", spec.unit))
             } else if spread.conditional > resolution {
                 Some(format!(
                     "the logs' motion barely exercises it: ±{:.3e} {} changes the tracking error by only Δχ² = {:.1} over {samples} samples",

@@ -120,7 +120,8 @@ impl Search<'_> {
     /// Evolves `active` side by side from `u` (each parameter's first step size `sigmas`, in
     /// the unit box) for up to `generations` of `popsize`, every candidate scored by its total
     /// error; writes the best point into `u` (several blocks: each block's final centre).
-    /// Returns the candidates evaluated.
+    /// Returns the candidates evaluated and, per parameter searched, the spread of the last
+    /// generation in the unit box (how far from settled the search was when it stopped).
     pub fn evolve(
         &self,
         u: &mut [f64],
@@ -130,8 +131,9 @@ impl Search<'_> {
         popsize: usize,
         history: &mut Vec<Generation>,
         progress: &mut dyn FnMut(&Generation),
-    ) -> usize {
+    ) -> (usize, Vec<f64>) {
         let start = joint_costs(self.rig, self.logs, &[self.set(u)]).pop().expect("one set");
+        let mut last_spread = vec![0.0; u.len()];
         let mut cmas: Vec<Cmaes> = active
             .iter()
             .enumerate()
@@ -176,7 +178,11 @@ impl Search<'_> {
                     }
                 }
                 cma.tell(&ys);
-                converged &= spread(population).iter().all(|s| *s < 2e-3);
+                let spread = spread(population);
+                for (&index, s) in block.members.iter().zip(&spread) {
+                    last_spread[index] = *s;
+                }
+                converged &= spread.iter().all(|s| *s < 2e-3);
             }
             let totals: Vec<f64> = joints.iter().map(|j| j.iter().sum()).collect();
             best_total = totals.iter().copied().fold(best_total, f64::min);
@@ -200,7 +206,7 @@ impl Search<'_> {
                 u[index] = v;
             }
         }
-        candidates
+        (candidates, last_spread)
     }
 }
 
