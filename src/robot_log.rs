@@ -32,7 +32,7 @@ impl LogRecorder {
             robot: robot.to_string(),
             source: format!("twinbots {} twin", env!("CARGO_PKG_VERSION")),
             calibration: calibration.to_string(),
-            control_period: (settings.control_dt() as f64 * 1e6).round() / 1e6,
+            control_period: settings.control_seconds(),
             extra: Default::default(),
         };
         let log = RobotLog { meta, joints: joints.iter().map(|(_, n)| n.clone()).collect(), ..Default::default() };
@@ -43,8 +43,7 @@ impl LogRecorder {
     }
 
     fn time(world: &World) -> f64 {
-        let settings = world.resource::<SimSettings>();
-        world.resource::<SimClock>().control_steps as f64 * (settings.control_dt() as f64 * 1e6).round() / 1e6
+        world.resource::<SimClock>().control_steps as f64 * world.resource::<SimSettings>().control_seconds()
     }
 
     fn sample_state(&mut self, world: &World, time: f64) {
@@ -59,9 +58,10 @@ impl LogRecorder {
     }
 
     /// After a control step: the commands it gave (at its start) and the state it ended in.
-    pub fn sample(&mut self, world: &World, control_dt: f64) {
+    pub fn sample(&mut self, world: &World) {
         let end = Self::time(world) - self.start;
-        let mut command = CommandSample { time: end - control_dt, joints: vec![], modes: vec![], values: vec![] };
+        let step = world.resource::<SimSettings>().control_seconds();
+        let mut command = CommandSample { time: end - step, joints: vec![], modes: vec![], values: vec![] };
         for (&e, name) in self.joints.iter().zip(&self.log.joints) {
             let (mode, value) = match world.get::<Motor>(e).map(|m| m.command) {
                 Some(MotorCommand::Velocity(v)) => (CommandMode::Velocity, v),

@@ -67,10 +67,7 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let seed = settings.final_eval_seed();
     let arenas = arenas.unwrap_or(settings.arenas);
     let other_twin = calibration.map(|p| p.file_stem().unwrap_or_default().to_string_lossy().to_string());
-    let calibration = match calibration {
-        Some(path) => Some(CalibrationSetting::read(&entry, path)?),
-        None => settings.calibration.clone(),
-    };
+    let calibration = twin(&entry, &settings, calibration)?;
     let params = calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default();
     let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, settings.in_process_pattern()?, &params)?;
     let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
@@ -85,63 +82,81 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     Ok(result)
 }
 
-/// Writes one deterministic evaluation episode of the run's model as a robot log.
-pub fn log_episode(run: &Path, path: &Path, task: Option<&str>, calibration: Option<&Path>) -> anyhow::Result<()> {
+/// The twin a run is evaluated on: the calibration `file` if given, else the run's own.
+fn twin(entry: &registry::RobotEntry, settings: &TrainSettings, file: Option<&Path>) -> anyhow::Result<Option<CalibrationSetting>> {
+    match file {
+        Some(path) => Ok(Some(CalibrationSetting::read(entry, path)?)),
+        None => Ok(settings.calibration.clone()),
+    }
+}
+
+/// Runs one deterministic evaluation episode of the run's model on one arena of its robot's
+/// `task`, on the twin of `calibration` (a file; default: the run's own): `visit` sees the env
+/// after the reset (step 0) and after every step but the one that ends the episode (the arena
+/// has auto-reset by then: the episode's last state is gone).
+fn one_episode(
+    run: &Path,
+    task: Option<&str>,
+    calibration: Option<&Path>,
+    mut visit: impl FnMut(&mut AppVecEnv, &TrainSettings, Option<&CalibrationSetting>, u64) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
     let entry = registry::find(&settings.robot)?;
     let model = twinbots_learn::algos::load_run(&run_dir)?;
     let seed = settings.final_eval_seed();
-    let calibration = match calibration {
-        Some(path) => Some(CalibrationSetting::read(&entry, path)?),
-        None => settings.calibration.clone(),
-    };
+    let calibration = twin(&entry, &settings, calibration)?;
     let mut app = entry.app(task, 1, seed, settings.in_process_pattern()?)?;
     twinbots_task::calibration::calibrate(&mut app, &calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default());
     let mut env = AppVecEnv::new(app);
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut obs = env.reset(Some(seed))?;
-    let arena = env.arenas()[0];
-    let control_dt = env.app().world().resource::<twinbots_sim::SimSettings>().control_dt() as f64;
-    let file = calibration.as_ref().map(|c| c.file.clone()).unwrap_or_default();
-    let order = twinbots_sysid::Rig::of(&entry).map(|rig| rig.joints).unwrap_or_default();
-    let mut recorder = LogRecorder::new(env.app_mut().world_mut(), &settings.robot, arena, &order, &file);
-    loop {
+    visit(&mut env, &settings, calibration.as_ref(), 0)?;
+    for step in 1.. {
         let out = env.step(&model.predict_deterministic(&obs)?)?;
         obs = out.obs;
         if out.episodes[0].is_some() {
-            // The arena has auto-reset: its state is the next episode's; the log ends here.
             break;
         }
-        recorder.sample(env.app().world(), control_dt);
+        visit(&mut env, &settings, calibration.as_ref(), step)?;
     }
-    let log = recorder.finish();
+    Ok(())
+}
+
+/// Writes one deterministic evaluation episode of the run's model as a robot log.
+pub fn log_episode(run: &Path, path: &Path, task: Option<&str>, calibration: Option<&Path>) -> anyhow::Result<()> {
+    let mut recorder: Option<LogRecorder> = None;
+    one_episode(run, task, calibration, |env, settings, calibration, _| {
+        match &mut recorder {
+            Some(r) => r.sample(env.app().world()),
+            None => {
+                let entry = registry::find(&settings.robot)?;
+                let order = twinbots_sysid::Rig::of(&entry).map(|rig| rig.joints).unwrap_or_default();
+                let file = calibration.map(|c| c.file.clone()).unwrap_or_default();
+                let arena = env.arenas()[0];
+                recorder = Some(LogRecorder::new(env.app_mut().world_mut(), &settings.robot, arena, &order, &file));
+            }
+        }
+        Ok(())
+    })?;
+    let log = recorder.expect("the episode starts with a reset").finish();
     twinbots_log::write(&log, path)?;
     println!("logged {} states and {} commands of one episode to {}", log.states.len(), log.commands.len(), path.display());
     Ok(())
 }
 
-/// Writes the frames of one deterministic evaluation episode of the run's model.
+/// Writes the frames of one deterministic evaluation episode of the run's model (on the run's
+/// own twin, as `eval` evaluates it).
 pub fn record_episode(run: &Path, dir: &Path, size: (u32, u32), camera: &str, task: Option<&str>) -> anyhow::Result<()> {
-    let run_dir = RunDir::new(run);
-    let settings = TrainSettings::of_run(&run_dir)?;
-    let entry = registry::find(&settings.robot)?;
-    let model = twinbots_learn::algos::load_run(&run_dir)?;
-    let seed = settings.final_eval_seed();
-    let mut env = AppVecEnv::new(entry.app(task, 1, seed, settings.in_process_pattern()?)?);
-    model.check_spaces(env.observation_space(), env.action_space())?;
-    let mut recorder = crate::cli::capture::Recorder::new(size, crate::cli::capture::camera(&entry, camera)?, dir)?;
-    let mut obs = env.reset(Some(seed))?;
-    recorder.frame(&mut env, 0)?;
-    for step in 1.. {
-        let out = env.step(&model.predict_deterministic(&obs)?)?;
-        obs = out.obs;
-        if out.episodes[0].is_some() {
-            // The arena has auto-reset: the episode's last state is gone; stop at its end.
-            break;
+    let mut recorder: Option<crate::cli::capture::Recorder> = None;
+    one_episode(run, task, None, |env, settings, _, step| {
+        if recorder.is_none() {
+            let entry = registry::find(&settings.robot)?;
+            recorder = Some(crate::cli::capture::Recorder::new(size, crate::cli::capture::camera(&entry, camera)?, dir)?);
         }
-        recorder.frame(&mut env, step)?;
-    }
-    println!("recorded {} frames of one episode to {}", recorder.written, dir.display());
+        recorder.as_mut().expect("made above").frame(env, step).map(|_| ())
+    })?;
+    let written = recorder.map_or(0, |r| r.written);
+    println!("recorded {written} frames of one episode to {}", dir.display());
     Ok(())
 }

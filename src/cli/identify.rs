@@ -65,8 +65,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let params = parameter_names(&rig, args.params.as_deref())?;
     let logs = prepare_all(&rig, &args.logs)?;
     let validation = prepare_all(&rig, &args.validate)?;
-    let options = FitOptions { params, popsize: args.popsize, generations: args.generations, seed: args.seed, threshold: 0.05 };
-    twinbots_sysid::identify::parameter_specs(&rig, &options.params)?;
+    let options = FitOptions { params, popsize: args.popsize, generations: args.generations, seed: args.seed };
     println!("{}: fitting {} parameters to {} log(s), {:.1} s in all", rig.robot, options.params.len(), logs.len(), seconds(&rig, &logs));
     let fit = identify(&rig, &logs, &base, &options, |g| {
         println!("generation {:>3}: best {:.4}  mean {:.4}  best so far {:.4}", g.generation + 1, g.best, g.mean, g.best_so_far);

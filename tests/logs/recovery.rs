@@ -33,7 +33,7 @@ fn recover(robot: &twinbots_task::RobotDescription, seconds: f64, generations: u
     let fit_log = prepare(&rig, &fit_log, "fit").unwrap();
     let held_out = prepare(&rig, &held_out, "held-out").unwrap();
     let params = rig.description.fit.iter().map(|s| s.to_string()).collect();
-    let options = FitOptions { params, popsize: 0, generations, seed: 3, threshold: 0.05 };
+    let options = FitOptions { params, popsize: 0, generations, seed: 3 };
     let fit = identify(&rig, std::slice::from_ref(&fit_log), &Parameters::default(), &options, |_| {}).unwrap();
     let mut calibrated = rig.nominal.clone();
     calibrated.extend(&fit.values());

@@ -69,6 +69,17 @@ impl SimSettings {
     pub fn control_dt(&self) -> f32 {
         self.dt * self.substeps as f32
     }
+
+    /// The physics step in seconds as the decimal it was set as (0.004, not 0.004000000189…):
+    /// for logs, whose times are f64.
+    pub fn dt_seconds(&self) -> f64 {
+        to_microseconds(self.dt)
+    }
+
+    /// The control step in seconds, as [`SimSettings::dt_seconds`].
+    pub fn control_seconds(&self) -> f64 {
+        to_microseconds(self.control_dt())
+    }
 }
 
 impl Default for SimSettings {
@@ -80,6 +91,11 @@ impl Default for SimSettings {
             solver_iterations: 4,
         }
     }
+}
+
+/// An f32 duration rounded to whole microseconds, as f64 seconds.
+fn to_microseconds(seconds: f32) -> f64 {
+    (seconds as f64 * 1e6).round() / 1e6
 }
 
 /// Counts control steps. The first `App::update` only builds the world (start-up); every later

@@ -17,13 +17,11 @@ use crate::uncertainty::{Spread, spreads};
 pub struct FitOptions {
     /// The parameters to fit, by name.
     pub params: Vec<String>,
-    /// Candidates per generation (0: CMA-ES's default, 4 + 3 ln n).
+    /// Candidates per generation of the joints' search (0: 14).
     pub popsize: usize,
     /// Generations at most.
     pub generations: usize,
     pub seed: u64,
-    /// Position error (rad or m) a replay counts as diverged beyond.
-    pub threshold: f64,
 }
 
 /// One fitted parameter.
@@ -120,6 +118,9 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     let cost_nominal = costs(rig, logs, std::slice::from_ref(&twin))[0];
     let blocks = blocks(rig, &specs);
     let (global, joints): (Vec<Block>, Vec<Block>) = blocks.iter().cloned().partition(|b| b.joint.is_none());
+    // The parameters of no joint (the delay), and all the joints' ones.
+    let global: Vec<usize> = global.iter().flat_map(|b| b.members.clone()).collect();
+    let members: Vec<usize> = joints.iter().flat_map(|b| b.members.clone()).collect();
     let mut history = Vec::new();
     let mut candidates = 1;
     let popsize = if options.popsize > 0 { options.popsize } else { 14 };
@@ -130,15 +131,12 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     let mut unsettled = vec![0.0; specs.len()];
     let g = options.generations;
     // 1. The delay alone, the rest nominal: it moves every joint, and it is 1-D.
-    if !global.is_empty() {
-        candidates += search.evolve(&mut u, &global, &first_steps, (g / 2).max(10), 8, &mut history, &mut progress).0;
-    }
+    candidates += search.evolve(&mut u, &global, &first_steps, (g / 2).max(10), 8, &mut history, &mut progress).0;
     // 2. Every joint's parameters as one search scored by the total error (a joint's
     //    parameters reach the other joints' errors too), each one's first step ten times its
     //    spread at stage 1's fit (from the error's curvature there), so that the search starts
     //    scaled however differently the parameters act.
-    let all = Block { members: joints.iter().flat_map(|b| b.members.clone()).collect(), joint: None };
-    if !all.members.is_empty() && g > 0 {
+    if !members.is_empty() && g > 0 {
         let (spreads, probes) = spreads(rig, logs, &search.set(&u), &specs, &joints, samples);
         extra += probes;
         let sigmas: Vec<f64> = spreads
@@ -146,12 +144,12 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
             .enumerate()
             .map(|(i, s)| s.as_ref().map_or(0.1, |s| ranges[i].unit_spread(ranges[i].value(u[i]), 10.0 * s.conditional).clamp(1e-4, 0.1)))
             .collect();
-        let (n, spread) = search.evolve(&mut u, std::slice::from_ref(&all), &sigmas, g, popsize, &mut history, &mut progress);
+        let (n, spread) = search.evolve(&mut u, &members, &sigmas, g, popsize, &mut history, &mut progress);
         candidates += n;
         unsettled = spread;
     }
     // 3. The delay again, at the joints' fit.
-    if !global.is_empty() && g >= 4 {
+    if g >= 4 {
         // Near its fit already: small first steps.
         candidates += search.evolve(&mut u, &global, &vec![0.02; specs.len()], g / 4, 8, &mut history, &mut progress).0;
     }

@@ -9,7 +9,7 @@ use twinbots_log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog};
 use twinbots_sim::{MotorCommand, Parameters};
 
 use crate::excitation::{Excitation, program};
-use crate::rig::{Reading, Rig, run};
+use crate::rig::{Rig, run};
 
 /// Standard deviations of the measurement noise.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -47,19 +47,19 @@ pub fn record(rig: &Rig, truth: &Parameters, recording: &Recording) -> anyhow::R
     let bias = rig.biases(&params);
     let mut rng = ChaCha8Rng::seed_from_u64(recording.seed ^ 0x5e75_0a15);
     let noise = recording.noise;
-    let mut measure = |reading: &Reading, time: f64| {
-        let mut n = |std: f64| if std > 0.0 { Normal::new(0.0, std).expect("a positive std").sample(&mut rng) } else { 0.0 };
-        JointSample {
-            time,
-            position: reading.position.iter().zip(&bias).map(|(&q, b)| q as f64 + b + n(noise.position)).collect(),
-            velocity: reading.velocity.iter().map(|&v| v as f64 + n(noise.velocity)).collect(),
+    let mut n = |std: f64| if std > 0.0 { Normal::new(0.0, std).expect("a positive std").sample(&mut rng) } else { 0.0 };
+    let states: Vec<JointSample> = trajectory
+        .samples(rig.dt(), &bias)
+        .into_iter()
+        .map(|mut s| {
+            s.position.iter_mut().for_each(|q| *q += n(noise.position));
+            s.velocity.iter_mut().for_each(|v| *v += n(noise.velocity));
             // An unactuated joint has no drive to measure an effort with: 0.
-            effort: reading.effort.iter().zip(&rig.actuated).map(|(&e, &a)| if a { e as f64 + n(noise.effort) } else { 0.0 }).collect(),
-        }
-    };
+            s.effort.iter_mut().zip(&rig.actuated).for_each(|(e, &a)| *e = if a { *e + n(noise.effort) } else { 0.0 });
+            s
+        })
+        .collect();
     let dt = rig.dt();
-    let mut states = vec![measure(&trajectory.start, 0.0)];
-    states.extend(trajectory.steps.iter().enumerate().map(|(k, r)| measure(r, (k + 1) as f64 * dt)));
     let commands = program
         .changes
         .iter()

@@ -229,14 +229,7 @@ impl ReplayReport {
 /// robot's for tools that overlay them.
 pub fn twin_log(rig: &Rig, log: &PreparedLog, twin: &Trajectory, bias: &[f64], calibration: &str) -> RobotLog {
     let dt = rig.dt();
-    let sample = |r: &Reading, time: f64| JointSample {
-        time,
-        position: r.position.iter().zip(bias).map(|(&q, b)| q as f64 + b).collect(),
-        velocity: r.velocity.iter().map(|&v| v as f64).collect(),
-        effort: r.effort.iter().map(|&e| e as f64).collect(),
-    };
-    let mut states = vec![sample(&twin.start, 0.0)];
-    states.extend(twin.steps.iter().enumerate().map(|(k, r)| sample(r, (k + 1) as f64 * dt)));
+    let states = twin.samples(dt, bias);
     let meta = LogMeta {
         robot: rig.robot.to_string(),
         source: format!("twinbots {} replay of {}", env!("CARGO_PKG_VERSION"), log.name),

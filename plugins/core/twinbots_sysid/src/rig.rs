@@ -5,6 +5,7 @@ use bevy::prelude::*;
 use twinbots_sim::parameters::{apply_to_joint, catalogue};
 use twinbots_sim::urdf::RobotModel;
 use twinbots_sim::{Arena, Joint, JointDynamics, JointState, Motor, MotorCommand, ParameterSpec, Parameters, PhysicsSubstep, SimPlugin, SimSettings};
+use twinbots_log::JointSample;
 use twinbots_task::robot::{RigDescription, RobotDescription};
 
 /// A robot's test rig and what a log of it holds.
@@ -52,8 +53,7 @@ impl Rig {
 
     /// The physics step (s).
     pub fn dt(&self) -> f64 {
-        // The f32 step as the decimal it was written as (0.004, not 0.004000000189…).
-        (self.settings.dt as f64 * 1e9).round() / 1e9
+        self.settings.dt_seconds()
     }
 
     /// A parameter's value in `params`, else its nominal one.
@@ -113,6 +113,20 @@ pub struct Reading {
     pub position: Vec<f32>,
     pub velocity: Vec<f32>,
     pub effort: Vec<f32>,
+}
+
+impl Trajectory {
+    /// The trajectory as a log's joint samples, every `dt` from 0: what the encoders read
+    /// (the joints' positions plus `bias`), the speeds and the efforts.
+    pub fn samples(&self, dt: f64, bias: &[f64]) -> Vec<JointSample> {
+        let sample = |r: &Reading, time: f64| JointSample {
+            time,
+            position: r.position.iter().zip(bias).map(|(&q, b)| q as f64 + b).collect(),
+            velocity: r.velocity.iter().map(|&v| v as f64).collect(),
+            effort: r.effort.iter().map(|&e| e as f64).collect(),
+        };
+        std::iter::once(sample(&self.start, 0.0)).chain(self.steps.iter().enumerate().map(|(k, r)| sample(r, (k + 1) as f64 * dt))).collect()
+    }
 }
 
 /// Runs `program` on one arena per parameter set (each the full set the twin runs with), the

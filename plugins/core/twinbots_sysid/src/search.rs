@@ -117,94 +117,72 @@ impl Search<'_> {
         p
     }
 
-    /// Evolves `active` side by side from `u` (each parameter's first step size `sigmas`, in
-    /// the unit box) for up to `generations` of `popsize`, every candidate scored by its total
-    /// error; writes the best point into `u` (several blocks: each block's final centre).
-    /// Returns the candidates evaluated and, per parameter searched, the spread of the last
-    /// generation in the unit box (how far from settled the search was when it stopped).
+    /// Searches the parameters `members` together from `u` (each one's first step size
+    /// `sigmas`, in the unit box) for up to `generations` of `popsize`, every candidate scored by
+    /// its total error; writes the best point into `u`. Returns the candidates evaluated and,
+    /// per parameter searched, the spread of the last generation in the unit box (how far from
+    /// settled the search was when it stopped).
+    #[allow(clippy::too_many_arguments)]
     pub fn evolve(
         &self,
         u: &mut [f64],
-        active: &[Block],
+        members: &[usize],
         sigmas: &[f64],
         generations: usize,
         popsize: usize,
         history: &mut Vec<Generation>,
         progress: &mut dyn FnMut(&Generation),
     ) -> (usize, Vec<f64>) {
-        let start = joint_costs(self.rig, self.logs, &[self.set(u)]).pop().expect("one set");
         let mut last_spread = vec![0.0; u.len()];
-        let mut cmas: Vec<Cmaes> = active
-            .iter()
-            .enumerate()
-            .map(|(k, b)| {
-                let dim = b.members.len();
-                let guess: Vec<f64> = b.members.iter().map(|&m| u[m]).collect();
-                let sigma: Vec<f64> = b.members.iter().map(|&m| sigmas[m]).collect();
-                let params = CmaesParams { popsize: popsize as i32, seed: self.seed.wrapping_add(history.len() as u64 * 97 + k as u64), ..CmaesParams::default() };
-                Cmaes::new(Fitness::bounded(dim, 1, &vec![0.0; dim], &vec![1.0; dim]), &guess, &sigma, &params)
-            })
-            .collect();
+        if members.is_empty() || generations == 0 {
+            return (0, last_spread);
+        }
+        let dim = members.len();
+        let guess: Vec<f64> = members.iter().map(|&m| u[m]).collect();
+        let sigma: Vec<f64> = members.iter().map(|&m| sigmas[m]).collect();
+        let params = CmaesParams { popsize: popsize as i32, seed: self.seed.wrapping_add(history.len() as u64 * 97), ..CmaesParams::default() };
+        let mut cma = Cmaes::new(Fitness::bounded(dim, 1, &vec![0.0; dim], &vec![1.0; dim]), &guess, &sigma, &params);
+        let start: f64 = costs(self.rig, self.logs, &[self.set(u)])[0];
+        let mut best = (start, guess);
         let mut candidates = 1;
-        let mut best_total = start.iter().sum::<f64>();
-        // Each block ends at its search distribution's centre: the mean of its last generation
-        // (a block's best single score is luck of what the other blocks drew alongside it).
-        let mut centres: Vec<Vec<f64>> = active.iter().map(|b| b.members.iter().map(|&m| u[m]).collect()).collect();
-        // A block searching alone ends at its best point instead (its scores are exact).
-        let mut best: (f64, Vec<f64>) = (start.iter().sum(), centres[0].clone());
         for _ in 0..generations {
-            let populations: Vec<Vec<Vec<f64>>> = cmas.iter_mut().map(|c| c.ask()).collect();
-            let points: Vec<Vec<f64>> = (0..popsize)
-                .map(|i| {
+            let population = cma.ask();
+            let sets: Vec<Parameters> = population
+                .iter()
+                .map(|x| {
                     let mut point = u.to_vec();
-                    for (block, population) in active.iter().zip(&populations) {
-                        for (m, &index) in block.members.iter().enumerate() {
-                            point[index] = population[i][m];
-                        }
+                    for (&index, v) in members.iter().zip(x) {
+                        point[index] = *v;
                     }
-                    point
+                    self.set(&point)
                 })
                 .collect();
-            let sets: Vec<Parameters> = points.iter().map(|p| self.set(p)).collect();
-            let joints = joint_costs(self.rig, self.logs, &sets);
-            candidates += sets.len();
-            let mut converged = true;
-            for (((block, cma), population), centre) in active.iter().zip(&mut cmas).zip(&populations).zip(&mut centres) {
-                let ys: Vec<f64> = joints.iter().map(|j| j.iter().sum()).collect();
-                *centre = (0..block.members.len()).map(|m| population.iter().map(|x| x[m]).sum::<f64>() / population.len() as f64).collect();
-                for (y, x) in ys.iter().zip(population) {
-                    if *y < best.0 {
-                        best = (*y, x.clone());
-                    }
+            let ys = costs(self.rig, self.logs, &sets);
+            candidates += ys.len();
+            for (y, x) in ys.iter().zip(&population) {
+                if *y < best.0 {
+                    best = (*y, x.clone());
                 }
-                cma.tell(&ys);
-                let spread = spread(population);
-                for (&index, s) in block.members.iter().zip(&spread) {
-                    last_spread[index] = *s;
-                }
-                converged &= spread.iter().all(|s| *s < 2e-3);
             }
-            let totals: Vec<f64> = joints.iter().map(|j| j.iter().sum()).collect();
-            best_total = totals.iter().copied().fold(best_total, f64::min);
+            cma.tell(&ys);
+            let spread = spread(&population);
+            for (&index, s) in members.iter().zip(&spread) {
+                last_spread[index] = *s;
+            }
             let g = Generation {
                 generation: history.len(),
-                best: totals.iter().copied().fold(f64::INFINITY, f64::min),
-                mean: totals.iter().sum::<f64>() / totals.len() as f64,
-                best_so_far: best_total,
+                best: ys.iter().copied().fold(f64::INFINITY, f64::min),
+                mean: ys.iter().sum::<f64>() / ys.len() as f64,
+                best_so_far: best.0,
             };
             progress(&g);
             history.push(g);
-            if converged {
+            if spread.iter().all(|s| *s < 2e-3) {
                 break;
             }
         }
-        if active.len() == 1 {
-            centres[0] = best.1;
-        }
-        for (block, centre) in active.iter().zip(centres) {
-            for (&index, v) in block.members.iter().zip(centre) {
-                u[index] = v;
-            }
+        for (&index, v) in members.iter().zip(best.1) {
+            u[index] = v;
         }
         (candidates, last_spread)
     }
