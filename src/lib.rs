@@ -6,3 +6,4 @@ pub mod registry;
 pub mod robot_log;
 pub mod run;
 pub mod settings;
+pub mod twin;

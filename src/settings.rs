@@ -41,6 +41,11 @@ impl CalibrationSetting {
         Ok(Self { file: path.display().to_string(), parameters: params.0 })
     }
 
+    /// [`CalibrationSetting::read`] of the file, if one is given.
+    pub fn read_optional(entry: &RobotEntry, path: Option<&Path>) -> anyhow::Result<Option<Self>> {
+        path.map(|path| Self::read(entry, path)).transpose()
+    }
+
     /// The parameters as the resource apps take.
     pub fn parameters(&self) -> twinbots_sim::Parameters {
         twinbots_sim::Parameters(self.parameters.clone())

@@ -64,12 +64,24 @@ impl Arenas {
 
 #[pymethods]
 impl Arenas {
-    /// `Arenas(robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None)`:
-    /// `task` None is the robot's main task; `config` is TOML text whose `[randomization]`
-    /// table applies; `calibration` a calibration file (`twinbots identify`'s) the twin runs with.
+    /// `Arenas(robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None,
+    /// log=None)`: `task` None is the robot's main task; `config` is TOML text whose
+    /// `[randomization]` table applies; `calibration` a calibration file (`twinbots identify`'s)
+    /// the twin runs with; `log` a robot log file (.mcap or .csv) that holds arena 0's latest
+    /// episode (the running one is added by `close()`).
     #[new]
-    #[pyo3(signature = (robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None))]
-    fn new(robot: &str, num_envs: usize, seed: u64, task: Option<&str>, pattern: u8, config: Option<&str>, calibration: Option<std::path::PathBuf>) -> PyResult<Self> {
+    #[pyo3(signature = (robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None, log=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        robot: &str,
+        num_envs: usize,
+        seed: u64,
+        task: Option<&str>,
+        pattern: u8,
+        config: Option<&str>,
+        calibration: Option<std::path::PathBuf>,
+        log: Option<std::path::PathBuf>,
+    ) -> PyResult<Self> {
         let entry = twinbots::registry::find(robot).map_err(value_error)?;
         if num_envs == 0 {
             return Err(value_error(anyhow::anyhow!("num_envs must be at least 1")));
@@ -83,11 +95,9 @@ impl Arenas {
             }
         };
         let randomization = config.map(randomization).transpose().map_err(value_error)?;
-        let calibration = calibration.map(|path| twinbots::settings::CalibrationSetting::read(&entry, &path)).transpose().map_err(value_error)?;
+        let calibration = twinbots::settings::CalibrationSetting::read_optional(&entry, calibration.as_deref()).map_err(value_error)?;
         let mut app = entry.app(task, num_envs, seed, design).map_err(value_error)?;
-        if let Some(c) = &calibration {
-            twinbots_task::calibration::calibrate(&mut app, &c.parameters());
-        }
+        twinbots::twin::configure(&mut app, &entry, calibration.as_ref(), log.as_deref()).map_err(value_error)?;
         if let Some(r) = randomization.filter(|r| !r.is_off()) {
             app.add_plugins(RandomizationPlugin(r));
         }
@@ -184,9 +194,13 @@ impl Arenas {
     }
 
     /// Frees the app (and the renderer); any later call raises `RuntimeError`.
-    fn close(&mut self) {
+    /// Closes the arenas; with a `log`, arena 0's running episode is written first (an error
+    /// writing it is raised, after closing).
+    fn close(&mut self) -> PyResult<()> {
+        let logged = self.env.as_mut().map(|env| twinbots::robot_log::finish_log(env.app_mut().world_mut()));
         self.env = None;
         self.frames = None;
+        logged.transpose().map(|_| ()).map_err(runtime_error)
     }
 
     /// Prepares off-screen rendering of arena 0 (`camera`: "iso", "front", "side", "top").

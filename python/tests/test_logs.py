@@ -158,3 +158,24 @@ def test_make_vec_runs_a_calibrated_twin(tmp_path):
     bad.write_text("[parameters]\nelbow_joint.stiffness = 1.0\n")
     with pytest.raises(ValueError, match="unknown parameter 'elbow_joint.stiffness'"):
         twinbots.make_vec("ur5e", 1, calibration=bad)
+
+
+def test_make_vec_logs_arena_zero(tmp_path):
+    import numpy as np
+
+    import twinbots
+
+    log = tmp_path / "env.mcap"
+    env = twinbots.make_vec("cartpole", 2, seed=5, log=log)
+    env.reset(seed=5)
+    steps = 0
+    for _ in range(40):
+        env.step(np.zeros(env.action_space.shape, dtype=env.action_space.dtype))
+        steps += 1
+    env.close()
+    states = [m.ros_msg for m in mcap_ros2_reader.read_ros2_messages(str(log), topics=["/joint_states"])]
+    # The running episode (or the last one that ended) of arena 0, every control step.
+    assert 2 <= len(states) <= steps + 1
+    assert "pole_joint" in states[0].name
+    with pytest.raises(ValueError, match=r"\.mcap or a \.csv"):
+        twinbots.make_vec("cartpole", 1, log=tmp_path / "env.txt")

@@ -33,6 +33,7 @@ def make_vec(
     render_mode: str | None = None,
     autoreset_mode="SAME_STEP",
     calibration=None,
+    log=None,
 ) -> TwinbotsVectorEnv:
     """`num_envs` arenas of `robot` as a `gymnasium.vector.VectorEnv` stepped in Rust.
 
@@ -40,8 +41,9 @@ def make_vec(
     (Supervisor) or 2 (radio); `config`: domain randomization (a TOML file or text with a
     `[randomization]` table, or a dict of it); `autoreset_mode`: "SAME_STEP" or "NEXT_STEP";
     `calibration`: a calibration file (`twinbots identify`'s calibration.toml) the twin runs
-    with."""
-    return TwinbotsVectorEnv(robot, num_envs, seed, task, pattern, config, render_mode, autoreset_mode, calibration)
+    with; `log`: a robot log file (`.mcap` or `.csv`, docs/logs.md) that holds arena 0's latest
+    episode, rewritten as each ends (`close()` adds the running one)."""
+    return TwinbotsVectorEnv(robot, num_envs, seed, task, pattern, config, render_mode, autoreset_mode, calibration, log)
 
 
 def make(robot: str, task: str | None = None, **kwargs) -> TwinbotsEnv:

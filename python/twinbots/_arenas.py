@@ -22,17 +22,19 @@ def initial_seed(seed: int | None) -> int:
 
 
 def open_arenas(robot: str, count: int, seed: int | None, task: str | None, pattern: int, config: Config,
-                render_mode: str | None, count_name: str = "num_envs", calibration=None, **rendering) -> _native.Arenas:
+                render_mode: str | None, count_name: str = "num_envs", calibration=None, log=None,
+                **rendering) -> _native.Arenas:
     """`count` arenas of `robot`'s `task` under design pattern `pattern`, the twin calibrated by
-    the file `calibration` if given; `rendering` (width, height, camera) applies with
+    the file `calibration` if given, arena 0's episodes logged to the file `log` if given;
+    `rendering` (width, height, camera) applies with
     `render_mode="rgb_array"`."""
     if not isinstance(count, (int, np.integer)) or count < 1:
         raise ValueError(f"{count_name} must be a positive integer, got {count!r}")
     if render_mode not in (None, "rgb_array"):
         raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-    if calibration is not None:
-        calibration = os.fspath(calibration)
-    arenas = _native.Arenas(robot, int(count), initial_seed(seed), task, pattern, config_text(config), calibration)
+    calibration = None if calibration is None else os.fspath(calibration)
+    log = None if log is None else os.fspath(log)
+    arenas = _native.Arenas(robot, int(count), initial_seed(seed), task, pattern, config_text(config), calibration, log)
     if render_mode == "rgb_array":
         arenas.enable_rendering(**rendering)
     return arenas

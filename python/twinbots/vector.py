@@ -49,11 +49,12 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         render_mode: str | None = None,
         autoreset_mode: str | AutoresetMode = AutoresetMode.SAME_STEP,
         calibration=None,
+        log=None,
     ):
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
         if self.autoreset_mode == AutoresetMode.DISABLED:
             raise ValueError("autoreset_mode DISABLED is not supported: the arenas reset themselves (SAME_STEP or NEXT_STEP)")
-        self.arenas = open_arenas(robot, num_envs, seed, task, pattern, config, render_mode, calibration=calibration)
+        self.arenas = open_arenas(robot, num_envs, seed, task, pattern, config, render_mode, calibration=calibration, log=log)
         self._owner = get_ident()
         self.num_envs = int(num_envs)
         self.task = self.arenas.task

@@ -38,12 +38,15 @@ pub struct Args {
     /// Render the twin calibrated by this file (`twinbots identify`'s calibration.toml).
     #[arg(long)]
     pub calibration: Option<std::path::PathBuf>,
+    /// Also write arena 0's latest complete episode as a robot log (.mcap or .csv).
+    #[arg(long)]
+    pub log: Option<std::path::PathBuf>,
 }
 
 /// `twinbots capture`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, model, frames, every, size, camera, seed, task, out, calibration } = args;
-    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out, calibration })
+    let Args { robot, model, frames, every, size, camera, seed, task, out, calibration, log } = args;
+    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out, calibration, log })
 }
 
 /// A named camera of a robot's cell.
@@ -98,6 +101,7 @@ pub struct CaptureArgs {
     pub task: Option<String>,
     pub out: PathBuf,
     pub calibration: Option<PathBuf>,
+    pub log: Option<PathBuf>,
 }
 
 pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
@@ -105,9 +109,9 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     let entry = registry::find(&args.robot)?;
     let view = camera(&entry, &args.camera)?;
     let model = args.model.as_deref().map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
-    let calibration = args.calibration.as_deref().map(|p| twinbots::settings::CalibrationSetting::read(&entry, p)).transpose()?;
     let mut app = entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?;
-    twinbots_task::calibration::calibrate(&mut app, &calibration.map(|c| c.parameters()).unwrap_or_default());
+    let calibration = twinbots::settings::CalibrationSetting::read_optional(&entry, args.calibration.as_deref())?;
+    twinbots::twin::configure(&mut app, &entry, calibration.as_ref(), args.log.as_deref())?;
     let mut env = AppVecEnv::new(app);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;
@@ -127,5 +131,8 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
         }
     }
     println!("wrote {} frames ({}x{}) to {}", recorder.written, args.size.0, args.size.1, args.out.display());
+    if let (Some(path), Some((states, commands))) = (&args.log, twinbots::robot_log::finish_log(env.app_mut().world_mut())?) {
+        println!("logged the latest episode ({states} states, {commands} commands) to {}", path.display());
+    }
     Ok(())
 }

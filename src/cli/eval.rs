@@ -6,7 +6,7 @@ use twinbots_api::VecEnv;
 use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
 use twinbots_task::AppVecEnv;
 
-use twinbots::robot_log::LogRecorder;
+use twinbots::robot_log::finish_log;
 use twinbots::run::evaluation_env;
 use twinbots::settings::{CalibrationSetting, TrainSettings};
 use crate::registry;
@@ -91,15 +91,16 @@ fn twin(entry: &registry::RobotEntry, settings: &TrainSettings, file: Option<&Pa
 }
 
 /// Runs one deterministic evaluation episode of the run's model on one arena of its robot's
-/// `task`, on the twin of `calibration` (a file; default: the run's own): `visit` sees the env
-/// after the reset (step 0) and after every step but the one that ends the episode (the arena
-/// has auto-reset by then: the episode's last state is gone).
+/// `task`, on the twin of `calibration` (a file; default: the run's own), logged to `log` if
+/// given (`robot_log`). `visit` sees the env after the reset (step 0) and after every step but the one
+/// that ends the episode (the arena has auto-reset by then: the episode's last state is gone).
 fn one_episode(
     run: &Path,
     task: Option<&str>,
     calibration: Option<&Path>,
-    mut visit: impl FnMut(&mut AppVecEnv, &TrainSettings, Option<&CalibrationSetting>, u64) -> anyhow::Result<()>,
-) -> anyhow::Result<()> {
+    log: Option<&Path>,
+    mut visit: impl FnMut(&mut AppVecEnv, &TrainSettings, u64) -> anyhow::Result<()>,
+) -> anyhow::Result<AppVecEnv> {
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
     let entry = registry::find(&settings.robot)?;
@@ -107,41 +108,27 @@ fn one_episode(
     let seed = settings.final_eval_seed();
     let calibration = twin(&entry, &settings, calibration)?;
     let mut app = entry.app(task, 1, seed, settings.in_process_pattern()?)?;
-    twinbots_task::calibration::calibrate(&mut app, &calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default());
+    twinbots::twin::configure(&mut app, &entry, calibration.as_ref(), log)?;
     let mut env = AppVecEnv::new(app);
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut obs = env.reset(Some(seed))?;
-    visit(&mut env, &settings, calibration.as_ref(), 0)?;
+    visit(&mut env, &settings, 0)?;
     for step in 1.. {
         let out = env.step(&model.predict_deterministic(&obs)?)?;
         obs = out.obs;
         if out.episodes[0].is_some() {
             break;
         }
-        visit(&mut env, &settings, calibration.as_ref(), step)?;
+        visit(&mut env, &settings, step)?;
     }
-    Ok(())
+    Ok(env)
 }
 
 /// Writes one deterministic evaluation episode of the run's model as a robot log.
 pub fn log_episode(run: &Path, path: &Path, task: Option<&str>, calibration: Option<&Path>) -> anyhow::Result<()> {
-    let mut recorder: Option<LogRecorder> = None;
-    one_episode(run, task, calibration, |env, settings, calibration, _| {
-        match &mut recorder {
-            Some(r) => r.sample(env.app().world()),
-            None => {
-                let entry = registry::find(&settings.robot)?;
-                let order = twinbots_sysid::Rig::of(&entry).map(|rig| rig.joints).unwrap_or_default();
-                let file = calibration.map(|c| c.file.clone()).unwrap_or_default();
-                let arena = env.arenas()[0];
-                recorder = Some(LogRecorder::new(env.app_mut().world_mut(), &settings.robot, arena, &order, &file));
-            }
-        }
-        Ok(())
-    })?;
-    let log = recorder.expect("the episode starts with a reset").finish();
-    twinbots_log::write(&log, path)?;
-    println!("logged {} states and {} commands of one episode to {}", log.states.len(), log.commands.len(), path.display());
+    let mut env = one_episode(run, task, calibration, Some(path), |_, _, _| Ok(()))?;
+    let (states, commands) = finish_log(env.app_mut().world_mut())?.expect("the episode ended, so it was written");
+    println!("logged {states} states and {commands} commands of one episode to {}", path.display());
     Ok(())
 }
 
@@ -149,7 +136,7 @@ pub fn log_episode(run: &Path, path: &Path, task: Option<&str>, calibration: Opt
 /// own twin, as `eval` evaluates it).
 pub fn record_episode(run: &Path, dir: &Path, size: (u32, u32), camera: &str, task: Option<&str>) -> anyhow::Result<()> {
     let mut recorder: Option<crate::cli::capture::Recorder> = None;
-    one_episode(run, task, None, |env, settings, _, step| {
+    one_episode(run, task, None, None, |env, settings, step| {
         if recorder.is_none() {
             let entry = registry::find(&settings.robot)?;
             recorder = Some(crate::cli::capture::Recorder::new(size, crate::cli::capture::camera(&entry, camera)?, dir)?);

@@ -41,28 +41,45 @@ pub struct Args {
     /// With --policy: episodes to run before reporting their figures.
     #[arg(long, default_value_t = 10, conflicts_with = "server")]
     pub episodes: usize,
+    /// Run the twin calibrated by this file (`twinbots identify`'s calibration.toml).
+    #[arg(long)]
+    pub calibration: Option<std::path::PathBuf>,
+    /// Write robot 0's whole run (its episodes and its homing between them) as a robot log
+    /// (.mcap or .csv) when the run ends, as a real robot's controller would record it.
+    #[arg(long)]
+    pub log: Option<std::path::PathBuf>,
+}
+
+/// The twin the robots run, and where robot 0's episodes are logged.
+#[derive(Default)]
+pub struct Twin {
+    pub calibration: Option<twinbots::settings::CalibrationSetting>,
+    pub log: Option<std::path::PathBuf>,
 }
 
 /// `twinbots robot`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    let calibration = twinbots::settings::CalibrationSetting::read_optional(&registry::find(&args.robot)?, args.calibration.as_deref())?;
+    let twin = Twin { calibration, log: args.log };
     match (args.server, args.policy) {
         (Some(server), _) => {
             let token = args.token.or_else(crate::cli::serve::token_from_env);
-            against_server_with_token(&args.robot, server, args.arenas, args.seed, Duration::from_secs(args.patience), token).map(|_| ())
+            against_server_with_token(&args.robot, server, args.arenas, args.seed, Duration::from_secs(args.patience), token, &twin).map(|_| ())
         }
-        (None, Some(policy)) => with_policy(&args.robot, &policy, args.arenas, args.episodes, args.seed).map(|_| ()),
+        (None, Some(policy)) => with_policy(&args.robot, &policy, args.arenas, args.episodes, args.seed, &twin).map(|_| ()),
         (None, None) => unreachable!("clap requires --server or --policy"),
     }
 }
 
 /// A pattern-3 app of `arenas` robots getting their actions from `source` (a [`ServerAddress`]
 /// or an [`OnBoardPolicy`]), started up.
-fn robot_app(robot: &str, arenas: usize, seed: u64, source: impl Resource) -> anyhow::Result<App> {
+fn robot_app(robot: &str, arenas: usize, seed: u64, twin: &Twin, source: impl Resource) -> anyhow::Result<App> {
     // No robot would ever stop the loop that waits for them.
     anyhow::ensure!(arenas >= 1, "--arenas {arenas}: at least one robot is needed");
     let entry = registry::find(robot)?;
     anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
     let mut app = entry.app(None, arenas, seed, DesignPattern::Server)?;
+    twinbots::twin::configure(&mut app, &entry, twin.calibration.as_ref(), twin.log.as_deref())?;
     app.insert_resource(source);
     app.finish();
     app.cleanup();
@@ -74,10 +91,10 @@ fn stopped(app: &App) -> Option<Result<String, String>> {
     app.world().resource::<RobotRunState>().stop.clone()
 }
 
-/// Runs `arenas` simulated robots against the server at `server` until it says training is
-/// over. Returns the server's reason.
-pub fn against_server(robot: &str, server: SocketAddr, arenas: usize, seed: u64, patience: Duration) -> anyhow::Result<String> {
-    against_server_with_token(robot, server, arenas, seed, patience, None)
+/// Runs `arenas` simulated robots of `twin` against the server at `server` until it says
+/// training is over. Returns the server's reason.
+pub fn against_server(robot: &str, server: SocketAddr, arenas: usize, seed: u64, patience: Duration, twin: &Twin) -> anyhow::Result<String> {
+    against_server_with_token(robot, server, arenas, seed, patience, None, twin)
 }
 
 /// [`against_server`] for a server that wants a shared secret in every `hello`.
@@ -88,12 +105,14 @@ pub fn against_server_with_token(
     seed: u64,
     patience: Duration,
     token: Option<String>,
+    twin: &Twin,
 ) -> anyhow::Result<String> {
-    let mut app = robot_app(robot, arenas, seed, ServerAddress { addr: server, patience })?;
+    let mut app = robot_app(robot, arenas, seed, twin, ServerAddress { addr: server, patience })?;
     app.insert_resource(ServerToken(token));
     loop {
         app.update();
         if let Some(stop) = stopped(&app) {
+            report_log(&mut app, twin)?;
             let state = app.world().resource::<RobotRunState>();
             return match stop {
                 Ok(reason) => {
@@ -108,7 +127,7 @@ pub fn against_server_with_token(
 
 /// Runs `arenas` robots on the exported policy at `policy` until `episodes` episodes have
 /// ended, prints their figures as `eval` does and returns them.
-pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, seed: u64) -> anyhow::Result<EvalResult> {
+pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, seed: u64, twin: &Twin) -> anyhow::Result<EvalResult> {
     anyhow::ensure!(episodes > 0, "--episodes must be at least 1");
     let onnx = OnnxPolicy::load(policy)?;
     let entry = registry::find(robot)?;
@@ -120,7 +139,7 @@ pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, s
             onnx.metadata.design_pattern
         );
     }
-    let mut app = robot_app(robot, arenas.clamp(1, episodes), seed, OnBoardPolicy::new(move |obs: &[f32]| onnx.act(obs)))?;
+    let mut app = robot_app(robot, arenas.clamp(1, episodes), seed, twin, OnBoardPolicy::new(move |obs: &[f32]| onnx.act(obs)))?;
     let mut finished = Vec::with_capacity(episodes);
     let mut ended = app.world_mut().query::<&Episode>();
     while finished.len() < episodes {
@@ -133,5 +152,14 @@ pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, s
     }
     let result = EvalResult::of_episodes(task, &finished);
     println!("{robot} running {}: {}", policy.display(), result.describe());
+    report_log(&mut app, twin)?;
     Ok(result)
+}
+
+/// Writes robot 0's run to the twin's log, if it has one, and says what it holds.
+fn report_log(app: &mut App, twin: &Twin) -> anyhow::Result<()> {
+    if let (Some(path), Some((states, commands))) = (&twin.log, twinbots::robot_log::finish_log(app.world_mut())?) {
+        println!("logged robot 0's run ({states} states, {commands} commands) to {}", path.display());
+    }
+    Ok(())
 }

@@ -13,7 +13,7 @@ use twinbots_api::DesignPattern;
 use twinbots_learn::{Ppo, PpoConfig, RunDir, ppo};
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
-use twinbots::settings::{ConfigFile, TrainSettings};
+use twinbots::settings::{CalibrationSetting, ConfigFile, TrainSettings};
 use crate::registry;
 
 /// The command's arguments.
@@ -54,8 +54,13 @@ pub struct Args {
     pub settings: Option<std::path::PathBuf>,
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
+    /// The twin the robots stand for is calibrated by this file (`twinbots identify`'s): the
+    /// run's config.toml records it and its evaluations run that twin (start the robots with
+    /// the same `--calibration`).
+    #[arg(long, conflicts_with = "settings")]
+    pub calibration: Option<std::path::PathBuf>,
     /// Continue the server run in this directory from its newest checkpoint.
-    #[arg(long, conflicts_with_all = ["robot", "robots", "timesteps", "seed", "config", "settings", "out"])]
+    #[arg(long, conflicts_with_all = ["robot", "robots", "timesteps", "seed", "config", "settings", "out", "calibration"])]
     pub resume: Option<std::path::PathBuf>,
     /// Exit when standard input closes: for a server started by `train --pattern 3`, which
     /// must not outlive it.
@@ -65,7 +70,8 @@ pub struct Args {
 
 /// `twinbots serve`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, listen, max_robots, token, handshake_timeout, read_timeout, robots, timesteps, seed, config, settings, out, resume, exit_with_stdin } = args;
+    let Args { robot, listen, max_robots, token, handshake_timeout, read_timeout, robots, timesteps, seed, config, settings, out, calibration, resume, exit_with_stdin } =
+        args;
     if exit_with_stdin {
         exit_when_stdin_closes();
     }
@@ -88,7 +94,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 Some(path) => ConfigFile::read(&path)?,
                 None => Default::default(),
             };
-            let flags = ConfigFile { timesteps, arenas: robots, seed, pattern: Some(3), ..Default::default() };
+            let calibration = CalibrationSetting::read_optional(&entry, calibration.as_deref())?;
+            let flags = ConfigFile { timesteps, arenas: robots, seed, pattern: Some(3), calibration, ..Default::default() };
             TrainSettings::resolve(&entry, file, flags)?
         }
     };

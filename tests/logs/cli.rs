@@ -202,3 +202,33 @@ fn eval_logs_an_episode_that_replays() {
     let wheel: Vec<f64> = out.lines().find(|l| l.starts_with("wheel1_joint")).unwrap().split_whitespace().skip(1).take(1).map(|v| v.parse().unwrap()).collect();
     assert!(wheel[0] < 0.05, "wheel 1 position RMSE {} rad\n{out}", wheel[0]);
 }
+
+#[test]
+fn robot_logs_its_episodes_on_a_calibrated_twin() {
+    let dir = scratch("robot");
+    let run = dir.join("run");
+    let (ok, _, err) = twinbots(&["train", "cartpole", "--timesteps", "512", "--out", run.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let onnx = dir.join("policy.onnx");
+    let (ok, _, err) = twinbots(&["export", run.to_str().unwrap(), "--onnx", onnx.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let cal = dir.join("calibration.toml");
+    std::fs::write(&cal, "[parameters]\ncommand_delay = 0.008\n").unwrap();
+    let log = dir.join("robot.csv");
+    let (ok, _, err) = twinbots(&["robot", "cartpole", "--policy", onnx.to_str().unwrap(), "--episodes", "2", "--log", "robot.txt"]);
+    assert!(!ok && err.contains("robot.txt") && err.contains(".mcap or a .csv"), "{err}");
+    let (ok, out, err) = twinbots(&[
+        "robot", "cartpole", "--policy", onnx.to_str().unwrap(), "--episodes", "2", "--calibration", cal.to_str().unwrap(), "--log", log.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("logged robot 0's run"), "{out}");
+    let read = twinbots_log::read(&log).unwrap();
+    assert_eq!(read.meta.calibration, cal.display().to_string());
+    assert!(read.states.len() > 5 && read.states[0].time == 0.0, "{} states", read.states.len());
+    // Two episodes and the homing between them, continuous: replayed on the calibrated rig,
+    // the wheels follow.
+    let (ok, out, err) = twinbots(&["replay", "cartpole", log.to_str().unwrap(), "--calibration", cal.to_str().unwrap(), "--out", dir.join("replay").to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let wheel: f64 = out.lines().find(|l| l.starts_with("wheel1_joint")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+    assert!(wheel < 0.05, "wheel 1 position RMSE {wheel} rad\n{out}");
+}
