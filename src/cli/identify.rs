@@ -39,9 +39,10 @@ pub struct Args {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// CMA-ES generations of the joints' search (the delay's take a third to a half of it).
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, default_value_t = 16)]
     pub generations: usize,
-    /// Candidates per generation (0: 14).
+    /// Candidates per generation of the joints' search (0: CMA-ES's default, 4 + ⌊3 ln n⌋ for
+    /// n parameters: 12 for the UR5e's 18).
     #[arg(long, default_value_t = 0)]
     pub popsize: usize,
     #[arg(long, default_value_t = 0)]

@@ -9,15 +9,15 @@ use twinbots_sim::{ParameterKind, ParameterSpec, Parameters};
 use crate::replay::{PreparedLog, compare};
 use crate::rig::{Rig, run};
 pub use crate::search::Generation;
-use crate::search::{Block, Range, Search, blocks, costs};
-use crate::uncertainty::{Spread, spreads};
+use crate::search::{Basis, Block, Range, Search, blocks, costs};
+use crate::uncertainty::{Spread, curvatures, spreads, whitened};
 
 /// How a fit runs.
 #[derive(Clone, Debug)]
 pub struct FitOptions {
     /// The parameters to fit, by name.
     pub params: Vec<String>,
-    /// Candidates per generation of the joints' search (0: 14).
+    /// Candidates per generation of the joints' search (0: CMA-ES's default, 4 + ⌊3 ln n⌋).
     pub popsize: usize,
     /// Generations at most.
     pub generations: usize,
@@ -84,6 +84,16 @@ fn searched_spread(range: &Range, u: f64, s: f64) -> f64 {
     (range.value((u + s).min(1.0)) - range.value(u)).abs().max((range.value(u) - range.value((u - s).max(0.0))).abs())
 }
 
+/// How finely a parameter at `value` is to be known: within 10 % of its value at two standard
+/// deviations (a delay: within a physics step; a bias: within 2 mrad or mm).
+fn resolution(spec: &ParameterSpec, value: f64, dt: f64) -> f64 {
+    match spec.kind {
+        ParameterKind::CommandDelay => dt / 2.0,
+        ParameterKind::Bias => 1e-3,
+        _ => 0.05 * value.abs(),
+    }
+}
+
 /// Mean position RMSE over `logs` of the twin with `params`.
 pub fn position_rmse(rig: &Rig, logs: &[PreparedLog], params: &Parameters, threshold: f64) -> f64 {
     let bias = rig.biases(params);
@@ -123,35 +133,46 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     let members: Vec<usize> = joints.iter().flat_map(|b| b.members.clone()).collect();
     let mut history = Vec::new();
     let mut candidates = 1;
-    let popsize = if options.popsize > 0 { options.popsize } else { 14 };
+    // CMA-ES's own default, 4 + ⌊3 ln n⌋ (12 for the UR5e's 18 joint parameters).
+    let popsize = if options.popsize > 0 { options.popsize } else { 4 + (3.0 * (members.len().max(1) as f64).ln()).floor() as usize };
     let samples: usize = logs.iter().map(|l| l.reference.len()).sum();
-    let first_steps = vec![0.1; specs.len()];
+    // A search along the delay (or a bias) may stop once its generation spreads less than a
+    // half of what the delay must be known to; the joints' search runs its generations
+    // (their spread is checked after, against their resolution).
+    let settled: Vec<f64> = specs
+        .iter()
+        .zip(&ranges)
+        .map(|(spec, range)| match spec.kind {
+            ParameterKind::CommandDelay | ParameterKind::Bias => {
+                let value = rig.value(&base, &spec.name);
+                range.unit_spread(value, resolution(spec, value, rig.dt()) / 2.0)
+            }
+            _ => 2e-3,
+        })
+        .collect();
     let mut extra = 0;
     // The joints' search's last spread per parameter (unit box): 0 where it was not searched.
     let mut unsettled = vec![0.0; specs.len()];
     let g = options.generations;
     // 1. The delay alone, the rest nominal: it moves every joint, and it is 1-D.
-    candidates += search.evolve(&mut u, &global, &first_steps, (g / 2).max(10), 8, &mut history, &mut progress).0;
+    candidates += search.evolve(&mut u, &global, &Basis::diagonal(&vec![0.1; global.len()]), &settled, (g / 2).max(10), 6, &mut history, &mut progress).0;
     // 2. Every joint's parameters as one search scored by the total error (a joint's
-    //    parameters reach the other joints' errors too), each one's first step ten times its
-    //    spread at stage 1's fit (from the error's curvature there), so that the search starts
-    //    scaled however differently the parameters act.
+    //    parameters reach the other joints' errors too), in coordinates whitened by the
+    //    error's curvature at stage 1's fit, per joint (`uncertainty::whitened`): a joint's
+    //    damping and friction trade off, and the parameters act at scales orders apart, which
+    //    a search started round would first have to learn over many generations.
     if !members.is_empty() && g > 0 {
-        let (spreads, probes) = spreads(rig, logs, &search.set(&u), &specs, &joints, samples);
+        let (curvatures, probes) = curvatures(rig, logs, &search.set(&u), &specs, &joints);
         extra += probes;
-        let sigmas: Vec<f64> = spreads
-            .iter()
-            .enumerate()
-            .map(|(i, s)| s.as_ref().map_or(0.1, |s| ranges[i].unit_spread(ranges[i].value(u[i]), 10.0 * s.conditional).clamp(1e-4, 0.1)))
-            .collect();
-        let (n, spread) = search.evolve(&mut u, &members, &sigmas, g, popsize, &mut history, &mut progress);
+        let basis = whitened(&curvatures, &joints, &members, &ranges, &u, samples, 10.0, (1e-4, 0.1, 0.1));
+        let (n, spread) = search.evolve(&mut u, &members, &basis, &settled, g, popsize, &mut history, &mut progress);
         candidates += n;
         unsettled = spread;
     }
     // 3. The delay again, at the joints' fit.
     if g >= 4 {
         // Near its fit already: small first steps.
-        candidates += search.evolve(&mut u, &global, &vec![0.02; specs.len()], g / 4, 8, &mut history, &mut progress).0;
+        candidates += search.evolve(&mut u, &global, &Basis::diagonal(&vec![0.02; global.len()]), &settled, g / 4, 6, &mut history, &mut progress).0;
     }
     candidates += extra;
     let fitted = search.set(&u);
@@ -170,13 +191,7 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
         .map(|(i, (((spec, range), &u), spread))| {
             let value = range.value(u);
             let at_bound = u <= 1e-3 || u >= 1.0 - 1e-3;
-            // Within 10 % of its value at two standard deviations (a delay: within a physics
-            // step; a bias: within 2 mrad or mm).
-            let resolution = match spec.kind {
-                ParameterKind::CommandDelay => rig.dt() / 2.0,
-                ParameterKind::Bias => 1e-3,
-                _ => 0.05 * value.abs(),
-            };
+            let resolution = resolution(spec, value, rig.dt());
             let not_identifiable = if spread.offset.abs() > resolution {
                 Some(format!(
                     "the search had not settled along it: the error still falls towards {:.4e} (its curvature puts the minimum {:+.2e} {} away)",

@@ -97,6 +97,24 @@ pub fn costs(rig: &Rig, logs: &[PreparedLog], sets: &[Parameters]) -> Vec<f64> {
     joint_costs(rig, logs, sets).iter().map(|c| c.iter().sum()).collect()
 }
 
+/// The coordinates a search moves in: the members' unit-box point is `start + B·z`, and the
+/// search's first step in `z` is 1 along every axis. A diagonal `B` is one step size per
+/// parameter; a whitened one (`uncertainty::whitened`) also undoes how the parameters trade
+/// off against each other, so the search need not learn it first.
+#[derive(Clone, Debug)]
+pub struct Basis(pub Vec<Vec<f64>>);
+
+impl Basis {
+    /// One step size per member.
+    pub fn diagonal(steps: &[f64]) -> Self {
+        Self((0..steps.len()).map(|i| (0..steps.len()).map(|j| if i == j { steps[i] } else { 0.0 }).collect()).collect())
+    }
+
+    fn point(&self, start: &[f64], z: &[f64]) -> Vec<f64> {
+        start.iter().zip(&self.0).map(|(s, row)| s + row.iter().zip(z).map(|(b, z)| b * z).sum::<f64>()).collect()
+    }
+}
+
 /// A search over `specs` (with `ranges`), the other parameters at `base`.
 pub struct Search<'a> {
     pub rig: &'a Rig,
@@ -117,17 +135,19 @@ impl Search<'_> {
         p
     }
 
-    /// Searches the parameters `members` together from `u` (each one's first step size
-    /// `sigmas`, in the unit box) for up to `generations` of `popsize`, every candidate scored by
-    /// its total error; writes the best point into `u`. Returns the candidates evaluated and,
-    /// per parameter searched, the spread of the last generation in the unit box (how far from
+    /// Searches the parameters `members` together from `u`, in the coordinates of `basis` (over
+    /// the members, in the unit box), for up to `generations` of `popsize`, every candidate
+    /// scored by its total error, stopping early once every one's generation spreads less than
+    /// its `settled`; writes the best point into `u`. Returns the candidates evaluated and, per
+    /// parameter searched, the spread of the last generation in the unit box (how far from
     /// settled the search was when it stopped).
     #[allow(clippy::too_many_arguments)]
     pub fn evolve(
         &self,
         u: &mut [f64],
         members: &[usize],
-        sigmas: &[f64],
+        basis: &Basis,
+        settled: &[f64],
         generations: usize,
         popsize: usize,
         history: &mut Vec<Generation>,
@@ -138,15 +158,17 @@ impl Search<'_> {
             return (0, last_spread);
         }
         let dim = members.len();
-        let guess: Vec<f64> = members.iter().map(|&m| u[m]).collect();
-        let sigma: Vec<f64> = members.iter().map(|&m| sigmas[m]).collect();
+        let origin: Vec<f64> = members.iter().map(|&m| u[m]).collect();
         let params = CmaesParams { popsize: popsize as i32, seed: self.seed.wrapping_add(history.len() as u64 * 97), ..CmaesParams::default() };
-        let mut cma = Cmaes::new(Fitness::bounded(dim, 1, &vec![0.0; dim], &vec![1.0; dim]), &guess, &sigma, &params);
+        // The unit box is far inside these bounds whatever the basis: points beyond it clamp.
+        let bound = 1e4;
+        let mut cma = Cmaes::new(Fitness::bounded(dim, 1, &vec![-bound; dim], &vec![bound; dim]), &vec![0.0; dim], &vec![1.0; dim], &params);
         let start: f64 = costs(self.rig, self.logs, &[self.set(u)])[0];
-        let mut best = (start, guess);
+        let mut best = (start, origin.clone());
         let mut candidates = 1;
         for _ in 0..generations {
-            let population = cma.ask();
+            let zs = cma.ask();
+            let population: Vec<Vec<f64>> = zs.iter().map(|z| basis.point(&origin, z).into_iter().map(|v| v.clamp(0.0, 1.0)).collect()).collect();
             let sets: Vec<Parameters> = population
                 .iter()
                 .map(|x| {
@@ -177,7 +199,7 @@ impl Search<'_> {
             };
             progress(&g);
             history.push(g);
-            if spread.iter().all(|s| *s < 2e-3) {
+            if members.iter().zip(&spread).all(|(&index, s)| *s < settled[index]) {
                 break;
             }
         }

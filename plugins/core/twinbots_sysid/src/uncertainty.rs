@@ -8,7 +8,7 @@ use twinbots_sim::{ParameterKind, ParameterSpec, Parameters};
 
 use crate::replay::PreparedLog;
 use crate::rig::Rig;
-use crate::search::{Block, joint_costs};
+use crate::search::{Basis, Block, Range, joint_costs};
 
 /// One parameter's uncertainty.
 #[derive(Clone, Debug)]
@@ -173,4 +173,81 @@ fn invert(m: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
         }
     }
     Some(a.into_iter().map(|row| row[d..].to_vec()).collect())
+}
+
+/// A search basis over `members` (indices into `specs`) at unit-box point `u`: per block, `k`
+/// times the fit's statistical spread there, correlations included (the Cholesky factor of
+/// k²·2/n·H⁻¹, H the block's curvature per unit-box unit), so that the search starts as round
+/// in its coordinates as the error is. A block whose curvature is not positive definite falls
+/// back to one step per parameter (k conditional spreads, or `fallback`). Each parameter's step
+/// is kept within [`min`, `max`] of the unit box.
+#[allow(clippy::too_many_arguments)]
+pub fn whitened(curvatures: &[Curvature], blocks: &[Block], members: &[usize], ranges: &[Range], u: &[f64], samples: usize, k: f64, limits: (f64, f64, f64)) -> Basis {
+    let (min, max, fallback) = limits;
+    let n = samples as f64;
+    // How far the minimum lies, in statistical spreads: the Newton step −H⁻¹·slope of each
+    // block, measured in H. The search's first steps reach that far.
+    let mut distance2 = 0.0;
+    for (block, c) in blocks.iter().zip(curvatures) {
+        let d = block.members.len();
+        if let Some(inv) = invert(&c.hessian) {
+            let step: Vec<f64> = (0..d).map(|p| -(0..d).map(|q| inv[p][q] * c.slope[q]).sum::<f64>()).collect();
+            let quad = -(0..d).map(|p| c.slope[p] * step[p]).sum::<f64>();
+            if quad.is_finite() && quad > 0.0 {
+                distance2 += n / 2.0 * quad;
+            }
+        }
+    }
+    let k = k.max(distance2.sqrt() / (members.len().max(1) as f64).sqrt());
+    let position = |i: usize| members.iter().position(|&m| m == i);
+    let mut basis = vec![vec![0.0; members.len()]; members.len()];
+    for (block, c) in blocks.iter().zip(curvatures) {
+        // Parameter units per unit-box unit at the point.
+        let per_unit: Vec<f64> = block.members.iter().map(|&i| 1.0 / ranges[i].unit_spread(ranges[i].value(u[i]), 1.0)).collect();
+        let d = block.members.len();
+        let h: Vec<Vec<f64>> = (0..d).map(|p| (0..d).map(|q| c.hessian[p][q] * per_unit[p] * per_unit[q]).collect()).collect();
+        let factor = invert(&h)
+            .map(|inv| inv.iter().map(|row| row.iter().map(|v| k * k * 2.0 / n * v).collect::<Vec<f64>>()).collect::<Vec<_>>())
+            .and_then(|cov| cholesky(&cov));
+        let factor = factor.unwrap_or_else(|| {
+            let step = |p: usize| if h[p][p] > 0.0 { k * (2.0 / (n * h[p][p])).sqrt() } else { fallback };
+            (0..d).map(|p| (0..d).map(|q| if p == q { step(p) } else { 0.0 }).collect()).collect()
+        });
+        for p in 0..d {
+            let Some(row) = position(block.members[p]) else { continue };
+            // A row's norm is its parameter's step: scaled into the limits, directions kept.
+            let norm = factor[p].iter().map(|v| v * v).sum::<f64>().sqrt();
+            let scale = if norm > 0.0 { norm.clamp(min, max) / norm } else { 0.0 };
+            for q in 0..d {
+                if let Some(col) = position(block.members[q]) {
+                    basis[row][col] = factor[p][q] * scale;
+                }
+            }
+            if norm == 0.0 {
+                basis[row][row] = fallback;
+            }
+        }
+    }
+    Basis(basis)
+}
+
+/// The lower-triangular L with L·Lᵀ = m; `None` unless m is positive definite.
+fn cholesky(m: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
+    let d = m.len();
+    let mut l = vec![vec![0.0; d]; d];
+    for i in 0..d {
+        for j in 0..=i {
+            let sum: f64 = (0..j).map(|k| l[i][k] * l[j][k]).sum();
+            if i == j {
+                let v = m[i][i] - sum;
+                if !(v > 0.0 && v.is_finite()) {
+                    return None;
+                }
+                l[i][j] = v.sqrt();
+            } else {
+                l[i][j] = (m[i][j] - sum) / l[j][j];
+            }
+        }
+    }
+    Some(l)
 }
