@@ -181,12 +181,24 @@ fn a_calibration_reaches_the_run_settings() {
     assert!(!ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"), "{err}");
 }
 
-#[test]
-fn eval_logs_an_episode_that_replays() {
-    let dir = scratch("eval");
+/// A briefly trained cart-pole run in `dir/run`.
+fn trained_cartpole(dir: &Path) -> PathBuf {
     let run = dir.join("run");
     let (ok, _, err) = twinbots(&["train", "cartpole", "--timesteps", "512", "--out", run.to_str().unwrap()]);
     assert!(ok, "{err}");
+    run
+}
+
+/// Wheel 1's position RMSE (rad) in `twinbots replay`'s report.
+fn wheel_rmse(report: &str) -> f64 {
+    let line = report.lines().find(|l| l.starts_with("wheel1_joint")).unwrap_or_else(|| panic!("no wheel1_joint line in\n{report}"));
+    line.split_whitespace().nth(1).unwrap().parse().unwrap()
+}
+
+#[test]
+fn eval_logs_an_episode_that_replays() {
+    let dir = scratch("eval");
+    let run = trained_cartpole(&dir);
     let log = dir.join("episode.mcap");
     let (ok, out, err) = twinbots(&["eval", run.to_str().unwrap(), "--episodes", "1", "--log", log.to_str().unwrap()]);
     assert!(ok, "{err}");
@@ -199,16 +211,14 @@ fn eval_logs_an_episode_that_replays() {
     // The twin's own episode, replayed on its rig: the wheels follow their logged commands.
     let (ok, out, err) = twinbots(&["replay", "cartpole", log.to_str().unwrap(), "--out", dir.join("replay").to_str().unwrap()]);
     assert!(ok, "{err}");
-    let wheel: Vec<f64> = out.lines().find(|l| l.starts_with("wheel1_joint")).unwrap().split_whitespace().skip(1).take(1).map(|v| v.parse().unwrap()).collect();
-    assert!(wheel[0] < 0.05, "wheel 1 position RMSE {} rad\n{out}", wheel[0]);
+    let wheel = wheel_rmse(&out);
+    assert!(wheel < 0.05, "wheel 1 position RMSE {wheel} rad\n{out}");
 }
 
 #[test]
 fn robot_logs_its_episodes_on_a_calibrated_twin() {
     let dir = scratch("robot");
-    let run = dir.join("run");
-    let (ok, _, err) = twinbots(&["train", "cartpole", "--timesteps", "512", "--out", run.to_str().unwrap()]);
-    assert!(ok, "{err}");
+    let run = trained_cartpole(&dir);
     let onnx = dir.join("policy.onnx");
     let (ok, _, err) = twinbots(&["export", run.to_str().unwrap(), "--onnx", onnx.to_str().unwrap()]);
     assert!(ok, "{err}");
@@ -229,6 +239,6 @@ fn robot_logs_its_episodes_on_a_calibrated_twin() {
     // the wheels follow.
     let (ok, out, err) = twinbots(&["replay", "cartpole", log.to_str().unwrap(), "--calibration", cal.to_str().unwrap(), "--out", dir.join("replay").to_str().unwrap()]);
     assert!(ok, "{err}");
-    let wheel: f64 = out.lines().find(|l| l.starts_with("wheel1_joint")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+    let wheel = wheel_rmse(&out);
     assert!(wheel < 0.05, "wheel 1 position RMSE {wheel} rad\n{out}");
 }

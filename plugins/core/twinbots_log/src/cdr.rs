@@ -3,35 +3,41 @@
 //! from the end of the header; strings are a u32 length (with the NUL) then the bytes and a NUL;
 //! sequences a u32 count then the elements (an empty sequence adds no padding).
 
+/// The definitions of `std_msgs/Header` and the `builtin_interfaces/Time` in it, as a stamped
+/// message's schema ends them.
+macro_rules! header_schema {
+    () => {
+        "================================================================================
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"
+    };
+}
+
 /// `sensor_msgs/msg/JointState` as the `ros2msg` schema rosbag2 writes: the message, then
 /// each type it uses after a `===` line (the schema's `data` in MCAP).
-pub const JOINT_STATE_SCHEMA: &str = "std_msgs/Header header
+pub const JOINT_STATE_SCHEMA: &str = concat!(
+    "std_msgs/Header header
 string[] name
 float64[] position
 float64[] velocity
 float64[] effort
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-";
+",
+    header_schema!()
+);
 
 /// `geometry_msgs/msg/PoseStamped`, as above.
-pub const POSE_STAMPED_SCHEMA: &str = "std_msgs/Header header
+pub const POSE_STAMPED_SCHEMA: &str = concat!(
+    "std_msgs/Header header
 geometry_msgs/Pose pose
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-================================================================================
+",
+    header_schema!(),
+    "================================================================================
 MSG: geometry_msgs/Pose
 geometry_msgs/Point position
 geometry_msgs/Quaternion orientation
@@ -46,7 +52,8 @@ float64 x
 float64 y
 float64 z
 float64 w
-";
+"
+);
 
 /// A decoded JointState (times as seconds).
 #[derive(Clone, Debug, PartialEq)]
