@@ -96,6 +96,7 @@ impl LogRecorder {
 }
 
 /// Logs arena 0's episodes to `path` (see the module's docs).
+#[derive(Clone)]
 pub struct RobotLogPlugin {
     pub path: PathBuf,
     pub robot: String,
@@ -109,34 +110,27 @@ impl RobotLogPlugin {
     /// The plugin for `robot`'s twin, its joints in the robot's own (rig's) order.
     /// The path must name an `.mcap` or `.csv` file.
     pub fn new(entry: &crate::registry::RobotEntry, path: PathBuf, calibration: Option<&std::path::Path>) -> anyhow::Result<Self> {
-        let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-        anyhow::ensure!(
-            extension == "mcap" || extension == "csv",
-            "--log {}: a robot log is an .mcap or a .csv file (docs/logs.md)",
-            path.display()
-        );
+        twinbots_log::Format::of(&path)?;
         let order = twinbots_sysid::Rig::of(entry).map(|rig| rig.joints).unwrap_or_default();
         let calibration = calibration.map(|p| p.display().to_string()).unwrap_or_default();
         Ok(Self { path, robot: entry.name.to_string(), order, calibration })
     }
 }
 
-/// What [`RobotLogPlugin`] has done: episodes written, the last one's states and commands, and
-/// the first error writing one (logging stops there; the run goes on, and [`finish_log`]
-/// returns it).
-#[derive(Resource, Default)]
+/// What [`RobotLogPlugin`] is logging and has done: the episode being recorded, the states and
+/// commands of the last one written, and the first error writing one (logging stops there; the
+/// run goes on, and [`finish_log`] returns it).
+#[derive(Resource)]
 pub struct RobotLogging {
-    pub written: usize,
+    plugin: RobotLogPlugin,
+    recorder: Option<LogRecorder>,
     pub last: Option<(usize, usize)>,
     pub error: Option<String>,
-    recorder: Option<LogRecorder>,
-    plugin: Option<RobotLogPlugin>,
 }
 
 impl Plugin for RobotLogPlugin {
     fn build(&self, app: &mut App) {
-        let plugin = RobotLogPlugin { path: self.path.clone(), robot: self.robot.clone(), order: self.order.clone(), calibration: self.calibration.clone() };
-        app.insert_resource(RobotLogging { plugin: Some(plugin), ..Default::default() })
+        app.insert_resource(RobotLogging { plugin: self.clone(), recorder: None, last: None, error: None })
             .add_systems(Update, start_recording.before(SimSet::Radio).run_if(sim_started))
             .add_systems(Update, sample_step.after(SimSet::Sense).before(SimSet::Reset).run_if(sim_started))
             .add_systems(EnvReset, begin_episode.after(ResetSet::Observe));
@@ -155,10 +149,7 @@ fn start_recording(world: &mut World) {
         return;
     }
     let Some(arena) = arena_zero(world) else { return };
-    world.resource_scope(|world, mut logging: Mut<RobotLogging>| {
-        let plugin = logging.plugin.as_ref().expect("set by the plugin");
-        logging.recorder = Some(LogRecorder::new(world, &plugin.robot, arena, &plugin.order, &plugin.calibration));
-    });
+    world.resource_scope(|world, mut logging: Mut<RobotLogging>| logging.begin(world, arena));
 }
 
 fn sample_step(world: &mut World) {
@@ -170,6 +161,12 @@ fn sample_step(world: &mut World) {
 }
 
 impl RobotLogging {
+    /// Starts recording `arena` from the state it is in.
+    fn begin(&mut self, world: &mut World, arena: Entity) {
+        let plugin = &self.plugin;
+        self.recorder = Some(LogRecorder::new(world, &plugin.robot, arena, &plugin.order, &plugin.calibration));
+    }
+
     /// Writes the episode being recorded, if it has a step (the recorder is then done).
     fn write_current(&mut self) -> anyhow::Result<()> {
         if let Some(e) = &self.error {
@@ -177,10 +174,8 @@ impl RobotLogging {
         }
         let Some(recorder) = self.recorder.take().filter(|r| r.steps() > 0) else { return Ok(()) };
         let log = recorder.finish();
-        let path = &self.plugin.as_ref().expect("set by the plugin").path;
-        match twinbots_log::write(&log, path) {
+        match twinbots_log::write(&log, &self.plugin.path) {
             Ok(()) => {
-                self.written += 1;
                 self.last = Some((log.states.len(), log.commands.len()));
                 Ok(())
             }
@@ -212,7 +207,6 @@ fn begin_episode(world: &mut World) {
             eprintln!("warning: robot log not written, logging stops: {e:#}");
             return;
         }
-        let plugin = logging.plugin.as_ref().expect("set by the plugin");
-        logging.recorder = Some(LogRecorder::new(world, &plugin.robot, arena, &plugin.order, &plugin.calibration));
+        logging.begin(world, arena);
     });
 }

@@ -95,9 +95,9 @@ impl Arenas {
             }
         };
         let randomization = config.map(randomization).transpose().map_err(value_error)?;
-        let calibration = twinbots::settings::CalibrationSetting::read_optional(&entry, calibration.as_deref()).map_err(value_error)?;
+        let twin = twinbots::twin::Twin::of_files(&entry, calibration.as_deref(), log.as_deref()).map_err(value_error)?;
         let mut app = entry.app(task, num_envs, seed, design).map_err(value_error)?;
-        twinbots::twin::configure(&mut app, &entry, calibration.as_ref(), log.as_deref()).map_err(value_error)?;
+        twin.configure(&mut app, &entry).map_err(value_error)?;
         if let Some(r) = randomization.filter(|r| !r.is_off()) {
             app.add_plugins(RandomizationPlugin(r));
         }

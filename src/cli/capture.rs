@@ -38,7 +38,8 @@ pub struct Args {
     /// Render the twin calibrated by this file (`twinbots identify`'s calibration.toml).
     #[arg(long)]
     pub calibration: Option<std::path::PathBuf>,
-    /// Also write arena 0's latest complete episode as a robot log (.mcap or .csv).
+    /// Also write arena 0's latest episode (the running one at the last frame) as a robot log
+    /// (.mcap or .csv).
     #[arg(long)]
     pub log: Option<std::path::PathBuf>,
 }
@@ -110,8 +111,7 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     let view = camera(&entry, &args.camera)?;
     let model = args.model.as_deref().map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
     let mut app = entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?;
-    let calibration = twinbots::settings::CalibrationSetting::read_optional(&entry, args.calibration.as_deref())?;
-    twinbots::twin::configure(&mut app, &entry, calibration.as_ref(), args.log.as_deref())?;
+    twinbots::twin::Twin::of_files(&entry, args.calibration.as_deref(), args.log.as_deref())?.configure(&mut app, &entry)?;
     let mut env = AppVecEnv::new(app);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;

@@ -9,6 +9,7 @@ use twinbots_task::AppVecEnv;
 use twinbots::robot_log::finish_log;
 use twinbots::run::evaluation_env;
 use twinbots::settings::{CalibrationSetting, TrainSettings};
+use twinbots::twin::Twin;
 use crate::registry;
 
 /// The command's arguments.
@@ -67,7 +68,7 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let seed = settings.final_eval_seed();
     let arenas = arenas.unwrap_or(settings.arenas);
     let other_twin = calibration.map(|p| p.file_stem().unwrap_or_default().to_string_lossy().to_string());
-    let calibration = twin(&entry, &settings, calibration)?;
+    let calibration = evaluated_calibration(&entry, &settings, calibration)?;
     let params = calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default();
     let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, settings.in_process_pattern()?, &params)?;
     let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
@@ -82,12 +83,9 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     Ok(result)
 }
 
-/// The twin a run is evaluated on: the calibration `file` if given, else the run's own.
-fn twin(entry: &registry::RobotEntry, settings: &TrainSettings, file: Option<&Path>) -> anyhow::Result<Option<CalibrationSetting>> {
-    match file {
-        Some(path) => Ok(Some(CalibrationSetting::read(entry, path)?)),
-        None => Ok(settings.calibration.clone()),
-    }
+/// The calibration a run is evaluated with: the file's if given, else the run's own.
+fn evaluated_calibration(entry: &registry::RobotEntry, settings: &TrainSettings, file: Option<&Path>) -> anyhow::Result<Option<CalibrationSetting>> {
+    Ok(CalibrationSetting::read_optional(entry, file)?.or_else(|| settings.calibration.clone()))
 }
 
 /// Runs one deterministic evaluation episode of the run's model on one arena of its robot's
@@ -106,9 +104,9 @@ fn one_episode(
     let entry = registry::find(&settings.robot)?;
     let model = twinbots_learn::algos::load_run(&run_dir)?;
     let seed = settings.final_eval_seed();
-    let calibration = twin(&entry, &settings, calibration)?;
+    let twin = Twin { calibration: evaluated_calibration(&entry, &settings, calibration)?, log: log.map(Path::to_path_buf) };
     let mut app = entry.app(task, 1, seed, settings.in_process_pattern()?)?;
-    twinbots::twin::configure(&mut app, &entry, calibration.as_ref(), log)?;
+    twin.configure(&mut app, &entry)?;
     let mut env = AppVecEnv::new(app);
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut obs = env.reset(Some(seed))?;

@@ -45,6 +45,8 @@ pub struct Args {
 /// `twinbots record`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let rig = Rig::of(&registry::find(&args.robot)?)?;
+    // Before recording: a path no log can be written to.
+    twinbots_log::Format::of(&args.out)?;
     let truth = match &args.truth {
         Some(path) => read_calibration(path, &rig.catalogue, rig.robot)?,
         None => Parameters::default(),

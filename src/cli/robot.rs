@@ -15,6 +15,8 @@ use twinbots_learn::EvalResult;
 use twinbots_task::Episode;
 use twinbots_link::robot::{OnBoardPolicy, RobotRunState, ServerAddress, ServerToken};
 
+use twinbots::twin::Twin;
+
 use crate::registry;
 
 /// The command's arguments.
@@ -50,17 +52,9 @@ pub struct Args {
     pub log: Option<std::path::PathBuf>,
 }
 
-/// The twin the robots run, and where robot 0's episodes are logged.
-#[derive(Default)]
-pub struct Twin {
-    pub calibration: Option<twinbots::settings::CalibrationSetting>,
-    pub log: Option<std::path::PathBuf>,
-}
-
 /// `twinbots robot`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let calibration = twinbots::settings::CalibrationSetting::read_optional(&registry::find(&args.robot)?, args.calibration.as_deref())?;
-    let twin = Twin { calibration, log: args.log };
+    let twin = Twin::of_files(&registry::find(&args.robot)?, args.calibration.as_deref(), args.log.as_deref())?;
     match (args.server, args.policy) {
         (Some(server), _) => {
             let token = args.token.or_else(crate::cli::serve::token_from_env);
@@ -79,7 +73,7 @@ fn robot_app(robot: &str, arenas: usize, seed: u64, twin: &Twin, source: impl Re
     let entry = registry::find(robot)?;
     anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
     let mut app = entry.app(None, arenas, seed, DesignPattern::Server)?;
-    twinbots::twin::configure(&mut app, &entry, twin.calibration.as_ref(), twin.log.as_deref())?;
+    twin.configure(&mut app, &entry)?;
     app.insert_resource(source);
     app.finish();
     app.cleanup();

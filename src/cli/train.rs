@@ -128,7 +128,7 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
         .ok_or_else(|| anyhow::anyhow!("the server did not start: {first:?}"))?;
     println!("RobotServer (pid {}) listening on {addr}", server.id());
     // The robots run the run's twin.
-    let twin = crate::cli::robot::Twin { calibration: settings.calibration.clone(), log: None };
+    let twin = twinbots::twin::Twin { calibration: settings.calibration.clone(), log: None };
     let result = crate::cli::robot::against_server(&settings.robot, addr, settings.arenas, settings.seed, std::time::Duration::from_secs(10), &twin);
     if result.is_err() {
         // The robots gave up: the server would wait for robots for ever.

@@ -16,12 +16,36 @@ pub use log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog, ToolSa
 
 use std::path::Path;
 
+/// A log file's format, told by its extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Mcap,
+    Csv,
+}
+
+impl Format {
+    /// The format of `path` (`.mcap` or `.csv`, any case), or an error naming the file.
+    pub fn of(path: &Path) -> anyhow::Result<Self> {
+        match path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase().as_str() {
+            "mcap" => Ok(Self::Mcap),
+            "csv" => Ok(Self::Csv),
+            other => anyhow::bail!("{}: unknown log format '.{other}': a robot log is an .mcap or a .csv file (docs/logs.md)", path.display()),
+        }
+    }
+
+    fn extension(self) -> &'static str {
+        match self {
+            Self::Mcap => "mcap",
+            Self::Csv => "csv",
+        }
+    }
+}
+
 /// Reads a log, MCAP or CSV by its extension (`.mcap`, `.csv`); errors name the file.
 pub fn read(path: &Path) -> anyhow::Result<RobotLog> {
-    let log = match extension(path).as_str() {
-        "mcap" => mcap_file::read(path),
-        "csv" => csv_file::read(path),
-        other => Err(anyhow::anyhow!("unknown log format '.{other}' (known: .mcap, .csv)")),
+    let log = match Format::of(path)? {
+        Format::Mcap => mcap_file::read(path),
+        Format::Csv => csv_file::read(path),
     };
     let log = log.map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
     log.validate().map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
@@ -31,22 +55,18 @@ pub fn read(path: &Path) -> anyhow::Result<RobotLog> {
 /// Writes a log, MCAP or CSV by its extension, atomically (a temporary file renamed).
 pub fn write(log: &RobotLog, path: &Path) -> anyhow::Result<()> {
     log.validate().map_err(|e| anyhow::anyhow!("refusing to write {}: {e:#}", path.display()))?;
-    let bytes = match extension(path).as_str() {
-        "mcap" => mcap_file::to_bytes(log)?,
-        "csv" => csv_file::to_string(log).into_bytes(),
-        other => anyhow::bail!("{}: unknown log format '.{other}' (known: .mcap, .csv)", path.display()),
+    let format = Format::of(path)?;
+    let bytes = match format {
+        Format::Mcap => mcap_file::to_bytes(log)?,
+        Format::Csv => csv_file::to_string(log).into_bytes(),
     };
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;
     }
-    let tmp = path.with_extension(format!("{}.tmp", extension(path)));
+    let tmp = path.with_extension(format!("{}.tmp", format.extension()));
     std::fs::write(&tmp, bytes).map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
     std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     Ok(())
-}
-
-fn extension(path: &Path) -> String {
-    path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
 }
 
 #[cfg(test)]

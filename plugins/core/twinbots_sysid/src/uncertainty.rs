@@ -185,28 +185,37 @@ fn invert(m: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
 pub fn whitened(curvatures: &[Curvature], blocks: &[Block], members: &[usize], ranges: &[Range], u: &[f64], samples: usize, k: f64, limits: (f64, f64, f64)) -> Basis {
     let (min, max, fallback) = limits;
     let n = samples as f64;
+    // Per block: its curvature per unit-box unit (H scaled by the parameter units per unit-box
+    // unit at the point), the slope likewise, and the curvature's inverse if it has one.
+    let scaled: Vec<(Vec<Vec<f64>>, Vec<f64>, Option<Vec<Vec<f64>>>)> = blocks
+        .iter()
+        .zip(curvatures)
+        .map(|(block, c)| {
+            let per_unit: Vec<f64> = block.members.iter().map(|&i| 1.0 / ranges[i].unit_spread(ranges[i].value(u[i]), 1.0)).collect();
+            let d = block.members.len();
+            let h: Vec<Vec<f64>> = (0..d).map(|p| (0..d).map(|q| c.hessian[p][q] * per_unit[p] * per_unit[q]).collect()).collect();
+            let slope = (0..d).map(|p| c.slope[p] * per_unit[p]).collect();
+            let inverse = invert(&h);
+            (h, slope, inverse)
+        })
+        .collect();
     // How far the minimum lies, in statistical spreads: the Newton step −H⁻¹·slope of each
-    // block, measured in H. The search's first steps reach that far.
-    let mut distance2 = 0.0;
-    for (block, c) in blocks.iter().zip(curvatures) {
-        let d = block.members.len();
-        if let Some(inv) = invert(&c.hessian) {
-            let step: Vec<f64> = (0..d).map(|p| -(0..d).map(|q| inv[p][q] * c.slope[q]).sum::<f64>()).collect();
-            let quad = -(0..d).map(|p| c.slope[p] * step[p]).sum::<f64>();
-            if quad.is_finite() && quad > 0.0 {
-                distance2 += n / 2.0 * quad;
-            }
-        }
-    }
+    // block, measured in H (slopeᵀH⁻¹slope). The search's first steps reach that far.
+    let distance2: f64 = scaled
+        .iter()
+        .filter_map(|(_, slope, inverse)| {
+            let inv = inverse.as_ref()?;
+            let quad: f64 = slope.iter().enumerate().map(|(p, gp)| gp * inv[p].iter().zip(slope).map(|(v, gq)| v * gq).sum::<f64>()).sum();
+            (quad.is_finite() && quad > 0.0).then_some(n / 2.0 * quad)
+        })
+        .sum();
     let k = k.max(distance2.sqrt() / (members.len().max(1) as f64).sqrt());
     let position = |i: usize| members.iter().position(|&m| m == i);
     let mut basis = vec![vec![0.0; members.len()]; members.len()];
-    for (block, c) in blocks.iter().zip(curvatures) {
-        // Parameter units per unit-box unit at the point.
-        let per_unit: Vec<f64> = block.members.iter().map(|&i| 1.0 / ranges[i].unit_spread(ranges[i].value(u[i]), 1.0)).collect();
+    for (block, (h, _, inverse)) in blocks.iter().zip(&scaled) {
         let d = block.members.len();
-        let h: Vec<Vec<f64>> = (0..d).map(|p| (0..d).map(|q| c.hessian[p][q] * per_unit[p] * per_unit[q]).collect()).collect();
-        let factor = invert(&h)
+        let factor = inverse
+            .as_ref()
             .map(|inv| inv.iter().map(|row| row.iter().map(|v| k * k * 2.0 / n * v).collect::<Vec<f64>>()).collect::<Vec<_>>())
             .and_then(|cov| cholesky(&cov));
         let factor = factor.unwrap_or_else(|| {
