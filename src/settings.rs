@@ -10,7 +10,7 @@ use twinbots_api::DesignPattern;
 use twinbots_learn::algos;
 use twinbots_learn::learner::{Algorithm, config_from};
 use twinbots_learn::RunDir;
-use twinbots_task::randomization::Randomization;
+use twinbots_task::randomization::{FitSpread, Randomization};
 
 use crate::registry::RobotEntry;
 
@@ -31,14 +31,18 @@ pub struct CalibrationSetting {
     pub file: String,
     /// Its `[parameters]`, over the robot's nominal ones.
     pub parameters: BTreeMap<String, f64>,
+    /// Its `[spread]`: each fitted value's standard deviation, which
+    /// `randomization.calibration_spread` draws with (none in a hand-written file).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub spread: BTreeMap<String, f64>,
 }
 
 impl CalibrationSetting {
     /// Reads a calibration file, checked against the robot's parameters.
     pub fn read(entry: &RobotEntry, path: &Path) -> anyhow::Result<Self> {
         let rig = twinbots_sysid::Rig::of(entry)?;
-        let params = twinbots_task::calibration::read_calibration(path, &rig.catalogue, rig.robot)?;
-        Ok(Self { file: path.display().to_string(), parameters: params.0 })
+        let (params, spread) = twinbots_task::calibration::read_calibration_with_spread(path, &rig.catalogue, rig.robot)?;
+        Ok(Self { file: path.display().to_string(), parameters: params.0, spread: spread.0 })
     }
 
     /// [`CalibrationSetting::read`] of the file, if one is given.
@@ -49,6 +53,18 @@ impl CalibrationSetting {
     /// The parameters as the resource apps take.
     pub fn parameters(&self) -> twinbots_sim::Parameters {
         twinbots_sim::Parameters(self.parameters.clone())
+    }
+
+    /// Puts the calibration over the twin's nominal parameters in `app`, before its start-up
+    /// applies them, and its spread where randomization can draw with it.
+    pub fn configure(&self, app: &mut bevy::prelude::App) {
+        twinbots_task::calibration::calibrate(app, &self.parameters());
+        app.insert_resource(FitSpread(twinbots_sim::Parameters(self.spread.clone())));
+    }
+
+    /// `randomization`'s check that a spread it draws with is there.
+    pub fn check_randomization(calibration: Option<&Self>, randomization: &Randomization) -> anyhow::Result<()> {
+        randomization.check_spread(calibration.map(|c| twinbots_sim::Parameters(c.spread.clone())).as_ref())
     }
 }
 
@@ -134,9 +150,11 @@ impl ConfigFile {
 
 impl TrainSettings {
     /// Puts the run's calibration (if any) over the twin's nominal parameters in `app`, before
-    /// its start-up applies them.
+    /// its start-up applies them ([`CalibrationSetting::configure`]).
     pub fn calibrate(&self, app: &mut bevy::prelude::App) {
-        twinbots_task::calibration::calibrate(app, &self.calibration_parameters());
+        if let Some(c) = &self.calibration {
+            c.configure(app);
+        }
     }
 
     /// The run's calibrated parameters (none without a calibration).
@@ -185,6 +203,7 @@ impl TrainSettings {
         }
         self.design_pattern()?;
         self.randomization.validate()?;
+        CalibrationSetting::check_randomization(self.calibration.as_ref(), &self.randomization)?;
         Ok(())
     }
 

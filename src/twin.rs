@@ -29,7 +29,7 @@ impl Twin {
         let file = self.calibration.as_ref().map(|c| Path::new(&c.file));
         let plugin = self.log.as_ref().map(|path| RobotLogPlugin::new(entry, path.clone(), file)).transpose()?;
         if let Some(c) = &self.calibration {
-            twinbots_task::calibration::calibrate(app, &c.parameters());
+            c.configure(app);
         }
         if let Some(plugin) = plugin {
             app.add_plugins(plugin);

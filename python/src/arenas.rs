@@ -9,6 +9,7 @@ use twinbots_render::{Renderer, View};
 use twinbots_task::randomization::{Randomization, RandomizationPlugin};
 use twinbots_api::{DesignPattern, StepResult, TaskSpec, VecEnv};
 use twinbots_task::{AppVecEnv, RobotDescription};
+use twinbots::settings::CalibrationSetting;
 
 use crate::actions::check_and_clip;
 use crate::convert::{OnThisThread, episode_dict, no_panic, runtime_error, space_dict, task_dict, value_error};
@@ -96,6 +97,9 @@ impl Arenas {
         };
         let randomization = config.map(randomization).transpose().map_err(value_error)?;
         let twin = twinbots::twin::Twin::of_files(&entry, calibration.as_deref(), log.as_deref()).map_err(value_error)?;
+        if let Some(r) = &randomization {
+            CalibrationSetting::check_randomization(twin.calibration.as_ref(), r).map_err(value_error)?;
+        }
         let mut app = entry.app(task, num_envs, seed, design).map_err(value_error)?;
         twin.configure(&mut app, &entry).map_err(value_error)?;
         if let Some(r) = randomization.filter(|r| !r.is_off()) {

@@ -158,6 +158,20 @@ def test_make_vec_runs_a_calibrated_twin(tmp_path):
     bad.write_text("[parameters]\nelbow_joint.stiffness = 1.0\n")
     with pytest.raises(ValueError, match="unknown parameter 'elbow_joint.stiffness'"):
         twinbots.make_vec("ur5e", 1, calibration=bad)
+    # Randomization around a fit needs the fit's spread; with it, each reset draws anew.
+    with pytest.raises(ValueError, match=r"calibration_spread = 3 needs a calibration with a \[spread\]"):
+        twinbots.make_vec("ur5e", 1, calibration=slow, config={"calibration_spread": 3.0})
+    slow.write_text("[parameters]\ncommand_delay = 0.03\n[spread]\ncommand_delay = 0.01\n")
+    env = twinbots.make_vec("ur5e", 1, seed=3, calibration=slow, config={"calibration_spread": 3.0})
+    drawn = []
+    for _ in range(2):
+        env.reset(seed=3)
+        for _ in range(3):
+            obs = env.step(actions)[0]
+        drawn.append(obs)
+    env.close()
+    assert np.array_equal(drawn[0], drawn[1]), "a seed fixes the draw"
+    assert not np.allclose(drawn[0], finals[1]), "the same start, another delay than the fitted one"
 
 
 def test_make_vec_logs_arena_zero(tmp_path):

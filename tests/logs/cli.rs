@@ -176,6 +176,21 @@ fn a_calibration_reaches_the_run_settings() {
     let parameters = &settings["calibration"]["parameters"];
     assert_eq!(parameters["pole_joint.damping"].as_float(), Some(0.004), "{out}");
     assert_eq!(parameters["command_delay"].as_float(), Some(0.01), "{out}");
+    // Randomization around the fit needs the fit's spread…
+    let config = dir.join("config.toml");
+    std::fs::write(&config, "[randomization]\ncalibration_spread = 2.0\n").unwrap();
+    let train = |cal: &Path| twinbots(&["train", "cartpole", "--calibration", cal.to_str().unwrap(), "--config", config.to_str().unwrap(), "--print-config"]);
+    let (ok, _, err) = train(&cal);
+    assert!(!ok && err.contains("calibration_spread = 2 needs a calibration with a [spread] table"), "{err}");
+    // …which the run records with the calibration.
+    std::fs::write(&cal, "[parameters]\npole_joint.damping = 0.004\n[spread]\npole_joint.damping = 0.001\n").unwrap();
+    let (ok, out, err) = train(&cal);
+    assert!(ok, "{err}");
+    let settings: toml::Table = toml::from_str(&out).unwrap();
+    assert_eq!(settings["calibration"]["spread"]["pole_joint.damping"].as_float(), Some(0.001), "{out}");
+    std::fs::write(&cal, "[parameters]\npole_joint.damping = 0.004\n[spread]\ncommand_delay = 0.001\n").unwrap();
+    let (ok, _, err) = train(&cal);
+    assert!(!ok && err.contains("calibration.toml") && err.contains("[spread] names 'command_delay'"), "{err}");
     std::fs::write(&cal, "[parameters]\npole_joint.stiffness = 1.0\n").unwrap();
     let (ok, _, err) = twinbots(&["train", "cartpole", "--calibration", cal.to_str().unwrap(), "--print-config"]);
     assert!(!ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"), "{err}");

@@ -1,7 +1,9 @@
 //! Calibration and truth files: TOML with a `[parameters]` table of `name = value` (SI units,
 //! the names `twinbots identify <robot> --list-params` prints) and any other tables of
 //! metadata. A name holds dots (`elbow_joint.damping`); written bare, TOML reads it as a dotted
-//! key (a nested table), quoted as one key: both read the same.
+//! key (a nested table), quoted as one key: both read the same. `twinbots identify` adds a
+//! `[spread]` table (each fitted value's standard deviation, same names and units), which domain
+//! randomization can draw around the fit with (`randomization.calibration_spread`).
 
 use std::path::Path;
 
@@ -10,12 +12,21 @@ use twinbots_sim::{ParameterSpec, Parameters};
 
 /// Reads the `[parameters]` of a calibration's TOML text; the error names the entry at fault.
 pub fn parse_parameters(text: &str) -> anyhow::Result<Parameters> {
+    parse_table(text, "parameters")?.ok_or_else(|| anyhow::anyhow!("no [parameters] table"))
+}
+
+/// Reads the `[spread]` of a calibration's TOML text (none: an empty set).
+pub fn parse_spread(text: &str) -> anyhow::Result<Parameters> {
+    Ok(parse_table(text, "spread")?.unwrap_or_default())
+}
+
+fn parse_table(text: &str, name: &str) -> anyhow::Result<Option<Parameters>> {
     let table: toml::Table = toml::from_str(text).map_err(|e| anyhow::anyhow!("not valid TOML: {e}"))?;
-    let Some(parameters) = table.get("parameters") else { bail!("no [parameters] table") };
-    let toml::Value::Table(parameters) = parameters else { bail!("'parameters' is not a table") };
+    let Some(values) = table.get(name) else { return Ok(None) };
+    let toml::Value::Table(values) = values else { bail!("'{name}' is not a table") };
     let mut out = Parameters::default();
-    flatten("", parameters, &mut out)?;
-    Ok(out)
+    flatten("", values, &mut out)?;
+    Ok(Some(out))
 }
 
 fn flatten(prefix: &str, table: &toml::Table, out: &mut Parameters) -> anyhow::Result<()> {
@@ -34,10 +45,25 @@ fn flatten(prefix: &str, table: &toml::Table, out: &mut Parameters) -> anyhow::R
 /// Reads a calibration (or truth) file and checks its names against the robot's parameters;
 /// errors name the file.
 pub fn read_calibration(path: &Path, catalogue: &[ParameterSpec], robot: &str) -> anyhow::Result<Parameters> {
+    Ok(read_calibration_with_spread(path, catalogue, robot)?.0)
+}
+
+/// [`read_calibration`] and the file's `[spread]`: every name a parameter the file sets, every
+/// value finite and ≥ 0.
+pub fn read_calibration_with_spread(path: &Path, catalogue: &[ParameterSpec], robot: &str) -> anyhow::Result<(Parameters, Parameters)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read calibration {}", path.display()))?;
     let params = parse_parameters(&text).with_context(|| format!("calibration {}", path.display()))?;
     params.check(catalogue, robot).map_err(|e| anyhow::anyhow!("calibration {}: {e}", path.display()))?;
-    Ok(params)
+    let spread = parse_spread(&text).with_context(|| format!("calibration {}", path.display()))?;
+    for (name, sigma) in &spread.0 {
+        anyhow::ensure!(
+            params.0.contains_key(name),
+            "calibration {}: [spread] names '{name}', which its [parameters] do not set",
+            path.display()
+        );
+        anyhow::ensure!(sigma.is_finite() && *sigma >= 0.0, "calibration {}: [spread] '{name}' = {sigma}: must be finite and ≥ 0", path.display());
+    }
+    Ok((params, spread))
 }
 
 /// Puts `params` over the twin's parameters in an app not yet started (its start-up applies
@@ -84,5 +110,7 @@ mod tests {
         let err = parse_parameters("[parameters]\nelbow.damping = 'high'\n").unwrap_err().to_string();
         assert!(err.contains("'elbow.damping'"), "{err}");
         assert!(parse_parameters("[fit]\n").unwrap_err().to_string().contains("no [parameters]"));
+        assert_eq!(parse_spread("[parameters]\nx = 1\n").unwrap(), Parameters::default());
+        assert_eq!(parse_spread("[spread]\n\"elbow.damping\" = 0.5\n").unwrap().get("elbow.damping"), Some(0.5));
     }
 }

@@ -5,13 +5,21 @@
 //! randomization drawn at every reset: link masses, friction, motor strength; and sensor noise
 //! and action latency throughout. Everything is drawn from the arena's random stream, so a seed
 //! still fixes the trajectory. (Design pattern 1 and 2 envs; pattern-3 robots run their own.)
+//!
+//! Centred on a calibration: with `calibration_spread = k`, every reset draws each fitted
+//! parameter of the run's calibration (`twinbots identify`'s file) from a normal distribution
+//! around its fitted value with k times the fit's standard deviation (its `[spread]` table, the
+//! [`FitSpread`] resource), per arena; values that must be positive are clamped at zero, and
+//! encoder biases (which the physics does not carry) are left alone.
 
 use std::collections::VecDeque;
 
 use bevy::prelude::*;
 use rand::Rng;
+use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
-use twinbots_sim::{Arena, InArena, Motor, PositionSensor, SimSet};
+use twinbots_sim::parameters::apply_to_joint;
+use twinbots_sim::{Arena, InArena, Joint, JointDynamics, Motor, Parameters, PositionSensor, SimSet};
 
 use crate::task::{Action, ActiveTask, EnvReset, ResetSet, Resetting};
 
@@ -33,7 +41,16 @@ pub struct Randomization {
     pub sensor_noise: f32,
     /// Control steps between an action and its effect.
     pub action_latency: u32,
+    /// Draw the calibration's fitted parameters around their values with this multiple of the
+    /// fit's standard deviation (0: the fitted values as they are). Needs a calibration with a
+    /// `[spread]` table.
+    pub calibration_spread: f32,
 }
+
+/// A calibration's standard deviation per fitted parameter (its `[spread]` table): what
+/// `calibration_spread` scales. Its centre is the app's [`Parameters`].
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct FitSpread(pub Parameters);
 
 impl Default for Randomization {
     fn default() -> Self {
@@ -45,6 +62,7 @@ impl Default for Randomization {
             motor_strength: [1.0, 1.0],
             sensor_noise: 0.0,
             action_latency: 0,
+            calibration_spread: 0.0,
         }
     }
 }
@@ -89,6 +107,22 @@ impl Randomization {
             "randomization.sensor_noise = {}: must be a finite number in [0, 1000]",
             self.sensor_noise
         );
+        anyhow::ensure!(
+            self.calibration_spread.is_finite() && (0.0..=100.0).contains(&self.calibration_spread),
+            "randomization.calibration_spread = {}: must be a finite multiple of the fit's standard deviation in [0, 100]",
+            self.calibration_spread
+        );
+        Ok(())
+    }
+
+    /// A clear error when `calibration_spread` is asked for without a spread to scale.
+    pub fn check_spread(&self, spread: Option<&Parameters>) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.calibration_spread == 0.0 || spread.is_some_and(|s| !s.0.is_empty()),
+            "randomization.calibration_spread = {} needs a calibration with a [spread] table \
+             (`--calibration FILE`; `twinbots identify` writes one)",
+            self.calibration_spread
+        );
         Ok(())
     }
 }
@@ -109,7 +143,7 @@ impl Plugin for RandomizationPlugin {
             // Actions are replaced or delayed before anything applies them, or radios them to a
             // slave robot (design pattern 2).
             .add_systems(Update, randomize_actions.in_set(SimSet::ProcessActions))
-            .add_systems(EnvReset, randomize_episode.in_set(ResetSet::Place));
+            .add_systems(EnvReset, (randomize_episode, draw_calibration).chain().in_set(ResetSet::Place));
     }
 }
 
@@ -168,6 +202,41 @@ fn randomize_episode(
         if let Some(mut state) = state {
             state.random_steps_left = random_steps;
             state.pending.clear();
+        }
+    }
+}
+
+/// At every reset, with `calibration_spread`: the fitted parameters drawn around the fit, in
+/// the spread's (name) order, per arena.
+fn draw_calibration(
+    config: Res<Randomization>,
+    centre: Option<Res<Parameters>>,
+    spread: Option<Res<FitSpread>>,
+    mut arenas: Query<(Entity, &mut Arena), With<Resetting>>,
+    mut joints: Query<(&Joint, &mut JointDynamics, Option<&mut Motor>, &InArena)>,
+) {
+    let (Some(centre), Some(spread)) = (centre, spread) else { return };
+    if config.calibration_spread == 0.0 {
+        return;
+    }
+    let k = config.calibration_spread as f64;
+    for (entity, mut arena) in &mut arenas {
+        let arena = &mut *arena;
+        let mut drawn = Parameters::default();
+        for (name, sigma) in spread.0.0.iter().filter(|(name, _)| !name.ends_with(".bias")) {
+            let Some(value) = centre.get(name) else { continue };
+            let z: f64 = StandardNormal.sample(&mut arena.rng);
+            drawn.0.insert(name.clone(), (value + k * sigma * z).max(0.0));
+        }
+        for (joint, mut dynamics, motor, in_arena) in &mut joints {
+            if in_arena.0 != entity {
+                continue;
+            }
+            // The restored world carries the fitted armature: a new one is added relative to it.
+            if let Some(fitted) = centre.get(&format!("{}.armature", joint.name)) {
+                dynamics.armature_restored(fitted as f32);
+            }
+            apply_to_joint(&mut arena.world, joint, &mut dynamics, motor.map(|m| m.into_inner()), &drawn);
         }
     }
 }

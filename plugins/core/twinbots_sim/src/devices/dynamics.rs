@@ -34,6 +34,12 @@ impl JointDynamics {
         self.armature
     }
 
+    /// Records that the child body holds `armature` again, after the arena's world was restored
+    /// to a snapshot taken with it (so [`set_armature`] adds the next one relative to it).
+    pub fn armature_restored(&mut self, armature: f32) {
+        self.armature = armature;
+    }
+
     /// The torque (force) damping and friction exert on the joint at speed `v`.
     pub fn torque(&self, v: f32) -> f32 {
         -(self.damping * v + self.friction * (v / FRICTION_SMOOTHING).tanh())
@@ -56,10 +62,12 @@ pub fn set_armature(world: &mut PhysicsWorld, joint: &Joint, dynamics: &mut Join
         _ => body.mass_properties().local_mprops,
     };
     if joint.kind.is_rotational() {
+        // The rotor's inertia about the axis, added to the body's matrix (a sum of mass
+        // properties would drop a negative change, and a smaller armature must come off too).
         let axis = frame.rotation * Vec3::X;
-        let inertia = Mat3::from_cols(axis * axis.x, axis * axis.y, axis * axis.z) * delta;
-        let rotor = MassProperties::with_inertia_matrix(props.local_com, 0.0, inertia);
-        body.set_additional_mass_properties(props + rotor, true);
+        let rotor = Mat3::from_cols(axis * axis.x, axis * axis.y, axis * axis.z) * delta;
+        let inertia = props.reconstruct_inertia_matrix() + rotor;
+        body.set_additional_mass_properties(MassProperties::with_inertia_matrix(props.local_com, props.mass(), inertia), true);
     } else {
         // A linear axis's armature is reflected mass.
         let mut p = props;
