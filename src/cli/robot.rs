@@ -34,11 +34,12 @@ pub struct Args {
     pub arenas: usize,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Seconds to keep trying to reach the server.
+    /// Seconds the robots wait for the server at most: for a reply (the welcome too), for it
+    /// to take a request, and for a connection that answers (reconnections back off up to 1 s).
     #[arg(long, default_value_t = 30, conflicts_with = "policy")]
     pub patience: u64,
-    /// The server's shared secret (default: $TWINBOTS_TOKEN, else none).
-    #[arg(long, conflicts_with = "policy")]
+    /// The server's shared secret (default: $TWINBOTS_TOKEN, else none; an empty one is refused).
+    #[arg(long, conflicts_with = "policy", value_parser = crate::cli::serve::non_empty_token)]
     pub token: Option<String>,
     /// With --policy: episodes to run before reporting their figures.
     #[arg(long, default_value_t = 10, conflicts_with = "server")]
@@ -57,6 +58,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let twin = Twin::of_files(&registry::find(&args.robot)?, args.calibration.as_deref(), args.log.as_deref())?;
     match (args.server, args.policy) {
         (Some(server), _) => {
+            anyhow::ensure!(args.patience >= 1, "--patience {}: must be at least 1 second", args.patience);
             let token = args.token.or_else(crate::cli::serve::token_from_env);
             against_server_with_token(&args.robot, server, args.arenas, args.seed, Duration::from_secs(args.patience), token, &twin).map(|_| ())
         }

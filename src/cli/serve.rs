@@ -31,7 +31,8 @@ pub struct Args {
     #[arg(long, default_value_t = 64)]
     pub max_robots: usize,
     /// A shared secret every robot's hello must carry (default: $TWINBOTS_TOKEN, else none).
-    #[arg(long)]
+    /// An empty one is refused: it is an unset variable, not a choice of no authentication.
+    #[arg(long, value_parser = non_empty_token)]
     pub token: Option<String>,
     /// Seconds a new connection has to send its whole hello.
     #[arg(long, default_value_t = 10.0)]
@@ -112,6 +113,16 @@ pub const PANIC_IN_UPDATE_ENV: &str = "TWINBOTS_TEST_PANIC_IN_UPDATE";
 /// (keeps it out of the process list).
 pub const TOKEN_ENV: &str = "TWINBOTS_TOKEN";
 
+/// `--token`'s value: refused when empty (`--token "$UNSET"` would otherwise switch the
+/// authentication off, silently).
+pub fn non_empty_token(value: &str) -> Result<String, String> {
+    if value.is_empty() {
+        return Err("an empty token is refused (an unset variable?); leave --token out for no token".into());
+    }
+    Ok(value.to_string())
+}
+
+/// An empty $TWINBOTS_TOKEN counts as unset.
 pub fn token_from_env() -> Option<String> {
     std::env::var(TOKEN_ENV).ok().filter(|t| !t.is_empty())
 }

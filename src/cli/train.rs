@@ -129,7 +129,7 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
     println!("RobotServer (pid {}) listening on {addr}", server.id());
     // The robots run the run's twin.
     let twin = twinbots::twin::Twin { calibration: settings.calibration.clone(), log: None };
-    let result = crate::cli::robot::against_server(&settings.robot, addr, settings.arenas, settings.seed, std::time::Duration::from_secs(10), &twin);
+    let result = crate::cli::robot::against_server(&settings.robot, addr, settings.arenas, settings.seed, std::time::Duration::from_secs(60), &twin);
     if result.is_err() {
         // The robots gave up: the server would wait for robots for ever.
         drop(server.stdin.take());

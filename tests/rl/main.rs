@@ -11,6 +11,7 @@ mod randomization;
 mod sac;
 mod td3;
 mod resume;
+mod robot_hostile;
 mod server;
 mod server_hostile;
 mod server_load;

@@ -3,8 +3,14 @@
 //! robot kind and spaces) and each request's numbers (finite as f32, the observation's length,
 //! the reward within the task's declared range). A message that fails is answered with an
 //! error and never reaches the learner.
+//!
+//! And what a robot checks of the server's replies ([`check_welcome`], [`check_action`]): a
+//! robot moves on what it is told, so a reply of another protocol version, for another robot
+//! or other spaces, or an action outside the robot's action space stops it with the reason.
 
 use crate::frame::{FrameError, decode};
+use twinbots_api::Space;
+
 use crate::protocol::{ErrorCode, RobotMessage, ServerMessage, TaskInterface, VERSION, error};
 
 /// A refused message: the error reply it gets.
@@ -124,4 +130,58 @@ pub fn check_request(message: &RobotMessage, task: &TaskInterface) -> Result<(),
         }
     }
     Ok(())
+}
+
+/// Checks the server's first reply on the robot's side: a `welcome` of this protocol's version
+/// for this robot kind and its spaces (version first, as the server does for `hello`), or an
+/// error reply (returned as it is, for the caller to tell retryable from fatal). Anything else
+/// is the problem, in words.
+pub fn check_welcome(payload: &[u8], robot: &str, observation_space: &Space, action_space: &Space) -> Result<ServerMessage, String> {
+    let value: serde_json::Value = decode(payload).map_err(|e| format!("its reply to hello is not a message: {e}"))?;
+    let kind = value.get("type").and_then(|t| t.as_str()).unwrap_or("").to_string();
+    if kind == "error" {
+        return serde_json::from_value(value).map_err(|e| format!("malformed error reply to hello: {e}"));
+    }
+    if kind != "welcome" {
+        return Err(format!("it answered hello with {:?}, not \"welcome\"", truncated(&kind, 40)));
+    }
+    match value.get("version").and_then(|v| v.as_u64()) {
+        Some(v) if v == u64::from(VERSION) => {}
+        Some(v) => return Err(format!("it speaks protocol version {v}; this robot speaks version {VERSION}")),
+        None => return Err(format!("its welcome has no protocol version; this robot speaks version {VERSION}")),
+    }
+    let welcome: ServerMessage = serde_json::from_value(value).map_err(|e| format!("malformed welcome: {e}"))?;
+    let ServerMessage::Welcome { task, .. } = &welcome else { unreachable!("the type was checked to be welcome") };
+    if task.robot != robot {
+        return Err(format!("it welcomed a {:?}, not this {robot:?}", truncated(&task.robot, 40)));
+    }
+    if task.observation_space != *observation_space || task.action_space != *action_space {
+        return Err(format!(
+            "its model has observation {} and action {}, this robot observation {observation_space} and action {action_space} (with bounds: `twinbots robots --json`)",
+            task.observation_space, task.action_space
+        ));
+    }
+    Ok(welcome)
+}
+
+/// Checks an action the server sent against the robot's action space.
+pub fn check_action(action: &[f32], space: &Space) -> Result<(), String> {
+    if space.contains(action) {
+        return Ok(());
+    }
+    let shown: Vec<String> = action.iter().take(8).map(|v| v.to_string()).collect();
+    let more = if action.len() > 8 { ", …" } else { "" };
+    let bounds = match space {
+        Space::Box { low, high } => format!(" (low {low:?}, high {high:?})"),
+        _ => String::new(),
+    };
+    Err(format!("it sent the action [{}{more}], outside this robot's action space {space}{bounds}", shown.join(", ")))
+}
+
+/// At most `max` characters of a peer-supplied string, marked when cut.
+pub fn truncated(text: &str, max: usize) -> String {
+    match text.char_indices().nth(max) {
+        Some((cut, _)) => format!("{}…", &text[..cut]),
+        None => text.to_string(),
+    }
 }

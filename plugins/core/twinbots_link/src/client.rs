@@ -1,24 +1,46 @@
 //! The robot's end of the RobotServer protocol: the Communicator device's connection. It
 //! introduces itself, exchanges one request and reply per control step, and when the server
 //! goes away it reconnects with exponential backoff.
+//!
+//! One bound on every wait, the `patience`: a reply (the `welcome` too) that does not come within
+//! it, a send the server does not take within it, and reconnections that get no request answered
+//! within it each stop the robot with the reason. Reconnections back off (20 ms doubling to 1 s)
+//! until a request is answered, so a server that welcomes and closes sees about one connection a
+//! second, not thousands. The server's replies are checked: its protocol version, robot and
+//! spaces in `welcome`, and every action against the robot's action space.
 
-use std::io::{BufReader, BufWriter};
+use std::io::{self, BufReader, BufWriter};
 use std::net::{SocketAddr, TcpStream};
 use std::time::{Duration, Instant};
 
 use twinbots_api::Space;
 
-use crate::frame::{FrameError, read_message, write_message};
+use crate::checks::{check_action, check_welcome};
+use crate::deadline::DeadlineStream;
+use crate::frame::{FrameError, read_frame, read_message, write_message};
 use crate::protocol::{ErrorCode, RobotMessage, ServerMessage, TaskInterface, VERSION};
+
+/// The first pause between reconnections, and the longest.
+const FIRST_BACKOFF: Duration = Duration::from_millis(20);
+const MAX_BACKOFF: Duration = Duration::from_secs(1);
 
 #[derive(Debug, thiserror::Error)]
 pub enum CommunicatorError {
     #[error("lost the server at {0}")]
     Disconnected(SocketAddr),
-    #[error("no server at {addr} after trying for {waited:?}")]
+    #[error("no server at {addr} after trying for {waited:.1?}")]
     Unreachable { addr: SocketAddr, waited: Duration },
     #[error("the server refused: {0}")]
     Refused(String),
+    /// Reached, but it did not answer (or take what was sent) in time.
+    #[error("the server at {addr} sent no {what} within {waited:.1?} (--patience)")]
+    Silent { addr: SocketAddr, what: &'static str, waited: Duration },
+    /// Reached, but what it sent is not this protocol, or not for this robot.
+    #[error("the server at {addr} broke the protocol: {problem}")]
+    Protocol { addr: SocketAddr, problem: String },
+    /// It keeps taking connections and dropping them before answering a request.
+    #[error("the server at {addr} took {connections} connections in {waited:.1?} but answered no request on them (it closes them)")]
+    Unresponsive { addr: SocketAddr, connections: u32, waited: Duration },
 }
 
 /// Who this robot is, for the `hello` message.
@@ -35,31 +57,43 @@ pub struct Identity {
 pub struct Communicator {
     addr: SocketAddr,
     identity: Identity,
-    /// How long to keep trying to (re)connect before giving up.
+    /// The longest wait: for a reply, for a send, and for a connection that answers.
     pub patience: Duration,
-    link: Option<(BufReader<TcpStream>, BufWriter<TcpStream>)>,
+    link: Option<(BufReader<DeadlineStream>, BufWriter<TcpStream>)>,
     pub robot_id: Option<u64>,
     /// What the server expects of this robot (its `welcome`).
     pub task: Option<TaskInterface>,
     /// Reconnections after the first connection.
     pub reconnects: u32,
+    /// Since when, and over how many connections, no request has been answered (`None` once
+    /// one is).
+    unanswered: Option<(Instant, u32)>,
+    /// The pause before the next connection attempt (`None`: connect at once).
+    backoff: Option<Duration>,
 }
 
 impl Communicator {
     pub fn new(addr: SocketAddr, identity: Identity, patience: Duration) -> Self {
-        Self { addr, identity, patience, link: None, robot_id: None, task: None, reconnects: 0 }
+        Self { addr, identity, patience, link: None, robot_id: None, task: None, reconnects: 0, unanswered: None, backoff: None }
     }
 
     pub fn is_connected(&self) -> bool {
         self.link.is_some()
     }
 
-    /// Connects (or reconnects) and says hello, retrying with backoff from 20 ms doubling to
-    /// 1 s until `patience` runs out.
+    /// Connects (or reconnects) and says hello, retrying with backoff until a connection is
+    /// welcomed, or `patience` has passed since the last answered request (or since the
+    /// first attempt).
     pub fn connect(&mut self) -> Result<(), CommunicatorError> {
-        let started = Instant::now();
-        let mut delay = Duration::from_millis(20);
+        let (since, _) = *self.unanswered.get_or_insert((Instant::now(), 0));
         loop {
+            if let Some(pause) = self.backoff {
+                if since.elapsed() + pause >= self.patience {
+                    return Err(self.gave_up(since.elapsed()));
+                }
+                std::thread::sleep(pause);
+            }
+            self.backoff = Some(self.backoff.map_or(FIRST_BACKOFF, |b| (b * 2).min(MAX_BACKOFF)));
             match self.try_connect() {
                 Ok(()) => {
                     if self.robot_id.is_some() {
@@ -67,21 +101,30 @@ impl Communicator {
                     }
                     return Ok(());
                 }
-                Err(CommunicatorError::Refused(r)) => return Err(CommunicatorError::Refused(r)),
-                Err(_) if started.elapsed() + delay < self.patience => {
-                    std::thread::sleep(delay);
-                    delay = (delay * 2).min(Duration::from_secs(1));
-                }
-                Err(_) => return Err(CommunicatorError::Unreachable { addr: self.addr, waited: started.elapsed() }),
+                Err(CommunicatorError::Disconnected(_)) => {}
+                Err(fatal) => return Err(fatal),
             }
+        }
+    }
+
+    /// Why the connection attempts ended.
+    fn gave_up(&self, waited: Duration) -> CommunicatorError {
+        match self.unanswered {
+            Some((_, connections)) if connections > 0 => CommunicatorError::Unresponsive { addr: self.addr, connections, waited },
+            _ => CommunicatorError::Unreachable { addr: self.addr, waited },
         }
     }
 
     fn try_connect(&mut self) -> Result<(), CommunicatorError> {
         let gone = |_| CommunicatorError::Disconnected(self.addr);
-        let stream = TcpStream::connect_timeout(&self.addr, Duration::from_secs(1)).map_err(gone)?;
+        let timeout = self.patience.clamp(Duration::from_millis(1), Duration::from_secs(1));
+        let stream = TcpStream::connect_timeout(&self.addr, timeout).map_err(gone)?;
         let _ = stream.set_nodelay(true);
-        let mut reader = BufReader::new(stream.try_clone().map_err(gone)?);
+        stream.set_write_timeout(Some(self.patience.max(Duration::from_millis(1)))).map_err(gone)?;
+        if let Some((_, connections)) = &mut self.unanswered {
+            *connections += 1;
+        }
+        let mut reader = BufReader::new(DeadlineStream::new(stream.try_clone().map_err(gone)?));
         let mut writer = BufWriter::new(stream);
         let hello = RobotMessage::Hello {
             version: VERSION,
@@ -90,19 +133,42 @@ impl Communicator {
             action_space: self.identity.action_space.clone(),
             token: self.identity.token.clone(),
         };
-        write_message(&mut writer, &hello).map_err(gone)?;
-        match read_message::<ServerMessage>(&mut reader) {
-            Ok(ServerMessage::Welcome { robot_id, task, .. }) => {
+        write_message(&mut writer, &hello).map_err(|e| self.send_failed(e))?;
+        reader.get_mut().expire_in(self.patience);
+        let payload = read_frame(&mut reader).map_err(|e| self.read_failed(e, "welcome"))?;
+        let id = &self.identity;
+        let welcome = check_welcome(&payload, &id.robot, &id.observation_space, &id.action_space)
+            .map_err(|problem| CommunicatorError::Protocol { addr: self.addr, problem })?;
+        match welcome {
+            ServerMessage::Welcome { robot_id, task, .. } => {
                 self.robot_id = Some(robot_id);
                 self.task = Some(task);
                 self.link = Some((reader, writer));
                 Ok(())
             }
             // A full or busy server may have room later: keep trying within the patience.
-            Ok(ServerMessage::Error { code: ErrorCode::ServerFull | ErrorCode::Unavailable, .. }) => Err(CommunicatorError::Disconnected(self.addr)),
-            Ok(ServerMessage::Error { message, .. }) => Err(CommunicatorError::Refused(message)),
-            Ok(other) => Err(CommunicatorError::Refused(format!("unexpected reply to hello: {other:?}"))),
-            Err(_) => Err(CommunicatorError::Disconnected(self.addr)),
+            ServerMessage::Error { code: ErrorCode::ServerFull | ErrorCode::Unavailable, .. } => Err(CommunicatorError::Disconnected(self.addr)),
+            ServerMessage::Error { message, .. } => Err(CommunicatorError::Refused(crate::checks::truncated(&message, 200))),
+            other => unreachable!("check_welcome passes a welcome or an error only, not {other:?}"),
+        }
+    }
+
+    /// A send that failed: the server is gone, or took nothing within the patience.
+    fn send_failed(&self, e: io::Error) -> CommunicatorError {
+        match e.kind() {
+            io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut => {
+                CommunicatorError::Silent { addr: self.addr, what: "room for a request (it reads nothing)", waited: self.patience }
+            }
+            _ => CommunicatorError::Disconnected(self.addr),
+        }
+    }
+
+    /// A reply that could not be read: gone (reconnect), silent, or not a frame of this protocol.
+    fn read_failed(&self, e: FrameError, what: &'static str) -> CommunicatorError {
+        match e {
+            FrameError::Io(_) => CommunicatorError::Disconnected(self.addr),
+            FrameError::TimedOut => CommunicatorError::Silent { addr: self.addr, what, waited: self.patience },
+            other => CommunicatorError::Protocol { addr: self.addr, problem: format!("unreadable {what}: {other}") },
         }
     }
 
@@ -111,25 +177,33 @@ impl Communicator {
     pub fn send(&mut self, message: &RobotMessage) -> Result<(), CommunicatorError> {
         let addr = self.addr;
         let (_, writer) = self.link.as_mut().ok_or(CommunicatorError::Disconnected(addr))?;
-        if write_message(writer, message).is_err() {
+        if let Err(e) = write_message(writer, message) {
             self.link = None;
-            return Err(CommunicatorError::Disconnected(addr));
+            return Err(self.send_failed(e));
         }
         Ok(())
     }
 
-    /// Waits for the reply to the last request.
+    /// Waits (up to the patience) for the reply to the last request; an action is checked
+    /// against the robot's action space.
     pub fn receive(&mut self) -> Result<ServerMessage, CommunicatorError> {
         let addr = self.addr;
         let (reader, _) = self.link.as_mut().ok_or(CommunicatorError::Disconnected(addr))?;
-        match read_message::<ServerMessage>(reader) {
-            Ok(m) => Ok(m),
-            Err(FrameError::Io(_)) => {
+        reader.get_mut().expire_in(self.patience);
+        let reply = match read_message::<ServerMessage>(reader) {
+            Ok(reply) => reply,
+            Err(e) => {
                 self.link = None;
-                Err(CommunicatorError::Disconnected(addr))
+                return Err(self.read_failed(e, "reply"));
             }
-            Err(e) => Err(CommunicatorError::Refused(format!("unreadable reply: {e}"))),
+        };
+        if let ServerMessage::Action { action } = &reply {
+            check_action(action, &self.identity.action_space).map_err(|problem| CommunicatorError::Protocol { addr, problem })?;
         }
+        // An answered request: the connection works, so a later loss reconnects at once.
+        self.unanswered = None;
+        self.backoff = None;
+        Ok(reply)
     }
 
     /// Leaves politely.

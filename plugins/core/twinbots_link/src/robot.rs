@@ -25,6 +25,7 @@ use twinbots_task::task::{TaskSet, Terms, configure_task_sets};
 use twinbots_task::{Action, ActiveTask, Episode};
 use twinbots_sim::{Arena, SimSet};
 
+use crate::checks::truncated;
 use crate::client::{Communicator, CommunicatorError, Identity};
 pub use crate::onboard::{OnBoardLink, OnBoardPolicy};
 pub use crate::policy_link::PolicyLink;
@@ -66,12 +67,18 @@ pub struct Conversation {
     link: Box<dyn PolicyLink>,
     pub phase: Phase,
     awaiting_reply: bool,
+    /// Requests refused in a row (non-fatal error replies).
+    refused: u32,
 }
+
+/// Non-fatal refusals in a row after which a robot stops: a server that refuses everything
+/// this robot sends will not start using it.
+const MAX_REFUSED: u32 = 3;
 
 impl Conversation {
     /// A conversation over `link` (connected), beginning by homing.
     pub fn over(link: Box<dyn PolicyLink>) -> Self {
-        Self { link, phase: Phase::Homing, awaiting_reply: false }
+        Self { link, phase: Phase::Homing, awaiting_reply: false, refused: 0 }
     }
 
     /// Connects to a RobotServer (retrying until the address's patience runs out) and begins
@@ -92,9 +99,10 @@ impl Conversation {
     /// Sends this step's message: `start` when starting, the step's outcome when running.
     /// Send every robot's message before receiving any reply, so the server works on all.
     pub fn send(&mut self, message: &RobotMessage, state: &mut RobotRunState) {
-        self.awaiting_reply = self.link.send(message).is_ok();
-        if !self.awaiting_reply {
-            self.lost(state);
+        match self.link.send(message) {
+            Ok(()) => self.awaiting_reply = true,
+            Err(CommunicatorError::Disconnected(_)) => self.lost(state),
+            Err(e) => state.stop = Some(Err(e.to_string())),
         }
     }
 
@@ -105,6 +113,7 @@ impl Conversation {
         }
         match self.link.receive() {
             Ok(ServerMessage::Action { action }) => {
+                self.refused = 0;
                 if self.phase == Phase::Starting {
                     self.phase = Phase::Running;
                 }
@@ -114,15 +123,29 @@ impl Conversation {
                 state.episodes += 1;
                 self.phase = Phase::Homing;
             }
-            Ok(ServerMessage::Done { reason }) => state.stop = Some(Ok(reason)),
+            Ok(ServerMessage::Done { reason }) => state.stop = Some(Ok(truncated(&reason, 200))),
             // The server closed an idle connection (a robot that homed for longer than its
             // read timeout): the link is lost, not the training.
             Ok(ServerMessage::Error { code: ErrorCode::Timeout, .. }) => self.lost(state),
-            Ok(ServerMessage::Error { message, fatal: true, .. }) => state.stop = Some(Err(message)),
-            Ok(ServerMessage::Error { message, .. }) => warn!("server: {message}"),
-            Ok(ServerMessage::Welcome { .. }) => {}
-            Err(_) => self.lost(state),
+            Ok(ServerMessage::Error { message, fatal: true, .. }) => state.stop = Some(Err(truncated(&message, 200))),
+            // The request was not used: the episode cannot go on without an action. The robot
+            // homes and starts afresh (a `start` drops the running episode), and stops if the
+            // server refuses request after request.
+            Ok(ServerMessage::Error { message, .. }) => {
+                let message = truncated(&message, 200);
+                warn!("server refused a request: {message}");
+                self.refused += 1;
+                self.phase = Phase::Homing;
+                if self.refused >= MAX_REFUSED {
+                    state.stop = Some(Err(format!("the server refused {MAX_REFUSED} requests in a row; the last: {message}")));
+                }
+                return None;
+            }
+            Ok(ServerMessage::Welcome { .. }) => state.stop = Some(Err("the server sent a second welcome in the middle of the conversation".into())),
+            Err(CommunicatorError::Disconnected(_)) => self.lost(state),
+            Err(e) => state.stop = Some(Err(e.to_string())),
         }
+        self.refused = 0;
         None
     }
 
