@@ -387,3 +387,65 @@ fn serve_and_robot_agree_on_a_token_from_the_environment() {
     std::fs::remove_dir_all(&out).ok();
     let _ = serve_process; // the shared helper, used by server.rs
 }
+
+/// One robot of `spec` trains a normalising PPO server for about two rollouts on a fixed,
+/// plausible sensor sequence; with `attack`, its sensor also reports ±1e6 every seventh step
+/// (each such step is sent before the true one). The actions it got and the server's
+/// observation statistics.
+fn trained_under_attack(robot_name: &str, spec: &twinbots_api::TaskSpec, attack: bool) -> (Vec<Vec<f32>>, twinbots_learn::normalize::RunningMeanStd) {
+    use twinbots_learn::{Ppo, PpoConfig};
+    use twinbots_server::server::{RobotServer, ServerSettings};
+    let config = PpoConfig { normalize_observations: true, ..PpoConfig::zoo_cartpole() };
+    let model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
+    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, ServerSettings::new(robot_name, spec, 128, 300), Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))).unwrap();
+    let mut robot = crate::server::Robot::connect(server.addr);
+    let hello = RobotMessage::Hello {
+        version: VERSION,
+        robot: robot_name.into(),
+        observation_space: spec.observation_space.clone(),
+        action_space: spec.action_space.clone(),
+        token: None,
+    };
+    assert!(matches!(robot.call(&hello), ServerMessage::Welcome { .. }));
+    let dim = spec.observation_space.dim();
+    // Readings well inside every value's plausible range (and the UR5e's bounded terms).
+    let reading = |t: usize| (0..dim).map(|i| 0.5 * ((t * 7 + i * 3) as f32 * 0.1).sin()).collect::<Vec<f32>>();
+    let reward = 0f32.clamp(spec.reward_range.0, spec.reward_range.1);
+    let mut actions = Vec::new();
+    let mut reply = robot.call(&RobotMessage::Start { obs: reading(0) });
+    for t in 1.. {
+        match reply {
+            ServerMessage::Action { action } => actions.push(action),
+            ServerMessage::Ack => {}
+            ServerMessage::Done { .. } => break,
+            other => panic!("{other:?}"),
+        }
+        if attack && t % 7 == 0 {
+            let mut wild = reading(t);
+            wild[t % dim] = if t % 14 == 0 { -1e6 } else { 1e6 };
+            let refused = robot.call(&RobotMessage::Step { obs: wild, reward, terminated: false, truncated: false, success: None });
+            assert_eq!(code(&refused), (ErrorCode::ObservationOutOfRange, false), "{refused:?}");
+            assert!(message(&refused).contains("outside its plausible range"), "{refused:?}");
+        }
+        let ended = t % 50 == 0;
+        reply = robot.call(&RobotMessage::Step { obs: reading(t), reward, terminated: ended, truncated: false, success: None });
+        if ended {
+            assert_eq!(reply, ServerMessage::Ack);
+            reply = robot.call(&RobotMessage::Start { obs: reading(t) });
+        }
+    }
+    let (model, _) = server.wait().unwrap();
+    (actions, model.obs_rms.expect("the model normalises"))
+}
+
+#[test]
+fn a_faulty_sensors_1e6_is_refused_and_training_ends_as_a_clean_run() {
+    for (name, spec) in [("cartpole", cartpole::task_spec()), ("ur5e", ur5e::task_spec())] {
+        let (clean_actions, clean_rms) = trained_under_attack(name, &spec, false);
+        let (attacked_actions, attacked_rms) = trained_under_attack(name, &spec, true);
+        assert!(clean_actions.len() > 256, "{name}: two rollouts and more");
+        assert_eq!(attacked_rms, clean_rms, "{name}: the attack never reached the statistics");
+        assert_eq!(attacked_actions, clean_actions, "{name}: nor the policy");
+        assert!(clean_rms.var.iter().all(|v| *v < 1.0), "{name}: {:?}", clean_rms.var);
+    }
+}

@@ -53,6 +53,10 @@ pub struct TaskSpec {
     /// The lowest and highest reward of one step ([`TaskTerms::reward_range`]); a RobotServer
     /// refuses rewards outside it.
     pub reward_range: (f32, f32),
+    /// Where a working sensor's readings lie, per observation value (a Box; each term's
+    /// declared range, else its bounds): a RobotServer refuses observations outside it, so a
+    /// faulty sensor cannot reach the learner.
+    pub observation_plausible: Space,
     /// For goal-conditioned tasks: where the observation holds its goals, and the reward for a
     /// substituted goal (what HER relabels with).
     pub goal: Option<GoalSpec>,

@@ -1,4 +1,9 @@
-//! Running mean and variance of observations (Welford, batched; as SB3's RunningMeanStd).
+//! Running mean and variance of observations (Welford, batched; as SB3's RunningMeanStd), with
+//! one difference: a bounded step per sample. Once the statistics rest on [`WARMUP`] samples,
+//! each value enters them clipped to mean ± [`CLIP`] standard deviations, the same bound its
+//! normalised value is clipped to. One wild reading (a faulty sensor's 1e6) then moves the
+//! variance by at most CLIP²/count instead of 1e12/count; values within 10 σ, which is every
+//! value of a working sensor in practice, are folded in exactly as SB3 does.
 
 use serde::{Deserialize, Serialize};
 
@@ -11,6 +16,8 @@ pub struct RunningMeanStd {
 
 /// Normalised observations are clipped to ±this.
 pub const CLIP: f32 = 10.0;
+/// Samples after which values entering the statistics are clipped to mean ± CLIP σ.
+pub const WARMUP: f64 = 1000.0;
 
 impl RunningMeanStd {
     pub fn new(dim: usize) -> Self {
@@ -24,8 +31,11 @@ impl RunningMeanStd {
         if n == 0.0 {
             return;
         }
+        let robust = self.count >= WARMUP;
         for k in 0..dim {
-            let xs = batch.iter().skip(k).step_by(dim).map(|&x| x as f64);
+            let reach = f64::from(CLIP) * (self.var[k] + 1e-8).sqrt();
+            let (lo, hi) = (self.mean[k] - reach, self.mean[k] + reach);
+            let xs = batch.iter().skip(k).step_by(dim).map(|&x| if robust { (x as f64).clamp(lo, hi) } else { x as f64 });
             let mean = xs.clone().sum::<f64>() / n;
             let var = xs.map(|x| (x - mean).powi(2)).sum::<f64>() / n;
             let delta = mean - self.mean[k];
@@ -64,5 +74,34 @@ pub fn normalized(rms: Option<&RunningMeanStd>, raw: &[f32]) -> Vec<f32> {
     match rms {
         Some(rms) => rms.normalize(raw),
         None => raw.to_vec(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_wild_value_moves_the_statistics_a_bounded_step() {
+        let mut rms = RunningMeanStd::new(1);
+        // 2000 readings of a working sensor: mean 0, variance 1 (±1 alternating).
+        let clean: Vec<f32> = (0..2000).map(|i| if i % 2 == 0 { 1.0 } else { -1.0 }).collect();
+        rms.update(&clean);
+        assert!((rms.var[0] - 1.0).abs() < 1e-3);
+        let before = rms.clone();
+        rms.update(&[1e6]);
+        // Clipped to mean + 10 σ: the variance grows by about 10² / 2001, not 1e12 / 2001.
+        assert!(rms.var[0] < 1.06 && rms.mean[0] < 0.006, "{rms:?}");
+        // Before the warm-up, values go in as they are (SB3's statistics exactly).
+        let mut fresh = RunningMeanStd::new(1);
+        fresh.update(&[3.0, -3.0]);
+        assert!((fresh.var[0] - 9.0).abs() < 1e-3, "{fresh:?}");
+        // Within 10 σ a value is folded in exactly.
+        let mut exact = before.clone();
+        exact.update(&[5.0]);
+        let (n, m, v) = (before.count, before.mean[0], before.var[0]);
+        let mean = m + (5.0 - m) / (n + 1.0);
+        let var = (v * n + (5.0 - m).powi(2) * n / (n + 1.0)) / (n + 1.0);
+        assert!((exact.mean[0] - mean).abs() < 1e-12 && (exact.var[0] - var).abs() < 1e-12);
     }
 }

@@ -117,6 +117,15 @@ pub fn check_request(message: &RobotMessage, task: &TaskInterface) -> Result<(),
         let name = task.observation_names.get(i).map_or(String::new(), |n| format!(" ({n})"));
         return refuse(ErrorCode::NonFinite, format!("observation value {i}{name} is {}: not a finite f32", obs[i]));
     }
+    if let Some(Space::Box { low, high }) = &task.observation_plausible
+        && let Some(i) = (0..obs.len().min(low.len()).min(high.len())).find(|&i| obs[i] < low[i] || obs[i] > high[i])
+    {
+        let name = task.observation_names.get(i).map_or(String::new(), |n| format!(" ({n})"));
+        return refuse(
+            ErrorCode::ObservationOutOfRange,
+            format!("observation value {i}{name} is {}, outside its plausible range [{}, {}]: a faulty sensor?", obs[i], low[i], high[i]),
+        );
+    }
     if let RobotMessage::Step { reward, .. } = message {
         if !reward.is_finite() {
             return refuse(ErrorCode::NonFinite, format!("reward is {reward}: not a finite f32 (|x| ≤ 3.4e38)"));

@@ -99,6 +99,9 @@ pub enum ErrorCode {
     NonFinite,
     /// An observation of the wrong length.
     WrongLength,
+    /// An observation value outside the task's plausible range
+    /// (`welcome.task.observation_plausible`): a faulty sensor, never fed to the learner.
+    ObservationOutOfRange,
     /// A reward outside the task's declared range (`welcome.task.reward_range`).
     RewardOutOfRange,
     /// A `step` with no action awaiting its outcome (no `start` before it, or after `ack`).
@@ -117,6 +120,10 @@ pub struct TaskInterface {
     pub observation_space: Space,
     /// What each observation value is, in order (same length as the observation).
     pub observation_names: Vec<String>,
+    /// Where each observation value of a working sensor lies (a Box); the server refuses
+    /// others. Absent from servers before it was declared.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observation_plausible: Option<Space>,
     /// `action` of the server's replies.
     pub action_space: Space,
     /// The lowest and highest reward one `step` may report; others are refused.
@@ -132,6 +139,7 @@ impl TaskInterface {
             task: spec.name.clone(),
             observation_space: spec.observation_space.clone(),
             observation_names: spec.observation_names.clone(),
+            observation_plausible: Some(spec.observation_plausible.clone()),
             action_space: spec.action_space.clone(),
             reward_range: RewardRange { low: spec.reward_range.0, high: spec.reward_range.1 },
             reward_terms: spec.reward_terms.clone(),

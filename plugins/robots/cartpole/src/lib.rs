@@ -79,10 +79,12 @@ pub fn balance_task(initial_tilt: f32) -> TaskDefinition<CartPoleState> {
         name: "cartpole".into(),
         terms: TaskTerms {
             observations: vec![
-                ObservationTerm::scalar("cart_x", |s: &CartPoleState| s.x),
-                ObservationTerm::scalar("cart_velocity", |s: &CartPoleState| s.v),
-                ObservationTerm::scalar("pole_angle", |s: &CartPoleState| s.angle),
-                ObservationTerm::scalar("pole_rate", |s: &CartPoleState| s.rate),
+                // Plausible: far beyond the episode's ±0.4 m and 15° and the wheels' 5 rad/s;
+                // outside, a reading is a fault (a RobotServer refuses it).
+                ObservationTerm::scalar("cart_x", |s: &CartPoleState| s.x).plausible(-5.0, 5.0),
+                ObservationTerm::scalar("cart_velocity", |s: &CartPoleState| s.v).plausible(-20.0, 20.0),
+                ObservationTerm::scalar("pole_angle", |s: &CartPoleState| s.angle).plausible(-std::f32::consts::PI, std::f32::consts::PI),
+                ObservationTerm::scalar("pole_rate", |s: &CartPoleState| s.rate).plausible(-100.0, 100.0),
             ],
             rewards: vec![RewardTerm::new("alive", 1.0, |_| 1.0).bounded(1.0, 1.0)],
             terminations: vec![

@@ -73,10 +73,11 @@ pub fn balance_task() -> TaskDefinition<PioneerState> {
         name: "pioneer3at".into(),
         terms: TaskTerms {
             observations: vec![
-                ObservationTerm::scalar("base_x", |s: &PioneerState| s.x),
-                ObservationTerm::scalar("base_velocity", |s: &PioneerState| s.vx),
-                ObservationTerm::scalar("pole_angle", |s: &PioneerState| s.angle),
-                ObservationTerm::scalar("pole_rate", |s: &PioneerState| s.rate),
+                // Plausible: far beyond the episode's ±5 m and 0.3 rad and the base's top speed.
+                ObservationTerm::scalar("base_x", |s: &PioneerState| s.x).plausible(-50.0, 50.0),
+                ObservationTerm::scalar("base_velocity", |s: &PioneerState| s.vx).plausible(-10.0, 10.0),
+                ObservationTerm::scalar("pole_angle", |s: &PioneerState| s.angle).plausible(-std::f32::consts::PI, std::f32::consts::PI),
+                ObservationTerm::scalar("pole_rate", |s: &PioneerState| s.rate).plausible(-100.0, 100.0),
             ],
             rewards: vec![
                 RewardTerm::new("alive", 1.0, |_| 1.0).bounded(1.0, 1.0),

@@ -54,9 +54,12 @@ pub fn sample_start(rng: &mut impl Rng) -> [f32; 6] {
 pub fn observations() -> Vec<ObservationTerm<CellState>> {
     vec![
         ObservationTerm::new("joint_positions", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.q)).bounded(-JOINT_RANGE, JOINT_RANGE),
-        ObservationTerm::new("joint_velocities", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.qd)),
-        ObservationTerm::new("tcp_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.tcp.translation.to_array())),
-        ObservationTerm::new("target_offset", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.target - s.arm.tcp.translation).to_array())),
+        // Plausible (a RobotServer refuses readings outside): four times the joints' rated
+        // 180°/s; the cell's 5 m around the base for the TCP and the target (reach: 0.85 m).
+        ObservationTerm::new("joint_velocities", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.qd)).plausible(-4.0 * std::f32::consts::PI, 4.0 * std::f32::consts::PI),
+        ObservationTerm::new("tcp_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.tcp.translation.to_array())).plausible(-5.0, 5.0),
+        ObservationTerm::new("target_offset", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.target - s.arm.tcp.translation).to_array()))
+            .plausible(-5.0, 5.0),
         ObservationTerm::new("tool_axis", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.arm.tcp.rotation * Vec3::Z).to_array()))
             .bounded(-1.0, 1.0),
         ObservationTerm::new("last_action", ACTION_DIM, |s: &CellState, out: &mut Vec<f32>| out.extend(s.actions.last)).bounded(-1.0, 1.0),

@@ -179,6 +179,7 @@ impl<S> TaskDefinition<S> {
             observation_names: self.terms.observation_names(),
             reward_terms: self.terms.reward_names().into_iter().map(String::from).collect(),
             reward_range: self.terms.reward_range(),
+            observation_plausible: self.terms.observation_plausible(),
             goal: self.goal,
         }
     }

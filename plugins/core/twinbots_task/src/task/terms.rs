@@ -16,13 +16,15 @@ pub struct ObservationTerm<S> {
     /// Bounds of every value of the block (unbounded by default).
     pub low: f32,
     pub high: f32,
+    /// Where a working sensor's values of the block lie (`None`: within the bounds).
+    pub plausible: Option<(f32, f32)>,
     read: Box<dyn Fn(&S, &mut Vec<f32>) + Send + Sync>,
 }
 
 impl<S> ObservationTerm<S> {
     /// A block of `size` values that `read` appends to the observation.
     pub fn new(name: &'static str, size: usize, read: impl Fn(&S, &mut Vec<f32>) + Send + Sync + 'static) -> Self {
-        Self { name, size, low: f32::NEG_INFINITY, high: f32::INFINITY, read: Box::new(read) }
+        Self { name, size, low: f32::NEG_INFINITY, high: f32::INFINITY, plausible: None, read: Box::new(read) }
     }
 
     /// A single value.
@@ -33,6 +35,13 @@ impl<S> ObservationTerm<S> {
     /// Declares the block's bounds (they go into the observation space).
     pub fn bounded(mut self, low: f32, high: f32) -> Self {
         (self.low, self.high) = (low, high);
+        self
+    }
+
+    /// Declares where a working sensor's values lie, for an unbounded block: well beyond
+    /// anything the robot does (a value outside is a fault, not a motion), in the block's units.
+    pub fn plausible(mut self, low: f32, high: f32) -> Self {
+        self.plausible = Some((low, high));
         self
     }
 }
@@ -148,6 +157,18 @@ impl<S> TaskTerms<S> {
         Space::Box { low, high }
     }
 
+    /// Where a working sensor's observation values lie: each term's plausible range, else its
+    /// bounds.
+    pub fn observation_plausible(&self) -> Space {
+        let (mut low, mut high) = (Vec::new(), Vec::new());
+        for t in &self.observations {
+            let (lo, hi) = t.plausible.unwrap_or((t.low, t.high));
+            low.extend(std::iter::repeat_n(lo, t.size));
+            high.extend(std::iter::repeat_n(hi, t.size));
+        }
+        Space::Box { low, high }
+    }
+
     /// The name of every observation value in order: a term's name, indexed where it has
     /// several (`q[0]`, `q[1]`, …).
     pub fn observation_names(&self) -> Vec<String> {
@@ -242,7 +263,7 @@ mod tests {
     fn terms() -> TaskTerms<Cart> {
         TaskTerms {
             observations: vec![
-                ObservationTerm::scalar("x", |s: &Cart| s.x),
+                ObservationTerm::scalar("x", |s: &Cart| s.x).plausible(-5.0, 5.0),
                 ObservationTerm::new("angle_twice", 2, |s: &Cart, out: &mut Vec<f32>| out.extend([s.angle, s.angle])).bounded(-1.0, 1.0),
             ],
             rewards: vec![RewardTerm::new("alive", 1.0, |_| 1.0), RewardTerm::new("angle", -2.0, |s: &Cart| s.angle.abs())],
@@ -261,6 +282,7 @@ mod tests {
         assert_eq!(t.observation_dim(), 3);
         assert_eq!(t.observation_names(), vec!["x", "angle_twice[0]", "angle_twice[1]"]);
         assert_eq!(t.observation_space(), Space::Box { low: vec![f32::NEG_INFINITY, -1.0, -1.0], high: vec![f32::INFINITY, 1.0, 1.0] });
+        assert_eq!(t.observation_plausible(), Space::Box { low: vec![-5.0, -1.0, -1.0], high: vec![5.0, 1.0, 1.0] }, "declared, else the bounds");
     }
 
     #[test]
