@@ -21,3 +21,11 @@ pub fn resume(run: &RunDir, settings: &TrainSettings, spec: &TaskSpec) -> anyhow
     model.set_goal(spec.goal)?;
     Ok((dir, model))
 }
+
+/// The model a run ended with (`model/`), else its newest checkpoint that loads: what more
+/// training continues from.
+pub fn trained(run: &RunDir, settings: &TrainSettings, spec: &TaskSpec) -> anyhow::Result<(PathBuf, Box<dyn Learner>)> {
+    let (dir, mut model) = run.trained_with(settings.algorithm()?.load)?;
+    model.set_goal(spec.goal)?;
+    Ok((dir, model))
+}

@@ -189,6 +189,8 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     let out = run_dir.path().to_path_buf();
     let title = format!("{} — PPO through the RobotServer (pattern 3), seed {}", settings.robot, settings.seed);
     let mut callbacks = twinbots::run::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
+    let tally = twinbots_learn::callbacks::GradientStepTally::default();
+    callbacks.push(tally.clone());
     if std::env::var_os(PANIC_IN_UPDATE_ENV).is_some() {
         callbacks = callbacks.with(|_: &twinbots_learn::UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<twinbots_learn::Flow> {
             panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
@@ -202,6 +204,7 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     println!("listening on {}", server.addr);
     std::io::stdout().flush()?;
     let (model, end) = server.wait()?;
+    tally.check()?;
     let wall = started.elapsed().as_secs_f64();
     // The final model, evaluated in-process (pattern 1 runs the same policy) as `train` does.
     twinbots::run::finish(&settings, &run_dir, &entry, &model, &end, wall, None)?;

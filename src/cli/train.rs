@@ -61,8 +61,10 @@ pub struct Args {
     /// the run's config.toml records its parameters.
     #[arg(long)]
     pub calibration: Option<std::path::PathBuf>,
-    /// Continue the run in this directory from its newest checkpoint.
-    #[arg(long, conflicts_with_all = ["robot", "timesteps", "arenas", "seed", "pattern", "config", "out", "algo", "calibration"])]
+    /// Continue the run in this directory from its newest checkpoint. With --timesteps N:
+    /// train N steps more than its model has (a run that ended continues from its final model;
+    /// SB3's `learn(N, reset_num_timesteps=False)`).
+    #[arg(long, conflicts_with_all = ["robot", "arenas", "seed", "pattern", "config", "out", "algo", "calibration"])]
     pub resume: Option<std::path::PathBuf>,
     /// Print the settings the run would use (the robot's defaults ← the config file ← the
     /// flags, key by key) as TOML, and exit without training.
@@ -78,7 +80,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             print!("{}", toml::to_string_pretty(&TrainSettings::of_run(&RunDir::new(run))?)?);
             return Ok(());
         }
-        return self::resume(&run, view);
+        return match timesteps {
+            Some(more) => extend(&run, more, view),
+            None => self::resume(&run, view),
+        };
     }
     let robot = robot.unwrap_or_default();
     let entry = registry::find(&robot)?;
@@ -122,10 +127,15 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
     let stdout = server.stdout.take().ok_or_else(|| anyhow::anyhow!("no server output"))?;
     let mut lines = std::io::BufReader::new(stdout).lines();
     let first = lines.next().transpose()?.unwrap_or_default();
-    let addr: std::net::SocketAddr = first
-        .strip_prefix("listening on ")
-        .and_then(|a| a.parse().ok())
-        .ok_or_else(|| anyhow::anyhow!("the server did not start: {first:?}"))?;
+    let Some(addr) = first.strip_prefix("listening on ").and_then(|a| a.parse::<std::net::SocketAddr>().ok()) else {
+        // Its error is on stderr; nothing of a run that never started stays behind.
+        let _ = server.wait();
+        let _ = std::fs::remove_file(&config_path);
+        if !resume {
+            let _ = std::fs::remove_dir(out);
+        }
+        anyhow::bail!("the server did not start (its error is above)");
+    };
     println!("RobotServer (pid {}) listening on {addr}", server.id());
     // The robots run the run's twin.
     let twin = twinbots::twin::Twin { calibration: settings.calibration.clone(), log: None };
@@ -144,14 +154,19 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
     Ok(())
 }
 
-/// A fresh run into `out`.
+/// A fresh run into `out`. Everything that can be checked before it runs is (the pattern the
+/// robot supports, the learner for its task), so an error leaves no run directory behind.
 pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<()> {
-    if settings.design_pattern()? == DesignPattern::Server {
+    let entry = registry::find(&settings.robot)?;
+    let pattern = settings.design_pattern()?;
+    entry.check_supports(None, pattern)?;
+    if pattern == DesignPattern::Server {
         return train_through_server(settings, out, false);
     }
     anyhow::ensure!(settings.arenas > 0, "arenas must be at least 1");
+    let learner = learner::new(&settings, &entry.task())?;
     let run_dir = twinbots::run::create(&settings, out)?;
-    run(settings, run_dir, None, view)
+    run(settings, run_dir, learner, false, view)
 }
 
 /// Continues the run in `run_dir` from its newest checkpoint.
@@ -168,10 +183,37 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
         "resuming {} from {} ({} steps, {} episodes)",
         run_dir.path().display(), checkpoint.display(), model.timesteps(), model.episodes()
     );
-    run(settings, run_dir, Some(model), view)
+    run(settings, run_dir, model, true, view)
 }
 
-fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Box<dyn Learner>>, view: bool) -> anyhow::Result<()> {
+/// Trains the run in `run_dir` for `more` steps beyond its model (its final one, else its
+/// newest checkpoint); its `config.toml` records the new budget before anything runs. After a
+/// final model the envs start fresh episodes (a checkpoint's are replayed, as `--resume`
+/// does); the run's stop criteria still apply (a solved run stops at its next check).
+pub fn extend(run_dir: &Path, more: u64, view: bool) -> anyhow::Result<()> {
+    anyhow::ensure!(more >= 1, "--timesteps {more}: must be at least 1 more step");
+    let run_dir = RunDir::new(run_dir);
+    let mut settings = TrainSettings::of_run(&run_dir)?;
+    anyhow::ensure!(
+        settings.design_pattern()? != DesignPattern::Server,
+        "{}: more training of a pattern-3 run is not supported yet; `train --resume` without --timesteps finishes one",
+        run_dir.path().display()
+    );
+    let spec = registry::find(&settings.robot)?.task();
+    let (source, model) = learner::trained(&run_dir, &settings, &spec)?;
+    run_dir.check_progress_columns(model.train_figures())?;
+    settings.timesteps = model.timesteps() + more;
+    settings.validate()?;
+    run_dir.write_config(&settings)?;
+    println!(
+        "training {} for {more} more steps from {} ({} steps, {} episodes) to {}",
+        run_dir.path().display(), source.display(), model.timesteps(), model.episodes(), settings.timesteps
+    );
+    run(settings, run_dir, model, true, view)
+}
+
+/// Trains `learner` (made for the run, or `resumed` from it) in `run_dir`.
+fn run(settings: TrainSettings, run_dir: RunDir, mut learner: Box<dyn Learner>, resumed: bool, view: bool) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let pattern = settings.design_pattern()?;
     anyhow::ensure!(
@@ -187,19 +229,14 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Box<dyn Learner>>
     }
     let (_, spec) = env::start(&mut app)?;
     let mut channel_env = bridge::connect(app.world_mut())?;
-    let resumed = model.is_some();
-    let mut learner = match model {
-        Some(m) => {
-            m.check_spaces(&spec.observation_space, &spec.action_space)?;
-            m
-        }
-        None => learner::new(&settings, &spec)?,
-    };
+    learner.check_spaces(&spec.observation_space, &spec.action_space)?;
     let title = format!(
         "{} — {}, pattern {}, {} arenas, seed {}",
         settings.robot, learner.algorithm(), settings.pattern, settings.arenas, settings.seed
     );
     let mut callbacks = twinbots::run::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
+    let tally = twinbots_learn::callbacks::GradientStepTally::default();
+    callbacks.push(tally.clone());
     if resumed {
         // Everything checked: the rows logged after the checkpoint are redone.
         run_dir.truncate_after(learner.timesteps())?;
@@ -236,6 +273,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, model: Option<Box<dyn Learner>>
         Ok(Ok(())) => {}
     }
     let (learner, end, wall) = learned?;
+    tally.check()?;
     let times = learner.times();
     let model: &dyn twinbots_learn::Agent = learner.as_ref();
     let time = simulation_s.map(|sim| TimeBreakdown::new(&times, sim, wall));

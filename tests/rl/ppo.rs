@@ -132,3 +132,47 @@ fn a_non_finite_reward_skips_the_gradient_steps_it_poisons_counts_them_and_learn
     let actions = model.predict_deterministic(&[0.0, 0.0, 0.02, 0.0]).unwrap();
     assert!(actions[0] == 0.0 || actions[0] == 1.0);
 }
+
+/// Poisons every step's reward: no gradient step can be applied.
+struct PoisonedAlways(ClassicCartPole);
+
+impl VecEnv for PoisonedAlways {
+    fn num_envs(&self) -> usize {
+        self.0.num_envs()
+    }
+    fn observation_space(&self) -> &twinbots_api::Space {
+        self.0.observation_space()
+    }
+    fn action_space(&self) -> &twinbots_api::Space {
+        self.0.action_space()
+    }
+    fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>> {
+        self.0.reset(seed)
+    }
+    fn step(&mut self, actions: &[f32]) -> anyhow::Result<twinbots_api::StepResult> {
+        let mut result = self.0.step(actions)?;
+        result.rewards.fill("1e39".parse::<f32>().unwrap());
+        Ok(result)
+    }
+}
+
+#[test]
+fn a_session_whose_gradient_steps_were_all_skipped_is_an_error() {
+    use twinbots_learn::callbacks::GradientStepTally;
+    let config = PpoConfig { n_steps: 64, batch_size: 64, n_epochs: 2, ..PpoConfig::default() };
+    let learn = |env: &mut dyn VecEnv| {
+        let mut model = Ppo::new(config.clone(), env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
+        let mut tally = GradientStepTally::default();
+        model.learn(env, 64 * 2 * 3, &mut tally).unwrap();
+        tally
+    };
+    let poisoned = learn(&mut PoisonedAlways(ClassicCartPole::new(2)));
+    assert_eq!(poisoned.counts(), (0, 12), "3 updates of 2 epochs of 2 minibatches: all skipped");
+    let err = poisoned.check().unwrap_err().to_string();
+    assert!(err.contains("every gradient step of this session (12) was skipped"), "{err}");
+    // One poisoned step skips its update only: the session learnt, and passes.
+    let once = learn(&mut PoisonedOnce { env: ClassicCartPole::new(2), steps: 0, at: 100 });
+    let (applied, skipped) = once.counts();
+    assert!(applied > 0 && skipped > 0, "{:?}", once.counts());
+    once.check().unwrap();
+}

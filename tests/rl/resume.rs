@@ -121,6 +121,15 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
     let n = weights.len();
     weights[n - 4..].copy_from_slice(&[0xff; 4]);
     std::fs::write(poisoned.join("model.safetensors"), weights).unwrap();
+    // Before it: a weight of 3.4e38 (finite, but every update from it would be skipped), and
+    // before that a checkpoint without its envs' episodes.
+    let huge = &checkpoints[2];
+    let mut weights = std::fs::read(huge.join("model.safetensors")).unwrap();
+    let n = weights.len();
+    weights[n - 4..].copy_from_slice(&f32::MAX.to_le_bytes());
+    std::fs::write(huge.join("model.safetensors"), weights).unwrap();
+    let incomplete = &checkpoints[1];
+    std::fs::remove_file(incomplete.join("env_state.json")).unwrap();
     std::fs::remove_dir_all(run.join("model")).unwrap();
 
     // `eval` of a run without a final model takes its newest checkpoint that loads.
@@ -130,12 +139,15 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
     assert!(err.contains(&format!("checkpoint {} is unusable", newest.display())), "{err}");
     assert!(err.contains("non-finite values"), "{err}");
 
-    // `--resume` likewise, and goes on from the third newest (768 steps) to the end.
+    // `--resume` likewise, and goes on from the oldest (256 steps) to the end.
     let output = twinbots().args(["train", "--resume"]).arg(&run).output().unwrap();
     let (out, err) = (String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success(), "{err}");
-    assert!(err.contains(&format!("checkpoint {} is unusable", poisoned.display())), "{err}");
-    assert!(out.contains("(768 steps"), "{out}");
+    for (checkpoint, why) in [(poisoned, "non-finite values"), (huge, "holds 3.4028235e38, beyond ±1e4"), (incomplete, "env_state.json: missing")] {
+        assert!(err.contains(&format!("checkpoint {} is unusable", checkpoint.display())), "{err}");
+        assert!(err.contains(why), "{why:?} not in {err}");
+    }
+    assert!(out.contains("(256 steps"), "{out}");
     let model = twinbots_learn::Ppo::load(run.join("model")).unwrap();
     assert_eq!(model.timesteps, 1280);
     std::fs::remove_dir_all(&dir).ok();
@@ -181,5 +193,35 @@ fn a_killed_pattern_3_run_resumes_through_its_server_and_its_server_does_not_out
     assert!(progress.windows(2).all(|w| w[1].timesteps > w[0].timesteps));
     let model = twinbots_learn::Ppo::load(run.join("model")).unwrap();
     assert!(model.timesteps >= 4096 && model.updates as usize == updates.len(), "{} steps, {} updates", model.timesteps, model.updates);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_finished_run_trains_more_with_resume_and_timesteps() {
+    let dir = temp_dir("extend");
+    let config = dir.join("config.toml");
+    std::fs::write(&config, "timesteps = 512\n").unwrap();
+    let run = dir.join("run");
+    let output = train(&["cartpole"], &config, &run).output().unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let updates = |run: &Path| std::fs::read_to_string(run.join("progress.csv")).unwrap().lines().count() - 1;
+    let timesteps = |run: &Path| -> u64 {
+        let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
+        summary["timesteps"].as_u64().unwrap_or_else(|| panic!("{summary}"))
+    };
+    let (before, steps) = (updates(&run), timesteps(&run));
+    assert_eq!(steps, 512);
+    // SB3's learn(256, reset_num_timesteps=False): 256 steps more, from the final model.
+    let output = twinbots().args(["train", "--resume"]).arg(&run).args(["--timesteps", "256"]).output().unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(stdout.contains("for 256 more steps") && stdout.contains("(512 steps"), "{stdout}");
+    assert_eq!(timesteps(&run), 768, "{stdout}");
+    assert_eq!(updates(&run), before + 1, "one more update of 256 steps, the rows before it kept");
+    let settings: toml::Table = toml::from_str(&std::fs::read_to_string(run.join("config.toml")).unwrap()).unwrap();
+    assert_eq!(settings["timesteps"].as_integer(), Some(768), "config.toml records the new budget");
+    // Other flags still do not go with --resume.
+    let output = twinbots().args(["train", "--resume"]).arg(&run).args(["--timesteps", "256", "--seed", "3"]).output().unwrap();
+    assert!(!output.status.success() && String::from_utf8_lossy(&output.stderr).contains("--seed"));
     std::fs::remove_dir_all(&dir).ok();
 }

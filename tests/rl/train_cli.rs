@@ -162,3 +162,28 @@ fn a_ppo_table_changes_only_its_keys_and_nonsense_is_refused_before_anything_run
     assert!(String::from_utf8_lossy(&output.stderr).contains("arenas = 0: must be a whole number ≥ 1"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn an_error_found_before_training_leaves_no_run_directory() {
+    let dir = std::env::temp_dir().join(format!("twinbots-late-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let her = dir.join("her.toml");
+    std::fs::write(&her, "[sac]\nher_goals = 4\n").unwrap();
+    let cases: [(&[&str], &str); 4] = [
+        (&["ur5e", "--pattern", "2"], "ur5e (reach) does not support design pattern 2 (supported: 1, 3)"),
+        (&["pioneer3at", "--pattern", "2"], "does not support design pattern 2"),
+        (&["pioneer3at", "--pattern", "3"], "does not support design pattern 3"),
+        (&["pioneer3at", "--algo", "sac", "--config", her.to_str().unwrap()], "this task is not goal-conditioned"),
+    ];
+    for (i, (args, why)) in cases.into_iter().enumerate() {
+        let out = dir.join(format!("run{i}"));
+        let output = twinbots().arg("train").args(args).arg("--out").arg(&out).output().unwrap();
+        let err = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success() && err.contains(why), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?} left {} behind", out.display());
+    }
+    let left: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left, vec![std::ffi::OsString::from("her.toml")], "nothing else in {}", dir.display());
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -14,8 +14,8 @@ use crate::model_io::ModelError;
 use crate::stats::{TrainingEnd, TrainingTimes};
 
 pub trait Learner: Agent + Send {
-    /// Trains on `env` until the model has seen `total_timesteps` steps (earlier sessions
-    /// included) or a callback stops it.
+    /// Trains on `env` for `total_timesteps` more steps (summed over envs) or until a callback
+    /// stops it; schedules run over the whole budget, earlier sessions included.
     fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd>;
     /// Where its training time went, since it was made or loaded.
     fn times(&self) -> TrainingTimes;

@@ -21,12 +21,16 @@ pub struct ModelHeader {
     pub timesteps: u64,
     pub episodes: u64,
     pub updates: u64,
+    /// Whether `env_state.json` was saved beside it (a checkpoint's running episodes): a
+    /// model that says so and lacks the file is incomplete (absent in older models: unchecked).
+    #[serde(default)]
+    pub env_state: bool,
     #[serde(flatten)]
     pub history: EpisodeHistory,
 }
 
 impl ModelHeader {
-    pub fn of(agent: &dyn Agent, format: u32, obs_rms: Option<&RunningMeanStd>, seed: u64, updates: u64) -> Self {
+    pub fn of(agent: &dyn Agent, format: u32, obs_rms: Option<&RunningMeanStd>, seed: u64, updates: u64, env_state: bool) -> Self {
         Self {
             format,
             twinbots_version: env!("CARGO_PKG_VERSION").into(),
@@ -38,6 +42,7 @@ impl ModelHeader {
             timesteps: agent.timesteps(),
             episodes: agent.episodes(),
             updates,
+            env_state,
             history: agent.history().clone(),
         }
     }

@@ -39,6 +39,27 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     std::fs::rename(&tmp, path)
 }
 
+/// The largest magnitude a saved weight may have. Trained networks here stay within ±100;
+/// beyond this a file is damaged (3e38 once loaded, and every later update was skipped).
+pub const MAX_WEIGHT: f32 = 1e4;
+
+/// Sets every variable of `named` from `tensors` by name: a missing tensor, another shape, a
+/// non-finite value or one beyond ±[`MAX_WEIGHT`] is an error naming it; extra tensors are
+/// ignored.
+pub fn set_vars(named: &[(String, Var)], tensors: &HashMap<String, Tensor>) -> anyhow::Result<()> {
+    for (name, var) in named {
+        let t = tensors.get(name).ok_or_else(|| anyhow::anyhow!("missing tensor '{name}'"))?;
+        anyhow::ensure!(t.shape() == var.shape(), "tensor '{name}' has shape {:?}, expected {:?}", t.shape(), var.shape());
+        let values = t.flatten_all()?.to_dtype(candle_core::DType::F32)?.to_vec1::<f32>()?;
+        anyhow::ensure!(values.iter().all(|x| x.is_finite()), "tensor '{name}' holds non-finite values (NaN or infinity): these weights are unusable");
+        if let Some(x) = values.iter().find(|x| x.abs() > MAX_WEIGHT) {
+            anyhow::bail!("tensor '{name}' holds {x:e}, beyond ±{MAX_WEIGHT:e}, which no trained network's weight reaches: the file is damaged");
+        }
+        var.set(t)?;
+    }
+    Ok(())
+}
+
 /// Writes tensors as safetensors to `path` through a temporary file and a rename.
 pub fn save_tensors(tensors: &HashMap<String, Tensor>, path: &Path) -> Result<(), ModelError> {
     let tmp = path.with_extension("tmp");
@@ -126,9 +147,14 @@ pub fn save_env_state(dir: &Path, state: Option<&EnvState>) -> Result<(), ModelE
     }
 }
 
-pub fn load_env_state(dir: &Path) -> Result<Option<EnvState>, ModelError> {
+/// Reads `env_state.json` from `dir`; `saved`: its model says it was written, so a missing
+/// file is an error (the model could not resume exactly).
+pub fn load_env_state(dir: &Path, saved: bool) -> Result<Option<EnvState>, ModelError> {
     let path = dir.join(ENV_STATE_FILE);
     if !path.is_file() {
+        if saved {
+            return Err(file_error(&path, "missing: its model.json says it was saved with the envs' running episodes, which a resumed run needs to go on exactly"));
+        }
         return Ok(None);
     }
     let text = std::fs::read_to_string(&path).map_err(|e| file_error(&path, e))?;

@@ -24,6 +24,9 @@ pub struct UpdateStats {
     /// Gradient steps of this update that were skipped because the loss or a gradient was not
     /// finite (the weights stayed as they were).
     pub skipped_steps: usize,
+    /// Gradient steps of this update that were applied (not a column: a session that applied
+    /// none learnt nothing, see `callbacks::GradientStepTally`).
+    pub applied_steps: usize,
 }
 
 impl UpdateStats {

@@ -218,20 +218,27 @@ impl RobotDescription {
         })
     }
 
+    /// An error naming the supported patterns unless the named task (`None`: the main one)
+    /// runs under `pattern`.
+    pub fn check_supports(&self, task: Option<&str>, pattern: DesignPattern) -> anyhow::Result<()> {
+        if self.supports(task, pattern)? {
+            return Ok(());
+        }
+        let supported: Vec<String> = self.all_patterns().iter().map(|p| p.number().to_string()).collect();
+        anyhow::bail!(
+            "{} ({}) does not support design pattern {} (supported: {})",
+            self.name,
+            self.find_task(task)?.name,
+            pattern.number(),
+            supported.join(", ")
+        )
+    }
+
     /// A headless app of the named task (`None`: the main one) under `pattern`; an unknown
     /// task or an unsupported pattern is an error.
     pub fn app(&self, task: Option<&str>, arenas: usize, seed: u64, pattern: DesignPattern) -> anyhow::Result<App> {
         let description = self.find_task(task)?;
-        if !self.supports(task, pattern)? {
-            let supported: Vec<String> = self.all_patterns().iter().map(|p| p.number().to_string()).collect();
-            anyhow::bail!(
-                "{} ({}) does not support design pattern {} (supported: {})",
-                self.name,
-                description.name,
-                pattern.number(),
-                supported.join(", ")
-            );
-        }
+        self.check_supports(task, pattern)?;
         anyhow::ensure!(arenas > 0, "an app needs at least one arena");
         Ok((self.build)(&AppRequest { task: description.name, arenas, seed, pattern }))
     }

@@ -11,7 +11,9 @@
 //! - [`StopTrainingOnSolved`]: stops once the training episodes meet the solved criterion;
 //! - [`CheckpointCallback`]: saves a checkpoint every N updates;
 //! - [`LearningCurveCallback`]: redraws `learning_curve.png` every N updates and at the end;
-//! - [`TensorBoardCallback`]: TensorBoard scalars under SB3's tag names every update.
+//! - [`TensorBoardCallback`]: TensorBoard scalars under SB3's tag names every update;
+//! - [`GradientStepTally`]: counts applied and skipped gradient steps, so a session that
+//!   learnt nothing ends with an error rather than a useless model.
 
 mod eval;
 mod logging;
@@ -114,5 +116,38 @@ impl StopTrainingOnSolved {
 impl Callback for StopTrainingOnSolved {
     fn on_update(&mut self, _stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
         Ok(if model.history().is_solved(&self.criterion) { Flow::Solved(SolvedBy::TrainingEpisodes) } else { Flow::Continue })
+    }
+}
+
+/// Gradient steps applied and skipped over a training session (shared between its clones: push
+/// one into the list, ask another after training).
+#[derive(Clone, Debug, Default)]
+pub struct GradientStepTally(std::sync::Arc<std::sync::Mutex<(u64, u64)>>);
+
+impl GradientStepTally {
+    /// (applied, skipped) so far.
+    pub fn counts(&self) -> (u64, u64) {
+        *self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// An error when steps were skipped and none applied: the loss or a gradient was never
+    /// finite, so the model learnt nothing in this session.
+    pub fn check(&self) -> anyhow::Result<()> {
+        let (applied, skipped) = self.counts();
+        anyhow::ensure!(
+            applied > 0 || skipped == 0,
+            "every gradient step of this session ({skipped}) was skipped: the loss or a gradient was never finite \
+             (see the warnings above), so the model learnt nothing; no final model was saved"
+        );
+        Ok(())
+    }
+}
+
+impl Callback for GradientStepTally {
+    fn on_update(&mut self, stats: &UpdateStats, _model: &dyn Agent) -> anyhow::Result<Flow> {
+        let mut counts = self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        counts.0 += stats.applied_steps as u64;
+        counts.1 += stats.skipped_steps as u64;
+        Ok(Flow::Continue)
     }
 }

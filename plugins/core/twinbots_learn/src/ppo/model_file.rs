@@ -43,7 +43,7 @@ impl Ppo {
         model_io::save_tensors(&moments, &dir.join(OPTIMIZER_FILE))?;
         model_io::save_env_state(dir, self.env_state.as_ref())?;
         let meta = Metadata {
-            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates),
+            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates, self.env_state.is_some()),
             hyperparameters: self.config.clone(),
             action_stream: Some(StreamState::of(&self.rng)),
             optimizer_steps,
@@ -58,6 +58,7 @@ impl Ppo {
         let meta: Metadata = model_io::load_metadata(dir, super::SAVED_AS, FORMAT)?;
         let h = meta.header;
         h.check(&path)?;
+        let saved_env_state = h.env_state;
         let mut model = Ppo::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed).map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
         let tensors: HashMap<String, Tensor> = model_io::load_tensors(&weights)?;
@@ -72,7 +73,7 @@ impl Ppo {
             let moments = model_io::load_tensors(&optimizer)?;
             model_io::restore_moments(&mut model.optimizer, &model.policy.named_vars(), &moments, meta.optimizer_steps, &optimizer)?;
         }
-        model.env_state = model_io::load_env_state(dir)?;
+        model.env_state = model_io::load_env_state(dir, saved_env_state)?;
         Ok(model)
     }
 }

@@ -110,18 +110,10 @@ impl ActorCritic {
         out
     }
 
-    /// Sets every variable from `tensors` by its name in [`Self::named_vars`]; a missing tensor
-    /// or one of another shape or with non-finite values is an error naming it, and extra tensors
-    /// are ignored.
+    /// Sets every variable from `tensors` by its name in [`Self::named_vars`]
+    /// ([`crate::model_io::set_vars`]: each checked); extra tensors are ignored.
     pub fn set_weights(&self, tensors: &std::collections::HashMap<String, Tensor>) -> anyhow::Result<()> {
-        for (name, var) in self.named_vars() {
-            let t = tensors.get(&name).ok_or_else(|| anyhow::anyhow!("missing tensor '{name}'"))?;
-            anyhow::ensure!(t.shape() == var.shape(), "tensor '{name}' has shape {:?}, expected {:?}", t.shape(), var.shape());
-            let finite = t.flatten_all()?.to_dtype(candle_core::DType::F32)?.to_vec1::<f32>()?.iter().all(|x| x.is_finite());
-            anyhow::ensure!(finite, "tensor '{name}' holds non-finite values (NaN or infinity): these weights are unusable");
-            var.set(t)?;
-        }
-        Ok(())
+        crate::model_io::set_vars(&self.named_vars(), tensors)
     }
 
     pub fn value(&self, obs: &Tensor) -> Result<Tensor> {

@@ -48,6 +48,7 @@ impl Ppo {
             learning_rate: self.optimizer.learning_rate(),
             steps_per_s: buffer.len() as f32 / collecting_since.elapsed().as_secs_f32(),
             skipped_steps: losses.skipped_steps,
+            applied_steps: losses.applied_steps,
             train: losses.train,
             ..self.history.row(self.updates, self.timesteps, self.episodes)
         })
@@ -89,12 +90,14 @@ impl Ppo {
                 }
             }
         }
+        let applied_steps = batches as usize;
         // No applied step: the losses are unknown, not zero.
         let batches = if batches == 0.0 { f32::NAN } else { batches };
         Ok(UpdateStats {
             // In the order of `TRAIN_FIGURES`.
             train: figures(TRAIN_FIGURES, &[pg_sum / batches, v_sum / batches, ent_sum / batches, kl_sum / batches, clip_sum / batches]),
             skipped_steps: skipped,
+            applied_steps,
             ..Default::default()
         })
     }

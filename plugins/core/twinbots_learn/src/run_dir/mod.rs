@@ -331,6 +331,8 @@ fn stats_from_columns(cell: &dyn Fn(&str) -> Option<String>, columns: &[String])
         steps_per_s: number("steps_per_s"),
         success_rate: number("success_rate"),
         skipped_steps: column(cell, "skipped_steps").unwrap_or(0),
+        // Not a column: a logged row is one that was used.
+        applied_steps: 0,
     }
 }
 

@@ -23,7 +23,7 @@ use rand_distr::{Distribution, StandardNormal};
 
 pub use crate::replay_buffer::{Batch, ReplayBuffer};
 pub use config::SacConfig;
-pub use networks::{Actor, ReluMlp, TwinCritic, polyak_update, set_vars};
+pub use networks::{Actor, ReluMlp, TwinCritic, polyak_update};
 
 use crate::agent::{Agent, LoadAgent};
 use crate::learner::{Algorithm, Learner, config_from};
@@ -317,6 +317,7 @@ impl Sac {
                     learning_rate: self.config.learning_rate,
                     steps_per_s: (self.config.log_interval * n_envs) as f32 / row_started.elapsed().as_secs_f32(),
                     skipped_steps: skipped,
+                    applied_steps: row.gradient_steps as usize,
                     ..self.history.row(self.updates, self.timesteps, self.episodes)
                 };
                 ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);

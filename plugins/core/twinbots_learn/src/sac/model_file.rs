@@ -81,7 +81,7 @@ impl Sac {
         let replay_buffer = save_replay(self.buffer.as_ref(), dir)?;
         model_io::save_env_state(dir, self.env_state.as_ref())?;
         let meta = Metadata {
-            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates),
+            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates, self.env_state.is_some()),
             hyperparameters: self.config.clone(),
             gradient_steps: self.gradient_steps,
             iterations: self.iterations,
@@ -101,9 +101,10 @@ impl Sac {
         meta.hyperparameters.validate().map_err(|e| file_error(&path, e))?;
         let h = meta.header;
         h.check(&path)?;
+        let saved_env_state = h.env_state;
         let mut model = Sac::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed).map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
-        super::networks::set_vars(&model.weights(), &model_io::load_tensors(&weights)?).map_err(|e| file_error(&weights, e))?;
+        model_io::set_vars(&model.weights(), &model_io::load_tensors(&weights)?).map_err(|e| file_error(&weights, e))?;
         (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) = (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
         (model.gradient_steps, model.iterations) = (meta.gradient_steps, meta.iterations);
         model.rng = meta.sampling_stream.to_rng().map_err(|e| file_error(&path, e))?;
@@ -111,7 +112,7 @@ impl Sac {
         let [a, c, e] = model.optimizers();
         model_io::restore_optimizers(vec![(actor.0, actor.1, a), (critic.0, critic.1, c), (ent.0, ent.1, e)], &meta.optimizer_steps, dir)?;
         model.buffer = load_replay(meta.replay_buffer, dir, model.observation_space.dim(), model.action_space.dim())?;
-        model.env_state = model_io::load_env_state(dir)?;
+        model.env_state = model_io::load_env_state(dir, saved_env_state)?;
         Ok(model)
     }
 }

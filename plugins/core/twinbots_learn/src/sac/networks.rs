@@ -165,18 +165,6 @@ pub fn polyak_update(target: &[(String, Var)], source: &[(String, Var)], tau: f3
     Ok(())
 }
 
-/// Sets every variable of `named` from `tensors` by name: a missing tensor, another shape or a
-/// non-finite value is an error naming it.
-pub fn set_vars(named: &[(String, Var)], tensors: &std::collections::HashMap<String, Tensor>) -> anyhow::Result<()> {
-    for (name, var) in named {
-        let t = tensors.get(name).ok_or_else(|| anyhow::anyhow!("missing tensor '{name}'"))?;
-        anyhow::ensure!(t.shape() == var.shape(), "tensor '{name}' has shape {:?}, expected {:?}", t.shape(), var.shape());
-        let finite = t.flatten_all()?.to_vec1::<f32>()?.iter().all(|x| x.is_finite());
-        anyhow::ensure!(finite, "tensor '{name}' holds non-finite values (NaN or infinity): these weights are unusable");
-        var.set(t)?;
-    }
-    Ok(())
-}
 
 #[cfg(test)]
 mod tests {

@@ -320,6 +320,7 @@ impl Td3 {
                     learning_rate: self.config.learning_rate,
                     steps_per_s: (self.config.log_interval * n_envs) as f32 / row_started.elapsed().as_secs_f32(),
                     skipped_steps: skipped,
+                    applied_steps: row.gradient_steps as usize,
                     ..self.history.row(self.updates, self.timesteps, self.episodes)
                 };
                 ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);

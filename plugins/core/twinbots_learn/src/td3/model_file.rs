@@ -13,7 +13,7 @@ use super::{Td3, Td3Config, named};
 use crate::model_header::ModelHeader;
 use crate::model_io::{self, METADATA_FILE, ModelError, WEIGHTS_FILE, file_error};
 use crate::sac::model_file::{BufferRing, load_replay, save_replay};
-use crate::sac::set_vars;
+use crate::model_io::set_vars;
 
 const FORMAT: u32 = 1;
 
@@ -54,7 +54,7 @@ impl Td3 {
         let replay_buffer = save_replay(self.buffer.as_ref(), dir)?;
         model_io::save_env_state(dir, self.env_state.as_ref())?;
         let meta = Metadata {
-            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates),
+            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates, self.env_state.is_some()),
             hyperparameters: self.config.clone(),
             gradient_steps: self.gradient_steps,
             iterations: self.iterations,
@@ -72,6 +72,7 @@ impl Td3 {
         let meta: Metadata = model_io::load_metadata(dir, super::SAVED_AS, FORMAT)?;
         let h = meta.header;
         h.check(&path)?;
+        let saved_env_state = h.env_state;
         let mut model = Td3::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed).map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
         set_vars(&model.weights(), &model_io::load_tensors(&weights)?).map_err(|e| file_error(&weights, e))?;
@@ -82,7 +83,7 @@ impl Td3 {
         let parts = vec![(actor.0, actor.1, &mut model.actor_optimizer), (critic.0, critic.1, &mut model.critic_optimizer)];
         model_io::restore_optimizers(parts, &meta.optimizer_steps, dir)?;
         model.buffer = load_replay(meta.replay_buffer, dir, model.observation_space.dim(), model.action_space.dim())?;
-        model.env_state = model_io::load_env_state(dir)?;
+        model.env_state = model_io::load_env_state(dir, saved_env_state)?;
         Ok(model)
     }
 }
