@@ -13,7 +13,8 @@ use twinbots_onnx::OnnxPolicy;
 use twinbots_api::DesignPattern;
 use twinbots_learn::EvalResult;
 use twinbots_task::Episode;
-use twinbots_link::robot::{OnBoardPolicy, RobotRunState, ServerAddress, ServerToken};
+use twinbots_link::robot::{OnBoardPolicy, RobotRunState, ServerAddress, ServerTlsLink, ServerToken};
+use twinbots_link::tls::ClientTls;
 
 use twinbots::twin::Twin;
 
@@ -41,6 +42,13 @@ pub struct Args {
     /// The server's shared secret (default: $TWINBOTS_TOKEN, else none; an empty one is refused).
     #[arg(long, conflicts_with = "policy", value_parser = crate::cli::serve::non_empty_token)]
     pub token: Option<String>,
+    /// TLS: the certificate authority (PEM) that signed the server's certificate, or the
+    /// server's self-signed certificate itself. Without it the robots speak plain TCP.
+    #[arg(long, conflicts_with = "policy")]
+    pub tls_ca: Option<std::path::PathBuf>,
+    /// TLS: the name the server's certificate must bear (default: the --server IP address).
+    #[arg(long, requires = "tls_ca")]
+    pub tls_name: Option<String>,
     /// With --policy: episodes to run before reporting their figures.
     #[arg(long, default_value_t = 10, conflicts_with = "server")]
     pub episodes: usize,
@@ -60,7 +68,15 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         (Some(server), _) => {
             anyhow::ensure!(args.patience >= 1, "--patience {}: must be at least 1 second", args.patience);
             let token = args.token.or_else(crate::cli::serve::token_from_env);
-            against_server_with_token(&args.robot, server, args.arenas, args.seed, Duration::from_secs(args.patience), token, &twin).map(|_| ())
+            let tls = match &args.tls_ca {
+                Some(ca) => Some(ServerTlsLink {
+                    tls: ClientTls::from_ca_file(ca)?,
+                    name: twinbots_link::tls::server_name(args.tls_name.as_deref(), server.ip())?,
+                }),
+                None => None,
+            };
+            let link = ServerLink { token, tls };
+            against_server_with(&args.robot, server, args.arenas, args.seed, Duration::from_secs(args.patience), link, &twin).map(|_| ())
         }
         (None, Some(policy)) => with_policy(&args.robot, &policy, args.arenas, args.episodes, args.seed, &twin).map(|_| ()),
         (None, None) => unreachable!("clap requires --server or --policy"),
@@ -90,21 +106,31 @@ fn stopped(app: &App) -> Option<Result<String, String>> {
 /// Runs `arenas` simulated robots of `twin` against the server at `server` until it says
 /// training is over. Returns the server's reason.
 pub fn against_server(robot: &str, server: SocketAddr, arenas: usize, seed: u64, patience: Duration, twin: &Twin) -> anyhow::Result<String> {
-    against_server_with_token(robot, server, arenas, seed, patience, None, twin)
+    against_server_with(robot, server, arenas, seed, patience, ServerLink::default(), twin)
 }
 
-/// [`against_server`] for a server that wants a shared secret in every `hello`.
-pub fn against_server_with_token(
+/// How robots reach their server beyond its address: its shared secret, and TLS.
+#[derive(Default)]
+pub struct ServerLink {
+    pub token: Option<String>,
+    pub tls: Option<ServerTlsLink>,
+}
+
+/// [`against_server`] over `link` (a token in every `hello`, TLS).
+pub fn against_server_with(
     robot: &str,
     server: SocketAddr,
     arenas: usize,
     seed: u64,
     patience: Duration,
-    token: Option<String>,
+    link: ServerLink,
     twin: &Twin,
 ) -> anyhow::Result<String> {
     let mut app = robot_app(robot, arenas, seed, twin, ServerAddress { addr: server, patience })?;
-    app.insert_resource(ServerToken(token));
+    app.insert_resource(ServerToken(link.token));
+    if let Some(tls) = link.tls {
+        app.insert_resource(tls);
+    }
     loop {
         app.update();
         if let Some(stop) = stopped(&app) {

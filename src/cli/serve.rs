@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use twinbots_api::DesignPattern;
 use twinbots_learn::{Ppo, PpoConfig, RunDir, ppo};
+use twinbots_link::tls::ServerTls;
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
 use twinbots::settings::{CalibrationSetting, ConfigFile, TrainSettings};
@@ -24,7 +25,7 @@ pub struct Args {
     pub robot: Option<String>,
     /// Address to listen on (port 0: any free port; the first output line tells which).
     /// Loopback by default: robots on other machines need an explicit address such as
-    /// 0.0.0.0:7878, and then a --token.
+    /// 0.0.0.0:7878, and then TLS and a --token (or --insecure).
     #[arg(long, default_value = "127.0.0.1:7878")]
     pub listen: std::net::SocketAddr,
     /// Robots connected at once; the next one is refused (`server_full`).
@@ -63,6 +64,16 @@ pub struct Args {
     /// Continue the server run in this directory from its newest checkpoint.
     #[arg(long, conflicts_with_all = ["robot", "robots", "timesteps", "seed", "config", "settings", "out", "calibration"])]
     pub resume: Option<std::path::PathBuf>,
+    /// TLS: this server's certificate chain (PEM); with --tls-key. Robots then need --tls-ca.
+    #[arg(long, requires = "tls_key")]
+    pub tls_cert: Option<std::path::PathBuf>,
+    /// TLS: the certificate's private key (PEM).
+    #[arg(long, requires = "tls_cert")]
+    pub tls_key: Option<std::path::PathBuf>,
+    /// Listen beyond loopback without TLS or without a token (a trusted network only): the
+    /// token and every observation then travel in clear. Prints a warning.
+    #[arg(long)]
+    pub insecure: bool,
     /// Exit when standard input closes: for a server started by `train --pattern 3`, which
     /// must not outlive it.
     #[arg(long, hide = true)]
@@ -71,18 +82,25 @@ pub struct Args {
 
 /// `twinbots serve`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, listen, max_robots, token, handshake_timeout, read_timeout, robots, timesteps, seed, config, settings, out, calibration, resume, exit_with_stdin } =
-        args;
+    let Args {
+        robot, listen, max_robots, token, handshake_timeout, read_timeout, robots, timesteps, seed, config, settings, out, calibration, resume, tls_cert, tls_key, insecure, exit_with_stdin,
+    } = args;
     if exit_with_stdin {
         exit_when_stdin_closes();
     }
+    let tls = match (tls_cert, tls_key) {
+        (Some(cert), Some(key)) => Some(ServerTls::from_pem_files(&cert, &key)?),
+        _ => None,
+    };
     let limits = ServerLimits {
         max_robots,
         token: token.or_else(token_from_env),
         handshake_timeout: seconds("--handshake-timeout", handshake_timeout)?,
         read_timeout: seconds("--read-timeout", read_timeout)?,
+        tls,
         ..Default::default()
     };
+    check_exposure(listen, &limits, insecure)?;
     if let Some(run) = resume {
         return self::resume(&run, listen, limits);
     }
@@ -112,6 +130,31 @@ pub const PANIC_IN_UPDATE_ENV: &str = "TWINBOTS_TEST_PANIC_IN_UPDATE";
 /// The shared secret from the environment, for `serve` and `robot` when no --token is given
 /// (keeps it out of the process list).
 pub const TOKEN_ENV: &str = "TWINBOTS_TOKEN";
+
+/// Beyond loopback a server needs TLS and a token, unless `--insecure` says the network is
+/// trusted (then a warning names what travels in clear).
+fn check_exposure(listen: SocketAddr, limits: &ServerLimits, insecure: bool) -> anyhow::Result<()> {
+    if listen.ip().is_loopback() {
+        return Ok(());
+    }
+    let mut missing = Vec::new();
+    if limits.tls.is_none() {
+        missing.push("TLS (--tls-cert and --tls-key)");
+    }
+    if limits.token.is_none() {
+        missing.push("a token (--token or $TWINBOTS_TOKEN)");
+    }
+    if missing.is_empty() {
+        return Ok(());
+    }
+    anyhow::ensure!(
+        insecure,
+        "--listen {listen} reaches beyond this machine: it needs {}, or --insecure on a trusted network",
+        missing.join(" and ")
+    );
+    eprintln!("warning: --insecure: listening on {listen} without {}; the token and every observation travel in clear, and anyone who reaches the port can train this model", missing.join(" or "));
+    Ok(())
+}
 
 /// `--token`'s value: refused when empty (`--token "$UNSET"` would otherwise switch the
 /// authentication off, silently).

@@ -10,6 +10,7 @@ mod ppo;
 mod randomization;
 mod sac;
 mod td3;
+mod tls;
 mod resume;
 mod robot_hostile;
 mod server;

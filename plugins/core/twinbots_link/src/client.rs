@@ -9,7 +9,7 @@
 //! second, not thousands. The server's replies are checked: its protocol version, robot and
 //! spaces in `welcome`, and every action against the robot's action space.
 
-use std::io::{self, BufReader, BufWriter};
+use std::io::{self, BufReader};
 use std::net::{SocketAddr, TcpStream};
 use std::time::{Duration, Instant};
 
@@ -19,6 +19,7 @@ use crate::checks::{check_action, check_welcome};
 use crate::deadline::DeadlineStream;
 use crate::frame::{FrameError, read_frame, read_message, write_message};
 use crate::protocol::{ErrorCode, RobotMessage, ServerMessage, TaskInterface, VERSION};
+use crate::tls::{ClientTls, Transport, is_tls_refusal};
 
 /// The first pause between reconnections, and the longest.
 const FIRST_BACKOFF: Duration = Duration::from_millis(20);
@@ -38,6 +39,9 @@ pub enum CommunicatorError {
     /// Reached, but what it sent is not this protocol, or not for this robot.
     #[error("the server at {addr} broke the protocol: {problem}")]
     Protocol { addr: SocketAddr, problem: String },
+    /// TLS refused the server (a certificate this robot does not trust, a server without TLS).
+    #[error("TLS with the server at {addr} failed: {problem}")]
+    Tls { addr: SocketAddr, problem: String },
     /// It keeps taking connections and dropping them before answering a request.
     #[error("the server at {addr} took {connections} connections in {waited:.1?} but answered no request on them (it closes them)")]
     Unresponsive { addr: SocketAddr, connections: u32, waited: Duration },
@@ -59,7 +63,10 @@ pub struct Communicator {
     identity: Identity,
     /// The longest wait: for a reply, for a send, and for a connection that answers.
     pub patience: Duration,
-    link: Option<(BufReader<DeadlineStream>, BufWriter<TcpStream>)>,
+    /// Replies are read through the buffer; requests are written whole to the stream under it.
+    link: Option<BufReader<DeadlineStream>>,
+    /// TLS to speak, and the name the server's certificate must bear (`None`: plain TCP).
+    tls: Option<(ClientTls, rustls::pki_types::ServerName<'static>)>,
     pub robot_id: Option<u64>,
     /// What the server expects of this robot (its `welcome`).
     pub task: Option<TaskInterface>,
@@ -74,7 +81,13 @@ pub struct Communicator {
 
 impl Communicator {
     pub fn new(addr: SocketAddr, identity: Identity, patience: Duration) -> Self {
-        Self { addr, identity, patience, link: None, robot_id: None, task: None, reconnects: 0, unanswered: None, backoff: None }
+        Self { addr, identity, patience, link: None, tls: None, robot_id: None, task: None, reconnects: 0, unanswered: None, backoff: None }
+    }
+
+    /// Speaks TLS, trusting `tls`'s authorities for a certificate that bears `name`.
+    pub fn with_tls(mut self, tls: ClientTls, name: rustls::pki_types::ServerName<'static>) -> Self {
+        self.tls = Some((tls, name));
+        self
     }
 
     pub fn is_connected(&self) -> bool {
@@ -124,8 +137,8 @@ impl Communicator {
         if let Some((_, connections)) = &mut self.unanswered {
             *connections += 1;
         }
-        let mut reader = BufReader::new(DeadlineStream::new(stream.try_clone().map_err(gone)?));
-        let mut writer = BufWriter::new(stream);
+        let tls = self.tls.as_ref().map(|(tls, name)| (tls, name.clone()));
+        let mut link = BufReader::new(DeadlineStream::new(Transport::connect(stream, tls).map_err(gone)?));
         let hello = RobotMessage::Hello {
             version: VERSION,
             robot: self.identity.robot.clone(),
@@ -133,9 +146,10 @@ impl Communicator {
             action_space: self.identity.action_space.clone(),
             token: self.identity.token.clone(),
         };
-        write_message(&mut writer, &hello).map_err(|e| self.send_failed(e))?;
-        reader.get_mut().expire_in(self.patience);
-        let payload = read_frame(&mut reader).map_err(|e| self.read_failed(e, "welcome"))?;
+        // Under TLS the handshake happens here, within the patience (the write's and read's).
+        link.get_mut().expire_in(self.patience);
+        write_message(link.get_mut(), &hello).map_err(|e| self.send_failed(e))?;
+        let payload = read_frame(&mut link).map_err(|e| self.read_failed(e, "welcome"))?;
         let id = &self.identity;
         let welcome = check_welcome(&payload, &id.robot, &id.observation_space, &id.action_space)
             .map_err(|problem| CommunicatorError::Protocol { addr: self.addr, problem })?;
@@ -143,7 +157,7 @@ impl Communicator {
             ServerMessage::Welcome { robot_id, task, .. } => {
                 self.robot_id = Some(robot_id);
                 self.task = Some(task);
-                self.link = Some((reader, writer));
+                self.link = Some(link);
                 Ok(())
             }
             // A full or busy server may have room later: keep trying within the patience.
@@ -155,6 +169,9 @@ impl Communicator {
 
     /// A send that failed: the server is gone, or took nothing within the patience.
     fn send_failed(&self, e: io::Error) -> CommunicatorError {
+        if is_tls_refusal(&e) {
+            return CommunicatorError::Tls { addr: self.addr, problem: e.to_string() };
+        }
         match e.kind() {
             io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut => {
                 CommunicatorError::Silent { addr: self.addr, what: "room for a request (it reads nothing)", waited: self.patience }
@@ -166,6 +183,7 @@ impl Communicator {
     /// A reply that could not be read: gone (reconnect), silent, or not a frame of this protocol.
     fn read_failed(&self, e: FrameError, what: &'static str) -> CommunicatorError {
         match e {
+            FrameError::Io(e) if is_tls_refusal(&e) => CommunicatorError::Tls { addr: self.addr, problem: e.to_string() },
             FrameError::Io(_) => CommunicatorError::Disconnected(self.addr),
             FrameError::TimedOut => CommunicatorError::Silent { addr: self.addr, what, waited: self.patience },
             other => CommunicatorError::Protocol { addr: self.addr, problem: format!("unreadable {what}: {other}") },
@@ -176,8 +194,8 @@ impl Communicator {
     /// process keep several requests in flight).
     pub fn send(&mut self, message: &RobotMessage) -> Result<(), CommunicatorError> {
         let addr = self.addr;
-        let (_, writer) = self.link.as_mut().ok_or(CommunicatorError::Disconnected(addr))?;
-        if let Err(e) = write_message(writer, message) {
+        let link = self.link.as_mut().ok_or(CommunicatorError::Disconnected(addr))?;
+        if let Err(e) = write_message(link.get_mut(), message) {
             self.link = None;
             return Err(self.send_failed(e));
         }
@@ -188,9 +206,9 @@ impl Communicator {
     /// against the robot's action space.
     pub fn receive(&mut self) -> Result<ServerMessage, CommunicatorError> {
         let addr = self.addr;
-        let (reader, _) = self.link.as_mut().ok_or(CommunicatorError::Disconnected(addr))?;
-        reader.get_mut().expire_in(self.patience);
-        let reply = match read_message::<ServerMessage>(reader) {
+        let link = self.link.as_mut().ok_or(CommunicatorError::Disconnected(addr))?;
+        link.get_mut().expire_in(self.patience);
+        let reply = match read_message::<ServerMessage>(link) {
             Ok(reply) => reply,
             Err(e) => {
                 self.link = None;

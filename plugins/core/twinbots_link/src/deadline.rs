@@ -1,25 +1,32 @@
-//! A TCP stream whose reads end at a deadline. A socket read timeout alone bounds each read,
+//! A connection whose reads end at a deadline. A socket read timeout alone bounds each read,
 //! not a message: a client trickling one byte every few seconds would hold its connection
-//! thread forever. The server sets a deadline before each request; every read waits only for
-//! what is left of it.
+//! thread forever. The server sets a deadline before each request (a robot before each reply);
+//! every read waits only for what is left of it. Writes pass through (a frame is written whole
+//! and flushed, so no write buffer is needed beside the read buffer).
 
-use std::io::{self, Read};
-use std::net::TcpStream;
+use std::io::{self, Read, Write};
 use std::time::{Duration, Instant};
 
+use crate::tls::Transport;
+
 pub struct DeadlineStream {
-    stream: TcpStream,
+    stream: Transport,
     deadline: Option<Instant>,
 }
 
 impl DeadlineStream {
-    pub fn new(stream: TcpStream) -> Self {
-        Self { stream, deadline: None }
+    pub fn new(stream: impl Into<Transport>) -> Self {
+        Self { stream: stream.into(), deadline: None }
     }
 
     /// The next reads must be done within `timeout` from now.
     pub fn expire_in(&mut self, timeout: Duration) {
         self.deadline = Some(Instant::now() + timeout);
+    }
+
+    /// The stream underneath.
+    pub fn transport(&self) -> &Transport {
+        &self.stream
     }
 }
 
@@ -30,8 +37,18 @@ impl Read for DeadlineStream {
             if left.is_zero() {
                 return Err(io::ErrorKind::TimedOut.into());
             }
-            self.stream.set_read_timeout(Some(left))?;
+            self.stream.tcp().set_read_timeout(Some(left))?;
         }
         self.stream.read(buf)
+    }
+}
+
+impl Write for DeadlineStream {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.stream.write(buf)
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        self.stream.flush()
     }
 }

@@ -4,7 +4,8 @@
 //! [`robot::Conversation`] its side of the episode protocol; [`onboard`] answers that protocol
 //! from a policy the robot runs itself (no server). The wire: [`protocol`] (messages, version
 //! 2), [`frame`] (length-prefixed JSON), [`checks`] (what is refused at the boundary), and
-//! [`deadline`] (reads and writes that give up in time).
+//! [`deadline`] (reads and writes that give up in time), and [`tls`] (the stream, plain or
+//! encrypted).
 
 pub mod checks;
 pub mod client;
@@ -14,3 +15,4 @@ pub mod onboard;
 pub mod policy_link;
 pub mod protocol;
 pub mod robot;
+pub mod tls;

@@ -43,6 +43,14 @@ pub struct ServerAddress {
 #[derive(Resource, Clone, Debug, Default)]
 pub struct ServerToken(pub Option<String>);
 
+/// TLS to reach the RobotServer with (`robot --tls-ca`), and the name its certificate must
+/// bear. Optional beside a [`ServerAddress`]; absent: plain TCP.
+#[derive(Resource, Clone, Debug)]
+pub struct ServerTlsLink {
+    pub tls: crate::tls::ClientTls,
+    pub name: rustls::pki_types::ServerName<'static>,
+}
+
 /// Set when the robots should stop: `Ok(reason)` when the server finished training.
 #[derive(Resource, Clone, Debug, Default)]
 pub struct RobotRunState {
@@ -83,15 +91,18 @@ impl Conversation {
 
     /// Connects to a RobotServer (retrying until the address's patience runs out) and begins
     /// by homing.
-    pub fn connect(address: &ServerAddress, identity: Identity) -> Result<Self, CommunicatorError> {
+    pub fn connect(address: &ServerAddress, identity: Identity, tls: Option<&ServerTlsLink>) -> Result<Self, CommunicatorError> {
         let mut communicator = Communicator::new(address.addr, identity, address.patience);
+        if let Some(link) = tls {
+            communicator = communicator.with_tls(link.tls.clone(), link.name.clone());
+        }
         communicator.connect()?;
         Ok(Self::over(Box::new(communicator)))
     }
 
     /// Connects the robot of arena `index`; if it cannot, the robots stop, naming it.
-    pub fn connect_robot(address: &ServerAddress, identity: Identity, index: usize, state: &mut RobotRunState) -> Option<Self> {
-        Self::connect(address, identity)
+    pub fn connect_robot(address: &ServerAddress, identity: Identity, tls: Option<&ServerTlsLink>, index: usize, state: &mut RobotRunState) -> Option<Self> {
+        Self::connect(address, identity, tls)
             .map_err(|e| state.stop = Some(Err(format!("robot {index}: {e}"))))
             .ok()
     }
@@ -244,6 +255,7 @@ pub fn identity(world: &World) -> Identity {
 /// controller's random stream is its arena's.
 fn connect_robots(world: &mut World) {
     let address = world.get_resource::<ServerAddress>().copied();
+    let tls = world.get_resource::<ServerTlsLink>().cloned();
     let on_board = world.get_resource::<OnBoardPolicy>().cloned();
     let identity = identity(world);
     let arenas: Vec<(Entity, usize, ChaCha8Rng)> =
@@ -251,7 +263,7 @@ fn connect_robots(world: &mut World) {
     for (entity, index, rng) in arenas {
         let mut state = world.resource_mut::<RobotRunState>();
         let conversation = match (&address, &on_board) {
-            (Some(address), _) => Conversation::connect_robot(address, identity.clone(), index, &mut state),
+            (Some(address), _) => Conversation::connect_robot(address, identity.clone(), tls.as_ref(), index, &mut state),
             (None, Some(policy)) => Some(Conversation::over(Box::new(policy.link()))),
             (None, None) => {
                 state.stop = Some(Err("a pattern-3 robot needs a ServerAddress or an OnBoardPolicy resource".into()));

@@ -5,7 +5,7 @@
 //! reply (none for `bye`). Refusals are logged with the peer's address; only fatal ones, and
 //! a peer that is gone, end the connection.
 
-use std::io::{BufReader, BufWriter};
+use std::io::BufReader;
 use std::net::{SocketAddr, TcpStream};
 use std::time::Duration;
 
@@ -14,6 +14,7 @@ use crate::closing::close_after_reply;
 use twinbots_link::deadline::DeadlineStream;
 use twinbots_link::frame::{FrameError, read_frame, read_message, write_message};
 use twinbots_link::protocol::{ErrorCode, RobotMessage, ServerMessage, VERSION, error};
+use twinbots_link::tls::{Transport, is_tls_refusal};
 use crate::shared::{Shared, panic_message};
 
 /// How long a closing connection waits for what its client already sent (see `closing`).
@@ -23,13 +24,14 @@ struct Connection<'a> {
     peer: SocketAddr,
     id: u64,
     shared: &'a Shared,
-    writer: BufWriter<TcpStream>,
+    /// Requests are read through the buffer; replies are written whole to the stream under it.
+    link: BufReader<DeadlineStream>,
 }
 
 impl Connection<'_> {
     /// Sends a reply; false if the peer is gone.
     fn reply(&mut self, message: &ServerMessage) -> bool {
-        write_message(&mut self.writer, message).is_ok()
+        write_message(self.link.get_mut(), message).is_ok()
     }
 
     /// Answers a refused message and logs it; false if the connection must end.
@@ -66,14 +68,22 @@ pub(crate) fn serve(stream: TcpStream, peer: SocketAddr, id: u64, shared: &Share
     let _ = stream.set_nodelay(true);
     // A robot that stops reading cannot hold its thread forever either.
     let _ = stream.set_write_timeout(Some(limits.read_timeout));
-    let Ok(read_half) = stream.try_clone() else { return };
     let Ok(closer) = stream.try_clone() else { return };
-    let mut reader = BufReader::new(DeadlineStream::new(read_half));
-    let mut conn = Connection { peer, id, shared, writer: BufWriter::new(stream) };
+    // Under TLS the handshake happens within the hello's deadline, on its first read.
+    let Ok(transport) = Transport::accept(stream, limits.tls.as_ref()) else { return };
+    let mut conn = Connection { peer, id, shared, link: BufReader::new(DeadlineStream::new(transport)) };
 
-    reader.get_mut().expire_in(limits.handshake_timeout);
-    let admitted = read_frame(&mut reader)
-        .map_err(|e| Rejection::of_frame(&e))
+    conn.link.get_mut().expire_in(limits.handshake_timeout);
+    let admitted = read_frame(&mut conn.link)
+        .map_err(|e| {
+            // A failed TLS handshake leaves no channel to answer on: it is logged only.
+            if let FrameError::Io(io) = &e
+                && is_tls_refusal(io)
+            {
+                shared.log_rejection(peer, "new connection", &Rejection::new(ErrorCode::HandshakeExpected, true, format!("TLS handshake failed: {io}")));
+            }
+            Rejection::of_frame(&e)
+        })
         .and_then(|payload| {
             let admission = Admission { task: &shared.task, token: limits.token.as_deref() };
             check_hello(&payload, &admission).map_err(Some)
@@ -90,17 +100,17 @@ pub(crate) fn serve(stream: TcpStream, peer: SocketAddr, id: u64, shared: &Share
     }
     let welcome = ServerMessage::Welcome { version: VERSION, robot_id: id, task: shared.task.clone() };
     if conn.reply(&welcome) {
-        converse(&mut conn, &mut reader, limits.read_timeout);
+        converse(&mut conn, limits.read_timeout);
     }
     shared.learner().leave(id);
     close_after_reply(&closer, LINGER);
 }
 
 /// Request after request until the robot leaves, training ends or an error is fatal.
-fn converse(conn: &mut Connection, reader: &mut BufReader<DeadlineStream>, read_timeout: Duration) {
+fn converse(conn: &mut Connection, read_timeout: Duration) {
     loop {
-        reader.get_mut().expire_in(read_timeout);
-        let message = match read_message::<RobotMessage>(reader) {
+        conn.link.get_mut().expire_in(read_timeout);
+        let message = match read_message::<RobotMessage>(&mut conn.link) {
             Ok(m) => m,
             Err(e) => {
                 if conn.refuse_frame(&e) {

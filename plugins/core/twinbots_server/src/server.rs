@@ -165,6 +165,11 @@ fn admit(stream: TcpStream, peer: SocketAddr, id: u64, shared: &Arc<Shared>) {
 /// timeout: a peer that does not read cannot hold up accepting).
 fn refuse(stream: TcpStream, peer: SocketAddr, shared: &Shared, rejection: Rejection) {
     shared.log_rejection(peer, "new connection", &rejection);
+    // Under TLS a plain reply would read as a broken handshake: close, and the robot retries
+    // as it does after any lost connection.
+    if shared.limits.tls.is_some() {
+        return;
+    }
     let _ = stream.set_write_timeout(Some(Duration::from_secs(1)));
     let mut stream = stream;
     let _ = write_message(&mut stream, &rejection.reply());

@@ -23,6 +23,8 @@ pub struct ServerLimits {
     pub read_timeout: Duration,
     /// A shared secret `hello.token` must equal; `None`: no token needed.
     pub token: Option<String>,
+    /// TLS (`serve --tls-cert/--tls-key`): every connection is encrypted; `None`: plain TCP.
+    pub tls: Option<twinbots_link::tls::ServerTls>,
     /// Stack size of connection threads in bytes. Tests set an impossible one to show that a
     /// connection that cannot get a thread is refused while the server goes on.
     pub connection_stack: usize,
@@ -35,6 +37,7 @@ impl Default for ServerLimits {
             handshake_timeout: Duration::from_secs(10),
             read_timeout: Duration::from_secs(60),
             token: None,
+            tls: None,
             connection_stack: 2 * 1024 * 1024,
         }
     }
