@@ -200,9 +200,15 @@ pub fn twinbots() -> Command {
 
 /// Starts `twinbots serve` and returns the child and the address it listens on.
 pub fn serve_process(listen: &str, timesteps: u64, out: &std::path::Path) -> (std::process::Child, SocketAddr) {
+    serve_process_with(listen, timesteps, out, &["--robots", "2"])
+}
+
+/// [`serve_process`] with more flags.
+pub fn serve_process_with(listen: &str, timesteps: u64, out: &std::path::Path, extra: &[&str]) -> (std::process::Child, SocketAddr) {
     let mut child = twinbots()
-        .args(["serve", "cartpole", "--listen", listen, "--robots", "2", "--timesteps", &timesteps.to_string(), "--out"])
+        .args(["serve", "cartpole", "--listen", listen, "--timesteps", &timesteps.to_string(), "--out"])
         .arg(out)
+        .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
 use std::sync::{Arc, Mutex};
 
-use crate::server::{temp, twinbots};
+use crate::server::{serve_process_with, temp, twinbots};
 
 /// A certificate authority and a server certificate it signed for 127.0.0.1, as PEM files in
 /// `dir`: (CA, server certificate, server key).
@@ -29,23 +29,9 @@ fn pki(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
     files
 }
 
-/// `twinbots serve cartpole` for 512 steps with `extra` flags; the child and its address.
+/// `twinbots serve cartpole` for 512 steps and one robot, with `extra` flags.
 fn serve(out: &Path, extra: &[&str]) -> (Child, SocketAddr) {
-    let mut child = twinbots()
-        .args(["serve", "cartpole", "--listen", "127.0.0.1:0", "--robots", "1", "--timesteps", "512", "--out"])
-        .arg(out)
-        .args(extra)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    let mut stdout = BufReader::new(child.stdout.take().unwrap());
-    stdout.read_line(&mut line).unwrap();
-    // Keep reading: a server whose stdout is closed fails on its next line.
-    std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
-    let addr = line.trim().strip_prefix("listening on ").unwrap_or_else(|| panic!("{line:?}")).parse().unwrap();
-    (child, addr)
+    serve_process_with("127.0.0.1:0", 512, out, &[&["--robots", "1"], extra].concat())
 }
 
 /// A loopback proxy to `upstream` that keeps every byte that crosses it, both ways.
