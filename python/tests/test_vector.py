@@ -108,10 +108,25 @@ def test_randomization_config():
         twinbots.make_vec("cartpole", config={"no_such_setting": 1.0})
 
 
-def test_pattern_2_runs():
-    envs = twinbots.make_vec("cartpole", num_envs=2, seed=0, pattern=2)
-    envs.reset(seed=0)
-    envs.step(np.array([0, 1]))
+def test_pattern_2_runs_its_own_deterministic_trajectory():
+    """Under pattern 2 the supervisor hears the slave robot over a radio, a step late: the same
+    seed and actions give the same trajectory again, and another one than pattern 1's."""
+
+    def trajectory(pattern):
+        envs = twinbots.make_vec("cartpole", num_envs=2, seed=0, pattern=pattern)
+        obs, _ = envs.reset(seed=0)
+        seen = [obs.copy()]
+        for _ in range(8):
+            obs, rewards, terminated, truncated, _ = envs.step(np.array([1, 1]))
+            assert obs.shape == (2, 4) and np.isfinite(obs).all()
+            assert (rewards == 1.0).all() and not terminated.any() and not truncated.any()
+            seen.append(obs.copy())
+        envs.close()
+        return np.array(seen)
+
+    radio = trajectory(2)
+    assert np.array_equal(radio, trajectory(2))
+    assert not np.allclose(radio, trajectory(1)), "the radio delays what the supervisor hears and the slave does"
 
 
 def test_infos_match_gymnasiums_own_layout():

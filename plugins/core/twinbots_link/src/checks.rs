@@ -21,9 +21,13 @@ pub struct Rejection {
     pub message: String,
 }
 
+/// The longest refusal message, in characters: messages quote what a peer sent (a robot name,
+/// serde's view of a malformed field), so a 60 KiB name cannot become a 60 KiB reply or log line.
+pub const MAX_MESSAGE: usize = 300;
+
 impl Rejection {
     pub fn new(code: ErrorCode, fatal: bool, message: impl Into<String>) -> Self {
-        Self { code, fatal, message: message.into() }
+        Self { code, fatal, message: truncated(&message.into(), MAX_MESSAGE) }
     }
 
     pub fn reply(&self) -> ServerMessage {
@@ -192,5 +196,30 @@ pub fn truncated(text: &str, max: usize) -> String {
     match text.char_indices().nth(max) {
         Some((cut, _)) => format!("{}…", &text[..cut]),
         None => text.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_long_peer_supplied_name_is_cut_in_the_refusal() {
+        let task = TaskInterface {
+            robot: "cartpole".into(),
+            task: "cartpole".into(),
+            observation_space: Space::uniform_box(1, -1.0, 1.0),
+            observation_names: vec!["x".into()],
+            observation_plausible: None,
+            action_space: Space::Discrete { n: 2 },
+            reward_range: crate::protocol::RewardRange { low: 0.0, high: 1.0 },
+            reward_terms: vec![],
+        };
+        let name = "r".repeat(60_000);
+        let hello = serde_json::json!({"type": "hello", "version": VERSION, "robot": name, "observation_space": task.observation_space, "action_space": task.action_space});
+        let refused = check_hello(hello.to_string().as_bytes(), &Admission { task: &task, token: None }).unwrap_err();
+        assert_eq!(refused.code, ErrorCode::WrongRobot);
+        assert!(refused.message.chars().count() <= MAX_MESSAGE + 1 && refused.message.ends_with('…'), "{} chars", refused.message.len());
+        assert_eq!(truncated("short", 10), "short");
     }
 }
