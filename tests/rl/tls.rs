@@ -108,6 +108,10 @@ fn a_robot_that_trusts_another_authority_is_refused_with_the_reason() {
     let err = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success());
     assert!(err.contains(&format!("TLS with the server at {addr} failed: invalid peer certificate")), "{err}");
+    // A robot without TLS: the server closes its connections before any welcome, and it says so.
+    let output = twinbots().args(["robot", "cartpole", "--server", &addr.to_string(), "--patience", "2"]).output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && err.contains("before its welcome (does it speak TLS?"), "{err}");
     server.kill().unwrap();
     server.wait().unwrap();
     std::fs::remove_dir_all(&dir).ok();

@@ -45,6 +45,9 @@ pub enum CommunicatorError {
     /// It keeps taking connections and dropping them before answering a request.
     #[error("the server at {addr} took {connections} connections in {waited:.1?} but answered no request on them (it closes them)")]
     Unresponsive { addr: SocketAddr, connections: u32, waited: Duration },
+    /// It takes connections and closes them before any `welcome`: often TLS on one side only.
+    #[error("the server at {addr} closed {connections} connections in {waited:.1?} before its welcome (does it speak TLS? `--tls-ca` must match how it serves)")]
+    Unwelcoming { addr: SocketAddr, connections: u32, waited: Duration },
 }
 
 /// Who this robot is, for the `hello` message.
@@ -72,9 +75,9 @@ pub struct Communicator {
     pub task: Option<TaskInterface>,
     /// Reconnections after the first connection.
     pub reconnects: u32,
-    /// Since when, and over how many connections, no request has been answered (`None` once
-    /// one is).
-    unanswered: Option<(Instant, u32)>,
+    /// Since when, over how many connections and welcomes, no request has been answered
+    /// (`None` once one is).
+    unanswered: Option<(Instant, u32, u32)>,
     /// The pause before the next connection attempt (`None`: connect at once).
     backoff: Option<Duration>,
 }
@@ -98,7 +101,7 @@ impl Communicator {
     /// welcomed, or `patience` has passed since the last answered request (or since the
     /// first attempt).
     pub fn connect(&mut self) -> Result<(), CommunicatorError> {
-        let (since, _) = *self.unanswered.get_or_insert((Instant::now(), 0));
+        let (since, _, _) = *self.unanswered.get_or_insert((Instant::now(), 0, 0));
         loop {
             if let Some(pause) = self.backoff {
                 if since.elapsed() + pause >= self.patience {
@@ -123,7 +126,8 @@ impl Communicator {
     /// Why the connection attempts ended.
     fn gave_up(&self, waited: Duration) -> CommunicatorError {
         match self.unanswered {
-            Some((_, connections)) if connections > 0 => CommunicatorError::Unresponsive { addr: self.addr, connections, waited },
+            Some((_, connections, 0)) if connections > 0 => CommunicatorError::Unwelcoming { addr: self.addr, connections, waited },
+            Some((_, connections, _)) if connections > 0 => CommunicatorError::Unresponsive { addr: self.addr, connections, waited },
             _ => CommunicatorError::Unreachable { addr: self.addr, waited },
         }
     }
@@ -134,7 +138,7 @@ impl Communicator {
         let stream = TcpStream::connect_timeout(&self.addr, timeout).map_err(gone)?;
         let _ = stream.set_nodelay(true);
         stream.set_write_timeout(Some(self.patience.max(Duration::from_millis(1)))).map_err(gone)?;
-        if let Some((_, connections)) = &mut self.unanswered {
+        if let Some((_, connections, _)) = &mut self.unanswered {
             *connections += 1;
         }
         let tls = self.tls.as_ref().map(|(tls, name)| (tls, name.clone()));
@@ -155,6 +159,9 @@ impl Communicator {
             .map_err(|problem| CommunicatorError::Protocol { addr: self.addr, problem })?;
         match welcome {
             ServerMessage::Welcome { robot_id, task, .. } => {
+                if let Some((_, _, welcomes)) = &mut self.unanswered {
+                    *welcomes += 1;
+                }
                 self.robot_id = Some(robot_id);
                 self.task = Some(task);
                 self.link = Some(link);
