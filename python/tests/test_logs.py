@@ -193,3 +193,40 @@ def test_make_vec_logs_arena_zero(tmp_path):
     assert "pole_joint" in states[0].name
     with pytest.raises(ValueError, match=r"\.mcap or a \.csv"):
         twinbots.make_vec("cartpole", 1, log=tmp_path / "env.txt")
+
+
+def test_every_constructor_takes_the_same_twin_arguments(tmp_path):
+    """`make`, `make_vec` and SB3's `make_vec_env` take the twin's arguments under the same names
+    (the classes hold them; the functions forward), and each runs the calibrated twin."""
+    import inspect
+
+    import numpy as np
+
+    import twinbots
+    from twinbots.sb3 import TwinbotsSB3VecEnv, make_vec_env
+
+    twin = {"seed", "task", "pattern", "config", "render_mode", "calibration", "log"}
+    for cls in (twinbots.TwinbotsEnv, twinbots.TwinbotsVectorEnv, TwinbotsSB3VecEnv):
+        assert twin <= set(inspect.signature(cls.__init__).parameters), cls
+    slow = tmp_path / "slow.toml"
+    slow.write_text("[parameters]\ncommand_delay = 0.03\n")
+    action = np.full(5, 0.8, dtype=np.float32)
+
+    def single(calibration):
+        env = twinbots.make("ur5e", seed=3, calibration=calibration)
+        env.reset(seed=3)
+        for _ in range(3):
+            obs = env.step(action)[0]
+        env.close()
+        return obs
+
+    def sb3(calibration):
+        env = make_vec_env("ur5e", 1, seed=3, calibration=calibration)
+        env.reset()
+        for _ in range(3):
+            obs = env.step(action[None])[0]
+        env.close()
+        return obs
+
+    for run in (single, sb3):
+        assert not np.allclose(run(None), run(slow)), run.__name__

@@ -23,32 +23,17 @@ def robots() -> list[dict]:
     return _native.robots()
 
 
-def make_vec(
-    robot: str,
-    num_envs: int = 1,
-    seed: int | None = None,
-    task: str | None = None,
-    pattern: int = 1,
-    config: Config = None,
-    render_mode: str | None = None,
-    autoreset_mode="SAME_STEP",
-    calibration=None,
-    log=None,
-) -> TwinbotsVectorEnv:
-    """`num_envs` arenas of `robot` as a `gymnasium.vector.VectorEnv` stepped in Rust.
-
-    `task`: None for the robot's main task; `pattern`: the paper's design pattern 1
-    (Supervisor) or 2 (radio); `config`: domain randomization (a TOML file or text with a
-    `[randomization]` table, or a dict of it); `autoreset_mode`: "SAME_STEP" or "NEXT_STEP";
-    `calibration`: a calibration file (`twinbots identify`'s calibration.toml) the twin runs
-    with; `log`: a robot log file (`.mcap` or `.csv`, docs/logs.md) that holds arena 0's latest
-    episode, rewritten as each ends (`close()` adds the running one)."""
-    return TwinbotsVectorEnv(robot, num_envs, seed, task, pattern, config, render_mode, autoreset_mode, calibration, log)
+def make_vec(robot: str, num_envs: int = 1, *args, **kwargs) -> TwinbotsVectorEnv:
+    """`num_envs` arenas of `robot` as a `gymnasium.vector.VectorEnv` stepped in Rust: the
+    arguments of `TwinbotsVectorEnv` (seed, task, pattern, config, render_mode, autoreset_mode,
+    calibration, log), where they are described."""
+    return TwinbotsVectorEnv(robot, num_envs, *args, **kwargs)
 
 
-def make(robot: str, task: str | None = None, **kwargs) -> TwinbotsEnv:
-    """One arena of `robot` as a `gymnasium.Env` (without Gymnasium's wrappers)."""
-    return TwinbotsEnv(robot, task, **kwargs)
+def make(robot: str, *args, **kwargs) -> TwinbotsEnv:
+    """One arena of `robot` as a `gymnasium.Env` (without Gymnasium's wrappers): the arguments
+    of `TwinbotsEnv`."""
+    return TwinbotsEnv(robot, *args, **kwargs)
 
 
 register_all()

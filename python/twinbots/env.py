@@ -32,8 +32,12 @@ class TwinbotsEnv(gym.Env):
         camera: str = "iso",
         width: int = 640,
         height: int = 480,
+        calibration=None,
+        log=None,
     ):
-        self.arenas = open_arenas(robot, 1, seed, task, pattern, config, render_mode, width=width, height=height, camera=camera)
+        self.arenas = open_arenas(
+            robot, 1, seed, task, pattern, config, render_mode, calibration=calibration, log=log, width=width, height=height, camera=camera
+        )
         self._owner = get_ident()
         self.task = self.arenas.task
         self.observation_space = to_space(self.arenas.observation_space)

@@ -28,8 +28,8 @@ class TwinbotsSB3VecEnv(VecEnv):
     the task's figures (see `twinbots._infos.episode_info`)."""
 
     def __init__(self, robot: str, n_envs: int = 1, seed: int | None = None, task: str | None = None,
-                 pattern: int = 1, config: Config = None, render_mode: str | None = None):
-        self.arenas = open_arenas(robot, n_envs, seed, task, pattern, config, render_mode, count_name="n_envs")
+                 pattern: int = 1, config: Config = None, render_mode: str | None = None, calibration=None, log=None):
+        self.arenas = open_arenas(robot, n_envs, seed, task, pattern, config, render_mode, count_name="n_envs", calibration=calibration, log=log)
         self._owner = get_ident()
         self.render_mode = render_mode  # read back by SB3's __init__ through get_attr
         super().__init__(int(n_envs), to_space(self.arenas.observation_space), to_space(self.arenas.action_space))
@@ -97,7 +97,7 @@ class TwinbotsSB3VecEnv(VecEnv):
         return list(indices)
 
 
-def make_vec_env(robot: str, n_envs: int = 1, seed: int | None = None, task: str | None = None,
-                 pattern: int = 1, config: Config = None, render_mode: str | None = None) -> TwinbotsSB3VecEnv:
-    """`n_envs` arenas of `robot` as an SB3 `VecEnv` (the arguments as `twinbots.make_vec`)."""
-    return TwinbotsSB3VecEnv(robot, n_envs, seed, task, pattern, config, render_mode)
+def make_vec_env(robot: str, n_envs: int = 1, *args, **kwargs) -> TwinbotsSB3VecEnv:
+    """`n_envs` arenas of `robot` as an SB3 `VecEnv`: the arguments of `TwinbotsSB3VecEnv` (those
+    of `twinbots.make_vec` but `autoreset_mode`)."""
+    return TwinbotsSB3VecEnv(robot, n_envs, *args, **kwargs)

@@ -34,7 +34,14 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
     `info["final_obs"]` and the episode's figures in `info["final_info"]` (and `episode`,
     `is_success`, ... at the top level, masked by `_episode`, ...). NEXT_STEP returns the last
     observation and begins the next episode on the following step, whose action that env
-    ignores."""
+    ignores.
+
+    `task`: None for the robot's main task; `pattern`: the paper's design pattern 1
+    (Supervisor) or 2 (radio); `config`: domain randomization (a TOML file or text with a
+    `[randomization]` table, or a dict of it); `calibration`: a calibration file (`twinbots
+    identify`'s calibration.toml) the twin runs with; `log`: a robot log file (`.mcap` or
+    `.csv`, docs/logs.md) that holds arena 0's latest episode, rewritten as each ends
+    (`close()` adds the running one). `TwinbotsEnv` and the SB3 `VecEnv` take the same."""
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"]}
 
