@@ -2,6 +2,7 @@
 
 mod bridge;
 mod custom_robot;
+mod learning;
 mod delivery;
 mod model;
 mod onnx;
