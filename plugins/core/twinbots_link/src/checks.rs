@@ -25,6 +25,9 @@ pub struct Rejection {
 /// serde's view of a malformed field), so a 60 KiB name cannot become a 60 KiB reply or log line.
 pub const MAX_MESSAGE: usize = 300;
 
+/// The longest server text (an error message, a `done` reason) a robot keeps, in characters.
+pub const MAX_SERVER_TEXT: usize = 200;
+
 impl Rejection {
     pub fn new(code: ErrorCode, fatal: bool, message: impl Into<String>) -> Self {
         Self { code, fatal, message: truncated(&message.into(), MAX_MESSAGE) }
@@ -117,17 +120,17 @@ pub fn check_request(message: &RobotMessage, task: &TaskInterface) -> Result<(),
     if obs.len() != dim {
         return refuse(ErrorCode::WrongLength, format!("observation has {} values, expected {dim}", obs.len()));
     }
+    // " (its name)" of observation value i, where the task names it.
+    let name = |i: usize| task.observation_names.get(i).map_or(String::new(), |n| format!(" ({n})"));
     if let Some(i) = obs.iter().position(|v| !v.is_finite()) {
-        let name = task.observation_names.get(i).map_or(String::new(), |n| format!(" ({n})"));
-        return refuse(ErrorCode::NonFinite, format!("observation value {i}{name} is {}: not a finite f32", obs[i]));
+        return refuse(ErrorCode::NonFinite, format!("observation value {i}{} is {}: not a finite f32", name(i), obs[i]));
     }
     if let Some(Space::Box { low, high }) = &task.observation_plausible
         && let Some(i) = (0..obs.len().min(low.len()).min(high.len())).find(|&i| obs[i] < low[i] || obs[i] > high[i])
     {
-        let name = task.observation_names.get(i).map_or(String::new(), |n| format!(" ({n})"));
         return refuse(
             ErrorCode::ObservationOutOfRange,
-            format!("observation value {i}{name} is {}, outside its plausible range [{}, {}]: a faulty sensor?", obs[i], low[i], high[i]),
+            format!("observation value {i}{} is {}, outside its plausible range [{}, {}]: a faulty sensor?", name(i), obs[i], low[i], high[i]),
         );
     }
     if let RobotMessage::Step { reward, .. } = message {

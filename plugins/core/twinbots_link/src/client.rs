@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use twinbots_api::Space;
 
-use crate::checks::{check_action, check_welcome};
+use crate::checks::{MAX_SERVER_TEXT, check_action, check_welcome, truncated};
 use crate::deadline::DeadlineStream;
 use crate::frame::{FrameError, read_frame, read_message, write_message};
 use crate::protocol::{ErrorCode, RobotMessage, ServerMessage, TaskInterface, VERSION};
@@ -169,7 +169,7 @@ impl Communicator {
             }
             // A full or busy server may have room later: keep trying within the patience.
             ServerMessage::Error { code: ErrorCode::ServerFull | ErrorCode::Unavailable, .. } => Err(CommunicatorError::Disconnected(self.addr)),
-            ServerMessage::Error { message, .. } => Err(CommunicatorError::Refused(crate::checks::truncated(&message, 200))),
+            ServerMessage::Error { message, .. } => Err(CommunicatorError::Refused(truncated(&message, MAX_SERVER_TEXT))),
             other => unreachable!("check_welcome passes a welcome or an error only, not {other:?}"),
         }
     }

@@ -23,11 +23,6 @@ impl DeadlineStream {
     pub fn expire_in(&mut self, timeout: Duration) {
         self.deadline = Some(Instant::now() + timeout);
     }
-
-    /// The stream underneath.
-    pub fn transport(&self) -> &Transport {
-        &self.stream
-    }
 }
 
 impl Read for DeadlineStream {

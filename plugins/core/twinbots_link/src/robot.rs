@@ -25,7 +25,7 @@ use twinbots_task::task::{TaskSet, Terms, configure_task_sets};
 use twinbots_task::{Action, ActiveTask, Episode};
 use twinbots_sim::{Arena, SimSet};
 
-use crate::checks::truncated;
+use crate::checks::{MAX_SERVER_TEXT, truncated};
 use crate::client::{Communicator, CommunicatorError, Identity};
 pub use crate::onboard::{OnBoardLink, OnBoardPolicy};
 pub use crate::policy_link::PolicyLink;
@@ -134,16 +134,16 @@ impl Conversation {
                 state.episodes += 1;
                 self.phase = Phase::Homing;
             }
-            Ok(ServerMessage::Done { reason }) => state.stop = Some(Ok(truncated(&reason, 200))),
+            Ok(ServerMessage::Done { reason }) => state.stop = Some(Ok(truncated(&reason, MAX_SERVER_TEXT))),
             // The server closed an idle connection (a robot that homed for longer than its
             // read timeout): the link is lost, not the training.
             Ok(ServerMessage::Error { code: ErrorCode::Timeout, .. }) => self.lost(state),
-            Ok(ServerMessage::Error { message, fatal: true, .. }) => state.stop = Some(Err(truncated(&message, 200))),
+            Ok(ServerMessage::Error { message, fatal: true, .. }) => state.stop = Some(Err(truncated(&message, MAX_SERVER_TEXT))),
             // The request was not used: the episode cannot go on without an action. The robot
             // homes and starts afresh (a `start` drops the running episode), and stops if the
             // server refuses request after request.
             Ok(ServerMessage::Error { message, .. }) => {
-                let message = truncated(&message, 200);
+                let message = truncated(&message, MAX_SERVER_TEXT);
                 warn!("server refused a request: {message}");
                 self.refused += 1;
                 self.phase = Phase::Homing;
