@@ -64,7 +64,7 @@ impl CalibrationSetting {
 
     /// `randomization`'s check that a spread it draws with is there.
     pub fn check_randomization(calibration: Option<&Self>, randomization: &Randomization) -> anyhow::Result<()> {
-        randomization.check_spread(calibration.map(|c| twinbots_sim::Parameters(c.spread.clone())).as_ref())
+        randomization.check_spread(calibration.is_some_and(|c| !c.spread.is_empty()))
     }
 }
 

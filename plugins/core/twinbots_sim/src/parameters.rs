@@ -37,6 +37,11 @@ impl ParameterKind {
             Self::CommandDelay => "command_delay",
         }
     }
+
+    /// The parameter of this kind of the joint `joint` (`elbow_joint.damping`).
+    pub fn of_joint(self, joint: &str) -> String {
+        format!("{joint}.{}", self.suffix())
+    }
 }
 
 /// One parameter of a robot: its name, its nominal value and its unit.
@@ -87,7 +92,7 @@ pub fn catalogue(model: &RobotModel, nominal: &Parameters) -> Vec<ParameterSpec>
     for j in model.joints.iter().filter(|j| j.kind.is_movable()) {
         let rot = j.kind.is_rotational();
         let mut push = |kind: ParameterKind, default: f32, unit_rot: &'static str, unit_lin: &'static str| {
-            let name = format!("{}.{}", j.name, kind.suffix());
+            let name = kind.of_joint(&j.name);
             let default = nominal.get(&name).unwrap_or(default as f64);
             out.push(ParameterSpec { name, kind, joint: Some(j.name.clone()), default, unit: if rot { unit_rot } else { unit_lin } });
         };
@@ -107,7 +112,7 @@ pub fn catalogue(model: &RobotModel, nominal: &Parameters) -> Vec<ParameterSpec>
 /// Sets one joint's damping, friction, armature, gain and delay from `params` (the names it
 /// holds; others stay as they are).
 pub fn apply_to_joint(world: &mut PhysicsWorld, joint: &Joint, dynamics: &mut JointDynamics, motor: Option<&mut Motor>, params: &Parameters) {
-    let get = |kind: ParameterKind| params.get(&format!("{}.{}", joint.name, kind.suffix()));
+    let get = |kind: ParameterKind| params.get(&kind.of_joint(&joint.name));
     if let Some(v) = get(ParameterKind::Damping) {
         dynamics.damping = v as f32;
     }

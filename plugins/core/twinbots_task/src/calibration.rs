@@ -12,16 +12,28 @@ use twinbots_sim::{ParameterSpec, Parameters};
 
 /// Reads the `[parameters]` of a calibration's TOML text; the error names the entry at fault.
 pub fn parse_parameters(text: &str) -> anyhow::Result<Parameters> {
-    parse_table(text, "parameters")?.ok_or_else(|| anyhow::anyhow!("no [parameters] table"))
+    parameters_of(&toml_table(text)?)
 }
 
 /// Reads the `[spread]` of a calibration's TOML text (none: an empty set).
 pub fn parse_spread(text: &str) -> anyhow::Result<Parameters> {
-    Ok(parse_table(text, "spread")?.unwrap_or_default())
+    spread_of(&toml_table(text)?)
 }
 
-fn parse_table(text: &str, name: &str) -> anyhow::Result<Option<Parameters>> {
-    let table: toml::Table = toml::from_str(text).map_err(|e| anyhow::anyhow!("not valid TOML: {e}"))?;
+fn toml_table(text: &str) -> anyhow::Result<toml::Table> {
+    toml::from_str(text).map_err(|e| anyhow::anyhow!("not valid TOML: {e}"))
+}
+
+fn parameters_of(table: &toml::Table) -> anyhow::Result<Parameters> {
+    values_of(table, "parameters")?.ok_or_else(|| anyhow::anyhow!("no [parameters] table"))
+}
+
+fn spread_of(table: &toml::Table) -> anyhow::Result<Parameters> {
+    Ok(values_of(table, "spread")?.unwrap_or_default())
+}
+
+/// The table `name` of a calibration, flattened to dotted names (none: absent).
+fn values_of(table: &toml::Table, name: &str) -> anyhow::Result<Option<Parameters>> {
     let Some(values) = table.get(name) else { return Ok(None) };
     let toml::Value::Table(values) = values else { bail!("'{name}' is not a table") };
     let mut out = Parameters::default();
@@ -52,9 +64,11 @@ pub fn read_calibration(path: &Path, catalogue: &[ParameterSpec], robot: &str) -
 /// value finite and ≥ 0.
 pub fn read_calibration_with_spread(path: &Path, catalogue: &[ParameterSpec], robot: &str) -> anyhow::Result<(Parameters, Parameters)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read calibration {}", path.display()))?;
-    let params = parse_parameters(&text).with_context(|| format!("calibration {}", path.display()))?;
-    params.check(catalogue, robot).map_err(|e| anyhow::anyhow!("calibration {}: {e}", path.display()))?;
-    let spread = parse_spread(&text).with_context(|| format!("calibration {}", path.display()))?;
+    let in_file = || format!("calibration {}", path.display());
+    let table = toml_table(&text).with_context(in_file)?;
+    let params = parameters_of(&table).with_context(in_file)?;
+    params.check(catalogue, robot).map_err(|e| anyhow::anyhow!("{}: {e}", in_file()))?;
+    let spread = spread_of(&table).with_context(in_file)?;
     for (name, sigma) in &spread.0 {
         anyhow::ensure!(
             params.0.contains_key(name),

@@ -19,7 +19,7 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 use twinbots_sim::parameters::apply_to_joint;
-use twinbots_sim::{Arena, InArena, Joint, JointDynamics, Motor, Parameters, PositionSensor, SimSet};
+use twinbots_sim::{Arena, InArena, Joint, JointDynamics, Motor, ParameterKind, Parameters, PositionSensor, SimSet};
 
 use crate::task::{Action, ActiveTask, EnvReset, ResetSet, Resetting};
 
@@ -115,10 +115,11 @@ impl Randomization {
         Ok(())
     }
 
-    /// A clear error when `calibration_spread` is asked for without a spread to scale.
-    pub fn check_spread(&self, spread: Option<&Parameters>) -> anyhow::Result<()> {
+    /// A clear error when `calibration_spread` is asked for without a spread to scale
+    /// (`has_spread`: the run's calibration has a non-empty `[spread]`).
+    pub fn check_spread(&self, has_spread: bool) -> anyhow::Result<()> {
         anyhow::ensure!(
-            self.calibration_spread == 0.0 || spread.is_some_and(|s| !s.0.is_empty()),
+            self.calibration_spread == 0.0 || has_spread,
             "randomization.calibration_spread = {} needs a calibration with a [spread] table \
              (`--calibration FILE`; `twinbots identify` writes one)",
             self.calibration_spread
@@ -233,7 +234,7 @@ fn draw_calibration(
                 continue;
             }
             // The restored world carries the fitted armature: a new one is added relative to it.
-            if let Some(fitted) = centre.get(&format!("{}.armature", joint.name)) {
+            if let Some(fitted) = centre.get(&ParameterKind::Armature.of_joint(&joint.name)) {
                 dynamics.armature_restored(fitted as f32);
             }
             apply_to_joint(&mut arena.world, joint, &mut dynamics, motor.map(|m| m.into_inner()), &drawn);
