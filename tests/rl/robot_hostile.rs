@@ -16,7 +16,7 @@ use crate::server::{frame, twinbots};
 
 /// A stand-in server on a free loopback port: `script` runs on every connection it accepts
 /// (each on its own thread); the count is of connections accepted.
-fn fake_server(script: impl Fn(TcpStream) + Send + Sync + 'static) -> (SocketAddr, Arc<AtomicU32>) {
+pub fn fake_server(script: impl Fn(TcpStream) + Send + Sync + 'static) -> (SocketAddr, Arc<AtomicU32>) {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = listener.local_addr().unwrap();
     let count = Arc::new(AtomicU32::new(0));

@@ -4,11 +4,12 @@
 //! or a token needs `--insecure`, which warns.
 
 use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::net::{SocketAddr, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
 use std::sync::{Arc, Mutex};
 
+use crate::robot_hostile::fake_server;
 use crate::server::{serve_process_with, temp, twinbots};
 
 /// A certificate authority and a server certificate it signed for 127.0.0.1, as PEM files in
@@ -34,28 +35,25 @@ fn serve(out: &Path, extra: &[&str]) -> (Child, SocketAddr) {
     serve_process_with("127.0.0.1:0", 512, out, &[&["--robots", "1"], extra].concat())
 }
 
-/// A loopback proxy to `upstream` that keeps every byte that crosses it, both ways.
+/// A loopback proxy to `upstream` (a stand-in server whose every connection is relayed) that
+/// keeps every byte that crosses it, both ways.
 fn capturing_proxy(upstream: SocketAddr) -> (SocketAddr, Arc<Mutex<Vec<u8>>>) {
-    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
-    let addr = listener.local_addr().unwrap();
     let wire = Arc::new(Mutex::new(Vec::new()));
     let captured = wire.clone();
-    std::thread::spawn(move || {
-        for client in listener.incoming().flatten() {
-            let Ok(server) = TcpStream::connect(upstream) else { return };
-            for (mut from, mut to) in [(client.try_clone().unwrap(), server.try_clone().unwrap()), (server, client)] {
-                let wire = captured.clone();
-                std::thread::spawn(move || {
-                    let mut buf = [0u8; 4096];
-                    while let Ok(n) = from.read(&mut buf) {
-                        if n == 0 || to.write_all(&buf[..n]).is_err() {
-                            break;
-                        }
-                        wire.lock().unwrap().extend_from_slice(&buf[..n]);
+    let (addr, _) = fake_server(move |client| {
+        let Ok(server) = TcpStream::connect(upstream) else { return };
+        for (mut from, mut to) in [(client.try_clone().unwrap(), server.try_clone().unwrap()), (server, client)] {
+            let wire = captured.clone();
+            std::thread::spawn(move || {
+                let mut buf = [0u8; 4096];
+                while let Ok(n) = from.read(&mut buf) {
+                    if n == 0 || to.write_all(&buf[..n]).is_err() {
+                        break;
                     }
-                    let _ = to.shutdown(std::net::Shutdown::Write);
-                });
-            }
+                    wire.lock().unwrap().extend_from_slice(&buf[..n]);
+                }
+                let _ = to.shutdown(std::net::Shutdown::Write);
+            });
         }
     });
     (addr, wire)
