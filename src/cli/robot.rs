@@ -43,7 +43,8 @@ pub struct Args {
     #[arg(long, conflicts_with = "policy", value_parser = crate::cli::serve::non_empty_token)]
     pub token: Option<String>,
     /// TLS: the certificate authority (PEM) that signed the server's certificate, or the
-    /// server's self-signed certificate itself. Without it the robots speak plain TCP.
+    /// server's self-signed certificate itself (not marked as a CA: docs/protocol.md).
+    /// Without it the robots speak plain TCP.
     #[arg(long, conflicts_with = "policy")]
     pub tls_ca: Option<std::path::PathBuf>,
     /// TLS: the name the server's certificate must bear (default: the --server IP address).
