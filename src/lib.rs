@@ -7,3 +7,4 @@ pub mod robot_log;
 pub mod run;
 pub mod settings;
 pub mod twin;
+pub mod ur_sim;

@@ -46,6 +46,10 @@ enum Command {
     Replay(cli::replay::Args),
     /// Calibrate the twin to robot logs (system identification with CMA-ES).
     Identify(cli::identify::Args),
+    /// A UR controller stand-in: serves RTDE on 127.0.0.1:30004, backed by the UR5e twin
+    /// (optionally a truth twin) running the shipped control program every 2 ms.
+    #[command(name = "ur-sim")]
+    UrSim(cli::ur_sim::Args),
 }
 
 fn main() {
@@ -73,5 +77,6 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Record(args) => cli::record::exec(args),
         Command::Replay(args) => cli::replay::exec(args),
         Command::Identify(args) => cli::identify::exec(args),
+        Command::UrSim(args) => cli::ur_sim::exec(args),
     }
 }

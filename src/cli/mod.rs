@@ -14,3 +14,4 @@ pub mod robots;
 pub mod serve;
 pub mod view;
 pub mod train;
+pub mod ur_sim;

@@ -14,6 +14,7 @@ mod td3;
 mod tls;
 mod resume;
 mod robot_hostile;
+mod rtde;
 mod server;
 mod server_hostile;
 mod server_load;

@@ -19,4 +19,4 @@ pub use excitation::Excitation;
 pub use identify::{Fit, FitOptions, identify};
 pub use record::{Recording, SensorNoise, record};
 pub use replay::{PreparedLog, ReplayReport, compare, prepare};
-pub use rig::{Rig, run};
+pub use rig::{Rig, Stand, run};

@@ -132,40 +132,67 @@ impl Trajectory {
 /// Runs `program` on one arena per parameter set (each the full set the twin runs with), the
 /// joints started at `start` (by name); returns each arena's trajectory.
 pub fn run(rig: &Rig, start: &[(String, f32)], program: &Program, sets: &[Parameters]) -> Vec<Trajectory> {
-    let mut app = App::new();
-    app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings: rig.settings, supervisor: false });
-    let joints: Vec<Vec<Entity>> = sets.iter().enumerate().map(|(index, params)| spawn(&mut app, rig, index, start, params)).collect();
-    // Start-up only: the world as built.
-    app.update();
-    let world = app.world_mut();
-    let read = |world: &World, entities: &[Entity]| {
+    let mut stand = Stand::new(rig, start, sets);
+    let mut out: Vec<Trajectory> =
+        (0..sets.len()).map(|a| Trajectory { start: stand.reading(a), steps: Vec::with_capacity(program.steps()) }).collect();
+    for changes in &program.changes {
+        for arena in 0..sets.len() {
+            for &(j, command) in changes {
+                stand.command(arena, j, command);
+            }
+        }
+        stand.step();
+        for (a, trajectory) in out.iter_mut().enumerate() {
+            trajectory.steps.push(stand.reading(a));
+        }
+    }
+    out
+}
+
+/// The rig on one arena per parameter set, stepped a physics step at a time: what [`run`]
+/// replays a program on, and what a live stand-in for the robot steps in real time.
+pub struct Stand {
+    app: App,
+    /// Per arena, the entities of [`Rig::joints`].
+    joints: Vec<Vec<Entity>>,
+}
+
+impl Stand {
+    /// The rig's arenas built (one per set), the joints at `start` (by name).
+    pub fn new(rig: &Rig, start: &[(String, f32)], sets: &[Parameters]) -> Self {
+        let mut app = App::new();
+        app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings: rig.settings, supervisor: false });
+        let joints = sets.iter().enumerate().map(|(index, params)| spawn(&mut app, rig, index, start, params)).collect();
+        // Start-up only: the world as built.
+        app.update();
+        Self { app, joints }
+    }
+
+    /// Sets joint `joint`'s (index into [`Rig::joints`]) motor command in `arena`; a joint
+    /// without a motor ignores it.
+    pub fn command(&mut self, arena: usize, joint: usize, command: MotorCommand) {
+        if let Some(mut motor) = self.app.world_mut().get_mut::<Motor>(self.joints[arena][joint]) {
+            motor.command = command;
+        }
+    }
+
+    /// One physics step of every arena.
+    pub fn step(&mut self) {
+        self.app.world_mut().run_schedule(PhysicsSubstep);
+    }
+
+    /// What `arena`'s joints measure now.
+    pub fn reading(&self, arena: usize) -> Reading {
+        let world = self.app.world();
         let mut r = Reading::default();
-        for &e in entities {
+        for &e in &self.joints[arena] {
             let s = world.get::<JointState>(e).expect("every movable joint has a JointState");
             r.position.push(s.position);
             r.velocity.push(s.velocity);
             r.effort.push(s.effort);
         }
         r
-    };
-    let mut out: Vec<Trajectory> = joints
-        .iter()
-        .map(|entities| Trajectory { start: read(world, entities), steps: Vec::with_capacity(program.steps()) })
-        .collect();
-    for changes in &program.changes {
-        for entities in &joints {
-            for &(j, command) in changes {
-                if let Some(mut motor) = world.get_mut::<Motor>(entities[j]) {
-                    motor.command = command;
-                }
-            }
-        }
-        world.run_schedule(PhysicsSubstep);
-        for (trajectory, entities) in out.iter_mut().zip(&joints) {
-            trajectory.steps.push(read(world, entities));
-        }
     }
-    out
 }
 
 /// Spawns arena `index` with the rig on it, its joints set to `params`; returns the entities of

@@ -1,0 +1,502 @@
+//! The controller's side of RTDE, for a stand-in: it accepts clients, answers their setup
+//! (protocol version, controller version, recipes, start and pause), keeps the inputs each
+//! client sets (one client per input: `IN_USE` for the next), and streams each started
+//! client's output recipe at its frequency from the state the stand-in publishes every control
+//! cycle. A malformed package gets an error text message and the session goes on, unless its
+//! framing is lost (then it ends). The stand-in owns the cycle: it reads [`RtdeServer::inputs`],
+//! computes, and [`RtdeServer::publish`]es.
+
+use std::io::Write;
+use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crossbeam_channel::{Receiver, Sender};
+
+use crate::package::{ControllerVersion, MessageLevel, Package, RecipeReply, TextMessage, kind, names};
+use crate::types::Value;
+use crate::variables::{input_index, inputs, output_index, outputs};
+use crate::{MAX_FREQUENCY, PROTOCOL_VERSION, RtdeError};
+
+/// The controller's outputs: one value per [`outputs`] entry, in its order.
+#[derive(Clone, Debug)]
+pub struct OutputState(pub Vec<Value>);
+
+impl Default for OutputState {
+    fn default() -> Self {
+        Self(outputs().iter().map(|v| v.data_type.zero()).collect())
+    }
+}
+
+impl OutputState {
+    /// The index of output `name` (for setting it every cycle without a lookup); panics on a
+    /// name the guide does not have, which is a bug in the stand-in.
+    pub fn slot(name: &str) -> usize {
+        output_index(name).unwrap_or_else(|| panic!("'{name}' is no RTDE output"))
+    }
+
+    /// Sets output `slot`; the value must have the variable's type.
+    pub fn set(&mut self, slot: usize, value: Value) {
+        debug_assert_eq!(self.0[slot].data_type(), value.data_type(), "{}", outputs()[slot].name);
+        self.0[slot] = value;
+    }
+}
+
+/// The inputs clients have set: one value per [`inputs`] entry, in its order.
+#[derive(Clone, Debug)]
+pub struct InputState {
+    pub values: Vec<Value>,
+    /// Which session set each input (0: none).
+    owners: Vec<u64>,
+    /// Counts input packages applied, so a cycle can tell a fresh command from a stale one.
+    pub updates: u64,
+}
+
+impl Default for InputState {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl InputState {
+    /// Every input at zero, none held by a client.
+    pub fn new() -> Self {
+        let values: Vec<Value> = inputs().iter().map(|v| v.data_type.zero()).collect();
+        let owners = vec![0; values.len()];
+        Self { values, owners, updates: 0 }
+    }
+
+    /// The value of input `name`; panics on a name the guide does not have.
+    pub fn get(&self, name: &str) -> Value {
+        self.values[input_index(name).unwrap_or_else(|| panic!("'{name}' is no RTDE input"))]
+    }
+
+    /// Sets input `name` (a stand-in's own tests drive its program this way); panics on a name
+    /// the guide does not have or a value of another type.
+    pub fn set(&mut self, name: &str, value: Value) {
+        let i = input_index(name).unwrap_or_else(|| panic!("'{name}' is no RTDE input"));
+        assert_eq!(inputs()[i].data_type, value.data_type(), "{name}");
+        self.values[i] = value;
+    }
+}
+
+/// What a stand-in tells its clients about itself.
+#[derive(Clone, Debug)]
+pub struct ControllerInfo {
+    pub version: ControllerVersion,
+    /// Control cycles per second: how often [`RtdeServer::publish`] is called.
+    pub cycle_hz: f64,
+    /// The source of its text messages.
+    pub source: String,
+}
+
+struct Shared {
+    info: ControllerInfo,
+    inputs: Mutex<InputState>,
+    sessions: Mutex<Vec<SessionHandle>>,
+    events: Mutex<Vec<String>>,
+    stop: AtomicBool,
+    next_session: AtomicU64,
+}
+
+struct SessionHandle {
+    id: u64,
+    writer: Arc<Mutex<TcpStream>>,
+    /// The streamer's channel while the session is started.
+    stream: Option<Sender<Arc<OutputState>>>,
+}
+
+/// A listening stand-in controller.
+pub struct RtdeServer {
+    shared: Arc<Shared>,
+    address: SocketAddr,
+    accept: Option<JoinHandle<()>>,
+}
+
+impl RtdeServer {
+    /// Listens on `address` (e.g. `127.0.0.1:30004`; port 0 picks a free one).
+    pub fn bind(address: &str, info: ControllerInfo) -> Result<Self, RtdeError> {
+        let listener = TcpListener::bind(address).map_err(|source| RtdeError::Connect { address: address.to_string(), source })?;
+        let local = listener.local_addr()?;
+        listener.set_nonblocking(true)?;
+        let shared = Arc::new(Shared {
+            info,
+            inputs: Mutex::new(InputState::new()),
+            sessions: Mutex::new(Vec::new()),
+            events: Mutex::new(Vec::new()),
+            stop: AtomicBool::new(false),
+            next_session: AtomicU64::new(1),
+        });
+        let accept_shared = shared.clone();
+        let accept = std::thread::Builder::new().name("rtde-accept".into()).spawn(move || accept_loop(listener, accept_shared))?;
+        Ok(Self { shared, address: local, accept: Some(accept) })
+    }
+
+    pub fn local_addr(&self) -> SocketAddr {
+        self.address
+    }
+
+    /// The inputs as clients have set them.
+    pub fn inputs(&self) -> InputState {
+        lock(&self.shared.inputs).clone()
+    }
+
+    /// Sets an input on the controller's own account (as a program's `write_input_*` does);
+    /// `None` if a client holds it or `name` is no input.
+    pub fn set_input(&self, name: &str, value: Value) -> Option<()> {
+        let i = input_index(name)?;
+        let mut state = lock(&self.shared.inputs);
+        (state.owners[i] == 0 && state.values[i].data_type() == value.data_type()).then(|| state.values[i] = value)
+    }
+
+    /// One control cycle's outputs: each started client gets them if its frequency is due.
+    /// A client that has not taken the last cycle's yet misses this one (as a busy controller
+    /// skips packages).
+    pub fn publish(&self, state: Arc<OutputState>) {
+        for session in lock(&self.shared.sessions).iter() {
+            if let Some(tx) = &session.stream {
+                let _ = tx.try_send(state.clone());
+            }
+        }
+    }
+
+    /// A text message to every client.
+    pub fn broadcast(&self, level: MessageLevel, message: &str) {
+        let text = TextMessage { level, message: message.to_string(), source: self.shared.info.source.clone() };
+        let Ok(bytes) = Package::new(kind::TEXT_MESSAGE, text.encode()).encode() else { return };
+        for session in lock(&self.shared.sessions).iter() {
+            let _ = lock(&session.writer).write_all(&bytes);
+        }
+    }
+
+    /// Clients connected now.
+    pub fn clients(&self) -> usize {
+        lock(&self.shared.sessions).len()
+    }
+
+    /// What happened since the last call: connections, refusals, client messages.
+    pub fn take_events(&self) -> Vec<String> {
+        std::mem::take(&mut *lock(&self.shared.events))
+    }
+
+    /// Stops accepting and closes every session.
+    pub fn shutdown(&mut self) {
+        self.shared.stop.store(true, Ordering::SeqCst);
+        for session in lock(&self.shared.sessions).iter() {
+            let _ = lock(&session.writer).shutdown(Shutdown::Both);
+        }
+        if let Some(accept) = self.accept.take() {
+            let _ = accept.join();
+        }
+    }
+}
+
+impl Drop for RtdeServer {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+fn accept_loop(listener: TcpListener, shared: Arc<Shared>) {
+    while !shared.stop.load(Ordering::SeqCst) {
+        match listener.accept() {
+            Ok((stream, peer)) => {
+                let shared = shared.clone();
+                let _ = std::thread::Builder::new().name(format!("rtde-{peer}")).spawn(move || Session::run(stream, peer, shared));
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => std::thread::sleep(Duration::from_millis(5)),
+            Err(_) => std::thread::sleep(Duration::from_millis(5)),
+        }
+    }
+}
+
+/// One client's conversation.
+struct Session {
+    id: u64,
+    peer: SocketAddr,
+    shared: Arc<Shared>,
+    writer: Arc<Mutex<TcpStream>>,
+    version_agreed: bool,
+    next_recipe: u8,
+    output: Option<Arc<Recipe>>,
+    input_recipes: Vec<Recipe>,
+    streamer: Option<JoinHandle<()>>,
+}
+
+/// A recipe: variable indices (into [`outputs`] or [`inputs`]) and, for outputs, the frequency.
+#[derive(Debug)]
+struct Recipe {
+    id: u8,
+    variables: Vec<usize>,
+    frequency: f64,
+}
+
+impl Session {
+    fn run(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>) {
+        let _ = stream.set_nonblocking(false);
+        let _ = stream.set_nodelay(true);
+        // A client that stops reading must not stall the controller's streamers for long.
+        let _ = stream.set_write_timeout(Some(Duration::from_secs(1)));
+        let Ok(writer) = stream.try_clone() else { return };
+        let id = shared.next_session.fetch_add(1, Ordering::SeqCst);
+        let writer = Arc::new(Mutex::new(writer));
+        lock(&shared.sessions).push(SessionHandle { id, writer: writer.clone(), stream: None });
+        lock(&shared.events).push(format!("{peer}: connected"));
+        let mut session =
+            Session { id, peer, shared, writer, version_agreed: false, next_recipe: 1, output: None, input_recipes: Vec::new(), streamer: None };
+        let mut reader = stream;
+        let end = loop {
+            if session.shared.stop.load(Ordering::SeqCst) {
+                break "the controller stopped".to_string();
+            }
+            match Package::read(&mut reader) {
+                Ok(package) => {
+                    if let Err(e) = session.handle(package) {
+                        break e;
+                    }
+                }
+                Err(RtdeError::Closed) => break "disconnected".into(),
+                Err(e @ (RtdeError::Malformed(_) | RtdeError::Truncated(_))) => {
+                    session.error(&format!("{e}; closing the connection"));
+                    break e.to_string();
+                }
+                Err(e) => break e.to_string(),
+            }
+        };
+        session.close(&end);
+    }
+
+    /// Answers one package; an `Err` ends the session.
+    fn handle(&mut self, package: Package) -> Result<(), String> {
+        let p = &package.payload;
+        match package.kind {
+            kind::REQUEST_PROTOCOL_VERSION => {
+                let ok = p.len() == 2 && u16::from_be_bytes([p[0], p[1]]) == PROTOCOL_VERSION;
+                if !ok {
+                    let asked = if p.len() == 2 { u16::from_be_bytes([p[0], p[1]]).to_string() } else { format!("a {}-byte payload", p.len()) };
+                    self.event(format!("refused protocol version {asked}: this stand-in speaks version 2 only"));
+                }
+                self.version_agreed |= ok;
+                self.reply(kind::REQUEST_PROTOCOL_VERSION, vec![ok as u8])
+            }
+            kind::GET_URCONTROL_VERSION => self.reply(kind::GET_URCONTROL_VERSION, self.shared.info.version.encode()),
+            kind::TEXT_MESSAGE => {
+                match TextMessage::decode(p) {
+                    Ok(m) => self.event(format!("message ({:?}) from {}: {}", m.level, m.source, m.message)),
+                    Err(e) => self.error(&e.to_string()),
+                }
+                Ok(())
+            }
+            kind::SETUP_OUTPUTS => self.setup_outputs(p),
+            kind::SETUP_INPUTS => self.setup_inputs(p),
+            kind::START => self.start(),
+            kind::PAUSE => {
+                self.set_stream(None);
+                self.reply(kind::PAUSE, vec![1])
+            }
+            kind::DATA_PACKAGE => {
+                if let Err(e) = self.apply_inputs(p) {
+                    self.error(&e);
+                }
+                Ok(())
+            }
+            other => {
+                self.error(&format!("unknown package type {other} ('{}'), ignored", other as char));
+                Ok(())
+            }
+        }
+    }
+
+    fn setup_outputs(&mut self, p: &[u8]) -> Result<(), String> {
+        let refuse = |session: &mut Self, why: String| {
+            session.error(&format!("output recipe refused: {why}"));
+            session.reply(kind::SETUP_OUTPUTS, RecipeReply { id: 0, types: Vec::new() }.encode())
+        };
+        if !self.version_agreed {
+            return refuse(self, "negotiate protocol version 2 first (RTDE_REQUEST_PROTOCOL_VERSION)".into());
+        }
+        if self.streaming() {
+            return refuse(self, "the session is started: pause first".into());
+        }
+        if p.len() < 8 {
+            return refuse(self, format!("{} bytes: a frequency (8) and variable names are expected", p.len()));
+        }
+        let frequency = f64::from_be_bytes(p[..8].try_into().unwrap());
+        if !(frequency > 0.0 && frequency <= MAX_FREQUENCY) {
+            return refuse(self, format!("frequency {frequency} Hz outside (0, {MAX_FREQUENCY}]"));
+        }
+        let wanted = match names(&p[8..]) {
+            Ok(n) => n,
+            Err(e) => return refuse(self, e.to_string()),
+        };
+        let found: Vec<Option<usize>> = wanted.iter().map(|n| output_index(n)).collect();
+        let types = found.iter().map(|f| f.map_or("NOT_FOUND", |i| outputs()[i].data_type.name()).to_string()).collect();
+        if found.iter().any(Option::is_none) {
+            let missing: Vec<&String> = wanted.iter().zip(&found).filter(|(_, f)| f.is_none()).map(|(n, _)| n).collect();
+            self.event(format!("output recipe: no variable {missing:?}"));
+            return self.reply(kind::SETUP_OUTPUTS, RecipeReply { id: 0, types }.encode());
+        }
+        let id = self.take_recipe_id();
+        self.output = Some(Arc::new(Recipe { id, variables: found.into_iter().flatten().collect(), frequency }));
+        self.reply(kind::SETUP_OUTPUTS, RecipeReply { id, types }.encode())
+    }
+
+    fn setup_inputs(&mut self, p: &[u8]) -> Result<(), String> {
+        if !self.version_agreed || self.streaming() {
+            let why = if self.version_agreed { "the session is started: pause first" } else { "negotiate protocol version 2 first" };
+            self.error(&format!("input recipe refused: {why}"));
+            return self.reply(kind::SETUP_INPUTS, RecipeReply { id: 0, types: Vec::new() }.encode());
+        }
+        let wanted = match names(p) {
+            Ok(n) => n,
+            Err(e) => {
+                self.error(&format!("input recipe refused: {e}"));
+                return self.reply(kind::SETUP_INPUTS, RecipeReply { id: 0, types: Vec::new() }.encode());
+            }
+        };
+        let found: Vec<Option<usize>> = wanted.iter().map(|n| input_index(n)).collect();
+        let (types, ok) = {
+            let mut state = lock(&self.shared.inputs);
+            let types: Vec<String> = found
+                .iter()
+                .map(|f| match f {
+                    None => "NOT_FOUND".to_string(),
+                    Some(i) if state.owners[*i] != 0 && state.owners[*i] != self.id => "IN_USE".to_string(),
+                    Some(i) => inputs()[*i].data_type.name().to_string(),
+                })
+                .collect();
+            let ok = types.iter().all(|t| t != "NOT_FOUND" && t != "IN_USE");
+            if ok {
+                found.iter().flatten().for_each(|&i| state.owners[i] = self.id);
+            }
+            (types, ok)
+        };
+        if !ok {
+            self.event(format!("input recipe {wanted:?} refused: {types:?}"));
+            return self.reply(kind::SETUP_INPUTS, RecipeReply { id: 0, types }.encode());
+        }
+        let id = self.take_recipe_id();
+        self.input_recipes.push(Recipe { id, variables: found.into_iter().flatten().collect(), frequency: 0.0 });
+        self.reply(kind::SETUP_INPUTS, RecipeReply { id, types }.encode())
+    }
+
+    fn start(&mut self) -> Result<(), String> {
+        let Some(recipe) = self.output.clone() else {
+            self.error("start refused: no output recipe (RTDE_CONTROL_PACKAGE_SETUP_OUTPUTS first)");
+            return self.reply(kind::START, vec![0]);
+        };
+        if !self.streaming() {
+            // Room for one cycle: a streamer that falls behind skips to the newest state.
+            let (tx, rx) = crossbeam_channel::bounded(1);
+            let writer = self.writer.clone();
+            let step = recipe.frequency / self.shared.info.cycle_hz;
+            if let Some(old) = self.streamer.take() {
+                let _ = old.join();
+            }
+            self.streamer = std::thread::Builder::new().name(format!("rtde-out-{}", self.peer)).spawn(move || stream(rx, writer, recipe, step)).ok();
+            self.set_stream(Some(tx));
+        }
+        self.reply(kind::START, vec![1])
+    }
+
+    fn apply_inputs(&mut self, p: &[u8]) -> Result<(), String> {
+        let (&id, mut rest) = p.split_first().ok_or("an empty data package")?;
+        let recipe = self.input_recipes.iter().find(|r| r.id == id).ok_or_else(|| format!("a data package for recipe {id}, which is no input recipe of this client; ignored"))?;
+        if !self.streaming() {
+            return Err("inputs before RTDE_CONTROL_PACKAGE_START are ignored".into());
+        }
+        let mut values = Vec::with_capacity(recipe.variables.len());
+        for &i in &recipe.variables {
+            let (value, after) = Value::decode(inputs()[i].data_type, rest).map_err(|e| format!("input recipe {id}: {e}; ignored"))?;
+            values.push(value);
+            rest = after;
+        }
+        if !rest.is_empty() {
+            return Err(format!("input recipe {id}: {} bytes after its last value; ignored", rest.len()));
+        }
+        let mut state = lock(&self.shared.inputs);
+        for (&i, v) in recipe.variables.iter().zip(values) {
+            state.values[i] = v;
+        }
+        state.updates += 1;
+        Ok(())
+    }
+
+    fn streaming(&self) -> bool {
+        lock(&self.shared.sessions).iter().any(|s| s.id == self.id && s.stream.is_some())
+    }
+
+    fn set_stream(&self, tx: Option<Sender<Arc<OutputState>>>) {
+        if let Some(s) = lock(&self.shared.sessions).iter_mut().find(|s| s.id == self.id) {
+            s.stream = tx;
+        }
+    }
+
+    fn take_recipe_id(&mut self) -> u8 {
+        let id = self.next_recipe;
+        self.next_recipe = self.next_recipe.wrapping_add(1).max(1);
+        id
+    }
+
+    fn reply(&self, kind: u8, payload: Vec<u8>) -> Result<(), String> {
+        let bytes = Package::new(kind, payload).encode().map_err(|e| e.to_string())?;
+        lock(&self.writer).write_all(&bytes).map_err(|e| format!("cannot reply: {e}"))
+    }
+
+    /// An error text message to the client, and an event.
+    fn error(&self, message: &str) {
+        self.event(message.to_string());
+        let text = TextMessage { level: MessageLevel::Error, message: message.to_string(), source: self.shared.info.source.clone() };
+        let _ = self.reply(kind::TEXT_MESSAGE, text.encode());
+    }
+
+    fn event(&self, what: String) {
+        lock(&self.shared.events).push(format!("{}: {what}", self.peer));
+    }
+
+    /// Ends the session: its inputs are free again, its streamer stops.
+    fn close(mut self, why: &str) {
+        self.event(format!("closed ({why})"));
+        lock(&self.shared.sessions).retain(|s| s.id != self.id);
+        let mut state = lock(&self.shared.inputs);
+        for owner in state.owners.iter_mut().filter(|o| **o == self.id) {
+            *owner = 0;
+        }
+        drop(state);
+        let _ = lock(&self.writer).shutdown(Shutdown::Both);
+        if let Some(streamer) = self.streamer.take() {
+            let _ = streamer.join();
+        }
+    }
+}
+
+/// Sends `recipe`'s outputs of every `1 / step`-th cycle until the session pauses or ends.
+fn stream(rx: Receiver<Arc<OutputState>>, writer: Arc<Mutex<TcpStream>>, recipe: Arc<Recipe>, step: f64) {
+    // Due at the first cycle, then whenever the accumulated fraction reaches a whole package
+    // (within rounding: 100 Hz is 0.2 of a cycle, which sums to 0.999…).
+    let mut due = 1.0 - step;
+    let mut buffer = Vec::new();
+    while let Ok(state) = rx.recv() {
+        due += step;
+        if due < 1.0 - 1e-9 {
+            continue;
+        }
+        due -= 1.0;
+        buffer.clear();
+        buffer.push(recipe.id);
+        for &i in &recipe.variables {
+            state.0[i].encode(&mut buffer);
+        }
+        let Ok(bytes) = Package::new(kind::DATA_PACKAGE, std::mem::take(&mut buffer)).encode() else { return };
+        if lock(&writer).write_all(&bytes).is_err() {
+            return;
+        }
+        buffer = bytes;
+    }
+}

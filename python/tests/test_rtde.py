@@ -1,0 +1,141 @@
+"""`twinbots ur-sim`, the UR controller stand-in, read and driven by clients that are not
+twinbots': the `ur-rtde` package (SDU Robotics' C++ library) reads it as it reads a UR, and a
+client written here from UR's RTDE guide and docs/rtde.md (Python's struct and socket) drives
+the shipped control program's registers. ur_rtde always connects to port 30004."""
+
+import math
+import os
+import shutil
+import socket
+import struct
+import subprocess
+import time
+
+import pytest
+import rtde_receive
+
+HOME = [0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0]
+# The TCP (suction cup face) at home, from UR's DH table and the 10 cm tool: pointing down.
+HOME_TCP = [-0.4919, -0.1333, 0.3879]
+
+
+def twinbots_bin():
+    binary = os.environ.get("TWINBOTS_BIN") or shutil.which("twinbots")
+    if not binary:
+        pytest.skip("no twinbots CLI (set TWINBOTS_BIN)")
+    return binary
+
+
+@pytest.fixture
+def ur_sim():
+    with socket.socket() as probe:
+        if probe.connect_ex(("127.0.0.1", 30004)) == 0:
+            pytest.fail("port 30004 is taken: ur_rtde needs it for the stand-in")
+    process = subprocess.Popen(
+        [twinbots_bin(), "ur-sim", "--listen", "127.0.0.1:30004", "--seconds", "120"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    line = process.stdout.readline()
+    assert "serving RTDE on 127.0.0.1:30004" in line, line
+    yield process
+    process.kill()
+    process.wait()
+
+
+class GuideClient:
+    """RTDE protocol version 2 as the guide writes it: a header of uint16 size (whole package)
+    and uint8 type, big-endian payloads."""
+
+    def __init__(self, port=30004):
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def send(self, kind, payload=b""):
+        self.sock.sendall(struct.pack(">HB", 3 + len(payload), ord(kind)) + payload)
+
+    def exactly(self, n):
+        data = b""
+        while len(data) < n:
+            chunk = self.sock.recv(n - len(data))
+            assert chunk, "the controller closed the connection"
+            data += chunk
+        return data
+
+    def receive(self, kind):
+        """The next package of `kind`, skipping others (text messages, data in flight)."""
+        while True:
+            size, got = struct.unpack(">HB", self.exactly(3))
+            payload = self.exactly(size - 3)
+            if got == ord(kind):
+                return payload
+
+    def request(self, kind, payload=b""):
+        self.send(kind, payload)
+        return self.receive(kind)
+
+
+def test_ur_rtde_reads_the_standin(ur_sim):
+    r = rtde_receive.RTDEReceiveInterface("127.0.0.1")
+    try:
+        assert r.isConnected()
+        t0 = r.getTimestamp()
+        time.sleep(0.5)
+        t1 = r.getTimestamp()
+        # The controller's clock runs in real time (500 Hz cycles).
+        assert 0.4 < t1 - t0 < 0.7, (t0, t1)
+        q = r.getActualQ()
+        assert len(q) == 6 and all(abs(a - b) < 0.01 for a, b in zip(q, HOME)), q
+        qd = r.getActualQd()
+        assert len(qd) == 6 and all(abs(v) < 0.01 for v in qd), qd
+        pose = r.getActualTCPPose()
+        assert all(abs(a - b) < 0.005 for a, b in zip(pose[:3], HOME_TCP)), pose
+        # Pointing down: the rotation vector's angle is π about a horizontal axis.
+        angle = math.sqrt(sum(v * v for v in pose[3:]))
+        assert abs(angle - math.pi) < 0.01 and abs(pose[5]) < 0.01, pose
+        assert r.getRobotMode() == 7 and r.getSafetyMode() == 1
+    finally:
+        r.disconnect()
+
+
+def test_a_guide_client_drives_speedj_and_ur_rtde_sees_it(ur_sim):
+    c = GuideClient()
+    assert c.request("V", struct.pack(">H", 2)) == b"\x01"
+    major, minor, _, _ = struct.unpack(">IIII", c.request("v"))
+    assert (major, minor) == (5, 11)
+    names = ["input_int_register_24", "input_int_register_25"] + [f"input_double_register_{i}" for i in range(24, 30)]
+    reply = c.request("I", ",".join(names).encode())
+    recipe, types = reply[0], reply[1:].decode().split(",")
+    assert recipe != 0 and types == ["INT32", "INT32"] + ["DOUBLE"] * 6, reply
+    reply = c.request("O", struct.pack(">d", 10.0) + b"output_int_register_24")
+    assert reply[1:] == b"INT32"
+    assert c.request("S") == b"\x01"
+
+    def command(mode, counter, base_speed):
+        c.send("U", struct.pack(">Bii6d", recipe, mode, counter, base_speed, 0, 0, 0, 0, 0))
+
+    def program_state():
+        # Pause (the packages in flight come before its reply) and start again: the next
+        # package is the controller's state now.
+        assert c.request("P") == b"\x01" and c.request("S") == b"\x01"
+        (_, state) = struct.unpack(">Bi", c.receive("U"))
+        return state
+
+    r = rtde_receive.RTDEReceiveInterface("127.0.0.1")
+    try:
+        q0 = r.getActualQ()[0]
+        counter = 0
+        start = time.monotonic()
+        while time.monotonic() - start < 1.0:
+            counter += 1
+            command(1, counter, 0.3)
+            time.sleep(0.008)
+        qd = r.getActualQd()
+        assert abs(qd[0] - 0.3) < 0.02 and all(abs(v) < 0.02 for v in qd[1:]), qd
+        assert r.getActualQ()[0] - q0 > 0.2
+        assert program_state() == 1  # the program runs speedj
+        command(0, counter + 1, 0.0)
+        time.sleep(0.3)
+        assert abs(r.getActualQd()[0]) < 0.01
+        assert program_state() == 0
+    finally:
+        r.disconnect()
+        c.sock.close()

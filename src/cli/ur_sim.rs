@@ -1,0 +1,67 @@
+//! `twinbots ur-sim [--listen ADDR] [--truth FILE]`: a UR controller stand-in serving RTDE,
+//! backed by the UR5e twin (docs/rtde.md).
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+
+use twinbots::ur_sim::{UrSim, UrSimOptions, controller_info};
+use twinbots_rtde::server::RtdeServer;
+use twinbots_sim::Parameters;
+use twinbots_sysid::{Rig, SensorNoise};
+use twinbots_task::calibration::read_calibration;
+
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Where to serve RTDE.
+    #[arg(long, default_value = "127.0.0.1:30004")]
+    pub listen: String,
+    /// The robot's true parameters (a calibration file's format, as `record --truth`); its
+    /// `command_delay` is the stand-in's latency. With it, the encoders read with noise.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// Stop after this many seconds (default: until killed).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// The control program's watchdog (s): the arm stops when the client's counter stands
+    /// still this long while moving.
+    #[arg(long, default_value_t = 0.1)]
+    pub watchdog: f64,
+    /// Encoder noise (rad, standard deviation); default: none, or a UR's with --truth.
+    #[arg(long)]
+    pub position_noise: Option<f64>,
+    /// Speed noise (rad/s); default as --position-noise.
+    #[arg(long)]
+    pub velocity_noise: Option<f64>,
+    /// Seeds the sensor noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+/// `twinbots ur-sim`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let rig = Rig::of(&ur5e::robot())?;
+    let truth = match &args.truth {
+        Some(path) => read_calibration(path, &rig.catalogue, rig.robot)?,
+        None => Parameters::default(),
+    };
+    let ur = SensorNoise::default();
+    let default = |v: f64| if args.truth.is_some() { v } else { 0.0 };
+    let noise = SensorNoise {
+        position: args.position_noise.unwrap_or(default(ur.position)),
+        velocity: args.velocity_noise.unwrap_or(default(ur.velocity)),
+        effort: default(ur.effort),
+    };
+    anyhow::ensure!([noise.position, noise.velocity].iter().all(|n| n.is_finite() && *n >= 0.0), "noise levels must be finite and not negative");
+    if let Some(s) = args.seconds {
+        anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
+    }
+    let options = UrSimOptions { truth, noise, seed: args.seed, watchdog: args.watchdog };
+    let mut sim = UrSim::new(&options)?;
+    let server = RtdeServer::bind(&args.listen, controller_info())?;
+    println!("ur-sim: UR5e twin ({}) serving RTDE on {} at 500 Hz", args.truth.as_ref().map_or("nominal".to_string(), |p| format!("truth {}", p.display())), server.local_addr());
+    let stop = AtomicBool::new(false);
+    let missed = sim.serve(&server, args.seconds, &stop, 5.0);
+    println!("ur-sim: {:.1} s served, {missed} missed cycle(s)", sim.time());
+    Ok(())
+}
