@@ -2,6 +2,8 @@
 //! training run and the run itself (its directory, callbacks and end), shared by the CLI
 //! (`src/main.rs`) and the Python extension (`python/`).
 
+pub mod bundle;
+pub mod deploy;
 pub mod registry;
 pub mod robot_log;
 pub mod run;

@@ -46,6 +46,9 @@ enum Command {
     Replay(cli::replay::Args),
     /// Calibrate the twin to robot logs (system identification with CMA-ES).
     Identify(cli::identify::Args),
+    /// Run a deploy bundle's policy on a robot (RTDE), the twin checking every command first;
+    /// `--dry-run` drives only the twin.
+    Deploy(cli::deploy::Args),
     /// A UR controller stand-in: serves RTDE on 127.0.0.1:30004, backed by the UR5e twin
     /// (optionally a truth twin) running the shipped control program every 2 ms.
     #[command(name = "ur-sim")]
@@ -78,5 +81,6 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Replay(args) => cli::replay::exec(args),
         Command::Identify(args) => cli::identify::exec(args),
         Command::UrSim(args) => cli::ur_sim::exec(args),
+        Command::Deploy(args) => cli::deploy::exec(args),
     }
 }

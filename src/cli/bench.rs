@@ -26,6 +26,12 @@ pub struct Args {
     /// Control steps per measurement.
     #[arg(long, default_value_t = 2000)]
     pub steps: usize,
+    /// `bench rtde`: the deploy bundle whose policy answers every report.
+    #[arg(long)]
+    pub bundle: Option<std::path::PathBuf>,
+    /// `bench rtde`: seconds of controller time to measure.
+    #[arg(long, default_value_t = 10.0)]
+    pub seconds: f64,
 }
 
 /// `twinbots bench`.
@@ -35,6 +41,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         BenchKind::Server => print_server(&args.arenas, args.steps),
         BenchKind::Capture => print_capture(&args.robot, &[(640, 480), (64, 64)], 60),
         BenchKind::Rl => print_rl(&args.robot, args.arenas.first().copied().unwrap_or(8), args.steps),
+        BenchKind::Rtde => print_rtde(args.bundle.as_deref(), args.seconds),
     }
 }
 
@@ -49,6 +56,26 @@ pub enum BenchKind {
     Server,
     /// Frames/s of off-screen capture at 640x480 and 64x64.
     Capture,
+    /// RTDE at 500 Hz on loopback: report in → command out, p50 and p99, and missed cycles
+    /// (--bundle DIR answers every report; --seconds S).
+    Rtde,
+}
+
+fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64) -> anyhow::Result<()> {
+    let dir = bundle.ok_or_else(|| anyhow::anyhow!("bench rtde needs --bundle DIR (`twinbots export <ur5e run> --bundle DIR`)"))?;
+    anyhow::ensure!(seconds > 0.0 && seconds.is_finite(), "--seconds must be positive");
+    let bundle = twinbots::bundle::Bundle::read(dir)?;
+    bundle.check("ur5e", &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
+    println!("bench rtde: a UR stand-in at 500 Hz on loopback, every report answered by {} ({seconds} s)", dir.display());
+    let show = |r: &twinbots::deploy::latency::LatencyReport| {
+        println!(
+            "  {:6.1} s: {} commands, report in -> command out p50 {:.0} us, p99 {:.0} us, max {:.0} us; {} later than 2 ms, {} reports missed, stand-in missed {} cycles",
+            r.seconds, r.commands, r.p50_us, r.p99_us, r.max_us, r.late_commands, r.missed_reports, r.standin_missed_cycles
+        )
+    };
+    let report = twinbots::deploy::latency::measure(&bundle, seconds, show)?;
+    show(&report);
+    Ok(())
 }
 
 pub struct PhysicsBench {

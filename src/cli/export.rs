@@ -1,5 +1,6 @@
 //! `twinbots export <run-dir> --onnx FILE`: the run's trained policy (any algorithm's) as an ONNX graph, with
-//! what a robot's program needs to know about it (docs/export.md).
+//! what a robot's program needs to know about it (docs/export.md); `--bundle DIR`: the deploy
+//! bundle a robot's controller link runs (docs/deploy.md).
 
 use std::path::Path;
 
@@ -13,17 +14,57 @@ use crate::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
+#[command(group = clap::ArgGroup::new("what").required(true).multiple(true).args(["onnx", "bundle"]))]
 pub struct Args {
     /// Run directory of `twinbots train` or `twinbots serve`.
     pub run: std::path::PathBuf,
     /// The ONNX file to write.
     #[arg(long)]
-    pub onnx: std::path::PathBuf,
+    pub onnx: Option<std::path::PathBuf>,
+    /// The deploy bundle to write (a directory: policy, manifest, calibration).
+    #[arg(long)]
+    pub bundle: Option<std::path::PathBuf>,
 }
 
 /// `twinbots export`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    export_run(&args.run, &args.onnx).map(|_| ())
+    if let Some(onnx) = &args.onnx {
+        export_run(&args.run, onnx)?;
+    }
+    if let Some(dir) = &args.bundle {
+        export_bundle(&args.run, dir)?;
+    }
+    Ok(())
+}
+
+/// Writes the run's deploy bundle to `dir`.
+pub fn export_bundle(run: &Path, dir: &Path) -> anyhow::Result<twinbots::bundle::Manifest> {
+    let run_dir = RunDir::new(run);
+    let settings = TrainSettings::of_run(&run_dir)?;
+    let model = twinbots_learn::algos::load_run(&run_dir)?;
+    let metadata = describe(&settings, model.as_ref())?;
+    let calibration = settings.calibration.as_ref().map(|c| {
+        #[derive(serde::Serialize)]
+        struct File<'a> {
+            parameters: &'a std::collections::BTreeMap<String, f64>,
+        }
+        let body = toml::to_string(&File { parameters: &c.parameters }).expect("parameters serialise");
+        format!("# The calibration the policy was trained on (from {}).\n{body}", c.file)
+    });
+    let manifest = twinbots::bundle::manifest_for(&settings.robot, &metadata, calibration.as_ref().map(|_| twinbots::bundle::CALIBRATION.to_string()))?;
+    let bytes = twinbots_onnx::policy_bytes(model.as_ref(), &metadata)?;
+    twinbots::bundle::write(dir, &manifest, &bytes, calibration.as_deref())?;
+    println!(
+        "{}: {} bundle ({} joints, action x {} rad/s, every {} s{}) to {}",
+        manifest.robot,
+        manifest.task,
+        manifest.joints.len(),
+        manifest.action.scale,
+        manifest.control_period_s,
+        if manifest.calibration.is_some() { ", calibrated" } else { "" },
+        dir.display()
+    );
+    Ok(manifest)
 }
 
 /// Writes the run's model (its final one, else its newest checkpoint) to `onnx` and returns the
@@ -31,9 +72,24 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 pub fn export_run(run: &Path, onnx: &Path) -> anyhow::Result<PolicyMetadata> {
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
-    let entry = registry::find(&settings.robot)?;
     let model = twinbots_learn::algos::load_run(&run_dir)?;
-    let model: &dyn twinbots_learn::Agent = model.as_ref();
+    let metadata = describe(&settings, model.as_ref())?;
+    twinbots_onnx::write_policy(onnx, model.as_ref(), &metadata)?;
+    println!(
+        "{}: {} ({} observations → {}), {} steps of training, to {}",
+        settings.robot,
+        metadata.task,
+        metadata.observation_space.dim(),
+        metadata.action_space,
+        metadata.timesteps,
+        onnx.display()
+    );
+    Ok(metadata)
+}
+
+/// What the run's policy is: its robot and task, spaces, control period and training.
+fn describe(settings: &TrainSettings, model: &dyn twinbots_learn::Agent) -> anyhow::Result<PolicyMetadata> {
+    let entry = registry::find(&settings.robot)?;
     // The robot's own description of its task and timing, as an app of it declares them.
     let app = entry.app(None, 1, settings.seed, settings.in_process_pattern()?)?;
     let spec = &**app.world().resource::<ActiveTask>();
@@ -51,15 +107,5 @@ pub fn export_run(run: &Path, onnx: &Path) -> anyhow::Result<PolicyMetadata> {
         normalizes_observations: model.policy_net()?.obs_rms.is_some(),
         timesteps: model.timesteps(),
     };
-    twinbots_onnx::write_policy(onnx, model, &metadata)?;
-    println!(
-        "{}: {} ({} observations → {}), {} steps of training, to {}",
-        settings.robot,
-        metadata.task,
-        metadata.observation_space.dim(),
-        metadata.action_space,
-        metadata.timesteps,
-        onnx.display()
-    );
     Ok(metadata)
 }

@@ -28,7 +28,8 @@ pub struct Args {
     /// The RobotServer's address.
     #[arg(long)]
     pub server: Option<std::net::SocketAddr>,
-    /// An exported policy (`twinbots export`) that the robots run on board, no server.
+    /// An exported policy (`twinbots export`: an ONNX file, or a deploy bundle's directory)
+    /// that the robots run on board, no server.
     #[arg(long)]
     pub policy: Option<std::path::PathBuf>,
     #[arg(long, default_value_t = 1)]
@@ -152,8 +153,19 @@ pub fn against_server_with(
 /// ended, prints their figures as `eval` does and returns them.
 pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, seed: u64, twin: &Twin) -> anyhow::Result<EvalResult> {
     anyhow::ensure!(episodes > 0, "--episodes must be at least 1");
-    let onnx = OnnxPolicy::load(policy)?;
     let entry = registry::find(robot)?;
+    let onnx = if policy.is_dir() {
+        // A deploy bundle: refused unless it is this robot's, with its joints and control period.
+        let bundle = twinbots::bundle::Bundle::read(policy)?;
+        anyhow::ensure!(bundle.manifest.robot == robot, "the bundle {} is for the robot '{}', not '{robot}'", policy.display(), bundle.manifest.robot);
+        let app = entry.app(None, 1, seed, twinbots_api::DesignPattern::Server)?;
+        let period = app.world().resource::<twinbots_sim::SimSettings>().control_seconds();
+        let joints: Vec<&str> = if robot == "ur5e" { ur5e::deploy::ROBOT_JOINTS.to_vec() } else { Vec::new() };
+        bundle.check(robot, &joints, period)?;
+        bundle.policy
+    } else {
+        OnnxPolicy::load(policy)?
+    };
     let task = entry.main_task().name;
     onnx.metadata.check_fits(robot, task, &entry.task())?;
     if onnx.metadata.design_pattern != 3 {

@@ -59,19 +59,27 @@ pub struct UrSim {
 
 impl UrSim {
     pub fn new(options: &UrSimOptions) -> anyhow::Result<Self> {
+        Self::with_start(options, None)
+    }
+
+    /// The stand-in with the arm at `start` (joint angles, rad; default: home).
+    pub fn with_start(options: &UrSimOptions, start: Option<[f64; 6]>) -> anyhow::Result<Self> {
         let mut rig = Rig::of(&ur5e::robot())?;
         anyhow::ensure!(rig.joints.iter().map(String::as_str).eq(JOINTS), "the UR5e rig's joints are not the DH table's");
         anyhow::ensure!(options.watchdog > 0.0 && options.watchdog.is_finite(), "--watchdog must be positive, not {}", options.watchdog);
         rig.settings.dt = CYCLE as f32;
         let params = rig.parameters(&options.truth)?;
         let bias = rig.biases(&params);
-        let stand = Stand::new(&rig, &[], std::slice::from_ref(&params));
+        let q = start.unwrap_or(HOME.map(|v| v as f64));
+        anyhow::ensure!(q.iter().all(|v| v.is_finite()), "a start pose of {q:?} is not one");
+        // The encoders read the joint plus its bias: the joint stands at the reading less it.
+        let at: Vec<(String, f32)> = JOINTS.iter().zip(q).zip(&bias).map(|((n, v), b)| (n.to_string(), (v - b) as f32)).collect();
+        let stand = Stand::new(&rig, &at, std::slice::from_ref(&params));
         let limits = Limits {
             range: JOINT_RANGES.map(|r| r as f64),
             speed: [MAX_JOINT_SPEED as f64; 6],
             watchdog: options.watchdog,
         };
-        let q = HOME.map(|v| v as f64);
         Ok(Self {
             stand,
             bias,
@@ -166,7 +174,8 @@ impl UrSim {
     }
 
     /// Serves `server` in real time until `stop` is set or `seconds` pass; prints a line of
-    /// progress every `report` seconds. Returns the cycles that missed their deadline.
+    /// progress every `report` seconds. Returns the cycles that missed their slot: that started
+    /// a whole cycle or more after their time (a later cycle catches up the controller's clock).
     pub fn serve(&mut self, server: &RtdeServer, seconds: Option<f64>, stop: &AtomicBool, report: f64) -> u64 {
         let period = Duration::from_secs_f64(CYCLE);
         let start = Instant::now();
@@ -195,7 +204,7 @@ impl UrSim {
             let now = Instant::now();
             if now < next {
                 std::thread::sleep(next - now);
-            } else {
+            } else if now - next >= period {
                 missed += 1;
                 // Far behind (the machine stalled): start counting from now, not catch up.
                 if now - next > 10 * period {

@@ -6,13 +6,13 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-fn twinbots() -> Command {
+pub fn twinbots() -> Command {
     Command::new(env!("CARGO_BIN_EXE_twinbots"))
 }
 
 /// A copy of the fixture run `name` in a fresh temporary directory of the test `test` (`eval`
 /// writes into a run).
-fn fixture_run(name: &str, test: &str) -> PathBuf {
+pub fn fixture_run(name: &str, test: &str) -> PathBuf {
     let source = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name);
     let run = std::env::temp_dir().join(format!("twinbots-{test}-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&run);
@@ -23,13 +23,13 @@ fn fixture_run(name: &str, test: &str) -> PathBuf {
     run
 }
 
-fn succeeded(output: Output) -> String {
+pub fn succeeded(output: Output) -> String {
     let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
     assert!(output.status.success(), "{stdout}{}", String::from_utf8_lossy(&output.stderr));
     stdout
 }
 
-fn failed(output: Output) -> String {
+pub fn failed(output: Output) -> String {
     assert!(!output.status.success(), "{}", String::from_utf8_lossy(&output.stdout));
     String::from_utf8_lossy(&output.stderr).into_owned()
 }

@@ -4,6 +4,7 @@ mod bridge;
 mod custom_robot;
 mod learning;
 mod delivery;
+mod deploy;
 mod model;
 mod onnx;
 mod patterns;

@@ -18,14 +18,14 @@ use crate::robot_hostile::fake_server;
 const PATIENCE: Duration = Duration::from_secs(5);
 
 /// A stand-in serving on a free port until dropped.
-struct Standin {
-    address: SocketAddr,
+pub struct Standin {
+    pub address: SocketAddr,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<Vec<String>>>,
 }
 
 impl Standin {
-    fn start(watchdog: f64) -> Self {
+    pub fn start(watchdog: f64) -> Self {
         let server = RtdeServer::bind("127.0.0.1:0", controller_info()).unwrap();
         let address = server.local_addr();
         let stop = Arc::new(AtomicBool::new(false));
@@ -39,7 +39,7 @@ impl Standin {
         Self { address, stop, thread: Some(thread) }
     }
 
-    fn address(&self) -> String {
+    pub fn address(&self) -> String {
         self.address.to_string()
     }
 }

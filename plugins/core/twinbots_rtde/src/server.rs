@@ -392,8 +392,9 @@ impl Session {
             return self.reply(kind::START, vec![0]);
         };
         if !self.streaming() {
-            // Room for one cycle: a streamer that falls behind skips to the newest state.
-            let (tx, rx) = crossbeam_channel::bounded(1);
+            // Room for a few cycles (a scheduling hiccup loses nothing); a streamer further behind
+            // misses packages, as a busy controller skips them.
+            let (tx, rx) = crossbeam_channel::bounded(4);
             let writer = self.writer.clone();
             let step = recipe.frequency / self.shared.info.cycle_hz;
             if let Some(old) = self.streamer.take() {

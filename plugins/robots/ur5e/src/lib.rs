@@ -20,6 +20,7 @@
 pub mod arm;
 pub mod cell;
 pub mod controller;
+pub mod deploy;
 pub mod goal;
 pub mod kinematics;
 pub mod metrics;

@@ -1,0 +1,193 @@
+//! A deploy bundle (`twinbots export <run> --bundle DIR`): one directory that carries a trained
+//! policy to a robot with everything its controller must agree on — the ONNX policy (its
+//! observation normaliser folded in), the action's scale and clipping, the joints' names, order
+//! and signs, the control period, the limits the shadow enforces, the calibration the policy
+//! was trained on, and the twin's version. `deploy` and `robot --policy DIR` refuse a bundle
+//! whose robot, joints or control period differ from theirs (docs/deploy.md).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use twinbots_onnx::OnnxPolicy;
+
+/// The bundle's files.
+pub const MANIFEST: &str = "bundle.json";
+pub const POLICY: &str = "policy.onnx";
+pub const CALIBRATION: &str = "calibration.toml";
+/// What `bundle.json`'s `format` says.
+pub const FORMAT: &str = "twinbots-bundle/1";
+
+/// `bundle.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    pub format: String,
+    /// The twinbots version that trained and exported the policy (the twin's version).
+    pub twinbots_version: String,
+    pub robot: String,
+    pub task: String,
+    /// Seconds between two actions, as trained.
+    pub control_period_s: f64,
+    /// The robot's joints in the order its controller reports them, with the sign that turns a
+    /// reported angle into the twin's, and their limits.
+    pub joints: Vec<BundleJoint>,
+    pub action: ActionMapping,
+    /// The observation, by the task's names; raw values in, the normaliser is inside the graph.
+    pub observation_names: Vec<String>,
+    pub observation_normalization: String,
+    /// The limits the twin's shadow checks every command against.
+    pub shadow: ShadowLimits,
+    /// The calibration file the policy was trained on (`calibration.toml` in the bundle), if any.
+    pub calibration: Option<String>,
+    /// Environment steps of training.
+    pub timesteps: u64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BundleJoint {
+    pub name: String,
+    pub sign: f64,
+    /// ± this angle (rad).
+    pub range_rad: f64,
+    pub max_speed_rad_s: f64,
+}
+
+/// How an action becomes a command.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActionMapping {
+    /// `joint_speeds`: each action value, clipped to `clip`, times `scale` is a joint speed (rad/s).
+    pub kind: String,
+    /// The joints the action's values drive, in order; the others hold still.
+    pub joints: Vec<String>,
+    pub scale: f64,
+    pub clip: [f64; 2],
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShadowLimits {
+    pub max_acceleration_rad_s2: f64,
+    pub lookahead_s: f64,
+    pub range_margin_rad: f64,
+    pub table_clearance_m: f64,
+}
+
+/// A bundle read back: its manifest and its loaded policy.
+pub struct Bundle {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+    pub policy: OnnxPolicy,
+}
+
+/// What a robot's deployment needs: the UR5e's (the only robot with a controller link so far).
+pub fn manifest_for(robot: &str, metadata: &twinbots_onnx::PolicyMetadata, calibration: Option<String>) -> anyhow::Result<Manifest> {
+    anyhow::ensure!(robot == "ur5e", "robot '{robot}' has no deployment (joint order, signs and limits on a real controller): only ur5e does; `export --onnx` writes its policy alone");
+    use ur5e::kinematics::{JOINT_RANGES, MAX_JOINT_SPEED};
+    let shadow = ur5e::deploy::Shadow::default();
+    let joints = ur5e::deploy::ROBOT_JOINTS
+        .iter()
+        .enumerate()
+        .map(|(j, name)| BundleJoint {
+            name: name.to_string(),
+            sign: ur5e::deploy::JOINT_SIGNS[j],
+            range_rad: decimal(JOINT_RANGES[j]),
+            max_speed_rad_s: decimal(MAX_JOINT_SPEED),
+        })
+        .collect();
+    Ok(Manifest {
+        format: FORMAT.into(),
+        twinbots_version: metadata.twinbots_version.clone(),
+        robot: robot.into(),
+        task: metadata.task.clone(),
+        // To the microsecond, as the twin's timing is set (0.04, not 10 × 0.004 in f32).
+        control_period_s: (metadata.control_period_s as f64 * 1e6).round() / 1e6,
+        joints,
+        action: ActionMapping {
+            kind: "joint_speeds".into(),
+            joints: ur5e::deploy::ROBOT_JOINTS[..ur5e::deploy::COMMANDED_JOINTS].iter().map(|s| s.to_string()).collect(),
+            scale: decimal(ur5e::arm::ACTION_SPEED),
+            clip: [-1.0, 1.0],
+        },
+        observation_names: metadata.observation_names.clone(),
+        observation_normalization: if metadata.normalizes_observations { "folded" } else { "none" }.into(),
+        shadow: ShadowLimits {
+            max_acceleration_rad_s2: shadow.max_acceleration,
+            lookahead_s: shadow.lookahead,
+            range_margin_rad: shadow.range_margin,
+            table_clearance_m: shadow.table_clearance,
+        },
+        calibration,
+        timesteps: metadata.timesteps,
+    })
+}
+
+/// An f32 as the decimal it was written as (0.04, not 0.04000000283…), for the manifest.
+fn decimal(v: f32) -> f64 {
+    v.to_string().parse().expect("an f32 prints as a number")
+}
+
+/// Writes a bundle to `dir` (all files first into `dir.partial`, then renamed, so a bundle is
+/// whole or absent). An existing bundle there is replaced; any other existing path is an error.
+pub fn write(dir: &Path, manifest: &Manifest, policy_bytes: &[u8], calibration_text: Option<&str>) -> anyhow::Result<()> {
+    if dir.exists() {
+        anyhow::ensure!(dir.join(MANIFEST).is_file(), "{} exists and is not a bundle: choose another --bundle", dir.display());
+    }
+    let partial = dir.with_extension("partial");
+    if partial.exists() {
+        std::fs::remove_dir_all(&partial)?;
+    }
+    std::fs::create_dir_all(&partial).map_err(|e| anyhow::anyhow!("{}: {e}", partial.display()))?;
+    std::fs::write(partial.join(POLICY), policy_bytes)?;
+    if let Some(text) = calibration_text {
+        std::fs::write(partial.join(CALIBRATION), text)?;
+    }
+    std::fs::write(partial.join(MANIFEST), serde_json::to_string_pretty(manifest)? + "\n")?;
+    if dir.exists() {
+        std::fs::remove_dir_all(dir)?;
+    }
+    std::fs::rename(&partial, dir)?;
+    Ok(())
+}
+
+impl Bundle {
+    /// Reads a bundle; a missing file, a manifest of another format or one that disagrees with
+    /// its policy's own metadata is an error naming it.
+    pub fn read(dir: &Path) -> anyhow::Result<Self> {
+        let path = dir.join(MANIFEST);
+        let text = std::fs::read_to_string(&path).map_err(|e| anyhow::anyhow!("{}: {e} (is {} a bundle of `twinbots export --bundle`?)", path.display(), dir.display()))?;
+        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        anyhow::ensure!(manifest.format == FORMAT, "{}: format '{}', this twinbots reads '{FORMAT}'", path.display(), manifest.format);
+        let policy = OnnxPolicy::load(&dir.join(POLICY))?;
+        let m = &policy.metadata;
+        anyhow::ensure!(
+            m.robot == manifest.robot && m.task == manifest.task && m.observation_names == manifest.observation_names,
+            "{}: the manifest (robot {}, task {}) disagrees with its policy (robot {}, task {})",
+            dir.display(),
+            manifest.robot,
+            manifest.task,
+            m.robot,
+            m.task
+        );
+        if let Some(file) = &manifest.calibration {
+            anyhow::ensure!(dir.join(file).is_file(), "{}: the manifest names calibration '{file}', which is missing", dir.display());
+        }
+        Ok(Self { dir: dir.to_path_buf(), manifest, policy })
+    }
+
+    /// An error unless this bundle fits `robot` with these joints (controller order) and
+    /// control period (s).
+    pub fn check(&self, robot: &str, joints: &[&str], control_period_s: f64) -> anyhow::Result<()> {
+        let m = &self.manifest;
+        anyhow::ensure!(m.robot == robot, "the bundle {} is for the robot '{}', not '{robot}'", self.dir.display(), m.robot);
+        let names: Vec<&str> = m.joints.iter().map(|j| j.name.as_str()).collect();
+        anyhow::ensure!(names == joints, "the bundle's joints {names:?} are not this robot's {joints:?} (names and order must match)");
+        anyhow::ensure!(
+            (m.control_period_s - control_period_s).abs() < 1e-6,
+            "the bundle's policy acts every {} s, this robot's task every {control_period_s} s",
+            m.control_period_s
+        );
+        Ok(())
+    }
+}

@@ -1,0 +1,114 @@
+//! `twinbots deploy <robot> --bundle DIR --rtde HOST[:PORT] [--dry-run]`: a deploy bundle's
+//! policy on the robot, the twin as its shadow (docs/deploy.md).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use twinbots::bundle::Bundle;
+use twinbots::deploy::arm::{Arm, RtdeArm, TwinArm};
+use twinbots::deploy::{DeployOptions, deploy};
+use twinbots::ur_sim::UrSimOptions;
+use twinbots_rtde::{RtdeClient, Value};
+use twinbots_sysid::Rig;
+use twinbots_task::calibration::read_calibration;
+
+use crate::registry;
+
+/// The command's arguments.
+#[derive(clap::Args)]
+#[command(group = clap::ArgGroup::new("robot_link").required(true).multiple(true).args(["rtde", "dry_run"]))]
+pub struct Args {
+    /// The robot (only ur5e has a controller link).
+    pub robot: String,
+    /// The bundle of `twinbots export <run> --bundle DIR`.
+    #[arg(long)]
+    pub bundle: PathBuf,
+    /// The robot's controller: RTDE at HOST[:PORT] (port 30004 by default).
+    #[arg(long)]
+    pub rtde: Option<String>,
+    /// Drive only the twin (the bundle's calibration), started where the robot stands (read
+    /// through --rtde, if given; else at home). The robot is never commanded.
+    #[arg(long)]
+    pub dry_run: bool,
+    #[arg(long, default_value_t = 100)]
+    pub episodes: usize,
+    /// Seeds the targets.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// The longest from a state's arrival to its command (ms): later, the robot is stopped.
+    #[arg(long, default_value_t = 20.0)]
+    pub deadline_ms: f64,
+    /// The longest to wait for the controller (ms).
+    #[arg(long, default_value_t = 1000.0)]
+    pub patience_ms: f64,
+    /// Write the report (every episode's figures, the latencies) as JSON here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// `twinbots deploy`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let entry = registry::find(&args.robot)?;
+    anyhow::ensure!(args.robot == "ur5e", "robot '{}' has no controller link: only ur5e deploys (RTDE)", args.robot);
+    anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
+    anyhow::ensure!(args.deadline_ms > 0.0 && args.patience_ms > 0.0, "--deadline-ms and --patience-ms must be positive");
+    let bundle = Bundle::read(&args.bundle)?;
+    bundle.check(&args.robot, &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
+    let patience = Duration::from_secs_f64(args.patience_ms / 1e3);
+    let options = DeployOptions { episodes: args.episodes, seed: args.seed, deadline: Duration::from_secs_f64(args.deadline_ms / 1e3), ..Default::default() };
+    let mut arm: Box<dyn Arm> = if args.dry_run {
+        let start = args.rtde.as_deref().map(|address| robot_joints(address, patience)).transpose()?;
+        let rig = Rig::of(&entry)?;
+        let truth = match &bundle.manifest.calibration {
+            Some(file) => read_calibration(&bundle.dir.join(file), &rig.catalogue, rig.robot)?,
+            None => Default::default(),
+        };
+        Box::new(TwinArm::new(&UrSimOptions { truth, ..Default::default() }, start)?)
+    } else {
+        Box::new(RtdeArm::connect(args.rtde.as_deref().expect("clap requires --rtde without --dry-run"), patience)?)
+    };
+    println!("deploying {} ({} steps of training) on {}: {} episodes", bundle.dir.display(), bundle.manifest.timesteps, arm.describe(), args.episodes);
+    let mut successes = 0;
+    let report = deploy(arm.as_mut(), &bundle, &options, |e| {
+        successes += usize::from(e.success);
+        let outcome = e.cycle_time_s.map_or(format!("missed after {} steps", e.steps), |t| format!("arrived in {t:.2} s"));
+        println!(
+            "episode {:3}: {outcome}, error {:.1} mm, energy {:.1} J{} (success {successes}/{})",
+            e.episode + 1,
+            e.final_error_mm,
+            e.energy_j,
+            if e.clipped + e.refused > 0 { format!(", shadow clipped {} refused {}", e.clipped, e.refused) } else { String::new() },
+            e.episode + 1
+        );
+    })?;
+    println!(
+        "{}: success {:.1} % of {}, mean cycle time {}, mean energy {:.1} J; state to command p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs over {} commands; shadow clipped {}, refused {}",
+        report.arm,
+        100.0 * report.success_rate,
+        report.episodes.len(),
+        report.mean_cycle_time_s.map_or("-".into(), |t| format!("{t:.2} s")),
+        report.mean_energy_j,
+        report.latency_p50_us,
+        report.latency_p99_us,
+        report.latency_max_us,
+        report.commands,
+        report.clipped,
+        report.refused
+    );
+    if let Some(out) = &args.out {
+        crate::cli::replay::write_json(out, &report)?;
+        println!("wrote {}", out.display());
+    }
+    Ok(())
+}
+
+/// Where the robot's joints stand: one report of an outputs-only RTDE connection.
+fn robot_joints(address: &str, patience: Duration) -> anyhow::Result<[f64; 6]> {
+    let mut client = RtdeClient::connect(address, patience)?;
+    client.setup_outputs(&["actual_q"], 10.0)?;
+    client.start()?;
+    let p = client.receive()?;
+    let q = p.get("actual_q").and_then(Value::as_vec).unwrap_or_default();
+    anyhow::ensure!(q.len() == 6, "the robot reported {} joint angles", q.len());
+    Ok(std::array::from_fn(|j| q[j]))
+}

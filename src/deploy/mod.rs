@@ -1,0 +1,271 @@
+//! `twinbots deploy`: a bundle's policy on a robot, at the control period it was trained with,
+//! the twin as its shadow. Every control period (counted on the controller's clock) the
+//! controller's state becomes the task's observation, the policy acts, the shadow checks the
+//! joint speeds (clipping or refusing them) and only then do they go to the robot. Episodes are
+//! the task's: home, a target from the task's sampler, up to its step limit. A missed deadline
+//! (the command later than `deadline` after the state it answers), a robot that stops
+//! reporting, or any error stops the robot before the error is returned.
+
+pub mod arm;
+pub mod latency;
+
+use std::time::Duration;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use ur5e::deploy::{ReachController, Shadow};
+
+use self::arm::{Arm, Measured};
+use crate::bundle::Bundle;
+
+/// How a deployment runs.
+#[derive(Clone, Debug)]
+pub struct DeployOptions {
+    pub episodes: usize,
+    pub seed: u64,
+    /// The longest from a state's arrival to the command that answers it.
+    pub deadline: Duration,
+    /// The longest homing may take (controller time, s).
+    pub homing_limit: f64,
+}
+
+impl Default for DeployOptions {
+    fn default() -> Self {
+        Self { episodes: 100, seed: 0, deadline: Duration::from_millis(20), homing_limit: 10.0 }
+    }
+}
+
+/// One episode on the robot.
+#[derive(Clone, Debug, Serialize)]
+pub struct EpisodeReport {
+    pub episode: usize,
+    pub success: bool,
+    pub steps: u32,
+    /// Time to arrival (s), if it arrived.
+    pub cycle_time_s: Option<f64>,
+    pub final_error_mm: f64,
+    /// Mechanical energy the joints put in (J): Σ |τ·q̇| dt over the controller's reports.
+    pub energy_j: f64,
+    pub clipped: u32,
+    pub refused: u32,
+    pub target: [f32; 3],
+}
+
+/// A deployment's account.
+#[derive(Clone, Debug, Serialize)]
+pub struct DeployReport {
+    pub robot: String,
+    pub arm: String,
+    pub episodes: Vec<EpisodeReport>,
+    pub success_rate: f64,
+    pub mean_cycle_time_s: Option<f64>,
+    pub mean_energy_j: f64,
+    pub clipped: u32,
+    pub refused: u32,
+    /// State in → command out (µs), over every command sent.
+    pub latency_p50_us: f64,
+    pub latency_p99_us: f64,
+    pub latency_max_us: f64,
+    pub commands: usize,
+}
+
+/// The shadow a bundle's limits describe.
+pub fn shadow_of(bundle: &Bundle) -> Shadow {
+    let m = &bundle.manifest;
+    Shadow {
+        max_speed: m.joints.iter().map(|j| j.max_speed_rad_s).fold(f64::INFINITY, f64::min),
+        max_acceleration: m.shadow.max_acceleration_rad_s2,
+        lookahead: m.shadow.lookahead_s,
+        range_margin: m.shadow.range_margin_rad,
+        table_clearance: m.shadow.table_clearance_m,
+    }
+}
+
+/// A policy: raw observation in, action out.
+pub type PolicyFn<'a> = &'a dyn Fn(&[f32]) -> anyhow::Result<Vec<f32>>;
+
+/// Runs `options.episodes` episodes of the bundle's policy on `arm`; `progress` sees each as it
+/// ends. On any error the robot is told to stop first.
+pub fn deploy(arm: &mut dyn Arm, bundle: &Bundle, options: &DeployOptions, progress: impl FnMut(&EpisodeReport)) -> anyhow::Result<DeployReport> {
+    deploy_policy(arm, bundle, &|obs| bundle.policy.act(obs), options, progress)
+}
+
+/// [`deploy`] with another policy than the bundle's (the shadow's tests drive reckless ones).
+pub fn deploy_policy(
+    arm: &mut dyn Arm,
+    bundle: &Bundle,
+    policy: PolicyFn<'_>,
+    options: &DeployOptions,
+    mut progress: impl FnMut(&EpisodeReport),
+) -> anyhow::Result<DeployReport> {
+    let mut run = Deployment::new(bundle, policy, options);
+    let result = (|| -> anyhow::Result<Vec<EpisodeReport>> {
+        let mut episodes = Vec::with_capacity(options.episodes);
+        for episode in 0..options.episodes {
+            run.home(arm)?;
+            let report = run.episode(arm, episode)?;
+            progress(&report);
+            episodes.push(report);
+        }
+        Ok(episodes)
+    })();
+    let stopped = arm.stop();
+    let episodes = result?;
+    stopped?;
+    Ok(run.report(bundle, arm, episodes))
+}
+
+/// The deployment's state between control steps.
+struct Deployment<'a> {
+    policy: PolicyFn<'a>,
+    controller: ReachController,
+    shadow: Shadow,
+    rng: ChaCha8Rng,
+    period: f64,
+    deadline: Duration,
+    homing_limit: f64,
+    /// The last command sent (for the shadow's acceleration limit).
+    last: [f64; 6],
+    /// When the next control step is due (controller time).
+    next_step: Option<f64>,
+    latencies: Vec<f64>,
+    /// The last report, for the energy integral.
+    previous: Option<Measured>,
+    energy: f64,
+}
+
+impl<'a> Deployment<'a> {
+    fn new(bundle: &Bundle, policy: PolicyFn<'a>, options: &DeployOptions) -> Self {
+        Self {
+            policy,
+            controller: ReachController::default(),
+            shadow: shadow_of(bundle),
+            rng: ChaCha8Rng::seed_from_u64(options.seed),
+            period: bundle.manifest.control_period_s,
+            deadline: options.deadline,
+            homing_limit: options.homing_limit,
+            last: [0.0; 6],
+            next_step: None,
+            latencies: Vec::new(),
+            previous: None,
+            energy: 0.0,
+        }
+    }
+
+    /// Reads reports until the next control step is due; returns the one it is due at.
+    fn wait_step(&mut self, arm: &mut dyn Arm) -> anyhow::Result<Measured> {
+        loop {
+            let m = arm.read()?;
+            anyhow::ensure!(m.q.iter().chain(&m.qd).all(|v| v.is_finite()), "the robot reported joints {:?}, speeds {:?}", m.q, m.qd);
+            if let Some(p) = &self.previous {
+                let dt = (m.time - p.time).max(0.0);
+                self.energy += dt * m.effort.iter().zip(&m.qd).map(|(e, v)| (e * v).abs()).sum::<f64>();
+            }
+            self.previous = Some(m.clone());
+            let due = *self.next_step.get_or_insert(m.time);
+            // Within rounding of the controller's 2 ms cycles.
+            if m.time + 1e-6 >= due {
+                self.next_step = Some(due + self.period);
+                if m.time > due + self.period {
+                    // Reports were lost (or came late): count steps from now.
+                    self.next_step = Some(m.time + self.period);
+                }
+                self.controller.read(&m.q, &m.qd);
+                return Ok(m);
+            }
+        }
+    }
+
+    /// The shadow's verdict on `wanted`, sent; returns whether it was clipped and refused.
+    fn send(&mut self, arm: &mut dyn Arm, m: &Measured, wanted: [f64; 6]) -> anyhow::Result<(bool, bool)> {
+        let verdict = self.shadow.check(&m.q, &wanted, &self.last, self.period);
+        if verdict.refused {
+            arm.stop()?;
+        } else {
+            arm.command(&verdict.command)?;
+        }
+        let latency = m.received.elapsed();
+        self.latencies.push(latency.as_secs_f64() * 1e6);
+        anyhow::ensure!(
+            latency <= self.deadline,
+            "missed the control deadline: the command went {:.1} ms after the state it answers (limit {:.1} ms); the robot was told to stop",
+            latency.as_secs_f64() * 1e3,
+            self.deadline.as_secs_f64() * 1e3
+        );
+        self.last = if verdict.refused { [0.0; 6] } else { verdict.command };
+        for note in &verdict.notes {
+            eprintln!("shadow: {note}");
+        }
+        Ok((verdict.clipped, verdict.refused))
+    }
+
+    /// Homes the arm with the controller's homing move.
+    fn home(&mut self, arm: &mut dyn Arm) -> anyhow::Result<()> {
+        let m = self.wait_step(arm)?;
+        let start = m.time;
+        let mut m = m;
+        while !self.controller.is_home() {
+            anyhow::ensure!(m.time - start < self.homing_limit, "the arm did not home within {} s (joints at {:?})", self.homing_limit, m.q);
+            let speeds = self.controller.homing();
+            self.send(arm, &m, speeds)?;
+            m = self.wait_step(arm)?;
+        }
+        self.send(arm, &m, [0.0; 6])?;
+        Ok(())
+    }
+
+    fn episode(&mut self, arm: &mut dyn Arm, episode: usize) -> anyhow::Result<EpisodeReport> {
+        self.controller.new_reach(&mut self.rng);
+        let energy_before = self.energy;
+        let (mut clipped, mut refused, mut steps) = (0, 0, 0);
+        let mut m = self.wait_step(arm)?;
+        let mut success = self.controller.arrived();
+        while !success && steps < ur5e::reach::EPISODE_STEPS {
+            let observation = self.controller.observation().to_vec();
+            let action = (self.policy)(&observation)?;
+            let speeds = self.controller.act(&action);
+            let (c, r) = self.send(arm, &m, speeds)?;
+            clipped += u32::from(c);
+            refused += u32::from(r);
+            steps += 1;
+            m = self.wait_step(arm)?;
+            success = self.controller.arrived();
+        }
+        self.send(arm, &m, [0.0; 6])?;
+        let target = self.controller.target();
+        Ok(EpisodeReport {
+            episode,
+            success,
+            steps,
+            cycle_time_s: success.then(|| steps as f64 * self.period),
+            final_error_mm: 1000.0 * self.controller.error() as f64,
+            energy_j: self.energy - energy_before,
+            clipped,
+            refused,
+            target: target.to_array(),
+        })
+    }
+
+    fn report(&self, bundle: &Bundle, arm: &dyn Arm, episodes: Vec<EpisodeReport>) -> DeployReport {
+        let n = episodes.len().max(1) as f64;
+        let successes: Vec<f64> = episodes.iter().filter_map(|e| e.cycle_time_s).collect();
+        let mut sorted = self.latencies.clone();
+        sorted.sort_by(f64::total_cmp);
+        let pct = |p: f64| if sorted.is_empty() { 0.0 } else { sorted[((sorted.len() - 1) as f64 * p).round() as usize] };
+        DeployReport {
+            robot: bundle.manifest.robot.clone(),
+            arm: arm.describe(),
+            success_rate: successes.len() as f64 / n,
+            mean_cycle_time_s: (!successes.is_empty()).then(|| successes.iter().sum::<f64>() / successes.len() as f64),
+            mean_energy_j: episodes.iter().map(|e| e.energy_j).sum::<f64>() / n,
+            clipped: episodes.iter().map(|e| e.clipped).sum(),
+            refused: episodes.iter().map(|e| e.refused).sum(),
+            latency_p50_us: pct(0.5),
+            latency_p99_us: pct(0.99),
+            latency_max_us: sorted.last().copied().unwrap_or(0.0),
+            commands: sorted.len(),
+            episodes,
+        }
+    }
+}

@@ -1,0 +1,167 @@
+//! A deploy bundle on a robot: the fixture's UR5e reach policy exported with `--bundle` and run
+//! by `deploy` through RTDE against the stand-in, as in a dry run; a reckless policy kept off
+//! the table and inside the joints' stops by the shadow; mismatched bundles and silent or late
+//! robots turned into clear errors with the robot told to stop.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use twinbots::bundle::Bundle;
+use twinbots::deploy::arm::{Arm, Measured, RtdeArm, TwinArm};
+use twinbots::deploy::{DeployOptions, deploy, deploy_policy};
+use twinbots::ur_sim::UrSimOptions;
+use twinbots_rtde::{RtdeClient, Value};
+use ur5e::deploy::lowest_point;
+
+use crate::delivery::{failed, fixture_run, succeeded, twinbots};
+use crate::rtde::Standin;
+
+fn bundle(test: &str) -> PathBuf {
+    let run = fixture_run("ur5e-reach", test);
+    let dir = run.join("bundle");
+    succeeded(twinbots().arg("export").arg(&run).arg("--bundle").arg(&dir).output().unwrap());
+    dir
+}
+
+#[test]
+fn deploy_reaches_through_rtde_as_in_the_dry_run() {
+    let bundle = Bundle::read(&bundle("deploy-rtde")).unwrap();
+    let options = DeployOptions { episodes: 8, seed: 5, ..Default::default() };
+    let standin = Standin::start(0.1);
+    let mut arm = RtdeArm::connect(&standin.address(), Duration::from_secs(2)).unwrap();
+    let through_rtde = deploy(&mut arm, &bundle, &options, |_| {}).unwrap();
+    let mut twin = TwinArm::new(&UrSimOptions::default(), None).unwrap();
+    let dry = deploy(&mut twin, &bundle, &options, |_| {}).unwrap();
+    let successes = |r: &twinbots::deploy::DeployReport| r.episodes.iter().filter(|e| e.success).count();
+    assert!(successes(&through_rtde) >= 7, "{:#?}", through_rtde.episodes);
+    assert!(successes(&dry) >= 7, "{:#?}", dry.episodes);
+    assert!(successes(&through_rtde).abs_diff(successes(&dry)) <= 1);
+    // The same targets (the seed's), and every command answered its state within the deadline.
+    assert!(through_rtde.episodes.iter().zip(&dry.episodes).all(|(a, b)| a.target == b.target));
+    assert!(through_rtde.latency_max_us < 20_000.0 && through_rtde.commands > 8 * 10);
+    assert_eq!(through_rtde.refused, 0);
+}
+
+#[test]
+fn the_shadow_keeps_a_reckless_policy_off_the_table_and_inside_the_stops() {
+    let bundle = Bundle::read(&bundle("deploy-shadow")).unwrap();
+    let standin = Standin::start(0.1);
+    // An independent watcher of what the stand-in does, at its full rate.
+    let mut watcher = RtdeClient::connect(&standin.address(), Duration::from_secs(2)).unwrap();
+    watcher.setup_outputs(&["actual_q", "target_qd"], 500.0).unwrap();
+    watcher.start().unwrap();
+    let seen = Arc::new(Mutex::new((f64::INFINITY, 0.0f64, 0.0f64)));
+    let record = seen.clone();
+    let watching = std::thread::spawn(move || {
+        while let Ok(p) = watcher.receive() {
+            let q = p.get("actual_q").and_then(Value::as_vec).unwrap();
+            let qd = p.get("target_qd").and_then(Value::as_vec).unwrap();
+            let mut s = record.lock().unwrap();
+            s.0 = s.0.min(lowest_point(&std::array::from_fn(|j| q[j])).1);
+            s.1 = s.1.max(q[2].abs());
+            s.2 = s.2.max(qd.iter().fold(0.0, |m, v| m.max(v.abs())));
+        }
+    });
+    // Full speed down with the shoulder and the elbow, every step: into the table.
+    let dive = |_: &[f32]| Ok(vec![0.0, 1.0, 1.0, 0.0, 0.0]);
+    let mut arm = RtdeArm::connect(&standin.address(), Duration::from_secs(2)).unwrap();
+    let report = deploy_policy(&mut arm, &bundle, &dive, &DeployOptions { episodes: 1, ..Default::default() }, |_| {}).unwrap();
+    assert!(report.refused > 0, "the shadow refused the dive: {report:#?}");
+    // Bend the elbow all the way, every step: into its stop.
+    let bend = |_: &[f32]| Ok(vec![0.0, 0.0, -1.0, 0.0, 0.0]);
+    let report = deploy_policy(&mut arm, &bundle, &bend, &DeployOptions { episodes: 1, ..Default::default() }, |_| {}).unwrap();
+    assert!(report.refused > 0, "the shadow refused the elbow's stop: {report:#?}");
+    drop(arm);
+    std::thread::sleep(Duration::from_millis(100));
+    let (lowest, elbow, fastest) = *seen.lock().unwrap();
+    drop(standin);
+    let _ = watching.join();
+    assert!(lowest >= 0.0, "a point of the arm went {lowest} m into the table");
+    assert!(elbow < std::f64::consts::PI, "the elbow reached {elbow} rad, past its ±π stop");
+    assert!(fastest <= std::f64::consts::PI + 1e-6, "a joint was commanded {fastest} rad/s");
+    assert!(lowest < 0.1 && elbow > 2.5, "the policies did drive towards the limits: lowest {lowest}, elbow {elbow}");
+}
+
+/// An arm whose reports arrive `lag` late, recording what it was told.
+struct LateArm {
+    twin: TwinArm,
+    lag: Duration,
+    told: Vec<&'static str>,
+}
+
+impl Arm for LateArm {
+    fn read(&mut self) -> anyhow::Result<Measured> {
+        let mut m = self.twin.read()?;
+        m.received = Instant::now() - self.lag;
+        Ok(m)
+    }
+    fn command(&mut self, speeds: &[f64; 6]) -> anyhow::Result<()> {
+        self.told.push("command");
+        self.twin.command(speeds)
+    }
+    fn stop(&mut self) -> anyhow::Result<()> {
+        self.told.push("stop");
+        self.twin.stop()
+    }
+    fn describe(&self) -> String {
+        "a late arm".into()
+    }
+}
+
+#[test]
+fn deploy_refuses_mismatched_bundles_and_stops_a_late_or_silent_robot() {
+    let dir = bundle("deploy-bad");
+    // Another robot, another joint order, another control period: refused, naming the mismatch.
+    let err = failed(twinbots().args(["deploy", "cartpole", "--dry-run", "--bundle"]).arg(&dir).output().unwrap());
+    assert!(err.contains("robot 'cartpole' has no controller link"), "{err}");
+    let edit = |name: &str, from: &str, to: &str| -> PathBuf {
+        let copy = dir.with_file_name(name);
+        let _ = std::fs::remove_dir_all(&copy);
+        std::fs::create_dir_all(&copy).unwrap();
+        for f in ["bundle.json", "policy.onnx"] {
+            std::fs::copy(dir.join(f), copy.join(f)).unwrap();
+        }
+        let text = std::fs::read_to_string(copy.join("bundle.json")).unwrap();
+        assert!(text.contains(from), "{text}");
+        std::fs::write(copy.join("bundle.json"), text.replacen(from, to, 1)).unwrap();
+        copy
+    };
+    let swapped = edit("swapped", "\"shoulder_pan_joint\"", "\"elbow_joint\"");
+    let err = failed(twinbots().args(["deploy", "ur5e", "--dry-run", "--bundle"]).arg(&swapped).output().unwrap());
+    assert!(err.contains("joints") && err.contains("names and order must match"), "{err}");
+    let slower = edit("slower", "\"control_period_s\": 0.04", "\"control_period_s\": 0.08");
+    let err = failed(twinbots().args(["deploy", "ur5e", "--dry-run", "--bundle"]).arg(&slower).output().unwrap());
+    assert!(err.contains("acts every 0.08 s, this robot's task every 0.04 s"), "{err}");
+    let err = failed(twinbots().args(["deploy", "ur5e", "--dry-run", "--bundle"]).arg(Path::new("/nonexistent/bundle")).output().unwrap());
+    assert!(err.contains("bundle.json") && err.contains("is /nonexistent/bundle a bundle"), "{err}");
+    let err = failed(twinbots().args(["robot", "cartpole", "--policy"]).arg(&dir).output().unwrap());
+    assert!(err.contains("is for the robot 'ur5e', not 'cartpole'"), "{err}");
+    let err = failed(twinbots().args(["robot", "ur5e", "--policy"]).arg(&slower).output().unwrap());
+    assert!(err.contains("acts every 0.08 s"), "{err}");
+    let ok = succeeded(twinbots().args(["deploy", "ur5e", "--dry-run", "--episodes", "2", "--bundle"]).arg(&dir).output().unwrap());
+    assert!(ok.contains("success") && ok.contains("of 2"), "{ok}");
+
+    // Reports that come 30 ms late: the first command misses its 20 ms deadline, the robot is
+    // told to stop, and the error says why.
+    let bundle = Bundle::read(&dir).unwrap();
+    let mut late = LateArm { twin: TwinArm::new(&UrSimOptions::default(), None).unwrap(), lag: Duration::from_millis(30), told: Vec::new() };
+    let err = deploy(&mut late, &bundle, &DeployOptions::default(), |_| {}).unwrap_err().to_string();
+    assert!(err.contains("missed the control deadline"), "{err}");
+    assert_eq!(late.told.last(), Some(&"stop"));
+
+    // A controller that stops reporting mid-run: the deployment ends with an error within its
+    // patience, not a hang.
+    let standin = Standin::start(0.1);
+    let mut arm = RtdeArm::connect(&standin.address(), Duration::from_millis(300)).unwrap();
+    let stopper = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(800));
+        drop(standin);
+    });
+    let began = Instant::now();
+    let err = deploy(&mut arm, &bundle, &DeployOptions { episodes: 50, ..Default::default() }, |_| {}).unwrap_err();
+    stopper.join().unwrap();
+    assert!(began.elapsed() < Duration::from_secs(5), "{:?}", began.elapsed());
+    let text = format!("{err:#}");
+    assert!(text.contains("RTDE"), "{text}");
+}
