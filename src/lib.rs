@@ -4,6 +4,7 @@
 
 pub mod bundle;
 pub mod deploy;
+pub mod monitor;
 pub mod registry;
 pub mod robot_log;
 pub mod run;

@@ -49,6 +49,9 @@ enum Command {
     /// Run a deploy bundle's policy on a robot (RTDE), the twin checking every command first;
     /// `--dry-run` drives only the twin.
     Deploy(cli::deploy::Args),
+    /// Follow a robot live with its twin (RTDE): divergence per joint, alarms, robot and twin
+    /// logged side by side.
+    Monitor(cli::monitor::Args),
     /// A UR controller stand-in: serves RTDE on 127.0.0.1:30004, backed by the UR5e twin
     /// (optionally a truth twin) running the shipped control program every 2 ms.
     #[command(name = "ur-sim")]
@@ -82,5 +85,6 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Identify(args) => cli::identify::exec(args),
         Command::UrSim(args) => cli::ur_sim::exec(args),
         Command::Deploy(args) => cli::deploy::exec(args),
+        Command::Monitor(args) => cli::monitor::exec(args),
     }
 }

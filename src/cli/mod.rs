@@ -8,6 +8,7 @@ pub mod eval;
 pub mod export;
 pub mod identify;
 pub mod learner;
+pub mod monitor;
 pub mod record;
 pub mod replay;
 pub mod robot;

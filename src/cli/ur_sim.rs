@@ -36,6 +36,10 @@ pub struct Args {
     /// Seeds the sensor noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// A payload on the flange (kg, 5 cm out along the tool axis) that the twin's model does
+    /// not know: what `monitor` should notice.
+    #[arg(long)]
+    pub payload: Option<f32>,
 }
 
 /// `twinbots ur-sim`.
@@ -56,7 +60,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     if let Some(s) = args.seconds {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
-    let options = UrSimOptions { truth, noise, seed: args.seed, watchdog: args.watchdog };
+    let options = UrSimOptions { truth, noise, seed: args.seed, watchdog: args.watchdog, payload: args.payload };
     let mut sim = UrSim::new(&options)?;
     let server = RtdeServer::bind(&args.listen, controller_info())?;
     println!("ur-sim: UR5e twin ({}) serving RTDE on {} at 500 Hz", args.truth.as_ref().map_or("nominal".to_string(), |p| format!("truth {}", p.display())), server.local_addr());

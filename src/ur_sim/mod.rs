@@ -37,13 +37,19 @@ pub struct UrSimOptions {
     pub seed: u64,
     /// The longest the control program's counter may stand still while moving (s).
     pub watchdog: f64,
+    /// A payload on the flange (kg), 5 cm out along the tool axis: a load the twin's model does
+    /// not know (the monitor's test of a divergence).
+    pub payload: Option<f32>,
 }
 
 impl Default for UrSimOptions {
     fn default() -> Self {
-        Self { truth: Parameters::default(), noise: SensorNoise { position: 0.0, velocity: 0.0, effort: 0.0 }, seed: 0, watchdog: 0.1 }
+        Self { truth: Parameters::default(), noise: SensorNoise { position: 0.0, velocity: 0.0, effort: 0.0 }, seed: 0, watchdog: 0.1, payload: None }
     }
 }
+
+/// The link a payload hangs on.
+pub const FLANGE: &str = "tool0";
 
 /// The stand-in: the twin, the program, and the cycle count.
 pub struct UrSim {
@@ -74,7 +80,11 @@ impl UrSim {
         anyhow::ensure!(q.iter().all(|v| v.is_finite()), "a start pose of {q:?} is not one");
         // The encoders read the joint plus its bias: the joint stands at the reading less it.
         let at: Vec<(String, f32)> = JOINTS.iter().zip(q).zip(&bias).map(|((n, v), b)| (n.to_string(), (v - b) as f32)).collect();
-        let stand = Stand::new(&rig, &at, std::slice::from_ref(&params));
+        let mut stand = Stand::new(&rig, &at, std::slice::from_ref(&params));
+        if let Some(mass) = options.payload {
+            anyhow::ensure!(mass.is_finite() && mass > 0.0, "a payload of {mass} kg is not one");
+            stand.add_payload(0, FLANGE, mass, Vec3::new(0.0, 0.0, 0.05))?;
+        }
         let limits = Limits {
             range: JOINT_RANGES.map(|r| r as f64),
             speed: [MAX_JOINT_SPEED as f64; 6],

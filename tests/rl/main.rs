@@ -6,6 +6,7 @@ mod learning;
 mod delivery;
 mod deploy;
 mod model;
+mod monitor;
 mod onnx;
 mod patterns;
 mod ppo;

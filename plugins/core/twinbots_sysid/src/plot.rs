@@ -122,3 +122,40 @@ pub fn convergence_png(path: &Path, title: &str, history: &[Generation], nominal
         Ok(())
     })
 }
+
+/// A robot followed live by its twin (`twinbots monitor`): one row per joint, the position
+/// error (robot − twin, mrad) on the left and the effort residual (robot − twin, N·m) on the
+/// right, against the controller's time; `alarms` (times, s) drawn as vertical red lines.
+pub fn divergence_png(path: &Path, title: &str, robot: &twinbots_log::RobotLog, twin: &twinbots_log::RobotLog, alarms: &[f64]) -> anyhow::Result<()> {
+    let rows = robot.joints.len();
+    anyhow::ensure!(rows > 0 && robot.states.len() == twin.states.len(), "robot and twin logs do not pair up");
+    let t_max = robot.states.last().map_or(1.0, |s| s.time).max(1e-3);
+    let t0 = robot.states.first().map_or(0.0, |s| s.time);
+    write_png(path, (1400, 200 * rows as u32 + 40), |root| {
+        let root = root.titled(title, ("sans-serif", 20))?;
+        for (j, row) in root.split_evenly((rows, 1)).iter().enumerate() {
+            let (left, right) = row.split_horizontally(row.dim_in_pixel().0 as i32 / 2);
+            let pairs = robot.states.iter().zip(&twin.states);
+            let position: Vec<(f64, f64)> = pairs.clone().map(|(r, t)| (r.time, 1e3 * (r.position[j] - t.position[j]))).collect();
+            let effort: Vec<(f64, f64)> =
+                pairs.map(|(r, t)| (r.time, r.effort.get(j).copied().unwrap_or(0.0) - t.effort.get(j).copied().unwrap_or(0.0))).collect();
+            for (area, caption, series) in [(&left, format!("{}: robot − twin (mrad)", robot.joints[j]), position), (&right, format!("{}: effort residual (N·m)", robot.joints[j]), effort)] {
+                let (lo, hi) = series.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.1), b.max(p.1)));
+                let (lo, hi) = if lo.is_finite() { (lo.min(-1e-3), hi.max(1e-3)) } else { (-1.0, 1.0) };
+                let pad = (hi - lo) * 0.05;
+                let mut chart = ChartBuilder::on(area)
+                    .margin(6)
+                    .x_label_area_size(24)
+                    .y_label_area_size(60)
+                    .caption(caption.as_str(), ("sans-serif", 14))
+                    .build_cartesian_2d(t0..t_max, (lo - pad)..(hi + pad))?;
+                chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
+                chart.draw_series(LineSeries::new(series, BLUE.stroke_width(1)))?;
+                for &a in alarms {
+                    chart.draw_series(LineSeries::new(vec![(a, lo - pad), (a, hi + pad)], RED.stroke_width(1)))?;
+                }
+            }
+        }
+        Ok(())
+    })
+}

@@ -155,17 +155,55 @@ pub struct Stand {
     app: App,
     /// Per arena, the entities of [`Rig::joints`].
     joints: Vec<Vec<Entity>>,
+    /// Per arena, its entity and its links' entities by name.
+    arenas: Vec<(Entity, std::collections::HashMap<String, Entity>)>,
 }
 
 impl Stand {
     /// The rig's arenas built (one per set), the joints at `start` (by name).
     pub fn new(rig: &Rig, start: &[(String, f32)], sets: &[Parameters]) -> Self {
         let mut app = App::new();
-        app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings: rig.settings, supervisor: false });
-        let joints = sets.iter().enumerate().map(|(index, params)| spawn(&mut app, rig, index, start, params)).collect();
+        // A test stand is the lab's, not the robot's: its operator may place the joints (`place`).
+        app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings: rig.settings, supervisor: true });
+        let (joints, arenas) = sets.iter().enumerate().map(|(index, params)| spawn(&mut app, rig, index, start, params)).unzip();
         // Start-up only: the world as built.
         app.update();
-        Self { app, joints }
+        Self { app, joints, arenas }
+    }
+
+    /// Adds a point mass of `mass` kg to `link` of `arena`, at `at` in the link's frame: a load
+    /// the rig's model does not know (a payload on the flange).
+    pub fn add_payload(&mut self, arena: usize, link: &str, mass: f32, at: Vec3) -> anyhow::Result<()> {
+        use twinbots_sim::rapier::prelude::MassProperties;
+        let (arena_entity, links) = &self.arenas[arena];
+        let entity = *links.get(link).ok_or_else(|| anyhow::anyhow!("the rig has no link '{link}'"))?;
+        let world = self.app.world_mut();
+        let l = world.get::<twinbots_sim::Link>(entity).expect("a spawned link has a Link").clone();
+        let mut a = world.get_mut::<Arena>(*arena_entity).expect("the arena entity has its Arena");
+        let body = a.world.bodies.get_mut(l.body).ok_or_else(|| anyhow::anyhow!("link '{link}' has no body"))?;
+        let point = l.offset * at;
+        body.set_additional_mass_properties(MassProperties::new(point, mass, Vec3::splat(1e-6)), true);
+        Ok(())
+    }
+
+    /// Puts `arena`'s joints at `positions` (in [`Rig::joints`]' order), at rest: the rig
+    /// re-anchored to a robot that stands there. Each drive's reference moves with its joint,
+    /// so a rig that stood settled under its load stands settled there.
+    pub fn place(&mut self, arena: usize, positions: &[f32]) {
+        let joints = self.joints[arena].clone();
+        let before: Vec<f32> = self.reading(arena).position;
+        let world = self.app.world_mut();
+        let mut state: bevy::ecs::system::SystemState<twinbots_sim::Supervisor> = bevy::ecs::system::SystemState::new(world);
+        let mut supervisor = state.get_mut(world).expect("the rig app has the Supervisor's resources");
+        for (&joint, &q) in joints.iter().zip(positions) {
+            supervisor.set_joint_position(joint, q);
+        }
+        state.apply(world);
+        for ((&joint, &q), old) in joints.iter().zip(positions).zip(before) {
+            if let Some(mut motor) = world.get_mut::<Motor>(joint) {
+                motor.shift_reference(q - old);
+            }
+        }
     }
 
     /// Sets joint `joint`'s (index into [`Rig::joints`]) motor command in `arena`; a joint
@@ -195,9 +233,11 @@ impl Stand {
     }
 }
 
-/// Spawns arena `index` with the rig on it, its joints set to `params`; returns the entities of
-/// [`Rig::joints`].
-fn spawn(app: &mut App, rig: &Rig, index: usize, start: &[(String, f32)], params: &Parameters) -> Vec<Entity> {
+/// The entities of an arena's [`Rig::joints`], and the arena's entity with its links'.
+type Spawned = (Vec<Entity>, (Entity, std::collections::HashMap<String, Entity>));
+
+/// Spawns arena `index` with the rig on it, its joints set to `params`.
+fn spawn(app: &mut App, rig: &Rig, index: usize, start: &[(String, f32)], params: &Parameters) -> Spawned {
     let world = app.world_mut();
     let entity = world.spawn_empty().id();
     let mut arena = Arena::new(index, 0, rig.settings.dt, rig.settings.gravity);
@@ -222,5 +262,5 @@ fn spawn(app: &mut App, rig: &Rig, index: usize, start: &[(String, f32)], params
         }
     }
     world.entity_mut(entity).insert(arena);
-    entities
+    (entities, (entity, spawned.links))
 }

@@ -137,6 +137,15 @@ impl Motor {
         self.reference = None;
     }
 
+    /// Moves the held reference by `delta` with the joint: after the joint was moved from
+    /// outside by `delta`, the drive holds it where it now is, with the same following error
+    /// (the load it held, it holds still).
+    pub fn shift_reference(&mut self, delta: f32) {
+        if let Some(r) = &mut self.reference {
+            *r += delta;
+        }
+    }
+
     /// Advances the held reference by `v` over `dt`, kept within the following-error limit of
     /// the joint's position and within its stops; returns it.
     fn advance_reference(&mut self, position: f32, v: f32, dt: f32, limits: Option<[f32; 2]>) -> f32 {

@@ -1,0 +1,71 @@
+//! The monitor: a twin that follows the robot notices a load it does not know within a second
+//! of motion, and stays quiet beside a robot it matches.
+
+use twinbots::monitor::{Monitor, MonitorOptions, Report};
+use twinbots::ur_sim::program::{COUNTER, MODE, MODE_SPEEDJ, TARGET};
+use twinbots::ur_sim::{CYCLE, UrSim, UrSimOptions};
+use twinbots_rtde::Value;
+use twinbots_rtde::server::{InputState, OutputState};
+use twinbots_rtde::variables::output_index;
+
+fn six(out: &OutputState, name: &str) -> [f64; 6] {
+    let v = out.0[output_index(name).unwrap()].as_vec().unwrap();
+    std::array::from_fn(|j| v[j])
+}
+
+pub fn report_of(out: &OutputState) -> Report {
+    Report {
+        time: out.0[output_index("timestamp").unwrap()].as_f64().unwrap(),
+        q: six(out, "actual_q"),
+        qd: six(out, "actual_qd"),
+        command: six(out, "target_qd"),
+        effort: six(out, "target_moment"),
+    }
+}
+
+/// A pick-and-place-like cycle: rest, shoulder and elbow out, rest, back.
+fn program(t: f64) -> [f64; 6] {
+    let phase = t % 4.0;
+    let s = if (0.5..1.5).contains(&phase) { 0.6 } else if (2.5..3.5).contains(&phase) { -0.6 } else { 0.0 };
+    [0.5 * s, s, -s, 0.3 * s, 0.0, 0.0]
+}
+
+/// Runs the robot (`robot`'s options) for `seconds` under the program with the monitor on the
+/// nominal twin; returns the alarms' times and kinds and the worst windowed effort RMSE (N·m).
+fn follow(robot: &UrSimOptions, seconds: f64) -> (Vec<(f64, String)>, f64) {
+    let mut sim = UrSim::new(robot).unwrap();
+    let mut inputs = InputState::new();
+    inputs.set(MODE, Value::Int32(MODE_SPEEDJ));
+    let (first, _) = sim.cycle(&inputs);
+    let mut monitor = Monitor::new(MonitorOptions::default(), &report_of(&first)).unwrap();
+    let mut alarms = Vec::new();
+    for k in 0..(seconds / CYCLE) as usize {
+        let t = k as f64 * CYCLE;
+        inputs.set(COUNTER, Value::Int32(k as i32));
+        for (name, v) in TARGET.iter().zip(program(t)) {
+            inputs.set(name, Value::Double(v));
+        }
+        let (out, _) = sim.cycle(&inputs);
+        for a in monitor.observe(&report_of(&out)) {
+            alarms.push((a.time, a.kind.clone()));
+        }
+    }
+    let worst = monitor.report().worst_effort_rmse.iter().cloned().fold(0.0, f64::max);
+    (alarms, worst)
+}
+
+#[test]
+fn the_monitor_notices_an_unmodelled_payload_within_a_second_of_motion() {
+    let (alarms, worst) = follow(&UrSimOptions { payload: Some(1.0), ..Default::default() }, 4.0);
+    let first = alarms.iter().find(|(_, k)| k == "divergence").unwrap_or_else(|| panic!("no divergence alarm: {alarms:?}, worst effort RMSE {worst}"));
+    // The first motion starts at 0.5 s.
+    assert!(first.0 < 1.5, "the alarm came at {} s", first.0);
+    assert!(worst > 2.0, "a 1 kg load the twin does not know: worst effort RMSE {worst} N*m");
+}
+
+#[test]
+fn the_monitor_stays_quiet_beside_a_matching_robot() {
+    let (alarms, worst) = follow(&UrSimOptions::default(), 20.0);
+    assert!(alarms.is_empty(), "{alarms:?}");
+    assert!(worst < 0.5, "worst effort RMSE {worst} N*m beside a matching robot");
+}
