@@ -8,7 +8,7 @@ use twinbots::bundle::Bundle;
 use twinbots::deploy::arm::{Arm, RtdeArm, TwinArm};
 use twinbots::deploy::{DeployOptions, deploy};
 use twinbots::ur_sim::UrSimOptions;
-use twinbots_rtde::{RtdeClient, Value};
+use twinbots_rtde::RtdeClient;
 use twinbots_sysid::Rig;
 use twinbots_task::calibration::read_calibration;
 
@@ -108,7 +108,7 @@ fn robot_joints(address: &str, patience: Duration) -> anyhow::Result<[f64; 6]> {
     client.setup_outputs(&["actual_q"], 10.0)?;
     client.start()?;
     let p = client.receive()?;
-    let q = p.get("actual_q").and_then(Value::as_vec).unwrap_or_default();
-    anyhow::ensure!(q.len() == 6, "the robot reported {} joint angles", q.len());
-    Ok(std::array::from_fn(|j| q[j]))
+    let q = p.vector6("actual_q").ok_or_else(|| anyhow::anyhow!("the robot reported no six joint angles"))?;
+    anyhow::ensure!(q.iter().all(|v| v.is_finite()), "the robot reported joint angles {q:?}");
+    Ok(q)
 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use twinbots::monitor::{Monitor, MonitorOptions, Report};
-use twinbots_rtde::{DataPackage, RtdeClient, Value};
+use twinbots_rtde::{DataPackage, RtdeClient};
 use twinbots_sysid::Rig;
 use twinbots_task::calibration::read_calibration;
 
@@ -124,12 +124,12 @@ fn print_line(monitor: &Monitor, time: f64) {
 
 fn report(p: &DataPackage) -> anyhow::Result<Report> {
     let six = |name: &str| -> anyhow::Result<[f64; 6]> {
-        let v = p.get(name).and_then(Value::as_vec).ok_or_else(|| anyhow::anyhow!("the controller's report has no {name}"))?;
-        anyhow::ensure!(v.len() == 6 && v.iter().all(|x| x.is_finite()), "the controller reported {name} = {v:?}");
-        Ok(std::array::from_fn(|j| v[j]))
+        let v = p.vector6(name).ok_or_else(|| anyhow::anyhow!("the controller's report has no {name}"))?;
+        anyhow::ensure!(v.iter().all(|x| x.is_finite()), "the controller reported {name} = {v:?}");
+        Ok(v)
     };
     Ok(Report {
-        time: p.get("timestamp").and_then(Value::as_f64).ok_or_else(|| anyhow::anyhow!("the controller's report has no timestamp"))?,
+        time: p.double("timestamp").ok_or_else(|| anyhow::anyhow!("the controller's report has no timestamp"))?,
         q: six("actual_q")?,
         qd: six("actual_qd")?,
         command: six("target_qd")?,

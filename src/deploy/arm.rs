@@ -72,12 +72,10 @@ impl Arm for RtdeArm {
     fn read(&mut self) -> anyhow::Result<Measured> {
         let p = self.client.receive()?;
         let received = Instant::now();
-        let six = |name: &str| -> [f64; 6] {
-            let v = p.get(name).and_then(Value::as_vec).unwrap_or_default();
-            std::array::from_fn(|j| v.get(j).copied().unwrap_or(f64::NAN))
-        };
+        // The recipe asked for each: a missing one reads as NaN, which the deployment refuses.
+        let six = |name: &str| p.vector6(name).unwrap_or([f64::NAN; 6]);
         Ok(Measured {
-            time: p.get("timestamp").and_then(Value::as_f64).unwrap_or(f64::NAN),
+            time: p.double("timestamp").unwrap_or(f64::NAN),
             q: six("actual_q"),
             qd: six("actual_qd"),
             effort: six("target_moment"),

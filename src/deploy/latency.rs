@@ -90,16 +90,14 @@ pub fn measure(bundle: &Bundle, seconds: f64, mut progress: impl FnMut(&LatencyR
 }
 
 fn summary(latencies: &[f64], seconds: f64, missed: u64, standin: u64) -> LatencyReport {
-    let mut sorted = latencies.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    let pct = |p: f64| if sorted.is_empty() { 0.0 } else { sorted[((sorted.len() - 1) as f64 * p).round() as usize] };
+    let (p50_us, p99_us, max_us) = super::percentiles(latencies);
     LatencyReport {
         seconds,
-        commands: sorted.len(),
-        p50_us: pct(0.5),
-        p99_us: pct(0.99),
-        max_us: sorted.last().copied().unwrap_or(0.0),
-        late_commands: sorted.iter().filter(|&&l| l > CYCLE * 1e6).count(),
+        commands: latencies.len(),
+        p50_us,
+        p99_us,
+        max_us,
+        late_commands: latencies.iter().filter(|&&l| l > CYCLE * 1e6).count(),
         missed_reports: missed,
         standin_missed_cycles: standin,
     }

@@ -250,9 +250,7 @@ impl<'a> Deployment<'a> {
     fn report(&self, bundle: &Bundle, arm: &dyn Arm, episodes: Vec<EpisodeReport>) -> DeployReport {
         let n = episodes.len().max(1) as f64;
         let successes: Vec<f64> = episodes.iter().filter_map(|e| e.cycle_time_s).collect();
-        let mut sorted = self.latencies.clone();
-        sorted.sort_by(f64::total_cmp);
-        let pct = |p: f64| if sorted.is_empty() { 0.0 } else { sorted[((sorted.len() - 1) as f64 * p).round() as usize] };
+        let (p50, p99, max) = percentiles(&self.latencies);
         DeployReport {
             robot: bundle.manifest.robot.clone(),
             arm: arm.describe(),
@@ -261,11 +259,19 @@ impl<'a> Deployment<'a> {
             mean_energy_j: episodes.iter().map(|e| e.energy_j).sum::<f64>() / n,
             clipped: episodes.iter().map(|e| e.clipped).sum(),
             refused: episodes.iter().map(|e| e.refused).sum(),
-            latency_p50_us: pct(0.5),
-            latency_p99_us: pct(0.99),
-            latency_max_us: sorted.last().copied().unwrap_or(0.0),
-            commands: sorted.len(),
+            latency_p50_us: p50,
+            latency_p99_us: p99,
+            latency_max_us: max,
+            commands: self.latencies.len(),
             episodes,
         }
     }
+}
+
+/// The median, 99th percentile and largest of `values` (0 for none).
+pub fn percentiles(values: &[f64]) -> (f64, f64, f64) {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let at = |p: f64| if sorted.is_empty() { 0.0 } else { sorted[((sorted.len() - 1) as f64 * p).round() as usize] };
+    (at(0.5), at(0.99), sorted.last().copied().unwrap_or(0.0))
 }

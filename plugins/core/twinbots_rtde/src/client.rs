@@ -40,6 +40,20 @@ impl DataPackage {
     pub fn get(&self, name: &str) -> Option<&Value> {
         self.names.iter().position(|n| n == name).map(|i| &self.values[i])
     }
+
+    /// Output `name` as a double, if the recipe has it and it is one.
+    pub fn double(&self, name: &str) -> Option<f64> {
+        self.get(name).and_then(Value::as_f64)
+    }
+
+    /// Output `name` as six doubles (`VECTOR6D`, `VECTOR6INT32`, `VECTOR6UINT32`), if the recipe
+    /// has it and it is one.
+    pub fn vector6(&self, name: &str) -> Option<[f64; 6]> {
+        match self.get(name)? {
+            Value::Vector6d(v) => Some(*v),
+            other => other.as_vec().filter(|v| v.len() == 6).map(|v| std::array::from_fn(|j| v[j])),
+        }
+    }
 }
 
 pub struct RtdeClient {
