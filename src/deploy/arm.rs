@@ -124,17 +124,13 @@ impl TwinArm {
 impl Arm for TwinArm {
     fn read(&mut self) -> anyhow::Result<Measured> {
         let (out, _) = self.sim.cycle(&self.inputs);
-        let at = |name: &str| out.0[twinbots_rtde::variables::output_index(name).expect("an RTDE output")];
-        let six = |name: &str| -> [f64; 6] {
-            let v = at(name).as_vec().unwrap_or_default();
-            std::array::from_fn(|j| v[j])
-        };
+        let six = |name: &str| out.get(name).as_vector6().expect("the stand-in's output is a VECTOR6D");
         Ok(Measured {
-            time: at("timestamp").as_f64().unwrap_or(0.0),
+            time: out.get("timestamp").as_f64().expect("the stand-in's timestamp is a DOUBLE"),
             q: six("actual_q"),
             qd: six("actual_qd"),
             effort: six("target_moment"),
-            program: at(STATE).as_i64().unwrap_or(-1) as i32,
+            program: out.get(STATE).as_i64().unwrap_or(-1) as i32,
             received: Instant::now(),
         })
     }

@@ -13,11 +13,35 @@ use std::collections::VecDeque;
 use serde::Serialize;
 use twinbots_log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog};
 use twinbots_sim::{MotorCommand, Parameters};
-use twinbots_sysid::{Rig, Stand};
+use twinbots_sysid::Stand;
 use ur5e::deploy::Shadow;
 use ur5e::kinematics::JOINTS;
 
-use crate::ur_sim::CYCLE;
+use crate::ur_sim::{CYCLE, controller_stand};
+
+/// The errors of the last window, per joint: position (rad) and effort (N·m), one pair a report.
+#[derive(Default)]
+struct Window(VecDeque<[[f64; 6]; 2]>);
+
+/// Which error of a [`Window`]'s pair.
+const POSITION: usize = 0;
+const EFFORT: usize = 1;
+
+impl Window {
+    /// Adds a report's errors, keeping the last `keep`.
+    fn push(&mut self, errors: [[f64; 6]; 2], keep: usize) {
+        self.0.push_back(errors);
+        while self.0.len() > keep {
+            self.0.pop_front();
+        }
+    }
+
+    /// Per joint, the RMSE of error `which` over the window.
+    fn rmse(&self, which: usize) -> [f64; 6] {
+        let n = self.0.len().max(1) as f64;
+        std::array::from_fn(|j| (self.0.iter().map(|e| e[which][j] * e[which][j]).sum::<f64>() / n).sqrt())
+    }
+}
 
 /// How the monitor judges.
 #[derive(Clone, Debug)]
@@ -102,10 +126,10 @@ pub struct Monitor {
     stand: Stand,
     bias: Vec<f64>,
     shadow: Shadow,
-    last_time: Option<f64>,
+    /// The controller's time of the last report (the twin stands there).
+    last_time: f64,
     last_command: [f64; 6],
-    errors: VecDeque<[f64; 6]>,
-    effort_errors: VecDeque<[f64; 6]>,
+    errors: Window,
     report: MonitorReport,
     divergence_alarm: bool,
     predicted_alarm: bool,
@@ -124,18 +148,14 @@ impl Monitor {
             options.position_threshold > 0.0 && options.effort_threshold > 0.0 && options.window > 0.0,
             "the thresholds and the window must be positive"
         );
-        let mut rig_2ms = Rig::of(&ur5e::robot())?;
-        rig_2ms.settings.dt = CYCLE as f32;
-        let params = rig_2ms.parameters(&options.calibration)?;
-        let bias = rig_2ms.biases(&params);
-        let at: Vec<(String, f32)> = JOINTS.iter().zip(first.q).zip(&bias).map(|((n, q), b)| (n.to_string(), (q - b) as f32)).collect();
-        let mut stand = Stand::new(&rig_2ms, &at, std::slice::from_ref(&params));
+        let (mut stand, bias) = controller_stand(&options.calibration, &first.q)?;
         // Settled under its own weight first (its drives take up the load), then put exactly
         // where the robot stands: it holds there as the robot does.
         for _ in 0..SETTLE_CYCLES {
             stand.step();
         }
-        stand.place(0, &at.iter().map(|(_, q)| *q).collect::<Vec<_>>());
+        let at: Vec<f32> = (0..6).map(|j| (first.q[j] - bias[j]) as f32).collect();
+        stand.place(0, &at);
         let meta = |source: &str| LogMeta { robot: "ur5e".into(), source: source.into(), control_period: CYCLE, ..Default::default() };
         let joints: Vec<String> = JOINTS.iter().map(|s| s.to_string()).collect();
         let log = |source: &str| RobotLog { meta: meta(source), joints: joints.clone(), states: Vec::new(), commands: Vec::new(), tool: Vec::new() };
@@ -145,10 +165,9 @@ impl Monitor {
             bias,
             shadow: Shadow::default(),
             // The twin stands at the first report: it steps from the next on.
-            last_time: Some(first.time),
+            last_time: first.time,
             last_command: first.command,
-            errors: VecDeque::new(),
-            effort_errors: VecDeque::new(),
+            errors: Window::default(),
             report: MonitorReport {
                 seconds: 0.0,
                 reports: 0,
@@ -174,10 +193,9 @@ impl Monitor {
     /// the alarms it raised.
     pub fn observe(&mut self, r: &Report) -> Vec<Alarm> {
         let mut raised = Vec::new();
-        let start = self.last_time.unwrap_or(r.time);
-        let cycles = ((r.time - start) / CYCLE).round().max(0.0) as u64;
+        let cycles = ((r.time - self.last_time) / CYCLE).round().max(0.0) as u64;
         self.report.skipped += cycles.saturating_sub(1);
-        self.last_time = Some(r.time);
+        self.last_time = r.time;
         // Skipped reports' commands are unknown: the program's speeds ramp linearly, so the
         // twin takes the line from the last command to this one.
         for k in 1..=cycles {
@@ -201,13 +219,7 @@ impl Monitor {
         if self.warm_up > 0 {
             self.warm_up -= 1;
         } else {
-            self.errors.push_back(error);
-            self.effort_errors.push_back(effort_error);
-        }
-        let keep = (self.options.window / CYCLE).round() as usize;
-        while self.errors.len() > keep {
-            self.errors.pop_front();
-            self.effort_errors.pop_front();
+            self.errors.push([error, effort_error], (self.options.window / CYCLE).round() as usize);
         }
         let rmse = self.rmse();
         let effort_rmse = self.effort_rmse();
@@ -268,8 +280,7 @@ impl Monitor {
                 self.stand.place(0, &at);
                 self.report.anchors += 1;
                 self.warm_up = WARM_UP_CYCLES;
-                self.errors.clear();
-                self.effort_errors.clear();
+                self.errors = Window::default();
             }
         } else {
             self.rest_cycles = 0;
@@ -301,11 +312,11 @@ impl Monitor {
 
     /// Per joint, the RMSE over the current window (rad).
     pub fn rmse(&self) -> [f64; 6] {
-        std::array::from_fn(|j| (self.errors.iter().map(|e| e[j] * e[j]).sum::<f64>() / self.errors.len().max(1) as f64).sqrt())
+        self.errors.rmse(POSITION)
     }
 
     /// Per joint, the effort residual's RMSE over the current window (N·m).
     pub fn effort_rmse(&self) -> [f64; 6] {
-        std::array::from_fn(|j| (self.effort_errors.iter().map(|e| e[j] * e[j]).sum::<f64>() / self.effort_errors.len().max(1) as f64).sqrt())
+        self.errors.rmse(EFFORT)
     }
 }

@@ -14,12 +14,12 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use twinbots_rtde::server::{ControllerInfo, InputState, OutputState, RtdeServer};
-use twinbots_rtde::{ControllerVersion, MessageLevel, Value};
+use twinbots_rtde::{ControllerVersion, Value};
 use twinbots_sim::{MotorCommand, Parameters};
 use twinbots_sysid::{Rig, SensorNoise, Stand};
 use ur5e::kinematics::{self, HOME, JOINT_RANGES, JOINTS, MAX_JOINT_SPEED};
 
-use self::program::{APPLIED, ControlProgram, Limits, STATE};
+use self::program::{APPLIED, ControlProgram, Limits, Note, STATE};
 
 /// The controller's cycle (s): an e-Series' 500 Hz.
 pub const CYCLE: f64 = 0.002;
@@ -51,6 +51,21 @@ impl Default for UrSimOptions {
 /// The link a payload hangs on.
 pub const FLANGE: &str = "tool0";
 
+/// The UR5e on its test stand at the controller's 2 ms step, with `truth` over its nominal
+/// parameters, its joints where encoders reading `q` say they are; and the encoders' biases.
+/// What the stand-in runs as the robot and the monitor as the robot's twin.
+pub fn controller_stand(truth: &Parameters, q: &[f64; 6]) -> anyhow::Result<(Stand, Vec<f64>)> {
+    let mut rig = Rig::of(&ur5e::robot())?;
+    anyhow::ensure!(rig.joints.iter().map(String::as_str).eq(JOINTS), "the UR5e rig's joints are not the DH table's");
+    anyhow::ensure!(q.iter().all(|v| v.is_finite()), "a start pose of {q:?} is not one");
+    rig.settings.dt = CYCLE as f32;
+    let params = rig.parameters(truth)?;
+    let bias = rig.biases(&params);
+    // The encoders read the joint plus its bias: the joint stands at the reading less it.
+    let at: Vec<(String, f32)> = JOINTS.iter().zip(q).zip(&bias).map(|((n, v), b)| (n.to_string(), (v - b) as f32)).collect();
+    Ok((Stand::new(&rig, &at, std::slice::from_ref(&params)), bias))
+}
+
 /// The stand-in: the twin, the program, and the cycle count.
 pub struct UrSim {
     stand: Stand,
@@ -59,6 +74,8 @@ pub struct UrSim {
     rng: ChaCha8Rng,
     pub program: ControlProgram,
     cycles: u64,
+    /// The joint positions the encoders last read (what the program works from next cycle).
+    measured_q: [f64; 6],
     elbow: DVec3,
     slots: Slots,
 }
@@ -70,17 +87,9 @@ impl UrSim {
 
     /// The stand-in with the arm at `start` (joint angles, rad; default: home).
     pub fn with_start(options: &UrSimOptions, start: Option<[f64; 6]>) -> anyhow::Result<Self> {
-        let mut rig = Rig::of(&ur5e::robot())?;
-        anyhow::ensure!(rig.joints.iter().map(String::as_str).eq(JOINTS), "the UR5e rig's joints are not the DH table's");
         anyhow::ensure!(options.watchdog > 0.0 && options.watchdog.is_finite(), "--watchdog must be positive, not {}", options.watchdog);
-        rig.settings.dt = CYCLE as f32;
-        let params = rig.parameters(&options.truth)?;
-        let bias = rig.biases(&params);
         let q = start.unwrap_or(HOME.map(|v| v as f64));
-        anyhow::ensure!(q.iter().all(|v| v.is_finite()), "a start pose of {q:?} is not one");
-        // The encoders read the joint plus its bias: the joint stands at the reading less it.
-        let at: Vec<(String, f32)> = JOINTS.iter().zip(q).zip(&bias).map(|((n, v), b)| (n.to_string(), (v - b) as f32)).collect();
-        let mut stand = Stand::new(&rig, &at, std::slice::from_ref(&params));
+        let (mut stand, bias) = controller_stand(&options.truth, &q)?;
         if let Some(mass) = options.payload {
             anyhow::ensure!(mass.is_finite() && mass > 0.0, "a payload of {mass} kg is not one");
             stand.add_payload(0, FLANGE, mass, Vec3::new(0.0, 0.0, 0.05))?;
@@ -97,6 +106,7 @@ impl UrSim {
             rng: ChaCha8Rng::seed_from_u64(options.seed),
             program: ControlProgram::new(limits, q),
             cycles: 0,
+            measured_q: q,
             elbow: elbow(&q),
             slots: Slots::new(),
         })
@@ -107,12 +117,12 @@ impl UrSim {
         self.cycles as f64 * CYCLE
     }
 
-    /// One controller cycle: the program reads `inputs`, the twin takes its command for 2 ms,
-    /// and the outputs are what the controller measures after it. Returns them and anything
-    /// the clients should be told.
-    pub fn cycle(&mut self, inputs: &InputState) -> (OutputState, Option<String>) {
-        let measured = self.measure();
-        let note = self.program.cycle(inputs, &measured.0, CYCLE);
+    /// One controller cycle: the program reads `inputs` (and the joints as last measured), the
+    /// twin takes its command for 2 ms, and the outputs are what the controller measures after
+    /// it (once per cycle, as a controller does). Returns them and anything the clients should
+    /// be told.
+    pub fn cycle(&mut self, inputs: &InputState) -> (OutputState, Option<Note>) {
+        let note = self.program.cycle(inputs, &self.measured_q, CYCLE);
         for (j, v) in self.program.target_qd.iter().enumerate() {
             self.stand.command(0, j, MotorCommand::Velocity(*v as f32));
         }
@@ -133,6 +143,7 @@ impl UrSim {
 
     fn outputs(&mut self, inputs: &InputState) -> OutputState {
         let (q, qd, effort) = self.measure();
+        self.measured_q = q;
         let p = &self.program;
         let s = &self.slots;
         let mut out = OutputState::default();
@@ -199,9 +210,8 @@ impl UrSim {
             out.set(self.slots.execution_time, Value::Double(began.elapsed().as_secs_f64() * 1e3));
             server.publish(Arc::new(out));
             if let Some(note) = note {
-                let level = if note.starts_with("program:") { MessageLevel::Info } else { MessageLevel::Warning };
-                println!("[{:8.3} s] {note}", self.time());
-                server.broadcast(level, &note);
+                println!("[{:8.3} s] {}", self.time(), note.text);
+                server.broadcast(note.level, &note.text);
             }
             for event in server.take_events() {
                 println!("[{:8.3} s] rtde {event}", self.time());

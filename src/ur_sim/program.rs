@@ -5,7 +5,7 @@
 //! has the table.
 
 use twinbots_rtde::server::InputState;
-use twinbots_rtde::{DataType, Value};
+use twinbots_rtde::{DataType, MessageLevel, Value};
 
 /// `input_int_register_24`: what the client asks for.
 pub const MODE: &str = "input_int_register_24";
@@ -53,6 +53,20 @@ pub enum ProgramState {
     ProtectiveStop = 4,
 }
 
+/// What the program tells the clients (an RTDE text message): a change of state (info), or a
+/// stop and why (warning).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Note {
+    pub level: MessageLevel,
+    pub text: String,
+}
+
+impl Note {
+    fn warning(text: String) -> Self {
+        Self { level: MessageLevel::Warning, text }
+    }
+}
+
 /// The program's limits.
 #[derive(Clone, Copy, Debug)]
 pub struct Limits {
@@ -89,7 +103,7 @@ impl ControlProgram {
 
     /// One control cycle of `dt` seconds at measured joint positions `q`: updates the targets;
     /// returns what changed worth telling the clients.
-    pub fn cycle(&mut self, inputs: &InputState, q: &[f64; 6], dt: f64) -> Option<String> {
+    pub fn cycle(&mut self, inputs: &InputState, q: &[f64; 6], dt: f64) -> Option<Note> {
         let mode = int(inputs, MODE);
         let counter = int(inputs, COUNTER);
         if counter != self.counter {
@@ -107,10 +121,13 @@ impl ControlProgram {
             }
         } else if let Some(joint) = (0..6).find(|&j| q[j].abs() > self.limits.range[j]) {
             self.state = ProgramState::ProtectiveStop;
-            note = Some(format!("protective stop: joint {} at {:.3} rad is past its range ±{:.3}", joint + 1, q[joint], self.limits.range[joint]));
+            note = Some(Note::warning(format!("protective stop: joint {} at {:.3} rad is past its range ±{:.3}", joint + 1, q[joint], self.limits.range[joint])));
         } else if mode != MODE_STOP && self.counter_age > self.limits.watchdog {
             self.state = ProgramState::WatchdogStop;
-            note = Some(format!("watchdog: {COUNTER} unchanged for {:.3} s (limit {:.3} s): arm stopped; set mode 0 to go on", self.counter_age, self.limits.watchdog));
+            note = Some(Note::warning(format!(
+                "watchdog: {COUNTER} unchanged for {:.3} s (limit {:.3} s): arm stopped; set mode 0 to go on",
+                self.counter_age, self.limits.watchdog
+            )));
         } else {
             self.state = match mode {
                 MODE_SPEEDJ => ProgramState::Speedj,
@@ -118,7 +135,7 @@ impl ControlProgram {
                 MODE_STOP => ProgramState::Idle,
                 other => {
                     if self.state != ProgramState::Idle {
-                        note = Some(format!("unknown mode {other} in {MODE}: stopping"));
+                        note = Some(Note::warning(format!("unknown mode {other} in {MODE}: stopping")));
                     }
                     ProgramState::Idle
                 }
@@ -144,7 +161,7 @@ impl ControlProgram {
             self.target_q[j] = if moving { self.target_q[j] + self.target_qd[j] * dt } else { q[j] };
         }
         if note.is_none() && self.state != before {
-            note = Some(format!("program: {:?} -> {:?}", before, self.state));
+            note = Some(Note { level: MessageLevel::Info, text: format!("program: {:?} -> {:?}", before, self.state) });
         }
         note
     }

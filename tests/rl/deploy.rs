@@ -11,7 +11,7 @@ use twinbots::bundle::Bundle;
 use twinbots::deploy::arm::{Arm, Measured, RtdeArm, TwinArm};
 use twinbots::deploy::{DeployOptions, deploy, deploy_policy};
 use twinbots::ur_sim::UrSimOptions;
-use twinbots_rtde::{RtdeClient, Value};
+use twinbots_rtde::RtdeClient;
 use ur5e::deploy::lowest_point;
 
 use crate::delivery::{failed, fixture_run, succeeded, twinbots};
@@ -55,10 +55,10 @@ fn the_shadow_keeps_a_reckless_policy_off_the_table_and_inside_the_stops() {
     let record = seen.clone();
     let watching = std::thread::spawn(move || {
         while let Ok(p) = watcher.receive() {
-            let q = p.get("actual_q").and_then(Value::as_vec).unwrap();
-            let qd = p.get("target_qd").and_then(Value::as_vec).unwrap();
+            let q = p.vector6("actual_q").unwrap();
+            let qd = p.vector6("target_qd").unwrap();
             let mut s = record.lock().unwrap();
-            s.0 = s.0.min(lowest_point(&std::array::from_fn(|j| q[j])).1);
+            s.0 = s.0.min(lowest_point(&q).1);
             s.1 = s.1.max(q[2].abs());
             s.2 = s.2.max(qd.iter().fold(0.0, |m, v| m.max(v.abs())));
         }

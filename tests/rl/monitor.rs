@@ -6,16 +6,14 @@ use twinbots::ur_sim::program::{COUNTER, MODE, MODE_SPEEDJ, TARGET};
 use twinbots::ur_sim::{CYCLE, UrSim, UrSimOptions};
 use twinbots_rtde::Value;
 use twinbots_rtde::server::{InputState, OutputState};
-use twinbots_rtde::variables::output_index;
 
 fn six(out: &OutputState, name: &str) -> [f64; 6] {
-    let v = out.0[output_index(name).unwrap()].as_vec().unwrap();
-    std::array::from_fn(|j| v[j])
+    out.get(name).as_vector6().unwrap()
 }
 
 pub fn report_of(out: &OutputState) -> Report {
     Report {
-        time: out.0[output_index("timestamp").unwrap()].as_f64().unwrap(),
+        time: out.get("timestamp").as_f64().unwrap(),
         q: six(out, "actual_q"),
         qd: six(out, "actual_qd"),
         command: six(out, "target_qd"),

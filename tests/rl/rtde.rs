@@ -57,8 +57,8 @@ fn int(p: &twinbots_rtde::DataPackage, name: &str) -> i64 {
     p.get(name).and_then(Value::as_i64).unwrap()
 }
 
-fn vec6(p: &twinbots_rtde::DataPackage, name: &str) -> Vec<f64> {
-    p.get(name).and_then(Value::as_vec).unwrap()
+fn vec6(p: &twinbots_rtde::DataPackage, name: &str) -> [f64; 6] {
+    p.vector6(name).unwrap()
 }
 
 #[test]
@@ -241,7 +241,7 @@ fn ur_sim_program_runs_without_a_network() {
         for k in 0..250 {
             inputs.set(COUNTER, Value::Int32(k));
             let (out, _) = sim.cycle(&inputs);
-            trace.push(out.0[twinbots_rtde::variables::output_index("actual_q").unwrap()]);
+            trace.push(out.get("actual_q"));
         }
         (trace, sim.program.target_qd)
     };

@@ -49,10 +49,7 @@ impl DataPackage {
     /// Output `name` as six doubles (`VECTOR6D`, `VECTOR6INT32`, `VECTOR6UINT32`), if the recipe
     /// has it and it is one.
     pub fn vector6(&self, name: &str) -> Option<[f64; 6]> {
-        match self.get(name)? {
-            Value::Vector6d(v) => Some(*v),
-            other => other.as_vec().filter(|v| v.len() == 6).map(|v| std::array::from_fn(|j| v[j])),
-        }
+        self.get(name).and_then(Value::as_vector6)
     }
 }
 
@@ -140,27 +137,22 @@ impl RtdeClient {
 
     /// The next data package of the output recipe.
     pub fn receive(&mut self) -> Result<DataPackage, RtdeError> {
-        let recipe = self.output.clone().ok_or_else(|| RtdeError::Usage("receive before an output recipe".into()))?;
-        loop {
-            let package = self.read()?;
-            if package.kind != kind::DATA_PACKAGE {
-                continue;
-            }
-            let (&id, mut rest) = package.payload.split_first().ok_or_else(|| RtdeError::Malformed("an empty data package".into()))?;
-            if id != recipe.id {
-                return Err(RtdeError::Malformed(format!("a data package of recipe {id}; ours is {}", recipe.id)));
-            }
-            let mut values = Vec::with_capacity(recipe.types.len());
-            for &t in &recipe.types {
-                let (value, after) = Value::decode(t, rest)?;
-                values.push(value);
-                rest = after;
-            }
-            if !rest.is_empty() {
-                return Err(RtdeError::Malformed(format!("{} bytes after the recipe's last value", rest.len())));
-            }
-            return Ok(DataPackage { names: recipe.names.clone(), values });
+        if self.output.is_none() {
+            return Err(RtdeError::Usage("receive before an output recipe".into()));
         }
+        let package = loop {
+            let package = self.read()?;
+            if package.kind == kind::DATA_PACKAGE {
+                break package;
+            }
+        };
+        let recipe = self.output.as_ref().expect("checked above");
+        let (&id, rest) = package.payload.split_first().ok_or_else(|| RtdeError::Malformed("an empty data package".into()))?;
+        if id != recipe.id {
+            return Err(RtdeError::Malformed(format!("a data package of recipe {id}; ours is {}", recipe.id)));
+        }
+        let values = Value::decode_all(recipe.types.iter().copied(), rest)?;
+        Ok(DataPackage { names: recipe.names.clone(), values })
     }
 
     /// Sends `values` for `recipe`'s inputs, in its order and types.

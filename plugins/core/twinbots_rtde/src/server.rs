@@ -37,6 +37,11 @@ impl OutputState {
         output_index(name).unwrap_or_else(|| panic!("'{name}' is no RTDE output"))
     }
 
+    /// The value of output `name`; panics on a name the guide does not have.
+    pub fn get(&self, name: &str) -> Value {
+        self.0[Self::slot(name)]
+    }
+
     /// Sets output `slot`; the value must have the variable's type.
     pub fn set(&mut self, slot: usize, value: Value) {
         debug_assert_eq!(self.0[slot].data_type(), value.data_type(), "{}", outputs()[slot].name);
@@ -50,8 +55,6 @@ pub struct InputState {
     pub values: Vec<Value>,
     /// Which session set each input (0: none).
     owners: Vec<u64>,
-    /// Counts input packages applied, so a cycle can tell a fresh command from a stale one.
-    pub updates: u64,
 }
 
 impl Default for InputState {
@@ -65,7 +68,7 @@ impl InputState {
     pub fn new() -> Self {
         let values: Vec<Value> = inputs().iter().map(|v| v.data_type.zero()).collect();
         let owners = vec![0; values.len()];
-        Self { values, owners, updates: 0 }
+        Self { values, owners }
     }
 
     /// The value of input `name`; panics on a name the guide does not have.
@@ -143,16 +146,8 @@ impl RtdeServer {
         lock(&self.shared.inputs).clone()
     }
 
-    /// Sets an input on the controller's own account (as a program's `write_input_*` does);
-    /// `None` if a client holds it or `name` is no input.
-    pub fn set_input(&self, name: &str, value: Value) -> Option<()> {
-        let i = input_index(name)?;
-        let mut state = lock(&self.shared.inputs);
-        (state.owners[i] == 0 && state.values[i].data_type() == value.data_type()).then(|| state.values[i] = value)
-    }
-
     /// One control cycle's outputs: each started client gets them if its frequency is due.
-    /// A client that has not taken the last cycle's yet misses this one (as a busy controller
+    /// A client whose streamer is four cycles behind misses this one (as a busy controller
     /// skips packages).
     pub fn publish(&self, state: Arc<OutputState>) {
         for session in lock(&self.shared.sessions).iter() {
@@ -210,7 +205,7 @@ fn accept_loop(listener: TcpListener, shared: Arc<Shared>) {
                 let shared = shared.clone();
                 let _ = std::thread::Builder::new().name(format!("rtde-{peer}")).spawn(move || Session::run(stream, peer, shared));
             }
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => std::thread::sleep(Duration::from_millis(5)),
+            // Nothing to accept (or a failed accept): look again shortly, so `stop` is seen.
             Err(_) => std::thread::sleep(Duration::from_millis(5)),
         }
     }
@@ -313,27 +308,38 @@ impl Session {
         }
     }
 
-    fn setup_outputs(&mut self, p: &[u8]) -> Result<(), String> {
-        let refuse = |session: &mut Self, why: String| {
-            session.error(&format!("output recipe refused: {why}"));
-            session.reply(kind::SETUP_OUTPUTS, RecipeReply { id: 0, types: Vec::new() }.encode())
-        };
+    /// Refuses a recipe setup (`kind`): an error message saying why, and a reply of id 0.
+    fn refuse_recipe(&self, kind: u8, why: &str) -> Result<(), String> {
+        let what = if kind == kind::SETUP_OUTPUTS { "output" } else { "input" };
+        self.error(&format!("{what} recipe refused: {why}"));
+        self.reply(kind, RecipeReply { id: 0, types: Vec::new() }.encode())
+    }
+
+    /// Why this session may not set up a recipe now, if it may not.
+    fn setup_blocked(&self) -> Option<&'static str> {
         if !self.version_agreed {
-            return refuse(self, "negotiate protocol version 2 first (RTDE_REQUEST_PROTOCOL_VERSION)".into());
+            Some("negotiate protocol version 2 first (RTDE_REQUEST_PROTOCOL_VERSION)")
+        } else if self.streaming() {
+            Some("the session is started: pause first")
+        } else {
+            None
         }
-        if self.streaming() {
-            return refuse(self, "the session is started: pause first".into());
+    }
+
+    fn setup_outputs(&mut self, p: &[u8]) -> Result<(), String> {
+        if let Some(why) = self.setup_blocked() {
+            return self.refuse_recipe(kind::SETUP_OUTPUTS, why);
         }
         if p.len() < 8 {
-            return refuse(self, format!("{} bytes: a frequency (8) and variable names are expected", p.len()));
+            return self.refuse_recipe(kind::SETUP_OUTPUTS, &format!("{} bytes: a frequency (8) and variable names are expected", p.len()));
         }
         let frequency = f64::from_be_bytes(p[..8].try_into().unwrap());
         if !(frequency > 0.0 && frequency <= MAX_FREQUENCY) {
-            return refuse(self, format!("frequency {frequency} Hz outside (0, {MAX_FREQUENCY}]"));
+            return self.refuse_recipe(kind::SETUP_OUTPUTS, &format!("frequency {frequency} Hz outside (0, {MAX_FREQUENCY}]"));
         }
         let wanted = match names(&p[8..]) {
             Ok(n) => n,
-            Err(e) => return refuse(self, e.to_string()),
+            Err(e) => return self.refuse_recipe(kind::SETUP_OUTPUTS, &e.to_string()),
         };
         let found: Vec<Option<usize>> = wanted.iter().map(|n| output_index(n)).collect();
         let types = found.iter().map(|f| f.map_or("NOT_FOUND", |i| outputs()[i].data_type.name()).to_string()).collect();
@@ -348,17 +354,12 @@ impl Session {
     }
 
     fn setup_inputs(&mut self, p: &[u8]) -> Result<(), String> {
-        if !self.version_agreed || self.streaming() {
-            let why = if self.version_agreed { "the session is started: pause first" } else { "negotiate protocol version 2 first" };
-            self.error(&format!("input recipe refused: {why}"));
-            return self.reply(kind::SETUP_INPUTS, RecipeReply { id: 0, types: Vec::new() }.encode());
+        if let Some(why) = self.setup_blocked() {
+            return self.refuse_recipe(kind::SETUP_INPUTS, why);
         }
         let wanted = match names(p) {
             Ok(n) => n,
-            Err(e) => {
-                self.error(&format!("input recipe refused: {e}"));
-                return self.reply(kind::SETUP_INPUTS, RecipeReply { id: 0, types: Vec::new() }.encode());
-            }
+            Err(e) => return self.refuse_recipe(kind::SETUP_INPUTS, &e.to_string()),
         };
         let found: Vec<Option<usize>> = wanted.iter().map(|n| input_index(n)).collect();
         let (types, ok) = {
@@ -407,25 +408,17 @@ impl Session {
     }
 
     fn apply_inputs(&mut self, p: &[u8]) -> Result<(), String> {
-        let (&id, mut rest) = p.split_first().ok_or("an empty data package")?;
+        let (&id, rest) = p.split_first().ok_or("an empty data package")?;
         let recipe = self.input_recipes.iter().find(|r| r.id == id).ok_or_else(|| format!("a data package for recipe {id}, which is no input recipe of this client; ignored"))?;
         if !self.streaming() {
             return Err("inputs before RTDE_CONTROL_PACKAGE_START are ignored".into());
         }
-        let mut values = Vec::with_capacity(recipe.variables.len());
-        for &i in &recipe.variables {
-            let (value, after) = Value::decode(inputs()[i].data_type, rest).map_err(|e| format!("input recipe {id}: {e}; ignored"))?;
-            values.push(value);
-            rest = after;
-        }
-        if !rest.is_empty() {
-            return Err(format!("input recipe {id}: {} bytes after its last value; ignored", rest.len()));
-        }
+        let types = recipe.variables.iter().map(|&i| inputs()[i].data_type);
+        let values = Value::decode_all(types, rest).map_err(|e| format!("input recipe {id}: {e}; ignored"))?;
         let mut state = lock(&self.shared.inputs);
         for (&i, v) in recipe.variables.iter().zip(values) {
             state.values[i] = v;
         }
-        state.updates += 1;
         Ok(())
     }
 
@@ -482,22 +475,19 @@ fn stream(rx: Receiver<Arc<OutputState>>, writer: Arc<Mutex<TcpStream>>, recipe:
     // Due at the first cycle, then whenever the accumulated fraction reaches a whole package
     // (within rounding: 100 Hz is 0.2 of a cycle, which sums to 0.999…).
     let mut due = 1.0 - step;
-    let mut buffer = Vec::new();
     while let Ok(state) = rx.recv() {
         due += step;
         if due < 1.0 - 1e-9 {
             continue;
         }
         due -= 1.0;
-        buffer.clear();
-        buffer.push(recipe.id);
+        let mut payload = vec![recipe.id];
         for &i in &recipe.variables {
-            state.0[i].encode(&mut buffer);
+            state.0[i].encode(&mut payload);
         }
-        let Ok(bytes) = Package::new(kind::DATA_PACKAGE, std::mem::take(&mut buffer)).encode() else { return };
+        let Ok(bytes) = Package::new(kind::DATA_PACKAGE, payload).encode() else { return };
         if lock(&writer).write_all(&bytes).is_err() {
             return;
         }
-        buffer = bytes;
     }
 }

@@ -157,6 +157,30 @@ impl Value {
         Ok((value, rest))
     }
 
+    /// Values of `types` packed in order, filling `bytes` exactly (a recipe's data package).
+    pub fn decode_all(types: impl IntoIterator<Item = DataType>, mut bytes: &[u8]) -> Result<Vec<Value>, RtdeError> {
+        let mut values = Vec::new();
+        for t in types {
+            let (value, rest) = Value::decode(t, bytes)?;
+            values.push(value);
+            bytes = rest;
+        }
+        if !bytes.is_empty() {
+            return Err(RtdeError::Malformed(format!("{} bytes after the recipe's last value", bytes.len())));
+        }
+        Ok(values)
+    }
+
+    /// Six doubles (`VECTOR6D`, `VECTOR6INT32`, `VECTOR6UINT32`), else `None`.
+    pub fn as_vector6(&self) -> Option<[f64; 6]> {
+        match *self {
+            Value::Vector6d(v) => Some(v),
+            Value::Vector6Int32(v) => Some(v.map(f64::from)),
+            Value::Vector6Uint32(v) => Some(v.map(f64::from)),
+            _ => None,
+        }
+    }
+
     /// A double's value (`DOUBLE`), else `None`.
     pub fn as_f64(&self) -> Option<f64> {
         if let Value::Double(v) = self { Some(*v) } else { None }
@@ -170,17 +194,6 @@ impl Value {
             Value::Uint32(v) => Some(v as i64),
             Value::Int32(v) => Some(v as i64),
             Value::Uint64(v) => i64::try_from(v).ok(),
-            _ => None,
-        }
-    }
-
-    /// A vector's values as doubles (`VECTOR3D`, `VECTOR6D`, the integer vectors), else `None`.
-    pub fn as_vec(&self) -> Option<Vec<f64>> {
-        match self {
-            Value::Vector3d(v) => Some(v.to_vec()),
-            Value::Vector6d(v) => Some(v.to_vec()),
-            Value::Vector6Int32(v) => Some(v.iter().map(|&x| x as f64).collect()),
-            Value::Vector6Uint32(v) => Some(v.iter().map(|&x| x as f64).collect()),
             _ => None,
         }
     }
