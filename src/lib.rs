@@ -5,8 +5,11 @@
 pub mod bundle;
 pub mod deploy;
 pub mod monitor;
+pub mod pacer;
 pub mod registry;
 pub mod robot_log;
+#[cfg(feature = "ros2")]
+pub mod ros2;
 pub mod run;
 pub mod settings;
 pub mod twin;

@@ -56,6 +56,10 @@ enum Command {
     /// (optionally a truth twin) running the shipped control program every 2 ms.
     #[command(name = "ur-sim")]
     UrSim(cli::ur_sim::Args),
+    /// The twin as a ROS 2 robot on DDS (no ROS install): publishes /joint_states and /tf,
+    /// obeys ros2_control's forward command and joint trajectory topics.
+    #[cfg(feature = "ros2")]
+    Ros2(cli::ros2::Args),
 }
 
 fn main() {
@@ -86,5 +90,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::UrSim(args) => cli::ur_sim::exec(args),
         Command::Deploy(args) => cli::deploy::exec(args),
         Command::Monitor(args) => cli::monitor::exec(args),
+        #[cfg(feature = "ros2")]
+        Command::Ros2(args) => cli::ros2::exec(args),
     }
 }

@@ -13,6 +13,8 @@ pub mod record;
 pub mod replay;
 pub mod robot;
 pub mod robots;
+#[cfg(feature = "ros2")]
+pub mod ros2;
 pub mod serve;
 pub mod view;
 pub mod train;

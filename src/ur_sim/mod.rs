@@ -198,10 +198,7 @@ impl UrSim {
     /// progress every `report` seconds. Returns the cycles that missed their slot: that started
     /// a whole cycle or more after their time (a later cycle catches up the controller's clock).
     pub fn serve(&mut self, server: &RtdeServer, seconds: Option<f64>, stop: &AtomicBool, report: f64) -> u64 {
-        let period = Duration::from_secs_f64(CYCLE);
-        let start = Instant::now();
-        let mut next = start;
-        let mut missed = 0;
+        let mut pacer = crate::pacer::Pacer::new(Duration::from_secs_f64(CYCLE));
         let mut last_report = 0.0;
         while !stop.load(Ordering::SeqCst) && seconds.is_none_or(|s| self.time() < s) {
             let began = Instant::now();
@@ -218,21 +215,11 @@ impl UrSim {
             }
             if self.time() - last_report >= report {
                 last_report = self.time();
-                println!("[{:8.3} s] {} client(s), program {:?}, {missed} missed cycle(s)", self.time(), server.clients(), self.program.state);
+                println!("[{:8.3} s] {} client(s), program {:?}, {} missed cycle(s)", self.time(), server.clients(), self.program.state, pacer.missed);
             }
-            next += period;
-            let now = Instant::now();
-            if now < next {
-                std::thread::sleep(next - now);
-            } else if now - next >= period {
-                missed += 1;
-                // Far behind (the machine stalled): start counting from now, not catch up.
-                if now - next > 10 * period {
-                    next = now;
-                }
-            }
+            pacer.wait();
         }
-        missed
+        pacer.missed
     }
 }
 

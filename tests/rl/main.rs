@@ -16,6 +16,8 @@ mod td3;
 mod tls;
 mod resume;
 mod robot_hostile;
+#[cfg(feature = "ros2")]
+mod ros2;
 mod rtde;
 mod server;
 mod server_hostile;

@@ -102,7 +102,7 @@ pub fn spawn_robot(
                 world_pose[l] = options.base;
             }
             Some(j) => {
-                world_pose[l] = world_pose[j.parent] * j.origin * joint_motion(j, start_position(&options, j));
+                world_pose[l] = world_pose[j.parent] * j.child_pose(start_position(&options, j));
                 if j.kind == JointKind::Fixed {
                     owner[l] = owner[j.parent];
                     offset[l] = offset[j.parent] * j.origin;
@@ -211,15 +211,6 @@ pub fn spawn_robot(
 /// The starting position `options` give the joint (0 if none).
 fn start_position(options: &SpawnOptions, joint: &JointModel) -> f32 {
     options.joint_positions.iter().find(|(name, _)| *name == joint.name).map_or(0.0, |&(_, q)| q)
-}
-
-/// The child frame relative to the joint frame at position `q`.
-fn joint_motion(joint: &JointModel, q: f32) -> Pose {
-    match joint.kind {
-        JointKind::Fixed => Pose::IDENTITY,
-        JointKind::Prismatic => Pose::from_translation(joint.axis * q),
-        JointKind::Revolute | JointKind::Continuous => Pose::from_rotation(Quat::from_axis_angle(joint.axis, q)),
-    }
 }
 
 /// Links ordered so that every parent comes before its children.

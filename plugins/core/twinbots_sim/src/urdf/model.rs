@@ -120,6 +120,19 @@ pub struct JointModel {
     pub friction: f32,
 }
 
+impl JointModel {
+    /// The child link frame in the parent link's at joint position `q` (rad or m): the
+    /// forward kinematics of one joint, as robot_state_publisher computes a frame.
+    pub fn child_pose(&self, q: f32) -> Pose {
+        let motion = match self.kind {
+            JointKind::Fixed => Pose::IDENTITY,
+            JointKind::Prismatic => Pose::from_translation(self.axis * q),
+            JointKind::Revolute | JointKind::Continuous => Pose::from_rotation(bevy::math::Quat::from_axis_angle(self.axis, q)),
+        };
+        self.origin * motion
+    }
+}
+
 impl RobotModel {
     /// Looks a link up by name.
     pub fn link_index(&self, name: &str) -> Option<usize> {
