@@ -5,6 +5,7 @@
 //! was trained on, and the twin's version. `deploy` and `robot --policy DIR` refuse a bundle
 //! whose robot, joints or control period differ from theirs (docs/deploy.md).
 
+use anyhow::Context;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -135,19 +136,21 @@ pub fn write(dir: &Path, manifest: &Manifest, policy_bytes: &[u8], calibration_t
         anyhow::ensure!(dir.join(MANIFEST).is_file(), "{} exists and is not a bundle: choose another --bundle", dir.display());
     }
     let partial = dir.with_extension("partial");
+    let named = |p: &Path| p.display().to_string();
     if partial.exists() {
-        std::fs::remove_dir_all(&partial)?;
+        std::fs::remove_dir_all(&partial).with_context(|| named(&partial))?;
     }
-    std::fs::create_dir_all(&partial).map_err(|e| anyhow::anyhow!("{}: {e}", partial.display()))?;
-    std::fs::write(partial.join(POLICY), policy_bytes)?;
+    std::fs::create_dir_all(&partial).with_context(|| named(&partial))?;
+    let write = |name: &str, bytes: &[u8]| std::fs::write(partial.join(name), bytes).with_context(|| named(&partial.join(name)));
+    write(POLICY, policy_bytes)?;
     if let Some(text) = calibration_text {
-        std::fs::write(partial.join(CALIBRATION), text)?;
+        write(CALIBRATION, text.as_bytes())?;
     }
-    std::fs::write(partial.join(MANIFEST), serde_json::to_string_pretty(manifest)? + "\n")?;
+    write(MANIFEST, (serde_json::to_string_pretty(manifest)? + "\n").as_bytes())?;
     if dir.exists() {
-        std::fs::remove_dir_all(dir)?;
+        std::fs::remove_dir_all(dir).with_context(|| named(dir))?;
     }
-    std::fs::rename(&partial, dir)?;
+    std::fs::rename(&partial, dir).with_context(|| named(dir))?;
     Ok(())
 }
 

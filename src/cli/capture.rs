@@ -2,6 +2,7 @@
 //! trained model or zero actions. `eval --record` uses the same recorder. Frame `i` is written
 //! right after physics step `i` (frame 0: the start), so it shows that step.
 
+use anyhow::Context;
 use std::path::{Path, PathBuf};
 
 use twinbots_render::{Framing, Renderer, View};
@@ -73,7 +74,7 @@ pub struct Recorder {
 
 impl Recorder {
     pub fn new(size: (u32, u32), view: View, out: &Path) -> anyhow::Result<Self> {
-        std::fs::create_dir_all(out)?;
+        std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
         let mut renderer = Renderer::new(size.0, size.1)?;
         renderer.set_view(view);
         Ok(Self { renderer, out: out.to_path_buf(), written: 0 })
@@ -85,7 +86,7 @@ impl Recorder {
         self.renderer.sync(env.app_mut().world_mut(), arena);
         let rgb = self.renderer.render()?;
         let path = self.out.join(format!("frame_{step:05}.png"));
-        image::save_buffer(&path, &rgb, self.renderer.width, self.renderer.height, image::ExtendedColorType::Rgb8)?;
+        image::save_buffer(&path, &rgb, self.renderer.width, self.renderer.height, image::ExtendedColorType::Rgb8).with_context(|| path.display().to_string())?;
         self.written += 1;
         Ok(path)
     }

@@ -4,6 +4,7 @@
 //! down, the error before and after on held-out logs, a convergence plot, and writes
 //! `DIR/calibration.toml`. `--list-params` prints the parameters: name, default, unit.
 
+use anyhow::Context;
 use std::path::{Path, PathBuf};
 
 use twinbots_sim::Parameters;
@@ -75,7 +76,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     calibrated.extend(&fit.values());
     let nominal = rig.parameters(&base)?;
     let calibrated = rig.parameters(&calibrated)?;
-    std::fs::create_dir_all(&out)?;
+    std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
     let validation_report = validate(&rig, &validation, &nominal, &calibrated, &out)?;
     print!("{}", fit_table(&fit));
     if let Some(v) = &validation_report {
@@ -185,8 +186,5 @@ fn write_calibration(path: &Path, rig: &Rig, fit: &Fit, logs: &[PathBuf], valida
         meta.insert("not_identifiable".into(), toml::Value::Table(not));
     }
     let text = calibration_text(&fit.values(), &rig.catalogue, &meta);
-    let tmp = path.with_extension("toml.tmp");
-    std::fs::write(&tmp, text)?;
-    std::fs::rename(&tmp, path)?;
-    Ok(())
+    twinbots_learn::model_io::write_atomic(path, text.as_bytes()).with_context(|| path.display().to_string())
 }

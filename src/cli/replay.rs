@@ -2,6 +2,7 @@
 //! at the logged times, and is compared with the log per joint; writes a PNG of twin vs log and
 //! the twin's trajectory as a log beside it.
 
+use anyhow::Context;
 use std::path::{Path, PathBuf};
 
 use twinbots_sim::Parameters;
@@ -43,7 +44,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let report = compare(&rig, &prepared, &twin, &bias, args.threshold);
     print!("{}", report.table());
     let out = args.out.unwrap_or_else(|| PathBuf::from(format!("{}.replay", args.log.display())));
-    std::fs::create_dir_all(&out)?;
+    std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
     let label = if args.calibration.is_some() { "twin (calibrated)" } else { "twin (nominal)" };
     twinbots_sysid::plot::replay_png(&out.join("replay.png"), &rig, &prepared, &[(label, &twin, bias.clone())])?;
     let calibration_name = args.calibration.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
@@ -60,8 +61,5 @@ pub fn load(rig: &Rig, path: Option<&Path>) -> anyhow::Result<Parameters> {
 
 /// Writes JSON atomically.
 pub fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
-    let tmp = path.with_extension("json.tmp");
-    std::fs::write(&tmp, serde_json::to_string_pretty(value)?)?;
-    std::fs::rename(&tmp, path)?;
-    Ok(())
+    twinbots_learn::model_io::write_atomic(path, serde_json::to_string_pretty(value)?.as_bytes()).with_context(|| path.display().to_string())
 }

@@ -9,6 +9,7 @@
 //! `timesteps` or when the task's solved criterion holds; `--resume` continues from the last
 //! checkpoint with its counters.
 
+use anyhow::Context;
 use std::path::Path;
 use std::time::Instant;
 
@@ -117,8 +118,8 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
     if resume {
         command.arg("serve").arg("--resume").arg(out).args(["--listen", "127.0.0.1:0"]);
     } else {
-        std::fs::create_dir_all(out)?;
-        std::fs::write(&config_path, toml::to_string_pretty(&settings)?)?;
+        std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
+        std::fs::write(&config_path, toml::to_string_pretty(&settings)?).with_context(|| config_path.display().to_string())?;
         command.args(["serve", &settings.robot, "--listen", "127.0.0.1:0", "--settings"]).arg(&config_path).arg("--out").arg(out);
     }
     // The server exits when our end of its stdin closes: it cannot outlive this process.

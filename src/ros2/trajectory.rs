@@ -3,7 +3,11 @@
 //! (ros2_control's joint trajectory controller interpolates splines when points carry speeds;
 //! a twin commanded by position through bounded-speed drives moves the same way within a step.)
 
+use twinbots_link::checks::truncated;
 use twinbots_ros2::JointTrajectory;
+
+/// The most of a peer-supplied name an error repeats.
+const NAME_SHOWN: usize = 64;
 
 /// The trajectory as the twin follows it: per point, its time (s, twin clock) and positions.
 #[derive(Clone, Debug, PartialEq)]
@@ -38,10 +42,10 @@ impl Following {
         for name in &message.joint_names {
             let Some(&(_, index)) = commandable.iter().find(|(n, _)| n == name) else {
                 let known: Vec<&str> = commandable.iter().map(|(n, _)| n.as_str()).collect();
-                return Err(format!("no commandable joint '{name}' (the robot's: {})", known.join(", ")));
+                return Err(format!("no commandable joint '{}' (the robot's: {})", truncated(name, NAME_SHOWN), known.join(", ")));
             };
             if joints.contains(&index) {
-                return Err(format!("joint '{name}' named twice"));
+                return Err(format!("joint '{}' named twice", truncated(name, NAME_SHOWN)));
             }
             joints.push(index);
         }
@@ -141,6 +145,8 @@ mod tests {
     #[test]
     fn bad_trajectories_say_what_is_wrong() {
         let current = [0.0; 3];
+        // A peer's 10,000-character name is repeated cut short.
+        let long = format!("joint '{}…' (the robot's: a, b)", "x".repeat(64));
         let cases = [
             (message(&[], &[(1.0, &[])]), "no joint_names"),
             (message(&["a"], &[]), "no points"),
@@ -149,10 +155,11 @@ mod tests {
             (message(&["a"], &[(1.0, &[0.0]), (1.0, &[1.0])]), "point 1: time_from_start 1 s"),
             (message(&["a", "b"], &[(1.0, &[0.0])]), "point 0: 1 positions for 2 joints"),
             (message(&["a"], &[(1.0, &[f64::NAN])]), "not a number"),
+            (message(&[&"x".repeat(10_000)], &[(1.0, &[0.0])]), long.as_str()),
         ];
-        for (m, expected) in cases {
-            let e = Following::new(&m, &joints(), &current, |_| None, 0.0, 0.0).unwrap_err();
-            assert!(e.contains(expected), "{e} (expected {expected})");
+        for (m, expected) in &cases {
+            let e = Following::new(m, &joints(), &current, |_| None, 0.0, 0.0).unwrap_err();
+            assert!(e.contains(expected) && e.len() < 200, "{e} (expected {expected})");
         }
     }
 }

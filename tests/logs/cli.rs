@@ -257,3 +257,29 @@ fn robot_logs_its_episodes_on_a_calibrated_twin() {
     let wheel = wheel_rmse(&out);
     assert!(wheel < 0.05, "wheel 1 position RMSE {wheel} rad\n{out}");
 }
+
+#[test]
+fn outputs_that_cannot_be_written_are_named_in_the_error() {
+    // A file where a directory should be: unwritable for root too (not a directory).
+    let dir = scratch("unwritable");
+    let blocker = dir.join("blocker");
+    std::fs::write(&blocker, "a file").unwrap();
+    let log = dir.join("ur5e.mcap");
+    write_raw(&ur5e_log(1.0), &log);
+    let (log, inside) = (log.to_str().unwrap(), blocker.join("out"));
+    let out = inside.to_str().unwrap();
+    let truth = dir.join("truth.toml");
+    std::fs::write(&truth, "[parameters]\n").unwrap();
+    let mcap = format!("{out}/log.mcap");
+    let cases: [&[&str]; 4] = [
+        &["replay", "ur5e", log, "--out", out],
+        &["identify", "ur5e", log, "--out", out, "--generations", "1"],
+        &["record", "ur5e", "--truth", truth.to_str().unwrap(), "--seconds", "0.5", "--out", &mcap],
+        &["train", "cartpole", "--timesteps", "64", "--out", out],
+    ];
+    for args in cases {
+        let (ok, _, err) = twinbots(args);
+        assert!(!ok, "{args:?} succeeded");
+        assert!(err.contains(out) && err.contains("Not a directory"), "{args:?}: {err}");
+    }
+}

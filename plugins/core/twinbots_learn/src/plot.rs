@@ -149,8 +149,8 @@ pub fn learning_curve(
             .label_font(("sans-serif", 14))
             .position(SeriesLabelPosition::UpperLeft)
             .draw()?;
-        root.present()?;
+        root.present().map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
     }
-    std::fs::rename(&tmp, path)?;
+    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     Ok(())
 }

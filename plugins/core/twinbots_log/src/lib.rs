@@ -61,7 +61,7 @@ pub fn write(log: &RobotLog, path: &Path) -> anyhow::Result<()> {
         Format::Csv => csv_file::to_string(log).into_bytes(),
     };
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)?;
+        std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
     }
     let tmp = path.with_extension(format!("{}.tmp", format.extension()));
     std::fs::write(&tmp, bytes).map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;

@@ -27,9 +27,9 @@ fn write_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&DrawingArea<BitMa
         let root = BitMapBackend::new(&tmp, size).into_drawing_area();
         root.fill(&WHITE)?;
         draw(&root)?;
-        root.present()?;
+        root.present().map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
     }
-    std::fs::rename(&tmp, path)?;
+    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     Ok(())
 }
 
