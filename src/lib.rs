@@ -14,3 +14,4 @@ pub mod run;
 pub mod settings;
 pub mod twin;
 pub mod ur_sim;
+pub mod urdf_check;

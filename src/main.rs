@@ -39,6 +39,9 @@ enum Command {
     Capture(cli::capture::Args),
     /// Measure performance.
     Bench(cli::bench::Args),
+    /// Check a robot description: its link/joint tree with masses, limits and motors, what
+    /// will not simulate well, a stand in the physics, and a picture (`--png`).
+    Urdf(cli::urdf::Args),
     /// Record a stand-in robot: the twin with hidden true physics (a truth file), driven
     /// through an excitation program, logging what a controller measures (MCAP or CSV).
     Record(cli::record::Args),
@@ -84,6 +87,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::View(args) => cli::view::exec(args),
         Command::Capture(args) => cli::capture::exec(args),
         Command::Bench(args) => cli::bench::exec(args),
+        Command::Urdf(args) => cli::urdf::exec(args),
         Command::Record(args) => cli::record::exec(args),
         Command::Replay(args) => cli::replay::exec(args),
         Command::Identify(args) => cli::identify::exec(args),

@@ -18,4 +18,5 @@ pub mod ros2;
 pub mod serve;
 pub mod view;
 pub mod train;
+pub mod urdf;
 pub mod ur_sim;

@@ -205,3 +205,32 @@ fn a_non_finite_or_absurd_number_names_its_line_element_and_attribute() {
     let (_, _, _, problem) = element_error(parse(&text).unwrap_err());
     assert!(problem.contains("1000000000000000000000000000000000000000 is not a finite number") || problem.contains("1e39"), "{problem}");
 }
+
+#[test]
+fn the_urdf_check_lists_the_tree_stands_the_robot_and_flags_what_will_not_simulate_well() {
+    let dir = std::env::temp_dir().join(format!("twinbots-urdf-check-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("flagged.urdf");
+    std::fs::write(
+        &path,
+        r#"<robot name="flagged">
+  <link name="base"><inertial><mass value="2"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial>
+    <collision><geometry><box size="0.2 0.2 0.2"/></geometry></collision></link>
+  <link name="arm"><inertial><mass value="1"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>
+  <joint name="stuck" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/><limit effort="5" velocity="0"/></joint>
+</robot>"#,
+    )
+    .unwrap();
+    let report = twinbots::urdf_check::check(&path, 0.5).unwrap();
+    assert_eq!(report.tree.len(), 3, "{:?}", report.tree);
+    assert!(report.tree[1].contains("stuck (Revolute, range [0.000, 0.000], motor: effort 5 velocity 0) -> arm"), "{:?}", report.tree);
+    let warnings = report.warnings.join("\n");
+    assert!(warnings.contains("joint 'stuck' (Revolute) has no range"), "{warnings}");
+    assert!(warnings.contains("joint 'stuck' has a motor but no speed limit"), "{warnings}");
+    assert!(warnings.contains("link 'arm' has mass but no <collision>"), "{warnings}");
+    assert_eq!(report.warnings.len(), 3, "{warnings}");
+    assert!((report.seconds - 0.5).abs() < 1e-9 && report.fastest.0.is_finite());
+    // The project's own arm stands without a warning.
+    let ur5e = twinbots::urdf_check::check(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/robots/ur5e/ur5e.urdf")), 0.5).unwrap();
+    assert!(ur5e.warnings.is_empty(), "{:?}", ur5e.warnings);
+}

@@ -47,6 +47,7 @@ pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel
     Checker {
         file,
         mesh_dir,
+        package_path: super::mesh::package_path_from_env(),
         lines: &lines,
         materials,
     }
@@ -140,6 +141,8 @@ impl ElementLines {
 struct Checker<'a> {
     file: &'a Path,
     mesh_dir: &'a Path,
+    /// Where `package://` meshes are looked for first ([`super::mesh::resolve`]).
+    package_path: Vec<PathBuf>,
     lines: &'a ElementLines,
     /// Colours of the robot's top-level `<material>`s, which visuals may name.
     materials: HashMap<String, [f32; 4]>,
@@ -386,30 +389,9 @@ impl Checker<'_> {
     }
 
     fn mesh(&self, link: &str, filename: &str, scale: Vec3) -> Result<TriangleMesh, UrdfError> {
-        let path = self.resolve_mesh(filename);
-        let is_stl = path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("stl"));
-        if !is_stl {
-            return Err(self.link_error(
-                link,
-                format!("mesh '{filename}': only STL meshes are supported"),
-            ));
-        }
-        let mut file = std::fs::File::open(&path).map_err(|e| {
-            self.link_error(
-                link,
-                format!("mesh file '{filename}' not found at {}: {e}", path.display()),
-            )
-        })?;
-        let stl = stl_io::read_stl(&mut file).map_err(|e| {
-            self.link_error(link, format!("mesh file '{}' is not a valid STL: {e}", path.display()))
-        })?;
-        let vertices: Vec<Vec3> = stl
-            .vertices
-            .iter()
-            .map(|v| Vec3::new(v[0], v[1], v[2]) * scale)
-            .collect();
+        let path = super::mesh::resolve(filename, self.mesh_dir, &self.package_path).map_err(|e| self.link_error(link, e))?;
+        let (vertices, triangles) = super::mesh::read(&path).map_err(|e| self.link_error(link, format!("mesh '{filename}': {e}")))?;
+        let vertices: Vec<Vec3> = vertices.into_iter().map(|v| v * scale).collect();
         // Collisions use the mesh's convex hull, so a flat or tiny mesh cannot be simulated.
         let has_volume = crate::rapier::parry::shape::SharedShape::convex_hull(&vertices)
             .is_some_and(|hull| hull.mass_properties(1.0).mass() > 1e-12);
@@ -419,26 +401,7 @@ impl Checker<'_> {
                 format!("mesh file '{}' is degenerate (flat, or fewer than 4 distinct points)", path.display()),
             ));
         }
-        Ok(TriangleMesh {
-            vertices,
-            triangles: stl
-                .faces
-                .iter()
-                .map(|f| f.vertices.map(|i| i as u32))
-                .collect(),
-        })
-    }
-
-    /// `package://pkg/rest` and `file://` URIs, or a path relative to the URDF's folder.
-    fn resolve_mesh(&self, filename: &str) -> PathBuf {
-        if let Some(rest) = filename.strip_prefix("file://") {
-            return PathBuf::from(rest);
-        }
-        if let Some(rest) = filename.strip_prefix("package://") {
-            let rest = rest.split_once('/').map_or(rest, |(_, r)| r);
-            return self.mesh_dir.join(rest);
-        }
-        self.mesh_dir.join(filename)
+        Ok(TriangleMesh { vertices, triangles })
     }
 
     fn joint(

@@ -2,6 +2,7 @@
 
 mod error;
 mod load;
+pub mod mesh;
 mod model;
 
 pub use error::UrdfError;

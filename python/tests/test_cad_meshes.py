@@ -1,0 +1,101 @@
+"""A robot whose links are meshes made by another tool — trimesh's OBJ and binary glTF (GLB)
+exporters — checked with `twinbots urdf`: the meshes are found through `package://` (the URDF's
+own package, or TWINBOTS_PACKAGE_PATH) and relative paths, loaded, simulated standing and
+rendered; a missing mesh, a mesh with no triangles and an unknown URI scheme are errors naming
+the file and the link."""
+
+import os
+import shutil
+import subprocess
+
+import pytest
+
+trimesh = pytest.importorskip("trimesh")
+
+URDF = """<robot name="demo">
+  <link name="base_link">
+    <inertial><mass value="4"/><inertia ixx="0.03" ixy="0" ixz="0" iyy="0.03" iyz="0" izz="0.06"/></inertial>
+    <visual><geometry><mesh filename="{base}"/></geometry></visual>
+    <collision><geometry><mesh filename="{base}"/></geometry></collision>
+  </link>
+  <link name="arm_link">
+    <inertial><origin xyz="0 0 0.25"/><mass value="0.5"/>
+      <inertia ixx="0.0106" ixy="0" ixz="0" iyy="0.0106" iyz="0" izz="0.0004"/></inertial>
+    <visual><origin xyz="0 0 0.25"/><geometry><mesh filename="{arm}" scale="1 1 1"/></geometry></visual>
+    <collision><origin xyz="0 0 0.25"/><geometry><mesh filename="{arm}"/></geometry></collision>
+  </link>
+  <joint name="turn" type="revolute">
+    <parent link="base_link"/><child link="arm_link"/><origin xyz="0 0 0.05"/><axis xyz="0 0 1"/>
+    <limit lower="-3" upper="3" effort="20" velocity="2"/>
+  </joint>
+</robot>
+"""
+
+
+def twinbots_bin():
+    binary = os.environ.get("TWINBOTS_BIN") or shutil.which("twinbots")
+    if not binary:
+        pytest.skip("no twinbots CLI (set TWINBOTS_BIN)")
+    return binary
+
+
+def package(tmp_path):
+    """demo_description/{meshes,urdf} as a ROS package lays them out, meshes by trimesh."""
+    root = tmp_path / "share" / "demo_description"
+    (root / "meshes").mkdir(parents=True)
+    (root / "urdf").mkdir()
+    trimesh.creation.box(extents=[0.3, 0.3, 0.1]).export(root / "meshes" / "base.glb")
+    trimesh.creation.cylinder(radius=0.04, height=0.5).export(root / "meshes" / "arm.obj")
+    return root
+
+
+def check(urdf, *args, env=None):
+    return subprocess.run([twinbots_bin(), "urdf", str(urdf), *args], capture_output=True, text=True,
+                          env={**os.environ, **(env or {})}, timeout=120)
+
+
+def test_obj_and_glb_meshes_load_stand_and_render(tmp_path):
+    root = package(tmp_path)
+    urdf = root / "urdf" / "demo.urdf"
+    urdf.write_text(URDF.format(base="package://demo_description/meshes/base.glb", arm="../meshes/arm.obj"))
+    png = tmp_path / "demo.png"
+    done = check(urdf, "--png", str(png))
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    assert "robot 'demo', 2 links, 1 joints (1 movable, 1 with motors), 4.500 kg" in out, out
+    assert "arm_link (0.500 kg" in out and "1 collision, 1 visual" in out, out
+    assert "turn (Revolute, range [-3.000, 3.000], motor: effort 20 velocity 2) -> arm_link" in out, out
+    assert "no warnings" in out, out
+    assert png.stat().st_size > 1000
+    from PIL import Image  # noqa: PLC0415 (pillow comes with SB3's matplotlib)
+
+    import numpy as np  # noqa: PLC0415
+
+    pixels = np.asarray(Image.open(png).convert("RGB")).reshape(-1, 3).astype(int)
+    # The meshes have no material: neutral grey, unlike the greenish floor and the blue sky.
+    grey = (pixels[:, 0] == pixels[:, 1]) & (pixels[:, 1] == pixels[:, 2])
+    assert grey.mean() > 0.05, f"the robot fills {grey.mean():.1%} of the picture"
+
+    # The same robot outside its package: package:// found through TWINBOTS_PACKAGE_PATH.
+    elsewhere = tmp_path / "elsewhere.urdf"
+    elsewhere.write_text(URDF.format(base="package://demo_description/meshes/base.glb",
+                                     arm="package://demo_description/meshes/arm.obj"))
+    assert check(elsewhere).returncode != 0
+    done = check(elsewhere, env={"TWINBOTS_PACKAGE_PATH": str(tmp_path / "share")})
+    assert done.returncode == 0, done.stderr
+    assert "arm_link (0.500 kg" in done.stdout
+
+
+@pytest.mark.parametrize("arm, expected", [
+    ("../meshes/missing.obj", "mesh '../meshes/missing.obj': not found at"),
+    ("../meshes/empty.obj", "empty.obj holds no triangles"),
+    ("https://example.com/arm.obj", "unknown URI scheme 'https://'"),
+])
+def test_bad_meshes_name_the_file_and_the_link(tmp_path, arm, expected):
+    root = package(tmp_path)
+    (root / "meshes" / "empty.obj").write_text("v 0 0 0\nv 1 0 0\n")
+    urdf = root / "urdf" / "demo.urdf"
+    urdf.write_text(URDF.format(base="package://demo_description/meshes/base.glb", arm=arm))
+    done = check(urdf)
+    assert done.returncode != 0
+    assert str(urdf) in done.stderr and '<link name="arm_link">' in done.stderr and expected in done.stderr, done.stderr

@@ -1,0 +1,91 @@
+//! `twinbots urdf FILE [--png OUT] [--seconds S]`: checks a robot description (docs/urdf.md).
+
+use std::path::PathBuf;
+
+use bevy::math::Vec3;
+use twinbots::urdf_check::check;
+use twinbots_render::renderer::{Renderer, View};
+use twinbots_sim::rapier::prelude::Pose;
+use twinbots_sim::urdf::{RobotModel, Shape};
+
+/// The command's arguments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The URDF file (meshes: STL, OBJ, glTF; package:// through TWINBOTS_PACKAGE_PATH and
+    /// ROS_PACKAGE_PATH).
+    pub file: PathBuf,
+    /// Render the robot, standing, to this PNG.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// How long it stands in the arena (s).
+    #[arg(long, default_value_t = 2.0)]
+    pub seconds: f64,
+}
+
+/// `twinbots urdf`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let mut report = check(&args.file, args.seconds)?;
+    let m = &report.model;
+    let mass: f32 = m.links.iter().filter_map(|l| l.inertial.map(|i| i.mass)).sum();
+    let movable = m.joints.iter().filter(|j| j.kind.is_movable()).count();
+    let motors = m.joints.iter().filter(|j| j.kind.is_movable() && j.limits.effort > 0.0).count();
+    println!("{}: robot '{}', {} links, {} joints ({movable} movable, {motors} with motors), {mass:.3} kg", args.file.display(), m.name, m.links.len(), m.joints.len());
+    for line in &report.tree {
+        println!("  {line}");
+    }
+    println!(
+        "stood {:.1} s, base welded, drives holding 0: fastest joint {} at {:.3}",
+        report.seconds,
+        if report.fastest.1.is_empty() { "(none)" } else { &report.fastest.1 },
+        report.fastest.0
+    );
+    if report.warnings.is_empty() {
+        println!("no warnings");
+    }
+    for w in &report.warnings {
+        println!("warning: {w}");
+    }
+    if let Some(png) = &args.png {
+        let (width, height) = (800, 600);
+        let mut renderer = Renderer::new(width, height)?;
+        let (target, size) = extent(&report.model);
+        // Far enough for the robot to fill about two thirds of the 45° view.
+        let eye = target + Vec3::new(0.5, -1.3, 0.6).normalize() * size.max(0.2) * 1.7;
+        renderer.set_view(View::looking_at(eye, target, 45f32.to_radians()));
+        renderer.sync(report.app.world_mut(), report.arena);
+        let rgb = renderer.render()?;
+        image::save_buffer(png, &rgb, width, height, image::ExtendedColorType::Rgb8).map_err(|e| anyhow::anyhow!("{}: {e}", png.display()))?;
+        println!("wrote {}", png.display());
+    }
+    Ok(())
+}
+
+/// The centre and largest side of the box around the robot's visuals (and link frames) at
+/// the zero pose.
+fn extent(model: &RobotModel) -> (Vec3, f32) {
+    let mut pose = vec![Pose::IDENTITY; model.links.len()];
+    let mut order = vec![model.root];
+    let mut i = 0;
+    while i < order.len() {
+        let link = order[i];
+        for j in model.joints.iter().filter(|j| j.parent == link) {
+            pose[j.child] = pose[link] * j.child_pose(0.0);
+            order.push(j.child);
+        }
+        i += 1;
+    }
+    let mut points: Vec<Vec3> = order.iter().map(|&l| pose[l].translation).collect();
+    for &l in &order {
+        for v in &model.links[l].visuals {
+            let at = pose[l] * v.geometry.origin;
+            match &v.geometry.shape {
+                Shape::Mesh(mesh) => points.extend(mesh.vertices.iter().map(|p| at * *p)),
+                Shape::Box { half_extents } => points.extend([-1.0f32, 1.0].iter().flat_map(|&s| [at * (*half_extents * s), at * (*half_extents * Vec3::new(s, -s, s))])),
+                Shape::Cylinder { radius, length } => points.extend([at * Vec3::new(*radius, *radius, length / 2.0), at * Vec3::new(-radius, -radius, -length / 2.0)]),
+                Shape::Sphere { radius } => points.extend([at * Vec3::splat(*radius), at * Vec3::splat(-radius)]),
+            }
+        }
+    }
+    let (lo, hi) = points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    ((lo + hi) / 2.0, (hi - lo).max_element())
+}
