@@ -60,6 +60,8 @@ def test_obj_and_glb_meshes_load_stand_and_render(tmp_path):
     urdf.write_text(URDF.format(base="package://demo_description/meshes/base.glb", arm="../meshes/arm.obj"))
     png = tmp_path / "demo.png"
     done = check(urdf, "--png", str(png))
+    if done.returncode != 0 and "adapter" in done.stderr and os.environ.get("TWINBOTS_REQUIRE_ADAPTER", "0") in ("", "0"):
+        pytest.skip(f"no graphics adapter here: {done.stderr}")
     assert done.returncode == 0, done.stderr
     out = done.stdout
     assert "robot 'demo', 2 links, 1 joints (1 movable, 1 with motors), 4.500 kg" in out, out
