@@ -82,7 +82,8 @@ fn walk(model: &RobotModel, link: usize, depth: usize, out: &mut Vec<String>) {
     let mass = match &l.inertial {
         Some(i) => {
             let d = i.inertia.to_cols_array();
-            format!("{:.3} kg, inertia diag {:.4} {:.4} {:.4} kg*m^2", i.mass, d[0], d[4], d[8])
+            let source = if i.from_geometry { " from the collision geometry" } else { "" };
+            format!("{:.3} kg, inertia diag {:.4} {:.4} {:.4} kg*m^2{source}", i.mass, d[0], d[4], d[8])
         }
         None => "massless".into(),
     };

@@ -1,10 +1,11 @@
 """A robot whose links are meshes made by another tool — trimesh's OBJ and binary glTF (GLB)
 exporters — checked with `twinbots urdf`: the meshes are found through `package://` (the URDF's
-own package, or TWINBOTS_PACKAGE_PATH) and relative paths, loaded, simulated standing and
-rendered; a missing mesh, a mesh with no triangles and an unknown URI scheme are errors naming
+own package, or TWINBOTS_PACKAGE_PATH) and relative paths, loaded (a link with a mass and no
+inertia takes its mesh's), simulated standing and rendered; a missing mesh, a mesh with no triangles and an unknown URI scheme are errors naming
 the file and the link."""
 
 import os
+import re
 import shutil
 import subprocess
 
@@ -19,8 +20,7 @@ URDF = """<robot name="demo">
     <collision><geometry><mesh filename="{base}"/></geometry></collision>
   </link>
   <link name="arm_link">
-    <inertial><origin xyz="0 0 0.25"/><mass value="0.5"/>
-      <inertia ixx="0.0106" ixy="0" ixz="0" iyy="0.0106" iyz="0" izz="0.0004"/></inertial>
+    <inertial><mass value="0.5"/></inertial>
     <visual><origin xyz="0 0 0.25"/><geometry><mesh filename="{arm}" scale="1 1 1"/></geometry></visual>
     <collision><origin xyz="0 0 0.25"/><geometry><mesh filename="{arm}"/></geometry></collision>
   </link>
@@ -66,6 +66,14 @@ def test_obj_and_glb_meshes_load_stand_and_render(tmp_path):
     out = done.stdout
     assert "robot 'demo', 2 links, 1 joints (1 movable, 1 with motors), 4.500 kg" in out, out
     assert "arm_link (0.500 kg" in out and "1 collision, 1 visual" in out, out
+    # The arm gives its mass only: its inertia is its mesh's as a uniform solid (a 0.5 kg
+    # cylinder, r 4 cm, 50 cm: m(3r^2 + h^2)/12 across, m r^2/2 along; trimesh's is faceted).
+    line = next(line for line in out.splitlines() if "arm_link (" in line)
+    assert "from the collision geometry" in line, line
+    ixx, iyy, izz = (float(v) for v in re.search(r"inertia diag (\S+) (\S+) (\S+)", line).groups())
+    across, along = 0.5 * (3 * 0.04**2 + 0.5**2) / 12, 0.5 * 0.04**2 / 2
+    assert abs(ixx - across) < 0.03 * across and abs(iyy - across) < 0.03 * across, line
+    assert abs(izz - along) < 0.1 * along, line
     assert "turn (Revolute, range [-3.000, 3.000], motor: effort 20 velocity 2) -> arm_link" in out, out
     assert "no warnings" in out, out
     assert png.stat().st_size > 1000

@@ -234,3 +234,27 @@ fn the_urdf_check_lists_the_tree_stands_the_robot_and_flags_what_will_not_simula
     let ur5e = twinbots::urdf_check::check(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/robots/ur5e/ur5e.urdf")), 0.5).unwrap();
     assert!(ur5e.warnings.is_empty(), "{:?}", ur5e.warnings);
 }
+
+#[test]
+fn a_mass_without_inertia_takes_the_collision_geometrys() {
+    // A 0.5 kg solid cylinder (r 4 cm, 50 cm long) lifted 25 cm, and a link whose inertia is given.
+    let model = parse(&robot(
+        r#"<link name="arm"><inertial><mass value="0.5"/></inertial>
+             <collision><origin xyz="0 0 0.25"/><geometry><cylinder radius="0.04" length="0.5"/></geometry></collision></link>
+           <link name="given">INERTIAL<collision><geometry><box size="1 1 1"/></geometry></collision></link>
+           <joint name="j" type="fixed"><parent link="arm"/><child link="given"/></joint>"#,
+    ))
+    .unwrap();
+    let arm = model.links[0].inertial.unwrap();
+    assert!(arm.from_geometry);
+    assert!((arm.origin.translation - bevy::math::Vec3::new(0.0, 0.0, 0.25)).length() < 1e-5, "{:?}", arm.origin);
+    let (m, r, h) = (0.5f32, 0.04f32, 0.5f32);
+    let across = m * (3.0 * r * r + h * h) / 12.0;
+    let along = m * r * r / 2.0;
+    let d = arm.inertia.to_cols_array();
+    for (got, want) in [(d[0], across), (d[4], across), (d[8], along)] {
+        assert!((got - want).abs() < 0.02 * want, "inertia diag {:?} vs {across} {across} {along}", [d[0], d[4], d[8]]);
+    }
+    let given = model.links[1].inertial.unwrap();
+    assert!(!given.from_geometry && (given.inertia.to_cols_array()[0] - 0.1).abs() < 1e-6);
+}

@@ -35,7 +35,7 @@ pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel
     })?;
     check_numbers(&doc, file)?;
     let lines = ElementLines::index(&doc);
-    let robot = urdf_rs::read_from_string(text).map_err(|e| UrdfError::Schema {
+    let robot = urdf_rs::read_from_string(&with_zero_inertias(text, &doc)).map_err(|e| UrdfError::Schema {
         file: file.to_path_buf(),
         message: e.to_string(),
     })?;
@@ -52,6 +52,45 @@ pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel
         materials,
     }
     .build(&robot)
+}
+
+/// `text` with an all-zero `<inertia/>` in every `<inertial>` that has none (urdf-rs requires
+/// it; CAD exports often give only the mass): such a link takes its collision geometry's
+/// ([`solid_of`]). Inserted on the same line, so error lines stay the file's.
+fn with_zero_inertias(text: &str, doc: &roxmltree::Document) -> String {
+    const ZERO: &str = r#"<inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>"#;
+    const CLOSE: &str = "</inertial>";
+    let mut at: Vec<usize> = doc
+        .descendants()
+        .filter(|n| n.has_tag_name("inertial") && !n.children().any(|c| c.has_tag_name("inertia")))
+        .filter_map(|n| text[n.range()].ends_with(CLOSE).then(|| n.range().end - CLOSE.len()))
+        .collect();
+    let mut out = text.to_string();
+    at.sort_unstable();
+    for &i in at.iter().rev() {
+        out.insert_str(i, ZERO);
+    }
+    out
+}
+
+/// The mass properties of `shapes` as one uniform solid of `mass` kg: centre of mass and
+/// inertia about it, in the link's axes (convex hulls for meshes, as the collisions are).
+fn solid_of(shapes: &[Geometry], mass: f32) -> Inertial {
+    use crate::rapier::parry::shape::SharedShape;
+    let mut total = crate::rapier::prelude::MassProperties::default();
+    for g in shapes {
+        let (shape, at) = match &g.shape {
+            Shape::Box { half_extents: h } => (SharedShape::cuboid(h.x, h.y, h.z), g.origin),
+            Shape::Cylinder { radius, length } => {
+                (SharedShape::cylinder(length / 2.0, *radius), g.origin * Pose::from_rotation(Quat::from_rotation_x(std::f32::consts::FRAC_PI_2)))
+            }
+            Shape::Sphere { radius } => (SharedShape::ball(*radius), g.origin),
+            Shape::Mesh(mesh) => (SharedShape::convex_hull(&mesh.vertices).expect("meshes are checked for a hull when read"), g.origin),
+        };
+        total += shape.mass_properties(1.0).transform_by(&at);
+    }
+    total.set_mass(mass, true);
+    Inertial { origin: Pose::from_translation(total.local_com), mass, inertia: total.reconstruct_inertia_matrix(), from_geometry: true }
 }
 
 /// Attributes that hold numbers (one or several, space-separated) in the URDF schema.
@@ -303,16 +342,18 @@ impl Checker<'_> {
                 "inertia is not physical: ixx, iyy, izz must be non-negative and obey the triangle inequality",
             ));
         }
-        let inertial = (mass > 0.0).then(|| Inertial {
-            origin: pose(&inertial.origin),
-            mass,
-            inertia,
-        });
-        let collisions = link
+        let collisions: Vec<Geometry> = link
             .collision
             .iter()
             .map(|c| self.geometry(&link.name, &c.origin, &c.geometry))
             .collect::<Result<_, _>>()?;
+        // A mass without an inertia (CAD exports often leave it out): the collision geometry's,
+        // as a uniform solid of that mass.
+        let inertial = match (mass > 0.0, inertia == Mat3::ZERO && !collisions.is_empty()) {
+            (false, _) => None,
+            (true, true) => Some(solid_of(&collisions, mass)),
+            (true, false) => Some(Inertial { origin: pose(&inertial.origin), mass, inertia, from_geometry: false }),
+        };
         let visuals = link
             .visual
             .iter()

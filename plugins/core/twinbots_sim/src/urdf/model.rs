@@ -37,6 +37,9 @@ pub struct Inertial {
     pub mass: f32,
     /// Inertia tensor about the centre of mass, in `origin`'s frame.
     pub inertia: Mat3,
+    /// The URDF gave the mass but no inertia: centre of mass and inertia are the collision
+    /// geometry's as a uniform solid of that mass.
+    pub from_geometry: bool,
 }
 
 /// A shape placed in its link's frame.
