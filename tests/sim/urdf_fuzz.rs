@@ -1,6 +1,7 @@
-//! The URDF loader fuzzed: the project's own URDFs, mutated at random (numbers replaced by
+//! The URDF loader fuzzed: the project's own URDFs and a robot of mesh files, mutated at random (numbers replaced by
 //! hostile ones, lines deleted, duplicated or swapped, attribute values garbled, bytes inserted,
-//! the text cut short), must each load or give an error naming the file, and never panic.
+//! the text cut short), must each load or give an error naming the file, and never panic; each that
+//! loads is spawned and stepped, and must stay finite.
 //!
 //! The suite runs 20,000 inputs; `TWINBOTS_URDF_FUZZ_CASES=1000000 cargo test --release --test
 //! sim urdf_fuzz -- --nocapture` runs a million.
@@ -8,7 +9,45 @@
 use std::path::Path;
 
 use rand::{Rng, SeedableRng};
-use twinbots_sim::urdf::parse_urdf;
+use twinbots_sim::urdf::{RobotModel, parse_urdf};
+use twinbots_sim::{JointState, PhysicsSubstep, SimSettings, SpawnOptions};
+
+/// Spawns `model` (base welded) and steps it 0.2 s: whether every joint state stays finite.
+fn stands(model: &RobotModel) -> bool {
+    let (mut app, _, spawned) = crate::common::robot_app(model, SpawnOptions { fixed_base: true, ..Default::default() }, SimSettings::default());
+    for _ in 0..50 {
+        app.world_mut().run_schedule(PhysicsSubstep);
+    }
+    spawned.joints.values().all(|&j| app.world().get::<JointState>(j).is_none_or(|s| s.position.is_finite() && s.velocity.is_finite()))
+}
+
+/// A robot of meshes as CAD tools export them — STL, OBJ and glTF, through `package://` and
+/// relative paths, one link with a mass and no inertia — written to a scratch package.
+fn mesh_robot() -> (std::path::PathBuf, String) {
+    let root = std::env::temp_dir().join(format!("twinbots-fuzz-{}/mesh_description", std::process::id()));
+    std::fs::create_dir_all(root.join("meshes")).unwrap();
+    std::fs::create_dir_all(root.join("urdf")).unwrap();
+    let tetra = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+    std::fs::write(root.join("meshes/tetra.obj"), tetra).unwrap();
+    let tri = |a: [f32; 3], b: [f32; 3], c: [f32; 3]| stl_io::Triangle { normal: stl_io::Normal::new([0.0, 0.0, 1.0]), vertices: [stl_io::Vertex::new(a), stl_io::Vertex::new(b), stl_io::Vertex::new(c)] };
+    let (p0, p1, p2, p3) = ([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]);
+    let mut file = std::fs::File::create(root.join("meshes/tetra.stl")).unwrap();
+    stl_io::write_stl(&mut file, [tri(p0, p2, p1), tri(p0, p1, p3), tri(p0, p3, p2), tri(p1, p2, p3)].iter()).unwrap();
+    let text = r#"<robot name="meshes">
+  <link name="base"><inertial><mass value="2"/></inertial>
+    <visual><geometry><mesh filename="package://mesh_description/meshes/tetra.stl" scale="2 2 2"/></geometry></visual>
+    <collision><geometry><mesh filename="package://mesh_description/meshes/tetra.stl" scale="2 2 2"/></geometry></collision></link>
+  <link name="arm"><inertial><origin xyz="0 0 0.05"/><mass value="0.3"/><inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.001"/></inertial>
+    <visual><geometry><mesh filename="../meshes/tetra.obj"/></geometry></visual>
+    <collision><geometry><mesh filename="../meshes/tetra.obj"/></geometry></collision></link>
+  <joint name="turn" type="revolute"><parent link="base"/><child link="arm"/><origin xyz="0 0 0.2"/><axis xyz="0 0 1"/>
+    <limit lower="-2" upper="2" effort="5" velocity="1"/></joint>
+</robot>
+"#;
+    let path = root.join("urdf/meshes.urdf");
+    std::fs::write(&path, text).unwrap();
+    (path, text.to_string())
+}
 
 const HOSTILE_NUMBERS: &[&str] = &[
     "nan", "NaN", "inf", "-inf", "1e39", "-1e39", "1e308", "-0", "0", "1e-45", "99999999999999999999", "", "abc", "1 2 3",
@@ -119,7 +158,7 @@ fn garble_an_attribute(line: &str, rng: &mut impl Rng) -> String {
 fn mutated_urdfs_load_or_name_their_file_and_never_panic() {
     let cases: usize = std::env::var("TWINBOTS_URDF_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(20_000);
     let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/robots");
-    let sources: Vec<(std::path::PathBuf, String)> = ["cartpole/cartpole.urdf", "pioneer3at/pioneer3at.urdf", "ur5e/ur5e.urdf", "ur5e/part.urdf", "ur5e/fixture.urdf"]
+    let mut sources: Vec<(std::path::PathBuf, String)> = ["cartpole/cartpole.urdf", "pioneer3at/pioneer3at.urdf", "ur5e/ur5e.urdf", "ur5e/part.urdf", "ur5e/fixture.urdf"]
         .iter()
         .map(|f| {
             let path = assets.join(f);
@@ -127,20 +166,29 @@ fn mutated_urdfs_load_or_name_their_file_and_never_panic() {
             (path, text)
         })
         .collect();
+    sources.push(mesh_robot());
     // Hooks off: a caught panic is counted, not printed a million times.
     let previous_hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(|_| {}));
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
     let (mut loaded, mut refused, mut panics, mut hostile_loaded) = (0usize, 0usize, Vec::new(), Vec::new());
+    let (mut spawned, mut unstable) = (0usize, Vec::new());
     let started = std::time::Instant::now();
     for case in 0..cases {
         let (path, text) = &sources[case % sources.len()];
         let input = mutate(text, &mut rng);
         let mesh_dir = path.parent().unwrap();
         match std::panic::catch_unwind(|| parse_urdf(&input, path, mesh_dir)) {
-            Ok(Ok(_)) => {
+            Ok(Ok(model)) => {
                 if has_hostile_number(&input) {
                     hostile_loaded.push(input);
+                } else {
+                    // What loads must build and step: no panic, no number lost.
+                    match std::panic::catch_unwind(|| stands(&model)) {
+                        Ok(true) => spawned += 1,
+                        Ok(false) => unstable.push(input),
+                        Err(_) => panics.push(input),
+                    }
                 }
                 loaded += 1
             }
@@ -154,10 +202,11 @@ fn mutated_urdfs_load_or_name_their_file_and_never_panic() {
     }
     std::panic::set_hook(previous_hook);
     eprintln!(
-        "URDF fuzz: {cases} inputs in {:.1} s: {loaded} loaded, {refused} refused with an error, {} panics",
+        "URDF fuzz: {cases} inputs in {:.1} s: {loaded} loaded ({spawned} of them spawned and stepped), {refused} refused with an error, {} panics",
         started.elapsed().as_secs_f64(),
         panics.len()
     );
+    assert!(spawned > 0 && unstable.is_empty(), "{spawned} spawned; {} left the numbers, the first:\n{}", unstable.len(), unstable.first().map_or("", String::as_str));
     assert!(panics.is_empty(), "{} inputs panicked the loader; the first:\n{}", panics.len(), panics[0]);
     assert!(hostile_loaded.is_empty(), "{} inputs with a non-finite or absurd number loaded; the first:\n{}", hostile_loaded.len(), hostile_loaded[0]);
     assert!(loaded > cases / 20 && refused > cases / 20, "{loaded} loaded, {refused} refused: the mutations are not a mix");
