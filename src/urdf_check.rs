@@ -24,10 +24,15 @@ pub struct UrdfReport {
 }
 
 /// Reads `path`, lists and flags it, and stands it in an arena for `seconds`: base welded,
-/// every drive holding its joint at 0 (a robot switched on at its zero pose).
-pub fn check(path: &std::path::Path, seconds: f64) -> anyhow::Result<UrdfReport> {
+/// every drive holding its joint at 0 (a robot switched on at its zero pose); the collision
+/// meshes of the links in `decompose` split into convex parts.
+pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyhow::Result<UrdfReport> {
     anyhow::ensure!(seconds >= 0.0 && seconds.is_finite() && seconds <= 600.0, "--seconds must be from 0 to 600, not {seconds}");
     let model = load_urdf(path)?;
+    if let Some(unknown) = decompose.iter().find(|n| model.link_index(n).is_none()) {
+        let links: Vec<&str> = model.links.iter().map(|l| l.name.as_str()).collect();
+        anyhow::bail!("--decompose: robot '{}' has no link '{unknown}' (its links: {})", model.name, links.join(", "));
+    }
     let tree = tree(&model);
     let mut warnings = flags(&model);
     let settings = SimSettings::default();
@@ -38,7 +43,7 @@ pub fn check(path: &std::path::Path, seconds: f64) -> anyhow::Result<UrdfReport>
     let mut a = Arena::new(0, 0, settings.dt, settings.gravity);
     let spawned = {
         let mut commands = world.commands();
-        spawn_robot(&mut commands, arena, &mut a, &model, SpawnOptions { fixed_base: true, ..Default::default() })
+        spawn_robot(&mut commands, arena, &mut a, &model, SpawnOptions { fixed_base: true, decompose: decompose.to_vec(), ..Default::default() })
     };
     world.flush();
     world.entity_mut(arena).insert(a);

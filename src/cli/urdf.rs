@@ -20,11 +20,15 @@ pub struct Args {
     /// How long it stands in the arena (s).
     #[arg(long, default_value_t = 2.0)]
     pub seconds: f64,
+    /// Links whose collision meshes are split into convex parts (V-HACD) rather than wrapped
+    /// in one hull, comma-separated (a concave nest or bin).
+    #[arg(long, value_delimiter = ',')]
+    pub decompose: Vec<String>,
 }
 
 /// `twinbots urdf`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let mut report = check(&args.file, args.seconds)?;
+    let mut report = check(&args.file, args.seconds, &args.decompose)?;
     let m = &report.model;
     let mass: f32 = m.links.iter().filter_map(|l| l.inertial.map(|i| i.mass)).sum();
     let movable = m.joints.iter().filter(|j| j.kind.is_movable()).count();

@@ -221,7 +221,7 @@ fn the_urdf_check_lists_the_tree_stands_the_robot_and_flags_what_will_not_simula
 </robot>"#,
     )
     .unwrap();
-    let report = twinbots::urdf_check::check(&path, 0.5).unwrap();
+    let report = twinbots::urdf_check::check(&path, 0.5, &[]).unwrap();
     assert_eq!(report.tree.len(), 3, "{:?}", report.tree);
     assert!(report.tree[1].contains("stuck (Revolute, range [0.000, 0.000], motor: effort 5 velocity 0) -> arm"), "{:?}", report.tree);
     let warnings = report.warnings.join("\n");
@@ -231,8 +231,10 @@ fn the_urdf_check_lists_the_tree_stands_the_robot_and_flags_what_will_not_simula
     assert_eq!(report.warnings.len(), 3, "{warnings}");
     assert!((report.seconds - 0.5).abs() < 1e-9 && report.fastest.0.is_finite());
     // The project's own arm stands without a warning.
-    let ur5e = twinbots::urdf_check::check(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/robots/ur5e/ur5e.urdf")), 0.5).unwrap();
+    let ur5e = twinbots::urdf_check::check(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/robots/ur5e/ur5e.urdf")), 0.5, &[]).unwrap();
     assert!(ur5e.warnings.is_empty(), "{:?}", ur5e.warnings);
+    let e = twinbots::urdf_check::check(&path, 0.5, &["elbow".into()]).err().unwrap().to_string();
+    assert!(e.contains("--decompose: robot 'flagged' has no link 'elbow' (its links: base, arm)"), "{e}");
 }
 
 #[test]
@@ -257,4 +259,56 @@ fn a_mass_without_inertia_takes_the_collision_geometrys() {
     }
     let given = model.links[1].inertial.unwrap();
     assert!(!given.from_geometry && (given.inertia.to_cols_array()[0] - 0.1).abs() < 1e-6);
+}
+
+/// A U of three blocks as one OBJ mesh (0.6 m wide, 0.5 m high, a notch 0.4 m wide above a
+/// 0.1 m floor): concave, as a nest or a bin is.
+fn u_mesh(dir: &Path) -> PathBuf {
+    let blocks = [([-0.3, -0.2, 0.0], [0.3, 0.2, 0.1]), ([-0.3, -0.2, 0.1], [-0.2, 0.2, 0.5]), ([0.2, -0.2, 0.1], [0.3, 0.2, 0.5])];
+    let mut obj = String::new();
+    for (b, (lo, hi)) in blocks.iter().enumerate() {
+        for k in 0..8 {
+            let p = [if k & 1 == 0 { lo[0] } else { hi[0] }, if k & 2 == 0 { lo[1] } else { hi[1] }, if k & 4 == 0 { lo[2] } else { hi[2] }];
+            obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+        }
+        let o = b * 8 + 1;
+        for [a, c, d, e] in [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]] {
+            obj += &format!("f {} {} {} {}\n", o + a, o + c, o + d, o + e);
+        }
+    }
+    let path = dir.join("u.obj");
+    std::fs::write(&path, obj).unwrap();
+    path
+}
+
+#[test]
+fn a_decomposed_concave_mesh_lets_a_part_into_its_notch_where_its_hull_would_not() {
+    let dir = std::env::temp_dir().join(format!("twinbots-decompose-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    u_mesh(&dir);
+    let nest = parse_urdf(
+        r#"<robot name="nest"><link name="nest"><inertial><mass value="5"/></inertial>
+             <collision><geometry><mesh filename="u.obj"/></geometry></collision></link></robot>"#,
+        &dir.join("nest.urdf"),
+        &dir,
+    )
+    .unwrap();
+    let part = crate::common::model_from(
+        r#"<robot name="part"><link name="base"><inertial><mass value="0.5"/><inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.001"/></inertial>
+             <collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision></link></robot>"#,
+    );
+    let rest_height = |decompose: bool| {
+        let options = SpawnOptions { fixed_base: true, environment: true, decompose: if decompose { vec!["nest".into()] } else { vec![] }, ..Default::default() };
+        let (mut app, arena, _) = robot_app(&nest, options, SimSettings::default());
+        let dropped = SpawnOptions { base: twinbots_sim::rapier::prelude::Pose::from_translation(bevy::math::Vec3::new(0.0, 0.0, 0.9)), environment: true, ..Default::default() };
+        let part = crate::common::spawn_into(&mut app, arena, &part, dropped);
+        for _ in 0..60 {
+            app.update();
+        }
+        let link = part.link("base").unwrap();
+        crate::common::with_supervisor(&mut app, |s| s.link_state(link).unwrap().pose.translation.z)
+    };
+    let (hull, parts) = (rest_height(false), rest_height(true));
+    assert!((hull - 0.55).abs() < 0.03, "on the hull's lid: {hull}");
+    assert!((parts - 0.15).abs() < 0.03, "on the notch's floor: {parts}");
 }

@@ -26,6 +26,10 @@ pub struct SpawnOptions {
     pub environment: bool,
     /// Starting positions (rad or m) of movable joints, by name; the others start at 0.
     pub joint_positions: Vec<(String, f32)>,
+    /// Links whose collision meshes are split into convex parts (parry's V-HACD) instead of
+    /// one convex hull: concave parts (a nest, a bin, a U-shaped gripper) that something must
+    /// enter. Slower to build and to collide; primitives are unaffected.
+    pub decompose: Vec<String>,
 }
 
 impl Default for SpawnOptions {
@@ -36,6 +40,7 @@ impl Default for SpawnOptions {
             friction: 1.0,
             environment: false,
             joint_positions: Vec::new(),
+            decompose: Vec::new(),
         }
     }
 }
@@ -138,7 +143,8 @@ pub fn spawn_robot(
         let body = bodies[&owner[l]];
         let link = &model.links[l];
         for geometry in &link.collisions {
-            let collider = collider(&geometry.shape, offset[l] * geometry.origin)
+            let decompose = options.decompose.iter().any(|n| *n == link.name);
+            let collider = collider(&geometry.shape, offset[l] * geometry.origin, decompose)
                 .friction(options.friction)
                 .density(0.0)
                 .collision_groups(groups);
@@ -244,14 +250,16 @@ fn body_mass(
     total
 }
 
-/// A rapier collider for a URDF shape placed at `pose` in its body.
-fn collider(shape: &Shape, pose: Pose) -> ColliderBuilder {
+/// A rapier collider for a URDF shape placed at `pose` in its body; a mesh as its convex
+/// hull, or split into convex parts (`decompose`).
+fn collider(shape: &Shape, pose: Pose, decompose: bool) -> ColliderBuilder {
     match shape {
         Shape::Box { half_extents: h } => ColliderBuilder::cuboid(h.x, h.y, h.z).position(pose),
         // URDF cylinders run along Z, rapier's along Y.
         Shape::Cylinder { radius, length } => ColliderBuilder::cylinder(length / 2.0, *radius)
             .position(pose * Pose::from_rotation(Quat::from_rotation_x(std::f32::consts::FRAC_PI_2))),
         Shape::Sphere { radius } => ColliderBuilder::ball(*radius).position(pose),
+        Shape::Mesh(mesh) if decompose => ColliderBuilder::convex_decomposition(&mesh.vertices, &mesh.triangles).position(pose),
         Shape::Mesh(mesh) => ColliderBuilder::convex_hull(&mesh.vertices)
             .expect("the URDF loader rejects meshes without a convex hull")
             .position(pose),
