@@ -20,6 +20,7 @@ mod robot_hostile;
 mod ros2;
 mod rtde;
 mod server;
+mod server_fuzz;
 mod server_hostile;
 mod server_load;
 mod train_cli;
