@@ -67,20 +67,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 /// The centre and largest side of the box around the robot's visuals (and link frames) at
 /// the zero pose.
 fn extent(model: &RobotModel) -> (Vec3, f32) {
-    let mut pose = vec![Pose::IDENTITY; model.links.len()];
-    let mut order = vec![model.root];
-    let mut i = 0;
-    while i < order.len() {
-        let link = order[i];
-        for j in model.joints.iter().filter(|j| j.parent == link) {
-            pose[j.child] = pose[link] * j.child_pose(0.0);
-            order.push(j.child);
-        }
-        i += 1;
-    }
-    let mut points: Vec<Vec3> = order.iter().map(|&l| pose[l].translation).collect();
-    for &l in &order {
-        for v in &model.links[l].visuals {
+    let pose = model.link_poses(Pose::IDENTITY, |_| 0.0);
+    let mut points: Vec<Vec3> = pose.iter().map(|p| p.translation).collect();
+    for (l, link) in model.links.iter().enumerate() {
+        for v in &link.visuals {
             let at = pose[l] * v.geometry.origin;
             match &v.geometry.shape {
                 Shape::Mesh(mesh) => points.extend(mesh.vertices.iter().map(|p| at * *p)),

@@ -44,7 +44,8 @@ impl Ros2Twin {
         let stand = Stand::new(&rig, &[], std::slice::from_ref(&params));
         let commandable = rig.joints.iter().enumerate().filter(|&(i, _)| rig.actuated[i]).map(|(i, n)| (n.clone(), i)).collect();
         let mut twin = Self { rig, stand, time: 0.0, commandable, following: None };
-        let hold: Vec<f64> = twin.commandable.iter().map(|&(_, i)| twin.position(i)).collect();
+        let now = twin.positions();
+        let hold: Vec<f64> = twin.commandable.iter().map(|&(_, i)| now[i]).collect();
         twin.apply(Command::Forward(Interface::Position, hold), 0.0).map_err(anyhow::Error::msg)?;
         Ok(twin)
     }
@@ -67,8 +68,9 @@ impl Ros2Twin {
         self.commandable.iter().map(|(n, _)| n.as_str())
     }
 
-    fn position(&self, joint: usize) -> f64 {
-        self.stand.reading(0).position[joint] as f64
+    /// Every joint's position now, in the rig's order.
+    fn positions(&self) -> Vec<f64> {
+        self.stand.reading(0).position.into_iter().map(f64::from).collect()
     }
 
     /// Joint `joint`'s (index into the rig's joints) limits: position range (none for a
@@ -85,7 +87,7 @@ impl Ros2Twin {
             Command::Trajectory(message) => {
                 let stamp = message.header.stamp;
                 let delay = if stamp == Time::default() { 0.0 } else { stamp.seconds() - wall_now };
-                let current: Vec<f64> = (0..self.rig.joints.len()).map(|j| self.position(j)).collect();
+                let current = self.positions();
                 let range = |j| self.limits(j).position.map(|r| r.map(f64::from));
                 let (following, clipped) = Following::new(&message, &self.commandable, &current, range, self.time, delay)?;
                 self.following = Some(following);
@@ -104,8 +106,9 @@ impl Ros2Twin {
         if let Some(v) = values.iter().find(|v| !v.is_finite()) {
             return Err(format!("{} command {v} is not a number", interface.name()));
         }
+        // Checked: from here on the command is taken whole.
+        self.following = None;
         let mut clipped = 0;
-        let mut commands = Vec::with_capacity(values.len());
         for (&(_, joint), &v) in self.commandable.iter().zip(values) {
             let limits = self.limits(joint);
             let bound = |b: f32| if b > 0.0 { v.clamp(-b as f64, b as f64) } else { v };
@@ -116,14 +119,11 @@ impl Ros2Twin {
             };
             clipped += usize::from(inside != v);
             let value = inside as f32;
-            commands.push(match interface {
+            let command = match interface {
                 Interface::Position => MotorCommand::Position(value),
                 Interface::Velocity => MotorCommand::Velocity(value),
                 Interface::Effort => MotorCommand::Torque(value),
-            });
-        }
-        self.following = None;
-        for (&(_, joint), command) in self.commandable.iter().zip(commands) {
+            };
             self.stand.command(0, joint, command);
         }
         Ok(clipped)
@@ -168,9 +168,9 @@ impl Ros2Twin {
             .collect();
         let root = &model.links[model.root].name;
         if root != WORLD_FRAME
-            && let Some(pose) = self.stand.link_poses(0).get(root)
+            && let Some(pose) = self.stand.link_pose(0, root)
         {
-            transforms.push(frame(stamp, WORLD_FRAME, root, pose));
+            transforms.push(frame(stamp, WORLD_FRAME, root, &pose));
         }
         TFMessage { transforms }
     }

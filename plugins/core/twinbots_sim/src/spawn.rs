@@ -93,21 +93,17 @@ pub fn spawn_robot(
     } else {
         InteractionGroups::new(ROBOT_GROUP, ENVIRONMENT_GROUP, InteractionTestMode::And)
     };
-    let order = tree_order(model);
+    let order = model.tree_order();
 
     // Which link's body each link belongs to, where its frame sits in that body, and in the world.
     let n = model.links.len();
     let mut owner = vec![usize::MAX; n];
     let mut offset = vec![Pose::IDENTITY; n];
-    let mut world_pose = vec![Pose::IDENTITY; n];
+    let world_pose = model.link_poses(options.base, |j| start_position(&options, j));
     for &l in &order {
         match model.parent_joint(l) {
-            None => {
-                owner[l] = l;
-                world_pose[l] = options.base;
-            }
+            None => owner[l] = l,
             Some(j) => {
-                world_pose[l] = world_pose[j.parent] * j.child_pose(start_position(&options, j));
                 if j.kind == JointKind::Fixed {
                     owner[l] = owner[j.parent];
                     offset[l] = offset[j.parent] * j.origin;
@@ -219,18 +215,6 @@ fn start_position(options: &SpawnOptions, joint: &JointModel) -> f32 {
     options.joint_positions.iter().find(|(name, _)| *name == joint.name).map_or(0.0, |&(_, q)| q)
 }
 
-/// Links ordered so that every parent comes before its children.
-fn tree_order(model: &RobotModel) -> Vec<usize> {
-    let mut order = vec![model.root];
-    let mut i = 0;
-    while i < order.len() {
-        let l = order[i];
-        order.extend(model.joints.iter().filter(|j| j.parent == l).map(|j| j.child));
-        i += 1;
-    }
-    order
-}
-
 /// The summed mass properties of the links welded into `body`, in that body's frame.
 fn body_mass(
     model: &RobotModel,
@@ -253,15 +237,9 @@ fn body_mass(
 /// A rapier collider for a URDF shape placed at `pose` in its body; a mesh as its convex
 /// hull, or split into convex parts (`decompose`).
 fn collider(shape: &Shape, pose: Pose, decompose: bool) -> ColliderBuilder {
-    match shape {
-        Shape::Box { half_extents: h } => ColliderBuilder::cuboid(h.x, h.y, h.z).position(pose),
-        // URDF cylinders run along Z, rapier's along Y.
-        Shape::Cylinder { radius, length } => ColliderBuilder::cylinder(length / 2.0, *radius)
-            .position(pose * Pose::from_rotation(Quat::from_rotation_x(std::f32::consts::FRAC_PI_2))),
-        Shape::Sphere { radius } => ColliderBuilder::ball(*radius).position(pose),
-        Shape::Mesh(mesh) if decompose => ColliderBuilder::convex_decomposition(&mesh.vertices, &mesh.triangles).position(pose),
-        Shape::Mesh(mesh) => ColliderBuilder::convex_hull(&mesh.vertices)
-            .expect("the URDF loader rejects meshes without a convex hull")
-            .position(pose),
+    if let (true, Shape::Mesh(mesh)) = (decompose, shape) {
+        return ColliderBuilder::convex_decomposition(&mesh.vertices, &mesh.triangles).position(pose);
     }
+    let (shape, local) = shape.parry().expect("the URDF loader rejects meshes without a convex hull");
+    ColliderBuilder::new(shape).position(pose * local)
 }

@@ -219,19 +219,13 @@ impl Stand {
         self.app.world_mut().run_schedule(PhysicsSubstep);
     }
 
-    /// Where each of `arena`'s link frames is now, in arena coordinates, by link name.
-    pub fn link_poses(&self, arena: usize) -> std::collections::HashMap<String, twinbots_sim::rapier::prelude::Pose> {
+    /// Where `arena`'s link `link` is now, in arena coordinates (`None`: no such link).
+    pub fn link_pose(&self, arena: usize, link: &str) -> Option<twinbots_sim::rapier::prelude::Pose> {
         let world = self.app.world();
         let (arena_entity, links) = &self.arenas[arena];
-        let a = world.get::<Arena>(*arena_entity).expect("the arena entity has its Arena");
-        links
-            .iter()
-            .filter_map(|(name, &e)| {
-                let link = world.get::<twinbots_sim::Link>(e)?;
-                let body = a.world.bodies.get(link.body)?;
-                Some((name.clone(), *body.position() * link.offset))
-            })
-            .collect()
+        let l = world.get::<twinbots_sim::Link>(*links.get(link)?)?;
+        let body = world.get::<Arena>(*arena_entity)?.world.bodies.get(l.body)?;
+        Some(*body.position() * l.offset)
     }
 
     /// What `arena`'s joints measure now.

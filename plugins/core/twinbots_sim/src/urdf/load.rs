@@ -76,18 +76,10 @@ fn with_zero_inertias(text: &str, doc: &roxmltree::Document) -> String {
 /// The mass properties of `shapes` as one uniform solid of `mass` kg: centre of mass and
 /// inertia about it, in the link's axes (convex hulls for meshes, as the collisions are).
 fn solid_of(shapes: &[Geometry], mass: f32) -> Inertial {
-    use crate::rapier::parry::shape::SharedShape;
     let mut total = crate::rapier::prelude::MassProperties::default();
     for g in shapes {
-        let (shape, at) = match &g.shape {
-            Shape::Box { half_extents: h } => (SharedShape::cuboid(h.x, h.y, h.z), g.origin),
-            Shape::Cylinder { radius, length } => {
-                (SharedShape::cylinder(length / 2.0, *radius), g.origin * Pose::from_rotation(Quat::from_rotation_x(std::f32::consts::FRAC_PI_2)))
-            }
-            Shape::Sphere { radius } => (SharedShape::ball(*radius), g.origin),
-            Shape::Mesh(mesh) => (SharedShape::convex_hull(&mesh.vertices).expect("meshes are checked for a hull when read"), g.origin),
-        };
-        total += shape.mass_properties(1.0).transform_by(&at);
+        let (shape, local) = g.shape.parry().expect("meshes are checked for a hull when read");
+        total += shape.mass_properties(1.0).transform_by(&(g.origin * local));
     }
     total.set_mass(mass, true);
     Inertial { origin: Pose::from_translation(total.local_com), mass, inertia: total.reconstruct_inertia_matrix(), from_geometry: true }

@@ -19,7 +19,7 @@ pub fn read(path: &Path) -> Result<Triangles, String> {
     let bytes = std::fs::read(path).map_err(|e| format!("not found at {}: {e}", path.display()))?;
     let (vertices, triangles) = match extension.as_str() {
         "stl" => stl(&bytes),
-        "obj" => obj(path),
+        "obj" => obj(&bytes),
         "glb" | "gltf" => gltf(&bytes, path),
         _ => Err(format!("{}: not a mesh format twinbots reads ({FORMATS})", path.display())),
     }?;
@@ -38,10 +38,12 @@ fn stl(bytes: &[u8]) -> Result<Triangles, String> {
     Ok((vertices, stl.faces.iter().map(|f| f.vertices.map(|i| i as u32)).collect()))
 }
 
-fn obj(path: &Path) -> Result<Triangles, String> {
+fn obj(bytes: &[u8]) -> Result<Triangles, String> {
     let options = tobj::LoadOptions { triangulate: true, single_index: true, ignore_points: true, ignore_lines: true };
-    // Materials (.mtl) colour visuals in other viewers; the geometry is all a twin takes.
-    let (models, _materials) = tobj::load_obj(path, &options).map_err(|e| format!("not a valid OBJ: {e}"))?;
+    // Materials (.mtl) colour visuals in other viewers; the geometry is all a twin takes, so
+    // they are not opened.
+    let no_materials = |_: &Path| Err(tobj::LoadError::OpenFileFailed);
+    let (models, _) = tobj::load_obj_buf(&mut std::io::Cursor::new(bytes), &options, no_materials).map_err(|e| format!("not a valid OBJ: {e}"))?;
     let (mut vertices, mut triangles) = (Vec::new(), Vec::new());
     for model in models {
         let base = vertices.len() as u32;

@@ -66,7 +66,24 @@ pub enum Shape {
     Mesh(Arc<TriangleMesh>),
 }
 
-/// A triangle mesh read from an STL file, already scaled.
+impl Shape {
+    /// The shape as parry builds it, and where parry's shape sits in the URDF geometry frame
+    /// (URDF cylinders run along Z, parry's along Y); a mesh as its convex hull, `None` when it
+    /// has none (the loader refuses such meshes). What colliders and computed inertias share.
+    pub fn parry(&self) -> Option<(crate::rapier::parry::shape::SharedShape, Pose)> {
+        use crate::rapier::parry::shape::SharedShape;
+        Some(match self {
+            Shape::Box { half_extents: h } => (SharedShape::cuboid(h.x, h.y, h.z), Pose::IDENTITY),
+            Shape::Cylinder { radius, length } => {
+                (SharedShape::cylinder(length / 2.0, *radius), Pose::from_rotation(bevy::math::Quat::from_rotation_x(std::f32::consts::FRAC_PI_2)))
+            }
+            Shape::Sphere { radius } => (SharedShape::ball(*radius), Pose::IDENTITY),
+            Shape::Mesh(mesh) => (SharedShape::convex_hull(&mesh.vertices)?, Pose::IDENTITY),
+        })
+    }
+}
+
+/// A triangle mesh read from a mesh file (STL, OBJ, glTF), already scaled.
 #[derive(Clone, Debug)]
 pub struct TriangleMesh {
     pub vertices: Vec<Vec3>,
@@ -137,6 +154,30 @@ impl JointModel {
 }
 
 impl RobotModel {
+    /// Links ordered so that every parent comes before its children.
+    pub fn tree_order(&self) -> Vec<usize> {
+        let mut order = vec![self.root];
+        let mut i = 0;
+        while i < order.len() {
+            let l = order[i];
+            order.extend(self.joints.iter().filter(|j| j.parent == l).map(|j| j.child));
+            i += 1;
+        }
+        order
+    }
+
+    /// Every link's frame (by link index) with the root at `base` and each joint at
+    /// `position(joint)`: the robot's forward kinematics.
+    pub fn link_poses(&self, base: Pose, position: impl Fn(&JointModel) -> f32) -> Vec<Pose> {
+        let mut pose = vec![base; self.links.len()];
+        for l in self.tree_order() {
+            if let Some(j) = self.parent_joint(l) {
+                pose[l] = pose[j.parent] * j.child_pose(position(j));
+            }
+        }
+        pose
+    }
+
     /// Looks a link up by name.
     pub fn link_index(&self, name: &str) -> Option<usize> {
         self.links.iter().position(|l| l.name == name)
