@@ -37,5 +37,5 @@ fn run(name: &str, app: App, episodes: usize) {
 fn main() {
     let episodes = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(100);
     run("reach", ur5e::headless_app_with(8, 7, DesignPattern::Supervised), episodes);
-    run("pick-place", ur5e::pick_place_app(8, 7, DesignPattern::Supervised), episodes.min(16));
+    run("pick-place", ur5e::pick_place_app(8, 7, DesignPattern::Supervised), episodes);
 }

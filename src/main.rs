@@ -39,6 +39,9 @@ enum Command {
     Capture(cli::capture::Args),
     /// Measure performance.
     Bench(cli::bench::Args),
+    /// Figures over seeds: runs' steps to solve, wall clock and final evaluation as median,
+    /// quartiles and interquartile mean, and their learning curves as a band (PNG).
+    Compare(cli::compare::Args),
     /// Check a robot description: its link/joint tree with masses, limits and motors, what
     /// will not simulate well, a stand in the physics, and a picture (`--png`).
     Urdf(cli::urdf::Args),
@@ -87,6 +90,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::View(args) => cli::view::exec(args),
         Command::Capture(args) => cli::capture::exec(args),
         Command::Bench(args) => cli::bench::exec(args),
+        Command::Compare(args) => cli::compare::exec(args),
         Command::Urdf(args) => cli::urdf::exec(args),
         Command::Record(args) => cli::record::exec(args),
         Command::Replay(args) => cli::replay::exec(args),

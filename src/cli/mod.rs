@@ -3,6 +3,7 @@
 pub mod algos;
 pub mod bench;
 pub mod capture;
+pub mod compare;
 pub mod deploy;
 pub mod eval;
 pub mod export;

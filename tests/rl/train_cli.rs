@@ -187,3 +187,46 @@ fn an_error_found_before_training_leaves_no_run_directory() {
     assert_eq!(left, vec![std::ffi::OsString::from("her.toml")], "nothing else in {}", dir.display());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `twinbots compare`: three seeds' runs as median and quartiles, the learning curves as a
+/// band (PNG); a folder that is no finished run is an error naming it.
+#[test]
+fn compare_gives_the_median_and_quartiles_over_seeds() {
+    let out = std::env::temp_dir().join(format!("twinbots-compare-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let runs: Vec<_> = (0..3).map(|seed| out.join(format!("seed-{seed}"))).collect();
+    for (seed, run) in runs.iter().enumerate() {
+        let status = twinbots()
+            .args(["train", "cartpole", "--timesteps", "1024", "--arenas", "2", "--seed", &seed.to_string(), "--out"])
+            .arg(run)
+            .output()
+            .unwrap()
+            .status;
+        assert!(status.success());
+    }
+    let (json, png) = (out.join("compare.json"), out.join("curves.png"));
+    let output = twinbots().arg("compare").args(&runs).arg("--json").arg(&json).arg("--png").arg(&png).output().unwrap();
+    let text = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(text.contains("cartpole: 3 runs, 0 solved") && text.contains("steps to solve: median never"), "{text}");
+    let c: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let seeds: Vec<u64> = c["runs"].as_array().unwrap().iter().map(|r| r["seed"].as_u64().unwrap()).collect();
+    assert_eq!(seeds, [0, 1, 2]);
+    // The median wall clock is the middle one of the three runs' own.
+    let mut walls: Vec<f64> = runs
+        .iter()
+        .map(|r| {
+            let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(r.join("summary.json")).unwrap()).unwrap();
+            s["wall_clock_s_this_session"].as_f64().unwrap()
+        })
+        .collect();
+    walls.sort_by(f64::total_cmp);
+    assert_eq!(c["wall_clock_s"]["median"].as_f64(), Some(walls[1]), "{c}");
+    assert!(c["steps_to_solve"]["median"].is_null(), "unsolved runs take ∞ steps (null): {c}");
+    assert_eq!(&std::fs::read(&png).unwrap()[..8], b"\x89PNG\r\n\x1a\n");
+    // Not a run: an error naming the folder.
+    let output = twinbots().arg("compare").arg(&runs[0]).arg(&out).output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && err.contains(&out.display().to_string()), "{err}");
+    std::fs::remove_dir_all(&out).ok();
+}

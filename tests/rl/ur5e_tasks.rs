@@ -76,12 +76,14 @@ fn pick_and_place_moves_the_part_from_fixture_a_to_fixture_b() {
         assert!(cycle > 2.0 && cycle < 16.0, "cycle time {cycle}");
         assert!(figure(ep, "energy_j") > 0.0);
         assert_eq!(figure(ep, "collision_events"), 0.0);
+        assert_eq!(figure(ep, "outcome_placed"), 1.0, "{:?}", ep.metrics);
     }
-    // Holding still, the program never gets the part: no success.
+    // Holding still, the program never gets the part: no success, for want of time.
     let mut env = AppVecEnv::new(ur5e::pick_place_app(1, 8, DesignPattern::Supervised));
     let ep = &run_episodes(&mut env, 1, |_| vec![0.0; ur5e::arm::ACTION_DIM])[0];
     assert_eq!(ep.success, Some(false));
     assert_eq!(ep.length, ur5e::pick_place::EPISODE_STEPS);
+    assert_eq!((figure(ep, "outcome_time_limit"), figure(ep, "outcome_placed")), (1.0, 0.0), "{:?}", ep.metrics);
 }
 
 #[test]

@@ -24,6 +24,7 @@ pub mod ppo;
 pub mod replay_buffer;
 pub mod run_dir;
 pub mod sac;
+pub mod seeds;
 pub mod stats;
 pub mod td3;
 pub mod tensorboard;

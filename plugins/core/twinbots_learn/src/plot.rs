@@ -30,6 +30,23 @@ pub struct EvaluationPoint {
     pub success_rate: f32,
 }
 
+/// A 900 × 540 PNG drawn by `draw` on white, written atomically to `path`.
+fn write_png(path: &Path, draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>) -> anyhow::Result<()> {
+    REGISTER.call_once(|| {
+        // The font is compiled in; failing to parse it is a build defect the tests catch.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    });
+    let tmp = path.with_extension("tmp.png");
+    {
+        let root = BitMapBackend::new(&tmp, (900, 540)).into_drawing_area();
+        root.fill(&WHITE)?;
+        draw(&root)?;
+        root.present().map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
+    }
+    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(())
+}
+
 /// Draws mean episode reward (and its min–max band over the last 100 episodes) against
 /// timesteps into `path`, written atomically, with the success rate on a second axis when the
 /// task reports one, periodic evaluations as points, and the solved threshold on the axis its
@@ -43,15 +60,8 @@ pub fn learning_curve(
 ) -> anyhow::Result<()> {
     let target = solved.filter(|c| c.measure == Measure::Score).map(|c| c.threshold);
     let success_target = solved.filter(|c| c.measure == Measure::Success).map(|c| c.threshold);
-    REGISTER.call_once(|| {
-        // The font is compiled in; failing to parse it is a build defect the tests catch.
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
-    });
     let points: Vec<CurvePoint> = points.iter().copied().filter(|p| p.mean_reward.is_finite()).collect();
-    let tmp = path.with_extension("tmp.png");
-    {
-        let root = BitMapBackend::new(&tmp, (900, 540)).into_drawing_area();
-        root.fill(&WHITE)?;
+    write_png(path, |root| {
         let x_max = points.last().map_or(1, |p| p.timesteps).max(1) as f64;
         let mut y_max = points.iter().map(|p| p.max_reward).fold(1.0f32, f32::max);
         let mut y_min = points.iter().map(|p| p.min_reward).fold(0.0f32, f32::min);
@@ -149,8 +159,60 @@ pub fn learning_curve(
             .label_font(("sans-serif", 14))
             .position(SeriesLabelPosition::UpperLeft)
             .draw()?;
-        root.present().map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
-    }
-    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(())
+        Ok(())
+    })
+}
+
+/// Draws the median of several runs' curves and the band between their quartiles
+/// ([`crate::seeds::band`] rows: x, q1, median, q3) into `path`, written atomically, each run's
+/// own curve faint behind them, with the solved threshold when there is one.
+pub fn seed_band(
+    path: &Path,
+    title: &str,
+    y_label: &str,
+    runs: &[Vec<(f64, f64)>],
+    band: &[(f64, f64, f64, f64)],
+    threshold: Option<f64>,
+) -> anyhow::Result<()> {
+    write_png(path, |root| {
+        let x_max = band.last().map_or(1.0, |b| b.0).max(1.0);
+        let ys = runs.iter().flatten().map(|p| p.1).chain(threshold);
+        let (y_min, y_max) = ys.fold((0.0f64, 1.0f64), |(lo, hi), y| (lo.min(y), hi.max(y)));
+        let pad = (y_max - y_min).max(1e-3) * 0.05;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0f64..x_max, (y_min - pad)..(y_max + pad))?;
+        chart.configure_mesh().x_desc("timesteps").y_desc(y_label).label_style(("sans-serif", 14)).draw()?;
+        for run in runs {
+            chart.draw_series(LineSeries::new(run.iter().copied(), BLUE.mix(0.2)))?;
+        }
+        let area: Vec<(f64, f64)> = band.iter().map(|b| (b.0, b.3)).chain(band.iter().rev().map(|b| (b.0, b.1))).collect();
+        if !area.is_empty() {
+            chart
+                .draw_series(std::iter::once(Polygon::new(area, BLUE.mix(0.2))))?
+                .label("interquartile range over seeds")
+                .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 20, y + 5)], BLUE.mix(0.2).filled()));
+        }
+        chart
+            .draw_series(LineSeries::new(band.iter().map(|b| (b.0, b.2)), BLUE.stroke_width(2)))?
+            .label(format!("median of {} runs", runs.len()))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        if let Some(t) = threshold {
+            chart
+                .draw_series(LineSeries::new([(0.0, t), (x_max, t)], RED.mix(0.7)))?
+                .label("solved threshold")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .position(SeriesLabelPosition::LowerRight)
+            .draw()?;
+        Ok(())
+    })
 }

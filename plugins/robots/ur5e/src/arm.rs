@@ -78,7 +78,12 @@ impl ArmState {
 
     /// Whether the tool has reached `target`: close, pointing down, at rest.
     pub fn has_reached(&self, target: Vec3) -> bool {
-        self.distance_to(target) < REACH_TOLERANCE
+        self.has_reached_within(target, REACH_TOLERANCE)
+    }
+
+    /// [`Self::has_reached`] within `tolerance` (m) of `target`.
+    pub fn has_reached_within(&self, target: Vec3, tolerance: f32) -> bool {
+        self.distance_to(target) < tolerance
             && kinematics::tilt(&self.tcp) < TILT_TOLERANCE
             && self.tcp_velocity.length() < SETTLED_SPEED
     }

@@ -193,12 +193,18 @@ fn spawn_cells(mut commands: Commands, models: Res<CellModels>, config: Res<Aren
     });
 }
 
-/// The policy's action becomes joint speeds, unless the arm is in a protective stop: then it
-/// holds, braked, whatever it is told.
+/// The policy's action becomes joint speeds, unless the arm is in a protective stop (then it
+/// holds, braked, whatever it is told) or the cell program moves it straight itself.
 fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState)>, mut motors: Query<&mut Motor>) {
     for (parts, action, mut state) in &mut arenas {
         if !action.0.is_empty() && !state.safety.stopped() {
-            arm::drive(parts, arm::joint_speeds(&action.0), &mut motors);
+            // The pick-and-place program's straight moves are the controller's (MoveL).
+            let speeds = if state.program.moves_straight() {
+                arm::joint_speeds(&controller::move_linear(&state.arm, state.target))
+            } else {
+                arm::joint_speeds(&action.0)
+            };
+            arm::drive(parts, speeds, &mut motors);
             state.actions.push(&action.0);
         }
     }

@@ -2,9 +2,10 @@
 //! program is a sequence of tool targets (approach, descend, lift, transfer, align, lower,
 //! retract)
 //! with the suction switched on and off between them, as a UR program of MoveL waypoints and
-//! digital outputs; the trained reach policy moves the arm from each waypoint to the next.
-//! It is the reach task with another command term: the same observation and action, so a
-//! reach model runs it unchanged.
+//! digital outputs; the trained reach policy moves the arm between the stations, the
+//! controller's straight moves do the last centimetres onto the part and into the pocket
+//! ([`Program::moves_straight`]). It is the reach task with another command term: the same
+//! observation and action, so a reach model runs it unchanged.
 //!
 //! Episodes start near home with the part anywhere its pocket lets it sit.
 //! The episode ends when the program is done (success if the part then stands in fixture B's
@@ -27,7 +28,8 @@ use crate::state::CellState;
 pub use crate::program::{ALIGN_HEIGHT, CLEARANCE, DROP_HEIGHT, GRIP_GAP, Program, SUCTION_STEPS, Stage, waypoint};
 
 pub const EPISODE_STEPS: u32 = 400;
-/// A placed part's centre lies within the pocket's play of its centre (m)…
+/// A placed part's centre lies within the pocket's play of its centre along each side of the
+/// square pocket (m: a part in a corner is in the pocket too)…
 pub const PLACE_TOLERANCE: f32 = POCKET_PLAY + 0.001;
 /// …and it stands upright within this angle (rad).
 pub const UPRIGHT_TOLERANCE: f32 = 0.2;
@@ -43,7 +45,7 @@ pub fn run_program(grippers: Query<&VacuumGripper>, mut arenas: Query<(&CellPart
         }
         let state = &mut *state;
         state.suction = state.program.step(&state.arm, gripper.held().is_some());
-        state.target = waypoint(state.program.stage);
+        state.target = state.program.target();
     }
 }
 
@@ -107,13 +109,60 @@ fn part_placed(supervisor: &Supervisor, parts: &CellParts) -> bool {
     let Some(part) = supervisor.link_state(parts.part) else { return false };
     let pose = base_pose().inverse() * part.pose;
     let seat = part_seat(FIXTURE_B);
-    let off_centre = (pose.translation - seat).truncate().length();
-    off_centre < PLACE_TOLERANCE
+    let off_centre = (pose.translation - seat).truncate().abs();
+    off_centre.max_element() < PLACE_TOLERANCE
         && (pose.translation.z - seat.z).abs() < 0.005
         && (pose.rotation * Vec3::Z).angle_between(Vec3::Z) < UPRIGHT_TOLERANCE
 }
 
-/// The figures of a program that ended: success (the part placed), cycle time, the meter's.
+/// How a pick-and-place episode ended: placed, or the first failure that explains it. `eval`
+/// reports each as the share of episodes (`outcome_<name>`), so failures can be told apart.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    Placed,
+    /// A protective stop halted the program.
+    ProtectiveStop,
+    /// The suction found no part to seize.
+    GraspMissed,
+    /// The part was seized and lost before the program let it go.
+    PartDropped,
+    /// The program ran to its end and the part is not in fixture B's pocket.
+    PlaceMissed,
+    /// The episode's step limit came first.
+    TimeLimit,
+}
+
+impl Outcome {
+    pub const ALL: [Outcome; 6] =
+        [Self::Placed, Self::ProtectiveStop, Self::GraspMissed, Self::PartDropped, Self::PlaceMissed, Self::TimeLimit];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Placed => "placed",
+            Self::ProtectiveStop => "protective_stop",
+            Self::GraspMissed => "grasp_missed",
+            Self::PartDropped => "part_dropped",
+            Self::PlaceMissed => "place_missed",
+            Self::TimeLimit => "time_limit",
+        }
+    }
+
+    /// The outcome of an episode that ended with the program at `stage`.
+    pub fn of(stage: Stage, stopped: bool, holding: bool, placed: bool) -> Self {
+        let carrying = matches!(stage, Stage::Lift | Stage::Transfer | Stage::Align | Stage::Lower);
+        match stage {
+            Stage::Done if placed => Self::Placed,
+            _ if stopped => Self::ProtectiveStop,
+            Stage::Failed => Self::GraspMissed,
+            Stage::Done => Self::PlaceMissed,
+            _ if carrying && !holding => Self::PartDropped,
+            _ => Self::TimeLimit,
+        }
+    }
+}
+
+/// The figures of a program that ended: success (the part placed), its outcome, cycle time,
+/// the meter's.
 pub fn report(
     settings: Res<SimSettings>,
     supervisor: Supervisor,
@@ -122,9 +171,32 @@ pub fn report(
     for (parts, state, meter, mut e) in &mut arenas {
         if e.terminated || e.truncated {
             let placed = state.program.stage == Stage::Done && part_placed(&supervisor, parts);
-            e.success = Some(placed);
-            let cycle_time = placed.then(|| (e.length + 1) as f32 * settings.control_dt());
+            let outcome = Outcome::of(state.program.stage, state.safety.stopped(), state.program.holding, placed);
+            e.success = Some(outcome == Outcome::Placed);
+            for o in Outcome::ALL {
+                e.metrics.insert(format!("outcome_{}", o.name()), f32::from(u8::from(o == outcome)));
+            }
+            let cycle_time = (outcome == Outcome::Placed).then(|| (e.length + 1) as f32 * settings.control_dt());
             meter.report(&mut e, cycle_time);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_ended_program_is_told_by_its_first_failure() {
+        use Outcome::*;
+        assert_eq!(Outcome::of(Stage::Done, false, false, true), Placed);
+        assert_eq!(Outcome::of(Stage::Done, false, false, false), PlaceMissed);
+        assert_eq!(Outcome::of(Stage::Lower, true, true, false), ProtectiveStop);
+        assert_eq!(Outcome::of(Stage::Failed, false, false, false), GraspMissed);
+        assert_eq!(Outcome::of(Stage::Transfer, false, false, false), PartDropped);
+        assert_eq!(Outcome::of(Stage::Transfer, false, true, false), TimeLimit);
+        assert_eq!(Outcome::of(Stage::Approach, false, false, false), TimeLimit);
+        let names: std::collections::BTreeSet<_> = Outcome::ALL.iter().map(|o| o.name()).collect();
+        assert_eq!(names.len(), Outcome::ALL.len(), "one figure per outcome");
     }
 }

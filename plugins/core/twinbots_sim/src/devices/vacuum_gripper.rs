@@ -1,7 +1,9 @@
 //! A suction gripper, in the manner of Webots' Connector as used for vacuum grippers: switched
 //! on, it seizes the nearest loose object whose surface lies within the cup's stroke in front
-//! of the cup face (the mount's +X axis), holding it by a rigid joint at the pose it had;
-//! switched off, it lets go. It holds objects only, never robot links or the fixed cell.
+//! of the cup face (the mount's +X axis) and holds it by a rigid joint; switched off, it lets
+//! go. It holds objects only, never robot links or the fixed cell. Unlike Webots' Connector,
+//! which holds an object at the pose it had, the cup draws it in against its face, as a bellows
+//! cup contracts under vacuum: where in the stroke it was seized does not change how it hangs.
 
 use bevy::math::Vec3;
 use bevy::prelude::*;
@@ -59,8 +61,8 @@ pub(crate) fn operate_vacuum_grippers(
             }
             (true, None) => {
                 let Some(state) = mount.state(&links, world) else { continue };
-                if let Some(object) = object_in_reach(world, state.pose, state.body, &gripper) {
-                    gripper.held = Some((object, hold(world, state.body, object)));
+                if let Some((object, surface)) = object_in_reach(world, state.pose, state.body, &gripper) {
+                    gripper.held = Some((object, hold(world, state.body, object, drawn_in(state.pose, surface))));
                 }
             }
             _ => {}
@@ -69,8 +71,9 @@ pub(crate) fn operate_vacuum_grippers(
 }
 
 /// The nearest loose object (a dynamic body in the environment group) whose surface lies in
-/// the cylinder of the cup's radius and stroke in front of the cup face.
-fn object_in_reach(world: &PhysicsWorld, cup: Pose, own_body: RigidBodyHandle, gripper: &VacuumGripper) -> Option<RigidBodyHandle> {
+/// the cylinder of the cup's radius and stroke in front of the cup face, and the point of its
+/// surface nearest the face's centre.
+fn object_in_reach(world: &PhysicsWorld, cup: Pose, own_body: RigidBodyHandle, gripper: &VacuumGripper) -> Option<(RigidBodyHandle, Vec3)> {
     let axis = cup.rotation * Vec3::X;
     // The reach cylinder; rapier's cylinders run along their local Y.
     let centre = cup.translation + axis * (gripper.stroke / 2.0);
@@ -84,17 +87,24 @@ fn object_in_reach(world: &PhysicsWorld, cup: Pose, own_body: RigidBodyHandle, g
     world
         .intersect_shape(region, &shape, filter)
         .filter_map(|(_, c)| {
-            let distance = c.shape().distance_to_point(c.position(), cup.translation, true);
-            Some((c.parent()?, distance))
+            let surface = c.shape().project_point(c.position(), cup.translation, false).point;
+            Some((c.parent()?, surface))
         })
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .map(|(body, _)| body)
+        .min_by(|a, b| a.1.distance(cup.translation).total_cmp(&b.1.distance(cup.translation)))
 }
 
-/// A rigid joint between the cup's body and the object, at their current relative pose.
-fn hold(world: &mut PhysicsWorld, cup_body: RigidBodyHandle, object: RigidBodyHandle) -> ImpulseJointHandle {
+/// How the cup moves an object it seizes (a world-frame motion): drawn in along the cup's
+/// axis until the surface nearest the face's centre touches it, as the bellows contract.
+fn drawn_in(cup: Pose, surface: Vec3) -> Pose {
+    let axis = cup.rotation * Vec3::X;
+    Pose::from_translation(-axis * (surface - cup.translation).dot(axis))
+}
+
+/// A rigid joint between the cup's body and the object, at their relative pose once the
+/// object is moved by `draw_in` (world frame): against the cup face.
+fn hold(world: &mut PhysicsWorld, cup_body: RigidBodyHandle, object: RigidBodyHandle, draw_in: Pose) -> ImpulseJointHandle {
     let relative = match (world.bodies.get(cup_body), world.bodies.get(object)) {
-        (Some(a), Some(b)) => a.position().inv_mul(b.position()),
+        (Some(a), Some(b)) => a.position().inv_mul(&(draw_in * *b.position())),
         _ => Pose::IDENTITY,
     };
     let joint = GenericJointBuilder::new(JointAxesMask::LOCKED_FIXED_AXES)
