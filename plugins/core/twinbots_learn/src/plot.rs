@@ -47,6 +47,18 @@ fn write_png(path: &Path, draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters
     Ok(())
 }
 
+/// The series' legend, boxed, at `position`.
+fn draw_legend<'a, X: Ranged, Y: Ranged>(chart: &mut ChartContext<'a, BitMapBackend<'a>, Cartesian2d<X, Y>>, position: SeriesLabelPosition) -> anyhow::Result<()> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .position(position)
+        .draw()?;
+    Ok(())
+}
+
 /// Draws mean episode reward (and its min–max band over the last 100 episodes) against
 /// timesteps into `path`, written atomically, with the success rate on a second axis when the
 /// task reports one, periodic evaluations as points, and the solved threshold on the axis its
@@ -152,13 +164,7 @@ pub fn learning_curve(
                     .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
             }
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .position(SeriesLabelPosition::UpperLeft)
-            .draw()?;
+        draw_legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
         Ok(())
     })
 }
@@ -206,13 +212,7 @@ pub fn seed_band(
                 .label("solved threshold")
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .position(SeriesLabelPosition::LowerRight)
-            .draw()?;
+        draw_legend(&mut chart, SeriesLabelPosition::LowerRight)?;
         Ok(())
     })
 }
