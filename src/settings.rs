@@ -360,6 +360,8 @@ mod tests {
         "sac.hidden", "sac.normalize_observations", "sac.log_interval", "sac.her_goals", "sac.typo",
         "randomization.start_window", "randomization.action_probability", "randomization.mass_scale", "randomization.friction",
         "randomization.motor_strength", "randomization.sensor_noise", "randomization.action_latency", "randomization.typo",
+        "randomization.visual.lights", "randomization.visual.light_intensity", "randomization.visual.field_of_view",
+        "randomization.visual.ambient", "randomization.visual.textures", "randomization.visual.typo",
     ];
     const VALUES: &[&str] = &[
         "0", "1", "-1", "2", "3", "64", "4096", "4097", "18446744073709551615", "-9223372036854775808", "0.5", "1e-300", "1e300",

@@ -26,16 +26,6 @@ pub struct Arenas {
     frames: Option<Frames>,
 }
 
-/// The `[randomization]` table of a TOML text (the file `twinbots train --config` reads; its
-/// other settings are training settings and are not used here).
-fn randomization(config: &str) -> anyhow::Result<Randomization> {
-    let table: toml::Table = toml::from_str(config).map_err(|e| anyhow::anyhow!("config is not valid TOML: {e}"))?;
-    let Some(section) = table.get("randomization") else { return Ok(Randomization::default()) };
-    let r: Randomization = section.clone().try_into().map_err(|e| anyhow::anyhow!("config [randomization]: {e}"))?;
-    r.validate()?;
-    Ok(r)
-}
-
 impl Arenas {
     fn env(&mut self) -> PyResult<&mut AppVecEnv> {
         self.env
@@ -95,7 +85,7 @@ impl Arenas {
                 )));
             }
         };
-        let randomization = config.map(randomization).transpose().map_err(value_error)?;
+        let randomization = config.map(Randomization::from_config).transpose().map_err(value_error)?;
         let twin = twinbots::twin::Twin::of_files(&entry, calibration.as_deref(), log.as_deref()).map_err(value_error)?;
         if let Some(r) = &randomization {
             CalibrationSetting::check_randomization(twin.calibration.as_ref(), r).map_err(value_error)?;

@@ -90,3 +90,30 @@ def test_rgb_array_renders_or_says_why():
     envs = twinbots.make_vec("cartpole", num_envs=2, seed=0, render_mode="rgb_array")
     envs.reset(seed=0)
     assert envs.render().shape == (480, 640, 3)
+
+
+def test_visual_randomization_gives_each_episode_a_seeded_look():
+    def frames(config, seed):
+        try:
+            env = gym.make("twinbots/ur5e-v0", render_mode="rgb_array", width=96, height=72, config=config)
+        except RuntimeError as e:
+            if os.environ.get("TWINBOTS_REQUIRE_ADAPTER", "0") not in ("", "0"):
+                raise
+            pytest.skip(f"no graphics adapter here: {e}")
+        out = []
+        for episode in range(2):
+            env.reset(seed=seed if episode == 0 else None)
+            out.append(env.render())
+        env.close()
+        return out
+
+    visual = {"visual": {"textures": ["plain", "checker"], "lights": [1, 2]}}
+    first, second = frames(visual, 3)
+    again = frames(visual, 3)
+    np.testing.assert_array_equal(first, again[0])  # same seed, same look, same frame
+    np.testing.assert_array_equal(second, again[1])
+    assert not np.array_equal(first, second), "a new episode, a new look"
+    plain = frames(None, 3)[0]
+    assert not np.array_equal(first, plain), "randomized against the plain twin"
+    with pytest.raises(ValueError, match="randomization.visual.field_of_view"):
+        gym.make("twinbots/ur5e-v0", config={"visual": {"field_of_view": 120.0}})

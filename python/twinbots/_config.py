@@ -1,8 +1,10 @@
 """`config=`: domain randomization as in `twinbots train --config` (its `[randomization]`
-table), given as a TOML file, TOML text, or a dict of the table's entries."""
+table), given as a TOML file, TOML text, or a dict of the table's entries (sub-tables as
+dicts: `{"visual": {"lights": [1, 2]}}`)."""
 
 from __future__ import annotations
 
+import json
 import os
 from typing import Union
 
@@ -14,9 +16,13 @@ def _toml_value(v) -> str:
         return "true" if v else "false"
     if isinstance(v, (int, float)):
         return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, (str, os.PathLike)):
+        return json.dumps(os.fspath(v))  # a TOML basic string: JSON's escapes are TOML's
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise ValueError(f"config: unsupported value {v!r} (numbers and [low, high] lists only)")
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    raise ValueError(f"config: unsupported value {v!r} (numbers, strings, lists and tables only)")
 
 
 def config_text(config: Config) -> str | None:

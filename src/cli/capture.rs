@@ -3,14 +3,18 @@
 //! right after physics step `i` (frame 0: the start), so it shows that step.
 
 use anyhow::Context;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use twinbots_render::{Framing, Renderer, View};
 use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_learn::RunDir;
+use twinbots_sim::Look;
 use twinbots_task::AppVecEnv;
+use twinbots_task::randomization::{Randomization, RandomizationPlugin};
 
 use crate::registry::{self, RobotEntry};
+use twinbots::settings::CalibrationSetting;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -39,6 +43,10 @@ pub struct Args {
     /// Render the twin calibrated by this file (`twinbots identify`'s calibration.toml).
     #[arg(long)]
     pub calibration: Option<std::path::PathBuf>,
+    /// Domain randomization from this run configuration's `[randomization]` table (with
+    /// `[randomization.visual]`: each episode's look, recorded in looks.jsonl beside the frames).
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
     /// Also write arena 0's latest episode (the running one at the last frame) as a robot log
     /// (.mcap or .csv).
     #[arg(long)]
@@ -47,8 +55,15 @@ pub struct Args {
 
 /// `twinbots capture`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, model, frames, every, size, camera, seed, task, out, calibration, log } = args;
-    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out, calibration, log })
+    let Args { robot, model, frames, every, size, camera, seed, task, out, calibration, config, log } = args;
+    let randomization = match config {
+        Some(path) => {
+            let text = std::fs::read_to_string(&path).with_context(|| format!("--config {}", path.display()))?;
+            Randomization::from_config(&text).with_context(|| format!("--config {}", path.display()))?
+        }
+        None => Randomization::default(),
+    };
+    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out, calibration, randomization, log })
 }
 
 /// A named camera of a robot's cell.
@@ -70,6 +85,8 @@ pub struct Recorder {
     renderer: Renderer,
     out: PathBuf,
     pub written: usize,
+    /// The look of the latest frame, when the arena has one (visual randomization).
+    look: Option<Look>,
 }
 
 impl Recorder {
@@ -77,12 +94,22 @@ impl Recorder {
         std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
         let mut renderer = Renderer::new(size.0, size.1)?;
         renderer.set_view(view);
-        Ok(Self { renderer, out: out.to_path_buf(), written: 0 })
+        Ok(Self { renderer, out: out.to_path_buf(), written: 0, look: None })
     }
 
-    /// Renders arena 0 of `env` as it is now into `frame_<step>.png`.
+    /// Renders arena 0 of `env` as it is now into `frame_<step>.png`. A new look of the arena
+    /// (visual randomization) is appended to `looks.jsonl` first: `{"frame": step, "look": …}`,
+    /// in force from that frame on.
     pub fn frame(&mut self, env: &mut AppVecEnv, step: u64) -> anyhow::Result<PathBuf> {
         let arena = env.arenas()[0];
+        let look = env.app().world().get::<Look>(arena);
+        if look.is_some() && look != self.look.as_ref() {
+            self.look = look.cloned();
+            let line = serde_json::json!({ "frame": step, "look": self.look });
+            let path = self.out.join("looks.jsonl");
+            let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&path).with_context(|| path.display().to_string())?;
+            writeln!(file, "{line}").with_context(|| path.display().to_string())?;
+        }
         self.renderer.sync(env.app_mut().world_mut(), arena);
         let rgb = self.renderer.render()?;
         let path = self.out.join(format!("frame_{step:05}.png"));
@@ -103,6 +130,7 @@ pub struct CaptureArgs {
     pub task: Option<String>,
     pub out: PathBuf,
     pub calibration: Option<PathBuf>,
+    pub randomization: Randomization,
     pub log: Option<PathBuf>,
 }
 
@@ -112,7 +140,12 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     let view = camera(&entry, &args.camera)?;
     let model = args.model.as_deref().map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
     let mut app = entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?;
-    twinbots::twin::Twin::of_files(&entry, args.calibration.as_deref(), args.log.as_deref())?.configure(&mut app, &entry)?;
+    let twin = twinbots::twin::Twin::of_files(&entry, args.calibration.as_deref(), args.log.as_deref())?;
+    CalibrationSetting::check_randomization(twin.calibration.as_ref(), &args.randomization)?;
+    twin.configure(&mut app, &entry)?;
+    if !args.randomization.is_off() {
+        app.add_plugins(RandomizationPlugin(args.randomization.clone()));
+    }
     let mut env = AppVecEnv::new(app);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;

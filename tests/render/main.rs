@@ -3,6 +3,7 @@
 
 mod camera;
 mod capture;
+mod look;
 
 use twinbots_render::{RenderError, Renderer, adapter_required};
 

@@ -1,5 +1,7 @@
 //! Domain randomization: physical parameters per episode, d_randomize on actions, latency.
 
+use twinbots_sim::Look;
+use twinbots_task::randomization::visual::VisualRandomization;
 use twinbots_task::randomization::{FitSpread, Randomization, RandomizationPlugin};
 use twinbots_api::VecEnv;
 use twinbots_task::AppVecEnv;
@@ -133,4 +135,94 @@ fn randomization_centred_on_a_calibration_draws_per_arena_around_the_fit() {
     for d in &all {
         assert!((d[3] - fitted_trace - (d[1] - 0.002)).abs() < 1e-6, "inertia {} for armature {} (fitted: {fitted_trace})", d[3], d[1]);
     }
+}
+
+/// Each arena's look after each of `resets` resets, with arena 0's observations.
+fn looks(visual: Option<VisualRandomization>, seed: u64, resets: usize) -> (Vec<Vec<Option<Look>>>, Vec<Vec<f32>>) {
+    let mut app = cartpole::headless_app(2, seed);
+    app.add_plugins(RandomizationPlugin(Randomization { visual, sensor_noise: 0.01, ..Default::default() }));
+    let mut env = AppVecEnv::new(app);
+    let mut obs = Vec::new();
+    let looks = (0..resets)
+        .map(|i| {
+            obs.push(env.reset(Some(seed + i as u64)).unwrap());
+            for _ in 0..5 {
+                obs.push(env.step(&[1.0, 0.0]).unwrap().obs);
+            }
+            env.arenas().iter().map(|&a| env.app().world().get::<Look>(a).cloned()).collect()
+        })
+        .collect();
+    (looks, obs)
+}
+
+#[test]
+fn visual_randomization_draws_a_look_per_arena_and_episode_from_the_seed_alone() {
+    let visual = VisualRandomization::default();
+    let (draws, obs) = looks(Some(visual.clone()), 4, 3);
+    assert_eq!(draws, looks(Some(visual.clone()), 4, 3).0, "the same seed draws the same looks");
+    let all: Vec<Look> = draws.iter().flatten().map(|l| l.clone().expect("every arena has a look")).collect();
+    for (i, a) in all.iter().enumerate() {
+        for b in &all[i + 1..] {
+            assert_ne!(a, b, "each arena and episode looks different");
+        }
+    }
+    let look = &all[0];
+    let names: Vec<&str> = look.surfaces.keys().map(String::as_str).collect();
+    assert!(names.contains(&"floor") && names.iter().any(|n| n.starts_with("pole/")), "{names:?}");
+    assert!((1..=3).contains(&look.lights.len()), "{:?}", look.lights);
+    assert!(look.lights.iter().all(|l| (0.3..=0.9).contains(&l.intensity) && l.direction[2] < 0.0), "lights shine down: {:?}", look.lights);
+    assert!(look.camera.offset.iter().all(|d| d.abs() <= 0.01) && look.camera.fov.abs() <= 5f32.to_radians());
+    // The look comes from a stream of its own: switching it on changes no trajectory.
+    let (none, plain) = looks(None, 4, 3);
+    assert!(none.iter().flatten().all(Option::is_none));
+    assert_eq!(obs, plain, "the physics (with sensor noise) draws the same with and without looks");
+    // reset(seed) restarts the looks as it restarts the physics; a reset without one goes on.
+    let mut app = cartpole::headless_app(1, 0);
+    app.add_plugins(RandomizationPlugin(Randomization { visual: Some(visual.clone()), ..Default::default() }));
+    let mut env = AppVecEnv::new(app);
+    let mut look_after = |seed: Option<u64>| {
+        env.reset(seed).unwrap();
+        env.app().world().get::<Look>(env.arenas()[0]).cloned().unwrap()
+    };
+    let first = look_after(Some(9));
+    assert_ne!(look_after(None), first);
+    assert_eq!(look_after(Some(9)), first);
+    // Only the surfaces asked for change.
+    let floor_only = VisualRandomization { surfaces: vec!["floor".into()], ..visual };
+    let (draws, _) = looks(Some(floor_only), 4, 1);
+    assert_eq!(draws[0][0].as_ref().unwrap().surfaces.keys().collect::<Vec<_>>(), ["floor"]);
+}
+
+#[test]
+fn bad_visual_randomization_is_a_clear_error_naming_the_key() {
+    let dir = std::env::temp_dir().join(format!("twinbots-visual-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let not_png = dir.join("notes.png");
+    std::fs::write(&not_png, "not an image").unwrap();
+    let good = dir.join("good.png");
+    image::RgbImage::from_pixel(4, 4, image::Rgb([10, 200, 30])).save(&good).unwrap();
+    let check = |text: String| Randomization::from_config(&text).map(|_| ()).map_err(|e| format!("{e:#}"));
+    let images = |paths: &[&std::path::Path]| {
+        let list: Vec<String> = paths.iter().map(|p| format!("{:?}", p.display().to_string())).collect();
+        format!("[randomization.visual]\ntextures = [\"image\"]\nimages = [{}]\n", list.join(", "))
+    };
+    assert_eq!(check(images(&[&good])), Ok(()));
+    let err = check(images(&[&good, &dir.join("missing.png")])).unwrap_err();
+    assert!(err.contains("randomization.visual.images[1]") && err.contains("missing.png"), "{err}");
+    let err = check(images(&[&not_png])).unwrap_err();
+    assert!(err.contains("randomization.visual.images[0]") && err.contains("not a PNG"), "{err}");
+    for (text, key) in [
+        ("light_intensity = [-1.0, 0.5]", "randomization.visual.light_intensity"),
+        ("field_of_view = 95.0", "randomization.visual.field_of_view"),
+        ("field_of_view = -1.0", "randomization.visual.field_of_view"),
+        ("lights = [2, 11]", "randomization.visual.lights"),
+        ("surfaces = [\"ceiling\"]", "ceiling"),
+        ("textures = [\"marble\"]", "marble"),
+        ("textures = [\"image\"]", "randomization.visual.images"),
+        ("ambiance = [0.1, 0.2]", "ambiance"),
+    ] {
+        let err = check(format!("[randomization.visual]\n{text}\n")).unwrap_err();
+        assert!(err.contains(key), "{text}: {err}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }

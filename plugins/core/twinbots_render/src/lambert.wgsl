@@ -1,24 +1,99 @@
-// Diffuse (Lambert) shading: the scene's first directional light plus a constant ambient share.
-// See shading.rs for why the twin is not drawn with Bevy's PBR material.
+// Diffuse (Lambert) shading: the scene's directional lights, with their colours and
+// intensities, over the ambient light; the albedo is a colour, a pattern laid out in metres
+// (the mesh's UVs are metres, see scene.rs) or a tiled image. PATTERN (0 plain, 1 checker,
+// 2 noise, 3 gradient, 4 image) and LIGHTS (how many) are compiled in: see shading.rs.
 #import bevy_pbr::forward_io::VertexOutput
 #import bevy_pbr::mesh_view_bindings::lights
 
 struct LambertMaterial {
     // Linear RGB(A).
     color: vec4<f32>,
+    color2: vec4<f32>,
+    kind: u32,
+    size: f32,
 }
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> material: LambertMaterial;
+@group(#{MATERIAL_BIND_GROUP}) @binding(1) var image: texture_2d<f32>;
+@group(#{MATERIAL_BIND_GROUP}) @binding(2) var image_sampler: sampler;
 
-// The share of a surface's colour seen where the sun does not reach it.
-const AMBIENT: f32 = 0.4;
+fn hash(p: vec2<f32>) -> f32 {
+    return fract(sin(dot(p, vec2(127.1, 311.7))) * 43758.5453);
+}
+
+// Value noise in [0, 1]: smooth between random values at integer points.
+fn value_noise(p: vec2<f32>) -> f32 {
+    let i = floor(p);
+    let f = fract(p);
+    let u = f * f * (3.0 - 2.0 * f);
+    let a = mix(hash(i), hash(i + vec2(1.0, 0.0)), u.x);
+    let b = mix(hash(i + vec2(0.0, 1.0)), hash(i + vec2(1.0, 1.0)), u.x);
+    return mix(a, b, u.y);
+}
+
+fn albedo(uv: vec2<f32>) -> vec3<f32> {
+    let p = uv / material.size;
+    let a = material.color.rgb;
+    let b = material.color2.rgb;
+#if PATTERN == 1
+    let cell = floor(p);
+    return select(a, b, (i32(cell.x) + i32(cell.y)) % 2 != 0);
+#else if PATTERN == 2
+    return mix(a, b, value_noise(p));
+#else if PATTERN == 3
+    return mix(a, b, abs(fract(p.x * 0.5) * 2.0 - 1.0));
+#else if PATTERN == 4
+    return a * textureSample(image, image_sampler, p).rgb;
+#else
+    return a;
+#endif
+}
+
+// What directional light `i` adds on a surface facing `normal`.
+fn sun(i: u32, normal: vec3<f32>) -> vec3<f32> {
+    let towards = lights.directional_lights[i].direction_to_light;
+    return lights.directional_lights[i].color.rgb * max(dot(normal, towards), 0.0);
+}
 
 @fragment
 fn fragment(in: VertexOutput) -> @location(0) vec4<f32> {
     let normal = normalize(in.world_normal);
-    var sunlit = 0.0;
-    if lights.n_directional_lights > 0u {
-        sunlit = max(dot(normal, lights.directional_lights[0].direction_to_light), 0.0);
-    }
-    return vec4(material.color.rgb * (AMBIENT + (1.0 - AMBIENT) * sunlit), material.color.a);
+    var light = lights.ambient_color.rgb;
+    // Constant indices, as many as the scene has lights (Look::MAX_LIGHTS at most).
+#if LIGHTS > 0
+    light += sun(0u, normal);
+#endif
+#if LIGHTS > 1
+    light += sun(1u, normal);
+#endif
+#if LIGHTS > 2
+    light += sun(2u, normal);
+#endif
+#if LIGHTS > 3
+    light += sun(3u, normal);
+#endif
+#if LIGHTS > 4
+    light += sun(4u, normal);
+#endif
+#if LIGHTS > 5
+    light += sun(5u, normal);
+#endif
+#if LIGHTS > 6
+    light += sun(6u, normal);
+#endif
+#if LIGHTS > 7
+    light += sun(7u, normal);
+#endif
+#if LIGHTS > 8
+    light += sun(8u, normal);
+#endif
+#if LIGHTS > 9
+    light += sun(9u, normal);
+#endif
+#ifdef VERTEX_UVS_A
+    let uv = in.uv;
+#else
+    let uv = vec2(0.0);
+#endif
+    return vec4(albedo(uv) * light, 1.0);
 }

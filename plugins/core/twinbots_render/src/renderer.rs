@@ -19,13 +19,11 @@ use bevy::render::texture::GpuImage;
 use bevy::render::settings::{InstanceFlags, RenderCreation, WgpuSettings};
 use bevy::render::{RenderApp, RenderPlugin};
 use bevy::window::ExitCondition;
+use twinbots_sim::look::CameraJitter;
 use twinbots_sim::rapier::math::Pose;
 
 use crate::scene;
-use crate::shading::{LambertMaterial, ShadingPlugin};
-
-/// The ground plane's colour (sRGB).
-pub const GROUND_COLOR: Color = Color::srgb(0.45, 0.47, 0.45);
+use crate::shading::ShadingPlugin;
 
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
@@ -91,6 +89,17 @@ impl View {
         Self { transform, fov_y }
     }
 
+    /// This view moved by a look's camera jitter: the eye by its offset, the orientation by its
+    /// rotation (in the camera's own frame), the field of view by its change, kept inside
+    /// (1°, 179°).
+    pub fn jittered(&self, jitter: &CameraJitter) -> Self {
+        let mut transform = self.transform;
+        transform.translation += scene::point_to_bevy(Vec3::from_array(jitter.offset));
+        transform.rotation *= Quat::from_scaled_axis(Vec3::from_array(jitter.rotation));
+        let fov_y = (self.fov_y + jitter.fov).clamp(1f32.to_radians(), 179f32.to_radians());
+        Self { transform, fov_y }
+    }
+
     /// Pixel coordinates (x right, y down) of a physics point in a `width × height` image, or
     /// `None` behind the camera.
     pub fn project(&self, point: Vec3, width: u32, height: u32) -> Option<Vec2> {
@@ -120,6 +129,11 @@ pub struct Renderer {
     fresh_meshes: bool,
     /// Where frames are copied to be read (made on the first frame).
     readback_buffer: Option<Buffer>,
+    /// The camera as set, before the shown look's jitter.
+    view: View,
+    /// Why the last sync could not show the arena (an image texture that does not read): the
+    /// next frame fails with it.
+    sync_error: Option<RenderError>,
 }
 
 impl Renderer {
@@ -164,31 +178,43 @@ impl Renderer {
             Transform::from_xyz(0.0, 1.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
             MainCamera,
         ));
-        world.spawn((
-            DirectionalLight { illuminance: 8000.0, shadow_maps_enabled: false, ..default() },
-            Transform::from_xyz(2.0, 6.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
-        ));
-        // The ground: a large plane at physics z = 0.
-        let ground = world.resource_mut::<Assets<Mesh>>().add(Plane3d::default().mesh().size(40.0, 40.0));
-        let grey = world.resource_mut::<Assets<LambertMaterial>>().add(LambertMaterial::new(GROUND_COLOR));
-        world.spawn((Mesh3d(ground), MeshMaterial3d(grey)));
-        Ok(Self { app, width, height, fresh_meshes: true, readback_buffer: None })
+        let view = View { transform: Transform::from_xyz(0.0, 1.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y), fov_y: PerspectiveProjection::default().fov };
+        Ok(Self { app, width, height, fresh_meshes: true, readback_buffer: None, view, sync_error: None })
     }
 
-    /// Creates (once) and poses the render entities of `arena` from the sim world.
+    /// Creates (once) and poses the render entities of `arena` from the sim world, and shows
+    /// its look (lights, surfaces, camera jitter).
     pub fn sync(&mut self, sim: &mut World, arena: Entity) {
-        if scene::sync_into(self.app.world_mut(), sim, arena) {
-            self.fresh_meshes = true;
+        match scene::sync_into(self.app.world_mut(), sim, arena) {
+            Ok(fresh) => self.fresh_meshes |= fresh,
+            Err(e) => self.sync_error = Some(e),
         }
     }
 
-    /// Points the camera.
+    /// Points the camera (the shown look's jitter is applied on top).
     pub fn set_view(&mut self, view: View) {
+        self.view = view;
+    }
+
+    /// The camera of the next frame: the view set, jittered by the shown look.
+    pub fn camera(&self) -> View {
+        match self.app.world().get_resource::<scene::Mirror>().and_then(|m| m.look.as_ref()) {
+            Some(look) => self.view.jittered(&look.camera),
+            None => self.view,
+        }
+    }
+
+    fn place_camera(&mut self) {
+        let view = self.camera();
         let world = self.app.world_mut();
         let mut cams = world.query_filtered::<(&mut Transform, &mut Projection), With<MainCamera>>();
+        // Only on change: a changed projection makes Bevy rebuild the view's state.
         for (mut t, mut p) in cams.iter_mut(world) {
-            *t = view.transform;
-            if let Projection::Perspective(pp) = &mut *p {
+            t.set_if_neq(view.transform);
+            if let Projection::Perspective(pp) = &*p
+                && pp.fov != view.fov_y
+                && let Projection::Perspective(pp) = &mut *p
+            {
                 pp.fov = view.fov_y;
             }
         }
@@ -196,6 +222,10 @@ impl Renderer {
 
     /// Renders the current scene and returns RGB8 pixels, row-major from the top-left.
     pub fn render(&mut self) -> Result<Vec<u8>, RenderError> {
+        if let Some(e) = self.sync_error.take() {
+            return Err(e);
+        }
+        self.place_camera();
         if std::mem::take(&mut self.fresh_meshes) {
             self.settle()?;
         }

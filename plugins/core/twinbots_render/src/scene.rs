@@ -1,19 +1,28 @@
 //! Mirroring an arena of the sim app into the render app: a mesh entity per link visual and per
 //! static box, posed from the physics world. Physics is Z up (URDF); Bevy is Y up, so every pose
-//! is turned by −90° about X on the way in.
+//! is turned by −90° about X on the way in. The arena's [`Look`] (lights, surface colours and
+//! textures) is applied here too; meshes carry UVs in metres so patterns keep their scale.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::f32::consts::FRAC_PI_2;
+use std::path::{Path, PathBuf};
 
 use bevy::asset::RenderAssetUsages;
-use bevy::mesh::{Indices, PrimitiveTopology};
+use bevy::image::{ImageAddressMode, ImageSampler, ImageSamplerDescriptor};
+use bevy::light::GlobalAmbientLight;
+use bevy::mesh::{Indices, PrimitiveTopology, VertexAttributeValues};
 use bevy::prelude::*;
+use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
+use twinbots_sim::look::{Surface, Texture};
 use twinbots_sim::rapier::math::Pose;
-use twinbots_sim::rapier::prelude::ShapeType;
 use twinbots_sim::urdf::{Shape, Visual};
-use twinbots_sim::{Arena, InArena, Link, Visuals};
+use twinbots_sim::{Arena, InArena, Link, Look, Visuals};
 
+use crate::RenderError;
 use crate::shading::LambertMaterial;
+
+/// The ground plane's colour (sRGB).
+pub const GROUND_COLOR: [f32; 3] = [0.45, 0.47, 0.45];
 
 /// The rotation taking Z-up physics coordinates to Bevy's Y-up.
 pub fn z_up_to_y_up() -> Quat {
@@ -31,17 +40,26 @@ pub fn point_to_bevy(p: Vec3) -> Vec3 {
     z_up_to_y_up() * p
 }
 
-/// Render entities of the mirrored arena, by (sim link entity, visual index).
+/// Render entities of the mirrored arena, by (sim link entity, visual index), and how its
+/// surfaces and lights look.
 #[derive(Resource, Default)]
 pub struct Mirror {
     pub links: HashMap<(Entity, usize), Entity>,
     pub statics: Vec<Entity>,
     pub arena: Option<Entity>,
+    /// Every surface's material and own colour (sRGB), by its `Look` name.
+    surfaces: HashMap<String, (Handle<LambertMaterial>, [f32; 3])>,
+    /// The look shown; `None`: none yet, or new surfaces need it.
+    pub look: Option<Look>,
+    lights: Vec<Entity>,
+    images: HashMap<PathBuf, Handle<Image>>,
 }
 
 /// What the render world needs to know about one visual, read from the sim world.
 pub struct VisualPose {
     pub key: (Entity, usize),
+    /// Its `Look` surface name.
+    pub surface: String,
     pub visual: Visual,
     pub pose: Pose,
 }
@@ -55,34 +73,25 @@ pub fn read_visuals(sim: &mut World, arena: Entity) -> Vec<VisualPose> {
         .filter(|(_, _, _, a)| a.0 == arena)
         .map(|(e, l, v, _)| (e, l.clone(), v.0.clone()))
         .collect();
+    let names: HashMap<Entity, String> = Look::link_names(items.iter().map(|(e, l, _)| (*e, l.name.as_str()))).into_iter().collect();
     let Some(arena) = sim.get::<Arena>(arena) else { return Vec::new() };
     let mut out = Vec::new();
     for (entity, link, visuals) in items {
+        let name = &names[&entity];
         let Some(body) = arena.world.bodies.get(link.body) else { continue };
         let link_pose = *body.position() * link.offset;
         for (i, visual) in visuals.into_iter().enumerate() {
             let pose = link_pose * visual.geometry.origin;
-            out.push(VisualPose { key: (entity, i), visual, pose });
+            out.push(VisualPose { key: (entity, i), surface: Look::link_surface(name, i), visual, pose });
         }
     }
     out
 }
 
-/// Static boxes of the arena (walls, tables) as (half extents, pose).
-pub fn read_static_boxes(sim: &World, arena: Entity) -> Vec<(Vec3, Pose)> {
-    let Some(arena) = sim.get::<Arena>(arena) else { return Vec::new() };
-    arena
-        .world
-        .colliders
-        .iter()
-        .filter(|(_, c)| c.parent().is_none() && c.shape().shape_type() == ShapeType::Cuboid)
-        .filter_map(|(_, c)| c.shape().as_cuboid().map(|b| (b.half_extents, *c.position())))
-        .collect()
-}
-
-/// A Bevy mesh for a URDF shape. Cylinders are turned so their axis is the visual's Z.
+/// A Bevy mesh for a URDF shape, with UVs in metres. Cylinders are turned so their axis is the
+/// visual's Z.
 pub fn mesh_for(shape: &Shape) -> (Mesh, Transform) {
-    match shape {
+    let (mesh, local) = match shape {
         Shape::Box { half_extents: h } => (Cuboid::new(2.0 * h.x, 2.0 * h.y, 2.0 * h.z).into(), Transform::IDENTITY),
         Shape::Cylinder { radius, length } => (
             Cylinder::new(*radius, *length).into(),
@@ -98,37 +107,74 @@ pub fn mesh_for(shape: &Shape) -> (Mesh, Transform) {
             mesh.duplicate_vertices();
             (mesh.with_computed_flat_normals(), Transform::IDENTITY)
         }
-    }
+    };
+    (metric_uvs(mesh), local)
 }
 
-/// Creates (once) and poses, in `render`, the entities of `arena` of the `sim` world: a mesh
-/// per link visual and per static box. Returns whether new meshes were made.
-pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> bool {
+/// Replaces a mesh's UVs by box projection in metres: each vertex takes the two coordinates of
+/// its position across its normal's main axis. Patterns then have the same scale on every
+/// surface (a primitive's own UVs stretch one image over any size).
+pub fn metric_uvs(mut mesh: Mesh) -> Mesh {
+    let (Some(VertexAttributeValues::Float32x3(positions)), Some(VertexAttributeValues::Float32x3(normals))) =
+        (mesh.attribute(Mesh::ATTRIBUTE_POSITION), mesh.attribute(Mesh::ATTRIBUTE_NORMAL))
+    else {
+        return mesh;
+    };
+    let uvs: Vec<[f32; 2]> = positions
+        .iter()
+        .zip(normals)
+        .map(|(p, n)| {
+            let a = n.map(f32::abs);
+            if a[0] >= a[1] && a[0] >= a[2] {
+                [p[1], p[2]]
+            } else if a[1] >= a[2] {
+                [p[0], p[2]]
+            } else {
+                [p[0], p[1]]
+            }
+        })
+        .collect();
+    mesh.insert_attribute(Mesh::ATTRIBUTE_UV_0, uvs);
+    mesh
+}
+
+/// Creates (once) and poses, in `render`, the entities of `arena` of the `sim` world: the
+/// floor, a mesh per link visual and per static box; shows the arena's [`Look`] (the default
+/// look when it has none). Returns whether new meshes were made; an image texture that cannot
+/// be read is an error.
+pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<bool, RenderError> {
     let visuals = read_visuals(sim, arena);
-    let boxes = read_static_boxes(sim, arena);
+    let boxes: Vec<(Vec3, Pose)> = sim.get::<Arena>(arena).map(|a| a.static_boxes().collect()).unwrap_or_default();
+    let look = sim.get::<Look>(arena).cloned().unwrap_or_default();
+    let mut fresh = false;
     if !render.contains_resource::<Mirror>() {
         render.init_resource::<Mirror>();
+        // The ground: a large plane at physics z = 0.
+        let ground = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Plane3d::default().mesh().size(40.0, 40.0).into()));
+        spawn_surface(render, "floor".into(), ground, GROUND_COLOR, Transform::IDENTITY, None);
+        fresh = true;
     }
-    let mut fresh = false;
     if render.resource::<Mirror>().arena != Some(arena) {
         let old: Vec<Entity> = {
-            let m = render.resource::<Mirror>();
-            m.links.values().chain(m.statics.iter()).copied().collect()
+            let mut mirror = render.resource_mut::<Mirror>();
+            let m = &mut *mirror;
+            m.surfaces.retain(|name, _| name == "floor");
+            m.look = None;
+            m.arena = Some(arena);
+            m.links.drain().map(|(_, e)| e).chain(m.statics.drain(..)).collect()
         };
         for e in old {
             render.despawn(e);
         }
-        let mut mirror = Mirror { arena: Some(arena), ..default() };
-        for (half, pose) in boxes {
-            let mesh = render.resource_mut::<Assets<Mesh>>().add(Cuboid::new(2.0 * half.x, 2.0 * half.y, 2.0 * half.z));
-            let mat = render.resource_mut::<Assets<LambertMaterial>>().add(LambertMaterial::new(Color::srgb(0.6, 0.55, 0.5)));
-            mirror.statics.push(render.spawn((Mesh3d(mesh), MeshMaterial3d(mat), to_bevy(pose))).id());
+        for (i, (half, pose)) in boxes.into_iter().enumerate() {
+            let mesh = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Cuboid::new(2.0 * half.x, 2.0 * half.y, 2.0 * half.z).into()));
+            let e = spawn_surface(render, Look::static_surface(i), mesh, [0.6, 0.55, 0.5], to_bevy(pose), None);
+            render.resource_mut::<Mirror>().statics.push(e);
         }
-        render.insert_resource(mirror);
         fresh = true;
     }
     // Links that left the sim (despawned) leave the picture too.
-    let live: std::collections::HashSet<(Entity, usize)> = visuals.iter().map(|v| v.key).collect();
+    let live: HashSet<(Entity, usize)> = visuals.iter().map(|v| v.key).collect();
     let gone: Vec<((Entity, usize), Entity)> = render
         .resource::<Mirror>()
         .links
@@ -147,10 +193,9 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> bool {
             None => {
                 let (mesh, local) = mesh_for(&v.visual.geometry.shape);
                 let mesh = render.resource_mut::<Assets<Mesh>>().add(mesh);
-                let [r, g, b, a] = v.visual.rgba;
-                let mat = render.resource_mut::<Assets<LambertMaterial>>().add(LambertMaterial::new(Color::srgba(r, g, b, a)));
+                let [r, g, b, _] = v.visual.rgba;
                 let parent = render.spawn((Transform::default(), Visibility::default())).id();
-                render.spawn((Mesh3d(mesh), MeshMaterial3d(mat), local, ChildOf(parent)));
+                spawn_surface(render, v.surface, mesh, [r, g, b], local, Some(parent));
                 render.resource_mut::<Mirror>().links.insert(v.key, parent);
                 fresh = true;
                 parent
@@ -160,5 +205,93 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> bool {
             *t = to_bevy(v.pose);
         }
     }
-    fresh
+    if fresh || render.resource::<Mirror>().look.as_ref() != Some(&look) {
+        show(render, &look)?;
+    }
+    Ok(fresh)
+}
+
+/// A mesh entity with its own material, registered as the surface `name`.
+fn spawn_surface(render: &mut World, name: String, mesh: Handle<Mesh>, srgb: [f32; 3], local: Transform, parent: Option<Entity>) -> Entity {
+    let material = LambertMaterial::new(Color::srgb(srgb[0], srgb[1], srgb[2]));
+    let handle = render.resource_mut::<Assets<LambertMaterial>>().add(material);
+    let mut e = render.spawn((Mesh3d(mesh), MeshMaterial3d(handle.clone()), local));
+    if let Some(p) = parent {
+        e.insert(ChildOf(p));
+    }
+    let id = e.id();
+    render.resource_mut::<Mirror>().surfaces.insert(name, (handle, srgb));
+    id
+}
+
+/// Shows `look`: every surface's material, the lights and the ambient.
+fn show(render: &mut World, look: &Look) -> Result<(), RenderError> {
+    let surfaces: Vec<(String, Handle<LambertMaterial>, [f32; 3])> =
+        render.resource::<Mirror>().surfaces.iter().map(|(n, (h, c))| (n.clone(), h.clone(), *c)).collect();
+    for (name, handle, own) in surfaces {
+        let material = match look.surfaces.get(&name) {
+            Some(Surface { color, texture }) => {
+                let image = match texture {
+                    Texture::Image { path, .. } => Some(image_texture(render, path)?),
+                    _ => None,
+                };
+                LambertMaterial::textured(*color, texture, image)
+            }
+            None => LambertMaterial::new(Color::srgb(own[0], own[1], own[2])),
+        };
+        let lights = look.lights.len().min(Look::MAX_LIGHTS) as u32;
+        if let Some(mut m) = render.resource_mut::<Assets<LambertMaterial>>().get_mut(&handle) {
+            *m = LambertMaterial { lights, ..material };
+        }
+    }
+    let old = std::mem::take(&mut render.resource_mut::<Mirror>().lights);
+    for e in old {
+        render.despawn(e);
+    }
+    let lights: Vec<Entity> = look
+        .lights
+        .iter()
+        .take(Look::MAX_LIGHTS)
+        .map(|l| {
+            let [r, g, b] = l.color;
+            let towards = point_to_bevy(Vec3::from_array(l.direction));
+            let light = DirectionalLight { illuminance: l.intensity, color: Color::linear_rgb(r, g, b), shadow_maps_enabled: false, ..default() };
+            render.spawn((light, Transform::default().looking_to(towards, any_orthogonal(towards)))).id()
+        })
+        .collect();
+    let [r, g, b] = look.ambient;
+    render.insert_resource(GlobalAmbientLight { color: Color::linear_rgb(r, g, b), brightness: 1.0, ..default() });
+    let mut mirror = render.resource_mut::<Mirror>();
+    mirror.lights = lights;
+    mirror.look = Some(look.clone());
+    Ok(())
+}
+
+/// An up vector for `looking_to` that is never parallel to the direction.
+fn any_orthogonal(d: Vec3) -> Vec3 {
+    if d.normalize_or_zero().y.abs() > 0.99 { Vec3::Z } else { Vec3::Y }
+}
+
+/// An image file as a texture that repeats (loaded once per path).
+fn image_texture(render: &mut World, path: &Path) -> Result<Handle<Image>, RenderError> {
+    if let Some(h) = render.resource::<Mirror>().images.get(path) {
+        return Ok(h.clone());
+    }
+    let read = image::open(path).map_err(|e| RenderError::Failed(format!("image texture '{}': {e}", path.display())))?;
+    let rgba = read.to_rgba8();
+    let mut image = Image::new(
+        Extent3d { width: rgba.width(), height: rgba.height(), depth_or_array_layers: 1 },
+        TextureDimension::D2,
+        rgba.into_raw(),
+        TextureFormat::Rgba8UnormSrgb,
+        RenderAssetUsages::RENDER_WORLD,
+    );
+    image.sampler = ImageSampler::Descriptor(ImageSamplerDescriptor {
+        address_mode_u: ImageAddressMode::Repeat,
+        address_mode_v: ImageAddressMode::Repeat,
+        ..ImageSamplerDescriptor::linear()
+    });
+    let handle = render.resource_mut::<Assets<Image>>().add(image);
+    render.resource_mut::<Mirror>().images.insert(path.to_path_buf(), handle.clone());
+    Ok(handle)
 }

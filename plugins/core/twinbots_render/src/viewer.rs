@@ -9,7 +9,7 @@ use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
 use bevy::prelude::*;
 
 use crate::scene;
-use crate::shading::{LambertMaterial, ShadingPlugin};
+use crate::shading::ShadingPlugin;
 
 /// What the viewer shows and drives.
 pub trait ViewSource: 'static {
@@ -67,25 +67,12 @@ pub fn run(source: Box<dyn ViewSource>, title: &str, framing: crate::Framing) ->
 #[derive(Resource)]
 struct InitialFraming(crate::Framing);
 
-fn setup(
-    mut commands: Commands,
-    framing: Res<InitialFraming>,
-    mut meshes: ResMut<Assets<Mesh>>,
-    mut materials: ResMut<Assets<LambertMaterial>>,
-) {
+fn setup(mut commands: Commands, framing: Res<InitialFraming>) {
     let framing = framing.0;
     commands.spawn((
         Camera3d::default(),
         Transform::default(),
         Orbit { yaw: -0.3, pitch: 0.25, distance: framing.distance * 1.15, target: scene::point_to_bevy(framing.target) },
-    ));
-    commands.spawn((
-        DirectionalLight { illuminance: 8000.0, shadow_maps_enabled: false, ..default() },
-        Transform::from_xyz(2.0, 6.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
-    ));
-    commands.spawn((
-        Mesh3d(meshes.add(Plane3d::default().mesh().size(40.0, 40.0))),
-        MeshMaterial3d(materials.add(LambertMaterial::new(crate::renderer::GROUND_COLOR))),
     ));
 }
 
@@ -118,7 +105,9 @@ fn advance_and_mirror(world: &mut World) {
     }
     let running = source.0.advance(Duration::from_millis(25), paused, single_step);
     let arena = source.0.arena();
-    scene::sync_into(world, source.0.sim_world(), arena);
+    if let Err(e) = scene::sync_into(world, source.0.sim_world(), arena) {
+        error!("{e}");
+    }
     let title = format!("twinbots — {}{}", source.0.status(), if paused { " — paused (Space)" } else { "" });
     let mut windows = world.query::<&mut Window>();
     for mut w in windows.iter_mut(world) {

@@ -40,6 +40,9 @@ pub struct Arena {
     pub world: PhysicsWorld,
     /// The arena's random stream: a function of (seed, index) only.
     pub rng: ChaCha8Rng,
+    /// The seed `rng` started from (the latest [`Arena::reseed`]), and how many reseeds so far.
+    seed: u64,
+    reseeds: u64,
     initial: Option<Snapshot>,
     /// How the world changed since its devices last sampled (see `devices::DeviceSampling`).
     pub(crate) unsampled: WorldChanges,
@@ -77,6 +80,8 @@ impl Arena {
             index,
             world,
             rng: arena_rng(seed, index),
+            seed,
+            reseeds: 0,
             initial: None,
             unsampled: WorldChanges::default(),
         }
@@ -108,6 +113,16 @@ impl Arena {
                     InteractionTestMode::And,
                 )),
         )
+    }
+
+    /// The fixed boxes of the cell (tables, walls: parentless cuboids) as (half extents, pose),
+    /// in the world's collider order: what the renderer draws and `Look` names `static/<i>`.
+    pub fn static_boxes(&self) -> impl Iterator<Item = (Vec3, crate::rapier::math::Pose)> + '_ {
+        self.world
+            .colliders
+            .iter()
+            .filter(|(_, c)| c.parent().is_none() && c.shape().shape_type() == ShapeType::Cuboid)
+            .filter_map(|(_, c)| c.shape().as_cuboid().map(|b| (b.half_extents, *c.position())))
     }
 
     /// Records the current world as the state [`Arena::restore_initial`] returns to.
@@ -147,6 +162,20 @@ impl Arena {
     /// Restarts the arena's random stream from a new seed.
     pub fn reseed(&mut self, seed: u64) {
         self.rng = arena_rng(seed, self.index);
+        self.seed = seed;
+        self.reseeds += 1;
+    }
+
+    /// How many times the arena was re-seeded: side streams restart when it changes.
+    pub fn reseeds(&self) -> u64 {
+        self.reseeds
+    }
+
+    /// A random stream of this arena apart from its physics stream ([`Arena::rng`]), from the
+    /// same seed, for draws that must not shift the physics when switched on (visual
+    /// randomization): `salt` names it.
+    pub fn side_stream(&self, salt: u64) -> ChaCha8Rng {
+        arena_rng(self.seed ^ salt, self.index)
     }
 
     /// FNV-1a over the bits of every body's pose and velocity, in handle order.

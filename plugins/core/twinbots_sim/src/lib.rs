@@ -7,6 +7,7 @@
 pub mod arena;
 pub mod devices;
 pub mod framing;
+pub mod look;
 pub mod parameters;
 pub mod physics;
 pub mod robot;
@@ -23,6 +24,7 @@ pub use devices::{
     Touched, VacuumGripper,
 };
 pub use framing::Framing;
+pub use look::Look;
 pub use parameters::{ParameterKind, ParameterSpec, Parameters, ParametersPlugin};
 pub use physics::{PhysicsPlugin, PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use robot::{Link, Robot, Visuals};

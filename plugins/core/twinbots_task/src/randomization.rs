@@ -11,6 +11,10 @@
 //! around its fitted value with k times the fit's standard deviation (its `[spread]` table, the
 //! [`FitSpread`] resource), per arena; values that must be positive are clamped at zero, and
 //! encoder biases (which the physics does not carry) are left alone.
+//!
+//! What cameras see: the `[randomization.visual]` table ([`visual`]).
+
+pub mod visual;
 
 use std::collections::VecDeque;
 
@@ -45,6 +49,9 @@ pub struct Randomization {
     /// fit's standard deviation (0: the fitted values as they are). Needs a calibration with a
     /// `[spread]` table.
     pub calibration_spread: f32,
+    /// `[randomization.visual]`: surface colours and textures, lights, camera jitter. Off
+    /// without the table.
+    pub visual: Option<visual::VisualRandomization>,
 }
 
 /// A calibration's standard deviation per fitted parameter (its `[spread]` table): what
@@ -63,6 +70,7 @@ impl Default for Randomization {
             sensor_noise: 0.0,
             action_latency: 0,
             calibration_spread: 0.0,
+            visual: None,
         }
     }
 }
@@ -112,7 +120,20 @@ impl Randomization {
             "randomization.calibration_spread = {}: must be a finite multiple of the fit's standard deviation in [0, 100]",
             self.calibration_spread
         );
+        if let Some(v) = &self.visual {
+            v.validate()?;
+        }
         Ok(())
+    }
+
+    /// The `[randomization]` table of a run's TOML `text` (other tables ignored; none: off),
+    /// validated.
+    pub fn from_config(text: &str) -> anyhow::Result<Self> {
+        let table: toml::Table = toml::from_str(text).map_err(|e| anyhow::anyhow!("config is not valid TOML: {e}"))?;
+        let Some(section) = table.get("randomization") else { return Ok(Self::default()) };
+        let r: Self = section.clone().try_into().map_err(|e| anyhow::anyhow!("config [randomization]: {e}"))?;
+        r.validate()?;
+        Ok(r)
     }
 
     /// A clear error when `calibration_spread` is asked for without a spread to scale
@@ -145,6 +166,9 @@ impl Plugin for RandomizationPlugin {
             // slave robot (design pattern 2).
             .add_systems(Update, randomize_actions.in_set(SimSet::ProcessActions))
             .add_systems(EnvReset, (randomize_episode, draw_calibration).chain().in_set(ResetSet::Place));
+        if let Some(v) = &self.0.visual {
+            app.add_plugins(visual::VisualRandomizationPlugin(v.clone()));
+        }
     }
 }
 
