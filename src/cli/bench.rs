@@ -40,6 +40,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         BenchKind::Physics => print_physics(&args.robot, &args.arenas, args.steps),
         BenchKind::Server => print_server(&args.arenas, args.steps),
         BenchKind::Capture => print_capture(&args.robot, &[(640, 480), (64, 64)], 60),
+        BenchKind::Cameras => print_cameras(&args.robot, args.arenas.iter().copied().max().unwrap_or(16), 40),
         BenchKind::Rl => print_rl(&args.robot, args.arenas.first().copied().unwrap_or(8), args.steps),
         BenchKind::Rtde => print_rtde(args.bundle.as_deref(), args.seconds),
     }
@@ -56,6 +57,10 @@ pub enum BenchKind {
     Server,
     /// Frames/s of off-screen capture at 640x480 and 64x64.
     Capture,
+    /// Camera-sensor frames/s, all arenas (the largest of --arenas, 16 by default when given as
+    /// `--arenas 16`) with a 64x64 camera each, rendered together; plain and with visual
+    /// randomization.
+    Cameras,
     /// RTDE at 500 Hz on loopback: report in → command out, p50 and p99, and missed cycles
     /// (--bundle DIR answers every report; --seconds S).
     Rtde,
@@ -280,4 +285,73 @@ pub fn print_capture(robot: &str, sizes: &[(u32, u32)], frames: usize) -> anyhow
         println!("{:>10} {:>12.1} {:>16.1}", format!("{w}x{h}"), frames as f64 / spent, spent / frames as f64 * 1e3);
     }
     Ok(())
+}
+
+/// Camera-sensor frames/s of `robot` with `arenas` arenas, each with a 64×64 camera on its
+/// robot's root link looking at the cell from the iso view, over `steps` control steps:
+/// aggregate frames/s of `CameraRig::sample` (the physics step excluded) drawing one camera a
+/// frame, all in one frame, and all in one frame with `[randomization.visual]` (a new look per
+/// arena every 10 steps).
+pub fn print_cameras(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<()> {
+    use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
+    let entry = registry::find(robot)?;
+    println!("camera sensors of {robot}: {arenas} arenas x 64x64, {steps} control steps (renderer: whatever adapter wgpu picks)");
+    println!("{:>26} {:>12} {:>16}", "looks, frames", "frames/s", "ms/step");
+    for (randomized, max_tiles) in [(false, 1), (false, 0), (true, 0)] {
+        let mut app = entry.app(None, arenas, 0, DesignPattern::Supervised)?;
+        if randomized {
+            app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
+        }
+        let mut env = AppVecEnv::new(app);
+        env.reset(Some(0))?;
+        mount_cameras(env.app_mut().world_mut(), &entry.framing, (64, 64));
+        let mut rig = twinbots_render::CameraRig::default();
+        rig.max_tiles = max_tiles;
+        rig.sample(env.app_mut().world_mut())?; // warm-up: pipelines compile
+        let mut spent = 0.0;
+        let zero = vec![0.0; env.action_space().dim() * arenas];
+        for i in 1..=steps {
+            if randomized && i % 10 == 0 {
+                env.reset(None)?;
+            } else {
+                env.step(&zero)?;
+            }
+            let t = Instant::now();
+            let frames = rig.sample(env.app_mut().world_mut())?;
+            spent += t.elapsed().as_secs_f64();
+            anyhow::ensure!(frames == arenas, "{frames} cameras rendered, {arenas} expected");
+        }
+        let label = match (randomized, max_tiles) {
+            (true, _) => "randomized, one frame",
+            (false, 1) => "plain, one camera a frame",
+            _ => "plain, one frame",
+        };
+        println!("{label:>26} {:>12.0} {:>16.2}", (steps * arenas) as f64 / spent, spent / steps as f64 * 1e3);
+    }
+    Ok(())
+}
+
+/// A camera sensor per arena on its first link (in entity order), placed at the framing's iso
+/// eye looking at its target.
+fn mount_cameras(world: &mut bevy::prelude::World, framing: &twinbots_sim::Framing, (width, height): (u32, u32)) {
+    use bevy::prelude::*;
+    use twinbots_sim::rapier::math::Pose;
+    use twinbots_sim::{Arena, CameraSensor, InArena, Link, Mount};
+    let eye = framing.eye("iso").expect("the iso view");
+    let forward = (framing.target - eye).normalize();
+    let left = Vec3::Z.cross(forward).normalize();
+    let camera = Pose::from_parts(eye, Quat::from_mat3(&Mat3::from_cols(forward, left, forward.cross(left))));
+    let mut links = world.query::<(Entity, &Link, &InArena)>();
+    let mut first: std::collections::BTreeMap<Entity, (Entity, Link)> = Default::default();
+    for (e, link, arena) in links.iter(world) {
+        let entry = first.entry(arena.0).or_insert((e, link.clone()));
+        if e < entry.0 {
+            *entry = (e, link.clone());
+        }
+    }
+    for (arena, (entity, link)) in first {
+        let Some(body) = world.get::<Arena>(arena).and_then(|a| a.world.bodies.get(link.body).map(|b| *b.position() * link.offset)) else { continue };
+        let offset = body.inverse() * camera;
+        world.spawn((CameraSensor::new(45f32.to_radians(), width, height), Mount { link: entity, offset }, InArena(arena)));
+    }
 }

@@ -158,3 +158,35 @@ fn capture_with_visual_randomization_is_seeded_and_records_each_look() {
     assert!(!plain.join("looks.jsonl").exists());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn arenas_rendered_together_in_tiles_look_as_each_does_alone() {
+    if crate::renderer("arenas_rendered_together_in_tiles_look_as_each_does_alone", 8, 8).is_none() {
+        return;
+    }
+    use twinbots_api::VecEnv;
+    use twinbots_render::{Renderer, View};
+    use twinbots_task::randomization::visual::VisualRandomization;
+    use twinbots_task::randomization::{Randomization, RandomizationPlugin};
+    let mut app = cartpole::headless_app(3, 2);
+    app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
+    let mut env = twinbots_task::AppVecEnv::new(app);
+    env.reset(Some(2)).unwrap();
+    let view = View::looking_at([0.0, -2.6, 0.7].into(), [0.0, 0.0, 0.5].into(), 45f32.to_radians());
+    let arenas = env.arenas().to_vec();
+    let shots: Vec<(Entity, View)> = arenas.iter().map(|&a| (a, view)).collect();
+    let together = Renderer::tiled(48, 36, 3).unwrap().render_shots(env.app_mut().world_mut(), &shots).unwrap();
+    let mut alone = Renderer::new(48, 36).unwrap();
+    for (i, &arena) in arenas.iter().enumerate() {
+        alone.set_view(view);
+        alone.sync(env.app_mut().world_mut(), arena);
+        let image = alone.render().unwrap();
+        let differing = image.iter().zip(&together[i]).filter(|(a, b)| a.abs_diff(**b) > 1).count();
+        assert_eq!(differing, 0, "arena {i}: {differing} bytes differ between its tile and its own frame");
+    }
+    assert_ne!(together[0], together[1], "each arena in its own look");
+    // Fewer shots than tiles: the idle tiles' cameras rest, the shot comes out alone.
+    let one = Renderer::tiled(48, 36, 4).unwrap().render_shots(env.app_mut().world_mut(), &shots[1..2]).unwrap();
+    assert_eq!(one.len(), 1);
+    assert!(one[0].iter().zip(&together[1]).all(|(a, b)| a.abs_diff(*b) <= 1));
+}

@@ -1,5 +1,8 @@
 //! Rendering camera sensors: each `CameraSensor` due this step gets the image its mount sees.
+//! Sensors of one resolution render together, each arena's in its own tile of one frame, read
+//! back once (`Renderer::tiled`).
 
+use std::collections::BTreeMap;
 use std::collections::HashMap;
 
 use bevy::prelude::*;
@@ -7,10 +10,13 @@ use twinbots_sim::{Arena, CameraSensor, InArena, Link, Mount, SamplingPeriod, Si
 
 use crate::{RenderError, Renderer, View};
 
-/// One renderer per camera resolution, built on first use.
+/// One tiled renderer per camera resolution, built on first use and rebuilt with more tiles
+/// when more cameras of that resolution are due at once.
 #[derive(Default)]
 pub struct CameraRig {
     renderers: HashMap<(u32, u32), Renderer>,
+    /// At most this many images per frame (0: no limit): 1 draws one camera at a time.
+    pub max_tiles: usize,
 }
 
 impl CameraRig {
@@ -18,12 +24,14 @@ impl CameraRig {
     pub fn sample(&mut self, sim: &mut World) -> Result<usize, RenderError> {
         let step = sim.get_resource::<SimClock>().map_or(0, |c| c.control_steps);
         let mut cameras = sim.query::<(Entity, &CameraSensor, &Mount, &InArena, Option<&SamplingPeriod>)>();
-        let due: Vec<(Entity, CameraSensor, Mount, Entity)> = cameras
+        let due: Vec<(Entity, (u32, u32, f32), Mount, Entity)> = cameras
             .iter(sim)
             .filter(|(_, _, _, _, p)| SamplingPeriod::due(*p, step))
-            .map(|(e, c, m, a, _)| (e, c.clone(), *m, a.0))
+            .map(|(e, c, m, a, _)| (e, (c.width, c.height, c.fov_y), *m, a.0))
             .collect();
-        for (entity, camera, mount, arena) in &due {
+        // Shots by resolution, in entity order (a stable tile per camera).
+        let mut groups: BTreeMap<(u32, u32), Vec<(Entity, (Entity, View))>> = BTreeMap::new();
+        for (entity, (width, height, fov_y), mount, arena) in &due {
             let Some(link) = sim.get::<Link>(mount.link).cloned() else { continue };
             let Some(pose) = sim
                 .get::<Arena>(*arena)
@@ -31,16 +39,22 @@ impl CameraRig {
             else {
                 continue;
             };
-            let renderer = match self.renderers.entry((camera.width, camera.height)) {
-                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-                std::collections::hash_map::Entry::Vacant(v) => v.insert(Renderer::new(camera.width, camera.height)?),
+            groups.entry((*width, *height)).or_default().push((*entity, (*arena, View::from_mount(pose, *fov_y))));
+        }
+        for ((width, height), shots) in groups {
+            let tiles = if self.max_tiles > 0 { shots.len().min(self.max_tiles) } else { shots.len() };
+            let renderer = match self.renderers.remove(&(width, height)) {
+                Some(r) if r.tiles() >= tiles => r,
+                _ => Renderer::tiled(width, height, tiles)?,
             };
-            renderer.sync(sim, *arena);
-            renderer.set_view(View::from_mount(pose, camera.fov_y));
-            let image = renderer.render()?;
-            if let Some(mut c) = sim.get_mut::<CameraSensor>(*entity) {
-                c.image = image;
-                c.captured_at = Some(step);
+            let renderer = self.renderers.entry((width, height)).or_insert(renderer);
+            let views: Vec<(Entity, View)> = shots.iter().map(|(_, shot)| *shot).collect();
+            let images = renderer.render_shots(sim, &views)?;
+            for ((entity, _), image) in shots.iter().zip(images) {
+                if let Some(mut c) = sim.get_mut::<CameraSensor>(*entity) {
+                    c.image = image;
+                    c.captured_at = Some(step);
+                }
             }
         }
         Ok(due.len())

@@ -6,7 +6,7 @@ use std::sync::{Arc, Mutex};
 
 use bevy::app::PluginsState;
 use bevy::asset::RenderAssetUsages;
-use bevy::camera::RenderTarget;
+use bevy::camera::{RenderTarget, Viewport};
 use bevy::core_pipeline::tonemapping::Tonemapping;
 use bevy::prelude::*;
 use bevy::render::render_asset::RenderAssets;
@@ -45,6 +45,7 @@ pub fn adapter_required() -> bool {
 fn probe() -> Option<RenderCreation> {
     let mut settings = WgpuSettings::default();
     settings.instance_flags |= InstanceFlags::ALLOW_UNDERLYING_NONCOMPLIANT_ADAPTER;
+    settings.memory_hints = bevy::render::settings::MemoryHints::MemoryUsage;
     let backends = settings.backends?;
     let hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(|_| {}));
@@ -117,20 +118,26 @@ impl View {
 #[derive(Resource)]
 struct Target(Handle<Image>);
 
-#[derive(Component)]
-struct MainCamera;
-
-/// An off-screen renderer producing `width × height` RGB images.
+/// An off-screen renderer producing `width × height` RGB images: one at a time ([`Renderer::new`],
+/// `sync` + `set_view` + `render`), or several arenas at once, each camera drawing one tile of
+/// a shared target that is read back once ([`Renderer::tiled`], `render_shots`).
 pub struct Renderer {
     app: App,
+    /// One image's size (a tile's).
     pub width: u32,
     pub height: u32,
+    /// Tiles per row of the target.
+    columns: u32,
+    /// One camera per tile, in tile order.
+    cameras: Vec<Entity>,
     /// New meshes were added: their pipelines must compile before a frame is read.
     fresh_meshes: bool,
     /// Where frames are copied to be read (made on the first frame).
     readback_buffer: Option<Buffer>,
     /// The camera as set, before the shown look's jitter.
     view: View,
+    /// The arena synced last: the one `render` shows.
+    arena: Option<Entity>,
     /// Why the last sync could not show the arena (an image texture that does not read): the
     /// next frame fails with it.
     sync_error: Option<RenderError>,
@@ -139,9 +146,16 @@ pub struct Renderer {
 impl Renderer {
     /// Builds the render app; `RenderError::NoAdapter` when no graphics adapter exists.
     pub fn new(width: u32, height: u32) -> Result<Self, RenderError> {
-        if width == 0 || height == 0 {
-            return Err(RenderError::Failed(format!("image size {width}×{height} is empty")));
+        Self::tiled(width, height, 1)
+    }
+
+    /// A renderer that draws up to `tiles` images of `width × height` in one frame.
+    pub fn tiled(width: u32, height: u32, tiles: usize) -> Result<Self, RenderError> {
+        if width == 0 || height == 0 || tiles == 0 {
+            return Err(RenderError::Failed(format!("image size {width}×{height} ({tiles} tiles) is empty")));
         }
+        let columns = (tiles as f64).sqrt().ceil() as u32;
+        let rows = (tiles as u32).div_ceil(columns);
         let render_creation = probe().ok_or(RenderError::NoAdapter)?;
         let mut app = App::new();
         app.add_plugins(
@@ -161,7 +175,7 @@ impl Renderer {
 
         let world = app.world_mut();
         let mut image = Image::new_uninit(
-            Extent3d { width, height, depth_or_array_layers: 1 },
+            Extent3d { width: width * columns, height: height * rows, depth_or_array_layers: 1 },
             TextureDimension::D2,
             TextureFormat::Rgba8UnormSrgb,
             RenderAssetUsages::RENDER_WORLD,
@@ -169,22 +183,44 @@ impl Renderer {
         image.texture_descriptor.usage |= TextureUsages::RENDER_ATTACHMENT | TextureUsages::COPY_SRC;
         let handle = world.resource_mut::<Assets<Image>>().add(image);
         world.insert_resource(Target(handle.clone()));
-        world.spawn((
-            Camera3d::default(),
-            RenderTarget::from(handle),
-            Msaa::Off,
-            Tonemapping::None,
-            Projection::Perspective(PerspectiveProjection { aspect_ratio: width as f32 / height as f32, ..default() }),
-            Transform::from_xyz(0.0, 1.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
-            MainCamera,
-        ));
         let view = View { transform: Transform::from_xyz(0.0, 1.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y), fov_y: PerspectiveProjection::default().fov };
-        Ok(Self { app, width, height, fresh_meshes: true, readback_buffer: None, view, sync_error: None })
+        let cameras = (0..tiles as u32)
+            .map(|i| {
+                let viewport = Viewport {
+                    physical_position: UVec2::new(i % columns * width, i / columns * height),
+                    physical_size: UVec2::new(width, height),
+                    ..default()
+                };
+                world
+                    .spawn((
+                        Camera3d::default(),
+                        // Ordered, so tiles never race; the first clears the whole target.
+                        Camera { order: i as isize, viewport: Some(viewport), is_active: i == 0, ..default() },
+                        RenderTarget::from(handle.clone()),
+                        Msaa::Off,
+                        Tonemapping::None,
+                        Projection::Perspective(PerspectiveProjection { aspect_ratio: width as f32 / height as f32, ..default() }),
+                        view.transform,
+                    ))
+                    .id()
+            })
+            .collect();
+        Ok(Self { app, width, height, columns, cameras, fresh_meshes: true, readback_buffer: None, view, arena: None, sync_error: None })
+    }
+
+    /// How many images one frame can draw.
+    pub fn tiles(&self) -> usize {
+        self.cameras.len()
     }
 
     /// Creates (once) and poses the render entities of `arena` from the sim world, and shows
-    /// its look (lights, surfaces, camera jitter).
+    /// its look (lights, surfaces, camera jitter); `render` then shows it.
     pub fn sync(&mut self, sim: &mut World, arena: Entity) {
+        self.mirror(sim, arena);
+        self.arena = Some(arena);
+    }
+
+    fn mirror(&mut self, sim: &mut World, arena: Entity) {
         match scene::sync_into(self.app.world_mut(), sim, arena) {
             Ok(fresh) => self.fresh_meshes |= fresh,
             Err(e) => self.sync_error = Some(e),
@@ -198,34 +234,74 @@ impl Renderer {
 
     /// The camera of the next frame: the view set, jittered by the shown look.
     pub fn camera(&self) -> View {
-        match self.app.world().get_resource::<scene::Mirror>().and_then(|m| m.look.as_ref()) {
-            Some(look) => self.view.jittered(&look.camera),
-            None => self.view,
+        self.arena.map_or(self.view, |a| self.jittered(self.view, a))
+    }
+
+    /// `view` moved by the camera jitter of the look `arena` is shown in.
+    fn jittered(&self, view: View, arena: Entity) -> View {
+        match self.app.world().get_resource::<scene::Mirror>().and_then(|m| m.look(arena)) {
+            Some(look) => view.jittered(&look.camera),
+            None => view,
         }
     }
 
-    fn place_camera(&mut self) {
-        let view = self.camera();
+    /// Points tile `i`'s camera at `arena` through `view` (jittered by the arena's look).
+    fn aim(&mut self, i: usize, arena: Entity, view: View) {
+        let view = self.jittered(view, arena);
+        let camera = self.cameras[i];
         let world = self.app.world_mut();
-        let mut cams = world.query_filtered::<(&mut Transform, &mut Projection), With<MainCamera>>();
+        scene::watch(world, camera, arena);
         // Only on change: a changed projection makes Bevy rebuild the view's state.
-        for (mut t, mut p) in cams.iter_mut(world) {
+        if let Some(mut t) = world.get_mut::<Transform>(camera) {
             t.set_if_neq(view.transform);
-            if let Projection::Perspective(pp) = &*p
-                && pp.fov != view.fov_y
-                && let Projection::Perspective(pp) = &mut *p
-            {
-                pp.fov = view.fov_y;
-            }
+        }
+        if let Some(mut p) = world.get_mut::<Projection>(camera)
+            && let Projection::Perspective(pp) = &*p
+            && pp.fov != view.fov_y
+            && let Projection::Perspective(pp) = &mut *p
+        {
+            pp.fov = view.fov_y;
         }
     }
 
     /// Renders the current scene and returns RGB8 pixels, row-major from the top-left.
     pub fn render(&mut self) -> Result<Vec<u8>, RenderError> {
+        let arena = self.arena.ok_or_else(|| RenderError::Failed("nothing to render: no arena was synced".into()))?;
+        let mut tiles = self.draw(&[(arena, self.view)])?;
+        Ok(tiles.swap_remove(0))
+    }
+
+    /// Syncs and renders several arenas, each through its view, in one frame per
+    /// [`Renderer::tiles`] shots: one RGB8 image per shot, in order.
+    pub fn render_shots(&mut self, sim: &mut World, shots: &[(Entity, View)]) -> Result<Vec<Vec<u8>>, RenderError> {
+        let mut seen = std::collections::HashSet::new();
+        for (arena, _) in shots {
+            if seen.insert(*arena) {
+                self.mirror(sim, *arena);
+            }
+        }
+        let mut images = Vec::with_capacity(shots.len());
+        for chunk in shots.chunks(self.tiles()) {
+            images.extend(self.draw(chunk)?);
+        }
+        Ok(images)
+    }
+
+    /// One frame: tile i shows `shots[i]`; the other tiles' cameras rest.
+    fn draw(&mut self, shots: &[(Entity, View)]) -> Result<Vec<Vec<u8>>, RenderError> {
         if let Some(e) = self.sync_error.take() {
             return Err(e);
         }
-        self.place_camera();
+        for (i, (arena, view)) in shots.iter().enumerate() {
+            self.aim(i, *arena, *view);
+        }
+        for (i, &camera) in self.cameras.iter().enumerate() {
+            if let Some(mut c) = self.app.world_mut().get_mut::<Camera>(camera)
+                && c.is_active != (i < shots.len())
+            {
+                c.is_active = i < shots.len();
+            }
+        }
         if std::mem::take(&mut self.fresh_meshes) {
             self.settle()?;
         }
@@ -233,11 +309,31 @@ impl Renderer {
         // `Readback` delivers only on the next update, which would draw the scene again.)
         self.app.update();
         self.poll()?;
-        self.read_target()
+        let rgb = self.read_target()?;
+        Ok((0..shots.len() as u32).map(|i| self.tile(&rgb, i)).collect())
+    }
+
+    /// Tile `i` of the target's RGB pixels.
+    fn tile(&self, rgb: &[u8], i: u32) -> Vec<u8> {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let stride = self.columns as usize * w * 3;
+        let (x0, y0) = ((i % self.columns) as usize * w, (i / self.columns) as usize * h);
+        let mut out = Vec::with_capacity(w * h * 3);
+        for y in y0..y0 + h {
+            out.extend_from_slice(&rgb[y * stride + x0 * 3..y * stride + (x0 + w) * 3]);
+        }
+        out
+    }
+
+    /// The target's size in pixels.
+    fn target_size(&self) -> (u32, u32) {
+        let rows = (self.cameras.len() as u32).div_ceil(self.columns);
+        (self.width * self.columns, self.height * rows)
     }
 
     /// Copies the target texture into a mappable buffer (kept between frames) and reads it.
     fn read_target(&mut self) -> Result<Vec<u8>, RenderError> {
+        let (width, height) = self.target_size();
         let handle = self.app.world().resource::<Target>().0.clone();
         let world = self.app.sub_app(RenderApp).world();
         let image = world
@@ -245,8 +341,8 @@ impl Renderer {
             .get(&handle)
             .ok_or_else(|| RenderError::Failed("the render target is not on the GPU".into()))?;
         let device = world.resource::<RenderDevice>();
-        let padded = RenderDevice::align_copy_bytes_per_row((self.width * 4) as usize);
-        let size = (padded * self.height as usize) as u64;
+        let padded = RenderDevice::align_copy_bytes_per_row((width * 4) as usize);
+        let size = (padded * height as usize) as u64;
         let buffer = self.readback_buffer.get_or_insert_with(|| {
             device.create_buffer(&BufferDescriptor {
                 label: Some("twinbots frame readback"),
@@ -262,7 +358,7 @@ impl Renderer {
                 buffer,
                 layout: TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded as u32), rows_per_image: None },
             },
-            Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
+            Extent3d { width, height, depth_or_array_layers: 1 },
         );
         world.resource::<RenderQueue>().submit([encoder.finish()]);
         let slice = buffer.slice(..);
@@ -275,7 +371,7 @@ impl Renderer {
             Some(Err(e)) => return Err(RenderError::Failed(format!("reading the frame back: {e}"))),
             None => return Err(RenderError::Failed("no pixels came back".into())),
         }
-        let rgb = strip(&slice.get_mapped_range(), self.width, self.height);
+        let rgb = strip(&slice.get_mapped_range(), width, height);
         buffer.unmap();
         Ok(rgb)
     }

@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 
 use bevy::asset::RenderAssetUsages;
 use bevy::image::{ImageAddressMode, ImageSampler, ImageSamplerDescriptor};
-use bevy::light::GlobalAmbientLight;
+use bevy::camera::visibility::RenderLayers;
+use bevy::light::AmbientLight;
 use bevy::mesh::{Indices, PrimitiveTopology, VertexAttributeValues};
 use bevy::prelude::*;
 use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
@@ -40,19 +41,47 @@ pub fn point_to_bevy(p: Vec3) -> Vec3 {
     z_up_to_y_up() * p
 }
 
-/// Render entities of the mirrored arena, by (sim link entity, visual index), and how its
-/// surfaces and lights look.
+/// The mirrored arenas of a render world. Each arena's entities (and its lights) are on a
+/// render layer of their own, so a camera sees one arena by taking its layer: switching arenas
+/// costs nothing, and several cameras can draw several arenas in one frame.
 #[derive(Resource, Default)]
 pub struct Mirror {
-    pub links: HashMap<(Entity, usize), Entity>,
-    pub statics: Vec<Entity>,
-    pub arena: Option<Entity>,
+    arenas: HashMap<Entity, ArenaMirror>,
+    images: HashMap<PathBuf, Handle<Image>>,
+}
+
+/// One mirrored arena: its render entities by (sim link entity, visual index), and how its
+/// surfaces and lights look.
+struct ArenaMirror {
+    layer: usize,
+    links: HashMap<(Entity, usize), Entity>,
     /// Every surface's material and own colour (sRGB), by its `Look` name.
     surfaces: HashMap<String, (Handle<LambertMaterial>, [f32; 3])>,
-    /// The look shown; `None`: none yet, or new surfaces need it.
-    pub look: Option<Look>,
+    /// The look shown; `None` until the first is.
+    look: Option<Look>,
     lights: Vec<Entity>,
-    images: HashMap<PathBuf, Handle<Image>>,
+}
+
+impl Mirror {
+    /// The look `arena` is shown in (after its first sync).
+    pub fn look(&self, arena: Entity) -> Option<&Look> {
+        self.arenas.get(&arena).and_then(|m| m.look.as_ref())
+    }
+}
+
+/// Points `camera` at a mirrored arena: its render layer and its ambient light.
+pub fn watch(render: &mut World, camera: Entity, arena: Entity) {
+    let Some(m) = render.resource::<Mirror>().arenas.get(&arena) else { return };
+    let layer = RenderLayers::layer(m.layer);
+    let [r, g, b] = m.look.as_ref().map_or(Look::default().ambient, |l| l.ambient);
+    let ambient = AmbientLight { color: Color::linear_rgb(r, g, b), brightness: 1.0, ..default() };
+    let mut e = render.entity_mut(camera);
+    if e.get::<RenderLayers>() != Some(&layer) {
+        e.insert(layer);
+    }
+    if e.get::<AmbientLight>().is_none_or(|a| a.color != ambient.color) {
+        e.insert(ambient);
+    }
 }
 
 /// What the render world needs to know about one visual, read from the sim world.
@@ -138,65 +167,53 @@ pub fn metric_uvs(mut mesh: Mesh) -> Mesh {
     mesh
 }
 
-/// Creates (once) and poses, in `render`, the entities of `arena` of the `sim` world: the
-/// floor, a mesh per link visual and per static box; shows the arena's [`Look`] (the default
-/// look when it has none). Returns whether new meshes were made; an image texture that cannot
-/// be read is an error.
+/// Creates (once) and poses, in `render`, the entities of `arena` of the `sim` world on the
+/// arena's render layer: the floor, a mesh per link visual and per static box; shows the
+/// arena's [`Look`] (the default look when it has none). Returns whether new meshes were made;
+/// an image texture that cannot be read is an error. A camera sees it after [`watch`].
 pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<bool, RenderError> {
     let visuals = read_visuals(sim, arena);
-    let boxes: Vec<(Vec3, Pose)> = sim.get::<Arena>(arena).map(|a| a.static_boxes().collect()).unwrap_or_default();
     let look = sim.get::<Look>(arena).cloned().unwrap_or_default();
-    let mut fresh = false;
     if !render.contains_resource::<Mirror>() {
         render.init_resource::<Mirror>();
+    }
+    let mut fresh = false;
+    if !render.resource::<Mirror>().arenas.contains_key(&arena) {
+        let boxes: Vec<(Vec3, Pose)> = sim.get::<Arena>(arena).map(|a| a.static_boxes().collect()).unwrap_or_default();
+        // Layer 0 is every camera's default: arenas start at 1.
+        let layer = render.resource::<Mirror>().arenas.len() + 1;
+        let mirror = ArenaMirror { layer, links: HashMap::new(), surfaces: HashMap::new(), look: None, lights: Vec::new() };
+        render.resource_mut::<Mirror>().arenas.insert(arena, mirror);
         // The ground: a large plane at physics z = 0.
         let ground = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Plane3d::default().mesh().size(40.0, 40.0).into()));
-        spawn_surface(render, "floor".into(), ground, GROUND_COLOR, Transform::IDENTITY, None);
-        fresh = true;
-    }
-    if render.resource::<Mirror>().arena != Some(arena) {
-        let old: Vec<Entity> = {
-            let mut mirror = render.resource_mut::<Mirror>();
-            let m = &mut *mirror;
-            m.surfaces.retain(|name, _| name == "floor");
-            m.look = None;
-            m.arena = Some(arena);
-            m.links.drain().map(|(_, e)| e).chain(m.statics.drain(..)).collect()
-        };
-        for e in old {
-            render.despawn(e);
-        }
+        spawn_surface(render, arena, "floor".into(), ground, GROUND_COLOR, Transform::IDENTITY, None);
         for (i, (half, pose)) in boxes.into_iter().enumerate() {
             let mesh = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Cuboid::new(2.0 * half.x, 2.0 * half.y, 2.0 * half.z).into()));
-            let e = spawn_surface(render, Look::static_surface(i), mesh, [0.6, 0.55, 0.5], to_bevy(pose), None);
-            render.resource_mut::<Mirror>().statics.push(e);
+            spawn_surface(render, arena, Look::static_surface(i), mesh, [0.6, 0.55, 0.5], to_bevy(pose), None);
         }
         fresh = true;
     }
+    let layer = RenderLayers::layer(render.resource::<Mirror>().arenas[&arena].layer);
     // Links that left the sim (despawned) leave the picture too.
     let live: HashSet<(Entity, usize)> = visuals.iter().map(|v| v.key).collect();
-    let gone: Vec<((Entity, usize), Entity)> = render
-        .resource::<Mirror>()
-        .links
-        .iter()
-        .filter(|(k, _)| !live.contains(k))
-        .map(|(k, e)| (*k, *e))
-        .collect();
-    for (key, entity) in gone {
-        render.resource_mut::<Mirror>().links.remove(&key);
-        render.entity_mut(entity).despawn();
+    let gone: Vec<(Entity, usize)> = render.resource::<Mirror>().arenas[&arena].links.keys().filter(|k| !live.contains(k)).copied().collect();
+    for key in gone {
+        let entity = arena_mut(render, arena).links.remove(&key);
+        if let Some(e) = entity {
+            render.entity_mut(e).despawn();
+        }
     }
     for v in visuals {
-        let existing = render.resource::<Mirror>().links.get(&v.key).copied();
+        let existing = render.resource::<Mirror>().arenas[&arena].links.get(&v.key).copied();
         let entity = match existing {
             Some(e) => e,
             None => {
                 let (mesh, local) = mesh_for(&v.visual.geometry.shape);
                 let mesh = render.resource_mut::<Assets<Mesh>>().add(mesh);
                 let [r, g, b, _] = v.visual.rgba;
-                let parent = render.spawn((Transform::default(), Visibility::default())).id();
-                spawn_surface(render, v.surface, mesh, [r, g, b], local, Some(parent));
-                render.resource_mut::<Mirror>().links.insert(v.key, parent);
+                let parent = render.spawn((Transform::default(), Visibility::default(), layer.clone())).id();
+                spawn_surface(render, arena, v.surface, mesh, [r, g, b], local, Some(parent));
+                arena_mut(render, arena).links.insert(v.key, parent);
                 fresh = true;
                 parent
             }
@@ -205,29 +222,45 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<b
             *t = to_bevy(v.pose);
         }
     }
-    if fresh || render.resource::<Mirror>().look.as_ref() != Some(&look) {
-        show(render, &look)?;
+    if fresh || render.resource::<Mirror>().look(arena) != Some(&look) {
+        show(render, arena, &look)?;
     }
     Ok(fresh)
 }
 
-/// A mesh entity with its own material, registered as the surface `name`.
-fn spawn_surface(render: &mut World, name: String, mesh: Handle<Mesh>, srgb: [f32; 3], local: Transform, parent: Option<Entity>) -> Entity {
+fn arena_mut(render: &mut World, arena: Entity) -> Mut<'_, ArenaMirror> {
+    render.resource_mut::<Mirror>().map_unchanged(|m| m.arenas.get_mut(&arena).expect("a mirrored arena"))
+}
+
+/// A mesh entity of `arena` with its own material, registered as the surface `name`.
+fn spawn_surface(
+    render: &mut World,
+    arena: Entity,
+    name: String,
+    mesh: Handle<Mesh>,
+    srgb: [f32; 3],
+    local: Transform,
+    parent: Option<Entity>,
+) -> Entity {
     let material = LambertMaterial::new(Color::srgb(srgb[0], srgb[1], srgb[2]));
     let handle = render.resource_mut::<Assets<LambertMaterial>>().add(material);
-    let mut e = render.spawn((Mesh3d(mesh), MeshMaterial3d(handle.clone()), local));
+    let layer = RenderLayers::layer(render.resource::<Mirror>().arenas[&arena].layer);
+    let mut e = render.spawn((Mesh3d(mesh), MeshMaterial3d(handle.clone()), local, layer));
     if let Some(p) = parent {
         e.insert(ChildOf(p));
     }
     let id = e.id();
-    render.resource_mut::<Mirror>().surfaces.insert(name, (handle, srgb));
+    arena_mut(render, arena).surfaces.insert(name, (handle, srgb));
     id
 }
 
-/// Shows `look`: every surface's material, the lights and the ambient.
-fn show(render: &mut World, look: &Look) -> Result<(), RenderError> {
-    let surfaces: Vec<(String, Handle<LambertMaterial>, [f32; 3])> =
-        render.resource::<Mirror>().surfaces.iter().map(|(n, (h, c))| (n.clone(), h.clone(), *c)).collect();
+/// Shows `look` in `arena`: every surface's material and the lights.
+fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderError> {
+    let (surfaces, layer): (Vec<(String, Handle<LambertMaterial>, [f32; 3])>, usize) = {
+        let m = &render.resource::<Mirror>().arenas[&arena];
+        (m.surfaces.iter().map(|(n, (h, c))| (n.clone(), h.clone(), *c)).collect(), m.layer)
+    };
+    let lights = look.lights.len().min(Look::MAX_LIGHTS) as u32;
     for (name, handle, own) in surfaces {
         let material = match look.surfaces.get(&name) {
             Some(Surface { color, texture }) => {
@@ -239,12 +272,11 @@ fn show(render: &mut World, look: &Look) -> Result<(), RenderError> {
             }
             None => LambertMaterial::new(Color::srgb(own[0], own[1], own[2])),
         };
-        let lights = look.lights.len().min(Look::MAX_LIGHTS) as u32;
         if let Some(mut m) = render.resource_mut::<Assets<LambertMaterial>>().get_mut(&handle) {
             *m = LambertMaterial { lights, ..material };
         }
     }
-    let old = std::mem::take(&mut render.resource_mut::<Mirror>().lights);
+    let old = std::mem::take(&mut arena_mut(render, arena).lights);
     for e in old {
         render.despawn(e);
     }
@@ -256,12 +288,11 @@ fn show(render: &mut World, look: &Look) -> Result<(), RenderError> {
             let [r, g, b] = l.color;
             let towards = point_to_bevy(Vec3::from_array(l.direction));
             let light = DirectionalLight { illuminance: l.intensity, color: Color::linear_rgb(r, g, b), shadow_maps_enabled: false, ..default() };
-            render.spawn((light, Transform::default().looking_to(towards, any_orthogonal(towards)))).id()
+            let pose = Transform::default().looking_to(towards, any_orthogonal(towards));
+            render.spawn((light, pose, RenderLayers::layer(layer))).id()
         })
         .collect();
-    let [r, g, b] = look.ambient;
-    render.insert_resource(GlobalAmbientLight { color: Color::linear_rgb(r, g, b), brightness: 1.0, ..default() });
-    let mut mirror = render.resource_mut::<Mirror>();
+    let mut mirror = arena_mut(render, arena);
     mirror.lights = lights;
     mirror.look = Some(look.clone());
     Ok(())

@@ -108,6 +108,10 @@ fn advance_and_mirror(world: &mut World) {
     if let Err(e) = scene::sync_into(world, source.0.sim_world(), arena) {
         error!("{e}");
     }
+    let cameras: Vec<Entity> = world.query_filtered::<Entity, With<Orbit>>().iter(world).collect();
+    for camera in cameras {
+        scene::watch(world, camera, arena);
+    }
     let title = format!("twinbots — {}{}", source.0.status(), if paused { " — paused (Space)" } else { "" });
     let mut windows = world.query::<&mut Window>();
     for mut w in windows.iter_mut(world) {
