@@ -199,6 +199,8 @@ impl Renderer {
                         RenderTarget::from(handle.clone()),
                         Msaa::Off,
                         Tonemapping::None,
+                        // Only directional lights: one light cluster per view (the default builds thousands).
+                        bevy::light::cluster::ClusterConfig::Single,
                         Projection::Perspective(PerspectiveProjection { aspect_ratio: width as f32 / height as f32, ..default() }),
                         view.transform,
                     ))
