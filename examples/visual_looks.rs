@@ -1,6 +1,6 @@
 //! A robot's cell under visual domain randomization: the plain twin first, then one look per
-//! seed (`[randomization.visual]` at its defaults, or a run configuration's table), tiled into
-//! one PNG (docs/figures/ur5e-visual-randomization.png).
+//! seed (`[randomization.visual]` at its defaults with 2–4 distractors, or a run
+//! configuration's table), tiled into one PNG (docs/figures/ur5e-visual-randomization.png).
 //!
 //! `cargo run --release --example visual_looks -- [robot] [looks] [out.png] [config.toml]`
 
@@ -21,7 +21,7 @@ fn main() -> anyhow::Result<()> {
     let out = args.get(2).map_or("visual-looks.png", String::as_str);
     let randomization = match args.get(3) {
         Some(path) => Randomization::from_config(&std::fs::read_to_string(path).with_context(|| path.clone())?)?,
-        None => Randomization { visual: Some(VisualRandomization::default()), ..Default::default() },
+        None => Randomization { visual: Some(VisualRandomization { distractors: [2, 4], ..Default::default() }), ..Default::default() },
     };
     let entry = twinbots::registry::find(robot)?;
     let view = View::framed(&entry.framing, "iso").context("the iso camera")?;

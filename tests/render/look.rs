@@ -7,7 +7,7 @@ use std::process::Command;
 
 use bevy::prelude::*;
 use twinbots_render::{CameraRig, RenderError};
-use twinbots_sim::look::{CameraJitter, Light, Surface, Texture};
+use twinbots_sim::look::{CameraJitter, Distractor, Light, Surface, Texture};
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::parse_urdf;
 use twinbots_sim::{Arena, CameraSensor, InArena, Look, Mount, SimPlugin, SimSettings, SpawnOptions, spawn_robot};
@@ -62,7 +62,7 @@ fn wall_seen_under(look: Look) -> Result<([u8; 3], Vec<u8>), RenderError> {
 }
 
 fn look(lights: Vec<Light>, ambient: f32, surfaces: BTreeMap<String, Surface>) -> Look {
-    Look { lights, ambient: [ambient; 3], camera: CameraJitter::default(), surfaces }
+    Look { lights, ambient: [ambient; 3], camera: CameraJitter::default(), surfaces, distractors: Vec::new() }
 }
 
 #[test]
@@ -117,8 +117,19 @@ fn textures_pattern_a_surface_in_metres_and_an_unreadable_image_is_an_error() {
     assert!(pixel.iter().zip([20u8, 200, 40]).all(|(a, b)| a.abs_diff(b) <= 2), "{pixel:?}");
     // An image that is not there: the frame fails, naming the file.
     let missing = BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0; 3], texture: Texture::Image { path: dir.join("gone.png"), size: 0.2 } })]);
-    let message = wall_seen_under(look(white, 0.0, missing)).unwrap_err().to_string();
+    let message = wall_seen_under(look(white.clone(), 0.0, missing)).unwrap_err().to_string();
     assert!(message.contains("gone.png") && message.contains("image texture"), "{message}");
+    // A distractor between the camera and the wall: seen in the first frame, in its colour,
+    // and not simulated (no collider in the arena).
+    let mut with_box = look(white, 0.0, BTreeMap::new());
+    with_box.distractors.push(Distractor {
+        centre: [0.5, 0.0, 0.5],
+        half_extents: [0.05, 0.1, 0.1],
+        yaw: 0.0,
+        surface: Surface { color: [0.0, 1.0, 0.0], texture: Texture::Plain },
+    });
+    let (pixel, _) = wall_seen_under(with_box).unwrap();
+    assert!(pixel[1] > 250 && pixel[0] < 5 && pixel[2] < 5, "the green distractor in front: {pixel:?}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

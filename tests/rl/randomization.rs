@@ -187,6 +187,12 @@ fn visual_randomization_draws_a_look_per_arena_and_episode_from_the_seed_alone()
     let first = look_after(Some(9));
     assert_ne!(look_after(None), first);
     assert_eq!(look_after(Some(9)), first);
+    assert!(look.distractors.is_empty(), "no distractors unless asked for");
+    let cluttered = VisualRandomization { distractors: [2, 2], ..visual.clone() };
+    let (draws, _) = looks(Some(cluttered), 4, 1);
+    let boxes = &draws[0][0].as_ref().unwrap().distractors;
+    assert_eq!(boxes.len(), 2);
+    assert!(boxes.iter().all(|d| d.half_extents.iter().all(|h| (0.015..=0.05).contains(h)) && d.centre[2] >= d.half_extents[2]), "{boxes:?}");
     // Only the surfaces asked for change.
     let floor_only = VisualRandomization { surfaces: vec!["floor".into()], ..visual };
     let (draws, _) = looks(Some(floor_only), 4, 1);
@@ -216,6 +222,8 @@ fn bad_visual_randomization_is_a_clear_error_naming_the_key() {
         ("field_of_view = 95.0", "randomization.visual.field_of_view"),
         ("field_of_view = -1.0", "randomization.visual.field_of_view"),
         ("lights = [2, 11]", "randomization.visual.lights"),
+        ("distractors = [3, 1]", "randomization.visual.distractors"),
+        ("distractor_size = [0.0, 0.1]", "randomization.visual.distractor_size"),
         ("surfaces = [\"ceiling\"]", "ceiling"),
         ("textures = [\"marble\"]", "marble"),
         ("textures = [\"image\"]", "randomization.visual.images"),

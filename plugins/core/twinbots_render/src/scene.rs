@@ -60,6 +60,7 @@ struct ArenaMirror {
     /// The look shown; `None` until the first is.
     look: Option<Look>,
     lights: Vec<Entity>,
+    distractors: Vec<Entity>,
 }
 
 impl Mirror {
@@ -182,7 +183,7 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<b
         let boxes: Vec<(Vec3, Pose)> = sim.get::<Arena>(arena).map(|a| a.static_boxes().collect()).unwrap_or_default();
         // Layer 0 is every camera's default: arenas start at 1.
         let layer = render.resource::<Mirror>().arenas.len() + 1;
-        let mirror = ArenaMirror { layer, links: HashMap::new(), surfaces: HashMap::new(), look: None, lights: Vec::new() };
+        let mirror = ArenaMirror { layer, links: HashMap::new(), surfaces: HashMap::new(), look: None, lights: Vec::new(), distractors: Vec::new() };
         render.resource_mut::<Mirror>().arenas.insert(arena, mirror);
         // The ground: a large plane at physics z = 0.
         let ground = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Plane3d::default().mesh().size(40.0, 40.0).into()));
@@ -263,22 +264,29 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
     let lights = look.lights.len().min(Look::MAX_LIGHTS) as u32;
     for (name, handle, own) in surfaces {
         let material = match look.surfaces.get(&name) {
-            Some(Surface { color, texture }) => {
-                let image = match texture {
-                    Texture::Image { path, .. } => Some(image_texture(render, path)?),
-                    _ => None,
-                };
-                LambertMaterial::textured(*color, texture, image)
-            }
+            Some(surface) => surface_material(render, surface)?,
             None => LambertMaterial::new(Color::srgb(own[0], own[1], own[2])),
         };
         if let Some(mut m) = render.resource_mut::<Assets<LambertMaterial>>().get_mut(&handle) {
             *m = LambertMaterial { lights, ..material };
         }
     }
-    let old = std::mem::take(&mut arena_mut(render, arena).lights);
+    let old = {
+        let mut m = arena_mut(render, arena);
+        let lights = std::mem::take(&mut m.lights);
+        lights.into_iter().chain(std::mem::take(&mut m.distractors)).collect::<Vec<Entity>>()
+    };
     for e in old {
         render.despawn(e);
+    }
+    let mut distractors = Vec::with_capacity(look.distractors.len());
+    for d in &look.distractors {
+        let [x, y, z] = d.half_extents;
+        let mesh = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Cuboid::new(2.0 * x, 2.0 * y, 2.0 * z).into()));
+        let material = LambertMaterial { lights, ..surface_material(render, &d.surface)? };
+        let material = render.resource_mut::<Assets<LambertMaterial>>().add(material);
+        let pose = Pose::from_parts(Vec3::from_array(d.centre), Quat::from_rotation_z(d.yaw));
+        distractors.push(render.spawn((Mesh3d(mesh), MeshMaterial3d(material), to_bevy(pose), RenderLayers::layer(layer))).id());
     }
     let lights: Vec<Entity> = look
         .lights
@@ -294,8 +302,18 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
         .collect();
     let mut mirror = arena_mut(render, arena);
     mirror.lights = lights;
+    mirror.distractors = distractors;
     mirror.look = Some(look.clone());
     Ok(())
+}
+
+/// The material of a look's surface (its image loaded if it has one).
+fn surface_material(render: &mut World, Surface { color, texture }: &Surface) -> Result<LambertMaterial, RenderError> {
+    let image = match texture {
+        Texture::Image { path, .. } => Some(image_texture(render, path)?),
+        _ => None,
+    };
+    Ok(LambertMaterial::textured(*color, texture, image))
 }
 
 /// An up vector for `looking_to` that is never parallel to the direction.

@@ -24,6 +24,20 @@ pub struct Look {
     /// is numbered, `nest#2/<i>`, see [`Look::link_names`]). A surface not named keeps its own
     /// colour.
     pub surfaces: BTreeMap<String, Surface>,
+    /// Boxes that are seen but not there (no collider): clutter for a camera policy to ignore.
+    #[serde(default)]
+    pub distractors: Vec<Distractor>,
+}
+
+/// A box drawn in the scene, not simulated.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Distractor {
+    /// Metres, physics coordinates: the box's centre.
+    pub centre: [f32; 3],
+    pub half_extents: [f32; 3],
+    /// Radians about Z.
+    pub yaw: f32,
+    pub surface: Surface,
 }
 
 /// A directional light (a sun).
@@ -115,6 +129,7 @@ impl Default for Look {
             ambient: [0.4; 3],
             camera: CameraJitter::default(),
             surfaces: BTreeMap::new(),
+            distractors: Vec::new(),
         }
     }
 }

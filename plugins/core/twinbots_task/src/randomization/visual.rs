@@ -11,7 +11,7 @@ use bevy::prelude::*;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use twinbots_sim::look::{CameraJitter, Light, Surface, Texture};
+use twinbots_sim::look::{CameraJitter, Distractor, Light, Surface, Texture};
 use twinbots_sim::{Arena, InArena, Link, Look, Visuals};
 
 use crate::task::Resetting;
@@ -54,6 +54,11 @@ pub struct VisualRandomization {
     pub camera_rotation: f32,
     /// ± degrees of every camera's vertical field of view.
     pub field_of_view: f32,
+    /// How many distractors: boxes drawn on the cell's tables (on the floor near the origin
+    /// without one), seen by cameras but not simulated.
+    pub distractors: [u32; 2],
+    /// Metres: each distractor's half extent along each axis.
+    pub distractor_size: [f32; 2],
 }
 
 impl Default for VisualRandomization {
@@ -73,6 +78,8 @@ impl Default for VisualRandomization {
             camera_position: 0.01,
             camera_rotation: 0.087,
             field_of_view: 5.0,
+            distractors: [0, 0],
+            distractor_size: [0.015, 0.05],
         }
     }
 }
@@ -136,12 +143,15 @@ impl VisualRandomization {
         plus_minus("camera_rotation", self.camera_rotation, std::f32::consts::PI, "radians")?;
         // Any field of view must stay inside (0°, 180°): a jitter of 90° or more could leave it.
         plus_minus("field_of_view", self.field_of_view, 90.0, "degrees")?;
+        let [lo, hi] = self.distractors;
+        anyhow::ensure!(lo <= hi && hi <= 100, "{} = [{lo}, {hi}]: must be ordered and at most 100", key("distractors"));
+        range("distractor_size", self.distractor_size, 1e-3, 1.0)?;
         Ok(())
     }
 
     /// The look of one arena for one episode. `links`: (link name, its visuals' count);
-    /// `statics`: the arena's fixed boxes.
-    pub fn draw(&self, rng: &mut impl Rng, links: &[(String, usize)], statics: usize) -> Look {
+    /// `statics`: the arena's fixed boxes (half extents, centre).
+    pub fn draw(&self, rng: &mut impl Rng, links: &[(String, usize)], statics: &[(Vec3, Vec3)]) -> Look {
         let has = |group: &str| self.surfaces.iter().any(|s| s == group);
         let mut look = Look::default();
         look.surfaces.clear();
@@ -149,7 +159,7 @@ impl VisualRandomization {
             look.surfaces.insert("floor".into(), self.surface(rng));
         }
         if has("tables") {
-            for i in 0..statics {
+            for i in 0..statics.len() {
                 look.surfaces.insert(Look::static_surface(i), self.surface(rng));
             }
         }
@@ -170,7 +180,26 @@ impl VisualRandomization {
             rotation: [0; 3].map(|_| plus_minus(rng, self.camera_rotation)),
             fov: plus_minus(rng, self.field_of_view).to_radians(),
         };
+        let [lo, hi] = self.distractors;
+        let count = if hi > lo { rng.random_range(lo..=hi) } else { lo };
+        look.distractors = (0..count).map(|_| self.distractor(rng, statics)).collect();
         look
+    }
+
+    /// A box on a random table's top (or on the floor within a metre of the origin).
+    fn distractor(&self, rng: &mut impl Rng, statics: &[(Vec3, Vec3)]) -> Distractor {
+        let half = [0; 3].map(|_| uniform(rng, self.distractor_size));
+        let (centre, spread, floor) = match statics {
+            [] => (Vec3::ZERO, Vec2::ONE, 0.0),
+            tables => {
+                let (h, c) = tables[rng.random_range(0..tables.len())];
+                (c, 0.9 * h.truncate(), c.z + h.z)
+            }
+        };
+        let x = centre.x + plus_minus(rng, spread.x);
+        let y = centre.y + plus_minus(rng, spread.y);
+        let yaw = rng.random_range(0.0..std::f32::consts::PI);
+        Distractor { centre: [x, y, floor + half[2]], half_extents: half, yaw, surface: self.surface(rng) }
     }
 
     fn surface(&self, rng: &mut impl Rng) -> Surface {
@@ -247,12 +276,12 @@ fn draw_looks(
         // In name order: the draw does not depend on the order links were spawned in.
         let mut own: Vec<(String, usize)> = names.into_iter().map(|(e, name)| (name, counts[&e])).collect();
         own.sort();
-        let statics = arena.static_boxes().count();
+        let statics: Vec<(Vec3, Vec3)> = arena.static_boxes().map(|(h, pose)| (h, pose.translation)).collect();
         let look = match stream {
-            Some(mut s) if s.reseeds == arena.reseeds() => config.draw(&mut s.rng, &own, statics),
+            Some(mut s) if s.reseeds == arena.reseeds() => config.draw(&mut s.rng, &own, &statics),
             _ => {
                 let mut fresh = LookStream { reseeds: arena.reseeds(), rng: arena.side_stream(LOOK_SALT) };
-                let look = config.draw(&mut fresh.rng, &own, statics);
+                let look = config.draw(&mut fresh.rng, &own, &statics);
                 commands.entity(entity).insert(fresh);
                 look
             }
