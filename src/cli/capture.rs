@@ -43,6 +43,9 @@ pub struct Args {
     /// Render the twin calibrated by this file (`twinbots identify`'s calibration.toml).
     #[arg(long)]
     pub calibration: Option<std::path::PathBuf>,
+    /// Lights cast shadows (each light renders a shadow map: slower on a CPU renderer).
+    #[arg(long)]
+    pub shadows: bool,
     /// Domain randomization from this run configuration's `[randomization]` table (with
     /// `[randomization.visual]`: each episode's look, recorded in looks.jsonl beside the frames).
     #[arg(long)]
@@ -55,7 +58,7 @@ pub struct Args {
 
 /// `twinbots capture`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, model, frames, every, size, camera, seed, task, out, calibration, config, log } = args;
+    let Args { robot, model, frames, every, size, camera, seed, task, out, calibration, shadows, config, log } = args;
     let randomization = match config {
         Some(path) => {
             let text = std::fs::read_to_string(&path).with_context(|| format!("--config {}", path.display()))?;
@@ -63,7 +66,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         }
         None => Randomization::default(),
     };
-    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out, calibration, randomization, log })
+    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out, calibration, randomization, shadows, log })
 }
 
 /// A named camera of a robot's cell.
@@ -95,6 +98,12 @@ impl Recorder {
         let mut renderer = Renderer::new(size.0, size.1)?;
         renderer.set_view(view);
         Ok(Self { renderer, out: out.to_path_buf(), written: 0, look: None })
+    }
+
+    /// Lights cast shadows (before the first frame).
+    pub fn with_shadows(mut self, shadows: bool) -> Self {
+        self.renderer = self.renderer.with_shadows(shadows);
+        self
     }
 
     /// Renders arena 0 of `env` as it is now into `frame_<step>.png`. A new look of the arena
@@ -131,6 +140,7 @@ pub struct CaptureArgs {
     pub out: PathBuf,
     pub calibration: Option<PathBuf>,
     pub randomization: Randomization,
+    pub shadows: bool,
     pub log: Option<PathBuf>,
 }
 
@@ -150,7 +160,7 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;
     }
-    let mut recorder = Recorder::new(args.size, view, &args.out)?;
+    let mut recorder = Recorder::new(args.size, view, &args.out)?.with_shadows(args.shadows);
     let mut obs = env.reset(Some(args.seed))?;
     recorder.frame(&mut env, 0)?;
     let zero = vec![0.0; env.action_space().dim()];

@@ -201,3 +201,52 @@ fn arenas_rendered_together_in_tiles_look_as_each_does_alone() {
     assert_eq!(one.len(), 1);
     assert!(one[0].iter().zip(&together[1]).all(|(a, b)| a.abs_diff(*b) <= 1));
 }
+
+#[test]
+fn with_shadows_a_box_shades_the_floor_under_it() {
+    if crate::renderer("with_shadows_a_box_shades_the_floor_under_it", 8, 8).is_none() {
+        return;
+    }
+    use twinbots_render::{Renderer, View};
+    const FLOATING: &str = r#"<robot name="slab"><link name="slab">
+      <visual><geometry><box size="0.6 0.6 0.1"/></geometry></visual></link></robot>"#;
+    let mut app = App::new();
+    app.add_plugins(MinimalPlugins).add_plugins(SimPlugin::default());
+    let world = app.world_mut();
+    let arena_entity = world.spawn_empty().id();
+    let mut arena = Arena::new(0, 0, SimSettings::default().dt, SimSettings::default().gravity);
+    let mut queue = bevy::ecs::world::CommandQueue::default();
+    {
+        let mut commands = Commands::new(&mut queue, world);
+        let model = parse_urdf(FLOATING, "t.urdf".as_ref(), ".".as_ref()).unwrap();
+        let at = SpawnOptions { base: Pose::from_translation(Vec3::new(0.0, 0.0, 0.6)), fixed_base: true, ..default() };
+        spawn_robot(&mut commands, arena_entity, &mut arena, &model, at);
+    }
+    queue.apply(world);
+    arena.mark_initial();
+    // The sun straight overhead, a third of ambient.
+    let sun = vec![Light { direction: [0.0, 0.0, -1.0], color: [1.0; 3], intensity: 0.7 }];
+    world.entity_mut(arena_entity).insert((arena, look(sun, 0.3, BTreeMap::new())));
+    app.update();
+    let view = View::looking_at([2.0, 0.0, 1.2].into(), [0.0, 0.0, 0.0].into(), 40f32.to_radians());
+    let frame = |shadows: bool, app: &mut App| {
+        let mut renderer = Renderer::new(160, 120).unwrap().with_shadows(shadows);
+        renderer.set_view(view);
+        renderer.sync(app.world_mut(), arena_entity);
+        renderer.render().unwrap()
+    };
+    let pixel = |rgb: &[u8], p: Vec3| {
+        let at = view.project(p, 160, 120).unwrap();
+        let i = ((at.y as usize) * 160 + at.x as usize) * 3;
+        [rgb[i], rgb[i + 1], rgb[i + 2]]
+    };
+    let (plain, shaded) = (frame(false, &mut app), frame(true, &mut app));
+    let (under, open) = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(-0.8, 0.6, 0.0));
+    // The floor's colour lit fully (ambient 0.3 + the sun 0.7) and by the ambient alone.
+    let ground = [0.45f32, 0.47, 0.45];
+    let expect = |light: f32| ground.map(|c| linear_to_srgb8(srgb_to_linear(c) * light));
+    let near = |p: [u8; 3], e: [f32; 3], tol: f32| p.iter().zip(e).all(|(a, b)| (*a as f32 - b).abs() <= tol);
+    assert!(near(pixel(&plain, under), expect(1.0), 2.0), "no shadows: lit under the slab, {:?}", pixel(&plain, under));
+    assert!(near(pixel(&shaded, under), expect(0.3), 4.0), "shadows: ambient only under the slab, {:?} vs {:?}", pixel(&shaded, under), expect(0.3));
+    assert!(near(pixel(&shaded, open), expect(1.0), 2.0), "shadows: lit in the open, {:?}", pixel(&shaded, open));
+}

@@ -3,7 +3,8 @@
 // (the mesh's UVs are metres, see scene.rs) or a tiled image. PATTERN (0 plain, 1 checker,
 // 2 noise, 3 gradient, 4 image) and LIGHTS (how many) are compiled in: see shading.rs.
 #import bevy_pbr::forward_io::VertexOutput
-#import bevy_pbr::mesh_view_bindings::lights
+#import bevy_pbr::mesh_view_bindings::{lights, view}
+#import bevy_pbr::shadows::fetch_directional_shadow
 
 struct LambertMaterial {
     // Linear RGB(A).
@@ -49,10 +50,16 @@ fn albedo(uv: vec2<f32>) -> vec3<f32> {
 #endif
 }
 
-// What directional light `i` adds on a surface facing `normal`.
-fn sun(i: u32, normal: vec3<f32>) -> vec3<f32> {
+// What directional light `i` adds on a surface facing `normal` (in its shadow map's shadow,
+// with SHADOWS, nothing).
+fn sun(i: u32, normal: vec3<f32>, in: VertexOutput) -> vec3<f32> {
     let towards = lights.directional_lights[i].direction_to_light;
-    return lights.directional_lights[i].color.rgb * max(dot(normal, towards), 0.0);
+    var lit = lights.directional_lights[i].color.rgb * max(dot(normal, towards), 0.0);
+#ifdef SHADOWS
+    let view_z = dot(vec4(view.view_from_world[0].z, view.view_from_world[1].z, view.view_from_world[2].z, view.view_from_world[3].z), in.world_position);
+    lit *= fetch_directional_shadow(i, in.world_position, normal, view_z, in.position.xy);
+#endif
+    return lit;
 }
 
 @fragment
@@ -61,34 +68,34 @@ fn fragment(in: VertexOutput) -> @location(0) vec4<f32> {
     var light = lights.ambient_color.rgb;
     // Constant indices, as many as the scene has lights (Look::MAX_LIGHTS at most).
 #if LIGHTS > 0
-    light += sun(0u, normal);
+    light += sun(0u, normal, in);
 #endif
 #if LIGHTS > 1
-    light += sun(1u, normal);
+    light += sun(1u, normal, in);
 #endif
 #if LIGHTS > 2
-    light += sun(2u, normal);
+    light += sun(2u, normal, in);
 #endif
 #if LIGHTS > 3
-    light += sun(3u, normal);
+    light += sun(3u, normal, in);
 #endif
 #if LIGHTS > 4
-    light += sun(4u, normal);
+    light += sun(4u, normal, in);
 #endif
 #if LIGHTS > 5
-    light += sun(5u, normal);
+    light += sun(5u, normal, in);
 #endif
 #if LIGHTS > 6
-    light += sun(6u, normal);
+    light += sun(6u, normal, in);
 #endif
 #if LIGHTS > 7
-    light += sun(7u, normal);
+    light += sun(7u, normal, in);
 #endif
 #if LIGHTS > 8
-    light += sun(8u, normal);
+    light += sun(8u, normal, in);
 #endif
 #if LIGHTS > 9
-    light += sun(9u, normal);
+    light += sun(9u, normal, in);
 #endif
 #ifdef VERTEX_UVS_A
     let uv = in.uv;

@@ -210,6 +210,15 @@ impl Renderer {
         Ok(Self { app, width, height, columns, cameras, fresh_meshes: true, readback_buffer: None, view, arena: None, sync_error: None })
     }
 
+    /// Lights cast shadows from now on (see [`scene::Shadows`]); call before the first sync.
+    pub fn with_shadows(mut self, shadows: bool) -> Self {
+        // 1024² per cascade: Bevy's 2048² cost a CPU renderer 4× the time for a cell's shadows.
+        let world = self.app.world_mut();
+        world.insert_resource(scene::Shadows(shadows));
+        world.insert_resource(bevy::light::DirectionalLightShadowMap { size: 1024 });
+        self
+    }
+
     /// How many images one frame can draw.
     pub fn tiles(&self) -> usize {
         self.cameras.len()

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use bevy::asset::RenderAssetUsages;
 use bevy::image::{ImageAddressMode, ImageSampler, ImageSamplerDescriptor};
 use bevy::camera::visibility::RenderLayers;
-use bevy::light::AmbientLight;
+use bevy::light::{AmbientLight, CascadeShadowConfigBuilder};
 use bevy::mesh::{Indices, PrimitiveTopology, VertexAttributeValues};
 use bevy::prelude::*;
 use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
@@ -40,6 +40,12 @@ pub fn to_bevy(pose: Pose) -> Transform {
 pub fn point_to_bevy(p: Vec3) -> Vec3 {
     z_up_to_y_up() * p
 }
+
+/// Whether the lights of the render world cast shadows (`capture --shadows`): each light
+/// renders a shadow map, and surfaces sample it. Off by default: on Mesa's CPU renderer a shadow
+/// map costs about as much as the frame.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct Shadows(pub bool);
 
 /// The mirrored arenas of a render world. Each arena's entities (and its lights) are on a
 /// render layer of their own, so a camera sees one arena by taking its layer: switching arenas
@@ -262,13 +268,14 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
         (m.surfaces.iter().map(|(n, (h, c))| (n.clone(), h.clone(), *c)).collect(), m.layer)
     };
     let lights = look.lights.len().min(Look::MAX_LIGHTS) as u32;
+    let shadows = render.get_resource::<Shadows>().is_some_and(|s| s.0);
     for (name, handle, own) in surfaces {
         let material = match look.surfaces.get(&name) {
             Some(surface) => surface_material(render, surface)?,
             None => LambertMaterial::new(Color::srgb(own[0], own[1], own[2])),
         };
         if let Some(mut m) = render.resource_mut::<Assets<LambertMaterial>>().get_mut(&handle) {
-            *m = LambertMaterial { lights, ..material };
+            *m = LambertMaterial { lights, shadows, ..material };
         }
     }
     let old = {
@@ -283,7 +290,7 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
     for d in &look.distractors {
         let [x, y, z] = d.half_extents;
         let mesh = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Cuboid::new(2.0 * x, 2.0 * y, 2.0 * z).into()));
-        let material = LambertMaterial { lights, ..surface_material(render, &d.surface)? };
+        let material = LambertMaterial { lights, shadows, ..surface_material(render, &d.surface)? };
         let material = render.resource_mut::<Assets<LambertMaterial>>().add(material);
         let pose = Pose::from_parts(Vec3::from_array(d.centre), Quat::from_rotation_z(d.yaw));
         distractors.push(render.spawn((Mesh3d(mesh), MeshMaterial3d(material), to_bevy(pose), RenderLayers::layer(layer))).id());
@@ -295,9 +302,11 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
         .map(|l| {
             let [r, g, b] = l.color;
             let towards = point_to_bevy(Vec3::from_array(l.direction));
-            let light = DirectionalLight { illuminance: l.intensity, color: Color::linear_rgb(r, g, b), shadow_maps_enabled: false, ..default() };
+            let light = DirectionalLight { illuminance: l.intensity, color: Color::linear_rgb(r, g, b), shadow_maps_enabled: shadows, ..default() };
             let pose = Transform::default().looking_to(towards, any_orthogonal(towards));
-            render.spawn((light, pose, RenderLayers::layer(layer))).id()
+            // A cell is a few metres across: two cascades over 8 m keep the shadows sharp.
+            let cascades = CascadeShadowConfigBuilder { num_cascades: 2, first_cascade_far_bound: 2.5, maximum_distance: 8.0, ..default() }.build();
+            render.spawn((light, cascades, pose, RenderLayers::layer(layer))).id()
         })
         .collect();
     let mut mirror = arena_mut(render, arena);

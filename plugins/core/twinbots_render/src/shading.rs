@@ -52,6 +52,8 @@ pub struct LambertMaterial {
     pub image: Option<Handle<Image>>,
     /// How many directional lights the scene has (the renderer keeps it so, see scene.rs).
     pub lights: u32,
+    /// Whether the lights cast shadows (their shadow maps are sampled).
+    pub shadows: bool,
 }
 
 /// What a [`LambertMaterial`]'s pipeline is compiled for.
@@ -60,17 +62,18 @@ pub struct LambertMaterial {
 pub struct LambertKey {
     kind: u32,
     lights: u32,
+    shadows: bool,
 }
 
 impl From<&LambertMaterial> for LambertKey {
     fn from(m: &LambertMaterial) -> Self {
-        Self { kind: m.kind, lights: m.lights }
+        Self { kind: m.kind, lights: m.lights, shadows: m.shadows }
     }
 }
 
 impl LambertMaterial {
     pub fn new(color: Color) -> Self {
-        Self { color: color.to_linear(), color2: LinearRgba::BLACK, kind: PLAIN, size: 1.0, image: None, lights: 1 }
+        Self { color: color.to_linear(), color2: LinearRgba::BLACK, kind: PLAIN, size: 1.0, image: None, lights: 1, shadows: false }
     }
 
     /// A surface of `color` (sRGB) with `texture`; `image` is the loaded image of an image texture.
@@ -102,6 +105,9 @@ impl Material for LambertMaterial {
         if let Some(fragment) = descriptor.fragment.as_mut() {
             fragment.shader_defs.push(ShaderDefVal::UInt("PATTERN".into(), key.bind_group_data.kind));
             fragment.shader_defs.push(ShaderDefVal::UInt("LIGHTS".into(), key.bind_group_data.lights));
+            if key.bind_group_data.shadows {
+                fragment.shader_defs.push("SHADOWS".into());
+            }
         }
         Ok(())
     }
