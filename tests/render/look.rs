@@ -91,6 +91,13 @@ fn a_known_colour_under_known_lights_gives_the_pixel_of_the_light_model() {
             );
         }
     }
+    // A highlight: the light and the eye straight in front of the wall, so n·h = 1 and the
+    // surface adds specular × the light's colour × intensity to the diffuse term.
+    let white = vec![Light { direction: [1.0, 0.0, 0.0], color: [1.0; 3], intensity: 0.5 }];
+    let shiny = BTreeMap::from([("wall/0".to_string(), Surface { color: WALL, texture: Texture::Plain, specular: 0.5 })]);
+    let (pixel, _) = wall_seen_under(look(white, 0.1, shiny)).unwrap();
+    let expected: Vec<f32> = (0..3).map(|c| linear_to_srgb8(srgb_to_linear(WALL[c]) * 0.6 + 0.5 * 0.5)).collect();
+    assert!(pixel.iter().zip(&expected).all(|(p, e)| (*p as f32 - e).abs() <= 2.0), "specular: {pixel:?}, the model says {expected:?}");
 }
 
 #[test]
@@ -99,7 +106,7 @@ fn textures_pattern_a_surface_in_metres_and_an_unreadable_image_is_an_error() {
         return;
     }
     let white = vec![Light { direction: [1.0, 0.0, 0.0], color: [1.0; 3], intensity: 1.0 }];
-    let on_wall = |texture: Texture| BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0, 0.0, 0.0], texture })]);
+    let on_wall = |texture: Texture| BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0, 0.0, 0.0], texture, specular: 0.0 })]);
     // Red and blue squares of 10 cm: the 32-pixel-wide view of 0.73 m of wall shows both, in
     // about equal shares, and nothing else.
     let (_, image) = wall_seen_under(look(white.clone(), 0.0, on_wall(Texture::Checker { color: [0.0, 0.0, 1.0], size: 0.1 }))).unwrap();
@@ -112,11 +119,11 @@ fn textures_pattern_a_surface_in_metres_and_an_unreadable_image_is_an_error() {
     std::fs::create_dir_all(&dir).unwrap();
     let green = dir.join("green.png");
     image::RgbImage::from_pixel(8, 8, image::Rgb([20, 200, 40])).save(&green).unwrap();
-    let surfaces = BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0; 3], texture: Texture::Image { path: green, size: 0.2 } })]);
+    let surfaces = BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0; 3], texture: Texture::Image { path: green, size: 0.2 }, specular: 0.0 })]);
     let (pixel, _) = wall_seen_under(look(white.clone(), 0.0, surfaces)).unwrap();
     assert!(pixel.iter().zip([20u8, 200, 40]).all(|(a, b)| a.abs_diff(b) <= 2), "{pixel:?}");
     // An image that is not there: the frame fails, naming the file.
-    let missing = BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0; 3], texture: Texture::Image { path: dir.join("gone.png"), size: 0.2 } })]);
+    let missing = BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0; 3], texture: Texture::Image { path: dir.join("gone.png"), size: 0.2 }, specular: 0.0 })]);
     let message = wall_seen_under(look(white.clone(), 0.0, missing)).unwrap_err().to_string();
     assert!(message.contains("gone.png") && message.contains("image texture"), "{message}");
     // A distractor between the camera and the wall: seen in the first frame, in its colour,
@@ -126,7 +133,7 @@ fn textures_pattern_a_surface_in_metres_and_an_unreadable_image_is_an_error() {
         centre: [0.5, 0.0, 0.5],
         half_extents: [0.05, 0.1, 0.1],
         yaw: 0.0,
-        surface: Surface { color: [0.0, 1.0, 0.0], texture: Texture::Plain },
+        surface: Surface { color: [0.0, 1.0, 0.0], texture: Texture::Plain, specular: 0.0 },
     });
     let (pixel, _) = wall_seen_under(with_box).unwrap();
     assert!(pixel[1] > 250 && pixel[0] < 5 && pixel[2] < 5, "the green distractor in front: {pixel:?}");

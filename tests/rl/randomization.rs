@@ -223,6 +223,7 @@ fn bad_visual_randomization_is_a_clear_error_naming_the_key() {
         ("field_of_view = -1.0", "randomization.visual.field_of_view"),
         ("lights = [2, 11]", "randomization.visual.lights"),
         ("distractors = [3, 1]", "randomization.visual.distractors"),
+        ("specular = [0.0, 2.0]", "randomization.visual.specular"),
         ("distractor_size = [0.0, 0.1]", "randomization.visual.distractor_size"),
         ("surfaces = [\"ceiling\"]", "ceiling"),
         ("textures = [\"marble\"]", "marble"),

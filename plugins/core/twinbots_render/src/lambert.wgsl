@@ -12,7 +12,11 @@ struct LambertMaterial {
     color2: vec4<f32>,
     kind: u32,
     size: f32,
+    specular: f32,
 }
+
+// Blinn-Phong's exponent: a highlight about 25° wide.
+const SHININESS: f32 = 32.0;
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> material: LambertMaterial;
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var image: texture_2d<f32>;
@@ -50,57 +54,77 @@ fn albedo(uv: vec2<f32>) -> vec3<f32> {
 #endif
 }
 
-// What directional light `i` adds on a surface facing `normal` (in its shadow map's shadow,
-// with SHADOWS, nothing).
-fn sun(i: u32, normal: vec3<f32>, in: VertexOutput) -> vec3<f32> {
+// What directional light `i` adds on a surface facing `normal` seen from `to_eye`: diffuse
+// (`.diffuse`, times the albedo later) and the highlight (`.highlight`); in its shadow map's
+// shadow, with SHADOWS, nothing.
+struct Lit {
+    diffuse: vec3<f32>,
+    highlight: vec3<f32>,
+}
+
+fn sun(i: u32, normal: vec3<f32>, to_eye: vec3<f32>, in: VertexOutput) -> Lit {
     let towards = lights.directional_lights[i].direction_to_light;
-    var lit = lights.directional_lights[i].color.rgb * max(dot(normal, towards), 0.0);
+    let color = lights.directional_lights[i].color.rgb;
+    let facing = max(dot(normal, towards), 0.0);
+    var lit = Lit(color * facing, vec3(0.0));
+#ifdef SPECULAR
+    if facing > 0.0 {
+        lit.highlight = color * pow(max(dot(normal, normalize(towards + to_eye)), 0.0), SHININESS);
+    }
+#endif
 #ifdef SHADOWS
     let view_z = dot(vec4(view.view_from_world[0].z, view.view_from_world[1].z, view.view_from_world[2].z, view.view_from_world[3].z), in.world_position);
-    lit *= fetch_directional_shadow(i, in.world_position, normal, view_z, in.position.xy);
+    let shadow = fetch_directional_shadow(i, in.world_position, normal, view_z, in.position.xy);
+    lit.diffuse *= shadow;
+    lit.highlight *= shadow;
 #endif
     return lit;
+}
+
+fn add(a: Lit, b: Lit) -> Lit {
+    return Lit(a.diffuse + b.diffuse, a.highlight + b.highlight);
 }
 
 @fragment
 fn fragment(in: VertexOutput) -> @location(0) vec4<f32> {
     let normal = normalize(in.world_normal);
-    var light = lights.ambient_color.rgb;
+    let to_eye = normalize(view.world_position - in.world_position.xyz);
+    var light = Lit(lights.ambient_color.rgb, vec3(0.0));
     // Constant indices, as many as the scene has lights (Look::MAX_LIGHTS at most).
 #if LIGHTS > 0
-    light += sun(0u, normal, in);
+    light = add(light, sun(0u, normal, to_eye, in));
 #endif
 #if LIGHTS > 1
-    light += sun(1u, normal, in);
+    light = add(light, sun(1u, normal, to_eye, in));
 #endif
 #if LIGHTS > 2
-    light += sun(2u, normal, in);
+    light = add(light, sun(2u, normal, to_eye, in));
 #endif
 #if LIGHTS > 3
-    light += sun(3u, normal, in);
+    light = add(light, sun(3u, normal, to_eye, in));
 #endif
 #if LIGHTS > 4
-    light += sun(4u, normal, in);
+    light = add(light, sun(4u, normal, to_eye, in));
 #endif
 #if LIGHTS > 5
-    light += sun(5u, normal, in);
+    light = add(light, sun(5u, normal, to_eye, in));
 #endif
 #if LIGHTS > 6
-    light += sun(6u, normal, in);
+    light = add(light, sun(6u, normal, to_eye, in));
 #endif
 #if LIGHTS > 7
-    light += sun(7u, normal, in);
+    light = add(light, sun(7u, normal, to_eye, in));
 #endif
 #if LIGHTS > 8
-    light += sun(8u, normal, in);
+    light = add(light, sun(8u, normal, to_eye, in));
 #endif
 #if LIGHTS > 9
-    light += sun(9u, normal, in);
+    light = add(light, sun(9u, normal, to_eye, in));
 #endif
 #ifdef VERTEX_UVS_A
     let uv = in.uv;
 #else
     let uv = vec2(0.0);
 #endif
-    return vec4(albedo(uv) * light, 1.0);
+    return vec4(albedo(uv) * light.diffuse + material.specular * light.highlight, 1.0);
 }

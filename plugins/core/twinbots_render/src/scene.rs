@@ -317,12 +317,12 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
 }
 
 /// The material of a look's surface (its image loaded if it has one).
-fn surface_material(render: &mut World, Surface { color, texture }: &Surface) -> Result<LambertMaterial, RenderError> {
-    let image = match texture {
+fn surface_material(render: &mut World, surface: &Surface) -> Result<LambertMaterial, RenderError> {
+    let image = match &surface.texture {
         Texture::Image { path, .. } => Some(image_texture(render, path)?),
         _ => None,
     };
-    Ok(LambertMaterial::textured(*color, texture, image))
+    Ok(LambertMaterial::of_surface(surface, image))
 }
 
 /// An up vector for `looking_to` that is never parallel to the direction.

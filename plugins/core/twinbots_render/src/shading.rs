@@ -13,7 +13,8 @@
 //! cost lavapipe up to 40 % of a 640×480 frame (64 against 100 frames/s measured).
 //!
 //! The light model, in linear RGB: `pixel = albedo × (ambient + Σ colourᵢ × intensityᵢ ×
-//! max(0, n·lᵢ))`, where Bevy carries a light's relative intensity as its `illuminance` and the
+//! max(0, n·lᵢ)) + specular × Σ colourᵢ × intensityᵢ × max(0, n·hᵢ)^32` (Blinn-Phong, hᵢ halfway
+//! between the light and the eye, only where the light reaches), where Bevy carries a light's relative intensity as its `illuminance` and the
 //! ambient share as `GlobalAmbientLight::brightness` (see `twinbots_sim::look`).
 
 use bevy::asset::embedded_asset;
@@ -22,7 +23,7 @@ use bevy::pbr::{MaterialPipeline, MaterialPipelineKey};
 use bevy::prelude::*;
 use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, SpecializedMeshPipelineError};
 use bevy::shader::{ShaderDefVal, ShaderRef};
-use twinbots_sim::look::Texture;
+use twinbots_sim::look::{Surface, Texture};
 
 /// Pattern codes of the shader (`kind`).
 const PLAIN: u32 = 0;
@@ -47,6 +48,9 @@ pub struct LambertMaterial {
     /// Metres per checker square, noise cell, gradient period or image tile.
     #[uniform(0)]
     pub size: f32,
+    /// Blinn-Phong highlight strength (0: none, and none compiled in).
+    #[uniform(0)]
+    pub specular: f32,
     #[texture(1)]
     #[sampler(2)]
     pub image: Option<Handle<Image>>,
@@ -63,23 +67,25 @@ pub struct LambertKey {
     kind: u32,
     lights: u32,
     shadows: bool,
+    specular: bool,
 }
 
 impl From<&LambertMaterial> for LambertKey {
     fn from(m: &LambertMaterial) -> Self {
-        Self { kind: m.kind, lights: m.lights, shadows: m.shadows }
+        Self { kind: m.kind, lights: m.lights, shadows: m.shadows, specular: m.specular > 0.0 }
     }
 }
 
 impl LambertMaterial {
     pub fn new(color: Color) -> Self {
-        Self { color: color.to_linear(), color2: LinearRgba::BLACK, kind: PLAIN, size: 1.0, image: None, lights: 1, shadows: false }
+        Self { color: color.to_linear(), color2: LinearRgba::BLACK, kind: PLAIN, size: 1.0, specular: 0.0, image: None, lights: 1, shadows: false }
     }
 
-    /// A surface of `color` (sRGB) with `texture`; `image` is the loaded image of an image texture.
-    pub fn textured(color: [f32; 3], texture: &Texture, image: Option<Handle<Image>>) -> Self {
+    /// A look's surface; `image` is the loaded image of an image texture.
+    pub fn of_surface(surface: &Surface, image: Option<Handle<Image>>) -> Self {
+        let Surface { color, texture, specular } = surface;
         let srgb = |[r, g, b]: [f32; 3]| Color::srgb(r, g, b).to_linear();
-        let base = Self::new(Color::srgb(color[0], color[1], color[2]));
+        let base = Self { specular: *specular, ..Self::new(Color::srgb(color[0], color[1], color[2])) };
         let (kind, color2, size) = match texture {
             Texture::Plain => return base,
             Texture::Checker { color, size } => (CHECKER, srgb(*color), *size),
@@ -107,6 +113,9 @@ impl Material for LambertMaterial {
             fragment.shader_defs.push(ShaderDefVal::UInt("LIGHTS".into(), key.bind_group_data.lights));
             if key.bind_group_data.shadows {
                 fragment.shader_defs.push("SHADOWS".into());
+            }
+            if key.bind_group_data.specular {
+                fragment.shader_defs.push("SPECULAR".into());
             }
         }
         Ok(())

@@ -69,6 +69,9 @@ pub struct Surface {
     /// sRGB in [0, 1], like a URDF material's `rgba`.
     pub color: [f32; 3],
     pub texture: Texture,
+    /// Strength of the lights' highlight (Blinn-Phong, exponent 32), 0 for none.
+    #[serde(default)]
+    pub specular: f32,
 }
 
 /// A surface texture. Patterns are laid out in metres on the surface (`size`: a checker's

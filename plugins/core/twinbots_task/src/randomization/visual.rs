@@ -38,6 +38,9 @@ pub struct VisualRandomization {
     /// Colours are drawn in HSV: any hue, saturation and value in these ranges.
     pub saturation: [f32; 2],
     pub value: [f32; 2],
+    /// Each surface's highlight strength (Blinn-Phong); off by default, as it costs a little
+    /// per pixel where drawn.
+    pub specular: [f32; 2],
     /// How many directional lights.
     pub lights: [u32; 2],
     /// Each light's relative intensity (1: a surface facing it shows its own colour).
@@ -70,6 +73,7 @@ impl Default for VisualRandomization {
             texture_size: [0.02, 0.3],
             saturation: [0.0, 0.9],
             value: [0.2, 0.95],
+            specular: [0.0, 0.0],
             lights: [1, 3],
             light_intensity: [0.3, 0.9],
             light_tint: 0.3,
@@ -123,6 +127,7 @@ impl VisualRandomization {
         range("texture_size", self.texture_size, 1e-3, 100.0)?;
         range("saturation", self.saturation, 0.0, 1.0)?;
         range("value", self.value, 0.0, 1.0)?;
+        range("specular", self.specular, 0.0, 1.0)?;
         let [lo, hi] = self.lights;
         anyhow::ensure!(
             lo <= hi && hi as usize <= Look::MAX_LIGHTS,
@@ -213,7 +218,7 @@ impl VisualRandomization {
             "image" => Texture::Image { path: self.images[rng.random_range(0..self.images.len())].clone(), size },
             _ => Texture::Plain,
         };
-        Surface { color, texture }
+        Surface { color, texture, specular: uniform(rng, self.specular) }
     }
 
     fn color(&self, rng: &mut impl Rng) -> [f32; 3] {
