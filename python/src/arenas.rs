@@ -2,7 +2,7 @@
 //! engine under `twinbots.make_vec` (Gymnasium), the single envs and the SB3 adapter.
 
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArray4, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
 use twinbots_render::{Renderer, View};
@@ -27,6 +27,16 @@ pub struct Arenas {
 }
 
 impl Arenas {
+    /// The env and its renderer, or why there is none.
+    fn rendering(&mut self) -> PyResult<(&mut AppVecEnv, &mut Frames)> {
+        let env = self.env.as_mut().ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("this env is closed"))?;
+        let frames = self
+            .frames
+            .as_mut()
+            .ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("rendering is off: create the env with render_mode=\"rgb_array\""))?;
+        Ok((env, frames))
+    }
+
     fn env(&mut self) -> PyResult<&mut AppVecEnv> {
         self.env
             .as_mut()
@@ -214,13 +224,16 @@ impl Arenas {
 
     /// Arena 0 as it is now: an RGB image, shape `(height, width, 3)`, uint8.
     fn render<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<u8>>> {
-        let env = self.env.as_mut().ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("this env is closed"))?;
-        let frames = self
-            .frames
-            .as_mut()
-            .ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("rendering is off: create the env with render_mode=\"rgb_array\""))?;
+        let (env, frames) = self.rendering()?;
         let image = no_panic("rendering", || frames.render(env)).map_err(runtime_error)?;
         Ok(image.into_pyarray(py))
+    }
+
+    /// Every arena as it is now, drawn in one frame: shape `(num_envs, height, width, 3)`, uint8.
+    fn render_all<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray4<u8>>> {
+        let (env, frames) = self.rendering()?;
+        let images = no_panic("rendering", || frames.render_all(env)).map_err(runtime_error)?;
+        Ok(images.into_pyarray(py))
     }
 }
 

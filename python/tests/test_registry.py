@@ -87,9 +87,18 @@ def test_rgb_array_renders_or_says_why():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         gymnasium_check_env(env.unwrapped)  # with its render check
-    envs = twinbots.make_vec("cartpole", num_envs=2, seed=0, render_mode="rgb_array")
+    envs = twinbots.make_vec("cartpole", num_envs=3, seed=0, render_mode="rgb_array", config={"visual": {}})
     envs.reset(seed=0)
-    assert envs.render().shape == (480, 640, 3)
+    frames = envs.render()  # Gymnasium's vector convention: a tuple, one frame per env
+    assert isinstance(frames, tuple) and len(frames) == 3
+    assert all(f.shape == (480, 640, 3) and f.dtype == np.uint8 for f in frames)
+    assert not np.array_equal(frames[0], frames[1]), "each env in its own look"
+    batch = envs.render_all()
+    assert batch.shape == (3, 480, 640, 3)
+    np.testing.assert_array_equal(batch, np.stack(frames))
+    # Tiles are what each env looks like: env 0's tile is the single renderer's frame of it.
+    np.testing.assert_array_equal(batch[0], envs.arenas.render())
+    envs.close()
 
 
 def test_visual_randomization_gives_each_episode_a_seeded_look():

@@ -69,10 +69,10 @@ class TwinbotsSB3VecEnv(VecEnv):
             self.arenas.close()
 
     def get_images(self) -> Sequence[np.ndarray | None]:
-        """Arena 0's frame (the renderer draws one arena); None for the others."""
+        """Every env's frame, drawn in one frame by the renderer."""
         if self.render_mode != "rgb_array":
             raise RuntimeError("rendering is off: create the env with render_mode='rgb_array'")
-        return [self.arenas.render()] + [None] * (self.num_envs - 1)
+        return list(self.arenas.render_all())
 
     # The arenas are one Rust app, not N Python envs: there are no per-env attributes or wrappers.
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:

@@ -111,10 +111,19 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
 
     @on_owner_thread
     def render(self):
-        """Arena 0 as an RGB image (`render_mode="rgb_array"`)."""
+        """Every env's frame (`render_mode="rgb_array"`), as Gymnasium's vector envs return
+        them: a tuple of `(height, width, 3)` uint8 images, views of one `(num_envs, height,
+        width, 3)` array that the renderer draws in one frame (`render_all()` returns it)."""
         if self.render_mode is None:
             return None
-        return self.arenas.render()
+        return tuple(self.arenas.render_all())
+
+    @on_owner_thread
+    def render_all(self):
+        """Every env's frame as one `(num_envs, height, width, 3)` uint8 array."""
+        if self.render_mode is None:
+            raise RuntimeError("rendering is off: create the env with render_mode='rgb_array'")
+        return self.arenas.render_all()
 
     def close_extras(self, **kwargs):
         if hasattr(self, "arenas") and get_ident() == self._owner:  # not when __init__ failed (close() runs from __del__)
