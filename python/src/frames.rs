@@ -2,7 +2,7 @@
 //! arena 0 alone, or every arena in one frame (one tile each, read back once).
 
 use numpy::ndarray::{Array3, Array4};
-use twinbots_render::{RenderError, Renderer, View};
+use twinbots_render::{Renderer, View};
 use twinbots_task::AppVecEnv;
 
 pub struct Frames {
@@ -33,7 +33,7 @@ impl Frames {
         let shots: Vec<_> = env.arenas().iter().map(|&a| (a, self.view)).collect();
         let tiled = match &mut self.tiled {
             Some(t) => t,
-            None => self.tiled.insert(Renderer::tiled(w, h, shots.len()).map_err(|e: RenderError| anyhow::anyhow!(e))?),
+            None => self.tiled.insert(Renderer::tiled(w, h, shots.len())?),
         };
         let images = tiled.render_shots(env.app_mut().world_mut(), &shots)?;
         Ok(Array4::from_shape_vec((shots.len(), h as usize, w as usize, 3), images.concat())?)

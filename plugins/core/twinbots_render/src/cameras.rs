@@ -43,11 +43,10 @@ impl CameraRig {
         }
         for ((width, height), shots) in groups {
             let tiles = if self.max_tiles > 0 { shots.len().min(self.max_tiles) } else { shots.len() };
-            let renderer = match self.renderers.remove(&(width, height)) {
-                Some(r) if r.tiles() >= tiles => r,
-                _ => Renderer::tiled(width, height, tiles)?,
-            };
-            let renderer = self.renderers.entry((width, height)).or_insert(renderer);
+            if self.renderers.get(&(width, height)).is_none_or(|r| r.tiles() < tiles) {
+                self.renderers.insert((width, height), Renderer::tiled(width, height, tiles)?);
+            }
+            let renderer = self.renderers.get_mut(&(width, height)).expect("made above");
             let views: Vec<(Entity, View)> = shots.iter().map(|(_, shot)| *shot).collect();
             let images = renderer.render_shots(sim, &views)?;
             for ((entity, _), image) in shots.iter().zip(images) {

@@ -267,11 +267,11 @@ impl Renderer {
             t.set_if_neq(view.transform);
         }
         if let Some(mut p) = world.get_mut::<Projection>(camera)
-            && let Projection::Perspective(pp) = &*p
+            && let Projection::Perspective(pp) = p.bypass_change_detection()
             && pp.fov != view.fov_y
-            && let Projection::Perspective(pp) = &mut *p
         {
             pp.fov = view.fov_y;
+            p.set_changed();
         }
     }
 
@@ -320,20 +320,7 @@ impl Renderer {
         // `Readback` delivers only on the next update, which would draw the scene again.)
         self.app.update();
         self.poll()?;
-        let rgb = self.read_target()?;
-        Ok((0..shots.len() as u32).map(|i| self.tile(&rgb, i)).collect())
-    }
-
-    /// Tile `i` of the target's RGB pixels.
-    fn tile(&self, rgb: &[u8], i: u32) -> Vec<u8> {
-        let (w, h) = (self.width as usize, self.height as usize);
-        let stride = self.columns as usize * w * 3;
-        let (x0, y0) = ((i % self.columns) as usize * w, (i / self.columns) as usize * h);
-        let mut out = Vec::with_capacity(w * h * 3);
-        for y in y0..y0 + h {
-            out.extend_from_slice(&rgb[y * stride + x0 * 3..y * stride + (x0 + w) * 3]);
-        }
-        out
+        self.read_target(shots.len())
     }
 
     /// The target's size in pixels.
@@ -342,8 +329,9 @@ impl Renderer {
         (self.width * self.columns, self.height * rows)
     }
 
-    /// Copies the target texture into a mappable buffer (kept between frames) and reads it.
-    fn read_target(&mut self) -> Result<Vec<u8>, RenderError> {
+    /// Copies the target texture into a mappable buffer (kept between frames) and reads its
+    /// first `tiles` tiles out of it as RGB images.
+    fn read_target(&mut self, tiles: usize) -> Result<Vec<Vec<u8>>, RenderError> {
         let (width, height) = self.target_size();
         let handle = self.app.world().resource::<Target>().0.clone();
         let world = self.app.sub_app(RenderApp).world();
@@ -382,9 +370,13 @@ impl Renderer {
             Some(Err(e)) => return Err(RenderError::Failed(format!("reading the frame back: {e}"))),
             None => return Err(RenderError::Failed("no pixels came back".into())),
         }
-        let rgb = strip(&slice.get_mapped_range(), width, height);
+        let (w, h, columns) = (self.width as usize, self.height as usize, self.columns as usize);
+        let images = {
+            let data = slice.get_mapped_range();
+            (0..tiles).map(|i| tile(&data, padded, (i % columns * w, i / columns * h), (w, h))).collect()
+        };
         buffer.unmap();
-        Ok(rgb)
+        Ok(images)
     }
 
     /// Updates until no pipeline is still compiling, so new meshes do not render blank.
@@ -421,13 +413,11 @@ impl Renderer {
 
 }
 
-/// RGBA rows padded to 256 bytes → tight RGB rows.
-fn strip(data: &[u8], width: u32, height: u32) -> Vec<u8> {
-    let row = (width * 4) as usize;
-    let padded = RenderDevice::align_copy_bytes_per_row(row);
-    let mut rgb = Vec::with_capacity((width * height * 3) as usize);
-    for r in data.chunks(padded).take(height as usize) {
-        for px in r[..row].chunks_exact(4) {
+/// The `w × h` RGB image at pixel `(x0, y0)` of RGBA rows `padded` bytes apart.
+fn tile(data: &[u8], padded: usize, (x0, y0): (usize, usize), (w, h): (usize, usize)) -> Vec<u8> {
+    let mut rgb = Vec::with_capacity(w * h * 3);
+    for row in data.chunks(padded).skip(y0).take(h) {
+        for px in row[x0 * 4..(x0 + w) * 4].chunks_exact(4) {
             rgb.extend_from_slice(&px[..3]);
         }
     }

@@ -147,6 +147,11 @@ pub fn mesh_for(shape: &Shape) -> (Mesh, Transform) {
     (metric_uvs(mesh), local)
 }
 
+/// A box of `half` extents, UVs in metres (static boxes, distractors).
+fn box_mesh(half: Vec3) -> Mesh {
+    mesh_for(&Shape::Box { half_extents: half }).0
+}
+
 /// Replaces a mesh's UVs by box projection in metres: each vertex takes the two coordinates of
 /// its position across its normal's main axis. Patterns then have the same scale on every
 /// surface (a primitive's own UVs stretch one image over any size).
@@ -195,7 +200,7 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<b
         let ground = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Plane3d::default().mesh().size(40.0, 40.0).into()));
         spawn_surface(render, arena, "floor".into(), ground, GROUND_COLOR, Transform::IDENTITY, None);
         for (i, (half, pose)) in boxes.into_iter().enumerate() {
-            let mesh = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Cuboid::new(2.0 * half.x, 2.0 * half.y, 2.0 * half.z).into()));
+            let mesh = render.resource_mut::<Assets<Mesh>>().add(box_mesh(half));
             spawn_surface(render, arena, Look::static_surface(i), mesh, [0.6, 0.55, 0.5], to_bevy(pose), None);
         }
         fresh = true;
@@ -267,7 +272,7 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
         let m = &render.resource::<Mirror>().arenas[&arena];
         (m.surfaces.iter().map(|(n, (h, c))| (n.clone(), h.clone(), *c)).collect(), m.layer)
     };
-    let lights = look.lights.len().min(Look::MAX_LIGHTS) as u32;
+    let light_count = look.lights.len().min(Look::MAX_LIGHTS) as u32;
     let shadows = render.get_resource::<Shadows>().is_some_and(|s| s.0);
     for (name, handle, own) in surfaces {
         let material = match look.surfaces.get(&name) {
@@ -275,22 +280,21 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
             None => LambertMaterial::new(Color::srgb(own[0], own[1], own[2])),
         };
         if let Some(mut m) = render.resource_mut::<Assets<LambertMaterial>>().get_mut(&handle) {
-            *m = LambertMaterial { lights, shadows, ..material };
+            *m = LambertMaterial { lights: light_count, shadows, ..material };
         }
     }
     let old = {
         let mut m = arena_mut(render, arena);
-        let lights = std::mem::take(&mut m.lights);
-        lights.into_iter().chain(std::mem::take(&mut m.distractors)).collect::<Vec<Entity>>()
+        let shown = std::mem::take(&mut m.lights);
+        shown.into_iter().chain(std::mem::take(&mut m.distractors)).collect::<Vec<Entity>>()
     };
     for e in old {
         render.despawn(e);
     }
     let mut distractors = Vec::with_capacity(look.distractors.len());
     for d in &look.distractors {
-        let [x, y, z] = d.half_extents;
-        let mesh = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Cuboid::new(2.0 * x, 2.0 * y, 2.0 * z).into()));
-        let material = LambertMaterial { lights, shadows, ..surface_material(render, &d.surface)? };
+        let mesh = render.resource_mut::<Assets<Mesh>>().add(box_mesh(Vec3::from_array(d.half_extents)));
+        let material = LambertMaterial { lights: light_count, shadows, ..surface_material(render, &d.surface)? };
         let material = render.resource_mut::<Assets<LambertMaterial>>().add(material);
         let pose = Pose::from_parts(Vec3::from_array(d.centre), Quat::from_rotation_z(d.yaw));
         distractors.push(render.spawn((Mesh3d(mesh), MeshMaterial3d(material), to_bevy(pose), RenderLayers::layer(layer))).id());

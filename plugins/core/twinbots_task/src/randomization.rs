@@ -176,6 +176,11 @@ fn uniform(rng: &mut impl Rng, [lo, hi]: [f32; 2]) -> f32 {
     if hi > lo { rng.random_range(lo..=hi) } else { lo }
 }
 
+/// A count drawn uniformly in `[lo, hi]` (no draw when the range is one value).
+fn uniform_count(rng: &mut impl Rng, [lo, hi]: [u32; 2]) -> u32 {
+    if hi > lo { rng.random_range(lo..=hi) } else { lo }
+}
+
 fn add_state(mut commands: Commands, arenas: Query<Entity, With<Arena>>) {
     for arena in &arenas {
         commands.entity(arena).insert(RandomizationState::default());
@@ -200,8 +205,7 @@ fn randomize_episode(
         let mass = uniform(&mut arena.rng, config.mass_scale);
         let friction = config.friction.map(|f| uniform(&mut arena.rng, f));
         let strength = uniform(&mut arena.rng, config.motor_strength);
-        let window = config.start_window;
-        let random_steps = if window[1] > window[0] { arena.rng.random_range(window[0]..=window[1]) } else { window[0] };
+        let random_steps = uniform_count(&mut arena.rng, config.start_window);
         if mass != 1.0 {
             use twinbots_sim::rapier::dynamics::RigidBodyAdditionalMassProps as Extra;
             for (_, body) in arena.world.bodies.iter_mut() {

@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use twinbots_sim::look::{CameraJitter, Distractor, Light, Surface, Texture};
 use twinbots_sim::{Arena, InArena, Link, Look, Visuals};
 
+use super::{uniform, uniform_count};
 use crate::task::Resetting;
 
 /// Surfaces the table's `surfaces` key can name.
@@ -175,9 +176,7 @@ impl VisualRandomization {
                 }
             }
         }
-        let [lo, hi] = self.lights;
-        let count = if hi > lo { rng.random_range(lo..=hi) } else { lo };
-        look.lights = (0..count).map(|_| self.light(rng)).collect();
+        look.lights = (0..uniform_count(rng, self.lights)).map(|_| self.light(rng)).collect();
         let a = uniform(rng, self.ambient);
         look.ambient = [a; 3];
         look.camera = CameraJitter {
@@ -185,9 +184,7 @@ impl VisualRandomization {
             rotation: [0; 3].map(|_| plus_minus(rng, self.camera_rotation)),
             fov: plus_minus(rng, self.field_of_view).to_radians(),
         };
-        let [lo, hi] = self.distractors;
-        let count = if hi > lo { rng.random_range(lo..=hi) } else { lo };
-        look.distractors = (0..count).map(|_| self.distractor(rng, statics)).collect();
+        look.distractors = (0..uniform_count(rng, self.distractors)).map(|_| self.distractor(rng, statics)).collect();
         look
     }
 
@@ -236,10 +233,6 @@ impl VisualRandomization {
         let color = [0; 3].map(|_| if t > 0.0 { rng.random_range(1.0 - t..=1.0) } else { 1.0 });
         Light { direction: (-towards).to_array(), color, intensity: uniform(rng, self.light_intensity) }
     }
-}
-
-fn uniform(rng: &mut impl Rng, [lo, hi]: [f32; 2]) -> f32 {
-    if hi > lo { rng.random_range(lo..=hi) } else { lo }
 }
 
 fn plus_minus(rng: &mut impl Rng, v: f32) -> f32 {
