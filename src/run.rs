@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use twinbots_api::{DesignPattern, SolvedCriterion, VecEnv};
+use twinbots_api::{SolvedCriterion, VecEnv};
 use twinbots_learn::callbacks::{
     CheckpointCallback, EvalCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, StopTrainingOnSolved,
     TensorBoardCallback,
@@ -45,7 +45,7 @@ pub fn finish(
 ) -> anyhow::Result<(EvalResult, Summary)> {
     run.save_model(model)?;
     let seed = settings.final_eval_seed();
-    let mut env = evaluation_env(entry, None, settings.arenas, settings.eval_episodes, seed, settings.in_process_pattern()?, &settings.calibration_parameters())?;
+    let mut env = evaluation_env(entry, None, settings.arenas, settings.eval_episodes, seed, settings, &settings.calibration_parameters())?;
     let evaluation = evaluate_policy(entry.main_task().name, model, &mut env, settings.eval_episodes, seed)?;
     run.write_json(EVAL, &evaluation)?;
     let mut summary = Summary::new(&settings.robot, settings.pattern, model, end, wall_s, Some(&evaluation));
@@ -68,11 +68,11 @@ pub fn callbacks(settings: &TrainSettings, run: &RunDir, entry: &RobotEntry, tit
         callbacks.push(StopTrainingOnSolved::new(criterion));
     }
     if settings.eval_every > 0 {
-        let (arenas, episodes, pattern) = (settings.arenas, settings.eval_episodes, settings.in_process_pattern()?);
-        let robot = entry.clone();
+        let (arenas, episodes) = (settings.arenas, settings.eval_episodes);
+        let (robot, run_settings) = (entry.clone(), settings.clone());
         let calibration = settings.calibration_parameters();
         let make_env = move |seed: u64| -> anyhow::Result<Box<dyn VecEnv>> {
-            Ok(Box::new(evaluation_env(&robot, None, arenas, episodes, seed, pattern, &calibration)?))
+            Ok(Box::new(evaluation_env(&robot, None, arenas, episodes, seed, &run_settings, &calibration)?))
         };
         let mut evaluation = EvalCallback::new(entry.main_task().name, make_env, settings.eval_every, episodes, settings.periodic_eval_seed())
             .log_to(run.clone())
@@ -88,19 +88,21 @@ pub fn callbacks(settings: &TrainSettings, run: &RunDir, entry: &RobotEntry, tit
 }
 
 /// A fresh app of `arenas` arenas (no more than `episodes`) of the robot's `task` (`None`: its
-/// own) to evaluate a model on.
+/// own) to evaluate a run's model on: under the run's pattern (in this process), observing as
+/// the run does, its twin calibrated with `calibration`.
 pub fn evaluation_env(
     entry: &RobotEntry,
     task: Option<&str>,
     arenas: usize,
     episodes: usize,
     seed: u64,
-    pattern: DesignPattern,
+    settings: &TrainSettings,
     calibration: &twinbots_sim::Parameters,
 ) -> anyhow::Result<AppVecEnv> {
     let arenas = arenas.clamp(1, episodes.max(1));
-    let mut app = entry.app(task, arenas, seed, pattern)?;
+    let mut app = entry.app(task, arenas, seed, settings.in_process_pattern()?)?;
     twinbots_task::calibration::calibrate(&mut app, calibration);
+    settings.observe(&mut app, entry, arenas)?;
     Ok(AppVecEnv::new(app))
 }
 

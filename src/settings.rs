@@ -10,6 +10,7 @@ use twinbots_api::DesignPattern;
 use twinbots_learn::algos;
 use twinbots_learn::learner::{Algorithm, config_from};
 use twinbots_learn::RunDir;
+use twinbots_render::PixelSettings;
 use twinbots_task::randomization::{FitSpread, Randomization};
 
 use crate::registry::RobotEntry;
@@ -20,7 +21,7 @@ pub const PERIODIC_EVAL_SEED_OFFSET: u64 = 1_000_003;
 pub const FINAL_EVAL_SEED_OFFSET: u64 = 2_000_003;
 
 /// The plain settings, as a config file names them (the algorithms' tables come on top).
-const KEYS: &str = "timesteps, arenas, seed, pattern, checkpoint_every, eval_every, eval_episodes, algo, [randomization], [calibration]";
+const KEYS: &str = "timesteps, arenas, seed, pattern, checkpoint_every, eval_every, eval_episodes, algo, [randomization], [calibration], [pixels]";
 
 /// The twin's calibration (`twinbots identify`'s file), recorded in full in the run's
 /// `config.toml`: the run does not depend on the file afterwards.
@@ -95,6 +96,10 @@ pub struct TrainSettings {
     /// The twin's calibration, if the run has one (`--calibration`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<CalibrationSetting>,
+    /// Pixel observations: the policy sees a camera image instead of the task's state
+    /// (`twinbots_render::pixels`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixels: Option<PixelSettings>,
     /// The algorithms' hyperparameters, each its `[<algo>]` table: the run's own in full, and
     /// any other a config file named (checked, and kept for a later run).
     #[serde(flatten)]
@@ -118,6 +123,7 @@ pub struct ConfigFile {
     pub algo: Option<String>,
     pub randomization: Option<Randomization>,
     pub calibration: Option<CalibrationSetting>,
+    pub pixels: Option<PixelSettings>,
     /// `[<algo>]` tables, only the keys given: each replaces that key of the robot's tuned
     /// settings (and of the algorithm's defaults).
     #[serde(flatten)]
@@ -204,7 +210,34 @@ impl TrainSettings {
         self.design_pattern()?;
         self.randomization.validate()?;
         CalibrationSetting::check_randomization(self.calibration.as_ref(), &self.randomization)?;
+        if let Some(pixels) = &self.pixels {
+            pixels.validate()?;
+            anyhow::ensure!(
+                self.design_pattern()? != DesignPattern::Server,
+                "[pixels]: design pattern 3 sends the robot's own readings, not the twin's images; use pattern 1 or 2"
+            );
+        }
         Ok(())
+    }
+
+    /// The task the run's model learns: the robot's main task, observed through the camera
+    /// with `[pixels]`.
+    pub fn task(&self, entry: &RobotEntry) -> twinbots_api::TaskSpec {
+        let mut spec = entry.task();
+        if let Some(pixels) = &self.pixels {
+            spec.observation_space = pixels.space();
+            spec.observation_plausible = pixels.space();
+        }
+        spec
+    }
+
+    /// Sets up what the run's envs observe in a robot's `app` of `arenas` arenas, before its
+    /// start-up: pixel observations with `[pixels]` (an error when no graphics adapter exists).
+    pub fn observe(&self, app: &mut bevy::prelude::App, entry: &RobotEntry, arenas: usize) -> anyhow::Result<()> {
+        match &self.pixels {
+            Some(pixels) => pixels.install(app, &entry.framing, arenas),
+            None => Ok(()),
+        }
     }
 
     pub fn design_pattern(&self) -> anyhow::Result<DesignPattern> {
@@ -272,6 +305,7 @@ impl TrainSettings {
             algo: algorithm.name.to_string(),
             randomization: Randomization::default(),
             calibration: None,
+            pixels: None,
             hyperparams: BTreeMap::new(),
         };
         if algorithm.continuous_only {
@@ -297,6 +331,7 @@ impl TrainSettings {
             s.eval_episodes = layer.eval_episodes.unwrap_or(s.eval_episodes);
             s.randomization = layer.randomization.unwrap_or(s.randomization);
             s.calibration = layer.calibration.or(s.calibration);
+            s.pixels = layer.pixels.or(s.pixels);
             for (name, value) in &layer.hyperparams {
                 let (algorithm, keys) = algorithm_table(name, value)?;
                 let table = match tables.remove(name) {

@@ -15,6 +15,7 @@ pub fn check_and_clip(space: &Space, actions: &mut [f32]) -> anyhow::Result<()> 
             Space::Box { low, high } => *a = a.clamp(low[k], high[k]),
             Space::Discrete { n } => choice(*a, *n, env, space)?,
             Space::MultiDiscrete { nvec } => choice(*a, nvec[k], env, space)?,
+            Space::Image { .. } => choice(*a, 256, env, space)?,
         }
     }
     Ok(())

@@ -1,13 +1,13 @@
 //! `Arenas`: N arenas of one robot task in one Bevy app, stepped together in Rust. This is the
 //! engine under `twinbots.make_vec` (Gymnasium), the single envs and the SB3 adapter.
 
-use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArray4, PyReadonlyArray1};
+use numpy::ndarray::{Array2, Array3, Array4};
+use numpy::{IntoPyArray, PyArray1, PyArray3, PyArray4, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
-use twinbots_render::{Renderer, View};
+use twinbots_render::{PixelSettings, Renderer, View};
 use twinbots_task::randomization::{Randomization, RandomizationPlugin};
-use twinbots_api::{DesignPattern, StepResult, TaskSpec, VecEnv};
+use twinbots_api::{DesignPattern, Space, StepResult, TaskSpec, VecEnv};
 use twinbots_task::{AppVecEnv, RobotDescription};
 use twinbots::settings::CalibrationSetting;
 
@@ -66,12 +66,13 @@ impl Arenas {
 #[pymethods]
 impl Arenas {
     /// `Arenas(robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None,
-    /// log=None)`: `task` None is the robot's main task; `config` is TOML text whose
+    /// log=None, pixels=None)`: `task` None is the robot's main task; `config` is TOML text whose
     /// `[randomization]` table applies; `calibration` a calibration file (`twinbots identify`'s)
     /// the twin runs with; `log` a robot log file (.mcap or .csv) that holds arena 0's latest
-    /// episode (the running one is added by `close()`).
+    /// episode (the running one is added by `close()`); `pixels` the TOML text of a `[pixels]`
+    /// table's keys (camera, width, height, frames): the envs observe camera images.
     #[new]
-    #[pyo3(signature = (robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None, log=None))]
+    #[pyo3(signature = (robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None, log=None, pixels=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         robot: &str,
@@ -82,6 +83,7 @@ impl Arenas {
         config: Option<&str>,
         calibration: Option<std::path::PathBuf>,
         log: Option<std::path::PathBuf>,
+        pixels: Option<&str>,
     ) -> PyResult<Self> {
         let entry = twinbots::registry::find(robot).map_err(value_error)?;
         if num_envs == 0 {
@@ -100,8 +102,18 @@ impl Arenas {
         if let Some(r) = &randomization {
             CalibrationSetting::check_randomization(twin.calibration.as_ref(), r).map_err(value_error)?;
         }
+        let pixels: Option<PixelSettings> = pixels
+            .map(|text| toml::from_str(text).map_err(|e| anyhow::anyhow!("pixels: {}", e.message())))
+            .transpose()
+            .map_err(value_error)?;
+        if let Some(p) = &pixels {
+            p.validate().map_err(value_error)?;
+        }
         let mut app = entry.app(task, num_envs, seed, design).map_err(value_error)?;
         twin.configure(&mut app, &entry).map_err(value_error)?;
+        if let Some(p) = &pixels {
+            p.install(&mut app, &entry.framing, num_envs).map_err(runtime_error)?;
+        }
         if let Some(r) = randomization.filter(|r| !r.is_off()) {
             app.add_plugins(RandomizationPlugin(r));
         }
@@ -156,7 +168,7 @@ impl Arenas {
     /// Resets every arena (re-seeding their streams if `seed` is given: arena i gets stream i
     /// of the seed) and returns the observations, shape `(num_envs, obs_dim)`.
     #[pyo3(signature = (seed=None))]
-    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyAny>> {
         let obs = self.run_detached(py, "reset", move |env| env.reset(seed))?;
         self.observations(py, obs)
     }
@@ -255,25 +267,42 @@ fn restart_after_step(env: &mut AppVecEnv, restart: &[usize], r: &mut StepResult
 }
 
 impl Arenas {
-    /// Flat observations as a `(num_envs, obs_dim)` array that owns the Rust buffer (no copy).
-    fn observations<'py>(&self, py: Python<'py>, obs: Vec<f32>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    /// Flat observations as a `(num_envs, obs_dim)` float32 array that owns the Rust buffer (no
+    /// copy); camera images as `(num_envs, height, width, channels)` uint8.
+    fn observations<'py>(&self, py: Python<'py>, obs: Vec<f32>) -> PyResult<Bound<'py, PyAny>> {
+        let wrong = |e: numpy::ndarray::ShapeError| runtime_error(anyhow::anyhow!("observation of the wrong size from the simulation: {e}"));
+        if let Space::Image { height, width, channels } = self.spec.observation_space {
+            let bytes: Vec<u8> = obs.iter().map(|&v| v as u8).collect();
+            let array = Array4::from_shape_vec((self.num_envs, height, width, channels), bytes).map_err(wrong)?;
+            return Ok(array.into_pyarray(py).into_any());
+        }
         let dim = self.spec.observation_space.dim();
-        let array = Array2::from_shape_vec((self.num_envs, dim), obs)
-            .map_err(|e| runtime_error(anyhow::anyhow!("observation of the wrong size from the simulation: {e}")))?;
-        Ok(array.into_pyarray(py))
+        let array = Array2::from_shape_vec((self.num_envs, dim), obs).map_err(wrong)?;
+        Ok(array.into_pyarray(py).into_any())
+    }
+
+    /// One env's observation: flat float32, or a `(height, width, channels)` uint8 image.
+    fn observation<'py>(&self, py: Python<'py>, obs: Vec<f32>) -> PyResult<Bound<'py, PyAny>> {
+        if let Space::Image { height, width, channels } = self.spec.observation_space {
+            let bytes: Vec<u8> = obs.iter().map(|&v| v as u8).collect();
+            let array = Array3::from_shape_vec((height, width, channels), bytes)
+                .map_err(|e| runtime_error(anyhow::anyhow!("observation of the wrong size from the simulation: {e}")))?;
+            return Ok(array.into_pyarray(py).into_any());
+        }
+        Ok(obs.into_pyarray(py).into_any())
     }
 
     fn step_tuple<'py>(&self, py: Python<'py>, r: StepResult) -> PyResult<Bound<'py, PyTuple>> {
         let ended = PyList::empty(py);
         for (i, (final_obs, episode)) in r.final_obs.into_iter().zip(r.episodes).enumerate() {
             if let (Some(final_obs), Some(episode)) = (final_obs, episode) {
-                ended.append((i, final_obs.into_pyarray(py), episode_dict(py, &episode)?))?;
+                ended.append((i, self.observation(py, final_obs)?, episode_dict(py, &episode)?))?;
             }
         }
         let obs = self.observations(py, r.obs)?;
         let rewards: Bound<'py, PyArray1<f32>> = r.rewards.into_pyarray(py);
         let terminated: Bound<'py, PyArray1<bool>> = r.terminated.into_pyarray(py);
         let truncated: Bound<'py, PyArray1<bool>> = r.truncated.into_pyarray(py);
-        PyTuple::new(py, [obs.into_any(), rewards.into_any(), terminated.into_any(), truncated.into_any(), ended.into_any()])
+        PyTuple::new(py, [obs, rewards.into_any(), terminated.into_any(), truncated.into_any(), ended.into_any()])
     }
 }

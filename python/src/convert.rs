@@ -42,8 +42,8 @@ pub fn no_panic<T>(what: &str, f: impl FnOnce() -> anyhow::Result<T>) -> anyhow:
     }
 }
 
-/// `{"kind": "box", "low": [...], "high": [...]}`, `{"kind": "discrete", "n": n}` or
-/// `{"kind": "multi_discrete", "nvec": [...]}`; Python builds the Gymnasium space from it.
+/// `{"kind": "box", "low": [...], "high": [...]}`, `{"kind": "discrete", "n": n}`,
+/// `{"kind": "multi_discrete", "nvec": [...]}` or `{"kind": "image", "shape": (h, w, c)}`; Python builds the Gymnasium space from it.
 pub fn space_dict<'py>(py: Python<'py>, space: &Space) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     match space {
@@ -59,6 +59,10 @@ pub fn space_dict<'py>(py: Python<'py>, space: &Space) -> PyResult<Bound<'py, Py
         Space::MultiDiscrete { nvec } => {
             d.set_item("kind", "multi_discrete")?;
             d.set_item("nvec", nvec.clone())?;
+        }
+        Space::Image { height, width, channels } => {
+            d.set_item("kind", "image")?;
+            d.set_item("shape", (*height, *width, *channels))?;
         }
     }
     Ok(d)

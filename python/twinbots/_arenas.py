@@ -9,7 +9,7 @@ import os
 import numpy as np
 
 from . import _native
-from ._config import Config, config_text
+from ._config import Config, _toml_value, config_text
 
 
 def initial_seed(seed: int | None) -> int:
@@ -21,20 +21,35 @@ def initial_seed(seed: int | None) -> int:
     return int(seed)
 
 
+def pixels_text(obs: str, pixels: dict | None) -> str | None:
+    """The `[pixels]` keys for the extension: None for `obs="state"`, the table (empty: the
+    defaults) for `obs="pixels"`."""
+    if obs not in ("state", "pixels"):
+        raise ValueError(f"obs must be 'state' or 'pixels', got {obs!r}")
+    if obs == "state":
+        if pixels is not None:
+            raise ValueError("pixels= sets up camera observations: pass obs='pixels' with it")
+        return None
+    if pixels is not None and not isinstance(pixels, dict):
+        raise ValueError(f"pixels must be a dict of camera, width, height, frames; got {type(pixels).__name__}")
+    return "\n".join(f"{k} = {_toml_value(v)}" for k, v in (pixels or {}).items()) + "\n"
+
+
 def open_arenas(robot: str, count: int, seed: int | None, task: str | None, pattern: int, config: Config,
                 render_mode: str | None, count_name: str = "num_envs", calibration=None, log=None,
-                **rendering) -> _native.Arenas:
+                obs: str = "state", pixels: dict | None = None, **rendering) -> _native.Arenas:
     """`count` arenas of `robot`'s `task` under design pattern `pattern`, the twin calibrated by
-    the file `calibration` if given, arena 0's episodes logged to the file `log` if given;
-    `rendering` (width, height, camera) applies with
-    `render_mode="rgb_array"`."""
+    the file `calibration` if given, arena 0's episodes logged to the file `log` if given,
+    observing camera images with `obs="pixels"` (`pixels`: the `[pixels]` keys, docs/pixels.md);
+    `rendering` (width, height, camera) applies with `render_mode="rgb_array"`."""
     if not isinstance(count, (int, np.integer)) or count < 1:
         raise ValueError(f"{count_name} must be a positive integer, got {count!r}")
     if render_mode not in (None, "rgb_array"):
         raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
     calibration = None if calibration is None else os.fspath(calibration)
     log = None if log is None else os.fspath(log)
-    arenas = _native.Arenas(robot, int(count), initial_seed(seed), task, pattern, config_text(config), calibration, log)
+    pixel_keys = pixels_text(obs, pixels)
+    arenas = _native.Arenas(robot, int(count), initial_seed(seed), task, pattern, config_text(config), calibration, log, pixel_keys)
     if render_mode == "rgb_array":
         arenas.enable_rendering(**rendering)
     return arenas

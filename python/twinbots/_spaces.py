@@ -18,6 +18,9 @@ def to_space(d: dict) -> spaces.Space:
         )
     if kind == "discrete":
         return spaces.Discrete(d["n"])
+    if kind == "image":
+        # What SB3's CnnPolicy recognises as an image (uint8, bounds 0 and 255, channels last).
+        return spaces.Box(low=0, high=255, shape=tuple(d["shape"]), dtype=np.uint8)
     if kind == "multi_discrete":
         return spaces.MultiDiscrete(np.asarray(d["nvec"], dtype=np.int64))
     raise ValueError(f"unknown space kind {kind!r}")

@@ -34,9 +34,12 @@ class TwinbotsEnv(gym.Env):
         height: int = 480,
         calibration=None,
         log=None,
+        obs: str = "state",
+        pixels: dict | None = None,
     ):
         self.arenas = open_arenas(
-            robot, 1, seed, task, pattern, config, render_mode, calibration=calibration, log=log, width=width, height=height, camera=camera
+            robot, 1, seed, task, pattern, config, render_mode, calibration=calibration, log=log, obs=obs, pixels=pixels,
+            width=width, height=height, camera=camera,
         )
         self._owner = get_ident()
         self.task = self.arenas.task

@@ -3,6 +3,7 @@
     from stable_baselines3 import PPO
     from twinbots.sb3 import make_vec_env
     model = PPO("MlpPolicy", make_vec_env("cartpole", n_envs=8, seed=0)).learn(100_000)
+    # from pixels: PPO("CnnPolicy", make_vec_env("cartpole", n_envs=8, obs="pixels"))
 """
 
 from __future__ import annotations
@@ -28,8 +29,10 @@ class TwinbotsSB3VecEnv(VecEnv):
     the task's figures (see `twinbots._infos.episode_info`)."""
 
     def __init__(self, robot: str, n_envs: int = 1, seed: int | None = None, task: str | None = None,
-                 pattern: int = 1, config: Config = None, render_mode: str | None = None, calibration=None, log=None):
-        self.arenas = open_arenas(robot, n_envs, seed, task, pattern, config, render_mode, count_name="n_envs", calibration=calibration, log=log)
+                 pattern: int = 1, config: Config = None, render_mode: str | None = None, calibration=None, log=None,
+                 obs: str = "state", pixels: dict | None = None):
+        self.arenas = open_arenas(robot, n_envs, seed, task, pattern, config, render_mode, count_name="n_envs",
+                                  calibration=calibration, log=log, obs=obs, pixels=pixels)
         self._owner = get_ident()
         self.render_mode = render_mode  # read back by SB3's __init__ through get_attr
         super().__init__(int(n_envs), to_space(self.arenas.observation_space), to_space(self.arenas.action_space))

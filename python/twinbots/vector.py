@@ -41,7 +41,10 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
     `[randomization]` table, or a dict of it); `calibration`: a calibration file (`twinbots
     identify`'s calibration.toml) the twin runs with; `log`: a robot log file (`.mcap` or
     `.csv`, docs/logs.md) that holds arena 0's latest episode, rewritten as each ends
-    (`close()` adds the running one). `TwinbotsEnv` and the SB3 `VecEnv` take the same."""
+    (`close()` adds the running one); `obs="pixels"`: the envs observe a camera image
+    (`uint8`, `(height, width, 3·frames)`) instead of the task's state, `pixels` its settings
+    (`{"camera": "front", "width": 64, "height": 64, "frames": 1}`, docs/pixels.md).
+    `TwinbotsEnv` and the SB3 `VecEnv` take the same."""
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"]}
 
@@ -57,11 +60,13 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         autoreset_mode: str | AutoresetMode = AutoresetMode.SAME_STEP,
         calibration=None,
         log=None,
+        obs: str = "state",
+        pixels: dict | None = None,
     ):
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
         if self.autoreset_mode == AutoresetMode.DISABLED:
             raise ValueError("autoreset_mode DISABLED is not supported: the arenas reset themselves (SAME_STEP or NEXT_STEP)")
-        self.arenas = open_arenas(robot, num_envs, seed, task, pattern, config, render_mode, calibration=calibration, log=log)
+        self.arenas = open_arenas(robot, num_envs, seed, task, pattern, config, render_mode, calibration=calibration, log=log, obs=obs, pixels=pixels)
         self._owner = get_ident()
         self.num_envs = int(num_envs)
         self.task = self.arenas.task

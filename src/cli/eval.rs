@@ -70,7 +70,7 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let other_twin = calibration.map(|p| p.file_stem().unwrap_or_default().to_string_lossy().to_string());
     let calibration = evaluated_calibration(&entry, &settings, calibration)?;
     let params = calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default();
-    let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, settings.in_process_pattern()?, &params)?;
+    let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, &settings, &params)?;
     let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
     println!("{}: {}", settings.robot, result.describe());
     let file = match (name == entry.main_task().name, other_twin) {

@@ -165,7 +165,7 @@ pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<
         return train_through_server(settings, out, false);
     }
     anyhow::ensure!(settings.arenas > 0, "arenas must be at least 1");
-    let learner = learner::new(&settings, &entry.task())?;
+    let learner = learner::new(&settings, &settings.task(&entry))?;
     let run_dir = twinbots::run::create(&settings, out)?;
     run(settings, run_dir, learner, false, view)
 }
@@ -177,7 +177,7 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
     if settings.design_pattern()? == DesignPattern::Server {
         return train_through_server(settings, run_dir.path(), true);
     }
-    let spec = registry::find(&settings.robot)?.task();
+    let spec = settings.task(&registry::find(&settings.robot)?);
     let (checkpoint, model) = learner::resume(&run_dir, &settings, &spec)?;
     run_dir.check_progress_columns(model.train_figures())?;
     println!(
@@ -200,7 +200,7 @@ pub fn extend(run_dir: &Path, more: u64, view: bool) -> anyhow::Result<()> {
         "{}: more training of a pattern-3 run is not supported yet; `train --resume` without --timesteps finishes one",
         run_dir.path().display()
     );
-    let spec = registry::find(&settings.robot)?.task();
+    let spec = settings.task(&registry::find(&settings.robot)?);
     let (source, model) = learner::trained(&run_dir, &settings, &spec)?;
     run_dir.check_progress_columns(model.train_figures())?;
     settings.timesteps = model.timesteps() + more;
@@ -223,6 +223,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, mut learner: Box<dyn Learner>, 
     );
     let mut app = entry.app(None, settings.arenas, settings.seed, pattern)?;
     settings.calibrate(&mut app);
+    settings.observe(&mut app, &entry, settings.arenas)?;
     app.add_plugins(bridge::BridgePlugin);
     settings.randomization.validate()?;
     if !settings.randomization.is_off() {

@@ -9,6 +9,7 @@ mod model;
 mod monitor;
 mod onnx;
 mod patterns;
+mod pixels;
 mod ppo;
 mod randomization;
 mod sac;

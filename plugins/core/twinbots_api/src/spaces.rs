@@ -17,6 +17,10 @@ pub enum Space {
     },
     /// Several independent choices, the i-th among `nvec[i]`.
     MultiDiscrete { nvec: Vec<usize> },
+    /// A camera image: `height × width × channels` whole numbers in [0, 255] (8-bit colour),
+    /// row-major from the top-left, channels last (RGB, or several RGB frames stacked).
+    /// Gymnasium's `Box(0, 255, (height, width, channels), uint8)`, what SB3's `CnnPolicy` takes.
+    Image { height: usize, width: usize, channels: usize },
 }
 
 impl Space {
@@ -34,6 +38,7 @@ impl Space {
             Space::Discrete { .. } => 1,
             Space::Box { low, .. } => low.len(),
             Space::MultiDiscrete { nvec } => nvec.len(),
+            Space::Image { height, width, channels } => height * width * channels,
         }
     }
 
@@ -50,6 +55,7 @@ impl Space {
                 .zip(low.iter().zip(high))
                 .all(|(v, (lo, hi))| *v >= *lo && *v <= *hi),
             Space::MultiDiscrete { nvec } => x.iter().zip(nvec).all(|(v, n)| choice(*v, *n)),
+            Space::Image { .. } => x.iter().all(|v| choice(*v, 256)),
         }
     }
 
@@ -79,6 +85,7 @@ impl Space {
             Space::MultiDiscrete { nvec } => {
                 nvec.iter().map(|n| rng.random_range(0..*n) as f32).collect()
             }
+            Space::Image { .. } => (0..self.dim()).map(|_| rng.random_range(0..256u32) as f32).collect(),
         }
     }
 }
@@ -89,6 +96,7 @@ impl std::fmt::Display for Space {
             Space::Discrete { n } => write!(f, "Discrete({n})"),
             Space::Box { low, .. } => write!(f, "Box({})", low.len()),
             Space::MultiDiscrete { nvec } => write!(f, "MultiDiscrete({nvec:?})"),
+            Space::Image { height, width, channels } => write!(f, "Image({height}×{width}×{channels})"),
         }
     }
 }

@@ -3,11 +3,13 @@
 //! of this.
 
 pub mod cameras;
+pub mod pixels;
 pub mod renderer;
 pub mod scene;
 pub mod shading;
 pub mod viewer;
 
 pub use cameras::{CameraPlugin, CameraRig};
+pub use pixels::PixelSettings;
 pub use shading::{LambertMaterial, ShadingPlugin};
 pub use renderer::{Framing, RenderError, Renderer, View, adapter_required};

@@ -34,6 +34,12 @@ impl Dense {
 }
 
 impl Dense {
+    /// A copy sharing no variable with this one (candle's `Var`s are shared handles).
+    pub(crate) fn deep_copy(&self) -> Result<Self> {
+        let copy = |v: &Var| Var::from_tensor(&v.as_tensor().copy()?);
+        Ok(Self { weight: copy(&self.weight)?, bias: copy(&self.bias)? })
+    }
+
     /// The layer's numbers, named `name` (for export).
     pub fn values(&self, name: &str) -> Result<crate::policy_net::DenseLayer> {
         let (outputs, inputs) = self.weight.as_tensor().dims2()?;

@@ -1,11 +1,16 @@
 //! Neural-network pieces the learners share, built on candle where candle's general-purpose
 //! versions cost too much for the small networks of RL policies (measured on a 2-core VM, see
-//! docs/architecture.md): a tanh activation that vectorises, and Adam over plain slices.
+//! docs/architecture.md): a tanh activation that vectorises, Adam over plain slices, and
+//! convolutions as patches times a matrix for the CNN that reads camera images.
 
 mod adam;
+mod conv;
 mod dense;
+mod encoder;
 mod tanh;
 
 pub use adam::{Adam, AdamConfig, GradientStep};
+pub use conv::{Conv2d, Patches, unfold};
 pub use dense::Dense;
+pub use encoder::{CNN_MIN_SIZE, Encoder, NatureCnn, PolicyKind};
 pub use tanh::{fast_tanh, tanh};

@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::nn::PolicyKind;
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PpoConfig {
@@ -24,6 +26,11 @@ pub struct PpoConfig {
     /// Running mean/std normalisation of observations (SB3's VecNormalize), saved with the model.
     pub normalize_observations: bool,
     pub hidden: Vec<usize>,
+    /// What the MLPs read: `auto` (a NatureCNN's features for camera images, the observation
+    /// otherwise), `mlp` or `cnn` (SB3's `MlpPolicy` / `CnnPolicy`).
+    pub policy: PolicyKind,
+    /// Features the CNN hands the MLPs (SB3's `features_dim`).
+    pub features_dim: usize,
     /// Starting log standard deviation of a Gaussian policy (SB3's `log_std_init`).
     pub log_std_init: f32,
 }
@@ -46,6 +53,8 @@ impl Default for PpoConfig {
             normalize_advantage: true,
             normalize_observations: false,
             hidden: vec![64, 64],
+            policy: PolicyKind::Auto,
+            features_dim: 512,
             log_std_init: 0.0,
         }
     }
@@ -94,6 +103,7 @@ impl PpoConfig {
         let hidden = format!("{:?}", self.hidden);
         let sizes_ok = (1..=16).contains(&self.hidden.len()) && self.hidden.iter().all(|&n| (1..=4096).contains(&n));
         check("hidden", hidden, sizes_ok, "1 to 16 layer sizes, each in 1..=4096")?;
+        check("features_dim", self.features_dim, (1..=4096).contains(&self.features_dim), "a whole number in 1..=4096")?;
         check("log_std_init", self.log_std_init, self.log_std_init.is_finite() && self.log_std_init.abs() <= 20.0, "a finite number in [-20, 20]")
     }
 }

@@ -109,7 +109,12 @@ impl std::fmt::Debug for Ppo {
 impl Ppo {
     pub fn new(config: PpoConfig, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
         let obs_dim = observation_space.dim();
-        let policy = ActorCritic::new(obs_dim, &action_space, &config.hidden, config.log_std_init, seed)?;
+        let encoder = (config.policy, config.features_dim);
+        let policy = ActorCritic::new(&observation_space, &action_space, encoder, &config.hidden, config.log_std_init, seed)?;
+        anyhow::ensure!(
+            !(config.normalize_observations && matches!(observation_space, Space::Image { .. })),
+            "ppo.normalize_observations = true: camera images are scaled to [0, 1], not normalised by running statistics"
+        );
         let obs_rms = config.normalize_observations.then(|| RunningMeanStd::new(obs_dim));
         let optimizer = update::adam(&policy, config.learning_rate);
         Ok(Self {
@@ -280,6 +285,7 @@ impl crate::agent::Agent for Ppo {
         Ppo::predict(self, obs, deterministic)
     }
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
+        anyhow::ensure!(self.policy.encoder.is_flat(), "policies on camera images ({}) cannot be exported yet", self.observation_space);
         let layers = self.policy.pi.layers.iter().enumerate().map(|(i, l)| l.values(&format!("pi.{i}"))).collect::<candle_core::Result<_>>()?;
         let head = match &self.action_space {
             Space::Discrete { .. } => PolicyHead::ArgMax,

@@ -1,5 +1,7 @@
 //! The actor-critic: separate policy and value MLPs (SB3's MlpPolicy: two hidden layers of 64,
-//! tanh), a categorical head for discrete actions and a diagonal Gaussian for boxes.
+//! tanh), a categorical head for discrete actions and a diagonal Gaussian for boxes. On camera
+//! images both MLPs read the features of one shared NatureCNN (SB3's CnnPolicy, whose
+//! on-policy features extractor is shared).
 
 use candle_core::{D, DType, Device, Result, Tensor, Var};
 use rand::Rng;
@@ -8,7 +10,10 @@ use rand_distr::{Distribution, StandardNormal};
 
 use twinbots_api::spaces::Space;
 
-use crate::nn::Dense;
+use crate::nn::{Dense, Encoder, PolicyKind};
+
+/// The CNN's weight stream is the seed mixed with this.
+const ENCODER_STREAM_SALT: u64 = 0xc0_5e_ed;
 
 /// Hidden layers with tanh, then a linear output.
 pub struct Mlp {
@@ -45,6 +50,7 @@ pub enum Head {
 }
 
 pub struct ActorCritic {
+    pub encoder: Encoder,
     pub pi: Mlp,
     pub vf: Mlp,
     pub head: Head,
@@ -58,10 +64,23 @@ pub struct Evaluation {
 }
 
 impl ActorCritic {
-    /// Networks for `obs_dim` inputs; a box's Gaussian starts with log std `log_std_init`.
-    pub fn new(obs_dim: usize, action_space: &Space, hidden: &[usize], log_std_init: f32, seed: u64) -> Result<Self> {
+    /// Networks for observations of `observation_space` read through the encoder `policy`
+    /// asks for (`features_dim` CNN features); a box's Gaussian starts with log std
+    /// `log_std_init`.
+    pub fn new(
+        observation_space: &Space,
+        action_space: &Space,
+        (policy, features_dim): (PolicyKind, usize),
+        hidden: &[usize],
+        log_std_init: f32,
+        seed: u64,
+    ) -> anyhow::Result<Self> {
         let dev = Device::Cpu;
         let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
+        // The CNN draws its weights after the heads, so an MLP policy's are as they always were.
+        let mut encoder_rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed ^ ENCODER_STREAM_SALT);
+        let encoder = Encoder::new(policy, observation_space, features_dim, "ppo", &mut encoder_rng, &dev)?;
+        let obs_dim = encoder.dim();
         let (out, head) = match action_space {
             Space::Discrete { n } => (*n, Head::Categorical { n: *n }),
             Space::Box { low, .. } => (
@@ -71,33 +90,30 @@ impl ActorCritic {
                     log_std: Var::from_tensor(&Tensor::full(log_std_init, low.len(), &dev)?)?,
                 },
             ),
-            Space::MultiDiscrete { .. } => candle_core::bail!("MultiDiscrete actions are not supported by PPO yet"),
+            other => anyhow::bail!("{other} actions are not supported by PPO yet"),
         };
         let sizes = |o: usize| [&[obs_dim][..], hidden, &[o]].concat();
         // SB3's gains: 0.01 for the policy output (a near-uniform start), 1 for the value.
         let pi = Mlp::new(&sizes(out), 0.01, &mut rng, &dev)?;
         let vf = Mlp::new(&sizes(1), 1.0, &mut rng, &dev)?;
-        Ok(Self { pi, vf, head })
+        Ok(Self { encoder, pi, vf, head })
     }
 
     /// A copy whose variables share nothing with these (candle's `Var`s are shared handles:
     /// cloning one would train both copies).
     pub fn deep_copy(&self) -> Result<Self> {
         let copy = |v: &Var| Var::from_tensor(&v.as_tensor().copy()?);
-        let mlp = |m: &Mlp| -> Result<Mlp> {
-            let layers = m.layers.iter().map(|l| Ok(Dense { weight: copy(&l.weight)?, bias: copy(&l.bias)? })).collect::<Result<_>>()?;
-            Ok(Mlp { layers })
-        };
+        let mlp = |m: &Mlp| -> Result<Mlp> { Ok(Mlp { layers: m.layers.iter().map(Dense::deep_copy).collect::<Result<_>>()? }) };
         let head = match &self.head {
             Head::Categorical { n } => Head::Categorical { n: *n },
             Head::Gaussian { dim, log_std } => Head::Gaussian { dim: *dim, log_std: copy(log_std)? },
         };
-        Ok(Self { pi: mlp(&self.pi)?, vf: mlp(&self.vf)?, head })
+        Ok(Self { encoder: self.encoder.deep_copy()?, pi: mlp(&self.pi)?, vf: mlp(&self.vf)?, head })
     }
 
     /// Every trainable variable, in a fixed order (the save format's order too).
     pub fn named_vars(&self) -> Vec<(String, Var)> {
-        let mut out = Vec::new();
+        let mut out = self.encoder.named_vars();
         for (net, mlp) in [("pi", &self.pi), ("vf", &self.vf)] {
             for (i, l) in mlp.layers.iter().enumerate() {
                 out.push((format!("{net}.{i}.weight"), l.weight.clone()));
@@ -117,14 +133,20 @@ impl ActorCritic {
     }
 
     pub fn value(&self, obs: &Tensor) -> Result<Tensor> {
-        self.vf.forward(obs)?.squeeze(D::Minus1)
+        self.value_of(&self.encoder.forward(obs)?)
+    }
+
+    /// V from the encoder's features.
+    fn value_of(&self, features: &Tensor) -> Result<Tensor> {
+        self.vf.forward(features)?.squeeze(D::Minus1)
     }
 
     /// Samples (or, deterministic, takes the mode of) one action per row of `obs`.
     /// Returns flat actions, their log-probabilities, and the values.
     pub fn act(&self, obs: &Tensor, deterministic: bool, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
-        let out = self.pi.forward(obs)?;
-        let value = self.value(obs)?.to_vec1::<f32>()?;
+        let features = self.encoder.forward(obs)?;
+        let out = self.pi.forward(&features)?;
+        let value = self.value_of(&features)?.to_vec1::<f32>()?;
         match &self.head {
             Head::Categorical { n } => {
                 let log_p = candle_nn::ops::log_softmax(&out, D::Minus1)?.to_vec2::<f32>()?;
@@ -167,8 +189,9 @@ impl ActorCritic {
 
     /// Log-probabilities, entropies and values for stored (obs, action) pairs, with gradients.
     pub fn evaluate(&self, obs: &Tensor, actions: &Tensor) -> Result<Evaluation> {
-        let out = self.pi.forward(obs)?;
-        let value = self.value(obs)?;
+        let features = self.encoder.forward(obs)?;
+        let out = self.pi.forward(&features)?;
+        let value = self.value_of(&features)?;
         let (log_prob, entropy) = match &self.head {
             Head::Categorical { .. } => {
                 let log_p = candle_nn::ops::log_softmax(&out, D::Minus1)?;

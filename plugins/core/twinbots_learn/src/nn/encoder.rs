@@ -1,0 +1,168 @@
+//! What a policy's networks read: the observation as it is, or features a CNN draws from a
+//! camera image (SB3's `MlpPolicy` and `CnnPolicy` with its `NatureCNN` features extractor,
+//! Mnih et al. 2015). The policy and value heads sit on top of either.
+
+use candle_core::{DType, Device, Result, Tensor, Var};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use twinbots_api::Space;
+
+use super::Dense;
+use super::conv::{Conv2d, Patches};
+
+/// The learner's `policy` setting.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PolicyKind {
+    /// `cnn` for image observations, `mlp` for the rest.
+    #[default]
+    Auto,
+    /// The observation straight into the MLPs (an image's values scaled to [0, 1] first, as SB3).
+    Mlp,
+    /// NatureCNN features (images of at least 36×36 only).
+    Cnn,
+}
+
+/// The smallest image NatureCNN's three convolutions fit (8/4, 4/2, 3/1).
+pub const CNN_MIN_SIZE: usize = 36;
+
+/// ReLU layers start with He's uniform bound √(6 / fan_in) (√6 times PyTorch's default), so
+/// activations keep their scale through the stack (SB3 gets the same from orthogonal √2).
+const RELU_GAIN: f64 = 2.449_489_742_783_178;
+
+/// NatureCNN: 32 filters 8×8 stride 4, 64 4×4 stride 2, 64 3×3 stride 1, then a dense layer
+/// to `features` values, ReLU after each; images come in as 0–255 and are scaled to [0, 1].
+pub struct NatureCnn {
+    pub convs: Vec<Conv2d>,
+    pub fc: Dense,
+}
+
+impl NatureCnn {
+    fn new(height: usize, width: usize, channels: usize, features: usize, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
+        let mut convs = Vec::new();
+        let (mut h, mut w, mut c) = (height, width, channels);
+        for (filters, kernel, stride) in [(32, 8, 4), (64, 4, 2), (64, 3, 1)] {
+            let patches = Patches { height: h, width: w, channels: c, kernel, stride };
+            (h, w) = patches.output();
+            c = filters;
+            convs.push(Conv2d::new(patches, filters, RELU_GAIN, rng, dev)?);
+        }
+        Ok(Self { convs, fc: Dense::new(h * w * c, features, RELU_GAIN, rng, dev)? })
+    }
+
+    fn forward(&self, obs: &Tensor) -> Result<Tensor> {
+        let batch = obs.dim(0)?;
+        let mut x = (obs * (1.0 / 255.0))?;
+        for conv in &self.convs {
+            x = conv.forward(&x)?;
+        }
+        self.fc.forward(&x.reshape((batch, ()))?)?.relu()
+    }
+}
+
+/// A policy's observation encoder.
+pub enum Encoder {
+    /// The observation as it is (`dim` values).
+    Flat { dim: usize },
+    /// An image's values scaled to [0, 1], flat (an MLP on pixels).
+    ScaledImage { dim: usize },
+    Cnn(NatureCnn),
+}
+
+impl Encoder {
+    /// The encoder `kind` asks for on `space`; a CNN on anything but a large enough image is
+    /// an error naming the setting (`<algo>.policy`).
+    pub fn new(kind: PolicyKind, space: &Space, features: usize, algo: &str, rng: &mut ChaCha8Rng, dev: &Device) -> anyhow::Result<Self> {
+        let image = match space {
+            Space::Image { height, width, channels } => Some((*height, *width, *channels)),
+            _ => None,
+        };
+        Ok(match (kind, image) {
+            (PolicyKind::Mlp, Some(_)) => Encoder::ScaledImage { dim: space.dim() },
+            (PolicyKind::Mlp | PolicyKind::Auto, None) => Encoder::Flat { dim: space.dim() },
+            (PolicyKind::Cnn | PolicyKind::Auto, Some((h, w, c))) => {
+                anyhow::ensure!(
+                    h >= CNN_MIN_SIZE && w >= CNN_MIN_SIZE,
+                    "{algo}.policy = \"cnn\": NatureCNN needs images of at least {CNN_MIN_SIZE}×{CNN_MIN_SIZE}, the observation is {space}"
+                );
+                anyhow::ensure!(
+                    (1..=4096).contains(&features),
+                    "{algo}.features_dim = {features}: must be a whole number in 1..=4096"
+                );
+                Encoder::Cnn(NatureCnn::new(h, w, c, features, rng, dev)?)
+            }
+            (PolicyKind::Cnn, None) => anyhow::bail!("{algo}.policy = \"cnn\": the observation {space} is not an image (use pixel observations, [pixels])"),
+        })
+    }
+
+    /// Values per observation the heads read.
+    pub fn dim(&self) -> usize {
+        match self {
+            Encoder::Flat { dim } | Encoder::ScaledImage { dim } => *dim,
+            Encoder::Cnn(cnn) => cnn.fc.bias.as_tensor().dims1().unwrap_or(0),
+        }
+    }
+
+    pub fn is_flat(&self) -> bool {
+        matches!(self, Encoder::Flat { .. })
+    }
+
+    /// `[batch, obs_dim]` → `[batch, dim()]`.
+    pub fn forward(&self, obs: &Tensor) -> Result<Tensor> {
+        match self {
+            Encoder::Flat { .. } => Ok(obs.clone()),
+            Encoder::ScaledImage { .. } => obs.to_dtype(DType::F32)? * (1.0 / 255.0),
+            Encoder::Cnn(cnn) => cnn.forward(obs),
+        }
+    }
+
+    /// Its variables as `features.<i>.weight` / `.bias` (the dense layer last).
+    pub fn named_vars(&self) -> Vec<(String, Var)> {
+        let Encoder::Cnn(cnn) = self else { return Vec::new() };
+        let layers = cnn.convs.iter().map(|c| &c.dense).chain([&cnn.fc]);
+        layers
+            .enumerate()
+            .flat_map(|(i, l)| [(format!("features.{i}.weight"), l.weight.clone()), (format!("features.{i}.bias"), l.bias.clone())])
+            .collect()
+    }
+
+    /// A copy sharing no variable with this one.
+    pub fn deep_copy(&self) -> Result<Self> {
+        Ok(match self {
+            Encoder::Flat { dim } => Encoder::Flat { dim: *dim },
+            Encoder::ScaledImage { dim } => Encoder::ScaledImage { dim: *dim },
+            Encoder::Cnn(cnn) => Encoder::Cnn(NatureCnn {
+                convs: cnn.convs.iter().map(|c| Ok(Conv2d { patches: c.patches, dense: c.dense.deep_copy()? })).collect::<Result<_>>()?,
+                fc: cnn.fc.deep_copy()?,
+            }),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn nature_cnn_maps_64x64_images_to_features_and_refuses_small_or_flat_inputs() {
+        let dev = Device::Cpu;
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let space = Space::Image { height: 64, width: 64, channels: 6 };
+        let encoder = Encoder::new(PolicyKind::Auto, &space, 128, "ppo", &mut rng, &dev).unwrap();
+        assert_eq!(encoder.dim(), 128);
+        assert_eq!(encoder.named_vars().len(), 8);
+        let obs = Tensor::full(200f32, (3, space.dim()), &dev).unwrap();
+        let features = encoder.forward(&obs).unwrap();
+        assert_eq!(features.dims(), &[3, 128]);
+        let values = features.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert!(values.iter().all(|v| *v >= 0.0) && values.iter().any(|v| *v > 0.0), "ReLU features, not all dead");
+
+        let small = Space::Image { height: 32, width: 64, channels: 3 };
+        let e = Encoder::new(PolicyKind::Cnn, &small, 512, "ppo", &mut rng, &dev).err().unwrap().to_string();
+        assert!(e.starts_with("ppo.policy = \"cnn\": NatureCNN needs images of at least 36×36"), "{e}");
+        let e = Encoder::new(PolicyKind::Cnn, &Space::uniform_box(4, -1.0, 1.0), 512, "sac", &mut rng, &dev).err().unwrap().to_string();
+        assert!(e.starts_with("sac.policy = \"cnn\": the observation Box(4) is not an image"), "{e}");
+        assert!(matches!(Encoder::new(PolicyKind::Mlp, &small, 512, "ppo", &mut rng, &dev).unwrap(), Encoder::ScaledImage { dim: 6144 }));
+    }
+}

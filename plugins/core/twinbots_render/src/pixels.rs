@@ -1,0 +1,166 @@
+//! Pixel observations: the task observes a camera image of its arena instead of its state
+//! (`[pixels]`), as Gymnasium's `PixelObservationWrapper` and the pixel envs of ManiSkill and
+//! Isaac Lab do. Every control step all arenas render in one frame, each in its own tile
+//! ([`Renderer::tiled`]), read back once; an arena that resets renders its first frame at once,
+//! so the step that ends an episode has its final frame and the next episode's first one.
+//!
+//! The task's terms still run on its state (rewards, terminations, success); only what the
+//! learner sees changes. The observation space becomes [`Space::Image`]: `height × width ×
+//! 3·frames` whole numbers in [0, 255], the last `frames` images stacked along the channels
+//! (oldest first), a new episode's first image repeated (gym's `FrameStack`).
+
+use std::collections::{HashMap, VecDeque};
+
+use bevy::prelude::*;
+use serde::{Deserialize, Serialize};
+use twinbots_api::Space;
+use twinbots_sim::{Arena, Framing, SimSet};
+use twinbots_task::task::{ActiveTask, EnvReset, Episode, ResetSet, Resetting, TaskSet};
+
+use crate::{Renderer, View};
+
+/// `[pixels]`: the camera a task observes through.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PixelSettings {
+    /// One of the robot's framed cameras ([`Framing::CAMERAS`]).
+    pub camera: String,
+    /// Vertical field of view (degrees): narrower zooms in on the robot.
+    pub fov: f32,
+    pub width: u32,
+    pub height: u32,
+    /// How many of the latest images the observation holds, so that a policy sees motion.
+    pub frames: u32,
+}
+
+impl Default for PixelSettings {
+    /// A small image (64×64, one frame) through the robot's side camera at the framing's 45°.
+    fn default() -> Self {
+        Self { camera: "side".into(), fov: 45.0, width: 64, height: 64, frames: 1 }
+    }
+}
+
+impl PixelSettings {
+    /// A clear error naming the key of a setting out of range (`pixels.width = 0: …`).
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            Framing::CAMERAS.contains(&self.camera.as_str()),
+            "pixels.camera = {:?}: must be one of {}",
+            self.camera,
+            Framing::CAMERAS.join(", ")
+        );
+        anyhow::ensure!(self.fov > 0.0 && self.fov < 180.0, "pixels.fov = {}: must be in (0, 180) degrees", self.fov);
+        for (key, value) in [("width", self.width), ("height", self.height)] {
+            anyhow::ensure!((8..=1024).contains(&value), "pixels.{key} = {value}: must be a whole number in 8..=1024");
+        }
+        anyhow::ensure!((1..=8).contains(&self.frames), "pixels.frames = {}: must be a whole number in 1..=8", self.frames);
+        Ok(())
+    }
+
+    /// The observation space: `height × width × 3·frames`.
+    pub fn space(&self) -> Space {
+        Space::Image { height: self.height as usize, width: self.width as usize, channels: 3 * self.frames as usize }
+    }
+
+    /// Adds pixel observations to a robot's app (before its start-up), its camera framed by
+    /// `framing`. Fails when the settings are out of range or no graphics adapter exists.
+    pub fn install(&self, app: &mut App, framing: &Framing, arenas: usize) -> anyhow::Result<()> {
+        self.validate()?;
+        let framed = View::framed(framing, &self.camera).expect("validated: a framed camera");
+        let view = View { fov_y: self.fov.to_radians(), ..framed };
+        let renderer = Renderer::tiled(self.width, self.height, arenas.max(1))?;
+        app.insert_non_send(PixelCamera { renderer, view, frames: self.frames as usize, stacks: HashMap::new() })
+            .insert_resource(PixelSpace(self.space()))
+            .add_plugins(PixelObservationPlugin);
+        Ok(())
+    }
+}
+
+/// The image space the task's observation becomes.
+#[derive(Resource, Clone, Debug)]
+struct PixelSpace(Space);
+
+/// The renderer and each arena's latest images.
+struct PixelCamera {
+    renderer: Renderer,
+    view: View,
+    frames: usize,
+    stacks: HashMap<Entity, VecDeque<Vec<u8>>>,
+}
+
+/// Renders the arenas' observations (added by [`PixelSettings::install`]).
+struct PixelObservationPlugin;
+
+impl Plugin for PixelObservationPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_systems(Update, observe_step.in_set(SimSet::Task).after(TaskSet::Evaluate).before(TaskSet::Report))
+            .add_systems(EnvReset, observe_reset.after(ResetSet::Observe));
+    }
+
+    /// The task's spec says what its observation now is (its plugin inserted it in `build`).
+    fn finish(&self, app: &mut App) {
+        let space = app.world().resource::<PixelSpace>().0.clone();
+        if let Some(mut task) = app.world_mut().get_resource_mut::<ActiveTask>() {
+            task.0.observation_names = vec![format!("pixels {space}")];
+            task.0.observation_plausible = space.clone();
+            task.0.observation_space = space;
+        }
+    }
+}
+
+fn observe_step(world: &mut World) {
+    let mut arenas = world.query_filtered::<(Entity, &Arena), With<Episode>>();
+    let mut arenas: Vec<(usize, Entity)> = arenas.iter(world).map(|(e, a)| (a.index, e)).collect();
+    arenas.sort();
+    observe(world, arenas.into_iter().map(|(_, e)| e).collect(), false);
+}
+
+fn observe_reset(world: &mut World) {
+    let mut arenas = world.query_filtered::<(Entity, &Arena), (With<Episode>, With<Resetting>)>();
+    let mut arenas: Vec<(usize, Entity)> = arenas.iter(world).map(|(e, a)| (a.index, e)).collect();
+    arenas.sort();
+    observe(world, arenas.into_iter().map(|(_, e)| e).collect(), true);
+}
+
+/// Renders `arenas` in one frame and makes each one's observation its stack of latest images;
+/// `fresh` starts new stacks (a new episode).
+fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
+    if arenas.is_empty() {
+        return;
+    }
+    let Some(mut camera) = world.remove_non_send::<PixelCamera>() else { return };
+    let shots: Vec<(Entity, View)> = arenas.iter().map(|&a| (a, camera.view)).collect();
+    let images = match camera.renderer.render_shots(world, &shots) {
+        Ok(images) => images,
+        // Rendering worked when the renderer was made: a failure now is the machine's.
+        Err(e) => panic!("pixel observations cannot render: {e}"),
+    };
+    let frames = camera.frames;
+    for (arena, image) in arenas.into_iter().zip(images) {
+        let stack = camera.stacks.entry(arena).or_default();
+        if fresh || stack.is_empty() {
+            stack.clear();
+            stack.extend(std::iter::repeat_n(image, frames));
+        } else {
+            stack.pop_front();
+            stack.push_back(image);
+        }
+        let stack = &*stack;
+        if let Some(mut episode) = world.get_mut::<Episode>(arena) {
+            write_stack(stack, &mut episode.observation);
+        }
+    }
+    world.insert_non_send(camera);
+}
+
+/// `height × width × 3·frames`: pixel by pixel, each frame's RGB in turn (oldest first).
+fn write_stack(stack: &VecDeque<Vec<u8>>, out: &mut Vec<f32>) {
+    out.clear();
+    let pixels = stack.front().map_or(0, |f| f.len() / 3);
+    out.reserve(pixels * 3 * stack.len());
+    for p in 0..pixels {
+        for frame in stack {
+            out.extend(frame[p * 3..p * 3 + 3].iter().map(|&v| v as f32));
+        }
+    }
+}

@@ -1,0 +1,87 @@
+//! Pixel observations (`[pixels]`): the arenas' images, stacked, with the final frame of an
+//! ended episode, the same for the same seed, and bad settings named.
+
+use twinbots_api::{Space, VecEnv};
+use twinbots_render::PixelSettings;
+use twinbots_task::AppVecEnv;
+
+fn pixel_env(seed: u64, settings: &PixelSettings) -> AppVecEnv {
+    let mut app = cartpole::headless_app(2, seed);
+    settings.install(&mut app, &cartpole::robot().framing, 2).unwrap();
+    AppVecEnv::new(app)
+}
+
+/// Every observation of `steps` bang-bang steps, and each ended episode's (final, next first).
+fn run(seed: u64, settings: &PixelSettings, steps: usize) -> (Vec<Vec<f32>>, Vec<(Vec<f32>, Vec<f32>)>) {
+    let mut env = pixel_env(seed, settings);
+    let dim = env.observation_space().dim();
+    let mut seen = vec![env.reset(Some(seed)).unwrap()];
+    let mut ends = Vec::new();
+    for t in 0..steps {
+        let r = env.step(&[(t % 2) as f32, ((t / 3) % 2) as f32]).unwrap();
+        for (i, last) in r.final_obs.iter().enumerate() {
+            if let Some(last) = last {
+                ends.push((last.clone(), r.obs[i * dim..(i + 1) * dim].to_vec()));
+            }
+        }
+        seen.push(r.obs);
+    }
+    (seen, ends)
+}
+
+#[test]
+fn pixel_observations_stack_the_arenas_images_keep_the_final_frame_and_repeat_with_the_seed() {
+    if crate::renderer("pixel_observations_stack_the_arenas_images_keep_the_final_frame_and_repeat_with_the_seed", 8, 8).is_none() {
+        return;
+    }
+    let settings = PixelSettings { width: 48, height: 40, frames: 2, ..PixelSettings::default() };
+    let env = pixel_env(3, &settings);
+    let space = env.observation_space().clone();
+    assert_eq!(space, Space::Image { height: 40, width: 48, channels: 6 });
+    drop(env);
+
+    let (seen, ends) = run(3, &settings, 60);
+    assert!(seen.iter().all(|obs| obs.len() == 2 * space.dim() && obs.chunks(space.dim()).all(|o| space.contains(o))));
+    // The newest image of one step is the older one of the next (pixel by pixel: RGB old, RGB new).
+    let older = |obs: &[f32]| -> (Vec<f32>, Vec<f32>) {
+        let (mut old, mut new) = (Vec::new(), Vec::new());
+        for px in obs[..space.dim()].chunks(6) {
+            old.extend_from_slice(&px[..3]);
+            new.extend_from_slice(&px[3..]);
+        }
+        (old, new)
+    };
+    let moving = (1..seen.len()).filter(|&t| older(&seen[t - 1]).1 != older(&seen[t]).1).count();
+    assert!(moving > 10, "the side camera sees the pole move: {moving} of 60 steps changed the image");
+    for t in 1..20 {
+        assert_eq!(older(&seen[t]).1, older(&seen[t + 1]).0, "step {t}");
+    }
+    assert!(!ends.is_empty(), "an episode ended in 60 steps");
+    for (last, first) in &ends {
+        assert_ne!(last, first, "the final observation is the ended episode's");
+        let (old, new) = older(first);
+        assert_eq!(old, new, "a new episode's first image is repeated");
+    }
+    let (again, _) = run(3, &settings, 60);
+    assert!(seen == again, "the same seed gives the same images");
+    let (other, _) = run(4, &settings, 60);
+    assert!(seen != other, "another seed, other episodes");
+}
+
+#[test]
+fn bad_pixel_settings_are_errors_naming_the_key() {
+    let cases = [
+        (PixelSettings { camera: "ceiling".into(), ..PixelSettings::default() }, "pixels.camera = \"ceiling\": must be one of side, front, iso, top"),
+        (PixelSettings { fov: 0.0, ..PixelSettings::default() }, "pixels.fov = 0: must be in (0, 180) degrees"),
+        (PixelSettings { fov: 180.0, ..PixelSettings::default() }, "pixels.fov = 180: must be in (0, 180) degrees"),
+        (PixelSettings { fov: f32::NAN, ..PixelSettings::default() }, "pixels.fov = NaN"),
+        (PixelSettings { width: 0, ..PixelSettings::default() }, "pixels.width = 0: must be a whole number in 8..=1024"),
+        (PixelSettings { frames: 0, ..PixelSettings::default() }, "pixels.frames = 0: must be a whole number in 1..=8"),
+    ];
+    for (settings, message) in cases {
+        let e = settings.validate().unwrap_err().to_string();
+        assert!(e.starts_with(message), "{e:?} does not start with {message:?}");
+    }
+    let e = toml::from_str::<PixelSettings>("colour = 3").unwrap_err().to_string();
+    assert!(e.contains("unknown field `colour`"), "{e}");
+}

@@ -1,0 +1,126 @@
+//! PPO with a CNN (`policy = "cnn"`) learns from images: which half of the picture is lit.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use twinbots_api::{EpisodeSummary, Space, StepResult, VecEnv};
+use twinbots_learn::nn::PolicyKind;
+use twinbots_learn::{Flow, Ppo, PpoConfig, UpdateStats};
+
+/// Each step shows a 36×36 grey image whose left or right half is lit; choosing the lit half
+/// (action 0 left, 1 right) earns 1. Episodes of 8 steps. Nothing but the pixels tells which.
+struct LitHalf {
+    envs: usize,
+    space: Space,
+    actions: Space,
+    rng: ChaCha8Rng,
+    lit: Vec<usize>,
+    steps: Vec<u32>,
+    scores: Vec<f32>,
+}
+
+const SIZE: usize = 36;
+const LENGTH: u32 = 8;
+
+impl LitHalf {
+    fn new(envs: usize) -> Self {
+        let space = Space::Image { height: SIZE, width: SIZE, channels: 1 };
+        Self { envs, space, actions: Space::Discrete { n: 2 }, rng: ChaCha8Rng::seed_from_u64(0), lit: vec![0; envs], steps: vec![0; envs], scores: vec![0.0; envs] }
+    }
+
+    fn observe(&mut self) -> Vec<f32> {
+        let mut obs = Vec::with_capacity(self.envs * SIZE * SIZE);
+        for i in 0..self.envs {
+            self.lit[i] = self.rng.random_range(0..2);
+            for _y in 0..SIZE {
+                for x in 0..SIZE {
+                    let lit = (x >= SIZE / 2) == (self.lit[i] == 1);
+                    obs.push(if lit { 230.0 } else { 40.0 } + self.rng.random_range(0..20) as f32);
+                }
+            }
+        }
+        obs
+    }
+}
+
+impl VecEnv for LitHalf {
+    fn num_envs(&self) -> usize {
+        self.envs
+    }
+    fn observation_space(&self) -> &Space {
+        &self.space
+    }
+    fn action_space(&self) -> &Space {
+        &self.actions
+    }
+    fn reset(&mut self, seed: Option<u64>) -> anyhow::Result<Vec<f32>> {
+        if let Some(seed) = seed {
+            self.rng = ChaCha8Rng::seed_from_u64(seed);
+        }
+        self.steps.fill(0);
+        self.scores.fill(0.0);
+        Ok(self.observe())
+    }
+    fn step(&mut self, actions: &[f32]) -> anyhow::Result<StepResult> {
+        let mut out = StepResult::default();
+        for i in 0..self.envs {
+            let reward = if actions[i] as usize == self.lit[i] { 1.0 } else { 0.0 };
+            self.steps[i] += 1;
+            self.scores[i] += reward;
+            let ended = self.steps[i] == LENGTH;
+            out.rewards.push(reward);
+            out.terminated.push(false);
+            out.truncated.push(ended);
+            out.ended_by.push(None);
+            out.episodes.push(ended.then(|| EpisodeSummary { score: self.scores[i], length: LENGTH, ..Default::default() }));
+            if ended {
+                (self.steps[i], self.scores[i]) = (0, 0.0);
+            }
+        }
+        out.obs = self.observe();
+        // The final image is as uninformative as any other: the next one stands in for it.
+        out.final_obs = out.truncated.iter().enumerate().map(|(i, &t)| t.then(|| out.obs[i * SIZE * SIZE..(i + 1) * SIZE * SIZE].to_vec())).collect();
+        Ok(out)
+    }
+}
+
+#[test]
+fn ppo_with_a_cnn_learns_which_half_of_the_image_is_lit_and_saves_and_loads_it() {
+    let config = PpoConfig { n_steps: 32, batch_size: 64, n_epochs: 4, learning_rate: 1e-3, policy: PolicyKind::Cnn, features_dim: 64, ..PpoConfig::default() };
+    let mut env = LitHalf::new(4);
+    let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 2).unwrap();
+    assert!(model.policy.named_vars().iter().any(|(name, _)| name == "features.3.weight"), "NatureCNN's 3 convolutions and dense layer");
+    let mut best = 0.0f32;
+    model
+        .learn(&mut env, 20_000, &mut |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
+            if s.episodes >= 20 {
+                best = best.max(s.mean_reward);
+            }
+            Ok(if best >= 7.5 { Flow::Stop } else { Flow::Continue })
+        })
+        .unwrap();
+    // Guessing scores 4 of 8.
+    assert!(best >= 7.5, "mean score {best} of 8 after {} steps", model.timesteps);
+
+    let dir = std::env::temp_dir().join(format!("twinbots-cnn-{}", std::process::id()));
+    model.save(&dir).unwrap();
+    let loaded = Ppo::load(&dir).unwrap();
+    let obs = env.reset(Some(9)).unwrap();
+    assert_eq!(model.predict_deterministic(&obs).unwrap(), loaded.predict_deterministic(&obs).unwrap());
+    let right: Vec<f32> = env.lit.iter().map(|&l| l as f32).collect();
+    assert_eq!(loaded.predict_deterministic(&obs).unwrap(), right, "the loaded CNN reads the images");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn cnn_settings_that_cannot_work_are_errors_naming_the_key() {
+    let small = Space::Image { height: 24, width: 64, channels: 3 };
+    let discrete = Space::Discrete { n: 2 };
+    let cnn = PpoConfig { policy: PolicyKind::Cnn, ..PpoConfig::default() };
+    let e = Ppo::new(cnn.clone(), small, discrete.clone(), 0).unwrap_err().to_string();
+    assert!(e.contains("ppo.policy = \"cnn\": NatureCNN needs images of at least 36×36"), "{e}");
+    let e = Ppo::new(cnn, Space::uniform_box(4, -1.0, 1.0), discrete.clone(), 0).unwrap_err().to_string();
+    assert!(e.contains("is not an image"), "{e}");
+    let normalized = PpoConfig { normalize_observations: true, ..PpoConfig::default() };
+    let e = Ppo::new(normalized, Space::Image { height: 40, width: 40, channels: 3 }, discrete, 0).unwrap_err().to_string();
+    assert!(e.contains("ppo.normalize_observations = true: camera images"), "{e}");
+}
