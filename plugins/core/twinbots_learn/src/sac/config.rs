@@ -3,6 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::nn::PolicyKind;
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SacConfig {
@@ -30,6 +32,11 @@ pub struct SacConfig {
     pub target_update_interval: usize,
     /// Hidden layers (ReLU) of the actor and of each critic.
     pub hidden: Vec<usize>,
+    /// What the actor and the critics read: `auto` (a NatureCNN's features for camera images,
+    /// the observation otherwise), `mlp` or `cnn` (as PPO's).
+    pub policy: PolicyKind,
+    /// Features each CNN hands its MLPs.
+    pub features_dim: usize,
     /// Running mean/std normalisation of observations, saved with the model. The buffer keeps
     /// raw observations and normalises them when sampled, with the statistics then in force.
     pub normalize_observations: bool,
@@ -57,6 +64,8 @@ impl Default for SacConfig {
             target_entropy: None,
             target_update_interval: 1,
             hidden: vec![256, 256],
+            policy: PolicyKind::Auto,
+            features_dim: 512,
             normalize_observations: false,
             log_interval: 1000,
             her_goals: 0,
@@ -86,6 +95,7 @@ impl SacConfig {
         let hidden = format!("{:?}", self.hidden);
         let sizes_ok = (1..=16).contains(&self.hidden.len()) && self.hidden.iter().all(|&n| (1..=4096).contains(&n));
         check("hidden", hidden, sizes_ok, "1 to 16 layer sizes, each in 1..=4096")?;
+        check("features_dim", self.features_dim, (1..=4096).contains(&self.features_dim), "a whole number in 1..=4096")?;
         count("log_interval", self.log_interval, 1 << 24)?;
         check("her_goals", self.her_goals, self.her_goals <= 16, "a whole number in 0..=16")
     }

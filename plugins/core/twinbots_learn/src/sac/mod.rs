@@ -27,6 +27,7 @@ pub use networks::{Actor, ReluMlp, TwinCritic, polyak_update};
 
 use crate::agent::{Agent, LoadAgent};
 use crate::learner::{Algorithm, Learner, config_from};
+use crate::nn::Encoder;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use crate::callbacks::Callback;
 use crate::history::EpisodeHistory;
@@ -82,6 +83,10 @@ pub struct SacLosses {
     pub gradient_steps: u64,
 }
 
+const GIB: f64 = (1u64 << 30) as f64;
+/// The most memory a replay buffer may ask for.
+const MAX_BUFFER_BYTES: f64 = 16.0 * GIB;
+
 /// A SAC agent: actor, twin critics and their targets, α, the optimisers, the replay buffer
 /// and the counters that make a run resumable.
 pub struct Sac {
@@ -133,9 +138,26 @@ impl Sac {
             anyhow::bail!("SAC needs continuous (Box) actions, not {action_space}: use PPO")
         };
         let (obs_dim, act_dim) = (observation_space.dim(), low.len());
+        anyhow::ensure!(
+            !(config.normalize_observations && matches!(observation_space, Space::Image { .. })),
+            "sac.normalize_observations = true: camera images are scaled to [0, 1], not normalised by running statistics"
+        );
+        // The ring keeps observation and next observation as f32 (4 bytes a value).
+        let buffer_bytes = config.buffer_size as f64 * obs_dim as f64 * 8.0;
+        anyhow::ensure!(
+            buffer_bytes <= MAX_BUFFER_BYTES,
+            "sac.buffer_size = {}: {} transitions of {observation_space} observations take {:.0} GiB; at most {:.0} GiB: \
+             use buffer_size = {} or less",
+            config.buffer_size,
+            config.buffer_size,
+            buffer_bytes / GIB,
+            MAX_BUFFER_BYTES / GIB,
+            (MAX_BUFFER_BYTES / (obs_dim as f64 * 8.0)) as u64
+        );
         let mut init = ChaCha8Rng::seed_from_u64(seed);
-        let actor = Actor::new(obs_dim, act_dim, &config.hidden, &mut init)?;
-        let critic = TwinCritic::new(obs_dim, act_dim, &config.hidden, &mut init)?;
+        let encoder = |rng: &mut ChaCha8Rng| Encoder::new(config.policy, &observation_space, config.features_dim, NAME, rng, &Device::Cpu);
+        let actor = Actor::new(encoder(&mut init)?, act_dim, &config.hidden, &mut init)?;
+        let critic = TwinCritic::new(encoder(&mut init)?, act_dim, &config.hidden, &mut init)?;
         let critic_target = critic.deep_copy()?;
         let log_ent_coef = Var::from_tensor(&Tensor::new(&[config.ent_coef_init.ln()], &Device::Cpu)?)?;
         let adam = |vars: Vec<Var>| Adam::new(vars, AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() });

@@ -1,10 +1,13 @@
 //! SAC's networks (SB3's SAC MlpPolicy): an actor with a squashed Gaussian head, and twin Q
-//! critics over (observation, action), each with its target copy. ReLU hidden layers.
+//! critics over (observation, action), each with its target copy. ReLU hidden layers. On camera
+//! images (SB3's CnnPolicy) the actor and the critics each read their own NatureCNN (SB3's
+//! `share_features_extractor=False` for off-policy learners); the two Q heads share the
+//! critics' one, and the target critics have their own copy.
 
 use candle_core::{D, Device, Result, Tensor, Var};
 use rand_chacha::ChaCha8Rng;
 
-use crate::nn::Dense;
+use crate::nn::{Dense, Encoder};
 
 /// SB3's bounds on the actor's log standard deviation.
 const LOG_STD_MIN: f64 = -20.0;
@@ -43,17 +46,21 @@ impl ReluMlp {
 
 /// π(a|s): a = tanh(u), u ~ N(μ(s), σ(s)), both heads on one ReLU body.
 pub struct Actor {
+    pub encoder: Encoder,
     body: ReluMlp,
     mu: Dense,
     log_std: Dense,
 }
 
 impl Actor {
-    pub fn new(obs_dim: usize, act_dim: usize, hidden: &[usize], rng: &mut ChaCha8Rng) -> Result<Self> {
+    /// An actor reading `encoder`'s features.
+    pub fn new(encoder: Encoder, act_dim: usize, hidden: &[usize], rng: &mut ChaCha8Rng) -> Result<Self> {
         let dev = Device::Cpu;
+        let obs_dim = encoder.dim();
         let sizes = [&[obs_dim][..], hidden].concat();
         let last = *sizes.last().unwrap_or(&obs_dim);
         Ok(Self {
+            encoder,
             body: ReluMlp::new(&sizes, true, rng, &dev)?,
             mu: Dense::new(last, act_dim, 1.0, rng, &dev)?,
             log_std: Dense::new(last, act_dim, 1.0, rng, &dev)?,
@@ -61,7 +68,7 @@ impl Actor {
     }
 
     fn heads(&self, obs: &Tensor) -> Result<(Tensor, Tensor)> {
-        let h = self.body.forward(obs)?;
+        let h = self.body.forward(&self.encoder.forward(obs)?)?;
         Ok((self.mu.forward(&h)?, self.log_std.forward(&h)?.clamp(LOG_STD_MIN, LOG_STD_MAX)?))
     }
 
@@ -85,13 +92,16 @@ impl Actor {
 
     /// The layers of the deterministic action tanh(μ(s)): the body, then μ.
     pub fn mode_layers(&self) -> Result<Vec<crate::policy_net::DenseLayer>> {
+        if !self.encoder.is_flat() {
+            candle_core::bail!("policies on camera images cannot be exported yet");
+        }
         let mut layers = self.body.layers.iter().enumerate().map(|(i, l)| l.values(&format!("actor.body.{i}"))).collect::<Result<Vec<_>>>()?;
         layers.push(self.mu.values("actor.mu")?);
         Ok(layers)
     }
 
     pub fn named_vars(&self) -> Vec<(String, Var)> {
-        let mut out = Vec::new();
+        let mut out: Vec<(String, Var)> = self.encoder.named_vars().into_iter().map(|(n, v)| (format!("actor.{n}"), v)).collect();
         self.body.named_vars("actor.body", &mut out);
         for (name, l) in [("actor.mu", &self.mu), ("actor.log_std", &self.log_std)] {
             out.push((format!("{name}.weight"), l.weight.clone()));
@@ -108,31 +118,43 @@ fn softplus(x: &Tensor) -> Result<Tensor> {
 
 /// Q₁(s, a) and Q₂(s, a): two independent MLPs (clipped double Q).
 pub struct TwinCritic {
+    pub encoder: Encoder,
     q1: ReluMlp,
     q2: ReluMlp,
 }
 
 impl TwinCritic {
-    pub fn new(obs_dim: usize, act_dim: usize, hidden: &[usize], rng: &mut ChaCha8Rng) -> Result<Self> {
+    /// Twin critics reading `encoder`'s features.
+    pub fn new(encoder: Encoder, act_dim: usize, hidden: &[usize], rng: &mut ChaCha8Rng) -> Result<Self> {
         let dev = Device::Cpu;
-        let sizes = [&[obs_dim + act_dim][..], hidden, &[1]].concat();
-        Ok(Self { q1: ReluMlp::new(&sizes, false, rng, &dev)?, q2: ReluMlp::new(&sizes, false, rng, &dev)? })
+        let sizes = [&[encoder.dim() + act_dim][..], hidden, &[1]].concat();
+        Ok(Self { q1: ReluMlp::new(&sizes, false, rng, &dev)?, q2: ReluMlp::new(&sizes, false, rng, &dev)?, encoder })
     }
 
     /// (Q₁, Q₂), one value per row.
     pub fn q(&self, obs: &Tensor, actions: &Tensor) -> Result<(Tensor, Tensor)> {
-        let x = Tensor::cat(&[obs, actions], 1)?;
+        self.q_of(&self.encoder.forward(obs)?, actions)
+    }
+
+    /// (Q₁, Q₂) from the encoder's features of the observations (computed once, used twice).
+    pub fn q_of(&self, features: &Tensor, actions: &Tensor) -> Result<(Tensor, Tensor)> {
+        let x = Tensor::cat(&[features, actions], 1)?;
         Ok((self.q1.forward(&x)?.squeeze(1)?, self.q2.forward(&x)?.squeeze(1)?))
     }
 
     /// min(Q₁, Q₂).
     pub fn min_q(&self, obs: &Tensor, actions: &Tensor) -> Result<Tensor> {
-        let (q1, q2) = self.q(obs, actions)?;
+        self.min_q_of(&self.encoder.forward(obs)?, actions)
+    }
+
+    /// min(Q₁, Q₂) from the encoder's features.
+    pub fn min_q_of(&self, features: &Tensor, actions: &Tensor) -> Result<Tensor> {
+        let (q1, q2) = self.q_of(features, actions)?;
         q1.minimum(&q2)
     }
 
     pub fn named_vars(&self, prefix: &str) -> Vec<(String, Var)> {
-        let mut out = Vec::new();
+        let mut out: Vec<(String, Var)> = self.encoder.named_vars().into_iter().map(|(n, v)| (format!("{prefix}.{n}"), v)).collect();
         self.q1.named_vars(&format!("{prefix}.q1"), &mut out);
         self.q2.named_vars(&format!("{prefix}.q2"), &mut out);
         out
@@ -141,14 +163,9 @@ impl TwinCritic {
     /// A copy sharing no variables (the target network starts as the critic).
     pub fn deep_copy(&self) -> Result<Self> {
         let copy = |m: &ReluMlp| -> Result<ReluMlp> {
-            let layers = m
-                .layers
-                .iter()
-                .map(|l| Ok(Dense { weight: Var::from_tensor(&l.weight.as_tensor().copy()?)?, bias: Var::from_tensor(&l.bias.as_tensor().copy()?)? }))
-                .collect::<Result<_>>()?;
-            Ok(ReluMlp { layers, relu_last: m.relu_last })
+            Ok(ReluMlp { layers: m.layers.iter().map(Dense::deep_copy).collect::<Result<_>>()?, relu_last: m.relu_last })
         };
-        Ok(Self { q1: copy(&self.q1)?, q2: copy(&self.q2)? })
+        Ok(Self { encoder: self.encoder.deep_copy()?, q1: copy(&self.q1)?, q2: copy(&self.q2)? })
     }
 }
 
@@ -174,7 +191,7 @@ mod tests {
     #[test]
     fn the_squashed_log_prob_matches_the_change_of_variables_formula() {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let actor = Actor::new(3, 2, &[8], &mut rng).unwrap();
+        let actor = Actor::new(Encoder::Flat { dim: 3 }, 2, &[8], &mut rng).unwrap();
         let obs = Tensor::new(&[[0.3f32, -0.2, 0.9], [1.5, 0.0, -2.0]], &Device::Cpu).unwrap();
         let eps = Tensor::new(&[[0.5f32, -1.0], [2.5, 0.1]], &Device::Cpu).unwrap();
         let (a, log_prob) = actor.sample(&obs, &eps).unwrap();

@@ -41,14 +41,16 @@ impl Sac {
         let (next_actions, next_log_pi) = self.actor.sample(&next_obs, &eps_next)?;
         let next_q = (self.critic_target.min_q(&next_obs, &next_actions.detach())? - (next_log_pi.detach() * alpha as f64)?)?;
         let target = (rewards + (not_done * next_q)? * self.config.gamma as f64)?.detach();
-        let (q1, q2) = self.critic.q(&obs, &actions)?;
+        let critic_features = self.critic.encoder.forward(&obs)?;
+        let (q1, q2) = self.critic.q_of(&critic_features, &actions)?;
         // ½ Σᵢ MSE(Qᵢ, y), as SB3.
         let critic_loss = ((((&q1 - &target)?.sqr()?.mean_all()? + (&q2 - &target)?.sqr()?.mean_all()?)?) * 0.5)?;
         applied &= self.critic_optimizer.step(&critic_loss.backward()?, None)?.applied;
 
         // Actor: J(π) = E[α log π(a|s) − min Q(s, a)], a ~ π(·|s) reparameterised (the critics'
-        // gradients of this loss are not applied: only the actor's optimiser steps).
-        let q_pi = self.critic.min_q(&obs, &actions_pi)?;
+        // gradients of this loss are not applied: only the actor's optimiser steps, so the
+        // critics' image features are reused, detached, rather than computed again).
+        let q_pi = self.critic.min_q_of(&critic_features.detach(), &actions_pi)?;
         let actor_loss = ((&log_pi * alpha as f64)? - q_pi)?.mean_all()?;
         applied &= self.actor_optimizer.step(&actor_loss.backward()?, None)?.applied;
 

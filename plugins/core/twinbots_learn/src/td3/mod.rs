@@ -119,7 +119,7 @@ impl Td3 {
         let mut init = ChaCha8Rng::seed_from_u64(seed);
         let sizes: Vec<usize> = std::iter::once(obs_dim).chain(config.hidden.iter().copied()).chain(std::iter::once(act_dim)).collect();
         let actor = ReluMlp::new(&sizes, false, &mut init, &Device::Cpu)?;
-        let critic = TwinCritic::new(obs_dim, act_dim, &config.hidden, &mut init)?;
+        let critic = TwinCritic::new(crate::nn::Encoder::Flat { dim: obs_dim }, act_dim, &config.hidden, &mut init)?;
         let adam = |vars: Vec<(String, Var)>| {
             Adam::new(vars.into_iter().map(|(_, v)| v).collect(), AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() })
         };
