@@ -231,6 +231,13 @@ impl TrainSettings {
         spec
     }
 
+    /// [`TrainSettings::observe`] with the settings of the run in `run`: a model of that run
+    /// driving an app of another command (`capture --model`, `view --model`) sees what it
+    /// learnt on.
+    pub fn observe_as_run(run: &Path, app: &mut bevy::prelude::App, entry: &RobotEntry, arenas: usize) -> anyhow::Result<()> {
+        Self::of_run(&RunDir::new(run))?.observe(app, entry, arenas)
+    }
+
     /// Sets up what the run's envs observe in a robot's `app` of `arenas` arenas, before its
     /// start-up: pixel observations with `[pixels]` (an error when no graphics adapter exists).
     pub fn observe(&self, app: &mut bevy::prelude::App, entry: &RobotEntry, arenas: usize) -> anyhow::Result<()> {

@@ -14,7 +14,7 @@ use twinbots_task::AppVecEnv;
 use twinbots_task::randomization::{Randomization, RandomizationPlugin};
 
 use crate::registry::{self, RobotEntry};
-use twinbots::settings::CalibrationSetting;
+use twinbots::settings::{CalibrationSetting, TrainSettings};
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -153,6 +153,9 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     let twin = twinbots::twin::Twin::of_files(&entry, args.calibration.as_deref(), args.log.as_deref())?;
     CalibrationSetting::check_randomization(twin.calibration.as_ref(), &args.randomization)?;
     twin.configure(&mut app, &entry)?;
+    if let Some(run) = &args.model {
+        TrainSettings::observe_as_run(run, &mut app, &entry, 1)?;
+    }
     if !args.randomization.is_off() {
         app.add_plugins(RandomizationPlugin(args.randomization.clone()));
     }

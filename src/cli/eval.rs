@@ -107,6 +107,7 @@ fn one_episode(
     let twin = Twin { calibration: evaluated_calibration(&entry, &settings, calibration)?, log: log.map(Path::to_path_buf) };
     let mut app = entry.app(task, 1, seed, settings.in_process_pattern()?)?;
     twin.configure(&mut app, &entry)?;
+    settings.observe(&mut app, &entry, 1)?;
     let mut env = AppVecEnv::new(app);
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut obs = env.reset(Some(seed))?;

@@ -90,6 +90,8 @@ pub fn export_run(run: &Path, onnx: &Path) -> anyhow::Result<PolicyMetadata> {
 /// What the run's policy is: its robot and task, spaces, control period and training.
 fn describe(settings: &TrainSettings, model: &dyn twinbots_learn::Agent) -> anyhow::Result<PolicyMetadata> {
     let entry = registry::find(&settings.robot)?;
+    // First whether the policy can be written at all (a CNN cannot, yet).
+    let policy = model.policy_net()?;
     // The robot's own description of its task and timing, as an app of it declares them.
     let app = entry.app(None, 1, settings.seed, settings.in_process_pattern()?)?;
     let spec = &**app.world().resource::<ActiveTask>();
@@ -104,7 +106,7 @@ fn describe(settings: &TrainSettings, model: &dyn twinbots_learn::Agent) -> anyh
         observation_names: spec.observation_names.clone(),
         action_space: spec.action_space.clone(),
         control_period_s,
-        normalizes_observations: model.policy_net()?.obs_rms.is_some(),
+        normalizes_observations: policy.obs_rms.is_some(),
         timesteps: model.timesteps(),
     };
     Ok(metadata)

@@ -81,8 +81,13 @@ impl ViewSource for Player {
 
 pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64, task: Option<&str>) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
-    let model = model.map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
-    let mut env = AppVecEnv::new(entry.app(task, 1, seed, DesignPattern::Supervised)?);
+    let loaded = model.map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
+    let mut app = entry.app(task, 1, seed, DesignPattern::Supervised)?;
+    if let Some(run) = model {
+        twinbots::settings::TrainSettings::observe_as_run(run, &mut app, &entry, 1)?;
+    }
+    let model = loaded;
+    let mut env = AppVecEnv::new(app);
     if let Some(m) = &model {
         m.check_spaces(env.observation_space(), env.action_space())?;
     }

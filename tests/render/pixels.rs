@@ -85,3 +85,37 @@ fn bad_pixel_settings_are_errors_naming_the_key() {
     let e = toml::from_str::<PixelSettings>("colour = 3").unwrap_err().to_string();
     assert!(e.contains("unknown field `colour`"), "{e}");
 }
+
+#[test]
+fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_says_it_cannot_be_exported() {
+    if crate::renderer("a_pixel_run_trains_evaluates_captures_with_its_camera_and_says_it_cannot_be_exported", 8, 8).is_none() {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("twinbots-pixel-run-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("pixels.toml");
+    std::fs::write(
+        &config,
+        "timesteps = 256\narenas = 2\neval_episodes = 2\n[pixels]\nwidth = 40\nheight = 40\nframes = 2\n\
+         [ppo]\nn_steps = 64\nbatch_size = 64\nn_epochs = 1\nfeatures_dim = 16\n",
+    )
+    .unwrap();
+    let run = dir.join("run");
+    let twinbots = |args: &[&str]| std::process::Command::new(env!("CARGO_BIN_EXE_twinbots")).args(args).output().unwrap();
+    let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let out = twinbots(&["train", "cartpole", "--config", &path(&config), "--out", &path(&run)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let model = std::fs::read_to_string(run.join("model/model.json")).unwrap();
+    assert!(model.contains("\"Image\"") && model.contains("\"channels\": 6"), "{model}");
+    let out = twinbots(&["eval", &path(&run), "--episodes", "2"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let frames = dir.join("frames");
+    let out = twinbots(&["capture", "cartpole", "--model", &path(&run), "--frames", "2", "--size", "64x48", "--out", &path(&frames)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(std::fs::read_dir(&frames).unwrap().count() >= 2);
+    let out = twinbots(&["export", &path(&run), "--onnx", &path(&dir.join("p.onnx"))]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("policies on camera images (Image(40×40×6)) cannot be exported yet"), "{stderr}");
+    std::fs::remove_dir_all(&dir).ok();
+}

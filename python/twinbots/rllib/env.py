@@ -23,7 +23,9 @@ def register_env(robot: str, task: str | None = None) -> str:
 
     def create(env_config):
         num_envs = int(env_config.get("num_envs", 1))
-        return make_vec(robot, num_envs=num_envs, task=task, autoreset_mode="NEXT_STEP")
+        # `env_config={"obs": "pixels", "pixels": {...}}`: camera images (docs/pixels.md).
+        return make_vec(robot, num_envs=num_envs, task=task, autoreset_mode="NEXT_STEP",
+                        obs=env_config.get("obs", "state"), pixels=env_config.get("pixels"))
 
     tune.register_env(name, create)
     return name

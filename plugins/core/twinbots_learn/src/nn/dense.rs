@@ -28,8 +28,13 @@ impl Dense {
         // The bias enters as 1 bᵀ, a product, rather than a broadcast add: the gradient of a
         // broadcast sums over the batch dimension, which candle does element by element
         // (14 % of a PPO update), while the product's gradient 1ᵀ G is one gemm call.
-        let ones = Tensor::ones((x.dim(0)?, 1), x.dtype(), x.device())?;
-        x.matmul(&self.weight.as_tensor().t()?)? + ones.matmul(&self.bias.as_tensor().unsqueeze(0)?)?
+        self.add_bias(&x.matmul(&self.weight.as_tensor().t()?)?)
+    }
+
+    /// `xWᵀ + 1 bᵀ` from the product `xWᵀ`.
+    pub(crate) fn add_bias(&self, product: &Tensor) -> Result<Tensor> {
+        let ones = Tensor::ones((product.dim(0)?, 1), product.dtype(), product.device())?;
+        product + ones.matmul(&self.bias.as_tensor().unsqueeze(0)?)?
     }
 }
 

@@ -53,8 +53,9 @@ impl NatureCnn {
     fn forward(&self, obs: &Tensor) -> Result<Tensor> {
         let batch = obs.dim(0)?;
         let mut x = (obs * (1.0 / 255.0))?;
-        for conv in &self.convs {
-            x = conv.forward(&x)?;
+        for (i, conv) in self.convs.iter().enumerate() {
+            // The observations need no gradient: the first layer's products skip it.
+            x = conv.forward(&x, i == 0)?;
         }
         self.fc.forward(&x.reshape((batch, ()))?)?.relu()
     }

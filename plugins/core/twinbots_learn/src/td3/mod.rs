@@ -115,6 +115,10 @@ impl Td3 {
             anyhow::bail!("TD3 needs continuous (Box) actions, not {action_space}: use PPO")
         };
         config.validate()?;
+        anyhow::ensure!(
+            !matches!(observation_space, Space::Image { .. }),
+            "TD3 does not read camera images ({observation_space}) yet: use ppo or sac, whose policy = \"cnn\" does"
+        );
         let (obs_dim, act_dim) = (observation_space.dim(), low.len());
         let mut init = ChaCha8Rng::seed_from_u64(seed);
         let sizes: Vec<usize> = std::iter::once(obs_dim).chain(config.hidden.iter().copied()).chain(std::iter::once(act_dim)).collect();
