@@ -119,3 +119,28 @@ fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_says_it_cannot_be_e
     assert!(!out.status.success() && stderr.contains("policies on camera images (Image(40×40×6)) cannot be exported yet"), "{stderr}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn with_visual_randomization_each_arena_sees_its_own_look_and_the_seed_repeats_them() {
+    use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
+    if crate::renderer("with_visual_randomization_each_arena_sees_its_own_look_and_the_seed_repeats_them", 8, 8).is_none() {
+        return;
+    }
+    let settings = PixelSettings { width: 40, height: 40, ..PixelSettings::default() };
+    let images = |seed: u64| -> Vec<Vec<f32>> {
+        let mut app = cartpole::headless_app(2, seed);
+        app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
+        settings.install(&mut app, &cartpole::robot().framing, 2).unwrap();
+        let mut env = AppVecEnv::new(app);
+        let mut seen = vec![env.reset(Some(seed)).unwrap()];
+        for t in 0..30 {
+            seen.push(env.step(&[(t % 2) as f32, 1.0]).unwrap().obs);
+        }
+        seen
+    };
+    let first = images(7);
+    let dim = settings.space().dim();
+    assert_ne!(first[0][..dim], first[0][dim..], "two arenas, two looks");
+    assert!(first == images(7), "the same seed, the same looks and frames");
+    assert!(first[0] != images(8)[0], "another seed, other looks");
+}
