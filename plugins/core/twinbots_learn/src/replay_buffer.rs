@@ -16,6 +16,48 @@ use twinbots_api::GoalChange;
 /// `remaining` of a transition whose episode has not ended yet.
 const RUNNING: u32 = u32::MAX;
 
+/// The ring's observations, row after row: floats, or bytes for camera images (whole numbers
+/// 0–255: a quarter of the memory, exactly).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Rows {
+    Floats(Vec<f32>),
+    Bytes(Vec<u8>),
+}
+
+impl Rows {
+    /// Values held (rows × width).
+    pub fn len(&self) -> usize {
+        match self {
+            Rows::Floats(v) => v.len(),
+            Rows::Bytes(v) => v.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Row `i` of `width` values, as floats.
+    pub fn row(&self, i: usize, width: usize) -> Vec<f32> {
+        match self {
+            Rows::Floats(v) => v[i * width..(i + 1) * width].to_vec(),
+            Rows::Bytes(v) => v[i * width..(i + 1) * width].iter().map(|&b| b as f32).collect(),
+        }
+    }
+
+    /// Writes `src` as row `i` (appended when `i` is the next row).
+    fn put(&mut self, i: usize, src: &[f32]) {
+        let width = src.len();
+        match self {
+            Rows::Floats(v) if v.len() < (i + 1) * width => v.extend_from_slice(src),
+            Rows::Floats(v) => v[i * width..(i + 1) * width].copy_from_slice(src),
+            // Image values are whole numbers in 0–255 (`Space::Image`): the cast is exact.
+            Rows::Bytes(v) if v.len() < (i + 1) * width => v.extend(src.iter().map(|&x| x as u8)),
+            Rows::Bytes(v) => v[i * width..(i + 1) * width].iter_mut().zip(src).for_each(|(b, &x)| *b = x as u8),
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReplayBuffer {
     pub n_envs: usize,
@@ -25,8 +67,8 @@ pub struct ReplayBuffer {
     /// Where the next transition goes, and whether the ring has wrapped.
     pub pos: usize,
     pub full: bool,
-    pub obs: Vec<f32>,
-    pub next_obs: Vec<f32>,
+    pub obs: Rows,
+    pub next_obs: Rows,
     /// Actions as the actor gives them, in [-1, 1].
     pub actions: Vec<f32>,
     pub rewards: Vec<f32>,
@@ -63,8 +105,8 @@ impl ReplayBuffer {
             capacity,
             pos: 0,
             full: false,
-            obs: Vec::new(),
-            next_obs: Vec::new(),
+            obs: Rows::Floats(Vec::new()),
+            next_obs: Rows::Floats(Vec::new()),
             actions: Vec::new(),
             rewards: Vec::new(),
             dones: Vec::new(),
@@ -73,6 +115,12 @@ impl ReplayBuffer {
             terminations: Vec::new(),
             episode_steps: vec![0; n_envs],
         }
+    }
+
+    /// The same ring keeping observations as bytes (for camera images, `Space::Image`).
+    pub fn with_byte_observations(mut self) -> Self {
+        (self.obs, self.next_obs) = (Rows::Bytes(Vec::new()), Rows::Bytes(Vec::new()));
+        self
     }
 
     pub fn len(&self) -> usize {
@@ -99,8 +147,8 @@ impl ReplayBuffer {
                     dst[i * width..(i + 1) * width].copy_from_slice(src);
                 }
             };
-            put(&mut self.obs, &obs[e * o..(e + 1) * o], o);
-            put(&mut self.next_obs, &next_obs[e * o..(e + 1) * o], o);
+            self.obs.put(i, &obs[e * o..(e + 1) * o]);
+            self.next_obs.put(i, &next_obs[e * o..(e + 1) * o]);
             put(&mut self.actions, &actions[e * a..(e + 1) * a], a);
             put(&mut self.rewards, &[rewards[e]], 1);
             put(&mut self.dones, &[f32::from(u8::from(terminated[e]))], 1);
@@ -159,8 +207,8 @@ impl ReplayBuffer {
         let len = self.len();
         for _ in 0..batch_size {
             let i = rng.random_range(0..len);
-            let mut obs = self.obs[i * o..(i + 1) * o].to_vec();
-            let mut next = self.next_obs[i * o..(i + 1) * o].to_vec();
+            let mut obs = self.obs.row(i, o);
+            let mut next = self.next_obs.row(i, o);
             let (mut reward, mut done) = (self.rewards[i], self.dones[i] > 0.5);
             if let Some((goal, n)) = her
                 && self.remaining[i] != RUNNING
@@ -168,7 +216,7 @@ impl ReplayBuffer {
             {
                 let k = rng.random_range(0..=self.remaining[i] as usize);
                 let j = (i + k * self.n_envs) % self.capacity;
-                let achieved = (goal.achieved)(&self.next_obs[j * o..(j + 1) * o]);
+                let achieved = (goal.achieved)(&self.next_obs.row(j, o));
                 let ended_by = match self.ended_by.get(i) {
                     Some(&code) if code > 0 => self.terminations.get(code as usize - 1).map(String::as_str),
                     _ => None,
@@ -252,7 +300,14 @@ mod tests {
             buffer.push(&[x, -x], &[0.0, 0.0], &[0.0, 0.0], &[x, -x], &[false, false], &[false, false], &[]);
         }
         assert_eq!(buffer.len(), 4);
-        assert_eq!(buffer.obs, vec![2.0, -2.0, 1.0, -1.0]);
+        assert_eq!(buffer.obs, Rows::Floats(vec![2.0, -2.0, 1.0, -1.0]));
+        let mut bytes = ReplayBuffer::new(5, 2, 1, 1).with_byte_observations();
+        for t in 0..3 {
+            let x = [t as f32, 200.0 + t as f32];
+            bytes.push(&x, &[0.0, 0.0], &[0.0, 0.0], &x, &[false, false], &[false, false], &[]);
+        }
+        assert_eq!(bytes.obs, Rows::Bytes(vec![2, 202, 1, 201]));
+        assert_eq!(bytes.next_obs.row(1, 1), vec![202.0]);
     }
 
     #[test]

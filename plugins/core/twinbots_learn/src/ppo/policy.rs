@@ -77,7 +77,7 @@ impl ActorCritic {
     ) -> anyhow::Result<Self> {
         let dev = Device::Cpu;
         let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
-        // The CNN draws its weights after the heads, so an MLP policy's are as they always were.
+        // The CNN draws its weights from a stream of its own, so an MLP policy keeps its old ones.
         let mut encoder_rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed ^ ENCODER_STREAM_SALT);
         let encoder = Encoder::new(policy, observation_space, features_dim, "ppo", &mut encoder_rng, &dev)?;
         let obs_dim = encoder.dim();

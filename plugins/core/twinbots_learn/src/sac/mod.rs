@@ -142,8 +142,9 @@ impl Sac {
             !(config.normalize_observations && matches!(observation_space, Space::Image { .. })),
             "sac.normalize_observations = true: camera images are scaled to [0, 1], not normalised by running statistics"
         );
-        // The ring keeps observation and next observation as f32 (4 bytes a value).
-        let buffer_bytes = config.buffer_size as f64 * obs_dim as f64 * 8.0;
+        // The ring keeps observation and next observation: bytes for camera images, else f32.
+        let value_bytes = if matches!(observation_space, Space::Image { .. }) { 1.0 } else { 4.0 };
+        let buffer_bytes = config.buffer_size as f64 * obs_dim as f64 * 2.0 * value_bytes;
         anyhow::ensure!(
             buffer_bytes <= MAX_BUFFER_BYTES,
             "sac.buffer_size = {}: {} transitions of {observation_space} observations take {:.0} GiB; at most {:.0} GiB: \
@@ -152,7 +153,7 @@ impl Sac {
             config.buffer_size,
             buffer_bytes / GIB,
             MAX_BUFFER_BYTES / GIB,
-            (MAX_BUFFER_BYTES / (obs_dim as f64 * 8.0)) as u64
+            (MAX_BUFFER_BYTES / (obs_dim as f64 * 2.0 * value_bytes)) as u64
         );
         let mut init = ChaCha8Rng::seed_from_u64(seed);
         let encoder = |rng: &mut ChaCha8Rng| Encoder::new(config.policy, &observation_space, config.features_dim, NAME, rng, &Device::Cpu);
@@ -247,7 +248,11 @@ impl Sac {
         self.check_spaces(env.observation_space(), env.action_space())?;
         let n_envs = env.num_envs();
         let (obs_dim, act_dim) = (self.observation_space.dim(), self.act_dim());
-        let buffer = self.buffer.get_or_insert_with(|| ReplayBuffer::new(self.config.buffer_size, n_envs, obs_dim, act_dim));
+        let images = matches!(self.observation_space, Space::Image { .. });
+        let buffer = self.buffer.get_or_insert_with(|| {
+            let ring = ReplayBuffer::new(self.config.buffer_size, n_envs, obs_dim, act_dim);
+            if images { ring.with_byte_observations() } else { ring }
+        });
         anyhow::ensure!(buffer.n_envs == n_envs, "the replay buffer was filled by {} envs, this env has {n_envs}", buffer.n_envs);
         let end = self.timesteps + total_timesteps;
         // A model that learnt before continues its envs' episodes (replayed); a new one starts.

@@ -11,6 +11,7 @@ use candle_core::{Device, Tensor, Var};
 use serde::{Deserialize, Serialize};
 
 use super::{ReplayBuffer, Sac, SacConfig};
+use crate::replay_buffer::Rows;
 use crate::model_header::ModelHeader;
 use crate::model_io::{self, METADATA_FILE, ModelError, WEIGHTS_FILE, file_error};
 use crate::nn::Adam;
@@ -154,9 +155,14 @@ fn save_buffer(buffer: &ReplayBuffer, path: &Path) -> Result<(), ModelError> {
     let dev = Device::Cpu;
     let len = buffer.len();
     let t = |data: &[f32], width: usize| Tensor::from_vec(data.to_vec(), (len, width), &dev).map_err(|e| file_error(path, e));
+    // Rows as they are kept: f32, or u8 for camera images.
+    let rows = |rows: &Rows| match rows {
+        Rows::Floats(v) => t(v, buffer.obs_dim),
+        Rows::Bytes(v) => Tensor::from_vec(v.clone(), (len, buffer.obs_dim), &dev).map_err(|e| file_error(path, e)),
+    };
     let mut tensors = HashMap::new();
-    tensors.insert("obs".to_string(), t(&buffer.obs, buffer.obs_dim)?);
-    tensors.insert("next_obs".to_string(), t(&buffer.next_obs, buffer.obs_dim)?);
+    tensors.insert("obs".to_string(), rows(&buffer.obs)?);
+    tensors.insert("next_obs".to_string(), rows(&buffer.next_obs)?);
     tensors.insert("actions".to_string(), t(&buffer.actions, buffer.act_dim)?);
     tensors.insert("rewards".to_string(), t(&buffer.rewards, 1)?);
     tensors.insert("dones".to_string(), t(&buffer.dones, 1)?);
@@ -177,8 +183,15 @@ fn load_buffer(buffer: &mut ReplayBuffer, path: &Path) -> Result<(), ModelError>
         }
         Ok(v)
     };
-    buffer.obs = floats("obs")?;
-    buffer.next_obs = floats("next_obs")?;
+    let rows = |name: &str| -> Result<Rows, ModelError> {
+        let tensor = get(name)?;
+        if tensor.dtype() == candle_core::DType::U8 {
+            return Ok(Rows::Bytes(tensor.flatten_all().and_then(|t| t.to_vec1::<u8>()).map_err(|e| file_error(path, e))?));
+        }
+        Ok(Rows::Floats(floats(name)?))
+    };
+    buffer.obs = rows("obs")?;
+    buffer.next_obs = rows("next_obs")?;
     buffer.actions = floats("actions")?;
     buffer.rewards = floats("rewards")?;
     buffer.dones = floats("dones")?;
@@ -188,7 +201,9 @@ fn load_buffer(buffer: &mut ReplayBuffer, path: &Path) -> Result<(), ModelError>
         Some(t) => t.to_vec1::<u8>().map_err(|e| file_error(path, e))?,
         None => vec![0; n],
     };
-    let consistent = buffer.obs.len() == n * buffer.obs_dim
+    let same_kind = matches!((&buffer.obs, &buffer.next_obs), (Rows::Floats(_), Rows::Floats(_)) | (Rows::Bytes(_), Rows::Bytes(_)));
+    let consistent = same_kind
+        && buffer.obs.len() == n * buffer.obs_dim
         && buffer.next_obs.len() == n * buffer.obs_dim
         && buffer.actions.len() == n * buffer.act_dim
         && buffer.dones.len() == n
