@@ -4,7 +4,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use twinbots_api::{EpisodeSummary, Space, StepResult, VecEnv};
 use twinbots_learn::nn::PolicyKind;
-use twinbots_learn::{Flow, Ppo, PpoConfig, UpdateStats};
+use twinbots_learn::{Flow, Learner, Ppo, PpoConfig, UpdateStats};
 
 /// Each step shows a 36×36 grey image whose left or right half is lit; choosing the lit half
 /// (action 0 left, 1 right) earns 1. Episodes of 8 steps. Nothing but the pixels tells which.
@@ -83,21 +83,28 @@ impl VecEnv for LitHalf {
     }
 }
 
+/// Trains `model` for at most `budget` steps, stopping once the mean score of the recent
+/// episodes reaches `goal` (counted after `episodes` have ended); returns the best mean seen.
+fn learn_until(model: &mut dyn Learner, env: &mut dyn VecEnv, budget: u64, episodes: u64, goal: f32) -> f32 {
+    let mut best = f32::MIN;
+    model
+        .learn(env, budget, &mut |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
+            if s.episodes >= episodes {
+                best = best.max(s.mean_reward);
+            }
+            Ok(if best >= goal { Flow::Stop } else { Flow::Continue })
+        })
+        .unwrap();
+    best
+}
+
 #[test]
 fn ppo_with_a_cnn_learns_which_half_of_the_image_is_lit_and_saves_and_loads_it() {
     let config = PpoConfig { n_steps: 32, batch_size: 64, n_epochs: 4, learning_rate: 1e-3, policy: PolicyKind::Cnn, features_dim: 64, ..PpoConfig::default() };
     let mut env = LitHalf::new(4);
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 2).unwrap();
     assert!(model.policy.named_vars().iter().any(|(name, _)| name == "features.3.weight"), "NatureCNN's 3 convolutions and dense layer");
-    let mut best = 0.0f32;
-    model
-        .learn(&mut env, 20_000, &mut |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
-            if s.episodes >= 20 {
-                best = best.max(s.mean_reward);
-            }
-            Ok(if best >= 7.5 { Flow::Stop } else { Flow::Continue })
-        })
-        .unwrap();
+    let best = learn_until(&mut model, &mut env, 20_000, 20, 7.5);
     // Guessing scores 4 of 8.
     assert!(best >= 7.5, "mean score {best} of 8 after {} steps", model.timesteps);
 
@@ -195,15 +202,7 @@ fn sac_with_cnns_learns_where_the_lit_column_is() {
     let mut model = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 5).unwrap();
     let names: Vec<String> = model.actor.named_vars().into_iter().chain(model.critic.named_vars("critic")).map(|(n, _)| n).collect();
     assert!(names.contains(&"actor.features.0.weight".to_string()) && names.contains(&"critic.features.3.bias".to_string()), "{names:?}");
-    let mut best = f32::MIN;
-    model
-        .learn(&mut env, 6_000, &mut |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
-            if s.episodes >= 50 {
-                best = best.max(s.mean_reward);
-            }
-            Ok(if best >= 3.0 { Flow::Stop } else { Flow::Continue })
-        })
-        .unwrap();
+    let best = learn_until(&mut model, &mut env, 6_000, 50, 3.0);
     // Acting at random scores about 4 × 1/3.
     assert!(best >= 3.0, "mean score {best} of 4 after {} steps", model.timesteps);
     // The replay buffer keeps the images as bytes, and a checkpoint keeps them so.
