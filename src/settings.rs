@@ -225,8 +225,7 @@ impl TrainSettings {
     pub fn task(&self, entry: &RobotEntry) -> twinbots_api::TaskSpec {
         let mut spec = entry.task();
         if let Some(pixels) = &self.pixels {
-            spec.observation_space = pixels.space();
-            spec.observation_plausible = pixels.space();
+            pixels.observe_task(&mut spec);
         }
         spec
     }

@@ -1,7 +1,7 @@
 //! `Arenas`: N arenas of one robot task in one Bevy app, stepped together in Rust. This is the
 //! engine under `twinbots.make_vec` (Gymnasium), the single envs and the SB3 adapter.
 
-use numpy::ndarray::{Array2, Array3, Array4};
+use numpy::ndarray::ArrayD;
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArray4, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
@@ -270,26 +270,26 @@ impl Arenas {
     /// Flat observations as a `(num_envs, obs_dim)` float32 array that owns the Rust buffer (no
     /// copy); camera images as `(num_envs, height, width, channels)` uint8.
     fn observations<'py>(&self, py: Python<'py>, obs: Vec<f32>) -> PyResult<Bound<'py, PyAny>> {
-        let wrong = |e: numpy::ndarray::ShapeError| runtime_error(anyhow::anyhow!("observation of the wrong size from the simulation: {e}"));
-        if let Space::Image { height, width, channels } = self.spec.observation_space {
-            let bytes: Vec<u8> = obs.iter().map(|&v| v as u8).collect();
-            let array = Array4::from_shape_vec((self.num_envs, height, width, channels), bytes).map_err(wrong)?;
-            return Ok(array.into_pyarray(py).into_any());
-        }
-        let dim = self.spec.observation_space.dim();
-        let array = Array2::from_shape_vec((self.num_envs, dim), obs).map_err(wrong)?;
-        Ok(array.into_pyarray(py).into_any())
+        self.array(py, obs, &[self.num_envs])
     }
 
     /// One env's observation: flat float32, or a `(height, width, channels)` uint8 image.
     fn observation<'py>(&self, py: Python<'py>, obs: Vec<f32>) -> PyResult<Bound<'py, PyAny>> {
-        if let Space::Image { height, width, channels } = self.spec.observation_space {
-            let bytes: Vec<u8> = obs.iter().map(|&v| v as u8).collect();
-            let array = Array3::from_shape_vec((height, width, channels), bytes)
-                .map_err(|e| runtime_error(anyhow::anyhow!("observation of the wrong size from the simulation: {e}")))?;
-            return Ok(array.into_pyarray(py).into_any());
-        }
-        Ok(obs.into_pyarray(py).into_any())
+        self.array(py, obs, &[])
+    }
+
+    /// Observations shaped `batch` × one observation's shape: float32 rows, or uint8 images
+    /// (their values are whole numbers 0–255: the cast is exact).
+    fn array<'py>(&self, py: Python<'py>, obs: Vec<f32>, batch: &[usize]) -> PyResult<Bound<'py, PyAny>> {
+        let wrong = |e: numpy::ndarray::ShapeError| runtime_error(anyhow::anyhow!("observation of the wrong size from the simulation: {e}"));
+        let shape = |one: &[usize]| [batch, one].concat();
+        Ok(match self.spec.observation_space {
+            Space::Image { height, width, channels } => {
+                let bytes: Vec<u8> = obs.iter().map(|&v| v as u8).collect();
+                ArrayD::from_shape_vec(shape(&[height, width, channels]), bytes).map_err(wrong)?.into_pyarray(py).into_any()
+            }
+            ref space => ArrayD::from_shape_vec(shape(&[space.dim()]), obs).map_err(wrong)?.into_pyarray(py).into_any(),
+        })
     }
 
     fn step_tuple<'py>(&self, py: Python<'py>, r: StepResult) -> PyResult<Bound<'py, PyTuple>> {

@@ -9,7 +9,7 @@ import os
 import numpy as np
 
 from . import _native
-from ._config import Config, _toml_value, config_text
+from ._config import Config, config_text, toml_keys
 
 
 def initial_seed(seed: int | None) -> int:
@@ -32,7 +32,7 @@ def pixels_text(obs: str, pixels: dict | None) -> str | None:
         return None
     if pixels is not None and not isinstance(pixels, dict):
         raise ValueError(f"pixels must be a dict of camera, width, height, frames; got {type(pixels).__name__}")
-    return "\n".join(f"{k} = {_toml_value(v)}" for k, v in (pixels or {}).items()) + "\n"
+    return toml_keys(pixels or {})
 
 
 def open_arenas(robot: str, count: int, seed: int | None, task: str | None, pattern: int, config: Config,

@@ -25,6 +25,11 @@ def _toml_value(v) -> str:
     raise ValueError(f"config: unsupported value {v!r} (numbers, strings, lists and tables only)")
 
 
+def toml_keys(table: dict) -> str:
+    """A table's entries as TOML lines `key = value`."""
+    return "".join(f"{k} = {_toml_value(v)}\n" for k, v in table.items())
+
+
 def config_text(config: Config) -> str | None:
     """TOML text for the extension, or None."""
     if config is None:
@@ -33,8 +38,7 @@ def config_text(config: Config) -> str | None:
         table = config.get("randomization", config)
         if not isinstance(table, dict):
             raise ValueError("config: 'randomization' must be a table of settings")
-        lines = ["[randomization]"] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
-        return "\n".join(lines) + "\n"
+        return "[randomization]\n" + toml_keys(table)
     if isinstance(config, os.PathLike) or (isinstance(config, str) and "\n" not in config and "=" not in config):
         try:
             with open(config, encoding="utf-8") as f:

@@ -13,7 +13,8 @@ use std::collections::{HashMap, VecDeque};
 
 use bevy::prelude::*;
 use serde::{Deserialize, Serialize};
-use twinbots_api::Space;
+use bevy::ecs::query::QueryFilter;
+use twinbots_api::{Space, TaskSpec};
 use twinbots_sim::{Arena, Framing, SimSet};
 use twinbots_task::task::{ActiveTask, EnvReset, Episode, ResetSet, Resetting, TaskSet};
 
@@ -62,6 +63,15 @@ impl PixelSettings {
         Space::Image { height: self.height as usize, width: self.width as usize, channels: 3 * self.frames as usize }
     }
 
+    /// `task` as it is observed through this camera: its observation space, plausible range and
+    /// names become the image's (the one place a task's spec becomes a pixel task's).
+    pub fn observe_task(&self, task: &mut TaskSpec) {
+        let space = self.space();
+        task.observation_names = vec![format!("pixels {space}")];
+        task.observation_plausible = space.clone();
+        task.observation_space = space;
+    }
+
     /// Adds pixel observations to a robot's app (before its start-up), its camera framed by
     /// `framing`. Fails when the settings are out of range or no graphics adapter exists.
     pub fn install(&self, app: &mut App, framing: &Framing, arenas: usize) -> anyhow::Result<()> {
@@ -70,15 +80,15 @@ impl PixelSettings {
         let view = View { fov_y: self.fov.to_radians(), ..framed };
         let renderer = Renderer::tiled(self.width, self.height, arenas.max(1))?;
         app.insert_non_send(PixelCamera { renderer, view, frames: self.frames as usize, stacks: HashMap::new() })
-            .insert_resource(PixelSpace(self.space()))
+            .insert_resource(PixelTask(self.clone()))
             .add_plugins(PixelObservationPlugin);
         Ok(())
     }
 }
 
-/// The image space the task's observation becomes.
+/// The settings the task is observed with.
 #[derive(Resource, Clone, Debug)]
-struct PixelSpace(Space);
+struct PixelTask(PixelSettings);
 
 /// The renderer and each arena's latest images.
 struct PixelCamera {
@@ -99,27 +109,28 @@ impl Plugin for PixelObservationPlugin {
 
     /// The task's spec says what its observation now is (its plugin inserted it in `build`).
     fn finish(&self, app: &mut App) {
-        let space = app.world().resource::<PixelSpace>().0.clone();
+        let settings = app.world().resource::<PixelTask>().0.clone();
         if let Some(mut task) = app.world_mut().get_resource_mut::<ActiveTask>() {
-            task.0.observation_names = vec![format!("pixels {space}")];
-            task.0.observation_plausible = space.clone();
-            task.0.observation_space = space;
+            settings.observe_task(&mut task.0);
         }
     }
 }
 
 fn observe_step(world: &mut World) {
-    let mut arenas = world.query_filtered::<(Entity, &Arena), With<Episode>>();
-    let mut arenas: Vec<(usize, Entity)> = arenas.iter(world).map(|(e, a)| (a.index, e)).collect();
-    arenas.sort();
-    observe(world, arenas.into_iter().map(|(_, e)| e).collect(), false);
+    let arenas = in_order::<With<Episode>>(world);
+    observe(world, arenas, false);
 }
 
 fn observe_reset(world: &mut World) {
-    let mut arenas = world.query_filtered::<(Entity, &Arena), (With<Episode>, With<Resetting>)>();
-    let mut arenas: Vec<(usize, Entity)> = arenas.iter(world).map(|(e, a)| (a.index, e)).collect();
+    let arenas = in_order::<(With<Episode>, With<Resetting>)>(world);
+    observe(world, arenas, true);
+}
+
+/// The arenas `F` selects, in env order (by `Arena::index`), so each keeps its tile.
+fn in_order<F: QueryFilter>(world: &mut World) -> Vec<Entity> {
+    let mut arenas: Vec<(usize, Entity)> = world.query_filtered::<(Entity, &Arena), F>().iter(world).map(|(e, a)| (a.index, e)).collect();
     arenas.sort();
-    observe(world, arenas.into_iter().map(|(_, e)| e).collect(), true);
+    arenas.into_iter().map(|(_, e)| e).collect()
 }
 
 /// Renders `arenas` in one frame and makes each one's observation its stack of latest images;

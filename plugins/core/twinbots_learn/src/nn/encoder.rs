@@ -61,6 +61,16 @@ impl NatureCnn {
     }
 }
 
+/// Refuses running-statistics normalisation of camera images (`<algo>.normalize_observations`):
+/// the encoders scale them to [0, 1], as SB3 does.
+pub fn check_normalization(space: &Space, normalize_observations: bool, algo: &str) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !(normalize_observations && matches!(space, Space::Image { .. })),
+        "{algo}.normalize_observations = true: camera images are scaled to [0, 1], not normalised by running statistics"
+    );
+    Ok(())
+}
+
 /// A policy's observation encoder.
 pub enum Encoder {
     /// The observation as it is (`dim` values).

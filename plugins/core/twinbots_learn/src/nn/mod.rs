@@ -12,5 +12,5 @@ mod tanh;
 pub use adam::{Adam, AdamConfig, GradientStep};
 pub use conv::{Conv2d, Patches, unfold};
 pub use dense::Dense;
-pub use encoder::{CNN_MIN_SIZE, Encoder, NatureCnn, PolicyKind};
+pub use encoder::{CNN_MIN_SIZE, Encoder, NatureCnn, PolicyKind, check_normalization};
 pub use tanh::{fast_tanh, tanh};

@@ -111,10 +111,7 @@ impl Ppo {
         let obs_dim = observation_space.dim();
         let encoder = (config.policy, config.features_dim);
         let policy = ActorCritic::new(&observation_space, &action_space, encoder, &config.hidden, config.log_std_init, seed)?;
-        anyhow::ensure!(
-            !(config.normalize_observations && matches!(observation_space, Space::Image { .. })),
-            "ppo.normalize_observations = true: camera images are scaled to [0, 1], not normalised by running statistics"
-        );
+        crate::nn::check_normalization(&observation_space, config.normalize_observations, NAME)?;
         let obs_rms = config.normalize_observations.then(|| RunningMeanStd::new(obs_dim));
         let optimizer = update::adam(&policy, config.learning_rate);
         Ok(Self {

@@ -138,10 +138,7 @@ impl Sac {
             anyhow::bail!("SAC needs continuous (Box) actions, not {action_space}: use PPO")
         };
         let (obs_dim, act_dim) = (observation_space.dim(), low.len());
-        anyhow::ensure!(
-            !(config.normalize_observations && matches!(observation_space, Space::Image { .. })),
-            "sac.normalize_observations = true: camera images are scaled to [0, 1], not normalised by running statistics"
-        );
+        crate::nn::check_normalization(&observation_space, config.normalize_observations, NAME)?;
         // The ring keeps observation and next observation: bytes for camera images, else f32.
         let value_bytes = if matches!(observation_space, Space::Image { .. }) { 1.0 } else { 4.0 };
         let buffer_bytes = config.buffer_size as f64 * obs_dim as f64 * 2.0 * value_bytes;
