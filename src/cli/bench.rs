@@ -23,9 +23,9 @@ pub struct Args {
     /// Arena counts to measure, comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = vec![1, 16, 64])]
     pub arenas: Vec<usize>,
-    /// Control steps per measurement.
-    #[arg(long, default_value_t = 2000)]
-    pub steps: usize,
+    /// Control steps per measurement (2000; `bench cameras`: 40).
+    #[arg(long)]
+    pub steps: Option<usize>,
     /// `bench rtde`: the deploy bundle whose policy answers every report.
     #[arg(long)]
     pub bundle: Option<std::path::PathBuf>,
@@ -36,12 +36,13 @@ pub struct Args {
 
 /// `twinbots bench`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    let steps = args.steps.unwrap_or(2000);
     match args.what {
-        BenchKind::Physics => print_physics(&args.robot, &args.arenas, args.steps),
-        BenchKind::Server => print_server(&args.arenas, args.steps),
+        BenchKind::Physics => print_physics(&args.robot, &args.arenas, steps),
+        BenchKind::Server => print_server(&args.arenas, steps),
         BenchKind::Capture => print_capture(&args.robot, &[(640, 480), (64, 64)], 60),
-        BenchKind::Cameras => print_cameras(&args.robot, args.arenas.iter().copied().max().unwrap_or(16), 40),
-        BenchKind::Rl => print_rl(&args.robot, args.arenas.first().copied().unwrap_or(8), args.steps),
+        BenchKind::Cameras => print_cameras(&args.robot, args.arenas.iter().copied().max().unwrap_or(16), args.steps.unwrap_or(40)),
+        BenchKind::Rl => print_rl(&args.robot, args.arenas.first().copied().unwrap_or(8), steps),
         BenchKind::Rtde => print_rtde(args.bundle.as_deref(), args.seconds),
     }
 }

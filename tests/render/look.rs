@@ -207,6 +207,17 @@ fn arenas_rendered_together_in_tiles_look_as_each_does_alone() {
     let one = Renderer::tiled(48, 36, 4).unwrap().render_shots(env.app_mut().world_mut(), &shots[1..2]).unwrap();
     assert_eq!(one.len(), 1);
     assert!(one[0].iter().zip(&together[1]).all(|(a, b)| a.abs_diff(*b) <= 1));
+    // Two cameras in one arena (two frames: an arena has one camera a frame), in shot order.
+    let side = View::looking_at([2.4, -1.2, 0.9].into(), [0.0, 0.0, 0.5].into(), 60f32.to_radians());
+    let pair = [(arenas[0], view), (arenas[0], side), (arenas[1], side)];
+    let images = Renderer::tiled(48, 36, 3).unwrap().render_shots(env.app_mut().world_mut(), &pair).unwrap();
+    for (i, (image, (arena, v))) in images.iter().zip(pair).enumerate() {
+        alone.set_view(v);
+        alone.sync(env.app_mut().world_mut(), arena);
+        let differing = alone.render().unwrap().iter().zip(image).filter(|(a, b)| a.abs_diff(**b) > 1).count();
+        assert_eq!(differing, 0, "shot {i}: {differing} bytes differ from its camera's frame alone");
+    }
+    assert_ne!(images[0], images[1], "the arena through two cameras");
 }
 
 #[test]

@@ -2,6 +2,7 @@
 //! and camera sensors; the sim itself never needs a GPU, and headless training never adds any
 //! of this.
 
+pub mod batch;
 pub mod cameras;
 pub mod pixels;
 pub mod renderer;

@@ -6,7 +6,8 @@ use std::sync::{Arc, Mutex};
 
 use bevy::app::PluginsState;
 use bevy::asset::RenderAssetUsages;
-use bevy::camera::{RenderTarget, Viewport};
+use bevy::camera::visibility::RenderLayers;
+use bevy::camera::{CameraProjection, RenderTarget, Viewport};
 use bevy::core_pipeline::tonemapping::Tonemapping;
 use bevy::prelude::*;
 use bevy::render::render_asset::RenderAssets;
@@ -16,13 +17,14 @@ use bevy::render::render_resource::{
 };
 use bevy::render::renderer::{RenderDevice, RenderQueue, initialize_renderer};
 use bevy::render::texture::GpuImage;
-use bevy::render::settings::{InstanceFlags, RenderCreation, WgpuSettings};
+use bevy::render::settings::{InstanceFlags, RenderCreation, WgpuFeatures, WgpuSettings};
 use bevy::render::{RenderApp, RenderPlugin};
 use bevy::window::ExitCondition;
 use twinbots_sim::look::CameraJitter;
 use twinbots_sim::rapier::math::Pose;
 
 use crate::scene;
+use crate::batch::{self, ArenaView, Batch};
 use crate::shading::ShadingPlugin;
 
 #[derive(Debug, thiserror::Error)]
@@ -118,18 +120,28 @@ impl View {
 #[derive(Resource)]
 struct Target(Handle<Image>);
 
+/// How a frame's tiles are drawn.
+enum Cameras {
+    /// One camera over the whole target; each arena is drawn through its own `ArenaView` into
+    /// its tile (see `shading`): Bevy's per-view work is paid once a frame.
+    Batched(Entity),
+    /// A camera per tile, in tile order, lit by Bevy's lights: for shadows, whose maps Bevy
+    /// renders per view.
+    PerTile(Vec<Entity>),
+}
+
 /// An off-screen renderer producing `width × height` RGB images: one at a time ([`Renderer::new`],
-/// `sync` + `set_view` + `render`), or several arenas at once, each camera drawing one tile of
-/// a shared target that is read back once ([`Renderer::tiled`], `render_shots`).
+/// `sync` + `set_view` + `render`), or several arenas at once, each in one tile of a shared
+/// target that is read back once ([`Renderer::tiled`], `render_shots`).
 pub struct Renderer {
     app: App,
     /// One image's size (a tile's).
     pub width: u32,
     pub height: u32,
-    /// Tiles per row of the target.
+    /// Tiles per row of the target, and in all.
     columns: u32,
-    /// One camera per tile, in tile order.
-    cameras: Vec<Entity>,
+    tiles: usize,
+    cameras: Cameras,
     /// New meshes were added: their pipelines must compile before a frame is read.
     fresh_meshes: bool,
     /// Where frames are copied to be read (made on the first frame).
@@ -172,6 +184,7 @@ impl Renderer {
         }
         app.finish();
         app.cleanup();
+        let batched = app.sub_app(RenderApp).world().resource::<RenderDevice>().features().contains(WgpuFeatures::CLIP_DISTANCES);
 
         let world = app.world_mut();
         let mut image = Image::new_uninit(
@@ -183,31 +196,25 @@ impl Renderer {
         image.texture_descriptor.usage |= TextureUsages::RENDER_ATTACHMENT | TextureUsages::COPY_SRC;
         let handle = world.resource_mut::<Assets<Image>>().add(image);
         world.insert_resource(Target(handle.clone()));
+        world.insert_resource(Batch::default());
+        let camera = spawn_camera(world, &handle, None, 0);
         let view = View { transform: Transform::from_xyz(0.0, 1.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y), fov_y: PerspectiveProjection::default().fov };
-        let cameras = (0..tiles as u32)
-            .map(|i| {
-                let viewport = Viewport {
-                    physical_position: UVec2::new(i % columns * width, i / columns * height),
-                    physical_size: UVec2::new(width, height),
-                    ..default()
-                };
-                world
-                    .spawn((
-                        Camera3d::default(),
-                        // Ordered, so tiles never race; the first clears the whole target.
-                        Camera { order: i as isize, viewport: Some(viewport), is_active: i == 0, ..default() },
-                        RenderTarget::from(handle.clone()),
-                        Msaa::Off,
-                        Tonemapping::None,
-                        // Only directional lights: one light cluster per view (the default builds thousands).
-                        bevy::light::cluster::ClusterConfig::Single,
-                        Projection::Perspective(PerspectiveProjection { aspect_ratio: width as f32 / height as f32, ..default() }),
-                        view.transform,
-                    ))
-                    .id()
-            })
-            .collect();
-        Ok(Self { app, width, height, columns, cameras, fresh_meshes: true, readback_buffer: None, view, arena: None, sync_error: None })
+        let renderer = Self {
+            app,
+            width,
+            height,
+            columns,
+            tiles,
+            cameras: Cameras::Batched(camera),
+            fresh_meshes: true,
+            readback_buffer: None,
+            view,
+            arena: None,
+            sync_error: None,
+        };
+        // One tile: a camera of its own and compiled shading (at 640×480 the batched shader's
+        // per-pixel branches cost 3×: 42–47 against 122–150 frames/s).
+        Ok(if batched && tiles > 1 { renderer } else { renderer.per_tile() })
     }
 
     /// Lights cast shadows from now on (see [`scene::Shadows`]); call before the first sync.
@@ -216,12 +223,36 @@ impl Renderer {
         let world = self.app.world_mut();
         world.insert_resource(scene::Shadows(shadows));
         world.insert_resource(bevy::light::DirectionalLightShadowMap { size: 1024 });
+        // Bevy's lights and one view per tile: its shadow maps are rendered per view.
+        if shadows { self.per_tile() } else { self }
+    }
+
+    /// Draws a tile per camera, lit by Bevy's lights, from now on (call before the first sync).
+    fn per_tile(mut self) -> Self {
+        let (width, height, columns) = (self.width, self.height, self.columns);
+        if let Cameras::Batched(camera) = self.cameras {
+            let world = self.app.world_mut();
+            world.despawn(camera);
+            world.remove_resource::<Batch>();
+            let handle = world.resource::<Target>().0.clone();
+            let cameras = (0..self.tiles as u32)
+                .map(|i| {
+                    let viewport = Viewport {
+                        physical_position: UVec2::new(i % columns * width, i / columns * height),
+                        physical_size: UVec2::new(width, height),
+                        ..default()
+                    };
+                    spawn_camera(world, &handle, Some(viewport), i as isize)
+                })
+                .collect();
+            self.cameras = Cameras::PerTile(cameras);
+        }
         self
     }
 
     /// How many images one frame can draw.
     pub fn tiles(&self) -> usize {
-        self.cameras.len()
+        self.tiles
     }
 
     /// Creates (once) and poses the render entities of `arena` from the sim world, and shows
@@ -257,9 +288,8 @@ impl Renderer {
     }
 
     /// Points tile `i`'s camera at `arena` through `view` (jittered by the arena's look).
-    fn aim(&mut self, i: usize, arena: Entity, view: View) {
+    fn aim(&mut self, camera: Entity, arena: Entity, view: View) {
         let view = self.jittered(view, arena);
-        let camera = self.cameras[i];
         let world = self.app.world_mut();
         scene::watch(world, camera, arena);
         // Only on change: a changed projection makes Bevy rebuild the view's state.
@@ -291,11 +321,74 @@ impl Renderer {
                 self.mirror(sim, *arena);
             }
         }
+        // Frames of up to `tiles` shots, each arena once a frame (it has one `ArenaView`).
         let mut images = Vec::with_capacity(shots.len());
-        for chunk in shots.chunks(self.tiles()) {
-            images.extend(self.draw(chunk)?);
+        let mut frame: Vec<(Entity, View)> = Vec::with_capacity(self.tiles);
+        for &shot in shots {
+            if frame.len() == self.tiles || frame.iter().any(|(a, _)| *a == shot.0) {
+                images.extend(self.draw(&frame)?);
+                frame.clear();
+            }
+            frame.push(shot);
+        }
+        if !frame.is_empty() {
+            images.extend(self.draw(&frame)?);
         }
         Ok(images)
+    }
+
+    /// Points the batched camera at the shots' arenas and fills their `ArenaView`s: shot i
+    /// through its view (jittered by its arena's look) into tile i, lit by that look.
+    fn aim_batched(&mut self, camera: Entity, shots: &[(Entity, View)]) {
+        let mirror = self.app.world().resource::<scene::Mirror>();
+        let mut views = vec![ArenaView::default(); mirror.max_layer() + 1];
+        let mut layers = RenderLayers::none();
+        let default_look = twinbots_sim::Look::default();
+        for (i, (arena, view)) in shots.iter().enumerate() {
+            let Some(layer) = mirror.layer(*arena) else { continue };
+            let look = mirror.look(*arena).unwrap_or(&default_look);
+            views[layer] = self.arena_view(i, view.jittered(&look.camera), look);
+            layers = layers.with(layer);
+        }
+        let world = self.app.world_mut();
+        if world.get::<RenderLayers>(camera) != Some(&layers) {
+            world.entity_mut(camera).insert(layers);
+        }
+        let mut resized = batch::upload(world, &batch::ARENA_VIEWS, &views);
+        let records = world.resource_mut::<Batch>().take_changed().map(<[_]>::to_vec);
+        if let Some(records) = records {
+            resized |= batch::upload(world, &batch::SURFACES, &records);
+        }
+        if resized {
+            // A new buffer: made by this update, bound by every material from the next.
+            self.app.update();
+            batch::rebind_materials(self.app.world_mut());
+        }
+    }
+
+    /// Tile `i` of the frame seen through `view`, lit by `look`.
+    fn arena_view(&self, i: usize, view: View, look: &twinbots_sim::Look) -> ArenaView {
+        let (frame_w, frame_h) = self.target_size();
+        let (w, h) = (self.width as f32, self.height as f32);
+        let (frame_w, frame_h) = (frame_w as f32, frame_h as f32);
+        let x0 = (i as u32 % self.columns * self.width) as f32;
+        let y0 = (i as u32 / self.columns * self.height) as f32;
+        let projection = PerspectiveProjection { fov: view.fov_y, aspect_ratio: w / h, ..default() };
+        let mut directions = [Vec4::ZERO; twinbots_sim::Look::MAX_LIGHTS];
+        let mut colors = [Vec4::ZERO; twinbots_sim::Look::MAX_LIGHTS];
+        for (k, (towards, color)) in scene::light_vectors(look).enumerate() {
+            directions[k] = towards.extend(0.0);
+            colors[k] = color.extend(1.0);
+        }
+        ArenaView {
+            clip_from_world: projection.get_clip_from_view() * view.transform.to_matrix().inverse(),
+            // The tile's NDC box inside the frame's: x' = x·w/W + (2·x0 + w)/W − 1, and y alike, downwards.
+            tile: Vec4::new(w / frame_w, h / frame_h, (2.0 * x0 + w) / frame_w - 1.0, 1.0 - (2.0 * y0 + h) / frame_h),
+            eye: view.transform.translation.extend(1.0),
+            ambient: Vec3::from_array(look.ambient).extend(look.lights.len().min(twinbots_sim::Look::MAX_LIGHTS) as f32),
+            light_directions: directions,
+            light_colors: colors,
+        }
     }
 
     /// One frame: tile i shows `shots[i]`; the other tiles' cameras rest.
@@ -303,14 +396,20 @@ impl Renderer {
         if let Some(e) = self.sync_error.take() {
             return Err(e);
         }
-        for (i, (arena, view)) in shots.iter().enumerate() {
-            self.aim(i, *arena, *view);
-        }
-        for (i, &camera) in self.cameras.iter().enumerate() {
-            if let Some(mut c) = self.app.world_mut().get_mut::<Camera>(camera)
-                && c.is_active != (i < shots.len())
-            {
-                c.is_active = i < shots.len();
+        match &self.cameras {
+            Cameras::Batched(camera) => self.aim_batched(*camera, shots),
+            Cameras::PerTile(cameras) => {
+                let cameras = cameras.clone();
+                for (i, &camera) in cameras.iter().enumerate() {
+                    if let Some(&(arena, view)) = shots.get(i) {
+                        self.aim(camera, arena, view);
+                    }
+                    if let Some(mut c) = self.app.world_mut().get_mut::<Camera>(camera)
+                        && c.is_active != (i < shots.len())
+                    {
+                        c.is_active = i < shots.len();
+                    }
+                }
             }
         }
         if std::mem::take(&mut self.fresh_meshes) {
@@ -325,7 +424,7 @@ impl Renderer {
 
     /// The target's size in pixels.
     fn target_size(&self) -> (u32, u32) {
-        let rows = (self.cameras.len() as u32).div_ceil(self.columns);
+        let rows = (self.tiles as u32).div_ceil(self.columns);
         (self.width * self.columns, self.height * rows)
     }
 
@@ -411,6 +510,26 @@ impl Renderer {
             .map_err(|e| RenderError::Failed(format!("{e:?}")))
     }
 
+}
+
+/// A camera drawing into `target` (its `viewport` of it, or all of it), in `order` (so tiles
+/// never race; the first clears the whole target).
+fn spawn_camera(world: &mut World, target: &Handle<Image>, viewport: Option<Viewport>, order: isize) -> Entity {
+    let size = world.resource::<Assets<Image>>().get(target).map_or(UVec2::ONE, |i| i.size());
+    let size = viewport.as_ref().map_or(size, |v| v.physical_size);
+    world
+        .spawn((
+            Camera3d::default(),
+            Camera { order, viewport, is_active: order == 0, ..default() },
+            RenderTarget::from(target.clone()),
+            Msaa::Off,
+            Tonemapping::None,
+            // Only directional lights: one light cluster per view (the default builds thousands).
+            bevy::light::cluster::ClusterConfig::Single,
+            Projection::Perspective(PerspectiveProjection { aspect_ratio: size.x as f32 / size.y as f32, ..default() }),
+            Transform::from_xyz(0.0, 1.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
+        ))
+        .id()
 }
 
 /// The `w × h` RGB image at pixel `(x0, y0)` of RGBA rows `padded` bytes apart.

@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 
 use bevy::asset::RenderAssetUsages;
 use bevy::image::{ImageAddressMode, ImageSampler, ImageSamplerDescriptor};
-use bevy::camera::visibility::RenderLayers;
+use bevy::camera::visibility::{NoFrustumCulling, RenderLayers};
+use bevy::mesh::MeshTag;
 use bevy::light::{AmbientLight, CascadeShadowConfigBuilder};
 use bevy::mesh::{Indices, PrimitiveTopology, VertexAttributeValues};
 use bevy::prelude::*;
@@ -20,6 +21,7 @@ use twinbots_sim::urdf::{Shape, Visual};
 use twinbots_sim::{Arena, InArena, Link, Look, Visuals};
 
 use crate::RenderError;
+use crate::batch::{self, Batch, SurfaceRecord};
 use crate::shading::LambertMaterial;
 
 /// The ground plane's colour (sRGB).
@@ -50,10 +52,17 @@ pub struct Shadows(pub bool);
 /// The mirrored arenas of a render world. Each arena's entities (and its lights) are on a
 /// render layer of their own, so a camera sees one arena by taking its layer: switching arenas
 /// costs nothing, and several cameras can draw several arenas in one frame.
+///
+/// Where the render world has a [`Batch`] (batched frames), surfaces are instances: each
+/// carries a `MeshTag` naming its `SurfaceRecord`, every instance of one shape shares its mesh,
+/// no Bevy lights are spawned (the `ArenaView` lights), and the frame-wide camera's frustum
+/// never culls.
 #[derive(Resource, Default)]
 pub struct Mirror {
     arenas: HashMap<Entity, ArenaMirror>,
     images: HashMap<PathBuf, Handle<Image>>,
+    /// Meshes by shape, shared by the arenas.
+    meshes: HashMap<String, Handle<Mesh>>,
 }
 
 /// One mirrored arena: its render entities by (sim link entity, visual index), and how its
@@ -61,8 +70,8 @@ pub struct Mirror {
 struct ArenaMirror {
     layer: usize,
     links: HashMap<(Entity, usize), Entity>,
-    /// Every surface's material and own colour (sRGB), by its `Look` name.
-    surfaces: HashMap<String, (Handle<LambertMaterial>, [f32; 3])>,
+    /// Every surface's entity and own colour (sRGB), by its `Look` name.
+    surfaces: HashMap<String, (Entity, [f32; 3])>,
     /// The look shown; `None` until the first is.
     look: Option<Look>,
     lights: Vec<Entity>,
@@ -74,6 +83,22 @@ impl Mirror {
     pub fn look(&self, arena: Entity) -> Option<&Look> {
         self.arenas.get(&arena).and_then(|m| m.look.as_ref())
     }
+
+    /// `arena`'s render layer: also its index among batched `ArenaView`s.
+    pub fn layer(&self, arena: Entity) -> Option<usize> {
+        self.arenas.get(&arena).map(|m| m.layer)
+    }
+
+    /// The highest layer in use (0: none).
+    pub fn max_layer(&self) -> usize {
+        self.arenas.len()
+    }
+}
+
+/// Towards each of a look's lights and its colour × intensity (linear), in Bevy's coordinates,
+/// as Bevy's own lights would carry them to the shader.
+pub fn light_vectors(look: &Look) -> impl Iterator<Item = (Vec3, Vec3)> + '_ {
+    look.lights.iter().take(Look::MAX_LIGHTS).map(|l| (-point_to_bevy(Vec3::from_array(l.direction)).normalize_or_zero(), Vec3::from_array(l.color) * l.intensity))
 }
 
 /// Points `camera` at a mirrored arena: its render layer and its ambient light.
@@ -124,16 +149,22 @@ pub fn read_visuals(sim: &mut World, arena: Entity) -> Vec<VisualPose> {
     out
 }
 
-/// A Bevy mesh for a URDF shape, with UVs in metres. Cylinders are turned so their axis is the
-/// visual's Z.
+/// Where a shape's mesh ([`mesh_for`]) sits in its visual: cylinders are turned so their axis
+/// is the visual's Z.
+pub fn shape_transform(shape: &Shape) -> Transform {
+    match shape {
+        Shape::Cylinder { .. } => Transform::from_rotation(Quat::from_rotation_x(FRAC_PI_2)),
+        _ => Transform::IDENTITY,
+    }
+}
+
+/// A Bevy mesh for a URDF shape, with UVs in metres, and where it sits ([`shape_transform`]).
 pub fn mesh_for(shape: &Shape) -> (Mesh, Transform) {
-    let (mesh, local) = match shape {
-        Shape::Box { half_extents: h } => (Cuboid::new(2.0 * h.x, 2.0 * h.y, 2.0 * h.z).into(), Transform::IDENTITY),
-        Shape::Cylinder { radius, length } => (
-            Cylinder::new(*radius, *length).into(),
-            Transform::from_rotation(Quat::from_rotation_x(FRAC_PI_2)),
-        ),
-        Shape::Sphere { radius } => (Sphere::new(*radius).mesh().uv(32, 18), Transform::IDENTITY),
+    let local = shape_transform(shape);
+    let mesh = match shape {
+        Shape::Box { half_extents: h } => Cuboid::new(2.0 * h.x, 2.0 * h.y, 2.0 * h.z).into(),
+        Shape::Cylinder { radius, length } => Cylinder::new(*radius, *length).into(),
+        Shape::Sphere { radius } => Sphere::new(*radius).mesh().uv(32, 18),
         Shape::Mesh(m) => {
             let positions: Vec<[f32; 3]> = m.vertices.iter().map(|v| v.to_array()).collect();
             let indices: Vec<u32> = m.triangles.iter().flatten().copied().collect();
@@ -141,7 +172,7 @@ pub fn mesh_for(shape: &Shape) -> (Mesh, Transform) {
                 .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, positions)
                 .with_inserted_indices(Indices::U32(indices));
             mesh.duplicate_vertices();
-            (mesh.with_computed_flat_normals(), Transform::IDENTITY)
+            mesh.with_computed_flat_normals()
         }
     };
     (metric_uvs(mesh), local)
@@ -197,10 +228,10 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<b
         let mirror = ArenaMirror { layer, links: HashMap::new(), surfaces: HashMap::new(), look: None, lights: Vec::new(), distractors: Vec::new() };
         render.resource_mut::<Mirror>().arenas.insert(arena, mirror);
         // The ground: a large plane at physics z = 0.
-        let ground = render.resource_mut::<Assets<Mesh>>().add(metric_uvs(Plane3d::default().mesh().size(40.0, 40.0).into()));
+        let ground = shared_mesh(render, "ground".into(), || metric_uvs(Plane3d::default().mesh().size(40.0, 40.0).into()));
         spawn_surface(render, arena, "floor".into(), ground, GROUND_COLOR, Transform::IDENTITY, None);
         for (i, (half, pose)) in boxes.into_iter().enumerate() {
-            let mesh = render.resource_mut::<Assets<Mesh>>().add(box_mesh(half));
+            let mesh = shared_mesh(render, format!("box {half}"), || box_mesh(half));
             spawn_surface(render, arena, Look::static_surface(i), mesh, [0.6, 0.55, 0.5], to_bevy(pose), None);
         }
         fresh = true;
@@ -220,8 +251,13 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<b
         let entity = match existing {
             Some(e) => e,
             None => {
-                let (mesh, local) = mesh_for(&v.visual.geometry.shape);
-                let mesh = render.resource_mut::<Assets<Mesh>>().add(mesh);
+                let shape = &v.visual.geometry.shape;
+                let local = shape_transform(shape);
+                let key = match shape {
+                    Shape::Mesh(m) => format!("mesh {:p}", std::sync::Arc::as_ptr(m)),
+                    primitive => format!("{primitive:?}"),
+                };
+                let mesh = shared_mesh(render, key, || mesh_for(shape).0);
                 let [r, g, b, _] = v.visual.rgba;
                 let parent = render.spawn((Transform::default(), Visibility::default(), layer.clone())).id();
                 spawn_surface(render, arena, v.surface, mesh, [r, g, b], local, Some(parent));
@@ -244,7 +280,7 @@ fn arena_mut(render: &mut World, arena: Entity) -> Mut<'_, ArenaMirror> {
     render.resource_mut::<Mirror>().map_unchanged(|m| m.arenas.get_mut(&arena).expect("a mirrored arena"))
 }
 
-/// A mesh entity of `arena` with its own material, registered as the surface `name`.
+/// A mesh entity of `arena`, registered as the surface `name` (`show` dresses it).
 fn spawn_surface(
     render: &mut World,
     arena: Entity,
@@ -254,34 +290,85 @@ fn spawn_surface(
     local: Transform,
     parent: Option<Entity>,
 ) -> Entity {
-    let material = LambertMaterial::new(Color::srgb(srgb[0], srgb[1], srgb[2]));
-    let handle = render.resource_mut::<Assets<LambertMaterial>>().add(material);
-    let layer = RenderLayers::layer(render.resource::<Mirror>().arenas[&arena].layer);
-    let mut e = render.spawn((Mesh3d(mesh), MeshMaterial3d(handle.clone()), local, layer));
+    let layer = render.resource::<Mirror>().arenas[&arena].layer;
+    let id = spawn_mesh(render, mesh, local, layer);
     if let Some(p) = parent {
-        e.insert(ChildOf(p));
+        render.entity_mut(id).insert(ChildOf(p));
     }
-    let id = e.id();
-    arena_mut(render, arena).surfaces.insert(name, (handle, srgb));
+    arena_mut(render, arena).surfaces.insert(name, (id, srgb));
     id
+}
+
+/// The mesh made by `make`, shared by every surface of the same `key` (its shape).
+fn shared_mesh(render: &mut World, key: String, make: impl FnOnce() -> Mesh) -> Handle<Mesh> {
+    if let Some(h) = render.resource::<Mirror>().meshes.get(&key) {
+        return h.clone();
+    }
+    let handle = render.resource_mut::<Assets<Mesh>>().add(make());
+    render.resource_mut::<Mirror>().meshes.insert(key, handle.clone());
+    handle
+}
+
+/// A surface entity on render `layer`: batched, an instance with its tag; otherwise with a
+/// material of its own. [`dress`] sets how it looks.
+fn spawn_mesh(render: &mut World, mesh: Handle<Mesh>, transform: Transform, layer: usize) -> Entity {
+    let bundle = (Mesh3d(mesh), transform, RenderLayers::layer(layer));
+    if render.contains_resource::<Batch>() {
+        let tag = render.resource_mut::<Batch>().tag();
+        let material = batch::material(render, None);
+        render.spawn((bundle, MeshMaterial3d(material), MeshTag(tag), NoFrustumCulling)).id()
+    } else {
+        let material = render.resource_mut::<Assets<LambertMaterial>>().add(LambertMaterial::new(Color::WHITE));
+        render.spawn((bundle, MeshMaterial3d(material))).id()
+    }
+}
+
+/// Shows `material` on the surface `entity` of render `layer`: batched, as its instance's
+/// record and shared material; otherwise in its own material.
+fn dress(render: &mut World, entity: Entity, material: LambertMaterial, layer: usize) {
+    let own = render.get::<MeshMaterial3d<LambertMaterial>>(entity).map(|m| m.0.clone());
+    match render.get::<MeshTag>(entity).map(|t| t.0) {
+        Some(tag) => {
+            render.resource_mut::<Batch>().set(tag, SurfaceRecord::new(&material, layer));
+            let shared = batch::material(render, material.image);
+            if own.as_ref() != Some(&shared) {
+                render.entity_mut(entity).insert(MeshMaterial3d(shared));
+            }
+        }
+        None => {
+            if let Some(h) = own
+                && let Some(mut m) = render.resource_mut::<Assets<LambertMaterial>>().get_mut(&h)
+            {
+                *m = material;
+            }
+        }
+    }
+}
+
+/// Despawns a surface entity (an instance's tag is freed).
+fn despawn_surface(render: &mut World, entity: Entity) {
+    if let Some(tag) = render.get::<MeshTag>(entity).map(|t| t.0) {
+        render.resource_mut::<Batch>().release(tag);
+    }
+    render.despawn(entity);
 }
 
 /// Shows `look` in `arena`: every surface's material and the lights.
 fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderError> {
-    let (surfaces, layer): (Vec<(String, Handle<LambertMaterial>, [f32; 3])>, usize) = {
+    let (surfaces, layer): (Vec<(String, Entity, [f32; 3])>, usize) = {
         let m = &render.resource::<Mirror>().arenas[&arena];
-        (m.surfaces.iter().map(|(n, (h, c))| (n.clone(), h.clone(), *c)).collect(), m.layer)
+        (m.surfaces.iter().map(|(n, (e, c))| (n.clone(), *e, *c)).collect(), m.layer)
     };
-    let light_count = look.lights.len().min(Look::MAX_LIGHTS) as u32;
+    let batched = render.contains_resource::<Batch>();
     let shadows = render.get_resource::<Shadows>().is_some_and(|s| s.0);
-    for (name, handle, own) in surfaces {
+    // How every material of the arena is lit.
+    let lit = |m: LambertMaterial| LambertMaterial { lights: look.lights.len().min(Look::MAX_LIGHTS) as u32, shadows, ..m };
+    for (name, entity, own) in surfaces {
         let material = match look.surfaces.get(&name) {
             Some(surface) => surface_material(render, surface)?,
             None => LambertMaterial::new(Color::srgb(own[0], own[1], own[2])),
         };
-        if let Some(mut m) = render.resource_mut::<Assets<LambertMaterial>>().get_mut(&handle) {
-            *m = LambertMaterial { lights: light_count, shadows, ..material };
-        }
+        dress(render, entity, lit(material), layer);
     }
     let old = {
         let mut m = arena_mut(render, arena);
@@ -289,20 +376,23 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
         shown.into_iter().chain(std::mem::take(&mut m.distractors)).collect::<Vec<Entity>>()
     };
     for e in old {
-        render.despawn(e);
+        despawn_surface(render, e);
     }
     let mut distractors = Vec::with_capacity(look.distractors.len());
     for d in &look.distractors {
-        let mesh = render.resource_mut::<Assets<Mesh>>().add(box_mesh(Vec3::from_array(d.half_extents)));
-        let material = LambertMaterial { lights: light_count, shadows, ..surface_material(render, &d.surface)? };
-        let material = render.resource_mut::<Assets<LambertMaterial>>().add(material);
+        let half = Vec3::from_array(d.half_extents);
+        let mesh = shared_mesh(render, format!("box {half}"), || box_mesh(half));
+        let material = lit(surface_material(render, &d.surface)?);
         let pose = Pose::from_parts(Vec3::from_array(d.centre), Quat::from_rotation_z(d.yaw));
-        distractors.push(render.spawn((Mesh3d(mesh), MeshMaterial3d(material), to_bevy(pose), RenderLayers::layer(layer))).id());
+        let e = spawn_mesh(render, mesh, to_bevy(pose), layer);
+        dress(render, e, material, layer);
+        distractors.push(e);
     }
+    // Batched frames light each arena from its `ArenaView` instead.
     let lights: Vec<Entity> = look
         .lights
         .iter()
-        .take(Look::MAX_LIGHTS)
+        .take(if batched { 0 } else { Look::MAX_LIGHTS })
         .map(|l| {
             let [r, g, b] = l.color;
             let towards = point_to_bevy(Vec3::from_array(l.direction));

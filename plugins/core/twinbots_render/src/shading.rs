@@ -12,18 +12,27 @@
 //! defs `PATTERN`, `LIGHTS`): branching on them per pixel, or looping over the light array,
 //! cost lavapipe up to 40 % of a 640×480 frame (64 against 100 frames/s measured).
 //!
+//! **Batched frames** (`Renderer::tiled`, see `batch`): a material with `batched` set takes its
+//! surface's colours and pattern from the instance's `SurfaceRecord` and its camera, tile and
+//! lights from the arena's `ArenaView`, and lights vertices (batched_vertex.wgsl); only image
+//! textures are compiled apart (the pattern is branched on: at 64×64 tiles draw calls cost far
+//! more than pixels).
+//!
 //! The light model, in linear RGB: `pixel = albedo × (ambient + Σ colourᵢ × intensityᵢ ×
 //! max(0, n·lᵢ)) + specular × Σ colourᵢ × intensityᵢ × max(0, n·hᵢ)^32` (Blinn-Phong, hᵢ halfway
 //! between the light and the eye, only where the light reaches), where Bevy carries a light's relative intensity as its `illuminance` and the
 //! ambient share as `GlobalAmbientLight::brightness` (see `twinbots_sim::look`).
 
-use bevy::asset::embedded_asset;
 use bevy::mesh::MeshVertexBufferLayoutRef;
 use bevy::pbr::{MaterialPipeline, MaterialPipelineKey};
 use bevy::prelude::*;
+use bevy::asset::{load_internal_asset, uuid_handle};
 use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, SpecializedMeshPipelineError};
+use bevy::render::storage::ShaderBuffer;
 use bevy::shader::{ShaderDefVal, ShaderRef};
 use twinbots_sim::look::{Surface, Texture};
+
+use crate::batch::{self, ARENA_VIEWS, SURFACES};
 
 /// Pattern codes of the shader (`kind`).
 const PLAIN: u32 = 0;
@@ -54,6 +63,14 @@ pub struct LambertMaterial {
     #[texture(1)]
     #[sampler(2)]
     pub image: Option<Handle<Image>>,
+    /// Batched frames' arenas and surfaces (the same buffers for all materials).
+    #[storage(3, read_only)]
+    pub views: Handle<ShaderBuffer>,
+    #[storage(4, read_only)]
+    pub surfaces: Handle<ShaderBuffer>,
+    /// Whether the material draws batched frames' surface instances (see `batch`) rather than
+    /// one surface through Bevy's camera and lights.
+    pub batched: bool,
     /// How many directional lights the scene has (the renderer keeps it so, see scene.rs).
     pub lights: u32,
     /// Whether the lights cast shadows (their shadow maps are sampled).
@@ -68,17 +85,30 @@ pub struct LambertKey {
     lights: u32,
     shadows: bool,
     specular: bool,
+    batched: bool,
 }
 
 impl From<&LambertMaterial> for LambertKey {
     fn from(m: &LambertMaterial) -> Self {
-        Self { kind: m.kind, lights: m.lights, shadows: m.shadows, specular: m.specular > 0.0 }
+        Self { kind: m.kind, lights: m.lights, shadows: m.shadows, specular: m.specular > 0.0, batched: m.batched }
     }
 }
 
 impl LambertMaterial {
     pub fn new(color: Color) -> Self {
-        Self { color: color.to_linear(), color2: LinearRgba::BLACK, kind: PLAIN, size: 1.0, specular: 0.0, image: None, lights: 1, shadows: false }
+        Self {
+            color: color.to_linear(),
+            color2: LinearRgba::BLACK,
+            kind: PLAIN,
+            size: 1.0,
+            specular: 0.0,
+            image: None,
+            views: ARENA_VIEWS,
+            surfaces: SURFACES,
+            batched: false,
+            lights: 1,
+            shadows: false,
+        }
     }
 
     /// A look's surface; `image` is the loaded image of an image texture.
@@ -95,11 +125,22 @@ impl LambertMaterial {
         };
         Self { kind, color2, size, image, ..base }
     }
+
+    /// The material batched frames draw instances through: one per image texture (and one
+    /// without).
+    pub fn batched(image: Option<Handle<Image>>) -> Self {
+        let kind = if image.is_some() { IMAGE } else { PLAIN };
+        Self { kind, image, batched: true, ..Self::new(Color::WHITE) }
+    }
 }
 
 impl Material for LambertMaterial {
+    fn vertex_shader() -> ShaderRef {
+        LAMBERT_SHADER.into()
+    }
+
     fn fragment_shader() -> ShaderRef {
-        "embedded://twinbots_render/lambert.wgsl".into()
+        LAMBERT_SHADER.into()
     }
 
     fn specialize(
@@ -108,26 +149,38 @@ impl Material for LambertMaterial {
         _layout: &MeshVertexBufferLayoutRef,
         key: MaterialPipelineKey<Self>,
     ) -> Result<(), SpecializedMeshPipelineError> {
+        // One file holds both stages: each is compiled with every def.
+        let key = key.bind_group_data;
+        let mut defs = vec![ShaderDefVal::UInt("PATTERN".into(), key.kind), ShaderDefVal::UInt("LIGHTS".into(), key.lights)];
+        for (on, def) in [(key.shadows, "SHADOWS"), (key.specular, "SPECULAR"), (key.batched, "BATCHED")] {
+            if on {
+                defs.push(def.into());
+            }
+        }
+        if key.batched {
+            descriptor.vertex.shader = BATCHED_VERTEX_SHADER;
+        }
+        descriptor.vertex.shader_defs.extend(defs.iter().cloned());
         if let Some(fragment) = descriptor.fragment.as_mut() {
-            fragment.shader_defs.push(ShaderDefVal::UInt("PATTERN".into(), key.bind_group_data.kind));
-            fragment.shader_defs.push(ShaderDefVal::UInt("LIGHTS".into(), key.bind_group_data.lights));
-            if key.bind_group_data.shadows {
-                fragment.shader_defs.push("SHADOWS".into());
-            }
-            if key.bind_group_data.specular {
-                fragment.shader_defs.push("SPECULAR".into());
-            }
+            fragment.shader_defs.extend(defs);
         }
         Ok(())
     }
 }
 
-/// Registers [`LambertMaterial`] and its shader (embedded in the binary).
+const LAMBERT_SHADER: Handle<Shader> = uuid_handle!("0f4b8f3e-6a51-4d2c-8a3b-1e9d7c5a2f10");
+const BATCHED_VERTEX_SHADER: Handle<Shader> = uuid_handle!("a3c5e7f9-1b2d-4e6f-8a0c-2d4f6b8e0a13");
+
+/// Registers [`LambertMaterial`] and its shaders (embedded in the binary), and batched frames'
+/// buffers (empty).
 pub struct ShadingPlugin;
 
 impl Plugin for ShadingPlugin {
     fn build(&self, app: &mut App) {
-        embedded_asset!(app, "lambert.wgsl");
+        // Shaders under fixed handles: one process may hold several render apps.
+        load_internal_asset!(app, LAMBERT_SHADER, "lambert.wgsl", Shader::from_wgsl);
+        load_internal_asset!(app, BATCHED_VERTEX_SHADER, "batched_vertex.wgsl", Shader::from_wgsl);
         app.add_plugins(MaterialPlugin::<LambertMaterial>::default());
+        batch::init_buffers(app.world_mut());
     }
 }
