@@ -7,75 +7,50 @@
 //! view uniforms, bind groups, a render pass) 16 times; and where each surface of each arena
 //! had its own material, lavapipe paid a draw call (~0.15 ms on a 2-core VM) per surface per
 //! arena. Here the arenas' meshes are shared and their surfaces are instances of a few shared
-//! materials: an instance's [`SurfaceRecord`] (colours, pattern, its arena) is found through
-//! its `MeshTag`, and its arena's camera, tile and lights in an [`ArenaView`]. Both live in
-//! storage buffers bound by every material ([`ARENA_VIEWS`], [`SURFACES`]). Figures:
+//! materials: an instance's `SurfaceRecord` (colours, pattern, its arena) is found through
+//! its `MeshTag`, and its arena's camera, tile and lights in an `ArenaView`. Both live in
+//! storage buffers bound by every material (`shading::{ARENA_VIEWS, SURFACES}`). Figures:
 //! docs/benchmarks.md.
 
 use std::collections::HashMap;
 
-use bevy::asset::{RenderAssetUsages, uuid_handle};
+use bevy::camera::CameraProjection;
 use bevy::prelude::*;
-use bevy::color::ColorToComponents;
 use bevy::render::render_resource::ShaderType;
 use bevy::render::render_resource::encase::internal::WriteInto;
 use bevy::render::storage::ShaderBuffer;
 use twinbots_sim::Look;
 
-use crate::shading::LambertMaterial;
+use crate::coords::point_to_bevy;
+use crate::shading::{ArenaView, LambertMaterial, SurfaceRecord};
 
-/// One arena's camera and lights in a batched frame, as the shader reads it.
-#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq)]
-pub struct ArenaView {
-    /// The arena's camera: Bevy's clip space from world space (reverse Z, infinite far).
-    pub clip_from_world: Mat4,
-    /// Where its tile lies in the frame: clip x, y scaled by `.xy`, then moved by `.zw` × w.
-    pub tile: Vec4,
-    /// The camera's position (world, Bevy's Y up), for highlights.
-    pub eye: Vec4,
-    /// Ambient light (linear RGB), and how many lights follow (`.w`).
-    pub ambient: Vec4,
-    /// Towards each light (world, unit), and its colour × intensity (linear RGB).
-    pub light_directions: [Vec4; Look::MAX_LIGHTS],
-    pub light_colors: [Vec4; Look::MAX_LIGHTS],
-}
-
-/// How one surface instance looks: a [`LambertMaterial`]'s own fields, and its arena.
-#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq)]
-pub struct SurfaceRecord {
-    pub color: Vec4,
-    pub color2: Vec4,
-    pub kind: u32,
-    pub size: f32,
-    pub specular: f32,
-    /// Its arena's index among the [`ArenaView`]s.
-    pub arena: u32,
-}
-
-impl SurfaceRecord {
-    pub fn new(material: &LambertMaterial, arena: usize) -> Self {
+impl ArenaView {
+    /// An arena seen by a camera at `eye` (Bevy's camera convention) with a vertical field of
+    /// view `fov_y`, into the `tile` (pixels) of a `frame` (its size), lit by `look`.
+    pub fn new(eye: Transform, fov_y: f32, tile: URect, (frame_w, frame_h): (u32, u32), look: &Look) -> Self {
+        let (w, h) = (tile.width() as f32, tile.height() as f32);
+        let (x0, y0) = (tile.min.x as f32, tile.min.y as f32);
+        let (frame_w, frame_h) = (frame_w as f32, frame_h as f32);
+        let projection = PerspectiveProjection { fov: fov_y, aspect_ratio: w / h, ..default() };
+        let mut light_directions = [Vec4::ZERO; Look::MAX_LIGHTS];
+        let mut light_colors = [Vec4::ZERO; Look::MAX_LIGHTS];
+        let lights = look.lights.iter().take(Look::MAX_LIGHTS);
+        for (k, l) in lights.enumerate() {
+            // As Bevy's own lights carry them: towards the light, colour × intensity.
+            light_directions[k] = (-point_to_bevy(Vec3::from_array(l.direction)).normalize_or_zero()).extend(0.0);
+            light_colors[k] = (Vec3::from_array(l.color) * l.intensity).extend(1.0);
+        }
         Self {
-            color: material.color.to_vec4(),
-            color2: material.color2.to_vec4(),
-            kind: material.kind,
-            size: material.size,
-            specular: material.specular,
-            arena: arena as u32,
+            clip_from_world: projection.get_clip_from_view() * eye.to_matrix().inverse(),
+            // The tile's NDC box inside the frame's: x' = x·w/W + (2·x0 + w)/W − 1, and y alike
+            // (downwards).
+            tile: Vec4::new(w / frame_w, h / frame_h, (2.0 * x0 + w) / frame_w - 1.0, 1.0 - (2.0 * y0 + h) / frame_h),
+            eye: eye.translation.extend(1.0),
+            ambient: Vec3::from_array(look.ambient).extend(look.lights.len().min(Look::MAX_LIGHTS) as f32),
+            light_directions,
+            light_colors,
         }
     }
-}
-
-/// The storage buffer of [`ArenaView`]s, indexed by `SurfaceRecord::arena`.
-pub const ARENA_VIEWS: Handle<ShaderBuffer> = uuid_handle!("5c1d7f0e-2b7a-4f0c-9d57-6a3e8f1b2c44");
-/// The storage buffer of [`SurfaceRecord`]s, indexed by each instance's `MeshTag`.
-pub const SURFACES: Handle<ShaderBuffer> = uuid_handle!("b84e2c17-95d3-4a6f-8e21-7c0f3d9a5b62");
-
-/// Adds both buffers, holding one empty element each.
-pub fn init_buffers(world: &mut World) {
-    let mut buffers = world.resource_mut::<Assets<ShaderBuffer>>();
-    let kept = |b: ShaderBuffer| ShaderBuffer { asset_usage: RenderAssetUsages::default(), ..b };
-    let _ = buffers.insert(&ARENA_VIEWS, kept(ShaderBuffer::from(vec![ArenaView::default()])));
-    let _ = buffers.insert(&SURFACES, kept(ShaderBuffer::from(vec![SurfaceRecord::default()])));
 }
 
 /// Fills the buffer `handle` with `items`, padded to a power of two (at least 16) so its size

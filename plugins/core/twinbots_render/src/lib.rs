@@ -4,6 +4,7 @@
 
 pub mod batch;
 pub mod cameras;
+pub mod coords;
 pub mod pixels;
 pub mod renderer;
 pub mod scene;

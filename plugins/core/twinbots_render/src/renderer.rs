@@ -7,7 +7,7 @@ use std::sync::{Arc, Mutex};
 use bevy::app::PluginsState;
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::RenderLayers;
-use bevy::camera::{CameraProjection, RenderTarget, Viewport};
+use bevy::camera::{RenderTarget, Viewport};
 use bevy::core_pipeline::tonemapping::Tonemapping;
 use bevy::prelude::*;
 use bevy::render::render_asset::RenderAssets;
@@ -24,8 +24,8 @@ use twinbots_sim::look::CameraJitter;
 use twinbots_sim::rapier::math::Pose;
 
 use crate::scene;
-use crate::batch::{self, ArenaView, Batch};
-use crate::shading::ShadingPlugin;
+use crate::batch::{self, Batch};
+use crate::shading::{self, ArenaView, ShadingPlugin};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
@@ -123,10 +123,11 @@ struct Target(Handle<Image>);
 /// How a frame's tiles are drawn.
 enum Cameras {
     /// One camera over the whole target; each arena is drawn through its own `ArenaView` into
-    /// its tile (see `shading`): Bevy's per-view work is paid once a frame.
+    /// its tile (see `batch`): Bevy's per-view work is paid once a frame.
     Batched(Entity),
-    /// A camera per tile, in tile order, lit by Bevy's lights: for shadows, whose maps Bevy
-    /// renders per view.
+    /// A camera per tile, in tile order, lit by Bevy's lights: for shadows (Bevy renders their
+    /// maps per view), single images (compiled shading is faster per pixel) and devices that
+    /// cannot clip to a tile.
     PerTile(Vec<Entity>),
 }
 
@@ -287,7 +288,7 @@ impl Renderer {
         }
     }
 
-    /// Points tile `i`'s camera at `arena` through `view` (jittered by the arena's look).
+    /// Points a tile's `camera` at `arena` through `view` (jittered by the arena's look).
     fn aim(&mut self, camera: Entity, arena: Entity, view: View) {
         let view = self.jittered(view, arena);
         let world = self.app.world_mut();
@@ -347,47 +348,25 @@ impl Renderer {
         for (i, (arena, view)) in shots.iter().enumerate() {
             let Some(layer) = mirror.layer(*arena) else { continue };
             let look = mirror.look(*arena).unwrap_or(&default_look);
-            views[layer] = self.arena_view(i, view.jittered(&look.camera), look);
+            let (x0, y0) = (i as u32 % self.columns * self.width, i as u32 / self.columns * self.height);
+            let tile = URect::from_corners(UVec2::new(x0, y0), UVec2::new(x0 + self.width, y0 + self.height));
+            let view = view.jittered(&look.camera);
+            views[layer] = ArenaView::new(view.transform, view.fov_y, tile, self.target_size(), look);
             layers = layers.with(layer);
         }
         let world = self.app.world_mut();
         if world.get::<RenderLayers>(camera) != Some(&layers) {
             world.entity_mut(camera).insert(layers);
         }
-        let mut resized = batch::upload(world, &batch::ARENA_VIEWS, &views);
+        let mut resized = batch::upload(world, &shading::ARENA_VIEWS, &views);
         let records = world.resource_mut::<Batch>().take_changed().map(<[_]>::to_vec);
         if let Some(records) = records {
-            resized |= batch::upload(world, &batch::SURFACES, &records);
+            resized |= batch::upload(world, &shading::SURFACES, &records);
         }
         if resized {
             // A new buffer: made by this update, bound by every material from the next.
             self.app.update();
             batch::rebind_materials(self.app.world_mut());
-        }
-    }
-
-    /// Tile `i` of the frame seen through `view`, lit by `look`.
-    fn arena_view(&self, i: usize, view: View, look: &twinbots_sim::Look) -> ArenaView {
-        let (frame_w, frame_h) = self.target_size();
-        let (w, h) = (self.width as f32, self.height as f32);
-        let (frame_w, frame_h) = (frame_w as f32, frame_h as f32);
-        let x0 = (i as u32 % self.columns * self.width) as f32;
-        let y0 = (i as u32 / self.columns * self.height) as f32;
-        let projection = PerspectiveProjection { fov: view.fov_y, aspect_ratio: w / h, ..default() };
-        let mut directions = [Vec4::ZERO; twinbots_sim::Look::MAX_LIGHTS];
-        let mut colors = [Vec4::ZERO; twinbots_sim::Look::MAX_LIGHTS];
-        for (k, (towards, color)) in scene::light_vectors(look).enumerate() {
-            directions[k] = towards.extend(0.0);
-            colors[k] = color.extend(1.0);
-        }
-        ArenaView {
-            clip_from_world: projection.get_clip_from_view() * view.transform.to_matrix().inverse(),
-            // The tile's NDC box inside the frame's: x' = x·w/W + (2·x0 + w)/W − 1, and y alike, downwards.
-            tile: Vec4::new(w / frame_w, h / frame_h, (2.0 * x0 + w) / frame_w - 1.0, 1.0 - (2.0 * y0 + h) / frame_h),
-            eye: view.transform.translation.extend(1.0),
-            ambient: Vec3::from_array(look.ambient).extend(look.lights.len().min(twinbots_sim::Look::MAX_LIGHTS) as f32),
-            light_directions: directions,
-            light_colors: colors,
         }
     }
 

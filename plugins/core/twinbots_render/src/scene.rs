@@ -21,27 +21,13 @@ use twinbots_sim::urdf::{Shape, Visual};
 use twinbots_sim::{Arena, InArena, Link, Look, Visuals};
 
 use crate::RenderError;
-use crate::batch::{self, Batch, SurfaceRecord};
-use crate::shading::LambertMaterial;
+use crate::batch::{self, Batch};
+use crate::shading::{LambertMaterial, SurfaceRecord};
 
 /// The ground plane's colour (sRGB).
 pub const GROUND_COLOR: [f32; 3] = [0.45, 0.47, 0.45];
 
-/// The rotation taking Z-up physics coordinates to Bevy's Y-up.
-pub fn z_up_to_y_up() -> Quat {
-    Quat::from_rotation_x(-FRAC_PI_2)
-}
-
-/// A physics pose as a Bevy transform.
-pub fn to_bevy(pose: Pose) -> Transform {
-    let r = z_up_to_y_up();
-    Transform { translation: r * pose.translation, rotation: r * pose.rotation, scale: Vec3::ONE }
-}
-
-/// A physics point in Bevy coordinates.
-pub fn point_to_bevy(p: Vec3) -> Vec3 {
-    z_up_to_y_up() * p
-}
+pub use crate::coords::{point_to_bevy, to_bevy, z_up_to_y_up};
 
 /// Whether the lights of the render world cast shadows (`capture --shadows`): each light
 /// renders a shadow map, and surfaces sample it. Off by default: on Mesa's CPU renderer a shadow
@@ -93,12 +79,6 @@ impl Mirror {
     pub fn max_layer(&self) -> usize {
         self.arenas.len()
     }
-}
-
-/// Towards each of a look's lights and its colour × intensity (linear), in Bevy's coordinates,
-/// as Bevy's own lights would carry them to the shader.
-pub fn light_vectors(look: &Look) -> impl Iterator<Item = (Vec3, Vec3)> + '_ {
-    look.lights.iter().take(Look::MAX_LIGHTS).map(|l| (-point_to_bevy(Vec3::from_array(l.direction)).normalize_or_zero(), Vec3::from_array(l.color) * l.intensity))
 }
 
 /// Points `camera` at a mirrored arena: its render layer and its ambient light.

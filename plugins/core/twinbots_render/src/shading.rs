@@ -26,13 +26,14 @@
 use bevy::mesh::MeshVertexBufferLayoutRef;
 use bevy::pbr::{MaterialPipeline, MaterialPipelineKey};
 use bevy::prelude::*;
-use bevy::asset::{load_internal_asset, uuid_handle};
-use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, SpecializedMeshPipelineError};
+use bevy::asset::{RenderAssetUsages, load_internal_asset, uuid_handle};
+use bevy::color::ColorToComponents;
+use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
 use bevy::render::storage::ShaderBuffer;
 use bevy::shader::{ShaderDefVal, ShaderRef};
 use twinbots_sim::look::{Surface, Texture};
 
-use crate::batch::{self, ARENA_VIEWS, SURFACES};
+use twinbots_sim::Look;
 
 /// Pattern codes of the shader (`kind`).
 const PLAIN: u32 = 0;
@@ -171,6 +172,60 @@ impl Material for LambertMaterial {
 const LAMBERT_SHADER: Handle<Shader> = uuid_handle!("0f4b8f3e-6a51-4d2c-8a3b-1e9d7c5a2f10");
 const BATCHED_VERTEX_SHADER: Handle<Shader> = uuid_handle!("a3c5e7f9-1b2d-4e6f-8a0c-2d4f6b8e0a13");
 
+/// One arena's camera and lights in a batched frame, as the shader reads it.
+#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq)]
+pub struct ArenaView {
+    /// The arena's camera: Bevy's clip space from world space (reverse Z, infinite far).
+    pub clip_from_world: Mat4,
+    /// Where its tile lies in the frame: clip x, y scaled by `.xy`, then moved by `.zw` × w.
+    pub tile: Vec4,
+    /// The camera's position (world, Bevy's Y up), for highlights.
+    pub eye: Vec4,
+    /// Ambient light (linear RGB), and how many lights follow (`.w`).
+    pub ambient: Vec4,
+    /// Towards each light (world, unit), and its colour × intensity (linear RGB).
+    pub light_directions: [Vec4; Look::MAX_LIGHTS],
+    pub light_colors: [Vec4; Look::MAX_LIGHTS],
+}
+
+/// How one surface instance looks: a [`LambertMaterial`]'s own fields, and its arena.
+#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq)]
+pub struct SurfaceRecord {
+    pub color: Vec4,
+    pub color2: Vec4,
+    pub kind: u32,
+    pub size: f32,
+    pub specular: f32,
+    /// Its arena's index among the [`ArenaView`]s.
+    pub arena: u32,
+}
+
+impl SurfaceRecord {
+    pub fn new(material: &LambertMaterial, arena: usize) -> Self {
+        Self {
+            color: material.color.to_vec4(),
+            color2: material.color2.to_vec4(),
+            kind: material.kind,
+            size: material.size,
+            specular: material.specular,
+            arena: arena as u32,
+        }
+    }
+}
+
+/// The storage buffer of [`ArenaView`]s, indexed by `SurfaceRecord::arena`.
+pub const ARENA_VIEWS: Handle<ShaderBuffer> = uuid_handle!("5c1d7f0e-2b7a-4f0c-9d57-6a3e8f1b2c44");
+/// The storage buffer of [`SurfaceRecord`]s, indexed by each instance's `MeshTag`.
+pub const SURFACES: Handle<ShaderBuffer> = uuid_handle!("b84e2c17-95d3-4a6f-8e21-7c0f3d9a5b62");
+
+/// Adds both buffers, holding one empty element each.
+fn init_buffers(world: &mut World) {
+    let mut buffers = world.resource_mut::<Assets<ShaderBuffer>>();
+    let kept = |b: ShaderBuffer| ShaderBuffer { asset_usage: RenderAssetUsages::default(), ..b };
+    let _ = buffers.insert(&ARENA_VIEWS, kept(ShaderBuffer::from(vec![ArenaView::default()])));
+    let _ = buffers.insert(&SURFACES, kept(ShaderBuffer::from(vec![SurfaceRecord::default()])));
+}
+
 /// Registers [`LambertMaterial`] and its shaders (embedded in the binary), and batched frames'
 /// buffers (empty).
 pub struct ShadingPlugin;
@@ -181,6 +236,6 @@ impl Plugin for ShadingPlugin {
         load_internal_asset!(app, LAMBERT_SHADER, "lambert.wgsl", Shader::from_wgsl);
         load_internal_asset!(app, BATCHED_VERTEX_SHADER, "batched_vertex.wgsl", Shader::from_wgsl);
         app.add_plugins(MaterialPlugin::<LambertMaterial>::default());
-        batch::init_buffers(app.world_mut());
+        init_buffers(app.world_mut());
     }
 }
