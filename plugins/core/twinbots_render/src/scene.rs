@@ -223,6 +223,10 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<b
     for key in gone {
         let entity = arena_mut(render, arena).links.remove(&key);
         if let Some(e) = entity {
+            let surfaces: Vec<Entity> = render.get::<Children>(e).map(|c| c.to_vec()).unwrap_or_default();
+            for surface in surfaces {
+                despawn_surface(render, surface);
+            }
             render.entity_mut(e).despawn();
         }
     }

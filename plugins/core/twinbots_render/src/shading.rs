@@ -1,6 +1,6 @@
 //! How the twin is shaded: [`LambertMaterial`], a surface colour (optionally patterned or
 //! textured) lit by the scene's directional lights (Lambert's cosine law, their colours and
-//! intensities) over its ambient light; no specular.
+//! intensities) over its ambient light, with an optional Blinn-Phong highlight.
 //!
 //! Pixels are rendered on the CPU wherever there is no GPU (Mesa's lavapipe: CI, training
 //! servers). There Bevy's PBR `StandardMaterial` cost ~40 % of a 640×480 frame (82 ms per frame
@@ -14,9 +14,9 @@
 //!
 //! **Batched frames** (`Renderer::tiled`, see `batch`): a material with `batched` set takes its
 //! surface's colours and pattern from the instance's `SurfaceRecord` and its camera, tile and
-//! lights from the arena's `ArenaView`, and lights vertices (batched_vertex.wgsl); only image
-//! textures are compiled apart (the pattern is branched on: at 64×64 tiles draw calls cost far
-//! more than pixels).
+//! lights from the arena's `ArenaView` (vertex stage: batched_vertex.wgsl); only image textures
+//! are compiled apart, the pattern is branched on and the lights looped over per pixel (at 64×64
+//! tiles draw calls cost far more than pixels; a single image keeps the compiled shading).
 //!
 //! The light model, in linear RGB: `pixel = albedo × (ambient + Σ colourᵢ × intensityᵢ ×
 //! max(0, n·lᵢ)) + specular × Σ colourᵢ × intensityᵢ × max(0, n·hᵢ)^32` (Blinn-Phong, hᵢ halfway
