@@ -49,6 +49,8 @@ pub struct Mirror {
     images: HashMap<PathBuf, Handle<Image>>,
     /// Meshes by shape, shared by the arenas.
     meshes: HashMap<String, Handle<Mesh>>,
+    /// The imported meshes keyed by their address above, kept alive so no other takes it.
+    kept: Vec<Shape>,
 }
 
 /// One mirrored arena: its render entities by (sim link entity, visual index), and how its
@@ -241,6 +243,10 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<b
                     Shape::Mesh(m) => format!("mesh {:p}", std::sync::Arc::as_ptr(m)),
                     primitive => format!("{primitive:?}"),
                 };
+                let mut mirror = render.resource_mut::<Mirror>();
+                if matches!(shape, Shape::Mesh(_)) && !mirror.meshes.contains_key(&key) {
+                    mirror.kept.push(shape.clone());
+                }
                 let mesh = shared_mesh(render, key, || mesh_for(shape).0);
                 let [r, g, b, _] = v.visual.rgba;
                 let parent = render.spawn((Transform::default(), Visibility::default(), layer.clone())).id();
