@@ -58,16 +58,15 @@ impl ArenaView {
 /// it changed: the next update makes a new buffer, which materials bind only once
 /// [`rebind_materials`] is called after it (Bevy prepares materials and storage buffers in no
 /// set order).
-pub fn upload<T: Default + Clone>(world: &mut World, handle: &Handle<ShaderBuffer>, items: &[T]) -> bool
+pub fn upload<T: Default + Clone>(world: &mut World, handle: &Handle<ShaderBuffer>, mut items: Vec<T>) -> bool
 where
     Vec<T>: ShaderType + WriteInto,
 {
-    let mut padded = items.to_vec();
-    padded.resize(items.len().next_power_of_two().max(16), T::default());
+    items.resize(items.len().next_power_of_two().max(16), T::default());
     let mut buffers = world.resource_mut::<Assets<ShaderBuffer>>();
     let Some(mut buffer) = buffers.get_mut(handle) else { return false };
     let old = buffer.data.as_ref().map_or(0, Vec::len);
-    buffer.set_data(padded);
+    buffer.set_data(items);
     buffer.data.as_ref().map_or(0, Vec::len) != old
 }
 

@@ -230,25 +230,29 @@ impl Renderer {
 
     /// Draws a tile per camera, lit by Bevy's lights, from now on (call before the first sync).
     fn per_tile(mut self) -> Self {
-        let (width, height, columns) = (self.width, self.height, self.columns);
         if let Cameras::Batched(camera) = self.cameras {
+            let tiles: Vec<URect> = (0..self.tiles).map(|i| self.tile_rect(i)).collect();
             let world = self.app.world_mut();
             world.despawn(camera);
             world.remove_resource::<Batch>();
             let handle = world.resource::<Target>().0.clone();
-            let cameras = (0..self.tiles as u32)
-                .map(|i| {
-                    let viewport = Viewport {
-                        physical_position: UVec2::new(i % columns * width, i / columns * height),
-                        physical_size: UVec2::new(width, height),
-                        ..default()
-                    };
+            let cameras = tiles
+                .iter()
+                .enumerate()
+                .map(|(i, tile)| {
+                    let viewport = Viewport { physical_position: tile.min, physical_size: tile.size(), ..default() };
                     spawn_camera(world, &handle, Some(viewport), i as isize)
                 })
                 .collect();
             self.cameras = Cameras::PerTile(cameras);
         }
         self
+    }
+
+    /// Where tile `i` lies in the target, in pixels (row-major, `columns` to a row).
+    fn tile_rect(&self, i: usize) -> URect {
+        let min = UVec2::new(i as u32 % self.columns * self.width, i as u32 / self.columns * self.height);
+        URect::from_corners(min, min + UVec2::new(self.width, self.height))
     }
 
     /// How many images one frame can draw.
@@ -348,20 +352,18 @@ impl Renderer {
         for (i, (arena, view)) in shots.iter().enumerate() {
             let Some(layer) = mirror.layer(*arena) else { continue };
             let look = mirror.look(*arena).unwrap_or(&default_look);
-            let (x0, y0) = (i as u32 % self.columns * self.width, i as u32 / self.columns * self.height);
-            let tile = URect::from_corners(UVec2::new(x0, y0), UVec2::new(x0 + self.width, y0 + self.height));
             let view = view.jittered(&look.camera);
-            views[layer] = ArenaView::new(view.transform, view.fov_y, tile, self.target_size(), look);
+            views[layer] = ArenaView::new(view.transform, view.fov_y, self.tile_rect(i), self.target_size(), look);
             layers = layers.with(layer);
         }
         let world = self.app.world_mut();
         if world.get::<RenderLayers>(camera) != Some(&layers) {
             world.entity_mut(camera).insert(layers);
         }
-        let mut resized = batch::upload(world, &shading::ARENA_VIEWS, &views);
+        let mut resized = batch::upload(world, &shading::ARENA_VIEWS, views);
         let records = world.resource_mut::<Batch>().take_changed().map(<[_]>::to_vec);
         if let Some(records) = records {
-            resized |= batch::upload(world, &shading::SURFACES, &records);
+            resized |= batch::upload(world, &shading::SURFACES, records);
         }
         if resized {
             // A new buffer: made by this update, bound by every material from the next.
@@ -411,6 +413,7 @@ impl Renderer {
     /// first `tiles` tiles out of it as RGB images.
     fn read_target(&mut self, tiles: usize) -> Result<Vec<Vec<u8>>, RenderError> {
         let (width, height) = self.target_size();
+        let rects: Vec<URect> = (0..tiles).map(|i| self.tile_rect(i)).collect();
         let handle = self.app.world().resource::<Target>().0.clone();
         let world = self.app.sub_app(RenderApp).world();
         let image = world
@@ -448,10 +451,9 @@ impl Renderer {
             Some(Err(e)) => return Err(RenderError::Failed(format!("reading the frame back: {e}"))),
             None => return Err(RenderError::Failed("no pixels came back".into())),
         }
-        let (w, h, columns) = (self.width as usize, self.height as usize, self.columns as usize);
         let images = {
             let data = slice.get_mapped_range();
-            (0..tiles).map(|i| tile(&data, padded, (i % columns * w, i / columns * h), (w, h))).collect()
+            rects.iter().map(|r| tile(&data, padded, (r.min.x as usize, r.min.y as usize), (r.width() as usize, r.height() as usize))).collect()
         };
         buffer.unmap();
         Ok(images)
