@@ -1,18 +1,11 @@
 //! A hand-written feedback controller balances the cart-pole twin for a full episode (1950
 //! steps) from a small initial tilt: proof that the twin is physically sane and controllable.
+//! The controller is the robot's own classical one ([`cartpole::feedback`]).
 //!
 //! Run: `cargo run --release --example cartpole_balance [seed]`
 
 use twinbots_api::VecEnv;
 use twinbots_task::AppVecEnv;
-
-/// Bang-bang state feedback: drive towards the side the pole is falling to, with small terms
-/// that pull the cart back to the centre.
-fn policy(obs: &[f32]) -> f32 {
-    let [x, v, angle, rate] = [obs[0], obs[1], obs[2], obs[3]];
-    let push = angle + 0.2 * rate + 0.1 * x + 0.4 * v;
-    if push > 0.0 { 1.0 } else { 0.0 }
-}
 
 fn main() {
     let seed = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(0);
@@ -22,7 +15,7 @@ fn main() {
     let mut max_angle: f32 = 0.0;
     let mut max_x: f32 = 0.0;
     for step in 1..=2000 {
-        let out = env.step(&[policy(&obs)]).unwrap();
+        let out = env.step(&cartpole::feedback(&obs)).unwrap();
         obs = out.obs;
         if let Some(last) = &out.final_obs[0] {
             let ep = out.episodes[0].as_ref().expect("finished episode has a summary");

@@ -12,6 +12,7 @@ pub mod robot_log;
 pub mod ros2;
 pub mod run;
 pub mod settings;
+pub mod study;
 pub mod twin;
 pub mod ur_sim;
 pub mod urdf_check;

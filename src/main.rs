@@ -45,6 +45,10 @@ enum Command {
     /// Check a robot description: its link/joint tree with masses, limits and motors, what
     /// will not simulate well, a stand in the physics, and a picture (`--png`).
     Urdf(cli::urdf::Args),
+    /// Run a policy test suite on a robot's twin: step-response kicks, impulse disturbances and
+    /// payloads for each controller (classical, trained run, ONNX); per-run time series, figures
+    /// (survival, settling time, overshoot, steady-state error), summary, plots and report.
+    Study(cli::study::Args),
     /// Record a stand-in robot: the twin with hidden true physics (a truth file), driven
     /// through an excitation program, logging what a controller measures (MCAP or CSV).
     Record(cli::record::Args),
@@ -92,6 +96,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Bench(args) => cli::bench::exec(args),
         Command::Compare(args) => cli::compare::exec(args),
         Command::Urdf(args) => cli::urdf::exec(args),
+        Command::Study(args) => cli::study::exec(args),
         Command::Record(args) => cli::record::exec(args),
         Command::Replay(args) => cli::replay::exec(args),
         Command::Identify(args) => cli::identify::exec(args),

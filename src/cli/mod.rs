@@ -17,6 +17,7 @@ pub mod robots;
 #[cfg(feature = "ros2")]
 pub mod ros2;
 pub mod serve;
+pub mod study;
 pub mod view;
 pub mod train;
 pub mod urdf;

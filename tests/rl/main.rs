@@ -24,5 +24,6 @@ mod server;
 mod server_fuzz;
 mod server_hostile;
 mod server_load;
+mod study;
 mod train_cli;
 mod ur5e_tasks;

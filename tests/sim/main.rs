@@ -3,6 +3,7 @@
 mod accuracy;
 mod common;
 mod determinism;
+mod disturbance;
 mod devices;
 mod motors;
 mod pattern3_access;

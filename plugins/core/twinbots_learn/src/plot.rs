@@ -216,3 +216,41 @@ pub fn seed_band(
         Ok(())
     })
 }
+
+/// Labelled time series (x: seconds) into `path`, written atomically: one colour per label,
+/// dashed grey lines at each of `levels` (a settling band) and a vertical one at each of
+/// `marks` (when something happened). NaN points are skipped.
+pub fn time_series(path: &Path, title: &str, y_label: &str, lines: &[(String, Vec<(f64, f64)>)], levels: &[f64], marks: &[f64]) -> anyhow::Result<()> {
+    write_png(path, |root| {
+        let points = || lines.iter().flat_map(|(_, l)| l.iter()).filter(|p| p.1.is_finite());
+        let x_max = points().map(|p| p.0).fold(1e-3, f64::max);
+        let (y_min, y_max) = points().map(|p| p.1).chain(levels.iter().copied()).fold((f64::MAX, f64::MIN), |(lo, hi), y| (lo.min(y), hi.max(y)));
+        let (y_min, y_max) = if y_min > y_max { (-1.0, 1.0) } else { (y_min, y_max) };
+        let pad = (y_max - y_min).max(1e-6) * 0.05;
+        let y_range = (y_min - pad)..(y_max + pad);
+        let mut chart = ChartBuilder::on(root)
+            .caption(title, ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0f64..x_max, y_range.clone())?;
+        chart.configure_mesh().x_desc("time (s)").y_desc(y_label).label_style(("sans-serif", 14)).draw()?;
+        let grey = BLACK.mix(0.35);
+        for &level in levels {
+            chart.draw_series(DashedLineSeries::new([(0.0, level), (x_max, level)], 6, 4, grey.into()))?;
+        }
+        for &mark in marks {
+            chart.draw_series(DashedLineSeries::new([(mark, y_range.start), (mark, y_range.end)], 3, 3, grey.into()))?;
+        }
+        for (i, (label, line)) in lines.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            let finite = line.iter().copied().filter(|p| p.1.is_finite());
+            chart
+                .draw_series(LineSeries::new(finite, colour.stroke_width(2)))?
+                .label(label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+        }
+        draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
+        Ok(())
+    })
+}

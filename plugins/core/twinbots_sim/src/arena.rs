@@ -166,6 +166,14 @@ impl Arena {
         self.reseeds += 1;
     }
 
+    /// Restarts the arena's random stream as arena number `stream`'s would start from `seed`:
+    /// runs that must begin alike whatever arena they occupy (a study's tests) share a stream.
+    pub fn reseed_as(&mut self, seed: u64, stream: usize) {
+        self.rng = arena_rng(seed, stream);
+        self.seed = seed;
+        self.reseeds += 1;
+    }
+
     /// How many times the arena was re-seeded: side streams restart when it changes.
     pub fn reseeds(&self) -> u64 {
         self.reseeds

@@ -6,6 +6,7 @@
 
 pub mod arena;
 pub mod devices;
+pub mod disturbance;
 pub mod framing;
 pub mod look;
 pub mod parameters;
@@ -23,6 +24,7 @@ pub use devices::{
     JointDynamics, JointState, Motor, MotorCommand, Mount, Packet, PositionSensor, RadioPlugin, Receiver, SamplingPeriod, TouchSensor,
     Touched, VacuumGripper,
 };
+pub use disturbance::{Push, add_link_mass};
 pub use framing::Framing;
 pub use look::Look;
 pub use parameters::{ParameterKind, ParameterSpec, Parameters, ParametersPlugin};

@@ -47,7 +47,8 @@ impl Plugin for PhysicsPlugin {
                 PhysicsSubstep,
                 (SubstepSet::Actuate, SubstepSet::Integrate, SubstepSet::Measure, SubstepSet::Record).chain(),
             )
-            .add_systems(PhysicsSubstep, integrate_arenas.in_set(SubstepSet::Integrate));
+            .add_systems(PhysicsSubstep, integrate_arenas.in_set(SubstepSet::Integrate))
+            .add_systems(PhysicsSubstep, crate::disturbance::apply_pushes.in_set(SubstepSet::Actuate));
     }
 }
 

@@ -116,7 +116,13 @@ pub struct RobotDescription {
     /// The robot on a test stand, for robot logs: recording, replay and calibration (`None`:
     /// the robot does not support them).
     pub rig: Option<RigDescription>,
+    /// The robot's classical feedback controller, if it has one: one observation of its main
+    /// task in, that step's action out. What studies set learnt policies beside (`classic`).
+    pub feedback: Option<Feedback>,
 }
+
+/// A classical controller: an observation in, an action out.
+pub type Feedback = fn(&[f32]) -> Vec<f32>;
 
 /// A robot alone on a test stand (no cell, no task): what `record`, `replay` and `identify`
 /// drive with logged or generated commands, one parameter set per arena.

@@ -117,6 +117,15 @@ n_epochs = 20
 learning_rate = 1e-3
 linear_lr = true";
 
+/// The classical controller: bang-bang state feedback that drives towards the side the pole is
+/// falling to, with small terms that pull the cart back to the centre. It balances the twin for
+/// whole episodes (`examples/cartpole_balance.rs`); studies set learnt policies beside it.
+pub fn feedback(obs: &[f32]) -> Vec<f32> {
+    let [x, v, angle, rate] = [obs[0], obs[1], obs[2], obs[3]];
+    let push = angle + 0.2 * rate + 0.1 * x + 0.4 * v;
+    vec![if push > 0.0 { 1.0 } else { 0.0 }]
+}
+
 /// How the cart-pole describes itself to the registry.
 pub fn robot() -> RobotDescription {
     RobotDescription {
@@ -129,6 +138,7 @@ pub fn robot() -> RobotDescription {
         defaults: TrainingDefaults { algos: vec![AlgoDefaults { hyperparams: PPO_HYPERPARAMS, ..AlgoDefaults::new("ppo") }], ..default() },
         build: |request| robot::headless_app(sim_settings(), request, CartPolePlugin { pattern: request.pattern, ..default() }),
         rig: Some(rig()),
+        feedback: Some(feedback),
     }
 }
 

@@ -108,6 +108,23 @@ pub fn task_spec() -> TaskSpec {
     balance_task().spec()
 }
 
+/// The classical controller: a linear-quadratic regulator of the pendulum on a base whose
+/// acceleration it chooses (gains from the linearised pendulum, hinge to ball's effective length
+/// 0.96 m, at the 64 ms control step), turned into the wheel speed that reaches that
+/// acceleration within one control step, clipped to the wheels' ±6.4 rad/s. Studies set learnt
+/// policies beside it.
+pub fn feedback(obs: &[f32]) -> Vec<f32> {
+    let [x, v, angle, rate] = [obs[0], obs[1], obs[2], obs[3]];
+    let [kx, kv, ka, kr] = FEEDBACK_GAINS;
+    let acceleration = kx * x + kv * v + ka * angle + kr * rate;
+    let speed = (v + 0.064 * acceleration) / WHEEL_RADIUS;
+    vec![speed.clamp(-MAX_WHEEL_SPEED, MAX_WHEEL_SPEED)]
+}
+
+/// [`feedback`]'s gains (m/s² of base acceleration per m, m/s, rad and rad/s): discrete LQR with
+/// state weights (1, 1, 20, 1) and control weight 0.5.
+const FEEDBACK_GAINS: [f32; 4] = [1.07, 2.41, 31.2, 9.73];
+
 /// How the Pioneer describes itself to the registry.
 pub fn robot() -> RobotDescription {
     RobotDescription {
@@ -123,6 +140,7 @@ pub fn robot() -> RobotDescription {
         },
         build: |request| headless_app(sim_settings(), request, Pioneer3atPlugin),
         rig: Some(rig()),
+        feedback: Some(feedback),
     }
 }
 

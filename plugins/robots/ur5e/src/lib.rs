@@ -129,6 +129,7 @@ pub fn robot() -> RobotDescription {
             headless_app(sim_settings(), request, Ur5ePlugin { task, pattern: request.pattern })
         },
         rig: Some(rig::rig()),
+        feedback: None,
     }
 }
 

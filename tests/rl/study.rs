@@ -1,0 +1,131 @@
+//! Policy test suites (`twinbots study`), as a user runs them: the shipped suites on the
+//! classical controllers, a trained run and its ONNX export side by side; the files they write;
+//! bad suites and controllers as clear errors.
+
+use std::path::{Path, PathBuf};
+
+use crate::delivery::{failed, fixture_run, succeeded, twinbots};
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("twinbots-study-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn study(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    twinbots().current_dir(env!("CARGO_MANIFEST_DIR")).arg("study").args(args).output().unwrap()
+}
+
+/// summary.csv as rows of (column → value).
+fn summary(out: &Path) -> Vec<std::collections::HashMap<String, String>> {
+    let text = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+    lines.map(|l| header.iter().cloned().zip(l.split(',').map(String::from)).collect()).collect()
+}
+
+#[test]
+fn the_cartpole_suite_sets_a_run_and_its_onnx_export_beside_the_classical_controller() {
+    let run = fixture_run("cartpole-balance", "study");
+    let onnx = run.with_extension("onnx");
+    succeeded(twinbots().arg("export").arg(&run).arg("--onnx").arg(&onnx).output().unwrap());
+    let out = temp("cartpole");
+    let controllers = format!("classic,{},{}", run.display(), onnx.display());
+    let stdout = succeeded(study(&["cartpole".as_ref(), "--controller".as_ref(), controllers.as_ref(), "--out".as_ref(), out.as_os_str()]));
+    assert!(stdout.contains("30 runs"), "{stdout}");
+    let rows = summary(&out);
+    assert_eq!(rows.len(), 30, "10 tests × 3 controllers");
+    let row = |controller: &str, test: &str| rows.iter().find(|r| r["controller"] == controller && r["test"] == test).unwrap_or_else(|| panic!("{controller} {test}"));
+    // The classical controller recovers from a light kick and falls to a 0.5 N one: the push acts.
+    assert_eq!(row("classic", "step-0.1N")["survived"], "true");
+    assert_eq!(row("classic", "step-0.5N")["survived"], "false");
+    assert_eq!(row("classic", "step-0.5N")["ended_by"], "pole_fallen");
+    // The run and its export are one policy on one twin: the same figures.
+    let (run_label, onnx_label) = (run.file_name().unwrap().to_str().unwrap(), onnx.file_name().unwrap().to_str().unwrap());
+    for test in ["step-0.2N", "impulse-0.2N-at-4s", "payload-0.1kg"] {
+        let (a, b) = (row(run_label, test), row(onnx_label, test));
+        for column in ["survived", "peak", "overshoot", "settling_time_s", "steady_state_error"] {
+            assert_eq!(a[column], b[column], "{test} {column}");
+        }
+    }
+    // The trained policy holds the pole through the impulse the classical controller falls to.
+    assert_eq!(row(run_label, "impulse-0.2N-at-2s")["survived"], "true");
+    assert_eq!(row("classic", "impulse-0.2N-at-2s")["survived"], "false");
+
+    // Per run: the time series (the push in its column for its two control steps) and metadata.
+    let series = std::fs::read_to_string(out.join("classic/step-0.5N-seed0/timeseries.csv")).unwrap();
+    let mut lines = series.lines();
+    assert_eq!(lines.next().unwrap(), "time_s,cart_x,cart_velocity,pole_angle,pole_rate,action_0,push_n");
+    let pushed: Vec<&str> = lines.filter(|l| l.ends_with(",0.5")).map(|l| l.split(',').next().unwrap()).collect();
+    assert_eq!(pushed, ["2.016", "2.048"], "from the first control step at or after 2 s, for 2 steps of 32 ms");
+    let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("classic/step-0.5N-seed0/metadata.json")).unwrap()).unwrap();
+    assert_eq!(meta["robot"], "cartpole");
+    assert_eq!(meta["run"]["survived"], false);
+    assert_eq!(meta["run"]["force_n"], 0.5);
+    let plots: Vec<_> = std::fs::read_dir(out.join("plots")).unwrap().map(|e| e.unwrap().path()).collect();
+    assert_eq!(plots.len(), 10, "a plot per test");
+    for plot in &plots {
+        assert!(image::open(plot).is_ok(), "{} is a PNG", plot.display());
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("![step-0.5N](plots/step-0.5N.png)") && report.contains("| classic | step-0.5N | 0 | no (pole_fallen at"), "{report}");
+
+    // Same suite, same seeds: the same results.
+    let again = temp("cartpole-again");
+    succeeded(study(&["cartpole".as_ref(), "--controller".as_ref(), controllers.as_ref(), "--out".as_ref(), again.as_os_str()]));
+    assert_eq!(std::fs::read(out.join("summary.csv")).unwrap(), std::fs::read(again.join("summary.csv")).unwrap());
+    for dir in [&out, &again, &run] {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+    let _ = std::fs::remove_file(&onnx);
+}
+
+#[test]
+fn the_pioneer_suite_separates_kicks_its_controller_catches_from_those_it_cannot() {
+    let out = temp("pioneer");
+    succeeded(study(&["pioneer3at".as_ref(), "--out".as_ref(), out.as_os_str()]));
+    let rows = summary(&out);
+    let row = |test: &str| rows.iter().find(|r| r["test"] == test).unwrap();
+    assert_eq!(row("step-1N")["survived"], "true");
+    assert!(!row("step-1N")["settling_time_s"].is_empty(), "settles after a 1 N kick");
+    assert_eq!(row("step-3N")["survived"], "false");
+    for mass in ["0.4", "0.6", "0.8"] {
+        let r = row(&format!("payload-{mass}kg"));
+        assert_eq!(r["survived"], "true", "{mass} kg");
+        assert_eq!(r["payload_kg"], mass);
+    }
+    // A heavier ball, a different swing: the payload reaches the physics.
+    assert_ne!(row("payload-0.4kg")["peak"], row("payload-0.8kg")["peak"]);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn bad_suites_and_controllers_are_clear_errors() {
+    let dir = temp("bad");
+    std::fs::create_dir_all(&dir).unwrap();
+    let shipped = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/studies/cartpole.toml")).unwrap();
+    let ur5e_run = fixture_run("ur5e-reach", "study-bad");
+    for (name, text, args, expected) in [
+        ("link", shipped.replace("link = \"pole_tip\"", "link = \"nose\""), vec![], "link 'nose' is not one of the robot's: cart, pole, pole_tip, wheel1"),
+        ("signal", shipped.replace("signal = \"pole_angle\"", "signal = \"tilt\""), vec![], "signal = 'tilt': cartpole's observation has cart_x, cart_velocity, pole_angle, pole_rate"),
+        ("robot", shipped.replace("robot = \"cartpole\"", "robot = \"pioneer3at\""), vec![], "robot = 'pioneer3at', but the study runs cartpole"),
+        ("key", shipped.replace("window = 1.0", "windw = 1.0"), vec![], "unknown field `windw`"),
+        ("at", shipped.replace("at = [2.0, 4.0]", "at = [2.0, 40.0]"), vec![], "impulse.at = 40 s: must lie in [0, duration = 10 s)"),
+        ("missing", shipped.clone(), vec!["--controller", "no/such/run"], "controller 'no/such/run': neither 'classic', a run directory nor an .onnx file"),
+        ("other-robot", shipped.clone(), vec!["--controller", ur5e_run.to_str().unwrap()], "a run of ur5e, not of cartpole"),
+    ] {
+        let file = dir.join(format!("{name}.toml"));
+        std::fs::write(&file, text).unwrap();
+        let mut all: Vec<&std::ffi::OsStr> = vec!["cartpole".as_ref(), file.as_os_str(), "--out".as_ref(), dir.join("out").into_os_string().leak()];
+        all.extend(args.iter().map(|a| std::ffi::OsStr::new(a)));
+        let stderr = failed(study(&all));
+        assert!(stderr.contains(expected), "{name}: {stderr}");
+        assert!(stderr.contains(&format!("{name}.toml")) || name == "missing" || name == "other-robot", "{name}: names the file: {stderr}");
+    }
+    let stderr = failed(study(&["ur5e".as_ref()]));
+    assert!(stderr.contains("ur5e has no shipped suite"), "{stderr}");
+    let stderr = failed(study(&["cartpole".as_ref(), "--controller".as_ref(), "classic".as_ref(), dir.join("none.toml").as_os_str()]));
+    assert!(stderr.contains("none.toml: no such suite file"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&ur5e_run);
+}
