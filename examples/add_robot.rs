@@ -120,6 +120,7 @@ fn swing_arm() -> RobotDescription {
         build: |request| headless_app(SimSettings { dt: 0.01, substeps: 5, ..default() }, request, SwingArmPlugin),
         rig: None,
         feedback: None,
+        cell: None,
     }
 }
 

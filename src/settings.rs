@@ -21,7 +21,7 @@ pub const PERIODIC_EVAL_SEED_OFFSET: u64 = 1_000_003;
 pub const FINAL_EVAL_SEED_OFFSET: u64 = 2_000_003;
 
 /// The plain settings, as a config file names them (the algorithms' tables come on top).
-const KEYS: &str = "timesteps, arenas, seed, pattern, checkpoint_every, eval_every, eval_episodes, algo, [randomization], [calibration], [pixels]";
+const KEYS: &str = "timesteps, arenas, seed, pattern, checkpoint_every, eval_every, eval_episodes, algo, [randomization], [calibration], [pixels], [cell]";
 
 /// The twin's calibration (`twinbots identify`'s file), recorded in full in the run's
 /// `config.toml`: the run does not depend on the file afterwards.
@@ -100,6 +100,10 @@ pub struct TrainSettings {
     /// (`twinbots_render::pixels`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pixels: Option<PixelSettings>,
+    /// The cell's layout (`--cell FILE`, docs/cells.md), recorded in full: the run does not
+    /// depend on the file afterwards. None: the robot's default cell.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cell: Option<toml::Table>,
     /// The algorithms' hyperparameters, each its `[<algo>]` table: the run's own in full, and
     /// any other a config file named (checked, and kept for a later run).
     #[serde(flatten)]
@@ -124,6 +128,7 @@ pub struct ConfigFile {
     pub randomization: Option<Randomization>,
     pub calibration: Option<CalibrationSetting>,
     pub pixels: Option<PixelSettings>,
+    pub cell: Option<toml::Table>,
     /// `[<algo>]` tables, only the keys given: each replaces that key of the robot's tuned
     /// settings (and of the algorithm's defaults).
     #[serde(flatten)]
@@ -137,6 +142,21 @@ fn algorithm_table<'v>(name: &str, value: &'v toml::Value) -> anyhow::Result<(&'
     })?;
     let table = value.as_table().ok_or_else(|| anyhow::anyhow!("{name} = {value}: must be a table ([{name}] and its keys)"))?;
     Ok((algorithm, table))
+}
+
+/// Reads a cell layout file (`--cell`) as the table a run's settings keep, checked by the robot.
+pub fn read_cell(entry: &RobotEntry, path: &Path) -> anyhow::Result<toml::Table> {
+    let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let table: toml::Table = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let description = entry.cell.ok_or_else(|| anyhow::anyhow!("--cell: {}'s cell is not laid out by a file", entry.name))?;
+    (description.install)(&mut bevy::prelude::App::new(), &text, &path.display().to_string()).map_err(anyhow::Error::msg)?;
+    Ok(table)
+}
+
+/// Makes `cell` (a layout as a table) every arena's in `app`.
+fn install_cell(app: &mut bevy::prelude::App, entry: &RobotEntry, cell: &toml::Table) -> anyhow::Result<()> {
+    let description = entry.cell.ok_or_else(|| anyhow::anyhow!("[cell]: {}'s cell is not laid out by a file", entry.name))?;
+    (description.install)(app, &toml::to_string(cell)?, "[cell]").map_err(anyhow::Error::msg)
 }
 
 impl ConfigFile {
@@ -210,6 +230,10 @@ impl TrainSettings {
         self.design_pattern()?;
         self.randomization.validate()?;
         CalibrationSetting::check_randomization(self.calibration.as_ref(), &self.randomization)?;
+        anyhow::ensure!(
+            self.cell.is_none() || self.design_pattern()? != DesignPattern::Server,
+            "[cell]: design pattern 3's robots build their own (default) cell; use pattern 1 or 2"
+        );
         if let Some(pixels) = &self.pixels {
             pixels.validate()?;
             anyhow::ensure!(
@@ -237,9 +261,13 @@ impl TrainSettings {
         Self::of_run(&RunDir::new(run))?.observe(app, entry, arenas)
     }
 
-    /// Sets up what the run's envs observe in a robot's `app` of `arenas` arenas, before its
-    /// start-up: pixel observations with `[pixels]` (an error when no graphics adapter exists).
+    /// Sets up a robot's `app` of `arenas` arenas as the run's envs are, before its start-up:
+    /// the cell's layout with `[cell]`, pixel observations with `[pixels]` (an error when no
+    /// graphics adapter exists).
     pub fn observe(&self, app: &mut bevy::prelude::App, entry: &RobotEntry, arenas: usize) -> anyhow::Result<()> {
+        if let Some(cell) = &self.cell {
+            install_cell(app, entry, cell)?;
+        }
         match &self.pixels {
             Some(pixels) => pixels.install(app, &entry.framing, arenas),
             None => Ok(()),
@@ -312,6 +340,7 @@ impl TrainSettings {
             randomization: Randomization::default(),
             calibration: None,
             pixels: None,
+            cell: None,
             hyperparams: BTreeMap::new(),
         };
         if algorithm.continuous_only {
@@ -338,6 +367,7 @@ impl TrainSettings {
             s.randomization = layer.randomization.unwrap_or(s.randomization);
             s.calibration = layer.calibration.or(s.calibration);
             s.pixels = layer.pixels.or(s.pixels);
+            s.cell = layer.cell.or(s.cell);
             for (name, value) in &layer.hyperparams {
                 let (algorithm, keys) = algorithm_table(name, value)?;
                 let table = match tables.remove(name) {

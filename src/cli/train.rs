@@ -62,10 +62,14 @@ pub struct Args {
     /// the run's config.toml records its parameters.
     #[arg(long)]
     pub calibration: Option<std::path::PathBuf>,
+    /// Train in the cell laid out by this file (docs/cells.md; the UR5e's default is
+    /// assets/cells/ur5e.toml); the run's config.toml records it as `[cell]`.
+    #[arg(long)]
+    pub cell: Option<std::path::PathBuf>,
     /// Continue the run in this directory from its newest checkpoint. With --timesteps N:
     /// train N steps more than its model has (a run that ended continues from its final model;
     /// SB3's `learn(N, reset_num_timesteps=False)`).
-    #[arg(long, conflicts_with_all = ["robot", "arenas", "seed", "pattern", "config", "out", "algo", "calibration"])]
+    #[arg(long, conflicts_with_all = ["robot", "arenas", "seed", "pattern", "config", "out", "algo", "calibration", "cell"])]
     pub resume: Option<std::path::PathBuf>,
     /// Print the settings the run would use (the robot's defaults ← the config file ← the
     /// flags, key by key) as TOML, and exit without training.
@@ -75,7 +79,7 @@ pub struct Args {
 
 /// `twinbots train`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, calibration, resume, print_config } = args;
+    let Args { robot, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, calibration, cell, resume, print_config } = args;
     if let Some(run) = resume {
         if print_config {
             print!("{}", toml::to_string_pretty(&TrainSettings::of_run(&RunDir::new(run))?)?);
@@ -93,7 +97,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         None => Default::default(),
     };
     let calibration = calibration.map(|path| CalibrationSetting::read(&entry, &path)).transpose()?;
-    let flags = ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, algo, calibration, ..Default::default() };
+    let cell = cell.map(|path| twinbots::settings::read_cell(&entry, &path)).transpose()?;
+    let flags = ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, algo, calibration, cell, ..Default::default() };
     let settings = TrainSettings::resolve(&entry, file, flags)?;
     if print_config {
         print!("{}", toml::to_string_pretty(&settings)?);

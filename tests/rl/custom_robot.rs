@@ -145,6 +145,7 @@ fn turntable() -> RobotDescription {
         build: |request| headless_app(SimSettings { dt: 0.01, substeps: 4, ..default() }, request, TurntablePlugin(request.pattern)),
         rig: None,
         feedback: None,
+        cell: None,
     }
 }
 

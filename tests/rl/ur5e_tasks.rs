@@ -87,6 +87,51 @@ fn pick_and_place_moves_the_part_from_fixture_a_to_fixture_b() {
 }
 
 #[test]
+fn each_arena_builds_its_own_layout_and_the_program_follows_its_fixtures() {
+    use ur5e::layout::{CellLayout, CellLayouts};
+    let default = ur5e::layout::DEFAULT;
+    let moved = default.replace("position = [-0.45, -0.35]", "position = [-0.30, -0.50]").replace("yaw = 0.0", "yaw = 30.0");
+    // Beyond the arm's 0.85 m reach from the base, still on the table.
+    let far = default.replace("position = [-0.45, -0.35]", "position = [-0.93, -0.50]");
+    let layouts: Vec<CellLayout> = [("default", default.to_string()), ("moved", moved), ("far", far)]
+        .iter()
+        .map(|(name, text)| CellLayout::parse(text, name).unwrap())
+        .collect();
+    let mut app = ur5e::pick_place_app(3, 8, DesignPattern::Supervised);
+    app.insert_resource(CellLayouts(layouts.clone()));
+    let mut env = AppVecEnv::new(app);
+    // Each arena's fixtures stand where its layout says, in the arena.
+    let world = env.app_mut().world_mut();
+    let nests: Vec<(bevy::prelude::Entity, bevy::math::Vec3)> = world
+        .query::<(&twinbots_sim::Link, &twinbots_sim::InArena)>()
+        .iter(world)
+        .filter(|(l, _)| l.name == "nest")
+        .map(|(l, a)| (a.0, world.get::<twinbots_sim::Arena>(a.0).unwrap().world.bodies[l.body].translation()))
+        .collect();
+    let far_arena = env.arenas()[2];
+    let far_nests: Vec<_> = nests.iter().filter(|(a, _)| *a == far_arena).map(|(_, p)| p.truncate()).collect();
+    assert_eq!(far_nests.len(), 2);
+    assert!(far_nests.iter().any(|p| (*p - bevy::math::Vec2::new(-0.93, -0.50)).length() < 1e-4), "{far_nests:?}");
+    let dim = env.observation_space().dim();
+    let mut obs = env.reset(Some(1)).unwrap();
+    let mut ended: Vec<Option<EpisodeSummary>> = vec![None; 3];
+    while ended.iter().any(Option::is_none) {
+        let actions: Vec<f32> = obs.chunks(dim).flat_map(ur5e::controller::act).collect();
+        let step = env.step(&actions).unwrap();
+        for (i, ep) in step.episodes.into_iter().enumerate() {
+            if ended[i].is_none() {
+                ended[i] = ep;
+            }
+        }
+        obs = step.obs;
+    }
+    let outcome = |i: usize| ended[i].as_ref().unwrap();
+    assert_eq!(outcome(0).success, Some(true), "default cell: {:?}", outcome(0).metrics);
+    assert_eq!(outcome(1).success, Some(true), "fixture moved, robot turned 30°: {:?}", outcome(1).metrics);
+    assert_eq!(outcome(2).success, Some(false), "place fixture out of reach: {:?}", outcome(2).metrics);
+}
+
+#[test]
 fn the_same_seed_gives_the_same_reach_trajectory() {
     let run = || {
         let mut env = AppVecEnv::new(ur5e::headless_app_with(2, 9, DesignPattern::Supervised));
@@ -147,9 +192,23 @@ fn train_and_eval_ur5e_from_the_cli_report_success_and_twin_figures() {
     std::fs::create_dir_all(&out).unwrap();
     let config = out.join("short.toml");
     std::fs::write(&config, "timesteps = 2048\narenas = 2\neval_every = 2\neval_episodes = 4\n[ppo]\nn_steps = 256\n").unwrap();
+    // In a cell of its own: the place fixture moved (docs/cells.md).
+    let cell = out.join("cell.toml");
+    std::fs::write(&cell, ur5e::layout::DEFAULT.replace("position = [-0.45, -0.35]", "position = [-0.30, -0.45]")).unwrap();
     let run = out.join("run");
-    let status = twinbots().args(["train", "ur5e", "--config"]).arg(&config).arg("--out").arg(&run).status().unwrap();
+    let status = twinbots().args(["train", "ur5e", "--config"]).arg(&config).arg("--cell").arg(&cell).arg("--out").arg(&run).status().unwrap();
     assert!(status.success());
+    let recorded: toml::Table = toml::from_str(&std::fs::read_to_string(run.join("config.toml")).unwrap()).unwrap();
+    assert_eq!(recorded["cell"]["place"]["position"].as_array().unwrap()[1].as_float(), Some(-0.45), "the run keeps its cell: {recorded:?}");
+    // A cell that cannot stand, or a robot without a cell file, is a clear error.
+    let bad = out.join("bad-cell.toml");
+    std::fs::write(&bad, ur5e::layout::DEFAULT.replace("position = [-0.45, -0.35]", "position = [-0.45, -0.95]")).unwrap();
+    let output = twinbots().args(["train", "ur5e", "--print-config", "--cell"]).arg(&bad).output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && err.contains("bad-cell.toml: place.position = [-0.45, -0.95]: the fixture's 12 cm plate leaves the table top"), "{err}");
+    let output = twinbots().args(["train", "cartpole", "--print-config", "--cell"]).arg(&cell).output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && err.contains("cartpole's cell is not laid out by a file"), "{err}");
     let progress = std::fs::read_to_string(run.join("progress.csv")).unwrap();
     assert!(progress.lines().next().unwrap().split(',').any(|c| c == "success_rate"), "{progress}");
     let evaluations = std::fs::read_to_string(run.join("evaluations.csv")).unwrap();

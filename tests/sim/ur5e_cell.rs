@@ -22,7 +22,7 @@ fn cell_app(start: [f32; 6]) -> (App, Entity, CellParts) {
     let mut queue = CommandQueue::default();
     let parts = {
         let mut commands = Commands::new(&mut queue, world);
-        spawn_cell(&mut commands, arena_entity, &mut arena, &CellModels::default(), start)
+        spawn_cell(&mut commands, arena_entity, &mut arena, &CellModels::default(), &ur5e::layout::CellLayout::default(), start)
     };
     queue.apply(world);
     arena.mark_initial();
@@ -235,7 +235,7 @@ fn homing_returns_the_arm_to_its_home_pose() {
 #[test]
 fn the_vacuum_gripper_seizes_only_what_is_within_its_stroke() {
     let (mut app, _, parts) = cell_app(HOME);
-    let top = ur5e::cell::part_seat(ur5e::cell::FIXTURE_A) + Vec3::Z * ur5e::cell::PART_HEIGHT;
+    let top = ur5e::cell::part_seat(ur5e::layout::Fixtures::default().pick) + Vec3::Z * ur5e::cell::PART_HEIGHT;
     let part_z = |app: &App| {
         let link = app.world().get::<Link>(parts.part).unwrap();
         let arena = app.world().get::<Arena>(link_arena(app, &parts)).unwrap();
@@ -280,7 +280,7 @@ fn collisions_are_what_the_arms_contact_sensors_report() {
     let (mut app, _, parts) = cell_app(HOME);
     let cup = |app: &App| app.world().get::<ContactSensor>(parts.contact_sensors[6]).unwrap().clone();
     assert!(!in_collision(&mut app, &parts), "the arm at home touches nothing");
-    let top = ur5e::cell::part_seat(ur5e::cell::FIXTURE_A) + Vec3::Z * ur5e::cell::PART_HEIGHT;
+    let top = ur5e::cell::part_seat(ur5e::layout::Fixtures::default().pick) + Vec3::Z * ur5e::cell::PART_HEIGHT;
     move_tool(&mut app, &parts, top);
     run(&mut app, 5);
     assert_eq!(cup(&app).contacts, vec![Touched::Link(parts.part)], "the cup rests on the part");

@@ -119,6 +119,18 @@ pub struct RobotDescription {
     /// The robot's classical feedback controller, if it has one: one observation of its main
     /// task in, that step's action out. What studies set learnt policies beside (`classic`).
     pub feedback: Option<Feedback>,
+    /// How the robot's cell is laid out by a file (`None`: its cell is code only).
+    pub cell: Option<CellDescription>,
+}
+
+/// A robot whose cell is data: its default layout file and how an app takes another.
+#[derive(Clone, Copy, Debug)]
+pub struct CellDescription {
+    /// The default layout's TOML text (a file under `assets/cells`, compiled in).
+    pub default: &'static str,
+    /// Checks a layout's TOML text (errors name `file` and the entry) and makes it every
+    /// arena's in `app`, before the app's start-up builds the cells.
+    pub install: fn(app: &mut App, text: &str, file: &str) -> Result<(), String>,
 }
 
 /// A classical controller: an observation in, an action out.

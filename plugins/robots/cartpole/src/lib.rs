@@ -139,6 +139,7 @@ pub fn robot() -> RobotDescription {
         build: |request| robot::headless_app(sim_settings(), request, CartPolePlugin { pattern: request.pattern, ..default() }),
         rig: Some(rig()),
         feedback: Some(feedback),
+        cell: None,
     }
 }
 

@@ -141,6 +141,7 @@ pub fn robot() -> RobotDescription {
         build: |request| headless_app(sim_settings(), request, Pioneer3atPlugin),
         rig: Some(rig()),
         feedback: Some(feedback),
+        cell: None,
     }
 }
 

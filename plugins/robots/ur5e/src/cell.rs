@@ -1,6 +1,6 @@
 //! The assembly cell: a table on the floor, the UR5e bolted to it, two nest fixtures and a part
-//! that starts in fixture A. Positions are in the robot's base frame (on the table top, z up,
-//! the arm's zero pose pointing along −x).
+//! that starts in the pick fixture, where its [`CellLayout`] puts them. The program and the tasks
+//! work in the robot's base frame (on the table top, z up, the arm's zero pose pointing along −x).
 
 use std::path::Path;
 
@@ -10,6 +10,7 @@ use twinbots_sim::urdf::{RobotModel, parse_urdf};
 use twinbots_sim::{Arena, ContactSensor, InArena, Motor, MotorCommand, Mount, SpawnOptions, VacuumGripper, spawn_robot};
 
 use crate::kinematics::JOINTS;
+use crate::layout::CellLayout;
 
 pub const URDF: &str = include_str!("../../../../assets/robots/ur5e/ur5e.urdf");
 pub const URDF_PATH: &str = "assets/robots/ur5e/ur5e.urdf";
@@ -17,11 +18,6 @@ const FIXTURE_URDF: &str = include_str!("../../../../assets/robots/ur5e/fixture.
 const PART_URDF: &str = include_str!("../../../../assets/robots/ur5e/part.urdf");
 const ASSETS: &str = "assets/robots/ur5e";
 
-/// Height of the table top above the floor (m): the robot's base plane.
-pub const TABLE_HEIGHT: f32 = 0.75;
-/// Centres of the fixtures' plates on the table, in the base frame.
-pub const FIXTURE_A: Vec3 = Vec3::new(-0.45, 0.20, 0.0);
-pub const FIXTURE_B: Vec3 = Vec3::new(-0.45, -0.35, 0.0);
 /// Thickness of a fixture's plate: the pocket floor's height.
 pub const POCKET_FLOOR: f32 = 0.02;
 /// How far the part can sit off its pocket's centre (m): an 8 cm pocket for a 5 cm part.
@@ -37,9 +33,9 @@ pub const CUP_STROKE: f32 = 0.015;
 pub const ARM_BODIES: [&str; 7] =
     ["base_link", "shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link"];
 
-/// The robot's base in the arena (world) frame.
+/// The robot's base in the arena (world) frame, in the default cell.
 pub fn base_pose() -> Pose {
-    Pose::from_translation(Vec3::new(0.0, 0.0, TABLE_HEIGHT))
+    CellLayout::default().base_pose()
 }
 
 /// Where the part rests in a fixture: its bottom on the pocket floor, in the base frame.
@@ -88,18 +84,22 @@ pub struct CellParts {
     pub base: Pose,
 }
 
-/// Builds the cell into `arena`, the arm at `start` (joint angles), and returns its parts.
-pub fn spawn_cell(commands: &mut Commands, arena_entity: Entity, arena: &mut Arena, models: &CellModels, start: [f32; 6]) -> CellParts {
-    let base = base_pose();
-    arena.add_ground(0.8);
-    // The table: 1.3 × 1.2 m, the base 0.3 m from its back edge.
-    let half = Vec3::new(0.65, 0.6, TABLE_HEIGHT / 2.0);
-    arena.add_static_box(half, Vec3::new(-0.35, 0.0, TABLE_HEIGHT / 2.0), 0.8);
-    for fixture in [FIXTURE_A, FIXTURE_B] {
-        let pose = base * Pose::from_translation(fixture);
+/// Builds the cell of `layout` into `arena`, the arm at `start` (joint angles), and returns its
+/// parts.
+pub fn spawn_cell(commands: &mut Commands, arena_entity: Entity, arena: &mut Arena, models: &CellModels, layout: &CellLayout, start: [f32; 6]) -> CellParts {
+    let base = layout.base_pose();
+    arena.add_ground(layout.floor.friction);
+    let table = &layout.table;
+    let half = Vec3::new(table.size[0] / 2.0, table.size[1] / 2.0, table.height / 2.0);
+    arena.add_static_box(half, Vec3::new(table.centre[0], table.centre[1], table.height / 2.0), table.friction);
+    for obstacle in &layout.obstacles {
+        arena.add_static_box(Vec3::from(obstacle.size) / 2.0, Vec3::from(obstacle.centre), 0.8);
+    }
+    for fixture in [&layout.pick, &layout.place] {
+        let pose = layout.fixture_pose(fixture);
         spawn_robot(commands, arena_entity, arena, &models.fixture, SpawnOptions { base: pose, fixed_base: true, environment: true, ..default() });
     }
-    let part_pose = base * Pose::from_translation(part_seat(FIXTURE_A));
+    let part_pose = base * Pose::from_translation(part_seat(layout.fixtures().pick));
     let part = spawn_robot(commands, arena_entity, arena, &models.part, SpawnOptions { base: part_pose, environment: true, friction: 0.8, ..default() });
 
     let joint_positions = JOINTS.iter().zip(start).map(|(name, q)| (name.to_string(), q)).collect();

@@ -34,7 +34,7 @@ impl Default for ReachController {
 impl ReachController {
     /// A new reach: a target from the task's sampler, no action yet.
     pub fn new_reach(&mut self, rng: &mut impl Rng) {
-        self.state.target = crate::reach::sample_target(rng);
+        self.state.target = crate::reach::sample_target(rng, self.state.fixtures.pick);
         self.state.actions = ActionHistory::default();
     }
 

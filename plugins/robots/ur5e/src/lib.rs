@@ -23,6 +23,7 @@ pub mod controller;
 pub mod deploy;
 pub mod goal;
 pub mod kinematics;
+pub mod layout;
 pub mod metrics;
 pub mod pick_place;
 pub mod program;
@@ -43,6 +44,7 @@ use twinbots_sim::{
 };
 
 use crate::cell::{CellModels, CellParts};
+use crate::layout::CellLayouts;
 use crate::metrics::TwinMeter;
 pub use crate::state::CellState;
 
@@ -130,6 +132,7 @@ pub fn robot() -> RobotDescription {
         },
         rig: Some(rig::rig()),
         feedback: None,
+        cell: Some(twinbots_task::robot::CellDescription { default: layout::DEFAULT, install: layout::install }),
     }
 }
 
@@ -156,6 +159,7 @@ impl Plugin for Ur5ePlugin {
             Ur5eTask::PickPlace => pick_place::pick_place_task(),
         };
         app.init_resource::<CellModels>()
+            .init_resource::<CellLayouts>()
             .insert_resource(self.task)
             .add_plugins(TaskTermsPlugin::new(definition, self.pattern))
             .add_systems(Startup, spawn_cells)
@@ -187,10 +191,12 @@ impl Plugin for Ur5ePlugin {
     }
 }
 
-fn spawn_cells(mut commands: Commands, models: Res<CellModels>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
+fn spawn_cells(mut commands: Commands, models: Res<CellModels>, layouts: Res<CellLayouts>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
     spawn_arenas(&mut commands, &config, &settings, |commands, arena_entity, arena| {
-        let parts = cell::spawn_cell(commands, arena_entity, arena, &models, kinematics::HOME);
-        (parts, CellState::default(), TwinMeter::default())
+        let layout = layouts.of_arena(arena.index);
+        let parts = cell::spawn_cell(commands, arena_entity, arena, &models, layout, kinematics::HOME);
+        let fixtures = layout.fixtures();
+        (parts, CellState { fixtures, program: program::Program::new(fixtures), ..default() }, TwinMeter::default())
     });
 }
 

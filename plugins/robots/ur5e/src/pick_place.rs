@@ -21,7 +21,7 @@ use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{SimSettings, Supervisor, VacuumGripper};
 
 use crate::arm::{ACTION_DIM, ActionHistory};
-use crate::cell::{CellParts, FIXTURE_A, FIXTURE_B, POCKET_PLAY, base_pose, part_seat};
+use crate::cell::{CellParts, POCKET_PLAY, part_seat};
 use crate::metrics::TwinMeter;
 use crate::reach::{motion_costs, observations, sample_start};
 use crate::state::CellState;
@@ -87,8 +87,8 @@ pub fn pick_place_task() -> TaskDefinition<CellState> {
 /// Start event: the program starts over, the arm near home and the part anywhere its pocket
 /// in fixture A lets it sit, at any yaw.
 fn new_program(s: &mut CellState, rng: &mut ChaCha8Rng) {
-    s.program = Program::default();
-    s.target = waypoint(s.program.stage);
+    s.program = Program::new(s.fixtures);
+    s.target = s.program.target();
     s.suction = false;
     s.actions = ActionHistory::default();
     s.start_pose = sample_start(rng);
@@ -99,16 +99,16 @@ fn new_program(s: &mut CellState, rng: &mut ChaCha8Rng) {
 /// Patterns 1 and 2: the Supervisor seats the part where the start drew it.
 pub fn place_part(mut supervisor: Supervisor, arenas: Query<(&CellParts, &CellState), With<Resetting>>) {
     for (parts, state) in &arenas {
-        let seat = Pose::from_parts(part_seat(FIXTURE_A) + state.part_offset, Quat::from_rotation_z(state.part_yaw));
-        supervisor.set_link_pose(parts.part, base_pose() * seat);
+        let seat = Pose::from_parts(part_seat(state.fixtures.pick) + state.part_offset, Quat::from_rotation_z(state.part_yaw));
+        supervisor.set_link_pose(parts.part, parts.base * seat);
     }
 }
 
-/// Whether the part stands in fixture B's pocket: judged by the evaluator, who may look.
-fn part_placed(supervisor: &Supervisor, parts: &CellParts) -> bool {
+/// Whether the part stands in the place fixture's pocket: judged by the evaluator, who may look.
+fn part_placed(supervisor: &Supervisor, parts: &CellParts, state: &CellState) -> bool {
     let Some(part) = supervisor.link_state(parts.part) else { return false };
-    let pose = base_pose().inverse() * part.pose;
-    let seat = part_seat(FIXTURE_B);
+    let pose = parts.base.inverse() * part.pose;
+    let seat = part_seat(state.fixtures.place);
     let off_centre = (pose.translation - seat).truncate().abs();
     off_centre.max_element() < PLACE_TOLERANCE
         && (pose.translation.z - seat.z).abs() < 0.005
@@ -170,7 +170,7 @@ pub fn report(
 ) {
     for (parts, state, meter, mut e) in &mut arenas {
         if e.terminated || e.truncated {
-            let placed = state.program.stage == Stage::Done && part_placed(&supervisor, parts);
+            let placed = state.program.stage == Stage::Done && part_placed(&supervisor, parts, state);
             let outcome = Outcome::of(state.program.stage, state.safety.stopped(), state.program.holding, placed);
             e.success = Some(outcome == Outcome::Placed);
             for o in Outcome::ALL {

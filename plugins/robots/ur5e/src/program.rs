@@ -4,7 +4,8 @@
 use bevy::prelude::*;
 
 use crate::arm::ArmState;
-use crate::cell::{FIXTURE_A, FIXTURE_B, PART_HEIGHT, part_seat};
+use crate::cell::{PART_HEIGHT, part_seat};
+use crate::layout::Fixtures;
 
 /// Height of the approach and retract waypoints above the part's top (m).
 pub const CLEARANCE: f32 = 0.10;
@@ -51,23 +52,27 @@ pub struct Program {
     /// as much, so the moves that carry and place it are shifted by it (a UR program's
     /// pose_trans of the grip pose). Heightwise the cup drew the part against its face.
     pub grip_offset: Vec3,
+    /// Where the cell's fixtures are (its layout's).
+    pub fixtures: Fixtures,
 }
 
 impl Default for Program {
+    /// The program of the default cell.
     fn default() -> Self {
-        Self { stage: Stage::Approach, waited: 0, holding: false, grip_offset: Vec3::ZERO }
+        Self::new(Fixtures::default())
     }
 }
 
-/// The TCP target of a stage, in the base frame.
-pub fn waypoint(stage: Stage) -> Vec3 {
+/// The TCP target of a stage, in the base frame, for the cell's `fixtures`.
+pub fn waypoint(stage: Stage, fixtures: &Fixtures) -> Vec3 {
     let top = |fixture: Vec3| part_seat(fixture) + Vec3::Z * PART_HEIGHT;
+    let (pick, place) = (fixtures.pick, fixtures.place);
     match stage {
-        Stage::Approach | Stage::Lift => top(FIXTURE_A) + Vec3::Z * CLEARANCE,
-        Stage::Descend | Stage::Grip | Stage::Failed => top(FIXTURE_A) + Vec3::Z * GRIP_GAP,
-        Stage::Transfer | Stage::Retract | Stage::Done => top(FIXTURE_B) + Vec3::Z * CLEARANCE,
-        Stage::Align => top(FIXTURE_B) + Vec3::Z * ALIGN_HEIGHT,
-        Stage::Lower | Stage::Release => top(FIXTURE_B) + Vec3::Z * DROP_HEIGHT,
+        Stage::Approach | Stage::Lift => top(pick) + Vec3::Z * CLEARANCE,
+        Stage::Descend | Stage::Grip | Stage::Failed => top(pick) + Vec3::Z * GRIP_GAP,
+        Stage::Transfer | Stage::Retract | Stage::Done => top(place) + Vec3::Z * CLEARANCE,
+        Stage::Align => top(place) + Vec3::Z * ALIGN_HEIGHT,
+        Stage::Lower | Stage::Release => top(place) + Vec3::Z * DROP_HEIGHT,
     }
 }
 
@@ -77,11 +82,16 @@ pub fn waypoint(stage: Stage) -> Vec3 {
 pub const STRAIGHT_TOLERANCE: f32 = 0.003;
 
 impl Program {
+    /// A program at its start, in a cell with these fixtures.
+    pub fn new(fixtures: Fixtures) -> Self {
+        Self { stage: Stage::Approach, waited: 0, holding: false, grip_offset: Vec3::ZERO, fixtures }
+    }
+
     /// The tool target of the stage: [`waypoint`], shifted by the grip offset while the part
     /// is carried to its place.
     pub fn waypoint(&self, stage: Stage) -> Vec3 {
         let carried = matches!(stage, Stage::Transfer | Stage::Align | Stage::Lower | Stage::Release);
-        waypoint(stage) + if carried { self.grip_offset } else { Vec3::ZERO }
+        waypoint(stage, &self.fixtures) + if carried { self.grip_offset } else { Vec3::ZERO }
     }
 
     /// Where the tool is sent now: the stage's waypoint.
@@ -109,7 +119,7 @@ impl Program {
             arm.has_reached(target)
         };
         if self.stage == Stage::Grip && holding {
-            self.grip_offset = (arm.tcp.translation - waypoint(Stage::Grip)).with_z(0.0);
+            self.grip_offset = (arm.tcp.translation - waypoint(Stage::Grip, &self.fixtures)).with_z(0.0);
         }
         let next = match self.stage {
             Stage::Approach if reached => Some(Stage::Descend),
@@ -159,14 +169,14 @@ mod tests {
         let mut program = Program { stage: Stage::Lower, ..default() };
         assert!(program.moves_straight());
         // 5 mm above the waypoint: within the reach's 1 cm, not yet within the 3 mm.
-        program.step(&arm_at(waypoint(Stage::Lower) + Vec3::Z * 0.005), true);
+        program.step(&arm_at(waypoint(Stage::Lower, &Fixtures::default()) + Vec3::Z * 0.005), true);
         assert_eq!(program.stage, Stage::Lower);
-        program.step(&arm_at(waypoint(Stage::Lower) + Vec3::Z * 0.002), true);
+        program.step(&arm_at(waypoint(Stage::Lower, &Fixtures::default()) + Vec3::Z * 0.002), true);
         assert_eq!(program.stage, Stage::Release);
         // The free moves are the policy's, done within its 1 cm.
         let mut transfer = Program { stage: Stage::Transfer, ..default() };
         assert!(!transfer.moves_straight());
-        transfer.step(&arm_at(waypoint(Stage::Transfer) + Vec3::Z * 0.008), true);
+        transfer.step(&arm_at(waypoint(Stage::Transfer, &Fixtures::default()) + Vec3::Z * 0.008), true);
         assert_eq!(transfer.stage, Stage::Align);
     }
 
@@ -175,15 +185,15 @@ mod tests {
         let mut program = Program { stage: Stage::Grip, ..default() };
         let off = Vec3::new(0.006, -0.004, 0.002);
         // Seized with the tool 6 mm and −4 mm off the grip waypoint across, 2 mm higher.
-        assert!(program.step(&arm_at(waypoint(Stage::Grip) + off), true), "suction stays on");
+        assert!(program.step(&arm_at(waypoint(Stage::Grip, &Fixtures::default()) + off), true), "suction stays on");
         assert_eq!(program.stage, Stage::Lift);
         assert!((program.grip_offset - off.with_z(0.0)).length() < 1e-6, "{}", program.grip_offset);
         // The moves that carry and place the part are shifted across by as much; the pick's not.
         for stage in [Stage::Transfer, Stage::Align, Stage::Lower, Stage::Release] {
-            assert!((program.waypoint(stage) - (waypoint(stage) + off.with_z(0.0))).length() < 1e-6, "{stage:?}");
+            assert!((program.waypoint(stage) - (waypoint(stage, &Fixtures::default()) + off.with_z(0.0))).length() < 1e-6, "{stage:?}");
         }
-        assert_eq!(program.waypoint(Stage::Lift), waypoint(Stage::Lift));
-        assert_eq!(program.waypoint(Stage::Retract), waypoint(Stage::Retract));
+        assert_eq!(program.waypoint(Stage::Lift), waypoint(Stage::Lift, &Fixtures::default()));
+        assert_eq!(program.waypoint(Stage::Retract), waypoint(Stage::Retract, &Fixtures::default()));
         // Lowered onto the shifted waypoint, the program lets go there.
         program.stage = Stage::Lower;
         program.step(&arm_at(program.waypoint(Stage::Lower)), true);

@@ -9,7 +9,7 @@ use twinbots_task::{Episode, ObservationTerm, RewardTerm, SolvedCriterion, Space
 use twinbots_sim::SimSettings;
 
 use crate::arm::{ACTION_DIM, ActionHistory};
-use crate::cell::{FIXTURE_A, PART_HEIGHT, POCKET_FLOOR};
+use crate::cell::{PART_HEIGHT, POCKET_FLOOR};
 use crate::kinematics::{self, HOME, JOINT_RANGE};
 use crate::metrics::TwinMeter;
 use crate::state::CellState;
@@ -28,14 +28,15 @@ pub const TARGET_HEIGHT: [f32; 2] = [0.05, 0.35];
 /// Start poses: home with every joint off by up to this much (rad).
 pub const START_SPREAD: f32 = 0.05;
 
-/// A target over the table, not inside the part waiting in fixture A.
-pub fn sample_target(rng: &mut impl Rng) -> Vec3 {
+/// A target over the table, not inside the part waiting in the pick fixture (at `pick`, base
+/// frame).
+pub fn sample_target(rng: &mut impl Rng, pick: Vec3) -> Vec3 {
     loop {
         let r = rng.random_range(TARGET_RADIUS[0]..=TARGET_RADIUS[1]);
         let a = std::f32::consts::PI + rng.random_range(-TARGET_HALF_ANGLE..=TARGET_HALF_ANGLE);
         let z = rng.random_range(TARGET_HEIGHT[0]..=TARGET_HEIGHT[1]);
         let target = Vec3::new(r * a.cos(), r * a.sin(), z);
-        let over_part = (target.truncate() - FIXTURE_A.truncate()).length() < 0.06;
+        let over_part = (target.truncate() - pick.truncate()).length() < 0.06;
         if !(over_part && z < POCKET_FLOOR + PART_HEIGHT + 0.02) {
             return target;
         }
@@ -161,7 +162,7 @@ pub fn reach_task() -> TaskDefinition<CellState> {
 /// arrived: a pick-and-place program chains them), near home otherwise.
 fn new_reach(s: &mut CellState, rng: &mut rand_chacha::ChaCha8Rng) {
     let arrived = s.arrived().then_some(s.arm.q);
-    s.target = sample_target(rng);
+    s.target = sample_target(rng, s.fixtures.pick);
     let near_home = sample_start(rng);
     let chain = rng.random::<bool>();
     s.start_pose = arrived.filter(|_| chain).unwrap_or(near_home);

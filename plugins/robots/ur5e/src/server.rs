@@ -15,7 +15,7 @@ use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{Motor, Operator};
 
 use crate::arm;
-use crate::cell::{CellParts, FIXTURE_A, part_seat};
+use crate::cell::{CellParts, part_seat};
 use crate::metrics::TwinMeter;
 use crate::state::CellState;
 
@@ -53,12 +53,12 @@ fn home(mut robots: Query<(&CellParts, &mut CellState, &Controller, &mut AtHome)
 
 /// The lab operator: when an episode is about to start and the part is out of fixture A, puts
 /// it back.
-fn operate(mut operator: Operator, robots: Query<(&CellParts, &Controller)>) {
-    for (parts, controller) in &robots {
+fn operate(mut operator: Operator, robots: Query<(&CellParts, &CellState, &Controller)>) {
+    for (parts, state, controller) in &robots {
         if controller.phase() != Phase::Starting {
             continue;
         }
-        let seat = parts.base * Pose::from_translation(part_seat(FIXTURE_A));
+        let seat = parts.base * Pose::from_translation(part_seat(state.fixtures.pick));
         let out_of_place = operator.object_pose(parts.part).is_none_or(|p| {
             (p.translation - seat.translation).length() > PART_OUT_OF_PLACE || p.rotation.angle_between(seat.rotation) > 0.05
         });

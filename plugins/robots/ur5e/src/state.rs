@@ -5,6 +5,7 @@
 use bevy::prelude::*;
 
 use crate::arm::{ActionHistory, ArmState};
+use crate::layout::Fixtures;
 use crate::program::Program;
 use crate::safety::Safety;
 
@@ -29,6 +30,8 @@ pub struct CellState {
     pub start_pose: [f32; 6],
     pub part_offset: Vec3,
     pub part_yaw: f32,
+    /// Where the arena's cell has its fixtures (its layout's; the default cell's by default).
+    pub fixtures: Fixtures,
 }
 
 impl CellState {
