@@ -100,10 +100,22 @@ pub fn evaluation_env(
     calibration: &twinbots_sim::Parameters,
 ) -> anyhow::Result<AppVecEnv> {
     let arenas = arenas.clamp(1, episodes.max(1));
+    Ok(AppVecEnv::new(evaluation_app(entry, task, arenas, seed, settings, calibration)?))
+}
+
+/// [`evaluation_env`]'s app before its start-up, `arenas` arenas: for callers that add to it first.
+pub fn evaluation_app(
+    entry: &RobotEntry,
+    task: Option<&str>,
+    arenas: usize,
+    seed: u64,
+    settings: &TrainSettings,
+    calibration: &twinbots_sim::Parameters,
+) -> anyhow::Result<bevy::app::App> {
     let mut app = entry.app(task, arenas, seed, settings.in_process_pattern()?)?;
     twinbots_task::calibration::calibrate(&mut app, calibration);
     settings.observe(&mut app, entry, arenas)?;
-    Ok(AppVecEnv::new(app))
+    Ok(app)
 }
 
 /// Default run directory: `runs/<robot>-<unix seconds>`.

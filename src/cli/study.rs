@@ -1,9 +1,9 @@
-//! `twinbots study <robot> [SUITE.toml] --out DIR`: a policy test suite on the robot's twin
-//! (docs/studies.md).
+//! `twinbots study <robot> [FILE.toml] --out DIR`: a policy test suite (the pendulums) or a cell
+//! study (the UR5e) on the robot's twin (docs/studies.md).
 
 use std::path::PathBuf;
 
-use twinbots::study::{report, run_suite};
+use twinbots::study::{cell, report, run_suite};
 
 use crate::registry;
 
@@ -12,7 +12,8 @@ use crate::registry;
 pub struct Args {
     /// The robot (see `twinbots robots`).
     pub robot: String,
-    /// The suite; default the robot's shipped one, `assets/studies/<robot>.toml`.
+    /// The suite (pendulums) or cell study (UR5e); default the robot's shipped one,
+    /// `assets/studies/<robot>.toml`.
     pub suite: Option<PathBuf>,
     /// Where the results go (made if missing).
     #[arg(long, default_value = "study")]
@@ -33,6 +34,13 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         suite.display(),
         if args.suite.is_none() { format!(" ({} has no shipped suite: name one)", entry.name) } else { String::new() }
     );
+    if entry.cell.is_some() {
+        let result = cell::run(&entry, &suite, &args.controller)?;
+        cell::report::write(&result, &suite, &args.out)?;
+        let placed = result.episodes.iter().filter(|e| e.success).count();
+        println!("{} episodes, {placed} placed; results in {} (results.csv, summary.csv, phases.csv, report.md, plots/)", result.episodes.len(), args.out.display());
+        return Ok(());
+    }
     let result = run_suite(&entry, &suite, &args.controller)?;
     report::write(&result, &suite, &args.out)?;
     let survived = result.runs.iter().filter(|r| r.survived).count();

@@ -10,7 +10,7 @@ use twinbots_task::{AppVecEnv, DesignPattern};
 use twinbots_task::robot::Feedback;
 
 use crate::registry::RobotEntry;
-use crate::run::evaluation_env;
+use crate::run::evaluation_app;
 use crate::settings::TrainSettings;
 
 /// A controller named in a study.
@@ -63,13 +63,23 @@ impl NamedController {
         Ok(Self { label, spec: spec.into(), controller })
     }
 
-    /// `arenas` arenas of the robot's main task as this controller runs it: a run's model on its
-    /// own twin (pattern, calibration), the others on the nominal twin under design pattern 1.
-    pub fn env(&self, entry: &RobotEntry, arenas: usize, seed: u64) -> anyhow::Result<AppVecEnv> {
-        let env = match &self.controller {
-            Controller::Run { settings, .. } => evaluation_env(entry, None, arenas, arenas, seed, settings, &settings.calibration_parameters())?,
-            _ => AppVecEnv::new(entry.app(None, arenas, seed, DesignPattern::Supervised)?),
+    /// `arenas` arenas of the robot's `task` (`None`: its main one) as this controller runs it:
+    /// a run's model on its own twin (pattern, calibration), the others on the nominal twin
+    /// under design pattern 1. `prepare` adds to the app before its start-up.
+    pub fn env(
+        &self,
+        entry: &RobotEntry,
+        task: Option<&str>,
+        arenas: usize,
+        seed: u64,
+        prepare: impl FnOnce(&mut bevy::app::App) -> anyhow::Result<()>,
+    ) -> anyhow::Result<AppVecEnv> {
+        let mut app = match &self.controller {
+            Controller::Run { settings, .. } => evaluation_app(entry, task, arenas, seed, settings, &settings.calibration_parameters())?,
+            _ => entry.app(task, arenas, seed, DesignPattern::Supervised)?,
         };
+        prepare(&mut app)?;
+        let env = AppVecEnv::new(app);
         let (observation, action) = (env.observation_space(), env.action_space());
         match &self.controller {
             Controller::Run { model, .. } => model.check_spaces(observation, action)?,

@@ -1,7 +1,10 @@
-//! Policy test suites (`twinbots study <robot> SUITE.toml`): every test of the suite, for every
-//! controller and seed, each run in its own arena of one app per controller, side by side. A
-//! run records its time series; its figures come from [`metrics`]; [`report`] writes the files.
+//! Studies (`twinbots study <robot> FILE.toml`, docs/studies.md). For the pendulums, a policy
+//! test suite: every test of the suite, for every controller and seed, each run in its own arena
+//! of one app per controller, side by side; a run records its time series, its figures come
+//! from [`metrics`], [`report`] writes the files. For a robot with a cell, a cell study
+//! ([`cell`]): layouts, speeds, payloads, latencies and failure scenarios swept.
 
+pub mod cell;
 pub mod controller;
 pub mod metrics;
 pub mod report;
@@ -87,13 +90,13 @@ pub fn run_suite(entry: &RobotEntry, suite_path: &Path, controllers: &[String]) 
 
 /// Every test × seed of the suite for one controller: one arena each, stepped together.
 fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedController) -> anyhow::Result<Vec<RunRecord>> {
-    let probe = controller.env(entry, 1, 0)?;
+    let probe = controller.env(entry, None, 1, 0, |_| Ok(()))?;
     let settings = *probe.app().world().resource::<SimSettings>();
     drop(probe);
     let control_dt = settings.control_seconds();
     let tests = suite.tests(control_dt);
     let plan: Vec<(&NamedTest, u64)> = tests.iter().flat_map(|t| suite.seeds.iter().map(move |&s| (t, s))).collect();
-    let mut env = controller.env(entry, plan.len(), suite.seeds[0])?;
+    let mut env = controller.env(entry, None, plan.len(), suite.seeds[0], |_| Ok(()))?;
     let arenas = env.arenas().to_vec();
     let push_link = find_links(env.app_mut().world_mut(), &arenas, &suite.push.link)?;
     // Every run starts as the suite's first arena would from its seed, whichever arena it has.

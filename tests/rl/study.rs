@@ -122,10 +122,64 @@ fn bad_suites_and_controllers_are_clear_errors() {
         assert!(stderr.contains(expected), "{name}: {stderr}");
         assert!(stderr.contains(&format!("{name}.toml")) || name == "missing" || name == "other-robot", "{name}: names the file: {stderr}");
     }
-    let stderr = failed(study(&["ur5e".as_ref()]));
-    assert!(stderr.contains("ur5e has no shipped suite"), "{stderr}");
     let stderr = failed(study(&["cartpole".as_ref(), "--controller".as_ref(), "classic".as_ref(), dir.join("none.toml").as_os_str()]));
     assert!(stderr.contains("none.toml: no such suite file"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&ur5e_run);
+}
+
+#[test]
+fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
+    let dir = temp("cell");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("study.toml");
+    std::fs::write(
+        &file,
+        "robot = \"ur5e\"\nepisodes = 2\n[[layout]]\nname = \"default\"\n[[layout]]\nname = \"place-far\"\nplace = [-0.93, -0.50]\n\
+         [factors]\npayload = [0.2, 1.5]\nfailure = [\"none\", \"failed-grasp\"]\n",
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let stdout = succeeded(study(&["ur5e".as_ref(), file.as_os_str(), "--out".as_ref(), out.as_os_str()]));
+    assert!(stdout.contains("16 episodes"), "{stdout}");
+    let rows = summary(&out);
+    assert_eq!(rows.len(), 2 * 2 * 2, "layouts × payloads × failures");
+    let row = |layout: &str, payload: &str, failure: &str| {
+        rows.iter().find(|r| r["layout"] == layout && r["payload_kg"] == payload && r["failure"] == failure).unwrap_or_else(|| panic!("{layout} {payload} {failure}"))
+    };
+    for payload in ["0.2", "1.5"] {
+        // The place fixture beyond the arm's reach: every cycle that gets that far is a reach
+        // failure, and none succeeds; the default layout has none.
+        assert_eq!(row("place-far", payload, "none")["reach_failures"], "2");
+        assert_eq!(row("place-far", payload, "none")["success_rate"], "0.0000");
+        assert_eq!(row("default", payload, "none")["reach_failures"], "0");
+        assert_eq!(row("default", payload, "none")["success_rate"], "1.0000");
+        // A grasp that fails never carries the part anywhere: no reach failure, no success.
+        assert_eq!(row("place-far", payload, "failed-grasp")["reach_failures"], "0");
+        assert_eq!(row("default", payload, "failed-grasp")["success_rate"], "0.0000");
+    }
+    let energy = |payload: &str| row("default", payload, "none")["energy_mean_j"].parse::<f64>().unwrap();
+    assert!(energy("1.5") > energy("0.2") * 1.02, "a heavier part costs energy: {} vs {}", energy("1.5"), energy("0.2"));
+    let results = std::fs::read_to_string(out.join("results.csv")).unwrap();
+    assert_eq!(results.lines().count(), 1 + 16, "one row per episode");
+    assert!(results.lines().next().unwrap().contains("approach_s,descend_s,grip_s"), "phase times per episode");
+    assert!(results.lines().any(|l| l.contains(",false,grasp_missed,")), "a failed grasp's outcome");
+    let phases = std::fs::read_to_string(out.join("phases.csv")).unwrap();
+    assert!(phases.contains("classic,default,"), "{phases}");
+    for plot in ["cycle-time-vs-layout.png", "cycle-time-vs-payload_kg.png", "success-classic.png", "reach-default.png", "reach-place-far.png", "phases.png"] {
+        assert!(image::open(out.join("plots").join(plot)).is_ok(), "{plot}");
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("| classic | place-far | 1 | 1.5 | 0 | none | 0 % |"), "{report}");
+
+    // Bad studies: an unknown factor, a layout off the table, named with the file.
+    for (text, expected) in [
+        ("[factors]\ntemperature = [20]\n", "unknown field `temperature`"),
+        ("[[layout]]\nname = \"off\"\nplace = [-1.2, 0.0]\n", "layout[0] ('off'): place.position = [-1.2, 0.0]: the fixture's 12 cm plate leaves the table top"),
+    ] {
+        std::fs::write(&file, text).unwrap();
+        let stderr = failed(study(&["ur5e".as_ref(), file.as_os_str(), "--out".as_ref(), out.as_os_str()]));
+        assert!(stderr.contains("study.toml") && stderr.contains(expected), "{stderr}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -32,13 +32,19 @@ pub struct EvaluationPoint {
 
 /// A 900 × 540 PNG drawn by `draw` on white, written atomically to `path`.
 fn write_png(path: &Path, draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>) -> anyhow::Result<()> {
+    png(path, (900, 540), draw)
+}
+
+/// A PNG of `size` pixels drawn by `draw` on white, written atomically to `path`, with the
+/// shipped font registered as "sans-serif": for figures of other crates.
+pub fn png(path: &Path, size: (u32, u32), draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>) -> anyhow::Result<()> {
     REGISTER.call_once(|| {
         // The font is compiled in; failing to parse it is a build defect the tests catch.
         let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
     });
     let tmp = path.with_extension("tmp.png");
     {
-        let root = BitMapBackend::new(&tmp, (900, 540)).into_drawing_area();
+        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
         root.fill(&WHITE)?;
         draw(&root)?;
         root.present().map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;

@@ -114,6 +114,11 @@ impl ActionHistory {
     }
 }
 
+/// The controller's speed slider on an arena (a UR's: a fraction of every commanded joint
+/// speed, the program's straight moves included); absent, full speed.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct SpeedSlider(pub f32);
+
 /// Joint speed commands for an action in [−1, 1]⁵ (wrist 3 at rest).
 pub fn joint_speeds(action: &[f32]) -> [f32; 6] {
     std::array::from_fn(|i| if i < ACTION_DIM { action.get(i).copied().unwrap_or(0.0).clamp(-1.0, 1.0) * ACTION_SPEED } else { 0.0 })

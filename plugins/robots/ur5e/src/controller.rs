@@ -54,6 +54,30 @@ fn twist_towards(arm: &ArmState, target: Vec3, gain: f32, max_speed: f32) -> Vec
     action.into_iter().map(|a| a / top).collect()
 }
 
+/// Whether the arm can bring its tool to `target` (base frame), pointing down, within the
+/// reach tolerance: the resolved-rate law run on the kinematics alone (no physics, no time
+/// limit that matters: 12 s of control steps from home), joints inside their ranges all the
+/// way. Cell studies map reachability over the table with it and call a program sent to a
+/// waypoint it cannot reach a reach failure.
+pub fn reachable(target: Vec3) -> bool {
+    const DT: f32 = 0.04;
+    let mut q = crate::kinematics::HOME;
+    for _ in 0..300 {
+        let arm = ArmState::from_joints(q, [0.0; 6]);
+        if arm.at_joint_limit() {
+            return false;
+        }
+        if arm.distance_to(target) < crate::arm::REACH_TOLERANCE && crate::kinematics::tilt(&arm.tcp) < crate::arm::TILT_TOLERANCE {
+            return true;
+        }
+        let speeds = crate::arm::joint_speeds(&resolved_rate(&arm, target));
+        for (q, s) in q.iter_mut().zip(speeds) {
+            *q += s * DT;
+        }
+    }
+    false
+}
+
 /// The controller as a policy over the reach observation (q, q̇, TCP, target − TCP, …):
 /// a drop-in stand-in for a trained model on every UR5e task.
 pub fn act(observation: &[f32]) -> Vec<f32> {
@@ -62,4 +86,23 @@ pub fn act(observation: &[f32]) -> Vec<f32> {
     let arm = ArmState::from_joints(q, qd);
     let target = arm.tcp.translation + Vec3::from_slice(&observation[15..18]);
     resolved_rate(&arm, target)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::Fixtures;
+    use crate::program::{Stage, waypoint};
+
+    #[test]
+    fn the_default_cells_waypoints_are_reachable_and_the_far_corner_of_the_table_is_not() {
+        let fixtures = Fixtures::default();
+        for stage in [Stage::Approach, Stage::Grip, Stage::Transfer, Stage::Lower] {
+            assert!(reachable(waypoint(stage, &fixtures)), "{stage:?}");
+        }
+        // 1.1 m out: beyond the UR5e's 0.85 m.
+        assert!(!reachable(Vec3::new(-0.95, -0.55, 0.2)));
+        // Right under the base's axis, pointing down: the wrist cannot fold that far in.
+        assert!(reachable(Vec3::new(-0.3, 0.0, 0.1)));
+    }
 }

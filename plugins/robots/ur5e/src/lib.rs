@@ -131,7 +131,7 @@ pub fn robot() -> RobotDescription {
             headless_app(sim_settings(), request, Ur5ePlugin { task, pattern: request.pattern })
         },
         rig: Some(rig::rig()),
-        feedback: None,
+        feedback: Some(controller::act),
         cell: Some(twinbots_task::robot::CellDescription { default: layout::DEFAULT, install: layout::install }),
     }
 }
@@ -202,8 +202,8 @@ fn spawn_cells(mut commands: Commands, models: Res<CellModels>, layouts: Res<Cel
 
 /// The policy's action becomes joint speeds, unless the arm is in a protective stop (then it
 /// holds, braked, whatever it is told) or the cell program moves it straight itself.
-fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState)>, mut motors: Query<&mut Motor>) {
-    for (parts, action, mut state) in &mut arenas {
+fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState, Option<&arm::SpeedSlider>)>, mut motors: Query<&mut Motor>) {
+    for (parts, action, mut state, slider) in &mut arenas {
         if !action.0.is_empty() && !state.safety.stopped() {
             // The pick-and-place program's straight moves are the controller's (MoveL).
             let speeds = if state.program.moves_straight() {
@@ -211,7 +211,8 @@ fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState)>, mut mo
             } else {
                 arm::joint_speeds(&action.0)
             };
-            arm::drive(parts, speeds, &mut motors);
+            let scale = slider.map_or(1.0, |s| s.0);
+            arm::drive(parts, speeds.map(|s| s * scale), &mut motors);
             state.actions.push(&action.0);
         }
     }

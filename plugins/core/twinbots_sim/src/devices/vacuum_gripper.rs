@@ -23,13 +23,16 @@ pub struct VacuumGripper {
     pub stroke: f32,
     /// Radius of the cup (m): the object's surface must lie within it, sideways.
     pub radius: f32,
+    /// A leaking cup (a torn seal, a blocked line: a failed grasp, as studies stage it):
+    /// switched on, it seizes nothing.
+    pub leaking: bool,
     /// The object held and the joint holding it.
     held: Option<(RigidBodyHandle, ImpulseJointHandle)>,
 }
 
 impl VacuumGripper {
     pub fn new(radius: f32, stroke: f32) -> Self {
-        Self { on: false, stroke, radius, held: None }
+        Self { on: false, stroke, radius, leaking: false, held: None }
     }
 
     /// The body held, if any.
@@ -59,7 +62,7 @@ pub(crate) fn operate_vacuum_grippers(
                 world.impulse_joints.remove(joint, true);
                 gripper.held = None;
             }
-            (true, None) => {
+            (true, None) if !gripper.leaking => {
                 let Some(state) = mount.state(&links, world) else { continue };
                 if let Some((object, surface)) = object_in_reach(world, state.pose, state.body, &gripper) {
                     gripper.held = Some((object, hold(world, state.body, object, drawn_in(state.pose, surface))));

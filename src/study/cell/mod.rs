@@ -1,0 +1,287 @@
+//! Cell studies (`twinbots study ur5e STUDY.toml`, docs/studies.md): the pick-and-place cell
+//! under every combination of layout, speed slider, payload, command latency and failure
+//! scenario, for each controller, N episodes each, one arena per combination, side by side.
+//! A production engineer's figures per episode (success, outcome, cycle time and its phases,
+//! energy, collisions, protective stops, reach failures) and per combination.
+
+pub mod plan;
+pub mod plots;
+pub mod report;
+
+use std::collections::VecDeque;
+use std::path::Path;
+use std::time::Instant;
+
+use bevy::prelude::*;
+use serde::Serialize;
+use twinbots_api::{EpisodeSummary, VecEnv};
+use twinbots_sim::{Arena, Link, Push, SimSettings, VacuumGripper, add_link_mass};
+use twinbots_task::task::{EnvReset, ResetSet, Resetting};
+use ur5e::CellState;
+use ur5e::arm::SpeedSlider;
+use ur5e::cell::CellParts;
+use ur5e::layout::{CellLayout, CellLayouts};
+use ur5e::pick_place::{Stage, waypoint};
+
+use self::plan::{CellStudy, Combination, Failure};
+use super::controller::{NamedController, distinct_labels};
+use crate::registry::RobotEntry;
+
+/// The program's phases, in order, as the breakdown names them.
+pub const PHASES: [(Stage, &str); 9] = [
+    (Stage::Approach, "approach"),
+    (Stage::Descend, "descend"),
+    (Stage::Grip, "grip"),
+    (Stage::Lift, "lift"),
+    (Stage::Transfer, "transfer"),
+    (Stage::Align, "align"),
+    (Stage::Lower, "lower"),
+    (Stage::Release, "release"),
+    (Stage::Retract, "retract"),
+];
+
+/// Arenas per app: larger sweeps run in batches.
+const BATCH: usize = 64;
+
+/// One episode of a combination.
+#[derive(Clone, Debug, Serialize)]
+pub struct EpisodeRecord {
+    pub combination: usize,
+    pub episode: usize,
+    pub success: bool,
+    pub outcome: String,
+    pub cycle_time_s: Option<f64>,
+    pub energy_j: f64,
+    pub collision_events: u32,
+    pub joint_limit_events: u32,
+    pub protective_stops: u32,
+    /// The program sent the arm to a waypoint it cannot reach ([`ur5e::controller::reachable`]).
+    pub reach_failure: bool,
+    pub steps: u32,
+    /// Seconds spent in each of [`PHASES`].
+    pub phases_s: [f64; 9],
+}
+
+/// A study's results.
+pub struct CellStudyResult {
+    pub robot: String,
+    pub study: CellStudy,
+    pub controllers: Vec<String>,
+    pub layouts: Vec<(String, CellLayout)>,
+    pub combinations: Vec<Combination>,
+    pub episodes: Vec<EpisodeRecord>,
+    pub control_dt: f64,
+    pub wall_s: f64,
+}
+
+/// The part's extra mass in an arena, put on at every reset (a reset restores the URDF's).
+#[derive(Component, Clone, Copy)]
+struct ExtraPartMass(f32);
+
+fn add_part_mass(arenas: Query<(Entity, &ExtraPartMass, &CellParts), With<Resetting>>, links: Query<&Link>, mut worlds: Query<&mut Arena>) {
+    for (arena, extra, parts) in &arenas {
+        if let (Ok(link), Ok(mut world)) = (links.get(parts.part), worlds.get_mut(arena)) {
+            // Checked before the study starts: the part keeps a positive mass.
+            let _ = add_link_mass(&mut world, link, extra.0);
+        }
+    }
+}
+
+/// Runs the study of `path` on `entry` (a robot with a cell), with `controllers` instead of
+/// the study's when given.
+pub fn run(entry: &RobotEntry, path: &Path, controllers: &[String]) -> anyhow::Result<CellStudyResult> {
+    let started = Instant::now();
+    let study = CellStudy::read(path)?;
+    if let Some(robot) = &study.robot {
+        anyhow::ensure!(robot == entry.name, "{}: robot = '{robot}', but the study runs {}", path.display(), entry.name);
+    }
+    anyhow::ensure!(entry.name == "ur5e", "cell studies run the UR5e's pick-and-place program; {} has none", entry.name);
+    let base = path.parent().unwrap_or(Path::new("."));
+    let layouts = study.layouts(base).map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
+    let mut named = if controllers.is_empty() {
+        let open = |s: &String| NamedController::open(s, base, entry).map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()));
+        study.controllers.iter().map(open).collect::<anyhow::Result<Vec<_>>>()?
+    } else {
+        controllers.iter().map(|s| NamedController::open(s, Path::new("."), entry)).collect::<anyhow::Result<Vec<_>>>()?
+    };
+    distinct_labels(&mut named);
+    let nominal_part = ur5e::cell::CellModels::default().part.links.iter().find_map(|l| l.inertial.map(|i| i.mass)).unwrap_or(0.0);
+    let combinations = study.combinations(named.len(), layouts.len());
+    // Which waypoints of each layout the arm cannot reach.
+    let unreachable: Vec<Vec<Stage>> = layouts
+        .iter()
+        .map(|(_, l)| PHASES.iter().map(|(s, _)| *s).filter(|&s| !ur5e::controller::reachable(waypoint(s, &l.fixtures()))).collect())
+        .collect();
+    let total = combinations.len() * study.episodes;
+    println!("{}: {} combinations × {} episodes = {total} episodes, {} controller(s), {} layout(s)", path.display(), combinations.len(), study.episodes, named.len(), layouts.len());
+    let mut episodes = Vec::new();
+    let mut control_dt = 0.0;
+    let mut progress = Progress { started, total, done: 0, shown: started };
+    for (c, controller) in named.iter().enumerate() {
+        let mine: Vec<usize> = (0..combinations.len()).filter(|&i| combinations[i].controller == c).collect();
+        for batch in mine.chunks(BATCH) {
+            let setup = Batch { study: &study, layouts: &layouts, unreachable: &unreachable, combinations: &combinations, members: batch, nominal_part };
+            let (records, dt) = setup.run(entry, controller, &mut progress)?;
+            episodes.extend(records);
+            control_dt = dt;
+        }
+    }
+    episodes.sort_by_key(|e| (e.combination, e.episode));
+    println!("{total} episodes in {:.1} s", started.elapsed().as_secs_f64());
+    Ok(CellStudyResult {
+        robot: entry.name.to_string(),
+        controllers: named.iter().map(|c| c.label.clone()).collect(),
+        study,
+        layouts,
+        combinations,
+        episodes,
+        control_dt,
+        wall_s: started.elapsed().as_secs_f64(),
+    })
+}
+
+/// Episodes finished so far, shown every few seconds.
+struct Progress {
+    started: Instant,
+    total: usize,
+    done: usize,
+    shown: Instant,
+}
+
+impl Progress {
+    fn add(&mut self, n: usize) {
+        self.done += n;
+        if self.shown.elapsed().as_secs_f64() >= 5.0 || self.done == self.total {
+            self.shown = Instant::now();
+            println!("[{:.0} s] {}/{} episodes", self.started.elapsed().as_secs_f64(), self.done, self.total);
+        }
+    }
+}
+
+/// Combinations of one controller run in one app, an arena each.
+struct Batch<'a> {
+    study: &'a CellStudy,
+    layouts: &'a [(String, CellLayout)],
+    unreachable: &'a [Vec<Stage>],
+    combinations: &'a [Combination],
+    members: &'a [usize],
+    nominal_part: f32,
+}
+
+/// Where an arena's current episode stands.
+#[derive(Default)]
+struct Tally {
+    done: usize,
+    step: u32,
+    phases_s: [f64; 9],
+    reach_failure: bool,
+    queue: VecDeque<Vec<f32>>,
+    held: Option<Vec<f32>>,
+}
+
+impl Batch<'_> {
+    fn run(&self, entry: &RobotEntry, controller: &NamedController, progress: &mut Progress) -> anyhow::Result<(Vec<EpisodeRecord>, f64)> {
+        let combos: Vec<&Combination> = self.members.iter().map(|&i| &self.combinations[i]).collect();
+        let cell_layouts = CellLayouts(combos.iter().map(|c| self.layouts[c.layout].1.clone()).collect());
+        let mut env = controller.env(entry, Some("pick-place"), combos.len(), self.study.seed, |app| {
+            app.insert_resource(cell_layouts).add_systems(EnvReset, add_part_mass.in_set(ResetSet::Place));
+            Ok(())
+        })?;
+        let settings = *env.app().world().resource::<SimSettings>();
+        let dt = settings.control_seconds();
+        let arenas = env.arenas().to_vec();
+        let world = env.app_mut().world_mut();
+        for (&arena, combo) in arenas.iter().zip(&combos) {
+            let parts = world.get::<CellParts>(arena).expect("a UR5e cell").clone();
+            world.entity_mut(arena).insert(SpeedSlider(combo.speed));
+            if let Some(mass) = combo.payload {
+                world.entity_mut(arena).insert(ExtraPartMass(mass as f32 - self.nominal_part));
+            }
+            if combo.failure == Failure::FailedGrasp
+                && let Some(mut gripper) = world.get_mut::<VacuumGripper>(parts.gripper)
+            {
+                gripper.leaking = true;
+            }
+        }
+        // Every combination meets the same sequence of starts (common random numbers).
+        env.reset(Some(self.study.seed))?;
+        for &arena in &arenas {
+            if let Some(mut a) = env.app_mut().world_mut().get_mut::<Arena>(arena) {
+                a.reseed_as(self.study.seed, 0);
+            }
+        }
+        let mut obs = env.reset(None)?;
+        let dim = env.observation_space().dim();
+        let action_dim = env.action_space().dim();
+        let steps_at = |s: f64| (s / dt).round() as u32;
+        let (push_at, dropout) = (steps_at(self.study.push.at), (steps_at(self.study.dropout.at), steps_at(self.study.dropout.duration).max(1)));
+        let mut tallies: Vec<Tally> = (0..arenas.len()).map(|_| Tally::default()).collect();
+        let mut records = Vec::new();
+        let limit = (self.study.episodes as u64 + 1) * u64::from(ur5e::pick_place::EPISODE_STEPS) + 10;
+        for _ in 0..limit {
+            if tallies.iter().all(|t| t.done >= self.study.episodes) {
+                break;
+            }
+            let mut seen = obs.clone();
+            for (i, (t, combo)) in tallies.iter_mut().zip(&combos).enumerate() {
+                let row = &mut seen[i * dim..(i + 1) * dim];
+                if combo.failure == Failure::SensorDropout && (dropout.0..dropout.0 + dropout.1).contains(&t.step) {
+                    row.copy_from_slice(t.held.get_or_insert_with(|| row.to_vec()));
+                }
+                if t.step == push_at && matches!(combo.failure, Failure::PushTool | Failure::PushPart) {
+                    let world = env.app_mut().world_mut();
+                    let parts = world.get::<CellParts>(arenas[i]).expect("a UR5e cell").clone();
+                    let link = if combo.failure == Failure::PushTool { parts.tcp } else { parts.part };
+                    let push = Push::lasting(Vec3::from(self.study.push.force), Vec3::ZERO, self.study.push.duration as f32, settings.dt);
+                    world.entity_mut(link).insert(push);
+                }
+            }
+            let wanted = controller.act(&seen, dim)?;
+            let mut actions = Vec::with_capacity(wanted.len());
+            for (i, (t, combo)) in tallies.iter_mut().zip(&combos).enumerate() {
+                t.queue.push_back(wanted[i * action_dim..(i + 1) * action_dim].to_vec());
+                // Until the first command arrives, the arm holds (zero joint speeds).
+                let applied = if t.queue.len() > combo.latency as usize { t.queue.pop_front().expect("non-empty") } else { vec![0.0; action_dim] };
+                actions.extend(applied);
+                let state = env.app().world().get::<CellState>(arenas[i]).expect("a UR5e cell");
+                let stage = state.program.stage;
+                if let Some(p) = PHASES.iter().position(|(s, _)| *s == stage) {
+                    t.phases_s[p] += dt;
+                }
+                t.reach_failure |= self.unreachable[combo.layout].contains(&stage);
+            }
+            let out = env.step(&actions)?;
+            for (i, t) in tallies.iter_mut().enumerate() {
+                t.step += 1;
+                let Some(summary) = &out.episodes[i] else { continue };
+                if t.done < self.study.episodes {
+                    records.push(record(self.members[i], t, summary));
+                    progress.add(1);
+                }
+                *t = Tally { done: t.done + 1, ..Tally::default() };
+            }
+            obs = out.obs;
+        }
+        anyhow::ensure!(tallies.iter().all(|t| t.done >= self.study.episodes), "the study's episodes did not end within {limit} control steps");
+        Ok((records, dt))
+    }
+}
+
+fn record(combination: usize, t: &Tally, summary: &EpisodeSummary) -> EpisodeRecord {
+    let metric = |name: &str| summary.metrics.get(name).copied().map(f64::from);
+    let outcome = summary.metrics.iter().find(|(k, v)| k.starts_with("outcome_") && **v > 0.5).map_or("unknown", |(k, _)| &k["outcome_".len()..]);
+    EpisodeRecord {
+        combination,
+        episode: t.done,
+        success: summary.success == Some(true),
+        outcome: outcome.to_string(),
+        cycle_time_s: metric("cycle_time_s"),
+        energy_j: metric("energy_j").unwrap_or(0.0),
+        collision_events: metric("collision_events").unwrap_or(0.0) as u32,
+        joint_limit_events: metric("joint_limit_events").unwrap_or(0.0) as u32,
+        protective_stops: metric("protective_stops").unwrap_or(0.0) as u32,
+        reach_failure: t.reach_failure,
+        steps: summary.length,
+        phases_s: t.phases_s,
+    }
+}
