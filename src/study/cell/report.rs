@@ -128,7 +128,9 @@ pub fn write(result: &CellStudyResult, study_file: &Path, out: &Path) -> anyhow:
     let breakdown = phase_breakdown(result);
     let mut phases = format!("controller,layout,cycles,{}\n", phase_names.iter().map(|p| format!("{p}_s")).collect::<Vec<_>>().join(","));
     for (label, cycles, times) in &breakdown {
-        let _ = writeln!(phases, "{},{cycles},{}", label.replace(" in ", ","), times.iter().map(|t| format!("{t:.3}")).collect::<Vec<_>>().join(","));
+        // No successful cycle: no times to give.
+        let cells: Vec<String> = times.iter().map(|t| if *cycles > 0 { format!("{t:.3}") } else { String::new() }).collect();
+        let _ = writeln!(phases, "{},{cycles},{}", label.replace(" in ", ","), cells.join(","));
     }
     let path = out.join("phases.csv");
     write_atomic(&path, phases.as_bytes()).map_err(|e| io(&path, e))?;
@@ -309,7 +311,8 @@ fn report_md(result: &CellStudyResult, study_file: &Path, summaries: &[Summary],
     text += &" --- |".repeat(PHASES.len() + 2);
     text += "\n";
     for (label, n, times) in breakdown {
-        let _ = writeln!(text, "| {label} | {n} | {} |", times.iter().map(|t| format!("{t:.2}")).collect::<Vec<_>>().join(" | "));
+        let cells: Vec<String> = times.iter().map(|t| if *n > 0 { format!("{t:.2}") } else { "—".into() }).collect();
+        let _ = writeln!(text, "| {label} | {n} | {} |", cells.join(" | "));
     }
     for (caption, file) in figures {
         let _ = write!(text, "\n## {caption}\n\n![{caption}](plots/{file})\n");
