@@ -104,8 +104,35 @@ impl NamedController {
     }
 }
 
+/// The controllers of a study: `cli`'s if any (paths from the working directory), else the
+/// study file's `listed` (paths from its folder; errors name the file), with distinct labels.
+pub fn open_all(entry: &RobotEntry, file: &Path, listed: &[String], cli: &[String]) -> anyhow::Result<Vec<NamedController>> {
+    let mut named = if cli.is_empty() {
+        let base = file.parent().unwrap_or(Path::new("."));
+        let open = |s: &String| NamedController::open(s, base, entry).map_err(|e| anyhow::anyhow!("{}: {e:#}", file.display()));
+        listed.iter().map(open).collect::<anyhow::Result<Vec<_>>>()?
+    } else {
+        cli.iter().map(|s| NamedController::open(s, Path::new("."), entry)).collect::<anyhow::Result<Vec<_>>>()?
+    };
+    distinct_labels(&mut named);
+    Ok(named)
+}
+
+/// Resets every arena so that arena i starts as the first arena would from `seeds[i]`: runs
+/// that must begin alike whatever arena they occupy share a stream. Returns the observations.
+pub fn reset_alike(env: &mut AppVecEnv, seeds: &[u64]) -> anyhow::Result<Vec<f32>> {
+    env.reset(Some(seeds[0]))?;
+    let arenas = env.arenas().to_vec();
+    for (arena, &seed) in arenas.into_iter().zip(seeds) {
+        if let Some(mut a) = env.app_mut().world_mut().get_mut::<twinbots_sim::Arena>(arena) {
+            a.reseed_as(seed, 0);
+        }
+    }
+    env.reset(None)
+}
+
 /// Directory-safe labels: a second controller with the same label gets `-2`, and so on.
-pub fn distinct_labels(controllers: &mut [NamedController]) {
+fn distinct_labels(controllers: &mut [NamedController]) {
     let mut seen: Vec<String> = Vec::new();
     for c in controllers.iter_mut() {
         let mut label = c.label.clone();

@@ -17,7 +17,7 @@ use serde::Serialize;
 use twinbots_api::VecEnv;
 use twinbots_sim::{Arena, InArena, Link, Push, SimSettings, add_link_mass};
 
-use self::controller::{NamedController, distinct_labels};
+use self::controller::{NamedController, open_all, reset_alike};
 use self::metrics::Response;
 use self::suite::{NamedTest, Suite, Test};
 use crate::registry::RobotEntry;
@@ -65,14 +65,7 @@ pub fn run_suite(entry: &RobotEntry, suite_path: &Path, controllers: &[String]) 
     if let Some(robot) = &suite.robot {
         anyhow::ensure!(robot == entry.name, "{}: robot = '{robot}', but the study runs {}", suite_path.display(), entry.name);
     }
-    let mut named = if controllers.is_empty() {
-        let base = suite_path.parent().unwrap_or(Path::new("."));
-        let open = |s: &String| NamedController::open(s, base, entry).map_err(|e| anyhow::anyhow!("{}: {e:#}", suite_path.display()));
-        suite.controllers.iter().map(open).collect::<anyhow::Result<Vec<_>>>()?
-    } else {
-        controllers.iter().map(|s| NamedController::open(s, Path::new("."), entry)).collect::<anyhow::Result<Vec<_>>>()?
-    };
-    distinct_labels(&mut named);
+    let named = open_all(entry, suite_path, &suite.controllers, controllers)?;
     let spec = (entry.main_task().spec)();
     let signal = spec.observation_names.iter().position(|n| *n == suite.signal).ok_or_else(|| {
         anyhow::anyhow!("{}: signal = '{}': {}'s observation has {}", suite_path.display(), suite.signal, entry.name, spec.observation_names.join(", "))
@@ -90,23 +83,18 @@ pub fn run_suite(entry: &RobotEntry, suite_path: &Path, controllers: &[String]) 
 
 /// Every test × seed of the suite for one controller: one arena each, stepped together.
 fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedController) -> anyhow::Result<Vec<RunRecord>> {
-    let probe = controller.env(entry, None, 1, 0, |_| Ok(()))?;
-    let settings = *probe.app().world().resource::<SimSettings>();
-    drop(probe);
+    // How many tests there are does not depend on the control step; how long a kick lasts does.
+    let runs = suite.tests(1.0).len() * suite.seeds.len();
+    let mut env = controller.env(entry, None, runs, suite.seeds[0], |_| Ok(()))?;
+    let settings = *env.app().world().resource::<SimSettings>();
     let control_dt = settings.control_seconds();
     let tests = suite.tests(control_dt);
     let plan: Vec<(&NamedTest, u64)> = tests.iter().flat_map(|t| suite.seeds.iter().map(move |&s| (t, s))).collect();
-    let mut env = controller.env(entry, None, plan.len(), suite.seeds[0], |_| Ok(()))?;
     let arenas = env.arenas().to_vec();
     let push_link = find_links(env.app_mut().world_mut(), &arenas, &suite.push.link)?;
     // Every run starts as the suite's first arena would from its seed, whichever arena it has.
-    env.reset(Some(suite.seeds[0]))?;
-    for (&arena, (_, seed)) in arenas.iter().zip(&plan) {
-        if let Some(mut a) = env.app_mut().world_mut().get_mut::<Arena>(arena) {
-            a.reseed_as(*seed, 0);
-        }
-    }
-    let mut obs = env.reset(None)?;
+    let seeds: Vec<u64> = plan.iter().map(|(_, s)| *s).collect();
+    let mut obs = reset_alike(&mut env, &seeds)?;
     for (i, (test, _)) in plan.iter().enumerate() {
         if let Test::Payload { link, mass } = &test.test {
             set_payload(entry, env.app_mut().world_mut(), arenas[i], link, *mass)?;

@@ -24,7 +24,7 @@ use ur5e::layout::{CellLayout, CellLayouts};
 use ur5e::pick_place::{Stage, waypoint};
 
 use self::plan::{CellStudy, Combination, Failure};
-use super::controller::{NamedController, distinct_labels};
+use super::controller::{NamedController, open_all, reset_alike};
 use crate::registry::RobotEntry;
 
 /// The program's phases, in order, as the breakdown names them.
@@ -98,13 +98,7 @@ pub fn run(entry: &RobotEntry, path: &Path, controllers: &[String]) -> anyhow::R
     anyhow::ensure!(entry.name == "ur5e", "cell studies run the UR5e's pick-and-place program; {} has none", entry.name);
     let base = path.parent().unwrap_or(Path::new("."));
     let layouts = study.layouts(base).map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
-    let mut named = if controllers.is_empty() {
-        let open = |s: &String| NamedController::open(s, base, entry).map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()));
-        study.controllers.iter().map(open).collect::<anyhow::Result<Vec<_>>>()?
-    } else {
-        controllers.iter().map(|s| NamedController::open(s, Path::new("."), entry)).collect::<anyhow::Result<Vec<_>>>()?
-    };
-    distinct_labels(&mut named);
+    let named = open_all(entry, path, &study.controllers, controllers)?;
     let nominal_part = ur5e::cell::CellModels::default().part.links.iter().find_map(|l| l.inertial.map(|i| i.mass)).unwrap_or(0.0);
     let combinations = study.combinations(named.len(), layouts.len());
     // Which waypoints of each layout the arm cannot reach.
@@ -116,7 +110,7 @@ pub fn run(entry: &RobotEntry, path: &Path, controllers: &[String]) -> anyhow::R
     println!("{}: {} combinations × {} episodes = {total} episodes, {} controller(s), {} layout(s)", path.display(), combinations.len(), study.episodes, named.len(), layouts.len());
     let mut episodes = Vec::new();
     let mut control_dt = 0.0;
-    let mut progress = Progress { started, total, done: 0, shown: started };
+    let mut progress = Progress::new(total);
     for (c, controller) in named.iter().enumerate() {
         let mine: Vec<usize> = (0..combinations.len()).filter(|&i| combinations[i].controller == c).collect();
         for batch in mine.chunks(BATCH) {
@@ -140,20 +134,39 @@ pub fn run(entry: &RobotEntry, path: &Path, controllers: &[String]) -> anyhow::R
     })
 }
 
-/// Episodes finished so far, shown every few seconds.
+/// Episodes finished so far: a bar on a terminal, else a line every 5 s (as training shows
+/// its progress).
 struct Progress {
     started: Instant,
     total: usize,
     done: usize,
     shown: Instant,
+    bar: Option<indicatif::ProgressBar>,
 }
 
 impl Progress {
+    fn new(total: usize) -> Self {
+        use std::io::IsTerminal;
+        let bar = std::io::stderr().is_terminal().then(|| {
+            let bar = indicatif::ProgressBar::new(total as u64);
+            if let Ok(style) = indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} episodes ({eta} left)") {
+                bar.set_style(style.progress_chars("=> "));
+            }
+            bar
+        });
+        Self { started: Instant::now(), total, done: 0, shown: Instant::now(), bar }
+    }
+
     fn add(&mut self, n: usize) {
         self.done += n;
-        if self.shown.elapsed().as_secs_f64() >= 5.0 || self.done == self.total {
+        if let Some(bar) = &self.bar {
+            bar.set_position(self.done as u64);
+            if self.done == self.total {
+                bar.finish();
+            }
+        } else if self.shown.elapsed().as_secs_f64() >= 5.0 || self.done == self.total {
             self.shown = Instant::now();
-            println!("[{:.0} s] {}/{} episodes", self.started.elapsed().as_secs_f64(), self.done, self.total);
+            eprintln!("[{:.0} s] {}/{} episodes", self.started.elapsed().as_secs_f64(), self.done, self.total);
         }
     }
 }
@@ -204,13 +217,7 @@ impl Batch<'_> {
             }
         }
         // Every combination meets the same sequence of starts (common random numbers).
-        env.reset(Some(self.study.seed))?;
-        for &arena in &arenas {
-            if let Some(mut a) = env.app_mut().world_mut().get_mut::<Arena>(arena) {
-                a.reseed_as(self.study.seed, 0);
-            }
-        }
-        let mut obs = env.reset(None)?;
+        let mut obs = reset_alike(&mut env, &vec![self.study.seed; arenas.len()])?;
         let dim = env.observation_space().dim();
         let action_dim = env.action_space().dim();
         let steps_at = |s: f64| (s / dt).round() as u32;

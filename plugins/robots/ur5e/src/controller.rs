@@ -102,7 +102,7 @@ mod tests {
         }
         // 1.1 m out: beyond the UR5e's 0.85 m.
         assert!(!reachable(Vec3::new(-0.95, -0.55, 0.2)));
-        // Right under the base's axis, pointing down: the wrist cannot fold that far in.
+        // Close in front of the base, low over the table.
         assert!(reachable(Vec3::new(-0.3, 0.0, 0.1)));
     }
 }
