@@ -172,6 +172,20 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("| classic | place-far | 1 | 1.5 | 0 | none | 0 % |"), "{report}");
 
+    // Command latency and a trained reach policy (the fixture run, PPO): one control step late,
+    // it no longer places the part; the classical controller still does.
+    let run = fixture_run("ur5e-reach", "study-latency");
+    std::fs::write(&file, "episodes = 3\n[factors]\nlatency = [0, 1]\n").unwrap();
+    let late = dir.join("late");
+    let controllers = format!("classic,{}", run.display());
+    succeeded(study(&["ur5e".as_ref(), file.as_os_str(), "--controller".as_ref(), controllers.as_ref(), "--out".as_ref(), late.as_os_str()]));
+    let rows = summary(&late);
+    let rate = |controller: &str, latency: &str| rows.iter().find(|r| r["controller"] == controller && r["latency_steps"] == latency).unwrap()["success_rate"].clone();
+    let label = run.file_name().unwrap().to_str().unwrap();
+    assert_eq!((rate(label, "0").as_str(), rate(label, "1").as_str()), ("1.0000", "0.0000"), "{rows:?}");
+    assert_eq!((rate("classic", "0").as_str(), rate("classic", "1").as_str()), ("1.0000", "1.0000"));
+    let _ = std::fs::remove_dir_all(&run);
+
     // Bad studies: an unknown factor, a layout off the table, named with the file.
     for (text, expected) in [
         ("[factors]\ntemperature = [20]\n", "unknown field `temperature`"),
