@@ -5,7 +5,6 @@
 use std::path::Path;
 
 use twinbots_onnx::PolicyMetadata;
-use twinbots_task::ActiveTask;
 use twinbots_learn::RunDir;
 use twinbots_sim::SimSettings;
 
@@ -90,12 +89,13 @@ pub fn export_run(run: &Path, onnx: &Path) -> anyhow::Result<PolicyMetadata> {
 /// What the run's policy is: its robot and task, spaces, control period and training.
 fn describe(settings: &TrainSettings, model: &dyn twinbots_learn::Agent) -> anyhow::Result<PolicyMetadata> {
     let entry = registry::find(&settings.robot)?;
-    // First whether the policy can be written at all (a CNN cannot, yet).
+    // First whether the policy can be written at all.
     let policy = model.policy_net()?;
-    // The robot's own description of its task and timing, as an app of it declares them.
+    // The robot's own timing, as an app of it declares it; the task as the run observed it
+    // (a camera image with `[pixels]`).
     let app = entry.app(None, 1, settings.seed, settings.in_process_pattern()?)?;
-    let spec = &**app.world().resource::<ActiveTask>();
     let control_period_s = app.world().resource::<SimSettings>().control_dt();
+    let spec = &settings.task(&entry);
     model.check_spaces(&spec.observation_space, &spec.action_space)?;
     let metadata = PolicyMetadata {
         twinbots_version: env!("CARGO_PKG_VERSION").into(),

@@ -87,7 +87,7 @@ fn bad_pixel_settings_are_errors_naming_the_key() {
 }
 
 #[test]
-fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_says_it_cannot_be_exported() {
+fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_exports_its_cnn_policy() {
     if crate::renderer("a_pixel_run_trains_evaluates_captures_with_its_camera_and_says_it_cannot_be_exported", 8, 8).is_none() {
         return;
     }
@@ -114,9 +114,15 @@ fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_says_it_cannot_be_e
     let out = twinbots(&["capture", "cartpole", "--model", &path(&run), "--frames", "2", "--size", "64x48", "--out", &path(&frames)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(std::fs::read_dir(&frames).unwrap().count() >= 2);
-    let out = twinbots(&["export", &path(&run), "--onnx", &path(&dir.join("p.onnx"))]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && stderr.contains("policies on camera images (Image(40×40×6)) cannot be exported yet"), "{stderr}");
+    // The CNN policy leaves as ONNX: it reads camera images and chooses as the model does.
+    let onnx = dir.join("p.onnx");
+    let out = twinbots(&["export", &path(&run), "--onnx", &path(&onnx)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let policy = twinbots_onnx::OnnxPolicy::load(&onnx).unwrap();
+    assert_eq!(policy.metadata.observation_space, twinbots_api::Space::Image { height: 40, width: 40, channels: 6 });
+    let model = twinbots_learn::algos::load_run(&twinbots_learn::RunDir::new(&run)).unwrap();
+    let images: Vec<f32> = (0..4 * 40 * 40 * 6).map(|i| ((i * 37) % 256) as f32).collect();
+    assert_eq!(policy.act(&images).unwrap(), model.predict_deterministic(&images).unwrap());
     std::fs::remove_dir_all(&dir).ok();
 }
 

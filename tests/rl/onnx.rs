@@ -1,7 +1,7 @@
 //! The exported ONNX graph acts as the model does: run by tract on 1,000 random observations,
 //! its actions equal the model's own deterministic ones (to 1e-5; discrete choices identical)
-//! for a discrete, a continuous and a normalised-observation PPO policy, and a SAC policy. Bad
-//! files are clear errors.
+//! for a discrete, a continuous and a normalised-observation PPO policy, and a SAC policy; and
+//! PPO and SAC policies on camera images (NatureCNN) to 1e-4. Bad files are clear errors.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -129,6 +129,42 @@ fn a_sac_policy_gives_the_same_squashed_and_rescaled_actions() {
     let Space::Box { low, high } = &action_space else { unreachable!() };
     let near_bounds = own.iter().enumerate().filter(|(i, a)| (**a - low[i % 3]).min(high[i % 3] - **a) < 0.01).count();
     assert!(near_bounds > OBSERVATIONS / 10, "only {near_bounds} actions lie near the bounds");
+}
+
+/// Rows of camera images: 0–255 values, some regions bright, as the env hands them over.
+fn images(space: &Space, rows: usize, seed: u64) -> Vec<f32> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..rows * space.dim()).map(|_| rng.random_range(0u8..=255) as f32).collect()
+}
+
+#[test]
+fn policies_on_camera_images_export_their_cnn() {
+    let image = Space::Image { height: 40, width: 44, channels: 6 };
+    let action_space = Space::Box { low: vec![-1.0, -2.0], high: vec![1.0, 0.5] };
+    let rows = 200;
+    let obs = images(&image, rows, 6);
+
+    let config = PpoConfig { features_dim: 24, ..Default::default() };
+    let model = Ppo::new(config, image.clone(), action_space.clone(), 12).unwrap();
+    // A larger output layer, so that actions spread over the box and beyond it.
+    for (name, var) in model.policy.named_vars() {
+        if name == "pi.2.weight" {
+            var.set(&var.as_tensor().affine(1000.0, 0.0).unwrap()).unwrap();
+        }
+    }
+    let (onnx, own) = both(&model, &obs);
+    let delta = largest_difference(&onnx, &own);
+    eprintln!("PPO on images: max |Δ| {delta:e} over {rows} images");
+    assert!(delta <= 1e-4, "max |Δ| {delta}");
+    let spread = own.iter().map(|a| a.abs()).fold(0.0f32, f32::max);
+    assert!(spread > 0.5, "the actions vary, so the comparison means something: {spread}");
+
+    let config = SacConfig { hidden: vec![32], features_dim: 24, buffer_size: 1000, ..Default::default() };
+    let model = Sac::new(config, image.clone(), action_space, 13).unwrap();
+    let (onnx, own) = both(&model, &obs);
+    let delta = largest_difference(&onnx, &own);
+    eprintln!("SAC on images: max |Δ| {delta:e} over {rows} images");
+    assert!(delta <= 1e-4, "max |Δ| {delta}");
 }
 
 #[test]

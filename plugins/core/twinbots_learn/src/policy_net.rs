@@ -1,5 +1,6 @@
-//! A deterministic policy as plain numbers: the observation normaliser, the dense layers, and
-//! how the action comes out of the last one. What an exporter (ONNX) needs of any algorithm's
+//! A deterministic policy as plain numbers: the observation normaliser, what the dense layers
+//! read (the observation, or a camera image's CNN features), the dense layers, and how the
+//! action comes out of the last one. What an exporter (ONNX) needs of any algorithm's
 //! policy, so that it knows no algorithm by name.
 
 use crate::normalize::RunningMeanStd;
@@ -34,11 +35,49 @@ pub struct DenseLayer {
     pub bias: Vec<f32>,
 }
 
+/// A convolution of an image `[height, width, in_channels]` (channels last, no padding):
+/// `filters` outputs per pixel, ReLU after.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConvLayer {
+    pub name: String,
+    pub kernel: usize,
+    pub stride: usize,
+    pub in_channels: usize,
+    pub filters: usize,
+    /// `[filters, kernel · kernel · in_channels]`, row-major; a patch's values in (kernel row,
+    /// kernel column, channel) order.
+    pub weight: Vec<f32>,
+    pub bias: Vec<f32>,
+}
+
+/// NatureCNN features of a camera image: values times `scale`, the convolutions, then the
+/// flattened (row, column, channel) output through `fc`, ReLU after each.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConvEncoder {
+    pub height: usize,
+    pub width: usize,
+    pub channels: usize,
+    pub scale: f32,
+    pub convs: Vec<ConvLayer>,
+    pub fc: DenseLayer,
+}
+
+/// What the dense layers read.
+#[derive(Clone, Debug, PartialEq)]
+pub enum InputEncoding {
+    /// The (normalised) observation as it is.
+    Flat,
+    /// Every value times `scale` (an MLP on pixels: 1/255).
+    Scaled { scale: f32 },
+    Cnn(ConvEncoder),
+}
+
 /// A policy's deterministic action as an MLP.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PolicyNet {
     /// Observations are normalised with these statistics (clipped to ±10) first, if present.
     pub obs_rms: Option<RunningMeanStd>,
+    pub encoding: InputEncoding,
     /// From the input on.
     pub layers: Vec<DenseLayer>,
     pub hidden: Activation,

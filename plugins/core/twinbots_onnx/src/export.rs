@@ -1,7 +1,7 @@
 //! A trained model's deterministic policy as an ONNX graph (docs/export.md draws it):
 //!
 //! ```text
-//! obs [batch, n] float ─▶ normalise (if trained so) ─▶ MLP ─▶ ArgMax                                  ─▶ action [batch] int64
+//! obs [batch, n] float ─▶ normalise (if trained so) ─▶ [CNN] ─▶ MLP ─▶ ArgMax                           ─▶ action [batch] int64
 //!                                                        └▶ Max(low), Min(high)                     ─▶ action [batch, m] float
 //!                                                        └▶ Tanh ─▶ rescale to [low, high]          ─▶ action [batch, m] float
 //! ```
@@ -15,6 +15,13 @@
 //! clipped to the action box as the env receives it (PPO neither squashes nor rescales). SAC's
 //! hidden layers are followed by `Relu`; its mode is tanh of its Gaussian's mean, rescaled from
 //! [−1, 1] to the box (`low + (a + 1) · (high − low) / 2`, as the model hands actions to the env).
+//!
+//! A policy on camera images reads them flat, `height × width × channels` values per row
+//! (channels last, as the env hands them over): the graph reshapes them to `[batch, H, W, C]`,
+//! transposes to ONNX's `NCHW`, scales by 1/255, and runs NatureCNN's `Conv` + `Relu` layers
+//! (each convolution's weights reordered from the learner's (row, column, channel) patches to
+//! `OIHW`), then transposes back and flattens as the learner does, into the features' `Gemm` +
+//! `Relu`. An MLP on pixels only scales them.
 
 use std::path::Path;
 
@@ -25,7 +32,7 @@ use twinbots_api::Space;
 use twinbots_learn::Agent;
 use twinbots_learn::model_io::write_atomic;
 use twinbots_learn::normalize::CLIP;
-use twinbots_learn::policy_net::{Activation, DenseLayer, PolicyHead};
+use twinbots_learn::policy_net::{Activation, ConvEncoder, DenseLayer, InputEncoding, PolicyHead};
 
 use crate::metadata::PolicyMetadata;
 
@@ -89,6 +96,14 @@ fn policy_graph(model: &dyn Agent) -> anyhow::Result<pb::GraphProto> {
         let (low, high) = (g.scalar_f32("obs_clip_low", -CLIP), g.scalar_f32("obs_clip_high", CLIP));
         x = g.node("Clip", &[&narrow, &low, &high], vec![]);
     }
+    match &net.encoding {
+        InputEncoding::Flat => {}
+        InputEncoding::Scaled { scale } => {
+            let scale = g.scalar_f32("obs_scale", *scale);
+            x = g.node("Mul", &[&x, &scale], vec![]);
+        }
+        InputEncoding::Cnn(cnn) => x = conv_features(&mut g, cnn, &x)?,
+    }
     anyhow::ensure!(!net.layers.is_empty(), "the policy has no layers");
     for (i, layer) in net.layers.iter().enumerate() {
         x = g.dense(layer, &x);
@@ -116,6 +131,41 @@ fn policy_graph(model: &dyn Agent) -> anyhow::Result<pb::GraphProto> {
         output: vec![value_info(OUTPUT, output_type)],
         ..Default::default()
     })
+}
+
+/// NatureCNN on flat rows of `H·W·C` image values: the features, `[batch, fc.outputs]`.
+fn conv_features(g: &mut GraphBuilder, cnn: &ConvEncoder, x: &str) -> anyhow::Result<String> {
+    let image = g.constant_i64("image_shape", &[-1, cnn.height as i64, cnn.width as i64, cnn.channels as i64]);
+    let x = g.node("Reshape", &[x, &image], vec![]);
+    let x = g.node("Transpose", &[&x], vec![ints_attr("perm", &[0, 3, 1, 2])]);
+    let scale = g.scalar_f32("image_scale", cnn.scale);
+    let mut x = g.node("Mul", &[&x, &scale], vec![]);
+    for conv in &cnn.convs {
+        let (k, c) = (conv.kernel, conv.in_channels);
+        anyhow::ensure!(conv.weight.len() == conv.filters * k * k * c, "{}: {} weights for {} filters of {k}×{k}×{c}", conv.name, conv.weight.len(), conv.filters);
+        // Learner: weight[o][(ky·k + kx)·C + ch]; ONNX: W[o][ch][ky][kx].
+        let mut oihw = vec![0f32; conv.weight.len()];
+        for o in 0..conv.filters {
+            for ky in 0..k {
+                for kx in 0..k {
+                    for ch in 0..c {
+                        oihw[((o * c + ch) * k + ky) * k + kx] = conv.weight[o * k * k * c + (ky * k + kx) * c + ch];
+                    }
+                }
+            }
+        }
+        let name = &conv.name;
+        let w = g.constant_f32(&format!("{name}.weight"), &[conv.filters as i64, c as i64, k as i64, k as i64], &oihw);
+        let b = g.constant_f32(&format!("{name}.bias"), &[conv.filters as i64], &conv.bias);
+        let attributes = vec![ints_attr("kernel_shape", &[k as i64, k as i64]), ints_attr("strides", &[conv.stride as i64, conv.stride as i64])];
+        let y = g.node("Conv", &[&x, &w, &b], attributes);
+        x = g.node("Relu", &[&y], vec![]);
+    }
+    // Back to channels last, flattened per row as the learner's features layer reads them.
+    let x = g.node("Transpose", &[&x], vec![ints_attr("perm", &[0, 2, 3, 1])]);
+    let x = g.node("Flatten", &[&x], vec![int_attr("axis", 1)]);
+    let x = g.dense(&cnn.fc, &x);
+    Ok(g.node("Relu", &[&x], vec![]))
 }
 
 /// A Gaussian's mode: its mean, clipped to the box.
@@ -195,6 +245,17 @@ impl GraphBuilder {
         self.constant_f32(name, &[], &[value])
     }
 
+    fn constant_i64(&mut self, name: &str, values: &[i64]) -> String {
+        self.initializers.push(pb::TensorProto {
+            name: name.into(),
+            dims: vec![values.len() as i64],
+            data_type: DataType::Int64 as i32,
+            int64_data: values.to_vec(),
+            ..Default::default()
+        });
+        name.into()
+    }
+
     fn constant_f64(&mut self, name: &str, values: &[f64]) -> String {
         self.initializers.push(pb::TensorProto {
             name: name.into(),
@@ -212,6 +273,15 @@ fn int_attr(name: &str, value: i64) -> pb::AttributeProto {
         name: name.into(),
         r#type: pb::attribute_proto::AttributeType::Int as i32,
         i: value,
+        ..Default::default()
+    }
+}
+
+fn ints_attr(name: &str, values: &[i64]) -> pb::AttributeProto {
+    pb::AttributeProto {
+        name: name.into(),
+        r#type: pb::attribute_proto::AttributeType::Ints as i32,
+        ints: values.to_vec(),
         ..Default::default()
     }
 }

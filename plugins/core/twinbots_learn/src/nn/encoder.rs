@@ -127,6 +127,29 @@ impl Encoder {
         }
     }
 
+    /// Its numbers, for an exporter; the layers named `<prefix>features.<i>`.
+    pub fn export(&self, prefix: &str) -> Result<crate::policy_net::InputEncoding> {
+        use crate::policy_net::{ConvEncoder, ConvLayer, InputEncoding};
+        Ok(match self {
+            Encoder::Flat { .. } => InputEncoding::Flat,
+            Encoder::ScaledImage { .. } => InputEncoding::Scaled { scale: 1.0 / 255.0 },
+            Encoder::Cnn(cnn) => {
+                let convs = cnn
+                    .convs
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| {
+                        let d = c.dense.values(&format!("{prefix}features.{i}"))?;
+                        Ok(ConvLayer { name: d.name, kernel: c.patches.kernel, stride: c.patches.stride, in_channels: c.patches.channels, filters: d.outputs, weight: d.weight, bias: d.bias })
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                let first = cnn.convs[0].patches;
+                let fc = cnn.fc.values(&format!("{prefix}features.{}", cnn.convs.len()))?;
+                InputEncoding::Cnn(ConvEncoder { height: first.height, width: first.width, channels: first.channels, scale: 1.0 / 255.0, convs, fc })
+            }
+        })
+    }
+
     /// Its variables as `features.<i>.weight` / `.bias` (the dense layer last).
     pub fn named_vars(&self) -> Vec<(String, Var)> {
         let Encoder::Cnn(cnn) = self else { return Vec::new() };

@@ -282,14 +282,13 @@ impl crate::agent::Agent for Ppo {
         Ppo::predict(self, obs, deterministic)
     }
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
-        anyhow::ensure!(self.policy.encoder.is_flat(), "policies on camera images ({}) cannot be exported yet", self.observation_space);
         let layers = self.policy.pi.layers.iter().enumerate().map(|(i, l)| l.values(&format!("pi.{i}"))).collect::<candle_core::Result<_>>()?;
         let head = match &self.action_space {
             Space::Discrete { .. } => PolicyHead::ArgMax,
             Space::Box { .. } => PolicyHead::ClipToBox,
             other => anyhow::bail!("{other} actions cannot be exported"),
         };
-        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), layers, hidden: Activation::Tanh, head })
+        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), encoding: self.policy.encoder.export("")?, layers, hidden: Activation::Tanh, head })
     }
     fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
         Ppo::save(self, dir)

@@ -384,7 +384,8 @@ impl Agent for Sac {
         Sac::predict(self, obs, deterministic)
     }
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
-        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), layers: self.actor.mode_layers()?, hidden: Activation::Relu, head: PolicyHead::TanhToBox })
+        let encoding = self.actor.encoder.export("actor.")?;
+        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), encoding, layers: self.actor.mode_layers()?, hidden: Activation::Relu, head: PolicyHead::TanhToBox })
     }
     fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
         Sac::save(self, dir)

@@ -92,9 +92,6 @@ impl Actor {
 
     /// The layers of the deterministic action tanh(μ(s)): the body, then μ.
     pub fn mode_layers(&self) -> Result<Vec<crate::policy_net::DenseLayer>> {
-        if !self.encoder.is_flat() {
-            candle_core::bail!("policies on camera images cannot be exported yet");
-        }
         let mut layers = self.body.layers.iter().enumerate().map(|(i, l)| l.values(&format!("actor.body.{i}"))).collect::<Result<Vec<_>>>()?;
         layers.push(self.mu.values("actor.mu")?);
         Ok(layers)

@@ -368,7 +368,7 @@ impl Agent for Td3 {
     }
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
         let layers = self.actor.layers.iter().enumerate().map(|(i, l)| l.values(&format!("actor.{i}"))).collect::<candle_core::Result<_>>()?;
-        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), layers, hidden: Activation::Relu, head: PolicyHead::TanhToBox })
+        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), encoding: crate::policy_net::InputEncoding::Flat, layers, hidden: Activation::Relu, head: PolicyHead::TanhToBox })
     }
     fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
         Td3::save(self, dir)
