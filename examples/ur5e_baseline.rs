@@ -21,6 +21,9 @@ fn run(name: &str, app: App, episodes: usize) {
         let step = env.step(&actions).expect("step");
         for ep in step.episodes.into_iter().flatten().take(episodes - done) {
             done += 1;
+            if ep.success == Some(false) {
+                println!("{name}: episode {done} failed: {:?}", ep.metrics);
+            }
             successes += usize::from(ep.success == Some(true));
             for (k, v) in ep.metrics {
                 figures.entry(k).or_default().push(v);

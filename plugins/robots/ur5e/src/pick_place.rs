@@ -104,15 +104,30 @@ pub fn place_part(mut supervisor: Supervisor, arenas: Query<(&CellParts, &CellSt
     }
 }
 
-/// Whether the part stands in the place fixture's pocket: judged by the evaluator, who may look.
-fn part_placed(supervisor: &Supervisor, parts: &CellParts, state: &CellState) -> bool {
-    let Some(part) = supervisor.link_state(parts.part) else { return false };
-    let pose = parts.base.inverse() * part.pose;
-    let seat = part_seat(state.fixtures.place);
-    let off_centre = (pose.translation - seat).truncate().abs();
-    off_centre.max_element() < PLACE_TOLERANCE
-        && (pose.translation.z - seat.z).abs() < 0.005
-        && (pose.rotation * Vec3::Z).angle_between(Vec3::Z) < UPRIGHT_TOLERANCE
+/// Where the part stands against the place fixture's seat, as the evaluator (who may look)
+/// sees it: off the pocket's centre along each side (m), off the pocket floor (m), tilted (rad).
+struct Placement {
+    off_centre: Vec2,
+    height: f32,
+    tilt: f32,
+}
+
+impl Placement {
+    fn of(supervisor: &Supervisor, parts: &CellParts, state: &CellState) -> Option<Self> {
+        let part = supervisor.link_state(parts.part)?;
+        let pose = parts.base.inverse() * part.pose;
+        let seat = part_seat(state.fixtures.place);
+        Some(Self {
+            off_centre: (pose.translation - seat).truncate().abs(),
+            height: (pose.translation.z - seat.z).abs(),
+            tilt: (pose.rotation * Vec3::Z).angle_between(Vec3::Z),
+        })
+    }
+
+    /// In the pocket and upright.
+    fn placed(&self) -> bool {
+        self.off_centre.max_element() < PLACE_TOLERANCE && self.height < 0.005 && self.tilt < UPRIGHT_TOLERANCE
+    }
 }
 
 /// How a pick-and-place episode ended: placed, or the first failure that explains it. `eval`
@@ -170,7 +185,13 @@ pub fn report(
 ) {
     for (parts, state, meter, mut e) in &mut arenas {
         if e.terminated || e.truncated {
-            let placed = state.program.stage == Stage::Done && part_placed(&supervisor, parts, state);
+            let placement = Placement::of(&supervisor, parts, state);
+            let placed = state.program.stage == Stage::Done && placement.as_ref().is_some_and(Placement::placed);
+            if let Some(p) = placement.filter(|_| state.program.stage == Stage::Done) {
+                // How well a finished program put the part down: what a failed place is told by.
+                e.metrics.insert("place_offset_mm".into(), 1e3 * p.off_centre.length());
+                e.metrics.insert("part_tilt_rad".into(), p.tilt);
+            }
             let outcome = Outcome::of(state.program.stage, state.safety.stopped(), state.program.holding, placed);
             e.success = Some(outcome == Outcome::Placed);
             for o in Outcome::ALL {
