@@ -2,7 +2,7 @@
 //! cycle time, energy, joint-limit and collision events of the reach and of pick-and-place, the
 //! figures `twinbots eval` reports for a trained model, for comparison.
 //!
-//! `cargo run --release --example ur5e_baseline [episodes]`
+//! `cargo run --release --example ur5e_baseline [episodes] [seed]`
 
 use std::collections::BTreeMap;
 
@@ -10,10 +10,10 @@ use bevy::app::App;
 use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_task::AppVecEnv;
 
-fn run(name: &str, app: App, episodes: usize) {
+fn run(name: &str, app: App, episodes: usize, seed: u64) {
     let mut env = AppVecEnv::new(app);
     let dim = env.observation_space().dim();
-    let mut obs = env.reset(Some(7)).expect("reset");
+    let mut obs = env.reset(Some(seed)).expect("reset");
     let (mut done, mut successes) = (0, 0);
     let mut figures: BTreeMap<String, Vec<f32>> = BTreeMap::new();
     while done < episodes {
@@ -39,6 +39,7 @@ fn run(name: &str, app: App, episodes: usize) {
 
 fn main() {
     let episodes = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(100);
-    run("reach", ur5e::headless_app_with(8, 7, DesignPattern::Supervised), episodes);
-    run("pick-place", ur5e::pick_place_app(8, 7, DesignPattern::Supervised), episodes);
+    let seed = std::env::args().nth(2).and_then(|a| a.parse().ok()).unwrap_or(7);
+    run("reach", ur5e::headless_app_with(8, seed, DesignPattern::Supervised), episodes, seed);
+    run("pick-place", ur5e::pick_place_app(8, seed, DesignPattern::Supervised), episodes, seed);
 }
