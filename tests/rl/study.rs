@@ -173,7 +173,7 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
     assert!(report.contains("| classic | place-far | 1 | 1.5 | 0 | none | 0 % |"), "{report}");
 
     // Command latency and a trained reach policy (the fixture run, PPO): one control step late,
-    // it no longer places the part; the classical controller still does.
+    // it places the part seldom if at all (8 % of 25 measured); the classical controller always.
     let run = fixture_run("ur5e-reach", "study-latency");
     std::fs::write(&file, "episodes = 3\n[factors]\nlatency = [0, 1]\n").unwrap();
     let late = dir.join("late");
@@ -182,7 +182,8 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
     let rows = summary(&late);
     let rate = |controller: &str, latency: &str| rows.iter().find(|r| r["controller"] == controller && r["latency_steps"] == latency).unwrap()["success_rate"].clone();
     let label = run.file_name().unwrap().to_str().unwrap();
-    assert_eq!((rate(label, "0").as_str(), rate(label, "1").as_str()), ("1.0000", "0.0000"), "{rows:?}");
+    let trained = |latency: &str| rate(label, latency).parse::<f64>().unwrap();
+    assert!(trained("0") == 1.0 && trained("1") <= 1.0 / 3.0, "{rows:?}");
     assert_eq!((rate("classic", "0").as_str(), rate("classic", "1").as_str()), ("1.0000", "1.0000"));
     let _ = std::fs::remove_dir_all(&run);
 
