@@ -166,12 +166,7 @@ fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedControlle
                 entry.name
             );
             if out.terminated[i] {
-                let last = out.final_obs[i].as_deref().unwrap_or(&[]);
-                let mut row = vec![end];
-                row.extend(last.iter().map(|&v| f64::from(v)));
-                row.extend(std::iter::repeat_n(f64::NAN, actions_dim));
-                row.push(0.0);
-                records[i].series.push(row);
+                records[i].series.push(last_row(end, out.final_obs[i].as_deref().unwrap_or(&[]), actions_dim));
                 records[i].survived = false;
                 records[i].ended_s = Some(end);
                 records[i].ended_by = out.ended_by[i].clone();
@@ -181,11 +176,7 @@ fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedControlle
     }
     for (i, r) in records.iter_mut().enumerate() {
         if live[i] {
-            let mut row = vec![steps as f64 * control_dt];
-            row.extend(obs[i * dim..(i + 1) * dim].iter().map(|&v| f64::from(v)));
-            row.extend(std::iter::repeat_n(f64::NAN, actions_dim));
-            row.push(0.0);
-            r.series.push(row);
+            r.series.push(last_row(steps as f64 * control_dt, &obs[i * dim..(i + 1) * dim], actions_dim));
         }
         let signal = 1 + spec.observation_names.iter().position(|n| *n == suite.signal).unwrap_or(0);
         let t: Vec<f64> = r.series.iter().map(|row| row[0]).collect();
@@ -193,6 +184,15 @@ fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedControlle
         r.response = metrics::disturbance(&t, &y, r.at_s, suite.setpoint, suite.settle_band, suite.window);
     }
     Ok(records)
+}
+
+/// A run's last row: its final state, no action after it, no push.
+fn last_row(time: f64, obs: &[f32], actions_dim: usize) -> Vec<f64> {
+    let mut row = vec![time];
+    row.extend(obs.iter().map(|&v| f64::from(v)));
+    row.extend(std::iter::repeat_n(f64::NAN, actions_dim));
+    row.push(0.0);
+    row
 }
 
 fn record(controller: &NamedController, test: &NamedTest, seed: u64, columns: &[String]) -> RunRecord {
