@@ -173,7 +173,7 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
     assert!(report.contains("| classic | place-far | 1 | 1.5 | 0 | none | 0 % |"), "{report}");
 
     // Command latency and a trained reach policy (the fixture run, PPO): one control step late,
-    // it places the part seldom if at all (8 % of 25 measured); the classical controller always.
+    // it places the part seldom if at all (1 of 25 measured); the classical controller always.
     let run = fixture_run("ur5e-reach", "study-latency");
     std::fs::write(&file, "episodes = 3\n[factors]\nlatency = [0, 1]\n").unwrap();
     let late = dir.join("late");
