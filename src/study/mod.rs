@@ -85,21 +85,25 @@ pub fn run_suite(entry: &RobotEntry, suite_path: &Path, controllers: &[String]) 
 fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedController) -> anyhow::Result<Vec<RunRecord>> {
     // How many tests there are does not depend on the control step; how long a kick lasts does.
     let runs = suite.tests(1.0).len() * suite.seeds.len();
-    let mut env = controller.env(entry, None, runs, suite.seeds[0], |_| Ok(()))?;
+    let mut env = controller.env(entry, None, runs, suite.seeds[0], |app| {
+        add_payloads(app);
+        Ok(())
+    })?;
     let settings = *env.app().world().resource::<SimSettings>();
     let control_dt = settings.control_seconds();
     let tests = suite.tests(control_dt);
     let plan: Vec<(&NamedTest, u64)> = tests.iter().flat_map(|t| suite.seeds.iter().map(move |&s| (t, s))).collect();
     let arenas = env.arenas().to_vec();
     let push_link = find_links(env.app_mut().world_mut(), &arenas, &suite.push.link)?;
+    for (i, (test, _)) in plan.iter().enumerate() {
+        if let Test::Payload { link, mass } = &test.test {
+            let payload = payload(entry, env.app_mut().world_mut(), arenas[i], link, *mass)?;
+            env.app_mut().world_mut().entity_mut(arenas[i]).insert(payload);
+        }
+    }
     // Every run starts as the suite's first arena would from its seed, whichever arena it has.
     let seeds: Vec<u64> = plan.iter().map(|(_, s)| *s).collect();
     let mut obs = reset_alike(&mut env, &seeds)?;
-    for (i, (test, _)) in plan.iter().enumerate() {
-        if let Test::Payload { link, mass } = &test.test {
-            set_payload(entry, env.app_mut().world_mut(), arenas[i], link, *mass)?;
-        }
-    }
     let dim = env.observation_space().dim();
     let actions_dim = env.action_space().dim();
     let spec = env.task().clone();
@@ -234,9 +238,31 @@ fn find_links(world: &mut World, arenas: &[Entity], name: &str) -> anyhow::Resul
         .collect()
 }
 
-/// Makes the link's mass `mass` (kg) in one arena: the difference to its URDF mass added at the
-/// link's origin.
-fn set_payload(entry: &RobotEntry, world: &mut World, arena: Entity, link: &str, mass: f64) -> anyhow::Result<()> {
+/// Mass added to a link of an arena's robot at its origin (kg; negative takes it away), put on
+/// at every reset (a reset restores the URDF's): a study's payload, on the arena's entity.
+#[derive(Component, Clone, Copy, Debug)]
+pub struct Payload {
+    pub link: Entity,
+    pub extra_kg: f32,
+}
+
+/// Puts the arenas' [`Payload`]s on at every reset; a study's app calls it before its start-up.
+pub fn add_payloads(app: &mut App) {
+    app.add_systems(twinbots_task::task::EnvReset, put_on_payloads.in_set(twinbots_task::task::ResetSet::Place));
+}
+
+fn put_on_payloads(arenas: Query<(Entity, &Payload), With<twinbots_task::task::Resetting>>, links: Query<&Link>, mut worlds: Query<&mut Arena>) {
+    for (arena, payload) in &arenas {
+        if let (Ok(link), Ok(mut world)) = (links.get(payload.link), worlds.get_mut(arena)) {
+            // Checked when the payload was made: the link's body keeps a positive mass.
+            let _ = add_link_mass(&mut world, link, payload.extra_kg);
+        }
+    }
+}
+
+/// The payload that makes the link's mass `mass` (kg) in one arena: the difference to its URDF
+/// mass, checked against the link's body.
+fn payload(entry: &RobotEntry, world: &mut World, arena: Entity, link: &str, mass: f64) -> anyhow::Result<Payload> {
     let rig = entry.rig.ok_or_else(|| anyhow::anyhow!("payload: {} has no robot model to take the link's mass from", entry.name))?;
     let model = (rig.model)();
     let nominal = model
@@ -248,6 +274,10 @@ fn set_payload(entry: &RobotEntry, world: &mut World, arena: Entity, link: &str,
         .map_or(0.0, |i| i.mass);
     let entity = find_links(world, &[arena], link)?[0];
     let link_component = world.get::<Link>(entity).cloned().expect("found as a link");
-    let mut arena = world.get_mut::<Arena>(arena).expect("an arena");
-    add_link_mass(&mut arena, &link_component, mass as f32 - nominal).map_err(|e| anyhow::anyhow!("payload: {e}"))
+    let extra_kg = mass as f32 - nominal;
+    // Put on once now, which checks it; the reset that starts the runs restores the URDF's mass
+    // and puts it on again, as every later reset does.
+    let mut world_of_arena = world.get_mut::<Arena>(arena).expect("an arena");
+    add_link_mass(&mut world_of_arena, &link_component, extra_kg).map_err(|e| anyhow::anyhow!("payload: {e}"))?;
+    Ok(Payload { link: entity, extra_kg })
 }

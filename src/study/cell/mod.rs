@@ -15,8 +15,7 @@ use std::time::Instant;
 use bevy::prelude::*;
 use serde::Serialize;
 use twinbots_api::{EpisodeSummary, VecEnv};
-use twinbots_sim::{Arena, Link, Push, SimSettings, VacuumGripper, add_link_mass};
-use twinbots_task::task::{EnvReset, ResetSet, Resetting};
+use twinbots_sim::{Push, SimSettings, VacuumGripper};
 use ur5e::CellState;
 use ur5e::arm::SpeedSlider;
 use ur5e::cell::CellParts;
@@ -25,6 +24,7 @@ use ur5e::pick_place::{Stage, waypoint};
 
 use self::plan::{CellStudy, Combination, Failure};
 use super::controller::{NamedController, open_all, reset_alike};
+use super::{Payload, add_payloads};
 use crate::registry::RobotEntry;
 
 /// The program's phases, in order, as the breakdown names them.
@@ -72,19 +72,6 @@ pub struct CellStudyResult {
     pub episodes: Vec<EpisodeRecord>,
     pub control_dt: f64,
     pub wall_s: f64,
-}
-
-/// The part's extra mass in an arena, put on at every reset (a reset restores the URDF's).
-#[derive(Component, Clone, Copy)]
-struct ExtraPartMass(f32);
-
-fn add_part_mass(arenas: Query<(Entity, &ExtraPartMass, &CellParts), With<Resetting>>, links: Query<&Link>, mut worlds: Query<&mut Arena>) {
-    for (arena, extra, parts) in &arenas {
-        if let (Ok(link), Ok(mut world)) = (links.get(parts.part), worlds.get_mut(arena)) {
-            // Checked before the study starts: the part keeps a positive mass.
-            let _ = add_link_mass(&mut world, link, extra.0);
-        }
-    }
 }
 
 /// Runs the study of `path` on `entry` (a robot with a cell), with `controllers` instead of
@@ -197,7 +184,8 @@ impl Batch<'_> {
         let combos: Vec<&Combination> = self.members.iter().map(|&i| &self.combinations[i]).collect();
         let cell_layouts = CellLayouts(combos.iter().map(|c| self.layouts[c.layout].1.clone()).collect());
         let mut env = controller.env(entry, Some("pick-place"), combos.len(), self.study.seed, |app| {
-            app.insert_resource(cell_layouts).add_systems(EnvReset, add_part_mass.in_set(ResetSet::Place));
+            app.insert_resource(cell_layouts);
+            add_payloads(app);
             Ok(())
         })?;
         let settings = *env.app().world().resource::<SimSettings>();
@@ -208,7 +196,8 @@ impl Batch<'_> {
             let parts = world.get::<CellParts>(arena).expect("a UR5e cell").clone();
             world.entity_mut(arena).insert(SpeedSlider(combo.speed));
             if let Some(mass) = combo.payload {
-                world.entity_mut(arena).insert(ExtraPartMass(mass as f32 - self.nominal_part));
+                // The study's payloads are positive: the part keeps a mass.
+                world.entity_mut(arena).insert(Payload { link: parts.part, extra_kg: mass as f32 - self.nominal_part });
             }
             if combo.failure == Failure::FailedGrasp
                 && let Some(mut gripper) = world.get_mut::<VacuumGripper>(parts.gripper)
