@@ -15,6 +15,7 @@ use twinbots_onnx::OnnxPolicy;
 pub const MANIFEST: &str = "bundle.json";
 pub const POLICY: &str = "policy.onnx";
 pub const CALIBRATION: &str = "calibration.toml";
+pub const CELL: &str = "cell.toml";
 /// What `bundle.json`'s `format` says.
 pub const FORMAT: &str = "twinbots-bundle/1";
 
@@ -40,6 +41,10 @@ pub struct Manifest {
     pub shadow: ShadowLimits,
     /// The calibration file the policy was trained on (`calibration.toml` in the bundle), if any.
     pub calibration: Option<String>,
+    /// The cell layout the policy was trained in (`cell.toml`, docs/cells.md), if not the
+    /// default: deploy's targets follow its fixtures, the shadow keeps off its obstacles.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cell: Option<String>,
     /// Environment steps of training.
     pub timesteps: u64,
 }
@@ -80,10 +85,12 @@ pub struct Bundle {
     pub dir: PathBuf,
     pub manifest: Manifest,
     pub policy: OnnxPolicy,
+    /// The cell (`manifest.cell`), else the default one.
+    pub cell: ur5e::layout::CellLayout,
 }
 
 /// What a robot's deployment needs: the UR5e's (the only robot with a controller link so far).
-pub fn manifest_for(robot: &str, metadata: &twinbots_onnx::PolicyMetadata, calibration: Option<String>) -> anyhow::Result<Manifest> {
+pub fn manifest_for(robot: &str, metadata: &twinbots_onnx::PolicyMetadata, calibration: Option<String>, cell: Option<String>) -> anyhow::Result<Manifest> {
     anyhow::ensure!(robot == "ur5e", "robot '{robot}' has no deployment (joint order, signs and limits on a real controller): only ur5e does; `export --onnx` writes its policy alone");
     use ur5e::kinematics::{JOINT_RANGES, MAX_JOINT_SPEED};
     let shadow = ur5e::deploy::Shadow::default();
@@ -120,6 +127,7 @@ pub fn manifest_for(robot: &str, metadata: &twinbots_onnx::PolicyMetadata, calib
             table_clearance_m: shadow.table_clearance,
         },
         calibration,
+        cell,
         timesteps: metadata.timesteps,
     })
 }
@@ -131,7 +139,7 @@ fn decimal(v: f32) -> f64 {
 
 /// Writes a bundle to `dir` (all files first into `dir.partial`, then renamed, so a bundle is
 /// whole or absent). An existing bundle there is replaced; any other existing path is an error.
-pub fn write(dir: &Path, manifest: &Manifest, policy_bytes: &[u8], calibration_text: Option<&str>) -> anyhow::Result<()> {
+pub fn write(dir: &Path, manifest: &Manifest, policy_bytes: &[u8], calibration_text: Option<&str>, cell_text: Option<&str>) -> anyhow::Result<()> {
     if dir.exists() {
         anyhow::ensure!(dir.join(MANIFEST).is_file(), "{} exists and is not a bundle: choose another --bundle", dir.display());
     }
@@ -145,6 +153,9 @@ pub fn write(dir: &Path, manifest: &Manifest, policy_bytes: &[u8], calibration_t
     write(POLICY, policy_bytes)?;
     if let Some(text) = calibration_text {
         write(CALIBRATION, text.as_bytes())?;
+    }
+    if let Some(text) = cell_text {
+        write(CELL, text.as_bytes())?;
     }
     write(MANIFEST, (serde_json::to_string_pretty(manifest)? + "\n").as_bytes())?;
     if dir.exists() {
@@ -176,7 +187,11 @@ impl Bundle {
         if let Some(file) = &manifest.calibration {
             anyhow::ensure!(dir.join(file).is_file(), "{}: the manifest names calibration '{file}', which is missing", dir.display());
         }
-        Ok(Self { dir: dir.to_path_buf(), manifest, policy })
+        let cell = match &manifest.cell {
+            Some(file) => ur5e::layout::CellLayout::read(&dir.join(file)).map_err(|e| anyhow::anyhow!("{}: the manifest's cell: {e}", dir.display()))?,
+            None => Default::default(),
+        };
+        Ok(Self { dir: dir.to_path_buf(), manifest, policy, cell })
     }
 
     /// An error unless this bundle fits `robot` with these joints (controller order) and

@@ -4,6 +4,7 @@ the ROS 2 message types written here from their .msg files and rmw's naming (top
 `rt/joint_states`, type `sensor_msgs::msg::dds_::JointState_`), as docs/ros2.md tells a
 user to. Discovery runs over loopback (unicast peers), so no multicast or network is needed."""
 
+import json
 import math
 import os
 import random
@@ -270,3 +271,60 @@ def test_a_cyclonedds_peer_reads_joint_states_and_frames_and_moves_the_twin(twin
     still = latest(states, 5)
     assert still is not None and close_to(still, expected, 0.01)
     assert twin.process.poll() is None
+
+
+def follow_with_monitor(tmp_path, robot_args):
+    """`twinbots ros2 ur5e ROBOT_ARGS` as the robot (500 Hz states, as ur_robot_driver), and
+    `twinbots monitor ur5e --ros2` following it for 8 s of its clock while the peer moves the
+    arm through its forward velocity controller. Returns monitor.json and the monitor's output."""
+    domain = random.Random().randrange(100, 230)
+    robot = subprocess.Popen(
+        [twinbots_bin(), "ros2", "ur5e", "--domain", str(domain), "--rate", "500", "--seconds", "60", *robot_args],
+        stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    out = tmp_path / "monitor"
+    monitor = subprocess.Popen(
+        [twinbots_bin(), "monitor", "ur5e", "--ros2", "--domain", str(domain), "--seconds", "8", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    threading.Thread(target=lambda: lines.extend(monitor.stdout), daemon=True).start()
+    try:
+        peer = Peer(domain)
+        velocity = peer.writer("rt/forward_velocity_controller/commands", Float64MultiArray)
+        deadline = time.time() + 30
+        while not any("following" in line for line in lines) and time.time() < deadline:
+            time.sleep(0.05)
+        assert any("following" in line for line in lines), "".join(lines)
+        # The monitor's twin settles and warms up (1.5 s of the robot's clock), then the arm
+        # moves: a smooth out-and-back of three joints over 3 s, sent at 100 Hz, then rest.
+        time.sleep(2.0)
+        start = time.time()
+        while (t := time.time() - start) < 3.0:
+            s = math.sin(2 * math.pi * t / 3.0)
+            velocity.write(Float64MultiArray(MultiArrayLayout([], 0), [0.3 * s, -0.2 * s, 0.3 * s, 0.0, 0.0, 0.0]))
+            time.sleep(0.01)
+        for _ in range(5):
+            velocity.write(Float64MultiArray(MultiArrayLayout([], 0), [0.0] * 6))
+            time.sleep(0.01)
+        assert monitor.wait(timeout=60) == 0, "".join(lines)
+    finally:
+        monitor.kill()
+        robot.kill()
+        robot.wait()
+    return json.loads((out / "monitor.json").read_text()), "".join(lines), out
+
+
+def test_the_monitor_follows_a_ros2_robot_and_stays_quiet_when_it_matches(tmp_path):
+    report, output, out = follow_with_monitor(tmp_path, [])
+    assert report["alarms"] == [], output
+    assert report["reports"] > 2500, output  # 500 Hz for 8 s, some lost on a busy machine
+    assert len(report["motions"]) >= 1 and report["motions"][0]["duration_s"] > 2.0, report["motions"]
+    assert max(report["worst_rmse"]) < 0.005, report["worst_rmse"]
+    assert (out / "robot.mcap").stat().st_size > 0 and (out / "divergence.png").stat().st_size > 0
+
+
+def test_the_monitor_notices_an_unmodelled_payload_on_a_ros2_robot(tmp_path):
+    report, output, _ = follow_with_monitor(tmp_path, ["--payload", "1.0"])
+    divergence = [a for a in report["alarms"] if a["kind"] == "divergence"]
+    assert divergence, output
+    motion = report["motions"][0]["start"] if report["motions"] else float("inf")
+    assert divergence[0]["time"] <= motion + 1.0, (divergence[0], report["motions"])

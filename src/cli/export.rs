@@ -50,9 +50,11 @@ pub fn export_bundle(run: &Path, dir: &Path) -> anyhow::Result<twinbots::bundle:
         let body = toml::to_string(&File { parameters: &c.parameters }).expect("parameters serialise");
         format!("# The calibration the policy was trained on (from {}).\n{body}", c.file)
     });
-    let manifest = twinbots::bundle::manifest_for(&settings.robot, &metadata, calibration.as_ref().map(|_| twinbots::bundle::CALIBRATION.to_string()))?;
+    let cell = settings.cell.as_ref().map(|c| format!("# The cell the policy was trained in (the run's [cell]).\n{}", toml::to_string(c).expect("a cell table serialises")));
+    let named = |text: &Option<String>, file: &str| text.as_ref().map(|_| file.to_string());
+    let manifest = twinbots::bundle::manifest_for(&settings.robot, &metadata, named(&calibration, twinbots::bundle::CALIBRATION), named(&cell, twinbots::bundle::CELL))?;
     let bytes = twinbots_onnx::policy_bytes(model.as_ref(), &metadata)?;
-    twinbots::bundle::write(dir, &manifest, &bytes, calibration.as_deref())?;
+    twinbots::bundle::write(dir, &manifest, &bytes, calibration.as_deref(), cell.as_deref())?;
     println!(
         "{}: {} bundle ({} joints, action x {} rad/s, every {} s{}) to {}",
         manifest.robot,
@@ -60,7 +62,12 @@ pub fn export_bundle(run: &Path, dir: &Path) -> anyhow::Result<twinbots::bundle:
         manifest.joints.len(),
         manifest.action.scale,
         manifest.control_period_s,
-        if manifest.calibration.is_some() { ", calibrated" } else { "" },
+        match (&manifest.calibration, &manifest.cell) {
+            (Some(_), Some(_)) => ", calibrated, its cell",
+            (Some(_), None) => ", calibrated",
+            (None, Some(_)) => ", its cell",
+            (None, None) => "",
+        },
         dir.display()
     );
     Ok(manifest)

@@ -1,10 +1,12 @@
-//! `twinbots monitor ur5e --rtde HOST[:PORT] [--calibration FILE] [--seconds S] --out DIR`: the
-//! twin follows the robot live and says where they part (docs/monitor.md).
+//! `twinbots monitor ur5e (--rtde HOST[:PORT] | --ros2) [--calibration FILE] [--cell FILE]
+//! [--seconds S] [--frames-every S] --out DIR`: the twin follows the robot live and says where they part
+//! (docs/monitor.md).
 
 use std::path::PathBuf;
 use std::time::Duration;
 
 use twinbots::monitor::{Monitor, MonitorOptions, Report};
+use twinbots_render::{Renderer, View};
 use twinbots_rtde::{DataPackage, RtdeClient};
 use twinbots_sysid::Rig;
 use twinbots_task::calibration::read_calibration;
@@ -13,15 +15,26 @@ use crate::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
+#[command(group = clap::ArgGroup::new("source").required(true).args(["rtde", "ros2"]))]
 pub struct Args {
     /// The robot (only ur5e has a controller link).
     pub robot: String,
     /// The robot's controller: RTDE at HOST[:PORT] (port 30004 by default).
     #[arg(long)]
-    pub rtde: String,
+    pub rtde: Option<String>,
+    /// The robot's ROS 2 driver instead: its /joint_states and the commands sent to its forward
+    /// velocity controller, overheard on DDS (`--domain`, default ROS_DOMAIN_ID, else 0).
+    #[arg(long)]
+    pub ros2: bool,
+    /// The DDS domain (with --ros2).
+    #[arg(long, requires = "ros2")]
+    pub domain: Option<String>,
     /// Run the twin calibrated by this file (`twinbots identify`'s calibration.toml).
     #[arg(long)]
     pub calibration: Option<PathBuf>,
+    /// The robot's cell (docs/cells.md): the predicted alarm also watches its obstacles.
+    #[arg(long)]
+    pub cell: Option<PathBuf>,
     /// Follow for this many seconds of controller time (default: until the controller goes).
     #[arg(long)]
     pub seconds: Option<f64>,
@@ -37,15 +50,130 @@ pub struct Args {
     /// The longest to wait for the controller (ms).
     #[arg(long, default_value_t = 1000.0)]
     pub patience_ms: f64,
-    /// Where to write robot.mcap, twin.mcap, monitor.json and divergence.png.
+    /// Render the twin as it follows, a PNG frame every this many seconds of controller time,
+    /// into DIR/frames/ (off-screen: needs a Vulkan adapter, lavapipe will do).
+    #[arg(long)]
+    pub frames_every: Option<f64>,
+    /// The frames' size (WxH).
+    #[arg(long, default_value = "640x480")]
+    pub size: String,
+    /// The frames' camera: side, front, iso or top.
+    #[arg(long, default_value = "iso")]
+    pub camera: String,
+    /// Where to write robot.mcap, twin.mcap, monitor.json, divergence.png (and frames/).
     #[arg(long)]
     pub out: PathBuf,
+}
+
+/// Where the robot's reports come from.
+enum Source {
+    Rtde(RtdeClient),
+    #[cfg(feature = "ros2")]
+    Ros2(twinbots::monitor::ros2::Ros2Source),
+}
+
+impl Source {
+    fn open(args: &Args, patience: Duration) -> anyhow::Result<Self> {
+        if let Some(address) = &args.rtde {
+            let mut client = RtdeClient::connect(address, patience)?;
+            client.setup_outputs(&["timestamp", "actual_q", "actual_qd", "target_qd", "target_moment"], twinbots_rtde::MAX_FREQUENCY)?;
+            client.start()?;
+            return Ok(Source::Rtde(client));
+        }
+        Self::open_ros2(args, patience)
+    }
+
+    #[cfg(feature = "ros2")]
+    fn open_ros2(args: &Args, patience: Duration) -> anyhow::Result<Self> {
+        use twinbots_ros2::node::{domain_from_env, parse_domain};
+        let domain = match &args.domain {
+            Some(d) => parse_domain(d)?,
+            None => domain_from_env()?,
+        };
+        let name = format!("twinbots_monitor_{}", std::process::id());
+        Ok(Source::Ros2(twinbots::monitor::ros2::Ros2Source::open(domain, &name, patience)?))
+    }
+
+    #[cfg(not(feature = "ros2"))]
+    fn open_ros2(_: &Args, _: Duration) -> anyhow::Result<Self> {
+        anyhow::bail!("this twinbots was built without the ros2 feature: --ros2 needs it (docs/ros2.md)")
+    }
+
+    fn label(args: &Args) -> String {
+        match &args.rtde {
+            Some(a) => format!("RTDE at {a}"),
+            None => "ROS 2 (/joint_states)".into(),
+        }
+    }
+
+    /// The next report; `Err(reason)` inside when the robot went (the run ends, what was
+    /// followed is written); the outer error for a report that is not one.
+    fn next(&mut self) -> anyhow::Result<Result<Report, String>> {
+        match self {
+            Source::Rtde(client) => match client.receive() {
+                Ok(p) => Ok(Ok(report(&p)?)),
+                Err(e) => Ok(Err(e.to_string())),
+            },
+            #[cfg(feature = "ros2")]
+            Source::Ros2(source) => {
+                use twinbots::monitor::ros2::Next;
+                loop {
+                    match source.next()? {
+                        Next::Report(r) => return Ok(Ok(r)),
+                        Next::Silent(wait) => return Ok(Err(format!("no joint state for {:.1} s", wait.as_secs_f64()))),
+                        Next::Note(note) => println!("monitor: {note}"),
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The twin rendered as it follows.
+struct TwinFrames {
+    renderer: Renderer,
+    dir: PathBuf,
+    every: f64,
+    next: f64,
+    written: usize,
+}
+
+impl TwinFrames {
+    fn new(args: &Args, entry: &registry::RobotEntry, start: f64) -> anyhow::Result<Option<Self>> {
+        let Some(every) = args.frames_every else { return Ok(None) };
+        anyhow::ensure!(every > 0.0 && every.is_finite(), "--frames-every must be positive, not {every}");
+        let (w, h) = crate::cli::capture::parse_size(&args.size)?;
+        let view: View = crate::cli::capture::camera(entry, &args.camera)?;
+        let mut renderer = Renderer::new(w, h)?;
+        renderer.set_view(view);
+        let dir = args.out.join("frames");
+        std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
+        Ok(Some(Self { renderer, dir, every, next: start, written: 0 }))
+    }
+
+    /// A frame when its time has come: `frame_<ms since the start>.png`.
+    fn offer(&mut self, monitor: &mut Monitor, time: f64, start: f64) -> anyhow::Result<()> {
+        if time + 1e-9 < self.next {
+            return Ok(());
+        }
+        while self.next <= time + 1e-9 {
+            self.next += self.every;
+        }
+        let (world, arena) = monitor.twin_scene();
+        self.renderer.sync(world, arena);
+        let rgb = self.renderer.render()?;
+        let path = self.dir.join(format!("frame_{:07}.png", ((time - start) * 1e3).round() as u64));
+        let (w, h) = (self.renderer.width, self.renderer.height);
+        image::save_buffer(&path, &rgb, w, h, image::ExtendedColorType::Rgb8).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        self.written += 1;
+        Ok(())
+    }
 }
 
 /// `twinbots monitor`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let entry = registry::find(&args.robot)?;
-    anyhow::ensure!(args.robot == "ur5e", "robot '{}' has no controller link: only ur5e is monitored (RTDE)", args.robot);
+    anyhow::ensure!(args.robot == "ur5e", "robot '{}' has no controller link: only ur5e is monitored (RTDE, ROS 2)", args.robot);
     if let Some(s) = args.seconds {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
@@ -53,27 +181,37 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let rig = Rig::of(&entry)?;
     let calibration = args.calibration.as_deref().map(|p| read_calibration(p, &rig.catalogue, rig.robot)).transpose()?.unwrap_or_default();
     std::fs::create_dir_all(&args.out).map_err(|e| anyhow::anyhow!("{}: {e}", args.out.display()))?;
+    let label = Source::label(&args);
     let options = MonitorOptions {
         calibration,
         position_threshold: args.position_threshold_mrad / 1e3,
         effort_threshold: args.effort_threshold,
         window: args.window,
+        source: format!("robot ({label})"),
+        shadow: match &args.cell {
+            Some(path) => {
+                let layout = ur5e::layout::CellLayout::read(path).map_err(anyhow::Error::msg)?;
+                ur5e::deploy::Shadow { keepouts: ur5e::deploy::Keepout::of_cell(&layout), ..Default::default() }
+            }
+            None => Default::default(),
+        },
     };
-    let mut client = RtdeClient::connect(&args.rtde, Duration::from_secs_f64(args.patience_ms / 1e3))?;
-    client.setup_outputs(&["timestamp", "actual_q", "actual_qd", "target_qd", "target_moment"], twinbots_rtde::MAX_FREQUENCY)?;
-    client.start()?;
-    let first = report(&client.receive()?)?;
+    let mut source = Source::open(&args, Duration::from_secs_f64(args.patience_ms / 1e3))?;
+    let first = source.next()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
-    println!("monitor: following {} from t = {:.3} s (the twin settles 0.5 s before it compares)", args.rtde, first.time);
+    let mut frames = TwinFrames::new(&args, &entry, first.time)?;
+    println!("monitor: following {label} from t = {:.3} s (the twin settles 0.5 s before it compares)", first.time);
     let mut next_line = first.time + 1.0;
     let ended = loop {
-        let package = match client.receive() {
-            Ok(p) => p,
+        let r = match source.next()? {
+            Ok(r) => r,
             Err(e) => break Some(e),
         };
-        let r = report(&package)?;
         for alarm in monitor.observe(&r) {
             println!("[{:9.3} s] ALARM {}: {}", alarm.time, alarm.kind, alarm.message);
+        }
+        if let Some(f) = frames.as_mut() {
+            f.offer(&mut monitor, r.time, first.time)?;
         }
         if r.time >= next_line {
             next_line += 1.0;
@@ -92,8 +230,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     crate::cli::replay::write_json(&args.out.join("monitor.json"), account)?;
     let alarms: Vec<f64> = account.alarms.iter().map(|a| a.time).collect();
     twinbots_sysid::plot::divergence_png(&args.out.join("divergence.png"), "ur5e: robot vs twin, live", &monitor.robot_log, &monitor.twin_log, &alarms)?;
+    let frames_line = frames.map_or(String::new(), |f| format!(", {} frame(s) in frames/", f.written));
     println!(
-        "monitor: {:.1} s, {} reports ({} skipped), {} alarm(s), {} motion(s); worst position RMSE {:.3} mrad, worst effort RMSE {:.3} N*m; wrote {}/robot.mcap, twin.mcap, monitor.json, divergence.png",
+        "monitor: {:.1} s, {} reports ({} skipped), {} alarm(s), {} motion(s); worst position RMSE {:.3} mrad, worst effort RMSE {:.3} N*m; wrote {}/robot.mcap, twin.mcap, monitor.json, divergence.png{frames_line}",
         account.seconds - first.time,
         account.reports,
         account.skipped,

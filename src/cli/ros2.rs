@@ -1,9 +1,13 @@
-//! `twinbots ros2 <robot> [--domain N] [--rate HZ] [--seconds S]`: the twin as a ROS 2 robot on
-//! DDS, no ROS install needed (docs/ros2.md).
+//! `twinbots ros2 <robot> [--domain N] [--rate HZ] [--seconds S] [--truth FILE] [--payload KG]`:
+//! the twin as a ROS 2 robot on DDS, no ROS install needed (docs/ros2.md).
 
 use std::sync::atomic::AtomicBool;
 
-use twinbots::ros2::{Ros2Twin, ServeOptions, serve};
+use std::path::PathBuf;
+
+use twinbots::ros2::{Payload, Ros2Twin, ServeOptions, TwinOptions, serve};
+use twinbots_sysid::Rig;
+use twinbots_task::calibration::read_calibration;
 use twinbots_ros2::node::{TRAJECTORY_TOPIC, domain_from_env, parse_domain};
 use twinbots_ros2::{Interface, Ros2Node};
 
@@ -26,6 +30,19 @@ pub struct Args {
     /// The node's name (default: twinbots_<robot>).
     #[arg(long)]
     pub node: Option<String>,
+    /// The physics step (ms); default: the robot's, the UR5e's controller cycle (2 ms, as ur-sim).
+    #[arg(long)]
+    pub step_ms: Option<f64>,
+    /// Run the robot on these parameters (a calibration file, as `ur-sim --truth`): a stand-in
+    /// for a robot that differs from its twin.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// A payload (kg) the twin does not know, on `--payload-link` 5 cm out along its z axis.
+    #[arg(long)]
+    pub payload: Option<f32>,
+    /// The link that carries `--payload` (default: the end of the chain, a UR's tool0).
+    #[arg(long, requires = "payload")]
+    pub payload_link: Option<String>,
 }
 
 /// `twinbots ros2`.
@@ -38,7 +55,19 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         Some(d) => parse_domain(d)?,
         None => domain_from_env()?,
     };
-    let mut twin = Ros2Twin::new(&entry)?;
+    let truth = match &args.truth {
+        Some(path) => {
+            let rig = Rig::of(&entry)?;
+            read_calibration(path, &rig.catalogue, rig.robot)?
+        }
+        None => Default::default(),
+    };
+    let step = match args.step_ms {
+        Some(ms) => Some(ms / 1e3),
+        None => (entry.name == "ur5e").then_some(twinbots::ur_sim::CYCLE),
+    };
+    let payload = args.payload.map(|mass| Payload { mass, link: args.payload_link.clone(), at: bevy::math::Vec3::new(0.0, 0.0, 0.05) });
+    let mut twin = Ros2Twin::new(&entry, &TwinOptions { step, truth, payload })?;
     let name = args.node.unwrap_or_else(|| format!("twinbots_{}", twin.robot()));
     let node = Ros2Node::open(domain, &name)?;
     let joints: Vec<&str> = twin.commandable().collect();

@@ -11,10 +11,9 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use twinbots_rtde::server::RtdeServer;
-use ur5e::deploy::ReachController;
 
 use super::arm::{Arm, RtdeArm};
-use super::shadow_of;
+use super::{controller_of, shadow_of};
 use crate::bundle::Bundle;
 use crate::ur_sim::{CYCLE, UrSim, UrSimOptions, controller_info};
 
@@ -48,7 +47,7 @@ pub fn measure(bundle: &Bundle, seconds: f64, mut progress: impl FnMut(&LatencyR
     let result = (|| {
         let mut arm = RtdeArm::connect(&address, Duration::from_secs(1))?;
         let shadow = shadow_of(bundle);
-        let mut controller = ReachController::default();
+        let mut controller = controller_of(bundle);
         let mut rng = ChaCha8Rng::seed_from_u64(0);
         controller.new_reach(&mut rng);
         let mut latencies = Vec::new();

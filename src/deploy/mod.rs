@@ -79,7 +79,16 @@ pub fn shadow_of(bundle: &Bundle) -> Shadow {
         lookahead: m.shadow.lookahead_s,
         range_margin: m.shadow.range_margin_rad,
         table_clearance: m.shadow.table_clearance_m,
+        keepouts: ur5e::deploy::Keepout::of_cell(&bundle.cell),
+        ..Shadow::default()
     }
+}
+
+/// The reach controller in the bundle's cell: its targets avoid the cell's own pick fixture.
+pub fn controller_of(bundle: &Bundle) -> ReachController {
+    let mut controller = ReachController::default();
+    controller.state.fixtures = bundle.cell.fixtures();
+    controller
 }
 
 /// A policy: raw observation in, action out.
@@ -139,7 +148,7 @@ impl<'a> Deployment<'a> {
     fn new(bundle: &Bundle, policy: PolicyFn<'a>, options: &DeployOptions) -> Self {
         Self {
             policy,
-            controller: ReachController::default(),
+            controller: controller_of(bundle),
             shadow: shadow_of(bundle),
             rng: ChaCha8Rng::seed_from_u64(options.seed),
             period: bundle.manifest.control_period_s,

@@ -1,4 +1,5 @@
-//! `twinbots monitor`: the twin follows a robot live. Every controller report (RTDE, 500 Hz)
+//! `twinbots monitor`: the twin follows a robot live. Every controller report (RTDE, 500 Hz; or a
+//! ROS 2 driver's joint states, [`ros2`])
 //! gives the robot's measured joints and the joint speeds its controller is commanding; the twin
 //! takes the same command for the same 2 ms and is compared with the robot, joint by joint:
 //! the divergence over the last second (RMSE and largest error), an alarm when it passes a
@@ -18,6 +19,9 @@ use ur5e::deploy::Shadow;
 use ur5e::kinematics::JOINTS;
 
 use crate::ur_sim::{CYCLE, controller_stand};
+
+#[cfg(feature = "ros2")]
+pub mod ros2;
 
 /// The errors of the last window, per joint: position (rad) and effort (N·m), one pair a report.
 #[derive(Default)]
@@ -55,11 +59,15 @@ pub struct MonitorOptions {
     pub effort_threshold: f64,
     /// The rolling window (s).
     pub window: f64,
+    /// Where the robot's reports come from, as its log names it ("robot (RTDE)").
+    pub source: String,
+    /// What the predicted alarm checks each command against (the cell's obstacles with `--cell`).
+    pub shadow: Shadow,
 }
 
 impl Default for MonitorOptions {
     fn default() -> Self {
-        Self { calibration: Parameters::default(), position_threshold: 0.005, effort_threshold: 1.5, window: 1.0 }
+        Self { calibration: Parameters::default(), position_threshold: 0.005, effort_threshold: 1.5, window: 1.0, source: "robot (RTDE)".into(), shadow: Shadow::default() }
     }
 }
 
@@ -159,11 +167,13 @@ impl Monitor {
         let meta = |source: &str| LogMeta { robot: "ur5e".into(), source: source.into(), control_period: CYCLE, ..Default::default() };
         let joints: Vec<String> = JOINTS.iter().map(|s| s.to_string()).collect();
         let log = |source: &str| RobotLog { meta: meta(source), joints: joints.clone(), states: Vec::new(), commands: Vec::new(), tool: Vec::new() };
+        let robot_log = log(&options.source);
+        let shadow = options.shadow.clone();
         Ok(Self {
             options,
             stand,
             bias,
-            shadow: Shadow::default(),
+            shadow,
             // The twin stands at the first report: it steps from the next on.
             last_time: first.time,
             last_command: first.command,
@@ -184,7 +194,7 @@ impl Monitor {
             rest_cycles: 0,
             warm_up: WARM_UP_CYCLES,
             motion: None,
-            robot_log: log("robot (RTDE)"),
+            robot_log,
             twin_log: log("twinbots monitor: the twin on the robot's commands"),
         })
     }
@@ -303,6 +313,11 @@ impl Monitor {
             velocity: twin.velocity.iter().map(|&v| v as f64).collect(),
             effort: twin.effort.iter().map(|&v| v as f64).collect(),
         });
+    }
+
+    /// The twin's world and its arena (to render it).
+    pub fn twin_scene(&mut self) -> (&mut bevy::prelude::World, bevy::prelude::Entity) {
+        self.stand.scene(0)
     }
 
     /// The account so far.

@@ -32,16 +32,58 @@ pub struct Ros2Twin {
     following: Option<Following>,
 }
 
+/// What the robot on the stand is, beyond its registered twin: what a stand-in robot for a
+/// monitor or a bridge test differs by.
+#[derive(Clone, Debug, Default)]
+pub struct TwinOptions {
+    /// The physics step (s); default: the rig's.
+    pub step: Option<f64>,
+    /// Parameters over the nominal ones (a calibration file's, as `ur-sim --truth`).
+    pub truth: twinbots_sim::Parameters,
+    /// A load the registered twin does not know.
+    pub payload: Option<Payload>,
+}
+
+/// A point mass on a link.
+#[derive(Clone, Debug)]
+pub struct Payload {
+    pub mass: f32,
+    /// The link (default: the end of the robot's chain, [`tool_link`]).
+    pub link: Option<String>,
+    /// Where on the link, in its frame (m).
+    pub at: bevy::math::Vec3,
+}
+
+/// The end of the robot's chain: the child link of the model's last joint (a UR's `tool0`).
+pub fn tool_link(rig: &Rig) -> anyhow::Result<String> {
+    let model = &rig.model;
+    let last = model.joints.last().ok_or_else(|| anyhow::anyhow!("robot '{}' has no joints to carry a payload", rig.robot))?;
+    Ok(model.links[last.child].name.clone())
+}
+
 /// A command the twin took: how many of its values were clipped into the joints' limits.
 pub type Clipped = usize;
 
 impl Ros2Twin {
-    /// The robot on its rig with its nominal parameters, where the rig starts it, its drives
-    /// holding there (a robot at rest with its brakes released).
-    pub fn new(robot: &RobotEntry) -> anyhow::Result<Self> {
-        let rig = Rig::of(robot)?;
-        let params = rig.parameters(&Default::default())?;
-        let stand = Stand::new(&rig, &[], std::slice::from_ref(&params));
+    /// The robot on its rig (its parameters the nominal ones with `options.truth` over them),
+    /// where the rig starts it, its drives holding there (a robot at rest with its brakes
+    /// released).
+    pub fn new(robot: &RobotEntry, options: &TwinOptions) -> anyhow::Result<Self> {
+        let mut rig = Rig::of(robot)?;
+        if let Some(step) = options.step {
+            anyhow::ensure!(step > 0.0 && step <= 0.1, "a physics step of {step} s is not one (0 to 0.1 s)");
+            rig.settings.dt = step as f32;
+        }
+        let params = rig.parameters(&options.truth)?;
+        let mut stand = Stand::new(&rig, &[], std::slice::from_ref(&params));
+        if let Some(payload) = &options.payload {
+            anyhow::ensure!(payload.mass.is_finite() && payload.mass > 0.0, "a payload of {} kg is not one", payload.mass);
+            let link = match &payload.link {
+                Some(l) => l.clone(),
+                None => tool_link(&rig)?,
+            };
+            stand.add_payload(0, &link, payload.mass, payload.at)?;
+        }
         let commandable = rig.joints.iter().enumerate().filter(|&(i, _)| rig.actuated[i]).map(|(i, n)| (n.clone(), i)).collect();
         let mut twin = Self { rig, stand, time: 0.0, commandable, following: None };
         let now = twin.positions();
@@ -227,6 +269,11 @@ pub fn serve(twin: &mut Ros2Twin, node: &Ros2Node, options: &ServeOptions, stop:
     let mut next_publish = 0.0;
     node.publish_tf_static(twin.fixed_frames(Time::now()))?;
     let mut pacer = crate::pacer::Pacer::new(Duration::from_secs_f64(dt));
+    // Stamps are the robot's clock, as a driver stamps its controller's states: the wall clock
+    // when the twin started plus the twin's time, so states are exactly one step apart for
+    // whoever steps a twin beside it (`monitor --ros2`), and keep to the wall clock as the
+    // twin keeps to real time.
+    let epoch = Time::now().seconds() - twin.time();
     let mut out = ServeSummary::default();
     let mut last_report = 0.0;
     while !stop.load(Ordering::SeqCst) && options.seconds.is_none_or(|s| twin.time() < s) {
@@ -243,7 +290,7 @@ pub fn serve(twin: &mut Ros2Twin, node: &Ros2Node, options: &ServeOptions, stop:
         // At the rate on average, to the physics step: a step publishes when its time has come.
         if twin.time() + 1e-9 >= next_publish {
             next_publish += period;
-            let stamp = Time::now();
+            let stamp = Time::from_seconds(epoch + twin.time());
             node.publish_joint_states(twin.joint_state(stamp))?;
             node.publish_tf(twin.frames(stamp))?;
             out.published += 1;

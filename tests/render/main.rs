@@ -4,6 +4,7 @@
 mod camera;
 mod capture;
 mod look;
+mod monitor;
 mod pixels;
 
 use twinbots_render::{RenderError, Renderer, adapter_required};

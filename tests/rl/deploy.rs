@@ -165,3 +165,64 @@ fn deploy_refuses_mismatched_bundles_and_stops_a_late_or_silent_robot() {
     let text = format!("{err:#}");
     assert!(text.contains("RTDE"), "{text}");
 }
+
+/// The twin arm, watched: the closest its skeleton came to the shadow's obstacles.
+struct WatchedArm {
+    twin: TwinArm,
+    shadow: ur5e::deploy::Shadow,
+    closest: f64,
+}
+
+impl Arm for WatchedArm {
+    fn read(&mut self) -> anyhow::Result<Measured> {
+        let m = self.twin.read()?;
+        if let Some((_, _, gap)) = self.shadow.closest_keepout(&m.q) {
+            self.closest = self.closest.min(gap);
+        }
+        Ok(m)
+    }
+    fn command(&mut self, speeds: &[f64; 6]) -> anyhow::Result<()> {
+        self.twin.command(speeds)
+    }
+    fn stop(&mut self) -> anyhow::Result<()> {
+        self.twin.stop()
+    }
+    fn describe(&self) -> String {
+        "a watched arm".into()
+    }
+}
+
+#[test]
+fn a_bundle_carries_its_cell_and_the_shadow_keeps_the_arm_off_its_obstacles() {
+    let dir = bundle("deploy-cell");
+    // As `export` writes a run trained with `--cell`: a column where turning the pan 0.6 rad
+    // from home brings the tool.
+    let mut turned = ur5e::kinematics::HOME.map(|v| v as f64);
+    turned[0] += 0.6;
+    let tool = ur5e::deploy::skeleton(&turned).last().unwrap().1;
+    let cell = ur5e::layout::DEFAULT.replacen(
+        "# [[obstacle]]\n# centre = [-0.1, 0.45, 0.95]   # m, cell frame\n# size = [0.1, 0.1, 0.4]",
+        &format!("[[obstacle]]\ncentre = [{}, {}, {}]\nsize = [0.1, 0.1, 0.4]", tool.x, tool.y, tool.z + 0.75),
+        1,
+    );
+    std::fs::write(dir.join("cell.toml"), &cell).unwrap();
+    let manifest = std::fs::read_to_string(dir.join("bundle.json")).unwrap();
+    std::fs::write(dir.join("bundle.json"), manifest.replacen("\"timesteps\"", "\"cell\": \"cell.toml\",\n  \"timesteps\"", 1)).unwrap();
+    let bundle = Bundle::read(&dir).unwrap();
+    assert_eq!(bundle.cell.obstacles.len(), 1);
+    let shadow = twinbots::deploy::shadow_of(&bundle);
+    assert_eq!(shadow.keepouts.len(), 1);
+
+    // Pan at full speed, every step: into the column.
+    let turn = |_: &[f32]| Ok(vec![1.0, 0.0, 0.0, 0.0, 0.0]);
+    let mut arm = WatchedArm { twin: TwinArm::new(&UrSimOptions::default(), None).unwrap(), shadow: shadow.clone(), closest: f64::INFINITY };
+    let report = deploy_policy(&mut arm, &bundle, &turn, &DeployOptions { episodes: 1, ..Default::default() }, |_| {}).unwrap();
+    assert!(report.refused > 0, "the shadow refused the turn: {report:#?}");
+    assert!(arm.closest > 0.0, "the arm touched the column");
+    assert!(arm.closest < 0.15, "the policy did drive towards it: closest {:.3} m", arm.closest);
+
+    // A manifest that names a cell file that is not there is refused, naming it.
+    std::fs::remove_file(dir.join("cell.toml")).unwrap();
+    let err = Bundle::read(&dir).err().expect("a bundle without its cell file").to_string();
+    assert!(err.contains("cell.toml"), "{err}");
+}

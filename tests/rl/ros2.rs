@@ -12,7 +12,7 @@ use twinbots_ros2::messages::{Duration, Time};
 use twinbots_ros2::{Command, Interface, JointTrajectory, JointTrajectoryPoint, TFMessage};
 
 fn ur5e() -> Ros2Twin {
-    Ros2Twin::new(&registry::find("ur5e").unwrap()).unwrap()
+    Ros2Twin::new(&registry::find("ur5e").unwrap(), &Default::default()).unwrap()
 }
 
 fn positions(twin: &Ros2Twin) -> Vec<f64> {
@@ -129,7 +129,7 @@ fn the_frames_are_the_robots_kinematics() {
 
 #[test]
 fn the_cartpoles_wheels_take_speeds_its_pole_none_and_its_base_moves_in_the_world() {
-    let mut twin = Ros2Twin::new(&registry::find("cartpole").unwrap()).unwrap();
+    let mut twin = Ros2Twin::new(&registry::find("cartpole").unwrap(), &Default::default()).unwrap();
     let joints: Vec<String> = twin.commandable().map(String::from).collect();
     let names = twin.joint_state(Time::default()).name;
     assert!(joints.len() >= 2 && joints.iter().all(|j| j.contains("wheel")), "the wheels have motors: {joints:?}");

@@ -7,7 +7,7 @@ pub mod messages;
 pub mod node;
 
 pub use messages::{Float64MultiArray, JointState, JointTrajectory, JointTrajectoryPoint, TFMessage};
-pub use node::{Command, Interface, Ros2Node};
+pub use node::{Command, Interface, Ros2Listener, Ros2Node};
 
 /// What can go wrong on the link.
 #[derive(Debug, thiserror::Error)]

@@ -78,10 +78,50 @@ pub struct Ros2Node {
     joint_states: Publisher<JointState>,
     tf: Publisher<TFMessage>,
     tf_static: Publisher<TFMessage>,
-    forward: Vec<(Interface, Subscription<Float64MultiArray>)>,
-    trajectory: Subscription<JointTrajectory>,
+    commands: CommandSubscriptions,
     // Dropped last: the endpoints belong to it.
     _node: Node,
+}
+
+/// The command topics a robot driver takes (the forward controllers' and the trajectory
+/// controller's), subscribed: the driver obeys them, a monitor overhears them.
+struct CommandSubscriptions {
+    forward: Vec<(Interface, Subscription<Float64MultiArray>)>,
+    trajectory: Subscription<JointTrajectory>,
+}
+
+impl CommandSubscriptions {
+    fn open(node: &mut Node, qos: &QosProfile) -> Result<Self, Ros2Error> {
+        let mut forward = Vec::new();
+        for interface in Interface::ALL {
+            let name = interface.topic();
+            let t = topic::<Float64MultiArray>(node, &name, qos)?;
+            forward.push((interface, node.create_subscription(&t, None).map_err(|e| create(&name, &e))?));
+        }
+        let t = topic::<JointTrajectory>(node, TRAJECTORY_TOPIC, qos)?;
+        let trajectory = node.create_subscription(&t, None).map_err(|e| create(TRAJECTORY_TOPIC, &e))?;
+        Ok(Self { forward, trajectory })
+    }
+
+    fn take(&self) -> Vec<Result<Command, Ros2Error>> {
+        let mut out = Vec::new();
+        for (interface, subscription) in &self.forward {
+            drain(subscription, &interface.topic(), &mut out, |m| Command::Forward(*interface, m.data));
+        }
+        drain(&self.trajectory, TRAJECTORY_TOPIC, &mut out, Command::Trajectory);
+        out
+    }
+}
+
+fn create(what: &str, e: &dyn std::fmt::Debug) -> Ros2Error {
+    Ros2Error::Create(format!("{what}: {e:?}"))
+}
+
+/// A node on domain `domain` named `/<name>`.
+fn open_node(domain: u16, name: &str) -> Result<Node, Ros2Error> {
+    let context = Context::with_options(ContextOptions::new().domain_id(domain)).map_err(|e| create("the DDS participant", &e))?;
+    let node_name = NodeName::new("/", name).map_err(|e| create(&format!("node name '{name}'"), &e))?;
+    context.new_node(node_name, NodeOptions::new().enable_rosout(false)).map_err(|e| create("the node", &e))
 }
 
 /// What ROS 2 nodes use by default (rmw's "default" profile): reliable, volatile, last 10.
@@ -100,10 +140,7 @@ fn topic<M: Ros2Type>(node: &Node, name: &str, qos: &QosProfile) -> Result<ros2_
 impl Ros2Node {
     /// Joins DDS domain `domain` as node `/<name>` with the link's publishers and subscriptions.
     pub fn open(domain: u16, name: &str) -> Result<Self, Ros2Error> {
-        let create = |what: &str, e: &dyn std::fmt::Debug| Ros2Error::Create(format!("{what}: {e:?}"));
-        let context = Context::with_options(ContextOptions::new().domain_id(domain)).map_err(|e| create("the DDS participant", &e))?;
-        let node_name = NodeName::new("/", name).map_err(|e| create(&format!("node name '{name}'"), &e))?;
-        let mut node = context.new_node(node_name, NodeOptions::new().enable_rosout(false)).map_err(|e| create("the node", &e))?;
+        let mut node = open_node(domain, name)?;
         let qos = default_qos();
         // As tf2's static broadcaster: kept for subscribers that join later.
         let latched = QosProfile::publisher_default()
@@ -116,15 +153,8 @@ impl Ros2Node {
         let tf = node.create_publisher(&t, None).map_err(|e| create(TF_TOPIC, &e))?;
         let t = topic::<TFMessage>(&node, TF_STATIC_TOPIC, &latched)?;
         let tf_static = node.create_publisher(&t, None).map_err(|e| create(TF_STATIC_TOPIC, &e))?;
-        let mut forward = Vec::new();
-        for interface in Interface::ALL {
-            let name = interface.topic();
-            let t = topic::<Float64MultiArray>(&node, &name, &qos)?;
-            forward.push((interface, node.create_subscription(&t, None).map_err(|e| create(&name, &e))?));
-        }
-        let t = topic::<JointTrajectory>(&node, TRAJECTORY_TOPIC, &qos)?;
-        let trajectory = node.create_subscription(&t, None).map_err(|e| create(TRAJECTORY_TOPIC, &e))?;
-        Ok(Self { joint_states, tf, tf_static, forward, trajectory, _node: node })
+        let commands = CommandSubscriptions::open(&mut node, &qos)?;
+        Ok(Self { joint_states, tf, tf_static, commands, _node: node })
     }
 
     pub fn publish_joint_states(&self, message: JointState) -> Result<(), Ros2Error> {
@@ -142,27 +172,53 @@ impl Ros2Node {
     /// Every command that arrived since the last call, in arrival order per topic; a sample
     /// that did not decode is an error in its place (the rest are still taken).
     pub fn take_commands(&self) -> Vec<Result<Command, Ros2Error>> {
+        self.commands.take()
+    }
+}
+
+/// A node that only listens: to a robot driver's `/joint_states` and to the commands sent to
+/// the driver (`twinbots monitor --ros2`). It publishes nothing, so it never moves the robot.
+pub struct Ros2Listener {
+    joint_states: Subscription<JointState>,
+    commands: CommandSubscriptions,
+    _node: Node,
+}
+
+impl Ros2Listener {
+    pub fn open(domain: u16, name: &str) -> Result<Self, Ros2Error> {
+        let mut node = open_node(domain, name)?;
+        let qos = default_qos();
+        let t = topic::<JointState>(&node, JOINT_STATES_TOPIC, &qos)?;
+        let joint_states = node.create_subscription(&t, None).map_err(|e| create(JOINT_STATES_TOPIC, &e))?;
+        let commands = CommandSubscriptions::open(&mut node, &qos)?;
+        Ok(Self { joint_states, commands, _node: node })
+    }
+
+    /// Every joint state that arrived since the last call, in arrival order.
+    pub fn take_joint_states(&self) -> Vec<Result<JointState, Ros2Error>> {
         let mut out = Vec::new();
-        for (interface, subscription) in &self.forward {
-            drain(subscription, &interface.topic(), &mut out, |m| Command::Forward(*interface, m.data));
-        }
-        drain(&self.trajectory, TRAJECTORY_TOPIC, &mut out, Command::Trajectory);
+        drain(&self.joint_states, JOINT_STATES_TOPIC, &mut out, |m| m);
         out
+    }
+
+    /// Every command sent to the robot since the last call (as [`Ros2Node::take_commands`]).
+    pub fn take_commands(&self) -> Vec<Result<Command, Ros2Error>> {
+        self.commands.take()
     }
 }
 
 /// At most this many samples per topic and call: a flood cannot stall the caller's cycle.
 const MAX_TAKE: usize = 256;
 
-fn drain<M: 'static + serde::de::DeserializeOwned>(
+fn drain<M: 'static + serde::de::DeserializeOwned, T>(
     subscription: &Subscription<M>,
     topic: &str,
-    out: &mut Vec<Result<Command, Ros2Error>>,
-    command: impl Fn(M) -> Command,
+    out: &mut Vec<Result<T, Ros2Error>>,
+    wrap: impl Fn(M) -> T,
 ) {
     for _ in 0..MAX_TAKE {
         match subscription.take() {
-            Ok(Some((message, _info))) => out.push(Ok(command(message))),
+            Ok(Some((message, _info))) => out.push(Ok(wrap(message))),
             Ok(None) => break,
             Err(e) => out.push(Err(Ros2Error::Take(format!("{topic}: {e:?}")))),
         }

@@ -228,6 +228,11 @@ impl Stand {
         Some(*body.position() * l.offset)
     }
 
+    /// The stand's world and `arena`'s entity: what a renderer draws the rig from.
+    pub fn scene(&mut self, arena: usize) -> (&mut World, Entity) {
+        (self.app.world_mut(), self.arenas[arena].0)
+    }
+
     /// What `arena`'s joints measure now.
     pub fn reading(&self, arena: usize) -> Reading {
         let world = self.app.world();

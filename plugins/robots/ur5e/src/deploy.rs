@@ -9,6 +9,8 @@ use twinbots_task::TaskTerms;
 
 use crate::arm::{self, ACTION_DIM, ActionHistory, ArmState};
 use crate::kinematics::{self, JOINT_RANGES, JOINTS, MAX_JOINT_SPEED, TOOL_LENGTH};
+use crate::layout::CellLayout;
+use twinbots_sim::rapier::math::Pose;
 use crate::state::CellState;
 
 /// The robot's joints as a controller reports them, base to wrist 3, with the sign that turns
@@ -95,11 +97,42 @@ pub struct Verdict {
     pub notes: Vec<String>,
 }
 
+/// A box the arm keeps clear of (a cell's `[[obstacle]]`), in the base frame: its centre, its
+/// half sides along its own axes, and its turn about the base's z axis (rad).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Keepout {
+    pub centre: DVec3,
+    pub half: DVec3,
+    pub yaw: f64,
+}
+
+impl Keepout {
+    /// The distance (m) from `p` (base frame) to the box; 0 inside it.
+    pub fn distance(&self, p: DVec3) -> f64 {
+        let d = p - self.centre;
+        let (s, c) = self.yaw.sin_cos();
+        let local = DVec3::new(c * d.x + s * d.y, -s * d.x + c * d.y, d.z);
+        (local.abs() - self.half).max(DVec3::ZERO).length()
+    }
+
+    /// A cell's obstacles in its robot's base frame.
+    pub fn of_cell(layout: &CellLayout) -> Vec<Keepout> {
+        let base = layout.base_pose().inverse();
+        let yaw = -(layout.robot.yaw as f64).to_radians();
+        layout
+            .obstacles
+            .iter()
+            .map(|o| Keepout { centre: (base * Pose::from_translation(Vec3::from_array(o.centre))).translation.as_dvec3(), half: Vec3::from_array(o.size).as_dvec3() / 2.0, yaw })
+            .collect()
+    }
+}
+
 /// The twin's check of a joint-speed command before it goes to the robot: the joints' speed
 /// and acceleration limits, their ranges and the workspace (no link or the tool near or under
-/// the table) over the next `lookahead` seconds of the command. Speeds and accelerations past a
-/// limit are clipped to it; a command that would take a joint out of its range or a point of
-/// the arm into the table is refused.
+/// the table, none within `keepout_clearance` of the cell's obstacles) over the next
+/// `lookahead` seconds of the command. Speeds and accelerations past a limit are clipped to it;
+/// a command that would take a joint out of its range or a point of the arm into the table or
+/// towards an obstacle is refused.
 #[derive(Clone, Debug)]
 pub struct Shadow {
     /// Fastest joint speed (rad/s).
@@ -112,11 +145,24 @@ pub struct Shadow {
     pub range_margin: f64,
     /// The lowest the elbow, wrists, flange and tool may go, above the table (m, base frame).
     pub table_clearance: f64,
+    /// The cell's obstacles (none in the default cell).
+    pub keepouts: Vec<Keepout>,
+    /// The closest the arm's skeleton (the DH frames' origins, the tool, and the links between
+    /// them) may come to an obstacle (m): the links' radius and a margin.
+    pub keepout_clearance: f64,
 }
 
 impl Default for Shadow {
     fn default() -> Self {
-        Self { max_speed: MAX_JOINT_SPEED as f64, max_acceleration: 40.0, lookahead: 0.08, range_margin: 0.05, table_clearance: 0.005 }
+        Self {
+            max_speed: MAX_JOINT_SPEED as f64,
+            max_acceleration: 40.0,
+            lookahead: 0.08,
+            range_margin: 0.05,
+            table_clearance: 0.005,
+            keepouts: Vec::new(),
+            keepout_clearance: 0.1,
+        }
     }
 }
 
@@ -154,8 +200,48 @@ impl Shadow {
             notes.push(format!("{} at z = {:.3} m in {:.2} s: into the table", lowest.0, lowest.1, self.lookahead));
             return Verdict { command: [0.0; 6], clipped, refused: true, notes };
         }
+        if let Some((what, obstacle, gap)) = self.closest_keepout(&ahead)
+            && gap < self.keepout_clearance
+            && self.closest_keepout(q).is_none_or(|now| gap < now.2)
+        {
+            notes.push(format!("{what} {gap:.3} m from obstacle[{obstacle}] in {:.2} s (clearance {:.3} m)", self.lookahead, self.keepout_clearance));
+            return Verdict { command: [0.0; 6], clipped, refused: true, notes };
+        }
         Verdict { command: out, clipped, refused: false, notes }
     }
+
+    /// The point of the arm at `q` closest to an obstacle: what it is, which obstacle, how far.
+    pub fn closest_keepout(&self, q: &[f64; 6]) -> Option<(String, usize, f64)> {
+        let mut best: Option<(String, usize, f64)> = None;
+        for (what, p) in skeleton(q) {
+            for (i, k) in self.keepouts.iter().enumerate() {
+                let d = k.distance(p);
+                if best.as_ref().is_none_or(|b| d < b.2) {
+                    best = Some((what.clone(), i, d));
+                }
+            }
+        }
+        best
+    }
+}
+
+/// Points along the arm at `q` (base frame): the DH frames' origins from the shoulder to the
+/// flange, the tool face, and four points on each link between them.
+pub fn skeleton(q: &[f64; 6]) -> Vec<(String, DVec3)> {
+    const NAMES: [&str; 7] = ["shoulder", "elbow", "wrist 1", "wrist 2", "wrist 3", "flange", "tool"];
+    let f = kinematics::frames(&q.map(|v| v as f32));
+    let tool = (f[6] * DMat4::from_translation(DVec3::new(0.0, 0.0, TOOL_LENGTH))).w_axis.truncate();
+    let joints: Vec<DVec3> = f[1..].iter().map(|m| m.w_axis.truncate()).chain([tool]).collect();
+    let mut out = Vec::new();
+    for (i, &p) in joints.iter().enumerate() {
+        out.push((NAMES[i].to_string(), p));
+        if let Some(&next) = joints.get(i + 1) {
+            for k in 1..5 {
+                out.push((format!("the link from {} to {}", NAMES[i], NAMES[i + 1]), p.lerp(next, k as f64 / 5.0)));
+            }
+        }
+    }
+    out
 }
 
 /// The lowest of the elbow, wrists, flange and tool face at `q`: its name and height (m, base
@@ -204,6 +290,43 @@ mod tests {
         let back = shadow.check(&bent, &[0.0, 0.0, -1.0, 0.0, 0.0, 0.0], &[0.0, 0.0, -1.0, 0.0, 0.0, 0.0], 0.04);
         assert!(!back.refused, "{back:?}");
         assert!(shadow.check(&home, &[f64::NAN, 0.0, 0.0, 0.0, 0.0, 0.0], &[0.0; 6], 0.04).refused);
+    }
+
+    #[test]
+    fn the_shadow_keeps_the_arm_off_a_cells_obstacles() {
+        // A column beside the arm, where the pan turning +z brings the tool.
+        let home = HOME.map(|v| v as f64);
+        let mut turned = home;
+        let column_at = |q: &[f64; 6]| skeleton(q).last().unwrap().1;
+        turned[0] += 0.6;
+        let tool = column_at(&turned);
+        let text = crate::layout::DEFAULT.replacen(
+            "# [[obstacle]]\n# centre = [-0.1, 0.45, 0.95]   # m, cell frame\n# size = [0.1, 0.1, 0.4]",
+            &format!("[[obstacle]]\ncentre = [{}, {}, {}]\nsize = [0.1, 0.1, 0.4]", tool.x, tool.y, tool.z + 0.75),
+            1,
+        );
+        let layout = CellLayout::parse(&text, "column.toml").unwrap();
+        let keepouts = Keepout::of_cell(&layout);
+        assert_eq!(keepouts.len(), 1);
+        assert!(keepouts[0].distance(tool) < 1e-6, "the tool at the turned pose is inside the column: {:?}", keepouts[0]);
+        let shadow = Shadow { keepouts, ..Shadow::default() };
+        // At home the arm is clear; a turn towards the column, from just outside the clearance,
+        // is refused; a turn away from it is not.
+        let mut near = home;
+        while shadow.closest_keepout(&near).unwrap().2 > shadow.keepout_clearance + 0.02 {
+            near[0] += 0.005;
+        }
+        let towards = shadow.check(&near, &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0], &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0], 0.04);
+        assert!(towards.refused && towards.notes[0].contains("obstacle[0]"), "{towards:?}");
+        let away = shadow.check(&near, &[-1.0, 0.0, 0.0, 0.0, 0.0, 0.0], &[-1.0, 0.0, 0.0, 0.0, 0.0, 0.0], 0.04);
+        assert!(!away.refused, "{away:?}");
+        assert!(!shadow.check(&home, &[0.1, 0.0, 0.0, 0.0, 0.0, 0.0], &[0.0; 6], 0.04).refused);
+        // A turned robot sees its obstacles turned back: the same column, the base turned 90°,
+        // keeps the same distance from the same joint angles when the pan turns with it.
+        let turned_layout = CellLayout::parse(&text.replace("yaw = 0.0", "yaw = 90.0").replace(
+            &format!("centre = [{}, {}", tool.x, tool.y), &format!("centre = [{}, {}", -tool.y, tool.x)), "turned.toml").unwrap();
+        let k = Keepout::of_cell(&turned_layout)[0];
+        assert!(k.distance(tool) < 1e-5, "{k:?}");
     }
 
     #[test]
