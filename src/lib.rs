@@ -6,6 +6,7 @@ pub mod bundle;
 pub mod deploy;
 pub mod monitor;
 pub mod pacer;
+pub mod realtime;
 pub mod registry;
 pub mod robot_log;
 #[cfg(feature = "ros2")]

@@ -29,6 +29,9 @@ pub struct Args {
     /// `bench rtde`: the deploy bundle whose policy answers every report.
     #[arg(long)]
     pub bundle: Option<std::path::PathBuf>,
+    /// `bench rtde`: run the client on SCHED_FIFO at this priority (the stand-in at one less).
+    #[arg(long)]
+    pub rt_priority: Option<i32>,
     /// `bench rtde`: seconds of controller time to measure.
     #[arg(long, default_value_t = 10.0)]
     pub seconds: f64,
@@ -43,7 +46,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         BenchKind::Capture => print_capture(&args.robot, &[(640, 480), (64, 64)], 60),
         BenchKind::Cameras => print_cameras(&args.robot, args.arenas.iter().copied().max().unwrap_or(16), args.steps.unwrap_or(40)),
         BenchKind::Rl => print_rl(&args.robot, args.arenas.first().copied().unwrap_or(8), steps),
-        BenchKind::Rtde => print_rtde(args.bundle.as_deref(), args.seconds),
+        BenchKind::Rtde => print_rtde(args.bundle.as_deref(), args.seconds, args.rt_priority),
     }
 }
 
@@ -67,19 +70,20 @@ pub enum BenchKind {
     Rtde,
 }
 
-fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64) -> anyhow::Result<()> {
+fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64, rt_priority: Option<i32>) -> anyhow::Result<()> {
     let dir = bundle.ok_or_else(|| anyhow::anyhow!("bench rtde needs --bundle DIR (`twinbots export <ur5e run> --bundle DIR`)"))?;
     anyhow::ensure!(seconds > 0.0 && seconds.is_finite(), "--seconds must be positive");
     let bundle = twinbots::bundle::Bundle::read(dir)?;
     bundle.check("ur5e", &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
-    println!("bench rtde: a UR stand-in at 500 Hz on loopback, every report answered by {} ({seconds} s)", dir.display());
+    let scheduling = rt_priority.map_or("default scheduling".to_string(), |p| format!("SCHED_FIFO {p}, the stand-in {}", p - 1));
+    println!("bench rtde: a UR stand-in at 500 Hz on loopback, every report answered by {} ({seconds} s, {scheduling})", dir.display());
     let show = |r: &twinbots::deploy::latency::LatencyReport| {
         println!(
             "  {:6.1} s: {} commands, report in -> command out p50 {:.0} us, p99 {:.0} us, max {:.0} us; {} later than 2 ms, {} reports missed, stand-in missed {} cycles",
             r.seconds, r.commands, r.p50_us, r.p99_us, r.max_us, r.late_commands, r.missed_reports, r.standin_missed_cycles
         )
     };
-    let report = twinbots::deploy::latency::measure(&bundle, seconds, show)?;
+    let report = twinbots::deploy::latency::measure(&bundle, seconds, rt_priority, show)?;
     show(&report);
     Ok(())
 }

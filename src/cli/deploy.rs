@@ -44,6 +44,10 @@ pub struct Args {
     /// Write the report (every episode's figures, the latencies) as JSON here.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Run the control loop on SCHED_FIFO at this priority (1-99; root or CAP_SYS_NICE), as
+    /// ur_rtde's rt_priority: the scheduler never holds a command back behind other work.
+    #[arg(long)]
+    pub rt_priority: Option<i32>,
 }
 
 /// `twinbots deploy`.
@@ -54,6 +58,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     anyhow::ensure!(args.deadline_ms > 0.0 && args.patience_ms > 0.0, "--deadline-ms and --patience-ms must be positive");
     let bundle = Bundle::read(&args.bundle)?;
     bundle.check(&args.robot, &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
+    if let Some(p) = args.rt_priority {
+        twinbots::realtime::set_rt_priority(p)?;
+    }
     let patience = Duration::from_secs_f64(args.patience_ms / 1e3);
     let options = DeployOptions { episodes: args.episodes, seed: args.seed, deadline: Duration::from_secs_f64(args.deadline_ms / 1e3), ..Default::default() };
     let mut arm: Box<dyn Arm> = if args.dry_run {

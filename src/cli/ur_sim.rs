@@ -40,6 +40,9 @@ pub struct Args {
     /// not know: what `monitor` should notice.
     #[arg(long)]
     pub payload: Option<f32>,
+    /// Run the controller's loop on SCHED_FIFO at this priority (1-99; root or CAP_SYS_NICE).
+    #[arg(long)]
+    pub rt_priority: Option<i32>,
 }
 
 /// `twinbots ur-sim`.
@@ -64,6 +67,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let mut sim = UrSim::new(&options)?;
     let server = RtdeServer::bind(&args.listen, controller_info())?;
     println!("ur-sim: UR5e twin ({}) serving RTDE on {} at 500 Hz", args.truth.as_ref().map_or("nominal".to_string(), |p| format!("truth {}", p.display())), server.local_addr());
+    if let Some(p) = args.rt_priority {
+        twinbots::realtime::set_rt_priority(p)?;
+    }
     let stop = AtomicBool::new(false);
     let missed = sim.serve(&server, args.seconds, &stop, 5.0);
     println!("ur-sim: {:.1} s served, {missed} missed cycle(s)", sim.time());

@@ -23,11 +23,14 @@ pub struct Args {
     /// The task to run (see `twinbots robots`); default: the robot's own.
     #[arg(long)]
     pub task: Option<String>,
+    /// Show the twin calibrated by this file (`twinbots identify`'s calibration.toml).
+    #[arg(long)]
+    pub calibration: Option<std::path::PathBuf>,
 }
 
 /// `twinbots view`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    view(&args.robot, args.model.as_deref(), args.seed, args.task.as_deref())
+    view(&args.robot, args.model.as_deref(), args.seed, args.task.as_deref(), args.calibration.as_deref())
 }
 
 /// Plays one arena in real time.
@@ -79,10 +82,12 @@ impl ViewSource for Player {
     }
 }
 
-pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64, task: Option<&str>) -> anyhow::Result<()> {
+pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64, task: Option<&str>, calibration: Option<&std::path::Path>) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
     let loaded = model.map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
     let mut app = entry.app(task, 1, seed, DesignPattern::Supervised)?;
+    // As `capture`: the file's twin, read and checked before any window opens.
+    twinbots::twin::Twin::of_files(&entry, calibration, None)?.configure(&mut app, &entry)?;
     if let Some(run) = model {
         twinbots::settings::TrainSettings::observe_as_run(run, &mut app, &entry, 1)?;
     }

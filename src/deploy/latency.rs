@@ -34,17 +34,28 @@ pub struct LatencyReport {
 }
 
 /// Measures for `seconds` of controller time; `progress` sees the report so far every 10 s.
-pub fn measure(bundle: &Bundle, seconds: f64, mut progress: impl FnMut(&LatencyReport)) -> anyhow::Result<LatencyReport> {
+/// With `rt_priority` N the client runs on SCHED_FIFO at N and the stand-in's loop at N − 1:
+/// on two shared cores the link comes first, as on a controller PC beside a real controller.
+pub fn measure(bundle: &Bundle, seconds: f64, rt_priority: Option<i32>, mut progress: impl FnMut(&LatencyReport)) -> anyhow::Result<LatencyReport> {
+    if let Some(p) = rt_priority {
+        anyhow::ensure!((2..=99).contains(&p), "--rt-priority must be 2 to 99 for bench rtde (the stand-in runs at one less), not {p}");
+    }
     let server = RtdeServer::bind("127.0.0.1:0", controller_info())?;
     let address = server.local_addr().to_string();
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     // The twin's app stays on the thread that steps it.
     let standin = std::thread::spawn(move || -> anyhow::Result<u64> {
+        if let Some(p) = rt_priority {
+            crate::realtime::set_rt_priority(p - 1)?;
+        }
         let mut sim = UrSim::new(&UrSimOptions { watchdog: 0.1, ..Default::default() })?;
         Ok(sim.serve(&server, None, &flag, f64::INFINITY))
     });
     let result = (|| {
+        if let Some(p) = rt_priority {
+            crate::realtime::set_rt_priority(p)?;
+        }
         let mut arm = RtdeArm::connect(&address, Duration::from_secs(1))?;
         let shadow = shadow_of(bundle);
         let mut controller = controller_of(bundle);

@@ -194,6 +194,9 @@ fn a_calibration_reaches_the_run_settings() {
     std::fs::write(&cal, "[parameters]\npole_joint.stiffness = 1.0\n").unwrap();
     let (ok, _, err) = twinbots(&["train", "cartpole", "--calibration", cal.to_str().unwrap(), "--print-config"]);
     assert!(!ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"), "{err}");
+    // `view` reads and checks the file before any window opens.
+    let (ok, _, err) = twinbots(&["view", "cartpole", "--calibration", cal.to_str().unwrap()]);
+    assert!(!ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"), "{err}");
 }
 
 /// A briefly trained cart-pole run in `dir/run`.
