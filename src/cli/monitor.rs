@@ -200,6 +200,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let first = source.next()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
     let mut frames = TwinFrames::new(&args, &entry, first.time)?;
+    if let Some(f) = frames.as_mut() {
+        f.offer(&mut monitor, first.time, first.time)?;
+    }
     println!("monitor: following {label} from t = {:.3} s (the twin settles 0.5 s before it compares)", first.time);
     let mut next_line = first.time + 1.0;
     let ended = loop {

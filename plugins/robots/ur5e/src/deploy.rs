@@ -211,33 +211,56 @@ impl Shadow {
     }
 
     /// The point of the arm at `q` closest to an obstacle: what it is, which obstacle, how far.
+    /// None without obstacles (nothing is computed: this runs every control cycle).
     pub fn closest_keepout(&self, q: &[f64; 6]) -> Option<(String, usize, f64)> {
-        let mut best: Option<(String, usize, f64)> = None;
-        for (what, p) in skeleton(q) {
+        if self.keepouts.is_empty() {
+            return None;
+        }
+        let mut best: Option<(SkeletonPoint, usize, f64)> = None;
+        for (point, p) in skeleton(q) {
             for (i, k) in self.keepouts.iter().enumerate() {
                 let d = k.distance(p);
                 if best.as_ref().is_none_or(|b| d < b.2) {
-                    best = Some((what.clone(), i, d));
+                    best = Some((point, i, d));
                 }
             }
         }
-        best
+        best.map(|(point, i, d)| (point.to_string(), i, d))
+    }
+}
+
+/// Where on the arm a [`skeleton`] point is: at joint frame `at` (0 the shoulder … 5 the
+/// flange, 6 the tool face), or `at` and a fifth of the way further per `fifths` along the link
+/// to the next.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SkeletonPoint {
+    pub at: usize,
+    pub fifths: usize,
+}
+
+const SKELETON_NAMES: [&str; 7] = ["shoulder", "elbow", "wrist 1", "wrist 2", "wrist 3", "flange", "tool"];
+
+impl std::fmt::Display for SkeletonPoint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.fifths {
+            0 => write!(f, "{}", SKELETON_NAMES[self.at]),
+            _ => write!(f, "the link from {} to {}", SKELETON_NAMES[self.at], SKELETON_NAMES[self.at + 1]),
+        }
     }
 }
 
 /// Points along the arm at `q` (base frame): the DH frames' origins from the shoulder to the
 /// flange, the tool face, and four points on each link between them.
-pub fn skeleton(q: &[f64; 6]) -> Vec<(String, DVec3)> {
-    const NAMES: [&str; 7] = ["shoulder", "elbow", "wrist 1", "wrist 2", "wrist 3", "flange", "tool"];
+pub fn skeleton(q: &[f64; 6]) -> Vec<(SkeletonPoint, DVec3)> {
     let f = kinematics::frames(&q.map(|v| v as f32));
     let tool = (f[6] * DMat4::from_translation(DVec3::new(0.0, 0.0, TOOL_LENGTH))).w_axis.truncate();
     let joints: Vec<DVec3> = f[1..].iter().map(|m| m.w_axis.truncate()).chain([tool]).collect();
-    let mut out = Vec::new();
-    for (i, &p) in joints.iter().enumerate() {
-        out.push((NAMES[i].to_string(), p));
-        if let Some(&next) = joints.get(i + 1) {
-            for k in 1..5 {
-                out.push((format!("the link from {} to {}", NAMES[i], NAMES[i + 1]), p.lerp(next, k as f64 / 5.0)));
+    let mut out = Vec::with_capacity(joints.len() * 5);
+    for (at, &p) in joints.iter().enumerate() {
+        out.push((SkeletonPoint { at, fifths: 0 }, p));
+        if let Some(&next) = joints.get(at + 1) {
+            for fifths in 1..5 {
+                out.push((SkeletonPoint { at, fifths }, p.lerp(next, fifths as f64 / 5.0)));
             }
         }
     }
