@@ -139,7 +139,8 @@ struct TwinFrames {
 }
 
 impl TwinFrames {
-    fn new(args: &Args, entry: &registry::RobotEntry, start: f64) -> anyhow::Result<Option<Self>> {
+    /// The renderer, made before the robot is reached (no adapter: an error, nothing followed).
+    fn new(args: &Args, entry: &registry::RobotEntry) -> anyhow::Result<Option<Self>> {
         let Some(every) = args.frames_every else { return Ok(None) };
         anyhow::ensure!(every > 0.0 && every.is_finite(), "--frames-every must be positive, not {every}");
         let (w, h) = crate::cli::capture::parse_size(&args.size)?;
@@ -148,11 +149,14 @@ impl TwinFrames {
         renderer.set_view(view);
         let dir = args.out.join("frames");
         std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
-        Ok(Some(Self { renderer, dir, every, next: start, written: 0 }))
+        Ok(Some(Self { renderer, dir, every, next: f64::NEG_INFINITY, written: 0 }))
     }
 
     /// A frame when its time has come: `frame_<ms since the start>.png`.
     fn offer(&mut self, monitor: &mut Monitor, time: f64, start: f64) -> anyhow::Result<()> {
+        if self.next == f64::NEG_INFINITY {
+            self.next = start;
+        }
         if time + 1e-9 < self.next {
             return Ok(());
         }
@@ -196,10 +200,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             None => Default::default(),
         },
     };
+    let mut frames = TwinFrames::new(&args, &entry)?;
     let mut source = Source::open(&args, Duration::from_secs_f64(args.patience_ms / 1e3))?;
     let first = source.next()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
-    let mut frames = TwinFrames::new(&args, &entry, first.time)?;
     if let Some(f) = frames.as_mut() {
         f.offer(&mut monitor, first.time, first.time)?;
     }
