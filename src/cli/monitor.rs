@@ -8,8 +8,7 @@ use std::time::Duration;
 use twinbots::monitor::{Monitor, MonitorOptions, Report};
 use twinbots_render::{Renderer, View};
 use twinbots_rtde::{DataPackage, RtdeClient};
-use twinbots_sysid::Rig;
-use twinbots_task::calibration::read_calibration;
+use twinbots::settings::CalibrationSetting;
 
 use crate::registry;
 
@@ -182,8 +181,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
     anyhow::ensure!(args.patience_ms > 0.0, "--patience-ms must be positive");
-    let rig = Rig::of(&entry)?;
-    let calibration = args.calibration.as_deref().map(|p| read_calibration(p, &rig.catalogue, rig.robot)).transpose()?.unwrap_or_default();
+    let calibration = CalibrationSetting::read_optional(&entry, args.calibration.as_deref())?.map(|c| c.parameters()).unwrap_or_default();
     std::fs::create_dir_all(&args.out).map_err(|e| anyhow::anyhow!("{}: {e}", args.out.display()))?;
     let label = Source::label(&args);
     let options = MonitorOptions {

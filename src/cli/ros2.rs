@@ -6,8 +6,7 @@ use std::sync::atomic::AtomicBool;
 use std::path::PathBuf;
 
 use twinbots::ros2::{Payload, Ros2Twin, ServeOptions, TwinOptions, serve};
-use twinbots_sysid::Rig;
-use twinbots_task::calibration::read_calibration;
+use twinbots::settings::CalibrationSetting;
 use twinbots_ros2::node::{TRAJECTORY_TOPIC, domain_from_env, parse_domain};
 use twinbots_ros2::{Interface, Ros2Node};
 
@@ -40,7 +39,7 @@ pub struct Args {
     /// A payload (kg) the twin does not know, on `--payload-link` 5 cm out along its z axis.
     #[arg(long)]
     pub payload: Option<f32>,
-    /// The link that carries `--payload` (default: the end of the chain, a UR's tool0).
+    /// The link that carries `--payload` (default: the flange, a UR's tool0).
     #[arg(long, requires = "payload")]
     pub payload_link: Option<String>,
 }
@@ -55,13 +54,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         Some(d) => parse_domain(d)?,
         None => domain_from_env()?,
     };
-    let truth = match &args.truth {
-        Some(path) => {
-            let rig = Rig::of(&entry)?;
-            read_calibration(path, &rig.catalogue, rig.robot)?
-        }
-        None => Default::default(),
-    };
+    let truth = CalibrationSetting::read_optional(&entry, args.truth.as_deref())?.map(|c| c.parameters()).unwrap_or_default();
     let step = match args.step_ms {
         Some(ms) => Some(ms / 1e3),
         None => (entry.name == "ur5e").then_some(twinbots::ur_sim::CYCLE),

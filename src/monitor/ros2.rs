@@ -21,6 +21,8 @@ pub struct Ros2Source {
     patience: Duration,
     /// States taken but not yet handed out.
     pending: std::collections::VecDeque<Report>,
+    /// Notes taken but not yet handed out (handed out before the states).
+    notes: std::collections::VecDeque<String>,
     /// Command kinds already reported as not followed (printed once each).
     unfollowed: Vec<String>,
     started: bool,
@@ -39,7 +41,7 @@ impl Ros2Source {
     /// Joins `domain` as node `/<name>`.
     pub fn open(domain: u16, name: &str, patience: Duration) -> anyhow::Result<Self> {
         let listener = Ros2Listener::open(domain, name)?;
-        Ok(Self { listener, command: [0.0; 6], patience, pending: Default::default(), unfollowed: Vec::new(), started: false })
+        Ok(Self { listener, command: [0.0; 6], patience, pending: Default::default(), notes: Default::default(), unfollowed: Vec::new(), started: false })
     }
 
     /// The next joint state with the command in force when it arrived, a note, or silence.
@@ -47,21 +49,25 @@ impl Ros2Source {
         let wait = if self.started { self.patience } else { FIRST_STATE_WAIT };
         let since = Instant::now();
         loop {
+            if let Some(note) = self.notes.pop_front() {
+                return Ok(Next::Note(note));
+            }
             if let Some(r) = self.pending.pop_front() {
                 self.started = true;
                 return Ok(Next::Report(r));
             }
-            // Commands first: a state taken in the same poll already felt them (within a poll).
+            // Commands first, every one of them: a state taken in the same poll already felt
+            // them (within a poll).
             for command in self.listener.take_commands() {
                 if let Some(note) = self.take_command(command) {
-                    return Ok(Next::Note(note));
+                    self.notes.push_back(note);
                 }
             }
             for state in self.listener.take_joint_states() {
                 let r = report(&state?, self.command)?;
                 self.pending.push_back(r);
             }
-            if self.pending.is_empty() {
+            if self.pending.is_empty() && self.notes.is_empty() {
                 if since.elapsed() > wait {
                     return Ok(Next::Silent(wait));
                 }

@@ -48,17 +48,19 @@ pub struct TwinOptions {
 #[derive(Clone, Debug)]
 pub struct Payload {
     pub mass: f32,
-    /// The link (default: the end of the robot's chain, [`tool_link`]).
+    /// The link (default: the robot's flange, [`flange_link`]).
     pub link: Option<String>,
     /// Where on the link, in its frame (m).
     pub at: bevy::math::Vec3,
 }
 
-/// The end of the robot's chain: the child link of the model's last joint (a UR's `tool0`).
-pub fn tool_link(rig: &Rig) -> anyhow::Result<String> {
+/// The robot's flange: the first link fixed to its last moving link (a UR's `tool0`, where
+/// `ur-sim --payload` hangs its load), else that moving link itself.
+pub fn flange_link(rig: &Rig) -> anyhow::Result<String> {
     let model = &rig.model;
-    let last = model.joints.last().ok_or_else(|| anyhow::anyhow!("robot '{}' has no joints to carry a payload", rig.robot))?;
-    Ok(model.links[last.child].name.clone())
+    let last = model.joints.iter().rev().find(|j| j.kind.is_movable()).ok_or_else(|| anyhow::anyhow!("robot '{}' has no moving link to carry a payload", rig.robot))?;
+    let flange = model.joints.iter().find(|j| j.parent == last.child && !j.kind.is_movable()).map_or(last.child, |j| j.child);
+    Ok(model.links[flange].name.clone())
 }
 
 /// A command the twin took: how many of its values were clipped into the joints' limits.
@@ -80,7 +82,7 @@ impl Ros2Twin {
             anyhow::ensure!(payload.mass.is_finite() && payload.mass > 0.0, "a payload of {} kg is not one", payload.mass);
             let link = match &payload.link {
                 Some(l) => l.clone(),
-                None => tool_link(&rig)?,
+                None => flange_link(&rig)?,
             };
             stand.add_payload(0, &link, payload.mass, payload.at)?;
         }

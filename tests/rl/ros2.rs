@@ -145,3 +145,11 @@ fn the_cartpoles_wheels_take_speeds_its_pole_none_and_its_base_moves_in_the_worl
     let moved = base(&twin) - before;
     assert!(moved.length() > 0.05, "the base moved {moved} m");
 }
+
+#[test]
+fn a_payload_hangs_on_the_flange_as_ur_sims_does() {
+    let rig = |name| twinbots_sysid::Rig::of(&registry::find(name).unwrap()).unwrap();
+    // The UR5e's last moving link is wrist_3_link; tool0 is fixed to it (then the gripper and
+    // its tcp beyond): the flange is tool0, ur-sim's FLANGE.
+    assert_eq!(twinbots::ros2::flange_link(&rig("ur5e")).unwrap(), twinbots::ur_sim::FLANGE);
+}
