@@ -102,6 +102,11 @@ fn place(mut supervisor: Supervisor, arms: Query<(&Shoulder, &SwingState), With<
     }
 }
 
+/// 10 ms physics steps, a control step of five (50 ms).
+fn swing_arm_timing() -> SimSettings {
+    SimSettings { dt: 0.01, substeps: 5, ..default() }
+}
+
 // 5. The description every front reads (one registration line puts it into the CLI's registry).
 fn swing_arm() -> RobotDescription {
     RobotDescription {
@@ -117,7 +122,8 @@ fn swing_arm() -> RobotDescription {
             }],
             ..Default::default()
         },
-        build: |request| headless_app(SimSettings { dt: 0.01, substeps: 5, ..default() }, request, SwingArmPlugin),
+        settings: swing_arm_timing,
+        build: |request| headless_app(swing_arm_timing(), request, SwingArmPlugin),
         rig: None,
         feedback: None,
         cell: None,

@@ -81,6 +81,7 @@ def test_an_openssl_client_talks_to_a_tls_server(tls_server):
         welcome = receive(sock)
         assert welcome["type"] == "welcome" and welcome["version"] == 2, welcome
         assert welcome["task"]["observation_plausible"]["Box"]["high"] == [5.0, 20.0, pytest.approx(3.14159265, rel=1e-6), 100.0]
+        assert welcome["task"]["control_period_s"] == 0.032, welcome["task"]
         send(sock, {"type": "start", "obs": [0.0, 0.0, 0.01, 0.0]})
         action = receive(sock)
         assert action["type"] == "action" and action["action"][0] in (0.0, 1.0), action

@@ -61,7 +61,9 @@ def test_ppo_improves_the_cartpole_twin(tmp_path):
     before, _ = evaluate_policy(model, env, n_eval_episodes=16, deterministic=True)
     model.learn(total_timesteps=30_000)
     after, _ = evaluate_policy(model, env, n_eval_episodes=16, deterministic=True)
-    assert after > max(2 * before, 100), f"mean score {before:.1f} before, {after:.1f} after 30k steps"
+    # Seeds 0-9 of this very run (2026-11-27): 346-1951 after 30k steps (median 1,832; seed 0
+    # 1,712), 14-67 before. 250 fails a real regression, not an unlucky seed.
+    assert after > max(2 * before, 250), f"mean score {before:.1f} before, {after:.1f} after 30k steps"
     if EventAccumulator:
         board = EventAccumulator(str(tmp_path / "PPO_1"), size_guidance={"scalars": 0})
         board.Reload()

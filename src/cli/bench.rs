@@ -341,7 +341,7 @@ pub fn print_cameras(robot: &str, arenas: usize, steps: usize) -> anyhow::Result
 fn mount_cameras(world: &mut bevy::prelude::World, framing: &twinbots_sim::Framing, (width, height): (u32, u32)) {
     use bevy::prelude::*;
     use twinbots_sim::rapier::math::Pose;
-    use twinbots_sim::{Arena, CameraSensor, InArena, Link, Mount};
+    use twinbots_sim::{CameraSensor, InArena, Link, Mount};
     let eye = framing.eye("iso").expect("the iso view");
     let forward = (framing.target - eye).normalize();
     let left = Vec3::Z.cross(forward).normalize();
@@ -355,7 +355,7 @@ fn mount_cameras(world: &mut bevy::prelude::World, framing: &twinbots_sim::Frami
         }
     }
     for (arena, (entity, link)) in first {
-        let Some(body) = world.get::<Arena>(arena).and_then(|a| a.world.bodies.get(link.body).map(|b| *b.position() * link.offset)) else { continue };
+        let Some(body) = twinbots_sim::physics_in(world, arena).and_then(|w| w.bodies.get(link.body).map(|b| *b.position() * link.offset)) else { continue };
         let offset = body.inverse() * camera;
         world.spawn((CameraSensor::new(45f32.to_radians(), width, height), Mount { link: entity, offset }, InArena(arena)));
     }

@@ -97,6 +97,10 @@ fn robot_app(robot: &str, arenas: usize, seed: u64, twin: &Twin, source: impl Re
     app.insert_resource(source);
     app.finish();
     app.cleanup();
+    // The second line behind pattern 3's types (docs/architecture.md): no system of the robot
+    // may reach the true world.
+    let found = twinbots_link::audit::pattern_3_violations(&mut app);
+    anyhow::ensure!(found.is_empty(), "{robot}'s pattern-3 app reaches beyond the robot:\n  {}", found.join("\n  "));
     Ok(app)
 }
 

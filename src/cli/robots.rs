@@ -26,6 +26,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 pub fn print() {
     for robot in registry::robots() {
         println!("{:<12} {}", robot.name, robot.description);
+        println!("{:<12} control step {:.0} ms", "", robot.control_period_s() * 1e3);
         let patterns: Vec<String> = robot.all_patterns().iter().map(|p| p.number().to_string()).collect();
         println!("{:<12} task: {}; design patterns: {}", "", robot.main_task().name, patterns.join(", "));
         for task in &robot.tasks[1..] {
@@ -40,7 +41,7 @@ pub fn print_json() -> anyhow::Result<()> {
     let robots: Vec<serde_json::Value> = registry::robots()
         .iter()
         .map(|robot| {
-            let tasks: Vec<TaskInterface> = robot.tasks.iter().map(|t| TaskInterface::of(robot.name, &(t.spec)())).collect();
+            let tasks: Vec<TaskInterface> = robot.tasks.iter().map(|t| TaskInterface::of(robot.name, &(t.spec)()).with_control_period(robot.control_period_s())).collect();
             serde_json::json!({
                 "name": robot.name,
                 "description": robot.description,

@@ -242,6 +242,7 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     let n_steps = settings.config_of::<PpoConfig>(ppo::NAME)?.n_steps;
     let mut server_settings = ServerSettings::new(&settings.robot, &spec, n_steps * settings.arenas.max(1), settings.timesteps);
     server_settings.limits = limits;
+    server_settings.task = server_settings.task.with_control_period(entry.control_period_s());
     let started = Instant::now();
     let server = RobotServer::start(listen, model, server_settings, Box::new(callbacks))?;
     println!("listening on {}", server.addr);

@@ -15,7 +15,7 @@ use std::path::Path;
 use bevy::prelude::*;
 use serde::Serialize;
 use twinbots_api::VecEnv;
-use twinbots_sim::{Arena, InArena, Link, Push, SimSettings, add_link_mass};
+use twinbots_sim::{Arena, InArena, Link, Push, SimSettings, SupervisorAccess, add_link_mass};
 
 use self::controller::{NamedController, open_all, reset_alike};
 use self::metrics::Response;
@@ -251,11 +251,16 @@ pub fn add_payloads(app: &mut App) {
     app.add_systems(twinbots_task::task::EnvReset, put_on_payloads.in_set(twinbots_task::task::ResetSet::Place));
 }
 
-fn put_on_payloads(arenas: Query<(Entity, &Payload), With<twinbots_task::task::Resetting>>, links: Query<&Link>, mut worlds: Query<&mut Arena>) {
+fn put_on_payloads(
+    privilege: Res<SupervisorAccess>,
+    arenas: Query<(Entity, &Payload), With<twinbots_task::task::Resetting>>,
+    links: Query<&Link>,
+    mut worlds: Query<&mut Arena>,
+) {
     for (arena, payload) in &arenas {
         if let (Ok(link), Ok(mut world)) = (links.get(payload.link), worlds.get_mut(arena)) {
             // Checked when the payload was made: the link's body keeps a positive mass.
-            let _ = add_link_mass(&mut world, link, payload.extra_kg);
+            let _ = add_link_mass(world.physics_mut(&privilege), link, payload.extra_kg);
         }
     }
 }
@@ -277,7 +282,7 @@ fn payload(entry: &RobotEntry, world: &mut World, arena: Entity, link: &str, mas
     let extra_kg = mass as f32 - nominal;
     // Put on once now, which checks it; the reset that starts the runs restores the URDF's mass
     // and puts it on again, as every later reset does.
-    let mut world_of_arena = world.get_mut::<Arena>(arena).expect("an arena");
-    add_link_mass(&mut world_of_arena, &link_component, extra_kg).map_err(|e| anyhow::anyhow!("payload: {e}"))?;
+    let mut physics = twinbots_sim::physics_in_mut(world, arena).ok_or_else(|| anyhow::anyhow!("payload: the study's app does not grant the Supervisor"))?;
+    add_link_mass(&mut physics, &link_component, extra_kg).map_err(|e| anyhow::anyhow!("payload: {e}"))?;
     Ok(Payload { link: entity, extra_kg })
 }

@@ -5,7 +5,7 @@ use std::process::Command;
 use twinbots_render::View;
 use twinbots_api::VecEnv;
 use twinbots_task::AppVecEnv;
-use twinbots_sim::{Arena, Link};
+use twinbots_sim::Link;
 
 use crate::{orange, renderer};
 
@@ -33,7 +33,7 @@ fn the_pole_appears_where_the_physics_says_it_is() {
     // Where the physics puts the pole's middle and its tip.
     let world = env.app().world();
     let link = world.get::<Link>(parts.pole_link).unwrap();
-    let pole = *world.get::<Arena>(arena).unwrap().world.bodies[link.body].position() * link.offset;
+    let pole = *twinbots_sim::physics_in(world, arena).unwrap().bodies[link.body].position() * link.offset;
     let middle = pole * bevy::math::Vec3::new(0.0, 0.0, 0.5);
     let p = view.project(middle, w, h).expect("the pole is in front of the camera");
     let near = (-3i32..=3)

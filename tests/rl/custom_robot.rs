@@ -131,6 +131,10 @@ fn home(mut tables: Query<(&Spin, &TableState, &Controller, &mut AtHome)>, mut m
     }
 }
 
+fn turntable_timing() -> SimSettings {
+    SimSettings { dt: 0.01, substeps: 4, ..default() }
+}
+
 fn turntable() -> RobotDescription {
     RobotDescription {
         name: "turntable",
@@ -142,7 +146,8 @@ fn turntable() -> RobotDescription {
             algos: vec![AlgoDefaults { arenas: 4, hyperparams: "n_steps = 128\nbatch_size = 64", ..AlgoDefaults::new("ppo") }],
             ..Default::default()
         },
-        build: |request| headless_app(SimSettings { dt: 0.01, substeps: 4, ..default() }, request, TurntablePlugin(request.pattern)),
+        settings: turntable_timing,
+        build: |request| headless_app(turntable_timing(), request, TurntablePlugin(request.pattern)),
         rig: None,
         feedback: None,
         cell: None,

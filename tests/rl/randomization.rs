@@ -6,7 +6,7 @@ use twinbots_task::randomization::{FitSpread, Randomization, RandomizationPlugin
 use twinbots_api::VecEnv;
 use twinbots_task::AppVecEnv;
 use twinbots_sim::rapier::dynamics::RigidBodyAdditionalMassProps;
-use twinbots_sim::{Arena, InArena, Joint, JointDynamics, JointState, Motor, MotorCommand, Parameters, PositionSensor};
+use twinbots_sim::{InArena, Joint, JointDynamics, JointState, Motor, MotorCommand, Parameters, PositionSensor};
 
 fn env(r: Randomization) -> (AppVecEnv, cartpole::CartPoleParts) {
     let mut app = cartpole::headless_app(1, 3);
@@ -32,10 +32,10 @@ fn masses_friction_motor_strength_and_sensor_noise_are_randomized_at_reset() {
     });
     env.step(&[1.0]).unwrap();
     let world = env.app().world();
-    let arena = world.get::<Arena>(env.arenas()[0]).unwrap();
+    let arena = twinbots_sim::physics_in(world, env.arenas()[0]).unwrap();
     let cart_body = world.get::<twinbots_sim::Link>(parts.cart).unwrap().body;
-    assert!((arena.world.bodies[cart_body].mass() - 4.0).abs() < 1e-4, "the 2 kg cart weighs double");
-    assert!(arena.world.colliders.iter().all(|(_, c)| c.friction() == 0.3));
+    assert!((arena.bodies[cart_body].mass() - 4.0).abs() < 1e-4, "the 2 kg cart weighs double");
+    assert!(arena.colliders.iter().all(|(_, c)| c.friction() == 0.3));
     assert_eq!(world.get::<Motor>(parts.wheels[0]).unwrap().strength, 0.5);
     let reading = world.get::<PositionSensor>(parts.pole_joint).unwrap();
     let truth = world.get::<JointState>(parts.pole_joint).unwrap().position;
@@ -104,7 +104,7 @@ fn calibrated_draws(k: f32, seed: u64, resets: usize) -> Vec<Vec<[f64; 4]>> {
                     let dynamics = world.get::<JointDynamics>(parts.pole_joint).unwrap();
                     let delay = world.get::<Motor>(parts.wheels[0]).unwrap().delay;
                     assert_eq!(world.get::<InArena>(parts.wheels[0]).unwrap().0, arena);
-                    let body = &world.get::<Arena>(arena).unwrap().world.bodies[joint.child_body];
+                    let body = &twinbots_sim::physics_in(world, arena).unwrap().bodies[joint.child_body];
                     let Some(RigidBodyAdditionalMassProps::MassProps(props)) = body.mass_properties().additional_local_mprops.as_deref() else { panic!("the pole carries its URDF inertial") };
                     let inertia = props.principal_inertia();
                     [dynamics.damping as f64, dynamics.armature() as f64, delay as f64, (inertia.x + inertia.y + inertia.z) as f64]

@@ -20,6 +20,7 @@ pub fn server_with(timesteps: u64, rollout: usize, limits: ServerLimits, callbac
     let spec = cartpole::task_spec();
     let model = Ppo::new(PpoConfig::zoo_cartpole(), spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
     let mut settings = ServerSettings::new("cartpole", &spec, rollout, timesteps);
+    settings.task = settings.task.with_control_period(cartpole::robot().control_period_s());
     settings.limits = limits;
     RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, callbacks).unwrap()
 }

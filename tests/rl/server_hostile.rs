@@ -220,6 +220,7 @@ fn welcome_carries_the_tasks_interface_as_robots_json_prints_it() {
     assert_eq!(task.observation_space, spec.observation_space);
     assert_eq!(task.observation_names, ["cart_x", "cart_velocity", "pole_angle", "pole_rate"]);
     assert_eq!((task.reward_range.low, task.reward_range.high), (1.0, 1.0));
+    assert_eq!(task.control_period_s, Some(0.032), "the cart-pole acts every 32 ms");
     let out = twinbots().args(["robots", "--json"]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -232,6 +233,7 @@ fn welcome_carries_the_tasks_interface_as_robots_json_prints_it() {
             let task: twinbots_link::protocol::TaskInterface = serde_json::from_value(task.clone()).unwrap();
             assert_eq!(task.observation_names.len(), task.observation_space.dim(), "{}", task.task);
             assert!(task.reward_range.high.is_finite(), "{}: a declared upper bound", task.task);
+            assert!(task.control_period_s.is_some_and(|s| s > 0.0 && s < 1.0), "{}: a control period", task.task);
         }
     }
 }

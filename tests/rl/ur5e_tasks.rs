@@ -106,7 +106,7 @@ fn each_arena_builds_its_own_layout_and_the_program_follows_its_fixtures() {
         .query::<(&twinbots_sim::Link, &twinbots_sim::InArena)>()
         .iter(world)
         .filter(|(l, _)| l.name == "nest")
-        .map(|(l, a)| (a.0, world.get::<twinbots_sim::Arena>(a.0).unwrap().world.bodies[l.body].translation()))
+        .map(|(l, a)| (a.0, twinbots_sim::physics_in(world, a.0).unwrap().bodies[l.body].translation()))
         .collect();
     let far_arena = env.arenas()[2];
     let far_nests: Vec<_> = nests.iter().filter(|(a, _)| *a == far_arena).map(|(_, p)| p.truncate()).collect();

@@ -24,15 +24,14 @@ fn floating() -> (App, Entity, twinbots_sim::SpawnedRobot, SimSettings) {
 /// The mass and centre of mass of `link`'s body, brought up to date as a physics step would.
 fn body_mass(app: &mut App, arena: Entity, link: Entity) -> (f32, Vec3) {
     let link = app.world().get::<Link>(link).unwrap().clone();
-    let mut arena = app.world_mut().get_mut::<Arena>(arena).unwrap();
-    recompute(&mut arena, &link);
-    let body = &arena.world.bodies[link.body];
+    let mut world = twinbots_sim::physics_in_mut(app.world_mut(), arena).unwrap();
+    recompute(&mut world, &link);
+    let body = &world.bodies[link.body];
     (body.mass(), body.center_of_mass())
 }
 
 /// What the next physics step would do first: the body's mass from its parts.
-fn recompute(arena: &mut Arena, link: &Link) {
-    let world = &mut arena.world;
+fn recompute(world: &mut twinbots_sim::rapier::prelude::PhysicsWorld, link: &Link) {
     world.bodies[link.body].recompute_mass_properties_from_colliders(&world.colliders);
 }
 
@@ -73,19 +72,24 @@ fn a_payload_adds_its_mass_at_the_link_and_a_reset_takes_it_away() {
     let tip = robot.link("tip").unwrap();
     let link = app.world().get::<Link>(tip).unwrap().clone();
     {
-        let mut a = app.world_mut().get_mut::<Arena>(arena).unwrap();
-        add_link_mass(&mut a, &link, 0.5).unwrap();
+        let mut world = twinbots_sim::physics_in_mut(app.world_mut(), arena).unwrap();
+        add_link_mass(&mut world, &link, 0.5).unwrap();
     }
     let (mass, com) = body_mass(&mut app, arena, tip);
     // 2 kg at 0 and 1 kg at 1 m: 3 kg, centre of mass at 1/3 m.
     assert!((mass - 3.0).abs() < 1e-5, "{mass}");
     assert!((com.x - 1.0 / 3.0).abs() < 1e-5, "{com}");
     {
-        let mut a = app.world_mut().get_mut::<Arena>(arena).unwrap();
-        add_link_mass(&mut a, &link, -1.0).unwrap();
-        let err = add_link_mass(&mut a, &link, -5.0).unwrap_err();
+        let mut world = twinbots_sim::physics_in_mut(app.world_mut(), arena).unwrap();
+        add_link_mass(&mut world, &link, -1.0).unwrap();
+        let err = add_link_mass(&mut world, &link, -5.0).unwrap_err();
         assert!(err.contains("'tip'") && err.contains("without mass"), "{err}");
-        assert!(a.restore_initial());
+    }
+    {
+        let world = app.world_mut();
+        world.resource_scope(|world, privilege: Mut<twinbots_sim::SupervisorAccess>| {
+            assert!(world.get_mut::<Arena>(arena).unwrap().restore_initial(&privilege));
+        });
     }
     let (mass, _) = body_mass(&mut app, arena, tip);
     assert!((mass - 2.5).abs() < 1e-5, "restored: {mass}");

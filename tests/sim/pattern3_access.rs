@@ -1,90 +1,15 @@
-//! Design pattern 3 made structural (issue 15.4): in a pattern-3 robot app no system of the
-//! robot or its task can reach privileged world state. Every system of every schedule is asked
-//! for its data access (`System::initialize` returns it). Only the framework's plumbing — the
-//! systems an app of `MinimalPlugins`, `SimPlugin { supervisor: false }` (devices, physics,
-//! radio) and `ServerRobotPlugin` (the robot cycle, whose boot seeds each controller's random
-//! stream from its arena's) already has, recognised by system type — and the lab's operator
-//! events (systems holding the narrow `Operator` parameter, which can only place a hinge or an
-//! object) may touch an `Arena`, which holds the physics world. No system may use the
-//! Supervisor, and the app must not grant it (`SupervisorAccess`). There are no exceptions:
-//! what a robot measures of its cell (the UR5e's collisions) comes from devices (its contact
-//! sensors), which the framework's systems fill.
+//! Design pattern 3 made structural (issue 15.4, issue 32.4). The first line is the types: an
+//! arena's physics world is private to the simulator and reached only with the Supervisor's
+//! privilege, which a pattern-3 app never grants, so a robot system that asks for it fails on
+//! its first run; the lab operator reaches only what its cell marks `Handled`, in the arena
+//! named. The second line is `twinbots_link::audit` (also run by `twinbots robot` on every app
+//! it builds): every system of every schedule asked for its data access.
 
-use std::any::TypeId;
-use std::collections::HashSet;
-
-use bevy::ecs::component::ComponentId;
 use bevy::prelude::*;
-use twinbots_link::robot::ServerRobotPlugin;
 use twinbots::registry;
 use twinbots_api::DesignPattern;
-use twinbots_sim::{Arena, OperatorAccess, SimPlugin, SupervisorAccess, SupervisorPlugin};
-
-/// A robot state for building the framework's own systems.
-#[derive(Component)]
-struct ProbeState;
-
-/// The system types of the framework's plumbing (see the module's doc).
-fn plumbing() -> HashSet<TypeId> {
-    let mut app = App::new();
-    app.add_plugins(MinimalPlugins)
-        .add_plugins(SimPlugin { supervisor: false, ..default() })
-        .add_plugins(ServerRobotPlugin::<ProbeState>::new("probe"));
-    let mut types = HashSet::new();
-    app.world_mut().resource_scope(|_, schedules: Mut<Schedules>| {
-        for (_, schedule) in schedules.iter() {
-            types.extend(schedule.graph().systems.iter().map(|(_, system, _)| system.system_type()));
-        }
-    });
-    types
-}
-
-/// What a system may touch that a pattern-3 robot must not.
-struct Privileged {
-    arena: ComponentId,
-    supervisor: ComponentId,
-    operator: ComponentId,
-}
-
-/// Every system of every schedule of `app` that reaches privileged state without being
-/// allowed to, as "schedule: system #i: what" (system names need bevy's `debug` feature).
-fn violations(app: &mut App) -> Vec<String> {
-    let plumbing = plumbing();
-    let world = app.world_mut();
-    let privileged = Privileged {
-        arena: world.register_component::<Arena>(),
-        supervisor: world.register_component::<SupervisorAccess>(),
-        operator: world.register_component::<OperatorAccess>(),
-    };
-    let mut found = Vec::new();
-    world.resource_scope(|world, mut schedules: Mut<Schedules>| {
-        for (label, schedule) in schedules.iter_mut() {
-            let keys: Vec<_> = schedule.graph().systems.iter().map(|(key, _, _)| key).collect();
-            for (i, key) in keys.into_iter().enumerate() {
-                let system = schedule.graph_mut().systems.get_mut(key).expect("a listed system");
-                let name = format!("system #{i} {}", system.name());
-                let framework = plumbing.contains(&system.system_type());
-                let exclusive = system.is_exclusive();
-                let access = system.initialize(world);
-                let access = access.combined_access();
-                let everything = exclusive || access.has_read_all() || access.has_write_all();
-                let reads_arena = everything || access.has_read(privileged.arena) || access.has_write(privileged.arena);
-                let uses = |id| access.has_read(id);
-                let supervisor = uses(privileged.supervisor);
-                let lab_operator = uses(privileged.operator) && !everything;
-                if supervisor {
-                    found.push(format!("{label:?}: {name} uses the Supervisor"));
-                    continue;
-                }
-                if reads_arena && !(framework || lab_operator) {
-                    let what = if everything { "the whole world" } else { "an Arena" };
-                    found.push(format!("{label:?}: {name} reaches {what}"));
-                }
-            }
-        }
-    });
-    found
-}
+use twinbots_link::audit::pattern_3_violations as violations;
+use twinbots_sim::{Arena, Handled, Operator, SupervisorAccess, SupervisorPlugin};
 
 /// Every built-in robot task that runs under pattern 3, as a built app (start-up done).
 fn pattern_3_apps() -> Vec<(String, App)> {
@@ -111,28 +36,93 @@ fn no_pattern_3_robot_system_reaches_the_physics_world_or_the_supervisor() {
     }
 }
 
-/// The check can fail: a pattern-3 app given the Supervisor, or a robot-side system that
-/// reads an arena's physics world, is caught.
+/// The first line: a robot system that reads the true world needs the Supervisor's privilege,
+/// and a pattern-3 app has none, so the system cannot run (it stops the app, naming it).
 #[test]
-fn the_check_catches_a_supervisor_or_a_robot_system_reading_the_world() {
-    fn peeks_at_the_world(arenas: Query<&Arena>) {
+fn a_robot_system_that_reads_the_world_cannot_run_under_pattern_3() {
+    fn peeks_at_the_world(privilege: Res<SupervisorAccess>, arenas: Query<&Arena>) {
         for arena in &arenas {
-            let _ = arena.world.bodies.len();
+            let _ = arena.physics(&privilege).bodies.len();
         }
     }
-    fn asks_the_supervisor(_supervisor: twinbots_sim::Supervisor) {}
-
     let cartpole = registry::find("cartpole").unwrap();
     let mut app = cartpole.app(None, 1, 0, DesignPattern::Server).unwrap();
     app.add_systems(Update, peeks_at_the_world);
-    let found = violations(&mut app);
-    assert_eq!(found.len(), 1, "only the added system: {found:?}");
-    assert!(found[0].contains("reaches an Arena"), "{found:?}");
+    let failed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| app.update())).expect_err("the system ran");
+    let text = failed.downcast_ref::<String>().cloned().unwrap_or_default();
+    // (Bevy names the parameter only with its `debug` feature.)
+    assert!(text.contains("failed validation: Resource does not exist"), "{text}");
+    // The same system in a pattern-1 app runs.
+    let mut app = cartpole.app(None, 1, 0, DesignPattern::Supervised).unwrap();
+    app.add_systems(Update, peeks_at_the_world);
+    app.update();
+}
 
+/// The second line catches what the types let through: a pattern-3 app given the Supervisor, a
+/// system asking for its privilege, one that changes an arena, one that holds the whole world
+/// — in a registered robot's app and in one that is registered nowhere.
+#[test]
+fn the_audit_catches_the_supervisor_a_changed_arena_or_the_whole_world() {
+    fn asks_the_supervisor(_supervisor: twinbots_sim::Supervisor) {}
+    fn reseeds_an_arena(mut arenas: Query<&mut Arena>) {
+        for mut arena in &mut arenas {
+            arena.reseed(7);
+        }
+    }
+    fn holds_the_world(_world: &mut World) {}
+
+    let cartpole = registry::find("cartpole").unwrap();
     let mut app = cartpole.app(None, 1, 0, DesignPattern::Server).unwrap();
     app.add_plugins(SupervisorPlugin).add_systems(Update, asks_the_supervisor);
-    assert!(app.world().contains_resource::<SupervisorAccess>());
     let found = violations(&mut app);
-    assert_eq!(found.len(), 1, "only the added system: {found:?}");
-    assert!(found[0].contains("uses the Supervisor"), "{found:?}");
+    assert_eq!(found.len(), 2, "the grant and the added system: {found:?}");
+    assert!(found[0].contains("grants the Supervisor") && found[1].contains("Supervisor's privilege"), "{found:?}");
+
+    /// A robot no registry knows: the simulation without the Supervisor, one system of its own.
+    fn unregistered_robot_with<M>(system: impl IntoScheduleConfigs<bevy::ecs::system::ScheduleSystem, M>) -> Vec<String> {
+        let mut app = App::new();
+        app.add_plugins(MinimalPlugins).add_plugins(twinbots_sim::SimPlugin { supervisor: false, ..default() });
+        app.add_systems(Update, system);
+        violations(&mut app)
+    }
+    for (found, what) in [(unregistered_robot_with(reseeds_an_arena), "changes an Arena"), (unregistered_robot_with(holds_the_world), "whole world")] {
+        assert_eq!(found.len(), 1, "only the added system: {found:?}");
+        assert!(found[0].contains(what), "{found:?}");
+    }
+}
+
+/// The lab operator at one cell: places and sees only what the cell marks `Handled`, and only
+/// in the arena named in the call.
+#[test]
+fn the_operator_reaches_only_handled_objects_in_the_arena_named() {
+    #[derive(Resource, Default, Debug)]
+    struct Seen(Vec<(&'static str, bool)>);
+    fn operate(mut operator: Operator, arenas: Query<(Entity, &ur5e::cell::CellParts)>, mut seen: ResMut<Seen>) {
+        let mut cells: Vec<(Entity, &ur5e::cell::CellParts)> = arenas.iter().collect();
+        cells.sort_by_key(|(e, _)| *e);
+        let [(a, parts_a), (b, parts_b)] = cells[..] else { panic!("two arenas") };
+        let seat = operator.object_pose(a, parts_a.part).expect("the part, in its own arena");
+        seen.0.push(("own part seen", true));
+        seen.0.push(("own part placed", operator.place_object(a, parts_a.part, seat)));
+        seen.0.push(("other arena's part seen", operator.object_pose(a, parts_b.part).is_some()));
+        seen.0.push(("other arena's part placed", operator.place_object(a, parts_b.part, seat)));
+        seen.0.push(("the arm's tool seen", operator.object_pose(a, parts_a.tcp).is_some()));
+        seen.0.push(("an arm joint placed", operator.place_joint(b, parts_b.joints[2], 0.5)));
+    }
+    let ur5e = registry::find("ur5e").unwrap();
+    let mut app = ur5e.app(None, 2, 0, DesignPattern::Server).unwrap();
+    app.init_resource::<Seen>().add_systems(Update, operate);
+    app.update();
+    let seen = &app.world().resource::<Seen>().0;
+    let expected = [
+        ("own part seen", true),
+        ("own part placed", true),
+        ("other arena's part seen", false),
+        ("other arena's part placed", false),
+        ("the arm's tool seen", false),
+        ("an arm joint placed", false),
+    ];
+    assert_eq!(&seen[..6], &expected, "{seen:?}");
+    let world = app.world_mut();
+    assert_eq!(world.query_filtered::<(), With<Handled>>().iter(world).count(), 2, "one part per cell is handled");
 }

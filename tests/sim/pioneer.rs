@@ -24,7 +24,7 @@ fn drive(app: &mut App, robot: &SpawnedRobot, speeds: [f32; 4]) {
 /// (x, y, yaw) of the base.
 fn base(app: &App, arena: Entity, robot: &SpawnedRobot) -> (f32, f32, f32) {
     let link = app.world().get::<Link>(robot.link("base_link").unwrap()).unwrap();
-    let pose = *app.world().get::<Arena>(arena).unwrap().world.bodies[link.body].position();
+    let pose = *twinbots_sim::physics_in(app.world(), arena).unwrap().bodies[link.body].position();
     let (yaw, _, _) = pose.rotation.to_euler(EulerRot::ZYX);
     (pose.translation.x, pose.translation.y, yaw)
 }
@@ -86,7 +86,7 @@ fn sonars_read_the_distance_to_a_wall() {
     app.update();
     let base_pose = {
         let l = app.world().get::<Link>(link).unwrap();
-        *app.world().get::<Arena>(arena).unwrap().world.bodies[l.body].position() * l.offset
+        *twinbots_sim::physics_in(app.world(), arena).unwrap().bodies[l.body].position() * l.offset
     };
     for (i, &s) in sonars.iter().enumerate() {
         let reading = app.world().get::<DistanceSensor>(s).unwrap().distance;

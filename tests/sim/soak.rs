@@ -106,9 +106,10 @@ fn inspect(world: &mut World, report: &mut SoakReport) {
             keep_max(&mut report.worst_position_overrun, over, &joint.name);
         }
     }
-    let mut arenas = world.query::<&Arena>();
+    let privilege = world.resource::<twinbots_sim::SupervisorAccess>();
+    let mut arenas = world.try_query::<&Arena>().expect("arenas are registered");
     for arena in arenas.iter(world) {
-        for (_, body) in arena.world.bodies.iter() {
+        for (_, body) in arena.physics(privilege).bodies.iter() {
             let p = body.translation();
             let (v, w) = (body.linvel(), body.angvel());
             if !(p.is_finite() && v.is_finite() && w.is_finite()) {

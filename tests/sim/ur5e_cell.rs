@@ -43,7 +43,7 @@ fn arm_state(app: &App, parts: &CellParts) -> ArmState {
 /// Where the physics world has the TCP link, in the base frame.
 fn simulated_tcp(app: &App, arena: Entity, parts: &CellParts) -> Pose {
     let link = app.world().get::<Link>(parts.tcp).unwrap();
-    let body = &app.world().get::<Arena>(arena).unwrap().world.bodies[link.body];
+    let body = &twinbots_sim::physics_in(app.world(), arena).unwrap().bodies[link.body];
     parts.base.inverse() * *body.position() * link.offset
 }
 
@@ -150,9 +150,9 @@ fn the_elbow_stops_at_plus_minus_pi_under_commands_and_under_a_push() {
     for _ in 0..50 {
         {
             let dt = ur5e::sim_settings().control_dt();
-            let mut arena = app.world_mut().get_mut::<Arena>(arena).unwrap();
-            let (axis, _, _) = joint.measure(&arena.world).unwrap();
-            arena.world.bodies[forearm].apply_torque_impulse(axis * 300.0 * dt, true);
+            let mut world = twinbots_sim::physics_in_mut(app.world_mut(), arena).unwrap();
+            let (axis, _, _) = joint.measure(&world).unwrap();
+            world.bodies[forearm].apply_torque_impulse(axis * 300.0 * dt, true);
         }
         app.update();
         highest = highest.max(elbow_at(&app, &parts).position);
@@ -163,7 +163,7 @@ fn the_elbow_stops_at_plus_minus_pi_under_commands_and_under_a_push() {
 
 /// Gravity's torque about the shoulder-lift axis, from the simulated bodies beyond it.
 fn shoulder_gravity_torque(app: &App, arena: Entity, parts: &CellParts) -> f32 {
-    let world = &app.world().get::<Arena>(arena).unwrap().world;
+    let world = &twinbots_sim::physics_in(app.world(), arena).unwrap();
     let beyond = ["upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link"];
     let mut links = app.world().try_query::<&Link>().unwrap();
     let bodies: std::collections::HashSet<_> = links
@@ -238,8 +238,8 @@ fn the_vacuum_gripper_seizes_only_what_is_within_its_stroke() {
     let top = ur5e::cell::part_seat(ur5e::layout::Fixtures::default().pick) + Vec3::Z * ur5e::cell::PART_HEIGHT;
     let part_z = |app: &App| {
         let link = app.world().get::<Link>(parts.part).unwrap();
-        let arena = app.world().get::<Arena>(link_arena(app, &parts)).unwrap();
-        (parts.base.inverse() * *arena.world.bodies[link.body].position()).translation.z
+        let world = twinbots_sim::physics_in(app.world(), link_arena(app, &parts)).unwrap();
+        (parts.base.inverse() * *world.bodies[link.body].position()).translation.z
     };
     let rest = part_z(&app);
     let gripper = |app: &mut App, on: bool| app.world_mut().get_mut::<VacuumGripper>(parts.gripper).unwrap().on = on;

@@ -164,8 +164,7 @@ fn cartpole_urdf_round_trips_into_components() {
     let pole_link = world.get::<twinbots_sim::Link>(spawned.link("pole").unwrap()).unwrap().body;
     let tip_link = world.get::<twinbots_sim::Link>(spawned.link("pole_tip").unwrap()).unwrap().body;
     assert_eq!(pole_link, tip_link);
-    let a = world.get::<twinbots_sim::Arena>(arena).unwrap();
-    let mass = a.world.bodies[pole_link].mass();
+    let mass = twinbots_sim::physics_in(world, arena).unwrap().bodies[pole_link].mass();
     assert!((mass - 0.22).abs() < 1e-5, "pole body mass {mass}");
 }
 

@@ -217,6 +217,7 @@ mod tests {
             action_space: Space::Discrete { n: 2 },
             reward_range: crate::protocol::RewardRange { low: 0.0, high: 1.0 },
             reward_terms: vec![],
+            control_period_s: None,
         };
         let name = "r".repeat(60_000);
         let hello = serde_json::json!({"type": "hello", "version": VERSION, "robot": name, "observation_space": task.observation_space, "action_space": task.action_space});

@@ -7,6 +7,7 @@
 //! [`deadline`] (reads and writes that give up in time), and [`tls`] (the stream, plain or
 //! encrypted).
 
+pub mod audit;
 pub mod checks;
 pub mod client;
 pub mod deadline;

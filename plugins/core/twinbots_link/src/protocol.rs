@@ -130,6 +130,11 @@ pub struct TaskInterface {
     pub reward_range: RewardRange,
     /// The reward's named terms (the task sums their weighted values).
     pub reward_terms: Vec<String>,
+    /// How often a robot of the task acts, in seconds (its control step: 0.032 for the
+    /// cart-pole). Informative: the server waits for each step, whenever it comes. Absent from
+    /// servers before it was declared.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub control_period_s: Option<f64>,
 }
 
 impl TaskInterface {
@@ -143,7 +148,15 @@ impl TaskInterface {
             action_space: spec.action_space.clone(),
             reward_range: RewardRange { low: spec.reward_range.0, high: spec.reward_range.1 },
             reward_terms: spec.reward_terms.clone(),
+            control_period_s: None,
         }
+    }
+
+    /// The interface with the robot's control step (see [`TaskInterface::control_period_s`]),
+    /// rounded to the microsecond (the f32 step's digits beyond it are noise).
+    pub fn with_control_period(mut self, seconds: f64) -> Self {
+        self.control_period_s = Some((seconds * 1e6).round() / 1e6);
+        self
     }
 }
 

@@ -28,6 +28,7 @@ fn task() -> TaskInterface {
         action_space: Space::Discrete { n: 2 },
         reward_range: RewardRange { low: -2.0, high: 1.0 },
         reward_terms: vec!["alive".into()],
+        control_period_s: Some(0.032),
     }
 }
 

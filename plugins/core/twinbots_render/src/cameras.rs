@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::collections::HashMap;
 
 use bevy::prelude::*;
-use twinbots_sim::{Arena, CameraSensor, InArena, Link, Mount, SamplingPeriod, SimClock};
+use twinbots_sim::{CameraSensor, InArena, Link, Mount, SamplingPeriod, SimClock, physics_in};
 
 use crate::{RenderError, Renderer, View};
 
@@ -33,9 +33,9 @@ impl CameraRig {
         let mut groups: BTreeMap<(u32, u32), Vec<(Entity, (Entity, View))>> = BTreeMap::new();
         for (entity, (width, height, fov_y), mount, arena) in &due {
             let Some(link) = sim.get::<Link>(mount.link).cloned() else { continue };
-            let Some(pose) = sim
-                .get::<Arena>(*arena)
-                .and_then(|a| a.world.bodies.get(link.body).map(|b| *b.position() * link.offset * mount.offset))
+            // A camera shows the true world: its mount's pose is read as the Supervisor would.
+            let Some(pose) = physics_in(sim, *arena)
+                .and_then(|w| w.bodies.get(link.body).map(|b| *b.position() * link.offset * mount.offset))
             else {
                 continue;
             };

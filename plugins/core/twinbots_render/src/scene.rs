@@ -117,11 +117,13 @@ pub fn read_visuals(sim: &mut World, arena: Entity) -> Vec<VisualPose> {
         .map(|(e, l, v, _)| (e, l.clone(), v.0.clone()))
         .collect();
     let names: HashMap<Entity, String> = Look::link_names(items.iter().map(|(e, l, _)| (*e, l.name.as_str()))).into_iter().collect();
-    let Some(arena) = sim.get::<Arena>(arena) else { return Vec::new() };
+    // The twin's view shows the true world: read as the Supervisor would (an app without
+    // its privilege draws nothing).
+    let Some(world) = twinbots_sim::physics_in(sim, arena) else { return Vec::new() };
     let mut out = Vec::new();
     for (entity, link, visuals) in items {
         let name = &names[&entity];
-        let Some(body) = arena.world.bodies.get(link.body) else { continue };
+        let Some(body) = world.bodies.get(link.body) else { continue };
         let link_pose = *body.position() * link.offset;
         for (i, visual) in visuals.into_iter().enumerate() {
             let pose = link_pose * visual.geometry.origin;

@@ -9,6 +9,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::rapier::prelude::*;
+use crate::supervisor::SupervisorAccess;
 
 /// Collision group of the environment (ground, walls, objects of the cell).
 pub const ENVIRONMENT_GROUP: Group = Group::GROUP_1;
@@ -37,7 +38,11 @@ pub struct InArena(pub Entity);
 pub struct Arena {
     /// Position among the process's arenas (0-based); the vectorised env's index.
     pub index: usize,
-    pub world: PhysicsWorld,
+    /// The true state of the arena's world. Private: outside this crate it is reached only
+    /// through [`Arena::physics`], which asks for proof of the Supervisor's privilege, so a
+    /// design-pattern-3 app (which grants none) has no way to it but the simulator's own
+    /// devices and the lab operator's narrow hands.
+    pub(crate) world: PhysicsWorld,
     /// The arena's random stream: a function of (seed, index) only.
     pub rng: ChaCha8Rng,
     /// The seed `rng` started from (the latest [`Arena::reseed`]), and how many reseeds so far.
@@ -85,6 +90,17 @@ impl Arena {
             initial: None,
             unsampled: WorldChanges::default(),
         }
+    }
+
+    /// The physics world, for a holder of the Supervisor's privilege (a system's
+    /// `Res<SupervisorAccess>`; in exclusive code [`physics_in`]).
+    pub fn physics(&self, _privilege: &SupervisorAccess) -> &PhysicsWorld {
+        &self.world
+    }
+
+    /// The physics world, mutably (see [`Arena::physics`]).
+    pub fn physics_mut(&mut self, _privilege: &SupervisorAccess) -> &mut PhysicsWorld {
+        &mut self.world
     }
 
     /// A flat ground whose top face is the plane z = 0.
@@ -139,9 +155,10 @@ impl Arena {
         });
     }
 
-    /// Puts the world back to the state recorded by [`Arena::mark_initial`], bit for bit.
-    /// Returns false when no initial state was recorded.
-    pub fn restore_initial(&mut self) -> bool {
+    /// Puts the world back to the state recorded by [`Arena::mark_initial`], bit for bit: a
+    /// teleport of everything, so the Supervisor's privilege. Returns false when no initial
+    /// state was recorded.
+    pub fn restore_initial(&mut self, _privilege: &SupervisorAccess) -> bool {
         let Some(s) = self.initial.clone() else {
             return false;
         };
@@ -207,4 +224,17 @@ fn arena_rng(seed: u64, index: usize) -> ChaCha8Rng {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(index as u64);
     rng
+}
+
+/// The physics world of `arena` in an app that grants the Supervisor (exclusive code: tools,
+/// tests, start-up); `None` without that privilege or for an entity that is no arena.
+pub fn physics_in(world: &World, arena: Entity) -> Option<&PhysicsWorld> {
+    let privilege = world.get_resource::<SupervisorAccess>()?;
+    Some(world.get::<Arena>(arena)?.physics(privilege))
+}
+
+/// [`physics_in`], mutably.
+pub fn physics_in_mut(world: &mut World, arena: Entity) -> Option<Mut<'_, PhysicsWorld>> {
+    world.get_resource::<SupervisorAccess>()?;
+    Some(world.get_mut::<Arena>(arena)?.map_unchanged(|a| &mut a.world))
 }

@@ -53,8 +53,8 @@ pub(crate) fn apply_pushes(mut commands: Commands, mut pushes: Query<(Entity, &L
 /// mass and inertia as a real added mass would. Until the arena is next restored to its initial
 /// state (an episode reset undoes it). Errors when the link has no body or the body would end
 /// with no positive mass.
-pub fn add_link_mass(arena: &mut Arena, link: &Link, mass: f32) -> Result<(), String> {
-    let body = arena.world.bodies.get_mut(link.body).ok_or_else(|| format!("link '{}' has no body in its arena", link.name))?;
+pub fn add_link_mass(world: &mut PhysicsWorld, link: &Link, mass: f32) -> Result<(), String> {
+    let body = world.bodies.get_mut(link.body).ok_or_else(|| format!("link '{}' has no body in its arena", link.name))?;
     let current = body.mass_properties().additional_local_mprops.as_deref().cloned();
     let base = match current {
         Some(RigidBodyAdditionalMassProps::MassProps(props)) => props,

@@ -18,7 +18,7 @@ pub mod urdf;
 
 pub use bevy_rapier3d::rapier;
 
-pub use arena::{Arena, ArenaConfig, InArena};
+pub use arena::{Arena, ArenaConfig, InArena, physics_in, physics_in_mut};
 pub use devices::{
     Accelerometer, BROADCAST, CameraSensor, ContactSensor, DevicesPlugin, DistanceSensor, Emitter, Gps, Gyro, InertialUnit, Joint,
     JointDynamics, JointState, Motor, MotorCommand, Mount, Packet, PositionSensor, RadioPlugin, Receiver, SamplingPeriod, TouchSensor,
@@ -31,7 +31,7 @@ pub use parameters::{ParameterKind, ParameterSpec, Parameters, ParametersPlugin}
 pub use physics::{PhysicsPlugin, PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use robot::{Link, Robot, Visuals};
 pub use spawn::{SpawnOptions, SpawnedRobot, spawn_robot};
-pub use supervisor::{LinkState, Operator, OperatorAccess, Supervisor, SupervisorAccess, SupervisorPlugin};
+pub use supervisor::{Handled, LinkState, Operator, OperatorAccess, Supervisor, SupervisorAccess, SupervisorPlugin};
 
 use bevy::app::PluginGroupBuilder;
 use bevy::prelude::*;

@@ -23,11 +23,14 @@ pub struct LinkState {
     pub angvel: Vec3,
 }
 
-/// Present in apps that allow the Supervisor (design patterns 1 and 2). Under design pattern 3
-/// the app has none, so any system that asks for a [`Supervisor`] fails the moment it would
-/// first run, naming this resource: privileged access cannot creep into robot code unnoticed.
-#[derive(Resource, Clone, Copy, Debug, Default)]
-pub struct SupervisorAccess;
+/// The Supervisor's privilege: present in apps that allow it (design patterns 1 and 2, tools
+/// and renderers of the true world). It is the only key to an arena's physics world outside
+/// the simulator ([`Arena::physics`]) and to the [`Supervisor`]. Only [`SupervisorPlugin`]
+/// makes one (the field is private), so under design pattern 3, whose app has none, no code can
+/// read the true world: a system asking for it fails the moment it would first run, naming
+/// this resource.
+#[derive(Resource, Debug)]
+pub struct SupervisorAccess(());
 
 /// Grants the [`Supervisor`] (design patterns 1 and 2). Pattern-3 apps leave it out, and any
 /// system that asks for the Supervisor there fails on its first run.
@@ -35,7 +38,7 @@ pub struct SupervisorPlugin;
 
 impl Plugin for SupervisorPlugin {
     fn build(&self, app: &mut App) {
-        app.init_resource::<SupervisorAccess>();
+        app.insert_resource(SupervisorAccess(()));
     }
 }
 
@@ -58,7 +61,6 @@ type JointQuery<'w, 's> = Query<
 pub struct Supervisor<'w, 's> {
     /// Named for the error a pattern-3 app raises: "Parameter `…::design_pattern_3_forbids_the_supervisor`
     /// failed validation: Resource does not exist".
-    #[allow(dead_code)]
     design_pattern_3_forbids_the_supervisor: Res<'w, SupervisorAccess>,
     arenas: Query<'w, 's, &'static mut Arena>,
     links: Query<'w, 's, (&'static Link, &'static InArena)>,
@@ -66,36 +68,56 @@ pub struct Supervisor<'w, 's> {
     grippers: Query<'w, 's, (&'static mut VacuumGripper, &'static InArena)>,
 }
 
-/// A person in the lab: outside the robot, able to put an object on a hinge (the pendulum) at
-/// a given angle and hold it there. Design pattern 3 resets episodes through explicitly named
-/// operator events like this one, never through the robot.
+/// An object the lab operator handles: a workpiece it puts back in its fixture (the link of a
+/// free body), or a hinge it holds and lets go (the pendulum's joint). The cell marks them when
+/// it is built; the [`Operator`] touches and sees nothing else.
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct Handled;
+
+/// A person in the lab: outside the robot, at one arena's cell, able to put an object on a
+/// hinge (the pendulum) at a given angle and hold it there, or a workpiece back in its
+/// fixture, and to see where that workpiece lies. Design pattern 3 resets episodes through
+/// explicitly named operator events like this one, never through the robot. It reaches only
+/// objects marked [`Handled`], and only in the arena named in the call: what a real operator
+/// standing at that cell can see and hold (calls beyond it return `false` / `None`).
 #[derive(SystemParam)]
 pub struct Operator<'w, 's> {
     #[allow(dead_code)]
     this_app_has_no_lab_operator: Res<'w, OperatorAccess>,
     arenas: Query<'w, 's, &'static mut Arena>,
+    handled: Query<'w, 's, &'static InArena, With<Handled>>,
     links: Query<'w, 's, (&'static Link, &'static InArena)>,
     joints: JointQuery<'w, 's>,
 }
 
 impl Operator<'_, '_> {
-    /// Puts `joint` at `position` with the parts beyond it at rest relative to its parent.
-    pub fn place_joint(&mut self, joint: Entity, position: f32) -> bool {
-        place_joint(&mut self.arenas, &mut self.joints, joint, position)
+    /// Whether `object` is one the operator handles, at `arena`'s cell.
+    fn reaches(&self, arena: Entity, object: Entity) -> bool {
+        self.handled.get(object).is_ok_and(|at| at.0 == arena)
     }
 
-    /// Puts a loose object (a workpiece: the link of a free body) at `pose`, at rest, as an
-    /// operator puts a part back in its fixture.
-    pub fn place_object(&mut self, link: Entity, pose: Pose) -> bool {
-        move_body(&mut self.arenas, &self.links, link, |body, offset| {
-            body.set_position(pose * offset.inverse(), true);
-            body.set_linvel(Vec3::ZERO, true);
-            body.set_angvel(Vec3::ZERO, true);
-        })
+    /// At `arena`'s cell, puts the handled `joint` at `position` with the parts beyond it at
+    /// rest relative to its parent.
+    pub fn place_joint(&mut self, arena: Entity, joint: Entity, position: f32) -> bool {
+        self.reaches(arena, joint) && place_joint(&mut self.arenas, &mut self.joints, joint, position)
     }
 
-    /// Where a loose object's link frame is now (the operator can see it).
-    pub fn object_pose(&self, link: Entity) -> Option<Pose> {
+    /// At `arena`'s cell, puts a handled loose object (a workpiece: the link of a free body) at
+    /// `pose`, at rest, as an operator puts a part back in its fixture.
+    pub fn place_object(&mut self, arena: Entity, link: Entity, pose: Pose) -> bool {
+        self.reaches(arena, link)
+            && move_body(&mut self.arenas, &self.links, link, |body, offset| {
+                body.set_position(pose * offset.inverse(), true);
+                body.set_linvel(Vec3::ZERO, true);
+                body.set_angvel(Vec3::ZERO, true);
+            })
+    }
+
+    /// Where a handled object's link frame is now, at `arena`'s cell (the operator sees it).
+    pub fn object_pose(&self, arena: Entity, link: Entity) -> Option<Pose> {
+        if !self.reaches(arena, link) {
+            return None;
+        }
         let (link, in_arena) = self.links.get(link).ok()?;
         let body = self.arenas.get(in_arena.0).ok()?.world.bodies.get(link.body)?;
         Some(*body.position() * link.offset)
@@ -168,7 +190,7 @@ impl Supervisor<'_, '_> {
     /// positions, motor commands, and grippers off and empty. Returns false for an unknown arena or one never marked.
     pub fn reset_arena(&mut self, arena: Entity) -> bool {
         let Ok(mut a) = self.arenas.get_mut(arena) else { return false };
-        if !a.restore_initial() {
+        if !a.restore_initial(&self.design_pattern_3_forbids_the_supervisor) {
             return false;
         }
         for (_, in_arena, _, motor) in &mut self.joints {

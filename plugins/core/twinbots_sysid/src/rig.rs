@@ -179,8 +179,8 @@ impl Stand {
         let entity = *links.get(link).ok_or_else(|| anyhow::anyhow!("the rig has no link '{link}'"))?;
         let world = self.app.world_mut();
         let l = world.get::<twinbots_sim::Link>(entity).expect("a spawned link has a Link").clone();
-        let mut a = world.get_mut::<Arena>(*arena_entity).expect("the arena entity has its Arena");
-        let body = a.world.bodies.get_mut(l.body).ok_or_else(|| anyhow::anyhow!("link '{link}' has no body"))?;
+        let mut physics = twinbots_sim::physics_in_mut(world, *arena_entity).expect("the stand grants the Supervisor");
+        let body = physics.bodies.get_mut(l.body).ok_or_else(|| anyhow::anyhow!("link '{link}' has no body"))?;
         let point = l.offset * at;
         body.set_additional_mass_properties(MassProperties::new(point, mass, Vec3::splat(1e-6)), true);
         Ok(())
@@ -224,7 +224,7 @@ impl Stand {
         let world = self.app.world();
         let (arena_entity, links) = &self.arenas[arena];
         let l = world.get::<twinbots_sim::Link>(*links.get(link)?)?;
-        let body = world.get::<Arena>(*arena_entity)?.world.bodies.get(l.body)?;
+        let body = twinbots_sim::physics_in(world, *arena_entity)?.bodies.get(l.body)?;
         Some(*body.position() * l.offset)
     }
 
@@ -269,7 +269,8 @@ fn spawn(app: &mut App, rig: &Rig, index: usize, start: &[(String, f32)], params
         let joint = world.get::<Joint>(e).expect("a spawned joint has a Joint").clone();
         let mut dynamics = *world.get::<JointDynamics>(e).expect("a movable joint has JointDynamics");
         let mut motor = world.get::<Motor>(e).cloned();
-        apply_to_joint(&mut arena.world, &joint, &mut dynamics, motor.as_mut(), params);
+        let privilege = world.resource::<twinbots_sim::SupervisorAccess>();
+        apply_to_joint(arena.physics_mut(privilege), &joint, &mut dynamics, motor.as_mut(), params);
         world.entity_mut(e).insert(dynamics);
         if let Some(motor) = motor {
             world.entity_mut(e).insert(motor);

@@ -23,7 +23,7 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 use twinbots_sim::parameters::apply_to_joint;
-use twinbots_sim::{Arena, InArena, Joint, JointDynamics, Motor, ParameterKind, Parameters, PositionSensor, SimSet};
+use twinbots_sim::{Arena, InArena, SupervisorAccess, Joint, JointDynamics, Motor, ParameterKind, Parameters, PositionSensor, SimSet};
 
 use crate::task::{Action, ActiveTask, EnvReset, ResetSet, Resetting};
 
@@ -197,6 +197,7 @@ fn set_sensor_noise(config: Res<Randomization>, mut sensors: Query<&mut Position
 /// start window.
 fn randomize_episode(
     config: Res<Randomization>,
+    privilege: Res<SupervisorAccess>,
     mut arenas: Query<(Entity, &mut Arena, Option<&mut RandomizationState>), With<Resetting>>,
     mut motors: Query<(&mut Motor, &InArena)>,
 ) {
@@ -208,7 +209,7 @@ fn randomize_episode(
         let random_steps = uniform_count(&mut arena.rng, config.start_window);
         if mass != 1.0 {
             use twinbots_sim::rapier::dynamics::RigidBodyAdditionalMassProps as Extra;
-            for (_, body) in arena.world.bodies.iter_mut() {
+            for (_, body) in arena.physics_mut(&privilege).bodies.iter_mut() {
                 // Links carry their URDF inertials as "additional" mass properties (their
                 // colliders have no density), restored to nominal by every reset.
                 let extra = body.mass_properties().additional_local_mprops.as_deref().cloned();
@@ -219,7 +220,7 @@ fn randomize_episode(
             }
         }
         if let Some(f) = friction {
-            for (_, collider) in arena.world.colliders.iter_mut() {
+            for (_, collider) in arena.physics_mut(&privilege).colliders.iter_mut() {
                 collider.set_friction(f);
             }
         }
@@ -239,6 +240,7 @@ fn randomize_episode(
 /// the spread's (name) order, per arena.
 fn draw_calibration(
     config: Res<Randomization>,
+    privilege: Res<SupervisorAccess>,
     centre: Option<Res<Parameters>>,
     spread: Option<Res<FitSpread>>,
     mut arenas: Query<(Entity, &mut Arena), With<Resetting>>,
@@ -265,7 +267,7 @@ fn draw_calibration(
             if let Some(fitted) = centre.get(&ParameterKind::Armature.of_joint(&joint.name)) {
                 dynamics.armature_restored(fitted as f32);
             }
-            apply_to_joint(&mut arena.world, joint, &mut dynamics, motor.map(|m| m.into_inner()), &drawn);
+            apply_to_joint(arena.physics_mut(&privilege), joint, &mut dynamics, motor.map(|m| m.into_inner()), &drawn);
         }
     }
 }

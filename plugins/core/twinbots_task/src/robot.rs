@@ -112,6 +112,8 @@ pub struct RobotDescription {
     pub patterns: Vec<DesignPattern>,
     pub framing: Framing,
     pub defaults: TrainingDefaults,
+    /// The twin's timing: its physics step and control step (`build` runs the app with them).
+    pub settings: fn() -> SimSettings,
     pub build: BuildApp,
     /// The robot on a test stand, for robot logs: recording, replay and calibration (`None`:
     /// the robot does not support them).
@@ -198,6 +200,11 @@ impl RobotDescription {
     /// The task `train` learns.
     pub fn main_task(&self) -> &TaskDescription {
         &self.tasks[0]
+    }
+
+    /// How often the robot acts: its control step, in seconds (`welcome.task.control_period_s`).
+    pub fn control_period_s(&self) -> f64 {
+        f64::from((self.settings)().control_dt())
     }
 
     /// The spec of the task `train` learns.

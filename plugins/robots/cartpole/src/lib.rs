@@ -23,7 +23,7 @@ mod radio;
 pub mod server;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
-use twinbots_sim::{Arena, ArenaConfig, Framing, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, SpawnedRobot, Supervisor, spawn_robot};
+use twinbots_sim::{Arena, ArenaConfig, Framing, Handled, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, SpawnedRobot, Supervisor, spawn_robot};
 
 /// The robot's URDF, compiled in so the twin works from any directory.
 pub const URDF: &str = include_str!("../../../../assets/robots/cartpole/cartpole.urdf");
@@ -136,6 +136,7 @@ pub fn robot() -> RobotDescription {
         framing: Framing::default(),
         // RL Zoo's CartPole-v1 settings (short rollouts, many epochs, linear learning-rate decay).
         defaults: TrainingDefaults { algos: vec![AlgoDefaults { hyperparams: PPO_HYPERPARAMS, ..AlgoDefaults::new("ppo") }], ..default() },
+        settings: sim_settings,
         build: |request| robot::headless_app(sim_settings(), request, CartPolePlugin { pattern: request.pattern, ..default() }),
         rig: Some(rig()),
         feedback: Some(feedback),
@@ -264,6 +265,8 @@ pub(crate) fn spawn_cartpoles(
             pole_joint: part("pole_joint", robot.joint("pole_joint")),
             wheels: ["wheel1_joint", "wheel2_joint", "wheel3_joint", "wheel4_joint"].map(|w| part(w, robot.joint(w))),
         };
+        // A person may hold the pole and let it go (pattern 3's episode start).
+        commands.entity(parts.pole_joint).insert(Handled);
         if pattern.0 == DesignPattern::Radio {
             radio::equip(commands, arena_entity, arena, &parts);
         }

@@ -71,14 +71,14 @@ fn home(mut robots: Query<(&CartPoleParts, &CartPoleState, &Controller, &mut AtH
 
 /// The lab operator: holds the pole upright while the robot homes, and lets go at the drawn
 /// tilt when the episode starts.
-fn operate(mut operator: Operator, mut robots: Query<(&CartPoleParts, &CartPoleState, &Controller, &mut PreviousAngle)>) {
-    for (parts, state, controller, mut previous) in &mut robots {
+fn operate(mut operator: Operator, mut robots: Query<(Entity, &CartPoleParts, &CartPoleState, &Controller, &mut PreviousAngle)>) {
+    for (arena, parts, state, controller, mut previous) in &mut robots {
         let angle = match controller.phase() {
             Phase::Homing => 0.0,
             Phase::Starting => state.start_tilt,
             Phase::Running => continue,
         };
-        operator.place_joint(parts.pole_joint, angle);
+        operator.place_joint(arena, parts.pole_joint, angle);
         previous.0 = angle;
     }
 }

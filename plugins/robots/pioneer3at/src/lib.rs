@@ -138,6 +138,7 @@ pub fn robot() -> RobotDescription {
             algos: vec![AlgoDefaults { hyperparams: "normalize_observations = true\nn_steps = 512", ..AlgoDefaults::new("ppo") }],
             ..default()
         },
+        settings: sim_settings,
         build: |request| headless_app(sim_settings(), request, Pioneer3atPlugin),
         rig: Some(rig()),
         feedback: Some(feedback),

@@ -7,7 +7,7 @@ use std::path::Path;
 use bevy::prelude::*;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
-use twinbots_sim::{Arena, ContactSensor, InArena, Motor, MotorCommand, Mount, SpawnOptions, VacuumGripper, spawn_robot};
+use twinbots_sim::{Arena, ContactSensor, Handled, InArena, Motor, MotorCommand, Mount, SpawnOptions, VacuumGripper, spawn_robot};
 
 use crate::kinematics::JOINTS;
 use crate::layout::CellLayout;
@@ -124,5 +124,8 @@ pub fn spawn_cell(commands: &mut Commands, arena_entity: Entity, arena: &mut Are
         let mount = Mount { link: get(robot.link(name), name), offset: Pose::IDENTITY };
         commands.spawn((ContactSensor::default(), mount, InArena(arena_entity))).id()
     });
-    CellParts { robot: robot.robot(), joints, tcp, gripper, contact_sensors, part: get(part.link("part"), "part"), base }
+    // The workpiece: the one thing of the cell a person puts back by hand.
+    let part = get(part.link("part"), "part");
+    commands.entity(part).insert(Handled);
+    CellParts { robot: robot.robot(), joints, tcp, gripper, contact_sensors, part, base }
 }

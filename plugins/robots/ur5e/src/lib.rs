@@ -126,6 +126,7 @@ pub fn robot() -> RobotDescription {
                 AlgoDefaults { algo: "sac", arenas: 4, timesteps: 200_000, eval_every: 5, hyperparams: SAC_HYPERPARAMS },
             ],
         },
+        settings: sim_settings,
         build: |request| {
             let task = if request.task == "pick-place" { Ur5eTask::PickPlace } else { Ur5eTask::Reach };
             headless_app(sim_settings(), request, Ur5ePlugin { task, pattern: request.pattern })

@@ -53,17 +53,17 @@ fn home(mut robots: Query<(&CellParts, &mut CellState, &Controller, &mut AtHome)
 
 /// The lab operator: when an episode is about to start and the part is out of fixture A, puts
 /// it back.
-fn operate(mut operator: Operator, robots: Query<(&CellParts, &CellState, &Controller)>) {
-    for (parts, state, controller) in &robots {
+fn operate(mut operator: Operator, robots: Query<(Entity, &CellParts, &CellState, &Controller)>) {
+    for (arena, parts, state, controller) in &robots {
         if controller.phase() != Phase::Starting {
             continue;
         }
         let seat = parts.base * Pose::from_translation(part_seat(state.fixtures.pick));
-        let out_of_place = operator.object_pose(parts.part).is_none_or(|p| {
+        let out_of_place = operator.object_pose(arena, parts.part).is_none_or(|p| {
             (p.translation - seat.translation).length() > PART_OUT_OF_PLACE || p.rotation.angle_between(seat.rotation) > 0.05
         });
         if out_of_place {
-            operator.place_object(parts.part, seat);
+            operator.place_object(arena, parts.part, seat);
         }
     }
 }
