@@ -39,7 +39,7 @@ def test_two_env_runners_sample_the_twin_and_the_mean_return_rises(local_ray, tm
     algo = ppo_config("cartpole", env_runners=2, envs_per_runner=4, seed=0).build_algo()
     try:
         returns, steps, episodes = [], {}, EpisodeWindow(100)
-        for i in range(40):
+        for i in range(120):
             result = algo.train()
             episodes.add(result)
             row = progress_row(result, i + 1, 1.0, episodes)
@@ -50,11 +50,14 @@ def test_two_env_runners_sample_the_twin_and_the_mean_return_rises(local_ray, tm
         # Both remote runners (1 and 2) stepped their arenas; the driver's local runner does not sample.
         assert set(steps) == {1, 2}, steps
         assert min(steps.values()) > 1000, steps
-        # A random cart-pole policy lasts ~22 steps. The mean is over the last 100 episodes,
-        # so it trails the policy: after 40 iterations (10,000 steps) it is well above that.
+        # A random cart-pole policy lasts ~22 steps. The mean is over the last 100 episodes, so
+        # it trails the policy. Seeds 0-4 of this very run (2026-11-27), best of the last 5
+        # iterations after 120 (30,720 steps): 219, 54, 225, 132, 27 (seed 4 learns nothing in
+        # 200 iterations); seed 0 gives 219 on every run (the run is deterministic). So this is
+        # a fixed-seed regression check, docs/benchmarks.md "Learning in CI".
         assert len(returns) >= 5
         assert returns[0] < 30, returns
-        assert max(returns[-5:]) > 1.5 * returns[0], returns
+        assert max(returns[-5:]) > 150, returns
 
         # Handover: the RLlib policy saved as a twinbots model acts like RLlib's module.
         import numpy as np

@@ -85,28 +85,59 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
 }
 
-/// A pattern-3 app of `arenas` robots getting their actions from `source` (a [`ServerAddress`]
-/// or an [`OnBoardPolicy`]), started up.
-fn robot_app(robot: &str, arenas: usize, seed: u64, twin: &Twin, source: impl Resource) -> anyhow::Result<App> {
-    // No robot would ever stop the loop that waits for them.
-    anyhow::ensure!(arenas >= 1, "--arenas {arenas}: at least one robot is needed");
-    let entry = registry::find(robot)?;
-    anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
-    let mut app = entry.app(None, arenas, seed, DesignPattern::Server)?;
-    twin.configure(&mut app, &entry)?;
-    app.insert_resource(source);
-    app.finish();
-    app.cleanup();
-    // The second line behind pattern 3's types (docs/architecture.md): no system of the robot
-    // may reach the true world.
-    let found = twinbots_link::audit::pattern_3_violations(&mut app);
-    anyhow::ensure!(found.is_empty(), "{robot}'s pattern-3 app reaches beyond the robot:\n  {}", found.join("\n  "));
-    Ok(app)
+/// The robots of one run, each in an app of its own: one world per robot, as each real robot
+/// has its own controller. So robot code cannot name another robot's devices or arena: they
+/// are in another world (docs/architecture.md, "The design patterns"). Robot k's arena is
+/// index k, with arena k's random stream, as if all ran in one app.
+struct Fleet {
+    apps: Vec<App>,
 }
 
-/// Why the robots stopped, if they did: the server's reason, or an error.
-fn stopped(app: &App) -> Option<Result<String, String>> {
-    app.world().resource::<RobotRunState>().stop.clone()
+impl Fleet {
+    /// `arenas` pattern-3 robots of `twin`, each getting its actions from its copy of `source`
+    /// (a [`ServerAddress`] or an [`OnBoardPolicy`]) and configured by `configure`, started up.
+    fn new(robot: &str, arenas: usize, seed: u64, twin: &Twin, source: impl Resource + Clone, configure: impl Fn(&mut App)) -> anyhow::Result<Self> {
+        // No robot would ever stop the loop that waits for them.
+        anyhow::ensure!(arenas >= 1, "--arenas {arenas}: at least one robot is needed");
+        let entry = registry::find(robot)?;
+        anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
+        let mut apps = Vec::with_capacity(arenas);
+        for k in 0..arenas {
+            let mut app = entry.app(None, 1, seed, DesignPattern::Server)?;
+            app.world_mut().resource_mut::<twinbots_sim::ArenaConfig>().first = k;
+            // Robot 0's run is the one logged.
+            let twin = if k == 0 { twin.clone() } else { Twin { log: None, ..twin.clone() } };
+            twin.configure(&mut app, &entry)?;
+            app.insert_resource(source.clone());
+            configure(&mut app);
+            app.finish();
+            app.cleanup();
+            // The second line behind pattern 3's types: no system of the robot may reach the
+            // true world.
+            let found = twinbots_link::audit::pattern_3_violations(&mut app);
+            anyhow::ensure!(found.is_empty(), "{robot}'s pattern-3 app reaches beyond the robot:\n  {}", found.join("\n  "));
+            apps.push(app);
+        }
+        Ok(Self { apps })
+    }
+
+    /// One control step of every robot, in robot order.
+    fn update(&mut self) {
+        for app in &mut self.apps {
+            app.update();
+        }
+    }
+
+    /// Why the robots stopped, if one did: the server's reason, or an error (the first robot's
+    /// that has one).
+    fn stopped(&self) -> Option<Result<String, String>> {
+        self.apps.iter().find_map(|app| app.world().resource::<RobotRunState>().stop.clone())
+    }
+
+    /// Episodes finished and reconnections made, by all robots.
+    fn totals(&self) -> (u64, u32) {
+        self.apps.iter().map(|app| app.world().resource::<RobotRunState>()).fold((0, 0), |(e, r), s| (e + s.episodes, r + s.reconnects))
+    }
 }
 
 /// Runs `arenas` simulated robots of `twin` against the server at `server` until it says
@@ -132,19 +163,21 @@ pub fn against_server_with(
     link: ServerLink,
     twin: &Twin,
 ) -> anyhow::Result<String> {
-    let mut app = robot_app(robot, arenas, seed, twin, ServerAddress { addr: server, patience })?;
-    app.insert_resource(ServerToken(link.token));
-    if let Some(tls) = link.tls {
-        app.insert_resource(tls);
-    }
+    let (token, tls) = (link.token, link.tls);
+    let mut fleet = Fleet::new(robot, arenas, seed, twin, ServerAddress { addr: server, patience }, |app| {
+        app.insert_resource(ServerToken(token.clone()));
+        if let Some(tls) = &tls {
+            app.insert_resource(tls.clone());
+        }
+    })?;
     loop {
-        app.update();
-        if let Some(stop) = stopped(&app) {
-            report_log(&mut app, twin)?;
-            let state = app.world().resource::<RobotRunState>();
+        fleet.update();
+        if let Some(stop) = fleet.stopped() {
+            report_log(&mut fleet.apps[0], twin)?;
+            let (episodes, reconnects) = fleet.totals();
             return match stop {
                 Ok(reason) => {
-                    println!("robots done ({reason}); {} episodes, {} reconnections", state.episodes, state.reconnects);
+                    println!("robots done ({reason}); {episodes} episodes, {reconnects} reconnections");
                     Ok(reason)
                 }
                 Err(e) => Err(anyhow::anyhow!("robots stopped: {e}")),
@@ -178,20 +211,23 @@ pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, s
             onnx.metadata.design_pattern
         );
     }
-    let mut app = robot_app(robot, arenas.clamp(1, episodes), seed, twin, OnBoardPolicy::new(move |obs: &[f32]| onnx.act(obs)))?;
+    let policy_link = OnBoardPolicy::new(move |obs: &[f32]| onnx.act(obs));
+    let mut fleet = Fleet::new(robot, arenas.clamp(1, episodes), seed, twin, policy_link, |_| {})?;
     let mut finished = Vec::with_capacity(episodes);
-    let mut ended = app.world_mut().query::<&Episode>();
     while finished.len() < episodes {
-        app.update();
-        if let Some(Err(e)) = stopped(&app) {
+        fleet.update();
+        if let Some(Err(e)) = fleet.stopped() {
             anyhow::bail!("robots stopped: {e}");
         }
-        let done = ended.iter(app.world()).filter_map(|e| e.finished.clone());
-        finished.extend(done.take(episodes - finished.len()));
+        for app in &mut fleet.apps {
+            let world = app.world_mut();
+            let done: Vec<_> = world.query::<&Episode>().iter(world).filter_map(|e| e.finished.clone()).collect();
+            finished.extend(done.into_iter().take(episodes - finished.len()));
+        }
     }
     let result = EvalResult::of_episodes(task, &finished);
     println!("{robot} running {}: {}", policy.display(), result.describe());
-    report_log(&mut app, twin)?;
+    report_log(&mut fleet.apps[0], twin)?;
     Ok(result)
 }
 

@@ -10,7 +10,7 @@ use twinbots_task::{AppVecEnv, Episode};
 use twinbots_link::robot::{Controller, OnBoardPolicy, Phase, RobotRunState};
 use twinbots_sim::{Motor, MotorCommand};
 use ur5e::CellState;
-use ur5e::safety::{MAX_BRAKING_STEPS, REST_SPEED, SPEED_MARGIN, StopCause};
+use ur5e::safety::{EFFORT_MARGIN, MAX_BRAKING_STEPS, REST_SPEED, SPEED_MARGIN, StopCause};
 
 /// Where the reach observation holds the joints' speeds.
 fn joint_speeds_at() -> usize {
@@ -136,3 +136,42 @@ fn the_classical_controller_never_makes_a_protective_stop() {
         assert_eq!(ep.success, Some(true), "{ep:?}");
     }
 }
+
+/// The torque branch: drives made stronger than their rating (a motor randomised to 1.5× its
+/// strength, as `motor_strength` can) start the arm towards the table at full torque, and the
+/// torque feedback beyond 1.1× the rating stops it at once — under pattern 3, where the robot's
+/// own controller judges. (At strength 1.0 the same motion ends no episode by torque.)
+#[test]
+fn a_drive_pushing_beyond_its_rated_torque_makes_a_protective_stop() {
+    let mut app = ur5e::headless_app_with(1, 5, DesignPattern::Server);
+    // Shoulder lift and elbow at full speed towards the table, the wrists still.
+    app.insert_resource(OnBoardPolicy::new(|_: &[f32]| Ok(vec![0.0, DOWN, DOWN, 0.0, 0.0])));
+    app.finish();
+    app.cleanup();
+    app.update();
+    let world = app.world_mut();
+    let parts = world.query::<&ur5e::cell::CellParts>().single(world).unwrap().clone();
+    for &joint in &parts.joints {
+        world.get_mut::<Motor>(joint).unwrap().strength = 1.5;
+    }
+    for step in 0..500 {
+        app.update();
+        let world = app.world_mut();
+        let (state, episode) = world.query::<(&CellState, &Episode)>().single(world).unwrap();
+        if let Some(summary) = &episode.finished {
+            assert_ended_by_a_stop(summary);
+            match state.safety.stop.expect("still stopped the step the episode ends") {
+                StopCause::Effort { joint, ratio } => {
+                    assert!(ratio > 1.0 + EFFORT_MARGIN && ratio <= 1.5 + 1e-3, "joint {joint} at {ratio}× its rating");
+                    eprintln!("joint {joint} at {ratio:.2}× its rating stopped the arm at step {step}");
+                    return;
+                }
+                other => panic!("stopped by {other:?}, not by torque"),
+            }
+        }
+    }
+    panic!("no protective stop in 500 steps of pushing into the table");
+}
+
+/// The sign of a reach action that turns the shoulder lift and elbow towards the table.
+const DOWN: f32 = 1.0;

@@ -16,16 +16,20 @@ pub const ENVIRONMENT_GROUP: Group = Group::GROUP_1;
 /// Collision group of robot links. Links of a robot do not collide with each other.
 pub const ROBOT_GROUP: Group = Group::GROUP_2;
 
-/// How many arenas a process runs, and the seed they start from. Set by the app before start-up.
+/// How many arenas an app runs, and the seed they start from. Set by the app before start-up.
 #[derive(Resource, Clone, Copy, Debug)]
 pub struct ArenaConfig {
     pub count: usize,
     pub seed: u64,
+    /// The index of the app's first arena: 0, unless the arenas of one run are spread over
+    /// several apps (`twinbots robot` runs each robot in an app of its own, so robot k's arena
+    /// is index k there, with arena k's random stream).
+    pub first: usize,
 }
 
 impl Default for ArenaConfig {
     fn default() -> Self {
-        Self { count: 1, seed: 0 }
+        Self { count: 1, seed: 0, first: 0 }
     }
 }
 

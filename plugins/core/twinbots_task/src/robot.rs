@@ -307,7 +307,7 @@ pub fn headless_app(settings: SimSettings, request: &AppRequest, robot: impl Plu
     let mut app = App::new();
     app.add_plugins(MinimalPlugins)
         .add_plugins(SimPlugin { settings, supervisor: !server })
-        .insert_resource(ArenaConfig { count: request.arenas, seed: request.seed });
+        .insert_resource(ArenaConfig { count: request.arenas, seed: request.seed, first: 0 });
     if server {
         app.insert_resource(OperatorAccess);
     }

@@ -303,7 +303,7 @@ pub fn spawn_arenas<B: Bundle>(
     settings: &SimSettings,
     mut build: impl FnMut(&mut Commands, Entity, &mut Arena) -> B,
 ) -> Vec<Entity> {
-    (0..config.count)
+    (config.first..config.first + config.count)
         .map(|index| {
             let entity = commands.spawn_empty().id();
             let mut arena = Arena::new(index, config.seed, settings.dt, settings.gravity);
