@@ -6,6 +6,7 @@
 
 use std::net::SocketAddr;
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use bevy::prelude::*;
@@ -85,59 +86,41 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
 }
 
-/// The robots of one run, each in an app of its own: one world per robot, as each real robot
-/// has its own controller. So robot code cannot name another robot's devices or arena: they
-/// are in another world (docs/architecture.md, "The design patterns"). Robot k's arena is
-/// index k, with arena k's random stream, as if all ran in one app.
-struct Fleet {
-    apps: Vec<App>,
+/// Robot `k` of a run, in an app of its own: one world per robot, as each real robot has its
+/// own controller, so robot code cannot name another robot's devices or arena — they are in
+/// another world (docs/architecture.md, "The design patterns"). Its arena is index `k`, with
+/// arena `k`'s random stream, as if all ran in one app. It gets its actions from `source` (a
+/// [`ServerAddress`] or an [`OnBoardPolicy`]), is configured by `configure`, and is checked by
+/// the pattern-3 audit; robot 0's run is the one `twin` logs.
+fn robot_app(k: usize, robot: &str, seed: u64, twin: &Twin, source: impl Resource, configure: impl Fn(&mut App)) -> anyhow::Result<App> {
+    let entry = registry::find(robot)?;
+    anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
+    let mut app = entry.app(None, 1, seed, DesignPattern::Server)?;
+    app.world_mut().resource_mut::<twinbots_sim::ArenaConfig>().first = k;
+    let twin = if k == 0 { twin.clone() } else { Twin { log: None, ..twin.clone() } };
+    twin.configure(&mut app, &entry)?;
+    app.insert_resource(source);
+    configure(&mut app);
+    app.finish();
+    app.cleanup();
+    // The second line behind pattern 3's types: no system of the robot may reach the true world.
+    let found = twinbots_link::audit::pattern_3_violations(&mut app);
+    anyhow::ensure!(found.is_empty(), "{robot}'s pattern-3 app reaches beyond the robot:\n  {}", found.join("\n  "));
+    Ok(app)
 }
 
-impl Fleet {
-    /// `arenas` pattern-3 robots of `twin`, each getting its actions from its copy of `source`
-    /// (a [`ServerAddress`] or an [`OnBoardPolicy`]) and configured by `configure`, started up.
-    fn new(robot: &str, arenas: usize, seed: u64, twin: &Twin, source: impl Resource + Clone, configure: impl Fn(&mut App)) -> anyhow::Result<Self> {
-        // No robot would ever stop the loop that waits for them.
-        anyhow::ensure!(arenas >= 1, "--arenas {arenas}: at least one robot is needed");
-        let entry = registry::find(robot)?;
-        anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
-        let mut apps = Vec::with_capacity(arenas);
-        for k in 0..arenas {
-            let mut app = entry.app(None, 1, seed, DesignPattern::Server)?;
-            app.world_mut().resource_mut::<twinbots_sim::ArenaConfig>().first = k;
-            // Robot 0's run is the one logged.
-            let twin = if k == 0 { twin.clone() } else { Twin { log: None, ..twin.clone() } };
-            twin.configure(&mut app, &entry)?;
-            app.insert_resource(source.clone());
-            configure(&mut app);
-            app.finish();
-            app.cleanup();
-            // The second line behind pattern 3's types: no system of the robot may reach the
-            // true world.
-            let found = twinbots_link::audit::pattern_3_violations(&mut app);
-            anyhow::ensure!(found.is_empty(), "{robot}'s pattern-3 app reaches beyond the robot:\n  {}", found.join("\n  "));
-            apps.push(app);
-        }
-        Ok(Self { apps })
-    }
+/// No robot would ever stop the loop that waits for them.
+fn check_robots(arenas: usize) -> anyhow::Result<()> {
+    anyhow::ensure!(arenas >= 1, "--arenas {arenas}: at least one robot is needed");
+    Ok(())
+}
 
-    /// One control step of every robot, in robot order.
-    fn update(&mut self) {
-        for app in &mut self.apps {
-            app.update();
-        }
-    }
-
-    /// Why the robots stopped, if one did: the server's reason, or an error (the first robot's
-    /// that has one).
-    fn stopped(&self) -> Option<Result<String, String>> {
-        self.apps.iter().find_map(|app| app.world().resource::<RobotRunState>().stop.clone())
-    }
-
-    /// Episodes finished and reconnections made, by all robots.
-    fn totals(&self) -> (u64, u32) {
-        self.apps.iter().map(|app| app.world().resource::<RobotRunState>()).fold((0, 0), |(e, r), s| (e + s.episodes, r + s.reconnects))
-    }
+/// How one robot's run ended: the server's reason or an error (`None`: another robot ended the
+/// run first), and its episodes and reconnections.
+struct RobotEnd {
+    stop: Option<Result<String, String>>,
+    episodes: u64,
+    reconnects: u32,
 }
 
 /// Runs `arenas` simulated robots of `twin` against the server at `server` until it says
@@ -163,25 +146,64 @@ pub fn against_server_with(
     link: ServerLink,
     twin: &Twin,
 ) -> anyhow::Result<String> {
-    let (token, tls) = (link.token, link.tls);
-    let mut fleet = Fleet::new(robot, arenas, seed, twin, ServerAddress { addr: server, patience }, |app| {
+    check_robots(arenas)?;
+    let (token, tls) = (&link.token, &link.tls);
+    let halt = AtomicBool::new(false);
+    // Each robot steps on its own thread, as robots do: the server hears them at once.
+    let ends: Vec<anyhow::Result<RobotEnd>> = std::thread::scope(|scope| {
+        let robots: Vec<_> = (0..arenas)
+            .map(|k| {
+                let halt = &halt;
+                scope.spawn(move || {
+                    let end = run_robot(k, robot, seed, twin, ServerAddress { addr: server, patience }, token, tls, halt);
+                    halt.store(true, Ordering::Relaxed);
+                    end
+                })
+            })
+            .collect();
+        robots.into_iter().map(|r| r.join().unwrap_or_else(|_| Err(anyhow::anyhow!("a robot's thread panicked")))).collect()
+    });
+    let ends = ends.into_iter().collect::<anyhow::Result<Vec<RobotEnd>>>()?;
+    let (episodes, reconnects) = ends.iter().fold((0, 0), |(e, r), end| (e + end.episodes, r + end.reconnects));
+    let stops: Vec<&Result<String, String>> = ends.iter().filter_map(|end| end.stop.as_ref()).collect();
+    match stops.iter().find(|s| s.is_err()).or(stops.first()) {
+        Some(Ok(reason)) => {
+            println!("robots done ({reason}); {episodes} episodes, {reconnects} reconnections");
+            Ok(reason.clone())
+        }
+        Some(Err(e)) => Err(anyhow::anyhow!("robots stopped: {e}")),
+        None => Err(anyhow::anyhow!("robots stopped without a reason")),
+    }
+}
+
+/// Robot `k` against its server until it stops or another robot ends the run (`halt`).
+#[allow(clippy::too_many_arguments)]
+fn run_robot(
+    k: usize,
+    robot: &str,
+    seed: u64,
+    twin: &Twin,
+    address: ServerAddress,
+    token: &Option<String>,
+    tls: &Option<ServerTlsLink>,
+    halt: &AtomicBool,
+) -> anyhow::Result<RobotEnd> {
+    let mut app = robot_app(k, robot, seed, twin, address, |app| {
         app.insert_resource(ServerToken(token.clone()));
-        if let Some(tls) = &tls {
+        if let Some(tls) = tls {
             app.insert_resource(tls.clone());
         }
     })?;
     loop {
-        fleet.update();
-        if let Some(stop) = fleet.stopped() {
-            report_log(&mut fleet.apps[0], twin)?;
-            let (episodes, reconnects) = fleet.totals();
-            return match stop {
-                Ok(reason) => {
-                    println!("robots done ({reason}); {episodes} episodes, {reconnects} reconnections");
-                    Ok(reason)
-                }
-                Err(e) => Err(anyhow::anyhow!("robots stopped: {e}")),
-            };
+        app.update();
+        let state = app.world().resource::<RobotRunState>();
+        let stop = state.stop.clone();
+        if stop.is_some() || halt.load(Ordering::Relaxed) {
+            let (episodes, reconnects) = (state.episodes, state.reconnects);
+            if k == 0 {
+                report_log(&mut app, twin)?;
+            }
+            return Ok(RobotEnd { stop, episodes, reconnects });
         }
     }
 }
@@ -211,15 +233,18 @@ pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, s
             onnx.metadata.design_pattern
         );
     }
+    // On board nothing waits on a network: the robots step in turn, each in its own app, which
+    // keeps the run deterministic.
+    let robots = arenas.clamp(1, episodes);
     let policy_link = OnBoardPolicy::new(move |obs: &[f32]| onnx.act(obs));
-    let mut fleet = Fleet::new(robot, arenas.clamp(1, episodes), seed, twin, policy_link, |_| {})?;
+    let mut apps = (0..robots).map(|k| robot_app(k, robot, seed, twin, policy_link.clone(), |_| {})).collect::<anyhow::Result<Vec<App>>>()?;
     let mut finished = Vec::with_capacity(episodes);
     while finished.len() < episodes {
-        fleet.update();
-        if let Some(Err(e)) = fleet.stopped() {
-            anyhow::bail!("robots stopped: {e}");
-        }
-        for app in &mut fleet.apps {
+        for app in &mut apps {
+            app.update();
+            if let Some(Err(e)) = app.world().resource::<RobotRunState>().stop.clone() {
+                anyhow::bail!("robots stopped: {e}");
+            }
             let world = app.world_mut();
             let done: Vec<_> = world.query::<&Episode>().iter(world).filter_map(|e| e.finished.clone()).collect();
             finished.extend(done.into_iter().take(episodes - finished.len()));
@@ -227,7 +252,7 @@ pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, s
     }
     let result = EvalResult::of_episodes(task, &finished);
     println!("{robot} running {}: {}", policy.display(), result.describe());
-    report_log(&mut fleet.apps[0], twin)?;
+    report_log(&mut apps[0], twin)?;
     Ok(result)
 }
 
