@@ -9,7 +9,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::rapier::prelude::*;
-use crate::supervisor::SupervisorAccess;
+use crate::privilege::SupervisorAccess;
 
 /// Collision group of the environment (ground, walls, objects of the cell).
 pub const ENVIRONMENT_GROUP: Group = Group::GROUP_1;

@@ -11,6 +11,7 @@ pub mod framing;
 pub mod look;
 pub mod parameters;
 pub mod physics;
+pub mod privilege;
 pub mod robot;
 pub mod spawn;
 pub mod supervisor;

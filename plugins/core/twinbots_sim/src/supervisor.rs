@@ -10,6 +10,7 @@ use bevy::math::Vec3;
 use bevy::prelude::*;
 
 use crate::arena::{Arena, InArena};
+pub use crate::privilege::SupervisorAccess;
 use crate::devices::{Joint, JointState, Motor, VacuumGripper};
 use crate::rapier::prelude::*;
 use crate::robot::Link;
@@ -23,22 +24,13 @@ pub struct LinkState {
     pub angvel: Vec3,
 }
 
-/// The Supervisor's privilege: present in apps that allow it (design patterns 1 and 2, tools
-/// and renderers of the true world). It is the only key to an arena's physics world outside
-/// the simulator ([`Arena::physics`]) and to the [`Supervisor`]. Only [`SupervisorPlugin`]
-/// makes one (the field is private), so under design pattern 3, whose app has none, no code can
-/// read the true world: a system asking for it fails the moment it would first run, naming
-/// this resource.
-#[derive(Resource, Debug)]
-pub struct SupervisorAccess(());
-
 /// Grants the [`Supervisor`] (design patterns 1 and 2). Pattern-3 apps leave it out, and any
 /// system that asks for the Supervisor there fails on its first run.
 pub struct SupervisorPlugin;
 
 impl Plugin for SupervisorPlugin {
     fn build(&self, app: &mut App) {
-        app.insert_resource(SupervisorAccess(()));
+        app.insert_resource(SupervisorAccess::granted());
     }
 }
 
