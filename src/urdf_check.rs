@@ -37,7 +37,8 @@ pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyh
     let mut warnings = flags(&model);
     let settings = SimSettings::default();
     let mut app = App::new();
-    app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings, supervisor: false });
+    // A tool, not a robot: it stands the robot and draws the true world (`--png`).
+    app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings, supervisor: true });
     let world = app.world_mut();
     let arena = world.spawn_empty().id();
     let mut a = Arena::new(0, 0, settings.dt, settings.gravity);

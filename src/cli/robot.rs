@@ -104,7 +104,10 @@ fn robot_app(k: usize, robot: &str, seed: u64, twin: &Twin, source: impl Resourc
     app.finish();
     app.cleanup();
     // The second line behind pattern 3's types: no system of the robot may reach the true world.
-    let found = twinbots_link::audit::pattern_3_violations(&mut app);
+    // The twin's calibration and robot log are the framework's, not the robot's.
+    let found = twinbots_link::audit::pattern_3_violations_beside(&mut app, |probe| {
+        let _ = twin.configure(probe, &entry);
+    });
     anyhow::ensure!(found.is_empty(), "{robot}'s pattern-3 app reaches beyond the robot:\n  {}", found.join("\n  "));
     Ok(app)
 }

@@ -10,8 +10,9 @@
 //! that is not plumbing. Plumbing is what an app of `MinimalPlugins`, the simulation without
 //! the Supervisor (devices, physics, radio) and [`ServerRobotPlugin`] (the robot cycle, whose
 //! boot seeds each controller's random stream from its arena's) already has, recognised by
-//! system type. `twinbots robot` runs it on every app it builds, so it covers any robot plugin,
-//! registered or not.
+//! system type, and whatever the caller's own framework adds beside the robot (the twin's
+//! calibration and robot log, [`pattern_3_violations_beside`]). `twinbots robot` runs it on
+//! every app it builds, so it covers any robot plugin, registered or not.
 
 use std::any::TypeId;
 use std::collections::HashSet;
@@ -25,12 +26,13 @@ use crate::robot::ServerRobotPlugin;
 #[derive(Component)]
 struct ProbeState;
 
-/// The system types of the framework's plumbing (see the module's doc).
-fn plumbing() -> HashSet<TypeId> {
+/// The system types of the framework's plumbing (see the module's doc), `framework` included.
+fn plumbing(framework: impl FnOnce(&mut App)) -> HashSet<TypeId> {
     let mut app = App::new();
     app.add_plugins(MinimalPlugins)
         .add_plugins(SimPlugin { supervisor: false, ..default() })
         .add_plugins(ServerRobotPlugin::<ProbeState>::new("probe"));
+    framework(&mut app);
     let mut types = HashSet::new();
     app.world_mut().resource_scope(|_, schedules: Mut<Schedules>| {
         for (_, schedule) in schedules.iter() {
@@ -44,7 +46,13 @@ fn plumbing() -> HashSet<TypeId> {
 /// pattern-3 robot must not, as "schedule: system #i name: what" (system names need bevy's
 /// `debug` feature). Empty: none.
 pub fn pattern_3_violations(app: &mut App) -> Vec<String> {
-    let plumbing = plumbing();
+    pattern_3_violations_beside(app, |_| {})
+}
+
+/// [`pattern_3_violations`], with what `framework` adds to an app (the caller's own tools
+/// beside the robot, such as a controller's log) counted as plumbing.
+pub fn pattern_3_violations_beside(app: &mut App, framework: impl FnOnce(&mut App)) -> Vec<String> {
+    let plumbing = plumbing(framework);
     let world = app.world_mut();
     let mut found = Vec::new();
     if world.contains_resource::<SupervisorAccess>() {

@@ -117,8 +117,8 @@ pub fn read_visuals(sim: &mut World, arena: Entity) -> Vec<VisualPose> {
         .map(|(e, l, v, _)| (e, l.clone(), v.0.clone()))
         .collect();
     let names: HashMap<Entity, String> = Look::link_names(items.iter().map(|(e, l, _)| (*e, l.name.as_str()))).into_iter().collect();
-    // The twin's view shows the true world: read as the Supervisor would (an app without
-    // its privilege draws nothing).
+    // The twin's view shows the true world: read as the Supervisor would (`sync_into` refuses
+    // an app without its privilege).
     let Some(world) = twinbots_sim::physics_in(sim, arena) else { return Vec::new() };
     let mut out = Vec::new();
     for (entity, link, visuals) in items {
@@ -199,6 +199,10 @@ pub fn metric_uvs(mut mesh: Mesh) -> Mesh {
 /// arena's [`Look`] (the default look when it has none). Returns whether new meshes were made;
 /// an image texture that cannot be read is an error. A camera sees it after [`watch`].
 pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<bool, RenderError> {
+    if !sim.contains_resource::<twinbots_sim::SupervisorAccess>() {
+        // A design-pattern-3 app: its true world is not to be read, drawn included.
+        return Err(RenderError::Failed("the twin's view reads the true world, which this app does not grant (no SupervisorAccess: design pattern 3)".into()));
+    }
     let visuals = read_visuals(sim, arena);
     let look = sim.get::<Look>(arena).cloned().unwrap_or_default();
     if !render.contains_resource::<Mirror>() {
