@@ -5,13 +5,50 @@
 //! end) ends the other with an error message instead of a hang.
 
 use bevy::prelude::*;
-use crossbeam_channel::{Receiver, Sender, bounded};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, RecvError, Sender, TryRecvError, bounded};
 
 use twinbots_api::{EnvState, Space, StepResult, StreamState, VecEnv};
 
 use crate::env::{ArenaOrder, collect_step, reset_arenas, write_actions};
 use crate::replay::{begin_episodes, env_state};
 use crate::task::ActiveTask;
+
+/// How long a side of the bridge may poll for the other's message before it sleeps on the
+/// channel. Waking a sleeping thread costs tens of microseconds on a small VM — as much as a
+/// one-arena cart-pole step (≈ 90 µs). A side polls only while the other side's answers came
+/// within this (short steps, a policy's inference); when the last wait was longer (many arenas
+/// stepping on both cores, a PPO update) it sleeps at once, so polling never keeps a core from
+/// a side with work. It yields while it polls.
+const POLL: Duration = Duration::from_micros(300);
+
+/// One end of a bridge channel: the receiver, and how long the last message took to come.
+struct Inbox<T> {
+    channel: Receiver<T>,
+    last_wait: Duration,
+}
+
+impl<T> Inbox<T> {
+    fn new(channel: Receiver<T>) -> Self {
+        Self { channel, last_wait: Duration::ZERO }
+    }
+
+    /// The next message: polled for while the last one came within [`POLL`], else waited for.
+    fn receive(&mut self) -> Result<T, RecvError> {
+        let started = Instant::now();
+        let message = loop {
+            match self.channel.try_recv() {
+                Ok(message) => break Ok(message),
+                Err(TryRecvError::Disconnected) => break Err(RecvError),
+                Err(TryRecvError::Empty) if self.last_wait < POLL && started.elapsed() < POLL => std::thread::yield_now(),
+                Err(TryRecvError::Empty) => break self.channel.recv(),
+            }
+        };
+        self.last_wait = started.elapsed();
+        message
+    }
+}
 
 /// Trainer → app.
 #[derive(Clone, Debug)]
@@ -36,7 +73,7 @@ pub enum Reply {
 /// The app's end of the bridge.
 #[derive(Resource)]
 pub struct BridgeEndpoint {
-    requests: Receiver<Request>,
+    requests: Inbox<Request>,
     replies: Sender<Result<Reply, String>>,
     /// A step's actions were applied this frame; its results go back after the step.
     pending: bool,
@@ -74,14 +111,14 @@ pub fn connect(world: &mut World) -> anyhow::Result<ChannelVecEnv> {
     let (request_tx, request_rx) = bounded(1);
     let (reply_tx, reply_rx) = bounded(1);
     world.insert_resource(BridgeEndpoint {
-        requests: request_rx,
+        requests: Inbox::new(request_rx),
         replies: reply_tx,
         pending: false,
         closed: false,
     });
     Ok(ChannelVecEnv {
         requests: request_tx,
-        replies: reply_rx,
+        replies: Inbox::new(reply_rx),
         num_envs: arenas,
         observation_space: spec.observation_space,
         action_space: spec.action_space,
@@ -112,8 +149,7 @@ pub struct SimulationTime {
 fn receive_requests(world: &mut World) {
     let arenas = world.resource::<ArenaOrder>().0.clone();
     loop {
-        let endpoint = world.resource::<BridgeEndpoint>();
-        let request = endpoint.requests.recv();
+        let request = world.resource_mut::<BridgeEndpoint>().requests.receive();
         let reply = match request {
             Ok(Request::Reset { seed }) => {
                 let started = std::time::Instant::now();
@@ -165,17 +201,17 @@ fn send_step_results(world: &mut World) {
 /// The trainer's end: a [`VecEnv`] whose steps happen in the app on the other thread.
 pub struct ChannelVecEnv {
     requests: Sender<Request>,
-    replies: Receiver<Result<Reply, String>>,
+    replies: Inbox<Result<Reply, String>>,
     num_envs: usize,
     observation_space: Space,
     action_space: Space,
 }
 
 impl ChannelVecEnv {
-    fn call(&self, request: Request) -> anyhow::Result<Reply> {
+    fn call(&mut self, request: Request) -> anyhow::Result<Reply> {
         const GONE: &str = "the simulation app has stopped (its thread ended or panicked)";
         self.requests.send(request).map_err(|_| anyhow::anyhow!(GONE))?;
-        let reply = self.replies.recv().map_err(|_| anyhow::anyhow!(GONE))?;
+        let reply = self.replies.receive().map_err(|_| anyhow::anyhow!(GONE))?;
         reply.map_err(|e| anyhow::anyhow!("the simulation refused the request: {e}"))
     }
 }
