@@ -14,6 +14,7 @@ use twinbots_onnx::OnnxPolicy;
 use twinbots_api::DesignPattern;
 use twinbots_learn::EvalResult;
 use twinbots_task::Episode;
+use twinbots_link::audit::Plumbing;
 use twinbots_link::robot::{OnBoardPolicy, RobotRunState, ServerAddress, ServerTlsLink, ServerToken};
 use twinbots_link::tls::ClientTls;
 
@@ -91,10 +92,18 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 /// another world (docs/architecture.md, "The design patterns"). Its arena is index `k`, with
 /// arena `k`'s random stream, as if all ran in one app. It gets its actions from `source` (a
 /// [`ServerAddress`] or an [`OnBoardPolicy`]), is configured by `configure`, and is checked by
-/// the pattern-3 audit; robot 0's run is the one `twin` logs.
-fn robot_app(k: usize, robot: &str, seed: u64, twin: &Twin, source: impl Resource, configure: impl Fn(&mut App)) -> anyhow::Result<App> {
+/// the pattern-3 audit against `plumbing` ([`run_plumbing`]); robot 0's run is the one `twin`
+/// logs.
+fn robot_app(
+    k: usize,
+    robot: &str,
+    seed: u64,
+    twin: &Twin,
+    plumbing: &Plumbing,
+    source: impl Resource,
+    configure: impl Fn(&mut App),
+) -> anyhow::Result<App> {
     let entry = registry::find(robot)?;
-    anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
     let mut app = entry.app(None, 1, seed, DesignPattern::Server)?;
     app.world_mut().resource_mut::<twinbots_sim::ArenaConfig>().first = k;
     let twin = if k == 0 { twin.clone() } else { Twin { log: None, ..twin.clone() } };
@@ -104,18 +113,20 @@ fn robot_app(k: usize, robot: &str, seed: u64, twin: &Twin, source: impl Resourc
     app.finish();
     app.cleanup();
     // The second line behind pattern 3's types: no system of the robot may reach the true world.
-    // The twin's calibration and robot log are the framework's, not the robot's.
-    let found = twinbots_link::audit::pattern_3_violations_beside(&mut app, |probe| {
-        let _ = twin.configure(probe, &entry);
-    });
+    let found = plumbing.violations(&mut app);
     anyhow::ensure!(found.is_empty(), "{robot}'s pattern-3 app reaches beyond the robot:\n  {}", found.join("\n  "));
     Ok(app)
 }
 
-/// No robot would ever stop the loop that waits for them.
-fn check_robots(arenas: usize) -> anyhow::Result<()> {
-    anyhow::ensure!(arenas >= 1, "--arenas {arenas}: at least one robot is needed");
-    Ok(())
+/// What the audit of a run's robot apps counts as the framework's: its own plumbing and the
+/// twin's calibration and robot log (robot 0's, the fullest), found once for all robots.
+/// Errors when `robot` has no pattern-3 robot.
+fn run_plumbing(robot: &str, twin: &Twin) -> anyhow::Result<Plumbing> {
+    let entry = registry::find(robot)?;
+    anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{robot} has no design-pattern-3 robot");
+    Ok(Plumbing::beside(|probe| {
+        let _ = twin.configure(probe, &entry);
+    }))
 }
 
 /// How one robot's run ended: the server's reason or an error (`None`: another robot ended the
@@ -149,7 +160,9 @@ pub fn against_server_with(
     link: ServerLink,
     twin: &Twin,
 ) -> anyhow::Result<String> {
-    check_robots(arenas)?;
+    // No robot would ever stop the loop that waits for them.
+    anyhow::ensure!(arenas >= 1, "--arenas {arenas}: at least one robot is needed");
+    let plumbing = &run_plumbing(robot, twin)?;
     let (token, tls) = (&link.token, &link.tls);
     let halt = AtomicBool::new(false);
     // Each robot steps on its own thread, as robots do: the server hears them at once.
@@ -158,7 +171,7 @@ pub fn against_server_with(
             .map(|k| {
                 let halt = &halt;
                 scope.spawn(move || {
-                    let end = run_robot(k, robot, seed, twin, ServerAddress { addr: server, patience }, token, tls, halt);
+                    let end = run_robot(k, robot, seed, twin, plumbing, ServerAddress { addr: server, patience }, token, tls, halt);
                     halt.store(true, Ordering::Relaxed);
                     end
                 })
@@ -186,12 +199,13 @@ fn run_robot(
     robot: &str,
     seed: u64,
     twin: &Twin,
+    plumbing: &Plumbing,
     address: ServerAddress,
     token: &Option<String>,
     tls: &Option<ServerTlsLink>,
     halt: &AtomicBool,
 ) -> anyhow::Result<RobotEnd> {
-    let mut app = robot_app(k, robot, seed, twin, address, |app| {
+    let mut app = robot_app(k, robot, seed, twin, plumbing, address, |app| {
         app.insert_resource(ServerToken(token.clone()));
         if let Some(tls) = tls {
             app.insert_resource(tls.clone());
@@ -240,22 +254,28 @@ pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, s
     // keeps the run deterministic.
     let robots = arenas.clamp(1, episodes);
     let policy_link = OnBoardPolicy::new(move |obs: &[f32]| onnx.act(obs));
-    let mut apps = (0..robots).map(|k| robot_app(k, robot, seed, twin, policy_link.clone(), |_| {})).collect::<anyhow::Result<Vec<App>>>()?;
+    let plumbing = run_plumbing(robot, twin)?;
+    let mut apps = (0..robots)
+        .map(|k| {
+            let mut app = robot_app(k, robot, seed, twin, &plumbing, policy_link.clone(), |_| {})?;
+            let ended = app.world_mut().query::<&Episode>();
+            Ok((app, ended))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let mut finished = Vec::with_capacity(episodes);
     while finished.len() < episodes {
-        for app in &mut apps {
+        for (app, ended) in &mut apps {
             app.update();
             if let Some(Err(e)) = app.world().resource::<RobotRunState>().stop.clone() {
                 anyhow::bail!("robots stopped: {e}");
             }
-            let world = app.world_mut();
-            let done: Vec<_> = world.query::<&Episode>().iter(world).filter_map(|e| e.finished.clone()).collect();
-            finished.extend(done.into_iter().take(episodes - finished.len()));
+            let left = episodes - finished.len();
+            finished.extend(ended.iter(app.world()).filter_map(|e| e.finished.clone()).take(left));
         }
     }
     let result = EvalResult::of_episodes(task, &finished);
     println!("{robot} running {}: {}", policy.display(), result.describe());
-    report_log(&mut apps[0], twin)?;
+    report_log(&mut apps[0].0, twin)?;
     Ok(result)
 }
 
