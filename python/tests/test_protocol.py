@@ -92,6 +92,15 @@ def test_an_openssl_client_talks_to_a_tls_server(tls_server):
         assert "pole_angle" in refused["message"]
         send(sock, {"type": "step", "obs": [0.0, 0.0, 0.02, 0.0], "reward": 1.0, "terminated": False, "truncated": False})
         assert receive(sock)["type"] == "action"
+        # `ended_by` names one of the task's termination terms, and only on a terminal step.
+        terms = welcome["task"]["termination_terms"]
+        assert "pole_fallen" in terms, welcome["task"]
+        send(sock, {"type": "step", "obs": [0.0, 0.0, 0.3, 0.0], "reward": 1.0, "terminated": True, "truncated": False, "ended_by": "tipped_over"})
+        refused = receive(sock)
+        assert refused["type"] == "error" and refused["code"] == "unknown_termination" and not refused["fatal"], refused
+        assert "pole_fallen" in refused["message"], refused
+        send(sock, {"type": "step", "obs": [0.0, 0.0, 0.3, 0.0], "reward": 1.0, "terminated": True, "truncated": False, "ended_by": "pole_fallen"})
+        assert receive(sock)["type"] == "ack"
         send(sock, {"type": "bye"})
 
 

@@ -229,7 +229,7 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
     // A rollout never filled: this measures the protocol and the policy's inference only.
     let mut settings = ServerSettings::new("cartpole", &spec, usize::MAX, u64::MAX);
     settings.limits.max_robots = robots.max(1);
-    let server = RobotServer::start("127.0.0.1:0".parse()?, model, settings, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)))?;
+    let server = RobotServer::start("127.0.0.1:0".parse()?, Box::new(model), settings, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)))?;
     let addr = server.addr;
     let start = Instant::now();
     let threads: Vec<_> = (0..robots)
@@ -242,7 +242,7 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
                 c.receive()?;
                 let t = Instant::now();
                 for _ in 0..steps {
-                    c.send(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false, success: None })?;
+                    c.send(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false, success: None, ended_by: None })?;
                     anyhow::ensure!(matches!(c.receive()?, ServerMessage::Action { .. }), "unexpected reply");
                 }
                 Ok(t.elapsed().as_secs_f64() / steps as f64)

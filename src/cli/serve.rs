@@ -10,7 +10,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use twinbots_api::DesignPattern;
-use twinbots_learn::{Ppo, PpoConfig, RunDir, ppo};
+use twinbots_learn::{Learner, RunDir};
 use twinbots_link::tls::ServerTls;
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
@@ -41,9 +41,13 @@ pub struct Args {
     /// Seconds a robot has to send each whole request after the last reply.
     #[arg(long, default_value_t = 60.0)]
     pub read_timeout: f64,
-    /// Robots a rollout is sized for; default: the robot's arena count.
+    /// Robots the learner's batches are sized for (PPO's rollout is n_steps × robots; SAC's
+    /// and TD3's iteration is one step of each); default: the robot's arena count.
     #[arg(long)]
     pub robots: Option<usize>,
+    /// The algorithm it trains (see `twinbots algos`); default: the robot's.
+    #[arg(long, value_parser = super::train::parse_algo)]
+    pub algo: Option<String>,
     #[arg(long)]
     pub timesteps: Option<u64>,
     #[arg(long)]
@@ -62,7 +66,7 @@ pub struct Args {
     #[arg(long, conflicts_with = "settings")]
     pub calibration: Option<std::path::PathBuf>,
     /// Continue the server run in this directory from its newest checkpoint.
-    #[arg(long, conflicts_with_all = ["robot", "robots", "timesteps", "seed", "config", "settings", "out", "calibration"])]
+    #[arg(long, conflicts_with_all = ["robot", "robots", "algo", "timesteps", "seed", "config", "settings", "out", "calibration"])]
     pub resume: Option<std::path::PathBuf>,
     /// TLS: this server's certificate chain (PEM); with --tls-key. Robots then need --tls-ca.
     #[arg(long, requires = "tls_key")]
@@ -83,7 +87,7 @@ pub struct Args {
 /// `twinbots serve`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let Args {
-        robot, listen, max_robots, token, handshake_timeout, read_timeout, robots, timesteps, seed, config, settings, out, calibration, resume, tls_cert, tls_key, insecure, exit_with_stdin,
+        robot, listen, max_robots, token, handshake_timeout, read_timeout, robots, algo, timesteps, seed, config, settings, out, calibration, resume, tls_cert, tls_key, insecure, exit_with_stdin,
     } = args;
     if exit_with_stdin {
         exit_when_stdin_closes();
@@ -114,7 +118,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 None => Default::default(),
             };
             let calibration = CalibrationSetting::read_optional(&entry, calibration.as_deref())?;
-            let flags = ConfigFile { timesteps, arenas: robots, seed, pattern: Some(3), calibration, ..Default::default() };
+            let flags = ConfigFile { algo, timesteps, arenas: robots, seed, pattern: Some(3), calibration, ..Default::default() };
             TrainSettings::resolve(&entry, file, flags)?
         }
     };
@@ -124,7 +128,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 
 /// Test-only: set to make the learner panic in its first update, so tests can show that a
 /// failing learner ends `serve` with an error instead of leaving it hanging (no settings that
-/// pass validation make a PPO update fail).
+/// pass validation make an update fail).
 pub const PANIC_IN_UPDATE_ENV: &str = "TWINBOTS_TEST_PANIC_IN_UPDATE";
 
 /// The shared secret from the environment, for `serve` and `robot` when no --token is given
@@ -189,8 +193,8 @@ pub fn seconds(flag: &str, value: f64) -> anyhow::Result<Duration> {
     Ok(Duration::from_secs_f64(value))
 }
 
-/// Runs a server until training ends. `settings.arenas` is the number of robots a rollout is
-/// sized for (rollout = n_steps × robots). The server trains with the same callbacks as
+/// Runs a server until training ends. `settings.arenas` is the number of robots the learner's
+/// batches are sized for (PPO's rollout is n_steps × robots). The server trains with the same callbacks as
 /// `train` (periodic evaluation runs the policy in-process, under pattern 1), and evaluates the
 /// final model in-process into `eval.json` as `train` does. A failure anywhere in the server
 /// (learner error, panic in a server thread) returns the error: `main` exits 1 with it.
@@ -199,11 +203,9 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, limits: ServerLimits, 
     let spec = entry.task();
     anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{} has no design-pattern-3 robot", entry.name);
     anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
+    // Any algorithm whose `serves` is true (`settings.validate` refuses the others).
+    let model = super::learner::new(&settings, &spec)?;
     let run_dir = twinbots::run::create(&settings, out)?;
-    // The RobotServer learns from robots' steps as they come: PPO's pieces (`settings.validate`
-    // refuses pattern 3 for an algorithm whose `serves` is false).
-    let config: PpoConfig = settings.config_of(ppo::NAME)?;
-    let model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), settings.seed)?;
     host(settings, run_dir, model, listen, limits)
 }
 
@@ -215,22 +217,21 @@ pub fn resume(run: &Path, listen: SocketAddr, limits: ServerLimits) -> anyhow::R
     let settings = TrainSettings::of_run(&run_dir)?;
     anyhow::ensure!(settings.design_pattern()? == DesignPattern::Server, "{}: not a RobotServer run (resume it with `twinbots train --resume`)", run.display());
     anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
-    let (checkpoint, mut model) = run_dir.load_newest_checkpoint::<Ppo>()?;
-    run_dir.check_progress_columns(ppo::TRAIN_FIGURES)?;
     let spec = registry::find(&settings.robot)?.task();
+    let (checkpoint, model) = super::learner::resume(&run_dir, &settings, &spec)?;
+    run_dir.check_progress_columns(model.train_figures())?;
     model.check_spaces(&spec.observation_space, &spec.action_space)?;
-    model.env_state = None;
-    eprintln!("resuming {} from {} ({} steps, {} episodes)", run.display(), checkpoint.display(), model.timesteps, model.episodes);
-    run_dir.truncate_after(model.timesteps)?;
+    eprintln!("resuming {} from {} ({} steps, {} episodes)", run.display(), checkpoint.display(), model.timesteps(), model.episodes());
+    run_dir.truncate_after(model.timesteps())?;
     host(settings, run_dir, model, listen, limits)
 }
 
 /// Hosts `model` and its learner until training ends, into `run_dir`.
-fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr, limits: ServerLimits) -> anyhow::Result<()> {
+fn host(settings: TrainSettings, run_dir: RunDir, model: Box<dyn Learner>, listen: SocketAddr, limits: ServerLimits) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let spec = entry.task();
     let out = run_dir.path().to_path_buf();
-    let title = format!("{} — PPO through the RobotServer (pattern 3), seed {}", settings.robot, settings.seed);
+    let title = format!("{} — {} through the RobotServer (pattern 3), seed {}", settings.robot, model.algorithm(), settings.seed);
     let mut callbacks = twinbots::run::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     let tally = twinbots_learn::callbacks::GradientStepTally::default();
     callbacks.push(tally.clone());
@@ -239,8 +240,7 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
             panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
         });
     }
-    let n_steps = settings.config_of::<PpoConfig>(ppo::NAME)?.n_steps;
-    let mut server_settings = ServerSettings::new(&settings.robot, &spec, n_steps * settings.arenas.max(1), settings.timesteps);
+    let mut server_settings = ServerSettings::new(&settings.robot, &spec, settings.arenas.max(1), settings.timesteps);
     server_settings.limits = limits;
     server_settings.task = server_settings.task.with_control_period(entry.control_period_s());
     let started = Instant::now();
@@ -251,8 +251,8 @@ fn host(settings: TrainSettings, run_dir: RunDir, model: Ppo, listen: SocketAddr
     tally.check()?;
     let wall = started.elapsed().as_secs_f64();
     // The final model, evaluated in-process (pattern 1 runs the same policy) as `train` does.
-    twinbots::run::finish(&settings, &run_dir, &entry, &model, &end, wall, None)?;
-    println!("{end} in {wall:.1} s, mean of last 100 episodes {:.1}", model.mean_recent_score());
+    twinbots::run::finish(&settings, &run_dir, &entry, model.as_ref(), &end, wall, None)?;
+    println!("{end} in {wall:.1} s, mean of last 100 episodes {:.1}", model.history().mean_score());
     println!("run directory: {}", out.display());
     // Give connected robots a moment to read their `done` before the process exits.
     std::thread::sleep(Duration::from_millis(200));

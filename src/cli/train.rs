@@ -109,7 +109,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 }
 
 /// `--algo`'s value: a name of the algorithm table, or an error listing them.
-fn parse_algo(name: &str) -> Result<String, String> {
+pub fn parse_algo(name: &str) -> Result<String, String> {
     twinbots_learn::algos::find(name).map(|a| a.name.to_string()).map_err(|e| e.to_string())
 }
 

@@ -184,9 +184,15 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     assert!((terms - result.mean_score).abs() < 1e-3 * result.mean_score.abs().max(1.0), "{:?} vs {}", result.rewards, result.mean_score);
 
     // Served under pattern 3: robots that home themselves, no Supervisor, the same terms.
-    let learner = Ppo::new(robot.defaults.of("ppo").config().unwrap(), spec.observation_space.clone(), spec.action_space.clone(), 1).unwrap();
-    let settings = ServerSettings::new("turntable", &spec, 256, 1024);
-    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))).unwrap();
+    let learner = Box::new(Ppo::new(robot.defaults.of("ppo").config().unwrap(), spec.observation_space.clone(), spec.action_space.clone(), 1).unwrap());
+    let settings = ServerSettings::new("turntable", &spec, 2, 1024);
+    let updates = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let counted = updates.clone();
+    let count = move |_: &_, _: &dyn twinbots_learn::Agent| {
+        counted.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        Ok(Flow::Continue)
+    };
+    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(count)).unwrap();
     let mut app = robot.app(None, 2, 3, DesignPattern::Server).unwrap();
     app.insert_resource(ServerAddress { addr: server.addr, patience: Duration::from_secs(5) });
     app.finish();
@@ -203,5 +209,6 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     assert!(matches!(&run.stop, Some(Ok(_))), "{:?}", run.stop);
     assert!(run.episodes > 0);
     let (served, _) = server.wait().unwrap();
-    assert!(served.timesteps >= 1024 && served.updates >= 4, "{} steps, {} updates", served.timesteps, served.updates);
+    let updates = updates.load(std::sync::atomic::Ordering::Relaxed);
+    assert!(served.timesteps() >= 1024 && updates >= 4, "{} steps, {updates} updates", served.timesteps());
 }

@@ -20,6 +20,7 @@ mod robot_hostile;
 #[cfg(feature = "ros2")]
 mod ros2;
 mod rtde;
+mod served;
 mod server;
 mod server_fuzz;
 mod server_hostile;

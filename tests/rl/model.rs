@@ -4,7 +4,7 @@ use twinbots_learn::classic::ClassicCartPole;
 use twinbots_api::{Space, VecEnv};
 use twinbots_learn::{Ppo, PpoConfig};
 
-fn temp_dir(name: &str) -> std::path::PathBuf {
+pub fn temp_dir(name: &str) -> std::path::PathBuf {
     let dir = std::env::temp_dir().join(format!("twinbots-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     dir

@@ -18,8 +18,10 @@ pub fn server(timesteps: u64) -> RobotServer {
 /// A cart-pole server with these limits and callbacks.
 pub fn server_with(timesteps: u64, rollout: usize, limits: ServerLimits, callbacks: Box<dyn twinbots_learn::Callback + Send>) -> RobotServer {
     let spec = cartpole::task_spec();
-    let model = Ppo::new(PpoConfig::zoo_cartpole(), spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
-    let mut settings = ServerSettings::new("cartpole", &spec, rollout, timesteps);
+    // One robot's worth of `rollout` steps per update.
+    let config = PpoConfig { n_steps: rollout, ..PpoConfig::zoo_cartpole() };
+    let model = Box::new(Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap());
+    let mut settings = ServerSettings::new("cartpole", &spec, 1, timesteps);
     settings.task = settings.task.with_control_period(cartpole::robot().control_period_s());
     settings.limits = limits;
     RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, callbacks).unwrap()
@@ -52,7 +54,7 @@ impl Robot {
         r
     }
     pub fn step(&mut self) -> ServerMessage {
-        self.call(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false, success: None })
+        self.call(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false, success: None, ended_by: None })
     }
 }
 
@@ -162,7 +164,7 @@ fn the_server_trains_with_callbacks_and_stops_once_solved() {
     use twinbots_api::SolvedCriterion;
     use twinbots_learn::{CallbackList, SolvedBy, TrainingEnd, UpdateStats};
     let id = cartpole::task_spec();
-    let model = Ppo::new(PpoConfig::zoo_cartpole(), id.observation_space, id.action_space, 0).unwrap();
+    let model = Box::new(Ppo::new(PpoConfig { n_steps: 8, ..PpoConfig::zoo_cartpole() }, id.observation_space, id.action_space, 0).unwrap());
     let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
     let seen = rows.clone();
     let callbacks = CallbackList::new()
@@ -171,7 +173,7 @@ fn the_server_trains_with_callbacks_and_stops_once_solved() {
             Ok(Flow::Continue)
         })
         .with(StopTrainingOnSolved::new(SolvedCriterion::mean_score(1, 2.0)));
-    let settings = ServerSettings::new("cartpole", &cartpole::task_spec(), 8, 1_000_000);
+    let settings = ServerSettings::new("cartpole", &cartpole::task_spec(), 1, 1_000_000);
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(callbacks)).unwrap();
     let mut robot = Robot::hello(server.addr);
     let episode = |robot: &mut Robot| {
@@ -179,7 +181,7 @@ fn the_server_trains_with_callbacks_and_stops_once_solved() {
         for _ in 0..3 {
             assert!(matches!(robot.step(), ServerMessage::Action { .. }));
         }
-        let last = RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: true, truncated: false, success: None };
+        let last = RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: true, truncated: false, success: None, ended_by: None };
         assert!(matches!(robot.call(&last), ServerMessage::Ack));
     };
     // Two episodes of 4 steps (score 4 > 2) fill the rollout of 8: one update, then solved.
@@ -191,7 +193,7 @@ fn the_server_trains_with_callbacks_and_stops_once_solved() {
     }
     let (model, end) = server.wait().unwrap();
     assert_eq!(end, TrainingEnd::Solved { timesteps: 8, by: SolvedBy::TrainingEpisodes });
-    assert_eq!((model.timesteps, model.updates, model.episodes), (8, 1, 2));
+    assert_eq!((model.timesteps(), model.episodes()), (8, 2));
     assert_eq!(*rows.lock().unwrap(), [(1, 8, 2)]);
 }
 

@@ -85,7 +85,7 @@ fn rewards_outside_the_tasks_range_are_refused_so_no_robot_can_claim_solved() {
     let callbacks = CallbackList::new().with(StopTrainingOnSolved::new(SolvedCriterion::mean_score(1, 100.0)));
     let server = server_with(1_000_000, 8, ServerLimits::default(), Box::new(callbacks));
     let mut robot = Robot::hello(server.addr);
-    let rich = |terminated| RobotMessage::Step { obs: vec![0.0; 4], reward: 1000.0, terminated, truncated: false, success: None };
+    let rich = |terminated| RobotMessage::Step { obs: vec![0.0; 4], reward: 1000.0, terminated, truncated: false, success: None, ended_by: None };
     for _ in 0..3 {
         robot.call(&RobotMessage::Start { obs: vec![0.0; 4] });
         for i in 0..4 {
@@ -398,8 +398,9 @@ fn trained_under_attack(robot_name: &str, spec: &twinbots_api::TaskSpec, attack:
     use twinbots_learn::{Ppo, PpoConfig};
     use twinbots_server::server::{RobotServer, ServerSettings};
     let config = PpoConfig { normalize_observations: true, ..PpoConfig::zoo_cartpole() };
-    let model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
-    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, ServerSettings::new(robot_name, spec, 128, 300), Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))).unwrap();
+    let model = Box::new(Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap());
+    // Updates every 128 steps: 4 robots' worth of 32.
+    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, ServerSettings::new(robot_name, spec, 4, 300), Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))).unwrap();
     let mut robot = crate::server::Robot::connect(server.addr);
     let hello = RobotMessage::Hello {
         version: VERSION,
@@ -425,19 +426,19 @@ fn trained_under_attack(robot_name: &str, spec: &twinbots_api::TaskSpec, attack:
         if attack && t % 7 == 0 {
             let mut wild = reading(t);
             wild[t % dim] = if t % 14 == 0 { -1e6 } else { 1e6 };
-            let refused = robot.call(&RobotMessage::Step { obs: wild, reward, terminated: false, truncated: false, success: None });
+            let refused = robot.call(&RobotMessage::Step { obs: wild, reward, terminated: false, truncated: false, success: None, ended_by: None });
             assert_eq!(code(&refused), (ErrorCode::ObservationOutOfRange, false), "{refused:?}");
             assert!(message(&refused).contains("outside its plausible range"), "{refused:?}");
         }
         let ended = t % 50 == 0;
-        reply = robot.call(&RobotMessage::Step { obs: reading(t), reward, terminated: ended, truncated: false, success: None });
+        reply = robot.call(&RobotMessage::Step { obs: reading(t), reward, terminated: ended, truncated: false, success: None, ended_by: None });
         if ended {
             assert_eq!(reply, ServerMessage::Ack);
             reply = robot.call(&RobotMessage::Start { obs: reading(t) });
         }
     }
     let (model, _) = server.wait().unwrap();
-    (actions, model.obs_rms.expect("the model normalises"))
+    (actions, model.policy_net().unwrap().obs_rms.expect("the model normalises"))
 }
 
 #[test]

@@ -34,14 +34,14 @@ fn load(robots: usize, steps: usize) -> Figures {
     let spec = cartpole::task_spec();
     // A light update (one epoch): this measures the server, not PPO.
     let config = PpoConfig { n_steps: N_STEPS, batch_size: N_STEPS * robots, n_epochs: 1, ..PpoConfig::zoo_cartpole() };
-    let model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
+    let model = Box::new(Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap());
     let learned = Arc::new(Mutex::new(Vec::new()));
     let log = learned.clone();
     let callback = move |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
         log.lock().unwrap().push((s.timesteps, s.episodes));
         Ok(Flow::Continue)
     };
-    let mut settings = ServerSettings::new("cartpole", &spec, N_STEPS * robots, u64::MAX);
+    let mut settings = ServerSettings::new("cartpole", &spec, robots, u64::MAX);
     settings.limits.max_robots = robots;
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(callback)).unwrap();
     let identity = Identity { robot: "cartpole".into(), observation_space: spec.observation_space, action_space: spec.action_space, token: None };
@@ -62,7 +62,7 @@ fn load(robots: usize, steps: usize) -> Figures {
                     }
                     let last = in_episode == EPISODE - 1;
                     let obs = vec![r as f32 * 1e-3, step as f32 * 1e-4, 0.0, 0.0];
-                    c.send(&RobotMessage::Step { obs, reward: 1.0, terminated: last, truncated: false, success: None }).unwrap();
+                    c.send(&RobotMessage::Step { obs, reward: 1.0, terminated: last, truncated: false, success: None, ended_by: None }).unwrap();
                     let reply = c.receive().unwrap();
                     let expected = if last { matches!(reply, ServerMessage::Ack) } else { matches!(reply, ServerMessage::Action { .. }) };
                     assert!(expected, "robot {r}, step {step}: {reply:?}");

@@ -145,8 +145,8 @@ fn the_same_seed_gives_the_same_reach_trajectory() {
 #[test]
 fn under_pattern_3_the_arm_homes_itself_before_every_episode() {
     let id = ur5e::task_spec();
-    let model = Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), id.observation_space, id.action_space, 0).unwrap();
-    let settings = ServerSettings::new("ur5e", &ur5e::task_spec(), 512, 1_000_000);
+    let model = Box::new(Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), id.observation_space, id.action_space, 0).unwrap());
+    let settings = ServerSettings::new("ur5e", &ur5e::task_spec(), 2, 1_000_000);
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))).unwrap();
     let address = ServerAddress { addr: server.addr, patience: Duration::from_secs(5) };
     let mut app = ur5e::headless_app_with(2, 5, DesignPattern::Server);

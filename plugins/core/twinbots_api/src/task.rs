@@ -50,6 +50,8 @@ pub struct TaskSpec {
     pub observation_names: Vec<String>,
     /// The reward's terms, whose per-episode sums each episode's summary logs.
     pub reward_terms: Vec<String>,
+    /// The termination terms, by name (what a step's `ended_by` names).
+    pub termination_terms: Vec<String>,
     /// The lowest and highest reward of one step ([`TaskTerms::reward_range`]); a RobotServer
     /// refuses rewards outside it.
     pub reward_range: (f32, f32),

@@ -11,6 +11,7 @@ use twinbots_api::{GoalSpec, TaskSpec, VecEnv};
 use crate::agent::Agent;
 use crate::callbacks::Callback;
 use crate::model_io::ModelError;
+use crate::served::ServedLearner;
 use crate::stats::{TrainingEnd, TrainingTimes};
 
 pub trait Learner: Agent + Send {
@@ -24,6 +25,14 @@ pub trait Learner: Agent + Send {
     fn set_goal(&mut self, goal: Option<GoalSpec>) -> anyhow::Result<()> {
         let _ = goal;
         Ok(())
+    }
+    /// This model, learning from robots' steps as a RobotServer receives them, with batches
+    /// (a rollout, a training iteration) sized for `robots` robots, until `total_timesteps`
+    /// (the model's `timesteps`, earlier sessions included). Only algorithms whose line in
+    /// `ALGOS` says `serves` can.
+    fn serve(self: Box<Self>, robots: usize, total_timesteps: u64) -> anyhow::Result<Box<dyn ServedLearner>> {
+        let _ = (robots, total_timesteps);
+        anyhow::bail!("{} cannot learn from a RobotServer", self.algorithm())
     }
 }
 

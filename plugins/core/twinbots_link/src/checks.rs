@@ -133,7 +133,17 @@ pub fn check_request(message: &RobotMessage, task: &TaskInterface) -> Result<(),
             format!("observation value {i}{} is {}, outside its plausible range [{}, {}]: a faulty sensor?", name(i), obs[i], low[i], high[i]),
         );
     }
-    if let RobotMessage::Step { reward, .. } = message {
+    if let RobotMessage::Step { reward, terminated, ended_by, .. } = message {
+        if let Some(term) = ended_by {
+            let shown = truncated(term, 64);
+            if !terminated {
+                return refuse(ErrorCode::UnknownTermination, format!("ended_by '{shown}' on a step that did not terminate"));
+            }
+            if !task.termination_terms.iter().any(|t| t == term) {
+                let known = if task.termination_terms.is_empty() { "none".to_string() } else { task.termination_terms.join(", ") };
+                return refuse(ErrorCode::UnknownTermination, format!("ended_by '{shown}' is not one of this task's termination terms ({known})"));
+            }
+        }
         if !reward.is_finite() {
             return refuse(ErrorCode::NonFinite, format!("reward is {reward}: not a finite f32 (|x| ≤ 3.4e38)"));
         }
@@ -206,9 +216,8 @@ pub fn truncated(text: &str, max: usize) -> String {
 mod tests {
     use super::*;
 
-    #[test]
-    fn a_long_peer_supplied_name_is_cut_in_the_refusal() {
-        let task = TaskInterface {
+    fn task() -> TaskInterface {
+        TaskInterface {
             robot: "cartpole".into(),
             task: "cartpole".into(),
             observation_space: Space::uniform_box(1, -1.0, 1.0),
@@ -218,12 +227,38 @@ mod tests {
             reward_range: crate::protocol::RewardRange { low: 0.0, high: 1.0 },
             reward_terms: vec![],
             control_period_s: None,
-        };
+            termination_terms: vec!["fallen".into()],
+        }
+    }
+
+    #[test]
+    fn a_long_peer_supplied_name_is_cut_in_the_refusal() {
+        let task = task();
         let name = "r".repeat(60_000);
         let hello = serde_json::json!({"type": "hello", "version": VERSION, "robot": name, "observation_space": task.observation_space, "action_space": task.action_space});
         let refused = check_hello(hello.to_string().as_bytes(), &Admission { task: &task, token: None }).unwrap_err();
         assert_eq!(refused.code, ErrorCode::WrongRobot);
         assert!(refused.message.chars().count() <= MAX_MESSAGE + 1 && refused.message.ends_with('…'), "{} chars", refused.message.len());
         assert_eq!(truncated("short", 10), "short");
+    }
+
+    #[test]
+    fn a_step_names_only_a_termination_term_of_the_task_and_only_when_it_terminated() {
+        let task = task();
+        let step = |terminated, ended_by: &str| RobotMessage::Step {
+            obs: vec![0.5],
+            reward: 1.0,
+            terminated,
+            truncated: false,
+            success: None,
+            ended_by: Some(ended_by.into()),
+        };
+        assert!(check_request(&step(true, "fallen"), &task).is_ok());
+        let unknown = check_request(&step(true, "tipped"), &task).unwrap_err();
+        assert_eq!(unknown.code, ErrorCode::UnknownTermination);
+        assert!(unknown.message.contains("'tipped'") && unknown.message.contains("(fallen)") && !unknown.fatal, "{}", unknown.message);
+        let running = check_request(&step(false, "fallen"), &task).unwrap_err();
+        assert_eq!(running.code, ErrorCode::UnknownTermination);
+        assert!(running.message.contains("did not terminate"), "{}", running.message);
     }
 }

@@ -80,7 +80,7 @@ mod tests {
             Ok(vec![obs[0] + obs[1]])
         });
         let mut link = policy.link();
-        let step = |obs: Vec<f32>, terminated: bool| RobotMessage::Step { obs, reward: 1.0, terminated, truncated: false, success: None };
+        let step = |obs: Vec<f32>, terminated: bool| RobotMessage::Step { obs, reward: 1.0, terminated, truncated: false, success: None, ended_by: None };
         link.send(&RobotMessage::Start { obs: vec![1.0, 2.0] }).unwrap();
         assert_eq!(link.receive().unwrap(), ServerMessage::Action { action: vec![3.0] });
         link.send(&step(vec![0.5, 0.25], false)).unwrap();

@@ -47,6 +47,11 @@ pub enum RobotMessage {
         /// `info["is_success"]`); optional.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         success: Option<bool>,
+        /// With `terminated`: the termination term that ended the episode (one of the task's
+        /// `termination_terms`); optional. A learner that relabels goals (HER) recomputes the
+        /// step's reward with it.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        ended_by: Option<String>,
     },
     /// The running episode is abandoned (an emergency stop, a fault, an operator's hand): its
     /// steps not yet learned from are dropped. Answered with `ack`, also when none was running.
@@ -106,6 +111,9 @@ pub enum ErrorCode {
     RewardOutOfRange,
     /// A `step` with no action awaiting its outcome (no `start` before it, or after `ack`).
     OutOfOrder,
+    /// A `step`'s `ended_by` that names none of the task's termination terms
+    /// (`welcome.task.termination_terms`), or comes on a step that did not terminate.
+    UnknownTermination,
     /// The learner failed; training is over (fatal).
     LearnerFailed,
 }
@@ -135,6 +143,10 @@ pub struct TaskInterface {
     /// servers before it was declared.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub control_period_s: Option<f64>,
+    /// The task's termination terms: what a `step`'s `ended_by` may name. Absent from
+    /// servers before it was declared.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub termination_terms: Vec<String>,
 }
 
 impl TaskInterface {
@@ -149,6 +161,7 @@ impl TaskInterface {
             reward_range: RewardRange { low: spec.reward_range.0, high: spec.reward_range.1 },
             reward_terms: spec.reward_terms.clone(),
             control_period_s: None,
+            termination_terms: spec.termination_terms.clone(),
         }
     }
 

@@ -322,6 +322,7 @@ fn exchange<S: Component>(
                     terminated: outcome.terminated,
                     truncated: outcome.truncated,
                     success: outcome.success,
+                    ended_by: outcome.ended_by.map(str::to_string),
                 }
             }
         };

@@ -29,6 +29,7 @@ fn task() -> TaskInterface {
         reward_range: RewardRange { low: -2.0, high: 1.0 },
         reward_terms: vec!["alive".into()],
         control_period_s: Some(0.032),
+        termination_terms: vec!["fallen".into()],
     }
 }
 
@@ -38,6 +39,7 @@ const SEEDS: &[&str] = &[
     r#"{"type":"start","obs":[0.1,-0.2,0.03,0.0]}"#,
     r#"{"type":"step","obs":[0.1,-0.2,0.03,0.0],"reward":1.0,"terminated":false,"truncated":false}"#,
     r#"{"type":"step","obs":[1,2,3,4],"reward":-1.5,"terminated":true,"truncated":false,"success":true}"#,
+    r#"{"type":"step","obs":[1,2,3,4],"reward":-1.5,"terminated":true,"truncated":false,"ended_by":"fallen"}"#,
     r#"{"type":"abort"}"#,
     r#"{"type":"bye"}"#,
 ];

@@ -1,94 +1,61 @@
-//! The learner behind the RobotServer: one PPO model trained on what every robot sends.
+//! The learner behind the RobotServer: one model, of any algorithm that can be served
+//! (`twinbots_learn::ServedLearner`: PPO, SAC, TD3), trained on what every robot sends.
 //!
-//! Each connection keeps its transitions since the last update in a one-env rollout buffer,
-//! filled with the pieces `Ppo::learn` collects with (`observe`, `policy_step`,
-//! `bootstrapped_reward`, `RolloutBuffer::push`), one robot message at a time. Once all
-//! connections together hold `rollout` transitions, the thread that completed the rollout runs
-//! the PPO update while it holds the learner (the others wait, so every action is taken by a
-//! known policy), then the callbacks, as `learn` does. A robot that disconnects or aborts
-//! mid-episode loses the part of that episode not yet used in an update: it is never mixed
-//! into training. Messages reach it only after `checks` passed them.
+//! This side speaks the protocol: it turns each checked message into the model's `act` and
+//! `record`, lets the model learn once the message made that due (the thread that sent it holds
+//! the learner meanwhile, so the others wait and every action is taken by a known policy),
+//! then runs the callbacks and ends training on their word or the budget. Messages reach it
+//! only after `checks` passed them.
 
-use std::collections::HashMap;
-use std::time::Instant;
-
-use twinbots_learn::ppo::{PolicyStep, RolloutBuffer};
-use twinbots_api::EpisodeSummary;
-use twinbots_learn::{Callback, Ppo, TrainingEnd};
+use twinbots_learn::{Callback, Learner as Model, RobotStep, ServedLearner, TrainingEnd};
 
 use twinbots_link::protocol::{ErrorCode, RobotMessage, ServerMessage, error};
 
-/// One robot's experience since the last update.
-struct Trajectory {
-    buffer: RolloutBuffer,
-    /// What the policy did on the observation awaiting its outcome.
-    pending: Option<PolicyStep>,
-    /// Index in `buffer` where the running episode began.
-    episode_begin: usize,
-    score: f32,
-    length: u32,
-    /// The robot left; its finished episodes wait for the next update, then it is forgotten.
-    gone: bool,
-}
-
 pub(crate) struct Learner {
-    pub ppo: Ppo,
-    /// Transitions per update, summed over robots.
-    rollout: usize,
+    /// The model; taken by `RobotServer::wait` once training is over.
+    model: Option<Box<dyn ServedLearner>>,
     /// Stop after this many transitions.
     timesteps: u64,
-    trajectories: HashMap<u64, Trajectory>,
     pub callbacks: Box<dyn Callback + Send>,
-    /// When collecting the next update's rollout began.
-    collecting_since: Instant,
     pub end: Option<TrainingEnd>,
     /// Why the server must stop (a learner error, a panic anywhere in the server).
     pub error: Option<String>,
 }
 
 impl Learner {
-    pub fn new(ppo: Ppo, rollout: usize, timesteps: u64, callbacks: Box<dyn Callback + Send>) -> Self {
-        Self {
-            ppo,
-            rollout,
-            timesteps,
-            trajectories: HashMap::new(),
-            callbacks,
-            collecting_since: Instant::now(),
-            end: None,
-            error: None,
-        }
+    pub fn new(model: Box<dyn ServedLearner>, timesteps: u64, callbacks: Box<dyn Callback + Send>) -> Self {
+        Self { model: Some(model), timesteps, callbacks, end: None, error: None }
     }
 
-    /// Robots connected, and transitions held for the next update (left robots' included).
+    /// Robots connected, and transitions held not yet learnt from.
     pub fn load(&self) -> (usize, usize) {
-        let connected = self.trajectories.values().filter(|t| !t.gone).count();
-        (connected, self.trajectories.values().map(|t| t.buffer.len()).sum())
+        self.model.as_ref().map_or((0, 0), |m| m.load())
     }
 
     pub fn join(&mut self, id: u64) {
-        let (obs, act) = (self.ppo.observation_space.dim(), self.ppo.action_space.dim());
-        let trajectory =
-            Trajectory { buffer: RolloutBuffer::new(1, obs, act), pending: None, episode_begin: 0, score: 0.0, length: 0, gone: false };
-        self.trajectories.insert(id, trajectory);
+        if let Some(model) = &mut self.model {
+            model.join(id);
+        }
     }
 
-    /// Whatever the robot's running episode had not yet given to an update is dropped; its
-    /// finished episodes still go into the next update (a robot that ends its shift between
-    /// updates loses nothing it completed).
+    /// Whatever the robot's running episode had not yet given to learning is dropped; its
+    /// finished episodes are kept.
     pub fn leave(&mut self, id: u64) {
-        self.drop_running_episode(id);
-        match self.trajectories.get_mut(&id) {
-            Some(t) if !t.buffer.is_empty() => t.gone = true,
-            _ => {
-                self.trajectories.remove(&id);
-            }
+        if let Some(model) = &mut self.model {
+            model.leave(id);
         }
     }
 
     /// Whether the server must stop serving (training over or failed).
     pub fn stopped(&self) -> bool {
         self.end.is_some() || self.error.is_some()
+    }
+
+    /// Tells the callbacks training ended and hands the model over (once).
+    pub fn finish(&mut self) -> anyhow::Result<Box<dyn Model>> {
+        let model = self.model.take().ok_or_else(|| anyhow::anyhow!("the model was handed over already"))?;
+        self.callbacks.on_training_end(model.agent())?;
+        Ok(model.into_learner())
     }
 
     /// The answer to one checked message; `None` ends the connection.
@@ -99,71 +66,52 @@ impl Learner {
         if let Some(e) = &self.error {
             return Some(error(ErrorCode::LearnerFailed, true, format!("learner failed: {e}")));
         }
+        let model = self.model.as_mut()?;
         match message {
             RobotMessage::Hello { .. } => Some(error(ErrorCode::HandshakeExpected, false, "already introduced")),
             RobotMessage::Bye => {
-                self.drop_running_episode(id);
+                model.drop_episode(id);
                 None
             }
             RobotMessage::Abort => {
-                self.drop_running_episode(id);
+                model.drop_episode(id);
                 Some(ServerMessage::Ack)
             }
             RobotMessage::Start { obs } => {
-                self.drop_running_episode(id);
+                model.drop_episode(id);
                 Some(self.act(id, &obs))
             }
-            RobotMessage::Step { obs, reward, terminated, truncated, success } => {
-                Some(self.record_step(id, obs, reward, terminated, truncated, success))
+            RobotMessage::Step { obs, reward, terminated, truncated, success, ended_by } => {
+                let step = RobotStep { obs: &obs, reward, terminated, truncated, success, ended_by: ended_by.as_deref() };
+                Some(self.record_step(id, &step))
             }
         }
     }
 
-    /// Records the outcome of the robot's pending action, as `Ppo::collect_rollout` records a
-    /// step, and answers with the next action (or `ack` once the episode is over).
-    fn record_step(&mut self, id: u64, obs: Vec<f32>, reward: f32, terminated: bool, truncated: bool, success: Option<bool>) -> ServerMessage {
-        let Some(traj) = self.trajectories.get(&id) else {
-            return error(ErrorCode::HandshakeExpected, true, "this robot is not known");
-        };
-        if traj.pending.is_none() {
-            return error(ErrorCode::OutOfOrder, false, "'step' before 'start': no action is waiting for its outcome");
+    /// Records the outcome of the robot's waiting action and answers with the next action (or
+    /// `ack` once the episode is over), after any learning it made due.
+    fn record_step(&mut self, id: u64, step: &RobotStep) -> ServerMessage {
+        let model = self.model.as_mut().expect("checked by handle");
+        match model.awaits_outcome(id) {
+            None => return error(ErrorCode::HandshakeExpected, true, "this robot is not known"),
+            Some(false) => return error(ErrorCode::OutOfOrder, false, "'step' before 'start': no action is waiting for its outcome"),
+            Some(true) => {}
         }
-        // `obs` is the episode's last observation if it ended.
-        let stored_reward = match self.ppo.bootstrapped_reward(reward, terminated, truncated, Some(&obs)) {
-            Ok(r) => r,
-            Err(e) => return self.fail(e),
-        };
-        let traj = self.trajectories.get_mut(&id).expect("checked above");
-        let step = traj.pending.take().expect("checked above");
-        let ended = terminated || truncated;
-        traj.buffer.push(&step, &[stored_reward], &[ended]);
-        traj.score += reward;
-        traj.length += 1;
-        if ended {
-            let summary = EpisodeSummary { score: traj.score, length: traj.length, success, ..Default::default() };
-            traj.episode_begin = traj.buffer.len();
-            traj.score = 0.0;
-            traj.length = 0;
-            self.ppo.record_episode(&summary);
+        if let Err(e) = model.record(id, step) {
+            return self.fail(e);
         }
-        let answer = if ended { ServerMessage::Ack } else { self.act(id, &obs) };
-        if let Err(e) = self.maybe_update() {
+        let answer = if step.ended() { ServerMessage::Ack } else { self.act(id, step.obs) };
+        if let Err(e) = self.learn_if_due() {
             return self.fail(e);
         }
         answer
     }
 
     /// The policy's action on a fresh observation, which waits for its outcome.
-    fn act(&mut self, id: u64, raw_obs: &[f32]) -> ServerMessage {
-        let obs = self.ppo.observe(raw_obs);
-        match self.ppo.policy_step(obs) {
-            Ok(step) => {
-                let action = step.env_actions.clone();
-                if let Some(traj) = self.trajectories.get_mut(&id) {
-                    traj.pending = Some(step);
-                }
-                ServerMessage::Action { action }
-            }
+    fn act(&mut self, id: u64, obs: &[f32]) -> ServerMessage {
+        let model = self.model.as_mut().expect("checked by handle");
+        match model.act(id, obs) {
+            Ok(action) => ServerMessage::Action { action },
             Err(e) => self.fail(e),
         }
     }
@@ -174,46 +122,17 @@ impl Learner {
         error(ErrorCode::LearnerFailed, true, format!("learner failed: {e:#}"))
     }
 
-    fn drop_running_episode(&mut self, id: u64) {
-        if let Some(traj) = self.trajectories.get_mut(&id) {
-            let keep = traj.episode_begin;
-            traj.buffer.truncate(keep);
-            traj.pending = None;
-            traj.score = 0.0;
-            traj.length = 0;
-        }
-    }
-
-    /// Once the robots together hold a rollout: advantages per robot, one PPO update on all of
-    /// it, then the callbacks, which may end training, as may the budget.
-    fn maybe_update(&mut self) -> anyhow::Result<()> {
-        let held: usize = self.trajectories.values().map(|t| t.buffer.len()).sum();
-        if held < self.rollout {
-            return Ok(());
-        }
-        let (gamma, lambda) = (self.ppo.config.gamma, self.ppo.config.gae_lambda);
-        let mut batch = RolloutBuffer::new(1, self.ppo.observation_space.dim(), self.ppo.action_space.dim());
-        for traj in self.trajectories.values_mut().filter(|t| !t.buffer.is_empty()) {
-            // GAE bootstrapped from V(the observation awaiting its outcome); a segment that
-            // ends with its episode needs no bootstrap (its last step is done).
-            let last_value = match &traj.pending {
-                Some(step) => self.ppo.values(&step.obs)?[0],
-                None => 0.0,
-            };
-            traj.buffer.compute_advantages(&[last_value], gamma, lambda);
-            batch.append(&traj.buffer);
-            traj.buffer.clear();
-            traj.episode_begin = 0;
-        }
-        self.trajectories.retain(|_, t| !t.gone);
-        self.ppo.update_learning_rate(self.timesteps);
-        // Counted once learned from: a robot's unfinished episode may still be dropped.
-        self.ppo.timesteps += batch.len() as u64;
-        let stats = self.ppo.train(&batch, self.collecting_since)?;
-        self.collecting_since = Instant::now();
-        let flow = self.callbacks.on_update(&stats, &self.ppo)?;
-        let timesteps = self.ppo.timesteps;
-        self.end = TrainingEnd::after(flow, timesteps)
+    /// The model learns if it is due, the callbacks hear of each row, and training ends on
+    /// their word or once the budget is spent.
+    fn learn_if_due(&mut self) -> anyhow::Result<()> {
+        let model = self.model.as_mut().expect("checked by handle");
+        let flow = match model.learn_if_due()? {
+            Some(stats) => Some(self.callbacks.on_update(&stats, model.agent())?),
+            None => None,
+        };
+        let timesteps = model.agent().timesteps();
+        self.end = flow
+            .and_then(|flow| TrainingEnd::after(flow, timesteps))
             .or_else(|| (timesteps >= self.timesteps).then_some(TrainingEnd::BudgetSpent { timesteps }));
         Ok(())
     }

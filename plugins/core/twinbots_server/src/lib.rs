@@ -2,7 +2,8 @@
 //! reached over TCP by robots' Communicators (`twinbots_link`, which also holds the protocol).
 //!
 //! [`server`] (accepting, limits, failing loudly), `connection` (one robot's thread), `learner`
-//! (PPO on what robots send), `closing` (a last reply before the socket closes).
+//! (the protocol's side of the model: PPO, SAC or TD3 on what robots send), `closing` (a last
+//! reply before the socket closes).
 
 mod closing;
 mod connection;

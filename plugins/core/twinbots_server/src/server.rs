@@ -1,6 +1,6 @@
 //! The RobotServer: accepts robots over TCP, serves each from its own thread
-//! ([`crate::connection`]), and trains one PPO model ([`crate::learner`]) on the experience they
-//! all send.
+//! ([`crate::connection`]), and trains one model of any algorithm that can be served
+//! ([`crate::learner`]) on the experience they all send.
 //!
 //! It fails rather than hangs: a panic in the learner, a connection thread or the accept loop,
 //! or a learner error, ends [`RobotServer::wait`] with the reason. A client's mistakes never do:
@@ -12,7 +12,7 @@ use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::time::Duration;
 
 use twinbots_api::TaskSpec;
-use twinbots_learn::{Callback, Ppo, TrainingEnd};
+use twinbots_learn::{Callback, Learner as Model, TrainingEnd};
 
 use twinbots_link::checks::Rejection;
 use twinbots_link::frame::write_message;
@@ -26,8 +26,9 @@ pub struct ServerSettings {
     /// The robot and task it serves (`hello` must match its robot and spaces; `welcome`
     /// carries it; steps are checked against its observation length and reward range).
     pub task: TaskInterface,
-    /// Transitions per PPO update, summed over robots.
-    pub rollout: usize,
+    /// Robots the learner's batches are sized for (PPO's rollout is `n_steps` × robots;
+    /// SAC's and TD3's iteration is one step of each).
+    pub robots: usize,
     /// Stop after this many transitions (the model's `timesteps`, earlier sessions included).
     pub timesteps: u64,
     pub limits: ServerLimits,
@@ -35,8 +36,8 @@ pub struct ServerSettings {
 
 impl ServerSettings {
     /// Serving `robot`'s task `spec`, with the default limits.
-    pub fn new(robot: &str, spec: &TaskSpec, rollout: usize, timesteps: u64) -> Self {
-        Self { task: TaskInterface::of(robot, spec), rollout, timesteps, limits: ServerLimits::default() }
+    pub fn new(robot: &str, spec: &TaskSpec, robots: usize, timesteps: u64) -> Self {
+        Self { task: TaskInterface::of(robot, spec), robots, timesteps, limits: ServerLimits::default() }
     }
 }
 
@@ -48,8 +49,9 @@ pub struct RobotServer {
 
 impl RobotServer {
     /// Binds `listen` (port 0 picks a free port) and starts accepting robots. `callbacks` hear
-    /// the training as `Ppo::learn`'s do (a `twinbots_learn::CallbackList` composes several).
-    pub fn start(listen: SocketAddr, ppo: Ppo, settings: ServerSettings, mut callbacks: Box<dyn Callback + Send>) -> anyhow::Result<Self> {
+    /// the training as `learn`'s do (a `twinbots_learn::CallbackList` composes several). A
+    /// model whose algorithm cannot be served is an error.
+    pub fn start(listen: SocketAddr, model: Box<dyn Model>, settings: ServerSettings, mut callbacks: Box<dyn Callback + Send>) -> anyhow::Result<Self> {
         anyhow::ensure!(settings.limits.max_robots >= 1, "max_robots must be at least 1");
         anyhow::ensure!(
             !settings.limits.handshake_timeout.is_zero() && !settings.limits.read_timeout.is_zero(),
@@ -57,9 +59,10 @@ impl RobotServer {
         );
         let listener = TcpListener::bind(listen).map_err(|e| anyhow::anyhow!("cannot listen on {listen}: {e}"))?;
         let addr = listener.local_addr()?;
-        callbacks.on_training_start(&ppo)?;
+        let model = model.serve(settings.robots, settings.timesteps)?;
+        callbacks.on_training_start(model.agent())?;
         let shared = Arc::new(Shared {
-            learner: Mutex::new(Learner::new(ppo, settings.rollout, settings.timesteps, callbacks)),
+            learner: Mutex::new(Learner::new(model, settings.timesteps, callbacks)),
             changed: Condvar::new(),
             task: settings.task,
             limits: settings.limits,
@@ -92,19 +95,16 @@ impl RobotServer {
     }
 
     /// Blocks until training ends (budget spent, solved, stopped by a callback) or fails (a
-    /// learner error, a panic in any server thread), tells the callbacks, and returns a
-    /// snapshot of the model and why it ended. Robots still connected get `done` on their next
-    /// message.
-    pub fn wait(self) -> anyhow::Result<(Ppo, TrainingEnd)> {
+    /// learner error, a panic in any server thread), tells the callbacks, and returns the model
+    /// and why it ended. Robots still connected get `done` on their next message.
+    pub fn wait(self) -> anyhow::Result<(Box<dyn Model>, TrainingEnd)> {
         let mut learner = self.shared.learner();
         loop {
             if let Some(e) = &learner.error {
                 anyhow::bail!("training failed: {e}");
             }
             if let Some(end) = learner.end.clone() {
-                let learner = &mut *learner;
-                learner.callbacks.on_training_end(&learner.ppo)?;
-                return Ok((learner.ppo.snapshot()?, end));
+                return Ok((learner.finish()?, end));
             }
             learner = self.shared.changed.wait(learner).unwrap_or_else(PoisonError::into_inner);
         }

@@ -61,8 +61,12 @@ pub fn observations() -> Vec<ObservationTerm<CellState>> {
         ObservationTerm::new("tcp_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.tcp.translation.to_array())).plausible(-5.0, 5.0),
         ObservationTerm::new("target_offset", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.target - s.arm.tcp.translation).to_array()))
             .plausible(-5.0, 5.0),
-        ObservationTerm::new("tool_axis", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.arm.tcp.rotation * Vec3::Z).to_array()))
-            .bounded(-1.0, 1.0),
+        // A unit vector: f32 rounding of the rotation can put a component 1e-7 past ±1, which
+        // a RobotServer would refuse as implausible.
+        ObservationTerm::new("tool_axis", 3, |s: &CellState, out: &mut Vec<f32>| {
+            out.extend((s.arm.tcp.rotation * Vec3::Z).to_array().map(|c| c.clamp(-1.0, 1.0)))
+        })
+        .bounded(-1.0, 1.0),
         ObservationTerm::new("last_action", ACTION_DIM, |s: &CellState, out: &mut Vec<f32>| out.extend(s.actions.last)).bounded(-1.0, 1.0),
     ]
 }

@@ -2,8 +2,8 @@
 //! `ppo.py`, with Stable-Baselines3's surface: `learn`, `predict`, `save`, `load`, callbacks.
 //!
 //! `learn` is the loop: collect a rollout (`rollout.rs`), compute advantages (`buffer.rs`), and
-//! update (`update.rs`). Learners that collect their own experience (the RobotServer) call the
-//! same pieces: `observe`, `policy_step`, `bootstrapped_reward`, `RolloutBuffer::push`,
+//! update (`update.rs`). Served by a RobotServer (`served.rs`), it collects robots' steps with
+//! the same pieces: `observe`, `policy_step`, `bootstrapped_reward`, `RolloutBuffer::push`,
 //! `values`, `update_learning_rate`, `train`.
 
 mod buffer;
@@ -11,6 +11,7 @@ mod config;
 mod model_file;
 pub(crate) mod policy;
 mod rollout;
+mod served;
 mod update;
 
 use std::collections::BTreeMap;
@@ -323,6 +324,9 @@ impl crate::learner::Learner for Ppo {
     }
     fn times(&self) -> TrainingTimes {
         self.times
+    }
+    fn serve(self: Box<Self>, robots: usize, total_timesteps: u64) -> anyhow::Result<Box<dyn crate::served::ServedLearner>> {
+        Ok(Box::new(served::ServedPpo::new(*self, robots, total_timesteps)))
     }
 }
 

@@ -30,6 +30,9 @@ use crate::learner::{Algorithm, Learner, config_from};
 use crate::nn::Encoder;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use crate::callbacks::Callback;
+use crate::off_policy::served::ServedOffPolicy;
+use crate::off_policy::{OffPolicy, Parts, Schedule};
+use crate::served::ServedLearner;
 use crate::history::EpisodeHistory;
 use crate::stats::TrainingEnd;
 use twinbots_api::env::VecEnv;
@@ -52,9 +55,9 @@ pub const TRAIN_FIGURES: &[&str] = &["actor_loss", "critic_loss", "ent_coef", "e
 pub const ALGORITHM: Algorithm = Algorithm {
     name: NAME,
     saved_as: SAVED_AS,
-    summary: "Soft Actor-Critic: off-policy, continuous actions, with HER for goal-conditioned tasks; patterns 1 and 2",
+    summary: "Soft Actor-Critic: off-policy, continuous actions, with HER for goal-conditioned tasks; every design pattern",
     continuous_only: true,
-    serves: false,
+    serves: true,
     config: |keys, _arenas| {
         let config: SacConfig = config_from(keys, NAME)?;
         config.validate()?;
@@ -234,6 +237,18 @@ impl Sac {
         Ok(self.to_env(&a.flatten_all()?.to_vec1::<f32>()?))
     }
 
+    /// Actions in [−1, 1] for each raw observation row: uniform random until learning starts,
+    /// then samples of the actor.
+    fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        let rows = obs.len() / self.observation_space.dim().max(1);
+        if self.timesteps < self.config.learning_starts {
+            return Ok((0..rows * self.act_dim()).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect());
+        }
+        let x = self.batch(obs)?;
+        let eps = self.noise(rows)?;
+        Ok(self.actor.sample(&x, &eps)?.0.flatten_all()?.to_vec1::<f32>()?)
+    }
+
     /// α now.
     pub fn ent_coef(&self) -> anyhow::Result<f32> {
         Ok(self.log_ent_coef.as_tensor().exp()?.to_vec1::<f32>()?[0])
@@ -271,13 +286,7 @@ impl Sac {
         while ended.is_none() && self.timesteps < end {
             // 1. Act: uniform random actions until learning starts, then the actor's samples.
             let inference_started = Instant::now();
-            let unit: Vec<f32> = if self.timesteps < self.config.learning_starts {
-                (0..n_envs * act_dim).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect()
-            } else {
-                let x = self.batch(&obs)?;
-                let eps = self.noise(n_envs)?;
-                self.actor.sample(&x, &eps)?.0.flatten_all()?.to_vec1::<f32>()?
-            };
+            let unit = self.explore(&obs)?;
             let env_started = Instant::now();
             let out = env.step(&self.to_env(&unit))?;
             self.times.inference_s += (env_started - inference_started).as_secs_f64();
@@ -411,6 +420,9 @@ impl Learner for Sac {
     fn times(&self) -> TrainingTimes {
         self.times
     }
+    fn serve(self: Box<Self>, robots: usize, _total_timesteps: u64) -> anyhow::Result<Box<dyn ServedLearner>> {
+        Ok(Box::new(ServedOffPolicy::new(*self, robots)?))
+    }
     fn set_goal(&mut self, goal: Option<GoalSpec>) -> anyhow::Result<()> {
         anyhow::ensure!(
             self.config.her_goals == 0 || goal.is_some(),
@@ -419,6 +431,47 @@ impl Learner for Sac {
         );
         self.goal = goal;
         Ok(())
+    }
+}
+
+impl OffPolicy for Sac {
+    fn schedule(&self) -> Schedule {
+        let c = &self.config;
+        Schedule {
+            learning_starts: c.learning_starts,
+            train_freq: c.train_freq,
+            gradient_steps: c.gradient_steps,
+            log_interval: c.log_interval,
+            buffer_size: c.buffer_size,
+            learning_rate: c.learning_rate,
+        }
+    }
+    fn parts(&mut self) -> Parts<'_> {
+        Parts {
+            timesteps: &mut self.timesteps,
+            episodes: &mut self.episodes,
+            updates: &mut self.updates,
+            history: &mut self.history,
+            buffer: &mut self.buffer,
+            obs_rms: &mut self.obs_rms,
+            times: &mut self.times,
+        }
+    }
+    fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        Sac::explore(self, obs)
+    }
+    fn train_step(&mut self) -> anyhow::Result<Option<Vec<f32>>> {
+        let losses = self.gradient_step()?;
+        Ok(losses.map(|l| vec![l.actor_loss, l.critic_loss, l.ent_coef, l.ent_coef_loss, l.entropy]))
+    }
+    /// α is the one in force now, as `learn` logs it.
+    fn end_row(&mut self, figures: Vec<f32>) -> anyhow::Result<Vec<f32>> {
+        let [actor_loss, critic_loss, _, ent_coef_loss, entropy] = figures[..] else {
+            anyhow::bail!("SAC has {} figures, not {}", TRAIN_FIGURES.len(), figures.len())
+        };
+        let ent_coef = self.ent_coef()?;
+        self.last_losses = SacLosses { actor_loss, critic_loss, ent_coef, ent_coef_loss, entropy, gradient_steps: self.gradient_steps };
+        Ok(vec![actor_loss, critic_loss, ent_coef, ent_coef_loss, entropy])
     }
 }
 

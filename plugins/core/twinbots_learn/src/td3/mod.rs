@@ -21,6 +21,9 @@ pub use config::Td3Config;
 
 use crate::agent::{Agent, LoadAgent};
 use crate::callbacks::Callback;
+use crate::off_policy::served::ServedOffPolicy;
+use crate::off_policy::{OffPolicy, Parts, Schedule};
+use crate::served::ServedLearner;
 use crate::history::EpisodeHistory;
 use crate::learner::{Algorithm, Learner, config_from};
 use crate::model_io::ModelError;
@@ -41,9 +44,9 @@ pub const TRAIN_FIGURES: &[&str] = &["actor_loss", "critic_loss"];
 pub const ALGORITHM: Algorithm = Algorithm {
     name: NAME,
     saved_as: SAVED_AS,
-    summary: "Twin Delayed DDPG: off-policy, deterministic policy, continuous actions; patterns 1 and 2",
+    summary: "Twin Delayed DDPG: off-policy, deterministic policy, continuous actions; every design pattern",
     continuous_only: true,
-    serves: false,
+    serves: true,
     config: |keys, _arenas| {
         let config: Td3Config = config_from(keys, NAME)?;
         config.validate()?;
@@ -179,6 +182,19 @@ impl Td3 {
         Ok(self.actor.forward(&self.batch(obs)?)?.tanh()?.flatten_all()?.to_vec1::<f32>()?)
     }
 
+    /// Actions in [−1, 1] for each raw observation row: uniform random until learning starts,
+    /// then μ(s) + exploration noise.
+    fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        if self.timesteps < self.config.learning_starts {
+            let n = obs.len() / self.observation_space.dim().max(1) * self.act_dim();
+            return Ok((0..n).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect());
+        }
+        let mut unit = self.unit_actions(obs)?;
+        let noise = self.noise(unit.len(), self.config.action_noise, f32::INFINITY);
+        unit.iter_mut().zip(noise).for_each(|(a, n)| *a = (*a + n).clamp(-1.0, 1.0));
+        Ok(unit)
+    }
+
     /// μ(s) for each raw observation row, in the action space's bounds.
     pub fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         Ok(self.to_env(&self.unit_actions(obs)?))
@@ -260,14 +276,7 @@ impl Td3 {
         while ended.is_none() && self.timesteps < end {
             // 1. Act: uniform random actions until learning starts, then μ(s) + noise.
             let inference_started = Instant::now();
-            let unit: Vec<f32> = if self.timesteps < self.config.learning_starts {
-                (0..n_envs * act_dim).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect()
-            } else {
-                let mut unit = self.unit_actions(&obs)?;
-                let noise = self.noise(unit.len(), self.config.action_noise, f32::INFINITY);
-                unit.iter_mut().zip(noise).for_each(|(a, n)| *a = (*a + n).clamp(-1.0, 1.0));
-                unit
-            };
+            let unit = self.explore(&obs)?;
             let env_started = Instant::now();
             let out = env.step(&self.to_env(&unit))?;
             self.times.inference_s += (env_started - inference_started).as_secs_f64();
@@ -390,6 +399,48 @@ impl Learner for Td3 {
     }
     fn times(&self) -> TrainingTimes {
         self.times
+    }
+    fn serve(self: Box<Self>, robots: usize, _total_timesteps: u64) -> anyhow::Result<Box<dyn ServedLearner>> {
+        Ok(Box::new(ServedOffPolicy::new(*self, robots)?))
+    }
+}
+
+impl OffPolicy for Td3 {
+    fn schedule(&self) -> Schedule {
+        let c = &self.config;
+        Schedule {
+            learning_starts: c.learning_starts,
+            train_freq: c.train_freq,
+            gradient_steps: c.gradient_steps,
+            log_interval: c.log_interval,
+            buffer_size: c.buffer_size,
+            learning_rate: c.learning_rate,
+        }
+    }
+    fn parts(&mut self) -> Parts<'_> {
+        Parts {
+            timesteps: &mut self.timesteps,
+            episodes: &mut self.episodes,
+            updates: &mut self.updates,
+            history: &mut self.history,
+            buffer: &mut self.buffer,
+            obs_rms: &mut self.obs_rms,
+            times: &mut self.times,
+        }
+    }
+    fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        Td3::explore(self, obs)
+    }
+    /// The actor's loss is NaN on the steps between its delayed updates.
+    fn train_step(&mut self) -> anyhow::Result<Option<Vec<f32>>> {
+        Ok(self.gradient_step()?.map(|l| vec![l.actor_loss, l.critic_loss]))
+    }
+    fn end_row(&mut self, figures: Vec<f32>) -> anyhow::Result<Vec<f32>> {
+        let [actor_loss, critic_loss] = figures[..] else {
+            anyhow::bail!("TD3 has {} figures, not {}", TRAIN_FIGURES.len(), figures.len())
+        };
+        self.last_losses = Td3Losses { actor_loss, critic_loss, gradient_steps: self.gradient_steps };
+        Ok(figures)
     }
 }
 

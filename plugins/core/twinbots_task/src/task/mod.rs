@@ -178,6 +178,7 @@ impl<S> TaskDefinition<S> {
             solved: self.solved,
             observation_names: self.terms.observation_names(),
             reward_terms: self.terms.reward_names().into_iter().map(String::from).collect(),
+            termination_terms: self.terms.termination_names(),
             reward_range: self.terms.reward_range(),
             observation_plausible: self.terms.observation_plausible(),
             goal: self.goal,

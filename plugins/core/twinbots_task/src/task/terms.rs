@@ -194,6 +194,11 @@ impl<S> TaskTerms<S> {
         self.rewards.iter().map(|t| t.name).collect()
     }
 
+    /// The termination terms' names, in order (the time limit truncates: it is none of them).
+    pub fn termination_names(&self) -> Vec<String> {
+        self.terminations.iter().map(|t| t.name.to_string()).collect()
+    }
+
     /// The lowest and highest reward one step can give: Σ weight · [low, high] over the terms
     /// (infinite where a term is unbounded on the side its weight selects).
     pub fn reward_range(&self) -> (f32, f32) {

@@ -1,0 +1,86 @@
+//! What the off-policy learners (SAC, TD3) share around their replay buffer: actions in
+//! [−1, 1] scaled to the action box, a vectorised step stored as transitions, and learning
+//! from robots ([`served`]) through the [`OffPolicy`] face each of them shows.
+
+pub(crate) mod served;
+
+use twinbots_api::{EpisodeSummary, Space, StepResult};
+
+use crate::history::EpisodeHistory;
+use crate::learner::Learner;
+use crate::normalize::RunningMeanStd;
+use crate::replay_buffer::ReplayBuffer;
+use crate::stats::TrainingTimes;
+
+/// Actions in [−1, 1] (clipped) → the action box's bounds: `low + (a + 1) · (high − low) / 2`.
+pub fn to_env(space: &Space, unit: &[f32]) -> Vec<f32> {
+    let Space::Box { low, high } = space else { return unit.to_vec() };
+    unit.iter()
+        .enumerate()
+        .map(|(i, u)| {
+            let k = i % low.len();
+            low[k] + (u.clamp(-1.0, 1.0) + 1.0) * 0.5 * (high[k] - low[k])
+        })
+        .collect()
+}
+
+/// Stores the step from `obs` with the (unit) `actions` that gave `out` as transitions
+/// (s, a, r, s', done): a finished episode's s' is its last observation, and a truncated one is
+/// not done, so its value bootstraps. Each episode that ended is handed to `ended`.
+pub fn store_step(buffer: Option<&mut ReplayBuffer>, obs: &[f32], actions: &[f32], out: &StepResult, mut ended: impl FnMut(&EpisodeSummary)) {
+    let n_envs = out.rewards.len();
+    let obs_dim = obs.len() / n_envs.max(1);
+    let mut next_obs = out.obs.clone();
+    let mut ends = vec![false; n_envs];
+    for e in 0..n_envs {
+        ends[e] = out.terminated[e] || out.truncated[e];
+        if let Some(last) = &out.final_obs[e] {
+            next_obs[e * obs_dim..(e + 1) * obs_dim].copy_from_slice(last);
+        }
+        if let Some(episode) = &out.episodes[e] {
+            ended(episode);
+        }
+    }
+    if let Some(buffer) = buffer {
+        buffer.push(obs, actions, &out.rewards, &next_obs, &out.terminated, &ends, &out.ended_by);
+    }
+}
+
+/// How an off-policy learner's training runs (its config's numbers).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Schedule {
+    pub learning_starts: u64,
+    /// Gradient steps are taken every `train_freq` iterations (steps of every env).
+    pub train_freq: usize,
+    pub gradient_steps: usize,
+    /// A row every `log_interval` iterations.
+    pub log_interval: usize,
+    pub buffer_size: usize,
+    pub learning_rate: f64,
+}
+
+/// The counters and stores an off-policy learner keeps, lent to its served form.
+pub(crate) struct Parts<'a> {
+    pub timesteps: &'a mut u64,
+    pub episodes: &'a mut u64,
+    pub updates: &'a mut u64,
+    pub history: &'a mut EpisodeHistory,
+    pub buffer: &'a mut Option<ReplayBuffer>,
+    pub obs_rms: &'a mut Option<RunningMeanStd>,
+    pub times: &'a mut TrainingTimes,
+}
+
+/// What an off-policy learner (SAC, TD3) shows [`served::ServedOffPolicy`].
+pub(crate) trait OffPolicy: Learner + 'static {
+    fn schedule(&self) -> Schedule;
+    fn parts(&mut self) -> Parts<'_>;
+    /// Actions in [−1, 1] for each raw observation row: uniform random until learning starts,
+    /// then the learner's exploring ones (as `learn` acts).
+    fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>>;
+    /// One gradient step's figures, in its `TRAIN_FIGURES` order (NaN where the step has
+    /// none); `None` when it was skipped (a loss or gradient not finite).
+    fn train_step(&mut self) -> anyhow::Result<Option<Vec<f32>>>;
+    /// A row's figures (each the mean over the row's steps that gave it; NaN if none did)
+    /// become the model's last losses; returns them as the row logs them.
+    fn end_row(&mut self, figures: Vec<f32>) -> anyhow::Result<Vec<f32>>;
+}
