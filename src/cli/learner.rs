@@ -29,3 +29,8 @@ pub fn trained(run: &RunDir, settings: &TrainSettings, spec: &TaskSpec) -> anyho
     model.set_goal(spec.goal)?;
     Ok((dir, model))
 }
+
+/// `--algo`'s value: a name of the algorithm table, or an error listing them.
+pub fn parse_algo(name: &str) -> Result<String, String> {
+    twinbots_learn::algos::find(name).map(|a| a.name.to_string()).map_err(|e| e.to_string())
+}

@@ -46,7 +46,7 @@ pub struct Args {
     #[arg(long)]
     pub robots: Option<usize>,
     /// The algorithm it trains (see `twinbots algos`); default: the robot's.
-    #[arg(long, value_parser = super::train::parse_algo)]
+    #[arg(long, value_parser = super::learner::parse_algo)]
     pub algo: Option<String>,
     #[arg(long)]
     pub timesteps: Option<u64>,

@@ -43,7 +43,7 @@ pub struct Args {
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=3))]
     pub pattern: Option<u8>,
     /// The learner, by name (`twinbots algos` lists them); default: the robot's (ppo).
-    #[arg(long, value_parser = parse_algo)]
+    #[arg(long, value_parser = learner::parse_algo)]
     pub algo: Option<String>,
     /// A TOML file with settings (timesteps, arenas, seed, checkpoint_every, eval_every,
     /// eval_episodes, algo, [ppo] / [sac] hyperparameters); flags override it.
@@ -106,11 +106,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
     let out = out.unwrap_or_else(|| twinbots::run::default_run_dir(&robot));
     train(settings, &out, view)
-}
-
-/// `--algo`'s value: a name of the algorithm table, or an error listing them.
-pub fn parse_algo(name: &str) -> Result<String, String> {
-    twinbots_learn::algos::find(name).map(|a| a.name.to_string()).map_err(|e| e.to_string())
 }
 
 /// Pattern 3: starts `twinbots serve` as its own process and runs the robots here; `resume`:

@@ -1,6 +1,7 @@
 //! A model that learns (Stable-Baselines3's `BaseAlgorithm`): an [`Agent`] with `learn`. Every
 //! algorithm of [`crate::algos::ALGOS`] is one, so training, resuming and the CLI handle any of
-//! them the same way.
+//! them the same way; one that can be served also learns from robots' steps as a RobotServer
+//! receives them ([`ServedLearner`]).
 
 use std::path::Path;
 
@@ -11,8 +12,7 @@ use twinbots_api::{GoalSpec, TaskSpec, VecEnv};
 use crate::agent::Agent;
 use crate::callbacks::Callback;
 use crate::model_io::ModelError;
-use crate::served::ServedLearner;
-use crate::stats::{TrainingEnd, TrainingTimes};
+use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats};
 
 pub trait Learner: Agent + Send {
     /// Trains on `env` for `total_timesteps` more steps (summed over envs) or until a callback
@@ -34,6 +34,59 @@ pub trait Learner: Agent + Send {
         let _ = (robots, total_timesteps);
         anyhow::bail!("{} cannot learn from a RobotServer", self.algorithm())
     }
+}
+
+/// The outcome of a robot's last action, as its `step` message reports it.
+#[derive(Clone, Copy, Debug)]
+pub struct RobotStep<'a> {
+    /// The observation after the action (the episode's last when it ended).
+    pub obs: &'a [f32],
+    pub reward: f32,
+    pub terminated: bool,
+    pub truncated: bool,
+    /// Whether the episode reached its goal (on its last step).
+    pub success: Option<bool>,
+    /// The termination term that ended it (with `terminated`): what a goal's reward is
+    /// recomputed with when HER relabels the step.
+    pub ended_by: Option<&'a str>,
+}
+
+impl RobotStep<'_> {
+    pub fn ended(&self) -> bool {
+        self.terminated || self.truncated
+    }
+}
+
+/// A model learning from robots' steps as they arrive (design pattern 3's RobotServer): every
+/// robot runs its own episodes at its own pace, one message at a time, and the learner keeps
+/// each robot's running episode apart until it can learn from it. An algorithm that can be served says so in
+/// its line of `ALGOS` (`serves`) and turns its model into one with `Learner::serve`: PPO
+/// (`ppo/served.rs`), SAC and TD3 (`off_policy/served.rs`). The server calls these with the
+/// learner's lock held: a robot's request is answered once any learning it made due is done,
+/// so every action comes from a known policy.
+pub trait ServedLearner: Send {
+    /// The model, for the callbacks.
+    fn agent(&self) -> &dyn Agent;
+    /// A robot connected; its id is the server's for that connection.
+    fn join(&mut self, robot: u64);
+    /// The robot's running episode is dropped unlearnt (an abort, a new start, the robot
+    /// left): a part of an episode is never mixed into training. Its finished episodes stay.
+    fn drop_episode(&mut self, robot: u64);
+    /// The robot left (its running episode is dropped first).
+    fn leave(&mut self, robot: u64);
+    /// Whether the robot has an action waiting for its outcome; `None`: no such robot.
+    fn awaits_outcome(&self, robot: u64) -> Option<bool>;
+    /// The action for the robot's fresh observation (an episode's first, or the one after a
+    /// step), which then waits for its outcome.
+    fn act(&mut self, robot: u64, obs: &[f32]) -> anyhow::Result<Vec<f32>>;
+    /// The outcome of the robot's waiting action (see [`Self::awaits_outcome`]).
+    fn record(&mut self, robot: u64, step: &RobotStep) -> anyhow::Result<()>;
+    /// Learns if enough has arrived; the row for the callbacks when one is due.
+    fn learn_if_due(&mut self) -> anyhow::Result<Option<UpdateStats>>;
+    /// Robots connected, and their transitions not yet learnt from.
+    fn load(&self) -> (usize, usize);
+    /// The model, once serving is over.
+    fn into_learner(self: Box<Self>) -> Box<dyn Learner>;
 }
 
 /// One algorithm as the rest of twinbots knows it: a line of [`crate::algos::ALGOS`], the one

@@ -13,9 +13,8 @@ use twinbots_api::{EpisodeSummary, Space};
 
 use super::OffPolicy;
 use crate::agent::Agent;
-use crate::learner::Learner;
+use crate::learner::{Learner, RobotStep, ServedLearner};
 use crate::replay_buffer::ReplayBuffer;
-use crate::served::{RobotStep, ServedLearner, crossed};
 use crate::stats::{UpdateStats, figures};
 
 /// One step of a robot's running episode.
@@ -224,4 +223,11 @@ impl<M: OffPolicy + Send> ServedLearner for ServedOffPolicy<M> {
     fn into_learner(self: Box<Self>) -> Box<dyn Learner> {
         Box::new(self.model)
     }
+}
+
+/// Rows of `n` per `every` crossed by a count going from `before` to `after` (a batch of
+/// transitions may cross several at once).
+fn crossed(before: u64, after: u64, every: u64) -> u64 {
+    let every = every.max(1);
+    after / every - before / every
 }

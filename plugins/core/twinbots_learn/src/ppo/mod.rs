@@ -325,7 +325,7 @@ impl crate::learner::Learner for Ppo {
     fn times(&self) -> TrainingTimes {
         self.times
     }
-    fn serve(self: Box<Self>, robots: usize, total_timesteps: u64) -> anyhow::Result<Box<dyn crate::served::ServedLearner>> {
+    fn serve(self: Box<Self>, robots: usize, total_timesteps: u64) -> anyhow::Result<Box<dyn crate::learner::ServedLearner>> {
         Ok(Box::new(served::ServedPpo::new(*self, robots, total_timesteps)))
     }
 }

@@ -12,8 +12,7 @@ use twinbots_api::EpisodeSummary;
 
 use super::{PolicyStep, Ppo, RolloutBuffer};
 use crate::agent::Agent;
-use crate::learner::Learner;
-use crate::served::{RobotStep, ServedLearner};
+use crate::learner::{Learner, RobotStep, ServedLearner};
 use crate::stats::UpdateStats;
 
 /// One robot's experience since the last update.

@@ -26,13 +26,12 @@ pub use config::SacConfig;
 pub use networks::{Actor, ReluMlp, TwinCritic, polyak_update};
 
 use crate::agent::{Agent, LoadAgent};
-use crate::learner::{Algorithm, Learner, config_from};
+use crate::learner::{Algorithm, Learner, ServedLearner, config_from};
 use crate::nn::Encoder;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use crate::callbacks::Callback;
 use crate::off_policy::served::ServedOffPolicy;
 use crate::off_policy::{OffPolicy, Parts, Schedule};
-use crate::served::ServedLearner;
 use crate::history::EpisodeHistory;
 use crate::stats::TrainingEnd;
 use twinbots_api::env::VecEnv;
