@@ -84,3 +84,33 @@ pub(crate) trait OffPolicy: Learner + 'static {
     /// become the model's last losses; returns them as the row logs them.
     fn end_row(&mut self, figures: Vec<f32>) -> anyhow::Result<Vec<f32>>;
 }
+
+/// [`OffPolicy::schedule`] and [`OffPolicy::parts`] of a learner whose fields and config keys
+/// are named as SAC's and TD3's are.
+macro_rules! schedule_and_parts {
+    () => {
+        fn schedule(&self) -> $crate::off_policy::Schedule {
+            let c = &self.config;
+            $crate::off_policy::Schedule {
+                learning_starts: c.learning_starts,
+                train_freq: c.train_freq,
+                gradient_steps: c.gradient_steps,
+                log_interval: c.log_interval,
+                buffer_size: c.buffer_size,
+                learning_rate: c.learning_rate,
+            }
+        }
+        fn parts(&mut self) -> $crate::off_policy::Parts<'_> {
+            $crate::off_policy::Parts {
+                timesteps: &mut self.timesteps,
+                episodes: &mut self.episodes,
+                updates: &mut self.updates,
+                history: &mut self.history,
+                buffer: &mut self.buffer,
+                obs_rms: &mut self.obs_rms,
+                times: &mut self.times,
+            }
+        }
+    };
+}
+pub(crate) use schedule_and_parts;

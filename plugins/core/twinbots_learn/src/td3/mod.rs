@@ -22,7 +22,7 @@ pub use config::Td3Config;
 use crate::agent::{Agent, LoadAgent};
 use crate::callbacks::Callback;
 use crate::off_policy::served::ServedOffPolicy;
-use crate::off_policy::{OffPolicy, Parts, Schedule};
+use crate::off_policy::OffPolicy;
 use crate::history::EpisodeHistory;
 use crate::learner::{Algorithm, Learner, ServedLearner, config_from};
 use crate::model_io::ModelError;
@@ -405,28 +405,7 @@ impl Learner for Td3 {
 }
 
 impl OffPolicy for Td3 {
-    fn schedule(&self) -> Schedule {
-        let c = &self.config;
-        Schedule {
-            learning_starts: c.learning_starts,
-            train_freq: c.train_freq,
-            gradient_steps: c.gradient_steps,
-            log_interval: c.log_interval,
-            buffer_size: c.buffer_size,
-            learning_rate: c.learning_rate,
-        }
-    }
-    fn parts(&mut self) -> Parts<'_> {
-        Parts {
-            timesteps: &mut self.timesteps,
-            episodes: &mut self.episodes,
-            updates: &mut self.updates,
-            history: &mut self.history,
-            buffer: &mut self.buffer,
-            obs_rms: &mut self.obs_rms,
-            times: &mut self.times,
-        }
-    }
+    crate::off_policy::schedule_and_parts!();
     fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         Td3::explore(self, obs)
     }
