@@ -143,7 +143,7 @@ fn the_same_seed_gives_the_same_reach_trajectory() {
 }
 
 #[test]
-fn under_pattern_3_the_arm_homes_itself_before_every_episode() {
+fn under_pattern_3_the_arm_drives_itself_to_its_drawn_start_before_every_episode() {
     let id = ur5e::task_spec();
     let model = Box::new(Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), id.observation_space, id.action_space, 0).unwrap());
     let settings = ServerSettings::new("ur5e", &ur5e::task_spec(), 2, 1_000_000);
@@ -158,7 +158,7 @@ fn under_pattern_3_the_arm_homes_itself_before_every_episode() {
     let mut robots = app.world_mut().query::<(bevy::prelude::Entity, &Controller, &ur5e::CellState)>();
     // Per robot: its phase and reading after the previous step.
     let mut previous: BTreeMap<bevy::prelude::Entity, (Phase, Option<ur5e::arm::ArmState>)> = BTreeMap::new();
-    let mut starts = 0;
+    let (mut starts, mut away_from_home) = (0, 0);
     let mut steps = 0;
     while app.world().resource::<RobotRunState>().episodes < 4 {
         app.update();
@@ -167,18 +167,20 @@ fn under_pattern_3_the_arm_homes_itself_before_every_episode() {
         assert!(app.world().resource::<RobotRunState>().stop.is_none(), "{:?}", app.world().resource::<RobotRunState>().stop);
         for (entity, robot, state) in robots.iter(app.world()) {
             // Homed, announced and answered within one step: the reading it started on, the
-            // previous step's, was home.
+            // previous step's, was the start its task drew (near home, as under pattern 1).
             let was = previous.insert(entity, (robot.phase(), state.read.then(|| state.arm.clone())));
             if let Some((Phase::Homing, reading)) = was
                 && robot.phase() == Phase::Running
             {
                 starts += 1;
                 let arm = reading.expect("a robot starts only once it has read its encoders");
-                assert!(arm.is_home(), "an episode started away from home: {:?} at {:?}", arm.q, arm.qd);
+                assert!(arm.is_at(&state.start_pose), "an episode started away from its drawn start {:?}: {:?} at {:?}", state.start_pose, arm.q, arm.qd);
+                away_from_home += usize::from(!arm.is_home());
             }
         }
     }
     assert!(starts >= 4, "{starts} episodes started");
+    assert!(away_from_home > 0, "every episode started at home: the drawn starts were not driven to");
 }
 
 fn twinbots() -> std::process::Command {

@@ -1,5 +1,7 @@
 //! A design-pattern-3 robot's side of the episode protocol, shared by every robot plugin: it
-//! homes (with its own motors, nothing said to the server), starts an episode once home,
+//! draws its next episode's start (the task's start events) and homes (with its own motors,
+//! nothing said to the server; a robot that can drives to the drawn start, as the Supervisor
+//! places one under patterns 1 and 2), starts an episode once home,
 //! reports each step's outcome and applies the action it gets back, and after an episode's
 //! last step goes home again. A lost server is reconnected with backoff and the episode
 //! begins afresh from home.
@@ -12,8 +14,9 @@
 //! [`ServerRobotPlugin`] runs that cycle for any robot whose task is defined by terms: the same
 //! [`Terms`] as under patterns 1 and 2 turn the controller's state into what is sent. The robot
 //! plugin brings only what is its own: a reader of its devices (in `TaskSet::Read`), a homing
-//! routine (in [`RobotCycleSet::Home`], setting [`AtHome`]), and, where a cell needs one, an
-//! operator who puts the drawn start in place (in [`RobotCycleSet::Operate`]).
+//! routine (in [`RobotCycleSet::Home`], setting [`AtHome`]; it may drive to the drawn start),
+//! and, where a cell needs one, an operator who puts the drawn start in place (in
+//! [`RobotCycleSet::Operate`]).
 
 use std::net::SocketAddr;
 use std::time::Duration;
@@ -179,6 +182,8 @@ pub struct Controller {
     pub rng: ChaCha8Rng,
     /// This control step's outcome was evaluated by the task's terms (to be tallied).
     evaluated: bool,
+    /// The next episode's start is drawn (the task's start events ran since the last began).
+    start_drawn: bool,
 }
 
 impl Controller {
@@ -194,9 +199,13 @@ pub struct AtHome(pub bool);
 /// Order of a pattern-3 robot's episode cycle inside `SimSet::Actuate`.
 #[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
 pub enum RobotCycleSet {
-    /// The robot drives itself home and says when it is there ([`AtHome`]).
+    /// A robot that begins homing draws its next episode's start: the task's start events
+    /// (generic), run when the episode before ended, as under patterns 1 and 2.
+    Draw,
+    /// The robot drives itself home, or to the drawn start where it can (the UR5e's arm), and
+    /// says when it is there ([`AtHome`]).
     Home,
-    /// A robot at home begins an episode: the task's start events draw its start (generic).
+    /// A robot at home begins an episode (generic).
     Start,
     /// The lab operator puts the drawn start in place (re-seats a part, lets go of a pole).
     Operate,
@@ -231,10 +240,10 @@ impl<S: Component<Mutability = Mutable>> Plugin for ServerRobotPlugin<S> {
             .insert_resource(RobotKind(self.robot.clone()))
             .configure_sets(
                 Update,
-                (RobotCycleSet::Home, RobotCycleSet::Start, RobotCycleSet::Operate).chain().in_set(SimSet::Actuate),
+                (RobotCycleSet::Draw, RobotCycleSet::Home, RobotCycleSet::Start, RobotCycleSet::Operate).chain().in_set(SimSet::Actuate),
             )
             .add_systems(PostStartup, connect_robots)
-            .add_systems(Update, begin_episodes::<S>.in_set(RobotCycleSet::Start))
+            .add_systems(Update, (draw_starts::<S>.in_set(RobotCycleSet::Draw), begin_episodes.in_set(RobotCycleSet::Start)))
             .add_systems(Update, exchange::<S>.in_set(TaskSet::Evaluate))
             .add_systems(Update, tally_steps.in_set(TaskSet::Tally));
     }
@@ -271,17 +280,30 @@ fn connect_robots(world: &mut World) {
             }
         };
         let Some(conversation) = conversation else { return };
-        world.entity_mut(entity).insert((Controller { conversation, rng, evaluated: false }, AtHome(false)));
+        world.entity_mut(entity).insert((Controller { conversation, rng, evaluated: false, start_drawn: false }, AtHome(false)));
     }
 }
 
-/// A robot that is home begins an episode: its start is drawn by the task's start events.
-fn begin_episodes<S: Component<Mutability = Mutable>>(terms: Res<Terms<S>>, mut robots: Query<(&mut Controller, &mut AtHome, &mut S)>) {
-    for (mut controller, mut home, mut state) in &mut robots {
+/// A robot that begins homing draws its next episode's start with the task's start events
+/// (once per episode), so that its homing can drive to it: what they draw from (a UR5e's
+/// reach chains from where the last one arrived) is the state the last episode ended in, as
+/// when the Supervisor resets an arena.
+fn draw_starts<S: Component<Mutability = Mutable>>(terms: Res<Terms<S>>, mut robots: Query<(&mut Controller, &mut S)>) {
+    for (mut controller, mut state) in &mut robots {
+        if controller.conversation.phase == Phase::Homing && !controller.start_drawn {
+            controller.start_drawn = true;
+            terms.0.start(&mut state, &mut controller.rng);
+        }
+    }
+}
+
+/// A robot that is home (or at its drawn start) begins an episode.
+fn begin_episodes(mut robots: Query<(&mut Controller, &mut AtHome)>) {
+    for (mut controller, mut home) in &mut robots {
         if controller.conversation.phase == Phase::Homing && home.0 {
             home.0 = false;
+            controller.start_drawn = false;
             controller.conversation.phase = Phase::Starting;
-            terms.0.start(&mut state, &mut controller.rng);
         }
     }
 }

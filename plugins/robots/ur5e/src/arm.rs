@@ -90,7 +90,12 @@ impl ArmState {
 
     /// Whether the arm is home and still.
     pub fn is_home(&self) -> bool {
-        self.q.iter().zip(HOME).all(|(q, h)| (q - h).abs() < HOME_TOLERANCE) && self.qd.iter().all(|v| v.abs() < HOME_SPEED)
+        self.is_at(&HOME)
+    }
+
+    /// Whether the arm is at the joint angles `pose` (within homing's tolerance) and still.
+    pub fn is_at(&self, pose: &[f32; 6]) -> bool {
+        self.q.iter().zip(pose).all(|(q, p)| (q - p).abs() < HOME_TOLERANCE) && self.qd.iter().all(|v| v.abs() < HOME_SPEED)
     }
 
     /// Whether any joint is at one of its stops (±2π, the elbow ±π).
@@ -144,5 +149,10 @@ const HOMING_GAIN: f32 = 10.0;
 
 /// Joint speeds that take the arm from `q` home: the controller's homing move.
 pub fn homing_speeds(q: &[f32; 6]) -> [f32; 6] {
-    std::array::from_fn(|i| (HOMING_GAIN * (HOME[i] - q[i])).clamp(-HOMING_SPEED, HOMING_SPEED))
+    speeds_towards(q, &HOME)
+}
+
+/// Joint speeds that take the arm from `q` to the joint angles `pose` with homing's move.
+pub fn speeds_towards(q: &[f32; 6], pose: &[f32; 6]) -> [f32; 6] {
+    std::array::from_fn(|i| (HOMING_GAIN * (pose[i] - q[i])).clamp(-HOMING_SPEED, HOMING_SPEED))
 }

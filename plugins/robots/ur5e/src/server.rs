@@ -27,8 +27,10 @@ pub(crate) fn build(app: &mut App) {
         .add_systems(Update, (home.in_set(RobotCycleSet::Home), (operate, reset_meter).in_set(RobotCycleSet::Operate)));
 }
 
-/// Homing with the arm's own motors: back to home at [`arm::HOMING_SPEED`]; once there and
-/// still, the robot is home and the next step starts an episode. An arm in a protective stop
+/// Homing with the arm's own motors, to the episode's drawn start pose (near home, or where
+/// the last reach arrived: the reach's start event, as the Supervisor places the arm under
+/// patterns 1 and 2) at up to [`arm::HOMING_SPEED`]; once there and still, the robot is
+/// "home" and the next step starts an episode. An arm in a protective stop
 /// first brakes to rest; then the stop is unlocked (as an operator or the cell's PLC does
 /// through UR's dashboard) and it homes.
 fn home(mut robots: Query<(&CellParts, &mut CellState, &Controller, &mut AtHome)>, mut motors: Query<&mut Motor>) {
@@ -42,11 +44,11 @@ fn home(mut robots: Query<(&CellParts, &mut CellState, &Controller, &mut AtHome)
             }
             state.safety.unlock();
         }
-        at_home.0 = state.arm.is_home();
+        at_home.0 = state.arm.is_at(&state.start_pose);
         if at_home.0 {
             arm::drive(parts, [0.0; 6], &mut motors);
         } else {
-            arm::drive(parts, arm::homing_speeds(&state.arm.q), &mut motors);
+            arm::drive(parts, arm::speeds_towards(&state.arm.q, &state.start_pose), &mut motors);
         }
     }
 }
