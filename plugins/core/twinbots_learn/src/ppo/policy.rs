@@ -79,7 +79,7 @@ impl ActorCritic {
         let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
         // The CNN draws its weights from a stream of its own, so an MLP policy keeps its old ones.
         let mut encoder_rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed ^ ENCODER_STREAM_SALT);
-        let encoder = Encoder::new(policy, observation_space, features_dim, "ppo", &mut encoder_rng, &dev)?;
+        let encoder = Encoder::new(policy, observation_space, features_dim, super::NAME, &mut encoder_rng, &dev)?;
         let obs_dim = encoder.dim();
         let (out, head) = match action_space {
             Space::Discrete { n } => (*n, Head::Categorical { n: *n }),
