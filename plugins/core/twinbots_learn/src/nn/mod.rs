@@ -1,16 +1,19 @@
 //! Neural-network pieces the learners share, built on candle where candle's general-purpose
 //! versions cost too much for the small networks of RL policies (measured on a 2-core VM, see
-//! docs/architecture.md): a tanh activation that vectorises, Adam over plain slices, and
+//! docs/architecture.md): a tanh activation that vectorises, a ReLU whose gradient is one
+//! pass, Adam over plain slices, and
 //! convolutions as patches times a matrix for the CNN that reads camera images.
 
 mod adam;
 mod conv;
 mod dense;
 mod encoder;
+mod relu;
 mod tanh;
 
 pub use adam::{Adam, AdamConfig, GradientStep};
 pub use conv::{Conv2d, Patches, unfold};
 pub use dense::Dense;
 pub use encoder::{CNN_MIN_SIZE, Encoder, NatureCnn, PolicyKind, check_normalization};
+pub use relu::relu;
 pub use tanh::{fast_tanh, tanh};

@@ -30,7 +30,7 @@ impl ReluMlp {
         for (i, layer) in self.layers.iter().enumerate() {
             h = layer.forward(&h)?;
             if self.relu_last || i + 1 < self.layers.len() {
-                h = h.relu()?;
+                h = crate::nn::relu(&h)?;
             }
         }
         Ok(h)
