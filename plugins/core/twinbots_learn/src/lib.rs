@@ -29,6 +29,7 @@ pub mod stats;
 pub mod td3;
 pub mod tensorboard;
 pub mod threads;
+pub mod tuning;
 
 pub use twinbots_api as api;
 pub use agent::{Agent, LoadAgent};

@@ -3,8 +3,8 @@
 //! One pool does the CPU-parallel work: rayon's global pool, sized to the cores this process
 //! may use. Arenas step side by side on it (`twinbots_sim::physics`), and candle's matrix
 //! products (gemm) split over it when they are large enough to gain: from 256·256·256
-//! multiply-adds on ([`small_products_on_one_thread`]; the MLPs of our policies stay on one
-//! thread, camera policies' convolutions split).
+//! multiply-adds on (`crate::tuning`; the MLPs of our policies stay on one thread, camera
+//! policies' convolutions split).
 //!
 //! Candle sizes gemm's parallelism on every matrix product by reading `RAYON_NUM_THREADS`;
 //! when it is unset, candle counts the physical cores by parsing `/proc/cpuinfo`, again on
@@ -18,14 +18,6 @@
 
 use std::num::NonZeroUsize;
 use std::sync::OnceLock;
-
-/// Matrix products of fewer multiply-adds than this run on one thread (gemm's default:
-/// 48·48·256). Between a learner's many small ops the pool's workers sleep, and a product
-/// split over them first wakes one, ≈ 50 µs on this 2-core VM, while a 256×64×64 product (a
-/// minibatch through a 64-unit layer) takes ≈ 20 µs on one core: at gemm's default, SAC's
-/// gradient steps took 40 % longer and the cart-pole's PPO updates 43 % (measured
-/// 2026-11-27). Products of camera policies' convolutions (10⁸ and more) still split.
-const GEMM_THREADING_THRESHOLD: usize = 256 * 256 * 256;
 
 /// The variable candle and rayon both read for their thread count.
 const THREAD_COUNT_VAR: &str = "RAYON_NUM_THREADS";
@@ -48,7 +40,7 @@ pub fn configure() -> usize {
                 unsafe { std::env::set_var(THREAD_COUNT_VAR, cores.to_string()) };
                 cores
             });
-        small_products_on_one_thread();
+        crate::tuning::for_small_networks();
         // Fails only if the global pool already exists (something used rayon first, e.g. an
         // earlier test in the same process); that pool then keeps its size.
         let _ = rayon::ThreadPoolBuilder::new()
@@ -57,13 +49,4 @@ pub fn configure() -> usize {
             .build_global();
         threads
     })
-}
-
-/// Keeps matrix products below [`GEMM_THREADING_THRESHOLD`] on the calling thread: a setting
-/// of the process (gemm's), made by [`configure`] and by every learner's constructor, so that
-/// a learner made without `configure` (a test, the Python extension) computes as fast. It
-/// changes no result: a product is split by blocks of its output, not of its sums.
-pub fn small_products_on_one_thread() {
-    static DONE: OnceLock<()> = OnceLock::new();
-    DONE.get_or_init(|| gemm::set_threading_threshold(GEMM_THREADING_THRESHOLD));
 }

@@ -109,7 +109,7 @@ impl std::fmt::Debug for Ppo {
 
 impl Ppo {
     pub fn new(config: PpoConfig, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
-        crate::threads::small_products_on_one_thread();
+        crate::tuning::for_small_networks();
         let obs_dim = observation_space.dim();
         let encoder = (config.policy, config.features_dim);
         let policy = ActorCritic::new(&observation_space, &action_space, encoder, &config.hidden, config.log_std_init, seed)?;

@@ -136,7 +136,7 @@ impl std::fmt::Debug for Sac {
 
 impl Sac {
     pub fn new(config: SacConfig, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
-        crate::threads::small_products_on_one_thread();
+        crate::tuning::for_small_networks();
         let Space::Box { low, .. } = &action_space else {
             anyhow::bail!("SAC needs continuous (Box) actions, not {action_space}: use PPO")
         };

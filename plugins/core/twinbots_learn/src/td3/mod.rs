@@ -113,7 +113,7 @@ fn named(mlp: &ReluMlp, prefix: &str) -> Vec<(String, Var)> {
 
 impl Td3 {
     pub fn new(config: Td3Config, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
-        crate::threads::small_products_on_one_thread();
+        crate::tuning::for_small_networks();
         let Space::Box { low, .. } = &action_space else {
             anyhow::bail!("TD3 needs continuous (Box) actions, not {action_space}: use PPO")
         };
