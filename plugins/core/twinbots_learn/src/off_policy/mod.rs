@@ -10,7 +10,7 @@ use crate::history::EpisodeHistory;
 use crate::learner::Learner;
 use crate::normalize::RunningMeanStd;
 use crate::replay_buffer::ReplayBuffer;
-use crate::stats::TrainingTimes;
+use crate::stats::{TrainingTimes, UpdateStats, figures};
 
 /// Actions in [−1, 1] (clipped) → the action box's bounds: `low + (a + 1) · (high − low) / 2`.
 pub fn to_env(space: &Space, unit: &[f32]) -> Vec<f32> {
@@ -83,6 +83,81 @@ pub(crate) trait OffPolicy: Learner + 'static {
     /// A row's figures (each the mean over the row's steps that gave it; NaN if none did)
     /// become the model's last losses; returns them as the row logs them.
     fn end_row(&mut self, figures: Vec<f32>) -> anyhow::Result<Vec<f32>>;
+}
+
+/// One row's gradient steps (a row every `log_interval` iterations, SB3's log interval): each
+/// figure's sum and count over the steps that gave it (TD3's actor loss comes every
+/// `policy_delay` steps only), the steps applied and skipped, the env steps taken, and when
+/// the row began. `learn` and the served form both keep their rows with it.
+pub(crate) struct Row {
+    sums: Vec<f32>,
+    counts: Vec<u32>,
+    applied: usize,
+    skipped: usize,
+    /// Env steps (transitions) in the row, counted by the caller.
+    pub transitions: u64,
+    started: std::time::Instant,
+}
+
+impl Default for Row {
+    fn default() -> Self {
+        Self { sums: Vec::new(), counts: Vec::new(), applied: 0, skipped: 0, transitions: 0, started: std::time::Instant::now() }
+    }
+}
+
+impl Row {
+    /// `n` gradient steps of `model`, timed as its updates.
+    pub fn train<M: OffPolicy>(&mut self, model: &mut M, n: usize) -> anyhow::Result<()> {
+        if n == 0 {
+            return Ok(());
+        }
+        let started = std::time::Instant::now();
+        for _ in 0..n {
+            match model.train_step()? {
+                Some(step) => self.add(&step),
+                None => self.skipped += 1,
+            }
+        }
+        model.parts().times.update_s += started.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    fn add(&mut self, step: &[f32]) {
+        self.sums.resize(step.len(), 0.0);
+        self.counts.resize(step.len(), 0);
+        for (k, v) in step.iter().enumerate().filter(|(_, v)| v.is_finite()) {
+            self.sums[k] += v;
+            self.counts[k] += 1;
+        }
+        self.applied += 1;
+    }
+
+    /// Ends the row: its figures' means become `model`'s last losses, the row is counted in
+    /// `model`'s updates, and its statistics are returned (skipped steps also said on stderr).
+    pub fn finish<M: OffPolicy>(self, model: &mut M) -> anyhow::Result<UpdateStats> {
+        let names = model.train_figures();
+        let means = (0..names.len())
+            .map(|k| match self.counts.get(k) {
+                Some(&c) if c > 0 => self.sums[k] / c as f32,
+                _ => f32::NAN,
+            })
+            .collect();
+        let logged = model.end_row(means)?;
+        let learning_rate = model.schedule().learning_rate;
+        let parts = model.parts();
+        *parts.updates += 1;
+        if self.skipped > 0 {
+            eprintln!("row {}: {} gradient step(s) skipped: a loss or gradient was not finite", *parts.updates, self.skipped);
+        }
+        Ok(UpdateStats {
+            train: figures(names, &logged),
+            learning_rate,
+            steps_per_s: self.transitions as f32 / self.started.elapsed().as_secs_f32(),
+            skipped_steps: self.skipped,
+            applied_steps: self.applied,
+            ..parts.history.row(*parts.updates, *parts.timesteps, *parts.episodes)
+        })
+    }
 }
 
 /// [`OffPolicy::schedule`] and [`OffPolicy::parts`] of a learner whose fields and config keys

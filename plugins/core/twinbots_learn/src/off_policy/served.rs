@@ -7,15 +7,14 @@
 //! several at once takes all their gradient steps then (one row for them).
 
 use std::collections::HashMap;
-use std::time::Instant;
 
 use twinbots_api::{EpisodeSummary, Space};
 
-use super::OffPolicy;
+use super::{OffPolicy, Row};
 use crate::agent::Agent;
 use crate::learner::{Learner, RobotStep, ServedLearner};
 use crate::replay_buffer::ReplayBuffer;
-use crate::stats::{UpdateStats, figures};
+use crate::stats::UpdateStats;
 
 /// One step of a robot's running episode.
 struct Transition {
@@ -36,37 +35,6 @@ struct RunningEpisode {
     score: f32,
 }
 
-/// The gradient steps since the last row: each figure's sum and count over the steps that
-/// gave it.
-#[derive(Default)]
-struct Row {
-    sums: Vec<f32>,
-    counts: Vec<u32>,
-    applied: usize,
-    skipped: usize,
-    transitions: u64,
-}
-
-impl Row {
-    fn add(&mut self, step: &[f32]) {
-        self.sums.resize(step.len(), 0.0);
-        self.counts.resize(step.len(), 0);
-        for (k, v) in step.iter().enumerate().filter(|(_, v)| v.is_finite()) {
-            self.sums[k] += v;
-            self.counts[k] += 1;
-        }
-        self.applied += 1;
-    }
-
-    fn means(&self, n: usize) -> Vec<f32> {
-        (0..n).map(|k| match self.counts.get(k) {
-            Some(&c) if c > 0 => self.sums[k] / c as f32,
-            _ => f32::NAN,
-        })
-        .collect()
-    }
-}
-
 pub(crate) struct ServedOffPolicy<M: OffPolicy> {
     model: M,
     /// Transitions per iteration.
@@ -75,7 +43,6 @@ pub(crate) struct ServedOffPolicy<M: OffPolicy> {
     /// Transitions stored since learning was last looked at.
     unseen: u64,
     row: Row,
-    row_started: Instant,
 }
 
 impl<M: OffPolicy> ServedOffPolicy<M> {
@@ -92,7 +59,7 @@ impl<M: OffPolicy> ServedOffPolicy<M> {
             "this model's replay buffer was filled by {} envs stepped together; a RobotServer continues only a model it trained (or a new one)",
             buffer.n_envs
         );
-        Ok(Self { model, robots: robots.max(1) as u64, episodes: HashMap::new(), unseen: 0, row: Row::default(), row_started: Instant::now() })
+        Ok(Self { model, robots: robots.max(1) as u64, episodes: HashMap::new(), unseen: 0, row: Row::default() })
     }
 
     /// Stores a finished episode's transitions, in order, and counts them.
@@ -183,37 +150,11 @@ impl<M: OffPolicy + Send> ServedLearner for ServedOffPolicy<M> {
         let first_training = schedule.learning_starts.div_ceil(self.robots).max(1);
         let from = iterations(before).max(first_training - 1);
         let trains = if iterations(now) > from { crossed(from, iterations(now), schedule.train_freq as u64) } else { 0 };
-        if trains > 0 {
-            let update_started = Instant::now();
-            for _ in 0..trains as usize * schedule.gradient_steps {
-                match self.model.train_step()? {
-                    Some(step) => self.row.add(&step),
-                    None => self.row.skipped += 1,
-                }
-            }
-            self.model.parts().times.update_s += update_started.elapsed().as_secs_f64();
-        }
+        self.row.train(&mut self.model, trains as usize * schedule.gradient_steps)?;
         if crossed(iterations(before), iterations(now), schedule.log_interval as u64) == 0 {
             return Ok(None);
         }
-        let row = std::mem::take(&mut self.row);
-        let names = self.model.train_figures();
-        let logged = self.model.end_row(row.means(names.len()))?;
-        let parts = self.model.parts();
-        *parts.updates += 1;
-        if row.skipped > 0 {
-            eprintln!("row {}: {} gradient step(s) skipped: a loss or gradient was not finite", *parts.updates, row.skipped);
-        }
-        let stats = UpdateStats {
-            train: figures(names, &logged),
-            learning_rate: schedule.learning_rate,
-            steps_per_s: row.transitions as f32 / self.row_started.elapsed().as_secs_f32(),
-            skipped_steps: row.skipped,
-            applied_steps: row.applied,
-            ..parts.history.row(*parts.updates, *parts.timesteps, *parts.episodes)
-        };
-        self.row_started = Instant::now();
-        Ok(Some(stats))
+        Ok(Some(std::mem::take(&mut self.row).finish(&mut self.model)?))
     }
 
     fn load(&self) -> (usize, usize) {

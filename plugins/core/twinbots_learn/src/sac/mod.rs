@@ -31,7 +31,7 @@ use crate::nn::Encoder;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use crate::callbacks::Callback;
 use crate::off_policy::served::ServedOffPolicy;
-use crate::off_policy::OffPolicy;
+use crate::off_policy::{OffPolicy, Row};
 use crate::history::EpisodeHistory;
 use crate::stats::TrainingEnd;
 use twinbots_api::env::VecEnv;
@@ -280,9 +280,7 @@ impl Sac {
         };
         callback.on_training_start(self)?;
         let mut ended = None;
-        let mut row_started = Instant::now();
-        let mut row = SacLosses::default();
-        let mut skipped = 0;
+        let mut row = Row::default();
         while ended.is_none() && self.timesteps < end {
             // 1. Act: uniform random actions until learning starts, then the actor's samples.
             let inference_started = Instant::now();
@@ -306,55 +304,19 @@ impl Sac {
             self.iterations += 1;
 
             // 3. Learn from the buffer.
+            row.transitions += n_envs as u64;
             if self.timesteps >= self.config.learning_starts && self.iterations % self.config.train_freq as u64 == 0 {
-                let update_started = Instant::now();
-                for _ in 0..self.config.gradient_steps {
-                    match self.gradient_step()? {
-                        Some(losses) => {
-                            row.actor_loss += losses.actor_loss;
-                            row.critic_loss += losses.critic_loss;
-                            row.ent_coef_loss += losses.ent_coef_loss;
-                            row.entropy += losses.entropy;
-                            row.ent_coef = losses.ent_coef;
-                            row.gradient_steps += 1;
-                        }
-                        None => skipped += 1,
-                    }
-                }
-                self.times.update_s += update_started.elapsed().as_secs_f64();
+                row.train(self, self.config.gradient_steps)?;
             }
 
             // 4. A row and the callbacks.
             if self.iterations % self.config.log_interval as u64 == 0 {
                 let callbacks_started = Instant::now();
-                self.updates += 1;
                 self.env_state = env.state()?;
-                let n = row.gradient_steps.max(1) as f32;
-                let nan_if_none = |x: f32| if row.gradient_steps == 0 { f32::NAN } else { x / n };
-                self.last_losses = SacLosses {
-                    actor_loss: nan_if_none(row.actor_loss),
-                    critic_loss: nan_if_none(row.critic_loss),
-                    ent_coef_loss: nan_if_none(row.ent_coef_loss),
-                    entropy: nan_if_none(row.entropy),
-                    ent_coef: self.ent_coef()?,
-                    gradient_steps: self.gradient_steps,
-                };
-                if skipped > 0 {
-                    eprintln!("row {}: {skipped} gradient step(s) skipped: a loss or gradient was not finite", self.updates);
-                }
-                let stats = UpdateStats {
-                    train: crate::stats::figures(TRAIN_FIGURES, &{
-                        let l = &self.last_losses;
-                        [l.actor_loss, l.critic_loss, l.ent_coef, l.ent_coef_loss, l.entropy]
-                    }),
-                    learning_rate: self.config.learning_rate,
-                    steps_per_s: (self.config.log_interval * n_envs) as f32 / row_started.elapsed().as_secs_f32(),
-                    skipped_steps: skipped,
-                    applied_steps: row.gradient_steps as usize,
-                    ..self.history.row(self.updates, self.timesteps, self.episodes)
-                };
+                let stats = std::mem::take(&mut row).finish(self)?;
                 ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);
-                (row, skipped, row_started) = (SacLosses::default(), 0, Instant::now());
+                // The next row's clock starts after the callbacks (an evaluation is not its time).
+                row = Row::default();
                 self.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
             }
         }

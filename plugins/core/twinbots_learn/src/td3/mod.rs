@@ -22,7 +22,7 @@ pub use config::Td3Config;
 use crate::agent::{Agent, LoadAgent};
 use crate::callbacks::Callback;
 use crate::off_policy::served::ServedOffPolicy;
-use crate::off_policy::OffPolicy;
+use crate::off_policy::{OffPolicy, Row};
 use crate::history::EpisodeHistory;
 use crate::learner::{Algorithm, Learner, ServedLearner, config_from};
 use crate::model_io::ModelError;
@@ -271,8 +271,7 @@ impl Td3 {
             }
         };
         callback.on_training_start(self)?;
-        let (mut ended, mut row_started, mut row, mut skipped) = (None, Instant::now(), Td3Losses::default(), 0);
-        let mut actor_updates = 0u64;
+        let (mut ended, mut row) = (None, Row::default());
         while ended.is_none() && self.timesteps < end {
             // 1. Act: uniform random actions until learning starts, then μ(s) + noise.
             let inference_started = Instant::now();
@@ -296,48 +295,19 @@ impl Td3 {
             self.iterations += 1;
 
             // 3. Learn from the buffer.
+            row.transitions += n_envs as u64;
             if self.timesteps >= self.config.learning_starts && self.iterations % self.config.train_freq as u64 == 0 {
-                let update_started = Instant::now();
-                for _ in 0..self.config.gradient_steps {
-                    match self.gradient_step()? {
-                        Some(losses) => {
-                            row.critic_loss += losses.critic_loss;
-                            if losses.actor_loss.is_finite() {
-                                row.actor_loss += losses.actor_loss;
-                                actor_updates += 1;
-                            }
-                            row.gradient_steps += 1;
-                        }
-                        None => skipped += 1,
-                    }
-                }
-                self.times.update_s += update_started.elapsed().as_secs_f64();
+                row.train(self, self.config.gradient_steps)?;
             }
 
             // 4. A row and the callbacks.
             if self.iterations % self.config.log_interval as u64 == 0 {
                 let callbacks_started = Instant::now();
-                self.updates += 1;
                 self.env_state = env.state()?;
-                let mean = |sum: f32, n: u64| if n == 0 { f32::NAN } else { sum / n as f32 };
-                self.last_losses = Td3Losses {
-                    actor_loss: mean(row.actor_loss, actor_updates),
-                    critic_loss: mean(row.critic_loss, row.gradient_steps),
-                    gradient_steps: self.gradient_steps,
-                };
-                if skipped > 0 {
-                    eprintln!("row {}: {skipped} gradient step(s) skipped: a loss or gradient was not finite", self.updates);
-                }
-                let stats = UpdateStats {
-                    train: crate::stats::figures(TRAIN_FIGURES, &[self.last_losses.actor_loss, self.last_losses.critic_loss]),
-                    learning_rate: self.config.learning_rate,
-                    steps_per_s: (self.config.log_interval * n_envs) as f32 / row_started.elapsed().as_secs_f32(),
-                    skipped_steps: skipped,
-                    applied_steps: row.gradient_steps as usize,
-                    ..self.history.row(self.updates, self.timesteps, self.episodes)
-                };
+                let stats = std::mem::take(&mut row).finish(self)?;
                 ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);
-                (row, skipped, row_started, actor_updates) = (Td3Losses::default(), 0, Instant::now(), 0);
+                // The next row's clock starts after the callbacks (an evaluation is not its time).
+                row = Row::default();
                 self.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
             }
         }
