@@ -12,7 +12,7 @@ use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
 use twinbots_api::*;
 use twinbots_learn::*;
 use twinbots_task::*;
-use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, RobotRunState, ServerAddress, ServerRobotPlugin};
+use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerAddress, ServerRobotPlugin};
 use twinbots_server::server::{RobotServer, ServerSettings};
 use twinbots_sim::urdf::parse_urdf;
 use twinbots_sim::{
@@ -199,14 +199,7 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     app.cleanup();
     app.update();
     assert!(!app.world().contains_resource::<twinbots_sim::SupervisorAccess>(), "pattern 3 has no Supervisor");
-    for _ in 0..20_000 {
-        app.update();
-        if app.world().resource::<RobotRunState>().stop.is_some() {
-            break;
-        }
-    }
-    let run = app.world().resource::<RobotRunState>().clone();
-    assert!(matches!(&run.stop, Some(Ok(_))), "{:?}", run.stop);
+    let run = crate::server::run_robots_until_done(&mut app, 20_000);
     assert!(run.episodes > 0);
     let (served, _) = server.wait().unwrap();
     let updates = updates.load(std::sync::atomic::Ordering::Relaxed);

@@ -138,7 +138,7 @@ fn every_algorithm_the_table_says_serves_can_be_served() {
 #[test]
 fn sac_with_her_served_to_ur5e_robots_stores_whole_episodes_with_their_ending_terms() {
     use twinbots_api::DesignPattern;
-    use twinbots_link::robot::{RobotRunState, ServerAddress};
+    use twinbots_link::robot::ServerAddress;
     let spec = ur5e::task_spec();
     let config = SacConfig { learning_starts: 400, ..ur5e::robot().defaults.of("sac").config().unwrap() };
     assert!(config.her_goals > 0);
@@ -149,14 +149,7 @@ fn sac_with_her_served_to_ur5e_robots_stores_whole_episodes_with_their_ending_te
     app.insert_resource(ServerAddress { addr: server.addr, patience: std::time::Duration::from_secs(10) });
     app.finish();
     app.cleanup();
-    for _ in 0..5_000 {
-        app.update();
-        if app.world().resource::<RobotRunState>().stop.is_some() {
-            break;
-        }
-    }
-    let run = app.world().resource::<RobotRunState>().clone();
-    assert!(matches!(&run.stop, Some(Ok(_))), "{:?}", run.stop);
+    crate::server::run_robots_until_done(&mut app, 5_000);
     let (model, _) = server.wait().unwrap();
     let dir = crate::model::temp_dir("served-sac");
     model.save(&dir).unwrap();

@@ -27,6 +27,21 @@ pub fn server_with(timesteps: u64, rollout: usize, limits: ServerLimits, callbac
     RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, callbacks).unwrap()
 }
 
+/// Steps a pattern-3 app (its robots against a server) until its robots stop, at most
+/// `max_updates` times, and asserts they stopped because the server said training is done.
+pub fn run_robots_until_done(app: &mut bevy::prelude::App, max_updates: usize) -> twinbots_link::robot::RobotRunState {
+    use twinbots_link::robot::RobotRunState;
+    for _ in 0..max_updates {
+        app.update();
+        if app.world().resource::<RobotRunState>().stop.is_some() {
+            break;
+        }
+    }
+    let run = app.world().resource::<RobotRunState>().clone();
+    assert!(matches!(&run.stop, Some(Ok(_))), "{:?}", run.stop);
+    run
+}
+
 /// A hand-driven robot connection (a test client that can misbehave).
 pub struct Robot {
     pub reader: BufReader<TcpStream>,
