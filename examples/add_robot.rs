@@ -112,7 +112,7 @@ fn swing_arm() -> RobotDescription {
     RobotDescription {
         name: "swing_arm",
         description: "a torque-driven pendulum arm (swing-up)",
-        tasks: vec![TaskDescription { name: "swing-up", description: "swing up and balance", spec: || swing_up().spec(), server: false }],
+        tasks: vec![TaskDescription { name: "swing-up", description: "swing up and balance", spec: || swing_up().spec(), server: false, training: None }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),
         defaults: TrainingDefaults {

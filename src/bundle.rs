@@ -92,6 +92,11 @@ pub struct Bundle {
 /// What a robot's deployment needs: the UR5e's (the only robot with a controller link so far).
 pub fn manifest_for(robot: &str, metadata: &twinbots_onnx::PolicyMetadata, calibration: Option<String>, cell: Option<String>) -> anyhow::Result<Manifest> {
     anyhow::ensure!(robot == "ur5e", "robot '{robot}' has no deployment (joint order, signs and limits on a real controller): only ur5e does; `export --onnx` writes its policy alone");
+    anyhow::ensure!(
+        metadata.task == "reach",
+        "task '{}' has no deployment yet: the UR5e's controller program drives the reach's joint speeds (a learned pick-and-place moves the tool and the suction); `export --onnx` writes its policy alone",
+        metadata.task
+    );
     use ur5e::kinematics::{JOINT_RANGES, MAX_JOINT_SPEED};
     let shadow = ur5e::deploy::Shadow::default();
     let joints = ur5e::deploy::ROBOT_JOINTS

@@ -46,7 +46,7 @@ pub fn finish(
     run.save_model(model)?;
     let seed = settings.final_eval_seed();
     let mut env = evaluation_env(entry, None, settings.arenas, settings.eval_episodes, seed, settings, &settings.calibration_parameters())?;
-    let evaluation = evaluate_policy(entry.main_task().name, model, &mut env, settings.eval_episodes, seed)?;
+    let evaluation = evaluate_policy(settings.task_name(entry)?, model, &mut env, settings.eval_episodes, seed)?;
     run.write_json(EVAL, &evaluation)?;
     let mut summary = Summary::new(&settings.robot, settings.pattern, model, end, wall_s, Some(&evaluation));
     summary.time_breakdown = time;
@@ -74,7 +74,7 @@ pub fn callbacks(settings: &TrainSettings, run: &RunDir, entry: &RobotEntry, tit
         let make_env = move |seed: u64| -> anyhow::Result<Box<dyn VecEnv>> {
             Ok(Box::new(evaluation_env(&robot, None, arenas, episodes, seed, &run_settings, &calibration)?))
         };
-        let mut evaluation = EvalCallback::new(entry.main_task().name, make_env, settings.eval_every, episodes, settings.periodic_eval_seed())
+        let mut evaluation = EvalCallback::new(settings.task_name(entry)?, make_env, settings.eval_every, episodes, settings.periodic_eval_seed())
             .log_to(run.clone())
             .events_to(events);
         if let Some(criterion) = solved {
@@ -87,8 +87,8 @@ pub fn callbacks(settings: &TrainSettings, run: &RunDir, entry: &RobotEntry, tit
     Ok(callbacks)
 }
 
-/// A fresh app of `arenas` arenas (no more than `episodes`) of the robot's `task` (`None`: its
-/// own) to evaluate a run's model on: under the run's pattern (in this process), observing as
+/// A fresh app of `arenas` arenas (no more than `episodes`) of the robot's `task` (`None`: the
+/// run's own) to evaluate a run's model on: under the run's pattern (in this process), observing as
 /// the run does, its twin calibrated with `calibration`.
 pub fn evaluation_env(
     entry: &RobotEntry,
@@ -112,7 +112,7 @@ pub fn evaluation_app(
     settings: &TrainSettings,
     calibration: &twinbots_sim::Parameters,
 ) -> anyhow::Result<bevy::app::App> {
-    let mut app = entry.app(task, arenas, seed, settings.in_process_pattern()?)?;
+    let mut app = entry.app(task.or(settings.task.as_deref()), arenas, seed, settings.in_process_pattern()?)?;
     twinbots_task::calibration::calibrate(&mut app, calibration);
     settings.observe(&mut app, entry, arenas)?;
     Ok(app)

@@ -149,7 +149,8 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
     let entry = registry::find(&args.robot)?;
     let view = camera(&entry, &args.camera)?;
     let model = args.model.as_deref().map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
-    let mut app = entry.app(args.task.as_deref(), 1, args.seed, DesignPattern::Supervised)?;
+    let task = TrainSettings::task_for(args.task.as_deref(), args.model.as_deref())?;
+    let mut app = entry.app(task.as_deref(), 1, args.seed, DesignPattern::Supervised)?;
     let twin = twinbots::twin::Twin::of_files(&entry, args.calibration.as_deref(), args.log.as_deref())?;
     CalibrationSetting::check_randomization(twin.calibration.as_ref(), &args.randomization)?;
     twin.configure(&mut app, &entry)?;

@@ -64,7 +64,8 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let settings = TrainSettings::of_run(&run_dir)?;
     let entry = registry::find(&settings.robot)?;
     let model = twinbots_learn::algos::load_run(&run_dir)?;
-    let name = task.unwrap_or(entry.main_task().name);
+    let own = settings.task_name(&entry)?;
+    let name = task.unwrap_or(own);
     let seed = settings.final_eval_seed();
     let arenas = arenas.unwrap_or(settings.arenas);
     let other_twin = calibration.map(|p| p.file_stem().unwrap_or_default().to_string_lossy().to_string());
@@ -73,7 +74,7 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, &settings, &params)?;
     let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
     println!("{}: {}", settings.robot, result.describe());
-    let file = match (name == entry.main_task().name, other_twin) {
+    let file = match (name == own, other_twin) {
         // On another twin than the run's: beside the run's own evaluation, not over it.
         (_, Some(twin)) => format!("eval-{name}-on-{twin}.json"),
         (true, None) => twinbots_learn::run_dir::EVAL.to_string(),
@@ -105,7 +106,7 @@ fn one_episode(
     let model = twinbots_learn::algos::load_run(&run_dir)?;
     let seed = settings.final_eval_seed();
     let twin = Twin { calibration: evaluated_calibration(&entry, &settings, calibration)?, log: log.map(Path::to_path_buf) };
-    let mut app = entry.app(task, 1, seed, settings.in_process_pattern()?)?;
+    let mut app = entry.app(task.or(settings.task.as_deref()), 1, seed, settings.in_process_pattern()?)?;
     twin.configure(&mut app, &entry)?;
     settings.observe(&mut app, &entry, 1)?;
     let mut env = AppVecEnv::new(app);

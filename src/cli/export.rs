@@ -100,14 +100,14 @@ fn describe(settings: &TrainSettings, model: &dyn twinbots_learn::Agent) -> anyh
     let policy = model.policy_net()?;
     // The robot's own timing, as an app of it declares it; the task as the run observed it
     // (a camera image with `[pixels]`).
-    let app = entry.app(None, 1, settings.seed, settings.in_process_pattern()?)?;
+    let app = entry.app(settings.task.as_deref(), 1, settings.seed, settings.in_process_pattern()?)?;
     let control_period_s = app.world().resource::<SimSettings>().control_dt();
-    let spec = &settings.task(&entry);
+    let spec = &settings.task(&entry)?;
     model.check_spaces(&spec.observation_space, &spec.action_space)?;
     let metadata = PolicyMetadata {
         twinbots_version: env!("CARGO_PKG_VERSION").into(),
         robot: settings.robot.clone(),
-        task: entry.main_task().name.into(),
+        task: settings.task_name(&entry)?.into(),
         design_pattern: settings.pattern,
         observation_space: spec.observation_space.clone(),
         observation_names: spec.observation_names.clone(),

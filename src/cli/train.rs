@@ -30,6 +30,11 @@ pub struct Args {
     /// Robot to train (see `twinbots robots`); not needed with --resume.
     #[arg(required_unless_present = "resume")]
     pub robot: Option<String>,
+    /// The task to learn (`twinbots robots` lists a robot's tasks); default: the robot's main
+    /// task. A task with its own spaces trains with its own defaults (the UR5e's
+    /// `pick-place-learned`: SAC + HER).
+    #[arg(long)]
+    pub task: Option<String>,
     /// Env steps (summed over arenas); default: the robot's budget.
     #[arg(long)]
     pub timesteps: Option<u64>,
@@ -69,7 +74,7 @@ pub struct Args {
     /// Continue the run in this directory from its newest checkpoint. With --timesteps N:
     /// train N steps more than its model has (a run that ended continues from its final model;
     /// SB3's `learn(N, reset_num_timesteps=False)`).
-    #[arg(long, conflicts_with_all = ["robot", "arenas", "seed", "pattern", "config", "out", "algo", "calibration", "cell"])]
+    #[arg(long, conflicts_with_all = ["robot", "task", "arenas", "seed", "pattern", "config", "out", "algo", "calibration", "cell"])]
     pub resume: Option<std::path::PathBuf>,
     /// Print the settings the run would use (the robot's defaults ← the config file ← the
     /// flags, key by key) as TOML, and exit without training.
@@ -79,7 +84,7 @@ pub struct Args {
 
 /// `twinbots train`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, calibration, cell, resume, print_config } = args;
+    let Args { robot, task, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, calibration, cell, resume, print_config } = args;
     if let Some(run) = resume {
         if print_config {
             print!("{}", toml::to_string_pretty(&TrainSettings::of_run(&RunDir::new(run))?)?);
@@ -98,7 +103,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     };
     let calibration = calibration.map(|path| CalibrationSetting::read(&entry, &path)).transpose()?;
     let cell = cell.map(|path| twinbots::settings::read_cell(&entry, &path)).transpose()?;
-    let flags = ConfigFile { timesteps, arenas, seed, pattern, checkpoint_every, algo, calibration, cell, ..Default::default() };
+    let flags = ConfigFile { task, timesteps, arenas, seed, pattern, checkpoint_every, algo, calibration, cell, ..Default::default() };
     let settings = TrainSettings::resolve(&entry, file, flags)?;
     if print_config {
         print!("{}", toml::to_string_pretty(&settings)?);
@@ -160,12 +165,12 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
 pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let pattern = settings.design_pattern()?;
-    entry.check_supports(None, pattern)?;
+    entry.check_supports(settings.task.as_deref(), pattern)?;
     if pattern == DesignPattern::Server {
         return train_through_server(settings, out, false);
     }
     anyhow::ensure!(settings.arenas > 0, "arenas must be at least 1");
-    let learner = learner::new(&settings, &settings.task(&entry))?;
+    let learner = learner::new(&settings, &settings.task(&entry)?)?;
     let run_dir = twinbots::run::create(&settings, out)?;
     run(settings, run_dir, learner, false, view)
 }
@@ -177,7 +182,7 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
     if settings.design_pattern()? == DesignPattern::Server {
         return train_through_server(settings, run_dir.path(), true);
     }
-    let spec = settings.task(&registry::find(&settings.robot)?);
+    let spec = settings.task(&registry::find(&settings.robot)?)?;
     let (checkpoint, model) = learner::resume(&run_dir, &settings, &spec)?;
     run_dir.check_progress_columns(model.train_figures())?;
     println!(
@@ -200,7 +205,7 @@ pub fn extend(run_dir: &Path, more: u64, view: bool) -> anyhow::Result<()> {
         "{}: more training of a pattern-3 run is not supported yet; `train --resume` without --timesteps finishes one",
         run_dir.path().display()
     );
-    let spec = settings.task(&registry::find(&settings.robot)?);
+    let spec = settings.task(&registry::find(&settings.robot)?)?;
     let (source, model) = learner::trained(&run_dir, &settings, &spec)?;
     run_dir.check_progress_columns(model.train_figures())?;
     settings.timesteps = model.timesteps() + more;
@@ -221,7 +226,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, mut learner: Box<dyn Learner>, 
         pattern != DesignPattern::Server,
         "design pattern 3 has no in-process env: use `twinbots serve` and `twinbots robot`"
     );
-    let mut app = entry.app(None, settings.arenas, settings.seed, pattern)?;
+    let mut app = entry.app(settings.task.as_deref(), settings.arenas, settings.seed, pattern)?;
     settings.calibrate(&mut app);
     settings.observe(&mut app, &entry, settings.arenas)?;
     app.add_plugins(bridge::BridgePlugin);

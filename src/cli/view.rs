@@ -85,7 +85,8 @@ impl ViewSource for Player {
 pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64, task: Option<&str>, calibration: Option<&std::path::Path>) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
     let loaded = model.map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
-    let mut app = entry.app(task, 1, seed, DesignPattern::Supervised)?;
+    let task = twinbots::settings::TrainSettings::task_for(task, model)?;
+    let mut app = entry.app(task.as_deref(), 1, seed, DesignPattern::Supervised)?;
     // As `capture`: the file's twin, read and checked before any window opens.
     twinbots::twin::Twin::of_files(&entry, calibration, None)?.configure(&mut app, &entry)?;
     if let Some(run) = model {

@@ -139,7 +139,7 @@ fn turntable() -> RobotDescription {
     RobotDescription {
         name: "turntable",
         description: "a motorised turntable (test robot)",
-        tasks: vec![TaskDescription { name: "turn", description: "turn to a target angle", spec: || turn_task().spec(), server: true }],
+        tasks: vec![TaskDescription { name: "turn", description: "turn to a target angle", spec: || turn_task().spec(), server: true, training: None }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),
         defaults: TrainingDefaults {

@@ -275,3 +275,67 @@ fn a_reach_succeeds_only_within_a_centimetre_pointing_down_and_at_rest() {
     assert_eq!(conditions(&moving, at(&moving)), (true, true, false));
     assert!(!moving.has_reached(at(&moving)), "a moving tool counted as arrived");
 }
+
+#[test]
+fn the_learned_pick_and_place_is_achievable_from_its_observation_and_reports_its_figures() {
+    use ur5e::pick_place_learned::{EPISODE_STEPS, scripted};
+    let app = || ur5e::robot().app(Some("pick-place-learned"), 4, 5, DesignPattern::Supervised).unwrap();
+    let mut env = AppVecEnv::new(app());
+    let episodes = run_episodes(&mut env, 24, scripted);
+    let successes = episodes.iter().filter(|e| e.success == Some(true)).count();
+    let lifted = episodes.iter().filter(|e| figure(e, "goal_in_air") == 1.0).count();
+    for ep in episodes.iter().filter(|e| e.success == Some(true)) {
+        assert!(figure(ep, "final_distance_mm") < 20.0, "{ep:?}");
+        assert!(figure(ep, "cycle_time_s") > 0.0 && ep.length < EPISODE_STEPS, "{ep:?}");
+        assert_eq!(figure(ep, "protective_stops"), 0.0, "{ep:?}");
+    }
+    assert!(successes >= 22, "the scripted pick-and-place met {successes} of 24 goals: {episodes:?}");
+    assert!((4..=20).contains(&lifted), "{lifted} of 24 goals in the air");
+    // Holding still meets no goal but the ones the part already stands on (none here).
+    let mut env = AppVecEnv::new(app());
+    let still = run_episodes(&mut env, 4, |_| vec![0.0; 4]);
+    for ep in &still {
+        assert_eq!((ep.success, ep.length), (Some(false), EPISODE_STEPS), "{ep:?}");
+        assert_eq!(figure(ep, "part_lifted"), 0.0);
+    }
+}
+
+/// `train --task` learns a task with spaces of its own, with that task's defaults (the learned
+/// pick-and-place: SAC + HER); the run remembers its task, so `eval` judges its model on it; a
+/// task that runs the main task's model is no task to train.
+#[test]
+fn train_learns_the_pick_and_place_task_by_name_and_eval_judges_the_run_on_it() {
+    let out = std::env::temp_dir().join(format!("twinbots-ur5e-learned-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let output = twinbots().args(["train", "ur5e", "--task", "pick-place-learned", "--print-config"]).output().unwrap();
+    let config = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success() && config.contains("task = \"pick-place-learned\"") && config.contains("algo = \"sac\""), "{config}");
+    assert!(config.contains("her_goals = 4") && config.contains("hidden = [\n    128,\n    128,\n]"), "the task's own SAC defaults: {config}");
+    let output = twinbots().args(["train", "ur5e", "--task", "pick-place", "--print-config"]).output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && err.contains("task 'pick-place' runs a model of its task 'reach'") && err.contains("tasks that train: reach, pick-place-learned"), "{err}");
+
+    let run = out.join("run");
+    let status = twinbots()
+        .args(["train", "ur5e", "--task", "pick-place-learned", "--timesteps", "1200", "--arenas", "2", "--out"])
+        .arg(&run)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let eval: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("eval.json")).unwrap()).unwrap();
+    assert_eq!(eval["task"], "pick-place-learned", "{eval}");
+    assert!(eval["metrics"]["final_distance_mm"].as_f64().unwrap() > 0.0, "{eval}");
+    let output = twinbots().args(["eval"]).arg(&run).args(["--episodes", "2"]).output().unwrap();
+    let text = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success() && text.contains("pick-place-learned: 2 episodes"), "{text}{}", String::from_utf8_lossy(&output.stderr));
+    // Its policy exports as ONNX; a deploy bundle (the reach's joint-speed program) refuses it.
+    let output = twinbots().args(["export", "--onnx"]).arg(out.join("policy.onnx")).arg(&run).output().unwrap();
+    assert!(output.status.success() && String::from_utf8_lossy(&output.stdout).contains("pick-place-learned (26 observations → Box(4))"), "{output:?}");
+    let output = twinbots().args(["export", "--bundle"]).arg(out.join("bundle")).arg(&run).output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && err.contains("task 'pick-place-learned' has no deployment yet"), "{err}");
+    // Its model has other spaces than the reach's: the reach's tasks refuse it.
+    let output = twinbots().args(["eval"]).arg(&run).args(["--episodes", "1", "--task", "reach"]).output().unwrap();
+    assert!(!output.status.success(), "{}", String::from_utf8_lossy(&output.stdout));
+    std::fs::remove_dir_all(&out).ok();
+}

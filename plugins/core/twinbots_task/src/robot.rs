@@ -32,6 +32,9 @@ pub struct TaskDescription {
     pub spec: fn() -> TaskSpec,
     /// Whether design pattern 3 runs this task (a robot process that homes itself).
     pub server: bool,
+    /// A task with spaces of its own, which `train --task` learns with these defaults; `None`:
+    /// the main task is learnt with the robot's defaults, any other task runs its model.
+    pub training: Option<fn() -> TrainingDefaults>,
 }
 
 /// How `train` trains the robot unless told otherwise, as RL Zoo's hyperparameter files do:
@@ -210,6 +213,28 @@ impl RobotDescription {
     /// The spec of the task `train` learns.
     pub fn task(&self) -> TaskSpec {
         (self.main_task().spec)()
+    }
+
+    /// The named task `train` learns (`None`: the main one) and the defaults it is trained with:
+    /// the main task's are the robot's, another's its own; a task that runs the main task's
+    /// model is refused, naming the tasks that train.
+    pub fn trained_task(&self, name: Option<&str>) -> anyhow::Result<(&TaskDescription, TrainingDefaults)> {
+        let task = self.find_task(name)?;
+        if task.name == self.main_task().name {
+            return Ok((task, self.defaults.clone()));
+        }
+        let trainable = || {
+            let mut names = vec![self.main_task().name];
+            names.extend(self.tasks.iter().filter(|t| t.training.is_some()).map(|t| t.name));
+            names.join(", ")
+        };
+        let training = task.training.ok_or_else(|| {
+            anyhow::anyhow!(
+                "{}'s task '{}' runs a model of its task '{}' and is not trained itself; tasks that train: {}",
+                self.name, task.name, self.main_task().name, trainable()
+            )
+        })?;
+        Ok((task, training()))
     }
 
     pub fn task_names(&self) -> Vec<&'static str> {

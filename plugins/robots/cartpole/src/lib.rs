@@ -131,7 +131,7 @@ pub fn robot() -> RobotDescription {
     RobotDescription {
         name: "cartpole",
         description: "cart-pole twin (deepbots replica): 4 velocity-driven wheels, passive pole; Discrete(2), 32 ms step",
-        tasks: vec![TaskDescription { name: "balance", description: "keep the pole up (deepbots' CartPole)", spec: task_spec, server: true }],
+        tasks: vec![TaskDescription { name: "balance", description: "keep the pole up (deepbots' CartPole)", spec: task_spec, server: true, training: None }],
         patterns: vec![DesignPattern::Supervised, DesignPattern::Radio],
         framing: Framing::default(),
         // RL Zoo's CartPole-v1 settings (short rollouts, many epochs, linear learning-rate decay).

@@ -130,7 +130,7 @@ pub fn robot() -> RobotDescription {
     RobotDescription {
         name: "pioneer3at",
         description: "Pioneer 3-AT skid-steer base, 16 sonars, inverted pendulum; Box([-6.4],[6.4]) wheel speed, 64 ms step",
-        tasks: vec![TaskDescription { name: "balance", description: "balance the pendulum on the driving base", spec: task_spec, server: false }],
+        tasks: vec![TaskDescription { name: "balance", description: "balance the pendulum on the driving base", spec: task_spec, server: false, training: None }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),
         // SB3's defaults with observation normalisation (a continuous-control task).

@@ -36,7 +36,13 @@ pub fn move_linear(arm: &ArmState, target: Vec3) -> Vec<f32> {
 
 fn twist_towards(arm: &ArmState, target: Vec3, gain: f32, max_speed: f32) -> Vec<f32> {
     let error = target - arm.tcp.translation;
-    let v = (error * gain).clamp_length_max(max_speed);
+    tool_velocity(arm, (error * gain).clamp_length_max(max_speed))
+}
+
+/// The action (speeds of the first five joints, as [`resolved_rate`]'s) that moves the tool at
+/// the velocity `v` (m/s, base frame) while turning it down: the learned pick-and-place's
+/// tool moves.
+pub fn tool_velocity(arm: &ArmState, v: Vec3) -> Vec<f32> {
     let axis = arm.tcp.rotation * Vec3::Z;
     let w = axis.cross(-Vec3::Z) * TILT_GAIN;
     let twist = Vector5::new(v.x as f64, v.y as f64, v.z as f64, w.x as f64, w.y as f64);

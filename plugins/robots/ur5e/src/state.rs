@@ -32,6 +32,19 @@ pub struct CellState {
     pub part_yaw: f32,
     /// Where the arena's cell has its fixtures (its layout's; the default cell's by default).
     pub fixtures: Fixtures,
+    /// Learned pick-and-place: the part as the cell measures it, and where the task wants it.
+    pub part: PartReading,
+    pub part_goal: Vec3,
+}
+
+/// The part as the cell measures it (learned pick-and-place): its centre and velocity in the
+/// base frame — a cell camera's reading on a real cell, the physics' in the twin — and whether
+/// the cup holds it (the gripper's vacuum sensor).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PartReading {
+    pub position: Vec3,
+    pub velocity: Vec3,
+    pub held: bool,
 }
 
 impl CellState {

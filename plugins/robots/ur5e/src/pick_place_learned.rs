@@ -1,0 +1,441 @@
+//! Pick-and-place learned end to end (Gymnasium-Robotics' FetchPickAndPlace in the UR5e cell):
+//! the policy moves the tool and switches the suction cup; the part starts anywhere on the free
+//! table between the fixtures and must be brought within [`GOAL_TOLERANCE`] of a goal drawn per
+//! episode — on the table (then let go there, at rest) or, half the time, in the air (then held
+//! there, as Fetch's goals in the air are). A goal-conditioned task for hindsight experience
+//! replay: the goal achieved is the part's centre, the reward sparse (−1 a step until the goal is
+//! met, which ends the episode) plus the cup's distance from the part (goal-free, so HER keeps it).
+//!
+//! Action: Box([-1, 1]⁴): the tool's velocity (x, y, z in the base frame, × [`TOOL_SPEED`]) and
+//! the suction (on above 0). The controller turns the velocity into joint speeds by its
+//! resolved-rate law (the tool kept pointing down) within safety planes around the work area
+//! ([`TOOL_BOX`], the floor just above a part standing on the table: a UR's tool-position
+//! limits), so the cup never presses into the table.
+//!
+//! Observation: joint angles, the TCP and its velocity (the controller's kinematics), the part's
+//! centre and velocity and its offset from the TCP (a cell camera's reading; the twin reads the
+//! physics, so design patterns 1 and 2 only), the suction's output and the vacuum sensor, the goal.
+
+use std::sync::OnceLock;
+
+use bevy::prelude::*;
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use twinbots_sim::{Motor, SimSettings, Supervisor, VacuumGripper};
+use twinbots_task::{Action, Episode, GoalChange, GoalSpec, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
+
+use crate::arm::{self, ActionHistory, SpeedSlider};
+use crate::cell::{CellParts, PART_HEIGHT, PART_RADIUS, part_seat};
+use crate::kinematics::JOINT_RANGE;
+use crate::layout::FIXTURE_HALF;
+use crate::metrics::TwinMeter;
+use crate::reach::{STOP_TERM, sample_start};
+use crate::state::{CellState, PartReading};
+
+/// Control steps before an episode is given up (4 s, the reach's).
+pub const EPISODE_STEPS: u32 = 100;
+/// Tool speed (m/s) of a full-scale action: 2 cm a control step.
+pub const TOOL_SPEED: f32 = 0.5;
+/// The part's centre within this distance (m) of the goal meets it.
+pub const GOAL_TOLERANCE: f32 = 0.02;
+/// A part let go on the table counts only once at rest: slower than this (m/s).
+pub const REST_SPEED: f32 = 0.05;
+/// The table top in the base frame (the base stands on it): z = 0.
+const TABLE_TOP: f32 = 0.0;
+/// A part standing on the table has its centre this high.
+pub const PART_REST_Z: f32 = TABLE_TOP + PART_HEIGHT / 2.0;
+/// Where parts start and goals lie (base frame, m): the free table between the default cell's
+/// fixtures, in front of the arm (Fetch draws within ±15 cm)…
+pub const PART_AREA: [[f32; 2]; 2] = [[-0.60, -0.30], [-0.20, 0.08]];
+/// …clear of any fixture's plate by this much (m), whatever the layout.
+const FIXTURE_CLEARANCE: f32 = FIXTURE_HALF + PART_RADIUS + 0.02;
+/// The share of goals in the air, and how high above its resting height (m) such a goal holds
+/// the part's centre.
+pub const AIR_GOALS: f64 = 0.5;
+pub const AIR_HEIGHT: [f32; 2] = [0.03, 0.20];
+/// The safety planes the tool stays within (base frame, m; `[min, max]` per axis): the floor is a
+/// grip gap above a standing part's top, where the cup seizes it and a part it holds hangs just
+/// clear of the table.
+pub const TOOL_BOX: [[f32; 2]; 3] = [[-0.72, -0.18], [-0.32, 0.18], [TABLE_TOP + PART_HEIGHT + 0.003, 0.40]];
+/// Gain (1/s) of the planes: within d of one the tool may close on it at most this × d a second.
+const PLANE_GAIN: f32 = 8.0;
+/// A protective stop costs this many steps' −1: more than a failing episode's discounted rest
+/// for γ ≤ 0.98 (1 / (1 − 0.98)), so stopping on purpose never pays.
+pub const STOP_PENALTY: f32 = 50.0;
+/// Weight (per m) of the cost of the cup's distance from the part's top.
+pub const APPROACH_WEIGHT: f32 = 1.0;
+
+/// The cup's distance from the top of the part centred at `part` (m), within its bounds.
+fn approach(tcp: Vec3, part: Vec3) -> f32 {
+    (part + Vec3::Z * (PART_HEIGHT / 2.0) - tcp).length().min(3.0)
+}
+
+/// The action: the tool's velocity and the suction.
+pub const ACTION_DIM: usize = 4;
+
+/// What the judge of a goal needs: where the part is, how it moves, whether the cup holds it or
+/// sucks, whether the arm stands in a protective stop.
+#[derive(Clone, Copy, Debug)]
+struct Judged {
+    part: PartReading,
+    suction: bool,
+    stopped: bool,
+}
+
+impl Judged {
+    fn of(s: &CellState) -> Self {
+        Self { part: s.part, suction: s.suction, stopped: s.safety.stopped() }
+    }
+
+    /// Whether the goal is met: the part's centre within [`GOAL_TOLERANCE`] — held there for a
+    /// goal in the air; for one on the table, let go (suction off, nothing held) and at rest.
+    fn meets(&self, goal: Vec3) -> bool {
+        let close = (self.part.position - goal).length() < GOAL_TOLERANCE;
+        let released = !self.part.held && !self.suction && self.part.velocity.length() < REST_SPEED;
+        !self.stopped && close && if in_air(goal) { self.part.held } else { released }
+    }
+}
+
+/// Whether a goal lies in the air (the part must be held there) rather than on the table.
+pub fn in_air(goal: Vec3) -> bool {
+    goal.z > PART_REST_Z + 0.01
+}
+
+fn flag(on: bool) -> f32 {
+    f32::from(u8::from(on))
+}
+
+fn observations() -> Vec<ObservationTerm<CellState>> {
+    let plausible = 5.0;
+    vec![
+        ObservationTerm::new("joint_positions", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.q)).bounded(-JOINT_RANGE, JOINT_RANGE),
+        ObservationTerm::new("tcp_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.tcp.translation.to_array())).plausible(-plausible, plausible),
+        ObservationTerm::new("tcp_velocity", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.tcp_velocity.to_array())).plausible(-plausible, plausible),
+        ObservationTerm::new("part_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.part.position.to_array())).plausible(-plausible, plausible),
+        ObservationTerm::new("part_offset", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.part.position - s.arm.tcp.translation).to_array()))
+            .plausible(-plausible, plausible),
+        // A part knocked off the table falls; 20 m/s bounds any fall in the cell.
+        ObservationTerm::new("part_velocity", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.part.velocity.to_array())).plausible(-20.0, 20.0),
+        ObservationTerm::new("suction", 1, |s: &CellState, out: &mut Vec<f32>| out.push(flag(s.suction))).bounded(0.0, 1.0),
+        ObservationTerm::new("holding", 1, |s: &CellState, out: &mut Vec<f32>| out.push(flag(s.part.held))).bounded(0.0, 1.0),
+        ObservationTerm::new("goal_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.part_goal.to_array())).plausible(-plausible, plausible),
+    ]
+}
+
+/// The task: a sparse −1 a step until the goal is met (which ends the episode, a success), the
+/// cup's distance from the part, a protective stop's penalty (the stop ends it too, a failure),
+/// [`EPISODE_STEPS`] at most.
+/// Solved when 90 % of 200 evaluation episodes succeed (the bar).
+pub fn pick_place_learned_task() -> TaskDefinition<CellState> {
+    TaskDefinition {
+        name: "ur5e-pick-place-learned".into(),
+        terms: TaskTerms {
+            observations: observations(),
+            rewards: vec![
+                RewardTerm::new("goal_missed", -1.0, |s: &CellState| flag(!Judged::of(s).meets(s.part_goal))).bounded(0.0, 1.0),
+                RewardTerm::new(STOP_TERM, -STOP_PENALTY, |s: &CellState| flag(s.safety.stopped())).bounded(0.0, 1.0),
+                // Where the cup is against the part's top (m): it leads exploration to the part,
+                // without which no goal is ever met (the cup cannot push the part; it must seize
+                // it). It does not depend on the goal, so hindsight relabelling keeps it.
+                RewardTerm::new("approach", -APPROACH_WEIGHT, |s: &CellState| approach(s.arm.tcp.translation, s.part.position)).bounded(0.0, 3.0),
+            ],
+            terminations: vec![
+                TerminationTerm::goal("goal_met", |s: &CellState| Judged::of(s).meets(s.part_goal)),
+                TerminationTerm::new(STOP_TERM, |s: &CellState| s.safety.stopped()),
+            ],
+            time_limit: Some(EPISODE_STEPS),
+            start_events: vec![StartEvent::new("new_pick", new_pick)],
+        },
+        action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
+        solved: Some(SolvedCriterion::success_rate(200, 0.9)),
+        goal: Some(goal_spec()),
+    }
+}
+
+/// A point of [`PART_AREA`] whose part stands clear of every fixture.
+fn sample_on_table(rng: &mut impl Rng, s: &CellState) -> Vec2 {
+    loop {
+        let p = Vec2::new(rng.random_range(PART_AREA[0][0]..=PART_AREA[0][1]), rng.random_range(PART_AREA[1][0]..=PART_AREA[1][1]));
+        let clear = |fixture: Vec3| (p - fixture.truncate()).abs().max_element() > FIXTURE_CLEARANCE;
+        if clear(s.fixtures.pick) && clear(s.fixtures.place) {
+            return p;
+        }
+    }
+}
+
+/// Start event: the arm near home, the part standing somewhere on the free table (any yaw), a
+/// goal on the table or in the air.
+fn new_pick(s: &mut CellState, rng: &mut ChaCha8Rng) {
+    s.start_pose = sample_start(rng);
+    s.actions = ActionHistory::default();
+    s.suction = false;
+    let start = sample_on_table(rng, s);
+    // The Supervisor seats the part at its pick seat plus this offset (`pick_place::place_part`):
+    // here, on the table top beside the fixture.
+    s.part_offset = start.extend(TABLE_TOP) - part_seat(s.fixtures.pick);
+    s.part_yaw = rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI);
+    let goal = sample_on_table(rng, s);
+    let lift = if rng.random_bool(AIR_GOALS) { rng.random_range(AIR_HEIGHT[0]..=AIR_HEIGHT[1]) } else { 0.0 };
+    s.part_goal = goal.extend(PART_REST_Z + lift);
+    s.target = s.part_goal;
+}
+
+/// The tool velocity `v` (m/s) held within the safety planes: towards a plane at most
+/// [`PLANE_GAIN`] × the distance left (a tool outside is sent back).
+pub fn within_planes(tcp: Vec3, v: Vec3) -> Vec3 {
+    let axis = |i: usize| {
+        let [lo, hi] = TOOL_BOX[i];
+        v[i].clamp(PLANE_GAIN * (lo - tcp[i]), PLANE_GAIN * (hi - tcp[i]))
+    };
+    Vec3::new(axis(0), axis(1), axis(2))
+}
+
+/// The policy's action: the tool's velocity through the controller's resolved-rate law, and
+/// the suction's output — unless the arm is in a protective stop (it holds, braked).
+pub fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState, Option<&SpeedSlider>)>, mut motors: Query<&mut Motor>) {
+    for (parts, action, mut state, slider) in &mut arenas {
+        if action.0.is_empty() || state.safety.stopped() {
+            continue;
+        }
+        let a = |i: usize| action.0.get(i).copied().unwrap_or(0.0).clamp(-1.0, 1.0);
+        let v = within_planes(state.arm.tcp.translation, Vec3::new(a(0), a(1), a(2)) * TOOL_SPEED);
+        let speeds = arm::joint_speeds(&crate::controller::tool_velocity(&state.arm, v));
+        let scale = slider.map_or(1.0, |s| s.0);
+        arm::drive(parts, speeds.map(|s| s * scale), &mut motors);
+        state.suction = a(3) > 0.0;
+        state.actions.push(&action.0);
+    }
+}
+
+/// The part's reading (the cell camera's stand-in: the physics) and the vacuum sensor's.
+pub fn read_part(supervisor: Supervisor, mut arenas: Query<(&CellParts, &mut CellState)>) {
+    for (parts, mut state) in &mut arenas {
+        let Some(link) = supervisor.link_state(parts.part) else { continue };
+        let to_base = parts.base.inverse();
+        let pose = to_base * link.pose;
+        state.part.position = pose.translation + pose.rotation * Vec3::Z * (PART_HEIGHT / 2.0);
+        state.part.velocity = to_base.rotation * link.linvel;
+    }
+}
+
+/// The gripper's vacuum sensor: whether the cup holds the part. (Apart from [`read_part`]: the
+/// Supervisor holds the grippers mutably.)
+pub fn read_vacuum(grippers: Query<&VacuumGripper>, mut arenas: Query<(&CellParts, &mut CellState)>) {
+    for (parts, mut state) in &mut arenas {
+        state.part.held = grippers.get(parts.gripper).is_ok_and(|g| g.held().is_some());
+    }
+}
+
+/// The figures of an episode that ended: how far the part ended from the goal, whether that
+/// goal was in the air, the cycle time of a success, the meter's.
+pub fn report(settings: Res<SimSettings>, mut arenas: Query<(&CellState, &TwinMeter, &mut Episode)>) {
+    for (state, meter, mut e) in &mut arenas {
+        if e.terminated || e.truncated {
+            e.metrics.insert("final_distance_mm".into(), 1e3 * (state.part.position - state.part_goal).length());
+            e.metrics.insert("goal_in_air".into(), flag(in_air(state.part_goal)));
+            e.metrics.insert("part_lifted".into(), flag(state.part.position.z > PART_REST_Z + 0.01));
+            let cycle_time = (e.success == Some(true)).then(|| (e.length + 1) as f32 * settings.control_dt());
+            meter.report(&mut e, cycle_time);
+        }
+    }
+}
+
+/// A scripted pick-and-place over this task's observation, the baseline a learned policy is
+/// measured against (Fetch's scripted demonstrations do the same): over the part, down onto it
+/// with the suction on, up and over the goal, then down and let go (a goal on the table) or
+/// hold the part there (in the air). It steers the part, not the tool, once it holds it: the
+/// cup seizes a part wherever under its face it is.
+pub fn scripted(obs: &[f32]) -> Vec<f32> {
+    let o = offsets();
+    let tcp = point(&obs[o.tcp_position..]);
+    let part = point(&obs[o.part_position..]);
+    let goal = point(&obs[o.goal_position..]);
+    let held = obs[o.holding] > 0.5;
+    let top = Vec3::Z * (PART_HEIGHT / 2.0);
+    let carry = 0.06;
+    let flat = |v: Vec3| v.truncate().length();
+    let (target, suction) = if held {
+        // The tool where it would put the part at `at`.
+        let tool_for = |at: Vec3| tcp + (at - part);
+        if in_air(goal) {
+            (tool_for(goal), true)
+        } else if flat(goal - part) > 0.005 {
+            (tool_for(goal + Vec3::Z * carry).with_z(tcp.z.max(goal.z + top.z + carry)), true)
+        } else {
+            let above = part.z - goal.z;
+            (tool_for(goal), above > 0.004)
+        }
+    } else if flat(goal - part) < GOAL_TOLERANCE / 2.0 && !in_air(goal) {
+        // Placed: let go and stay clear.
+        (tcp, false)
+    } else if flat(part - tcp) > 0.005 {
+        ((part + top).with_z(tcp.z.max(part.z + top.z + carry)), false)
+    } else {
+        (part + top, true)
+    };
+    let v = ((target - tcp) * 8.0).clamp_length_max(TOOL_SPEED) / TOOL_SPEED;
+    vec![v.x, v.y, v.z, if suction { 1.0 } else { -1.0 }]
+}
+
+/// Where the observation terms the goal is judged by (and the scripted policy reads) start.
+struct Offsets {
+    tcp_position: usize,
+    part_position: usize,
+    part_velocity: usize,
+    suction: usize,
+    holding: usize,
+    goal_position: usize,
+}
+
+fn offsets() -> &'static Offsets {
+    static OFFSETS: OnceLock<Offsets> = OnceLock::new();
+    OFFSETS.get_or_init(|| {
+        let terms = TaskTerms { observations: observations(), ..Default::default() };
+        let at = |name: &str| terms.observation_offset(name).unwrap_or_else(|| panic!("the learned pick-and-place observes no {name}"));
+        Offsets {
+            tcp_position: at("tcp_position"),
+            part_position: at("part_position"),
+            part_velocity: at("part_velocity"),
+            suction: at("suction"),
+            holding: at("holding"),
+            goal_position: at("goal_position"),
+        }
+    })
+}
+
+fn point(values: &[f32]) -> Vec3 {
+    Vec3::new(values[0], values[1], values[2])
+}
+
+fn achieved(obs: &[f32]) -> Vec<f32> {
+    let at = offsets().part_position;
+    obs[at..at + 3].to_vec()
+}
+
+fn desired(obs: &[f32]) -> Vec<f32> {
+    let at = offsets().goal_position;
+    obs[at..at + 3].to_vec()
+}
+
+fn substitute(obs: &mut [f32], goal: &[f32]) {
+    let at = offsets().goal_position;
+    obs[at..at + 3].copy_from_slice(&goal[..3]);
+}
+
+/// The step's reward and end under another goal, judged from the observation it led to as the
+/// task's terms judge the state: whether the goal is met (the stop's penalty and the approach
+/// do not depend on the goal).
+fn change(_obs: &[f32], next_obs: &[f32], ended_by: Option<&str>, from: &[f32], to: &[f32]) -> GoalChange {
+    let o = offsets();
+    let judged = Judged {
+        part: PartReading { position: point(&next_obs[o.part_position..]), velocity: point(&next_obs[o.part_velocity..]), held: next_obs[o.holding] > 0.5 },
+        suction: next_obs[o.suction] > 0.5,
+        stopped: ended_by == Some(STOP_TERM),
+    };
+    let (at_from, at_to) = (judged.meets(point(from)), judged.meets(point(to)));
+    GoalChange { reward: flag(at_to) - flag(at_from), ends_at_from: at_from, ends_at_to: at_to }
+}
+
+/// The task's goal interface.
+pub fn goal_spec() -> GoalSpec {
+    GoalSpec { dim: 3, achieved, desired, substitute, change }
+}
+
+/// Where a part seated at `offset` from the pick seat stands (its bottom centre, base frame).
+pub fn part_start(s: &CellState) -> Vec3 {
+    part_seat(s.fixtures.pick) + s.part_offset
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::SeedableRng;
+
+    use super::*;
+    use crate::arm::ArmState;
+    use crate::kinematics::HOME;
+
+    fn state_with(part: PartReading, suction: bool, goal: Vec3) -> CellState {
+        CellState { part, suction, part_goal: goal, ..Default::default() }
+    }
+
+    #[test]
+    fn starts_and_goals_lie_on_the_free_table_and_half_the_goals_in_the_air() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut s = CellState::default();
+        let mut in_the_air = 0;
+        for _ in 0..400 {
+            new_pick(&mut s, &mut rng);
+            let start = part_start(&s);
+            assert!(start.z.abs() < 1e-6, "the part stands on the table: {start}");
+            for p in [start.truncate(), s.part_goal.truncate()] {
+                assert!((PART_AREA[0][0]..=PART_AREA[0][1]).contains(&p.x) && (PART_AREA[1][0]..=PART_AREA[1][1]).contains(&p.y), "{p}");
+                for fixture in [s.fixtures.pick, s.fixtures.place] {
+                    assert!((p - fixture.truncate()).abs().max_element() > FIXTURE_HALF + PART_RADIUS, "{p} on the fixture at {fixture}");
+                }
+            }
+            in_the_air += usize::from(in_air(s.part_goal));
+            assert!(crate::controller::reachable(s.part_goal + Vec3::Z * PART_HEIGHT / 2.0), "{}", s.part_goal);
+        }
+        assert!((160..240).contains(&in_the_air), "{in_the_air} of 400 goals in the air");
+    }
+
+    #[test]
+    fn a_goal_on_the_table_is_met_by_a_part_let_go_at_rest_and_one_in_the_air_by_a_part_held_there() {
+        let on_table = Vec3::new(-0.45, 0.0, PART_REST_Z);
+        let in_the_air = on_table + Vec3::Z * 0.1;
+        let part = |position: Vec3, held: bool| PartReading { position, velocity: Vec3::ZERO, held };
+        assert!(Judged { part: part(on_table + Vec3::X * 0.015, false), suction: false, stopped: false }.meets(on_table));
+        assert!(!Judged { part: part(on_table + Vec3::X * 0.025, false), suction: false, stopped: false }.meets(on_table), "2 cm");
+        assert!(!Judged { part: part(on_table, true), suction: true, stopped: false }.meets(on_table), "still held");
+        assert!(!Judged { part: part(on_table, false), suction: true, stopped: false }.meets(on_table), "still sucking");
+        let moving = PartReading { velocity: Vec3::X * 0.2, ..part(on_table, false) };
+        assert!(!Judged { part: moving, suction: false, stopped: false }.meets(on_table), "rolling");
+        assert!(Judged { part: part(in_the_air, true), suction: true, stopped: false }.meets(in_the_air));
+        assert!(!Judged { part: part(in_the_air, false), suction: false, stopped: false }.meets(in_the_air), "let go in the air");
+        assert!(!Judged { part: part(in_the_air, true), suction: true, stopped: true }.meets(in_the_air), "in a protective stop");
+    }
+
+    #[test]
+    fn the_goal_interface_agrees_with_the_tasks_terms() {
+        let task = pick_place_learned_task();
+        let spec = task.spec();
+        let goal = spec.goal.expect("a goal-conditioned task");
+        let at = |name: &str| spec.observation_names.iter().position(|n| n == name).unwrap();
+        assert_eq!(at("part_position[0]"), offsets().part_position);
+        assert_eq!(at("goal_position[0]"), offsets().goal_position);
+        let arm = ArmState::from_joints(HOME, [0.0; 6]);
+        for (part, suction, goal_at) in [
+            (PartReading { position: Vec3::new(-0.4, 0.0, PART_REST_Z), velocity: Vec3::ZERO, held: false }, false, Vec3::new(-0.4, 0.01, PART_REST_Z)),
+            (PartReading { position: Vec3::new(-0.4, 0.0, 0.1), velocity: Vec3::Z * 0.3, held: true }, true, Vec3::new(-0.5, 0.0, 0.1)),
+            (PartReading { position: Vec3::new(-0.4, 0.0, 0.1), velocity: Vec3::Z * 0.3, held: true }, true, Vec3::new(-0.4, 0.0, 0.11)),
+        ] {
+            let s = CellState { arm: arm.clone(), ..state_with(part, suction, goal_at) };
+            let mut obs = Vec::new();
+            task.terms.observe(&s, &mut obs);
+            assert_eq!((goal.achieved)(&obs), part.position.to_array().to_vec());
+            assert_eq!((goal.desired)(&obs), goal_at.to_array().to_vec());
+            let reward = |s: &CellState| task.terms.rewards.iter().map(|t| t.weighted(s)).sum::<f32>();
+            // Relabelled to the part's own position: met (reward 0) where the terms say so.
+            let here = part.position.to_array();
+            let c = (goal.change)(&obs, &obs, None, &goal_at.to_array(), &here);
+            let at_here = CellState { part_goal: part.position, ..s.clone() };
+            assert!((reward(&s) + c.reward - reward(&at_here)).abs() < 1e-6, "{c:?}");
+            assert_eq!(c.ends_at_from, Judged::of(&s).meets(goal_at));
+            assert_eq!(c.ends_at_to, Judged::of(&at_here).meets(part.position));
+            let mut relabelled = obs.clone();
+            (goal.substitute)(&mut relabelled, &here);
+            assert_eq!((goal.desired)(&relabelled), here.to_vec());
+        }
+    }
+
+    #[test]
+    fn the_safety_planes_slow_the_tool_towards_them_and_send_it_back_from_outside() {
+        let floor = TOOL_BOX[2][0];
+        let near = Vec3::new(-0.45, 0.0, floor + 0.01);
+        let v = within_planes(near, Vec3::new(0.3, 0.0, -0.5));
+        assert_eq!(v.x, 0.3);
+        assert!((v.z + PLANE_GAIN * 0.01).abs() < 1e-5, "{v}");
+        let below = Vec3::new(-0.45, 0.0, floor - 0.01);
+        assert!(within_planes(below, Vec3::new(0.0, 0.0, -0.5)).z > 0.0);
+    }
+}
