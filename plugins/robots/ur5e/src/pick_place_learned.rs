@@ -125,7 +125,8 @@ fn observations() -> Vec<ObservationTerm<CellState>> {
 /// The task: a sparse −1 a step until the goal is met (which ends the episode, a success), the
 /// cup's distance from the part, a protective stop's penalty (the stop ends it too, a failure),
 /// [`EPISODE_STEPS`] at most.
-/// Solved when 90 % of 200 evaluation episodes succeed (the bar).
+/// Solved when 95 % of 200 evaluation episodes succeed: a margin over the 90 % the policy must
+/// reach (stopped at a first 90 %, seed 2 scored 88.0 % on the final evaluation's episodes).
 pub fn pick_place_learned_task() -> TaskDefinition<CellState> {
     TaskDefinition {
         name: "ur5e-pick-place-learned".into(),
@@ -147,7 +148,7 @@ pub fn pick_place_learned_task() -> TaskDefinition<CellState> {
             start_events: vec![StartEvent::new("new_pick", new_pick)],
         },
         action_space: Space::uniform_box(ACTION_DIM, -1.0, 1.0),
-        solved: Some(SolvedCriterion::success_rate(200, 0.9)),
+        solved: Some(SolvedCriterion::success_rate(200, 0.95)),
         goal: Some(goal_spec()),
     }
 }
