@@ -55,16 +55,20 @@ struct Comparison {
 
 /// `twinbots compare`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let mut robot = None;
+    let mut first: Option<TrainSettings> = None;
     let mut runs = Vec::new();
     let mut curves = Vec::new();
     for path in &args.runs {
         let dir = RunDir::new(path);
         let settings = TrainSettings::of_run(&dir)?;
-        match &robot {
-            None => robot = Some(settings.robot.clone()),
-            Some(r) if *r != settings.robot => {
-                anyhow::bail!("{}: a run of {}, the others are of {r}: compare runs of one robot", path.display(), settings.robot)
+        match &first {
+            None => first = Some(settings.clone()),
+            Some(f) if f.robot != settings.robot => {
+                anyhow::bail!("{}: a run of {}, the others are of {}: compare runs of one robot", path.display(), settings.robot, f.robot)
+            }
+            Some(f) if f.task != settings.task => {
+                let name = |t: &Option<String>| t.clone().unwrap_or_else(|| "its main task".into());
+                anyhow::bail!("{}: a run of {}, the others of {}: compare runs of one task", path.display(), name(&settings.task), name(&f.task))
             }
             Some(_) => {}
         }
@@ -81,8 +85,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         });
         curves.push(dir);
     }
-    let robot = robot.expect("clap requires a run");
-    let spec = registry::find(&robot)?.task();
+    let first = first.expect("clap requires a run");
+    // The runs' own task: its solved criterion is the curve's threshold.
+    let spec = first.task(&registry::find(&first.robot)?)?;
+    let robot = first.robot;
     let spread = |values: Vec<f64>| Spread::of(&values);
     let comparison = Comparison {
         solved: runs.iter().filter(|r| r.solved).count(),
