@@ -96,10 +96,15 @@ fn new_program(s: &mut CellState, rng: &mut ChaCha8Rng) {
     s.part_yaw = rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI);
 }
 
+/// Where the start drew the part (its bottom centre, base frame): its pick seat plus its offset.
+pub fn part_start(s: &CellState) -> Vec3 {
+    part_seat(s.fixtures.pick) + s.part_offset
+}
+
 /// Patterns 1 and 2: the Supervisor seats the part where the start drew it.
 pub fn place_part(mut supervisor: Supervisor, arenas: Query<(&CellParts, &CellState), With<Resetting>>) {
     for (parts, state) in &arenas {
-        let seat = Pose::from_parts(part_seat(state.fixtures.pick) + state.part_offset, Quat::from_rotation_z(state.part_yaw));
+        let seat = Pose::from_parts(part_start(state), Quat::from_rotation_z(state.part_yaw));
         supervisor.set_link_pose(parts.part, parts.base * seat);
     }
 }

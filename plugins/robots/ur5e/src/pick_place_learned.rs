@@ -208,7 +208,7 @@ pub fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState, Opti
     }
 }
 
-/// The part's reading (the cell camera's stand-in: the physics) and the vacuum sensor's.
+/// The part's reading: its centre and velocity (the cell camera's stand-in: the physics).
 pub fn read_part(supervisor: Supervisor, mut arenas: Query<(&CellParts, &mut CellState)>) {
     for (parts, mut state) in &mut arenas {
         let Some(link) = supervisor.link_state(parts.part) else { continue };
@@ -342,10 +342,6 @@ pub fn goal_spec() -> GoalSpec {
     GoalSpec { dim: 3, achieved, desired, substitute, change }
 }
 
-/// Where a part seated at `offset` from the pick seat stands (its bottom centre, base frame).
-pub fn part_start(s: &CellState) -> Vec3 {
-    part_seat(s.fixtures.pick) + s.part_offset
-}
 
 #[cfg(test)]
 mod tests {
@@ -366,7 +362,7 @@ mod tests {
         let mut in_the_air = 0;
         for _ in 0..400 {
             new_pick(&mut s, &mut rng);
-            let start = part_start(&s);
+            let start = crate::pick_place::part_start(&s);
             assert!(start.z.abs() < 1e-6, "the part stands on the table: {start}");
             for p in [start.truncate(), s.part_goal.truncate()] {
                 assert!((PART_AREA[0][0]..=PART_AREA[0][1]).contains(&p.x) && (PART_AREA[1][0]..=PART_AREA[1][1]).contains(&p.y), "{p}");
