@@ -25,6 +25,11 @@ pub struct PpoConfig {
     pub normalize_advantage: bool,
     /// Running mean/std normalisation of observations (SB3's VecNormalize), saved with the model.
     pub normalize_observations: bool,
+    /// Rewards divided by the running standard deviation of the discounted return, clipped to
+    /// ±10 (SB3's `VecNormalize(norm_reward=True)`, which RL Zoo turns on for its continuous
+    /// tasks): the value loss then stays near 1 whatever the reward's scale, so it cannot take
+    /// over the gradient norm `max_grad_norm` clips. Episode scores stay raw.
+    pub normalize_rewards: bool,
     pub hidden: Vec<usize>,
     /// What the MLPs read: `auto` (a NatureCNN's features for camera images, the observation
     /// otherwise), `mlp` or `cnn` (SB3's `MlpPolicy` / `CnnPolicy`).
@@ -52,6 +57,7 @@ impl Default for PpoConfig {
             target_kl: None,
             normalize_advantage: true,
             normalize_observations: false,
+            normalize_rewards: false,
             hidden: vec![64, 64],
             policy: PolicyKind::Auto,
             features_dim: 512,

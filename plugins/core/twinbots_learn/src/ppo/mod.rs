@@ -9,6 +9,7 @@
 mod buffer;
 mod config;
 mod model_file;
+mod reward_scale;
 pub(crate) mod policy;
 mod rollout;
 mod served;
@@ -25,6 +26,7 @@ pub use config::{MAX_ROLLOUT, PpoConfig};
 pub use crate::model_io::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
 pub use crate::stats::{TrainingTimes, UpdateStats};
 pub use policy::ActorCritic;
+pub use reward_scale::RewardScale;
 pub use rollout::PolicyStep;
 
 use crate::callbacks::Callback;
@@ -81,6 +83,8 @@ pub struct Ppo {
     pub action_space: Space,
     pub policy: ActorCritic,
     pub obs_rms: Option<RunningMeanStd>,
+    /// With `normalize_rewards`: how rewards are scaled before they are stored.
+    pub reward_scale: Option<RewardScale>,
     pub seed: u64,
     pub timesteps: u64,
     pub episodes: u64,
@@ -115,6 +119,7 @@ impl Ppo {
         let policy = ActorCritic::new(&observation_space, &action_space, encoder, &config.hidden, config.log_std_init, seed)?;
         crate::nn::check_normalization(&observation_space, config.normalize_observations, NAME)?;
         let obs_rms = config.normalize_observations.then(|| RunningMeanStd::new(obs_dim));
+        let reward_scale = config.normalize_rewards.then(RewardScale::default);
         let optimizer = update::adam(&policy, config.learning_rate);
         Ok(Self {
             config,
@@ -122,6 +127,7 @@ impl Ppo {
             action_space,
             policy,
             obs_rms,
+            reward_scale,
             seed,
             timesteps: 0,
             episodes: 0,
@@ -145,6 +151,7 @@ impl Ppo {
             action_space: self.action_space.clone(),
             policy,
             obs_rms: self.obs_rms.clone(),
+            reward_scale: self.reward_scale.clone(),
             seed: self.seed,
             timesteps: self.timesteps,
             episodes: self.episodes,

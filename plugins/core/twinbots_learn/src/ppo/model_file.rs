@@ -26,6 +26,9 @@ struct Metadata {
     /// restarts from the seed).
     #[serde(default)]
     action_stream: Option<StreamState>,
+    /// The reward scaling's statistics and running returns (`normalize_rewards`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    reward_scale: Option<super::RewardScale>,
     /// Adam's step count (its moments are in `optimizer.safetensors`).
     #[serde(default)]
     optimizer_steps: u64,
@@ -46,6 +49,7 @@ impl Ppo {
             header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates, self.env_state.is_some()),
             hyperparameters: self.config.clone(),
             action_stream: Some(StreamState::of(&self.rng)),
+            reward_scale: self.reward_scale.clone(),
             optimizer_steps,
         };
         model_io::save_metadata(dir, &meta)
@@ -64,6 +68,12 @@ impl Ppo {
         let tensors: HashMap<String, Tensor> = model_io::load_tensors(&weights)?;
         model.policy.set_weights(&tensors).map_err(|e| file_error(&weights, e))?;
         (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) = (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
+        if let Some(scale) = &meta.reward_scale {
+            scale.check_finite().map_err(|e| file_error(&path, e))?;
+        }
+        if model.config.normalize_rewards {
+            model.reward_scale = meta.reward_scale.or(model.reward_scale);
+        }
         if let Some(stream) = meta.action_stream {
             model.rng = stream.to_rng().map_err(|e| file_error(&path, e))?;
         }

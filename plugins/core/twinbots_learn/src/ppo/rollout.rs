@@ -66,7 +66,16 @@ impl Ppo {
         Ok(self.policy.value(&self.batch(obs)?)?.to_vec1::<f32>()?)
     }
 
-    /// The reward a step stores: a truncated episode did not end in the MDP, so its last
+    /// Rewards of one step of every env as the learner stores them: scaled with
+    /// `normalize_rewards` (the statistics move), else as they came.
+    pub fn scale_rewards(&mut self, rewards: &[f32], dones: &[bool]) -> Vec<f32> {
+        match &mut self.reward_scale {
+            Some(scale) => scale.scale(rewards, dones, self.config.gamma),
+            None => rewards.to_vec(),
+        }
+    }
+
+    /// The reward a step stores (already scaled): a truncated episode did not end in the MDP, so its last
     /// reward is bootstrapped with γ V(final observation), as SB3 does. `final_obs` is raw.
     pub fn bootstrapped_reward(&self, reward: f32, terminated: bool, truncated: bool, final_obs: Option<&[f32]>) -> anyhow::Result<f32> {
         match final_obs {
@@ -99,15 +108,16 @@ impl Ppo {
             let env_done = Instant::now();
             self.times.inference_s += (env_started - inference_started).as_secs_f64();
             self.times.env_s += (env_done - env_started).as_secs_f64();
+            let dones: Vec<bool> = (0..n_envs).map(|e| outcome.terminated[e] || outcome.truncated[e]).collect();
+            let scaled = self.scale_rewards(&outcome.rewards, &dones);
             let mut rewards = Vec::with_capacity(n_envs);
             for e in 0..n_envs {
                 let (terminated, truncated) = (outcome.terminated[e], outcome.truncated[e]);
-                rewards.push(self.bootstrapped_reward(outcome.rewards[e], terminated, truncated, outcome.final_obs[e].as_deref())?);
+                rewards.push(self.bootstrapped_reward(scaled[e], terminated, truncated, outcome.final_obs[e].as_deref())?);
                 if let Some(episode) = &outcome.episodes[e] {
                     self.record_episode(episode);
                 }
             }
-            let dones: Vec<bool> = (0..n_envs).map(|e| outcome.terminated[e] || outcome.truncated[e]).collect();
             buffer.push(&step, &rewards, &dones);
             *obs = self.observe(&outcome.obs);
             self.timesteps += n_envs as u64;

@@ -24,6 +24,8 @@ struct Trajectory {
     episode_begin: usize,
     score: f32,
     length: u32,
+    /// The running episode's discounted return, for `normalize_rewards`.
+    discounted_return: f64,
     /// The robot left; its finished episodes wait for the next update, then it is forgotten.
     gone: bool,
 }
@@ -54,7 +56,7 @@ impl ServedLearner for ServedPpo {
     fn join(&mut self, robot: u64) {
         let (obs, act) = (self.ppo.observation_space.dim(), self.ppo.action_space.dim());
         let trajectory =
-            Trajectory { buffer: RolloutBuffer::new(1, obs, act), pending: None, episode_begin: 0, score: 0.0, length: 0, gone: false };
+            Trajectory { buffer: RolloutBuffer::new(1, obs, act), pending: None, episode_begin: 0, score: 0.0, length: 0, discounted_return: 0.0, gone: false };
         self.trajectories.insert(robot, trajectory);
     }
 
@@ -64,6 +66,7 @@ impl ServedLearner for ServedPpo {
             traj.pending = None;
             traj.score = 0.0;
             traj.length = 0;
+            traj.discounted_return = 0.0;
         }
     }
 
@@ -94,8 +97,12 @@ impl ServedLearner for ServedPpo {
 
     /// As `Ppo::collect_rollout` records a step; `obs` is the episode's last if it ended.
     fn record(&mut self, robot: u64, step: &RobotStep) -> anyhow::Result<()> {
-        let stored_reward = self.ppo.bootstrapped_reward(step.reward, step.terminated, step.truncated, Some(step.obs))?;
         let traj = self.trajectories.get_mut(&robot).ok_or_else(|| anyhow::anyhow!("robot {robot} is not known"))?;
+        let reward = match &mut self.ppo.reward_scale {
+            Some(scale) => scale.scale_one(&mut traj.discounted_return, step.reward, step.ended(), self.ppo.config.gamma),
+            None => step.reward,
+        };
+        let stored_reward = self.ppo.bootstrapped_reward(reward, step.terminated, step.truncated, Some(step.obs))?;
         let pending = traj.pending.take().ok_or_else(|| anyhow::anyhow!("robot {robot} has no action awaiting its outcome"))?;
         traj.buffer.push(&pending, &[stored_reward], &[step.ended()]);
         traj.score += step.reward;
