@@ -87,7 +87,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
     let first = first.expect("clap requires a run");
     // The runs' own task: its solved criterion is the curve's threshold.
-    let spec = first.task(&registry::find(&first.robot)?)?;
+    let entry = registry::find(&first.robot)?;
+    let spec = first.task(&entry)?;
+    let task = first.task_name(&entry)?;
     let robot = first.robot;
     let spread = |values: Vec<f64>| Spread::of(&values);
     let comparison = Comparison {
@@ -117,7 +119,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             lines.push(line);
         }
         let y_label = if by_success { "evaluation success rate" } else { "episode reward (last 100 episodes)" };
-        let title = format!("{} — {} runs, median and interquartile range", comparison.robot, lines.len());
+        let title = format!("{} {task} — {} runs, median and interquartile range", comparison.robot, lines.len());
         let threshold = spec.solved.map(|c| f64::from(c.threshold));
         twinbots_learn::plot::seed_band(path, &title, y_label, &lines, &band(&lines, 200), threshold)?;
         println!("learning curves: {}", path.display());

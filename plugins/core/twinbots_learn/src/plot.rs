@@ -114,6 +114,7 @@ pub fn learning_curve(
         chart
             .configure_mesh()
             .x_desc("timesteps")
+            .x_label_formatter(&steps_label)
             .y_desc("episode reward (last 100 episodes)")
             .label_style(("sans-serif", 14))
             .draw()?;
@@ -197,7 +198,7 @@ pub fn seed_band(
             .x_label_area_size(40)
             .y_label_area_size(60)
             .build_cartesian_2d(0f64..x_max, (y_min - pad)..(y_max + pad))?;
-        chart.configure_mesh().x_desc("timesteps").y_desc(y_label).label_style(("sans-serif", 14)).draw()?;
+        chart.configure_mesh().x_desc("timesteps").x_label_formatter(&steps_label).y_desc(y_label).label_style(("sans-serif", 14)).draw()?;
         for run in runs {
             chart.draw_series(LineSeries::new(run.iter().copied(), BLUE.mix(0.2)))?;
         }
@@ -259,4 +260,23 @@ pub fn time_series(path: &Path, title: &str, y_label: &str, lines: &[(String, Ve
         draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
         Ok(())
     })
+}
+
+/// A timesteps tick as people write it: 0, 750, 50k, 1.5M (plotters' default prints 450000.0).
+fn steps_label(x: &f64) -> String {
+    let short = |v: f64, unit: &str| if v.fract().abs() < 1e-9 { format!("{v:.0}{unit}") } else { format!("{v:.1}{unit}") };
+    match x.abs() {
+        a if a >= 1e6 => short(x / 1e6, "M"),
+        a if a >= 1e3 => short(x / 1e3, "k"),
+        _ => format!("{x:.0}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn timesteps_ticks_read_as_people_write_them() {
+        let labels: Vec<String> = [0.0, 750.0, 50_000.0, 450_000.0, 12_500.0, 1_500_000.0, 3_000_000.0].iter().map(super::steps_label).collect();
+        assert_eq!(labels, ["0", "750", "50k", "450k", "12.5k", "1.5M", "3M"]);
+    }
 }
