@@ -31,11 +31,14 @@ fn figure(ep: &EpisodeSummary, name: &str) -> f32 {
     *ep.metrics.get(name).unwrap_or_else(|| panic!("episode reports no {name}: {:?}", ep.metrics))
 }
 
-/// What an episode a stop ended shows: a failure, one stop, penalised.
+/// What an episode a stop ended shows: a failure, one stop, penalised (its pose cost and the
+/// forfeited arrival bonus).
 fn assert_ended_by_a_stop(episode: &EpisodeSummary) {
     assert_eq!(episode.success, Some(false), "a protective stop is a failure: {episode:?}");
     assert_eq!(figure(episode, "protective_stops"), 1.0);
     assert!(episode.rewards["protective_stop"] < 0.0, "the stop is penalised: {:?}", episode.rewards);
+    // However close to the target it trips, a stop forfeits the arrival bonus.
+    assert_eq!(episode.rewards["stop_forfeit"], -ur5e::reach::ARRIVAL_BONUS, "{:?}", episode.rewards);
 }
 
 /// A wrist, run past the stop's margin.
