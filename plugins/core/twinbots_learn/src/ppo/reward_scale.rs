@@ -79,8 +79,8 @@ mod tests {
             let dones = [t % 20 == 19, t % 20 == 9];
             last = scale.scale(&[-5.0, -5.0], &dones, 0.9);
         }
-        // Returns run from −5 to −50 (γ 0.9): their standard deviation is ≈ 14, so a step's
-        // −5 is stored as ≈ −0.35, not −5, nor clipped.
+        // Returns run from −5 to −44 (γ 0.9, 20 steps): their standard deviation is over 10,
+        // so a step's −5 is stored as −5 / std, under 0.5 in size, and not clipped.
         let std = scale.return_rms.var[0].sqrt();
         assert!((10.0..20.0).contains(&std), "std {std}");
         assert!(last.iter().all(|&r| r < 0.0 && (r + 5.0 / std as f32).abs() < 1e-4), "{last:?}");
