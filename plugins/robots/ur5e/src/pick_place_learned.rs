@@ -342,7 +342,6 @@ pub fn goal_spec() -> GoalSpec {
     GoalSpec { dim: 3, achieved, desired, substitute, change }
 }
 
-
 #[cfg(test)]
 mod tests {
     use rand::SeedableRng;

@@ -43,8 +43,7 @@ impl RewardScale {
                 *ret = 0.0;
             }
         }
-        let std = (self.return_rms.var[0] + EPSILON).sqrt();
-        rewards.iter().map(|&r| ((f64::from(r) / std) as f32).clamp(-CLIP, CLIP)).collect()
+        rewards.iter().map(|&r| self.scaled(r)).collect()
     }
 
     /// The same for one robot's step (the RobotServer's robots arrive one at a time): `ret`
@@ -55,6 +54,11 @@ impl RewardScale {
         if done {
             *ret = 0.0;
         }
+        self.scaled(reward)
+    }
+
+    /// `reward` divided by the returns' standard deviation now, clipped.
+    fn scaled(&self, reward: f32) -> f32 {
         ((f64::from(reward) / (self.return_rms.var[0] + EPSILON).sqrt()) as f32).clamp(-CLIP, CLIP)
     }
 
