@@ -89,11 +89,20 @@ impl Adam {
     /// (PyTorch's clip coefficient max / (norm + 1e-6), capped at 1). A variable without a
     /// gradient is left alone, as PyTorch does. Non-finite gradients change nothing.
     pub fn step(&mut self, grads: &GradStore, max_grad_norm: Option<f32>) -> Result<GradientStep> {
-        let gradients: Vec<Option<Vec<f32>>> = self
+        let gradients = self
             .vars
             .iter()
             .map(|v| grads.get(v.as_tensor()).map(|g| g.flatten_all()?.to_vec1::<f32>()).transpose())
             .collect::<Result<_>>()?;
+        self.step_flat(gradients, max_grad_norm)
+    }
+
+    /// [`Adam::step`] along `gradients`, flat, one per variable in the optimiser's order
+    /// (none: the variable is left alone).
+    pub fn step_flat(&mut self, gradients: Vec<Option<Vec<f32>>>, max_grad_norm: Option<f32>) -> Result<GradientStep> {
+        if gradients.len() != self.vars.len() || gradients.iter().zip(&self.vars).any(|(g, v)| g.as_ref().is_some_and(|g| g.len() != v.elem_count())) {
+            candle_core::bail!("Adam::step_flat: the gradients do not fit the optimiser's variables");
+        }
         let squared: f64 = gradients.iter().flatten().flatten().map(|&g| (g as f64) * (g as f64)).sum();
         let grad_norm = squared.sqrt() as f32;
         if !grad_norm.is_finite() {

@@ -8,6 +8,7 @@ mod adam;
 mod conv;
 mod dense;
 mod encoder;
+pub mod fused_mlp;
 mod relu;
 mod tanh;
 

@@ -8,6 +8,7 @@
 
 mod buffer;
 mod config;
+mod fused;
 mod model_file;
 mod reward_scale;
 pub(crate) mod policy;

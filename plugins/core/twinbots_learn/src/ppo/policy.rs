@@ -145,45 +145,17 @@ impl ActorCritic {
     /// Returns flat actions, their log-probabilities, and the values.
     pub fn act(&self, obs: &Tensor, deterministic: bool, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
         let features = self.encoder.forward(obs)?;
-        let out = self.pi.forward(&features)?;
+        let out = self.pi.forward(&features)?.flatten_all()?.to_vec1::<f32>()?;
         let value = self.value_of(&features)?.to_vec1::<f32>()?;
+        let (actions, log_probs) = sample(&self.head, &out, &self.log_std_values()?, deterministic, rng);
+        Ok((actions, log_probs, value))
+    }
+
+    /// The Gaussian's log σ per action dimension; none for a categorical head.
+    pub(super) fn log_std_values(&self) -> Result<Vec<f32>> {
         match &self.head {
-            Head::Categorical { n } => {
-                let log_p = candle_nn::ops::log_softmax(&out, D::Minus1)?.to_vec2::<f32>()?;
-                let mut actions = Vec::with_capacity(log_p.len());
-                let mut log_probs = Vec::with_capacity(log_p.len());
-                for row in log_p {
-                    let a = if deterministic {
-                        (0..*n).max_by(|&i, &j| row[i].total_cmp(&row[j])).unwrap_or(0)
-                    } else {
-                        let u: f32 = rng.random();
-                        let mut acc = 0.0;
-                        (0..*n).find(|&i| {
-                            acc += row[i].exp();
-                            u < acc
-                        }).unwrap_or(n - 1)
-                    };
-                    actions.push(a as f32);
-                    log_probs.push(row[a]);
-                }
-                Ok((actions, log_probs, value))
-            }
-            Head::Gaussian { dim, log_std } => {
-                let mean = out.to_vec2::<f32>()?;
-                let log_std = log_std.as_tensor().to_vec1::<f32>()?;
-                let mut actions = Vec::with_capacity(mean.len() * dim);
-                let mut log_probs = Vec::with_capacity(mean.len());
-                for row in mean {
-                    let mut lp = 0.0;
-                    for k in 0..*dim {
-                        let z: f32 = if deterministic { 0.0 } else { StandardNormal.sample(rng) };
-                        actions.push(row[k] + z * log_std[k].exp());
-                        lp += -0.5 * z * z - log_std[k] - 0.5 * (2.0 * std::f32::consts::PI).ln();
-                    }
-                    log_probs.push(lp);
-                }
-                Ok((actions, log_probs, value))
-            }
+            Head::Gaussian { log_std, .. } => log_std.as_tensor().to_vec1::<f32>(),
+            Head::Categorical { .. } => Ok(Vec::new()),
         }
     }
 
@@ -211,5 +183,51 @@ impl ActorCritic {
             }
         };
         Ok(Evaluation { log_prob, entropy, value })
+    }
+}
+
+/// One action per row of the policy network's output `out` (logits, or the Gaussian's means
+/// with `log_std`, empty for a categorical head), sampled or, deterministic, the mode; and its
+/// log-probability.
+pub(super) fn sample(head: &Head, out: &[f32], log_std: &[f32], deterministic: bool, rng: &mut ChaCha8Rng) -> (Vec<f32>, Vec<f32>) {
+    match head {
+        Head::Gaussian { dim, .. } => {
+            let mut actions = Vec::with_capacity(out.len());
+            let mut log_probs = Vec::with_capacity(out.len() / dim);
+            for row in out.chunks_exact(*dim) {
+                let mut lp = 0.0;
+                for k in 0..*dim {
+                    let z: f32 = if deterministic { 0.0 } else { StandardNormal.sample(rng) };
+                    actions.push(row[k] + z * log_std[k].exp());
+                    lp += -0.5 * z * z - log_std[k] - 0.5 * (2.0 * std::f32::consts::PI).ln();
+                }
+                log_probs.push(lp);
+            }
+            (actions, log_probs)
+        }
+        Head::Categorical { n } => {
+            let n = *n;
+            let mut actions = Vec::with_capacity(out.len() / n);
+            let mut log_probs = Vec::with_capacity(out.len() / n);
+            for logits in out.chunks_exact(n) {
+                // log softmax: l − (max + ln Σ e^{l − max})
+                let max = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                let log_sum = max + logits.iter().map(|l| (l - max).exp()).sum::<f32>().ln();
+                let log_p = |i: usize| logits[i] - log_sum;
+                let a = if deterministic {
+                    (0..n).max_by(|&i, &j| logits[i].total_cmp(&logits[j])).unwrap_or(0)
+                } else {
+                    let u: f32 = rng.random();
+                    let mut acc = 0.0;
+                    (0..n).find(|&i| {
+                        acc += log_p(i).exp();
+                        u < acc
+                    }).unwrap_or(n - 1)
+                };
+                actions.push(a as f32);
+                log_probs.push(log_p(a));
+            }
+            (actions, log_probs)
+        }
     }
 }

@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use candle_core::{Device, Tensor};
 
+use super::fused::Inference;
 use super::{Ppo, RolloutBuffer};
 use twinbots_api::env::VecEnv;
 use twinbots_api::spaces::Space;
@@ -55,8 +56,15 @@ impl Ppo {
 
     /// Samples an action for each row of `obs` (normalised, from [`Ppo::observe`]).
     pub fn policy_step(&mut self, obs: Vec<f32>) -> anyhow::Result<PolicyStep> {
-        let x = self.batch(&obs)?;
-        let (actions, log_probs, values) = self.policy.act(&x, false, &mut self.rng)?;
+        self.policy_step_with(obs, None)
+    }
+
+    /// [`Ppo::policy_step`], through `inference` when given (read from the current policy).
+    fn policy_step_with(&mut self, obs: Vec<f32>, inference: Option<&Inference>) -> anyhow::Result<PolicyStep> {
+        let (actions, log_probs, values) = match inference {
+            Some(inference) => inference.act(&self.policy.head, &obs, obs.len() / self.observation_space.dim(), &mut self.rng),
+            None => self.policy.act(&self.batch(&obs)?, false, &mut self.rng)?,
+        };
         let env_actions = self.clip_to_space(actions.clone());
         Ok(PolicyStep { obs, actions, env_actions, log_probs, values })
     }
@@ -100,9 +108,11 @@ impl Ppo {
     pub fn collect_rollout(&mut self, env: &mut dyn VecEnv, obs: &mut Vec<f32>, buffer: &mut RolloutBuffer) -> anyhow::Result<()> {
         let n_envs = env.num_envs();
         buffer.clear();
+        // The policy is the same for the whole rollout: its numbers are read once.
+        let inference = Inference::read(&self.policy)?;
         for _ in 0..self.config.n_steps {
             let inference_started = Instant::now();
-            let step = self.policy_step(std::mem::take(obs))?;
+            let step = self.policy_step_with(std::mem::take(obs), inference.as_ref())?;
             let env_started = Instant::now();
             let outcome = env.step(&step.env_actions)?;
             let env_done = Instant::now();

@@ -6,7 +6,7 @@ use std::time::Instant;
 use candle_core::{Device, Tensor, Var};
 use rand::seq::SliceRandom;
 
-use super::{ActorCritic, Ppo, RolloutBuffer, TRAIN_FIGURES, UpdateStats};
+use super::{ActorCritic, Ppo, PpoConfig, RolloutBuffer, TRAIN_FIGURES, UpdateStats};
 use crate::stats::figures;
 use crate::nn::{Adam, AdamConfig};
 use twinbots_api::spaces::Space;
@@ -55,41 +55,58 @@ impl Ppo {
     }
 
     /// n_epochs over shuffled minibatches; returns the mean losses (the rest of the row is
-    /// left at its default).
+    /// left at its default). A minibatch's gradient is the sum of its parts' ([`parts`]): the
+    /// second half on a helper thread while this one does the first.
     fn optimize(&mut self, buffer: &RolloutBuffer) -> anyhow::Result<UpdateStats> {
         let c = self.config.clone();
         let mut indices: Vec<usize> = (0..buffer.len()).collect();
         let (mut pg_sum, mut v_sum, mut ent_sum, mut kl_sum, mut clip_sum, mut batches) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         let mut skipped = 0;
-        'epochs: for _ in 0..c.n_epochs {
-            indices.shuffle(&mut self.rng);
-            for chunk in indices.chunks(c.batch_size) {
-                let mb = self.minibatch_loss(buffer, chunk)?;
-                // A non-finite loss or gradient (e.g. from a poisoned reward) changes nothing and
-                // is counted: one bad sample must not end a run's learning silently.
-                if !self.optimizer.step(&mb.loss.backward()?, Some(c.max_grad_norm))?.applied {
-                    skipped += 1;
-                    continue;
-                }
+        let (policy, action_space, rng, optimizer) = (&self.policy, &self.action_space, &mut self.rng, &mut self.optimizer);
+        let gradient = |part: &Part| part_gradient(policy, &c, action_space, buffer, part);
+        crate::threads::with_helper(|part: Part| gradient(&part), |helper| -> anyhow::Result<()> {
+            'epochs: for _ in 0..c.n_epochs {
+                indices.shuffle(rng);
+                for chunk in indices.chunks(c.batch_size) {
+                    let mut parts = parts(buffer, chunk, c.normalize_advantage).into_iter();
+                    let done: Vec<PartGradient> = match (helper, parts.next(), parts.next()) {
+                        (Some(helper), Some(first), Some(second)) => {
+                            helper.submit(second)?;
+                            let first = gradient(&first);
+                            vec![first?, helper.result()??]
+                        }
+                        (_, first, second) => first.iter().chain(&second).map(gradient).collect::<anyhow::Result<_>>()?,
+                    };
+                    // A non-finite loss or gradient (e.g. from a poisoned reward) changes nothing and
+                    // is counted: one bad sample must not end a run's learning silently.
+                    if !optimizer.step_flat(PartGradient::sum(&done), Some(c.max_grad_norm))?.applied {
+                        skipped += 1;
+                        continue;
+                    }
 
-                let log_ratio = mb.log_ratio.to_vec1::<f32>()?;
-                let n = log_ratio.len().max(1) as f32;
-                // approx KL (Schulman's k3 estimator): E[(r - 1) - log r]
-                let approx_kl = log_ratio.iter().map(|&l| l.exp() - 1.0 - l).sum::<f32>() / n;
-                let clipped = log_ratio.iter().filter(|&&l| (l.exp() - 1.0).abs() > c.clip_range).count() as f32 / n;
-                pg_sum += mb.policy_loss.to_scalar::<f32>()?;
-                v_sum += mb.value_loss.to_scalar::<f32>()?;
-                ent_sum += mb.entropy.to_scalar::<f32>()?;
-                kl_sum += approx_kl;
-                clip_sum += clipped;
-                batches += 1.0;
-                if let Some(target) = c.target_kl
-                    && approx_kl > 1.5 * target
-                {
-                    break 'epochs;
+                    let mut log_ratio = Vec::with_capacity(chunk.len());
+                    for part in &done {
+                        log_ratio.extend_from_slice(&part.log_ratio);
+                        pg_sum += part.policy_loss;
+                        v_sum += part.value_loss;
+                        ent_sum += part.entropy;
+                    }
+                    let n = log_ratio.len().max(1) as f32;
+                    // approx KL (Schulman's k3 estimator): E[(r - 1) - log r]
+                    let approx_kl = log_ratio.iter().map(|&l| l.exp() - 1.0 - l).sum::<f32>() / n;
+                    let clipped = log_ratio.iter().filter(|&&l| (l.exp() - 1.0).abs() > c.clip_range).count() as f32 / n;
+                    kl_sum += approx_kl;
+                    clip_sum += clipped;
+                    batches += 1.0;
+                    if let Some(target) = c.target_kl
+                        && approx_kl > 1.5 * target
+                    {
+                        break 'epochs;
+                    }
                 }
             }
-        }
+            Ok(())
+        })?;
         let applied_steps = batches as usize;
         // No applied step: the losses are unknown, not zero.
         let batches = if batches == 0.0 { f32::NAN } else { batches };
@@ -102,47 +119,147 @@ impl Ppo {
         })
     }
 
-    /// The PPO loss of the samples `chunk` of `buffer` under the current policy.
-    pub(super) fn minibatch_loss(&self, buffer: &RolloutBuffer, chunk: &[usize]) -> anyhow::Result<MinibatchLoss> {
-        let c = &self.config;
-        let dev = Device::Cpu;
-        let b = chunk.len();
-        let (obs_dim, act_dim) = (buffer.obs_dim, buffer.act_dim);
-        let gather = |src: &[f32], width: usize| -> Vec<f32> {
-            chunk.iter().flat_map(|&i| src[i * width..(i + 1) * width].iter().copied()).collect()
-        };
-        // The observations as the policy saw them when it acted (the buffer holds them normalised).
-        let obs = Tensor::from_vec(gather(&buffer.obs, obs_dim), (b, obs_dim), &dev)?;
-        let actions = Tensor::from_vec(gather(&buffer.actions, act_dim), (b, act_dim), &dev)?;
-        let actions = if act_dim == 1 && matches!(self.action_space, Space::Discrete { .. }) {
-            actions.squeeze(1)?
-        } else {
-            actions
-        };
-        let old_log_prob = Tensor::from_vec(gather(&buffer.log_probs, 1), b, &dev)?;
-        let returns = Tensor::from_vec(gather(&buffer.returns, 1), b, &dev)?;
-        let mut adv = gather(&buffer.advantages, 1);
-        if c.normalize_advantage && b > 1 {
-            let m = adv.iter().sum::<f32>() / b as f32;
-            let s = (adv.iter().map(|a| (a - m).powi(2)).sum::<f32>() / (b - 1) as f32).sqrt();
-            adv.iter_mut().for_each(|a| *a = (*a - m) / (s + 1e-8));
-        }
-        let adv = Tensor::from_vec(adv, b, &dev)?;
-
-        let eval = self.policy.evaluate(&obs, &actions)?;
-        // ratio = π(a|s) / π_old(a|s)
-        let log_ratio = (&eval.log_prob - &old_log_prob)?;
-        let ratio = log_ratio.exp()?;
-        // L_clip = E[min(r A, clip(r, 1-ε, 1+ε) A)]; we minimise its negative.
-        let surr1 = (&ratio * &adv)?;
-        let surr2 = (ratio.clamp(1.0 - c.clip_range, 1.0 + c.clip_range)? * &adv)?;
-        let policy_loss = surr1.minimum(&surr2)?.mean_all()?.neg()?;
-        // L_V = E[(V(s) - R)^2]   (SB3's MSE, no value clipping)
-        let value_loss = (&eval.value - &returns)?.sqr()?.mean_all()?;
-        let entropy = eval.entropy.mean_all()?;
-        let loss = ((&policy_loss - (&entropy * c.ent_coef as f64)?)? + (&value_loss * c.vf_coef as f64)?)?;
-        Ok(MinibatchLoss { loss, policy_loss, value_loss, entropy, log_ratio })
+    /// log π/π_old of the samples `chunk` of `buffer` under the current policy, as an update
+    /// computes them (`fused`) and as candle's graph does.
+    #[cfg(test)]
+    pub(super) fn log_ratios(&self, buffer: &RolloutBuffer, chunk: &[usize]) -> anyhow::Result<(Vec<f32>, Vec<f32>)> {
+        let advantages = normalized_advantages(buffer, chunk, self.config.normalize_advantage);
+        let whole = Part { samples: chunk.to_vec(), advantages, of: chunk.len() };
+        let update = part_gradient(&self.policy, &self.config, &self.action_space, buffer, &whole)?;
+        let graph = part_loss(&self.policy, &self.config, &self.action_space, buffer, &whole)?;
+        Ok((update.log_ratio, graph.log_ratio.to_vec1()?))
     }
+}
+
+/// `part`'s loss terms and gradient: over slices for an MLP on flat observations
+/// (`fused`), through candle's graph for the rest.
+fn part_gradient(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buffer: &RolloutBuffer, part: &Part) -> anyhow::Result<PartGradient> {
+    if super::fused::applies(policy) {
+        super::fused::part_gradient(policy, c, buffer, part)
+    } else {
+        PartGradient::of(policy, part_loss(policy, c, action_space, buffer, part)?)
+    }
+}
+
+/// Minibatches of this many samples or more are computed in two halves, whose losses and
+/// gradients add up to the minibatch's. A rule of the minibatch's size, never of the machine:
+/// a seed gives the same bits on one core as on many (one core does both halves in turn).
+const SPLIT_FROM: usize = 64;
+
+/// Some samples of a minibatch of `of`, with their advantages (normalised over the whole
+/// minibatch).
+pub(super) struct Part {
+    pub samples: Vec<usize>,
+    pub advantages: Vec<f32>,
+    pub of: usize,
+}
+
+/// A part's share of the minibatch's loss terms, its samples' log π/π_old, and its gradient
+/// of every variable (`named_vars` order; none where the loss does not reach one).
+pub(super) struct PartGradient {
+    pub policy_loss: f32,
+    pub value_loss: f32,
+    pub entropy: f32,
+    pub log_ratio: Vec<f32>,
+    pub gradients: Vec<Option<Vec<f32>>>,
+}
+
+impl PartGradient {
+    /// From candle's graph: the loss's backward pass, read out per variable.
+    pub(super) fn of(policy: &ActorCritic, loss: MinibatchLoss) -> anyhow::Result<Self> {
+        let grads = loss.loss.backward()?;
+        let gradients = policy
+            .named_vars()
+            .iter()
+            .map(|(_, v)| grads.get(v.as_tensor()).map(|g| g.flatten_all()?.to_vec1::<f32>()).transpose())
+            .collect::<candle_core::Result<_>>()?;
+        Ok(Self {
+            policy_loss: loss.policy_loss.to_scalar()?,
+            value_loss: loss.value_loss.to_scalar()?,
+            entropy: loss.entropy.to_scalar()?,
+            log_ratio: loss.log_ratio.to_vec1()?,
+            gradients,
+        })
+    }
+
+    /// The minibatch's gradient: the parts' added in order.
+    fn sum(parts: &[PartGradient]) -> Vec<Option<Vec<f32>>> {
+        let mut sum: Vec<Option<Vec<f32>>> = Vec::new();
+        for part in parts {
+            sum.resize(sum.len().max(part.gradients.len()), None);
+            for (total, g) in sum.iter_mut().zip(&part.gradients) {
+                match (total.as_mut(), g) {
+                    (Some(total), Some(g)) => total.iter_mut().zip(g).for_each(|(t, g)| *t += g),
+                    (None, Some(g)) => *total = Some(g.clone()),
+                    (_, None) => {}
+                }
+            }
+        }
+        sum
+    }
+}
+
+/// The minibatch `chunk` in one part, or in two halves from [`SPLIT_FROM`] samples on.
+fn parts(buffer: &RolloutBuffer, chunk: &[usize], normalize_advantage: bool) -> Vec<Part> {
+    let mut advantages = normalized_advantages(buffer, chunk, normalize_advantage);
+    let half = if chunk.len() >= SPLIT_FROM { chunk.len() / 2 } else { chunk.len() };
+    let second = advantages.split_off(half);
+    let of = chunk.len();
+    let mut parts = vec![Part { samples: chunk[..half].to_vec(), advantages, of }];
+    if half < chunk.len() {
+        parts.push(Part { samples: chunk[half..].to_vec(), advantages: second, of });
+    }
+    parts
+}
+
+/// The advantages of `chunk`, normalised to mean 0 and std 1 over it (SB3's per-minibatch
+/// normalisation) when asked.
+fn normalized_advantages(buffer: &RolloutBuffer, chunk: &[usize], normalize: bool) -> Vec<f32> {
+    let b = chunk.len();
+    let mut adv: Vec<f32> = chunk.iter().map(|&i| buffer.advantages[i]).collect();
+    if normalize && b > 1 {
+        let m = adv.iter().sum::<f32>() / b as f32;
+        let s = (adv.iter().map(|a| (a - m).powi(2)).sum::<f32>() / (b - 1) as f32).sqrt();
+        adv.iter_mut().for_each(|a| *a = (*a - m) / (s + 1e-8));
+    }
+    adv
+}
+
+/// `part`'s share of its minibatch's PPO loss under `policy`: each term summed over the part and
+/// divided by the minibatch's size, so the parts' losses add up to the minibatch's means.
+pub(super) fn part_loss(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buffer: &RolloutBuffer, part: &Part) -> anyhow::Result<MinibatchLoss> {
+    let dev = Device::Cpu;
+    let b = part.samples.len();
+    let (obs_dim, act_dim) = (buffer.obs_dim, buffer.act_dim);
+    let gather = |src: &[f32], width: usize| -> Vec<f32> {
+        part.samples.iter().flat_map(|&i| src[i * width..(i + 1) * width].iter().copied()).collect()
+    };
+    // The observations as the policy saw them when it acted (the buffer holds them normalised).
+    let obs = Tensor::from_vec(gather(&buffer.obs, obs_dim), (b, obs_dim), &dev)?;
+    let actions = Tensor::from_vec(gather(&buffer.actions, act_dim), (b, act_dim), &dev)?;
+    let actions = if act_dim == 1 && matches!(action_space, Space::Discrete { .. }) {
+        actions.squeeze(1)?
+    } else {
+        actions
+    };
+    let old_log_prob = Tensor::from_vec(gather(&buffer.log_probs, 1), b, &dev)?;
+    let returns = Tensor::from_vec(gather(&buffer.returns, 1), b, &dev)?;
+    let adv = Tensor::from_vec(part.advantages.clone(), b, &dev)?;
+    let per_sample = 1.0 / part.of.max(1) as f64;
+
+    let eval = policy.evaluate(&obs, &actions)?;
+    // ratio = π(a|s) / π_old(a|s)
+    let log_ratio = (&eval.log_prob - &old_log_prob)?;
+    let ratio = log_ratio.exp()?;
+    // L_clip = E[min(r A, clip(r, 1-ε, 1+ε) A)]; we minimise its negative.
+    let surr1 = (&ratio * &adv)?;
+    let surr2 = (ratio.clamp(1.0 - c.clip_range, 1.0 + c.clip_range)? * &adv)?;
+    let policy_loss = (surr1.minimum(&surr2)?.sum_all()? * -per_sample)?;
+    // L_V = E[(V(s) - R)^2]   (SB3's MSE, no value clipping)
+    let value_loss = ((&eval.value - &returns)?.sqr()?.sum_all()? * per_sample)?;
+    let entropy = (eval.entropy.sum_all()? * per_sample)?;
+    let loss = ((&policy_loss - (&entropy * c.ent_coef as f64)?)? + (&value_loss * c.vf_coef as f64)?)?;
+    Ok(MinibatchLoss { loss, policy_loss, value_loss, entropy, log_ratio })
 }
 
 /// Plain Adam as in SB3 (eps 1e-5, no weight decay).
@@ -161,7 +278,8 @@ mod tests {
     /// Collects one rollout with observation normalisation on and returns the largest
     /// |π(a|s) / π_old(a|s) − 1| over the whole buffer before any gradient step, i.e. over any
     /// first minibatch of the update. Also checks that the statistics moved during the rollout
-    /// (so normalising at use time, with the statistics of the end, would have differed).
+    /// (so normalising at use time, with the statistics of the end, would have differed). Both
+    /// the update's ratios and candle's graph's are checked.
     fn largest_first_ratio_deviation(env: &mut dyn VecEnv, config: PpoConfig) -> f32 {
         let seed = 7;
         let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), seed).unwrap();
@@ -178,8 +296,8 @@ mod tests {
         assert!(moved > 1e-2, "the statistics hardly moved ({moved}): the test would prove nothing");
 
         let all: Vec<usize> = (0..buffer.len()).collect();
-        let mb = model.minibatch_loss(&buffer, &all).unwrap();
-        (mb.log_ratio.exp().unwrap() - 1.0).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap()
+        let (update, graph) = model.log_ratios(&buffer, &all).unwrap();
+        update.iter().chain(&graph).map(|l| (l.exp() - 1.0).abs()).fold(0.0, f32::max)
     }
 
     #[test]
@@ -187,6 +305,30 @@ mod tests {
         let config = PpoConfig { n_steps: 128, normalize_observations: true, ..PpoConfig::default() };
         let deviation = largest_first_ratio_deviation(&mut ClassicCartPole::new(4), config);
         assert!(deviation <= 1e-6, "|ratio - 1| up to {deviation}");
+    }
+
+    /// The weights after a few updates of minibatches large enough to split, trained in a pool
+    /// of `threads`.
+    fn weights_after_training_on(threads: usize, make: fn() -> Box<dyn VecEnv>) -> Vec<Vec<f32>> {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let mut env = make();
+            let env = env.as_mut();
+            let config = PpoConfig { n_steps: 64, batch_size: 128, n_epochs: 3, ..PpoConfig::default() };
+            let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 11).unwrap();
+            model.learn(env, 4 * 64 * 3, &mut |_: &UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue)).unwrap();
+            model.policy.named_vars().iter().map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap()).collect()
+        })
+    }
+
+    #[test]
+    fn one_thread_or_two_train_the_same_bits() {
+        let envs: [fn() -> Box<dyn VecEnv>; 2] = [|| Box::new(ClassicCartPole::new(4)), || Box::new(ClassicPendulum::new(4))];
+        for make in envs {
+            let one = weights_after_training_on(1, make);
+            let two = weights_after_training_on(2, make);
+            assert_eq!(one, two);
+        }
     }
 
     #[test]
