@@ -89,12 +89,7 @@ impl Adam {
     /// (PyTorch's clip coefficient max / (norm + 1e-6), capped at 1). A variable without a
     /// gradient is left alone, as PyTorch does. Non-finite gradients change nothing.
     pub fn step(&mut self, grads: &GradStore, max_grad_norm: Option<f32>) -> Result<GradientStep> {
-        let gradients = self
-            .vars
-            .iter()
-            .map(|v| grads.get(v.as_tensor()).map(|g| g.flatten_all()?.to_vec1::<f32>()).transpose())
-            .collect::<Result<_>>()?;
-        self.step_flat(gradients, max_grad_norm)
+        self.step_flat(flat_gradients(&self.vars, grads)?, max_grad_norm)
     }
 
     /// [`Adam::step`] along `gradients`, flat, one per variable in the optimiser's order
@@ -132,6 +127,11 @@ impl Adam {
         }
         Ok(GradientStep { grad_norm, applied: true })
     }
+}
+
+/// Each of `vars`' gradient in `grads`, flat (none where the loss did not reach it).
+pub fn flat_gradients(vars: &[Var], grads: &GradStore) -> Result<Vec<Option<Vec<f32>>>> {
+    vars.iter().map(|v| grads.get(v.as_tensor()).map(|g| g.flatten_all()?.to_vec1::<f32>()).transpose()).collect()
 }
 
 #[cfg(test)]

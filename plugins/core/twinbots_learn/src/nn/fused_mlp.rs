@@ -1,8 +1,9 @@
-//! An MLP's forward and backward pass over plain slices, for the small networks of RL policies:
-//! one gemm call per product and one pass per activation, no graph and no tensor per op.
-//! candle's autograd spends most of a small network's gradient step on its own bookkeeping
-//! (≈ 60 ops of allocation and dispatch a step, measured 2026-11-28: a PPO minibatch of 256
-//! through two 64-unit MLPs took 0.66 ms, of which the arithmetic is ≈ 0.15 ms).
+//! An MLP's forward and backward pass over plain slices, for the small networks of RL policies
+//! (PPO's tanh MLPs, SAC's ReLU actor and critics): one gemm call per product and one pass per
+//! activation, no graph and no tensor per op. candle's autograd spends most of a small
+//! network's gradient step on its own bookkeeping (≈ 60 tensors allocated and dispatched a
+//! step, measured 2026-11-28: a PPO minibatch of 256 through two 64-unit MLPs took 0.66 ms, of
+//! which the arithmetic is ≈ 0.15 ms).
 //!
 //! Row-major throughout, as candle stores tensors: a batch is `rows × width`, a layer's weight
 //! `outputs × inputs` (PyTorch's and candle's layout), so the numbers move between the two
@@ -11,6 +12,7 @@
 use candle_core::Result;
 
 use super::Dense;
+pub use crate::policy_net::Activation;
 
 /// `dst (m × n) = [dst +] A B` with `A` of `m × k` and `B` of `k × n`, each given row-major or,
 /// with its `transposed` flag, as its transpose row-major (`k × m`, `n × k`). On the calling
@@ -52,16 +54,18 @@ pub struct LayerValues {
     pub outputs: usize,
 }
 
-/// An MLP's layers as slices: tanh after every layer but the last, which is linear (the PPO
-/// actor-critic's `Mlp`).
-pub struct TanhMlp {
+/// An MLP's layers as slices, with `hidden` after every layer but the last, and after the last
+/// too with `activate_last` (PPO's tanh MLPs; SAC's ReLU body and critics).
+pub struct SliceMlp {
     pub layers: Vec<LayerValues>,
+    pub hidden: Activation,
+    pub activate_last: bool,
 }
 
 /// What a forward pass keeps for its backward pass: every layer's input and the output.
 pub struct Activations {
     rows: usize,
-    /// `inputs[i]` is layer i's input (`rows × inputs`); the last entry is the output.
+    /// `values[i]` is layer i's input (`rows × inputs`); the last entry is the output.
     values: Vec<Vec<f32>>,
 }
 
@@ -78,9 +82,40 @@ pub struct LayerGradients {
     pub bias: Vec<f32>,
 }
 
-impl TanhMlp {
+/// What a backward pass gives: the layers' gradients (in order; none when not asked for) and
+/// the gradient with respect to the input (when asked for).
+pub struct Gradients {
+    pub layers: Vec<LayerGradients>,
+    pub input: Option<Vec<f32>>,
+}
+
+impl Gradients {
+    /// Weight, bias, weight, bias, … flat: the order of the networks' `named_vars`.
+    pub fn into_flat(self) -> impl Iterator<Item = Vec<f32>> {
+        self.layers.into_iter().flat_map(|l| [l.weight, l.bias])
+    }
+}
+
+impl Activation {
+    fn apply(self, values: &mut [f32]) {
+        match self {
+            Activation::Tanh => values.iter_mut().for_each(|v| *v = super::fast_tanh(*v)),
+            Activation::Relu => values.iter_mut().for_each(|v| *v = v.max(0.0)),
+        }
+    }
+
+    /// `d` ← d ⊙ f′, from the activation's outputs `y`: tanh′ = 1 − y², ReLU′ = [y > 0].
+    fn backward(self, d: &mut [f32], y: &[f32]) {
+        match self {
+            Activation::Tanh => d.iter_mut().zip(y).for_each(|(d, y)| *d *= 1.0 - y * y),
+            Activation::Relu => d.iter_mut().zip(y).for_each(|(d, y)| *d = if *y > 0.0 { *d } else { 0.0 }),
+        }
+    }
+}
+
+impl SliceMlp {
     /// The current numbers of `layers`' variables.
-    pub fn read(layers: &[Dense]) -> Result<Self> {
+    pub fn read(layers: &[Dense], hidden: Activation, activate_last: bool) -> Result<Self> {
         let layers = layers
             .iter()
             .map(|l| {
@@ -88,7 +123,7 @@ impl TanhMlp {
                 Ok(LayerValues { weight: l.weight.as_tensor().flatten_all()?.to_vec1()?, bias: l.bias.as_tensor().to_vec1()?, inputs, outputs })
             })
             .collect::<Result<_>>()?;
-        Ok(Self { layers })
+        Ok(Self { layers, hidden, activate_last })
     }
 
     /// The outputs for `x` (`rows × inputs`), keeping what the backward pass needs.
@@ -101,41 +136,48 @@ impl TanhMlp {
             for row in z.chunks_exact_mut(layer.outputs) {
                 row.iter_mut().zip(&layer.bias).for_each(|(z, b)| *z += b);
             }
-            if i + 1 < self.layers.len() {
-                z.iter_mut().for_each(|v| *v = super::fast_tanh(*v));
+            if self.activate_last || i + 1 < self.layers.len() {
+                self.hidden.apply(&mut z);
             }
             values.push(z);
         }
         Activations { rows, values }
     }
 
-    /// The gradients of every layer (in order) from the gradient of the loss with respect to
-    /// the output, `d_output` (`rows × outputs`).
-    pub fn backward(&self, activations: &Activations, d_output: Vec<f32>) -> Vec<LayerGradients> {
+    /// The gradients from the gradient of the loss with respect to the output, `d_output`
+    /// (`rows × outputs`): of every layer when `weights`, of the input when `input`.
+    pub fn backward(&self, activations: &Activations, mut d_output: Vec<f32>, weights: bool, input: bool) -> Gradients {
         let rows = activations.rows;
-        let mut grads = Vec::with_capacity(self.layers.len());
+        if self.activate_last {
+            self.hidden.backward(&mut d_output, activations.output());
+        }
+        let mut layers = Vec::with_capacity(if weights { self.layers.len() } else { 0 });
         // The gradient with respect to the current layer's pre-activation z.
         let mut d_z = d_output;
         for (i, layer) in self.layers.iter().enumerate().rev() {
-            let input = &activations.values[i];
-            // dW = d_zᵀ x (outputs × inputs), db = 1ᵀ d_z
-            let mut weight = vec![0.0; layer.outputs * layer.inputs];
-            matmul(&mut weight, (layer.outputs, layer.inputs, rows), &d_z, true, input, false, false);
-            let mut bias = vec![0.0; layer.outputs];
-            for row in d_z.chunks_exact(layer.outputs) {
-                bias.iter_mut().zip(row).for_each(|(b, g)| *b += g);
+            let x = &activations.values[i];
+            if weights {
+                // dW = d_zᵀ x (outputs × inputs), db = 1ᵀ d_z
+                let mut weight = vec![0.0; layer.outputs * layer.inputs];
+                matmul(&mut weight, (layer.outputs, layer.inputs, rows), &d_z, true, x, false, false);
+                let mut bias = vec![0.0; layer.outputs];
+                for row in d_z.chunks_exact(layer.outputs) {
+                    bias.iter_mut().zip(row).for_each(|(b, g)| *b += g);
+                }
+                layers.push(LayerGradients { weight, bias });
             }
-            grads.push(LayerGradients { weight, bias });
-            if i > 0 {
-                // d_x = d_z W, then through the tanh that made x: d_z' = d_x (1 − x²)
+            if i > 0 || input {
+                // d_x = d_z W, then through the activation that made x (none for the input)
                 let mut d_x = vec![0.0; rows * layer.inputs];
                 matmul(&mut d_x, (rows, layer.inputs, layer.outputs), &d_z, false, &layer.weight, false, false);
-                d_x.iter_mut().zip(input).for_each(|(d, x)| *d *= 1.0 - x * x);
+                if i > 0 {
+                    self.hidden.backward(&mut d_x, x);
+                }
                 d_z = d_x;
             }
         }
-        grads.reverse();
-        grads
+        layers.reverse();
+        Gradients { layers, input: input.then_some(d_z) }
     }
 }
 
@@ -188,13 +230,13 @@ mod tests {
         let loss = (&h * Tensor::from_vec(c.clone(), (rows, 3), &dev).unwrap()).unwrap().sum_all().unwrap();
         let reference = loss.backward().unwrap();
 
-        let mlp = TanhMlp::read(&layers).unwrap();
+        let mlp = SliceMlp::read(&layers, Activation::Tanh, false).unwrap();
         let activations = mlp.forward(x, rows);
         let out: Vec<f32> = h.flatten_all().unwrap().to_vec1().unwrap();
         for (a, b) in activations.output().iter().zip(&out) {
             assert!((a - b).abs() < 1e-5, "output {a} vs {b}");
         }
-        let grads = mlp.backward(&activations, c);
+        let grads = mlp.backward(&activations, c, true, false).layers;
         let close = |ours: &[f32], var: &Var| {
             let theirs: Vec<f32> = reference.get(var.as_tensor()).unwrap().flatten_all().unwrap().to_vec1().unwrap();
             assert_eq!(ours.len(), theirs.len());

@@ -7,7 +7,7 @@ use super::policy::{ActorCritic, Head};
 use super::update::{Part, PartGradient};
 use super::{PpoConfig, RolloutBuffer};
 use crate::nn::Encoder;
-use crate::nn::fused_mlp::{LayerGradients, TanhMlp};
+use crate::nn::fused_mlp::{Activation, SliceMlp};
 
 /// ½ ln 2π, of the Gaussian's log-density.
 const HALF_LOG_2PI: f32 = 0.918_938_5;
@@ -28,8 +28,8 @@ pub(super) fn part_gradient(policy: &ActorCritic, c: &PpoConfig, buffer: &Rollou
     };
     let obs = gather(&buffer.obs, buffer.obs_dim);
     let actions = gather(&buffer.actions, buffer.act_dim);
-    let pi = TanhMlp::read(&policy.pi.layers)?;
-    let vf = TanhMlp::read(&policy.vf.layers)?;
+    let pi = SliceMlp::read(&policy.pi.layers, Activation::Tanh, false)?;
+    let vf = SliceMlp::read(&policy.vf.layers, Activation::Tanh, false)?;
     let pi_out = pi.forward(obs.clone(), b);
     let vf_out = vf.forward(obs, b);
 
@@ -63,15 +63,8 @@ pub(super) fn part_gradient(policy: &ActorCritic, c: &PpoConfig, buffer: &Rollou
         d_value.push(c.vf_coef * 2.0 * error * per_sample);
     }
 
-    let mut gradients = Vec::new();
-    let mut push_layers = |layers: Vec<LayerGradients>| {
-        for layer in layers {
-            gradients.push(Some(layer.weight));
-            gradients.push(Some(layer.bias));
-        }
-    };
-    push_layers(pi.backward(&pi_out, d_pi_out));
-    push_layers(vf.backward(&vf_out, d_value));
+    let mut gradients: Vec<Option<Vec<f32>>> = pi.backward(&pi_out, d_pi_out, true, false).into_flat().map(Some).collect();
+    gradients.extend(vf.backward(&vf_out, d_value, true, false).into_flat().map(Some));
     if let Some(d_log_std) = d_log_std {
         gradients.push(Some(d_log_std));
     }
@@ -87,8 +80,8 @@ pub(super) fn part_gradient(policy: &ActorCritic, c: &PpoConfig, buffer: &Rollou
 /// The policy's numbers for a rollout's inference, read once: the weights stay as they are
 /// until the update after it.
 pub(super) struct Inference {
-    pi: TanhMlp,
-    vf: TanhMlp,
+    pi: SliceMlp,
+    vf: SliceMlp,
     log_std: Vec<f32>,
 }
 
@@ -98,7 +91,7 @@ impl Inference {
         if !applies(policy) {
             return Ok(None);
         }
-        Ok(Some(Self { pi: TanhMlp::read(&policy.pi.layers)?, vf: TanhMlp::read(&policy.vf.layers)?, log_std: policy.log_std_values()? }))
+        Ok(Some(Self { pi: SliceMlp::read(&policy.pi.layers, Activation::Tanh, false)?, vf: SliceMlp::read(&policy.vf.layers, Activation::Tanh, false)?, log_std: policy.log_std_values()? }))
     }
 
     /// [`ActorCritic::act`] on `obs` (rows of normalised observations), sampling with `rng`.

@@ -167,12 +167,8 @@ pub(super) struct PartGradient {
 impl PartGradient {
     /// From candle's graph: the loss's backward pass, read out per variable.
     pub(super) fn of(policy: &ActorCritic, loss: MinibatchLoss) -> anyhow::Result<Self> {
-        let grads = loss.loss.backward()?;
-        let gradients = policy
-            .named_vars()
-            .iter()
-            .map(|(_, v)| grads.get(v.as_tensor()).map(|g| g.flatten_all()?.to_vec1::<f32>()).transpose())
-            .collect::<candle_core::Result<_>>()?;
+        let vars: Vec<Var> = policy.named_vars().into_iter().map(|(_, v)| v).collect();
+        let gradients = crate::nn::flat_gradients(&vars, &loss.loss.backward()?)?;
         Ok(Self {
             policy_loss: loss.policy_loss.to_scalar()?,
             value_loss: loss.value_loss.to_scalar()?,

@@ -10,6 +10,7 @@
 //! count).
 
 mod config;
+mod fused;
 pub(crate) mod model_file;
 mod networks;
 mod update;
@@ -208,10 +209,8 @@ impl Sac {
     }
 
     /// Standard normal noise for `rows` actions, from the agent's own stream.
-    fn noise(&mut self, rows: usize) -> anyhow::Result<Tensor> {
-        let n = rows * self.act_dim();
-        let eps: Vec<f32> = (0..n).map(|_| StandardNormal.sample(&mut self.rng)).collect();
-        Ok(Tensor::from_vec(eps, (rows, self.act_dim()), &Device::Cpu)?)
+    fn noise(&mut self, rows: usize) -> Vec<f32> {
+        (0..rows * self.act_dim()).map(|_| StandardNormal.sample(&mut self.rng)).collect()
     }
 
     /// [-1, 1] → the action space's bounds.
@@ -226,7 +225,8 @@ impl Sac {
             return self.predict_deterministic(obs);
         }
         let x = self.batch(obs)?;
-        let eps = self.noise(x.dim(0)?)?;
+        let rows = x.dim(0)?;
+        let eps = Tensor::from_vec(self.noise(rows), (rows, self.act_dim()), &Device::Cpu)?;
         let (a, _) = self.actor.sample(&x, &eps)?;
         Ok(self.to_env(&a.flatten_all()?.to_vec1::<f32>()?))
     }
@@ -245,7 +245,7 @@ impl Sac {
             return Ok((0..rows * self.act_dim()).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect());
         }
         let x = self.batch(obs)?;
-        let eps = self.noise(rows)?;
+        let eps = Tensor::from_vec(self.noise(rows), (rows, self.act_dim()), &Device::Cpu)?;
         Ok(self.actor.sample(&x, &eps)?.0.flatten_all()?.to_vec1::<f32>()?)
     }
 

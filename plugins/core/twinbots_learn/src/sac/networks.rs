@@ -10,8 +10,8 @@ use rand_chacha::ChaCha8Rng;
 use crate::nn::{Dense, Encoder};
 
 /// SB3's bounds on the actor's log standard deviation.
-const LOG_STD_MIN: f64 = -20.0;
-const LOG_STD_MAX: f64 = 2.0;
+pub(super) const LOG_STD_MIN: f64 = -20.0;
+pub(super) const LOG_STD_MAX: f64 = 2.0;
 
 /// Dense layers with ReLU after every one (`relu_last`) or all but the last.
 pub struct ReluMlp {
@@ -47,9 +47,9 @@ impl ReluMlp {
 /// π(a|s): a = tanh(u), u ~ N(μ(s), σ(s)), both heads on one ReLU body.
 pub struct Actor {
     pub encoder: Encoder,
-    body: ReluMlp,
-    mu: Dense,
-    log_std: Dense,
+    pub(super) body: ReluMlp,
+    pub(super) mu: Dense,
+    pub(super) log_std: Dense,
 }
 
 impl Actor {
@@ -116,8 +116,8 @@ fn softplus(x: &Tensor) -> Result<Tensor> {
 /// Q₁(s, a) and Q₂(s, a): two independent MLPs (clipped double Q).
 pub struct TwinCritic {
     pub encoder: Encoder,
-    q1: ReluMlp,
-    q2: ReluMlp,
+    pub(super) q1: ReluMlp,
+    pub(super) q2: ReluMlp,
 }
 
 impl TwinCritic {
