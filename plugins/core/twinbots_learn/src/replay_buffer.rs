@@ -87,6 +87,7 @@ pub struct ReplayBuffer {
 }
 
 /// A sampled minibatch, rows flat.
+#[derive(Clone, Debug)]
 pub struct Batch {
     pub obs: Vec<f32>,
     pub actions: Vec<f32>,
@@ -196,26 +197,45 @@ impl ReplayBuffer {
     /// finished episode has its goal replaced, with probability n / (n + 1), by one its episode
     /// achieved at that step or later ("future"), and its reward and `done` recomputed for it.
     pub fn sample(&self, batch_size: usize, rng: &mut ChaCha8Rng, her: Option<(&GoalSpec, usize)>) -> Batch {
-        let (o, a) = (self.obs_dim, self.act_dim);
-        let mut b = Batch {
-            obs: Vec::with_capacity(batch_size * o),
-            actions: Vec::with_capacity(batch_size * a),
-            rewards: Vec::with_capacity(batch_size),
-            next_obs: Vec::with_capacity(batch_size * o),
-            dones: Vec::with_capacity(batch_size),
-        };
+        self.assemble(&self.draw(batch_size, rng, her.map(|(_, n)| n)), her.map(|(goal, _)| goal))
+    }
+
+    /// Which transitions [`ReplayBuffer::sample`] takes, and for each the transition whose
+    /// achieved goal replaces its own, if any: all of the sample's randomness.
+    pub fn draw(&self, batch_size: usize, rng: &mut ChaCha8Rng, her_goals: Option<usize>) -> Vec<Draw> {
         let len = self.len();
-        for _ in 0..batch_size {
-            let i = rng.random_range(0..len);
+        (0..batch_size)
+            .map(|_| {
+                let i = rng.random_range(0..len);
+                let goal_from = match her_goals {
+                    Some(n) if self.remaining[i] != RUNNING && rng.random_range(0..=n) > 0 => {
+                        let k = rng.random_range(0..=self.remaining[i] as usize);
+                        Some((i + k * self.n_envs) % self.capacity)
+                    }
+                    _ => None,
+                };
+                Draw { index: i, goal_from }
+            })
+            .collect()
+    }
+
+    /// The minibatch of `draws`, relabelled through `goal` (the costly part of HER: a part of a
+    /// minibatch may be assembled on each thread).
+    pub fn assemble(&self, draws: &[Draw], goal: Option<&GoalSpec>) -> Batch {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        let n = draws.len();
+        let mut b = Batch {
+            obs: Vec::with_capacity(n * o),
+            actions: Vec::with_capacity(n * a),
+            rewards: Vec::with_capacity(n),
+            next_obs: Vec::with_capacity(n * o),
+            dones: Vec::with_capacity(n),
+        };
+        for &Draw { index: i, goal_from } in draws {
             let mut obs = self.obs.row(i, o);
             let mut next = self.next_obs.row(i, o);
             let (mut reward, mut done) = (self.rewards[i], self.dones[i] > 0.5);
-            if let Some((goal, n)) = her
-                && self.remaining[i] != RUNNING
-                && rng.random_range(0..=n) > 0
-            {
-                let k = rng.random_range(0..=self.remaining[i] as usize);
-                let j = (i + k * self.n_envs) % self.capacity;
+            if let (Some(goal), Some(j)) = (goal, goal_from) {
                 let achieved = (goal.achieved)(&self.next_obs.row(j, o));
                 let ended_by = match self.ended_by.get(i) {
                     Some(&code) if code > 0 => self.terminations.get(code as usize - 1).map(String::as_str),
@@ -233,6 +253,13 @@ impl ReplayBuffer {
         }
         b
     }
+}
+
+/// One transition of a sample: its index, and the transition whose achieved goal HER gives it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Draw {
+    pub index: usize,
+    pub goal_from: Option<usize>,
 }
 
 #[cfg(test)]

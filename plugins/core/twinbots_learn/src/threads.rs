@@ -75,6 +75,21 @@ impl<J, R> Helper<J, R> {
     }
 }
 
+/// Does `jobs` (one or two) with `work`, answering in their order: the second on `helper`
+/// while this thread does the first, or one after the other without a helper.
+pub fn share<J, R>(helper: Option<&Helper<J, R>>, work: &impl Fn(J) -> R, jobs: Vec<J>) -> anyhow::Result<Vec<R>> {
+    anyhow::ensure!(jobs.len() <= 2, "{} jobs to share between two threads", jobs.len());
+    let mut jobs = jobs.into_iter();
+    Ok(match (helper, jobs.next(), jobs.next()) {
+        (Some(helper), Some(first), Some(second)) => {
+            helper.submit(second)?;
+            let first = work(first);
+            vec![first, helper.result()?]
+        }
+        (_, first, second) => first.into_iter().chain(second).map(work).collect(),
+    })
+}
+
 /// Runs `body` with a helper thread that answers each job with `work`, while the pool has two
 /// threads or more; with one, `body` gets none and does the jobs itself. The helper spins
 /// between jobs ([`SPIN`]), so it lives only as long as `body`: one burst.

@@ -63,20 +63,13 @@ impl Ppo {
         let (mut pg_sum, mut v_sum, mut ent_sum, mut kl_sum, mut clip_sum, mut batches) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         let mut skipped = 0;
         let (policy, action_space, rng, optimizer) = (&self.policy, &self.action_space, &mut self.rng, &mut self.optimizer);
-        let gradient = |part: &Part| part_gradient(policy, &c, action_space, buffer, part);
-        crate::threads::with_helper(|part: Part| gradient(&part), |helper| -> anyhow::Result<()> {
+        let work = |part: Part| part_gradient(policy, &c, action_space, buffer, &part);
+        crate::threads::with_helper(&work, |helper| -> anyhow::Result<()> {
             'epochs: for _ in 0..c.n_epochs {
                 indices.shuffle(rng);
                 for chunk in indices.chunks(c.batch_size) {
-                    let mut parts = parts(buffer, chunk, c.normalize_advantage).into_iter();
-                    let done: Vec<PartGradient> = match (helper, parts.next(), parts.next()) {
-                        (Some(helper), Some(first), Some(second)) => {
-                            helper.submit(second)?;
-                            let first = gradient(&first);
-                            vec![first?, helper.result()??]
-                        }
-                        (_, first, second) => first.iter().chain(&second).map(gradient).collect::<anyhow::Result<_>>()?,
-                    };
+                    let done = crate::threads::share(helper, &work, parts(buffer, chunk, c.normalize_advantage))?;
+                    let done: Vec<PartGradient> = done.into_iter().collect::<anyhow::Result<_>>()?;
                     // A non-finite loss or gradient (e.g. from a poisoned reward) changes nothing and
                     // is counted: one bad sample must not end a run's learning silently.
                     if !optimizer.step_flat(PartGradient::sum(&done), Some(c.max_grad_norm))?.applied {

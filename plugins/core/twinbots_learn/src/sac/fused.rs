@@ -3,7 +3,7 @@
 //! written out (tests check both agree), at the cost of their arithmetic. Camera policies keep
 //! the graph.
 
-use super::networks::{Actor, LOG_STD_MAX, LOG_STD_MIN, ReluMlp};
+use super::networks::{Actor, LOG_STD_MAX, LOG_STD_MIN, ReluMlp, TwinCritic};
 use super::update::{ActorGradient, LossGradient};
 use super::Sac;
 use crate::nn::fused_mlp::{Activation, Activations, SliceMlp};
@@ -27,12 +27,34 @@ fn linear(layer: &Dense) -> candle_core::Result<SliceMlp> {
     SliceMlp::read(std::slice::from_ref(layer), Activation::Relu, false)
 }
 
-/// The actor's reparameterised samples a = tanh(μ + σ ε) of a batch, with log π(a|s), and
-/// what the actor's backward pass needs.
-pub(super) struct ActorSample {
+/// The actor's numbers, read once per gradient step and shared by its parts.
+pub(super) struct ActorNets {
     body: SliceMlp,
     mu: SliceMlp,
     log_std: SliceMlp,
+}
+
+impl ActorNets {
+    pub(super) fn read(actor: &Actor) -> anyhow::Result<Self> {
+        Ok(Self { body: relu_mlp(&actor.body)?, mu: linear(&actor.mu)?, log_std: linear(&actor.log_std)? })
+    }
+}
+
+/// Twin critics' numbers (the critics' or their targets').
+pub(super) struct CriticNets {
+    q1: SliceMlp,
+    q2: SliceMlp,
+}
+
+impl CriticNets {
+    pub(super) fn read(critic: &TwinCritic) -> anyhow::Result<Self> {
+        Ok(Self { q1: relu_mlp(&critic.q1)?, q2: relu_mlp(&critic.q2)? })
+    }
+}
+
+/// The actor's reparameterised samples a = tanh(μ + σ ε) of some rows, with log π(a|s), and
+/// what the actor's backward pass needs.
+pub(super) struct ActorSample {
     features: Activations,
     mu_pass: Activations,
     log_std_pass: Activations,
@@ -47,11 +69,10 @@ pub(super) struct ActorSample {
 
 impl ActorSample {
     /// Samples for the rows of `obs` (normalised) with the standard normal noise `eps`.
-    pub(super) fn new(actor: &Actor, obs: &[f32], eps: &[f32], rows: usize) -> anyhow::Result<Self> {
-        let (body, mu, log_std) = (relu_mlp(&actor.body)?, linear(&actor.mu)?, linear(&actor.log_std)?);
-        let features = body.forward(obs.to_vec(), rows);
-        let mu_pass = mu.forward(features.output().to_vec(), rows);
-        let log_std_pass = log_std.forward(features.output().to_vec(), rows);
+    pub(super) fn new(nets: &ActorNets, obs: &[f32], eps: &[f32], rows: usize) -> Self {
+        let features = nets.body.forward(obs.to_vec(), rows);
+        let mu_pass = nets.mu.forward(features.output().to_vec(), rows);
+        let log_std_pass = nets.log_std.forward(features.output().to_vec(), rows);
         let act_dim = eps.len() / rows.max(1);
         let mut actions = Vec::with_capacity(eps.len());
         let mut log_pi = Vec::with_capacity(rows);
@@ -67,12 +88,12 @@ impl ActorSample {
             }
             log_pi.push(lp);
         }
-        Ok(Self { body, mu, log_std, features, mu_pass, log_std_pass, eps: eps.to_vec(), actions, log_pi, act_dim })
+        Self { features, mu_pass, log_std_pass, eps: eps.to_vec(), actions, log_pi, act_dim }
     }
 
     /// The actor's gradients (body, μ, log σ: its `named_vars` order) from ∂L/∂a and the weight
     /// `log_pi_weight` of Σ log π in the loss.
-    fn backward(self, d_actions: &[f32], log_pi_weight: f32) -> Vec<Option<Vec<f32>>> {
+    fn backward(self, nets: &ActorNets, d_actions: &[f32], log_pi_weight: f32) -> Vec<Option<Vec<f32>>> {
         let n = self.actions.len();
         let (mut d_mu, mut d_log_std) = (vec![0.0; n], vec![0.0; n]);
         for i in 0..n {
@@ -84,11 +105,11 @@ impl ActorSample {
             let inside = (LOG_STD_MIN as f32..=LOG_STD_MAX as f32).contains(&raw);
             d_log_std[i] = if inside { d_u * clamp_log_std(raw).exp() * self.eps[i] - log_pi_weight } else { 0.0 };
         }
-        let mu = self.mu.backward(&self.mu_pass, d_mu, true, true);
-        let log_std = self.log_std.backward(&self.log_std_pass, d_log_std, true, true);
+        let mu = nets.mu.backward(&self.mu_pass, d_mu, true, true);
+        let log_std = nets.log_std.backward(&self.log_std_pass, d_log_std, true, true);
         let mut d_features = mu.input.clone().unwrap_or_default();
         d_features.iter_mut().zip(log_std.input.iter().flatten()).for_each(|(d, e)| *d += e);
-        let body = self.body.backward(&self.features, d_features, true, false);
+        let body = nets.body.backward(&self.features, d_features, true, false);
         body.into_flat().chain(mu.into_flat()).chain(log_std.into_flat()).map(Some).collect()
     }
 }
@@ -108,51 +129,65 @@ fn joined(obs: &[f32], actions: &[f32], rows: usize) -> Vec<f32> {
     obs.chunks_exact(o.max(1)).zip(actions.chunks_exact(a.max(1))).flat_map(|(o, a)| o.iter().chain(a).copied()).collect()
 }
 
-/// The critics' loss ½ Σᵢ MSE(Qᵢ, y) with y = r + γ (1 − done) (min Q'(s', a') − α log π(a'|s')),
-/// and its gradient (Q₁'s layers, then Q₂'s).
-pub(super) fn critic_gradient(sac: &Sac, batch: &Batch, eps_next: &[f32], alpha: f32) -> anyhow::Result<LossGradient> {
-    let b = batch.rewards.len();
-    let next = ActorSample::new(&sac.actor, &batch.next_obs, eps_next, b)?;
+/// The numbers of every network a gradient step's first phase reads.
+pub(super) struct StepNets {
+    pub actor: ActorNets,
+    pub critic: CriticNets,
+    pub target: CriticNets,
+}
+
+/// Some rows of a minibatch of `of` rows, with their noise: a part of a gradient step.
+pub(super) struct Part {
+    pub batch: Batch,
+    pub eps: Vec<f32>,
+    pub eps_next: Vec<f32>,
+    pub of: usize,
+}
+
+/// A part's share of the critics' loss ½ Σᵢ MSE(Qᵢ, y), y = r + γ (1 − done) (min Q'(s', a') −
+/// α log π(a'|s')), summed over its rows and divided by the minibatch's size, and its gradient
+/// (Q₁'s layers, then Q₂'s); with the actor's samples of its rows, for α and the actor.
+pub(super) fn critic_part(nets: &StepNets, part: &Part, alpha: f32, gamma: f32) -> (ActorSample, LossGradient) {
+    let (batch, b) = (&part.batch, part.batch.rewards.len());
+    let sample = ActorSample::new(&nets.actor, &batch.obs, &part.eps, b);
+    let next = ActorSample::new(&nets.actor, &batch.next_obs, &part.eps_next, b);
     let next_input = joined(&batch.next_obs, &next.actions, b);
-    let (t1, t2) = (relu_mlp(&sac.critic_target.q1)?, relu_mlp(&sac.critic_target.q2)?);
-    let (t1, t2) = (t1.forward(next_input.clone(), b), t2.forward(next_input, b));
+    let (t1, t2) = (nets.target.q1.forward(next_input.clone(), b), nets.target.q2.forward(next_input, b));
     let input = joined(&batch.obs, &batch.actions, b);
-    let (q1, q2) = (relu_mlp(&sac.critic.q1)?, relu_mlp(&sac.critic.q2)?);
-    let (q1_pass, q2_pass) = (q1.forward(input.clone(), b), q2.forward(input, b));
-    let per_sample = 1.0 / b.max(1) as f32;
+    let (q1, q2) = (nets.critic.q1.forward(input.clone(), b), nets.critic.q2.forward(input, b));
+    let per_sample = 1.0 / part.of.max(1) as f32;
     let (mut loss, mut d_q1, mut d_q2) = (0.0, Vec::with_capacity(b), Vec::with_capacity(b));
     for i in 0..b {
         let next_q = t1.output()[i].min(t2.output()[i]) - alpha * next.log_pi[i];
-        let y = batch.rewards[i] + (1.0 - batch.dones[i]) * next_q * sac.config.gamma;
-        let (e1, e2) = (q1_pass.output()[i] - y, q2_pass.output()[i] - y);
+        let y = batch.rewards[i] + (1.0 - batch.dones[i]) * next_q * gamma;
+        let (e1, e2) = (q1.output()[i] - y, q2.output()[i] - y);
         loss += 0.5 * (e1 * e1 + e2 * e2) * per_sample;
         d_q1.push(e1 * per_sample);
         d_q2.push(e2 * per_sample);
     }
-    let gradients = q1.backward(&q1_pass, d_q1, true, false).into_flat().chain(q2.backward(&q2_pass, d_q2, true, false).into_flat()).map(Some).collect();
-    Ok(LossGradient { loss, gradients })
+    let gradients = nets.critic.q1.backward(&q1, d_q1, true, false).into_flat().chain(nets.critic.q2.backward(&q2, d_q2, true, false).into_flat()).map(Some).collect();
+    (sample, LossGradient { loss, gradients })
 }
 
-/// The actor's loss E[α log π(a|s) − min Q(s, a)] over `sample` (taken from `obs`) through the
-/// critics as they are now, and its gradient.
-pub(super) fn actor_gradient(sac: &Sac, obs: &[f32], sample: ActorSample, alpha: f32) -> anyhow::Result<ActorGradient> {
+/// A part's share of the actor's loss E[α log π(a|s) − min Q(s, a)] over its `sample` (taken
+/// from `obs`) through the critics `critic` (as they are after their step), and its gradient.
+pub(super) fn actor_part(actor: &ActorNets, critic: &CriticNets, obs: &[f32], sample: ActorSample, alpha: f32, of: usize) -> ActorGradient {
     let b = sample.log_pi.len();
     let act_dim = sample.act_dim;
     let input = joined(obs, &sample.actions, b);
-    let (q1, q2) = (relu_mlp(&sac.critic.q1)?, relu_mlp(&sac.critic.q2)?);
-    let (q1_pass, q2_pass) = (q1.forward(input.clone(), b), q2.forward(input, b));
-    let per_sample = 1.0 / b.max(1) as f32;
+    let (q1, q2) = (critic.q1.forward(input.clone(), b), critic.q2.forward(input, b));
+    let per_sample = 1.0 / of.max(1) as f32;
     let (mut loss, mut d_q1, mut d_q2) = (0.0, Vec::with_capacity(b), Vec::with_capacity(b));
     for i in 0..b {
-        let (a, c) = (q1_pass.output()[i], q2_pass.output()[i]);
+        let (a, c) = (q1.output()[i], q2.output()[i]);
         loss += (alpha * sample.log_pi[i] - a.min(c)) * per_sample;
         // −min(Q₁, Q₂): the gradient goes to the smaller, half to each when they are equal.
         let share = |mine: f32, other: f32| if mine < other { 1.0 } else if mine == other { 0.5 } else { 0.0 };
         d_q1.push(-per_sample * share(a, c));
         d_q2.push(-per_sample * share(c, a));
     }
-    let d_in1 = q1.backward(&q1_pass, d_q1, false, true).input.unwrap_or_default();
-    let d_in2 = q2.backward(&q2_pass, d_q2, false, true).input.unwrap_or_default();
+    let d_in1 = critic.q1.backward(&q1, d_q1, false, true).input.unwrap_or_default();
+    let d_in2 = critic.q2.backward(&q2, d_q2, false, true).input.unwrap_or_default();
     let width = d_in1.len() / b.max(1);
     // ∂L/∂a: the action columns of the critics' input gradients.
     let d_actions: Vec<f32> = d_in1
@@ -161,8 +196,64 @@ pub(super) fn actor_gradient(sac: &Sac, obs: &[f32], sample: ActorSample, alpha:
         .flat_map(|(r1, r2)| (width - act_dim..width).map(move |k| r1[k] + r2[k]))
         .collect();
     let entropy = -sample.log_pi.iter().sum::<f32>() * per_sample;
-    let gradients = sample.backward(&d_actions, alpha * per_sample);
-    Ok(ActorGradient { loss: LossGradient { loss, gradients }, entropy })
+    let gradients = sample.backward(actor, &d_actions, alpha * per_sample);
+    ActorGradient { loss: LossGradient { loss, gradients }, entropy }
+}
+
+/// Minibatches of this many rows or more are computed in two halves, whose losses and
+/// gradients add up to the minibatch's (as PPO's: a rule of the size, never of the machine).
+const SPLIT_FROM: usize = 64;
+
+/// The rows of a minibatch of `of` in one part, or in two halves from [`SPLIT_FROM`] rows on.
+pub(super) fn row_ranges(of: usize) -> Vec<std::ops::Range<usize>> {
+    if of < SPLIT_FROM { vec![0..of] } else { vec![0..of / 2, of / 2..of] }
+}
+
+/// The rows `rows` of `values`, a flat array of rows of equal width.
+pub(super) fn rows_of<T: Clone>(values: &[T], of: usize, rows: &std::ops::Range<usize>) -> Vec<T> {
+    let width = values.len() / of.max(1);
+    values[rows.start * width..rows.end * width].to_vec()
+}
+
+/// The minibatch with its noise in the parts of [`row_ranges`].
+#[cfg(test)]
+pub(super) fn parts(batch: Batch, eps: Vec<f32>, eps_next: Vec<f32>) -> Vec<Part> {
+    let of = batch.rewards.len();
+    row_ranges(of)
+        .iter()
+        .map(|r| Part {
+            batch: Batch {
+                obs: rows_of(&batch.obs, of, r),
+                actions: rows_of(&batch.actions, of, r),
+                rewards: rows_of(&batch.rewards, of, r),
+                next_obs: rows_of(&batch.next_obs, of, r),
+                dones: rows_of(&batch.dones, of, r),
+            },
+            eps: rows_of(&eps, of, r),
+            eps_next: rows_of(&eps_next, of, r),
+            of,
+        })
+        .collect()
+}
+
+/// The parts' losses added and gradients summed in order.
+pub(super) fn sum(parts: Vec<LossGradient>) -> LossGradient {
+    let mut total = LossGradient { loss: 0.0, gradients: Vec::new() };
+    for part in parts {
+        total.loss += part.loss;
+        if total.gradients.is_empty() {
+            total.gradients = part.gradients;
+            continue;
+        }
+        for (t, g) in total.gradients.iter_mut().zip(part.gradients) {
+            match (t.as_mut(), g) {
+                (Some(t), Some(g)) => t.iter_mut().zip(&g).for_each(|(t, g)| *t += g),
+                (None, g) => *t = g,
+                (_, None) => {}
+            }
+        }
+    }
+    total
 }
 
 #[cfg(test)]
@@ -170,7 +261,6 @@ mod tests {
     use super::*;
     use crate::classic::ClassicPendulum;
     use crate::sac::SacConfig;
-    use crate::sac::update::ActorPass;
     use candle_core::{Device, Tensor};
     use rand::SeedableRng;
     use twinbots_api::env::VecEnv;
@@ -193,13 +283,28 @@ mod tests {
     /// replay buffer, and the noise of a step.
     fn trained_model_and_batch() -> (Sac, Batch, Vec<f32>, Vec<f32>) {
         let mut env = ClassicPendulum::new(2);
-        let config = SacConfig { hidden: vec![16, 16], learning_starts: 64, batch_size: 32, learning_rate: 3e-3, ..SacConfig::default() };
+        let config = SacConfig { hidden: vec![16, 16], learning_starts: 64, batch_size: 96, learning_rate: 3e-3, ..SacConfig::default() };
         let mut sac = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 4).unwrap();
         sac.learn(&mut env, 400, &mut |_: &crate::UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue)).unwrap();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
-        let batch = sac.buffer.as_ref().unwrap().sample(32, &mut rng, None);
-        let (eps, eps_next) = (sac.noise(32), sac.noise(32));
+        let batch = sac.buffer.as_ref().unwrap().sample(96, &mut rng, None);
+        let (eps, eps_next) = (sac.noise(96), sac.noise(96));
         (sac, batch, eps, eps_next)
+    }
+
+    #[test]
+    fn one_thread_or_two_train_the_same_bits() {
+        let weights = |threads: usize| {
+            rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
+                let mut env = ClassicPendulum::new(2);
+                let config = SacConfig { hidden: vec![16, 16], learning_starts: 64, batch_size: 96, ..SacConfig::default() };
+                let mut sac = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 6).unwrap();
+                sac.learn(&mut env, 300, &mut |_: &crate::UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue)).unwrap();
+                let vars = sac.actor.named_vars().into_iter().chain(sac.critic.named_vars("critic")).chain(sac.critic_target.named_vars("target"));
+                vars.map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect::<Vec<_>>()
+            })
+        };
+        assert_eq!(weights(1), weights(2));
     }
 
     #[test]
@@ -207,9 +312,14 @@ mod tests {
         let (sac, batch, _, eps_next) = trained_model_and_batch();
         let alpha = sac.ent_coef().unwrap();
         assert!((alpha - 1.0).abs() > 0.01, "α never moved: the test would not weigh the entropy term");
-        let ours = critic_gradient(&sac, &batch, &eps_next, alpha).unwrap();
+        let nets = StepNets { actor: ActorNets::read(&sac.actor).unwrap(), critic: CriticNets::read(&sac.critic).unwrap(), target: CriticNets::read(&sac.critic_target).unwrap() };
         let (theirs, _) = sac.critic_gradient_graph(&batch, &eps_next, alpha).unwrap();
-        agree(&ours, &theirs, "critic");
+        // In one part, and in the two halves a step computes side by side.
+        let whole = Part { of: batch.rewards.len(), batch: batch.clone(), eps: eps_next.clone(), eps_next: eps_next.clone() };
+        agree(&critic_part(&nets, &whole, alpha, sac.config.gamma).1, &theirs, "critic");
+        let halves = parts(batch, eps_next.clone(), eps_next).iter().map(|p| critic_part(&nets, p, alpha, sac.config.gamma).1).collect::<Vec<_>>();
+        assert_eq!(halves.len(), 2);
+        agree(&sum(halves), &theirs, "critic in halves");
     }
 
     #[test]
@@ -217,11 +327,12 @@ mod tests {
         let (sac, batch, eps, _) = trained_model_and_batch();
         let alpha = sac.ent_coef().unwrap();
         let b = batch.rewards.len();
-        let sample = ActorSample::new(&sac.actor, &batch.obs, &eps, b).unwrap();
-        let ActorPass::Graph { actions, log_pi } = ActorPass::graph(&sac, &batch.obs, &eps).unwrap() else { unreachable!() };
+        let nets = ActorNets::read(&sac.actor).unwrap();
+        let sample = ActorSample::new(&nets, &batch.obs, &eps, b);
+        let (actions, log_pi) = sac.actor_samples_graph(&batch.obs, &eps).unwrap();
         let theirs_log_pi: Vec<f32> = log_pi.to_vec1().unwrap();
         sample.log_pi.iter().zip(&theirs_log_pi).for_each(|(a, b)| close(*a, *b, "log π"));
-        let ours = actor_gradient(&sac, &batch.obs, sample, alpha).unwrap();
+        let ours = actor_part(&nets, &CriticNets::read(&sac.critic).unwrap(), &batch.obs, sample, alpha, b);
         let features = Tensor::from_vec(batch.obs.clone(), (b, sac.observation_space.dim()), &Device::Cpu).unwrap();
         let theirs = sac.actor_gradient_graph(&actions, &log_pi, &features, alpha).unwrap();
         agree(&ours.loss, &theirs.loss, "actor");

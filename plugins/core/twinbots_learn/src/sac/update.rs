@@ -7,10 +7,13 @@
 
 use candle_core::{Device, Tensor};
 
+use std::sync::Arc;
+
+use super::fused::{self, ActorNets, ActorSample, CriticNets, Part, StepNets};
 use super::networks::polyak_update;
 use super::{Sac, SacLosses};
 use crate::nn::flat_gradients;
-use crate::replay_buffer::Batch;
+use crate::replay_buffer::{Batch, Draw, ReplayBuffer};
 
 /// A loss's value and its gradient for every variable of one optimiser, flat, in its order.
 pub(super) struct LossGradient {
@@ -28,54 +31,102 @@ impl Sac {
     /// One gradient step of every part; `None` when a loss or gradient was not finite (that
     /// part's weights stay as they were, and the step counts as skipped).
     pub fn gradient_step(&mut self) -> anyhow::Result<Option<SacLosses>> {
-        let Some(buffer) = &self.buffer else { return Ok(None) };
+        // The buffer is lent to the step's threads while the step changes the rest.
+        let Some(buffer) = self.buffer.take() else { return Ok(None) };
+        let step = self.gradient_step_on(&buffer);
+        self.buffer = Some(buffer);
+        step
+    }
+
+    fn gradient_step_on(&mut self, buffer: &ReplayBuffer) -> anyhow::Result<Option<SacLosses>> {
         if buffer.is_empty() {
             return Ok(None);
         }
-        let her = self.goal.as_ref().filter(|_| self.config.her_goals > 0).map(|g| (g, self.config.her_goals));
-        let mut batch = buffer.sample(self.config.batch_size, &mut self.rng, her);
-        batch.obs = crate::normalize::normalized(self.obs_rms.as_ref(), &batch.obs);
-        batch.next_obs = crate::normalize::normalized(self.obs_rms.as_ref(), &batch.next_obs);
-        let b = batch.rewards.len();
+        let goal = self.goal.filter(|_| self.config.her_goals > 0);
+        let draws = buffer.draw(self.config.batch_size, &mut self.rng, goal.map(|_| self.config.her_goals));
+        let b = draws.len();
         let eps = self.noise(b);
         let eps_next = self.noise(b);
         let alpha = self.ent_coef()?;
-        let fused = super::fused::applies(self);
-        let mut applied = true;
-
-        // The actor's reparameterised samples a ~ π(·|s), for α and the actor's loss.
-        let actor_pass = if fused { ActorPass::Slices(super::fused::ActorSample::new(&self.actor, &batch.obs, &eps, b)?) } else { ActorPass::graph(self, &batch.obs, &eps)? };
-        let log_pi = actor_pass.log_pi()?;
-
-        // α: J(α) = E[−α (log π(a|s) + H̄)], stepped on log α; this step uses α before it.
-        let mut ent_coef_loss = f32::NAN;
-        if self.config.learn_ent_coef {
-            let target_entropy = self.config.target_entropy.unwrap_or(-(self.act_dim() as f32));
-            let mean = log_pi.iter().map(|l| l + target_entropy).sum::<f32>() / b.max(1) as f32;
-            let log_alpha = self.log_ent_coef.as_tensor().to_vec1::<f32>()?[0];
-            ent_coef_loss = -log_alpha * mean;
-            applied &= self.ent_optimizer.step_flat(vec![Some(vec![-mean])], None)?.applied;
+        let obs_rms = self.obs_rms.clone();
+        // Rows relabelled (HER) and normalised with the statistics in force.
+        let assemble = |draws: &[Draw]| {
+            let mut batch = buffer.assemble(draws, goal.as_ref());
+            batch.obs = crate::normalize::normalized(obs_rms.as_ref(), &batch.obs);
+            batch.next_obs = crate::normalize::normalized(obs_rms.as_ref(), &batch.next_obs);
+            batch
+        };
+        if !fused::applies(self) {
+            return self.gradient_step_graph(assemble(&draws), eps, eps_next, alpha);
         }
-
-        // Critics: y = r + γ (1 − done) (min Q'(s', a') − α log π(a'|s')), a' ~ π(·|s').
-        let (critic, critic_features) = if fused {
-            (super::fused::critic_gradient(self, &batch, &eps_next, alpha)?, None)
-        } else {
-            let (critic, features) = self.critic_gradient_graph(&batch, &eps_next, alpha)?;
-            (critic, Some(features))
+        // Over slices, each half of the minibatch on its own thread (`fused::row_ranges`): its
+        // rows assembled, the actor's samples and the critics' gradient; then, after the
+        // critics' step, the actor's gradient.
+        let gamma = self.config.gamma;
+        let work = |job: Job| match job {
+            Job::Critic(nets, draws, eps, eps_next) => {
+                let part = Part { batch: assemble(&draws), eps, eps_next, of: b };
+                let (sample, gradient) = fused::critic_part(&nets, &part, alpha, gamma);
+                Answer::Critic(sample, gradient, part.batch.obs)
+            }
+            Job::Actor(nets, critic, obs, sample) => Answer::Actor(fused::actor_part(&nets.actor, &critic, &obs, sample, alpha, b)),
         };
+        crate::threads::with_helper(&work, |helper| {
+            let nets = Arc::new(StepNets { actor: ActorNets::read(&self.actor)?, critic: CriticNets::read(&self.critic)?, target: CriticNets::read(&self.critic_target)? });
+            let jobs = fused::row_ranges(b)
+                .iter()
+                .map(|r| Job::Critic(nets.clone(), fused::rows_of(&draws, b, r), fused::rows_of(&eps, b, r), fused::rows_of(&eps_next, b, r)))
+                .collect();
+            let (mut samples, mut critic) = (Vec::new(), Vec::new());
+            for answer in crate::threads::share(helper, &work, jobs)? {
+                let Answer::Critic(sample, gradient, obs) = answer else { anyhow::bail!("a critic job answered as the actor's") };
+                samples.push((sample, obs));
+                critic.push(gradient);
+            }
+            let log_pi: Vec<f32> = samples.iter().flat_map(|(s, _)| s.log_pi.iter().copied()).collect();
+            let (mut applied, ent_coef_loss) = self.step_ent_coef(&log_pi)?;
+            let critic = fused::sum(critic);
+            applied &= self.critic_optimizer.step_flat(critic.gradients.clone(), None)?.applied;
+
+            let critic_now = Arc::new(CriticNets::read(&self.critic)?);
+            let jobs = samples.into_iter().map(|(sample, obs)| Job::Actor(nets.clone(), critic_now.clone(), obs, sample)).collect();
+            let (mut actor, mut entropy) = (Vec::new(), 0.0);
+            for answer in crate::threads::share(helper, &work, jobs)? {
+                let Answer::Actor(part) = answer else { anyhow::bail!("an actor job answered as the critics'") };
+                entropy += part.entropy;
+                actor.push(part.loss);
+            }
+            let actor = ActorGradient { loss: fused::sum(actor), entropy };
+            self.finish_step(critic.loss, actor, (applied, ent_coef_loss), alpha)
+        })
+    }
+
+    /// The step through candle's graph (camera policies).
+    fn gradient_step_graph(&mut self, batch: Batch, eps: Vec<f32>, eps_next: Vec<f32>, alpha: f32) -> anyhow::Result<Option<SacLosses>> {
+        let (actions, log_pi) = self.actor_samples_graph(&batch.obs, &eps)?;
+        let (mut applied, ent_coef_loss) = self.step_ent_coef(&log_pi.to_vec1::<f32>()?)?;
+        let (critic, features) = self.critic_gradient_graph(&batch, &eps_next, alpha)?;
         applied &= self.critic_optimizer.step_flat(critic.gradients, None)?.applied;
+        // The critics' image features are reused, detached, rather than computed again.
+        let actor = self.actor_gradient_graph(&actions, &log_pi, &features, alpha)?;
+        self.finish_step(critic.loss, actor, (applied, ent_coef_loss), alpha)
+    }
 
-        // Actor: J(π) = E[α log π(a|s) − min Q(s, a)], a ~ π(·|s) reparameterised, through the
-        // critics just stepped (their gradients of this loss are not applied, so the critics'
-        // image features are reused, detached, rather than computed again).
-        let actor = match (actor_pass, &critic_features) {
-            (ActorPass::Graph { actions, log_pi }, Some(features)) => self.actor_gradient_graph(&actions, &log_pi, features, alpha)?,
-            (ActorPass::Slices(sample), _) => super::fused::actor_gradient(self, &batch.obs, sample, alpha)?,
-            (ActorPass::Graph { .. }, None) => anyhow::bail!("the critics' features are missing"),
-        };
+    /// α: J(α) = E[−α (log π(a|s) + H̄)], stepped on log α (the step uses α before it).
+    /// Whether the step was applied (true when α is not learnt), and J(α) (NaN then).
+    fn step_ent_coef(&mut self, log_pi: &[f32]) -> anyhow::Result<(bool, f32)> {
+        if !self.config.learn_ent_coef {
+            return Ok((true, f32::NAN));
+        }
+        let target_entropy = self.config.target_entropy.unwrap_or(-(self.act_dim() as f32));
+        let mean = log_pi.iter().map(|l| l + target_entropy).sum::<f32>() / log_pi.len().max(1) as f32;
+        let log_alpha = self.log_ent_coef.as_tensor().to_vec1::<f32>()?[0];
+        Ok((self.ent_optimizer.step_flat(vec![Some(vec![-mean])], None)?.applied, -log_alpha * mean))
+    }
+
+    /// The actor's step, the targets' Polyak update and the step's figures.
+    fn finish_step(&mut self, critic_loss: f32, actor: ActorGradient, (mut applied, ent_coef_loss): (bool, f32), alpha: f32) -> anyhow::Result<Option<SacLosses>> {
         applied &= self.actor_optimizer.step_flat(actor.loss.gradients, None)?.applied;
-
         self.gradient_steps += 1;
         if self.gradient_steps % self.config.target_update_interval as u64 == 0 {
             polyak_update(&self.critic_target.named_vars("target"), &self.critic.named_vars("critic"), self.config.tau)?;
@@ -85,7 +136,7 @@ impl Sac {
         }
         Ok(Some(SacLosses {
             actor_loss: actor.loss.loss,
-            critic_loss: critic.loss,
+            critic_loss,
             ent_coef: alpha,
             ent_coef_loss,
             entropy: actor.entropy,
@@ -125,26 +176,27 @@ impl Sac {
     }
 }
 
-/// The actor's samples of a step: as graph tensors (with their gradients), or over slices.
-pub(super) enum ActorPass {
-    Graph { actions: Tensor, log_pi: Tensor },
-    Slices(super::fused::ActorSample),
+/// A job of a step over slices, for either thread: a part's critics' gradient (with the
+/// networks' numbers, the part's draws from the buffer and its noise), or a part's actor's
+/// gradient (with the critics' numbers after their step, the part's observations and samples).
+enum Job {
+    Critic(Arc<StepNets>, Vec<Draw>, Vec<f32>, Vec<f32>),
+    Actor(Arc<StepNets>, Arc<CriticNets>, Vec<f32>, ActorSample),
 }
 
-impl ActorPass {
-    pub(super) fn graph(sac: &Sac, obs: &[f32], eps: &[f32]) -> anyhow::Result<Self> {
-        let (dev, act_dim) = (Device::Cpu, sac.act_dim());
-        let rows = eps.len() / act_dim.max(1);
-        let obs = Tensor::from_vec(obs.to_vec(), (rows, sac.observation_space.dim()), &dev)?;
-        let (actions, log_pi) = sac.actor.sample(&obs, &Tensor::from_vec(eps.to_vec(), (rows, act_dim), &dev)?)?;
-        Ok(ActorPass::Graph { actions, log_pi })
-    }
+enum Answer {
+    /// The part's actor samples, critics' gradient, and observations (normalised).
+    Critic(ActorSample, LossGradient, Vec<f32>),
+    Actor(ActorGradient),
+}
 
-    /// log π(a|s) of each sample.
-    fn log_pi(&self) -> anyhow::Result<Vec<f32>> {
-        Ok(match self {
-            ActorPass::Graph { log_pi, .. } => log_pi.to_vec1()?,
-            ActorPass::Slices(sample) => sample.log_pi.clone(),
-        })
+impl Sac {
+    /// The actor's reparameterised samples of the rows of `obs` (normalised) with the noise
+    /// `eps`, and their log π, through candle's graph (with their gradients).
+    pub(super) fn actor_samples_graph(&self, obs: &[f32], eps: &[f32]) -> anyhow::Result<(Tensor, Tensor)> {
+        let (dev, act_dim) = (Device::Cpu, self.act_dim());
+        let rows = eps.len() / act_dim.max(1);
+        let obs = Tensor::from_vec(obs.to_vec(), (rows, self.observation_space.dim()), &dev)?;
+        Ok(self.actor.sample(&obs, &Tensor::from_vec(eps.to_vec(), (rows, act_dim), &dev)?)?)
     }
 }
