@@ -129,6 +129,23 @@ impl Adam {
     }
 }
 
+/// The sum of several losses' gradients (flat, one per variable, as [`flat_gradients`] gives
+/// them), added in order: a minibatch's gradient from its parts'.
+pub fn sum_gradients<'a>(parts: impl IntoIterator<Item = &'a [Option<Vec<f32>>]>) -> Vec<Option<Vec<f32>>> {
+    let mut sum: Vec<Option<Vec<f32>>> = Vec::new();
+    for part in parts {
+        sum.resize(sum.len().max(part.len()), None);
+        for (total, g) in sum.iter_mut().zip(part) {
+            match (total.as_mut(), g) {
+                (Some(total), Some(g)) => total.iter_mut().zip(g).for_each(|(t, g)| *t += g),
+                (None, Some(g)) => *total = Some(g.clone()),
+                (_, None) => {}
+            }
+        }
+    }
+    sum
+}
+
 /// Each of `vars`' gradient in `grads`, flat (none where the loss did not reach it).
 pub fn flat_gradients(vars: &[Var], grads: &GradStore) -> Result<Vec<Option<Vec<f32>>>> {
     vars.iter().map(|v| grads.get(v.as_tensor()).map(|g| g.flatten_all()?.to_vec1::<f32>()).transpose()).collect()

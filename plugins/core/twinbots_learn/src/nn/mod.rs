@@ -12,7 +12,7 @@ pub mod fused_mlp;
 mod relu;
 mod tanh;
 
-pub use adam::{Adam, AdamConfig, GradientStep, flat_gradients};
+pub use adam::{Adam, AdamConfig, GradientStep, flat_gradients, sum_gradients};
 pub use conv::{Conv2d, Patches, unfold};
 pub use dense::Dense;
 pub use encoder::{CNN_MIN_SIZE, Encoder, NatureCnn, PolicyKind, check_normalization};

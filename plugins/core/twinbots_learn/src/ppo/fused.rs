@@ -4,7 +4,7 @@
 //! encoder, image observations) keep candle's path.
 
 use super::policy::{ActorCritic, Head};
-use super::update::{Part, PartGradient};
+use super::part::{Part, PartGradient};
 use super::{PpoConfig, RolloutBuffer};
 use crate::nn::Encoder;
 use crate::nn::fused_mlp::{Activation, SliceMlp};
@@ -203,7 +203,8 @@ mod tests {
     use super::*;
     use crate::classic::{ClassicCartPole, ClassicPendulum};
     use crate::ppo::Ppo;
-    use crate::ppo::update::{PartGradient, part_loss};
+    use crate::ppo::part::PartGradient;
+    use crate::ppo::update::part_loss;
     use twinbots_api::env::VecEnv;
 
     /// A rollout of a fresh policy, a few updates in (so the ratios differ from one and some

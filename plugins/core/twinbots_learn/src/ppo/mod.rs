@@ -10,6 +10,7 @@ mod buffer;
 mod config;
 mod fused;
 mod model_file;
+mod part;
 mod reward_scale;
 pub(crate) mod policy;
 mod rollout;

@@ -6,6 +6,7 @@ use std::time::Instant;
 use candle_core::{Device, Tensor, Var};
 use rand::seq::SliceRandom;
 
+use super::part::{Part, PartGradient};
 use super::{ActorCritic, Ppo, PpoConfig, RolloutBuffer, TRAIN_FIGURES, UpdateStats};
 use crate::stats::figures;
 use crate::nn::{Adam, AdamConfig};
@@ -72,7 +73,7 @@ impl Ppo {
                     let done: Vec<PartGradient> = done.into_iter().collect::<anyhow::Result<_>>()?;
                     // A non-finite loss or gradient (e.g. from a poisoned reward) changes nothing and
                     // is counted: one bad sample must not end a run's learning silently.
-                    if !optimizer.step_flat(PartGradient::sum(&done), Some(c.max_grad_norm))?.applied {
+                    if !optimizer.step_flat(crate::nn::sum_gradients(done.iter().map(|p| p.gradients.as_slice())), Some(c.max_grad_norm))?.applied {
                         skipped += 1;
                         continue;
                     }
@@ -124,6 +125,21 @@ impl Ppo {
     }
 }
 
+impl PartGradient {
+    /// From candle's graph: the loss's backward pass, read out per variable.
+    pub(super) fn of(policy: &ActorCritic, loss: MinibatchLoss) -> anyhow::Result<Self> {
+        let vars: Vec<Var> = policy.named_vars().into_iter().map(|(_, v)| v).collect();
+        let gradients = crate::nn::flat_gradients(&vars, &loss.loss.backward()?)?;
+        Ok(Self {
+            policy_loss: loss.policy_loss.to_scalar()?,
+            value_loss: loss.value_loss.to_scalar()?,
+            entropy: loss.entropy.to_scalar()?,
+            log_ratio: loss.log_ratio.to_vec1()?,
+            gradients,
+        })
+    }
+}
+
 /// `part`'s loss terms and gradient: over slices for an MLP on flat observations
 /// (`fused`), through candle's graph for the rest.
 fn part_gradient(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buffer: &RolloutBuffer, part: &Part) -> anyhow::Result<PartGradient> {
@@ -139,54 +155,6 @@ fn part_gradient(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buff
 /// a seed gives the same bits on one core as on many (one core does both halves in turn).
 const SPLIT_FROM: usize = 64;
 
-/// Some samples of a minibatch of `of`, with their advantages (normalised over the whole
-/// minibatch).
-pub(super) struct Part {
-    pub samples: Vec<usize>,
-    pub advantages: Vec<f32>,
-    pub of: usize,
-}
-
-/// A part's share of the minibatch's loss terms, its samples' log π/π_old, and its gradient
-/// of every variable (`named_vars` order; none where the loss does not reach one).
-pub(super) struct PartGradient {
-    pub policy_loss: f32,
-    pub value_loss: f32,
-    pub entropy: f32,
-    pub log_ratio: Vec<f32>,
-    pub gradients: Vec<Option<Vec<f32>>>,
-}
-
-impl PartGradient {
-    /// From candle's graph: the loss's backward pass, read out per variable.
-    pub(super) fn of(policy: &ActorCritic, loss: MinibatchLoss) -> anyhow::Result<Self> {
-        let vars: Vec<Var> = policy.named_vars().into_iter().map(|(_, v)| v).collect();
-        let gradients = crate::nn::flat_gradients(&vars, &loss.loss.backward()?)?;
-        Ok(Self {
-            policy_loss: loss.policy_loss.to_scalar()?,
-            value_loss: loss.value_loss.to_scalar()?,
-            entropy: loss.entropy.to_scalar()?,
-            log_ratio: loss.log_ratio.to_vec1()?,
-            gradients,
-        })
-    }
-
-    /// The minibatch's gradient: the parts' added in order.
-    fn sum(parts: &[PartGradient]) -> Vec<Option<Vec<f32>>> {
-        let mut sum: Vec<Option<Vec<f32>>> = Vec::new();
-        for part in parts {
-            sum.resize(sum.len().max(part.gradients.len()), None);
-            for (total, g) in sum.iter_mut().zip(&part.gradients) {
-                match (total.as_mut(), g) {
-                    (Some(total), Some(g)) => total.iter_mut().zip(g).for_each(|(t, g)| *t += g),
-                    (None, Some(g)) => *total = Some(g.clone()),
-                    (_, None) => {}
-                }
-            }
-        }
-        sum
-    }
-}
 
 /// The minibatch `chunk` in one part, or in two halves from [`SPLIT_FROM`] samples on.
 fn parts(buffer: &RolloutBuffer, chunk: &[usize], normalize_advantage: bool) -> Vec<Part> {

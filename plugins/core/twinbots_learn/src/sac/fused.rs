@@ -4,7 +4,6 @@
 //! the graph.
 
 use super::networks::{Actor, LOG_STD_MAX, LOG_STD_MIN, ReluMlp, TwinCritic};
-use super::update::{ActorGradient, LossGradient};
 use super::Sac;
 use crate::nn::fused_mlp::{Activation, Activations, SliceMlp};
 use crate::nn::{Dense, Encoder};
@@ -12,6 +11,18 @@ use crate::replay_buffer::Batch;
 
 /// ½ ln 2π, of the Gaussian's log-density.
 const HALF_LOG_2PI: f32 = 0.918_938_5;
+
+/// A loss's value and its gradient for every variable of one optimiser, flat, in its order.
+pub(super) struct LossGradient {
+    pub loss: f32,
+    pub gradients: Vec<Option<Vec<f32>>>,
+}
+
+/// The actor's loss and gradient, and −log π of its samples averaged (the entropy figure).
+pub(super) struct ActorGradient {
+    pub loss: LossGradient,
+    pub entropy: f32,
+}
 
 /// Whether the slices compute `sac`'s gradients: its actor and critics read flat observations.
 pub(super) fn applies(sac: &Sac) -> bool {
@@ -238,22 +249,7 @@ pub(super) fn parts(batch: Batch, eps: Vec<f32>, eps_next: Vec<f32>) -> Vec<Part
 
 /// The parts' losses added and gradients summed in order.
 pub(super) fn sum(parts: Vec<LossGradient>) -> LossGradient {
-    let mut total = LossGradient { loss: 0.0, gradients: Vec::new() };
-    for part in parts {
-        total.loss += part.loss;
-        if total.gradients.is_empty() {
-            total.gradients = part.gradients;
-            continue;
-        }
-        for (t, g) in total.gradients.iter_mut().zip(part.gradients) {
-            match (t.as_mut(), g) {
-                (Some(t), Some(g)) => t.iter_mut().zip(&g).for_each(|(t, g)| *t += g),
-                (None, g) => *t = g,
-                (_, None) => {}
-            }
-        }
-    }
-    total
+    LossGradient { loss: parts.iter().map(|p| p.loss).sum(), gradients: crate::nn::sum_gradients(parts.iter().map(|p| p.gradients.as_slice())) }
 }
 
 #[cfg(test)]

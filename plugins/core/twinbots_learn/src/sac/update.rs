@@ -9,23 +9,11 @@ use candle_core::{Device, Tensor};
 
 use std::sync::Arc;
 
-use super::fused::{self, ActorNets, ActorSample, CriticNets, Part, StepNets};
+use super::fused::{self, ActorGradient, ActorNets, ActorSample, CriticNets, LossGradient, Part, StepNets};
 use super::networks::polyak_update;
 use super::{Sac, SacLosses};
 use crate::nn::flat_gradients;
 use crate::replay_buffer::{Batch, Draw, ReplayBuffer};
-
-/// A loss's value and its gradient for every variable of one optimiser, flat, in its order.
-pub(super) struct LossGradient {
-    pub loss: f32,
-    pub gradients: Vec<Option<Vec<f32>>>,
-}
-
-/// The actor's loss and gradient, and −log π of its samples averaged (the entropy figure).
-pub(super) struct ActorGradient {
-    pub loss: LossGradient,
-    pub entropy: f32,
-}
 
 impl Sac {
     /// One gradient step of every part; `None` when a loss or gradient was not finite (that
