@@ -17,7 +17,7 @@ fn trained(name: &str, args: &[&str]) -> (serde_json::Value, serde_json::Value) 
     files
 }
 
-/// The README's main job: seeds 1–5 solved at 210,944–236,544 steps (seed 0: 229,632).
+/// The README's main job: seeds 0–4 solved at 210,688–249,856 steps (seed 0: 249,856; 2026-11-28).
 #[test]
 fn cartpole_ppo_solves_within_300k_steps() {
     let (summary, _) = trained("cartpole", &["cartpole"]);
@@ -26,7 +26,7 @@ fn cartpole_ppo_solves_within_300k_steps() {
     assert!(at <= 300_000, "solved only after {at} steps: {summary}");
 }
 
-/// 100 k steps of the Pioneer's 311 k to solve: seeds 1–5 reach a mean episode reward of
+/// 100 k steps of the Pioneer's 291 k to solve: seeds 1–5 reach a mean episode reward of
 /// 13.8–21.2 over the last 100 episodes (mean 16.6); the first rows, before learning, hold 9.4.
 #[test]
 fn pioneer_ppo_learns_within_100k_steps() {
@@ -37,8 +37,10 @@ fn pioneer_ppo_learns_within_100k_steps() {
 
 const PIONEER_THRESHOLD: f64 = 11.0;
 
-/// 10 k steps of SAC + HER (of the 45 k it solves in): seeds 1–5 score −6.5 to −19.6 in the
-/// final evaluation (200 reaches); the same run without a gradient step (1 k steps) −63.2.
+/// 10 k steps of SAC + HER (of the 50–95 k it solves in): seeds 0–5 score −18.2 to −36.5 in the
+/// final evaluation (200 reaches; seed 0 −31.0), and −18.3 to −29.3 with candle's graph for
+/// the gradients (8d12876; measured 2026-11-28); the same run without a gradient step (1 k
+/// steps) −63.2. (Before the stop forfeited the arrival bonus, seeds 1–5 scored −6.5 to −19.6.)
 #[test]
 fn ur5e_sac_learns_to_reach_within_10k_steps() {
     let (_, evaluation) = trained("ur5e-sac", &["ur5e", "--algo", "sac", "--timesteps", "10000"]);
@@ -46,4 +48,4 @@ fn ur5e_sac_learns_to_reach_within_10k_steps() {
     assert!(score >= UR5E_SAC_THRESHOLD, "final evaluation score {score} < {UR5E_SAC_THRESHOLD}: {evaluation}");
 }
 
-const UR5E_SAC_THRESHOLD: f64 = -30.0;
+const UR5E_SAC_THRESHOLD: f64 = -40.0;

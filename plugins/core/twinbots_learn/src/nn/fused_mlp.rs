@@ -14,6 +14,9 @@ use candle_core::Result;
 use super::Dense;
 pub use crate::policy_net::Activation;
 
+/// ½ ln 2π, of a Gaussian's log-density (the policies' heads).
+pub const HALF_LOG_2PI: f32 = 0.918_938_5;
+
 /// `dst (m × n) = [dst +] A B` with `A` of `m × k` and `B` of `k × n`, each given row-major or,
 /// with its `transposed` flag, as its transpose row-major (`k × m`, `n × k`). On the calling
 /// thread: the products of a small network are too short to share.

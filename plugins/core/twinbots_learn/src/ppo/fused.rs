@@ -7,10 +7,7 @@ use super::policy::{ActorCritic, Head};
 use super::part::{Part, PartGradient};
 use super::{PpoConfig, RolloutBuffer};
 use crate::nn::Encoder;
-use crate::nn::fused_mlp::{Activation, SliceMlp};
-
-/// ½ ln 2π, of the Gaussian's log-density.
-const HALF_LOG_2PI: f32 = 0.918_938_5;
+use crate::nn::fused_mlp::{Activation, HALF_LOG_2PI, SliceMlp};
 
 /// Whether [`part_gradient`] computes this policy's gradients: flat observations into MLPs.
 pub(super) fn applies(policy: &ActorCritic) -> bool {

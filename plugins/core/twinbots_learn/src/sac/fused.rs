@@ -5,12 +5,9 @@
 
 use super::networks::{Actor, LOG_STD_MAX, LOG_STD_MIN, ReluMlp, TwinCritic};
 use super::Sac;
-use crate::nn::fused_mlp::{Activation, Activations, SliceMlp};
+use crate::nn::fused_mlp::{Activation, Activations, HALF_LOG_2PI, SliceMlp};
 use crate::nn::{Dense, Encoder};
 use crate::replay_buffer::Batch;
-
-/// ½ ln 2π, of the Gaussian's log-density.
-const HALF_LOG_2PI: f32 = 0.918_938_5;
 
 /// A loss's value and its gradient for every variable of one optimiser, flat, in its order.
 pub(super) struct LossGradient {

@@ -5,9 +5,9 @@
 //! the same loss written out over slices (`fused.rs`, checked against the graph): the step
 //! itself, the optimisers and the order are one.
 
-use candle_core::{Device, Tensor};
-
 use std::sync::Arc;
+
+use candle_core::{Device, Tensor};
 
 use super::fused::{self, ActorGradient, ActorNets, ActorSample, CriticNets, LossGradient, Part, StepNets};
 use super::networks::polyak_update;
@@ -73,8 +73,8 @@ impl Sac {
             }
             let log_pi: Vec<f32> = samples.iter().flat_map(|(s, _)| s.log_pi.iter().copied()).collect();
             let (mut applied, ent_coef_loss) = self.step_ent_coef(&log_pi)?;
-            let critic = fused::sum(critic);
-            applied &= self.critic_optimizer.step_flat(critic.gradients.clone(), None)?.applied;
+            let mut critic = fused::sum(critic);
+            applied &= self.critic_optimizer.step_flat(std::mem::take(&mut critic.gradients), None)?.applied;
 
             let critic_now = Arc::new(CriticNets::read(&self.critic)?);
             let jobs = samples.into_iter().map(|(sample, obs)| Job::Actor(nets.clone(), critic_now.clone(), obs, sample)).collect();
