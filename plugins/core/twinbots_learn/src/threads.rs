@@ -75,6 +75,17 @@ impl<J, R> Helper<J, R> {
     }
 }
 
+/// Minibatches of this many rows or more are computed in two halves ([`halves`]).
+const SPLIT_FROM: usize = 64;
+
+/// The rows of a minibatch of `len` as the learners compute it: in one part, or from
+/// [`SPLIT_FROM`] rows on in two halves whose losses and gradients add up to the minibatch's
+/// (the second for a [`Helper`]). A rule of the minibatch's size, never of the machine: a seed
+/// gives the same bits on one core as on many (one core does both halves in turn).
+pub fn halves(len: usize) -> Vec<std::ops::Range<usize>> {
+    if len < SPLIT_FROM { vec![0..len] } else { vec![0..len / 2, len / 2..len] }
+}
+
 /// Does `jobs` (one or two) with `work`, answering in their order: the second on `helper`
 /// while this thread does the first, or one after the other without a helper.
 pub fn share<J, R>(helper: Option<&Helper<J, R>>, work: &impl Fn(J) -> R, jobs: Vec<J>) -> anyhow::Result<Vec<R>> {

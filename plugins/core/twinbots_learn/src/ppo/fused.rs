@@ -116,10 +116,8 @@ impl HeadPass {
                 let mut chosen = Vec::with_capacity(b);
                 let mut log_prob = Vec::with_capacity(b);
                 for (row, &a) in log_p.chunks_exact_mut(n).zip(actions) {
-                    // log softmax: l − (max + ln Σ e^{l − max})
-                    let max = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-                    let sum: f32 = row.iter().map(|l| (l - max).exp()).sum();
-                    let log_sum = max + sum.ln();
+                    // log softmax
+                    let log_sum = super::policy::log_sum_exp(row);
                     row.iter_mut().for_each(|l| *l -= log_sum);
                     let a = a as usize;
                     anyhow::ensure!(a < n, "a stored action {a} is outside Discrete({n})");

@@ -10,6 +10,7 @@ use rand_distr::{Distribution, StandardNormal};
 
 use twinbots_api::spaces::Space;
 
+use crate::nn::fused_mlp::HALF_LOG_2PI;
 use crate::nn::{Dense, Encoder, PolicyKind};
 
 /// The CNN's weight stream is the seed mixed with this.
@@ -186,6 +187,12 @@ impl ActorCritic {
     }
 }
 
+/// ln Σ e^l of a row of logits, as max + ln Σ e^{l − max}: log softmax is l − this.
+pub(super) fn log_sum_exp(logits: &[f32]) -> f32 {
+    let max = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    max + logits.iter().map(|l| (l - max).exp()).sum::<f32>().ln()
+}
+
 /// One action per row of the policy network's output `out` (logits, or the Gaussian's means
 /// with `log_std`, empty for a categorical head), sampled or, deterministic, the mode; and its
 /// log-probability.
@@ -199,7 +206,7 @@ pub(super) fn sample(head: &Head, out: &[f32], log_std: &[f32], deterministic: b
                 for k in 0..*dim {
                     let z: f32 = if deterministic { 0.0 } else { StandardNormal.sample(rng) };
                     actions.push(row[k] + z * log_std[k].exp());
-                    lp += -0.5 * z * z - log_std[k] - 0.5 * (2.0 * std::f32::consts::PI).ln();
+                    lp += -0.5 * z * z - log_std[k] - HALF_LOG_2PI;
                 }
                 log_probs.push(lp);
             }
@@ -210,9 +217,7 @@ pub(super) fn sample(head: &Head, out: &[f32], log_std: &[f32], deterministic: b
             let mut actions = Vec::with_capacity(out.len() / n);
             let mut log_probs = Vec::with_capacity(out.len() / n);
             for logits in out.chunks_exact(n) {
-                // log softmax: l − (max + ln Σ e^{l − max})
-                let max = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-                let log_sum = max + logits.iter().map(|l| (l - max).exp()).sum::<f32>().ln();
+                let log_sum = log_sum_exp(logits);
                 let log_p = |i: usize| logits[i] - log_sum;
                 let a = if deterministic {
                     (0..n).max_by(|&i, &j| logits[i].total_cmp(&logits[j])).unwrap_or(0)

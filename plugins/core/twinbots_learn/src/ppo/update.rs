@@ -150,23 +150,12 @@ fn part_gradient(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buff
     }
 }
 
-/// Minibatches of this many samples or more are computed in two halves, whose losses and
-/// gradients add up to the minibatch's. A rule of the minibatch's size, never of the machine:
-/// a seed gives the same bits on one core as on many (one core does both halves in turn).
-const SPLIT_FROM: usize = 64;
-
-
-/// The minibatch `chunk` in one part, or in two halves from [`SPLIT_FROM`] samples on.
+/// The minibatch `chunk` in the parts of [`crate::threads::halves`], its advantages normalised
+/// over the whole minibatch.
 fn parts(buffer: &RolloutBuffer, chunk: &[usize], normalize_advantage: bool) -> Vec<Part> {
-    let mut advantages = normalized_advantages(buffer, chunk, normalize_advantage);
-    let half = if chunk.len() >= SPLIT_FROM { chunk.len() / 2 } else { chunk.len() };
-    let second = advantages.split_off(half);
+    let advantages = normalized_advantages(buffer, chunk, normalize_advantage);
     let of = chunk.len();
-    let mut parts = vec![Part { samples: chunk[..half].to_vec(), advantages, of }];
-    if half < chunk.len() {
-        parts.push(Part { samples: chunk[half..].to_vec(), advantages: second, of });
-    }
-    parts
+    crate::threads::halves(of).into_iter().map(|r| Part { samples: chunk[r.clone()].to_vec(), advantages: advantages[r].to_vec(), of }).collect()
 }
 
 /// The advantages of `chunk`, normalised to mean 0 and std 1 over it (SB3's per-minibatch

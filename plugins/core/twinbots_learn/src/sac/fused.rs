@@ -208,26 +208,17 @@ pub(super) fn actor_part(actor: &ActorNets, critic: &CriticNets, obs: &[f32], sa
     ActorGradient { loss: LossGradient { loss, gradients }, entropy }
 }
 
-/// Minibatches of this many rows or more are computed in two halves, whose losses and
-/// gradients add up to the minibatch's (as PPO's: a rule of the size, never of the machine).
-const SPLIT_FROM: usize = 64;
-
-/// The rows of a minibatch of `of` in one part, or in two halves from [`SPLIT_FROM`] rows on.
-pub(super) fn row_ranges(of: usize) -> Vec<std::ops::Range<usize>> {
-    if of < SPLIT_FROM { vec![0..of] } else { vec![0..of / 2, of / 2..of] }
-}
-
 /// The rows `rows` of `values`, a flat array of rows of equal width.
 pub(super) fn rows_of<T: Clone>(values: &[T], of: usize, rows: &std::ops::Range<usize>) -> Vec<T> {
     let width = values.len() / of.max(1);
     values[rows.start * width..rows.end * width].to_vec()
 }
 
-/// The minibatch with its noise in the parts of [`row_ranges`].
+/// The minibatch with its noise in the parts of [`crate::threads::halves`].
 #[cfg(test)]
 pub(super) fn parts(batch: Batch, eps: Vec<f32>, eps_next: Vec<f32>) -> Vec<Part> {
     let of = batch.rewards.len();
-    row_ranges(of)
+    crate::threads::halves(of)
         .iter()
         .map(|r| Part {
             batch: Batch {

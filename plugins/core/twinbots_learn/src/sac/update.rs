@@ -47,7 +47,7 @@ impl Sac {
         if !fused::applies(self) {
             return self.gradient_step_graph(assemble(&draws), eps, eps_next, alpha);
         }
-        // Over slices, each half of the minibatch on its own thread (`fused::row_ranges`): its
+        // Over slices, each half of the minibatch on its own thread (`threads::halves`): its
         // rows assembled, the actor's samples and the critics' gradient; then, after the
         // critics' step, the actor's gradient.
         let gamma = self.config.gamma;
@@ -61,7 +61,7 @@ impl Sac {
         };
         crate::threads::with_helper(&work, |helper| {
             let nets = Arc::new(StepNets { actor: ActorNets::read(&self.actor)?, critic: CriticNets::read(&self.critic)?, target: CriticNets::read(&self.critic_target)? });
-            let jobs = fused::row_ranges(b)
+            let jobs = crate::threads::halves(b)
                 .iter()
                 .map(|r| Job::Critic(nets.clone(), fused::rows_of(&draws, b, r), fused::rows_of(&eps, b, r), fused::rows_of(&eps_next, b, r)))
                 .collect();
