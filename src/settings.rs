@@ -85,8 +85,8 @@ pub struct TrainSettings {
     pub checkpoint_every: usize,
     /// Evaluate the deterministic policy every this many updates into `evaluations.csv`
     /// (0: never); an evaluation of at least the solved criterion's window of episodes that
-    /// meets it ends training (SB3's EvalCallback with a stop threshold). The final model is
-    /// always evaluated into `eval.json`.
+    /// meets it ends training (SB3's EvalCallback with a stop threshold); one that can no
+    /// longer meet it stops early. The final model is always evaluated into `eval.json`.
     pub eval_every: usize,
     pub eval_episodes: usize,
     /// The learner: a name of `twinbots_learn::algos::ALGOS` (`twinbots algos` lists them).

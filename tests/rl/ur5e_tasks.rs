@@ -143,6 +143,23 @@ fn the_same_seed_gives_the_same_reach_trajectory() {
 }
 
 #[test]
+fn an_evaluation_that_can_no_longer_pass_stops_on_the_failure_that_rules_it_out() {
+    use twinbots_learn::evaluation::{evaluate_against, evaluate_policy};
+    let spec = ur5e::task_spec();
+    let criterion = spec.solved.expect("the reach has a solved criterion");
+    // An untrained policy: no reach succeeds, so 98 % of 200 is out of reach at the fifth failure.
+    let model = Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), spec.observation_space, spec.action_space, 0).unwrap();
+    let env = || AppVecEnv::new(ur5e::headless_app_with(4, 11, DesignPattern::Supervised));
+    let judged = evaluate_against("reach", &model, &mut env(), 200, 11, &criterion).unwrap();
+    assert!((5..=8).contains(&judged.episodes), "stopped after {} episodes (5 failures, up to 3 more ending in the same step)", judged.episodes);
+    assert_eq!(judged.success_rate, Some(0.0));
+    assert!(!judged.meets(&criterion));
+    // The episodes it ran are the first of the full evaluation, bit for bit.
+    let full = evaluate_policy("reach", &model, &mut env(), judged.episodes, 11).unwrap();
+    assert_eq!(full.scores.iter().map(|s| s.to_bits()).collect::<Vec<_>>(), judged.scores.iter().map(|s| s.to_bits()).collect::<Vec<_>>());
+}
+
+#[test]
 fn under_pattern_3_the_arm_drives_itself_to_its_drawn_start_before_every_episode() {
     let id = ur5e::task_spec();
     let model = Box::new(Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), id.observation_space, id.action_space, 0).unwrap());

@@ -32,6 +32,20 @@ impl SolvedCriterion {
         Self { window, threshold: rate - 0.5 / window as f32, measure: Measure::Success }
     }
 
+    /// Whether `values` of `measure`, the first of `episodes` episodes whose mean is judged,
+    /// already rule the criterion out: even if every episode left reached the best value there
+    /// is (success, for a success rate), their mean could not exceed the threshold. Scores have
+    /// no such bound: never for them.
+    pub fn out_of_reach(&self, values: &[f32], episodes: usize) -> bool {
+        let best = match self.measure {
+            Measure::Success => 1.0,
+            Measure::Score => return false,
+        };
+        let left = episodes.saturating_sub(values.len()) as f64;
+        let highest = (values.iter().map(|&v| v as f64).sum::<f64>() + left * best) / episodes.max(1) as f64;
+        highest <= self.threshold as f64
+    }
+
     /// Whether these episodes' values of `measure` (oldest first) meet the criterion.
     pub fn is_met(&self, values: &[f32]) -> bool {
         if values.len() < self.window {
@@ -70,6 +84,19 @@ mod tests {
         assert!(c.is_met(&values), "19 of 20 is 95 %");
         values.push(0.0);
         assert!(!c.is_met(&values), "18 of the last 20 is 90 %");
+    }
+
+    #[test]
+    fn a_success_rate_is_out_of_reach_once_more_episodes_failed_than_it_allows() {
+        // 98 % of 200: 196 successes, so at most 4 failures.
+        let c = SolvedCriterion::success_rate(200, 0.98);
+        let mut values = vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0];
+        assert!(!c.out_of_reach(&values, 200), "4 failures: 196 of 200 is still possible");
+        values.push(0.0);
+        assert!(c.out_of_reach(&values, 200), "5 failures: at most 195 of 200");
+        assert!(!c.out_of_reach(&[], 200));
+        // A mean score has no best value to bound what is left.
+        assert!(!SolvedCriterion::mean_score(100, 1950.0).out_of_reach(&[0.0; 99], 100));
     }
 }
 

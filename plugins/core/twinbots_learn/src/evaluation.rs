@@ -61,16 +61,55 @@ impl EvalResult {
 /// Runs `model`'s deterministic policy on `env` (reset with `seed`) until `episodes` episodes
 /// have ended, and reports them under the name `task`.
 pub fn evaluate_policy(task: &str, model: &dyn Agent, env: &mut dyn VecEnv, episodes: usize, seed: u64) -> anyhow::Result<EvalResult> {
+    run_episodes(task, model, env, episodes, seed, |_| false)
+}
+
+/// [`evaluate_policy`] judged against `criterion`: it stops as soon as the episodes so far rule
+/// the criterion out ([`SolvedCriterion::out_of_reach`]), so an evaluation that cannot pass
+/// costs a few episodes, not all of them. Whether it meets the criterion is the same as
+/// with every episode run; its figures are those of the episodes it ran (`episodes` says how many).
+pub fn evaluate_against(
+    task: &str,
+    model: &dyn Agent,
+    env: &mut dyn VecEnv,
+    episodes: usize,
+    seed: u64,
+    criterion: &SolvedCriterion,
+) -> anyhow::Result<EvalResult> {
+    let value = |e: &EpisodeSummary| match criterion.measure {
+        Measure::Score => Some(e.score),
+        Measure::Success => e.success.map(f32::from),
+    };
+    run_episodes(task, model, env, episodes, seed, |finished| {
+        let values: Vec<f32> = finished.iter().filter_map(value).collect();
+        criterion.out_of_reach(&values, episodes)
+    })
+}
+
+/// Steps the deterministic policy until `episodes` episodes ended or `enough` says so after a
+/// step; the episodes of that step beyond `episodes` are dropped.
+fn run_episodes(
+    task: &str,
+    model: &dyn Agent,
+    env: &mut dyn VecEnv,
+    episodes: usize,
+    seed: u64,
+    enough: impl Fn(&[EpisodeSummary]) -> bool,
+) -> anyhow::Result<EvalResult> {
     anyhow::ensure!(episodes > 0, "an evaluation needs at least 1 episode");
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut obs = env.reset(Some(seed))?;
     let mut finished = Vec::with_capacity(episodes);
     while finished.len() < episodes {
         let step = env.step(&model.predict_deterministic(&obs)?)?;
+        let before = finished.len();
         for ep in step.episodes.into_iter().flatten() {
             if finished.len() < episodes {
                 finished.push(ep);
             }
+        }
+        if finished.len() > before && enough(&finished) {
+            break;
         }
         obs = step.obs;
     }

@@ -39,7 +39,7 @@ pub use history::EpisodeHistory;
 pub use learner::{Algorithm, Learner, RobotStep, ServedLearner};
 pub use policy_net::PolicyNet;
 pub use stats::{Flow, SolvedBy, TrainingEnd, TrainingTimes};
-pub use evaluation::{EvalResult, evaluate_policy};
+pub use evaluation::{EvalResult, evaluate_against, evaluate_policy};
 pub use ppo::{Ppo, PpoConfig};
 pub use stats::UpdateStats;
 pub use run_dir::RunDir;

@@ -3,7 +3,7 @@
 
 use super::{Callback, Flow, SolvedBy};
 use twinbots_api::env::VecEnv;
-use crate::evaluation::{EvalResult, evaluate_policy};
+use crate::evaluation::{EvalResult, evaluate_against, evaluate_policy};
 use crate::agent::Agent;
 use crate::stats::UpdateStats;
 use crate::run_dir::RunDir;
@@ -58,7 +58,9 @@ impl EvalCallback {
         self
     }
 
-    /// Stops training once an evaluation of at least `criterion.window` episodes meets it.
+    /// Stops training once an evaluation of at least `criterion.window` episodes meets it. An
+    /// evaluation then ends early once its episodes rule the criterion out
+    /// ([`evaluate_against`]): the stopping rule's cost falls, its decisions stay the same.
     pub fn stop_when_solved(mut self, criterion: SolvedCriterion) -> Self {
         self.stop_when = Some(criterion);
         self
@@ -81,7 +83,10 @@ impl Callback for EvalCallback {
         }
         let seed = evaluation_seed(self.seed, (stats.update / self.every) as u64);
         let mut env = (self.make_env)(seed)?;
-        let result = evaluate_policy(&self.task, model, env.as_mut(), self.episodes, seed)?;
+        let result = match &self.stop_when {
+            Some(criterion) => evaluate_against(&self.task, model, env.as_mut(), self.episodes, seed, criterion)?,
+            None => evaluate_policy(&self.task, model, env.as_mut(), self.episodes, seed)?,
+        };
         if let Some(run) = &self.log {
             run.append_evaluation(stats.timesteps, &result)?;
         }

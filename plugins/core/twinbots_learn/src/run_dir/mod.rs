@@ -224,6 +224,7 @@ impl RunDir {
         let success = result.success_rate.map_or(String::new(), |x| x.to_string());
         append_row(&self.file(EVALUATIONS), &[
             ("timesteps", timesteps.to_string()),
+            ("episodes", result.episodes.to_string()),
             ("mean_score", result.mean_score.to_string()),
             ("std_score", result.std_score.to_string()),
             ("mean_length", result.mean_length.to_string()),
