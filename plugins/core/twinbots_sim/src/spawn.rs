@@ -124,7 +124,9 @@ pub fn spawn_robot(
         } else {
             RigidBodyBuilder::dynamic()
         };
-        let mut builder = builder.pose(world_pose[l]).can_sleep(false);
+        // A robot never sleeps (rapier would freeze an arm holding still under its motors); a
+        // part of the cell may, once at rest: its contacts then leave the solver until touched.
+        let mut builder = builder.pose(world_pose[l]).can_sleep(options.environment);
         if let Some(mass) = mass {
             builder = builder.additional_mass_properties(mass);
         }
