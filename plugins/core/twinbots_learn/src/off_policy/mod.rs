@@ -77,9 +77,10 @@ pub(crate) trait OffPolicy: Learner + 'static {
     /// Actions in [−1, 1] for each raw observation row: uniform random until learning starts,
     /// then the learner's exploring ones (as `learn` acts).
     fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>>;
-    /// One gradient step's figures, in its `TRAIN_FIGURES` order (NaN where the step has
-    /// none); `None` when it was skipped (a loss or gradient not finite).
-    fn train_step(&mut self) -> anyhow::Result<Option<Vec<f32>>>;
+    /// `n` gradient steps, each one's figures handed to `each` in turn: in its `TRAIN_FIGURES`
+    /// order (NaN where the step has none), or `None` when it was skipped (a loss or gradient
+    /// not finite).
+    fn train_steps(&mut self, n: usize, each: &mut dyn FnMut(Option<Vec<f32>>)) -> anyhow::Result<()>;
     /// A row's figures (each the mean over the row's steps that gave it; NaN if none did)
     /// become the model's last losses; returns them as the row logs them.
     fn end_row(&mut self, figures: Vec<f32>) -> anyhow::Result<Vec<f32>>;
@@ -112,12 +113,10 @@ impl Row {
             return Ok(());
         }
         let started = std::time::Instant::now();
-        for _ in 0..n {
-            match model.train_step()? {
-                Some(step) => self.add(&step),
-                None => self.skipped += 1,
-            }
-        }
+        model.train_steps(n, &mut |step| match step {
+            Some(step) => self.add(&step),
+            None => self.skipped += 1,
+        })?;
         model.parts().times.update_s += started.elapsed().as_secs_f64();
         Ok(())
     }

@@ -401,9 +401,8 @@ impl OffPolicy for Sac {
     fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         Sac::explore(self, obs)
     }
-    fn train_step(&mut self) -> anyhow::Result<Option<Vec<f32>>> {
-        let losses = self.gradient_step()?;
-        Ok(losses.map(|l| vec![l.actor_loss, l.critic_loss, l.ent_coef, l.ent_coef_loss, l.entropy]))
+    fn train_steps(&mut self, n: usize, each: &mut dyn FnMut(Option<Vec<f32>>)) -> anyhow::Result<()> {
+        self.run_gradient_steps(n, &mut |losses| each(losses.map(|l| vec![l.actor_loss, l.critic_loss, l.ent_coef, l.ent_coef_loss, l.entropy])))
     }
     /// α is the one in force now, as `learn` logs it.
     fn end_row(&mut self, figures: Vec<f32>) -> anyhow::Result<Vec<f32>> {

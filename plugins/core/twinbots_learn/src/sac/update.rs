@@ -14,28 +14,40 @@ use super::networks::polyak_update;
 use super::{Sac, SacLosses};
 use crate::nn::flat_gradients;
 use crate::replay_buffer::{Batch, Draw, ReplayBuffer};
+use crate::threads::Helper;
+use twinbots_api::GoalSpec;
 
 impl Sac {
-    /// One gradient step of every part; `None` when a loss or gradient was not finite (that
-    /// part's weights stay as they were, and the step counts as skipped).
-    pub fn gradient_step(&mut self) -> anyhow::Result<Option<SacLosses>> {
-        // The buffer is lent to the step's threads while the step changes the rest.
-        let Some(buffer) = self.buffer.take() else { return Ok(None) };
-        let step = self.gradient_step_on(&buffer);
+    /// `n` gradient steps of every part, each one's losses handed to `each` in turn (`None`
+    /// when a loss or gradient was not finite: that part's weights stay as they were, and the
+    /// step counts as skipped). Over slices, one helper thread serves the `n` steps: a thread
+    /// started per step made the step wait for it.
+    pub fn run_gradient_steps(&mut self, n: usize, each: &mut dyn FnMut(Option<SacLosses>)) -> anyhow::Result<()> {
+        // The buffer is lent to the steps' threads while the steps change the rest.
+        let Some(buffer) = self.buffer.take() else {
+            (0..n).for_each(|_| each(None));
+            return Ok(());
+        };
+        let steps = self.run_gradient_steps_on(&buffer, n, each);
         self.buffer = Some(buffer);
-        step
+        steps
     }
 
-    fn gradient_step_on(&mut self, buffer: &ReplayBuffer) -> anyhow::Result<Option<SacLosses>> {
-        if buffer.is_empty() {
-            return Ok(None);
-        }
-        let goal = self.goal.filter(|_| self.config.her_goals > 0);
+    /// A step's minibatch, its noise and α, drawn in this order.
+    fn next_minibatch(&mut self, buffer: &ReplayBuffer, goal: Option<&GoalSpec>) -> anyhow::Result<Minibatch> {
         let draws = buffer.draw(self.config.batch_size, &mut self.rng, goal.map(|_| self.config.her_goals));
         let b = draws.len();
-        let eps = self.noise(b);
-        let eps_next = self.noise(b);
-        let alpha = self.ent_coef()?;
+        let (eps, eps_next) = (self.noise(b), self.noise(b));
+        Ok(Minibatch { draws, eps, eps_next, alpha: self.ent_coef()? })
+    }
+
+    fn run_gradient_steps_on(&mut self, buffer: &ReplayBuffer, n: usize, each: &mut dyn FnMut(Option<SacLosses>)) -> anyhow::Result<()> {
+        if buffer.is_empty() {
+            (0..n).for_each(|_| each(None));
+            return Ok(());
+        }
+        let goal = self.goal.filter(|_| self.config.her_goals > 0);
+        // The observation statistics hold still over the steps: only the env's steps move them.
         let obs_rms = self.obs_rms.clone();
         // Rows relabelled (HER) and normalised with the statistics in force.
         let assemble = |draws: &[Draw]| {
@@ -45,48 +57,62 @@ impl Sac {
             batch
         };
         if !fused::applies(self) {
-            return self.gradient_step_graph(assemble(&draws), eps, eps_next, alpha);
+            for _ in 0..n {
+                let Minibatch { draws, eps, eps_next, alpha } = self.next_minibatch(buffer, goal.as_ref())?;
+                each(self.gradient_step_graph(assemble(&draws), eps, eps_next, alpha)?);
+            }
+            return Ok(());
         }
-        // Over slices, each half of the minibatch on its own thread (`threads::halves`): its
-        // rows assembled, the actor's samples and the critics' gradient; then, after the
-        // critics' step, the actor's gradient.
+        // Over slices, each half of a minibatch on its own thread (`threads::halves`): its rows
+        // assembled, the actor's samples and the critics' gradient; then, after the critics'
+        // step, the actor's gradient.
         let gamma = self.config.gamma;
         let work = |job: Job| match job {
-            Job::Critic(nets, draws, eps, eps_next) => {
-                let part = Part { batch: assemble(&draws), eps, eps_next, of: b };
+            Job::Critic { nets, draws, eps, eps_next, alpha, of } => {
+                let part = Part { batch: assemble(&draws), eps, eps_next, of };
                 let (sample, gradient) = fused::critic_part(&nets, &part, alpha, gamma);
                 Answer::Critic(sample, gradient, part.batch.obs)
             }
-            Job::Actor(nets, critic, obs, sample) => Answer::Actor(fused::actor_part(&nets.actor, &critic, &obs, sample, alpha, b)),
+            Job::Actor { nets, critic, obs, sample, alpha, of } => Answer::Actor(fused::actor_part(&nets.actor, &critic, &obs, sample, alpha, of)),
         };
         crate::threads::with_helper(&work, |helper| {
-            let nets = Arc::new(StepNets { actor: ActorNets::read(&self.actor)?, critic: CriticNets::read(&self.critic)?, target: CriticNets::read(&self.critic_target)? });
-            let jobs = crate::threads::halves(b)
-                .iter()
-                .map(|r| Job::Critic(nets.clone(), fused::rows_of(&draws, b, r), fused::rows_of(&eps, b, r), fused::rows_of(&eps_next, b, r)))
-                .collect();
-            let (mut samples, mut critic) = (Vec::new(), Vec::new());
-            for answer in crate::threads::share(helper, &work, jobs)? {
-                let Answer::Critic(sample, gradient, obs) = answer else { anyhow::bail!("a critic job answered as the actor's") };
-                samples.push((sample, obs));
-                critic.push(gradient);
+            for _ in 0..n {
+                let minibatch = self.next_minibatch(buffer, goal.as_ref())?;
+                each(self.step_over_slices(helper, &work, minibatch)?);
             }
-            let log_pi: Vec<f32> = samples.iter().flat_map(|(s, _)| s.log_pi.iter().copied()).collect();
-            let (mut applied, ent_coef_loss) = self.step_ent_coef(&log_pi)?;
-            let mut critic = fused::sum(critic);
-            applied &= self.critic_optimizer.step_flat(std::mem::take(&mut critic.gradients), None)?.applied;
-
-            let critic_now = Arc::new(CriticNets::read(&self.critic)?);
-            let jobs = samples.into_iter().map(|(sample, obs)| Job::Actor(nets.clone(), critic_now.clone(), obs, sample)).collect();
-            let (mut actor, mut entropy) = (Vec::new(), 0.0);
-            for answer in crate::threads::share(helper, &work, jobs)? {
-                let Answer::Actor(part) = answer else { anyhow::bail!("an actor job answered as the critics'") };
-                entropy += part.entropy;
-                actor.push(part.loss);
-            }
-            let actor = ActorGradient { loss: fused::sum(actor), entropy };
-            self.finish_step(critic.loss, actor, (applied, ent_coef_loss), alpha)
+            Ok(())
         })
+    }
+
+    /// One step over slices, the minibatch's second half on `helper`.
+    fn step_over_slices(&mut self, helper: Option<&Helper<Job, Answer>>, work: &impl Fn(Job) -> Answer, Minibatch { draws, eps, eps_next, alpha }: Minibatch) -> anyhow::Result<Option<SacLosses>> {
+        let b = draws.len();
+        let nets = Arc::new(StepNets { actor: ActorNets::read(&self.actor)?, critic: CriticNets::read(&self.critic)?, target: CriticNets::read(&self.critic_target)? });
+        let jobs = crate::threads::halves(b)
+            .iter()
+            .map(|r| Job::Critic { nets: nets.clone(), draws: fused::rows_of(&draws, b, r), eps: fused::rows_of(&eps, b, r), eps_next: fused::rows_of(&eps_next, b, r), alpha, of: b })
+            .collect();
+        let (mut samples, mut critic) = (Vec::new(), Vec::new());
+        for answer in crate::threads::share(helper, work, jobs)? {
+            let Answer::Critic(sample, gradient, obs) = answer else { anyhow::bail!("a critic job answered as the actor's") };
+            samples.push((sample, obs));
+            critic.push(gradient);
+        }
+        let log_pi: Vec<f32> = samples.iter().flat_map(|(s, _)| s.log_pi.iter().copied()).collect();
+        let (mut applied, ent_coef_loss) = self.step_ent_coef(&log_pi)?;
+        let mut critic = fused::sum(critic);
+        applied &= self.critic_optimizer.step_flat(std::mem::take(&mut critic.gradients), None)?.applied;
+
+        let critic_now = Arc::new(CriticNets::read(&self.critic)?);
+        let jobs = samples.into_iter().map(|(sample, obs)| Job::Actor { nets: nets.clone(), critic: critic_now.clone(), obs, sample, alpha, of: b }).collect();
+        let (mut actor, mut entropy) = (Vec::new(), 0.0);
+        for answer in crate::threads::share(helper, work, jobs)? {
+            let Answer::Actor(part) = answer else { anyhow::bail!("an actor job answered as the critics'") };
+            entropy += part.entropy;
+            actor.push(part.loss);
+        }
+        let actor = ActorGradient { loss: fused::sum(actor), entropy };
+        self.finish_step(critic.loss, actor, (applied, ent_coef_loss), alpha)
     }
 
     /// The step through candle's graph (camera policies).
@@ -164,12 +190,22 @@ impl Sac {
     }
 }
 
+/// A gradient step's draws from the replay buffer, its noise for the actor's samples of the
+/// observations and of the next ones, and α.
+struct Minibatch {
+    draws: Vec<Draw>,
+    eps: Vec<f32>,
+    eps_next: Vec<f32>,
+    alpha: f32,
+}
+
 /// A job of a step over slices, for either thread: a part's critics' gradient (with the
 /// networks' numbers, the part's draws from the buffer and its noise), or a part's actor's
 /// gradient (with the critics' numbers after their step, the part's observations and samples).
+/// Each carries the step's α and its minibatch's size (`of`).
 enum Job {
-    Critic(Arc<StepNets>, Vec<Draw>, Vec<f32>, Vec<f32>),
-    Actor(Arc<StepNets>, Arc<CriticNets>, Vec<f32>, ActorSample),
+    Critic { nets: Arc<StepNets>, draws: Vec<Draw>, eps: Vec<f32>, eps_next: Vec<f32>, alpha: f32, of: usize },
+    Actor { nets: Arc<StepNets>, critic: Arc<CriticNets>, obs: Vec<f32>, sample: ActorSample, alpha: f32, of: usize },
 }
 
 enum Answer {

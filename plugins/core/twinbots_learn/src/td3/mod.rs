@@ -381,8 +381,11 @@ impl OffPolicy for Td3 {
         Td3::explore(self, obs)
     }
     /// The actor's loss is NaN on the steps between its delayed updates.
-    fn train_step(&mut self) -> anyhow::Result<Option<Vec<f32>>> {
-        Ok(self.gradient_step()?.map(|l| vec![l.actor_loss, l.critic_loss]))
+    fn train_steps(&mut self, n: usize, each: &mut dyn FnMut(Option<Vec<f32>>)) -> anyhow::Result<()> {
+        for _ in 0..n {
+            each(self.gradient_step()?.map(|l| vec![l.actor_loss, l.critic_loss]));
+        }
+        Ok(())
     }
     fn end_row(&mut self, figures: Vec<f32>) -> anyhow::Result<Vec<f32>> {
         let [actor_loss, critic_loss] = figures[..] else {
