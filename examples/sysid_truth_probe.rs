@@ -11,7 +11,7 @@
 use twinbots_sim::Parameters;
 use twinbots_sysid::excitation::Excitation;
 use twinbots_sysid::identify::FitOptions;
-use twinbots_sysid::{Recording, Rig, SensorNoise, identify, prepare, record};
+use twinbots_sysid::{Recording, Rig, SensorNoise, identify, perturbed_truth, prepare, record};
 
 fn main() -> anyhow::Result<()> {
     twinbots_learn::threads::configure();
@@ -19,15 +19,7 @@ fn main() -> anyhow::Result<()> {
     let generations: usize = args.get(1).map_or(Ok(30), |s| s.parse())?;
     let rounds: usize = args.get(2).map_or(Ok(1), |s| s.parse())?;
     let rig = Rig::of(&ur5e::robot())?;
-    // The recovery test's truth: the prior times 1.3, 0.7, 1.25, 0.75, 1.2, 0.8 in turn.
-    let factors = [1.3, 0.7, 1.25, 0.75, 1.2, 0.8];
-    let prior = rig.description.prior_parameters();
-    let mut truth = Parameters::default();
-    for (i, name) in rig.description.fit.iter().enumerate() {
-        let nominal = rig.value(&prior, name);
-        truth.0.insert(name.to_string(), if nominal > 0.0 { nominal * factors[i % factors.len()] } else { nominal });
-    }
-    truth.0.insert("command_delay".into(), 0.012);
+    let truth = perturbed_truth(&rig);
     let recording = Recording { excitation: Excitation::Multisine, seconds: 20.0, seed: 1, noise: SensorNoise::default() };
     let log = prepare(&rig, &record(&rig, &truth, &recording)?, "fit")?;
     let logs = std::slice::from_ref(&log);

@@ -4,21 +4,7 @@
 use twinbots_sim::Parameters;
 use twinbots_sysid::excitation::Excitation;
 use twinbots_sysid::identify::{FitOptions, position_rmse};
-use twinbots_sysid::{Recording, Rig, SensorNoise, identify, prepare, record};
-
-/// Every parameter the rig fits off where a calibration starts (the robot's prior) by up to
-/// ±30 %, and a 12 ms delay.
-pub fn perturbed_truth(rig: &Rig) -> Parameters {
-    let factors = [1.3, 0.7, 1.25, 0.75, 1.2, 0.8];
-    let prior = rig.description.prior_parameters();
-    let mut truth = Parameters::default();
-    for (i, name) in rig.description.fit.iter().enumerate() {
-        let nominal = rig.value(&prior, name);
-        truth.0.insert(name.to_string(), if nominal > 0.0 { nominal * factors[i % factors.len()] } else { nominal });
-    }
-    truth.0.insert("command_delay".into(), 0.012);
-    truth
-}
+use twinbots_sysid::{Recording, Rig, SensorNoise, identify, perturbed_truth, prepare, record};
 
 fn recording(excitation: Excitation, seconds: f64, seed: u64) -> Recording {
     Recording { excitation, seconds, seed, noise: SensorNoise::default() }

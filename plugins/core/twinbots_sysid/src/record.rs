@@ -11,6 +11,22 @@ use twinbots_sim::{MotorCommand, Parameters};
 use crate::excitation::{Excitation, program};
 use crate::rig::{Rig, run};
 
+/// A known truth to recover (`tests/logs/recovery.rs`, `examples/sysid_truth_probe.rs`): every
+/// parameter the rig fits off where a calibration starts (the robot's prior) by up to ±30 % —
+/// the prior times 1.3, 0.7, 1.25, 0.75, 1.2, 0.8 in turn, zeros left at zero — and a 12 ms
+/// command delay.
+pub fn perturbed_truth(rig: &Rig) -> Parameters {
+    let factors = [1.3, 0.7, 1.25, 0.75, 1.2, 0.8];
+    let prior = rig.description.prior_parameters();
+    let mut truth = Parameters::default();
+    for (i, name) in rig.description.fit.iter().enumerate() {
+        let nominal = rig.value(&prior, name);
+        truth.0.insert(name.to_string(), if nominal > 0.0 { nominal * factors[i % factors.len()] } else { nominal });
+    }
+    truth.0.insert("command_delay".into(), 0.012);
+    truth
+}
+
 /// Standard deviations of the measurement noise.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorNoise {
