@@ -8,6 +8,7 @@
 //!
 //! `cargo run --release --example sysid_truth_probe -- [GENERATIONS] [ROUNDS]`
 
+use anyhow::Context;
 use twinbots_sim::Parameters;
 use twinbots_sysid::excitation::Excitation;
 use twinbots_sysid::identify::FitOptions;
@@ -16,8 +17,8 @@ use twinbots_sysid::{Recording, Rig, SensorNoise, identify, perturbed_truth, pre
 fn main() -> anyhow::Result<()> {
     twinbots_learn::threads::configure();
     let args: Vec<String> = std::env::args().collect();
-    let generations: usize = args.get(1).map_or(Ok(30), |s| s.parse())?;
-    let rounds: usize = args.get(2).map_or(Ok(1), |s| s.parse())?;
+    let generations: usize = args.get(1).map_or(Ok(30), |s| s.parse()).context("GENERATIONS must be a whole number")?;
+    let rounds: usize = args.get(2).map_or(Ok(1), |s| s.parse()).context("ROUNDS must be a whole number")?;
     let rig = Rig::of(&ur5e::robot())?;
     let truth = perturbed_truth(&rig);
     let recording = Recording { excitation: Excitation::Multisine, seconds: 20.0, seed: 1, noise: SensorNoise::default() };
