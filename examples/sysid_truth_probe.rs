@@ -3,8 +3,9 @@
 //! delay, 20 s of multisine with sensor noise), identifies it, then compares the tracking error
 //! χ² at the fit with χ² at the truth, and for each parameter the change in χ² when it alone is
 //! set to its truth. A truth below the fit means the minimum the search is after lies nearer the
-//! truth than where it stopped. `ROUNDS` > 1 restarts the search from its last fit (new
-//! curvature, new CMA-ES state) that many times.
+//! truth than where it stopped; the error along the straight line between them shows whether
+//! the way there falls or is flat to within the replay's numerical noise. `ROUNDS` > 1 restarts
+//! the search from its last fit (new curvature, new CMA-ES state) that many times.
 //!
 //! `cargo run --release --example sysid_truth_probe -- [GENERATIONS] [ROUNDS]`
 
@@ -33,7 +34,22 @@ fn main() -> anyhow::Result<()> {
     let mut fitted = rig.nominal.clone();
     fitted.extend(&fit.values());
     let chi2 = twinbots_sysid::search::costs(&rig, logs, &[rig.parameters(&truth)?, fitted.clone()]);
-    println!("χ² per step: truth {:.4}, fit {:.4} ({} candidates, {:.1} s)", chi2[0], chi2[1], fit.candidates, fit.seconds);
+    println!("χ² per step: truth {:.4}, fit {:.4} ({} candidates, {:.1} s; the replay's numerical noise ±{:.0} in χ² over {} samples)", chi2[0], chi2[1], fit.candidates, fit.seconds, fit.replay_noise, fit.samples);
+    // The error on the straight line from the fit to the truth: a valley floor flat to within
+    // the replay's noise shows as bumps, not a slope.
+    let truth_full = rig.parameters(&truth)?;
+    let line: Vec<Parameters> = (0..=10)
+        .map(|k| {
+            let mut p = fitted.clone();
+            for f in &fit.parameters {
+                let (a, b) = (fitted.get(&f.name).unwrap_or(f.value), truth_full.get(&f.name).unwrap_or(f.value));
+                p.0.insert(f.name.clone(), a + k as f64 / 10.0 * (b - a));
+            }
+            p
+        })
+        .collect();
+    let along: Vec<String> = twinbots_sysid::search::costs(&rig, logs, &line).iter().map(|c| format!("{c:.4}")).collect();
+    println!("χ² per step from the fit to the truth in tenths: {}", along.join(" "));
     for p in &fit.parameters {
         let t = truth.get(&p.name).unwrap_or(p.value);
         let mut one = fitted.clone();

@@ -152,8 +152,8 @@ fn validate(rig: &Rig, logs: &[PreparedLog], nominal: &Parameters, calibrated: &
 
 fn fit_table(fit: &Fit) -> String {
     let mut out = format!(
-        "tracking error (χ² per step): nominal {:.4}, calibrated {:.4}\n{:<32} {:>12} {:>12} {:>12}  {}\n",
-        fit.cost_nominal, fit.cost_fitted, "parameter", "nominal", "fitted", "spread", "unit"
+        "tracking error (χ² per step): nominal {:.4}, calibrated {:.4}; the replay's numerical noise ±{:.0} in χ² over {} samples\n{:<32} {:>12} {:>12} {:>12}  {}\n",
+        fit.cost_nominal, fit.cost_fitted, fit.replay_noise, fit.samples, "parameter", "nominal", "fitted", "spread", "unit"
     );
     for p in &fit.parameters {
         out += &format!("{:<32} {:>12.5e} {:>12.5e} {:>12.2e}  {}\n", p.name, p.nominal, p.value, p.spread, p.unit);
@@ -172,6 +172,7 @@ fn write_calibration(path: &Path, rig: &Rig, fit: &Fit, logs: &[PathBuf], valida
     about.insert("logs".into(), toml::Value::Array(logs.iter().map(|l| l.display().to_string().into()).collect()));
     about.insert("tracking_error_nominal".into(), fit.cost_nominal.into());
     about.insert("tracking_error_calibrated".into(), fit.cost_fitted.into());
+    about.insert("replay_noise".into(), fit.replay_noise.into());
     about.insert("candidates".into(), (fit.candidates as i64).into());
     about.insert("seconds".into(), fit.seconds.into());
     if let Some(v) = validation {

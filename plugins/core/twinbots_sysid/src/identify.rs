@@ -10,7 +10,8 @@ use crate::replay::{PreparedLog, compare};
 use crate::rig::{Rig, run};
 pub use crate::search::Generation;
 use crate::search::{Basis, Block, Range, Search, blocks, costs};
-use crate::uncertainty::{Spread, curvatures, spreads, whitened};
+use crate::sensitivity::gauss_newton;
+use crate::uncertainty::{spreads, whitened};
 
 /// How a fit runs.
 #[derive(Clone, Debug)]
@@ -31,8 +32,9 @@ pub struct Fitted {
     pub unit: &'static str,
     pub nominal: f64,
     pub value: f64,
-    /// Its standard deviation from the curvature of the tracking error around the fit, the
-    /// other parameters of its joint free too (see `uncertainty`).
+    /// Its standard deviation from the curvature of the tracking error around the fit, every
+    /// other fitted parameter free too, widened for the replay's numerical noise (see
+    /// `uncertainty`).
     pub spread: f64,
     /// Its standard deviation with the others held at the fit.
     pub conditional_spread: f64,
@@ -56,6 +58,9 @@ pub struct Fit {
     pub seconds_per_replay: f64,
     /// Samples (physics steps over all fit logs) the χ² sums over.
     pub samples: usize,
+    /// The replay's own numerical noise at the fit, in total χ² (`uncertainty::Uncertainty`):
+    /// above 1, the spreads are widened by its square root.
+    pub replay_noise: f64,
 }
 
 impl Fit {
@@ -78,6 +83,11 @@ pub fn parameter_specs(rig: &Rig, names: &[String]) -> anyhow::Result<Vec<Parame
         })
         .collect()
 }
+
+/// How many times the χ² of a twin that matches the logs to their noise a fit may score and
+/// still be read by its spreads (the UR5e's fits score 0.5–0.8 times; the cart-pole's and the
+/// Pioneer's, whose free pendulums' replays diverge, 4–5 times).
+const MISFIT: f64 = 3.0;
 
 /// A spread `s` in the unit box at `u`, in the parameter's units (the wider side).
 fn searched_spread(range: &Range, u: f64, s: f64) -> f64 {
@@ -126,19 +136,19 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     let started = Instant::now();
     let mut u: Vec<f64> = specs.iter().zip(&ranges).map(|(s, r)| r.unit(rig.value(&base, &s.name))).collect();
     let cost_nominal = costs(rig, logs, std::slice::from_ref(&twin))[0];
-    let blocks = blocks(rig, &specs);
-    let (global, joints): (Vec<Block>, Vec<Block>) = blocks.iter().cloned().partition(|b| b.joint.is_none());
-    // The parameters of no joint (the delay), and all the joints' ones.
+    let (global, joints): (Vec<Block>, Vec<Block>) = blocks(rig, &specs).into_iter().partition(|b| b.joint.is_none());
+    // The parameters of no joint (the delay), and all of them.
     let global: Vec<usize> = global.iter().flat_map(|b| b.members.clone()).collect();
-    let members: Vec<usize> = joints.iter().flat_map(|b| b.members.clone()).collect();
+    let all: Vec<usize> = (0..specs.len()).collect();
     let mut history = Vec::new();
     let mut candidates = 1;
-    // CMA-ES's own default, 4 + ⌊3 ln n⌋ (12 for the UR5e's 18 joint parameters).
-    let popsize = if options.popsize > 0 { options.popsize } else { 4 + (3.0 * (members.len().max(1) as f64).ln()).floor() as usize };
+    // CMA-ES's own default, 4 + ⌊3 ln n⌋ over the joints' parameters (12 for the UR5e's 18).
+    let joint_count = joints.iter().map(|b| b.members.len()).sum::<usize>().max(1);
+    let popsize = if options.popsize > 0 { options.popsize } else { 4 + (3.0 * (joint_count as f64).ln()).floor() as usize };
     let samples: usize = logs.iter().map(|l| l.reference.len()).sum();
     // A search along the delay (or a bias) may stop once its generation spreads less than a
-    // half of what the delay must be known to; the joints' search runs its generations
-    // (their spread is checked after, against their resolution).
+    // half of what the delay must be known to; the joints' parameters once under 2e-3 of the
+    // unit box (their spread is checked after, against their resolution).
     let settled: Vec<f64> = specs
         .iter()
         .zip(&ranges)
@@ -151,28 +161,45 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
         })
         .collect();
     let mut extra = 0;
-    // The joints' search's last spread per parameter (unit box): 0 where it was not searched.
+    // The last search's spread per parameter (unit box): 0 where it was not searched.
     let mut unsettled = vec![0.0; specs.len()];
     let g = options.generations;
     // 1. The delay alone, the rest nominal: it moves every joint, and it is 1-D.
     candidates += search.evolve(&mut u, &global, &Basis::diagonal(&vec![0.1; global.len()]), &settled, (g / 2).max(10), 6, &mut history, &mut progress).0;
-    // 2. Every joint's parameters as one search scored by the total error (a joint's
-    //    parameters reach the other joints' errors too), in coordinates whitened by the
-    //    error's curvature at stage 1's fit, per joint (`uncertainty::whitened`): a joint's
-    //    damping and friction trade off, and the parameters act at scales orders apart, which
-    //    a search started round would first have to learn over many generations.
-    if !members.is_empty() && g > 0 {
-        let (curvatures, probes) = curvatures(rig, logs, &search.set(&u), &specs, &joints);
+    // 2. Every parameter in one search scored by the total error: a joint's parameters reach
+    //    the other joints' errors too (the arm's dynamics share their efforts), and the delay
+    //    every joint's. The error is near a sum of squares of residuals that move smoothly with
+    //    the parameters, so its Gauss–Newton curvature (`sensitivity`, n + 1 replays) shows how
+    //    they trade off, within and across joints, and where a quadratic model puts the
+    //    minimum: the search starts there when that is better (the first step of least squares,
+    //    as MuJoCo's sysid takes many), in coordinates whitened by that curvature
+    //    (`uncertainty::whitened`), so it need not learn over many generations what the
+    //    curvature already says.
+    if g > 0 {
+        let (curvature, probes) = gauss_newton(rig, logs, &search.set(&u), &specs, &all);
         extra += probes;
-        let basis = whitened(&curvatures, &joints, &members, &ranges, &u, samples, 10.0, (1e-4, 0.1, 0.1));
-        let (n, spread) = search.evolve(&mut u, &members, &basis, &settled, g, popsize, &mut history, &mut progress);
+        let mut at = curvature;
+        if let Some(step) = at.newton_step() {
+            // The full step, and half of it where the error is less quadratic than the model.
+            let tries: Vec<Vec<f64>> = [1.0, 0.5]
+                .iter()
+                .map(|f| all.iter().map(|&i| ranges[i].unit(ranges[i].value(u[i]) + f * step[i])).collect())
+                .collect();
+            let sets: Vec<Parameters> = std::iter::once(search.set(&u)).chain(tries.iter().map(|t| search.set(t))).collect();
+            let scores = costs(rig, logs, &sets);
+            extra += sets.len();
+            if let Some(best) = (1..scores.len()).filter(|&k| scores[k] < scores[0]).min_by(|&a, &b| scores[a].total_cmp(&scores[b])) {
+                u = tries[best - 1].clone();
+                // Whitened where the search starts.
+                let (moved, probes) = gauss_newton(rig, logs, &search.set(&u), &specs, &all);
+                extra += probes;
+                at = moved;
+            }
+        }
+        let basis = whitened(&at, &all, &ranges, &u, samples, 10.0, (1e-4, 0.1, 0.1));
+        let (n, spread) = search.evolve(&mut u, &all, &basis, &settled, g, popsize, &mut history, &mut progress);
         candidates += n;
         unsettled = spread;
-    }
-    // 3. The delay again, at the joints' fit.
-    if g >= 4 {
-        // Near its fit already: small first steps.
-        candidates += search.evolve(&mut u, &global, &Basis::diagonal(&vec![0.02; global.len()]), &settled, g / 4, 6, &mut history, &mut progress).0;
     }
     candidates += extra;
     let fitted = search.set(&u);
@@ -180,19 +207,32 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     candidates += 1;
     let seconds_fit = started.elapsed().as_secs_f64();
     let replays = 1 + candidates;
-    let (spreads, replays_spread) = spreads(rig, logs, &fitted, &specs, &blocks, samples);
-    let spreads: Vec<Spread> = spreads.into_iter().map(|s| s.expect("every fitted parameter is in a block")).collect();
+    let uncertainty = spreads(rig, logs, &fitted, &specs, samples);
+    let replay_noise = uncertainty.replay_noise;
+    // How much wider than the statistics' the spreads are for the replay's noise.
+    let widen = replay_noise.max(1.0).sqrt();
+    // A twin that follows the logs to their noise scores about one per compared signal and
+    // log; far above that, the fit explains little of the logs, and its spreads (the error's
+    // shape around a point that is not the answer) say nothing.
+    let matched: f64 = logs.iter().map(|l| l.scale.iter().flatten().filter(|s| **s > 0.0).count() as f64).sum();
+    let misfit = (best > MISFIT * matched).then(|| {
+        format!(
+            "the twin does not follow the logs: χ² per step {best:.1} where one that matched them to their noise would score about {matched:.0} (a replay that diverges, as a free pendulum falling another way, or physics the twin lacks), so no spread holds"
+        )
+    });
     let parameters = specs
         .iter()
         .zip(&ranges)
         .zip(&u)
-        .zip(&spreads)
+        .zip(&uncertainty.spreads)
         .enumerate()
         .map(|(i, (((spec, range), &u), spread))| {
             let value = range.value(u);
             let at_bound = u <= 1e-3 || u >= 1.0 - 1e-3;
             let resolution = resolution(spec, value, rig.dt());
-            let not_identifiable = if spread.offset.abs() > resolution {
+            let not_identifiable = if let Some(why) = &misfit {
+                Some(why.clone())
+            } else if spread.offset.abs() > resolution {
                 Some(format!(
                     "the search had not settled along it: the error still falls towards {:.4e} (its curvature puts the minimum {:+.2e} {} away)",
                     value + spread.offset,
@@ -201,16 +241,21 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
                 ))
             } else if let Some(last) = Some(searched_spread(range, u, unsettled[i])).filter(|s| *s > resolution) {
                 Some(format!("the search had not settled along it: its last generation still spread ±{last:.2e} {}", spec.unit))
-            } else if spread.conditional > resolution {
+            } else if spread.conditional / widen > resolution {
                 Some(format!(
                     "the logs' motion barely exercises it: ±{:.3e} {} changes the tracking error by only Δχ² = {:.1} over {samples} samples",
                     spread.probe,
                     spec.unit,
-                    (spread.probe / spread.conditional).powi(2),
+                    (widen * spread.probe / spread.conditional).powi(2),
                 ))
-            } else if spread.marginal > resolution {
+            } else if spread.marginal / widen > resolution {
                 let partner = spread.partner.map_or("another parameter".to_string(), |(q, r)| format!("{} (correlation {r:+.2})", specs[q].name));
                 Some(format!("it trades off against {partner}: the logs' motion does not tell them apart (spread {:.2e})", spread.marginal))
+            } else if spread.marginal > resolution {
+                Some(format!(
+                    "the replay's own numerical noise (±{replay_noise:.0} in χ² over {samples} samples) hides changes of it within ±{:.2e} {}",
+                    spread.marginal, spec.unit
+                ))
             } else if at_bound {
                 Some(format!("the fit ran into the edge of its search range [{:.4e}, {:.4e}]", range.lo, range.hi))
             } else {
@@ -228,7 +273,8 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
         cost_fitted: best,
         history,
         candidates,
-        replays: replays + replays_spread,
+        replays: replays + uncertainty.replays,
+        replay_noise,
         seconds: started.elapsed().as_secs_f64(),
         seconds_per_replay: seconds_fit / replays as f64,
         samples,

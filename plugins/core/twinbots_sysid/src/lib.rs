@@ -13,6 +13,7 @@ pub mod record;
 pub mod replay;
 pub mod rig;
 pub mod search;
+pub mod sensitivity;
 pub mod uncertainty;
 
 pub use excitation::Excitation;

@@ -141,6 +141,28 @@ pub fn tracking_cost(log: &PreparedLog, twin: &Trajectory, bias: &[f64]) -> Vec<
     out
 }
 
+/// The tracking error as residuals: every sample's position, speed and effort error in units of
+/// its noise, over √n, so that their squares sum to [`tracking_cost`]'s total. Appended to `out`
+/// in a fixed order (joint, signal, step): what a sensitivity of the error is measured on.
+pub fn residuals(log: &PreparedLog, twin: &Trajectory, bias: &[f64], out: &mut Vec<f64>) {
+    let n = log.reference.len().min(twin.steps.len()).max(1) as f64;
+    for (j, scale) in log.scale.iter().enumerate() {
+        for (signal, s) in scale.iter().enumerate() {
+            if *s <= 0.0 {
+                continue;
+            }
+            let w = 1.0 / (s * n.sqrt());
+            out.extend(log.reference.iter().zip(&twin.steps).map(|(r, t)| {
+                w * match signal {
+                    0 => t.position[j] as f64 + bias[j] - r.position[j] as f64,
+                    1 => t.velocity[j] as f64 - r.velocity[j] as f64,
+                    _ => t.effort[j] as f64 - r.effort[j] as f64,
+                }
+            }));
+        }
+    }
+}
+
 /// How far the twin strayed from the log, per joint.
 #[derive(Clone, Debug, Serialize)]
 pub struct JointError {

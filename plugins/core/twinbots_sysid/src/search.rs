@@ -1,7 +1,6 @@
-//! The search behind `identify`: CMA-ES (fcmaes-core, ask/tell) over blocks of parameters in a
-//! unit box each, one candidate per arena, every candidate scored by its total tracking error.
-//! Blocks group parameters by joint (what the curvature in `uncertainty` is measured over);
-//! `identify` decides which blocks search together, and in what order.
+//! The search behind `identify`: CMA-ES (fcmaes-core, ask/tell) over parameters in a unit box
+//! each, one candidate per arena, every candidate scored by its total tracking error. Blocks
+//! group parameters by joint; `identify` decides which search together, and in what order.
 
 use fcmaes_core::cmaes::{Cmaes, CmaesParams};
 use fcmaes_core::fitness::Fitness;

@@ -1,14 +1,17 @@
 //! How well the logs pin each fitted parameter down: the curvature of the tracking error (χ²,
-//! errors in units of the logs' noise) around the fit, per block, by finite differences; its
-//! inverse is the fit's covariance (Gauss–Newton: C = 2 H⁻¹ for H the Hessian of the total χ²).
-//! A parameter that trades off against another (damping against friction when speeds vary
-//! little) has a small conditional spread but a large marginal one: the marginal is reported.
+//! errors in units of the logs' noise) around the fit over all fitted parameters, from the
+//! residuals' sensitivities (`sensitivity`); its inverse is the fit's covariance
+//! (Gauss–Newton: C = 2 H⁻¹ for H the Hessian of the total χ²). A parameter that trades off
+//! against another (damping against friction when speeds vary little, or a joint's damping
+//! against the next joint's) has a small conditional spread but a large marginal one: the
+//! marginal is reported.
 
 use twinbots_sim::{ParameterKind, ParameterSpec, Parameters};
 
 use crate::replay::PreparedLog;
 use crate::rig::Rig;
-use crate::search::{Basis, Block, Range, joint_costs};
+use crate::search::{Basis, Range, costs};
+use crate::sensitivity::gauss_newton;
 
 /// One parameter's uncertainty.
 #[derive(Clone, Debug)]
@@ -19,15 +22,15 @@ pub struct Spread {
     pub marginal: f64,
     /// Standard deviation with the other parameters held at the fit.
     pub conditional: f64,
-    /// The parameter of the same block it correlates with most, and the correlation.
+    /// The fitted parameter it correlates with most (index into the specs), and the correlation.
     pub partner: Option<(usize, f64)>,
-    /// How far along this parameter alone the error's minimum lies from the fit (the slope over
-    /// the curvature): near 0 when the search converged along it.
+    /// How far the error's minimum lies from the fit along this parameter, by the quadratic
+    /// model of the error (its part of the Newton step): near 0 when the search converged.
     pub offset: f64,
 }
 
-/// The error's curvature around a point, for one block: its Hessian (per unit of each
-/// parameter) and slope, measured with steps `probe`.
+/// The error's curvature around a point over some parameters: its Hessian (per unit of each
+/// parameter) and slope, measured with steps `probe` (`sensitivity::gauss_newton`).
 #[derive(Clone, Debug)]
 pub struct Curvature {
     pub hessian: Vec<Vec<f64>>,
@@ -35,121 +38,138 @@ pub struct Curvature {
     pub probe: Vec<f64>,
 }
 
-/// Measures each block's curvature at `at` by finite differences of the total error, each block
-/// probed in arenas of its own (one joint's parameters reach the others' errors too: the
-/// drives' efforts are solved together). Also returns the replays it took.
-pub fn curvatures(rig: &Rig, logs: &[PreparedLog], at: &Parameters, specs: &[ParameterSpec], blocks: &[Block]) -> (Vec<Curvature>, usize) {
-    let probes: Vec<f64> = specs
-        .iter()
-        .map(|spec| {
-            let v = at.get(&spec.name).unwrap_or(spec.default);
-            match spec.kind {
-                ParameterKind::CommandDelay => rig.dt(),
-                ParameterKind::Bias => 0.01,
-                _ if v.abs() > 0.0 => 0.3 * v.abs(),
-                _ => 0.01,
+impl Curvature {
+    /// The inverse of the Hessian over the parameters the logs move at all (a parameter they do
+    /// not move has no curvature: its row and column are left at 0), `None` if that is singular.
+    pub fn inverse(&self) -> Option<Vec<Vec<f64>>> {
+        let active: Vec<usize> = (0..self.hessian.len()).filter(|&p| self.hessian[p][p] > 0.0).collect();
+        let sub: Vec<Vec<f64>> = active.iter().map(|&p| active.iter().map(|&q| self.hessian[p][q]).collect()).collect();
+        let inv = invert(&sub)?;
+        let mut out = vec![vec![0.0; self.hessian.len()]; self.hessian.len()];
+        for (a, &p) in active.iter().enumerate() {
+            for (b, &q) in active.iter().enumerate() {
+                out[p][q] = inv[a][b];
             }
-        })
-        .collect();
-    // A parameter that cannot go a probe below its value (a damping at 0) is probed forward:
-    // +1 and +2 probes instead of ±1.
-    let forward: Vec<bool> = specs
-        .iter()
-        .zip(&probes)
-        .map(|(spec, h)| spec.kind != ParameterKind::Bias && at.get(&spec.name).unwrap_or(spec.default) - h < 0.0)
-        .collect();
-    // Per block, the probe patterns in member coordinates: ±each (or +1, +2), then +each pair.
-    let patterns = |block: &Block| -> Vec<Vec<(usize, f64)>> {
-        let d = block.members.len();
-        let second = |p: usize| if forward[block.members[p]] { 2.0 } else { -1.0 };
-        let mut out: Vec<Vec<(usize, f64)>> = (0..d).flat_map(|p| [vec![(p, 1.0)], vec![(p, second(p))]]).collect();
-        out.extend((0..d).flat_map(|p| (p + 1..d).map(move |q| vec![(p, 1.0), (q, 1.0)])));
-        out
-    };
-    let mut sets = vec![at.clone()];
-    for block in blocks {
-        sets.extend(patterns(block).iter().map(|p| probe_set(p, &[block], at, specs, &probes)));
+        }
+        Some(out)
     }
-    let costs: Vec<f64> = joint_costs(rig, logs, &sets).iter().map(|c| c.iter().sum()).collect();
-    let j0 = costs[0];
-    let mut offset = 1;
-    let out = blocks
-        .iter()
-        .map(|block| {
-            let d = block.members.len();
-            let h: Vec<f64> = block.members.iter().map(|&i| probes[i]).collect();
-            let score = |k: usize| costs[offset + k];
-            let (plus, other) = (|p: usize| score(2 * p), |p: usize| score(2 * p + 1));
-            let mut hessian = vec![vec![0.0; d]; d];
-            let mut pair = 2 * d;
-            for p in 0..d {
-                hessian[p][p] = if forward[block.members[p]] {
-                    (other(p) - 2.0 * plus(p) + j0) / (h[p] * h[p])
-                } else {
-                    (plus(p) + other(p) - 2.0 * j0) / (h[p] * h[p])
-                };
-                for q in p + 1..d {
-                    let v = (score(pair) - plus(p) - plus(q) + j0) / (h[p] * h[q]);
-                    hessian[p][q] = v;
-                    hessian[q][p] = v;
-                    pair += 1;
-                }
-            }
-            let slope = (0..d)
-                .map(|p| if forward[block.members[p]] { (4.0 * plus(p) - 3.0 * j0 - other(p)) / (2.0 * h[p]) } else { (plus(p) - other(p)) / (2.0 * h[p]) })
-                .collect();
-            offset += patterns(block).len();
-            Curvature { hessian, slope, probe: h }
-        })
-        .collect();
-    (out, sets.len())
+
+    /// The Newton step −H⁻¹·slope: where the quadratic model of the error has its minimum,
+    /// relative to the point measured (per parameter, in its units).
+    pub fn newton_step(&self) -> Option<Vec<f64>> {
+        let inv = self.inverse()?;
+        Some(inv.iter().map(|row| -row.iter().zip(&self.slope).map(|(v, g)| v * g).sum::<f64>()).collect())
+    }
 }
 
-/// Measures every parameter's spread at `fitted` from its block's curvature. `samples` is the
-/// count the χ² sums over. Parameters in none of `blocks` get `None`. Also returns the replays
-/// it took.
-pub fn spreads(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[ParameterSpec], blocks: &[Block], samples: usize) -> (Vec<Option<Spread>>, usize) {
-    let (curvatures, replays) = curvatures(rig, logs, fitted, specs, blocks);
-    let mut out: Vec<Option<Spread>> = vec![None; specs.len()];
+/// How well the logs pin the fit down.
+#[derive(Clone, Debug)]
+pub struct Uncertainty {
+    /// Per fitted parameter.
+    pub spreads: Vec<Spread>,
+    /// The replay's own numerical noise, in total χ² (over all samples): how far the error at
+    /// points the statistics cannot tell apart from the fit scatters about its quadratic model.
+    /// Rounding in a long replay grows into trajectories that differ by more than the logs'
+    /// noise can resolve; the spreads are widened to where a change stands above it.
+    pub replay_noise: f64,
+    pub replays: usize,
+}
+
+/// Points the replay-noise probe measures, per distance from the fit.
+const NOISE_PROBES: usize = 8;
+
+/// How many times at most the noise is measured again further out.
+const NOISE_ROUNDS: usize = 3;
+
+/// Measures every one of `specs`' spreads at `fitted` from the error's Gauss–Newton curvature
+/// over all of them (correlations across joints included), widened by the replay's numerical
+/// noise. `samples` is the count the χ² sums over.
+pub fn spreads(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[ParameterSpec], samples: usize) -> Uncertainty {
+    let all: Vec<usize> = (0..specs.len()).collect();
+    let (c, mut replays) = gauss_newton(rig, logs, fitted, specs, &all);
     let n = samples as f64;
-    for (block, c) in blocks.iter().zip(&curvatures) {
-        let hessian = &c.hessian;
-        let d = block.members.len();
-        let conditional: Vec<f64> = (0..d).map(|p| (2.0 / (n * hessian[p][p].max(1e-300))).sqrt()).collect();
-        let covariance = invert(hessian).map(|inv| inv.iter().map(|row| row.iter().map(|v| 2.0 * v / n).collect::<Vec<f64>>()).collect::<Vec<_>>());
-        for p in 0..d {
-            let (marginal, partner) = match &covariance {
-                Some(c) if c[p][p] > 0.0 => {
-                    let partner = (0..d)
-                        .filter(|&q| q != p && c[q][q] > 0.0)
-                        .map(|q| (block.members[q], c[p][q] / (c[p][p] * c[q][q]).sqrt()))
-                        .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()));
-                    (c[p][p].sqrt().max(conditional[p]), partner)
+    let d = specs.len();
+    let covariance = c.inverse().map(|inv| inv.iter().map(|row| row.iter().map(|v| 2.0 * v / n).collect::<Vec<f64>>()).collect::<Vec<_>>());
+    // The noise grows with how far apart the replays' parameters are (a larger change throws
+    // the rounding further off; a pendulum that falls over amplifies any change), so it is
+    // measured again as far out as the spreads it widens, until it stops growing there.
+    let replay_noise = match covariance.as_ref().and_then(|cov| cholesky(cov)) {
+        Some(factor) => {
+            let (mut noise, probes) = replay_noise(rig, logs, fitted, specs, &c, &factor, n, 1.0);
+            replays += probes;
+            for _ in 0..NOISE_ROUNDS {
+                let (far, probes) = replay_noise(rig, logs, fitted, specs, &c, &factor, n, noise.max(1.0).sqrt());
+                replays += probes;
+                let grew = far > 2.0 * noise;
+                noise = noise.max(far);
+                if !grew {
+                    break;
                 }
-                // Not convex here (the fit is off the minimum, or the error is flat): the
+            }
+            noise
+        }
+        None => 0.0,
+    };
+    // A change of the error under the noise is not seen: a spread is where the error has risen
+    // by one (statistics) or by the noise, whichever is more.
+    let widen = replay_noise.max(1.0).sqrt();
+    let conditional: Vec<f64> = (0..d).map(|p| widen * (2.0 / (n * c.hessian[p][p].max(1e-300))).sqrt()).collect();
+    let newton = c.newton_step();
+    let spreads = (0..d)
+        .map(|p| {
+            let (marginal, partner) = match &covariance {
+                Some(cov) if cov[p][p] > 0.0 => {
+                    let partner = (0..d)
+                        .filter(|&q| q != p && cov[q][q] > 0.0)
+                        .map(|q| (q, cov[p][q] / (cov[p][p] * cov[q][q]).sqrt()))
+                        .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()));
+                    ((widen * cov[p][p].sqrt()).max(conditional[p]), partner)
+                }
+                // The logs do not move it, or its curvature is singular with others': the
                 // conditional spread is all there is.
                 _ => (f64::INFINITY, None),
             };
-            let offset = if hessian[p][p] > 0.0 { -c.slope[p] / hessian[p][p] } else { f64::INFINITY };
-            out[block.members[p]] = Some(Spread { probe: c.probe[p], marginal, conditional: conditional[p], partner, offset });
-        }
-    }
-    (out, replays)
+            let offset = newton.as_ref().map_or(f64::INFINITY, |step| step[p]);
+            Spread { probe: c.probe[p], marginal, conditional: conditional[p], partner, offset }
+        })
+        .collect();
+    Uncertainty { spreads, replay_noise, replays }
 }
 
-/// The fit with a probe pattern applied to `blocks`' parameters.
-fn probe_set(pattern: &[(usize, f64)], blocks: &[&Block], fitted: &Parameters, specs: &[ParameterSpec], probes: &[f64]) -> Parameters {
-    let mut params = fitted.clone();
-    for block in blocks {
-        for &(m, sign) in pattern {
-            if let Some(&i) = block.members.get(m) {
-                let spec = &specs[i];
-                let v = fitted.get(&spec.name).unwrap_or(spec.default) + sign * probes[i];
-                params.0.insert(spec.name.clone(), if spec.kind == ParameterKind::Bias { v } else { v.max(0.0) });
-            }
+/// The replay's numerical noise at `fitted` (total χ²): the RMS, over [`NOISE_PROBES`] points
+/// `scale` statistical spreads away (`factor`: the covariance's Cholesky factor, drawn with a
+/// fixed seed), of the error's departure from its quadratic model `c`. Also returns the replays.
+#[allow(clippy::too_many_arguments)]
+fn replay_noise(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[ParameterSpec], c: &Curvature, factor: &[Vec<f64>], n: f64, scale: f64) -> (f64, usize) {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_0f_0015e);
+    let d = specs.len();
+    let steps: Vec<Vec<f64>> = (0..NOISE_PROBES)
+        .map(|_| {
+            let z: Vec<f64> = (0..d).map(|_| StandardNormal.sample(&mut rng)).collect();
+            // A unit draw in every direction at once is √d spreads out: scaled to one.
+            (0..d).map(|p| factor[p].iter().zip(&z).map(|(l, z)| l * z).sum::<f64>() / (d as f64).sqrt() * scale).collect()
+        })
+        .collect();
+    let value = |i: usize| fitted.get(&specs[i].name).unwrap_or(specs[i].default);
+    let mut sets = vec![fitted.clone()];
+    sets.extend(steps.iter().map(|step| {
+        let mut p = fitted.clone();
+        for (i, s) in step.iter().enumerate() {
+            let v = value(i) + s;
+            p.0.insert(specs[i].name.clone(), if specs[i].kind == ParameterKind::Bias { v } else { v.max(0.0) });
         }
-    }
-    params
+        p
+    }));
+    let costs = costs(rig, logs, &sets);
+    let model = |step: &[f64]| -> f64 {
+        let linear: f64 = c.slope.iter().zip(step).map(|(g, s)| g * s).sum();
+        let quadratic: f64 = (0..d).map(|p| step[p] * (0..d).map(|q| c.hessian[p][q] * step[q]).sum::<f64>()).sum();
+        linear + quadratic / 2.0
+    };
+    let sq: f64 = steps.iter().zip(&costs[1..]).map(|(step, y)| (n * (y - costs[0] - model(step))).powi(2)).sum();
+    ((sq / NOISE_PROBES as f64).sqrt(), sets.len())
 }
 
 /// The inverse of a small symmetric matrix by Gauss–Jordan elimination; `None` if singular.
@@ -175,66 +195,51 @@ fn invert(m: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
     Some(a.into_iter().map(|row| row[d..].to_vec()).collect())
 }
 
-/// A search basis over `members` (indices into `specs`) at unit-box point `u`: per block, `k`
-/// times the fit's statistical spread there, correlations included (the Cholesky factor of
-/// k²·2/n·H⁻¹, H the block's curvature per unit-box unit), so that the search starts as round
-/// in its coordinates as the error is. A block whose curvature is not positive definite falls
-/// back to one step per parameter (k conditional spreads, or `fallback`). Each parameter's step
-/// is kept within [`min`, `max`] of the unit box.
+/// A search basis over the parameters `members` (indices into `ranges` and `u`) at unit-box
+/// point `u`, from the error's `curvature` over them: `k` times the fit's statistical spread
+/// there, correlations included (the Cholesky factor of k²·2/n·H⁻¹, H per unit-box unit), so
+/// that the search starts as round in its coordinates as the error is. If the curvature is not
+/// positive definite, one step per parameter (k conditional spreads, or `fallback`). Each
+/// parameter's step is kept within [`min`, `max`] of the unit box.
 #[allow(clippy::too_many_arguments)]
-pub fn whitened(curvatures: &[Curvature], blocks: &[Block], members: &[usize], ranges: &[Range], u: &[f64], samples: usize, k: f64, limits: (f64, f64, f64)) -> Basis {
+pub fn whitened(curvature: &Curvature, members: &[usize], ranges: &[Range], u: &[f64], samples: usize, k: f64, limits: (f64, f64, f64)) -> Basis {
     let (min, max, fallback) = limits;
     let n = samples as f64;
-    // Per block: its curvature per unit-box unit (H scaled by the parameter units per unit-box
-    // unit at the point), the slope likewise, and the curvature's inverse if it has one.
-    let scaled: Vec<(Vec<Vec<f64>>, Vec<f64>, Option<Vec<Vec<f64>>>)> = blocks
-        .iter()
-        .zip(curvatures)
-        .map(|(block, c)| {
-            let per_unit: Vec<f64> = block.members.iter().map(|&i| 1.0 / ranges[i].unit_spread(ranges[i].value(u[i]), 1.0)).collect();
-            let d = block.members.len();
-            let h: Vec<Vec<f64>> = (0..d).map(|p| (0..d).map(|q| c.hessian[p][q] * per_unit[p] * per_unit[q]).collect()).collect();
-            let slope = (0..d).map(|p| c.slope[p] * per_unit[p]).collect();
-            let inverse = invert(&h);
-            (h, slope, inverse)
-        })
-        .collect();
-    // How far the minimum lies, in statistical spreads: the Newton step −H⁻¹·slope of each
-    // block, measured in H (slopeᵀH⁻¹slope). The search's first steps reach that far.
-    let distance2: f64 = scaled
-        .iter()
-        .filter_map(|(_, slope, inverse)| {
-            let inv = inverse.as_ref()?;
-            let quad: f64 = slope.iter().enumerate().map(|(p, gp)| gp * inv[p].iter().zip(slope).map(|(v, gq)| v * gq).sum::<f64>()).sum();
-            (quad.is_finite() && quad > 0.0).then_some(n / 2.0 * quad)
-        })
-        .sum();
-    let k = k.max(distance2.sqrt() / (members.len().max(1) as f64).sqrt());
-    let position = |i: usize| members.iter().position(|&m| m == i);
-    let mut basis = vec![vec![0.0; members.len()]; members.len()];
-    for (block, (h, _, inverse)) in blocks.iter().zip(&scaled) {
-        let d = block.members.len();
-        let factor = inverse
-            .as_ref()
-            .map(|inv| inv.iter().map(|row| row.iter().map(|v| k * k * 2.0 / n * v).collect::<Vec<f64>>()).collect::<Vec<_>>())
-            .and_then(|cov| cholesky(&cov));
-        let factor = factor.unwrap_or_else(|| {
-            let step = |p: usize| if h[p][p] > 0.0 { k * (2.0 / (n * h[p][p])).sqrt() } else { fallback };
-            (0..d).map(|p| (0..d).map(|q| if p == q { step(p) } else { 0.0 }).collect()).collect()
-        });
-        for p in 0..d {
-            let Some(row) = position(block.members[p]) else { continue };
-            // A row's norm is its parameter's step: scaled into the limits, directions kept.
-            let norm = factor[p].iter().map(|v| v * v).sum::<f64>().sqrt();
-            let scale = if norm > 0.0 { norm.clamp(min, max) / norm } else { 0.0 };
-            for q in 0..d {
-                if let Some(col) = position(block.members[q]) {
-                    basis[row][col] = factor[p][q] * scale;
-                }
-            }
-            if norm == 0.0 {
-                basis[row][row] = fallback;
-            }
+    let d = members.len();
+    // The curvature per unit-box unit (H scaled by the parameter units per unit-box unit at the
+    // point), the slope likewise.
+    let per_unit: Vec<f64> = members.iter().map(|&i| 1.0 / ranges[i].unit_spread(ranges[i].value(u[i]), 1.0)).collect();
+    let scaled = Curvature {
+        hessian: (0..d).map(|p| (0..d).map(|q| curvature.hessian[p][q] * per_unit[p] * per_unit[q]).collect()).collect(),
+        slope: (0..d).map(|p| curvature.slope[p] * per_unit[p]).collect(),
+        probe: curvature.probe.clone(),
+    };
+    let h = &scaled.hessian;
+    let inverse = scaled.inverse();
+    // How far the minimum lies, in statistical spreads: the Newton step −H⁻¹·slope measured in
+    // H (slopeᵀH⁻¹slope). The search's first steps reach that far.
+    let distance2 = inverse.as_ref().map_or(0.0, |inv| {
+        let quad: f64 = scaled.slope.iter().enumerate().map(|(p, gp)| gp * inv[p].iter().zip(&scaled.slope).map(|(v, gq)| v * gq).sum::<f64>()).sum();
+        if quad.is_finite() && quad > 0.0 { n / 2.0 * quad } else { 0.0 }
+    });
+    let k = k.max(distance2.sqrt() / (d.max(1) as f64).sqrt());
+    let factor = inverse
+        .map(|inv| inv.iter().map(|row| row.iter().map(|v| k * k * 2.0 / n * v).collect::<Vec<f64>>()).collect::<Vec<_>>())
+        .and_then(|cov| cholesky(&cov));
+    let factor = factor.unwrap_or_else(|| {
+        let step = |p: usize| if h[p][p] > 0.0 { k * (2.0 / (n * h[p][p])).sqrt() } else { fallback };
+        (0..d).map(|p| (0..d).map(|q| if p == q { step(p) } else { 0.0 }).collect()).collect()
+    });
+    let mut basis = vec![vec![0.0; d]; d];
+    for p in 0..d {
+        // A row's norm is its parameter's step: scaled into the limits, directions kept.
+        let norm = factor[p].iter().map(|v| v * v).sum::<f64>().sqrt();
+        let scale = if norm > 0.0 { norm.clamp(min, max) / norm } else { 0.0 };
+        for q in 0..d {
+            basis[p][q] = factor[p][q] * scale;
+        }
+        if norm == 0.0 {
+            basis[p][p] = fallback;
         }
     }
     Basis(basis)
@@ -259,4 +264,41 @@ fn cholesky(m: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
         }
     }
     Some(l)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn newton_step_reaches_a_quadratics_minimum_and_skips_what_the_logs_do_not_move() {
+        // χ²(x) = (x − m)ᵀ A (x − m) around 0: H = 2A, slope = −2Am. The third parameter has no
+        // curvature at all.
+        let a = [[2.0, 0.5], [0.5, 1.0]];
+        let m = [0.3, -0.2];
+        let hessian = vec![vec![4.0, 1.0, 0.0], vec![1.0, 2.0, 0.0], vec![0.0, 0.0, 0.0]];
+        let slope = vec![-2.0 * (a[0][0] * m[0] + a[0][1] * m[1]), -2.0 * (a[1][0] * m[0] + a[1][1] * m[1]), 0.0];
+        let c = Curvature { hessian, slope, probe: vec![0.01; 3] };
+        let step = c.newton_step().expect("the moved parameters' curvature is invertible");
+        assert!((step[0] - m[0]).abs() < 1e-12 && (step[1] - m[1]).abs() < 1e-12, "{step:?}");
+        assert_eq!(step[2], 0.0);
+        let inverse = c.inverse().unwrap();
+        assert_eq!(inverse[2], vec![0.0; 3]);
+        // H · H⁻¹ = I over the moved ones.
+        let product: f64 = (0..2).map(|k| c.hessian[0][k] * inverse[k][1]).sum();
+        assert!(product.abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_whitened_basis_is_round_where_the_error_is() {
+        // Two parameters that trade off (correlated curvature): the basis' rows, mapped through
+        // the curvature, are orthogonal with equal lengths (before the step limits apply).
+        let range = Range { lo: 0.0, hi: 1.0, log: false };
+        let c = Curvature { hessian: vec![vec![2.0, 1.8], vec![1.8, 2.0]], slope: vec![0.0, 0.0], probe: vec![0.01; 2] };
+        let Basis(b) = whitened(&c, &[0, 1], &[range, range], &[0.5, 0.5], 1_000_000, 1.0, (0.0, 1.0, 0.1));
+        // Columns of B are the search's axes: Bᵀ H B ∝ I.
+        let m = |i: usize, j: usize| -> f64 { (0..2).map(|p| (0..2).map(|q| b[p][i] * c.hessian[p][q] * b[q][j]).sum::<f64>()).sum() };
+        assert!(m(0, 1).abs() < 1e-9 * m(0, 0), "{b:?}");
+        assert!((m(0, 0) / m(1, 1) - 1.0).abs() < 1e-9, "{b:?}");
+    }
 }
