@@ -36,8 +36,8 @@ pub struct Uncertainty {
     pub spreads: Vec<Spread>,
     /// The replay's own numerical noise, in total χ² (over all samples): how far the error at
     /// points the statistics cannot tell apart from the fit scatters about its quadratic model.
-    /// Rounding in a long replay grows into trajectories that differ by more than the logs'
-    /// noise can resolve; the spreads are widened to where a change stands above it.
+    /// A long replay's error is not smooth in the parameters on that scale (measured, not
+    /// explained: see docs/logs.md); the spreads are widened to where a change stands above it.
     pub replay_noise: f64,
     pub replays: usize,
 }
@@ -57,9 +57,9 @@ pub fn spreads(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[Pa
     let n = samples as f64;
     let d = specs.len();
     let covariance = c.inverse().map(|inv| inv.iter().map(|row| row.iter().map(|v| 2.0 * v / n).collect::<Vec<f64>>()).collect::<Vec<_>>());
-    // The noise grows with how far apart the replays' parameters are (a larger change throws
-    // the rounding further off; a pendulum that falls over amplifies any change), so it is
-    // measured again as far out as the spreads it widens, until it stops growing there.
+    // The noise may grow with how far apart the replays' parameters are (a pendulum that falls
+    // over amplifies any change), so it is measured again as far out as the spreads it widens,
+    // until it stops growing there.
     let replay_noise = match covariance.as_ref().and_then(|cov| cholesky(cov)) {
         Some(factor) => {
             let (mut noise, probes) = replay_noise(rig, logs, fitted, specs, &c, &factor, n, 1.0);
