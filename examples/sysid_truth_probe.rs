@@ -33,11 +33,11 @@ fn main() -> anyhow::Result<()> {
     }
     let mut fitted = rig.nominal.clone();
     fitted.extend(&fit.values());
-    let chi2 = twinbots_sysid::search::costs(&rig, logs, &[rig.parameters(&truth)?, fitted.clone()]);
+    let truth_full = rig.parameters(&truth)?;
+    let chi2 = twinbots_sysid::search::costs(&rig, logs, &[truth_full.clone(), fitted.clone()]);
     println!("χ² per step: truth {:.4}, fit {:.4} ({} candidates, {:.1} s; the replay's numerical noise ±{:.0} in χ² over {} samples)", chi2[0], chi2[1], fit.candidates, fit.seconds, fit.replay_noise, fit.samples);
     // The error on the straight line from the fit to the truth: a valley floor flat to within
     // the replay's noise shows as bumps, not a slope.
-    let truth_full = rig.parameters(&truth)?;
     let line: Vec<Parameters> = (0..=10)
         .map(|k| {
             let mut p = fitted.clone();

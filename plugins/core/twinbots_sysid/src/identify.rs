@@ -185,11 +185,12 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
                 .iter()
                 .map(|f| all.iter().map(|&i| ranges[i].unit(ranges[i].value(u[i]) + f * step[i])).collect())
                 .collect();
-            let sets: Vec<Parameters> = std::iter::once(search.set(&u)).chain(tries.iter().map(|t| search.set(t))).collect();
+            let sets: Vec<Parameters> = tries.iter().map(|t| search.set(t)).collect();
             let scores = costs(rig, logs, &sets);
             extra += sets.len();
-            if let Some(best) = (1..scores.len()).filter(|&k| scores[k] < scores[0]).min_by(|&a, &b| scores[a].total_cmp(&scores[b])) {
-                u = tries[best - 1].clone();
+            // Against the error where the curvature was measured (its own replay's).
+            if let Some(best) = (0..scores.len()).filter(|&k| scores[k] < at.value).min_by(|&a, &b| scores[a].total_cmp(&scores[b])) {
+                u = tries[best].clone();
                 // Whitened where the search starts.
                 let (moved, probes) = gauss_newton(rig, logs, &search.set(&u), &specs, &all);
                 extra += probes;
@@ -208,9 +209,7 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     let seconds_fit = started.elapsed().as_secs_f64();
     let replays = 1 + candidates;
     let uncertainty = spreads(rig, logs, &fitted, &specs, samples);
-    let replay_noise = uncertainty.replay_noise;
-    // How much wider than the statistics' the spreads are for the replay's noise.
-    let widen = replay_noise.max(1.0).sqrt();
+    let (replay_noise, widen) = (uncertainty.replay_noise, uncertainty.widen());
     // A twin that follows the logs to their noise scores about one per compared signal and
     // log; far above that, the fit explains little of the logs, and its spreads (the error's
     // shape around a point that is not the answer) say nothing.

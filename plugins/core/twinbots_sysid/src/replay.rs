@@ -113,32 +113,29 @@ impl PreparedLog {
     }
 }
 
+/// Joint `j`'s errors in one signal (0 position, 1 speed, 2 effort), twin less log, step by
+/// step: what both the tracking error and its residuals are made of.
+fn errors<'a>(log: &'a PreparedLog, twin: &'a Trajectory, bias: &'a [f64], j: usize, signal: usize) -> impl Iterator<Item = f64> + 'a {
+    log.reference.iter().zip(&twin.steps).map(move |(r, t)| match signal {
+        0 => t.position[j] as f64 + bias[j] - r.position[j] as f64,
+        1 => t.velocity[j] as f64 - r.velocity[j] as f64,
+        _ => t.effort[j] as f64 - r.effort[j] as f64,
+    })
+}
+
 /// The weighted tracking error of a twin trajectory against the log (what `identify`
 /// minimises): per joint, the mean squared position, speed and effort errors, each in units of
 /// that signal's noise (χ² per step), summed over joints and signals. Effort counts only for
 /// driven joints. A twin that matches up to the noise scores about the number of signals.
 /// Per joint, in the rig's order.
 pub fn tracking_cost(log: &PreparedLog, twin: &Trajectory, bias: &[f64]) -> Vec<f64> {
-    let n = log.reference.len().min(twin.steps.len()).max(1);
-    let mut out = Vec::with_capacity(log.scale.len());
-    for (j, scale) in log.scale.iter().enumerate() {
-        let mut cost = 0.0;
-        let mut sums = [0.0f64; 3];
-        for (r, t) in log.reference.iter().zip(&twin.steps) {
-            sums[0] += (t.position[j] as f64 + bias[j] - r.position[j] as f64).powi(2);
-            sums[1] += (t.velocity[j] as f64 - r.velocity[j] as f64).powi(2);
-            if scale[2] > 0.0 {
-                sums[2] += (t.effort[j] as f64 - r.effort[j] as f64).powi(2);
-            }
-        }
-        for (sum, s) in sums.iter().zip(scale) {
-            if *s > 0.0 {
-                cost += sum / n as f64 / (s * s);
-            }
-        }
-        out.push(cost);
-    }
-    out
+    let n = log.reference.len().min(twin.steps.len()).max(1) as f64;
+    (0..log.scale.len())
+        .map(|j| {
+            let compared = log.scale[j].iter().enumerate().filter(|(_, s)| **s > 0.0);
+            compared.map(|(signal, s)| errors(log, twin, bias, j, signal).map(|e| e * e).sum::<f64>() / n / (s * s)).sum()
+        })
+        .collect()
 }
 
 /// The tracking error as residuals: every sample's position, speed and effort error in units of
@@ -147,18 +144,9 @@ pub fn tracking_cost(log: &PreparedLog, twin: &Trajectory, bias: &[f64]) -> Vec<
 pub fn residuals(log: &PreparedLog, twin: &Trajectory, bias: &[f64], out: &mut Vec<f64>) {
     let n = log.reference.len().min(twin.steps.len()).max(1) as f64;
     for (j, scale) in log.scale.iter().enumerate() {
-        for (signal, s) in scale.iter().enumerate() {
-            if *s <= 0.0 {
-                continue;
-            }
+        for (signal, s) in scale.iter().enumerate().filter(|(_, s)| **s > 0.0) {
             let w = 1.0 / (s * n.sqrt());
-            out.extend(log.reference.iter().zip(&twin.steps).map(|(r, t)| {
-                w * match signal {
-                    0 => t.position[j] as f64 + bias[j] - r.position[j] as f64,
-                    1 => t.velocity[j] as f64 - r.velocity[j] as f64,
-                    _ => t.effort[j] as f64 - r.effort[j] as f64,
-                }
-            }));
+            out.extend(errors(log, twin, bias, j, signal).map(|e| w * e));
         }
     }
 }

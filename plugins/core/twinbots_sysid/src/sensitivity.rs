@@ -13,6 +13,8 @@ use crate::rig::{Rig, run};
 /// parameter) and slope, measured with steps `probe` ([`gauss_newton`]).
 #[derive(Clone, Debug)]
 pub struct Curvature {
+    /// The error (χ² per step, summed over logs) at the point: Σr² of its replay.
+    pub value: f64,
     pub hessian: Vec<Vec<f64>>,
     pub slope: Vec<f64>,
     pub probe: Vec<f64>,
@@ -50,7 +52,7 @@ const RELATIVE_STEP: f64 = 0.03;
 /// The step of a parameter at 0 (a joint with no armature).
 const STEP_AT_ZERO: f64 = 0.01;
 
-/// The curvature of the total tracking error at `at` over the parameters `members` (indices
+/// The total tracking error at `at` and its curvature over the parameters `members` (indices
 /// into `specs`): Hessian 2·JᵀJ and slope 2·Jᵀr, per unit of each parameter, in `members`'
 /// order. Each parameter is stepped up by [`RELATIVE_STEP`] of its value; a delay by a tenth of
 /// a physics step, a bias by 1 mrad (mm). Also returns the replays it took.
@@ -77,6 +79,7 @@ pub fn gauss_newton(rig: &Rig, logs: &[PreparedLog], at: &Parameters, specs: &[P
     }));
     let mut jtj = vec![vec![0.0; d]; d];
     let mut jtr = vec![0.0; d];
+    let mut value = 0.0;
     for log in logs {
         // The twin starts where the log does, less the base parameters' encoder bias.
         let start = log.start_positions(rig, at);
@@ -91,6 +94,7 @@ pub fn gauss_newton(rig: &Rig, logs: &[PreparedLog], at: &Parameters, specs: &[P
             })
             .collect();
         let r0 = &signals[0];
+        value += r0.iter().map(|r| r * r).sum::<f64>();
         let columns: Vec<Vec<f64>> = (0..d).map(|p| signals[p + 1].iter().zip(r0).map(|(a, b)| (a - b) / steps[p]).collect()).collect();
         for p in 0..d {
             jtr[p] += columns[p].iter().zip(r0).map(|(j, r)| j * r).sum::<f64>();
@@ -105,7 +109,7 @@ pub fn gauss_newton(rig: &Rig, logs: &[PreparedLog], at: &Parameters, specs: &[P
     }
     let hessian = jtj.iter().map(|row| row.iter().map(|v| 2.0 * v).collect()).collect();
     let slope = jtr.iter().map(|v| 2.0 * v).collect();
-    (Curvature { hessian, slope, probe: steps }, sets.len())
+    (Curvature { value, hessian, slope, probe: steps }, sets.len())
 }
 
 /// The inverse of a small symmetric matrix by Gauss–Jordan elimination; `None` if singular.
@@ -143,7 +147,7 @@ mod tests {
         let m = [0.3, -0.2];
         let hessian = vec![vec![4.0, 1.0, 0.0], vec![1.0, 2.0, 0.0], vec![0.0, 0.0, 0.0]];
         let slope = vec![-2.0 * (a[0][0] * m[0] + a[0][1] * m[1]), -2.0 * (a[1][0] * m[0] + a[1][1] * m[1]), 0.0];
-        let c = Curvature { hessian, slope, probe: vec![0.01; 3] };
+        let c = Curvature { value: 0.0, hessian, slope, probe: vec![0.01; 3] };
         let step = c.newton_step().expect("the moved parameters' curvature is invertible");
         assert!((step[0] - m[0]).abs() < 1e-12 && (step[1] - m[1]).abs() < 1e-12, "{step:?}");
         assert_eq!(step[2], 0.0);

@@ -42,6 +42,19 @@ pub struct Uncertainty {
     pub replays: usize,
 }
 
+impl Uncertainty {
+    /// How much wider than the statistics' the spreads are for the replay's noise: a change of
+    /// the error under the noise is not seen, so a spread is where the error has risen by one
+    /// (statistics) or by the noise, whichever is more.
+    pub fn widen(&self) -> f64 {
+        widening(self.replay_noise)
+    }
+}
+
+fn widening(replay_noise: f64) -> f64 {
+    replay_noise.max(1.0).sqrt()
+}
+
 /// Points the replay-noise probe measures, per distance from the fit.
 const NOISE_PROBES: usize = 8;
 
@@ -65,7 +78,7 @@ pub fn spreads(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[Pa
             let (mut noise, probes) = replay_noise(rig, logs, fitted, specs, &c, &factor, n, 1.0);
             replays += probes;
             for _ in 0..NOISE_ROUNDS {
-                let (far, probes) = replay_noise(rig, logs, fitted, specs, &c, &factor, n, noise.max(1.0).sqrt());
+                let (far, probes) = replay_noise(rig, logs, fitted, specs, &c, &factor, n, widening(noise));
                 replays += probes;
                 let grew = far > 2.0 * noise;
                 noise = noise.max(far);
@@ -77,9 +90,7 @@ pub fn spreads(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[Pa
         }
         None => 0.0,
     };
-    // A change of the error under the noise is not seen: a spread is where the error has risen
-    // by one (statistics) or by the noise, whichever is more.
-    let widen = replay_noise.max(1.0).sqrt();
+    let widen = widening(replay_noise);
     let conditional: Vec<f64> = (0..d).map(|p| widen * (2.0 / (n * c.hessian[p][p].max(1e-300))).sqrt()).collect();
     let newton = c.newton_step();
     let spreads = (0..d)
@@ -120,25 +131,27 @@ fn replay_noise(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[P
         })
         .collect();
     let value = |i: usize| fitted.get(&specs[i].name).unwrap_or(specs[i].default);
-    let mut sets = vec![fitted.clone()];
-    sets.extend(steps.iter().map(|step| {
-        let mut p = fitted.clone();
-        for (i, s) in step.iter().enumerate() {
-            let v = value(i) + s;
-            p.0.insert(specs[i].name.clone(), if specs[i].kind == ParameterKind::Bias { v } else { v.max(0.0) });
-        }
-        p
-    }));
+    let sets: Vec<Parameters> = steps
+        .iter()
+        .map(|step| {
+            let mut p = fitted.clone();
+            for (i, s) in step.iter().enumerate() {
+                let v = value(i) + s;
+                p.0.insert(specs[i].name.clone(), if specs[i].kind == ParameterKind::Bias { v } else { v.max(0.0) });
+            }
+            p
+        })
+        .collect();
     let costs = costs(rig, logs, &sets);
     let model = |step: &[f64]| -> f64 {
         let linear: f64 = c.slope.iter().zip(step).map(|(g, s)| g * s).sum();
         let quadratic: f64 = (0..d).map(|p| step[p] * (0..d).map(|q| c.hessian[p][q] * step[q]).sum::<f64>()).sum();
         linear + quadratic / 2.0
     };
-    let sq: f64 = steps.iter().zip(&costs[1..]).map(|(step, y)| (n * (y - costs[0] - model(step))).powi(2)).sum();
+    // The error at the fit is the curvature's own (its replay's).
+    let sq: f64 = steps.iter().zip(&costs).map(|(step, y)| (n * (y - c.value - model(step))).powi(2)).sum();
     ((sq / NOISE_PROBES as f64).sqrt(), sets.len())
 }
-
 
 /// A search basis over the parameters `members` (indices into `ranges` and `u`) at unit-box
 /// point `u`, from the error's `curvature` over them: `k` times the fit's statistical spread
@@ -155,6 +168,7 @@ pub fn whitened(curvature: &Curvature, members: &[usize], ranges: &[Range], u: &
     // point), the slope likewise.
     let per_unit: Vec<f64> = members.iter().map(|&i| 1.0 / ranges[i].unit_spread(ranges[i].value(u[i]), 1.0)).collect();
     let scaled = Curvature {
+        value: curvature.value,
         hessian: (0..d).map(|p| (0..d).map(|q| curvature.hessian[p][q] * per_unit[p] * per_unit[q]).collect()).collect(),
         slope: (0..d).map(|p| curvature.slope[p] * per_unit[p]).collect(),
         probe: curvature.probe.clone(),
@@ -220,7 +234,7 @@ mod tests {
         // Two parameters that trade off (correlated curvature): the basis' rows, mapped through
         // the curvature, are orthogonal with equal lengths (before the step limits apply).
         let range = Range { lo: 0.0, hi: 1.0, log: false };
-        let c = Curvature { hessian: vec![vec![2.0, 1.8], vec![1.8, 2.0]], slope: vec![0.0, 0.0], probe: vec![0.01; 2] };
+        let c = Curvature { value: 0.0, hessian: vec![vec![2.0, 1.8], vec![1.8, 2.0]], slope: vec![0.0, 0.0], probe: vec![0.01; 2] };
         let Basis(b) = whitened(&c, &[0, 1], &[range, range], &[0.5, 0.5], 1_000_000, 1.0, (0.0, 1.0, 0.1));
         // Columns of B are the search's axes: Bᵀ H B ∝ I.
         let m = |i: usize, j: usize| -> f64 { (0..2).map(|p| (0..2).map(|q| b[p][i] * c.hessian[p][q] * b[q][j]).sum::<f64>()).sum() };
