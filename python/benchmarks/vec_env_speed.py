@@ -2,11 +2,14 @@
 against the same arenas stepped by a Rust loop (the Python layer's overhead), and Gymnasium's
 MuJoCo InvertedPendulum-v5 (SyncVectorEnv) beside them.
 
-    python benchmarks/vec_env_speed.py [--steps 1000] [--envs 1 8 64] [--pairs 9]
+    python benchmarks/vec_env_speed.py [--steps 2000] [--envs 1 8 64] [--block 20]
 
 Env steps per second = vectorised steps × envs / s. Both sides step the same actions: a fixed
-random sequence of pushes, cycled; auto-resets included. Each row: the medians of `--pairs`
-back-to-back measurements of both sides, the median of the pairs' overheads and their range."""
+random sequence of pushes, cycled; auto-resets included. A shared VM's speed drifts by ±15 %
+over seconds, so both sides live side by side in one process and take turns in blocks of
+`--block` vector steps (milliseconds each), in alternating order: a drift hits both alike.
+Each row: both sides' rates over all their blocks, the overhead of those totals, and the
+quartiles of the overheads of the block pairs."""
 
 from __future__ import annotations
 
@@ -22,7 +25,7 @@ from twinbots import _native
 
 def timed_steps_per_second(envs, rows: list, steps: int) -> float:
     """Env steps/s of `steps` vector steps of `envs` (reset first), cycling through `rows` of
-    actions; closes the envs. The same loop for every library measured."""
+    actions; closes the envs. For MuJoCo, measured apart."""
     envs.reset(seed=0)
     start = time.perf_counter()
     for t in range(steps):
@@ -32,9 +35,37 @@ def timed_steps_per_second(envs, rows: list, steps: int) -> float:
     return steps * envs.num_envs / elapsed
 
 
-def python_steps_per_second(num_envs: int, actions: np.ndarray, steps: int) -> float:
+def interleaved(num_envs: int, actions: np.ndarray, steps: int, block: int):
+    """(Rust env-steps/s, Python env-steps/s, overheads of the block pairs in %): `steps`
+    vector steps on each side, in turns of `block`."""
+    rust = _native.RustLoop("cartpole", num_envs, actions, 0)
     envs = twinbots.make_vec("cartpole", num_envs=num_envs, seed=0)
-    return timed_steps_per_second(envs, [a.astype(np.int64) for a in actions], steps)
+    envs.reset(seed=0)
+    rows = [a.astype(np.int64) for a in actions]
+    t = 0
+
+    def python_block() -> float:
+        nonlocal t
+        start = time.perf_counter()
+        for _ in range(block):
+            envs.step(rows[t % len(rows)])
+            t += 1
+        return time.perf_counter() - start
+
+    rust_s, python_s, overheads = 0.0, 0.0, []
+    for pair in range(max(1, steps // block)):
+        if pair % 2 == 0:
+            r = rust.run(block)
+            p = python_block()
+        else:
+            p = python_block()
+            r = rust.run(block)
+        rust_s += r
+        python_s += p
+        overheads.append(100.0 * (1.0 - r / p))
+    envs.close()
+    done = max(1, steps // block) * block * num_envs
+    return done / rust_s, done / python_s, overheads
 
 
 def mujoco_steps_per_second(num_envs: int, steps: int) -> float | None:
@@ -52,33 +83,21 @@ def mujoco_steps_per_second(num_envs: int, steps: int) -> float | None:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=1000, help="vectorised steps per measurement")
+    parser.add_argument("--steps", type=int, default=2000, help="vectorised steps per side at 8 envs (fewer at more envs)")
     parser.add_argument("--envs", type=int, nargs="+", default=[1, 8, 64])
-    parser.add_argument("--pairs", type=int, default=9, help="Rust/Python measurement pairs per row")
+    parser.add_argument("--block", type=int, default=20, help="vectorised steps per turn")
     args = parser.parse_args()
 
-    print(f"{'envs':>5} {'Rust loop':>12} {'Python VectorEnv':>17} {'overhead':>9} {'pairs':>14} {'MuJoCo InvPendulum-v5':>22}")
+    print(f"{'envs':>5} {'Rust loop':>12} {'Python VectorEnv':>17} {'overhead':>9} {'block pairs (quartiles)':>24} {'MuJoCo InvPendulum-v5':>22}")
     for n in args.envs:
-        steps = max(200, args.steps // max(1, n // 8))  # about the same wall time per row
+        steps = max(20 * args.block, args.steps // max(1, n // 8))  # about the same wall time per row
         rng = np.random.default_rng(0)
         actions = rng.integers(0, 2, size=(256, n)).astype(np.float32)
-        # A shared VM's speed drifts by ±15 % over seconds: each pair is measured back to back,
-        # in alternating order (a drift hits both sides alike), and the row reports medians.
-        rust, python, overheads = [], [], []
-        for pair in range(args.pairs):
-            if pair % 2 == 0:
-                r = _native.rust_steps_per_second("cartpole", n, actions, steps, 0)
-                p = python_steps_per_second(n, actions, steps)
-            else:
-                p = python_steps_per_second(n, actions, steps)
-                r = _native.rust_steps_per_second("cartpole", n, actions, steps, 0)
-            rust.append(r)
-            python.append(p)
-            overheads.append(100.0 * (1.0 - p / r))
+        rust, python, overheads = interleaved(n, actions, steps, args.block)
         mujoco = mujoco_steps_per_second(n, steps)
         mj = f"{mujoco:>22,.0f}" if mujoco else f"{'-':>22}"
-        spread = f"{min(overheads):.1f}…{max(overheads):.1f}%"
-        print(f"{n:>5} {statistics.median(rust):>12,.0f} {statistics.median(python):>17,.0f} {statistics.median(overheads):>8.1f}% {spread:>14} {mj}")
+        q1, q2, q3 = statistics.quantiles(overheads, n=4)
+        print(f"{n:>5} {rust:>12,.0f} {python:>17,.0f} {100.0 * (1.0 - python / rust):>8.1f}% {f'{q1:.1f} / {q2:.1f} / {q3:.1f}%':>24} {mj}")
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ mod bench;
 mod convert;
 mod frames;
 mod handover;
+mod infos;
 mod policy;
 
 use pyo3::prelude::*;
@@ -21,7 +22,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<arenas::Arenas>()?;
     m.add_class::<policy::Policy>()?;
     m.add_function(wrap_pyfunction!(robots, m)?)?;
-    m.add_function(wrap_pyfunction!(bench::rust_steps_per_second, m)?)?;
+    m.add_class::<bench::RustLoop>()?;
+    m.add_function(wrap_pyfunction!(infos::vector_infos, m)?)?;
     m.add_function(wrap_pyfunction!(handover::training_defaults, m)?)?;
     m.add_function(wrap_pyfunction!(handover::create_run, m)?)?;
     m.add_function(wrap_pyfunction!(handover::append_progress, m)?)?;
