@@ -296,13 +296,52 @@ pub fn print_capture(robot: &str, sizes: &[(u32, u32)], frames: usize) -> anyhow
 /// robot's root link looking at the cell from the iso view, over `steps` control steps:
 /// aggregate frames/s of `CameraRig::sample` (the physics step excluded) drawing one camera a
 /// frame, all in one frame, and all in one frame with `[randomization.visual]` (a new look per
-/// arena every 10 steps).
+/// arena every 10 steps). The three live side by side and take turns in blocks of
+/// [`CAMERA_BLOCK`] steps, the order rotating each round: this VM's speed drifts by ±15 % within
+/// a minute, and one setup measured after another compared the drift, not the setups.
 pub fn print_cameras(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<()> {
-    use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
     let entry = registry::find(robot)?;
-    println!("camera sensors of {robot}: {arenas} arenas x 64x64, {steps} control steps (renderer: whatever adapter wgpu picks)");
+    println!("camera sensors of {robot}: {arenas} arenas x 64x64, {steps} control steps each, in turns of {CAMERA_BLOCK} (renderer: whatever adapter wgpu picks)");
     println!("{:>26} {:>12} {:>16}", "looks, frames", "frames/s", "ms/step");
-    for (randomized, max_tiles) in [(false, 1), (false, 0), (true, 0)] {
+    let mut setups = [(false, 1), (false, 0), (true, 0)]
+        .into_iter()
+        .map(|(randomized, max_tiles)| CameraSetup::new(&entry, arenas, randomized, max_tiles))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    for round in 0..steps.div_ceil(CAMERA_BLOCK) {
+        for k in 0..setups.len() {
+            let n = setups.len();
+            let setup = &mut setups[(round + k) % n];
+            for _ in 0..CAMERA_BLOCK.min(steps - round * CAMERA_BLOCK) {
+                setup.step(arenas)?;
+            }
+        }
+    }
+    for setup in &setups {
+        let label = match (setup.randomized, setup.rig.max_tiles) {
+            (true, _) => "randomized, one frame",
+            (false, 1) => "plain, one camera a frame",
+            _ => "plain, one frame",
+        };
+        println!("{label:>26} {:>12.0} {:>16.2}", (setup.steps * arenas) as f64 / setup.spent, setup.spent / setup.steps as f64 * 1e3);
+    }
+    Ok(())
+}
+
+/// Control steps each setup of `bench cameras` takes in a turn.
+const CAMERA_BLOCK: usize = 5;
+
+/// One setup of `bench cameras`: its arenas, their cameras and the time spent drawing them.
+struct CameraSetup {
+    env: AppVecEnv,
+    rig: twinbots_render::CameraRig,
+    randomized: bool,
+    steps: usize,
+    spent: f64,
+}
+
+impl CameraSetup {
+    fn new(entry: &registry::RobotEntry, arenas: usize, randomized: bool, max_tiles: usize) -> anyhow::Result<Self> {
+        use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
         let mut app = entry.app(None, arenas, 0, DesignPattern::Supervised)?;
         if randomized {
             app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
@@ -313,27 +352,24 @@ pub fn print_cameras(robot: &str, arenas: usize, steps: usize) -> anyhow::Result
         let mut rig = twinbots_render::CameraRig::default();
         rig.max_tiles = max_tiles;
         rig.sample(env.app_mut().world_mut())?; // warm-up: pipelines compile
-        let mut spent = 0.0;
-        let zero = vec![0.0; env.action_space().dim() * arenas];
-        for i in 1..=steps {
-            if randomized && i % 10 == 0 {
-                env.reset(None)?;
-            } else {
-                env.step(&zero)?;
-            }
-            let t = Instant::now();
-            let frames = rig.sample(env.app_mut().world_mut())?;
-            spent += t.elapsed().as_secs_f64();
-            anyhow::ensure!(frames == arenas, "{frames} cameras rendered, {arenas} expected");
-        }
-        let label = match (randomized, max_tiles) {
-            (true, _) => "randomized, one frame",
-            (false, 1) => "plain, one camera a frame",
-            _ => "plain, one frame",
-        };
-        println!("{label:>26} {:>12.0} {:>16.2}", (steps * arenas) as f64 / spent, spent / steps as f64 * 1e3);
+        Ok(Self { env, rig, randomized, steps: 0, spent: 0.0 })
     }
-    Ok(())
+
+    /// One control step (a reset every 10th with new looks), then its frames, timed.
+    fn step(&mut self, arenas: usize) -> anyhow::Result<()> {
+        self.steps += 1;
+        if self.randomized && self.steps % 10 == 0 {
+            self.env.reset(None)?;
+        } else {
+            let zero = vec![0.0; self.env.action_space().dim() * arenas];
+            self.env.step(&zero)?;
+        }
+        let t = Instant::now();
+        let frames = self.rig.sample(self.env.app_mut().world_mut())?;
+        self.spent += t.elapsed().as_secs_f64();
+        anyhow::ensure!(frames == arenas, "{frames} cameras rendered, {arenas} expected");
+        Ok(())
+    }
 }
 
 /// A camera sensor per arena on its first link (in entity order), placed at the framing's iso
