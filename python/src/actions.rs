@@ -2,7 +2,34 @@
 //! because a loop over a few floats costs nanoseconds in Rust and microseconds in numpy calls,
 //! and the Python layer's overhead per step is what users pay.
 
+use numpy::{Element, PyArrayDyn, PyArrayMethods};
+use pyo3::prelude::*;
 use twinbots_api::Space;
+
+/// The values of `actions`, a numpy array of float32, float64, int64 or int32 of any shape
+/// (the Python side has checked it), in row-major order as float32 (what numpy's
+/// `astype(np.float32)` gives). Each dtype is tried by a type check, not by extraction, whose
+/// failures build Python errors: that cost more than the numpy calls it replaces.
+pub fn action_values(actions: &Bound<'_, PyAny>) -> PyResult<Vec<f32>> {
+    fn values<T: Element + Copy>(a: &Bound<'_, PyArrayDyn<T>>, to_f32: impl Fn(T) -> f32) -> PyResult<Vec<f32>> {
+        let a = a.try_readonly()?;
+        Ok(match a.as_slice() {
+            Ok(contiguous) => contiguous.iter().map(|&v| to_f32(v)).collect(),
+            Err(_) => a.as_array().iter().map(|&v| to_f32(v)).collect(),
+        })
+    }
+    if let Ok(a) = actions.cast::<PyArrayDyn<f32>>() {
+        values(a, |v| v)
+    } else if let Ok(a) = actions.cast::<PyArrayDyn<i64>>() {
+        values(a, |v| v as f32)
+    } else if let Ok(a) = actions.cast::<PyArrayDyn<f64>>() {
+        values(a, |v| v as f32)
+    } else if let Ok(a) = actions.cast::<PyArrayDyn<i32>>() {
+        values(a, |v| v as f32)
+    } else {
+        Err(pyo3::exceptions::PyTypeError::new_err("actions must be a numpy array of float32, float64, int64 or int32"))
+    }
+}
 
 /// Refuses NaN and infinite values and choices that are fractional or out of range (naming the
 /// env), and clips box actions to their bounds (as Stable-Baselines3 does before stepping).

@@ -2,7 +2,7 @@
 //! engine under `twinbots.make_vec` (Gymnasium), the single envs and the SB3 adapter.
 
 use numpy::ndarray::ArrayD;
-use numpy::{IntoPyArray, PyArray1, PyArray3, PyArray4, PyReadonlyArray1};
+use numpy::{IntoPyArray, PyArray1, PyArray3, PyArray4};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
 use twinbots_render::{PixelSettings, Renderer, View};
@@ -11,7 +11,7 @@ use twinbots_api::{DesignPattern, Space, StepResult, TaskSpec, VecEnv};
 use twinbots_task::{AppVecEnv, RobotDescription};
 use twinbots::settings::CalibrationSetting;
 
-use crate::actions::check_and_clip;
+use crate::actions::{action_values, check_and_clip};
 use crate::convert::{OnThisThread, episode_dict, no_panic, runtime_error, space_dict, task_dict, value_error};
 use crate::frames::Frames;
 
@@ -173,19 +173,24 @@ impl Arenas {
         self.observations(py, obs)
     }
 
-    /// Applies `actions` (flat float32, `num_envs × action_dim`; NaN, infinities and invalid
+    /// Applies `actions` (`num_envs × action_dim` values, row-major, in a float32, float64,
+    /// int64 or int32 array of any shape; NaN, infinities and invalid
     /// choices raise `ValueError`, boxes are clipped) and advances one control step. Envs flagged in `restart` only begin their
     /// next episode: they are reset after the step, so the action they got has no effect
     /// (Gymnasium's NEXT_STEP autoreset). Returns `(obs, rewards, terminated, truncated,
-    /// ended)`, `ended` a list of `(env, final_obs, episode)` for episodes that ended.
-    #[pyo3(signature = (actions, restart=None))]
+    /// ended)`, `ended` a list of `(env, final_obs, episode)` for episodes that ended; with
+    /// `infos=True`, the fifth is instead the step's infos in Gymnasium's vector layout,
+    /// SAME_STEP's `final_obs` and `final_info` included (`_native.vector_infos`), or None when
+    /// no episode ended.
+    #[pyo3(signature = (actions, restart=None, infos=false))]
     fn step<'py>(
         &mut self,
         py: Python<'py>,
-        actions: PyReadonlyArray1<'py, f32>,
+        actions: &Bound<'py, PyAny>,
         restart: Option<Vec<usize>>,
+        infos: bool,
     ) -> PyResult<Bound<'py, PyTuple>> {
-        let mut actions = actions.as_slice().map_err(|e| value_error(anyhow::anyhow!("actions must be contiguous: {e}")))?.to_vec();
+        let mut actions = action_values(actions)?;
         let dim = self.spec.action_space.dim();
         if actions.len() != self.num_envs * dim {
             return Err(value_error(anyhow::anyhow!(
@@ -206,7 +211,7 @@ impl Arenas {
             }
             Ok(r)
         })?;
-        self.step_tuple(py, result)
+        self.step_tuple(py, result, infos)
     }
 
     /// Frees the app (and the renderer); any later call raises `RuntimeError`.
@@ -292,17 +297,32 @@ impl Arenas {
         })
     }
 
-    fn step_tuple<'py>(&self, py: Python<'py>, r: StepResult) -> PyResult<Bound<'py, PyTuple>> {
-        let ended = PyList::empty(py);
+    /// `(obs, rewards, terminated, truncated, ended)`; with `infos`, the fifth is the step's
+    /// infos in Gymnasium's vector layout with SAME_STEP's `final_obs` (`infos::build`), or None
+    /// when no episode ended.
+    fn step_tuple<'py>(&self, py: Python<'py>, r: StepResult, infos: bool) -> PyResult<Bound<'py, PyTuple>> {
+        let mut ended = Vec::new();
         for (i, (final_obs, episode)) in r.final_obs.into_iter().zip(r.episodes).enumerate() {
             if let (Some(final_obs), Some(episode)) = (final_obs, episode) {
-                ended.append((i, self.observation(py, final_obs)?, episode_dict(py, &episode)?))?;
+                ended.push((i, self.observation(py, final_obs)?, episode));
             }
         }
+        let ended = if !infos {
+            let list = PyList::empty(py);
+            for (i, obs, episode) in &ended {
+                list.append((*i, obs, episode_dict(py, episode)?))?;
+            }
+            list.into_any()
+        } else if ended.is_empty() {
+            py.None().into_bound(py)
+        } else {
+            let ended: Vec<_> = ended.into_iter().map(|(i, obs, episode)| (i, obs, crate::infos::Summary::from(&episode))).collect();
+            crate::infos::build(py, self.num_envs, &ended, true)?.into_any()
+        };
         let obs = self.observations(py, r.obs)?;
         let rewards: Bound<'py, PyArray1<f32>> = r.rewards.into_pyarray(py);
         let terminated: Bound<'py, PyArray1<bool>> = r.terminated.into_pyarray(py);
         let truncated: Bound<'py, PyArray1<bool>> = r.truncated.into_pyarray(py);
-        PyTuple::new(py, [obs, rewards.into_any(), terminated.into_any(), truncated.into_any(), ended.into_any()])
+        PyTuple::new(py, [obs, rewards.into_any(), terminated.into_any(), truncated.into_any(), ended])
     }
 }

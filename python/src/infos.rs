@@ -8,8 +8,10 @@ use numpy::PyArray1;
 use numpy::prelude::*;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use twinbots_api::EpisodeSummary;
 
-/// An ended episode's summary as the extension hands it to Python (`convert::episode_dict`).
+/// An ended episode's summary, as the extension hands it to Python (`convert::episode_dict`)
+/// or straight from the simulation.
 #[derive(FromPyObject)]
 pub struct Summary {
     #[pyo3(item)]
@@ -22,6 +24,13 @@ pub struct Summary {
     metrics: BTreeMap<String, f64>,
     #[pyo3(item)]
     rewards: BTreeMap<String, f64>,
+}
+
+impl From<&EpisodeSummary> for Summary {
+    fn from(e: &EpisodeSummary) -> Self {
+        let widen = |m: &BTreeMap<String, f32>| m.iter().map(|(k, &v)| (k.clone(), f64::from(v))).collect();
+        Self { score: f64::from(e.score), length: i64::from(e.length), success: e.success, metrics: widen(&e.metrics), rewards: widen(&e.rewards) }
+    }
 }
 
 /// `vector_infos(num_envs, ended, final_obs)`: the infos of a step in which the episodes in
@@ -38,6 +47,11 @@ pub fn vector_infos<'py>(
     if let Some((env, _, _)) = ended.iter().find(|(env, _, _)| *env >= num_envs) {
         return Err(pyo3::exceptions::PyValueError::new_err(format!("env {env} ended, but there are {num_envs} envs")));
     }
+    build(py, num_envs, &ended, final_obs)
+}
+
+/// The infos of [`vector_infos`], every env in `ended` below `num_envs`.
+pub fn build<'py>(py: Python<'py>, num_envs: usize, ended: &[(usize, Bound<'py, PyAny>, Summary)], final_obs: bool) -> PyResult<Bound<'py, PyDict>> {
     let envs: Vec<usize> = ended.iter().map(|(env, _, _)| *env).collect();
     let mask_of = |envs: &[usize]| {
         let mut mask = vec![false; num_envs];
@@ -76,7 +90,7 @@ pub fn vector_infos<'py>(
     }
     if final_obs {
         let mut finals: Vec<Py<PyAny>> = (0..num_envs).map(|_| py.None()).collect();
-        for (i, obs, _) in &ended {
+        for (i, obs, _) in ended {
             finals[*i] = obs.clone().unbind();
         }
         infos.set_item("final_info", infos.copy()?)?;

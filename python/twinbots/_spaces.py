@@ -26,9 +26,14 @@ def to_space(d: dict) -> spaces.Space:
     raise ValueError(f"unknown space kind {kind!r}")
 
 
+# Action dtypes the extension reads as they are (`actions::ActionArray`); others are cast here.
+_AS_IS = frozenset(np.dtype(t) for t in (np.float32, np.float64, np.int64, np.int32))
+
+
 class ActionCheck:
-    """Turns the actions of `num_envs` envs into the flat float32 vector the extension takes,
-    or raises `ValueError` for a wrong shape or dtype. The values themselves (NaN, infinity, a
+    """Turns the actions of `num_envs` envs into an array the extension takes (float32, float64,
+    int64 or int32, as they are when they come so; anything else cast to flat float32), or
+    raises `ValueError` for a wrong shape or dtype. The values themselves (NaN, infinity, a
     choice out of range or fractional) are checked by the extension before any arena sees
     them, where it costs nanoseconds; boxes are clipped to their bounds there."""
 
@@ -44,6 +49,8 @@ class ActionCheck:
             self.shape = (num_envs, len(space.nvec))
 
     def __call__(self, actions) -> np.ndarray:
+        if type(actions) is np.ndarray and actions.shape == self.shape and actions.dtype in _AS_IS:
+            return actions  # the extension reads these as they are: no copy, no numpy calls
         a = np.asarray(actions)
         if a.shape != self.shape:
             if self.discrete and a.shape == (self.num_envs, 1):

@@ -102,17 +102,17 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         if not self._reset_once:
             raise RuntimeError("call reset() before step()")
         flat = self._check(actions)
+        if self.autoreset_mode == AutoresetMode.SAME_STEP:
+            # The extension builds the infos itself (`vector_infos`'s layout), none when no episode ended.
+            obs, rewards, terminated, truncated, infos = self.arenas.step(flat, None, True)
+            return obs, rewards, terminated, truncated, infos or {}
         obs, rewards, terminated, truncated, ended = self.arenas.step(flat, self._restart or None)
+        self._restart = [i for i, _, _ in ended]
         if not ended:
-            self._restart = []
             return obs, rewards, terminated, truncated, {}
-        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
-        infos = vector_infos(self.num_envs, ended, final_obs=same_step)
-        if not same_step:
-            for i, final_obs, _ in ended:
-                obs[i] = final_obs  # the next step begins env i's next episode
-        self._restart = [i for i, _, _ in ended] if self.autoreset_mode == AutoresetMode.NEXT_STEP else []
-        return obs, rewards, terminated, truncated, infos
+        for i, final_obs, _ in ended:
+            obs[i] = final_obs  # the next step begins env i's next episode
+        return obs, rewards, terminated, truncated, vector_infos(self.num_envs, ended, final_obs=False)
 
     @on_owner_thread
     def render(self):
