@@ -1,6 +1,6 @@
 //! The infos of a vectorised step in Gymnasium's vector layout, built in Rust: the same keys,
 //! dtypes and masks as `VectorEnv._add_info` builds env by env (python/twinbots/_infos.py,
-//! tested against it), for a fifth of the Python version's time.
+//! tested against it), in a third of the Python version's time (≈ 23 against ≈ 66 µs a call).
 
 use std::collections::{BTreeMap, BTreeSet};
 

@@ -26,7 +26,7 @@ def to_space(d: dict) -> spaces.Space:
     raise ValueError(f"unknown space kind {kind!r}")
 
 
-# Action dtypes the extension reads as they are (`actions::ActionArray`); others are cast here.
+# Action dtypes the extension reads as they are (`actions::action_values`); others are cast here.
 _AS_IS = frozenset(np.dtype(t) for t in (np.float32, np.float64, np.int64, np.int32))
 
 
