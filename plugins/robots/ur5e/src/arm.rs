@@ -1,7 +1,6 @@
 //! What the arm's controller knows and does, shared by every design pattern: joint readings,
 //! the TCP computed from them, and actions as joint speeds.
 
-use bevy::math::DVec3;
 use bevy::prelude::*;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{JointState, Motor, MotorCommand, PositionSensor};
@@ -52,8 +51,7 @@ impl ArmState {
         let h = 1e-4f32;
         let shifted = |sign: f32| {
             let q: [f32; 6] = std::array::from_fn(|i| q[i] + sign * h * qd[i]);
-            let f = kinematics::flange(&q) * bevy::math::DMat4::from_translation(DVec3::new(0.0, 0.0, kinematics::TOOL_LENGTH));
-            f.w_axis.truncate()
+            kinematics::tool_face(kinematics::flange(&q)).w_axis.truncate()
         };
         let tcp_velocity = ((shifted(1.0) - shifted(-1.0)) / (2.0 * h as f64)).as_vec3();
         Self { q, qd, tcp, tcp_velocity }

@@ -3,12 +3,12 @@
 //! targets from the task's own sampler, actions as joint speeds — and the **shadow**, the
 //! twin's check of every command before it reaches the robot.
 
-use bevy::math::{DMat4, DVec3, Vec3};
+use bevy::math::{DVec3, Vec3};
 use rand::Rng;
 use twinbots_task::TaskTerms;
 
 use crate::arm::{self, ACTION_DIM, ActionHistory, ArmState};
-use crate::kinematics::{self, JOINT_RANGES, JOINTS, MAX_JOINT_SPEED, TOOL_LENGTH};
+use crate::kinematics::{self, JOINT_RANGES, JOINTS, MAX_JOINT_SPEED};
 use crate::layout::CellLayout;
 use twinbots_sim::rapier::math::Pose;
 use crate::state::CellState;
@@ -253,7 +253,7 @@ impl std::fmt::Display for SkeletonPoint {
 /// flange, the tool face, and four points on each link between them.
 pub fn skeleton(q: &[f64; 6]) -> Vec<(SkeletonPoint, DVec3)> {
     let f = kinematics::frames(&q.map(|v| v as f32));
-    let tool = (f[6] * DMat4::from_translation(DVec3::new(0.0, 0.0, TOOL_LENGTH))).w_axis.truncate();
+    let tool = kinematics::tool_face(f[6]).w_axis.truncate();
     let joints: Vec<DVec3> = f[1..].iter().map(|m| m.w_axis.truncate()).chain([tool]).collect();
     let mut out = Vec::with_capacity(joints.len() * 5);
     for (at, &p) in joints.iter().enumerate() {
@@ -271,7 +271,7 @@ pub fn skeleton(q: &[f64; 6]) -> Vec<(SkeletonPoint, DVec3)> {
 /// frame, the table's surface at 0).
 pub fn lowest_point(q: &[f64; 6]) -> (&'static str, f64) {
     let f = kinematics::frames(&q.map(|v| v as f32));
-    let tool = (f[6] * DMat4::from_translation(DVec3::new(0.0, 0.0, TOOL_LENGTH))).w_axis.z;
+    let tool = kinematics::tool_face(f[6]).w_axis.z;
     let points = [("elbow", f[2].w_axis.z), ("wrist 1", f[3].w_axis.z), ("wrist 2", f[4].w_axis.z), ("wrist 3", f[5].w_axis.z), ("flange", f[6].w_axis.z), ("tool", tool)];
     points.into_iter().fold(("", f64::INFINITY), |low, p| if p.1 < low.1 { p } else { low })
 }

@@ -89,11 +89,17 @@ pub fn flange(q: &[f32; 6]) -> DMat4 {
     frames(q)[6]
 }
 
+/// The tool face (the suction cup's, the TCP) from the flange frame: `TOOL_LENGTH` along the
+/// flange's z axis.
+pub fn tool_face(flange: DMat4) -> DMat4 {
+    flange * DMat4::from_translation(DVec3::new(0.0, 0.0, TOOL_LENGTH))
+}
+
 /// The TCP's geometric Jacobian at `q`: column i is (z_i × (p − o_i), z_i), the TCP's linear and
 /// angular velocity per unit speed of joint i + 1.
 pub fn jacobian(q: &[f32; 6]) -> [[f64; 6]; 6] {
     let f = frames(q);
-    let tcp = (f[6] * DMat4::from_translation(DVec3::new(0.0, 0.0, TOOL_LENGTH))).w_axis.truncate();
+    let tcp = tool_face(f[6]).w_axis.truncate();
     std::array::from_fn(|i| {
         let z = f[i].z_axis.truncate();
         let linear = z.cross(tcp - f[i].w_axis.truncate());
@@ -103,8 +109,7 @@ pub fn jacobian(q: &[f32; 6]) -> [[f64; 6]; 6] {
 
 /// The TCP (suction cup face) in the base frame at joint angles `q`.
 pub fn tcp(q: &[f32; 6]) -> Pose {
-    let t = flange(q) * DMat4::from_translation(DVec3::new(0.0, 0.0, TOOL_LENGTH));
-    let (_, rotation, translation) = t.to_scale_rotation_translation();
+    let (_, rotation, translation) = tool_face(flange(q)).to_scale_rotation_translation();
     Pose::from_parts(translation.as_vec3(), rotation.as_quat())
 }
 
@@ -140,7 +145,7 @@ mod tests {
                 (x - 0.5) * 4.0 * std::f32::consts::PI
             }));
         }
-        let tool = DMat4::from_translation(DVec3::new(0.0, 0.0, TOOL_LENGTH));
+        let tool = DMat4::from_translation(DVec3::new(0.0, 0.0, TOOL_LENGTH)); // as `tool_face`, written out
         for q in &poses {
             let (ours, theirs) = (frames(q), frames_by_full_products(q));
             // `==` on each number: bit for bit but for the sign of a zero.
