@@ -140,10 +140,13 @@ fn sac_with_her_served_to_ur5e_robots_stores_whole_episodes_with_their_ending_te
     use twinbots_api::DesignPattern;
     use twinbots_link::robot::ServerAddress;
     let spec = ur5e::task_spec();
-    let config = SacConfig { learning_starts: 400, ..ur5e::robot().defaults.of("sac").config().unwrap() };
+    // 800 steps of random exploration, then 800 learning: with 400 and 400, 1 to 8 of a run's 9
+    // to 13 episodes tripped the stop (eight runs), and one run in the full suite none (robots
+    // over TCP take turns as they come, so runs differ).
+    let config = SacConfig { learning_starts: 800, ..ur5e::robot().defaults.of("sac").config().unwrap() };
     assert!(config.her_goals > 0);
     let model = Sac::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap().with_goal(spec.goal).unwrap();
-    let settings = ServerSettings::new("ur5e", &spec, 2, 800);
+    let settings = ServerSettings::new("ur5e", &spec, 2, 1600);
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), Box::new(model), settings, Box::new(|_: &_, _: &dyn Agent| Ok(Flow::Continue))).unwrap();
     let mut app = ur5e::headless_app_with(2, 4, DesignPattern::Server);
     app.insert_resource(ServerAddress { addr: server.addr, patience: std::time::Duration::from_secs(10) });
@@ -157,7 +160,7 @@ fn sac_with_her_served_to_ur5e_robots_stores_whole_episodes_with_their_ending_te
     let _ = std::fs::remove_dir_all(&dir);
     let buffer = sac.buffer.as_ref().expect("the served model keeps its replay buffer");
     assert_eq!((buffer.n_envs, buffer.len() as u64), (1, sac.timesteps), "one lane, every step learnt from stored");
-    assert!(sac.timesteps >= 800 && sac.gradient_steps > 0, "{} steps, {} gradient steps", sac.timesteps, sac.gradient_steps);
+    assert!(sac.timesteps >= 1600 && sac.gradient_steps > 0, "{} steps, {} gradient steps", sac.timesteps, sac.gradient_steps);
     // Whole episodes: each ends where its `remaining` count reaches 0, one after another.
     let ends = buffer.remaining.iter().filter(|&&r| r == 0).count() as u64;
     assert_eq!(ends, sac.episodes, "an episode's steps are stored together");
