@@ -12,11 +12,7 @@ use twinbots_api::Space;
 /// failures build Python errors: that cost more than the numpy calls it replaces.
 pub fn action_values(actions: &Bound<'_, PyAny>) -> PyResult<Vec<f32>> {
     fn values<T: Element + Copy>(a: &Bound<'_, PyArrayDyn<T>>, to_f32: impl Fn(T) -> f32) -> PyResult<Vec<f32>> {
-        let a = a.try_readonly()?;
-        Ok(match a.as_slice() {
-            Ok(contiguous) => contiguous.iter().map(|&v| to_f32(v)).collect(),
-            Err(_) => a.as_array().iter().map(|&v| to_f32(v)).collect(),
-        })
+        Ok(a.try_readonly()?.as_array().iter().map(|&v| to_f32(v)).collect())
     }
     if let Ok(a) = actions.cast::<PyArrayDyn<f32>>() {
         values(a, |v| v)

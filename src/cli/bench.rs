@@ -312,7 +312,7 @@ pub fn print_cameras(robot: &str, arenas: usize, steps: usize) -> anyhow::Result
             let n = setups.len();
             let setup = &mut setups[(round + k) % n];
             for _ in 0..CAMERA_BLOCK.min(steps - round * CAMERA_BLOCK) {
-                setup.step(arenas)?;
+                setup.step()?;
             }
         }
     }
@@ -333,6 +333,8 @@ const CAMERA_BLOCK: usize = 5;
 /// One setup of `bench cameras`: its arenas, their cameras and the time spent drawing them.
 struct CameraSetup {
     env: AppVecEnv,
+    /// Every arena's action: none.
+    zero: Vec<f32>,
     rig: twinbots_render::CameraRig,
     randomized: bool,
     steps: usize,
@@ -352,21 +354,22 @@ impl CameraSetup {
         let mut rig = twinbots_render::CameraRig::default();
         rig.max_tiles = max_tiles;
         rig.sample(env.app_mut().world_mut())?; // warm-up: pipelines compile
-        Ok(Self { env, rig, randomized, steps: 0, spent: 0.0 })
+        let zero = vec![0.0; env.action_space().dim() * arenas];
+        Ok(Self { env, zero, rig, randomized, steps: 0, spent: 0.0 })
     }
 
     /// One control step (a reset every 10th with new looks), then its frames, timed.
-    fn step(&mut self, arenas: usize) -> anyhow::Result<()> {
+    fn step(&mut self) -> anyhow::Result<()> {
         self.steps += 1;
         if self.randomized && self.steps % 10 == 0 {
             self.env.reset(None)?;
         } else {
-            let zero = vec![0.0; self.env.action_space().dim() * arenas];
-            self.env.step(&zero)?;
+            self.env.step(&self.zero)?;
         }
         let t = Instant::now();
         let frames = self.rig.sample(self.env.app_mut().world_mut())?;
         self.spent += t.elapsed().as_secs_f64();
+        let arenas = self.env.arenas().len();
         anyhow::ensure!(frames == arenas, "{frames} cameras rendered, {arenas} expected");
         Ok(())
     }
