@@ -253,7 +253,7 @@ impl TrainSettings {
     pub fn task(&self, entry: &RobotEntry) -> anyhow::Result<twinbots_api::TaskSpec> {
         let mut spec = (entry.trained_task(self.task.as_deref()).map_err(|e| anyhow::anyhow!("task: {e}"))?.0.spec)();
         if let Some(pixels) = &self.pixels {
-            pixels.observe_task(&mut spec);
+            pixels.observe_task(&mut spec)?;
         }
         Ok(spec)
     }

@@ -39,6 +39,9 @@ pub fn check_and_clip(space: &Space, actions: &mut [f32]) -> anyhow::Result<()> 
             Space::Discrete { n } => choice(*a, *n, env, space)?,
             Space::MultiDiscrete { nvec } => choice(*a, nvec[k], env, space)?,
             Space::Image { .. } => choice(*a, 256, env, space)?,
+            // No task acts with images: the image's values are whole numbers, the rest as given.
+            Space::ImageAndState { .. } if k < dim - space.state_dim() => choice(*a, 256, env, space)?,
+            Space::ImageAndState { .. } => {}
         }
     }
     Ok(())

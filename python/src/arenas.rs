@@ -119,6 +119,12 @@ impl Arenas {
         }
         let env = no_panic("building the arenas", || Ok(AppVecEnv::new(app))).map_err(runtime_error)?;
         let spec = env.task().clone();
+        if spec.observation_space.state_dim() > 0 {
+            // A Gymnasium Dict of image and state (SB3's MultiInputPolicy) is still to come.
+            return Err(value_error(anyhow::anyhow!(
+                "pixels.state: observations of an image and state values are not available in Python yet; train them with `twinbots train` (docs/pixels.md)"
+            )));
+        }
         Ok(Self { env: Some(env), robot: entry, spec, num_envs, pattern, frames: None })
     }
 

@@ -64,6 +64,12 @@ pub fn space_dict<'py>(py: Python<'py>, space: &Space) -> PyResult<Bound<'py, Py
             d.set_item("kind", "image")?;
             d.set_item("shape", (*height, *width, *channels))?;
         }
+        Space::ImageAndState { height, width, channels, low, high } => {
+            d.set_item("kind", "image_and_state")?;
+            d.set_item("shape", (*height, *width, *channels))?;
+            d.set_item("low", low.clone())?;
+            d.set_item("high", high.clone())?;
+        }
     }
     Ok(d)
 }

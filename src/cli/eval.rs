@@ -7,7 +7,9 @@ use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
 use twinbots_task::AppVecEnv;
 
 use twinbots::robot_log::finish_log;
-use twinbots::run::evaluation_env;
+use twinbots::run::{evaluation_app, evaluation_env};
+use twinbots_task::randomization::Randomization;
+use twinbots_task::randomization::visual::{VisualRandomization, VisualRandomizationPlugin};
 use twinbots::settings::{CalibrationSetting, TrainSettings};
 use twinbots::twin::Twin;
 use crate::registry;
@@ -41,11 +43,17 @@ pub struct Args {
     /// file: how a policy does on the robot a log came from).
     #[arg(long)]
     pub calibration: Option<std::path::PathBuf>,
+    /// Evaluate under visual randomization: every episode of every arena a look drawn from the
+    /// `[randomization.visual]` table of this TOML file (looks the run never saw: textures and
+    /// lights held out from training, docs/pixels.md). Written to `eval-<task>-in-<file stem>.json`.
+    #[arg(long)]
+    pub looks: Option<std::path::PathBuf>,
 }
 
 /// `twinbots eval`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    eval_run(&args.run, args.episodes, args.arenas, args.task.as_deref(), args.calibration.as_deref())?;
+    let on = Evaluated { task: args.task.as_deref(), calibration: args.calibration.as_deref(), looks: args.looks.as_deref() };
+    eval_run(&args.run, args.episodes, args.arenas, on)?;
     if let Some(path) = &args.log {
         log_episode(&args.run, path, args.task.as_deref(), args.calibration.as_deref())?;
     }
@@ -55,10 +63,21 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// What a run is evaluated on besides its own: another task of its cell, another twin (a
+/// calibration file), looks drawn from a file's `[randomization.visual]`.
+#[derive(Clone, Copy, Default)]
+pub struct Evaluated<'a> {
+    pub task: Option<&'a str>,
+    pub calibration: Option<&'a Path>,
+    pub looks: Option<&'a Path>,
+}
+
 /// Loads the run's final model (or its newest checkpoint), evaluates it on the run's task or
 /// on another `task` of the robot's cell, prints the figures and writes `eval.json` (or
-/// `eval-<task>.json`) into the run directory.
-pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option<&str>, calibration: Option<&Path>) -> anyhow::Result<EvalResult> {
+/// `eval-<task>.json`, `eval-<task>-on-<twin>.json`, `eval-<task>-in-<looks>.json`) into the
+/// run directory.
+pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, on: Evaluated) -> anyhow::Result<EvalResult> {
+    let Evaluated { task, calibration, looks } = on;
     anyhow::ensure!(episodes > 0, "--episodes must be at least 1");
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
@@ -71,17 +90,33 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, task: Option
     let other_twin = calibration.map(|p| p.file_stem().unwrap_or_default().to_string_lossy().to_string());
     let calibration = evaluated_calibration(&entry, &settings, calibration)?;
     let params = calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default();
-    let mut env = evaluation_env(&entry, Some(name), arenas, episodes, seed, &settings, &params)?;
+    let mut env = match looks {
+        None => evaluation_env(&entry, Some(name), arenas, episodes, seed, &settings, &params)?,
+        Some(file) => {
+            let mut app = evaluation_app(&entry, Some(name), arenas.clamp(1, episodes), seed, &settings, &params)?;
+            app.add_plugins(VisualRandomizationPlugin(looks_of(file)?));
+            AppVecEnv::new(app)
+        }
+    };
     let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
     println!("{}: {}", settings.robot, result.describe());
-    let file = match (name == own, other_twin) {
-        // On another twin than the run's: beside the run's own evaluation, not over it.
-        (_, Some(twin)) => format!("eval-{name}-on-{twin}.json"),
-        (true, None) => twinbots_learn::run_dir::EVAL.to_string(),
-        (false, None) => format!("eval-{name}.json"),
+    let stem = |p: &Path| p.file_stem().unwrap_or_default().to_string_lossy().to_string();
+    let file = match (name == own, other_twin, looks) {
+        // On another twin or other looks than the run's: beside its own evaluation, not over it.
+        (_, Some(twin), _) => format!("eval-{name}-on-{twin}.json"),
+        (_, None, Some(looks)) => format!("eval-{name}-in-{}.json", stem(looks)),
+        (true, None, None) => twinbots_learn::run_dir::EVAL.to_string(),
+        (false, None, None) => format!("eval-{name}.json"),
     };
     run_dir.write_json(&file, &result)?;
     Ok(result)
+}
+
+/// The `[randomization.visual]` table of a TOML file (`eval --looks`).
+fn looks_of(file: &Path) -> anyhow::Result<VisualRandomization> {
+    let text = std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("--looks {}: {e}", file.display()))?;
+    let randomization = Randomization::from_config(&text).map_err(|e| anyhow::anyhow!("--looks {}: {e}", file.display()))?;
+    randomization.visual.ok_or_else(|| anyhow::anyhow!("--looks {}: has no [randomization.visual] table", file.display()))
 }
 
 /// The calibration a run is evaluated with: the file's if given, else the run's own.

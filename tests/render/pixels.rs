@@ -110,6 +110,14 @@ fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_exports_its_cnn_pol
     assert!(model.contains("\"Image\"") && model.contains("\"channels\": 6"), "{model}");
     let out = twinbots(&["eval", &path(&run), "--episodes", "2"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // Under looks it never saw (held-out textures and lights), beside its own evaluation.
+    let out = twinbots(&["eval", &path(&run), "--episodes", "2", "--looks", "assets/looks/held-out.toml"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let held_out: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("eval-balance-in-held-out.json")).unwrap()).unwrap();
+    assert_eq!(held_out["episodes"], 2, "{held_out}");
+    let out = twinbots(&["eval", &path(&run), "--episodes", "2", "--looks", &path(&config)]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("pixels.toml: has no [randomization.visual] table"), "{e}");
     let frames = dir.join("frames");
     let out = twinbots(&["capture", "cartpole", "--model", &path(&run), "--frames", "2", "--size", "64x48", "--out", &path(&frames)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -149,4 +157,55 @@ fn with_visual_randomization_each_arena_sees_its_own_look_and_the_seed_repeats_t
     assert_ne!(first[0][..dim], first[0][dim..], "two arenas, two looks");
     assert!(first == images(7), "the same seed, the same looks and frames");
     assert!(first[0] != images(8)[0], "another seed, other looks");
+}
+
+/// Pixels of a signal-green surface (the reach's target marker) in an RGB image.
+fn green(image: &[f32]) -> Vec<usize> {
+    image.chunks(3).enumerate().filter(|(_, p)| p[1] > 100.0 && p[0] < 0.6 * p[1] && p[2] < 0.6 * p[1]).map(|(i, _)| i).collect()
+}
+
+#[test]
+fn the_camera_reach_shows_its_target_and_gets_the_arms_own_state_beside_the_image() {
+    if crate::renderer("the_camera_reach_shows_its_target_and_gets_the_arms_own_state_beside_the_image", 8, 8).is_none() {
+        return;
+    }
+    let state = vec!["joint_positions".to_string(), "joint_velocities".to_string()];
+    let settings = PixelSettings { camera: "iso".into(), fov: 30.0, state, ..PixelSettings::default() };
+    let env_of = |pixels: Option<&PixelSettings>| {
+        let mut app = ur5e::headless_app_with(2, 5, twinbots_task::DesignPattern::Supervised);
+        if let Some(p) = pixels {
+            p.install(&mut app, &ur5e::robot().framing, 2).unwrap();
+        }
+        AppVecEnv::new(app)
+    };
+    let mut camera = env_of(Some(&settings));
+    let mut plain = env_of(None);
+    let space = camera.observation_space().clone();
+    let image = 64 * 64 * 3;
+    assert_eq!((space.image_shape(), space.state_dim(), space.dim()), (Some((64, 64, 3)), 12, image + 12), "{space}");
+    assert_eq!(camera.task().observation_names[1..3], ["joint_positions[0]".to_string(), "joint_positions[1]".to_string()]);
+    assert!(camera.task().goal.is_none(), "a goal seen by a camera is not relabelled");
+    let (dim, full) = (space.dim(), plain.observation_space().dim());
+    let mut seen = (camera.reset(Some(5)).unwrap(), plain.reset(Some(5)).unwrap());
+    let mut spots = Vec::new();
+    for t in 0..40 {
+        for arena in 0..2 {
+            let (c, p) = (&seen.0[arena * dim..(arena + 1) * dim], &seen.1[arena * full..(arena + 1) * full]);
+            assert!(space.contains(c), "step {t}");
+            assert_eq!(c[image..], p[..12], "step {t}, arena {arena}: the arm's angles and speeds, as the task observes them");
+            let marker = green(&c[..image]);
+            assert!(marker.len() >= 2, "step {t}, arena {arena}: the target's marker in view ({} green pixels)", marker.len());
+            spots.push(marker);
+        }
+        let action: Vec<f32> = (0..10).map(|i| if (t / 5 + i) % 3 == 0 { 0.6 } else { -0.3 }).collect();
+        let (c, p) = (camera.step(&action).unwrap(), plain.step(&action).unwrap());
+        assert_eq!(c.rewards, p.rewards, "the same task underneath");
+        seen = (c.obs, p.obs);
+    }
+    assert_ne!(spots[0], spots[1], "each arena's target where it is");
+
+    let wrong = PixelSettings { state: vec!["target_offset".into(), "wrist".into()], ..PixelSettings::default() };
+    let mut app = ur5e::headless_app_with(1, 5, twinbots_task::DesignPattern::Supervised);
+    let e = wrong.install(&mut app, &ur5e::robot().framing, 1).unwrap_err().to_string();
+    assert!(e.starts_with("pixels.state: the task ur5e observes no 'wrist'; its terms: joint_positions, joint_velocities, tcp_position"), "{e}");
 }

@@ -160,11 +160,23 @@ fn policies_on_camera_images_export_their_cnn() {
     assert!(spread > 0.5, "the actions vary, so the comparison means something: {spread}");
 
     let config = SacConfig { hidden: vec![32], features_dim: 24, buffer_size: 1000, ..Default::default() };
-    let model = Sac::new(config, image.clone(), action_space, 13).unwrap();
+    let model = Sac::new(config, image.clone(), action_space.clone(), 13).unwrap();
     let (onnx, own) = both(&model, &obs);
     let delta = largest_difference(&onnx, &own);
     eprintln!("SAC on images: max |Δ| {delta:e} over {rows} images");
     assert!(delta <= 1e-4, "max |Δ| {delta}");
+
+    // An image and state values: the graph slices them apart and joins the state to the features.
+    let with_state = Space::ImageAndState { height: 40, width: 44, channels: 6, low: vec![-300.0; 5], high: vec![300.0; 5] };
+    let obs = images(&with_state, rows, 7);
+    let config = SacConfig { hidden: vec![32], features_dim: 24, buffer_size: 1000, ..Default::default() };
+    let model = Sac::new(config, with_state.clone(), action_space, 14).unwrap();
+    let (onnx, own) = both(&model, &obs);
+    let delta = largest_difference(&onnx, &own);
+    eprintln!("SAC on an image and state: max |Δ| {delta:e} over {rows} observations");
+    assert!(delta <= 1e-4, "max |Δ| {delta}");
+    let moved: Vec<f32> = obs.chunks(with_state.dim()).flat_map(|o| [&o[..o.len() - 5], &[299.0; 5][..]].concat()).collect();
+    assert_ne!(both(&model, &moved).1, own, "the state values reach the actions");
 }
 
 #[test]

@@ -21,6 +21,19 @@ pub enum Space {
     /// row-major from the top-left, channels last (RGB, or several RGB frames stacked).
     /// Gymnasium's `Box(0, 255, (height, width, channels), uint8)`, what SB3's `CnnPolicy` takes.
     Image { height: usize, width: usize, channels: usize },
+    /// A camera image and, after its `height × width × channels` values, state readings the
+    /// policy gets beside it, each within `[low, high]` (robosuite's and ManiSkill's image plus
+    /// the robot's own state; in Gymnasium a `Dict` of `image` and `state`, what SB3's
+    /// `MultiInputPolicy` takes).
+    ImageAndState {
+        height: usize,
+        width: usize,
+        channels: usize,
+        #[serde(with = "bounds")]
+        low: Vec<f32>,
+        #[serde(with = "bounds")]
+        high: Vec<f32>,
+    },
 }
 
 impl Space {
@@ -39,6 +52,23 @@ impl Space {
             Space::Box { low, .. } => low.len(),
             Space::MultiDiscrete { nvec } => nvec.len(),
             Space::Image { height, width, channels } => height * width * channels,
+            Space::ImageAndState { height, width, channels, low, .. } => height * width * channels + low.len(),
+        }
+    }
+
+    /// The camera image's `(height, width, channels)`, for the spaces that hold one.
+    pub fn image_shape(&self) -> Option<(usize, usize, usize)> {
+        match self {
+            Space::Image { height, width, channels } | Space::ImageAndState { height, width, channels, .. } => Some((*height, *width, *channels)),
+            _ => None,
+        }
+    }
+
+    /// How many state values follow the image (`ImageAndState`; 0 for every other space).
+    pub fn state_dim(&self) -> usize {
+        match self {
+            Space::ImageAndState { low, .. } => low.len(),
+            _ => 0,
         }
     }
 
@@ -56,6 +86,10 @@ impl Space {
                 .all(|(v, (lo, hi))| *v >= *lo && *v <= *hi),
             Space::MultiDiscrete { nvec } => x.iter().zip(nvec).all(|(v, n)| choice(*v, *n)),
             Space::Image { .. } => x.iter().all(|v| choice(*v, 256)),
+            Space::ImageAndState { low, high, .. } => {
+                let (image, state) = x.split_at(x.len() - low.len());
+                image.iter().all(|v| choice(*v, 256)) && state.iter().zip(low.iter().zip(high)).all(|(v, (lo, hi))| *v >= *lo && *v <= *hi)
+            }
         }
     }
 
@@ -86,6 +120,11 @@ impl Space {
                 nvec.iter().map(|n| rng.random_range(0..*n) as f32).collect()
             }
             Space::Image { .. } => (0..self.dim()).map(|_| rng.random_range(0..256u32) as f32).collect(),
+            Space::ImageAndState { height, width, channels, low, high } => {
+                let mut x: Vec<f32> = (0..height * width * channels).map(|_| rng.random_range(0..256u32) as f32).collect();
+                x.extend(Space::Box { low: low.clone(), high: high.clone() }.sample(rng));
+                x
+            }
         }
     }
 }
@@ -97,6 +136,7 @@ impl std::fmt::Display for Space {
             Space::Box { low, .. } => write!(f, "Box({})", low.len()),
             Space::MultiDiscrete { nvec } => write!(f, "MultiDiscrete({nvec:?})"),
             Space::Image { height, width, channels } => write!(f, "Image({height}×{width}×{channels})"),
+            Space::ImageAndState { height, width, channels, low, .. } => write!(f, "Image({height}×{width}×{channels})+Box({})", low.len()),
         }
     }
 }
@@ -134,5 +174,31 @@ mod bounds {
                 Bound::Infinite(s) => Err(serde::de::Error::custom(format!("bad bound '{s}'"))),
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn an_image_and_state_holds_whole_pixel_values_then_bounded_state_values() {
+        let space = Space::ImageAndState { height: 2, width: 2, channels: 3, low: vec![-1.0, 0.0], high: vec![1.0, f32::INFINITY] };
+        assert_eq!((space.dim(), space.image_shape(), space.state_dim()), (14, Some((2, 2, 3)), 2));
+        assert_eq!(space.to_string(), "Image(2×2×3)+Box(2)");
+        let mut x = vec![255.0; 12];
+        x.extend([0.5, 1e9]);
+        assert!(space.contains(&x));
+        x[12] = 1.5;
+        assert!(!space.contains(&x), "a state value out of its bounds");
+        x[12] = 0.5;
+        x[3] = 0.5;
+        assert!(!space.contains(&x), "a fractional pixel value");
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        assert!(space.contains(&space.sample(&mut rng)));
+        let json = serde_json::to_string(&space).unwrap();
+        assert_eq!(serde_json::from_str::<Space>(&json).unwrap(), space, "{json}");
+        assert_eq!((Space::Image { height: 2, width: 2, channels: 3 }.state_dim(), Space::uniform_box(3, 0.0, 1.0).image_shape()), (0, None));
     }
 }

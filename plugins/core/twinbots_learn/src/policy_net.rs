@@ -60,6 +60,8 @@ pub struct ConvEncoder {
     pub scale: f32,
     pub convs: Vec<ConvLayer>,
     pub fc: DenseLayer,
+    /// State values after the image's, passed beside its features as they are.
+    pub state: usize,
 }
 
 /// What the dense layers read.

@@ -133,8 +133,22 @@ fn policy_graph(model: &dyn Agent) -> anyhow::Result<pb::GraphProto> {
     })
 }
 
-/// NatureCNN on flat rows of `H·W·C` image values: the features, `[batch, fc.outputs]`.
+/// NatureCNN on flat rows of `H·W·C` image values: the features, `[batch, fc.outputs]`; with
+/// state values after the image, the features and then those, `[batch, fc.outputs + state]`.
 fn conv_features(g: &mut GraphBuilder, cnn: &ConvEncoder, x: &str) -> anyhow::Result<String> {
+    if cnn.state == 0 {
+        return image_features(g, cnn, x);
+    }
+    let pixels = (cnn.height * cnn.width * cnn.channels) as i64;
+    let axes = g.constant_i64("split_axis", &[1]);
+    let (start, split, end) = (g.constant_i64("image_start", &[0]), g.constant_i64("state_start", &[pixels]), g.constant_i64("state_end", &[pixels + cnn.state as i64]));
+    let image = g.node("Slice", &[x, &start, &split, &axes], vec![]);
+    let state = g.node("Slice", &[x, &split, &end, &axes], vec![]);
+    let features = image_features(g, cnn, &image)?;
+    Ok(g.node("Concat", &[&features, &state], vec![int_attr("axis", 1)]))
+}
+
+fn image_features(g: &mut GraphBuilder, cnn: &ConvEncoder, x: &str) -> anyhow::Result<String> {
     let image = g.constant_i64("image_shape", &[-1, cnn.height as i64, cnn.width as i64, cnn.channels as i64]);
     let x = g.node("Reshape", &[x, &image], vec![]);
     let x = g.node("Transpose", &[&x], vec![ints_attr("perm", &[0, 3, 1, 2])]);

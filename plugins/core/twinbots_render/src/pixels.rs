@@ -7,7 +7,10 @@
 //! The task's terms still run on its state (rewards, terminations, success); only what the
 //! learner sees changes. The observation space becomes [`Space::Image`]: `height × width ×
 //! 3·frames` whole numbers in [0, 255], the last `frames` images stacked along the channels
-//! (oldest first), a new episode's first image repeated (gym's `FrameStack`).
+//! (oldest first), a new episode's first image repeated (gym's `FrameStack`). With `state`, the
+//! robot's own readings the task observes follow the image ([`Space::ImageAndState`]: image
+//! plus proprioception, as robosuite and ManiSkill give a camera policy); a target is then
+//! known only from the image.
 
 use std::collections::{HashMap, VecDeque};
 
@@ -32,12 +35,15 @@ pub struct PixelSettings {
     pub height: u32,
     /// How many of the latest images the observation holds, so that a policy sees motion.
     pub frames: u32,
+    /// Observation terms of the task that follow the image, by name (`joint_positions`): the
+    /// robot's own state. Empty: the image alone.
+    pub state: Vec<String>,
 }
 
 impl Default for PixelSettings {
     /// A small image (64×64, one frame) through the robot's side camera at the framing's 45°.
     fn default() -> Self {
-        Self { camera: "side".into(), fov: 45.0, width: 64, height: 64, frames: 1 }
+        Self { camera: "side".into(), fov: 45.0, width: 64, height: 64, frames: 1, state: Vec::new() }
     }
 }
 
@@ -58,28 +64,67 @@ impl PixelSettings {
         Ok(())
     }
 
-    /// The observation space: `height × width × 3·frames`.
+    /// The image's space: `height × width × 3·frames`.
     pub fn space(&self) -> Space {
         Space::Image { height: self.height as usize, width: self.width as usize, channels: 3 * self.frames as usize }
     }
 
     /// `task` as it is observed through this camera: its observation space, plausible range and
-    /// names become the image's (the one place a task's spec becomes a pixel task's).
-    pub fn observe_task(&self, task: &mut TaskSpec) {
-        let space = self.space();
-        task.observation_names = vec![format!("pixels {space}")];
-        task.observation_plausible = space.clone();
-        task.observation_space = space;
+    /// names become the image's, followed by the `state` terms' (the one place a task's spec
+    /// becomes a pixel task's). Returns where the kept values are in the task's own
+    /// observation; a term the task lacks is an error naming the key and the task's terms.
+    pub fn observe_task(&self, task: &mut TaskSpec) -> anyhow::Result<Vec<usize>> {
+        let kept = self.state_values(task)?;
+        let image = self.space();
+        let with_state = |space: &Space| match (&image, space) {
+            (_, _) if kept.is_empty() => image.clone(),
+            (&Space::Image { height, width, channels }, Space::Box { low, high }) => {
+                let pick = |v: &[f32]| kept.iter().map(|&i| v[i]).collect();
+                Space::ImageAndState { height, width, channels, low: pick(low), high: pick(high) }
+            }
+            (&Space::Image { height, width, channels }, _) => {
+                Space::ImageAndState { height, width, channels, low: vec![f32::NEG_INFINITY; kept.len()], high: vec![f32::INFINITY; kept.len()] }
+            }
+            _ => unreachable!("the image's space is an image"),
+        };
+        task.observation_space = with_state(&task.observation_space);
+        task.observation_plausible = with_state(&task.observation_plausible);
+        let names = kept.iter().map(|&i| task.observation_names[i].clone());
+        task.observation_names = std::iter::once(format!("pixels {image}")).chain(names).collect();
+        // Where a goal's values were no longer exists: a goal seen by a camera is not relabelled.
+        task.goal = None;
+        Ok(kept)
+    }
+
+    /// Indices, in `task`'s observation, of the `state` terms' values, in the order named.
+    fn state_values(&self, task: &TaskSpec) -> anyhow::Result<Vec<usize>> {
+        let term = |name: &str| name.split_once('[').map_or(name, |(term, _)| term).to_string();
+        let mut kept = Vec::new();
+        for wanted in &self.state {
+            let at: Vec<usize> = (0..task.observation_names.len()).filter(|&i| term(&task.observation_names[i]) == *wanted).collect();
+            if at.is_empty() {
+                let mut terms: Vec<String> = task.observation_names.iter().map(|n| term(n)).collect();
+                terms.dedup();
+                anyhow::bail!("pixels.state: the task {} observes no '{wanted}'; its terms: {}", task.name, terms.join(", "));
+            }
+            anyhow::ensure!(!kept.contains(&at[0]), "pixels.state: '{wanted}' is named twice");
+            kept.extend(at);
+        }
+        Ok(kept)
     }
 
     /// Adds pixel observations to a robot's app (before its start-up), its camera framed by
-    /// `framing`. Fails when the settings are out of range or no graphics adapter exists.
+    /// `framing`. Fails when the settings are out of range, the task lacks a `state` term, or
+    /// no graphics adapter exists.
     pub fn install(&self, app: &mut App, framing: &Framing, arenas: usize) -> anyhow::Result<()> {
         self.validate()?;
+        if let Some(task) = app.world().get_resource::<ActiveTask>() {
+            self.observe_task(&mut task.0.clone())?;
+        }
         let framed = View::framed(framing, &self.camera).expect("validated: a framed camera");
         let view = View { fov_y: self.fov.to_radians(), ..framed };
         let renderer = Renderer::tiled(self.width, self.height, arenas.max(1))?;
-        app.insert_non_send(PixelCamera { renderer, view, frames: self.frames as usize, stacks: HashMap::new() })
+        app.insert_non_send(PixelCamera { renderer, view, frames: self.frames as usize, state: Vec::new(), stacks: HashMap::new() })
             .insert_resource(PixelTask(self.clone()))
             .add_plugins(PixelObservationPlugin);
         Ok(())
@@ -95,6 +140,8 @@ struct PixelCamera {
     renderer: Renderer,
     view: View,
     frames: usize,
+    /// Where the values kept beside the image are in the task's own observation.
+    state: Vec<usize>,
     stacks: HashMap<Entity, VecDeque<Vec<u8>>>,
 }
 
@@ -110,8 +157,11 @@ impl Plugin for PixelObservationPlugin {
     /// The task's spec says what its observation now is (its plugin inserted it in `build`).
     fn finish(&self, app: &mut App) {
         let settings = app.world().resource::<PixelTask>().0.clone();
-        if let Some(mut task) = app.world_mut().get_resource_mut::<ActiveTask>() {
-            settings.observe_task(&mut task.0);
+        let Some(mut task) = app.world_mut().get_resource_mut::<ActiveTask>() else { return };
+        // Checked by `install` (the robot's plugin comes first).
+        let state = settings.observe_task(&mut task.0).unwrap_or_else(|e| panic!("{e}"));
+        if let Some(mut camera) = app.world_mut().get_non_send_mut::<PixelCamera>() {
+            camera.state = state;
         }
     }
 }
@@ -158,7 +208,10 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
         }
         let stack = &*stack;
         if let Some(mut episode) = world.get_mut::<Episode>(arena) {
+            // The task's terms just observed the state: its kept values follow the image.
+            let state: Vec<f32> = camera.state.iter().map(|&i| episode.observation[i]).collect();
             write_stack(stack, &mut episode.observation);
+            episode.observation.extend(state);
         }
     }
     world.insert_non_send(camera);

@@ -18,7 +18,7 @@ use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
 use twinbots_sim::look::{Surface, Texture};
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{Shape, Visual};
-use twinbots_sim::{Arena, InArena, Link, Look, Visuals};
+use twinbots_sim::{Arena, InArena, Link, Look, Marker, Visuals};
 
 use crate::RenderError;
 use crate::batch::{self, Batch};
@@ -107,7 +107,7 @@ pub struct VisualPose {
     pub pose: Pose,
 }
 
-/// Poses of every link visual in `arena`, in physics coordinates.
+/// Poses of every link visual and [`Marker`] in `arena`, in physics coordinates.
 pub fn read_visuals(sim: &mut World, arena: Entity) -> Vec<VisualPose> {
     // Link data first (the query borrows the world mutably), then the arena's bodies.
     let mut links = sim.query::<(Entity, &Link, &Visuals, &InArena)>();
@@ -129,6 +129,11 @@ pub fn read_visuals(sim: &mut World, arena: Entity) -> Vec<VisualPose> {
             let pose = link_pose * visual.geometry.origin;
             out.push(VisualPose { key: (entity, i), surface: Look::link_surface(name, i), visual, pose });
         }
+    }
+    let mut markers = sim.query::<(Entity, &Marker, &InArena)>();
+    for (entity, marker, _) in markers.iter(sim).filter(|(_, _, a)| a.0 == arena) {
+        let pose = marker.pose * marker.visual.geometry.origin;
+        out.push(VisualPose { key: (entity, 0), surface: Look::marker_surface(&marker.name), visual: marker.visual.clone(), pose });
     }
     out
 }

@@ -9,6 +9,7 @@ pub mod devices;
 pub mod disturbance;
 pub mod framing;
 pub mod look;
+pub mod marker;
 pub mod parameters;
 pub mod physics;
 pub mod privilege;
@@ -28,6 +29,7 @@ pub use devices::{
 pub use disturbance::{Push, add_link_mass};
 pub use framing::Framing;
 pub use look::Look;
+pub use marker::Marker;
 pub use parameters::{ParameterKind, ParameterSpec, Parameters, ParametersPlugin};
 pub use physics::{PhysicsPlugin, PhysicsSubstep, SimClock, SimSettings, SubstepSet};
 pub use robot::{Link, Robot, Visuals};

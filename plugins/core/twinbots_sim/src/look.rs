@@ -117,6 +117,11 @@ impl Look {
             .collect()
     }
 
+    /// The surface name of a [`crate::Marker`].
+    pub fn marker_surface(name: &str) -> String {
+        format!("marker/{name}")
+    }
+
     /// The surface name of an arena's fixed box.
     pub fn static_surface(index: usize) -> String {
         format!("static/{index}")

@@ -225,7 +225,8 @@ impl Plugin for Ur5ePlugin {
             app.add_systems(Update, apply_action.in_set(SimSet::Actuate));
         }
         if self.task == Ur5eTask::Reach {
-            app.add_systems(Update, reach::report.in_set(TaskSet::Report));
+            app.add_systems(Update, (reach::report.in_set(TaskSet::Report), reach::place_target_marker.in_set(TaskSet::Read)))
+                .add_systems(PostStartup, reach::spawn_target_markers);
         }
         if self.pattern == DesignPattern::Server {
             server::build(app);
@@ -234,7 +235,9 @@ impl Plugin for Ur5ePlugin {
         // Starts put in place by the Supervisor.
         app.add_systems(EnvReset, ((reset_meter, unlock_stop, place_arm).in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
         match self.task {
-            Ur5eTask::Reach => {}
+            Ur5eTask::Reach => {
+                app.add_systems(EnvReset, reach::place_target_marker.in_set(ResetSet::Place));
+            }
             Ur5eTask::PickPlace => {
                 app.add_systems(Update, (pick_place::apply_suction.in_set(SimSet::Actuate), pick_place::report.in_set(TaskSet::Report)))
                     .add_systems(Update, pick_place::run_program.after(read_arm).in_set(TaskSet::Read))

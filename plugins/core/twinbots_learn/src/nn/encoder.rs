@@ -1,6 +1,8 @@
 //! What a policy's networks read: the observation as it is, or features a CNN draws from a
 //! camera image (SB3's `MlpPolicy` and `CnnPolicy` with its `NatureCNN` features extractor,
-//! Mnih et al. 2015). The policy and value heads sit on top of either.
+//! Mnih et al. 2015). The policy and value heads sit on top of either. State values that
+//! follow an image ([`Space::ImageAndState`]) pass beside the image's features, as SB3's
+//! `CombinedExtractor` concatenates a `Dict` observation's flattened vectors to its CNN's.
 
 use candle_core::{DType, Device, Result, Tensor, Var};
 use rand_chacha::ChaCha8Rng;
@@ -65,7 +67,7 @@ impl NatureCnn {
 /// the encoders scale them to [0, 1], as SB3 does.
 pub fn check_normalization(space: &Space, normalize_observations: bool, algo: &str) -> anyhow::Result<()> {
     anyhow::ensure!(
-        !(normalize_observations && matches!(space, Space::Image { .. })),
+        !(normalize_observations && space.image_shape().is_some()),
         "{algo}.normalize_observations = true: camera images are scaled to [0, 1], not normalised by running statistics"
     );
     Ok(())
@@ -75,21 +77,20 @@ pub fn check_normalization(space: &Space, normalize_observations: bool, algo: &s
 pub enum Encoder {
     /// The observation as it is (`dim` values).
     Flat { dim: usize },
-    /// An image's values scaled to [0, 1], flat (an MLP on pixels).
-    ScaledImage { dim: usize },
-    Cnn(NatureCnn),
+    /// An image's values scaled to [0, 1], flat (an MLP on pixels), and the `state` values
+    /// after it as they are.
+    ScaledImage { dim: usize, state: usize },
+    /// NatureCNN features of the image, then the `state` values after it as they are.
+    Cnn { cnn: NatureCnn, state: usize },
 }
 
 impl Encoder {
     /// The encoder `kind` asks for on `space`; a CNN on anything but a large enough image is
     /// an error naming the setting (`<algo>.policy`).
     pub fn new(kind: PolicyKind, space: &Space, features: usize, algo: &str, rng: &mut ChaCha8Rng, dev: &Device) -> anyhow::Result<Self> {
-        let image = match space {
-            Space::Image { height, width, channels } => Some((*height, *width, *channels)),
-            _ => None,
-        };
+        let (image, state) = (space.image_shape(), space.state_dim());
         Ok(match (kind, image) {
-            (PolicyKind::Mlp, Some(_)) => Encoder::ScaledImage { dim: space.dim() },
+            (PolicyKind::Mlp, Some(_)) => Encoder::ScaledImage { dim: space.dim(), state },
             (PolicyKind::Mlp | PolicyKind::Auto, None) => Encoder::Flat { dim: space.dim() },
             (PolicyKind::Cnn | PolicyKind::Auto, Some((h, w, c))) => {
                 anyhow::ensure!(
@@ -100,7 +101,7 @@ impl Encoder {
                     (1..=4096).contains(&features),
                     "{algo}.features_dim = {features}: must be a whole number in 1..=4096"
                 );
-                Encoder::Cnn(NatureCnn::new(h, w, c, features, rng, dev)?)
+                Encoder::Cnn { cnn: NatureCnn::new(h, w, c, features, rng, dev)?, state }
             }
             (PolicyKind::Cnn, None) => anyhow::bail!("{algo}.policy = \"cnn\": the observation {space} is not an image (use pixel observations, [pixels])"),
         })
@@ -109,8 +110,8 @@ impl Encoder {
     /// Values per observation the heads read.
     pub fn dim(&self) -> usize {
         match self {
-            Encoder::Flat { dim } | Encoder::ScaledImage { dim } => *dim,
-            Encoder::Cnn(cnn) => cnn.fc.bias.as_tensor().dims1().unwrap_or(0),
+            Encoder::Flat { dim } | Encoder::ScaledImage { dim, .. } => *dim,
+            Encoder::Cnn { cnn, state } => cnn.fc.bias.as_tensor().dims1().unwrap_or(0) + state,
         }
     }
 
@@ -122,8 +123,16 @@ impl Encoder {
     pub fn forward(&self, obs: &Tensor) -> Result<Tensor> {
         match self {
             Encoder::Flat { .. } => Ok(obs.clone()),
-            Encoder::ScaledImage { .. } => obs.to_dtype(DType::F32)? * (1.0 / 255.0),
-            Encoder::Cnn(cnn) => cnn.forward(obs),
+            Encoder::ScaledImage { state: 0, .. } => obs.to_dtype(DType::F32)? * (1.0 / 255.0),
+            Encoder::ScaledImage { state, .. } => {
+                let (image, state) = split(obs, *state)?;
+                Tensor::cat(&[(image.to_dtype(DType::F32)? * (1.0 / 255.0))?, state], 1)
+            }
+            Encoder::Cnn { cnn, state: 0 } => cnn.forward(obs),
+            Encoder::Cnn { cnn, state } => {
+                let (image, state) = split(obs, *state)?;
+                Tensor::cat(&[cnn.forward(&image.contiguous()?)?, state.to_dtype(DType::F32)?], 1)
+            }
         }
     }
 
@@ -132,8 +141,11 @@ impl Encoder {
         use crate::policy_net::{ConvEncoder, ConvLayer, InputEncoding};
         Ok(match self {
             Encoder::Flat { .. } => InputEncoding::Flat,
-            Encoder::ScaledImage { .. } => InputEncoding::Scaled { scale: 1.0 / 255.0 },
-            Encoder::Cnn(cnn) => {
+            Encoder::ScaledImage { state: 0, .. } => InputEncoding::Scaled { scale: 1.0 / 255.0 },
+            Encoder::ScaledImage { .. } => {
+                return Err(candle_core::Error::Msg("an MLP policy on an image and state values cannot be exported to ONNX yet: use policy = \"cnn\"".into()));
+            }
+            Encoder::Cnn { cnn, state } => {
                 let convs = cnn
                     .convs
                     .iter()
@@ -145,14 +157,14 @@ impl Encoder {
                     .collect::<Result<Vec<_>>>()?;
                 let first = cnn.convs[0].patches;
                 let fc = cnn.fc.values(&format!("{prefix}features.{}", cnn.convs.len()))?;
-                InputEncoding::Cnn(ConvEncoder { height: first.height, width: first.width, channels: first.channels, scale: 1.0 / 255.0, convs, fc })
+                InputEncoding::Cnn(ConvEncoder { height: first.height, width: first.width, channels: first.channels, scale: 1.0 / 255.0, convs, fc, state: *state })
             }
         })
     }
 
     /// Its variables as `features.<i>.weight` / `.bias` (the dense layer last).
     pub fn named_vars(&self) -> Vec<(String, Var)> {
-        let Encoder::Cnn(cnn) = self else { return Vec::new() };
+        let Encoder::Cnn { cnn, .. } = self else { return Vec::new() };
         let layers = cnn.convs.iter().map(|c| &c.dense).chain([&cnn.fc]);
         layers
             .enumerate()
@@ -164,13 +176,22 @@ impl Encoder {
     pub fn deep_copy(&self) -> Result<Self> {
         Ok(match self {
             Encoder::Flat { dim } => Encoder::Flat { dim: *dim },
-            Encoder::ScaledImage { dim } => Encoder::ScaledImage { dim: *dim },
-            Encoder::Cnn(cnn) => Encoder::Cnn(NatureCnn {
-                convs: cnn.convs.iter().map(|c| Ok(Conv2d { patches: c.patches, dense: c.dense.deep_copy()? })).collect::<Result<_>>()?,
-                fc: cnn.fc.deep_copy()?,
-            }),
+            Encoder::ScaledImage { dim, state } => Encoder::ScaledImage { dim: *dim, state: *state },
+            Encoder::Cnn { cnn, state } => Encoder::Cnn {
+                cnn: NatureCnn {
+                    convs: cnn.convs.iter().map(|c| Ok(Conv2d { patches: c.patches, dense: c.dense.deep_copy()? })).collect::<Result<_>>()?,
+                    fc: cnn.fc.deep_copy()?,
+                },
+                state: *state,
+            },
         })
     }
+}
+
+/// `[batch, image + state]` → the image's columns and the state's.
+fn split(obs: &Tensor, state: usize) -> Result<(Tensor, Tensor)> {
+    let dim = obs.dim(1)?;
+    Ok((obs.narrow(1, 0, dim - state)?, obs.narrow(1, dim - state, state)?))
 }
 
 #[cfg(test)]
@@ -197,6 +218,31 @@ mod tests {
         assert!(e.starts_with("ppo.policy = \"cnn\": NatureCNN needs images of at least 36×36"), "{e}");
         let e = Encoder::new(PolicyKind::Cnn, &Space::uniform_box(4, -1.0, 1.0), 512, "sac", &mut rng, &dev).err().unwrap().to_string();
         assert!(e.starts_with("sac.policy = \"cnn\": the observation Box(4) is not an image"), "{e}");
-        assert!(matches!(Encoder::new(PolicyKind::Mlp, &small, 512, "ppo", &mut rng, &dev).unwrap(), Encoder::ScaledImage { dim: 6144 }));
+        assert!(matches!(Encoder::new(PolicyKind::Mlp, &small, 512, "ppo", &mut rng, &dev).unwrap(), Encoder::ScaledImage { dim: 6144, state: 0 }));
+    }
+
+    #[test]
+    fn state_values_after_an_image_pass_beside_its_features_as_they_are() {
+        let dev = Device::Cpu;
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let space = Space::ImageAndState { height: 40, width: 40, channels: 3, low: vec![-1.0; 2], high: vec![1.0; 2] };
+        let image = 40 * 40 * 3;
+        let mut one: Vec<f32> = (0..image).map(|i| (i % 256) as f32).collect();
+        one.extend([0.25, -0.5]);
+        let obs = Tensor::from_vec(one.repeat(2), (2, space.dim()), &dev).unwrap();
+
+        let encoder = Encoder::new(PolicyKind::Auto, &space, 16, "ppo", &mut rng, &dev).unwrap();
+        assert_eq!(encoder.dim(), 18);
+        let out = encoder.forward(&obs).unwrap().to_vec2::<f32>().unwrap();
+        let Encoder::Cnn { cnn, .. } = &encoder else { panic!("a CNN for an image and state") };
+        let features = cnn.forward(&obs.narrow(1, 0, image).unwrap().contiguous().unwrap()).unwrap().to_vec2::<f32>().unwrap();
+        assert_eq!(out[1][..16], features[1][..], "the image's features first");
+        assert_eq!(out[1][16..], [0.25, -0.5], "then the state as it is");
+
+        let mlp = Encoder::new(PolicyKind::Mlp, &space, 16, "ppo", &mut rng, &dev).unwrap();
+        let out = mlp.forward(&obs).unwrap().to_vec2::<f32>().unwrap();
+        assert_eq!((mlp.dim(), out[0][255], out[0][image..].to_vec()), (image + 2, 1.0, vec![0.25, -0.5]), "pixels scaled, the state not");
+        let e = mlp.export("").err().unwrap().to_string();
+        assert!(e.contains("cannot be exported to ONNX yet: use policy = \"cnn\""), "{e}");
     }
 }

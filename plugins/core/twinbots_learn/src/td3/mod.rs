@@ -119,7 +119,7 @@ impl Td3 {
         };
         config.validate()?;
         anyhow::ensure!(
-            !matches!(observation_space, Space::Image { .. }),
+            observation_space.image_shape().is_none(),
             "TD3 does not read camera images ({observation_space}) yet: use ppo or sac, whose policy = \"cnn\" does"
         );
         let (obs_dim, act_dim) = (observation_space.dim(), low.len());
