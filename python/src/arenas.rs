@@ -112,6 +112,8 @@ impl Arenas {
         let mut app = entry.app(task, num_envs, seed, design).map_err(value_error)?;
         twin.configure(&mut app, &entry).map_err(value_error)?;
         if let Some(p) = &pixels {
+            // Bad settings are the caller's (ValueError); a missing adapter the machine's.
+            p.check(&app).map_err(value_error)?;
             p.install(&mut app, &entry.framing, num_envs).map_err(runtime_error)?;
         }
         if let Some(r) = randomization.filter(|r| !r.is_off()) {
@@ -119,12 +121,6 @@ impl Arenas {
         }
         let env = no_panic("building the arenas", || Ok(AppVecEnv::new(app))).map_err(runtime_error)?;
         let spec = env.task().clone();
-        if spec.observation_space.state_dim() > 0 {
-            // A Gymnasium Dict of image and state (SB3's MultiInputPolicy) is still to come.
-            return Err(value_error(anyhow::anyhow!(
-                "pixels.state: observations of an image and state values are not available in Python yet; train them with `twinbots train` (docs/pixels.md)"
-            )));
-        }
         Ok(Self { env: Some(env), robot: entry, spec, num_envs, pattern, frames: None })
     }
 
@@ -298,6 +294,20 @@ impl Arenas {
             Space::Image { height, width, channels } => {
                 let bytes: Vec<u8> = obs.iter().map(|&v| v as u8).collect();
                 ArrayD::from_shape_vec(shape(&[height, width, channels]), bytes).map_err(wrong)?.into_pyarray(py).into_any()
+            }
+            // Gymnasium's Dict: {"image": uint8 images, "state": float32 rows}.
+            Space::ImageAndState { height, width, channels, ref low, .. } => {
+                let (pixels, state) = (height * width * channels, low.len());
+                let (mut bytes, mut values) = (Vec::with_capacity(obs.len()), Vec::with_capacity(obs.len() / pixels.max(1) * state));
+                for row in obs.chunks(pixels + state) {
+                    let (image, rest) = row.split_at(pixels.min(row.len()));
+                    bytes.extend(image.iter().map(|&v| v as u8));
+                    values.extend_from_slice(rest);
+                }
+                let d = PyDict::new(py);
+                d.set_item("image", ArrayD::from_shape_vec(shape(&[height, width, channels]), bytes).map_err(wrong)?.into_pyarray(py))?;
+                d.set_item("state", ArrayD::from_shape_vec(shape(&[state]), values).map_err(wrong)?.into_pyarray(py))?;
+                d.into_any()
             }
             ref space => ArrayD::from_shape_vec(shape(&[space.dim()]), obs).map_err(wrong)?.into_pyarray(py).into_any(),
         })

@@ -1,6 +1,7 @@
 """Camera images as observations (`obs="pixels"`, docs/pixels.md): the spaces SB3's CnnPolicy
-recognises, the final frame of an ended episode, determinism, bad settings, and SB3's PPO with
-`CnnPolicy` training on them."""
+recognises, the final frame of an ended episode, determinism, bad settings, SB3's PPO with
+`CnnPolicy` training on them, and an image with the robot's own state as a Dict (SB3's
+`MultiInputPolicy`)."""
 
 from __future__ import annotations
 
@@ -13,9 +14,9 @@ from gymnasium import spaces
 import twinbots
 
 
-def _pixel_envs(**kwargs):
+def _pixel_envs(robot="cartpole", make=twinbots.make_vec, **kwargs):
     try:
-        return twinbots.make_vec("cartpole", obs="pixels", **kwargs)
+        return make(robot, obs="pixels", **kwargs)
     except RuntimeError as e:
         assert "adapter" in str(e)
         if os.environ.get("TWINBOTS_REQUIRE_ADAPTER", "0") not in ("", "0"):
@@ -66,6 +67,7 @@ def test_pixel_observations_are_uint8_images_with_final_frames_and_the_same_for_
         ({"obs": "pixels", "pixels": {"colour": 3}}, "unknown field `colour`"),
         ({"obs": "pixels", "pixels": {"fov": 180}}, "pixels.fov = 180: must be in (0, 180) degrees"),
         ({"obs": "pixels", "pixels": {"fov": -5.0}}, "pixels.fov = -5: must be in (0, 180) degrees"),
+        ({"obs": "pixels", "pixels": {"state": ["wrist"]}}, "pixels.state: the task cartpole observes no 'wrist'; its terms: "),
     ],
 )
 def test_bad_pixel_settings_name_the_key(kwargs, message):
@@ -97,3 +99,41 @@ def test_sb3_ppo_with_cnn_policy_trains_on_pixels():
     assert actions.shape == (2,)
     assert len(model.ep_info_buffer) > 0, "episodes ended and were counted"
     env.close()
+
+
+def test_an_image_and_the_arms_own_state_are_a_dict_observation_sb3s_multi_input_policy_trains_on():
+    sb3 = pytest.importorskip("stable_baselines3")
+    from twinbots.sb3 import make_vec_env
+
+    pixels = {"camera": "iso", "fov": 30, "width": 40, "height": 40, "state": ["joint_positions", "joint_velocities"]}
+    envs = _pixel_envs("ur5e", num_envs=2, seed=0, pixels=pixels)
+    space = envs.single_observation_space
+    assert isinstance(space, spaces.Dict)
+    assert space["image"] == spaces.Box(0, 255, (40, 40, 3), np.uint8) and space["state"].shape == (12,)
+    plain = twinbots.make_vec("ur5e", num_envs=2, seed=0)
+    (obs, _), (state, _) = envs.reset(seed=0), plain.reset(seed=0)
+    for t in range(6):
+        assert obs["image"].shape == (2, 40, 40, 3) and obs["image"].dtype == np.uint8 and obs["image"].std() > 0
+        np.testing.assert_array_equal(obs["state"], state[:, :12], err_msg=f"step {t}: the arm's angles and speeds")
+        assert space.contains({k: v[0] for k, v in obs.items()})
+        action = np.full((2, 5), 0.3 * (-1) ** t, np.float32)
+        obs, state = envs.step(action)[0], plain.step(action)[0]
+    envs.close()
+    plain.close()
+
+    # One env through a whole (100-step) reach: the ended episode's last observation is a dict too.
+    env = _pixel_envs("ur5e", make=twinbots.make, seed=1, pixels=pixels)
+    obs, _ = env.reset(seed=1)
+    for t in range(100):
+        obs, _, terminated, truncated, _ = env.step(np.zeros(5, np.float32))
+        assert obs["image"].shape == (40, 40, 3) and obs["state"].shape == (12,)
+        if terminated or truncated:
+            break
+    assert truncated, "the reach gives up after 100 steps"
+    env.close()
+
+    model = sb3.PPO("MultiInputPolicy", make_vec_env("ur5e", n_envs=2, seed=0, obs="pixels", pixels=pixels),
+                    n_steps=16, batch_size=32, n_epochs=1, seed=0,
+                    policy_kwargs={"features_extractor_kwargs": {"cnn_output_dim": 16}})
+    assert type(model.policy.features_extractor).__name__ == "CombinedExtractor"
+    model.learn(32)

@@ -23,7 +23,27 @@ def to_space(d: dict) -> spaces.Space:
         return spaces.Box(low=0, high=255, shape=tuple(d["shape"]), dtype=np.uint8)
     if kind == "multi_discrete":
         return spaces.MultiDiscrete(np.asarray(d["nvec"], dtype=np.int64))
+    if kind == "image_and_state":
+        # A camera image and the robot's own state (`pixels.state`): SB3's MultiInputPolicy.
+        return spaces.Dict({
+            "image": to_space({"kind": "image", "shape": d["shape"]}),
+            "state": to_space({"kind": "box", "low": d["low"], "high": d["high"]}),
+        })
     raise ValueError(f"unknown space kind {kind!r}")
+
+
+def obs_row(obs, i: int):
+    """Env `i`'s observation in a batch: its row, or each key's row of a Dict observation."""
+    return {k: v[i] for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
+
+
+def set_obs_row(obs, i: int, value) -> None:
+    """Puts `value` as env `i`'s observation in a batch (each key's row of a Dict observation)."""
+    if isinstance(obs, dict):
+        for k, v in obs.items():
+            v[i] = value[k]
+    else:
+        obs[i] = value
 
 
 # Action dtypes the extension reads as they are (`actions::action_values`); others are cast here.

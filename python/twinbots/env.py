@@ -11,7 +11,7 @@ from ._arenas import open_arenas
 from ._config import Config
 from ._infos import episode_info
 from ._thread import get_ident, on_owner_thread
-from ._spaces import ActionCheck, to_space
+from ._spaces import ActionCheck, obs_row, to_space
 
 
 class TwinbotsEnv(gym.Env):
@@ -62,7 +62,7 @@ class TwinbotsEnv(gym.Env):
         if seed is None and self._next_start is not None:
             obs = self._next_start  # drawn when the last episode ended, never stepped
         else:
-            obs = self.arenas.reset(None if seed is None else int(seed))[0]
+            obs = obs_row(self.arenas.reset(None if seed is None else int(seed)), 0)
         self._next_start, self._ended, self._reset_once = None, False, True
         return obs, {}
 
@@ -77,11 +77,11 @@ class TwinbotsEnv(gym.Env):
         info: dict[str, Any] = {}
         if ended:
             _, final_obs, summary = ended[0]
-            self._next_start, self._ended = obs[0], True
+            self._next_start, self._ended = obs_row(obs, 0), True
             info = episode_info(summary)
             return final_obs, float(rewards[0]), bool(terminated[0]), bool(truncated[0]), info
         self._next_start = None
-        return obs[0], float(rewards[0]), bool(terminated[0]), bool(truncated[0]), info
+        return obs_row(obs, 0), float(rewards[0]), bool(terminated[0]), bool(truncated[0]), info
 
     @on_owner_thread
     def render(self):

@@ -24,11 +24,18 @@ class Policy:
         self.action_space = to_space(self._model.action_space)
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
-        x = np.asarray(obs, dtype=np.float32)
-        single = x.ndim == len(self.observation_space.shape)
-        batch = x.reshape(1, -1) if single else x
-        if batch.ndim != 2:
-            raise ValueError(f"observations have shape {x.shape}, expected {self.observation_space.shape} or (batch, *that)")
+        if isinstance(obs, dict):  # an image and state: rows of the image's values, then the state's
+            image, values = (np.asarray(obs[k], dtype=np.float32) for k in ("image", "state"))
+            single = image.ndim == 3
+            rows = 1 if single else image.shape[0]
+            batch = np.concatenate([image.reshape(rows, -1), values.reshape(rows, -1)], axis=1)
+        else:
+            x = np.asarray(obs, dtype=np.float32)
+            k = len(self.observation_space.shape)
+            if x.ndim not in (k, k + 1) or x.shape[x.ndim - k:] != self.observation_space.shape:
+                raise ValueError(f"observations have shape {x.shape}, expected {self.observation_space.shape} or (batch, *that)")
+            single = x.ndim == k
+            batch = x.reshape(1 if single else x.shape[0], -1)
         actions = self._model.predict(np.ascontiguousarray(batch), deterministic)
         if self.action_space.shape == ():  # Discrete: one whole number per observation
             actions = actions[:, 0].astype(np.int64)

@@ -14,7 +14,7 @@ from ._arenas import open_arenas
 from ._config import Config
 from ._infos import vector_infos
 from ._thread import get_ident, on_owner_thread
-from ._spaces import ActionCheck, to_space
+from ._spaces import ActionCheck, set_obs_row, to_space
 
 
 def _autoreset_mode(mode) -> AutoresetMode:
@@ -111,7 +111,7 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         if not ended:
             return obs, rewards, terminated, truncated, {}
         for i, final_obs, _ in ended:
-            obs[i] = final_obs  # the next step begins env i's next episode
+            set_obs_row(obs, i, final_obs)  # the next step begins env i's next episode
         return obs, rewards, terminated, truncated, vector_infos(self.num_envs, ended, final_obs=False)
 
     @on_owner_thread

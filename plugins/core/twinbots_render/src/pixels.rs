@@ -113,14 +113,20 @@ impl PixelSettings {
         Ok(kept)
     }
 
-    /// Adds pixel observations to a robot's app (before its start-up), its camera framed by
-    /// `framing`. Fails when the settings are out of range, the task lacks a `state` term, or
-    /// no graphics adapter exists.
-    pub fn install(&self, app: &mut App, framing: &Framing, arenas: usize) -> anyhow::Result<()> {
+    /// The settings' errors for a robot's `app` (its plugin added): a key out of range, a
+    /// `state` term its task lacks.
+    pub fn check(&self, app: &App) -> anyhow::Result<()> {
         self.validate()?;
         if let Some(task) = app.world().get_resource::<ActiveTask>() {
             self.observe_task(&mut task.0.clone())?;
         }
+        Ok(())
+    }
+
+    /// Adds pixel observations to a robot's app (before its start-up), its camera framed by
+    /// `framing`. Fails as [`PixelSettings::check`] does, or when no graphics adapter exists.
+    pub fn install(&self, app: &mut App, framing: &Framing, arenas: usize) -> anyhow::Result<()> {
+        self.check(app)?;
         let framed = View::framed(framing, &self.camera).expect("validated: a framed camera");
         let view = View { fov_y: self.fov.to_radians(), ..framed };
         let renderer = Renderer::tiled(self.width, self.height, arenas.max(1))?;
