@@ -34,6 +34,7 @@ pub mod rig;
 pub mod safety;
 pub mod server;
 pub mod state;
+pub mod target_marker;
 
 use bevy::math::Vec3;
 use bevy::prelude::*;
@@ -225,8 +226,8 @@ impl Plugin for Ur5ePlugin {
             app.add_systems(Update, apply_action.in_set(SimSet::Actuate));
         }
         if self.task == Ur5eTask::Reach {
-            app.add_systems(Update, (reach::report.in_set(TaskSet::Report), reach::place_target_marker.in_set(TaskSet::Read)))
-                .add_systems(PostStartup, reach::spawn_target_markers);
+            app.add_systems(Update, (reach::report.in_set(TaskSet::Report), target_marker::place_target_marker.in_set(TaskSet::Read)))
+                .add_systems(PostStartup, target_marker::spawn_target_markers);
         }
         if self.pattern == DesignPattern::Server {
             server::build(app);
@@ -236,7 +237,7 @@ impl Plugin for Ur5ePlugin {
         app.add_systems(EnvReset, ((reset_meter, unlock_stop, place_arm).in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
         match self.task {
             Ur5eTask::Reach => {
-                app.add_systems(EnvReset, reach::place_target_marker.in_set(ResetSet::Place));
+                app.add_systems(EnvReset, target_marker::place_target_marker.in_set(ResetSet::Place));
             }
             Ur5eTask::PickPlace => {
                 app.add_systems(Update, (pick_place::apply_suction.in_set(SimSet::Actuate), pick_place::report.in_set(TaskSet::Report)))

@@ -6,12 +6,10 @@
 use bevy::prelude::*;
 use rand::Rng;
 use twinbots_task::{Episode, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
-use twinbots_sim::rapier::math::Pose;
-use twinbots_sim::urdf::{Geometry, Shape, Visual};
-use twinbots_sim::{InArena, Marker, SimSettings};
+use twinbots_sim::SimSettings;
 
 use crate::arm::{ACTION_DIM, ActionHistory};
-use crate::cell::{CellParts, PART_HEIGHT, POCKET_FLOOR};
+use crate::cell::{PART_HEIGHT, POCKET_FLOOR};
 use crate::kinematics::{self, HOME, JOINT_RANGE};
 use crate::metrics::TwinMeter;
 use crate::state::CellState;
@@ -195,35 +193,6 @@ pub fn report(settings: Res<SimSettings>, mut arenas: Query<(&CellState, &TwinMe
             let cycle_time = (e.success == Some(true)).then(|| (e.length + 1) as f32 * settings.control_dt());
             e.metrics.insert("final_error_mm".into(), 1000.0 * state.arm.distance_to(state.target));
             meter.report(&mut e, cycle_time);
-        }
-    }
-}
-
-/// The target's marker: a ball of this radius (m) in signal green (no other surface of the
-/// cell is green), where the target is, in every arena of the reach, for the cameras (the
-/// camera reach of docs/pixels.md, where only a camera tells the policy where the target is)
-/// and for people watching.
-pub const MARKER_RADIUS: f32 = 0.03;
-const MARKER_RGBA: [f32; 4] = [0.05, 0.85, 0.1, 1.0];
-
-/// The arena's target marker.
-#[derive(Component)]
-pub struct TargetMarker(pub Entity);
-
-/// Start-up: a marker in each arena (its pose set by [`place_target_marker`]).
-pub fn spawn_target_markers(mut commands: Commands, arenas: Query<Entity, (With<CellParts>, Without<TargetMarker>)>) {
-    let visual = Visual { geometry: Geometry { origin: Pose::IDENTITY, shape: Shape::Sphere { radius: MARKER_RADIUS } }, rgba: MARKER_RGBA };
-    for arena in &arenas {
-        let marker = commands.spawn((Marker { name: "target".into(), visual: visual.clone(), pose: Pose::IDENTITY }, InArena(arena))).id();
-        commands.entity(arena).insert(TargetMarker(marker));
-    }
-}
-
-/// The marker stands at the target (base frame) in the arena's frame.
-pub fn place_target_marker(arenas: Query<(&CellParts, &CellState, &TargetMarker)>, mut markers: Query<&mut Marker>) {
-    for (parts, state, marker) in &arenas {
-        if let Ok(mut m) = markers.get_mut(marker.0) {
-            m.pose = parts.base * Pose::from_translation(state.target);
         }
     }
 }
