@@ -1,17 +1,23 @@
-//! Do the cart-pole's camera images carry what a policy needs? Collects pixel observations
-//! (`[pixels]`: side camera, 64×64, 2 frames) under random actions, labelled with the pole's
-//! angle and rate, fits a NatureCNN with a linear head to them by regression, and prints R² on
-//! held-out images. A probe of the observation, apart from any RL.
+//! Do camera images carry what a policy needs? Collects pixel observations labelled with what
+//! they should show, fits a NatureCNN with a linear head to them by regression, and prints R²
+//! per label on held-out images: a probe of the observation, apart from any RL.
+//! - `cartpole`: the side camera, 64×64, 2 frames, under random actions; labels the pole's
+//!   angle and rate.
+//! - `ur5e`: the camera reach's iso camera, 64×64, one frame, a new target per arena at every
+//!   reset (images of the reset and of two random steps after it); labels the target's place
+//!   (base frame), and the held-out error in millimetres.
 //!
-//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV]`
+//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e]`
 
 use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use twinbots_api::VecEnv;
+use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_learn::nn::{Adam, AdamConfig, Encoder, PolicyKind};
 use twinbots_render::PixelSettings;
 use twinbots_task::AppVecEnv;
+
+const ARENAS: usize = 8;
 
 fn main() -> anyhow::Result<()> {
     twinbots_learn::threads::configure();
@@ -19,46 +25,27 @@ fn main() -> anyhow::Result<()> {
     let samples: usize = args.get(1).map_or(Ok(4000), |s| s.parse())?;
     let epochs: usize = args.get(2).map_or(Ok(10), |s| s.parse())?;
     let fov: f32 = args.get(3).map_or(Ok(26.0), |s| s.parse())?;
-    let settings = PixelSettings { fov, frames: 2, ..PixelSettings::default() };
-    let arenas = 8;
-    let mut app = cartpole::headless_app(arenas, 0);
-    settings.install(&mut app, &cartpole::robot().framing, arenas)?;
-    let mut env = AppVecEnv::new(app);
-    let dim = env.observation_space().dim();
-
-    // Random actions; each image labelled with the state it shows (the arena's state after the
-    // step, before an ended episode's reset: the final observation where one ended).
-    let mut rng = ChaCha8Rng::seed_from_u64(1);
-    let (mut images, mut labels) = (Vec::with_capacity(samples * dim), Vec::with_capacity(samples * 2));
-    env.reset(Some(0))?;
-    while labels.len() < samples * 2 {
-        let actions: Vec<f32> = (0..arenas).map(|_| rng.random_range(0..2) as f32).collect();
-        let step = env.step(&actions)?;
-        for (i, &arena) in env.arenas().iter().enumerate() {
-            if step.final_obs[i].is_some() {
-                continue; // the state is already the next episode's
-            }
-            let s = *env.app().world().get::<cartpole::CartPoleState>(arena).expect("every arena has a state");
-            images.extend_from_slice(&step.obs[i * dim..(i + 1) * dim]);
-            labels.extend([s.angle / 0.1, s.rate / 1.0]);
-        }
-    }
-    images.truncate(samples * dim);
-    labels.truncate(samples * 2);
+    let robot = args.get(4).map_or("cartpole", String::as_str);
+    let (env, names, scale, images, labels) = match robot {
+        "cartpole" => cartpole_samples(samples, fov)?,
+        "ur5e" => ur5e_samples(samples, fov)?,
+        other => anyhow::bail!("robot '{other}': cartpole or ur5e"),
+    };
+    let (dim, k) = (env.observation_space().dim(), names.len());
     let held_out = samples / 5;
     let train = samples - held_out;
-    println!("{samples} images ({train} to fit, {held_out} held out), field of view {fov}°");
+    println!("{robot}: {samples} images ({train} to fit, {held_out} held out), field of view {fov}°");
 
     let dev = Device::Cpu;
     let encoder = Encoder::new(PolicyKind::Cnn, env.observation_space(), 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
-    let head_w = Var::from_tensor(&(Tensor::randn(0f32, 0.1, (2, 64), &dev)?))?;
-    let head_b = Var::zeros(2, candle_core::DType::F32, &dev)?;
+    let head_w = Var::from_tensor(&(Tensor::randn(0f32, 0.1, (k, 64), &dev)?))?;
+    let head_b = Var::zeros(k, candle_core::DType::F32, &dev)?;
     let mut vars: Vec<Var> = encoder.named_vars().into_iter().map(|(_, v)| v).collect();
     vars.extend([head_w.clone(), head_b.clone()]);
     let mut adam = Adam::new(vars, AdamConfig { learning_rate: 3e-4, ..AdamConfig::default() });
     let predict = |x: &Tensor| -> candle_core::Result<Tensor> { encoder.forward(x)?.matmul(&head_w.as_tensor().t()?)?.broadcast_add(head_b.as_tensor()) };
     let rows = |from: usize, n: usize| -> candle_core::Result<(Tensor, Tensor)> {
-        Ok((Tensor::from_slice(&images[from * dim..(from + n) * dim], (n, dim), &dev)?, Tensor::from_slice(&labels[from * 2..(from + n) * 2], (n, 2), &dev)?))
+        Ok((Tensor::from_slice(&images[from * dim..(from + n) * dim], (n, dim), &dev)?, Tensor::from_slice(&labels[from * k..(from + n) * k], (n, k), &dev)?))
     };
     let batch = 128;
     for epoch in 1..=epochs {
@@ -75,13 +62,77 @@ fn main() -> anyhow::Result<()> {
         let (x, y) = rows(train, held_out)?;
         let residual = (predict(&x)? - &y)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
         let variance = y.broadcast_sub(&y.mean(0)?)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
-        println!(
-            "epoch {epoch}: fit loss {:.3}, held-out R² angle {:.3}, rate {:.3} ({:.1} s)",
-            loss_sum / train as f32,
-            1.0 - residual[0] / variance[0],
-            1.0 - residual[1] / variance[1],
-            started.elapsed().as_secs_f64()
-        );
+        let r2: Vec<String> = (0..k).map(|i| format!("{} {:.3}", names[i], 1.0 - residual[i] / variance[i])).collect();
+        let mut line = format!("epoch {epoch}: fit loss {:.3}, held-out R² {}", loss_sum / train as f32, r2.join(", "));
+        if robot == "ur5e" {
+            let mm: Vec<String> = (0..k).map(|i| format!("{:.0}", 1000.0 * residual[i].sqrt() / scale)).collect();
+            line += &format!("; RMS error {} mm", mm.join(" / "));
+        }
+        println!("{line} ({:.1} s)", started.elapsed().as_secs_f64());
     }
     Ok(())
+}
+
+type Samples = (AppVecEnv, Vec<&'static str>, f32, Vec<f32>, Vec<f32>);
+
+/// Random actions; each image labelled with the state it shows (the arena's state after the
+/// step, before an ended episode's reset: skipped where one ended).
+fn cartpole_samples(samples: usize, fov: f32) -> anyhow::Result<Samples> {
+    let settings = PixelSettings { fov, frames: 2, ..PixelSettings::default() };
+    let mut app = cartpole::headless_app(ARENAS, 0);
+    settings.install(&mut app, &cartpole::robot().framing, ARENAS)?;
+    let mut env = AppVecEnv::new(app);
+    let dim = env.observation_space().dim();
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let (mut images, mut labels) = (Vec::with_capacity(samples * dim), Vec::with_capacity(samples * 2));
+    env.reset(Some(0))?;
+    while labels.len() < samples * 2 {
+        let actions: Vec<f32> = (0..ARENAS).map(|_| rng.random_range(0..2) as f32).collect();
+        let step = env.step(&actions)?;
+        for (i, &arena) in env.arenas().iter().enumerate() {
+            if step.final_obs[i].is_some() {
+                continue; // the state is already the next episode's
+            }
+            let s = *env.app().world().get::<cartpole::CartPoleState>(arena).expect("every arena has a state");
+            images.extend_from_slice(&step.obs[i * dim..(i + 1) * dim]);
+            labels.extend([s.angle / 0.1, s.rate / 1.0]);
+        }
+    }
+    images.truncate(samples * dim);
+    labels.truncate(samples * 2);
+    Ok((env, vec!["angle", "rate"], 1.0, images, labels))
+}
+
+/// Labels in units of 10 cm: the target's x, y, z in the robot's base frame.
+const UR5E_SCALE: f32 = 10.0;
+
+/// A new target in every arena at each reset; the images of the reset and of two random steps.
+fn ur5e_samples(samples: usize, fov: f32) -> anyhow::Result<Samples> {
+    let settings = PixelSettings { camera: "iso".into(), fov, ..PixelSettings::default() };
+    let mut app = ur5e::headless_app_with(ARENAS, 0, DesignPattern::Supervised);
+    settings.install(&mut app, &ur5e::robot().framing, ARENAS)?;
+    let mut env = AppVecEnv::new(app);
+    let dim = env.observation_space().dim();
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let (mut images, mut labels) = (Vec::with_capacity(samples * dim), Vec::with_capacity(samples * 3));
+    for seed in 0.. {
+        if labels.len() >= samples * 3 {
+            break;
+        }
+        let mut obs = env.reset(Some(seed))?;
+        for step in 0..3 {
+            if step > 0 {
+                let actions: Vec<f32> = (0..ARENAS * 5).map(|_| rng.random_range(-1.0..1.0)).collect();
+                obs = env.step(&actions)?.obs;
+            }
+            for (i, &arena) in env.arenas().iter().enumerate() {
+                let target = env.app().world().get::<ur5e::CellState>(arena).expect("every arena has a state").target;
+                images.extend_from_slice(&obs[i * dim..(i + 1) * dim]);
+                labels.extend((target * UR5E_SCALE).to_array());
+            }
+        }
+    }
+    images.truncate(samples * dim);
+    labels.truncate(samples * 3);
+    Ok((env, vec!["x", "y", "z"], UR5E_SCALE, images, labels))
 }
