@@ -76,16 +76,12 @@ impl PixelSettings {
     pub fn observe_task(&self, task: &mut TaskSpec) -> anyhow::Result<Vec<usize>> {
         let kept = self.state_values(task)?;
         let image = self.space();
-        let with_state = |space: &Space| match (&image, space) {
-            (_, _) if kept.is_empty() => image.clone(),
-            (&Space::Image { height, width, channels }, Space::Box { low, high }) => {
-                let pick = |v: &[f32]| kept.iter().map(|&i| v[i]).collect();
-                Space::ImageAndState { height, width, channels, low: pick(low), high: pick(high) }
-            }
-            (&Space::Image { height, width, channels }, _) => {
-                Space::ImageAndState { height, width, channels, low: vec![f32::NEG_INFINITY; kept.len()], high: vec![f32::INFINITY; kept.len()] }
-            }
-            _ => unreachable!("the image's space is an image"),
+        let (height, width, channels) = (self.height as usize, self.width as usize, 3 * self.frames as usize);
+        let pick = |v: &[f32]| kept.iter().map(|&i| v[i]).collect();
+        let with_state = |space: &Space| match space {
+            _ if kept.is_empty() => image.clone(),
+            Space::Box { low, high } => Space::ImageAndState { height, width, channels, low: pick(low), high: pick(high) },
+            _ => Space::ImageAndState { height, width, channels, low: vec![f32::NEG_INFINITY; kept.len()], high: vec![f32::INFINITY; kept.len()] },
         };
         task.observation_space = with_state(&task.observation_space);
         task.observation_plausible = with_state(&task.observation_plausible);
