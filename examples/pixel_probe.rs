@@ -1,13 +1,14 @@
 //! Do camera images carry what a policy needs? Collects pixel observations labelled with what
 //! they should show, fits a NatureCNN with a linear head to them by regression, and prints R²
-//! per label on held-out images: a probe of the observation, apart from any RL.
+//! per label on held-out images: a probe of the observation, apart from any RL. `keypoints`
+//! fits the keypoints encoder (`policy = "keypoints"`) instead.
 //! - `cartpole`: the side camera, 64×64, 2 frames, under random actions; labels the pole's
 //!   angle and rate.
 //! - `ur5e`: the camera reach's iso camera, 64×64, one frame, a new target per arena at every
 //!   reset (images of the reset and of two random steps after it); labels the target's place
 //!   (base frame), and the held-out error in millimetres.
 //!
-//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e]`
+//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints]`
 
 use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
@@ -26,6 +27,11 @@ fn main() -> anyhow::Result<()> {
     let epochs: usize = args.get(2).map_or(Ok(10), |s| s.parse())?;
     let fov: f32 = args.get(3).map_or(Ok(26.0), |s| s.parse())?;
     let robot = args.get(4).map_or("cartpole", String::as_str);
+    let kind = match args.get(5).map_or("cnn", String::as_str) {
+        "cnn" => PolicyKind::Cnn,
+        "keypoints" => PolicyKind::Keypoints,
+        other => anyhow::bail!("encoder '{other}': cnn or keypoints"),
+    };
     let (env, names, scale, images, labels) = match robot {
         "cartpole" => cartpole_samples(samples, fov)?,
         "ur5e" => ur5e_samples(samples, fov)?,
@@ -37,9 +43,11 @@ fn main() -> anyhow::Result<()> {
     println!("{robot}: {samples} images ({train} to fit, {held_out} held out), field of view {fov}°");
 
     let dev = Device::Cpu;
-    let encoder = Encoder::new(PolicyKind::Cnn, env.observation_space(), 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
-    let head_w = Var::from_tensor(&(Tensor::randn(0f32, 0.1, (k, 64), &dev)?))?;
-    let head_b = Var::zeros(k, candle_core::DType::F32, &dev)?;
+    let encoder = Encoder::new(kind, env.observation_space(), 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
+    let head_w = Var::from_tensor(&(Tensor::randn(0f32, 0.1, (k, encoder.dim()), &dev)?))?;
+    // The head starts at the labels' mean: what is left to fit is what the images show.
+    let mean: Vec<f32> = (0..k).map(|i| labels[..train * k].iter().skip(i).step_by(k).sum::<f32>() / train as f32).collect();
+    let head_b = Var::from_tensor(&Tensor::from_vec(mean, k, &dev)?)?;
     let mut vars: Vec<Var> = encoder.named_vars().into_iter().map(|(_, v)| v).collect();
     vars.extend([head_w.clone(), head_b.clone()]);
     let mut adam = Adam::new(vars, AdamConfig { learning_rate: 3e-4, ..AdamConfig::default() });

@@ -101,12 +101,13 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, on: Evaluate
     let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
     println!("{}: {}", settings.robot, result.describe());
     let stem = |p: &Path| p.file_stem().unwrap_or_default().to_string_lossy().to_string();
-    let file = match (name == own, other_twin, looks) {
-        // On another twin or other looks than the run's: beside its own evaluation, not over it.
-        (_, Some(twin), _) => format!("eval-{name}-on-{twin}.json"),
-        (_, None, Some(looks)) => format!("eval-{name}-in-{}.json", stem(looks)),
-        (true, None, None) => twinbots_learn::run_dir::EVAL.to_string(),
-        (false, None, None) => format!("eval-{name}.json"),
+    // On another twin or under other looks than the run's: beside its own evaluation, not over
+    // it, named after both where both are given.
+    let on_twin = other_twin.map(|twin| format!("-on-{twin}")).unwrap_or_default();
+    let in_looks = looks.map(|l| format!("-in-{}", stem(l))).unwrap_or_default();
+    let file = match (name == own, on_twin.is_empty() && in_looks.is_empty()) {
+        (true, true) => twinbots_learn::run_dir::EVAL.to_string(),
+        _ => format!("eval-{name}{on_twin}{in_looks}.json"),
     };
     run_dir.write_json(&file, &result)?;
     Ok(result)

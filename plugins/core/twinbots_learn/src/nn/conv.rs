@@ -153,7 +153,8 @@ impl CustomOp1 for TimesConstant {
     }
 }
 
-/// A convolution with ReLU: [`unfold`] then a dense layer from patch to output channels.
+/// A convolution (with ReLU, or without: [`Self::forward_linear`]): [`unfold`] then a dense
+/// layer from patch to output channels.
 pub struct Conv2d {
     pub patches: Patches,
     pub dense: Dense,
@@ -167,6 +168,11 @@ impl Conv2d {
     /// `[batch, …]` images → `[batch, out_h, out_w, outputs]`, rectified. `constant`: the
     /// images need no gradient (the observations, into the first layer).
     pub fn forward(&self, images: &Tensor, constant: bool) -> Result<Tensor> {
+        self.forward_linear(images, constant)?.relu()
+    }
+
+    /// The same without the ReLU (a last layer whose maps something else reads: keypoints).
+    pub fn forward_linear(&self, images: &Tensor, constant: bool) -> Result<Tensor> {
         let batch = images.dim(0)?;
         let (out_h, out_w) = self.patches.output();
         let outputs = self.dense.weight.as_tensor().dim(0)?;
@@ -177,7 +183,7 @@ impl Conv2d {
         } else {
             self.dense.forward(&patches)?
         };
-        y.relu()?.reshape((batch, out_h, out_w, outputs))
+        y.reshape((batch, out_h, out_w, outputs))
     }
 }
 

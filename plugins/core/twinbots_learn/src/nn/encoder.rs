@@ -11,6 +11,7 @@ use twinbots_api::Space;
 
 use super::Dense;
 use super::conv::{Conv2d, Patches};
+use super::keypoints::KeypointCnn;
 
 /// The learner's `policy` setting.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -23,6 +24,9 @@ pub enum PolicyKind {
     Mlp,
     /// NatureCNN features (images of at least 36×36 only).
     Cnn,
+    /// Keypoints: where in the image each of the last convolution's 32 maps peaks, as
+    /// coordinates (a spatial softmax, Levine et al. 2016; images of at least 36×36 only).
+    Keypoints,
 }
 
 /// The smallest image NatureCNN's three convolutions fit (8/4, 4/2, 3/1).
@@ -82,6 +86,8 @@ pub enum Encoder {
     ScaledImage { dim: usize, state: usize },
     /// NatureCNN features of the image, then the `state` values after it as they are.
     Cnn { cnn: NatureCnn, state: usize },
+    /// The image's keypoints, then the `state` values.
+    Keypoints { net: KeypointCnn, state: usize },
 }
 
 impl Encoder {
@@ -92,6 +98,13 @@ impl Encoder {
         Ok(match (kind, image) {
             (PolicyKind::Mlp, Some(_)) => Encoder::ScaledImage { dim: space.dim(), state },
             (PolicyKind::Mlp | PolicyKind::Auto, None) => Encoder::Flat { dim: space.dim() },
+            (PolicyKind::Keypoints, Some((h, w, c))) => {
+                anyhow::ensure!(
+                    h >= CNN_MIN_SIZE && w >= CNN_MIN_SIZE,
+                    "{algo}.policy = \"keypoints\": its convolutions need images of at least {CNN_MIN_SIZE}×{CNN_MIN_SIZE}, the observation is {space}"
+                );
+                Encoder::Keypoints { net: KeypointCnn::new(h, w, c, rng, dev)?, state }
+            }
             (PolicyKind::Cnn | PolicyKind::Auto, Some((h, w, c))) => {
                 anyhow::ensure!(
                     h >= CNN_MIN_SIZE && w >= CNN_MIN_SIZE,
@@ -103,7 +116,10 @@ impl Encoder {
                 );
                 Encoder::Cnn { cnn: NatureCnn::new(h, w, c, features, rng, dev)?, state }
             }
-            (PolicyKind::Cnn, None) => anyhow::bail!("{algo}.policy = \"cnn\": the observation {space} is not an image (use pixel observations, [pixels])"),
+            (PolicyKind::Cnn | PolicyKind::Keypoints, None) => {
+                let name = if kind == PolicyKind::Cnn { "cnn" } else { "keypoints" };
+                anyhow::bail!("{algo}.policy = \"{name}\": the observation {space} is not an image (use pixel observations, [pixels])")
+            }
         })
     }
 
@@ -112,6 +128,7 @@ impl Encoder {
         match self {
             Encoder::Flat { dim } | Encoder::ScaledImage { dim, .. } => *dim,
             Encoder::Cnn { cnn, state } => cnn.fc.bias.as_tensor().dims1().unwrap_or(0) + state,
+            Encoder::Keypoints { net, state } => net.dim() + state,
         }
     }
 
@@ -133,6 +150,11 @@ impl Encoder {
                 let (image, state) = split(obs, *state)?;
                 Tensor::cat(&[cnn.forward(&image.contiguous()?)?, state.to_dtype(DType::F32)?], 1)
             }
+            Encoder::Keypoints { net, state: 0 } => net.forward(obs),
+            Encoder::Keypoints { net, state } => {
+                let (image, state) = split(obs, *state)?;
+                Tensor::cat(&[net.forward(&image.contiguous()?)?, state.to_dtype(DType::F32)?], 1)
+            }
         }
     }
 
@@ -144,6 +166,9 @@ impl Encoder {
             Encoder::ScaledImage { state: 0, .. } => InputEncoding::Scaled { scale: 1.0 / 255.0 },
             Encoder::ScaledImage { .. } => {
                 return Err(candle_core::Error::Msg("an MLP policy on an image and state values cannot be exported to ONNX yet: use policy = \"cnn\"".into()));
+            }
+            Encoder::Keypoints { .. } => {
+                return Err(candle_core::Error::Msg("a keypoints policy cannot be exported to ONNX yet: use policy = \"cnn\"".into()));
             }
             Encoder::Cnn { cnn, state } => {
                 let convs = cnn
@@ -162,11 +187,15 @@ impl Encoder {
         })
     }
 
-    /// Its variables as `features.<i>.weight` / `.bias` (the dense layer last).
+    /// Its variables as `features.<i>.weight` / `.bias` (NatureCNN's dense layer last).
     pub fn named_vars(&self) -> Vec<(String, Var)> {
-        let Encoder::Cnn { cnn, .. } = self else { return Vec::new() };
-        let layers = cnn.convs.iter().map(|c| &c.dense).chain([&cnn.fc]);
+        let layers: Vec<&Dense> = match self {
+            Encoder::Cnn { cnn, .. } => cnn.convs.iter().map(|c| &c.dense).chain([&cnn.fc]).collect(),
+            Encoder::Keypoints { net, .. } => net.convs.iter().map(|c| &c.dense).collect(),
+            Encoder::Flat { .. } | Encoder::ScaledImage { .. } => return Vec::new(),
+        };
         layers
+            .into_iter()
             .enumerate()
             .flat_map(|(i, l)| [(format!("features.{i}.weight"), l.weight.clone()), (format!("features.{i}.bias"), l.bias.clone())])
             .collect()
@@ -184,6 +213,7 @@ impl Encoder {
                 },
                 state: *state,
             },
+            Encoder::Keypoints { net, state } => Encoder::Keypoints { net: net.deep_copy()?, state: *state },
         })
     }
 }

@@ -2,12 +2,13 @@
 //! versions cost too much for the small networks of RL policies (measured on a 2-core VM, see
 //! docs/architecture.md): a tanh activation that vectorises, a ReLU whose gradient is one
 //! pass, Adam over plain slices, and
-//! convolutions as patches times a matrix for the CNN that reads camera images.
+//! convolutions as patches times a matrix for the CNNs that read camera images.
 
 mod adam;
 mod conv;
 mod dense;
 mod encoder;
+mod keypoints;
 pub mod fused_mlp;
 mod relu;
 mod tanh;
@@ -16,5 +17,6 @@ pub use adam::{Adam, AdamConfig, GradientStep, flat_gradients, sum_gradients};
 pub use conv::{Conv2d, Patches, unfold};
 pub use dense::Dense;
 pub use encoder::{CNN_MIN_SIZE, Encoder, NatureCnn, PolicyKind, check_normalization};
+pub use keypoints::KeypointCnn;
 pub use relu::relu;
 pub use tanh::{fast_tanh, tanh};

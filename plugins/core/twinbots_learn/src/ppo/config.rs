@@ -36,6 +36,10 @@ pub struct PpoConfig {
     pub policy: PolicyKind,
     /// Features the CNN hands the MLPs (SB3's `features_dim`).
     pub features_dim: usize,
+    /// One CNN for the policy and the value (SB3's on-policy default), or one each (`false`:
+    /// twice the CNN's work, and the value's regression no longer reshapes the policy's
+    /// features).
+    pub share_features_extractor: bool,
     /// Starting log standard deviation of a Gaussian policy (SB3's `log_std_init`).
     pub log_std_init: f32,
 }
@@ -61,6 +65,7 @@ impl Default for PpoConfig {
             hidden: vec![64, 64],
             policy: PolicyKind::Auto,
             features_dim: 512,
+            share_features_extractor: true,
             log_std_init: 0.0,
         }
     }

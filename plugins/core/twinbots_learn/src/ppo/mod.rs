@@ -117,7 +117,7 @@ impl Ppo {
     pub fn new(config: PpoConfig, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
         crate::tuning::for_small_networks();
         let obs_dim = observation_space.dim();
-        let encoder = (config.policy, config.features_dim);
+        let encoder = (config.policy, config.features_dim, config.share_features_extractor);
         let policy = ActorCritic::new(&observation_space, &action_space, encoder, &config.hidden, config.log_std_init, seed)?;
         crate::nn::check_normalization(&observation_space, config.normalize_observations, NAME)?;
         let obs_rms = config.normalize_observations.then(|| RunningMeanStd::new(obs_dim));

@@ -1,7 +1,9 @@
 //! The actor-critic: separate policy and value MLPs (SB3's MlpPolicy: two hidden layers of 64,
 //! tanh), a categorical head for discrete actions and a diagonal Gaussian for boxes. On camera
 //! images both MLPs read the features of one shared NatureCNN (SB3's CnnPolicy, whose
-//! on-policy features extractor is shared).
+//! on-policy features extractor is shared), or each its own (`share_features_extractor =
+//! false`, SB3's policy keyword of that name): the value's regression then cannot reshape the
+//! features the policy reads.
 
 use candle_core::{D, DType, Device, Result, Tensor, Var};
 use rand::Rng;
@@ -15,6 +17,8 @@ use crate::nn::{Dense, Encoder, PolicyKind};
 
 /// The CNN's weight stream is the seed mixed with this.
 const ENCODER_STREAM_SALT: u64 = 0xc0_5e_ed;
+/// The value's own CNN (unshared features) draws from the seed mixed with this.
+const VALUE_ENCODER_STREAM_SALT: u64 = 0x7a_1e_ed;
 
 /// Hidden layers with tanh, then a linear output.
 pub struct Mlp {
@@ -52,6 +56,9 @@ pub enum Head {
 
 pub struct ActorCritic {
     pub encoder: Encoder,
+    /// The value's own encoder where features are not shared (a CNN only); `None`: the value
+    /// reads `encoder`'s features too.
+    pub value_encoder: Option<Encoder>,
     pub pi: Mlp,
     pub vf: Mlp,
     pub head: Head,
@@ -66,12 +73,12 @@ pub struct Evaluation {
 
 impl ActorCritic {
     /// Networks for observations of `observation_space` read through the encoder `policy`
-    /// asks for (`features_dim` CNN features); a box's Gaussian starts with log std
-    /// `log_std_init`.
+    /// asks for (`features_dim` CNN features, one CNN for both MLPs or, not `shared`, one
+    /// each); a box's Gaussian starts with log std `log_std_init`.
     pub fn new(
         observation_space: &Space,
         action_space: &Space,
-        (policy, features_dim): (PolicyKind, usize),
+        (policy, features_dim, shared): (PolicyKind, usize, bool),
         hidden: &[usize],
         log_std_init: f32,
         seed: u64,
@@ -81,6 +88,13 @@ impl ActorCritic {
         // The CNN draws its weights from a stream of its own, so an MLP policy keeps its old ones.
         let mut encoder_rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed ^ ENCODER_STREAM_SALT);
         let encoder = Encoder::new(policy, observation_space, features_dim, super::NAME, &mut encoder_rng, &dev)?;
+        let value_encoder = match &encoder {
+            Encoder::Cnn { .. } | Encoder::Keypoints { .. } if !shared => {
+                let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed ^ VALUE_ENCODER_STREAM_SALT);
+                Some(Encoder::new(policy, observation_space, features_dim, super::NAME, &mut rng, &dev)?)
+            }
+            _ => None,
+        };
         let obs_dim = encoder.dim();
         let (out, head) = match action_space {
             Space::Discrete { n } => (*n, Head::Categorical { n: *n }),
@@ -97,7 +111,7 @@ impl ActorCritic {
         // SB3's gains: 0.01 for the policy output (a near-uniform start), 1 for the value.
         let pi = Mlp::new(&sizes(out), 0.01, &mut rng, &dev)?;
         let vf = Mlp::new(&sizes(1), 1.0, &mut rng, &dev)?;
-        Ok(Self { encoder, pi, vf, head })
+        Ok(Self { encoder, value_encoder, pi, vf, head })
     }
 
     /// A copy whose variables share nothing with these (candle's `Var`s are shared handles:
@@ -109,12 +123,16 @@ impl ActorCritic {
             Head::Categorical { n } => Head::Categorical { n: *n },
             Head::Gaussian { dim, log_std } => Head::Gaussian { dim: *dim, log_std: copy(log_std)? },
         };
-        Ok(Self { encoder: self.encoder.deep_copy()?, pi: mlp(&self.pi)?, vf: mlp(&self.vf)?, head })
+        let value_encoder = self.value_encoder.as_ref().map(Encoder::deep_copy).transpose()?;
+        Ok(Self { encoder: self.encoder.deep_copy()?, value_encoder, pi: mlp(&self.pi)?, vf: mlp(&self.vf)?, head })
     }
 
     /// Every trainable variable, in a fixed order (the save format's order too).
     pub fn named_vars(&self) -> Vec<(String, Var)> {
         let mut out = self.encoder.named_vars();
+        if let Some(e) = &self.value_encoder {
+            out.extend(e.named_vars().into_iter().map(|(n, v)| (format!("vf_{n}"), v)));
+        }
         for (net, mlp) in [("pi", &self.pi), ("vf", &self.vf)] {
             for (i, l) in mlp.layers.iter().enumerate() {
                 out.push((format!("{net}.{i}.weight"), l.weight.clone()));
@@ -134,11 +152,21 @@ impl ActorCritic {
     }
 
     pub fn value(&self, obs: &Tensor) -> Result<Tensor> {
-        self.value_of(&self.encoder.forward(obs)?)
+        let encoder = self.value_encoder.as_ref().unwrap_or(&self.encoder);
+        self.vf.forward(&encoder.forward(obs)?)?.squeeze(D::Minus1)
     }
 
-    /// V from the encoder's features.
-    fn value_of(&self, features: &Tensor) -> Result<Tensor> {
+    /// V of `obs` whose policy features are `features`: from those, or where the value has an
+    /// encoder of its own, from its.
+    fn value_of(&self, obs: &Tensor, features: &Tensor) -> Result<Tensor> {
+        let own;
+        let features = match &self.value_encoder {
+            Some(e) => {
+                own = e.forward(obs)?;
+                &own
+            }
+            None => features,
+        };
         self.vf.forward(features)?.squeeze(D::Minus1)
     }
 
@@ -147,7 +175,7 @@ impl ActorCritic {
     pub fn act(&self, obs: &Tensor, deterministic: bool, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
         let features = self.encoder.forward(obs)?;
         let out = self.pi.forward(&features)?.flatten_all()?.to_vec1::<f32>()?;
-        let value = self.value_of(&features)?.to_vec1::<f32>()?;
+        let value = self.value_of(obs, &features)?.to_vec1::<f32>()?;
         let (actions, log_probs) = sample(&self.head, &out, &self.log_std_values()?, deterministic, rng);
         Ok((actions, log_probs, value))
     }
@@ -164,7 +192,7 @@ impl ActorCritic {
     pub fn evaluate(&self, obs: &Tensor, actions: &Tensor) -> Result<Evaluation> {
         let features = self.encoder.forward(obs)?;
         let out = self.pi.forward(&features)?;
-        let value = self.value_of(&features)?;
+        let value = self.value_of(obs, &features)?;
         let (log_prob, entropy) = match &self.head {
             Head::Categorical { .. } => {
                 let log_p = candle_nn::ops::log_softmax(&out, D::Minus1)?;
@@ -234,5 +262,26 @@ pub(super) fn sample(head: &Head, out: &[f32], log_std: &[f32], deterministic: b
             }
             (actions, log_probs)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unshared_value_cnn_is_the_only_cnn_the_value_loss_reaches() {
+        let space = Space::Image { height: 40, width: 40, channels: 3 };
+        let actions = Space::uniform_box(2, -1.0, 1.0);
+        let obs = Tensor::rand(0f32, 255.0, (4, space.dim()), &Device::Cpu).unwrap();
+        let value_grads = |shared: bool| {
+            let net = ActorCritic::new(&space, &actions, (PolicyKind::Cnn, 16, shared), &[8], 0.0, 3).unwrap();
+            let grads = net.value(&obs).unwrap().sqr().unwrap().sum_all().unwrap().backward().unwrap();
+            let reached = |name: &str| net.named_vars().into_iter().any(|(n, v)| n == name && grads.get(&v).is_some());
+            (reached("features.0.weight"), reached("vf_features.0.weight"), net.named_vars().len())
+        };
+        // The shared CNN's 8 variables, 2 × 2 MLP layers', log σ; unshared: 8 more.
+        assert_eq!(value_grads(true), (true, false, 8 + 8 + 1));
+        assert_eq!(value_grads(false), (false, true, 16 + 8 + 1));
     }
 }
