@@ -252,6 +252,33 @@ mod tests {
     }
 
     #[test]
+    fn keypoints_hand_on_two_coordinates_a_map_then_the_state_and_refuse_what_they_cannot_read() {
+        let dev = Device::Cpu;
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let space = Space::ImageAndState { height: 40, width: 40, channels: 3, low: vec![-1.0; 2], high: vec![1.0; 2] };
+        let encoder = Encoder::new(PolicyKind::Keypoints, &space, 512, "sac", &mut rng, &dev).unwrap();
+        assert_eq!((encoder.dim(), encoder.named_vars().len()), (64 + 2, 6), "32 keypoints and the state; 3 convolutions");
+        let mut row = vec![7.0f32; 40 * 40 * 3];
+        row.extend([0.25, -0.5]);
+        let out = encoder.forward(&Tensor::from_vec(row, (1, space.dim()), &dev).unwrap()).unwrap().to_vec2::<f32>().unwrap();
+        assert_eq!(out[0][64..], [0.25, -0.5]);
+        assert!(out[0][..64].iter().all(|v| (-1.0..=1.0).contains(v)));
+        let copy = encoder.deep_copy().unwrap();
+        assert_eq!(copy.named_vars()[0].1.as_tensor().to_vec2::<f32>().unwrap(), encoder.named_vars()[0].1.as_tensor().to_vec2::<f32>().unwrap());
+        let first = copy.named_vars()[0].1.clone();
+        first.set(&first.as_tensor().zeros_like().unwrap()).unwrap();
+        assert!(encoder.named_vars()[0].1.as_tensor().abs().unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap() > 0.0, "the copy shares nothing");
+
+        let e = encoder.export("").err().unwrap().to_string();
+        assert!(e.contains("a keypoints policy cannot be exported to ONNX yet"), "{e}");
+        let e = Encoder::new(PolicyKind::Keypoints, &Space::uniform_box(4, -1.0, 1.0), 512, "ppo", &mut rng, &dev).err().unwrap().to_string();
+        assert!(e.starts_with("ppo.policy = \"keypoints\": the observation Box(4) is not an image"), "{e}");
+        let small = Space::Image { height: 30, width: 64, channels: 3 };
+        let e = Encoder::new(PolicyKind::Keypoints, &small, 512, "ppo", &mut rng, &dev).err().unwrap().to_string();
+        assert!(e.contains("at least 36×36"), "{e}");
+    }
+
+    #[test]
     fn state_values_after_an_image_pass_beside_its_features_as_they_are() {
         let dev = Device::Cpu;
         let mut rng = ChaCha8Rng::seed_from_u64(2);
