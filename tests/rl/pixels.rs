@@ -1,4 +1,5 @@
-//! PPO with a CNN (`policy = "cnn"`) learns from images: which half of the picture is lit.
+//! PPO with a CNN (`policy = "cnn"`) or keypoints (`policy = "keypoints"`) learns from images:
+//! which half of the picture is lit.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -115,6 +116,33 @@ fn ppo_with_a_cnn_learns_which_half_of_the_image_is_lit_and_saves_and_loads_it()
     assert_eq!(model.predict_deterministic(&obs).unwrap(), loaded.predict_deterministic(&obs).unwrap());
     let right: Vec<f32> = env.lit.iter().map(|&l| l as f32).collect();
     assert_eq!(loaded.predict_deterministic(&obs).unwrap(), right, "the loaded CNN reads the images");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn ppo_on_keypoints_with_a_value_cnn_of_its_own_learns_which_half_is_lit_and_loads_it() {
+    let config = PpoConfig {
+        n_steps: 32,
+        batch_size: 64,
+        n_epochs: 4,
+        learning_rate: 1e-3,
+        policy: PolicyKind::Keypoints,
+        share_features_extractor: false,
+        ..PpoConfig::default()
+    };
+    let mut env = LitHalf::new(4);
+    let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 2).unwrap();
+    let names: Vec<String> = model.policy.named_vars().into_iter().map(|(n, _)| n).collect();
+    assert!(names.contains(&"features.2.weight".into()) && names.contains(&"vf_features.2.weight".into()), "{names:?}");
+    let best = learn_until(&mut model, &mut env, 20_000, 20, 7.5);
+    assert!(best >= 7.5, "mean score {best} of 8 after {} steps", model.timesteps);
+
+    let dir = std::env::temp_dir().join(format!("twinbots-keypoints-{}", std::process::id()));
+    model.save(&dir).unwrap();
+    let loaded = Ppo::load(&dir).unwrap();
+    let obs = env.reset(Some(9)).unwrap();
+    let right: Vec<f32> = env.lit.iter().map(|&l| l as f32).collect();
+    assert_eq!(loaded.predict_deterministic(&obs).unwrap(), right, "the loaded keypoints read the images");
     std::fs::remove_dir_all(&dir).ok();
 }
 
