@@ -99,51 +99,41 @@ fn learn_until(model: &mut dyn Learner, env: &mut dyn VecEnv, budget: u64, episo
     best
 }
 
-#[test]
-fn ppo_with_a_cnn_learns_which_half_of_the_image_is_lit_and_saves_and_loads_it() {
-    let config = PpoConfig { n_steps: 32, batch_size: 64, n_epochs: 4, learning_rate: 1e-3, policy: PolicyKind::Cnn, features_dim: 64, ..PpoConfig::default() };
+/// Trains PPO with `config` on the lit half (guessing scores 4 of 8), then checks that the
+/// saved and loaded model acts as the trained one and reads the images; returns the model.
+fn learns_the_lit_half_and_loads(config: PpoConfig, name: &str) -> Ppo {
     let mut env = LitHalf::new(4);
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 2).unwrap();
-    assert!(model.policy.named_vars().iter().any(|(name, _)| name == "features.3.weight"), "NatureCNN's 3 convolutions and dense layer");
     let best = learn_until(&mut model, &mut env, 20_000, 20, 7.5);
-    // Guessing scores 4 of 8.
-    assert!(best >= 7.5, "mean score {best} of 8 after {} steps", model.timesteps);
+    assert!(best >= 7.5, "{name}: mean score {best} of 8 after {} steps", model.timesteps);
 
-    let dir = std::env::temp_dir().join(format!("twinbots-cnn-{}", std::process::id()));
+    let dir = std::env::temp_dir().join(format!("twinbots-{name}-{}", std::process::id()));
     model.save(&dir).unwrap();
     let loaded = Ppo::load(&dir).unwrap();
     let obs = env.reset(Some(9)).unwrap();
     assert_eq!(model.predict_deterministic(&obs).unwrap(), loaded.predict_deterministic(&obs).unwrap());
     let right: Vec<f32> = env.lit.iter().map(|&l| l as f32).collect();
-    assert_eq!(loaded.predict_deterministic(&obs).unwrap(), right, "the loaded CNN reads the images");
+    assert_eq!(loaded.predict_deterministic(&obs).unwrap(), right, "the loaded {name} policy reads the images");
     std::fs::remove_dir_all(&dir).ok();
+    model
+}
+
+fn lit_half_settings() -> PpoConfig {
+    PpoConfig { n_steps: 32, batch_size: 64, n_epochs: 4, learning_rate: 1e-3, ..PpoConfig::default() }
+}
+
+#[test]
+fn ppo_with_a_cnn_learns_which_half_of_the_image_is_lit_and_saves_and_loads_it() {
+    let model = learns_the_lit_half_and_loads(PpoConfig { policy: PolicyKind::Cnn, features_dim: 64, ..lit_half_settings() }, "cnn");
+    assert!(model.policy.named_vars().iter().any(|(name, _)| name == "features.3.weight"), "NatureCNN's 3 convolutions and dense layer");
 }
 
 #[test]
 fn ppo_on_keypoints_with_a_value_cnn_of_its_own_learns_which_half_is_lit_and_loads_it() {
-    let config = PpoConfig {
-        n_steps: 32,
-        batch_size: 64,
-        n_epochs: 4,
-        learning_rate: 1e-3,
-        policy: PolicyKind::Keypoints,
-        share_features_extractor: false,
-        ..PpoConfig::default()
-    };
-    let mut env = LitHalf::new(4);
-    let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 2).unwrap();
+    let config = PpoConfig { policy: PolicyKind::Keypoints, share_features_extractor: false, ..lit_half_settings() };
+    let model = learns_the_lit_half_and_loads(config, "keypoints");
     let names: Vec<String> = model.policy.named_vars().into_iter().map(|(n, _)| n).collect();
     assert!(names.contains(&"features.2.weight".into()) && names.contains(&"vf_features.2.weight".into()), "{names:?}");
-    let best = learn_until(&mut model, &mut env, 20_000, 20, 7.5);
-    assert!(best >= 7.5, "mean score {best} of 8 after {} steps", model.timesteps);
-
-    let dir = std::env::temp_dir().join(format!("twinbots-keypoints-{}", std::process::id()));
-    model.save(&dir).unwrap();
-    let loaded = Ppo::load(&dir).unwrap();
-    let obs = env.reset(Some(9)).unwrap();
-    let right: Vec<f32> = env.lit.iter().map(|&l| l as f32).collect();
-    assert_eq!(loaded.predict_deterministic(&obs).unwrap(), right, "the loaded keypoints read the images");
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
