@@ -10,13 +10,11 @@ use candle_core::{CpuStorage, CustomOp1, Device, Layout, Result, Shape, Tensor};
 use rand_chacha::ChaCha8Rng;
 
 use super::conv::{Conv2d, Patches};
+use super::encoder::RELU_GAIN;
 
 /// The convolutions: (filters, kernel, stride). A 64×64 image → 31×31 → 15×15 → 13×13 maps,
 /// 32 keypoints; fewer multiply-adds than NatureCNN's (3.3 M against 3.7 M an image).
 pub const LAYERS: [(usize, usize, usize); 3] = [(16, 4, 2), (32, 3, 2), (32, 3, 1)];
-
-/// ReLU layers start with He's uniform bound (as NatureCNN's).
-const RELU_GAIN: f64 = 2.449_489_742_783_178;
 
 /// Convolutions with ReLU, then a last one whose maps are softmaxed into keypoints.
 pub struct KeypointCnn {
