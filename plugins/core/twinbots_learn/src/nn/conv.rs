@@ -9,6 +9,10 @@ use rand_chacha::ChaCha8Rng;
 
 use super::Dense;
 
+/// ReLU layers start with He's uniform bound √(6 / fan_in) (√6 times PyTorch's default), so
+/// activations keep their scale through the stack (SB3 gets the same from orthogonal √2).
+pub(super) const RELU_GAIN: f64 = 2.449_489_742_783_178;
+
 /// The geometry of one convolution over `height × width × channels` images.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Patches {

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use twinbots_api::Space;
 
 use super::Dense;
-use super::conv::{Conv2d, Patches};
+use super::conv::{Conv2d, Patches, RELU_GAIN};
 use super::keypoints::KeypointCnn;
 
 /// The learner's `policy` setting.
@@ -32,9 +32,6 @@ pub enum PolicyKind {
 /// The smallest image NatureCNN's three convolutions fit (8/4, 4/2, 3/1).
 pub const CNN_MIN_SIZE: usize = 36;
 
-/// ReLU layers start with He's uniform bound √(6 / fan_in) (√6 times PyTorch's default), so
-/// activations keep their scale through the stack (SB3 gets the same from orthogonal √2).
-pub(super) const RELU_GAIN: f64 = 2.449_489_742_783_178;
 
 /// NatureCNN: 32 filters 8×8 stride 4, 64 4×4 stride 2, 64 3×3 stride 1, then a dense layer
 /// to `features` values, ReLU after each; images come in as 0–255 and are scaled to [0, 1].

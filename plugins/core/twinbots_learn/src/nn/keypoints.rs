@@ -9,8 +9,7 @@
 use candle_core::{CpuStorage, CustomOp1, Device, Layout, Result, Shape, Tensor};
 use rand_chacha::ChaCha8Rng;
 
-use super::conv::{Conv2d, Patches};
-use super::encoder::RELU_GAIN;
+use super::conv::{Conv2d, Patches, RELU_GAIN};
 
 /// The convolutions: (filters, kernel, stride). A 64×64 image → 31×31 → 15×15 → 13×13 maps,
 /// 32 keypoints; fewer multiply-adds than NatureCNN's (3.3 M against 3.7 M an image).
