@@ -32,7 +32,6 @@ pub enum PolicyKind {
 /// The smallest image NatureCNN's three convolutions fit (8/4, 4/2, 3/1).
 pub const CNN_MIN_SIZE: usize = 36;
 
-
 /// NatureCNN: 32 filters 8×8 stride 4, 64 4×4 stride 2, 64 3×3 stride 1, then a dense layer
 /// to `features` values, ReLU after each; images come in as 0–255 and are scaled to [0, 1].
 pub struct NatureCnn {
@@ -96,17 +95,11 @@ impl Encoder {
             (PolicyKind::Mlp, Some(_)) => Encoder::ScaledImage { dim: space.dim(), state },
             (PolicyKind::Mlp | PolicyKind::Auto, None) => Encoder::Flat { dim: space.dim() },
             (PolicyKind::Keypoints, Some((h, w, c))) => {
-                anyhow::ensure!(
-                    h >= CNN_MIN_SIZE && w >= CNN_MIN_SIZE,
-                    "{algo}.policy = \"keypoints\": its convolutions need images of at least {CNN_MIN_SIZE}×{CNN_MIN_SIZE}, the observation is {space}"
-                );
+                fits(h, w, "keypoints", "its convolutions need", algo, space)?;
                 Encoder::Keypoints { net: KeypointCnn::new(h, w, c, rng, dev)?, state }
             }
             (PolicyKind::Cnn | PolicyKind::Auto, Some((h, w, c))) => {
-                anyhow::ensure!(
-                    h >= CNN_MIN_SIZE && w >= CNN_MIN_SIZE,
-                    "{algo}.policy = \"cnn\": NatureCNN needs images of at least {CNN_MIN_SIZE}×{CNN_MIN_SIZE}, the observation is {space}"
-                );
+                fits(h, w, "cnn", "NatureCNN needs", algo, space)?;
                 anyhow::ensure!(
                     (1..=4096).contains(&features),
                     "{algo}.features_dim = {features}: must be a whole number in 1..=4096"
@@ -142,16 +135,8 @@ impl Encoder {
                 let (image, state) = split(obs, *state)?;
                 Tensor::cat(&[(image.to_dtype(DType::F32)? * (1.0 / 255.0))?, state], 1)
             }
-            Encoder::Cnn { cnn, state: 0 } => cnn.forward(obs),
-            Encoder::Cnn { cnn, state } => {
-                let (image, state) = split(obs, *state)?;
-                Tensor::cat(&[cnn.forward(&image.contiguous()?)?, state.to_dtype(DType::F32)?], 1)
-            }
-            Encoder::Keypoints { net, state: 0 } => net.forward(obs),
-            Encoder::Keypoints { net, state } => {
-                let (image, state) = split(obs, *state)?;
-                Tensor::cat(&[net.forward(&image.contiguous()?)?, state.to_dtype(DType::F32)?], 1)
-            }
+            Encoder::Cnn { cnn, state } => image_then_state(obs, *state, |image| cnn.forward(image)),
+            Encoder::Keypoints { net, state } => image_then_state(obs, *state, |image| net.forward(image)),
         }
     }
 
@@ -219,6 +204,25 @@ impl Encoder {
 fn split(obs: &Tensor, state: usize) -> Result<(Tensor, Tensor)> {
     let dim = obs.dim(1)?;
     Ok((obs.narrow(1, 0, dim - state)?, obs.narrow(1, dim - state, state)?))
+}
+
+/// `features` of the image's columns of `obs`, then its `state` columns as they are.
+fn image_then_state(obs: &Tensor, state: usize, features: impl Fn(&Tensor) -> Result<Tensor>) -> Result<Tensor> {
+    if state == 0 {
+        return features(obs);
+    }
+    let (image, state) = split(obs, state)?;
+    Tensor::cat(&[features(&image.contiguous()?)?, state.to_dtype(DType::F32)?], 1)
+}
+
+/// An error naming `<algo>.policy = "<name>"` unless an `h × w` image is large enough for
+/// the convolutions (`needs`: what needs it, for the message).
+fn fits(h: usize, w: usize, name: &str, needs: &str, algo: &str, space: &Space) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        h >= CNN_MIN_SIZE && w >= CNN_MIN_SIZE,
+        "{algo}.policy = \"{name}\": {needs} images of at least {CNN_MIN_SIZE}×{CNN_MIN_SIZE}, the observation is {space}"
+    );
+    Ok(())
 }
 
 #[cfg(test)]

@@ -159,15 +159,11 @@ impl ActorCritic {
     /// V of `obs` whose policy features are `features`: from those, or where the value has an
     /// encoder of its own, from its.
     fn value_of(&self, obs: &Tensor, features: &Tensor) -> Result<Tensor> {
-        let own;
-        let features = match &self.value_encoder {
-            Some(e) => {
-                own = e.forward(obs)?;
-                &own
-            }
-            None => features,
+        let v = match &self.value_encoder {
+            Some(e) => self.vf.forward(&e.forward(obs)?)?,
+            None => self.vf.forward(features)?,
         };
-        self.vf.forward(features)?.squeeze(D::Minus1)
+        v.squeeze(D::Minus1)
     }
 
     /// Samples (or, deterministic, takes the mode of) one action per row of `obs`.
