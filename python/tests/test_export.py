@@ -93,6 +93,34 @@ def test_onnxruntime_gives_the_models_continuous_actions_with_normalisation_fold
     assert delta <= 1e-5
 
 
+@pytest.fixture(scope="module")
+def keypoints_run(tmp_path_factory):
+    """The camera reach's form: a camera image and the arm's own state, read through keypoints."""
+    base = tmp_path_factory.mktemp("export")
+    config = base / "keypoints.toml"
+    config.write_text("timesteps = 128\narenas = 2\neval_episodes = 2\n"
+                      "[pixels]\ncamera = \"iso\"\nwidth = 48\nheight = 40\nstate = [\"joint_positions\", \"tcp_position\"]\n"
+                      "[ppo]\npolicy = \"keypoints\"\nshare_features_extractor = false\nnormalize_observations = false\n"
+                      "n_steps = 64\nbatch_size = 64\n")
+    return train(base / "ur5e-keypoints", "ur5e", "--config", str(config))
+
+
+def test_onnxruntime_runs_a_keypoint_policy_as_the_model_does(keypoints_run, tmp_path):
+    path = export(keypoints_run, tmp_path)
+    image, state = 40 * 48 * 3, 6 + 3
+    rng = np.random.default_rng(4)
+    pixels = rng.integers(0, 256, size=(200, 40, 48, 3)).astype(np.float32)
+    values = rng.uniform(-2.0, 2.0, size=(200, state)).astype(np.float32)
+    # The graph reads flat rows (the image's values, then the state's); Python's policy a Dict.
+    actions = onnx_actions(path, np.concatenate([pixels.reshape(200, image), values], axis=1))
+    own, _ = twinbots.load_policy(keypoints_run).predict({"image": pixels, "state": values}, deterministic=True)
+    assert actions.shape == own.shape == (200, 5)
+    delta = np.abs(actions - own).max()
+    print(f"onnxruntime vs twinbots, keypoints on a 48x40 image and 9 state values: max |delta| {delta:.2e}")
+    assert delta <= 1e-4
+    assert np.ptp(own, axis=0).max() > 1e-3, "the actions vary with the observation"
+
+
 def scalars(run: Path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 

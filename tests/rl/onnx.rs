@@ -1,7 +1,8 @@
 //! The exported ONNX graph acts as the model does: run by tract on 1,000 random observations,
 //! its actions equal the model's own deterministic ones (to 1e-5; discrete choices identical)
 //! for a discrete, a continuous and a normalised-observation PPO policy, and a SAC policy; and
-//! PPO and SAC policies on camera images (NatureCNN) to 1e-4. Bad files are clear errors.
+//! PPO and SAC policies on camera images (NatureCNN and keypoints) to 1e-4. Bad files are clear
+//! errors.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -9,6 +10,7 @@ use twinbots_onnx::{OnnxPolicy, PolicyMetadata};
 use twinbots_learn::classic::{ClassicCartPole, ClassicPendulum};
 use twinbots_learn::normalize::RunningMeanStd;
 use twinbots_api::{Space, VecEnv};
+use twinbots_learn::nn::PolicyKind;
 use twinbots_learn::{Agent, Flow, Ppo, PpoConfig, Sac, SacConfig};
 
 const OBSERVATIONS: usize = 1000;
@@ -177,6 +179,45 @@ fn policies_on_camera_images_export_their_cnn() {
     assert!(delta <= 1e-4, "max |Δ| {delta}");
     let moved: Vec<f32> = obs.chunks(with_state.dim()).flat_map(|o| [&o[..o.len() - 5], &[299.0; 5][..]].concat()).collect();
     assert_ne!(both(&model, &moved).1, own, "the state values reach the actions");
+}
+
+/// Multiplies the variables whose names end with `suffix` by `factor`.
+fn scale_vars(vars: Vec<(String, candle_core::Var)>, suffix: &str, factor: f64) {
+    for (_, var) in vars.into_iter().filter(|(name, _)| name.ends_with(suffix)) {
+        var.set(&var.as_tensor().affine(factor, 0.0).unwrap()).unwrap();
+    }
+}
+
+#[test]
+fn keypoint_policies_export_their_spatial_softmax() {
+    // The camera reach's form: a 64×64 image and state values, PPO with a value CNN of its own
+    // (left out of the graph), and SAC on the image alone. The last convolution is scaled up so
+    // each map's softmax sits on a few pixels: keypoints spread over the image, and a grid
+    // read in the wrong order would move them.
+    let action_space = Space::Box { low: vec![-1.0, -2.0], high: vec![1.0, 0.5] };
+    let rows = 100;
+    let with_state = Space::ImageAndState { height: 64, width: 64, channels: 3, low: vec![-3.0; 5], high: vec![3.0; 5] };
+    let obs = images(&with_state, rows, 8);
+    let config = PpoConfig { policy: PolicyKind::Keypoints, share_features_extractor: false, ..Default::default() };
+    let model = Ppo::new(config, with_state.clone(), action_space.clone(), 15).unwrap();
+    scale_vars(model.policy.named_vars(), "features.2.weight", 30.0);
+    scale_vars(model.policy.named_vars(), "pi.2.weight", 300.0);
+    let (onnx, own) = both(&model, &obs);
+    let delta = largest_difference(&onnx, &own);
+    eprintln!("PPO on keypoints and state: max |Δ| {delta:e} over {rows} observations");
+    assert!(delta <= 1e-4, "max |Δ| {delta}");
+    let spread = own.iter().map(|a| a.abs()).fold(0.0f32, f32::max);
+    assert!(spread > 0.5, "the actions vary, so the comparison means something: {spread}");
+
+    let image = Space::Image { height: 48, width: 40, channels: 3 };
+    let obs = images(&image, rows, 9);
+    let config = SacConfig { policy: PolicyKind::Keypoints, hidden: vec![32], buffer_size: 1000, ..Default::default() };
+    let model = Sac::new(config, image, action_space, 16).unwrap();
+    scale_vars(model.actor.named_vars(), "features.2.weight", 30.0);
+    let (onnx, own) = both(&model, &obs);
+    let delta = largest_difference(&onnx, &own);
+    eprintln!("SAC on keypoints: max |Δ| {delta:e} over {rows} images");
+    assert!(delta <= 1e-4, "max |Δ| {delta}");
 }
 
 #[test]

@@ -50,8 +50,7 @@ pub struct ConvLayer {
     pub bias: Vec<f32>,
 }
 
-/// NatureCNN features of a camera image: values times `scale`, the convolutions, then the
-/// flattened (row, column, channel) output through `fc`, ReLU after each.
+/// Features of a camera image: values times `scale`, the convolutions, then `head`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ConvEncoder {
     pub height: usize,
@@ -59,9 +58,28 @@ pub struct ConvEncoder {
     pub channels: usize,
     pub scale: f32,
     pub convs: Vec<ConvLayer>,
-    pub fc: DenseLayer,
+    pub head: ConvHead,
     /// State values after the image's, passed beside its features as they are.
     pub state: usize,
+}
+
+/// What follows a [`ConvEncoder`]'s convolutions.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ConvHead {
+    /// NatureCNN: ReLU after every convolution, the last one's maps flattened in (row, column,
+    /// channel) order through this layer, ReLU after.
+    Dense(DenseLayer),
+    /// Keypoints: ReLU after every convolution but the last; per map of the last a softmax over
+    /// its pixels and the expected (x, y) under it, the pixel centres spread evenly over
+    /// [−1, 1] (left to right, top to bottom): each map's x, then its y.
+    Keypoints,
+}
+
+/// Pixel centres of an `h × w` map, row by row, as (x, y) in [−1, 1]: where a keypoint of
+/// [`ConvHead::Keypoints`] lies when its map's softmax sits on one pixel.
+pub fn keypoint_grid(h: usize, w: usize) -> Vec<f32> {
+    let at = |i: usize, n: usize| if n > 1 { -1.0 + 2.0 * i as f32 / (n - 1) as f32 } else { 0.0 };
+    (0..h).flat_map(|y| (0..w).flat_map(move |x| [at(x, w), at(y, h)])).collect()
 }
 
 /// What the dense layers read.

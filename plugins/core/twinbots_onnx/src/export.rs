@@ -21,7 +21,10 @@
 //! transposes to ONNX's `NCHW`, scales by 1/255, and runs NatureCNN's `Conv` + `Relu` layers
 //! (each convolution's weights reordered from the learner's (row, column, channel) patches to
 //! `OIHW`), then transposes back and flattens as the learner does, into the features' `Gemm` +
-//! `Relu`. An MLP on pixels only scales them.
+//! `Relu`. Keypoints end instead at their last `Conv` (no `Relu`): its maps reshaped to
+//! `[batch, maps, pixels]`, a `Softmax` over the pixels, a `MatMul` with the pixels' (x, y)
+//! (`keypoint_grid`, `[pixels, 2]`), flattened to each map's x then y. An MLP on pixels only
+//! scales them.
 
 use std::path::Path;
 
@@ -32,7 +35,7 @@ use twinbots_api::Space;
 use twinbots_learn::Agent;
 use twinbots_learn::model_io::write_atomic;
 use twinbots_learn::normalize::CLIP;
-use twinbots_learn::policy_net::{Activation, ConvEncoder, DenseLayer, InputEncoding, PolicyHead};
+use twinbots_learn::policy_net::{Activation, ConvEncoder, ConvHead, ConvLayer, DenseLayer, InputEncoding, PolicyHead, keypoint_grid};
 
 use crate::metadata::PolicyMetadata;
 
@@ -133,8 +136,9 @@ fn policy_graph(model: &dyn Agent) -> anyhow::Result<pb::GraphProto> {
     })
 }
 
-/// NatureCNN on flat rows of `H·W·C` image values: the features, `[batch, fc.outputs]`; with
-/// state values after the image, the features and then those, `[batch, fc.outputs + state]`.
+/// The image encoder on flat rows of `H·W·C` image values: its features (NatureCNN's
+/// `fc.outputs`, or two per keypoint); with state values after the image, the features and
+/// then those.
 fn conv_features(g: &mut GraphBuilder, cnn: &ConvEncoder, x: &str) -> anyhow::Result<String> {
     if cnn.state == 0 {
         return image_features(g, cnn, x);
@@ -154,32 +158,58 @@ fn image_features(g: &mut GraphBuilder, cnn: &ConvEncoder, x: &str) -> anyhow::R
     let x = g.node("Transpose", &[&x], vec![ints_attr("perm", &[0, 3, 1, 2])]);
     let scale = g.scalar_f32("image_scale", cnn.scale);
     let mut x = g.node("Mul", &[&x, &scale], vec![]);
-    for conv in &cnn.convs {
+    let (mut h, mut w) = (cnn.height, cnn.width);
+    let last = cnn.convs.len().saturating_sub(1);
+    for (i, conv) in cnn.convs.iter().enumerate() {
         let (k, c) = (conv.kernel, conv.in_channels);
         anyhow::ensure!(conv.weight.len() == conv.filters * k * k * c, "{}: {} weights for {} filters of {k}×{k}×{c}", conv.name, conv.weight.len(), conv.filters);
-        // Learner: weight[o][(ky·k + kx)·C + ch]; ONNX: W[o][ch][ky][kx].
-        let mut oihw = vec![0f32; conv.weight.len()];
-        for o in 0..conv.filters {
-            for ky in 0..k {
-                for kx in 0..k {
-                    for ch in 0..c {
-                        oihw[((o * c + ch) * k + ky) * k + kx] = conv.weight[o * k * k * c + (ky * k + kx) * c + ch];
-                    }
+        anyhow::ensure!(h >= k && w >= k, "{}: a {k}×{k} kernel on a {h}×{w} map", conv.name);
+        let name = &conv.name;
+        let weight = g.constant_f32(&format!("{name}.weight"), &[conv.filters as i64, c as i64, k as i64, k as i64], &oihw(conv));
+        let bias = g.constant_f32(&format!("{name}.bias"), &[conv.filters as i64], &conv.bias);
+        let attributes = vec![ints_attr("kernel_shape", &[k as i64, k as i64]), ints_attr("strides", &[conv.stride as i64, conv.stride as i64])];
+        x = g.node("Conv", &[&x, &weight, &bias], attributes);
+        (h, w) = ((h - k) / conv.stride + 1, (w - k) / conv.stride + 1);
+        if !(i == last && cnn.head == ConvHead::Keypoints) {
+            x = g.node("Relu", &[&x], vec![]);
+        }
+    }
+    match &cnn.head {
+        ConvHead::Dense(fc) => {
+            // Back to channels last, flattened per row as the learner's features layer reads them.
+            let x = g.node("Transpose", &[&x], vec![ints_attr("perm", &[0, 2, 3, 1])]);
+            let x = g.node("Flatten", &[&x], vec![int_attr("axis", 1)]);
+            let x = g.dense(fc, &x);
+            Ok(g.node("Relu", &[&x], vec![]))
+        }
+        ConvHead::Keypoints => {
+            // [batch, maps, h, w] → a softmax over each map's pixels → their weighted (x, y).
+            let maps = cnn.convs.last().map_or(cnn.channels, |c| c.filters) as i64;
+            let shape = g.constant_i64("keypoint_maps_shape", &[0, maps, (h * w) as i64]);
+            let x = g.node("Reshape", &[&x, &shape], vec![]);
+            let attention = g.node("Softmax", &[&x], vec![int_attr("axis", -1)]);
+            let grid = g.constant_f32("keypoint_grid", &[(h * w) as i64, 2], &keypoint_grid(h, w));
+            let points = g.node("MatMul", &[&attention, &grid], vec![]);
+            Ok(g.node("Flatten", &[&points], vec![int_attr("axis", 1)]))
+        }
+    }
+}
+
+/// A convolution's weights in ONNX's order: the learner's are `weight[o][(ky·k + kx)·C + ch]`,
+/// ONNX's `W[o][ch][ky][kx]`.
+fn oihw(conv: &ConvLayer) -> Vec<f32> {
+    let (k, c) = (conv.kernel, conv.in_channels);
+    let mut out = vec![0f32; conv.weight.len()];
+    for o in 0..conv.filters {
+        for ky in 0..k {
+            for kx in 0..k {
+                for ch in 0..c {
+                    out[((o * c + ch) * k + ky) * k + kx] = conv.weight[o * k * k * c + (ky * k + kx) * c + ch];
                 }
             }
         }
-        let name = &conv.name;
-        let w = g.constant_f32(&format!("{name}.weight"), &[conv.filters as i64, c as i64, k as i64, k as i64], &oihw);
-        let b = g.constant_f32(&format!("{name}.bias"), &[conv.filters as i64], &conv.bias);
-        let attributes = vec![ints_attr("kernel_shape", &[k as i64, k as i64]), ints_attr("strides", &[conv.stride as i64, conv.stride as i64])];
-        let y = g.node("Conv", &[&x, &w, &b], attributes);
-        x = g.node("Relu", &[&y], vec![]);
     }
-    // Back to channels last, flattened per row as the learner's features layer reads them.
-    let x = g.node("Transpose", &[&x], vec![ints_attr("perm", &[0, 2, 3, 1])]);
-    let x = g.node("Flatten", &[&x], vec![int_attr("axis", 1)]);
-    let x = g.dense(&cnn.fc, &x);
-    Ok(g.node("Relu", &[&x], vec![]))
+    out
 }
 
 /// A Gaussian's mode: its mean, clipped to the box.

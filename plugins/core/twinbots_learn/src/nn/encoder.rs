@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 use twinbots_api::Space;
 
 use super::Dense;
+use crate::policy_net::{ConvEncoder, ConvHead, ConvLayer, InputEncoding};
 use super::conv::{Conv2d, Patches, RELU_GAIN};
 use super::keypoints::KeypointCnn;
 
@@ -141,30 +142,17 @@ impl Encoder {
     }
 
     /// Its numbers, for an exporter; the layers named `<prefix>features.<i>`.
-    pub fn export(&self, prefix: &str) -> Result<crate::policy_net::InputEncoding> {
-        use crate::policy_net::{ConvEncoder, ConvLayer, InputEncoding};
+    pub fn export(&self, prefix: &str) -> Result<InputEncoding> {
         Ok(match self {
             Encoder::Flat { .. } => InputEncoding::Flat,
             Encoder::ScaledImage { state: 0, .. } => InputEncoding::Scaled { scale: 1.0 / 255.0 },
             Encoder::ScaledImage { .. } => {
                 return Err(candle_core::Error::Msg("an MLP policy on an image and state values cannot be exported to ONNX yet: use policy = \"cnn\"".into()));
             }
-            Encoder::Keypoints { .. } => {
-                return Err(candle_core::Error::Msg("a keypoints policy cannot be exported to ONNX yet: use policy = \"cnn\"".into()));
-            }
+            Encoder::Keypoints { net, state } => InputEncoding::Cnn(conv_encoder(&net.convs, ConvHead::Keypoints, *state, prefix)?),
             Encoder::Cnn { cnn, state } => {
-                let convs = cnn
-                    .convs
-                    .iter()
-                    .enumerate()
-                    .map(|(i, c)| {
-                        let d = c.dense.values(&format!("{prefix}features.{i}"))?;
-                        Ok(ConvLayer { name: d.name, kernel: c.patches.kernel, stride: c.patches.stride, in_channels: c.patches.channels, filters: d.outputs, weight: d.weight, bias: d.bias })
-                    })
-                    .collect::<Result<Vec<_>>>()?;
-                let first = cnn.convs[0].patches;
                 let fc = cnn.fc.values(&format!("{prefix}features.{}", cnn.convs.len()))?;
-                InputEncoding::Cnn(ConvEncoder { height: first.height, width: first.width, channels: first.channels, scale: 1.0 / 255.0, convs, fc, state: *state })
+                InputEncoding::Cnn(conv_encoder(&cnn.convs, ConvHead::Dense(fc), *state, prefix)?)
             }
         })
     }
@@ -215,6 +203,21 @@ fn image_then_state(obs: &Tensor, state: usize, features: impl Fn(&Tensor) -> Re
     Tensor::cat(&[features(&image.contiguous()?)?, state.to_dtype(DType::F32)?], 1)
 }
 
+/// The convolutions' numbers (named `<prefix>features.<i>`) and what follows them, for an
+/// exporter.
+fn conv_encoder(convs: &[Conv2d], head: ConvHead, state: usize, prefix: &str) -> Result<ConvEncoder> {
+    let first = convs[0].patches;
+    let convs = convs
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let d = c.dense.values(&format!("{prefix}features.{i}"))?;
+            Ok(ConvLayer { name: d.name, kernel: c.patches.kernel, stride: c.patches.stride, in_channels: c.patches.channels, filters: d.outputs, weight: d.weight, bias: d.bias })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(ConvEncoder { height: first.height, width: first.width, channels: first.channels, scale: 1.0 / 255.0, convs, head, state })
+}
+
 /// An error naming `<algo>.policy = "<name>"` unless an `h × w` image is large enough for
 /// the convolutions (`needs`: what needs it, for the message).
 fn fits(h: usize, w: usize, name: &str, needs: &str, algo: &str, space: &Space) -> anyhow::Result<()> {
@@ -253,7 +256,7 @@ mod tests {
     }
 
     #[test]
-    fn keypoints_hand_on_two_coordinates_a_map_then_the_state_and_refuse_what_they_cannot_read() {
+    fn keypoints_hand_on_two_coordinates_a_map_then_the_state_export_and_refuse_what_they_cannot_read() {
         let dev = Device::Cpu;
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let space = Space::ImageAndState { height: 40, width: 40, channels: 3, low: vec![-1.0; 2], high: vec![1.0; 2] };
@@ -270,8 +273,9 @@ mod tests {
         first.set(&first.as_tensor().zeros_like().unwrap()).unwrap();
         assert!(encoder.named_vars()[0].1.as_tensor().abs().unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap() > 0.0, "the copy shares nothing");
 
-        let e = encoder.export("").err().unwrap().to_string();
-        assert!(e.contains("a keypoints policy cannot be exported to ONNX yet"), "{e}");
+        let InputEncoding::Cnn(exported) = encoder.export("pi.").unwrap() else { panic!("keypoints export as convolutions") };
+        assert_eq!((exported.head, exported.convs.len(), exported.state), (ConvHead::Keypoints, 3, 2));
+        assert_eq!(exported.convs[2].name, "pi.features.2");
         let e = Encoder::new(PolicyKind::Keypoints, &Space::uniform_box(4, -1.0, 1.0), 512, "ppo", &mut rng, &dev).err().unwrap().to_string();
         assert!(e.starts_with("ppo.policy = \"keypoints\": the observation Box(4) is not an image"), "{e}");
         let small = Space::Image { height: 30, width: 64, channels: 3 };

@@ -10,6 +10,7 @@ use candle_core::{CpuStorage, CustomOp1, Device, Layout, Result, Shape, Tensor};
 use rand_chacha::ChaCha8Rng;
 
 use super::conv::{Conv2d, Patches, RELU_GAIN};
+use crate::policy_net::keypoint_grid as grid;
 
 /// The convolutions: (filters, kernel, stride). A 64×64 image → 31×31 → 15×15 → 13×13 maps,
 /// 32 keypoints; fewer multiply-adds than NatureCNN's (3.3 M against 3.7 M an image).
@@ -135,11 +136,6 @@ fn maps_of<'a>(storage: &'a CpuStorage, layout: &Layout, pixels: usize) -> Resul
     Ok((&data[start..end], (batch, maps)))
 }
 
-/// Pixel centres of an `h × w` map, row by row, as (x, y) in [−1, 1].
-fn grid(h: usize, w: usize) -> Vec<f32> {
-    let at = |i: usize, n: usize| if n > 1 { -1.0 + 2.0 * i as f32 / (n - 1) as f32 } else { 0.0 };
-    (0..h).flat_map(|y| (0..w).flat_map(move |x| [at(x, w), at(y, h)])).collect()
-}
 
 #[cfg(test)]
 mod tests {
