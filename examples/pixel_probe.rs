@@ -8,7 +8,13 @@
 //!   reset (images of the reset and of two random steps after it); labels the target's place
 //!   (base frame), and the held-out error in millimetres.
 //!
-//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints]`
+//!
+//! `randomized` draws a new look per arena at every reset (`[randomization.visual]`'s
+//! defaults), as training with visual randomization does. A last argument, a `.safetensors`
+//! path, saves the fitted encoder there (`features.*`): `[ppo] features_from` starts a policy
+//! from it (docs/pixels.md).
+//!
+//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized] [SAVE]`
 
 use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
@@ -32,9 +38,15 @@ fn main() -> anyhow::Result<()> {
         "keypoints" => PolicyKind::Keypoints,
         other => anyhow::bail!("encoder '{other}': cnn or keypoints"),
     };
+    let randomized = match args.get(6).map_or("plain", String::as_str) {
+        "plain" => false,
+        "randomized" => true,
+        other => anyhow::bail!("looks '{other}': plain or randomized"),
+    };
+    let save = args.get(7).map(std::path::PathBuf::from);
     let (env, names, scale, images, labels) = match robot {
-        "cartpole" => cartpole_samples(samples, fov)?,
-        "ur5e" => ur5e_samples(samples, fov)?,
+        "cartpole" => cartpole_samples(samples, fov, randomized)?,
+        "ur5e" => ur5e_samples(samples, fov, randomized)?,
         other => anyhow::bail!("robot '{other}': cartpole or ur5e"),
     };
     let (dim, k) = (env.observation_space().dim(), names.len());
@@ -78,17 +90,31 @@ fn main() -> anyhow::Result<()> {
         }
         println!("{line} ({:.1} s)", started.elapsed().as_secs_f64());
     }
+    if let Some(path) = save {
+        let tensors: std::collections::HashMap<String, Tensor> = encoder.named_vars().into_iter().map(|(n, v)| (n, v.as_tensor().clone())).collect();
+        candle_core::safetensors::save(&tensors, &path)?;
+        println!("the encoder ({} tensors) saved to {}", tensors.len(), path.display());
+    }
     Ok(())
+}
+
+/// `[randomization.visual]`'s defaults: a new look per arena at every reset.
+fn randomize_looks(app: &mut bevy::prelude::App) {
+    use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
+    app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
 }
 
 type Samples = (AppVecEnv, Vec<&'static str>, f32, Vec<f32>, Vec<f32>);
 
 /// Random actions; each image labelled with the state it shows (the arena's state after the
 /// step, before an ended episode's reset: skipped where one ended).
-fn cartpole_samples(samples: usize, fov: f32) -> anyhow::Result<Samples> {
+fn cartpole_samples(samples: usize, fov: f32, randomized: bool) -> anyhow::Result<Samples> {
     let settings = PixelSettings { fov, frames: 2, ..PixelSettings::default() };
     let mut app = cartpole::headless_app(ARENAS, 0);
     settings.install(&mut app, &cartpole::robot().framing, ARENAS)?;
+    if randomized {
+        randomize_looks(&mut app);
+    }
     let mut env = AppVecEnv::new(app);
     let dim = env.observation_space().dim();
     let mut rng = ChaCha8Rng::seed_from_u64(1);
@@ -115,10 +141,13 @@ fn cartpole_samples(samples: usize, fov: f32) -> anyhow::Result<Samples> {
 const UR5E_SCALE: f32 = 10.0;
 
 /// A new target in every arena at each reset; the images of the reset and of two random steps.
-fn ur5e_samples(samples: usize, fov: f32) -> anyhow::Result<Samples> {
+fn ur5e_samples(samples: usize, fov: f32, randomized: bool) -> anyhow::Result<Samples> {
     let settings = PixelSettings { camera: "iso".into(), fov, ..PixelSettings::default() };
     let mut app = ur5e::headless_app_with(ARENAS, 0, DesignPattern::Supervised);
     settings.install(&mut app, &ur5e::robot().framing, ARENAS)?;
+    if randomized {
+        randomize_looks(&mut app);
+    }
     let mut env = AppVecEnv::new(app);
     let dim = env.observation_space().dim();
     let mut rng = ChaCha8Rng::seed_from_u64(1);

@@ -236,3 +236,48 @@ fn sac_with_cnns_learns_where_the_lit_column_is() {
     let e = Sac::new(SacConfig::default(), Space::Image { height: 64, width: 64, channels: 3 }, Space::uniform_box(1, -1.0, 1.0), 0).unwrap_err().to_string();
     assert!(e.starts_with("sac.buffer_size = 1000000: 1000000 transitions of Image(64×64×3) observations take 23 GiB; at most 16 GiB"), "{e}");
 }
+
+/// `[ppo] features_from`: a new model's image encoders (the policy's and the value's own) start
+/// from the tensors of a file, such as `pixel_probe` saves; a file that does not fit is an error
+/// naming the key.
+#[test]
+fn a_new_model_starts_its_image_encoders_from_features_from() {
+    let space = LitHalf::new(1).space;
+    let dir = std::env::temp_dir().join(format!("twinbots-features-from-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let donor = Ppo::new(PpoConfig { policy: PolicyKind::Keypoints, ..Default::default() }, space.clone(), Space::Discrete { n: 2 }, 7).unwrap();
+    let encoder: std::collections::HashMap<String, candle_core::Tensor> =
+        donor.policy.encoder.named_vars().into_iter().map(|(n, v)| (n, v.as_tensor().clone())).collect();
+    let file = dir.join("encoder.safetensors");
+    candle_core::safetensors::save(&encoder, &file).unwrap();
+
+    let spec = twinbots_api::TaskSpec {
+        name: "lit-half".into(),
+        observation_space: space.clone(),
+        action_space: Space::Discrete { n: 2 },
+        solved: None,
+        observation_names: (0..space.dim()).map(|i| format!("pixel_{i}")).collect(),
+        reward_terms: vec!["lit".into()],
+        termination_terms: vec![],
+        reward_range: (0.0, 1.0),
+        observation_plausible: space.clone(),
+        goal: None,
+    };
+    let algorithm = twinbots_learn::algos::find("ppo").unwrap();
+    let new = |from: &std::path::Path| {
+        let keys: toml::Table = format!("policy = \"keypoints\"\nshare_features_extractor = false\nfeatures_from = {:?}\n", from.display().to_string()).parse().unwrap();
+        (algorithm.new)(&(algorithm.config)(&keys, 1).unwrap(), &spec, 0)
+    };
+    new(&file).unwrap().save(&dir.join("model")).unwrap();
+    let saved = candle_core::safetensors::load(dir.join("model").join("model.safetensors"), &candle_core::Device::Cpu).unwrap();
+    for (name, want) in &encoder {
+        for prefix in ["", "vf_"] {
+            let got = saved[&format!("{prefix}{name}")].flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            assert_eq!(got, want.flatten_all().unwrap().to_vec1::<f32>().unwrap(), "{prefix}{name} is the file's");
+        }
+    }
+    let missing = dir.join("missing.safetensors");
+    let e = format!("{:#}", new(&missing).err().unwrap());
+    assert!(e.starts_with(&format!("ppo.features_from = {}", missing.display())), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

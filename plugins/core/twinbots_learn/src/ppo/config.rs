@@ -42,6 +42,10 @@ pub struct PpoConfig {
     pub share_features_extractor: bool,
     /// Starting log standard deviation of a Gaussian policy (SB3's `log_std_init`).
     pub log_std_init: f32,
+    /// A safetensors file whose `features.*` tensors a new model's image encoder starts from
+    /// (the value's own one too), e.g. an encoder trained on labelled images by
+    /// `examples/pixel_probe.rs --save`; as SB3's `features_extractor.load_state_dict`.
+    pub features_from: Option<std::path::PathBuf>,
 }
 
 impl Default for PpoConfig {
@@ -67,6 +71,7 @@ impl Default for PpoConfig {
             features_dim: 512,
             share_features_extractor: true,
             log_std_init: 0.0,
+            features_from: None,
         }
     }
 }

@@ -69,7 +69,14 @@ pub const ALGORITHM: Algorithm = Algorithm {
         Ok(toml::Table::try_from(&config)?)
     },
     new: |config, spec, seed| {
-        Ok(Box::new(Ppo::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?))
+        let model = Ppo::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?;
+        if let Some(path) = &model.config.features_from {
+            // A fresh model only: a saved one has its own weights (and needs the file no more).
+            for encoder in [Some(&model.policy.encoder), model.policy.value_encoder.as_ref()].into_iter().flatten() {
+                encoder.set_from_file(path).map_err(|e| anyhow::anyhow!("ppo.features_from = {e:#}"))?;
+            }
+        }
+        Ok(Box::new(model))
     },
     load: |dir| Ok(Box::new(Ppo::load(dir)?)),
 };
