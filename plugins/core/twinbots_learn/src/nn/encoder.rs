@@ -158,7 +158,7 @@ impl Encoder {
     }
 
     /// Sets its variables to the tensors of the same names (`features.<i>.weight` / `.bias`) in
-    /// a safetensors file, such as `pixel_probe --save` writes: an encoder trained apart from
+    /// a safetensors file, such as `examples/pixel_probe.rs` saves: an encoder trained apart from
     /// the policy (on labelled images) to start from. Every variable must be there, with its
     /// shape; an encoder without variables (no CNN) is an error.
     pub fn set_from_file(&self, path: &std::path::Path) -> anyhow::Result<()> {
