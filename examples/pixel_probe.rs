@@ -91,8 +91,8 @@ fn main() -> anyhow::Result<()> {
         println!("{line} ({:.1} s)", started.elapsed().as_secs_f64());
     }
     if let Some(path) = save {
-        let tensors: std::collections::HashMap<String, Tensor> = encoder.named_vars().into_iter().map(|(n, v)| (n, v.as_tensor().clone())).collect();
-        candle_core::safetensors::save(&tensors, &path)?;
+        let tensors = twinbots_learn::model_io::var_tensors(&encoder.named_vars());
+        twinbots_learn::model_io::save_tensors(&tensors, &path)?;
         println!("the encoder ({} tensors) saved to {}", tensors.len(), path.display());
     }
     Ok(())

@@ -246,10 +246,9 @@ fn a_new_model_starts_its_image_encoders_from_features_from() {
     let dir = std::env::temp_dir().join(format!("twinbots-features-from-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let donor = Ppo::new(PpoConfig { policy: PolicyKind::Keypoints, ..Default::default() }, space.clone(), Space::Discrete { n: 2 }, 7).unwrap();
-    let encoder: std::collections::HashMap<String, candle_core::Tensor> =
-        donor.policy.encoder.named_vars().into_iter().map(|(n, v)| (n, v.as_tensor().clone())).collect();
+    let encoder = twinbots_learn::model_io::var_tensors(&donor.policy.encoder.named_vars());
     let file = dir.join("encoder.safetensors");
-    candle_core::safetensors::save(&encoder, &file).unwrap();
+    twinbots_learn::model_io::save_tensors(&encoder, &file).unwrap();
 
     let spec = twinbots_api::TaskSpec {
         name: "lit-half".into(),

@@ -34,6 +34,7 @@ use tract_onnx::pb::tensor_proto::DataType;
 use twinbots_api::Space;
 use twinbots_learn::Agent;
 use twinbots_learn::model_io::write_atomic;
+use twinbots_learn::nn::Patches;
 use twinbots_learn::normalize::CLIP;
 use twinbots_learn::policy_net::{Activation, ConvEncoder, ConvHead, ConvLayer, DenseLayer, InputEncoding, PolicyHead, keypoint_grid};
 
@@ -169,7 +170,7 @@ fn image_features(g: &mut GraphBuilder, cnn: &ConvEncoder, x: &str) -> anyhow::R
         let bias = g.constant_f32(&format!("{name}.bias"), &[conv.filters as i64], &conv.bias);
         let attributes = vec![ints_attr("kernel_shape", &[k as i64, k as i64]), ints_attr("strides", &[conv.stride as i64, conv.stride as i64])];
         x = g.node("Conv", &[&x, &weight, &bias], attributes);
-        (h, w) = ((h - k) / conv.stride + 1, (w - k) / conv.stride + 1);
+        (h, w) = Patches { height: h, width: w, channels: c, kernel: k, stride: conv.stride }.output();
         if !(i == last && cnn.head == ConvHead::Keypoints) {
             x = g.node("Relu", &[&x], vec![]);
         }

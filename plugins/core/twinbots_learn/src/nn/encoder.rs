@@ -160,17 +160,13 @@ impl Encoder {
     /// Sets its variables to the tensors of the same names (`features.<i>.weight` / `.bias`) in
     /// a safetensors file, such as `examples/pixel_probe.rs` saves: an encoder trained apart from
     /// the policy (on labelled images) to start from. Every variable must be there, with its
-    /// shape; an encoder without variables (no CNN) is an error.
+    /// shape and sound values (as a saved model's, [`crate::model_io::set_vars`]); an encoder
+    /// without variables (no CNN) is an error.
     pub fn set_from_file(&self, path: &std::path::Path) -> anyhow::Result<()> {
         let vars = self.named_vars();
         anyhow::ensure!(!vars.is_empty(), "{}: the policy has no image encoder to start from it (policy = \"cnn\" or \"keypoints\")", path.display());
-        let tensors = candle_core::safetensors::load(path, &Device::Cpu).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        for (name, var) in vars {
-            let t = tensors.get(&name).ok_or_else(|| anyhow::anyhow!("{}: no tensor '{name}' (it has {})", path.display(), sorted_names(&tensors)))?;
-            anyhow::ensure!(t.dims() == var.dims(), "{}: '{name}' is {:?}, the encoder's is {:?}", path.display(), t.dims(), var.dims());
-            var.set(&t.to_dtype(DType::F32)?)?;
-        }
-        Ok(())
+        let tensors = crate::model_io::load_tensors(path)?;
+        crate::model_io::set_vars(&vars, &tensors).map_err(|e| anyhow::anyhow!("{}: {e} (it has {})", path.display(), sorted_names(&tensors)))
     }
 
     /// Its variables as `features.<i>.weight` / `.bias` (NatureCNN's dense layer last).
@@ -314,9 +310,8 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("twinbots-encoder-file-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let save = |e: &Encoder, name: &str, skip: usize| {
-            let tensors: std::collections::HashMap<String, Tensor> = e.named_vars().into_iter().skip(skip).map(|(n, v)| (n, v.as_tensor().clone())).collect();
             let path = dir.join(name);
-            candle_core::safetensors::save(&tensors, &path).unwrap();
+            crate::model_io::save_tensors(&crate::model_io::var_tensors(&e.named_vars()[skip..]), &path).unwrap();
             path
         };
         let (trained, fresh) = (encoder(PolicyKind::Keypoints, 1), encoder(PolicyKind::Keypoints, 2));
@@ -325,9 +320,9 @@ mod tests {
         assert_eq!(values(&trained), values(&fresh), "every variable taken from the file");
 
         let e = fresh.set_from_file(&save(&trained, "short.safetensors", 1)).unwrap_err().to_string();
-        assert!(e.contains("short.safetensors: no tensor 'features.0.weight' (it has features.0.bias, features.1.bias"), "{e}");
+        assert!(e.contains("short.safetensors: missing tensor 'features.0.weight' (it has features.0.bias, features.1.bias"), "{e}");
         let e = encoder(PolicyKind::Cnn, 3).set_from_file(&dir.join("keypoints.safetensors")).unwrap_err().to_string();
-        assert!(e.contains("keypoints.safetensors: '") && e.contains("the encoder's is"), "another encoder's shapes: {e}");
+        assert!(e.contains("keypoints.safetensors: tensor 'features.0.weight' has shape") && e.contains("expected"), "another encoder's shapes: {e}");
         let e = encoder(PolicyKind::Mlp, 3).set_from_file(&dir.join("keypoints.safetensors")).unwrap_err().to_string();
         assert!(e.contains("the policy has no image encoder"), "{e}");
         let e = fresh.set_from_file(&dir.join("missing.safetensors")).unwrap_err().to_string();

@@ -136,7 +136,6 @@ fn maps_of<'a>(storage: &'a CpuStorage, layout: &Layout, pixels: usize) -> Resul
     Ok((&data[start..end], (batch, maps)))
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
