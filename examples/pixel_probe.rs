@@ -2,8 +2,9 @@
 //! they should show, fits a NatureCNN with a linear head to them by regression, and prints R²
 //! per label on held-out images: a probe of the observation, apart from any RL. `keypoints`
 //! fits the keypoints encoder (`policy = "keypoints"`) instead.
-//! - `cartpole`: the side camera, 64×64, 2 frames, under random actions; labels the pole's
-//!   angle and rate.
+//! - `cartpole`: the side camera, 64×64, 2 frames (or FRAMES), under the classical controller with a random
+//!   action a quarter of the time; labels the cart's
+//!   place and speed and the pole's angle and rate (the state a policy needs).
 //! - `ur5e`: the camera reach's iso camera, 64×64, one frame, a new target per arena at every
 //!   reset (images of the reset and of two random steps after it); labels the target's place
 //!   (base frame), and the held-out error in millimetres.
@@ -14,7 +15,7 @@
 //! path, saves the fitted encoder there (`features.*`): `[ppo] features_from` starts a policy
 //! from it (docs/pixels.md).
 //!
-//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized] [SAVE]`
+//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized] [SAVE] [FRAMES]`
 
 use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
@@ -44,8 +45,9 @@ fn main() -> anyhow::Result<()> {
         other => anyhow::bail!("looks '{other}': plain or randomized"),
     };
     let save = args.get(7).map(std::path::PathBuf::from);
+    let frames: u32 = args.get(8).map_or(Ok(2), |s| s.parse())?;
     let (env, names, scale, images, labels) = match robot {
-        "cartpole" => cartpole_samples(samples, fov, randomized)?,
+        "cartpole" => cartpole_samples(samples, fov, frames, randomized)?,
         "ur5e" => ur5e_samples(samples, fov, randomized)?,
         other => anyhow::bail!("robot '{other}': cartpole or ur5e"),
     };
@@ -90,6 +92,32 @@ fn main() -> anyhow::Result<()> {
         }
         println!("{line} ({:.1} s)", started.elapsed().as_secs_f64());
     }
+    // The scale of what the encoder hands an MLP (a frozen encoder's features go in as they are).
+    let (x, _) = rows(train, held_out)?;
+    let features = encoder.forward(&x)?;
+    let (mean, spread) = (features.mean_all()?.to_scalar::<f32>()?, features.flatten_all()?.sqr()?.mean_all()?.sqrt()?.to_scalar::<f32>()?);
+    println!("features on the held-out images: mean {mean:.3}, RMS {spread:.3}, largest {:.3}", features.flatten_all()?.max(0)?.to_scalar::<f32>()?);
+    if robot == "cartpole" {
+        // Closed loop: the classical controller acting on the states the fitted encoder reads
+        // from the images, as a policy on its features would at best.
+        let mut env = env;
+        let mut obs = env.reset(Some(1000))?;
+        let (mut lengths, mut ends) = (Vec::new(), std::collections::BTreeMap::<String, usize>::new());
+        for _ in 0..2000 {
+            let read = predict(&Tensor::from_slice(&obs, (ARENAS, dim), &dev)?)?.to_vec2::<f32>()?;
+            let actions: Vec<f32> = read.iter().map(|r| cartpole::feedback(&[r[0] * 0.1, r[1] * 0.1, r[2] * 0.1, r[3]])[0]).collect();
+            let step = env.step(&actions)?;
+            for i in 0..ARENAS {
+                if let Some(e) = &step.episodes[i] {
+                    lengths.push(e.length);
+                    *ends.entry(step.ended_by[i].clone().unwrap_or_else(|| "truncated".into())).or_default() += 1;
+                }
+            }
+            obs = step.obs;
+        }
+        let mean = lengths.iter().map(|&l| l as f64).sum::<f64>() / lengths.len().max(1) as f64;
+        println!("closed loop, the classical controller on the read states: {} episodes ended in 2,000 steps × {ARENAS}, mean length {mean:.0}, ended by {ends:?}", lengths.len());
+    }
     if let Some(path) = save {
         let tensors = twinbots_learn::model_io::var_tensors(&encoder.named_vars());
         twinbots_learn::model_io::save_tensors(&tensors, &path)?;
@@ -106,10 +134,13 @@ fn randomize_looks(app: &mut bevy::prelude::App) {
 
 type Samples = (AppVecEnv, Vec<&'static str>, f32, Vec<f32>, Vec<f32>);
 
-/// Random actions; each image labelled with the state it shows (the arena's state after the
+/// The cart-pole's labels: x, v (units of 0.1 m, 0.1 m/s), angle (0.1 rad), rate (rad/s).
+const CARTPOLE_LABELS: usize = 4;
+
+/// The classical controller with random actions mixed in; each image labelled with the state it shows (the arena's state after the
 /// step, before an ended episode's reset: skipped where one ended).
-fn cartpole_samples(samples: usize, fov: f32, randomized: bool) -> anyhow::Result<Samples> {
-    let settings = PixelSettings { fov, frames: 2, ..PixelSettings::default() };
+fn cartpole_samples(samples: usize, fov: f32, frames: u32, randomized: bool) -> anyhow::Result<Samples> {
+    let settings = PixelSettings { fov, frames, ..PixelSettings::default() };
     let mut app = cartpole::headless_app(ARENAS, 0);
     settings.install(&mut app, &cartpole::robot().framing, ARENAS)?;
     if randomized {
@@ -118,10 +149,19 @@ fn cartpole_samples(samples: usize, fov: f32, randomized: bool) -> anyhow::Resul
     let mut env = AppVecEnv::new(app);
     let dim = env.observation_space().dim();
     let mut rng = ChaCha8Rng::seed_from_u64(1);
-    let (mut images, mut labels) = (Vec::with_capacity(samples * dim), Vec::with_capacity(samples * 2));
+    let (mut images, mut labels) = (Vec::with_capacity(samples * dim), Vec::with_capacity(samples * CARTPOLE_LABELS));
     env.reset(Some(0))?;
-    while labels.len() < samples * 2 {
-        let actions: Vec<f32> = (0..ARENAS).map(|_| rng.random_range(0..2) as f32).collect();
+    while labels.len() < samples * CARTPOLE_LABELS {
+        // The classical controller, with a random action a quarter of the time: long episodes
+        // over the track, as a balancing policy's, and the falls between.
+        let actions: Vec<f32> = env
+            .arenas()
+            .iter()
+            .map(|&arena| {
+                let s = *env.app().world().get::<cartpole::CartPoleState>(arena).expect("every arena has a state");
+                if rng.random_bool(0.25) { rng.random_range(0..2) as f32 } else { cartpole::feedback(&[s.x, s.v, s.angle, s.rate])[0] }
+            })
+            .collect();
         let step = env.step(&actions)?;
         for (i, &arena) in env.arenas().iter().enumerate() {
             if step.final_obs[i].is_some() {
@@ -129,12 +169,12 @@ fn cartpole_samples(samples: usize, fov: f32, randomized: bool) -> anyhow::Resul
             }
             let s = *env.app().world().get::<cartpole::CartPoleState>(arena).expect("every arena has a state");
             images.extend_from_slice(&step.obs[i * dim..(i + 1) * dim]);
-            labels.extend([s.angle / 0.1, s.rate / 1.0]);
+            labels.extend([s.x / 0.1, s.v / 0.1, s.angle / 0.1, s.rate / 1.0]);
         }
     }
     images.truncate(samples * dim);
-    labels.truncate(samples * 2);
-    Ok((env, vec!["angle", "rate"], 1.0, images, labels))
+    labels.truncate(samples * CARTPOLE_LABELS);
+    Ok((env, vec!["x", "v", "angle", "rate"], 1.0, images, labels))
 }
 
 /// Labels in units of 10 cm: the target's x, y, z in the robot's base frame.

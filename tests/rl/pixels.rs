@@ -250,18 +250,7 @@ fn a_new_model_starts_its_image_encoders_from_features_from() {
     let file = dir.join("encoder.safetensors");
     twinbots_learn::model_io::save_tensors(&encoder, &file).unwrap();
 
-    let spec = twinbots_api::TaskSpec {
-        name: "lit-half".into(),
-        observation_space: space.clone(),
-        action_space: Space::Discrete { n: 2 },
-        solved: None,
-        observation_names: (0..space.dim()).map(|i| format!("pixel_{i}")).collect(),
-        reward_terms: vec!["lit".into()],
-        termination_terms: vec![],
-        reward_range: (0.0, 1.0),
-        observation_plausible: space.clone(),
-        goal: None,
-    };
+    let spec = spec_of(&space);
     let algorithm = twinbots_learn::algos::find("ppo").unwrap();
     let new = |from: &std::path::Path| {
         let keys: toml::Table = format!("policy = \"keypoints\"\nshare_features_extractor = false\nfeatures_from = {:?}\n", from.display().to_string()).parse().unwrap();
@@ -279,4 +268,47 @@ fn a_new_model_starts_its_image_encoders_from_features_from() {
     let e = format!("{:#}", new(&missing).err().unwrap());
     assert!(e.starts_with(&format!("ppo.features_from = {}", missing.display())), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A task of `space` and two actions, as the ALGOS table's `new` takes it.
+fn spec_of(space: &Space) -> twinbots_api::TaskSpec {
+    twinbots_api::TaskSpec {
+        name: "lit-half".into(),
+        observation_space: space.clone(),
+        action_space: Space::Discrete { n: 2 },
+        solved: None,
+        observation_names: (0..space.dim()).map(|i| format!("obs_{i}")).collect(),
+        reward_terms: vec!["lit".into()],
+        termination_terms: vec![],
+        reward_range: (0.0, 1.0),
+        observation_plausible: space.clone(),
+        goal: None,
+    }
+}
+
+/// `[ppo] freeze_features`: the image encoders (the policy's and the value's own) keep every
+/// weight through training while the MLPs learn, here on a random CNN's features; asked of a
+/// model without an image encoder, it is an error naming the key.
+#[test]
+fn frozen_image_encoders_keep_their_weights_while_the_mlps_learn() {
+    let mut env = LitHalf::new(4);
+    let config = PpoConfig { policy: PolicyKind::Cnn, features_dim: 64, share_features_extractor: false, freeze_features: true, ..lit_half_settings() };
+    let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 2).unwrap();
+    let weights = |m: &Ppo| -> Vec<(String, Vec<f32>)> {
+        m.policy.named_vars().into_iter().map(|(n, v)| (n, v.as_tensor().flatten_all().unwrap().to_vec1().unwrap())).collect()
+    };
+    let before = weights(&model);
+    let best = learn_until(&mut model, &mut env, 20_000, 20, 7.5);
+    assert!(best >= 7.5, "mean score {best} of 8 after {} steps", model.timesteps);
+    let frozen = |name: &str| name.starts_with("features.") || name.starts_with("vf_features.");
+    assert_eq!(before.iter().filter(|(n, _)| frozen(n)).count(), 16, "both NatureCNNs' variables");
+    for ((name, was), (_, now)) in before.iter().zip(&weights(&model)) {
+        assert_eq!(was == now, frozen(name), "{name}: frozen {}", frozen(name));
+    }
+
+    let flat = Space::uniform_box(4, -1.0, 1.0);
+    let algorithm = twinbots_learn::algos::find("ppo").unwrap();
+    let keys: toml::Table = "freeze_features = true".parse().unwrap();
+    let e = format!("{:#}", (algorithm.new)(&(algorithm.config)(&keys, 1).unwrap(), &spec_of(&flat), 0).err().unwrap());
+    assert!(e.starts_with("ppo.freeze_features = true: there is no image encoder"), "{e}");
 }

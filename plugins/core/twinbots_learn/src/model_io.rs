@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor, Var};
 
-use crate::nn::Adam;
+use crate::nn::{Adam, Encoder};
 use twinbots_api::env_state::EnvState;
 
 pub const WEIGHTS_FILE: &str = "model.safetensors";
@@ -185,4 +185,60 @@ pub fn load_metadata<T: serde::de::DeserializeOwned>(dir: &Path, algorithm: &str
         return Err(file_error(&path, format!("model format {} (this build reads {format})", header.format)));
     }
     serde_json::from_str(&text).map_err(|e| file_error(&path, e))
+}
+
+/// Sets an image encoder's variables to the tensors of the same names (`features.<i>.weight` /
+/// `.bias`) in a safetensors file, such as `examples/pixel_probe.rs` saves: an encoder trained
+/// apart from the policy (on labelled images) to start from. Every variable must be there, with
+/// its shape and sound values (as a saved model's, [`set_vars`]); an encoder without variables
+/// (no CNN) is an error.
+pub fn set_encoder_from_file(encoder: &Encoder, path: &Path) -> anyhow::Result<()> {
+    let vars = encoder.named_vars();
+    anyhow::ensure!(!vars.is_empty(), "{}: the policy has no image encoder to start from it (policy = \"cnn\" or \"keypoints\")", path.display());
+    let tensors = load_tensors(path)?;
+    set_vars(&vars, &tensors).map_err(|e| anyhow::anyhow!("{}: {e} (it has {})", path.display(), sorted_names(&tensors)))
+}
+
+fn sorted_names(tensors: &HashMap<String, Tensor>) -> String {
+    let mut names: Vec<&str> = tensors.keys().map(String::as_str).collect();
+    names.sort();
+    if names.is_empty() { "none".into() } else { names.join(", ") }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nn::PolicyKind;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use twinbots_api::spaces::Space;
+
+    #[test]
+    fn an_encoder_starts_from_a_files_tensors_of_its_names_and_shapes_or_says_what_is_wrong() {
+        let dev = Device::Cpu;
+        let image = Space::Image { height: 40, width: 40, channels: 3 };
+        let encoder = |kind, seed| Encoder::new(kind, &image, 64, "ppo", &mut ChaCha8Rng::seed_from_u64(seed), &dev).unwrap();
+        let values = |e: &Encoder| e.named_vars().into_iter().map(|(n, v)| (n, v.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap())).collect::<Vec<_>>();
+        let dir = std::env::temp_dir().join(format!("twinbots-encoder-file-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let save = |e: &Encoder, name: &str, skip: usize| {
+            let path = dir.join(name);
+            save_tensors(&var_tensors(&e.named_vars()[skip..]), &path).unwrap();
+            path
+        };
+        let (trained, fresh) = (encoder(PolicyKind::Keypoints, 1), encoder(PolicyKind::Keypoints, 2));
+        assert_ne!(values(&trained), values(&fresh));
+        set_encoder_from_file(&fresh, &save(&trained, "keypoints.safetensors", 0)).unwrap();
+        assert_eq!(values(&trained), values(&fresh), "every variable taken from the file");
+
+        let e = set_encoder_from_file(&fresh, &save(&trained, "short.safetensors", 1)).unwrap_err().to_string();
+        assert!(e.contains("short.safetensors: missing tensor 'features.0.weight' (it has features.0.bias, features.1.bias"), "{e}");
+        let e = set_encoder_from_file(&encoder(PolicyKind::Cnn, 3), &dir.join("keypoints.safetensors")).unwrap_err().to_string();
+        assert!(e.contains("keypoints.safetensors: tensor 'features.0.weight' has shape") && e.contains("expected"), "another encoder's shapes: {e}");
+        let e = set_encoder_from_file(&encoder(PolicyKind::Mlp, 3), &dir.join("keypoints.safetensors")).unwrap_err().to_string();
+        assert!(e.contains("the policy has no image encoder"), "{e}");
+        let e = set_encoder_from_file(&fresh, &dir.join("missing.safetensors")).unwrap_err().to_string();
+        assert!(e.starts_with(&format!("{}", dir.join("missing.safetensors").display())), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

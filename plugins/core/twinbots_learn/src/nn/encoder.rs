@@ -157,18 +157,6 @@ impl Encoder {
         })
     }
 
-    /// Sets its variables to the tensors of the same names (`features.<i>.weight` / `.bias`) in
-    /// a safetensors file, such as `examples/pixel_probe.rs` saves: an encoder trained apart from
-    /// the policy (on labelled images) to start from. Every variable must be there, with its
-    /// shape and sound values (as a saved model's, [`crate::model_io::set_vars`]); an encoder
-    /// without variables (no CNN) is an error.
-    pub fn set_from_file(&self, path: &std::path::Path) -> anyhow::Result<()> {
-        let vars = self.named_vars();
-        anyhow::ensure!(!vars.is_empty(), "{}: the policy has no image encoder to start from it (policy = \"cnn\" or \"keypoints\")", path.display());
-        let tensors = crate::model_io::load_tensors(path)?;
-        crate::model_io::set_vars(&vars, &tensors).map_err(|e| anyhow::anyhow!("{}: {e} (it has {})", path.display(), sorted_names(&tensors)))
-    }
-
     /// Its variables as `features.<i>.weight` / `.bias` (NatureCNN's dense layer last).
     pub fn named_vars(&self) -> Vec<(String, Var)> {
         let layers: Vec<&Dense> = match self {
@@ -198,12 +186,6 @@ impl Encoder {
             Encoder::Keypoints { net, state } => Encoder::Keypoints { net: net.deep_copy()?, state: *state },
         })
     }
-}
-
-fn sorted_names(tensors: &std::collections::HashMap<String, Tensor>) -> String {
-    let mut names: Vec<&str> = tensors.keys().map(String::as_str).collect();
-    names.sort();
-    if names.is_empty() { "none".into() } else { names.join(", ") }
 }
 
 /// `[batch, image + state]` → the image's columns and the state's.
@@ -299,35 +281,6 @@ mod tests {
         let small = Space::Image { height: 30, width: 64, channels: 3 };
         let e = Encoder::new(PolicyKind::Keypoints, &small, 512, "ppo", &mut rng, &dev).err().unwrap().to_string();
         assert!(e.contains("at least 36×36"), "{e}");
-    }
-
-    #[test]
-    fn an_encoder_starts_from_a_files_tensors_of_its_names_and_shapes_or_says_what_is_wrong() {
-        let dev = Device::Cpu;
-        let image = Space::Image { height: 40, width: 40, channels: 3 };
-        let encoder = |kind, seed| Encoder::new(kind, &image, 64, "ppo", &mut ChaCha8Rng::seed_from_u64(seed), &dev).unwrap();
-        let values = |e: &Encoder| e.named_vars().into_iter().map(|(n, v)| (n, v.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap())).collect::<Vec<_>>();
-        let dir = std::env::temp_dir().join(format!("twinbots-encoder-file-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let save = |e: &Encoder, name: &str, skip: usize| {
-            let path = dir.join(name);
-            crate::model_io::save_tensors(&crate::model_io::var_tensors(&e.named_vars()[skip..]), &path).unwrap();
-            path
-        };
-        let (trained, fresh) = (encoder(PolicyKind::Keypoints, 1), encoder(PolicyKind::Keypoints, 2));
-        assert_ne!(values(&trained), values(&fresh));
-        fresh.set_from_file(&save(&trained, "keypoints.safetensors", 0)).unwrap();
-        assert_eq!(values(&trained), values(&fresh), "every variable taken from the file");
-
-        let e = fresh.set_from_file(&save(&trained, "short.safetensors", 1)).unwrap_err().to_string();
-        assert!(e.contains("short.safetensors: missing tensor 'features.0.weight' (it has features.0.bias, features.1.bias"), "{e}");
-        let e = encoder(PolicyKind::Cnn, 3).set_from_file(&dir.join("keypoints.safetensors")).unwrap_err().to_string();
-        assert!(e.contains("keypoints.safetensors: tensor 'features.0.weight' has shape") && e.contains("expected"), "another encoder's shapes: {e}");
-        let e = encoder(PolicyKind::Mlp, 3).set_from_file(&dir.join("keypoints.safetensors")).unwrap_err().to_string();
-        assert!(e.contains("the policy has no image encoder"), "{e}");
-        let e = fresh.set_from_file(&dir.join("missing.safetensors")).unwrap_err().to_string();
-        assert!(e.starts_with(&format!("{}", dir.join("missing.safetensors").display())), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -46,6 +46,11 @@ pub struct PpoConfig {
     /// (the value's own one too), e.g. an encoder trained on labelled images by
     /// `examples/pixel_probe.rs` (its last argument); as SB3's `features_extractor.load_state_dict`.
     pub features_from: Option<std::path::PathBuf>,
+    /// The image encoders (the policy's, and the value's own) stay as they start: no gradient
+    /// reaches them, and an update reads each sample's features once rather than once an epoch.
+    /// With `features_from`, a frozen encoder fitted to labelled images (Isaac Lab's frozen
+    /// `image_features`; SB3: `features_extractor.requires_grad_(False)`). Camera images only.
+    pub freeze_features: bool,
 }
 
 impl Default for PpoConfig {
@@ -72,6 +77,7 @@ impl Default for PpoConfig {
             share_features_extractor: true,
             log_std_init: 0.0,
             features_from: None,
+            freeze_features: false,
         }
     }
 }

@@ -70,10 +70,16 @@ pub const ALGORITHM: Algorithm = Algorithm {
     },
     new: |config, spec, seed| {
         let model = Ppo::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?;
+        anyhow::ensure!(
+            !model.config.freeze_features || !fused::applies(&model.policy),
+            "ppo.freeze_features = true: there is no image encoder to freeze (observations {}, policy {:?}); it applies to camera images with policy cnn or keypoints",
+            spec.observation_space,
+            model.config.policy
+        );
         if let Some(path) = &model.config.features_from {
             // A fresh model only: a saved one has its own weights (and needs the file no more).
             for encoder in [Some(&model.policy.encoder), model.policy.value_encoder.as_ref()].into_iter().flatten() {
-                encoder.set_from_file(path).map_err(|e| anyhow::anyhow!("ppo.features_from = {e:#}"))?;
+                crate::model_io::set_encoder_from_file(encoder, path).map_err(|e| anyhow::anyhow!("ppo.features_from = {e:#}"))?;
             }
         }
         Ok(Box::new(model))

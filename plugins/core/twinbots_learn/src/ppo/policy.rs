@@ -186,9 +186,20 @@ impl ActorCritic {
 
     /// Log-probabilities, entropies and values for stored (obs, action) pairs, with gradients.
     pub fn evaluate(&self, obs: &Tensor, actions: &Tensor) -> Result<Evaluation> {
-        let features = self.encoder.forward(obs)?;
-        let out = self.pi.forward(&features)?;
-        let value = self.value_of(obs, &features)?;
+        let (features, value_features) = self.features(obs)?;
+        self.evaluate_features(&features, value_features.as_ref(), actions)
+    }
+
+    /// The policy's features of `obs`, and the value's where it has an encoder of its own.
+    pub fn features(&self, obs: &Tensor) -> Result<(Tensor, Option<Tensor>)> {
+        Ok((self.encoder.forward(obs)?, self.value_encoder.as_ref().map(|e| e.forward(obs)).transpose()?))
+    }
+
+    /// [`Self::evaluate`] from the encoders' features (the value's own, or else the policy's):
+    /// no gradient reaches the encoders.
+    pub fn evaluate_features(&self, features: &Tensor, value_features: Option<&Tensor>, actions: &Tensor) -> Result<Evaluation> {
+        let out = self.pi.forward(features)?;
+        let value = self.vf.forward(value_features.unwrap_or(features))?.squeeze(D::Minus1)?;
         let (log_prob, entropy) = match &self.head {
             Head::Categorical { .. } => {
                 let log_p = candle_nn::ops::log_softmax(&out, D::Minus1)?;

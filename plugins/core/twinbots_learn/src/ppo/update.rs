@@ -63,8 +63,9 @@ impl Ppo {
         let mut indices: Vec<usize> = (0..buffer.len()).collect();
         let (mut pg_sum, mut v_sum, mut ent_sum, mut kl_sum, mut clip_sum, mut batches) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         let mut skipped = 0;
+        let frozen = if c.freeze_features && !super::fused::applies(&self.policy) { Some(FrozenFeatures::of(&self.policy, buffer)?) } else { None };
         let (policy, action_space, rng, optimizer) = (&self.policy, &self.action_space, &mut self.rng, &mut self.optimizer);
-        let work = |part: Part| part_gradient(policy, &c, action_space, buffer, &part);
+        let work = |part: Part| part_gradient(policy, &c, action_space, buffer, frozen.as_ref(), &part);
         crate::threads::with_helper(&work, |helper| -> anyhow::Result<()> {
             'epochs: for _ in 0..c.n_epochs {
                 indices.shuffle(rng);
@@ -119,8 +120,8 @@ impl Ppo {
     pub(super) fn log_ratios(&self, buffer: &RolloutBuffer, chunk: &[usize]) -> anyhow::Result<(Vec<f32>, Vec<f32>)> {
         let advantages = normalized_advantages(buffer, chunk, self.config.normalize_advantage);
         let whole = Part { samples: chunk.to_vec(), advantages, of: chunk.len() };
-        let update = part_gradient(&self.policy, &self.config, &self.action_space, buffer, &whole)?;
-        let graph = part_loss(&self.policy, &self.config, &self.action_space, buffer, &whole)?;
+        let update = part_gradient(&self.policy, &self.config, &self.action_space, buffer, None, &whole)?;
+        let graph = part_loss(&self.policy, &self.config, &self.action_space, buffer, None, &whole)?;
         Ok((update.log_ratio, graph.log_ratio.to_vec1()?))
     }
 }
@@ -141,12 +142,42 @@ impl PartGradient {
 }
 
 /// `part`'s loss terms and gradient: over slices for an MLP on flat observations
-/// (`fused`), through candle's graph for the rest.
-fn part_gradient(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buffer: &RolloutBuffer, part: &Part) -> anyhow::Result<PartGradient> {
+/// (`fused`), through candle's graph for the rest (from `frozen` encoders' features if given).
+fn part_gradient(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buffer: &RolloutBuffer, frozen: Option<&FrozenFeatures>, part: &Part) -> anyhow::Result<PartGradient> {
     if super::fused::applies(policy) {
         super::fused::part_gradient(policy, c, buffer, part)
     } else {
-        PartGradient::of(policy, part_loss(policy, c, action_space, buffer, part)?)
+        PartGradient::of(policy, part_loss(policy, c, action_space, buffer, frozen, part)?)
+    }
+}
+
+/// Every sample's features under frozen encoders (`freeze_features`), computed once an update
+/// instead of once an epoch: the policy's, and the value's own where it has one.
+pub(super) struct FrozenFeatures {
+    policy: Vec<f32>,
+    value: Option<Vec<f32>>,
+    dim: usize,
+    value_dim: usize,
+}
+
+impl FrozenFeatures {
+    fn of(policy: &ActorCritic, buffer: &RolloutBuffer) -> anyhow::Result<Self> {
+        // In blocks, so a long rollout of images never becomes one huge activation tensor.
+        const BLOCK: usize = 256;
+        let (mut features, mut value) = (Vec::new(), None::<Vec<f32>>);
+        let (mut dim, mut value_dim) = (0, 0);
+        for start in (0..buffer.len()).step_by(BLOCK) {
+            let n = BLOCK.min(buffer.len() - start);
+            let rows = &buffer.obs[start * buffer.obs_dim..(start + n) * buffer.obs_dim];
+            let (f, v) = policy.features(&Tensor::from_slice(rows, (n, buffer.obs_dim), &Device::Cpu)?)?;
+            dim = f.dim(1)?;
+            features.extend(f.flatten_all()?.to_vec1::<f32>()?);
+            if let Some(v) = v {
+                value_dim = v.dim(1)?;
+                value.get_or_insert_with(Vec::new).extend(v.flatten_all()?.to_vec1::<f32>()?);
+            }
+        }
+        Ok(Self { policy: features, value, dim, value_dim })
     }
 }
 
@@ -173,15 +204,13 @@ fn normalized_advantages(buffer: &RolloutBuffer, chunk: &[usize], normalize: boo
 
 /// `part`'s share of its minibatch's PPO loss under `policy`: each term summed over the part and
 /// divided by the minibatch's size, so the parts' losses add up to the minibatch's means.
-pub(super) fn part_loss(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buffer: &RolloutBuffer, part: &Part) -> anyhow::Result<MinibatchLoss> {
+pub(super) fn part_loss(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buffer: &RolloutBuffer, frozen: Option<&FrozenFeatures>, part: &Part) -> anyhow::Result<MinibatchLoss> {
     let dev = Device::Cpu;
     let b = part.samples.len();
     let (obs_dim, act_dim) = (buffer.obs_dim, buffer.act_dim);
     let gather = |src: &[f32], width: usize| -> Vec<f32> {
         part.samples.iter().flat_map(|&i| src[i * width..(i + 1) * width].iter().copied()).collect()
     };
-    // The observations as the policy saw them when it acted (the buffer holds them normalised).
-    let obs = Tensor::from_vec(gather(&buffer.obs, obs_dim), (b, obs_dim), &dev)?;
     let actions = Tensor::from_vec(gather(&buffer.actions, act_dim), (b, act_dim), &dev)?;
     let actions = if act_dim == 1 && matches!(action_space, Space::Discrete { .. }) {
         actions.squeeze(1)?
@@ -193,7 +222,17 @@ pub(super) fn part_loss(policy: &ActorCritic, c: &PpoConfig, action_space: &Spac
     let adv = Tensor::from_vec(part.advantages.clone(), b, &dev)?;
     let per_sample = 1.0 / part.of.max(1) as f64;
 
-    let eval = policy.evaluate(&obs, &actions)?;
+    let eval = match frozen {
+        Some(f) => {
+            let features = Tensor::from_vec(gather(&f.policy, f.dim), (b, f.dim), &dev)?;
+            let value = f.value.as_ref().map(|v| Tensor::from_vec(gather(v, f.value_dim), (b, f.value_dim), &dev)).transpose()?;
+            policy.evaluate_features(&features, value.as_ref(), &actions)?
+        }
+        None => {
+            // The observations as the policy saw them when it acted (the buffer holds them normalised).
+            policy.evaluate(&Tensor::from_vec(gather(&buffer.obs, obs_dim), (b, obs_dim), &dev)?, &actions)?
+        }
+    };
     // ratio = π(a|s) / π_old(a|s)
     let log_ratio = (&eval.log_prob - &old_log_prob)?;
     let ratio = log_ratio.exp()?;
