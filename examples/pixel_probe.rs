@@ -2,9 +2,10 @@
 //! they should show, fits a NatureCNN with a linear head to them by regression, and prints R²
 //! per label on held-out images: a probe of the observation, apart from any RL. `keypoints`
 //! fits the keypoints encoder (`policy = "keypoints"`) instead.
-//! - `cartpole`: the side camera, 64×64, 2 frames (or FRAMES), under the classical controller with a random
-//!   action a quarter of the time; labels the cart's
-//!   place and speed and the pole's angle and rate (the state a policy needs).
+//! - `cartpole`: the side camera, 64×64 (or SIZE²), 2 frames (or FRAMES), under the classical controller
+//!   with a random action a quarter of the time; labels the cart's place and speed and the
+//!   pole's angle and rate (the state a policy needs); then closes the loop: the classical
+//!   controller acting on the states the fitted encoder reads (mean episode length).
 //! - `ur5e`: the camera reach's iso camera, 64×64, one frame, a new target per arena at every
 //!   reset (images of the reset and of two random steps after it); labels the target's place
 //!   (base frame), and the held-out error in millimetres.
@@ -15,7 +16,7 @@
 //! path, saves the fitted encoder there (`features.*`): `[ppo] features_from` starts a policy
 //! from it (docs/pixels.md).
 //!
-//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized] [SAVE] [FRAMES]`
+//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized] [SAVE] [FRAMES] [SIZE]`
 
 use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
@@ -46,8 +47,9 @@ fn main() -> anyhow::Result<()> {
     };
     let save = args.get(7).map(std::path::PathBuf::from);
     let frames: u32 = args.get(8).map_or(Ok(2), |s| s.parse())?;
+    let size: u32 = args.get(9).map_or(Ok(64), |s| s.parse())?;
     let (env, names, scale, images, labels) = match robot {
-        "cartpole" => cartpole_samples(samples, fov, frames, randomized)?,
+        "cartpole" => cartpole_samples(samples, fov, frames, size, randomized)?,
         "ur5e" => ur5e_samples(samples, fov, randomized)?,
         other => anyhow::bail!("robot '{other}': cartpole or ur5e"),
     };
@@ -137,10 +139,11 @@ type Samples = (AppVecEnv, Vec<&'static str>, f32, Vec<f32>, Vec<f32>);
 /// The cart-pole's labels: x, v (units of 0.1 m, 0.1 m/s), angle (0.1 rad), rate (rad/s).
 const CARTPOLE_LABELS: usize = 4;
 
-/// The classical controller with random actions mixed in; each image labelled with the state it shows (the arena's state after the
-/// step, before an ended episode's reset: skipped where one ended).
-fn cartpole_samples(samples: usize, fov: f32, frames: u32, randomized: bool) -> anyhow::Result<Samples> {
-    let settings = PixelSettings { fov, frames, ..PixelSettings::default() };
+/// The classical controller with random actions mixed in; each image labelled with the state
+/// it shows (the arena's state after the step, before an ended episode's reset: skipped where
+/// one ended).
+fn cartpole_samples(samples: usize, fov: f32, frames: u32, size: u32, randomized: bool) -> anyhow::Result<Samples> {
+    let settings = PixelSettings { fov, frames, width: size, height: size, ..PixelSettings::default() };
     let mut app = cartpole::headless_app(ARENAS, 0);
     settings.install(&mut app, &cartpole::robot().framing, ARENAS)?;
     if randomized {
