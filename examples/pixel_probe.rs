@@ -2,8 +2,8 @@
 //! they should show, fits a NatureCNN with a linear head to them by regression, and prints R²
 //! per label on held-out images: a probe of the observation, apart from any RL. `keypoints`
 //! fits the keypoints encoder (`policy = "keypoints"`) instead.
-//! - `cartpole`: the side camera, 64×64 (or SIZE²), 2 frames (or FRAMES), under the classical controller
-//!   with a random action a quarter of the time; labels the cart's place and speed and the
+//! - `cartpole`: the side camera, 64×64 (or SIZE²), 2 frames (or FRAMES), under the classical
+//!   controller with a random action a quarter of the time; labels the cart's place and speed and the
 //!   pole's angle and rate (the state a policy needs); then closes the loop: the classical
 //!   controller acting on the states the fitted encoder reads (mean episode length).
 //! - `ur5e`: the camera reach's iso camera, 64×64, one frame, a new target per arena at every
@@ -107,7 +107,8 @@ fn main() -> anyhow::Result<()> {
         let (mut lengths, mut ends) = (Vec::new(), std::collections::BTreeMap::<String, usize>::new());
         for _ in 0..2000 {
             let read = predict(&Tensor::from_slice(&obs, (ARENAS, dim), &dev)?)?.to_vec2::<f32>()?;
-            let actions: Vec<f32> = read.iter().map(|r| cartpole::feedback(&[r[0] * 0.1, r[1] * 0.1, r[2] * 0.1, r[3]])[0]).collect();
+            let state = |r: &[f32]| -> Vec<f32> { r.iter().zip(CARTPOLE_UNITS).map(|(label, unit)| label * unit).collect() };
+            let actions: Vec<f32> = read.iter().map(|r| cartpole::feedback(&state(r))[0]).collect();
             let step = env.step(&actions)?;
             for i in 0..ARENAS {
                 if let Some(e) = &step.episodes[i] {
@@ -136,8 +137,9 @@ fn randomize_looks(app: &mut bevy::prelude::App) {
 
 type Samples = (AppVecEnv, Vec<&'static str>, f32, Vec<f32>, Vec<f32>);
 
-/// The cart-pole's labels: x, v (units of 0.1 m, 0.1 m/s), angle (0.1 rad), rate (rad/s).
-const CARTPOLE_LABELS: usize = 4;
+/// The units of the cart-pole's labels x, v, angle, rate: 0.1 m, 0.1 m/s, 0.1 rad, 1 rad/s.
+const CARTPOLE_UNITS: [f32; 4] = [0.1, 0.1, 0.1, 1.0];
+const CARTPOLE_LABELS: usize = CARTPOLE_UNITS.len();
 
 /// The classical controller with random actions mixed in; each image labelled with the state
 /// it shows (the arena's state after the step, before an ended episode's reset: skipped where
@@ -172,7 +174,7 @@ fn cartpole_samples(samples: usize, fov: f32, frames: u32, size: u32, randomized
             }
             let s = *env.app().world().get::<cartpole::CartPoleState>(arena).expect("every arena has a state");
             images.extend_from_slice(&step.obs[i * dim..(i + 1) * dim]);
-            labels.extend([s.x / 0.1, s.v / 0.1, s.angle / 0.1, s.rate / 1.0]);
+            labels.extend([s.x, s.v, s.angle, s.rate].iter().zip(CARTPOLE_UNITS).map(|(value, unit)| value / unit));
         }
     }
     images.truncate(samples * dim);

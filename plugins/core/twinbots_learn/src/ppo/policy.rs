@@ -156,22 +156,17 @@ impl ActorCritic {
         self.vf.forward(&encoder.forward(obs)?)?.squeeze(D::Minus1)
     }
 
-    /// V of `obs` whose policy features are `features`: from those, or where the value has an
-    /// encoder of its own, from its.
-    fn value_of(&self, obs: &Tensor, features: &Tensor) -> Result<Tensor> {
-        let v = match &self.value_encoder {
-            Some(e) => self.vf.forward(&e.forward(obs)?)?,
-            None => self.vf.forward(features)?,
-        };
-        v.squeeze(D::Minus1)
+    /// V from the encoders' features ([`Self::features`]): the value's own, or else the policy's.
+    fn value_from(&self, features: &Tensor, value_features: Option<&Tensor>) -> Result<Tensor> {
+        self.vf.forward(value_features.unwrap_or(features))?.squeeze(D::Minus1)
     }
 
     /// Samples (or, deterministic, takes the mode of) one action per row of `obs`.
     /// Returns flat actions, their log-probabilities, and the values.
     pub fn act(&self, obs: &Tensor, deterministic: bool, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
-        let features = self.encoder.forward(obs)?;
+        let (features, value_features) = self.features(obs)?;
         let out = self.pi.forward(&features)?.flatten_all()?.to_vec1::<f32>()?;
-        let value = self.value_of(obs, &features)?.to_vec1::<f32>()?;
+        let value = self.value_from(&features, value_features.as_ref())?.to_vec1::<f32>()?;
         let (actions, log_probs) = sample(&self.head, &out, &self.log_std_values()?, deterministic, rng);
         Ok((actions, log_probs, value))
     }
@@ -199,7 +194,7 @@ impl ActorCritic {
     /// no gradient reaches the encoders.
     pub fn evaluate_features(&self, features: &Tensor, value_features: Option<&Tensor>, actions: &Tensor) -> Result<Evaluation> {
         let out = self.pi.forward(features)?;
-        let value = self.vf.forward(value_features.unwrap_or(features))?.squeeze(D::Minus1)?;
+        let value = self.value_from(features, value_features)?;
         let (log_prob, entropy) = match &self.head {
             Head::Categorical { .. } => {
                 let log_p = candle_nn::ops::log_softmax(&out, D::Minus1)?;
