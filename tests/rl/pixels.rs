@@ -287,8 +287,9 @@ fn spec_of(space: &Space) -> twinbots_api::TaskSpec {
 }
 
 /// `[ppo] freeze_features`: the image encoders (the policy's and the value's own) keep every
-/// weight through training while the MLPs learn, here on a random CNN's features; asked of a
-/// model without an image encoder, it is an error naming the key.
+/// weight through training while the MLPs learn, here on a random CNN's features, which the
+/// rollout keeps for the update; asked of a model without an image encoder, it is an error
+/// naming the key.
 #[test]
 fn frozen_image_encoders_keep_their_weights_while_the_mlps_learn() {
     let mut env = LitHalf::new(4);
@@ -304,6 +305,20 @@ fn frozen_image_encoders_keep_their_weights_while_the_mlps_learn() {
     assert_eq!(before.iter().filter(|(n, _)| frozen(n)).count(), 16, "both NatureCNNs' variables");
     for ((name, was), (_, now)) in before.iter().zip(&weights(&model)) {
         assert_eq!(was == now, frozen(name), "{name}: frozen {}", frozen(name));
+    }
+
+    // The rollout keeps the features it acted on, so an update reads them instead of running
+    // the CNNs again: they are the encoders' features of the stored images.
+    let mut obs = model.observe(&env.reset(Some(3)).unwrap());
+    let mut buffer = twinbots_learn::ppo::RolloutBuffer::new(4, SIZE * SIZE, 1);
+    model.collect_rollout(&mut env, &mut obs, &mut buffer).unwrap();
+    assert_eq!((buffer.cached_width(&buffer.features), buffer.cached_width(&buffer.value_features)), (64, 64));
+    let images = candle_core::Tensor::from_slice(&buffer.obs, (buffer.len(), SIZE * SIZE), &candle_core::Device::Cpu).unwrap();
+    let (features, value_features) = model.policy.features(&images).unwrap();
+    for (cached, computed) in [(&buffer.features, features), (&buffer.value_features, value_features.unwrap())] {
+        let computed: Vec<f32> = computed.flatten_all().unwrap().to_vec1().unwrap();
+        let off = cached.iter().zip(&computed).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+        assert!(off < 1e-4, "cached features off by {off}");
     }
 
     let flat = Space::uniform_box(4, -1.0, 1.0);

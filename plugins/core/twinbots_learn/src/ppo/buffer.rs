@@ -20,6 +20,10 @@ pub struct RolloutBuffer {
     pub values: Vec<f32>,
     pub advantages: Vec<f32>,
     pub returns: Vec<f32>,
+    /// Under frozen encoders, each sample's features as the rollout computed them
+    /// ([`PolicyStep::features`]), for the update to reuse; empty otherwise.
+    pub features: Vec<f32>,
+    pub value_features: Vec<f32>,
 }
 
 impl RolloutBuffer {
@@ -36,11 +40,13 @@ impl RolloutBuffer {
             values: Vec::new(),
             advantages: Vec::new(),
             returns: Vec::new(),
+            features: Vec::new(),
+            value_features: Vec::new(),
         }
     }
 
     pub fn clear(&mut self) {
-        for v in [&mut self.obs, &mut self.actions, &mut self.log_probs, &mut self.rewards, &mut self.values, &mut self.advantages, &mut self.returns] {
+        for v in [&mut self.obs, &mut self.actions, &mut self.log_probs, &mut self.rewards, &mut self.values, &mut self.advantages, &mut self.returns, &mut self.features, &mut self.value_features] {
             v.clear();
         }
         self.dones.clear();
@@ -55,6 +61,8 @@ impl RolloutBuffer {
         self.values.extend_from_slice(&step.values);
         self.rewards.extend_from_slice(rewards);
         self.dones.extend_from_slice(dones);
+        self.features.extend_from_slice(&step.features);
+        self.value_features.extend_from_slice(&step.value_features);
     }
 
     pub fn len(&self) -> usize {
@@ -63,6 +71,15 @@ impl RolloutBuffer {
 
     pub fn is_empty(&self) -> bool {
         self.rewards.is_empty()
+    }
+
+    /// The width of a row of cached features (`features` or `value_features`): 0 when there
+    /// are none for every sample.
+    pub fn cached_width(&self, cached: &[f32]) -> usize {
+        match self.len() {
+            n if n > 0 && !cached.is_empty() && cached.len() % n == 0 => cached.len() / n,
+            _ => 0,
+        }
     }
 
     /// Appends a single-env buffer whose advantages are computed (segments of several robots
@@ -76,13 +93,18 @@ impl RolloutBuffer {
         self.values.extend_from_slice(&other.values);
         self.advantages.extend_from_slice(&other.advantages);
         self.returns.extend_from_slice(&other.returns);
+        self.features.extend_from_slice(&other.features);
+        self.value_features.extend_from_slice(&other.value_features);
     }
 
     /// Keeps only the first `n` steps (a single-env buffer).
     pub fn truncate(&mut self, n: usize) {
         let (o, a) = (self.obs_dim, self.act_dim);
+        let (f, vf) = (self.cached_width(&self.features), self.cached_width(&self.value_features));
         self.obs.truncate(n * o);
         self.actions.truncate(n * a);
+        self.features.truncate(n * f);
+        self.value_features.truncate(n * vf);
         for v in [&mut self.log_probs, &mut self.rewards, &mut self.values] {
             v.truncate(n);
         }

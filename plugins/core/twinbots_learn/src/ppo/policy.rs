@@ -165,8 +165,13 @@ impl ActorCritic {
     /// Returns flat actions, their log-probabilities, and the values.
     pub fn act(&self, obs: &Tensor, deterministic: bool, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
         let (features, value_features) = self.features(obs)?;
-        let out = self.pi.forward(&features)?.flatten_all()?.to_vec1::<f32>()?;
-        let value = self.value_from(&features, value_features.as_ref())?.to_vec1::<f32>()?;
+        self.act_from(&features, value_features.as_ref(), deterministic, rng)
+    }
+
+    /// [`Self::act`] from the encoders' features ([`Self::features`]).
+    pub fn act_from(&self, features: &Tensor, value_features: Option<&Tensor>, deterministic: bool, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+        let out = self.pi.forward(features)?.flatten_all()?.to_vec1::<f32>()?;
+        let value = self.value_from(features, value_features)?.to_vec1::<f32>()?;
         let (actions, log_probs) = sample(&self.head, &out, &self.log_std_values()?, deterministic, rng);
         Ok((actions, log_probs, value))
     }

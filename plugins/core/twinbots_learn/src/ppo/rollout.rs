@@ -26,6 +26,11 @@ pub struct PolicyStep {
     pub log_probs: Vec<f32>,
     /// V(obs).
     pub values: Vec<f32>,
+    /// Under frozen encoders (`freeze_features`), the features the policy acted on (and the
+    /// value's own, where it has an encoder of its own), one row per env, for the update to
+    /// reuse; empty otherwise.
+    pub features: Vec<f32>,
+    pub value_features: Vec<f32>,
 }
 
 impl Ppo {
@@ -61,12 +66,20 @@ impl Ppo {
 
     /// [`Ppo::policy_step`], through `inference` when given (read from the current policy).
     fn policy_step_with(&mut self, obs: Vec<f32>, inference: Option<&Inference>) -> anyhow::Result<PolicyStep> {
+        let (mut features, mut value_features) = (Vec::new(), Vec::new());
         let (actions, log_probs, values) = match inference {
             Some(inference) => inference.act(&self.policy.head, &obs, obs.len() / self.observation_space.dim(), &mut self.rng),
+            None if self.config.freeze_features => {
+                let (f, v) = self.policy.features(&self.batch(&obs)?)?;
+                let acted = self.policy.act_from(&f, v.as_ref(), false, &mut self.rng)?;
+                features = f.flatten_all()?.to_vec1::<f32>()?;
+                value_features = v.map(|v| v.flatten_all()?.to_vec1::<f32>()).transpose()?.unwrap_or_default();
+                acted
+            }
             None => self.policy.act(&self.batch(&obs)?, false, &mut self.rng)?,
         };
         let env_actions = self.clip_to_space(actions.clone());
-        Ok(PolicyStep { obs, actions, env_actions, log_probs, values })
+        Ok(PolicyStep { obs, actions, env_actions, log_probs, values, features, value_features })
     }
 
     /// V(s) for each row of `obs` (normalised).

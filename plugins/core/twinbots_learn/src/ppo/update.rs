@@ -1,6 +1,7 @@
 //! One PPO update: the clipped surrogate objective optimised for `n_epochs` over shuffled
 //! minibatches of a rollout whose advantages are computed, and the learning-rate schedule.
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use candle_core::{Device, Tensor, Var};
@@ -151,17 +152,23 @@ fn part_gradient(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buff
     }
 }
 
-/// Every sample's features under frozen encoders (`freeze_features`), computed once an update
-/// instead of once an epoch: the policy's, and the value's own where it has one.
-pub(super) struct FrozenFeatures {
-    policy: Vec<f32>,
-    value: Option<Vec<f32>>,
+/// Every sample's features under frozen encoders (`freeze_features`): those the rollout
+/// computed as it acted (the buffer's), or else computed once an update instead of once an
+/// epoch; the policy's, and the value's own where it has one.
+pub(super) struct FrozenFeatures<'a> {
+    policy: Cow<'a, [f32]>,
+    value: Option<Cow<'a, [f32]>>,
     dim: usize,
     value_dim: usize,
 }
 
-impl FrozenFeatures {
-    fn of(policy: &ActorCritic, buffer: &RolloutBuffer) -> anyhow::Result<Self> {
+impl<'a> FrozenFeatures<'a> {
+    fn of(policy: &ActorCritic, buffer: &'a RolloutBuffer) -> anyhow::Result<Self> {
+        let (dim, value_dim) = (buffer.cached_width(&buffer.features), buffer.cached_width(&buffer.value_features));
+        if dim > 0 && (value_dim > 0) == policy.value_encoder.is_some() {
+            let value = (value_dim > 0).then_some(Cow::Borrowed(&buffer.value_features[..]));
+            return Ok(Self { policy: Cow::Borrowed(&buffer.features[..]), value, dim, value_dim });
+        }
         // In blocks, so a long rollout of images never becomes one huge activation tensor.
         const BLOCK: usize = 256;
         let (mut features, mut value) = (Vec::new(), None::<Vec<f32>>);
@@ -177,7 +184,7 @@ impl FrozenFeatures {
                 value.get_or_insert_with(Vec::new).extend(v.flatten_all()?.to_vec1::<f32>()?);
             }
         }
-        Ok(Self { policy: features, value, dim, value_dim })
+        Ok(Self { policy: Cow::Owned(features), value: value.map(Cow::Owned), dim, value_dim })
     }
 }
 
