@@ -69,14 +69,14 @@ impl Ppo {
         let (mut features, mut value_features) = (Vec::new(), Vec::new());
         let (actions, log_probs, values) = match inference {
             Some(inference) => inference.act(&self.policy.head, &obs, obs.len() / self.observation_space.dim(), &mut self.rng),
-            None if self.config.freeze_features => {
+            None => {
                 let (f, v) = self.policy.features(&self.batch(&obs)?)?;
-                let acted = self.policy.act_from(&f, v.as_ref(), false, &mut self.rng)?;
-                features = f.flatten_all()?.to_vec1::<f32>()?;
-                value_features = v.map(|v| v.flatten_all()?.to_vec1::<f32>()).transpose()?.unwrap_or_default();
-                acted
+                if self.config.freeze_features {
+                    features = f.flatten_all()?.to_vec1::<f32>()?;
+                    value_features = v.as_ref().map(|v| v.flatten_all()?.to_vec1::<f32>()).transpose()?.unwrap_or_default();
+                }
+                self.policy.act_from(&f, v.as_ref(), false, &mut self.rng)?
             }
-            None => self.policy.act(&self.batch(&obs)?, false, &mut self.rng)?,
         };
         let env_actions = self.clip_to_space(actions.clone());
         Ok(PolicyStep { obs, actions, env_actions, log_probs, values, features, value_features })
