@@ -6,7 +6,7 @@
 //!   controller with a random action a quarter of the time; labels the cart's place and speed and the
 //!   pole's angle and rate (the state a policy needs); then closes the loop: the classical
 //!   controller acting on the states the fitted encoder reads (mean episode length).
-//! - `ur5e`: the camera reach's iso camera, 64×64, one frame, a new target per arena at every
+//! - `ur5e`: the camera reach's iso camera, 64×64 (or SIZE²), one frame, a new target per arena at every
 //!   reset (images of the reset and of two random steps after it); labels the target's place
 //!   (base frame), and the held-out error in millimetres.
 //!
@@ -16,7 +16,11 @@
 //! path, saves the fitted encoder there (`features.*`): `[ppo] features_from` starts a policy
 //! from it (docs/pixels.md).
 //!
-//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized] [SAVE] [FRAMES] [SIZE]`
+//! FROM (a `.safetensors` the probe saved, or `-`) starts the encoder from a fit, to fit it
+//! longer; `annealed` fits in shuffled batches with the learning rate falling linearly to 0 over
+//! the epochs (`constant`, the default: the collection order and 3e-4 throughout).
+//!
+//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized] [SAVE] [FRAMES] [SIZE] [FROM|-] [constant|annealed]`
 
 use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
@@ -48,9 +52,15 @@ fn main() -> anyhow::Result<()> {
     let save = args.get(7).map(std::path::PathBuf::from);
     let frames: u32 = args.get(8).map_or(Ok(2), |s| s.parse())?;
     let size: u32 = args.get(9).map_or(Ok(64), |s| s.parse())?;
+    let from = args.get(10).filter(|s| s.as_str() != "-").map(std::path::PathBuf::from);
+    let annealed = match args.get(11).map_or("constant", String::as_str) {
+        "constant" => false,
+        "annealed" => true,
+        other => anyhow::bail!("schedule '{other}': constant or annealed"),
+    };
     let (env, names, scale, images, labels) = match robot {
         "cartpole" => cartpole_samples(samples, fov, frames, size, randomized)?,
-        "ur5e" => ur5e_samples(samples, fov, randomized)?,
+        "ur5e" => ur5e_samples(samples, fov, size, randomized)?,
         other => anyhow::bail!("robot '{other}': cartpole or ur5e"),
     };
     let (dim, k) = (env.observation_space().dim(), names.len());
@@ -60,6 +70,9 @@ fn main() -> anyhow::Result<()> {
 
     let dev = Device::Cpu;
     let encoder = Encoder::new(kind, env.observation_space(), 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
+    if let Some(path) = &from {
+        twinbots_learn::model_io::set_encoder_from_file(&encoder, path)?;
+    }
     let head_w = Var::from_tensor(&(Tensor::randn(0f32, 0.1, (k, encoder.dim()), &dev)?))?;
     // The head starts at the labels' mean: what is left to fit is what the images show.
     let mean: Vec<f32> = (0..k).map(|i| labels[..train * k].iter().skip(i).step_by(k).sum::<f32>() / train as f32).collect();
@@ -71,13 +84,26 @@ fn main() -> anyhow::Result<()> {
     let rows = |from: usize, n: usize| -> candle_core::Result<(Tensor, Tensor)> {
         Ok((Tensor::from_slice(&images[from * dim..(from + n) * dim], (n, dim), &dev)?, Tensor::from_slice(&labels[from * k..(from + n) * k], (n, k), &dev)?))
     };
+    // Shuffled batches (`annealed`): images gathered by index.
+    let gathered = |picked: &[usize]| -> candle_core::Result<(Tensor, Tensor)> {
+        let x: Vec<f32> = picked.iter().flat_map(|&i| images[i * dim..(i + 1) * dim].iter().copied()).collect();
+        let y: Vec<f32> = picked.iter().flat_map(|&i| labels[i * k..(i + 1) * k].iter().copied()).collect();
+        Ok((Tensor::from_vec(x, (picked.len(), dim), &dev)?, Tensor::from_vec(y, (picked.len(), k), &dev)?))
+    };
+    let mut order: Vec<usize> = (0..train).collect();
+    let mut shuffler = ChaCha8Rng::seed_from_u64(3);
     let batch = 128;
     for epoch in 1..=epochs {
         let started = std::time::Instant::now();
         let mut loss_sum = 0.0;
+        if annealed {
+            use rand::seq::SliceRandom;
+            order.shuffle(&mut shuffler);
+            adam.set_learning_rate(3e-4 * (1.0 - (epoch - 1) as f64 / epochs as f64));
+        }
         for start in (0..train).step_by(batch) {
             let n = batch.min(train - start);
-            let (x, y) = rows(start, n)?;
+            let (x, y) = if annealed { gathered(&order[start..start + n])? } else { rows(start, n)? };
             let loss = (predict(&x)? - y)?.sqr()?.mean_all()?;
             loss_sum += loss.to_scalar::<f32>()? * n as f32;
             adam.step(&loss.backward()?, Some(10.0))?;
@@ -186,8 +212,8 @@ fn cartpole_samples(samples: usize, fov: f32, frames: u32, size: u32, randomized
 const UR5E_SCALE: f32 = 10.0;
 
 /// A new target in every arena at each reset; the images of the reset and of two random steps.
-fn ur5e_samples(samples: usize, fov: f32, randomized: bool) -> anyhow::Result<Samples> {
-    let settings = PixelSettings { camera: "iso".into(), fov, ..PixelSettings::default() };
+fn ur5e_samples(samples: usize, fov: f32, size: u32, randomized: bool) -> anyhow::Result<Samples> {
+    let settings = PixelSettings { camera: "iso".into(), fov, width: size, height: size, ..PixelSettings::default() };
     let mut app = ur5e::headless_app_with(ARENAS, 0, DesignPattern::Supervised);
     settings.install(&mut app, &ur5e::robot().framing, ARENAS)?;
     if randomized {

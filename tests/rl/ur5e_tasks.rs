@@ -154,6 +154,10 @@ fn an_evaluation_that_can_no_longer_pass_stops_on_the_failure_that_rules_it_out(
     assert!((5..=8).contains(&judged.episodes), "stopped after {} episodes (5 failures, up to 3 more ending in the same step)", judged.episodes);
     assert_eq!(judged.success_rate, Some(0.0));
     assert!(!judged.meets(&criterion));
+    // Each episode says how it ended: a termination term of the task, or its time limit.
+    assert_eq!(judged.ended_by.values().sum::<usize>(), judged.episodes, "{:?}", judged.ended_by);
+    let ways: Vec<String> = spec.termination_terms.iter().cloned().chain([twinbots_learn::evaluation::TIME_LIMIT.to_string()]).collect();
+    assert!(judged.ended_by.keys().all(|way| ways.contains(way)), "{:?} not among {ways:?}", judged.ended_by);
     // The episodes it ran are the first of the full evaluation, bit for bit.
     let full = evaluate_policy("reach", &model, &mut env(), judged.episodes, 11).unwrap();
     assert_eq!(full.scores.iter().map(|s| s.to_bits()).collect::<Vec<_>>(), judged.scores.iter().map(|s| s.to_bits()).collect::<Vec<_>>());

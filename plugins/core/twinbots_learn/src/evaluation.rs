@@ -28,8 +28,14 @@ pub struct EvalResult {
     /// Each reward term's sum per episode, averaged: how the mean score divides among the
     /// task's terms.
     pub rewards: BTreeMap<String, f32>,
+    /// How many episodes each way ended: the termination term's name, [`TIME_LIMIT`] for a
+    /// truncated one. Empty where the episodes came without it (a robot's own run).
+    pub ended_by: BTreeMap<String, usize>,
     pub scores: Vec<f32>,
 }
+
+/// What [`EvalResult::ended_by`] calls an episode truncated by its time limit.
+pub const TIME_LIMIT: &str = "time_limit";
 
 impl EvalResult {
     /// Whether these episodes meet a solved criterion: at least its window of them, whose
@@ -53,6 +59,10 @@ impl EvalResult {
         }
         for (name, value) in &self.metrics {
             out += &format!("\n  {name}: {value:.3}");
+        }
+        if !self.ended_by.is_empty() {
+            let ways: Vec<String> = self.ended_by.iter().map(|(way, n)| format!("{way} {n}")).collect();
+            out += &format!("\n  ended by: {}", ways.join(", "));
         }
         out
     }
@@ -100,12 +110,17 @@ fn run_episodes(
     model.check_spaces(env.observation_space(), env.action_space())?;
     let mut obs = env.reset(Some(seed))?;
     let mut finished = Vec::with_capacity(episodes);
+    let mut ended_by: BTreeMap<String, usize> = BTreeMap::new();
     while finished.len() < episodes {
         let step = env.step(&model.predict_deterministic(&obs)?)?;
         let before = finished.len();
-        for ep in step.episodes.into_iter().flatten() {
+        for (i, ep) in step.episodes.into_iter().enumerate() {
+            let Some(ep) = ep else { continue };
             if finished.len() < episodes {
                 finished.push(ep);
+                if let Some(way) = way_ended(i, &step.terminated, &step.truncated, &step.ended_by) {
+                    *ended_by.entry(way).or_default() += 1;
+                }
             }
         }
         if finished.len() > before && enough(&finished) {
@@ -113,7 +128,17 @@ fn run_episodes(
         }
         obs = step.obs;
     }
-    Ok(EvalResult::of_episodes(task, &finished))
+    Ok(EvalResult { ended_by, ..EvalResult::of_episodes(task, &finished) })
+}
+
+/// How env `i`'s episode ended this step: its termination term, else the time limit; `None`
+/// where the env does not say.
+fn way_ended(i: usize, terminated: &[bool], truncated: &[bool], ended_by: &[Option<String>]) -> Option<String> {
+    match ended_by.get(i).cloned().flatten() {
+        Some(term) => Some(term),
+        None if truncated.get(i) == Some(&true) && terminated.get(i) != Some(&true) => Some(TIME_LIMIT.to_string()),
+        None => None,
+    }
 }
 
 impl EvalResult {
@@ -140,6 +165,7 @@ impl EvalResult {
             success_rate: (!successes.is_empty()).then(|| average(&successes)),
             metrics: figures.iter().map(|(name, xs)| (name.clone(), average(xs))).collect(),
             rewards: rewards.into_iter().map(|(name, sum)| (name, sum / n)).collect(),
+            ended_by: BTreeMap::new(),
             episodes: scores.len(),
             mean_score: mean,
             std_score: (scores.iter().map(|s| (s - mean).powi(2)).sum::<f32>() / n).sqrt(),
