@@ -84,7 +84,7 @@ fn main() -> anyhow::Result<()> {
     let rows = |from: usize, n: usize| -> candle_core::Result<(Tensor, Tensor)> {
         Ok((Tensor::from_slice(&images[from * dim..(from + n) * dim], (n, dim), &dev)?, Tensor::from_slice(&labels[from * k..(from + n) * k], (n, k), &dev)?))
     };
-    // Shuffled batches (`annealed`): images gathered by index.
+    // Batches gathered by index: in collection order, or shuffled every epoch (`annealed`).
     let gathered = |picked: &[usize]| -> candle_core::Result<(Tensor, Tensor)> {
         let x: Vec<f32> = picked.iter().flat_map(|&i| images[i * dim..(i + 1) * dim].iter().copied()).collect();
         let y: Vec<f32> = picked.iter().flat_map(|&i| labels[i * k..(i + 1) * k].iter().copied()).collect();
@@ -103,7 +103,7 @@ fn main() -> anyhow::Result<()> {
         }
         for start in (0..train).step_by(batch) {
             let n = batch.min(train - start);
-            let (x, y) = if annealed { gathered(&order[start..start + n])? } else { rows(start, n)? };
+            let (x, y) = gathered(&order[start..start + n])?;
             let loss = (predict(&x)? - y)?.sqr()?.mean_all()?;
             loss_sum += loss.to_scalar::<f32>()? * n as f32;
             adam.step(&loss.backward()?, Some(10.0))?;
@@ -139,7 +139,7 @@ fn main() -> anyhow::Result<()> {
             for i in 0..ARENAS {
                 if let Some(e) = &step.episodes[i] {
                     lengths.push(e.length);
-                    *ends.entry(step.ended_by[i].clone().unwrap_or_else(|| "truncated".into())).or_default() += 1;
+                    *ends.entry(step.way_ended(i).unwrap_or_else(|| "unsaid".into())).or_default() += 1;
                 }
             }
             obs = step.obs;

@@ -23,6 +23,21 @@ pub struct StepResult {
     pub ended_by: Vec<Option<String>>,
 }
 
+/// What [`StepResult::way_ended`] calls an episode truncated by its time limit.
+pub const TIME_LIMIT: &str = "time_limit";
+
+impl StepResult {
+    /// How env `i`'s episode ended this step: its termination term, else [`TIME_LIMIT`] where
+    /// it was truncated; `None` where it did not end or the env does not say.
+    pub fn way_ended(&self, i: usize) -> Option<String> {
+        match self.ended_by.get(i).cloned().flatten() {
+            Some(term) => Some(term),
+            None if self.truncated.get(i) == Some(&true) && self.terminated.get(i) != Some(&true) => Some(TIME_LIMIT.to_string()),
+            None => None,
+        }
+    }
+}
+
 /// N environments stepped together, with auto-reset. Errors mean the simulation is gone
 /// (its thread ended or panicked), never bad luck: callers stop.
 pub trait VecEnv {

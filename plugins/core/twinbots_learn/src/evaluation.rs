@@ -35,7 +35,7 @@ pub struct EvalResult {
 }
 
 /// What [`EvalResult::ended_by`] calls an episode truncated by its time limit.
-pub const TIME_LIMIT: &str = "time_limit";
+pub use twinbots_api::env::TIME_LIMIT;
 
 impl EvalResult {
     /// Whether these episodes meet a solved criterion: at least its window of them, whose
@@ -112,13 +112,13 @@ fn run_episodes(
     let mut finished = Vec::with_capacity(episodes);
     let mut ended_by: BTreeMap<String, usize> = BTreeMap::new();
     while finished.len() < episodes {
-        let step = env.step(&model.predict_deterministic(&obs)?)?;
+        let mut step = env.step(&model.predict_deterministic(&obs)?)?;
         let before = finished.len();
-        for (i, ep) in step.episodes.into_iter().enumerate() {
+        for (i, ep) in std::mem::take(&mut step.episodes).into_iter().enumerate() {
             let Some(ep) = ep else { continue };
             if finished.len() < episodes {
                 finished.push(ep);
-                if let Some(way) = way_ended(i, &step.terminated, &step.truncated, &step.ended_by) {
+                if let Some(way) = step.way_ended(i) {
                     *ended_by.entry(way).or_default() += 1;
                 }
             }
@@ -131,15 +131,6 @@ fn run_episodes(
     Ok(EvalResult { ended_by, ..EvalResult::of_episodes(task, &finished) })
 }
 
-/// How env `i`'s episode ended this step: its termination term, else the time limit; `None`
-/// where the env does not say.
-fn way_ended(i: usize, terminated: &[bool], truncated: &[bool], ended_by: &[Option<String>]) -> Option<String> {
-    match ended_by.get(i).cloned().flatten() {
-        Some(term) => Some(term),
-        None if truncated.get(i) == Some(&true) && terminated.get(i) != Some(&true) => Some(TIME_LIMIT.to_string()),
-        None => None,
-    }
-}
 
 impl EvalResult {
     /// The figures of these finished episodes (at least one), under the name `task`: however
