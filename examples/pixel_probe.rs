@@ -81,15 +81,15 @@ fn main() -> anyhow::Result<()> {
     vars.extend([head_w.clone(), head_b.clone()]);
     let mut adam = Adam::new(vars, AdamConfig { learning_rate: 3e-4, ..AdamConfig::default() });
     let predict = |x: &Tensor| -> candle_core::Result<Tensor> { encoder.forward(x)?.matmul(&head_w.as_tensor().t()?)?.broadcast_add(head_b.as_tensor()) };
-    let rows = |from: usize, n: usize| -> candle_core::Result<(Tensor, Tensor)> {
-        Ok((Tensor::from_slice(&images[from * dim..(from + n) * dim], (n, dim), &dev)?, Tensor::from_slice(&labels[from * k..(from + n) * k], (n, k), &dev)?))
-    };
     // Batches gathered by index: in collection order, or shuffled every epoch (`annealed`).
     let gathered = |picked: &[usize]| -> candle_core::Result<(Tensor, Tensor)> {
         let x: Vec<f32> = picked.iter().flat_map(|&i| images[i * dim..(i + 1) * dim].iter().copied()).collect();
         let y: Vec<f32> = picked.iter().flat_map(|&i| labels[i * k..(i + 1) * k].iter().copied()).collect();
         Ok((Tensor::from_vec(x, (picked.len(), dim), &dev)?, Tensor::from_vec(y, (picked.len(), k), &dev)?))
     };
+    // The held-out images, made a tensor once: read after every epoch and at the end.
+    let held_x = Tensor::from_slice(&images[train * dim..(train + held_out) * dim], (held_out, dim), &dev)?;
+    let held_y = Tensor::from_slice(&labels[train * k..(train + held_out) * k], (held_out, k), &dev)?;
     let mut order: Vec<usize> = (0..train).collect();
     let mut shuffler = ChaCha8Rng::seed_from_u64(3);
     let batch = 128;
@@ -109,9 +109,8 @@ fn main() -> anyhow::Result<()> {
             adam.step(&loss.backward()?, Some(10.0))?;
         }
         // R² per label on the held-out images: 1 − residual variance / label variance.
-        let (x, y) = rows(train, held_out)?;
-        let residual = (predict(&x)? - &y)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
-        let variance = y.broadcast_sub(&y.mean(0)?)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
+        let residual = (predict(&held_x)? - &held_y)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
+        let variance = held_y.broadcast_sub(&held_y.mean(0)?)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
         let r2: Vec<String> = (0..k).map(|i| format!("{} {:.3}", names[i], 1.0 - residual[i] / variance[i])).collect();
         let mut line = format!("epoch {epoch}: fit loss {:.3}, held-out R² {}", loss_sum / train as f32, r2.join(", "));
         if robot == "ur5e" {
@@ -121,8 +120,7 @@ fn main() -> anyhow::Result<()> {
         println!("{line} ({:.1} s)", started.elapsed().as_secs_f64());
     }
     // The scale of what the encoder hands an MLP (a frozen encoder's features go in as they are).
-    let (x, _) = rows(train, held_out)?;
-    let features = encoder.forward(&x)?;
+    let features = encoder.forward(&held_x)?;
     let (mean, spread) = (features.mean_all()?.to_scalar::<f32>()?, features.flatten_all()?.sqr()?.mean_all()?.sqrt()?.to_scalar::<f32>()?);
     println!("features on the held-out images: mean {mean:.3}, RMS {spread:.3}, largest {:.3}", features.flatten_all()?.max(0)?.to_scalar::<f32>()?);
     if robot == "cartpole" {

@@ -131,7 +131,6 @@ fn run_episodes(
     Ok(EvalResult { ended_by, ..EvalResult::of_episodes(task, &finished) })
 }
 
-
 impl EvalResult {
     /// The figures of these finished episodes (at least one), under the name `task`: however
     /// they were run (an env, a robot running an exported policy on its own).
