@@ -4,6 +4,7 @@
 
 pub mod bundle;
 pub mod deploy;
+pub mod distill;
 pub mod monitor;
 pub mod pacer;
 pub mod realtime;

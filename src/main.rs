@@ -32,6 +32,9 @@ enum Command {
     Export(cli::export::Args),
     /// Replay a trained model and report its episode scores (writes eval.json).
     Eval(cli::eval::Args),
+    /// Teach a pixel run's policy by a teacher that sees the state (DAgger): the robot's
+    /// classical controller, a state run or an ONNX policy.
+    Distill(cli::distill::Args),
     /// Open a window on the twin: arena 0 in real time (Space pause, N step, R reset, Esc quit,
     /// drag to orbit, scroll to zoom).
     View(cli::view::Args),
@@ -97,6 +100,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Compare(args) => cli::compare::exec(args),
         Command::Urdf(args) => cli::urdf::exec(args),
         Command::Study(args) => cli::study::exec(args),
+        Command::Distill(args) => cli::distill::exec(args),
         Command::Record(args) => cli::record::exec(args),
         Command::Replay(args) => cli::replay::exec(args),
         Command::Identify(args) => cli::identify::exec(args),

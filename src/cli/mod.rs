@@ -5,6 +5,7 @@ pub mod bench;
 pub mod capture;
 pub mod compare;
 pub mod deploy;
+pub mod distill;
 pub mod eval;
 pub mod export;
 pub mod identify;

@@ -209,3 +209,54 @@ fn the_camera_reach_shows_its_target_and_gets_the_arms_own_state_beside_the_imag
     let e = wrong.install(&mut app, &ur5e::robot().framing, 1).unwrap_err().to_string();
     assert!(e.starts_with("pixels.state: the task ur5e observes no 'wrist'; its terms: joint_positions, joint_velocities, tcp_position"), "{e}");
 }
+
+#[test]
+fn distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_evaluates() {
+    if crate::renderer("distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_evaluates", 8, 8).is_none() {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("twinbots-distill-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("pixels.toml");
+    std::fs::write(&config, "timesteps = 128\narenas = 4\neval_episodes = 2\n[pixels]\nwidth = 40\nheight = 40\nframes = 2\n[ppo]\nn_steps = 32\nbatch_size = 64\nn_epochs = 1\nfeatures_dim = 16\n").unwrap();
+    let twinbots = |args: &[&str]| std::process::Command::new(env!("CARGO_BIN_EXE_twinbots")).args(args).output().unwrap();
+    let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let (student, taught) = (dir.join("student"), dir.join("taught"));
+    let out = twinbots(&["train", "cartpole", "--config", &path(&config), "--out", &path(&student)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let distill = |out: &std::path::Path, more: &[&str]| {
+        let mut args = vec!["distill".to_string(), path(&student), "--out".into(), path(out), "--rounds".into(), "5".into(), "--steps".into(), "150".into()];
+        args.extend(["--epochs", "30", "--learning-rate", "3e-3"].map(String::from));
+        args.extend(more.iter().map(|s| s.to_string()));
+        twinbots(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let out = distill(&taught, &[]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // The barely trained student mostly disagrees with the controller, and falls in 18 steps
+    // or so; fitted to its answers (DAgger: the first fit only swings it to the other side),
+    // it disagrees far less and balances longer.
+    let csv = std::fs::read_to_string(taught.join("distill.csv")).unwrap();
+    let column = |i: usize| -> Vec<f64> { csv.lines().skip(1).map(|l| l.split(',').nth(i).unwrap().parse().unwrap()).collect() };
+    let (score, disagreement, answers) = (column(2), column(3), column(4));
+    assert_eq!(answers, [600.0, 1200.0, 1800.0, 2400.0, 3000.0], "{csv}");
+    assert!(disagreement[0] > 0.5 && disagreement[2..].iter().any(|&d| d < 0.6 * disagreement[0]), "{csv}");
+    assert!(score[4] > 1.2 * score[0], "{csv}");
+    let out = twinbots(&["eval", &path(&taught), "--episodes", "2"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // The same rounds again give the same student.
+    let again = dir.join("again");
+    assert!(distill(&again, &[]).status.success());
+    assert_eq!(std::fs::read(taught.join("model/model.safetensors")).unwrap(), std::fs::read(again.join("model/model.safetensors")).unwrap());
+    // Errors name what is wrong: a taken --out, a teacher that is not there, a state run as the student.
+    let e = String::from_utf8_lossy(&distill(&taught, &[]).stderr).to_string();
+    assert!(e.contains("already holds a run"), "{e}");
+    let e = String::from_utf8_lossy(&distill(&dir.join("x"), &["--teacher", "nowhere"]).stderr).to_string();
+    assert!(e.contains("controller 'nowhere'"), "{e}");
+    let state = dir.join("state");
+    assert!(twinbots(&["train", "cartpole", "--timesteps", "64", "--out", &path(&state)]).status.success());
+    let out = twinbots(&["distill", &path(&state), "--out", &path(&dir.join("y"))]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("not a pixel run"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}

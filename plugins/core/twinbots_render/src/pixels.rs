@@ -133,6 +133,12 @@ impl PixelSettings {
     }
 }
 
+/// What the task's terms observed of an arena's state this step (its own observation, before
+/// the camera's image took its place): for a teacher that sees the state (`twinbots distill`),
+/// never for the policy. Set with every pixel observation, the reset's too.
+#[derive(Component, Clone, Debug, Default, PartialEq)]
+pub struct TaskObservation(pub Vec<f32>);
+
 /// The settings the task is observed with.
 #[derive(Resource, Clone, Debug)]
 struct PixelTask(PixelSettings);
@@ -211,9 +217,11 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
         let stack = &*stack;
         if let Some(mut episode) = world.get_mut::<Episode>(arena) {
             // The task's terms just observed the state: its kept values follow the image.
+            let observed = TaskObservation(episode.observation.clone());
             let state: Vec<f32> = camera.state.iter().map(|&i| episode.observation[i]).collect();
             write_stack(stack, &mut episode.observation);
             episode.observation.extend(state);
+            world.entity_mut(arena).insert(observed);
         }
     }
     world.insert_non_send(camera);

@@ -27,7 +27,7 @@ pub use buffer::RolloutBuffer;
 pub use config::{MAX_ROLLOUT, PpoConfig};
 pub use crate::model_io::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
 pub use crate::stats::{TrainingTimes, UpdateStats};
-pub use policy::ActorCritic;
+pub use policy::{ActorCritic, Head};
 pub use reward_scale::RewardScale;
 pub use rollout::PolicyStep;
 

@@ -1,0 +1,301 @@
+//! A pixel policy taught by a teacher that sees the state (`twinbots distill`): DAgger (Ross,
+//! Gordon and Bagnell 2011), the "learning by cheating" route of privileged teachers. Every
+//! round the student (a PPO run's CNN policy) drives the arenas on the images, deterministic as it
+//! will be judged; the teacher (the robot's classical controller, a state run or an ONNX policy)
+//! says what it would have done in each state the student reached; and the student's policy is
+//! fitted to all the teacher's answers so far by cross-entropy (−log π(a_teacher | o)). So it
+//! learns to recover from its own mistakes, which imitating the teacher's own episodes never
+//! shows it.
+//!
+//! The convolutions stay as they are: what they make of the images is kept with each answer,
+//! not the images, so a round costs its rollout's rendering. [`Tune::Actor`] fits the policy
+//! MLP (and a Gaussian's log σ) on the encoder's features; [`Tune::Dense`] fits the encoder's
+//! dense layer too, at a tenth of the learning rate, so that the features come to hold what the
+//! teacher's answers turn on (it keeps the convolutions' output instead: 4,096 values an answer
+//! at 96×96).
+
+use std::path::Path;
+
+use candle_core::{D, DType, Device, Tensor, Var};
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use twinbots_api::{Space, VecEnv};
+use twinbots_learn::nn::{Adam, AdamConfig, Encoder, NatureCnn};
+use twinbots_learn::ppo::{Head, Ppo};
+use twinbots_learn::RunDir;
+use twinbots_render::pixels::TaskObservation;
+use twinbots_task::AppVecEnv;
+use twinbots_task::randomization::RandomizationPlugin;
+
+use crate::registry::RobotEntry;
+use crate::settings::TrainSettings;
+use crate::study::controller::NamedController;
+
+/// Where the rounds' seeds start (from the run's seed): apart from its training, periodic and
+/// final evaluations'.
+const ROUND_SEED_OFFSET: u64 = 3_000_003;
+/// Answers per gradient step.
+const BATCH: usize = 256;
+
+/// What a round fits besides the policy MLP.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Tune {
+    /// The policy MLP alone, on the frozen encoder's features.
+    Actor,
+    /// The encoder's dense layer too (its convolutions stay frozen).
+    Dense,
+}
+
+/// How a student is taught.
+#[derive(Clone, Debug, Serialize)]
+pub struct DistillOptions {
+    /// `classic`, a state run's directory or an `.onnx` policy (as `twinbots study` names them).
+    pub teacher: String,
+    pub rounds: usize,
+    /// Control steps of every arena per round.
+    pub steps: usize,
+    /// Passes over all the answers so far after each round.
+    pub epochs: usize,
+    pub tune: Tune,
+    /// Adam's, for the policy MLP (the dense layer's is a tenth of it).
+    pub learning_rate: f64,
+}
+
+/// One round (a row of `distill.csv`).
+#[derive(Clone, Debug, Serialize)]
+pub struct Round {
+    pub round: usize,
+    /// Episodes the student finished in the round, and their mean score.
+    pub episodes: usize,
+    pub mean_score: f64,
+    /// How far the student's actions were from the teacher's, before the round's fit: the
+    /// share of differing actions (discrete) or their RMS difference (boxes).
+    pub disagreement: f64,
+    /// The answers fitted to, all rounds so far, and the last epoch's mean −log π.
+    pub answers: usize,
+    pub cross_entropy: f64,
+    pub seconds: f64,
+}
+
+/// Teaches the policy of the pixel run `student` (a PPO CNN policy) with `options` into the new
+/// run directory `out` (its `config.toml`, the taught `model/`, `distill.csv`, `distill.json`),
+/// which `twinbots eval` judges as any run. `report` sees every round.
+pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &DistillOptions, mut report: impl FnMut(&Round)) -> anyhow::Result<Vec<Round>> {
+    anyhow::ensure!(options.rounds > 0 && options.steps > 0 && options.epochs > 0, "--rounds, --steps and --epochs must each be at least 1");
+    let run = RunDir::new(student);
+    let settings = TrainSettings::of_run(&run)?;
+    anyhow::ensure!(settings.robot == entry.name, "{}: a run of {}, not of {}", student.display(), settings.robot, entry.name);
+    anyhow::ensure!(settings.pixels.is_some(), "{}: not a pixel run (no [pixels]): its policy already sees the state", student.display());
+    let (from, mut ppo) = run.trained_with(|dir| Ppo::load(dir)).map_err(|e| anyhow::anyhow!("{e:#} (the student must be a PPO run)"))?;
+    let teacher = NamedController::open(&options.teacher, Path::new("."), entry)?;
+    // The teacher's spaces against the task's own (as it observes the state).
+    teacher.env(entry, settings.task.as_deref(), 1, 0, |_| Ok(()))?;
+
+    let mut app = crate::run::evaluation_app(entry, None, settings.arenas, settings.seed, &settings, &settings.calibration_parameters())?;
+    if !settings.randomization.is_off() {
+        app.add_plugins(RandomizationPlugin(settings.randomization.clone()));
+    }
+    let mut env = AppVecEnv::new(app);
+    ppo.check_spaces(env.observation_space(), env.action_space())?;
+    let mut learner = Learner::new(&ppo, options)?;
+    let out_run = RunDir::new(out);
+    anyhow::ensure!(!out_run.holds_run() && !out_run.file(twinbots_learn::run_dir::CONFIG).exists(), "{} already holds a run: choose another --out", out.display());
+    out_run.create()?;
+    out_run.write_config(&settings)?;
+    println!("teaching {} (from {}) by {} for {} rounds of {} steps × {} arenas", student.display(), from.display(), teacher.label, options.rounds, options.steps, env.num_envs());
+
+    let mut answers = Answers::default();
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+    let mut rounds = Vec::new();
+    for round in 0..options.rounds {
+        let started = std::time::Instant::now();
+        let (episodes, disagreement) = roll_out(&mut env, &ppo, &learner, &teacher, options.steps, settings.seed + ROUND_SEED_OFFSET + round as u64, &mut answers)?;
+        let cross_entropy = learner.fit(&ppo, &answers, options.epochs, &mut rng)?;
+        let scores: Vec<f64> = episodes.iter().map(|&s| s as f64).collect();
+        let row = Round {
+            round,
+            episodes: scores.len(),
+            mean_score: if scores.is_empty() { f64::NAN } else { scores.iter().sum::<f64>() / scores.len() as f64 },
+            disagreement,
+            answers: answers.count(),
+            cross_entropy,
+            seconds: started.elapsed().as_secs_f64(),
+        };
+        report(&row);
+        rounds.push(row);
+        write_csv(&out_run.file(DISTILL_CSV), &rounds)?;
+    }
+    // The rollouts moved the action stream on; the taught model's counters are the run's.
+    ppo.env_state = None;
+    out_run.save_model(&ppo)?;
+    out_run.write_json("distill.json", &serde_json::json!({ "student": student, "options": options, "rounds": rounds }))?;
+    Ok(rounds)
+}
+
+/// The rounds' figures, one row a round.
+pub const DISTILL_CSV: &str = "distill.csv";
+
+/// `distill.csv`: a header, then a row a round (rewritten after each, atomically).
+fn write_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {
+    let mut text = String::from("round,episodes,mean_score,disagreement,answers,cross_entropy,seconds\n");
+    for r in rounds {
+        text += &format!("{},{},{},{},{},{},{:.1}\n", r.round, r.episodes, r.mean_score, r.disagreement, r.answers, r.cross_entropy, r.seconds);
+    }
+    twinbots_learn::ppo::write_atomic(path, text.as_bytes()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// The teacher's answers: what the student kept of each observation, and the teacher's action.
+#[derive(Default)]
+struct Answers {
+    kept: Vec<f32>,
+    actions: Vec<f32>,
+    kept_dim: usize,
+    action_dim: usize,
+}
+
+impl Answers {
+    fn count(&self) -> usize {
+        self.actions.len() / self.action_dim.max(1)
+    }
+}
+
+/// One round: the student drives every arena for `steps` steps from `seed`; every observation's
+/// kept values and the teacher's action there are added to `answers`. Returns the scores of the
+/// episodes that ended and the disagreement.
+fn roll_out(env: &mut AppVecEnv, ppo: &Ppo, learner: &Learner, teacher: &NamedController, steps: usize, seed: u64, answers: &mut Answers) -> anyhow::Result<(Vec<f32>, f64)> {
+    let n = env.num_envs();
+    let dim = ppo.observation_space.dim();
+    let mut obs = env.reset(Some(seed))?;
+    let (mut scores, mut gap, mut compared) = (Vec::new(), 0.0, 0usize);
+    // Deterministic actions draw nothing from it.
+    let mut unused = ChaCha8Rng::seed_from_u64(0);
+    for _ in 0..steps {
+        let x = Tensor::from_vec(ppo.normalize(&obs), (n, dim), &Device::Cpu)?;
+        let kept = learner.kept(&x)?;
+        let (actions, _, _) = ppo.policy.act_from(&learner.features(&kept)?, None, true, &mut unused)?;
+        let actions = clipped(&ppo.action_space, actions);
+        let mut state = Vec::new();
+        for &arena in env.arenas() {
+            let observed = env.app().world().get::<TaskObservation>(arena).ok_or_else(|| anyhow::anyhow!("the pixel env keeps no task observation"))?;
+            state.extend_from_slice(&observed.0);
+        }
+        let told = teacher.act(&state, state.len() / n)?;
+        anyhow::ensure!(told.len() == actions.len(), "the teacher gives {} actions for {n} arenas, the student {}", told.len(), actions.len());
+        (gap, compared) = match ppo.action_space {
+            Space::Discrete { .. } => (gap + told.iter().zip(&actions).filter(|(t, a)| t != a).count() as f64, compared + n),
+            _ => (gap + told.iter().zip(&actions).map(|(t, a)| ((t - a) as f64).powi(2)).sum::<f64>(), compared + told.len()),
+        };
+        answers.kept_dim = kept.dim(1)?;
+        answers.action_dim = told.len() / n;
+        answers.kept.extend(kept.flatten_all()?.to_vec1::<f32>()?);
+        answers.actions.extend(told);
+        let step = env.step(&actions)?;
+        scores.extend(step.episodes.iter().flatten().map(|e| e.score));
+        obs = step.obs;
+    }
+    let disagreement = match ppo.action_space {
+        Space::Discrete { .. } => gap / compared.max(1) as f64,
+        _ => (gap / compared.max(1) as f64).sqrt(),
+    };
+    Ok((scores, disagreement))
+}
+
+/// A box's actions clipped to its bounds (as the policy's `predict` does).
+fn clipped(space: &Space, mut actions: Vec<f32>) -> Vec<f32> {
+    if let Space::Box { low, high } = space {
+        for (i, a) in actions.iter_mut().enumerate() {
+            *a = a.clamp(low[i % low.len()], high[i % low.len()]);
+        }
+    }
+    actions
+}
+
+/// The student's fitting: its CNN split at the dense layer, and the optimisers.
+struct Learner<'a> {
+    cnn: &'a NatureCnn,
+    /// The state values after the image (`pixels.state`).
+    state: usize,
+    tune: Tune,
+    actor: Adam,
+    dense: Adam,
+}
+
+impl<'a> Learner<'a> {
+    fn new(ppo: &'a Ppo, options: &DistillOptions) -> anyhow::Result<Self> {
+        let Encoder::Cnn { cnn, state } = &ppo.policy.encoder else {
+            anyhow::bail!("the student's policy must be \"cnn\" (NatureCNN) on the image");
+        };
+        anyhow::ensure!(ppo.policy.value_encoder.is_none() || options.tune == Tune::Actor, "--tune dense needs a student whose features are shared (share_features_extractor = true)");
+        let mut actor: Vec<Var> = ppo.policy.pi.layers.iter().flat_map(|l| [l.weight.clone(), l.bias.clone()]).collect();
+        if let Head::Gaussian { log_std, .. } = &ppo.policy.head {
+            actor.push(log_std.clone());
+        }
+        let adam = |vars, learning_rate| Adam::new(vars, AdamConfig { learning_rate, ..AdamConfig::default() });
+        Ok(Self {
+            cnn,
+            state: *state,
+            tune: options.tune,
+            actor: adam(actor, options.learning_rate),
+            dense: adam(vec![cnn.fc.weight.clone(), cnn.fc.bias.clone()], options.learning_rate / 10.0),
+        })
+    }
+
+    /// What an answer keeps of a batch of observations: the features and state values, or
+    /// (tuning the dense layer) the convolutions' output and state values.
+    fn kept(&self, obs: &Tensor) -> candle_core::Result<Tensor> {
+        let image_dim = obs.dim(1)? - self.state;
+        let mut h = (obs.narrow(1, 0, image_dim)? * (1.0 / 255.0))?;
+        for (i, conv) in self.cnn.convs.iter().enumerate() {
+            h = conv.forward(&h, i == 0)?;
+        }
+        let h = h.reshape((obs.dim(0)?, ()))?.detach();
+        let h = if self.tune == Tune::Dense { h } else { self.dense_layer(&h)?.detach() };
+        if self.state == 0 { Ok(h) } else { Tensor::cat(&[h, obs.narrow(1, image_dim, self.state)?], 1) }
+    }
+
+    /// The policy MLP's input from kept values.
+    fn features(&self, kept: &Tensor) -> candle_core::Result<Tensor> {
+        if self.tune == Tune::Actor {
+            return Ok(kept.clone());
+        }
+        let trunk = kept.dim(1)? - self.state;
+        let features = self.dense_layer(&kept.narrow(1, 0, trunk)?)?;
+        if self.state == 0 { Ok(features) } else { Tensor::cat(&[features, kept.narrow(1, trunk, self.state)?], 1) }
+    }
+
+    /// NatureCNN's dense layer with its ReLU.
+    fn dense_layer(&self, h: &Tensor) -> candle_core::Result<Tensor> {
+        h.matmul(&self.cnn.fc.weight.as_tensor().t()?)?.broadcast_add(self.cnn.fc.bias.as_tensor())?.relu()
+    }
+
+    /// `epochs` shuffled passes of −log π(a_teacher | o) over every answer; the last pass's mean.
+    fn fit(&mut self, ppo: &Ppo, answers: &Answers, epochs: usize, rng: &mut ChaCha8Rng) -> anyhow::Result<f64> {
+        let (k, a) = (answers.kept_dim, answers.action_dim);
+        let mut order: Vec<usize> = (0..answers.count()).collect();
+        let mut mean = f64::NAN;
+        for _ in 0..epochs {
+            order.shuffle(rng);
+            let mut sum = 0.0;
+            for chunk in order.chunks(BATCH) {
+                let x: Vec<f32> = chunk.iter().flat_map(|&i| answers.kept[i * k..(i + 1) * k].iter().copied()).collect();
+                let y: Vec<f32> = chunk.iter().flat_map(|&i| answers.actions[i * a..(i + 1) * a].iter().copied()).collect();
+                let x = Tensor::from_vec(x, (chunk.len(), k), &Device::Cpu)?;
+                let y = Tensor::from_vec(y, (chunk.len(), a), &Device::Cpu)?;
+                // A categorical head takes one action index a row.
+                let y = if matches!(ppo.action_space, Space::Discrete { .. }) { y.squeeze(D::Minus1)? } else { y };
+                let loss = ppo.policy.evaluate_features(&self.features(&x)?, None, &y.to_dtype(DType::F32)?)?.log_prob.mean_all()?.neg()?;
+                sum += loss.to_scalar::<f32>()? as f64 * chunk.len() as f64;
+                let grads = loss.backward()?;
+                self.actor.step(&grads, Some(0.5))?;
+                if self.tune == Tune::Dense {
+                    self.dense.step(&grads, Some(0.5))?;
+                }
+            }
+            mean = sum / order.len().max(1) as f64;
+        }
+        Ok(mean)
+    }
+}
