@@ -21,7 +21,7 @@ use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use twinbots_api::{Space, VecEnv};
+use twinbots_api::{EpisodeSummary, Space, VecEnv};
 use twinbots_learn::nn::{Adam, AdamConfig, Encoder, NatureCnn};
 use twinbots_learn::ppo::{Head, Ppo};
 use twinbots_learn::RunDir;
@@ -68,13 +68,16 @@ pub struct DistillOptions {
 #[derive(Clone, Debug, Serialize)]
 pub struct Round {
     pub round: usize,
-    /// Episodes the student finished in the round, and their mean score.
+    /// Episodes the student finished in the round, their mean score and (a task with a goal)
+    /// the share that succeeded.
     pub episodes: usize,
     pub mean_score: f64,
+    pub success_rate: Option<f64>,
     /// How far the student's actions were from the teacher's, before the round's fit: the
     /// share of differing actions (discrete) or their RMS difference (boxes).
     pub disagreement: f64,
-    /// The answers fitted to, all rounds so far, and the last epoch's mean −log π.
+    /// The answers fitted to, all rounds so far, and the last epoch's mean −log π (of a
+    /// density for boxes: it can be negative).
     pub answers: usize,
     pub cross_entropy: f64,
     pub seconds: f64,
@@ -114,11 +117,14 @@ pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &Distill
         let started = std::time::Instant::now();
         let (episodes, disagreement) = roll_out(&mut env, &ppo, &learner, &teacher, options.steps, settings.seed + ROUND_SEED_OFFSET + round as u64, &mut answers)?;
         let cross_entropy = learner.fit(&ppo, &answers, options.epochs, &mut rng)?;
-        let scores: Vec<f64> = episodes.iter().map(|&s| s as f64).collect();
+        let mean = |values: &[f64]| if values.is_empty() { f64::NAN } else { values.iter().sum::<f64>() / values.len() as f64 };
+        let scores: Vec<f64> = episodes.iter().map(|e| e.score as f64).collect();
+        let successes: Vec<f64> = episodes.iter().filter_map(|e| e.success).map(|s| f64::from(u8::from(s))).collect();
         let row = Round {
             round,
             episodes: scores.len(),
-            mean_score: if scores.is_empty() { f64::NAN } else { scores.iter().sum::<f64>() / scores.len() as f64 },
+            mean_score: mean(&scores),
+            success_rate: (!successes.is_empty()).then(|| mean(&successes)),
             disagreement,
             answers: answers.count(),
             cross_entropy,
@@ -140,9 +146,10 @@ pub const DISTILL_CSV: &str = "distill.csv";
 
 /// `distill.csv`: a header, then a row a round (rewritten after each, atomically).
 fn write_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {
-    let mut text = String::from("round,episodes,mean_score,disagreement,answers,cross_entropy,seconds\n");
+    let mut text = String::from("round,episodes,mean_score,success_rate,disagreement,answers,cross_entropy,seconds\n");
     for r in rounds {
-        text += &format!("{},{},{},{},{},{},{:.1}\n", r.round, r.episodes, r.mean_score, r.disagreement, r.answers, r.cross_entropy, r.seconds);
+        let success = r.success_rate.map_or(String::new(), |s| s.to_string());
+        text += &format!("{},{},{},{success},{},{},{},{:.1}\n", r.round, r.episodes, r.mean_score, r.disagreement, r.answers, r.cross_entropy, r.seconds);
     }
     twinbots_learn::ppo::write_atomic(path, text.as_bytes()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
@@ -163,13 +170,13 @@ impl Answers {
 }
 
 /// One round: the student drives every arena for `steps` steps from `seed`; every observation's
-/// kept values and the teacher's action there are added to `answers`. Returns the scores of the
-/// episodes that ended and the disagreement.
-fn roll_out(env: &mut AppVecEnv, ppo: &Ppo, learner: &Learner, teacher: &NamedController, steps: usize, seed: u64, answers: &mut Answers) -> anyhow::Result<(Vec<f32>, f64)> {
+/// kept values and the teacher's action there are added to `answers`. Returns the episodes that
+/// ended and the disagreement.
+fn roll_out(env: &mut AppVecEnv, ppo: &Ppo, learner: &Learner, teacher: &NamedController, steps: usize, seed: u64, answers: &mut Answers) -> anyhow::Result<(Vec<EpisodeSummary>, f64)> {
     let n = env.num_envs();
     let dim = ppo.observation_space.dim();
     let mut obs = env.reset(Some(seed))?;
-    let (mut scores, mut gap, mut compared) = (Vec::new(), 0.0, 0usize);
+    let (mut ended, mut gap, mut compared) = (Vec::new(), 0.0, 0usize);
     // Deterministic actions draw nothing from it.
     let mut unused = ChaCha8Rng::seed_from_u64(0);
     for _ in 0..steps {
@@ -193,14 +200,14 @@ fn roll_out(env: &mut AppVecEnv, ppo: &Ppo, learner: &Learner, teacher: &NamedCo
         answers.kept.extend(kept.flatten_all()?.to_vec1::<f32>()?);
         answers.actions.extend(told);
         let step = env.step(&actions)?;
-        scores.extend(step.episodes.iter().flatten().map(|e| e.score));
+        ended.extend(step.episodes.into_iter().flatten());
         obs = step.obs;
     }
     let disagreement = match ppo.action_space {
         Space::Discrete { .. } => gap / compared.max(1) as f64,
         _ => (gap / compared.max(1) as f64).sqrt(),
     };
-    Ok((scores, disagreement))
+    Ok((ended, disagreement))
 }
 
 /// A box's actions clipped to its bounds (as the policy's `predict` does).

@@ -45,8 +45,15 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let options = DistillOptions { teacher: args.teacher, rounds: args.rounds, steps: args.steps, epochs: args.epochs, tune, learning_rate: args.learning_rate };
     let rounds = distill(&entry, &args.run, &args.out, &options, |r| {
         println!(
-            "round {}: {} episodes ended, mean score {:.1}; disagreement with the teacher {:.4}; {} answers, cross-entropy {:.4} ({:.0} s)",
-            r.round, r.episodes, r.mean_score, r.disagreement, r.answers, r.cross_entropy, r.seconds
+            "round {}: {} episodes ended, mean score {:.1}{}; disagreement with the teacher {:.4}; {} answers, cross-entropy {:.4} ({:.0} s)",
+            r.round,
+            r.episodes,
+            r.mean_score,
+            r.success_rate.map_or(String::new(), |s| format!(", {:.0} % succeeded", 100.0 * s)),
+            r.disagreement,
+            r.answers,
+            r.cross_entropy,
+            r.seconds
         );
     })?;
     println!("{} rounds; the taught run is {}: judge it with `twinbots eval {} --episodes 100`", rounds.len(), args.out.display(), args.out.display());

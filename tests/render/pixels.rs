@@ -238,7 +238,7 @@ fn distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_ev
     // it disagrees far less and balances longer.
     let csv = std::fs::read_to_string(taught.join("distill.csv")).unwrap();
     let column = |i: usize| -> Vec<f64> { csv.lines().skip(1).map(|l| l.split(',').nth(i).unwrap().parse().unwrap()).collect() };
-    let (score, disagreement, answers) = (column(2), column(3), column(4));
+    let (score, disagreement, answers) = (column(2), column(4), column(5));
     assert_eq!(answers, [600.0, 1200.0, 1800.0, 2400.0, 3000.0], "{csv}");
     assert!(disagreement[0] > 0.5 && disagreement[2..].iter().any(|&d| d < 0.6 * disagreement[0]), "{csv}");
     assert!(score[4] > 1.2 * score[0], "{csv}");
