@@ -133,6 +133,7 @@ pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &Distill
         report(&row);
         rounds.push(row);
         write_csv(&out_run.file(DISTILL_CSV), &rounds)?;
+        plot_rounds(&out_run.file(DISTILL_PNG), &format!("{} taught by {}", entry.name, teacher.label), &rounds)?;
     }
     // The rollouts moved the action stream on; the taught model's counters are the run's.
     ppo.env_state = None;
@@ -141,8 +142,34 @@ pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &Distill
     Ok(rounds)
 }
 
-/// The rounds' figures, one row a round.
+/// The rounds' figures, one row a round, and their plot.
 pub const DISTILL_CSV: &str = "distill.csv";
+pub const DISTILL_PNG: &str = "distill.png";
+
+/// `distill.png`: the student's mean score (top) and its disagreement with the teacher
+/// (bottom) round by round.
+fn plot_rounds(path: &Path, title: &str, rounds: &[Round]) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    twinbots_learn::plot::png(path, (900, 700), |root| {
+        let root = root.titled(title, ("sans-serif", 22))?;
+        let panels = root.split_evenly((2, 1));
+        let last = rounds.len().saturating_sub(1).max(1) as f64;
+        let series: [(&str, Box<dyn Fn(&Round) -> f64>); 2] =
+            [("mean score of the round's episodes", Box::new(|r| r.mean_score)), ("disagreement with the teacher", Box::new(|r| r.disagreement))];
+        for (panel, (label, value)) in panels.iter().zip(series) {
+            let points: Vec<(f64, f64)> = rounds.iter().map(|r| (r.round as f64, value(r))).filter(|p| p.1.is_finite()).collect();
+            let (low, high) = points.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| (lo.min(p.1), hi.max(p.1)));
+            let (low, high) = if low > high { (0.0, 1.0) } else { (low, high) };
+            let pad = (high - low).max(1e-3) * 0.08;
+            let mut chart = ChartBuilder::on(panel).margin(12).x_label_area_size(36).y_label_area_size(70).build_cartesian_2d(0f64..last, low - pad..high + pad)?;
+            let whole = |x: &f64| format!("{x:.0}");
+            chart.configure_mesh().x_labels((last as usize + 1).min(21)).x_label_formatter(&whole).x_desc("round").y_desc(label).label_style(("sans-serif", 14)).draw()?;
+            chart.draw_series(LineSeries::new(points.iter().copied(), BLUE.stroke_width(2)))?;
+            chart.draw_series(points.iter().map(|&p| Circle::new(p, 3, BLUE.filled())))?;
+        }
+        Ok(())
+    })
+}
 
 /// `distill.csv`: a header, then a row a round (rewritten after each, atomically).
 fn write_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {

@@ -242,6 +242,8 @@ fn distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_ev
     assert_eq!(answers, [600.0, 1200.0, 1800.0, 2400.0, 3000.0], "{csv}");
     assert!(disagreement[0] > 0.5 && disagreement[2..].iter().any(|&d| d < 0.6 * disagreement[0]), "{csv}");
     assert!(score[4] > 1.2 * score[0], "{csv}");
+    let png = image::open(taught.join("distill.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (900, 700));
     let out = twinbots(&["eval", &path(&taught), "--episodes", "2"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     // The same rounds again give the same student.
