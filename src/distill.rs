@@ -84,7 +84,8 @@ pub struct Round {
 }
 
 /// Teaches the policy of the pixel run `student` (a PPO CNN policy) with `options` into the new
-/// run directory `out` (its `config.toml`, the taught `model/`, `distill.csv`, `distill.json`),
+/// run directory `out` (its `config.toml`, the taught `model/`, `distill.csv`, `distill.png`,
+/// `distill.json`),
 /// which `twinbots eval` judges as any run. `report` sees every round.
 pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &DistillOptions, mut report: impl FnMut(&Round)) -> anyhow::Result<Vec<Round>> {
     anyhow::ensure!(options.rounds > 0 && options.steps > 0 && options.epochs > 0, "--rounds, --steps and --epochs must each be at least 1");
@@ -115,7 +116,7 @@ pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &Distill
     let mut rounds = Vec::new();
     for round in 0..options.rounds {
         let started = std::time::Instant::now();
-        let (episodes, disagreement) = roll_out(&mut env, &ppo, &learner, &teacher, options.steps, settings.seed + ROUND_SEED_OFFSET + round as u64, &mut answers)?;
+        let (episodes, disagreement) = roll_out(&mut env, &ppo, &learner, &teacher, options.steps, settings.seed.wrapping_add(ROUND_SEED_OFFSET + round as u64), &mut answers)?;
         let cross_entropy = learner.fit(&ppo, &answers, options.epochs, &mut rng)?;
         let mean = |values: &[f64]| if values.is_empty() { f64::NAN } else { values.iter().sum::<f64>() / values.len() as f64 };
         let scores: Vec<f64> = episodes.iter().map(|e| e.score as f64).collect();
@@ -135,7 +136,8 @@ pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &Distill
         write_csv(&out_run.file(DISTILL_CSV), &rounds)?;
         plot_rounds(&out_run.file(DISTILL_PNG), &format!("{} taught by {}", entry.name, teacher.label), &rounds)?;
     }
-    // The rollouts moved the action stream on; the taught model's counters are the run's.
+    // The episodes the student's training left running are not these rounds': a `train
+    // --resume` of the taught run starts its envs afresh.
     ppo.env_state = None;
     out_run.save_model(&ppo)?;
     out_run.write_json("distill.json", &serde_json::json!({ "student": student, "options": options, "rounds": rounds }))?;
