@@ -218,7 +218,8 @@ fn roll_out(env: &mut AppVecEnv, ppo: &Ppo, learner: &Learner, teacher: &NamedCo
             let observed = env.app().world().get::<TaskObservation>(arena).ok_or_else(|| anyhow::anyhow!("the pixel env keeps no task observation"))?;
             state.extend_from_slice(&observed.0);
         }
-        let told = teacher.act(&state, state.len() / n)?;
+        // What the env would do with the teacher's actions: a box's clipped to its bounds.
+        let told = clipped(&ppo.action_space, teacher.act(&state, state.len() / n)?);
         anyhow::ensure!(told.len() == actions.len(), "the teacher gives {} actions for {n} arenas, the student {}", told.len(), actions.len());
         (gap, compared) = match ppo.action_space {
             Space::Discrete { .. } => (gap + told.iter().zip(&actions).filter(|(t, a)| t != a).count() as f64, compared + n),
