@@ -212,14 +212,14 @@ fn roll_out(env: &mut AppVecEnv, ppo: &Ppo, learner: &Learner, teacher: &NamedCo
         let x = Tensor::from_vec(ppo.normalize(&obs), (n, dim), &Device::Cpu)?;
         let kept = learner.kept(&x)?;
         let (actions, _, _) = ppo.policy.act_from(&learner.features(&kept)?, None, true, &mut unused)?;
-        let actions = clipped(&ppo.action_space, actions);
+        let actions = ppo.clip_to_space(actions);
         let mut state = Vec::new();
         for &arena in env.arenas() {
             let observed = env.app().world().get::<TaskObservation>(arena).ok_or_else(|| anyhow::anyhow!("the pixel env keeps no task observation"))?;
             state.extend_from_slice(&observed.0);
         }
         // What the env would do with the teacher's actions: a box's clipped to its bounds.
-        let told = clipped(&ppo.action_space, teacher.act(&state, state.len() / n)?);
+        let told = ppo.clip_to_space(teacher.act(&state, state.len() / n)?);
         anyhow::ensure!(told.len() == actions.len(), "the teacher gives {} actions for {n} arenas, the student {}", told.len(), actions.len());
         (gap, compared) = match ppo.action_space {
             Space::Discrete { .. } => (gap + told.iter().zip(&actions).filter(|(t, a)| t != a).count() as f64, compared + n),
@@ -238,16 +238,6 @@ fn roll_out(env: &mut AppVecEnv, ppo: &Ppo, learner: &Learner, teacher: &NamedCo
         _ => (gap / compared.max(1) as f64).sqrt(),
     };
     Ok((ended, disagreement))
-}
-
-/// A box's actions clipped to its bounds (as the policy's `predict` does).
-fn clipped(space: &Space, mut actions: Vec<f32>) -> Vec<f32> {
-    if let Space::Box { low, high } = space {
-        for (i, a) in actions.iter_mut().enumerate() {
-            *a = a.clamp(low[i % low.len()], high[i % low.len()]);
-        }
-    }
-    actions
 }
 
 /// The student's fitting: its CNN split at the dense layer, and the optimisers.
@@ -284,12 +274,8 @@ impl<'a> Learner<'a> {
     /// (tuning the dense layer) the convolutions' output and state values.
     fn kept(&self, obs: &Tensor) -> candle_core::Result<Tensor> {
         let image_dim = obs.dim(1)? - self.state;
-        let mut h = (obs.narrow(1, 0, image_dim)? * (1.0 / 255.0))?;
-        for (i, conv) in self.cnn.convs.iter().enumerate() {
-            h = conv.forward(&h, i == 0)?;
-        }
-        let h = h.reshape((obs.dim(0)?, ()))?.detach();
-        let h = if self.tune == Tune::Dense { h } else { self.dense_layer(&h)?.detach() };
+        let h = self.cnn.convolutions(&obs.narrow(1, 0, image_dim)?)?.detach();
+        let h = if self.tune == Tune::Dense { h } else { self.cnn.dense(&h)?.detach() };
         if self.state == 0 { Ok(h) } else { Tensor::cat(&[h, obs.narrow(1, image_dim, self.state)?], 1) }
     }
 
@@ -299,13 +285,8 @@ impl<'a> Learner<'a> {
             return Ok(kept.clone());
         }
         let trunk = kept.dim(1)? - self.state;
-        let features = self.dense_layer(&kept.narrow(1, 0, trunk)?)?;
+        let features = self.cnn.dense(&kept.narrow(1, 0, trunk)?)?;
         if self.state == 0 { Ok(features) } else { Tensor::cat(&[features, kept.narrow(1, trunk, self.state)?], 1) }
-    }
-
-    /// NatureCNN's dense layer with its ReLU.
-    fn dense_layer(&self, h: &Tensor) -> candle_core::Result<Tensor> {
-        h.matmul(&self.cnn.fc.weight.as_tensor().t()?)?.broadcast_add(self.cnn.fc.bias.as_tensor())?.relu()
     }
 
     /// `epochs` shuffled passes of −log π(a_teacher | o) over every answer; the last pass's mean.

@@ -54,13 +54,23 @@ impl NatureCnn {
     }
 
     fn forward(&self, obs: &Tensor) -> Result<Tensor> {
+        self.dense(&self.convolutions(obs)?)
+    }
+
+    /// `[batch, pixels]` images (0–255) → the convolutions' output, flat: the dense layer's input.
+    pub fn convolutions(&self, obs: &Tensor) -> Result<Tensor> {
         let batch = obs.dim(0)?;
         let mut x = (obs * (1.0 / 255.0))?;
         for (i, conv) in self.convs.iter().enumerate() {
             // The observations need no gradient: the first layer's products skip it.
             x = conv.forward(&x, i == 0)?;
         }
-        self.fc.forward(&x.reshape((batch, ()))?)?.relu()
+        x.reshape((batch, ()))
+    }
+
+    /// The dense layer with its ReLU: the features, from [`Self::convolutions`]' output.
+    pub fn dense(&self, flat: &Tensor) -> Result<Tensor> {
+        self.fc.forward(flat)?.relu()
     }
 }
 

@@ -106,7 +106,7 @@ impl Ppo {
     }
 
     /// Boxes are clipped before they reach the env.
-    pub(super) fn clip_to_space(&self, mut actions: Vec<f32>) -> Vec<f32> {
+    pub fn clip_to_space(&self, mut actions: Vec<f32>) -> Vec<f32> {
         if let Space::Box { low, high } = &self.action_space {
             for (i, a) in actions.iter_mut().enumerate() {
                 let k = i % low.len();
