@@ -6,13 +6,14 @@
 //!   controller with a random action a quarter of the time; labels the cart's place and speed and the
 //!   pole's angle and rate (the state a policy needs); then closes the loop: the classical
 //!   controller acting on the states the fitted encoder reads (mean episode length).
-//! - `ur5e`: the camera reach's iso camera, 64×64 (or SIZE²), one frame, a new target per arena at every
-//!   reset (images of the reset and of two random steps after it); labels the target's place
-//!   (base frame), and the held-out error in millimetres.
-//!
+//! - `ur5e`: the camera reach's iso camera, 64×64 (or SIZE²), one frame, whole reaches: the
+//!   classical controller drives every arena, jittered and with a random action a quarter of the
+//!   time, an image every third step; labels the target's place (base frame), and the held-out
+//!   error in millimetres.
 //!
 //! `randomized` draws a new look per arena at every reset (`[randomization.visual]`'s
-//! defaults), as training with visual randomization does. A last argument, a `.safetensors`
+//! defaults), as training with visual randomization does; a `.toml` file instead draws them from
+//! its `[randomization.visual]` table (e.g. without camera jitter). A last argument, a `.safetensors`
 //! path, saves the fitted encoder there (`features.*`): `[ppo] features_from` starts a policy
 //! from it (docs/pixels.md).
 //!
@@ -20,7 +21,7 @@
 //! longer; `annealed` fits in shuffled batches with the learning rate falling linearly to 0 over
 //! the epochs (`constant`, the default: the collection order and 3e-4 throughout).
 //!
-//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized] [SAVE] [FRAMES] [SIZE] [FROM|-] [constant|annealed]`
+//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized|LOOKS.toml] [SAVE] [FRAMES] [SIZE] [FROM|-] [constant|annealed]`
 
 use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
@@ -28,6 +29,8 @@ use rand_chacha::ChaCha8Rng;
 use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_learn::nn::{Adam, AdamConfig, Encoder, PolicyKind};
 use twinbots_render::PixelSettings;
+use twinbots_render::pixels::TaskObservation;
+use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
 use twinbots_task::AppVecEnv;
 
 const ARENAS: usize = 8;
@@ -45,9 +48,10 @@ fn main() -> anyhow::Result<()> {
         other => anyhow::bail!("encoder '{other}': cnn or keypoints"),
     };
     let randomized = match args.get(6).map_or("plain", String::as_str) {
-        "plain" => false,
-        "randomized" => true,
-        other => anyhow::bail!("looks '{other}': plain or randomized"),
+        "plain" => None,
+        "randomized" => Some(VisualRandomization::default()),
+        file if file.ends_with(".toml") => Some(looks_of(file)?),
+        other => anyhow::bail!("looks '{other}': plain, randomized or a .toml file with a [randomization.visual] table"),
     };
     let save = args.get(7).map(std::path::PathBuf::from);
     let frames: u32 = args.get(8).map_or(Ok(2), |s| s.parse())?;
@@ -64,7 +68,8 @@ fn main() -> anyhow::Result<()> {
         other => anyhow::bail!("robot '{other}': cartpole or ur5e"),
     };
     let (dim, k) = (env.observation_space().dim(), names.len());
-    let held_out = samples / 5;
+    // A fifth held out, at most 4,800 images (one tensor, read after every epoch).
+    let held_out = (samples / 5).min(4800);
     let train = samples - held_out;
     println!("{robot}: {samples} images ({train} to fit, {held_out} held out), field of view {fov}°");
 
@@ -83,12 +88,13 @@ fn main() -> anyhow::Result<()> {
     let predict = |x: &Tensor| -> candle_core::Result<Tensor> { encoder.forward(x)?.matmul(&head_w.as_tensor().t()?)?.broadcast_add(head_b.as_tensor()) };
     // Batches gathered by index: in collection order, or shuffled every epoch (`annealed`).
     let gathered = |picked: &[usize]| -> candle_core::Result<(Tensor, Tensor)> {
-        let x: Vec<f32> = picked.iter().flat_map(|&i| images[i * dim..(i + 1) * dim].iter().copied()).collect();
+        let x: Vec<f32> = picked.iter().flat_map(|&i| images[i * dim..(i + 1) * dim].iter().map(|&v| v as f32)).collect();
         let y: Vec<f32> = picked.iter().flat_map(|&i| labels[i * k..(i + 1) * k].iter().copied()).collect();
         Ok((Tensor::from_vec(x, (picked.len(), dim), &dev)?, Tensor::from_vec(y, (picked.len(), k), &dev)?))
     };
     // The held-out images, made a tensor once: read after every epoch and at the end.
-    let held_x = Tensor::from_slice(&images[train * dim..(train + held_out) * dim], (held_out, dim), &dev)?;
+    let held: Vec<f32> = images[train * dim..(train + held_out) * dim].iter().map(|&v| v as f32).collect();
+    let held_x = Tensor::from_vec(held, (held_out, dim), &dev)?;
     let held_y = Tensor::from_slice(&labels[train * k..(train + held_out) * k], (held_out, k), &dev)?;
     let mut order: Vec<usize> = (0..train).collect();
     let mut shuffler = ChaCha8Rng::seed_from_u64(3);
@@ -153,13 +159,28 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `[randomization.visual]`'s defaults: a new look per arena at every reset.
-fn randomize_looks(app: &mut bevy::prelude::App) {
-    use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
-    app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
+/// A new look per arena at every reset, drawn from `looks`.
+fn randomize_looks(app: &mut bevy::prelude::App, looks: Option<VisualRandomization>) {
+    if looks.is_some() {
+        app.add_plugins(RandomizationPlugin(Randomization { visual: looks, ..Default::default() }));
+    }
 }
 
-type Samples = (AppVecEnv, Vec<&'static str>, f32, Vec<f32>, Vec<f32>);
+/// The `[randomization.visual]` table of a TOML file.
+fn looks_of(file: &str) -> anyhow::Result<VisualRandomization> {
+    let text = std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("looks {file}: {e}"))?;
+    let randomization = Randomization::from_config(&text).map_err(|e| anyhow::anyhow!("looks {file}: {e}"))?;
+    randomization.visual.ok_or_else(|| anyhow::anyhow!("looks {file}: has no [randomization.visual] table"))
+}
+
+/// The env, the labels' names, their scale, the images (pixel values as bytes: a quarter of the
+/// floats' memory, so that ≈ 100,000 96×96 images fit) and the labels.
+type Samples = (AppVecEnv, Vec<&'static str>, f32, Vec<u8>, Vec<f32>);
+
+/// Pixel values (whole numbers 0–255 in the observation) as bytes.
+fn as_bytes(pixels: &[f32]) -> impl Iterator<Item = u8> + '_ {
+    pixels.iter().map(|&v| v as u8)
+}
 
 /// The units of the cart-pole's labels x, v, angle, rate: 0.1 m, 0.1 m/s, 0.1 rad, 1 rad/s.
 const CARTPOLE_UNITS: [f32; 4] = [0.1, 0.1, 0.1, 1.0];
@@ -168,13 +189,11 @@ const CARTPOLE_LABELS: usize = CARTPOLE_UNITS.len();
 /// The classical controller with random actions mixed in; each image labelled with the state
 /// it shows (the arena's state after the step, before an ended episode's reset: skipped where
 /// one ended).
-fn cartpole_samples(samples: usize, fov: f32, frames: u32, size: u32, randomized: bool) -> anyhow::Result<Samples> {
+fn cartpole_samples(samples: usize, fov: f32, frames: u32, size: u32, randomized: Option<VisualRandomization>) -> anyhow::Result<Samples> {
     let settings = PixelSettings { fov, frames, width: size, height: size, ..PixelSettings::default() };
     let mut app = cartpole::headless_app(ARENAS, 0);
     settings.install(&mut app, &cartpole::robot().framing, ARENAS)?;
-    if randomized {
-        randomize_looks(&mut app);
-    }
+    randomize_looks(&mut app, randomized);
     let mut env = AppVecEnv::new(app);
     let dim = env.observation_space().dim();
     let mut rng = ChaCha8Rng::seed_from_u64(1);
@@ -197,7 +216,7 @@ fn cartpole_samples(samples: usize, fov: f32, frames: u32, size: u32, randomized
                 continue; // the state is already the next episode's
             }
             let s = *env.app().world().get::<cartpole::CartPoleState>(arena).expect("every arena has a state");
-            images.extend_from_slice(&step.obs[i * dim..(i + 1) * dim]);
+            images.extend(as_bytes(&step.obs[i * dim..(i + 1) * dim]));
             labels.extend([s.x, s.v, s.angle, s.rate].iter().zip(CARTPOLE_UNITS).map(|(value, unit)| value / unit));
         }
     }
@@ -209,34 +228,46 @@ fn cartpole_samples(samples: usize, fov: f32, frames: u32, size: u32, randomized
 /// Labels in units of 10 cm: the target's x, y, z in the robot's base frame.
 const UR5E_SCALE: f32 = 10.0;
 
-/// A new target in every arena at each reset; the images of the reset and of two random steps.
-fn ur5e_samples(samples: usize, fov: f32, size: u32, randomized: bool) -> anyhow::Result<Samples> {
+/// An image every this many control steps of the reaches.
+const UR5E_STRIDE: usize = 3;
+
+/// Whole reaches, so that the images show what a reaching policy sees: the arm on its way and
+/// over the target, where the target's place must be read most precisely (within the 1 cm an
+/// arrival takes). The classical controller drives every arena, its action jittered by ±0.3 and
+/// replaced by a random one a quarter of the time (a learning policy's strays); an arrival
+/// resets the arena, and the image and the target after it are the next episode's alike.
+fn ur5e_samples(samples: usize, fov: f32, size: u32, randomized: Option<VisualRandomization>) -> anyhow::Result<Samples> {
     let settings = PixelSettings { camera: "iso".into(), fov, width: size, height: size, ..PixelSettings::default() };
     let mut app = ur5e::headless_app_with(ARENAS, 0, DesignPattern::Supervised);
     settings.install(&mut app, &ur5e::robot().framing, ARENAS)?;
-    if randomized {
-        randomize_looks(&mut app);
-    }
+    randomize_looks(&mut app, randomized);
     let mut env = AppVecEnv::new(app);
     let dim = env.observation_space().dim();
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let (mut images, mut labels) = (Vec::with_capacity(samples * dim), Vec::with_capacity(samples * 3));
-    for seed in 0.. {
+    let mut obs = env.reset(Some(0))?;
+    for step in 0.. {
         if labels.len() >= samples * 3 {
             break;
         }
-        let mut obs = env.reset(Some(seed))?;
-        for step in 0..3 {
-            if step > 0 {
-                let actions: Vec<f32> = (0..ARENAS * 5).map(|_| rng.random_range(-1.0..1.0)).collect();
-                obs = env.step(&actions)?.obs;
-            }
+        let world = env.app().world();
+        if step % UR5E_STRIDE == 0 {
             for (i, &arena) in env.arenas().iter().enumerate() {
-                let target = env.app().world().get::<ur5e::CellState>(arena).expect("every arena has a state").target;
-                images.extend_from_slice(&obs[i * dim..(i + 1) * dim]);
+                let target = world.get::<ur5e::CellState>(arena).expect("every arena has a state").target;
+                images.extend(as_bytes(&obs[i * dim..(i + 1) * dim]));
                 labels.extend((target * UR5E_SCALE).to_array());
             }
         }
+        let mut actions = Vec::with_capacity(ARENAS * 5);
+        for &arena in env.arenas() {
+            let observed = world.get::<TaskObservation>(arena).expect("a pixel env keeps the task's observation");
+            if rng.random_bool(0.25) {
+                actions.extend((0..5).map(|_| rng.random_range(-1.0f32..1.0)));
+            } else {
+                actions.extend(ur5e::controller::act(&observed.0).into_iter().map(|a| (a + rng.random_range(-0.3..0.3)).clamp(-1.0, 1.0)));
+            }
+        }
+        obs = env.step(&actions)?.obs;
     }
     images.truncate(samples * dim);
     labels.truncate(samples * 3);
