@@ -50,7 +50,7 @@ fn main() -> anyhow::Result<()> {
     let randomized = match args.get(6).map_or("plain", String::as_str) {
         "plain" => None,
         "randomized" => Some(VisualRandomization::default()),
-        file if file.ends_with(".toml") => Some(looks_of(file)?),
+        file if file.ends_with(".toml") => Some(Randomization::looks_of(std::path::Path::new(file)).map_err(|e| anyhow::anyhow!("looks {e}"))?),
         other => anyhow::bail!("looks '{other}': plain, randomized or a .toml file with a [randomization.visual] table"),
     };
     let save = args.get(7).map(std::path::PathBuf::from);
@@ -164,13 +164,6 @@ fn randomize_looks(app: &mut bevy::prelude::App, looks: Option<VisualRandomizati
     if looks.is_some() {
         app.add_plugins(RandomizationPlugin(Randomization { visual: looks, ..Default::default() }));
     }
-}
-
-/// The `[randomization.visual]` table of a TOML file.
-fn looks_of(file: &str) -> anyhow::Result<VisualRandomization> {
-    let text = std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("looks {file}: {e}"))?;
-    let randomization = Randomization::from_config(&text).map_err(|e| anyhow::anyhow!("looks {file}: {e}"))?;
-    randomization.visual.ok_or_else(|| anyhow::anyhow!("looks {file}: has no [randomization.visual] table"))
 }
 
 /// The env, the labels' names, their scale, the images (pixel values as bytes: a quarter of the

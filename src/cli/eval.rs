@@ -9,7 +9,7 @@ use twinbots_task::AppVecEnv;
 use twinbots::robot_log::finish_log;
 use twinbots::run::{evaluation_app, evaluation_env};
 use twinbots_task::randomization::Randomization;
-use twinbots_task::randomization::visual::{VisualRandomization, VisualRandomizationPlugin};
+use twinbots_task::randomization::visual::VisualRandomizationPlugin;
 use twinbots::settings::{CalibrationSetting, TrainSettings};
 use twinbots::twin::Twin;
 use crate::registry;
@@ -94,7 +94,7 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, on: Evaluate
         None => evaluation_env(&entry, Some(name), arenas, episodes, seed, &settings, &params)?,
         Some(file) => {
             let mut app = evaluation_app(&entry, Some(name), arenas.clamp(1, episodes), seed, &settings, &params)?;
-            app.add_plugins(VisualRandomizationPlugin(looks_of(file)?));
+            app.add_plugins(VisualRandomizationPlugin(Randomization::looks_of(file).map_err(|e| anyhow::anyhow!("--looks {e}"))?));
             AppVecEnv::new(app)
         }
     };
@@ -111,13 +111,6 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, on: Evaluate
     };
     run_dir.write_json(&file, &result)?;
     Ok(result)
-}
-
-/// The `[randomization.visual]` table of a TOML file (`eval --looks`).
-fn looks_of(file: &Path) -> anyhow::Result<VisualRandomization> {
-    let text = std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("--looks {}: {e}", file.display()))?;
-    let randomization = Randomization::from_config(&text).map_err(|e| anyhow::anyhow!("--looks {}: {e}", file.display()))?;
-    randomization.visual.ok_or_else(|| anyhow::anyhow!("--looks {}: has no [randomization.visual] table", file.display()))
 }
 
 /// The calibration a run is evaluated with: the file's if given, else the run's own.

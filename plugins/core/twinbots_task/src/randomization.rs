@@ -136,6 +136,14 @@ impl Randomization {
         Ok(r)
     }
 
+    /// The `[randomization.visual]` table of a TOML file (a looks file such as
+    /// `assets/looks/held-out.toml`); errors name the file.
+    pub fn looks_of(file: &std::path::Path) -> anyhow::Result<visual::VisualRandomization> {
+        let text = std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+        let randomization = Self::from_config(&text).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+        randomization.visual.ok_or_else(|| anyhow::anyhow!("{}: has no [randomization.visual] table", file.display()))
+    }
+
     /// A clear error when `calibration_spread` is asked for without a spread to scale
     /// (`has_spread`: the run's calibration has a non-empty `[spread]`).
     pub fn check_spread(&self, has_spread: bool) -> anyhow::Result<()> {
