@@ -1,7 +1,8 @@
 //! Domain randomization: physical parameters per episode, d_randomize on actions, latency.
 
 use twinbots_sim::Look;
-use twinbots_task::randomization::visual::VisualRandomization;
+use rand::SeedableRng;
+use twinbots_task::randomization::visual::{VisualRandomization, redraw_looks};
 use twinbots_task::randomization::{FitSpread, Randomization, RandomizationPlugin};
 use twinbots_api::VecEnv;
 use twinbots_task::AppVecEnv;
@@ -197,6 +198,40 @@ fn visual_randomization_draws_a_look_per_arena_and_episode_from_the_seed_alone()
     let floor_only = VisualRandomization { surfaces: vec!["floor".into()], ..visual };
     let (draws, _) = looks(Some(floor_only), 4, 1);
     assert_eq!(draws[0][0].as_ref().unwrap().surfaces.keys().collect::<Vec<_>>(), ["floor"]);
+}
+
+/// Arena 0's observations over a few steps, with every arena's look redrawn (`redraw_looks`,
+/// from `seed`) before each, and the looks after every step.
+fn redrawn(visual: Option<VisualRandomization>, seed: u64) -> (Vec<Vec<f32>>, Vec<Vec<Option<Look>>>) {
+    let mut app = cartpole::headless_app(2, 3);
+    app.add_plugins(RandomizationPlugin(Randomization { visual, ..Default::default() }));
+    let mut env = AppVecEnv::new(app);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut obs = vec![env.reset(Some(3)).unwrap()];
+    let mut drawn = Vec::new();
+    for _ in 0..4 {
+        redraw_looks(env.app_mut().world_mut(), &mut rng);
+        obs.push(env.step(&[1.0, 0.0]).unwrap().obs);
+        drawn.push(env.arenas().iter().map(|&a| env.app().world().get::<Look>(a).cloned()).collect());
+    }
+    (obs, drawn)
+}
+
+#[test]
+fn redrawn_looks_change_every_arena_mid_episode_and_nothing_else() {
+    let visual = Some(VisualRandomization::default());
+    let (obs, drawn) = redrawn(visual.clone(), 7);
+    let all: Vec<Look> = drawn.iter().flatten().map(|l| l.clone().expect("every arena has a look")).collect();
+    for (i, a) in all.iter().enumerate() {
+        for b in &all[i + 1..] {
+            assert_ne!(a, b, "each arena and step looks different");
+        }
+    }
+    assert_eq!(redrawn(visual.clone(), 7).1, drawn, "the same stream draws the same looks");
+    assert_ne!(redrawn(visual, 8).1, drawn);
+    let (plain_obs, none) = redrawn(None, 7);
+    assert!(none.iter().flatten().all(Option::is_none), "no looks without [randomization.visual]");
+    assert_eq!(obs, plain_obs, "the physics goes on as without looks");
 }
 
 #[test]

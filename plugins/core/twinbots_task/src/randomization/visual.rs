@@ -268,13 +268,7 @@ fn draw_looks(
     links: Query<(Entity, &Link, &Visuals, &InArena)>,
 ) {
     for (entity, arena, stream) in &mut arenas {
-        let own: Vec<(Entity, &Link, &Visuals)> = links.iter().filter(|(_, _, _, a)| a.0 == entity).map(|(e, l, v, _)| (e, l, v)).collect();
-        let names = Look::link_names(own.iter().map(|(e, l, _)| (*e, l.name.as_str())));
-        let counts: std::collections::HashMap<Entity, usize> = own.iter().map(|(e, _, v)| (*e, v.0.len())).collect();
-        // In name order: the draw does not depend on the order links were spawned in.
-        let mut own: Vec<(String, usize)> = names.into_iter().map(|(e, name)| (name, counts[&e])).collect();
-        own.sort();
-        let statics: Vec<(Vec3, Vec3)> = arena.static_boxes().map(|(h, pose)| (h, pose.translation)).collect();
+        let (own, statics) = drawn_over(entity, arena, links.iter());
         let look = match stream {
             Some(mut s) if s.reseeds == arena.reseeds() => config.draw(&mut s.rng, &own, &statics),
             _ => {
@@ -285,5 +279,42 @@ fn draw_looks(
             }
         };
         commands.entity(entity).insert(look);
+    }
+}
+
+/// What an arena's look is drawn over: its links (name, visuals' count) in name order, so that
+/// the draw does not depend on the order links were spawned in, and its fixed boxes.
+fn drawn_over<'a>(
+    entity: Entity,
+    arena: &Arena,
+    links: impl Iterator<Item = (Entity, &'a Link, &'a Visuals, &'a InArena)>,
+) -> (Vec<(String, usize)>, Vec<(Vec3, Vec3)>) {
+    let own: Vec<(Entity, &Link, &Visuals)> = links.filter(|(_, _, _, a)| a.0 == entity).map(|(e, l, v, _)| (e, l, v)).collect();
+    let names = Look::link_names(own.iter().map(|(e, l, _)| (*e, l.name.as_str())));
+    let counts: std::collections::HashMap<Entity, usize> = own.iter().map(|(e, _, v)| (*e, v.0.len())).collect();
+    let mut own: Vec<(String, usize)> = names.into_iter().map(|(e, name)| (name, counts[&e])).collect();
+    own.sort();
+    let statics = arena.static_boxes().map(|(h, pose)| (h, pose.translation)).collect();
+    (own, statics)
+}
+
+/// A new look for every arena now, mid-episode, drawn from `rng` by the world's
+/// [`VisualRandomization`] (the arenas' own streams untouched). For collecting labelled images
+/// where each shows a look of its own (examples/pixel_probe.rs): with a look per episode, an
+/// encoder can learn which look goes with which label instead of reading the label off the
+/// picture. Does nothing in a world without visual randomization.
+pub fn redraw_looks(world: &mut World, rng: &mut impl Rng) {
+    let Some(config) = world.get_resource::<VisualRandomization>().cloned() else { return };
+    let mut links = world.query::<(Entity, &Link, &Visuals, &InArena)>();
+    let mut arenas = world.query::<(Entity, &Arena)>();
+    let looks: Vec<(Entity, Look)> = arenas
+        .iter(world)
+        .map(|(entity, arena)| {
+            let (own, statics) = drawn_over(entity, arena, links.iter(world));
+            (entity, config.draw(rng, &own, &statics))
+        })
+        .collect();
+    for (entity, look) in looks {
+        world.entity_mut(entity).insert(look);
     }
 }
