@@ -24,7 +24,12 @@
 //! longer; `annealed` fits in shuffled batches with the learning rate falling linearly to 0 over
 //! the epochs (`constant`, the default: the collection order and 3e-4 throughout).
 //!
-//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized|LOOKS.toml] [SAVE] [FRAMES] [SIZE] [FROM|-] [constant|annealed] [HELD_OUT.toml]`
+//! `jittered` fits on every image under a colour jitter of its own, drawn each time it is read
+//! (brightness, contrast and saturation ±40 %, each channel ±10 %), as RAD and DrQ fit pixel
+//! encoders; the held-out images are read as rendered. HELD_OUT may name several `.toml` files,
+//! joined by commas, each measured apart (`-`: none).
+//!
+//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized|LOOKS.toml] [SAVE] [FRAMES] [SIZE] [FROM|-] [constant|annealed] [HELD_OUT.toml[,…]|-] [plain|jittered]`
 
 use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
@@ -66,8 +71,19 @@ fn main() -> anyhow::Result<()> {
         "annealed" => true,
         other => anyhow::bail!("schedule '{other}': constant or annealed"),
     };
-    let held_out_looks = args.get(12).map(|file| Randomization::looks_of(std::path::Path::new(file)).map_err(|e| anyhow::anyhow!("held-out looks {e}"))).transpose()?;
-    anyhow::ensure!(held_out_looks.is_none() || robot == "ur5e", "held-out looks: the ur5e probe's");
+    let held_out_looks: Vec<(String, VisualRandomization)> = match args.get(12).filter(|s| s.as_str() != "-") {
+        None => Vec::new(),
+        Some(files) => files
+            .split(',')
+            .map(|file| Ok((file.to_string(), Randomization::looks_of(std::path::Path::new(file)).map_err(|e| anyhow::anyhow!("held-out looks {e}"))?)))
+            .collect::<anyhow::Result<_>>()?,
+    };
+    anyhow::ensure!(held_out_looks.is_empty() || robot == "ur5e", "held-out looks: the ur5e probe's");
+    let jittered = match args.get(13).map_or("plain", String::as_str) {
+        "plain" => false,
+        "jittered" => true,
+        other => anyhow::bail!("images '{other}': plain or jittered (colour jitter on every fitted image)"),
+    };
     let (env, names, scale, images, labels) = match robot {
         "cartpole" => cartpole_samples(samples, fov, frames, size, randomized)?,
         "ur5e" => ur5e_samples(samples, fov, size, randomized, 0)?,
@@ -77,7 +93,7 @@ fn main() -> anyhow::Result<()> {
     // A fifth held out, at most 4,800 images (one tensor, read after every epoch).
     let held_out = (samples / 5).min(4800);
     let train = samples - held_out;
-    println!("{robot}: {samples} images ({train} to fit, {held_out} held out), field of view {fov}°");
+    println!("{robot}: {samples} images ({train} to fit, {held_out} held out), field of view {fov}°{}", if jittered { ", colour-jittered fit" } else { "" });
 
     let dev = Device::Cpu;
     let encoder = Encoder::new(kind, env.observation_space(), 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
@@ -93,8 +109,11 @@ fn main() -> anyhow::Result<()> {
     let mut adam = Adam::new(vars, AdamConfig { learning_rate: 3e-4, ..AdamConfig::default() });
     let predict = |x: &Tensor| -> candle_core::Result<Tensor> { encoder.forward(x)?.matmul(&head_w.as_tensor().t()?)?.broadcast_add(head_b.as_tensor()) };
     // Batches gathered by index: in collection order, or shuffled every epoch (`annealed`).
-    let gathered = |picked: &[usize]| -> candle_core::Result<(Tensor, Tensor)> {
-        let x: Vec<f32> = picked.iter().flat_map(|&i| images[i * dim..(i + 1) * dim].iter().map(|&v| v as f32)).collect();
+    let gathered = |picked: &[usize], jitter: Option<&mut ChaCha8Rng>| -> candle_core::Result<(Tensor, Tensor)> {
+        let mut x: Vec<f32> = picked.iter().flat_map(|&i| images[i * dim..(i + 1) * dim].iter().map(|&v| v as f32)).collect();
+        if let Some(rng) = jitter {
+            x.chunks_mut(dim).for_each(|image| colour_jitter(image, rng));
+        }
         let y: Vec<f32> = picked.iter().flat_map(|&i| labels[i * k..(i + 1) * k].iter().copied()).collect();
         Ok((Tensor::from_vec(x, (picked.len(), dim), &dev)?, Tensor::from_vec(y, (picked.len(), k), &dev)?))
     };
@@ -104,6 +123,7 @@ fn main() -> anyhow::Result<()> {
     let held_y = Tensor::from_slice(&labels[train * k..(train + held_out) * k], (held_out, k), &dev)?;
     let mut order: Vec<usize> = (0..train).collect();
     let mut shuffler = ChaCha8Rng::seed_from_u64(3);
+    let mut jitter = ChaCha8Rng::seed_from_u64(4);
     let batch = 128;
     for epoch in 1..=epochs {
         let started = std::time::Instant::now();
@@ -115,7 +135,7 @@ fn main() -> anyhow::Result<()> {
         }
         for start in (0..train).step_by(batch) {
             let n = batch.min(train - start);
-            let (x, y) = gathered(&order[start..start + n])?;
+            let (x, y) = gathered(&order[start..start + n], jittered.then_some(&mut jitter))?;
             let loss = (predict(&x)? - y)?.sqr()?.mean_all()?;
             loss_sum += loss.to_scalar::<f32>()? * n as f32;
             adam.step(&loss.backward()?, Some(10.0))?;
@@ -131,13 +151,13 @@ fn main() -> anyhow::Result<()> {
         }
         println!("{line} ({:.1} s)", started.elapsed().as_secs_f64());
     }
-    if let Some(looks) = held_out_looks {
+    for (file, looks) in held_out_looks {
         // Reaches under looks the fit never drew from: what the encoder still reads there.
         let (_, _, _, images, labels) = ur5e_samples(2400, fov, size, Some(looks), 1000)?;
         let x = Tensor::from_vec(images.iter().map(|&v| v as f32).collect::<Vec<f32>>(), (2400, dim), &dev)?;
         let residual = (predict(&x)? - Tensor::from_vec(labels, (2400, k), &dev)?)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
         let mm: Vec<String> = residual.iter().map(|r| format!("{:.0}", 1000.0 * r.sqrt() / scale)).collect();
-        println!("on 2,400 images under held-out looks: RMS error {} mm", mm.join(" / "));
+        println!("on 2,400 images under held-out looks ({file}): RMS error {} mm", mm.join(" / "));
     }
     // The scale of what the encoder hands an MLP (a frozen encoder's features go in as they are).
     let features = encoder.forward(&held_x)?;
@@ -171,6 +191,25 @@ fn main() -> anyhow::Result<()> {
         println!("the encoder ({} tensors) saved to {}", tensors.len(), path.display());
     }
     Ok(())
+}
+
+/// Colour jitter on one image (RGB, channels last, values 0–255), as torchvision's
+/// `ColorJitter(brightness=0.4, contrast=0.4, saturation=0.4)` that RAD and DrQ fit pixel
+/// encoders with, and a gain per channel of ±10 % (a tinted light): the image's colours change,
+/// never where anything is in it, so the target's place stays its label.
+fn colour_jitter(image: &mut [f32], rng: &mut ChaCha8Rng) {
+    let [brightness, contrast, saturation] = [0; 3].map(|_| rng.random_range(0.6f32..=1.4));
+    let gain = [0; 3].map(|_| rng.random_range(0.9f32..=1.1));
+    let grey = |p: &[f32]| 0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2];
+    let mean = image.chunks(3).map(grey).sum::<f32>() / (image.len() / 3) as f32 * brightness;
+    for pixel in image.chunks_mut(3) {
+        let g = grey(pixel);
+        for (c, v) in pixel.iter_mut().enumerate() {
+            let saturated = g + saturation * (*v - g);
+            let contrasted = mean + contrast * (saturated * brightness - mean);
+            *v = (contrasted * gain[c]).clamp(0.0, 255.0);
+        }
+    }
 }
 
 /// A new look per arena at every reset, drawn from `looks`.
