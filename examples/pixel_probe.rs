@@ -25,9 +25,9 @@
 //! the epochs (`constant`, the default: the collection order and 3e-4 throughout).
 //!
 //! `jittered` fits on every image under a colour jitter of its own, drawn each time it is read
-//! (brightness, contrast and saturation ±40 %, each channel ±10 %), as RAD and DrQ fit pixel
-//! encoders; the held-out images are read as rendered. HELD_OUT may name several `.toml` files,
-//! joined by commas, each measured apart (`-`: none).
+//! (brightness, contrast and saturation ±40 %, each channel ±10 %), as RAD (Laskin et al. 2020)
+//! augments pixel observations; the held-out images are read as rendered. HELD_OUT may name
+//! several `.toml` files, joined by commas, each measured apart (`-`: none).
 //!
 //! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized|LOOKS.toml] [SAVE] [FRAMES] [SIZE] [FROM|-] [constant|annealed] [HELD_OUT.toml[,…]|-] [plain|jittered]`
 
@@ -193,10 +193,10 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Colour jitter on one image (RGB, channels last, values 0–255), as torchvision's
-/// `ColorJitter(brightness=0.4, contrast=0.4, saturation=0.4)` that RAD and DrQ fit pixel
-/// encoders with, and a gain per channel of ±10 % (a tinted light): the image's colours change,
-/// never where anything is in it, so the target's place stays its label.
+/// Colour jitter on one image (RGB, channels last, values 0–255): torchvision's
+/// `ColorJitter(brightness=0.4, contrast=0.4, saturation=0.4)`, with which RAD (Laskin et al.
+/// 2020) augments pixel observations, and a gain per channel of ±10 % (a tinted light). The
+/// image's colours change, never where anything is in it, so the target's place stays its label.
 fn colour_jitter(image: &mut [f32], rng: &mut ChaCha8Rng) {
     let [brightness, contrast, saturation] = [0; 3].map(|_| rng.random_range(0.6f32..=1.4));
     let gain = [0; 3].map(|_| rng.random_range(0.9f32..=1.1));
