@@ -1,37 +1,41 @@
 //! Do camera images carry what a policy needs? Collects pixel observations labelled with what
 //! they should show, fits a NatureCNN with a linear head to them by regression, and prints R²
-//! per label on held-out images: a probe of the observation, apart from any RL. `keypoints`
-//! fits the keypoints encoder (`policy = "keypoints"`) instead.
-//! - `cartpole`: the side camera, 64×64 (or SIZE²), 2 frames (or FRAMES), under the classical
+//! per label on held-out images: a probe of the observation, apart from any RL. `--encoder
+//! keypoints` fits the keypoints encoder (`policy = "keypoints"`) instead.
+//! - `--robot cartpole`: the side camera, `--size`² pixels, `--frames` frames, under the classical
 //!   controller with a random action a quarter of the time; labels the cart's place and speed and the
 //!   pole's angle and rate (the state a policy needs); then closes the loop: the classical
 //!   controller acting on the states the fitted encoder reads (mean episode length).
-//! - `ur5e`: the camera reach's iso camera, 64×64 (or SIZE²), one frame, whole reaches: the
-//!   classical controller drives every arena, jittered and with a random action a quarter of the
-//!   time, an image every third step; labels the target's place (base frame), and the held-out
-//!   error in millimetres. Under randomized looks every image shows a look of its own (drawn
-//!   just before it), not one look per reach: with one per reach the encoder learns which look
-//!   goes with which target instead of reading the target off the picture. HELD_OUT (a looks
-//!   `.toml`) also measures the fitted encoder on 2,400 images of reaches under those looks.
+//! - `--robot ur5e`: the camera reach's iso camera, one frame, whole reaches: the classical
+//!   controller drives every arena, jittered and with a random action a quarter of the time, an
+//!   image every third step; labels the target's place (base frame), and the held-out error in
+//!   millimetres. Under randomized looks every image shows a look of its own (drawn just before
+//!   it), not one look per reach: with one per reach the encoder learns which look goes with
+//!   which target instead of reading the target off the picture. `--held-out` (looks `.toml`
+//!   files, joined by commas) also measures the fitted encoder on 2,400 images of reaches under
+//!   each file's looks.
 //!
-//! `randomized` draws a new look per arena at every reset (`[randomization.visual]`'s
+//! `--looks randomized` draws a new look per arena at every reset (`[randomization.visual]`'s
 //! defaults), as training with visual randomization does; a `.toml` file instead draws them from
-//! its `[randomization.visual]` table (e.g. without camera jitter). A last argument, a `.safetensors`
-//! path, saves the fitted encoder there (`features.*`): `[ppo] features_from` starts a policy
-//! from it (docs/pixels.md).
+//! its `[randomization.visual]` table (e.g. without camera jitter). `--save FILE` saves the fitted
+//! encoder (`features.*`): `[ppo] features_from` starts a policy from it (docs/pixels.md).
 //!
-//! FROM (a `.safetensors` the probe saved, or `-`) starts the encoder from a fit, to fit it
-//! longer; `annealed` fits in shuffled batches with the learning rate falling linearly to 0 over
-//! the epochs (`constant`, the default: the collection order and 3e-4 throughout).
+//! `--from FILE` (a `.safetensors` the probe saved) starts the encoder from a fit, to fit it
+//! longer; `--annealed` fits in shuffled batches with the learning rate falling linearly to 0
+//! over the epochs (without it: the collection order and 3e-4 throughout).
 //!
-//! `jittered` fits on every image under a colour jitter of its own, drawn each time it is read
+//! `--jitter` fits on every image under a colour jitter of its own, drawn each time it is read
 //! (brightness, contrast and saturation ±40 %, each channel ±10 %), as RAD (Laskin et al. 2020)
-//! augments pixel observations; the held-out images are read as rendered. HELD_OUT may name
-//! several `.toml` files, joined by commas, each measured apart (`-`: none).
+//! augments pixel observations; the held-out images are read as rendered.
 //!
-//! `cargo run --release --example pixel_probe -- [SAMPLES] [EPOCHS] [FOV] [cartpole|ur5e] [cnn|keypoints] [plain|randomized|LOOKS.toml] [SAVE] [FRAMES] [SIZE] [FROM|-] [constant|annealed] [HELD_OUT.toml[,…]|-] [plain|jittered]`
+//! `cargo run --release --example pixel_probe -- --robot ur5e --images 24000 --epochs 10 --fov 30
+//! --size 96 --looks assets/looks/textures-and-lights.toml --annealed --jitter --save encoder.safetensors`
+//! (`--help` lists every option with its default).
+
+use std::path::PathBuf;
 
 use candle_core::{Device, Tensor, Var};
+use clap::Parser;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use twinbots_api::{DesignPattern, VecEnv};
@@ -44,56 +48,88 @@ use twinbots_task::AppVecEnv;
 
 const ARENAS: usize = 8;
 
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Robot {
+    Cartpole,
+    Ur5e,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum EncoderKind {
+    Cnn,
+    Keypoints,
+}
+
+/// Fits an encoder to labelled camera images and reports how well it reads them.
+#[derive(Parser)]
+struct Args {
+    #[arg(long, value_enum, default_value_t = Robot::Cartpole)]
+    robot: Robot,
+    /// Labelled images collected; a fifth of them (at most 4,800) held out.
+    #[arg(long, default_value_t = 4000)]
+    images: usize,
+    #[arg(long, default_value_t = 10)]
+    epochs: usize,
+    /// The camera's vertical field of view, degrees.
+    #[arg(long, default_value_t = 26.0)]
+    fov: f32,
+    #[arg(long, value_enum, default_value_t = EncoderKind::Cnn)]
+    encoder: EncoderKind,
+    /// `plain` (the twin's one look), `randomized` (`[randomization.visual]`'s defaults) or a
+    /// `.toml` file with a `[randomization.visual]` table.
+    #[arg(long, default_value = "plain")]
+    looks: String,
+    /// Where the fitted encoder is saved (safetensors).
+    #[arg(long)]
+    save: Option<PathBuf>,
+    /// Frames stacked per observation (cart-pole; the reach sees one).
+    #[arg(long, default_value_t = 2)]
+    frames: u32,
+    /// Image width and height, pixels.
+    #[arg(long, default_value_t = 64)]
+    size: u32,
+    /// An encoder the probe saved, to fit further.
+    #[arg(long)]
+    from: Option<PathBuf>,
+    /// Shuffled batches, the learning rate falling linearly to 0.
+    #[arg(long)]
+    annealed: bool,
+    /// Looks `.toml` files (comma-separated) the fitted encoder is also measured under (ur5e).
+    #[arg(long, value_delimiter = ',')]
+    held_out: Vec<PathBuf>,
+    /// A colour jitter of its own on every fitted image.
+    #[arg(long)]
+    jitter: bool,
+}
+
 fn main() -> anyhow::Result<()> {
     twinbots_learn::threads::configure();
-    let args: Vec<String> = std::env::args().collect();
-    let samples: usize = args.get(1).map_or(Ok(4000), |s| s.parse())?;
-    let epochs: usize = args.get(2).map_or(Ok(10), |s| s.parse())?;
-    let fov: f32 = args.get(3).map_or(Ok(26.0), |s| s.parse())?;
-    let robot = args.get(4).map_or("cartpole", String::as_str);
-    let kind = match args.get(5).map_or("cnn", String::as_str) {
-        "cnn" => PolicyKind::Cnn,
-        "keypoints" => PolicyKind::Keypoints,
-        other => anyhow::bail!("encoder '{other}': cnn or keypoints"),
+    let Args { robot, images: samples, epochs, fov, encoder: kind, looks, save, frames, size, from, annealed, held_out, jitter: jittered } = Args::parse();
+    let kind = match kind {
+        EncoderKind::Cnn => PolicyKind::Cnn,
+        EncoderKind::Keypoints => PolicyKind::Keypoints,
     };
-    let randomized = match args.get(6).map_or("plain", String::as_str) {
+    let randomized = match looks.as_str() {
         "plain" => None,
         "randomized" => Some(VisualRandomization::default()),
-        file if file.ends_with(".toml") => Some(Randomization::looks_of(std::path::Path::new(file)).map_err(|e| anyhow::anyhow!("looks {e}"))?),
-        other => anyhow::bail!("looks '{other}': plain, randomized or a .toml file with a [randomization.visual] table"),
+        file if file.ends_with(".toml") => Some(Randomization::looks_of(std::path::Path::new(file)).map_err(|e| anyhow::anyhow!("--looks {e}"))?),
+        other => anyhow::bail!("--looks '{other}': plain, randomized or a .toml file with a [randomization.visual] table"),
     };
-    let save = args.get(7).map(std::path::PathBuf::from);
-    let frames: u32 = args.get(8).map_or(Ok(2), |s| s.parse())?;
-    let size: u32 = args.get(9).map_or(Ok(64), |s| s.parse())?;
-    let from = args.get(10).filter(|s| s.as_str() != "-").map(std::path::PathBuf::from);
-    let annealed = match args.get(11).map_or("constant", String::as_str) {
-        "constant" => false,
-        "annealed" => true,
-        other => anyhow::bail!("schedule '{other}': constant or annealed"),
-    };
-    let held_out_looks: Vec<(String, VisualRandomization)> = match args.get(12).filter(|s| s.as_str() != "-") {
-        None => Vec::new(),
-        Some(files) => files
-            .split(',')
-            .map(|file| Ok((file.to_string(), Randomization::looks_of(std::path::Path::new(file)).map_err(|e| anyhow::anyhow!("held-out looks {e}"))?)))
-            .collect::<anyhow::Result<_>>()?,
-    };
-    anyhow::ensure!(held_out_looks.is_empty() || robot == "ur5e", "held-out looks: the ur5e probe's");
-    let jittered = match args.get(13).map_or("plain", String::as_str) {
-        "plain" => false,
-        "jittered" => true,
-        other => anyhow::bail!("images '{other}': plain or jittered (colour jitter on every fitted image)"),
-    };
+    let held_out_looks: Vec<(String, VisualRandomization)> = held_out
+        .iter()
+        .map(|file| Ok((file.display().to_string(), Randomization::looks_of(file).map_err(|e| anyhow::anyhow!("--held-out {e}"))?)))
+        .collect::<anyhow::Result<_>>()?;
+    anyhow::ensure!(held_out_looks.is_empty() || robot == Robot::Ur5e, "--held-out: the ur5e probe's (the cart-pole has no held-out looks)");
     let (env, names, scale, images, labels) = match robot {
-        "cartpole" => cartpole_samples(samples, fov, frames, size, randomized)?,
-        "ur5e" => ur5e_samples(samples, fov, size, randomized, 0)?,
-        other => anyhow::bail!("robot '{other}': cartpole or ur5e"),
+        Robot::Cartpole => cartpole_samples(samples, fov, frames, size, randomized)?,
+        Robot::Ur5e => ur5e_samples(samples, fov, size, randomized, 0)?,
     };
     let (dim, k) = (env.observation_space().dim(), names.len());
     // A fifth held out, at most 4,800 images (one tensor, read after every epoch).
     let held_out = (samples / 5).min(4800);
     let train = samples - held_out;
-    println!("{robot}: {samples} images ({train} to fit, {held_out} held out), field of view {fov}°{}", if jittered { ", colour-jittered fit" } else { "" });
+    let name = if robot == Robot::Ur5e { "ur5e" } else { "cartpole" };
+    println!("{name}: {samples} images ({train} to fit, {held_out} held out), field of view {fov}°{}", if jittered { ", colour-jittered fit" } else { "" });
 
     let dev = Device::Cpu;
     let encoder = Encoder::new(kind, env.observation_space(), 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
@@ -145,7 +181,7 @@ fn main() -> anyhow::Result<()> {
         let variance = held_y.broadcast_sub(&held_y.mean(0)?)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
         let r2: Vec<String> = (0..k).map(|i| format!("{} {:.3}", names[i], 1.0 - residual[i] / variance[i])).collect();
         let mut line = format!("epoch {epoch}: fit loss {:.3}, held-out R² {}", loss_sum / train as f32, r2.join(", "));
-        if robot == "ur5e" {
+        if robot == Robot::Ur5e {
             let mm: Vec<String> = (0..k).map(|i| format!("{:.0}", 1000.0 * residual[i].sqrt() / scale)).collect();
             line += &format!("; RMS error {} mm", mm.join(" / "));
         }
@@ -163,7 +199,7 @@ fn main() -> anyhow::Result<()> {
     let features = encoder.forward(&held_x)?;
     let (mean, spread) = (features.mean_all()?.to_scalar::<f32>()?, features.flatten_all()?.sqr()?.mean_all()?.sqrt()?.to_scalar::<f32>()?);
     println!("features on the held-out images: mean {mean:.3}, RMS {spread:.3}, largest {:.3}", features.flatten_all()?.max(0)?.to_scalar::<f32>()?);
-    if robot == "cartpole" {
+    if robot == Robot::Cartpole {
         // Closed loop: the classical controller acting on the states the fitted encoder reads
         // from the images, as a policy on its features would at best.
         let mut env = env;

@@ -40,7 +40,7 @@ const ROUND_SEED_OFFSET: u64 = 3_000_003;
 const BATCH: usize = 256;
 
 /// What a round fits besides the policy MLP.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Tune {
     /// The policy MLP alone, on the frozen encoder's features.

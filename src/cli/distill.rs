@@ -30,8 +30,8 @@ pub struct Args {
     pub epochs: usize,
     /// What is fitted: `actor` (the policy MLP on the frozen encoder's features) or `dense`
     /// (the encoder's dense layer too; its convolutions stay frozen).
-    #[arg(long, default_value = "dense", value_parser = ["actor", "dense"])]
-    pub tune: String,
+    #[arg(long, value_enum, default_value_t = Tune::Dense)]
+    pub tune: Tune,
     /// Adam's learning rate for the policy MLP (the dense layer's: a tenth of it).
     #[arg(long, default_value_t = 1e-3)]
     pub learning_rate: f64,
@@ -41,8 +41,7 @@ pub struct Args {
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let settings = twinbots::settings::TrainSettings::of_run(&twinbots_learn::RunDir::new(&args.run))?;
     let entry = registry::find(&settings.robot)?;
-    let tune = if args.tune == "dense" { Tune::Dense } else { Tune::Actor };
-    let options = DistillOptions { teacher: args.teacher, rounds: args.rounds, steps: args.steps, epochs: args.epochs, tune, learning_rate: args.learning_rate };
+    let options = DistillOptions { teacher: args.teacher, rounds: args.rounds, steps: args.steps, epochs: args.epochs, tune: args.tune, learning_rate: args.learning_rate };
     let rounds = distill(&entry, &args.run, &args.out, &options, |r| {
         println!(
             "round {}: {} episodes ended, mean score {:.1}{}; disagreement with the teacher {:.4}; {} answers, cross-entropy {:.4} ({:.0} s)",

@@ -44,7 +44,7 @@ pub struct PpoConfig {
     pub log_std_init: f32,
     /// A safetensors file whose `features.*` tensors a new model's image encoder starts from
     /// (the value's own one too), e.g. an encoder trained on labelled images by
-    /// `examples/pixel_probe.rs` (its last argument); as SB3's `features_extractor.load_state_dict`.
+    /// `examples/pixel_probe.rs --save`; as SB3's `features_extractor.load_state_dict`.
     pub features_from: Option<std::path::PathBuf>,
     /// The image encoders (the policy's, and the value's own) stay as they start: no gradient
     /// reaches them, and an update reads each sample's features once rather than once an epoch.
