@@ -100,11 +100,16 @@ struct Args {
     /// A colour jitter of its own on every fitted image.
     #[arg(long)]
     jitter: bool,
+    /// The seed of the reaches the images come from (ur5e): another seed, other images, e.g.
+    /// to fit an encoder further (`--from`) on images it has not seen. The `--held-out` looks'
+    /// reaches are seed 1000's.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
 }
 
 fn main() -> anyhow::Result<()> {
     twinbots_learn::threads::configure();
-    let Args { robot, images: samples, epochs, fov, encoder: kind, looks, save, frames, size, from, annealed, held_out, jitter: jittered } = Args::parse();
+    let Args { robot, images: samples, epochs, fov, encoder: kind, looks, save, frames, size, from, annealed, held_out, jitter: jittered, seed } = Args::parse();
     let kind = match kind {
         EncoderKind::Cnn => PolicyKind::Cnn,
         EncoderKind::Keypoints => PolicyKind::Keypoints,
@@ -119,10 +124,12 @@ fn main() -> anyhow::Result<()> {
         .iter()
         .map(|file| Ok((file.display().to_string(), Randomization::looks_of(file).map_err(|e| anyhow::anyhow!("--held-out {e}"))?)))
         .collect::<anyhow::Result<_>>()?;
+    anyhow::ensure!(samples >= 5, "--images {samples}: at least 5 (a fifth of them are held out)");
+    anyhow::ensure!(seed == 0 || robot == Robot::Ur5e, "--seed: the ur5e probe's");
     anyhow::ensure!(held_out_looks.is_empty() || robot == Robot::Ur5e, "--held-out: the ur5e probe's (the cart-pole has no held-out looks)");
     let (env, names, scale, images, labels) = match robot {
         Robot::Cartpole => cartpole_samples(samples, fov, frames, size, randomized)?,
-        Robot::Ur5e => ur5e_samples(samples, fov, size, randomized, 0)?,
+        Robot::Ur5e => ur5e_samples(samples, fov, size, randomized, seed)?,
     };
     let (dim, k) = (env.observation_space().dim(), names.len());
     // A fifth held out, at most 4,800 images (one tensor, read after every epoch).
@@ -187,13 +194,17 @@ fn main() -> anyhow::Result<()> {
         }
         println!("{line} ({:.1} s)", started.elapsed().as_secs_f64());
     }
+    if robot == Robot::Ur5e {
+        println!("the target's place on the held-out images: {}", distances(&predict(&held_x)?, &held_y, scale)?);
+    }
     for (file, looks) in held_out_looks {
         // Reaches under looks the fit never drew from: what the encoder still reads there.
         let (_, _, _, images, labels) = ur5e_samples(2400, fov, size, Some(looks), 1000)?;
         let x = Tensor::from_vec(images.iter().map(|&v| v as f32).collect::<Vec<f32>>(), (2400, dim), &dev)?;
-        let residual = (predict(&x)? - Tensor::from_vec(labels, (2400, k), &dev)?)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
+        let (read, truth) = (predict(&x)?, Tensor::from_vec(labels, (2400, k), &dev)?);
+        let residual = (&read - &truth)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
         let mm: Vec<String> = residual.iter().map(|r| format!("{:.0}", 1000.0 * r.sqrt() / scale)).collect();
-        println!("on 2,400 images under held-out looks ({file}): RMS error {} mm", mm.join(" / "));
+        println!("on 2,400 images under held-out looks ({file}): RMS error {} mm; {}", mm.join(" / "), distances(&read, &truth, scale)?);
     }
     // The scale of what the encoder hands an MLP (a frozen encoder's features go in as they are).
     let features = encoder.forward(&held_x)?;
@@ -227,6 +238,15 @@ fn main() -> anyhow::Result<()> {
         println!("the encoder ({} tensors) saved to {}", tensors.len(), path.display());
     }
     Ok(())
+}
+
+/// How far the read places are from the true ones in three dimensions (the reach arrives within
+/// 10 mm): the median, the 90th percentile and the share within 10 mm.
+fn distances(read: &Tensor, truth: &Tensor, scale: f32) -> candle_core::Result<String> {
+    let mut mm: Vec<f32> = (read - truth)?.sqr()?.sum(1)?.sqrt()?.to_vec1::<f32>()?.iter().map(|d| 1000.0 * d / scale).collect();
+    mm.sort_by(f32::total_cmp);
+    let within = mm.iter().filter(|&&d| d <= 10.0).count() as f32 / mm.len() as f32;
+    Ok(format!("3-D error median {:.0} mm, 90th percentile {:.0} mm, {:.0} % within 10 mm", mm[mm.len() / 2], mm[mm.len() * 9 / 10], 100.0 * within))
 }
 
 /// Colour jitter on one image (RGB, channels last, values 0–255): torchvision's
