@@ -189,8 +189,7 @@ fn main() -> anyhow::Result<()> {
         let r2: Vec<String> = (0..k).map(|i| format!("{} {:.3}", names[i], 1.0 - residual[i] / variance[i])).collect();
         let mut line = format!("epoch {epoch}: fit loss {:.3}, held-out R² {}", loss_sum / train as f32, r2.join(", "));
         if robot == Robot::Ur5e {
-            let mm: Vec<String> = (0..k).map(|i| format!("{:.0}", 1000.0 * residual[i].sqrt() / scale)).collect();
-            line += &format!("; RMS error {} mm", mm.join(" / "));
+            line += &format!("; RMS error {}", rms_mm(&residual, scale));
         }
         println!("{line} ({:.1} s)", started.elapsed().as_secs_f64());
     }
@@ -203,8 +202,7 @@ fn main() -> anyhow::Result<()> {
         let x = Tensor::from_vec(images.iter().map(|&v| v as f32).collect::<Vec<f32>>(), (2400, dim), &dev)?;
         let (read, truth) = (predict(&x)?, Tensor::from_vec(labels, (2400, k), &dev)?);
         let residual = (&read - &truth)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
-        let mm: Vec<String> = residual.iter().map(|r| format!("{:.0}", 1000.0 * r.sqrt() / scale)).collect();
-        println!("on 2,400 images under held-out looks ({file}): RMS error {} mm; {}", mm.join(" / "), distances(&read, &truth, scale)?);
+        println!("on 2,400 images under held-out looks ({file}): RMS error {}; {}", rms_mm(&residual, scale), distances(&read, &truth, scale)?);
     }
     // The scale of what the encoder hands an MLP (a frozen encoder's features go in as they are).
     let features = encoder.forward(&held_x)?;
@@ -238,6 +236,12 @@ fn main() -> anyhow::Result<()> {
         println!("the encoder ({} tensors) saved to {}", tensors.len(), path.display());
     }
     Ok(())
+}
+
+/// Per-axis RMS errors in millimetres from mean squared residuals in label units.
+fn rms_mm(residual: &[f32], scale: f32) -> String {
+    let mm: Vec<String> = residual.iter().map(|r| format!("{:.0}", 1000.0 * r.sqrt() / scale)).collect();
+    format!("{} mm", mm.join(" / "))
 }
 
 /// How far the read places are from the true ones in three dimensions (the reach arrives within
