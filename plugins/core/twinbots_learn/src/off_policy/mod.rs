@@ -1,16 +1,22 @@
 //! What the off-policy learners (SAC, TD3) share around their replay buffer: actions in
-//! [−1, 1] scaled to the action box, a vectorised step stored as transitions, and learning
-//! from robots ([`served`]) through the [`OffPolicy`] face each of them shows.
+//! [−1, 1] scaled to the action box, a vectorised step stored as transitions, the training
+//! loop ([`learn`]) and learning from robots ([`served`]), through the [`OffPolicy`] face each
+//! of them shows.
 
 pub(crate) mod served;
 
+use std::time::Instant;
+
+use twinbots_api::env::VecEnv;
+use twinbots_api::env_state::EnvState;
 use twinbots_api::{EpisodeSummary, Space, StepResult};
 
+use crate::callbacks::Callback;
 use crate::history::EpisodeHistory;
 use crate::learner::Learner;
 use crate::normalize::RunningMeanStd;
 use crate::replay_buffer::ReplayBuffer;
-use crate::stats::{TrainingTimes, UpdateStats, figures};
+use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats, figures};
 
 /// Actions in [−1, 1] (clipped) → the action box's bounds: `low + (a + 1) · (high − low) / 2`.
 pub fn to_env(space: &Space, unit: &[f32]) -> Vec<f32> {
@@ -59,15 +65,102 @@ pub(crate) struct Schedule {
     pub learning_rate: f64,
 }
 
-/// The counters and stores an off-policy learner keeps, lent to its served form.
+/// The counters and stores an off-policy learner keeps, lent to [`learn`] and its served form.
 pub(crate) struct Parts<'a> {
+    /// Where the envs' first reset draws from (with the steps taken before it).
+    pub seed: u64,
     pub timesteps: &'a mut u64,
+    /// Iterations of `learn` (steps of each env).
+    pub iterations: &'a mut u64,
     pub episodes: &'a mut u64,
     pub updates: &'a mut u64,
     pub history: &'a mut EpisodeHistory,
     pub buffer: &'a mut Option<ReplayBuffer>,
     pub obs_rms: &'a mut Option<RunningMeanStd>,
     pub times: &'a mut TrainingTimes,
+    /// Where the envs stood at the last row (see `Ppo::env_state`).
+    pub env_state: &'a mut Option<EnvState>,
+}
+
+/// An empty replay buffer for `model`'s spaces with `lanes` envs; image observations are kept
+/// as bytes, as they came.
+pub(crate) fn replay_buffer<M: OffPolicy>(model: &M, lanes: usize) -> ReplayBuffer {
+    let ring = ReplayBuffer::new(model.schedule().buffer_size, lanes, model.observation_space().dim(), model.action_space().dim());
+    if matches!(model.observation_space(), Space::Image { .. }) { ring.with_byte_observations() } else { ring }
+}
+
+/// Trains `model` for `total_timesteps` more env steps (summed over envs), calling `callback`
+/// after every row, and says why it stopped: SAC's and TD3's `learn`.
+pub(crate) fn learn<M: OffPolicy>(model: &mut M, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+    model.check_spaces(env.observation_space(), env.action_space())?;
+    let n_envs = env.num_envs();
+    let schedule = model.schedule();
+    if model.parts().buffer.is_none() {
+        let buffer = replay_buffer(model, n_envs);
+        *model.parts().buffer = Some(buffer);
+    }
+    let parts = model.parts();
+    let lanes = parts.buffer.as_ref().map_or(n_envs, |b| b.n_envs);
+    anyhow::ensure!(lanes == n_envs, "the replay buffer was filled by {lanes} envs, this env has {n_envs}");
+    let end = *parts.timesteps + total_timesteps;
+    // A model that learnt before continues its envs' episodes (replayed); a new one starts.
+    let mut obs = match parts.env_state.take() {
+        Some(state) => twinbots_api::replay(env, &state)?,
+        None => {
+            let first = env.reset(Some(parts.seed.wrapping_add(*parts.timesteps)))?;
+            if let Some(rms) = parts.obs_rms {
+                rms.update(&first);
+            }
+            first
+        }
+    };
+    callback.on_training_start(&*model)?;
+    let (mut ended, mut row) = (None, Row::default());
+    while ended.is_none() && *model.parts().timesteps < end {
+        // 1. Act: uniform random actions until learning starts, then the learner's exploring ones.
+        let inference_started = Instant::now();
+        let unit = model.explore(&obs)?;
+        let env_started = Instant::now();
+        let out = env.step(&to_env(model.action_space(), &unit))?;
+        let parts = model.parts();
+        parts.times.inference_s += (env_started - inference_started).as_secs_f64();
+        parts.times.env_s += env_started.elapsed().as_secs_f64();
+
+        // 2. Store (s, a, r, s', done).
+        let (history, episodes) = (parts.history, parts.episodes);
+        store_step(parts.buffer.as_mut(), &obs, &unit, &out, |episode| {
+            *episodes += 1;
+            history.record(episode);
+        });
+        if let Some(rms) = parts.obs_rms {
+            rms.update(&out.obs);
+        }
+        obs = out.obs;
+        *parts.timesteps += n_envs as u64;
+        *parts.iterations += 1;
+        let (timesteps, iterations) = (*parts.timesteps, *parts.iterations);
+
+        // 3. Learn from the buffer.
+        row.transitions += n_envs as u64;
+        if timesteps >= schedule.learning_starts && iterations % schedule.train_freq as u64 == 0 {
+            row.train(model, schedule.gradient_steps)?;
+        }
+
+        // 4. A row and the callbacks.
+        if iterations % schedule.log_interval as u64 == 0 {
+            let callbacks_started = Instant::now();
+            *model.parts().env_state = env.state()?;
+            let stats = std::mem::take(&mut row).finish(model)?;
+            ended = TrainingEnd::after(callback.on_update(&stats, &*model)?, timesteps);
+            // The next row's clock starts after the callbacks (an evaluation is not its time).
+            row = Row::default();
+            model.parts().times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
+        }
+    }
+    callback.on_training_end(&*model)?;
+    let parts = model.parts();
+    *parts.env_state = None;
+    Ok(ended.unwrap_or(TrainingEnd::BudgetSpent { timesteps: *parts.timesteps }))
 }
 
 /// What an off-policy learner (SAC, TD3) shows [`served::ServedOffPolicy`].
@@ -176,13 +269,16 @@ macro_rules! schedule_and_parts {
         }
         fn parts(&mut self) -> $crate::off_policy::Parts<'_> {
             $crate::off_policy::Parts {
+                seed: self.seed,
                 timesteps: &mut self.timesteps,
+                iterations: &mut self.iterations,
                 episodes: &mut self.episodes,
                 updates: &mut self.updates,
                 history: &mut self.history,
                 buffer: &mut self.buffer,
                 obs_rms: &mut self.obs_rms,
                 times: &mut self.times,
+                env_state: &mut self.env_state,
             }
         }
     };

@@ -8,12 +8,11 @@
 
 use std::collections::HashMap;
 
-use twinbots_api::{EpisodeSummary, Space};
+use twinbots_api::EpisodeSummary;
 
 use super::{OffPolicy, Row};
 use crate::agent::Agent;
 use crate::learner::{Learner, RobotStep, ServedLearner};
-use crate::replay_buffer::ReplayBuffer;
 use crate::stats::UpdateStats;
 
 /// One step of a robot's running episode.
@@ -47,13 +46,11 @@ pub(crate) struct ServedOffPolicy<M: OffPolicy> {
 
 impl<M: OffPolicy> ServedOffPolicy<M> {
     pub fn new(mut model: M, robots: usize) -> anyhow::Result<Self> {
-        let (obs_dim, act_dim) = (model.observation_space().dim(), model.action_space().dim());
-        let images = matches!(model.observation_space(), Space::Image { .. });
-        let capacity = model.schedule().buffer_size;
-        let buffer = model.parts().buffer.get_or_insert_with(|| {
-            let ring = ReplayBuffer::new(capacity, 1, obs_dim, act_dim);
-            if images { ring.with_byte_observations() } else { ring }
-        });
+        if model.parts().buffer.is_none() {
+            let buffer = super::replay_buffer(&model, 1);
+            *model.parts().buffer = Some(buffer);
+        }
+        let buffer = model.parts().buffer.as_ref().expect("made above");
         anyhow::ensure!(
             buffer.n_envs == 1,
             "this model's replay buffer was filled by {} envs stepped together; a RobotServer continues only a model it trained (or a new one)",

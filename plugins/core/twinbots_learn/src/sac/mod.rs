@@ -3,19 +3,17 @@
 //! Stable-Baselines3's surface and defaults: `learn`, `predict`, `save`, `load`, callbacks,
 //! and hindsight experience replay (Andrychowicz et al. 2017) for goal-conditioned tasks.
 //!
-//! `learn` steps every env once per iteration: random actions until `learning_starts`, then the
-//! actor's samples; each step goes into the replay buffer (`crate::replay_buffer`, shared with
-//! TD3); every `train_freq` iterations it takes `gradient_steps` gradient steps (`update.rs`);
-//! every `log_interval` iterations it writes a row and calls the callbacks (the "update" they
-//! count).
+//! `learn` (the loop it shares with TD3, `crate::off_policy::learn`) steps every env once per
+//! iteration: random actions until `learning_starts`, then the actor's samples; each step goes
+//! into the replay buffer (`crate::replay_buffer`, shared with TD3); every `train_freq`
+//! iterations it takes `gradient_steps` gradient steps (`update.rs`); every `log_interval`
+//! iterations it writes a row and calls the callbacks (the "update" they count).
 
 mod config;
 mod fused;
 pub(crate) mod model_file;
 mod networks;
 mod update;
-
-use std::time::Instant;
 
 use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
@@ -32,7 +30,7 @@ use crate::nn::Encoder;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use crate::callbacks::Callback;
 use crate::off_policy::served::ServedOffPolicy;
-use crate::off_policy::{OffPolicy, Row};
+use crate::off_policy::OffPolicy;
 use crate::history::EpisodeHistory;
 use crate::stats::TrainingEnd;
 use twinbots_api::env::VecEnv;
@@ -257,72 +255,7 @@ impl Sac {
     /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback` after
     /// every row, and says why it stopped.
     pub fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
-        self.check_spaces(env.observation_space(), env.action_space())?;
-        let n_envs = env.num_envs();
-        let (obs_dim, act_dim) = (self.observation_space.dim(), self.act_dim());
-        let images = matches!(self.observation_space, Space::Image { .. });
-        let buffer = self.buffer.get_or_insert_with(|| {
-            let ring = ReplayBuffer::new(self.config.buffer_size, n_envs, obs_dim, act_dim);
-            if images { ring.with_byte_observations() } else { ring }
-        });
-        anyhow::ensure!(buffer.n_envs == n_envs, "the replay buffer was filled by {} envs, this env has {n_envs}", buffer.n_envs);
-        let end = self.timesteps + total_timesteps;
-        // A model that learnt before continues its envs' episodes (replayed); a new one starts.
-        let mut obs = match self.env_state.take() {
-            Some(state) => twinbots_api::replay(env, &state)?,
-            None => {
-                let first = env.reset(Some(self.seed.wrapping_add(self.timesteps)))?;
-                if let Some(rms) = &mut self.obs_rms {
-                    rms.update(&first);
-                }
-                first
-            }
-        };
-        callback.on_training_start(self)?;
-        let mut ended = None;
-        let mut row = Row::default();
-        while ended.is_none() && self.timesteps < end {
-            // 1. Act: uniform random actions until learning starts, then the actor's samples.
-            let inference_started = Instant::now();
-            let unit = self.explore(&obs)?;
-            let env_started = Instant::now();
-            let out = env.step(&self.to_env(&unit))?;
-            self.times.inference_s += (env_started - inference_started).as_secs_f64();
-            self.times.env_s += env_started.elapsed().as_secs_f64();
-
-            // 2. Store (s, a, r, s', done).
-            let (buffer, history, episodes) = (self.buffer.as_mut(), &mut self.history, &mut self.episodes);
-            crate::off_policy::store_step(buffer, &obs, &unit, &out, |episode| {
-                *episodes += 1;
-                history.record(episode);
-            });
-            if let Some(rms) = &mut self.obs_rms {
-                rms.update(&out.obs);
-            }
-            obs = out.obs;
-            self.timesteps += n_envs as u64;
-            self.iterations += 1;
-
-            // 3. Learn from the buffer.
-            row.transitions += n_envs as u64;
-            if self.timesteps >= self.config.learning_starts && self.iterations % self.config.train_freq as u64 == 0 {
-                row.train(self, self.config.gradient_steps)?;
-            }
-
-            // 4. A row and the callbacks.
-            if self.iterations % self.config.log_interval as u64 == 0 {
-                let callbacks_started = Instant::now();
-                self.env_state = env.state()?;
-                let stats = std::mem::take(&mut row).finish(self)?;
-                ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);
-                // The next row's clock starts after the callbacks (an evaluation is not its time).
-                row = Row::default();
-                self.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
-            }
-        }
-        callback.on_training_end(self)?;
-        self.env_state = None;
-        Ok(ended.unwrap_or(TrainingEnd::BudgetSpent { timesteps: self.timesteps }))
+        crate::off_policy::learn(self, env, total_timesteps, callback)
     }
 }
 
