@@ -24,6 +24,9 @@
 //! longer; `--annealed` fits in shuffled batches with the learning rate falling linearly to 0
 //! over the epochs (without it: the collection order and 3e-4 throughout).
 //!
+//! `--more-cameras front` (or several, comma-separated) sees each image through those cameras
+//! too, their pictures beside the first's along the channels (`[pixels] more_cameras`).
+//!
 //! `--jitter` fits on every image under a colour jitter of its own, drawn each time it is read
 //! (brightness, contrast and saturation ±40 %, each channel ±10 %), as RAD (Laskin et al. 2020)
 //! augments pixel observations; the held-out images are read as rendered.
@@ -105,11 +108,15 @@ struct Args {
     /// reaches are seed 1000's.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Cameras (comma-separated) whose images follow the robot's camera's along the channels
+    /// (`[pixels] more_cameras`), e.g. `front`.
+    #[arg(long, value_delimiter = ',')]
+    more_cameras: Vec<String>,
 }
 
 fn main() -> anyhow::Result<()> {
     twinbots_learn::threads::configure();
-    let Args { robot, images: samples, epochs, fov, encoder: kind, looks, save, frames, size, from, annealed, held_out, jitter: jittered, seed } = Args::parse();
+    let Args { robot, images: samples, epochs, fov, encoder: kind, looks, save, frames, size, from, annealed, held_out, jitter: jittered, seed, more_cameras } = Args::parse();
     let kind = match kind {
         EncoderKind::Cnn => PolicyKind::Cnn,
         EncoderKind::Keypoints => PolicyKind::Keypoints,
@@ -127,16 +134,22 @@ fn main() -> anyhow::Result<()> {
     anyhow::ensure!(samples >= 5, "--images {samples}: at least 5 (a fifth of them are held out)");
     anyhow::ensure!(seed == 0 || robot == Robot::Ur5e, "--seed: the ur5e probe's");
     anyhow::ensure!(held_out_looks.is_empty() || robot == Robot::Ur5e, "--held-out: the ur5e probe's (the cart-pole has no held-out looks)");
+    // The camera: the cart-pole's side one (`frames` frames), the reach's iso one (one frame).
+    let camera = match robot {
+        Robot::Cartpole => PixelSettings { fov, frames, width: size, height: size, more_cameras, ..PixelSettings::default() },
+        Robot::Ur5e => PixelSettings { camera: "iso".into(), fov, width: size, height: size, more_cameras, ..PixelSettings::default() },
+    };
     let (env, names, scale, images, labels) = match robot {
-        Robot::Cartpole => cartpole_samples(samples, fov, frames, size, randomized)?,
-        Robot::Ur5e => ur5e_samples(samples, fov, size, randomized, seed)?,
+        Robot::Cartpole => cartpole_samples(samples, &camera, randomized)?,
+        Robot::Ur5e => ur5e_samples(samples, &camera, randomized, seed)?,
     };
     let (dim, k) = (env.observation_space().dim(), names.len());
     // A fifth held out, at most 4,800 images (one tensor, read after every epoch).
     let held_out = (samples / 5).min(4800);
     let train = samples - held_out;
     let name = if robot == Robot::Ur5e { "ur5e" } else { "cartpole" };
-    println!("{name}: {samples} images ({train} to fit, {held_out} held out), field of view {fov}°{}", if jittered { ", colour-jittered fit" } else { "" });
+    let cameras = camera.cameras().collect::<Vec<_>>().join(" + ");
+    println!("{name}: {samples} images ({train} to fit, {held_out} held out), {cameras} camera, field of view {fov}°{}", if jittered { ", colour-jittered fit" } else { "" });
 
     let dev = Device::Cpu;
     let encoder = Encoder::new(kind, env.observation_space(), 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
@@ -198,7 +211,7 @@ fn main() -> anyhow::Result<()> {
     }
     for (file, looks) in held_out_looks {
         // Reaches under looks the fit never drew from: what the encoder still reads there.
-        let (_, _, _, images, labels) = ur5e_samples(2400, fov, size, Some(looks), 1000)?;
+        let (_, _, _, images, labels) = ur5e_samples(2400, &camera, Some(looks), 1000)?;
         let x = Tensor::from_vec(images.iter().map(|&v| v as f32).collect::<Vec<f32>>(), (2400, dim), &dev)?;
         let (read, truth) = (predict(&x)?, Tensor::from_vec(labels, (2400, k), &dev)?);
         let residual = (&read - &truth)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
@@ -295,8 +308,7 @@ const CARTPOLE_LABELS: usize = CARTPOLE_UNITS.len();
 /// The classical controller with random actions mixed in; each image labelled with the state
 /// it shows (the arena's state after the step, before an ended episode's reset: skipped where
 /// one ended).
-fn cartpole_samples(samples: usize, fov: f32, frames: u32, size: u32, randomized: Option<VisualRandomization>) -> anyhow::Result<Samples> {
-    let settings = PixelSettings { fov, frames, width: size, height: size, ..PixelSettings::default() };
+fn cartpole_samples(samples: usize, settings: &PixelSettings, randomized: Option<VisualRandomization>) -> anyhow::Result<Samples> {
     let mut app = cartpole::headless_app(ARENAS, 0);
     settings.install(&mut app, &cartpole::robot().framing, ARENAS)?;
     randomize_looks(&mut app, randomized);
@@ -342,8 +354,7 @@ const UR5E_STRIDE: usize = 3;
 /// arrival takes). The classical controller drives every arena, its action jittered by ±0.3 and
 /// replaced by a random one a quarter of the time (a learning policy's strays); an arrival
 /// resets the arena, and the image and the target after it are the next episode's alike.
-fn ur5e_samples(samples: usize, fov: f32, size: u32, randomized: Option<VisualRandomization>, seed: u64) -> anyhow::Result<Samples> {
-    let settings = PixelSettings { camera: "iso".into(), fov, width: size, height: size, ..PixelSettings::default() };
+fn ur5e_samples(samples: usize, settings: &PixelSettings, randomized: Option<VisualRandomization>, seed: u64) -> anyhow::Result<Samples> {
     let mut app = ur5e::headless_app_with(ARENAS, 0, DesignPattern::Supervised);
     settings.install(&mut app, &ur5e::robot().framing, ARENAS)?;
     randomize_looks(&mut app, randomized);

@@ -72,6 +72,8 @@ fn pixel_observations_stack_the_arenas_images_keep_the_final_frame_and_repeat_wi
 fn bad_pixel_settings_are_errors_naming_the_key() {
     let cases = [
         (PixelSettings { camera: "ceiling".into(), ..PixelSettings::default() }, "pixels.camera = \"ceiling\": must be one of side, front, iso, top"),
+        (PixelSettings { more_cameras: vec!["ceiling".into()], ..PixelSettings::default() }, "pixels.more_cameras: \"ceiling\" must be one of side, front, iso, top"),
+        (PixelSettings { more_cameras: vec!["front".into(), "side".into()], ..PixelSettings::default() }, "pixels.more_cameras: \"side\" is named twice (with camera = \"side\")"),
         (PixelSettings { fov: 0.0, ..PixelSettings::default() }, "pixels.fov = 0: must be in (0, 180) degrees"),
         (PixelSettings { fov: 180.0, ..PixelSettings::default() }, "pixels.fov = 180: must be in (0, 180) degrees"),
         (PixelSettings { fov: f32::NAN, ..PixelSettings::default() }, "pixels.fov = NaN"),
@@ -157,6 +159,37 @@ fn with_visual_randomization_each_arena_sees_its_own_look_and_the_seed_repeats_t
     assert_ne!(first[0][..dim], first[0][dim..], "two arenas, two looks");
     assert!(first == images(7), "the same seed, the same looks and frames");
     assert!(first[0] != images(8)[0], "another seed, other looks");
+}
+
+#[test]
+fn more_cameras_see_each_arena_at_the_same_instant_under_its_one_look() {
+    use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
+    if crate::renderer("more_cameras_see_each_arena_at_the_same_instant_under_its_one_look", 8, 8).is_none() {
+        return;
+    }
+    let seen = |camera: &str, more: &[&str]| -> (Space, Vec<Vec<f32>>) {
+        let settings = PixelSettings { camera: camera.into(), more_cameras: more.iter().map(|c| c.to_string()).collect(), width: 24, height: 16, frames: 2, ..PixelSettings::default() };
+        let mut app = cartpole::headless_app(2, 5);
+        app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
+        settings.install(&mut app, &cartpole::robot().framing, 2).unwrap();
+        let mut env = AppVecEnv::new(app);
+        let mut seen = vec![env.reset(Some(5)).unwrap()];
+        for t in 0..12 {
+            seen.push(env.step(&[(t % 2) as f32, 1.0]).unwrap().obs);
+        }
+        (env.observation_space().clone(), seen)
+    };
+    let (space, both) = seen("side", &["front"]);
+    assert_eq!(space, Space::Image { height: 16, width: 24, channels: 12 });
+    let (_, side) = seen("side", &[]);
+    let (_, front) = seen("front", &[]);
+    // Pixel by pixel: the older frame's side RGB and front RGB, then the newer frame's.
+    let camera = |obs: &[f32], c: usize| -> Vec<f32> { obs.chunks(6).flat_map(|px| px[3 * c..3 * c + 3].to_vec()).collect() };
+    for t in 0..both.len() {
+        assert_eq!(camera(&both[t], 0), side[t], "step {t}: the first camera's images are its alone");
+        assert_eq!(camera(&both[t], 1), front[t], "step {t}: the second camera's too");
+    }
+    assert_ne!(side[3], front[3], "two cameras, two views");
 }
 
 /// Pixels of a signal-green surface (the reach's target marker) in an RGB image.

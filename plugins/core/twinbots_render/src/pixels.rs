@@ -3,11 +3,14 @@
 //! Isaac Lab do. Every control step all arenas render in one frame, each in its own tile
 //! ([`Renderer::tiled`]), read back once; an arena that resets renders its first frame at once,
 //! so the step that ends an episode has its final frame and the next episode's first one.
+//! With `more_cameras`, each arena is seen through each camera at the same instant, and the
+//! cameras' images lie side by side along the channels (robosuite's `camera_names`).
 //!
 //! The task's terms still run on its state (rewards, terminations, success); only what the
 //! learner sees changes. The observation space becomes [`Space::Image`]: `height × width ×
-//! 3·frames` whole numbers in [0, 255], the last `frames` images stacked along the channels
-//! (oldest first), a new episode's first image repeated (gym's `FrameStack`). With `state`, the
+//! 3·cameras·frames` whole numbers in [0, 255], the last `frames` images stacked along the
+//! channels (oldest first; within each, the cameras in order), a new episode's first image
+//! repeated (gym's `FrameStack`). With `state`, the
 //! robot's own readings the task observes follow the image ([`Space::ImageAndState`]: image
 //! plus proprioception, as robosuite and ManiSkill give a camera policy); a target is then
 //! known only from the image.
@@ -29,6 +32,9 @@ use crate::{Renderer, View};
 pub struct PixelSettings {
     /// One of the robot's framed cameras ([`Framing::CAMERAS`]).
     pub camera: String,
+    /// Further framed cameras, whose images follow `camera`'s along the channels: views from
+    /// other sides, for what one camera sees only along its line of sight (depth).
+    pub more_cameras: Vec<String>,
     /// Vertical field of view (degrees): narrower zooms in on the robot.
     pub fov: f32,
     pub width: u32,
@@ -43,7 +49,7 @@ pub struct PixelSettings {
 impl Default for PixelSettings {
     /// A small image (64×64, one frame) through the robot's side camera at the framing's 45°.
     fn default() -> Self {
-        Self { camera: "side".into(), fov: 45.0, width: 64, height: 64, frames: 1, state: Vec::new() }
+        Self { camera: "side".into(), more_cameras: Vec::new(), fov: 45.0, width: 64, height: 64, frames: 1, state: Vec::new() }
     }
 }
 
@@ -56,6 +62,14 @@ impl PixelSettings {
             self.camera,
             Framing::CAMERAS.join(", ")
         );
+        for (i, more) in self.more_cameras.iter().enumerate() {
+            anyhow::ensure!(
+                Framing::CAMERAS.contains(&more.as_str()),
+                "pixels.more_cameras: {more:?} must be one of {}",
+                Framing::CAMERAS.join(", ")
+            );
+            anyhow::ensure!(*more != self.camera && !self.more_cameras[..i].contains(more), "pixels.more_cameras: {more:?} is named twice (with camera = {:?})", self.camera);
+        }
         anyhow::ensure!(self.fov > 0.0 && self.fov < 180.0, "pixels.fov = {}: must be in (0, 180) degrees", self.fov);
         for (key, value) in [("width", self.width), ("height", self.height)] {
             anyhow::ensure!((8..=1024).contains(&value), "pixels.{key} = {value}: must be a whole number in 8..=1024");
@@ -64,9 +78,15 @@ impl PixelSettings {
         Ok(())
     }
 
-    /// The image's space: `height × width × 3·frames`.
+    /// The cameras in the order their images lie along the channels.
+    pub fn cameras(&self) -> impl Iterator<Item = &str> {
+        std::iter::once(self.camera.as_str()).chain(self.more_cameras.iter().map(String::as_str))
+    }
+
+    /// The image's space: `height × width × 3·cameras·frames`.
     pub fn space(&self) -> Space {
-        Space::Image { height: self.height as usize, width: self.width as usize, channels: 3 * self.frames as usize }
+        let channels = 3 * self.cameras().count() * self.frames as usize;
+        Space::Image { height: self.height as usize, width: self.width as usize, channels }
     }
 
     /// `task` as it is observed through this camera: its observation space, plausible range and
@@ -76,7 +96,7 @@ impl PixelSettings {
     pub fn observe_task(&self, task: &mut TaskSpec) -> anyhow::Result<Vec<usize>> {
         let kept = self.state_values(task)?;
         let image = self.space();
-        let (height, width, channels) = (self.height as usize, self.width as usize, 3 * self.frames as usize);
+        let Space::Image { height, width, channels } = image else { unreachable!("space() is an image") };
         let pick = |v: &[f32]| kept.iter().map(|&i| v[i]).collect();
         let with_state = |space: &Space| match space {
             _ if kept.is_empty() => image.clone(),
@@ -123,10 +143,9 @@ impl PixelSettings {
     /// `framing`. Fails as [`PixelSettings::check`] does, or when no graphics adapter exists.
     pub fn install(&self, app: &mut App, framing: &Framing, arenas: usize) -> anyhow::Result<()> {
         self.check(app)?;
-        let framed = View::framed(framing, &self.camera).expect("validated: a framed camera");
-        let view = View { fov_y: self.fov.to_radians(), ..framed };
+        let views = self.cameras().map(|name| View { fov_y: self.fov.to_radians(), ..View::framed(framing, name).expect("validated: a framed camera") }).collect();
         let renderer = Renderer::tiled(self.width, self.height, arenas.max(1))?;
-        app.insert_non_send(PixelCamera { renderer, view, frames: self.frames as usize, state: Vec::new(), stacks: HashMap::new() })
+        app.insert_non_send(PixelCamera { renderer, views, frames: self.frames as usize, state: Vec::new(), stacks: HashMap::new() })
             .insert_resource(PixelTask(self.clone()))
             .add_plugins(PixelObservationPlugin);
         Ok(())
@@ -143,10 +162,11 @@ pub struct TaskObservation(pub Vec<f32>);
 #[derive(Resource, Clone, Debug)]
 struct PixelTask(PixelSettings);
 
-/// The renderer and each arena's latest images.
+/// The renderer and each arena's latest images (all its cameras' at one instant).
 struct PixelCamera {
     renderer: Renderer,
-    view: View,
+    /// One per camera, in channel order.
+    views: Vec<View>,
     frames: usize,
     /// Where the values kept beside the image are in the task's own observation.
     state: Vec<usize>,
@@ -198,12 +218,14 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
         return;
     }
     let Some(mut camera) = world.remove_non_send::<PixelCamera>() else { return };
-    let shots: Vec<(Entity, View)> = arenas.iter().map(|&a| (a, camera.view)).collect();
-    let images = match camera.renderer.render_shots(world, &shots) {
+    // Camera by camera, so that each frame draws every arena once (its tile).
+    let shots: Vec<(Entity, View)> = camera.views.iter().flat_map(|&view| arenas.iter().map(move |&a| (a, view))).collect();
+    let shot_images = match camera.renderer.render_shots(world, &shots) {
         Ok(images) => images,
         // Rendering worked when the renderer was made: a failure now is the machine's.
         Err(e) => panic!("pixel observations cannot render: {e}"),
     };
+    let images = side_by_side(shot_images, arenas.len());
     let frames = camera.frames;
     for (arena, image) in arenas.into_iter().zip(images) {
         let stack = camera.stacks.entry(arena).or_default();
@@ -219,7 +241,7 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
             // The task's terms just observed the state: its kept values follow the image.
             let observed = TaskObservation(episode.observation.clone());
             let state: Vec<f32> = camera.state.iter().map(|&i| episode.observation[i]).collect();
-            write_stack(stack, &mut episode.observation);
+            write_stack(stack, 3 * camera.views.len(), &mut episode.observation);
             episode.observation.extend(state);
             world.entity_mut(arena).insert(observed);
         }
@@ -227,14 +249,36 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
     world.insert_non_send(camera);
 }
 
-/// `height × width × 3·frames`: pixel by pixel, each frame's RGB in turn (oldest first).
-fn write_stack(stack: &VecDeque<Vec<u8>>, out: &mut Vec<f32>) {
+/// Each arena's image from `shots` (camera-major: every arena's shot through the first camera,
+/// then through the next): pixel by pixel, each camera's RGB in turn.
+fn side_by_side(shots: Vec<Vec<u8>>, arenas: usize) -> Vec<Vec<u8>> {
+    let cameras = shots.len() / arenas.max(1);
+    if cameras == 1 {
+        return shots;
+    }
+    (0..arenas)
+        .map(|a| {
+            let pixels = shots[a].len() / 3;
+            let mut image = Vec::with_capacity(pixels * 3 * cameras);
+            for p in 0..pixels {
+                for c in 0..cameras {
+                    image.extend_from_slice(&shots[c * arenas + a][p * 3..p * 3 + 3]);
+                }
+            }
+            image
+        })
+        .collect()
+}
+
+/// `height × width × channels·frames`: pixel by pixel, each frame's `channels` values in turn
+/// (oldest first).
+fn write_stack(stack: &VecDeque<Vec<u8>>, channels: usize, out: &mut Vec<f32>) {
     out.clear();
-    let pixels = stack.front().map_or(0, |f| f.len() / 3);
-    out.reserve(pixels * 3 * stack.len());
+    let pixels = stack.front().map_or(0, |f| f.len() / channels);
+    out.reserve(pixels * channels * stack.len());
     for p in 0..pixels {
         for frame in stack {
-            out.extend(frame[p * 3..p * 3 + 3].iter().map(|&v| v as f32));
+            out.extend(frame[p * channels..(p + 1) * channels].iter().map(|&v| v as f32));
         }
     }
 }
