@@ -70,7 +70,8 @@ impl Arenas {
     /// `[randomization]` table applies; `calibration` a calibration file (`twinbots identify`'s)
     /// the twin runs with; `log` a robot log file (.mcap or .csv) that holds arena 0's latest
     /// episode (the running one is added by `close()`); `pixels` the TOML text of a `[pixels]`
-    /// table's keys (camera, fov, width, height, frames): the envs observe camera images.
+    /// table's keys (camera, more_cameras, fov, width, height, frames, state; docs/pixels.md):
+    /// the envs observe camera images.
     #[new]
     #[pyo3(signature = (robot, num_envs, seed=0, task=None, pattern=1, config=None, calibration=None, log=None, pixels=None))]
     #[allow(clippy::too_many_arguments)]

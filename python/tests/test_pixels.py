@@ -1,7 +1,7 @@
 """Camera images as observations (`obs="pixels"`, docs/pixels.md): the spaces SB3's CnnPolicy
-recognises, the final frame of an ended episode, determinism, bad settings, SB3's PPO with
-`CnnPolicy` training on them, and an image with the robot's own state as a Dict (SB3's
-`MultiInputPolicy`)."""
+recognises, the final frame of an ended episode, determinism, several cameras side by side,
+bad settings, SB3's PPO with `CnnPolicy` training on them, and an image with the robot's own
+state as a Dict (SB3's `MultiInputPolicy`)."""
 
 from __future__ import annotations
 
@@ -56,6 +56,22 @@ def test_pixel_observations_are_uint8_images_with_final_frames_and_the_same_for_
     np.testing.assert_array_equal(frames, again)
 
 
+def test_more_cameras_lie_side_by_side_along_the_channels():
+    def first_images(pixels):
+        envs = _pixel_envs(num_envs=2, seed=3, pixels={"width": 32, "height": 24, **pixels})
+        obs, _ = envs.reset(seed=3)
+        obs = np.stack([obs] + [envs.step(np.array([t % 2, 1]))[0] for t in range(5)])
+        envs.close()
+        return envs.single_observation_space, obs
+
+    space, both = first_images({"camera": "side", "more_cameras": ["front"]})
+    assert space == spaces.Box(0, 255, (24, 32, 6), np.uint8)
+    _, side = first_images({"camera": "side"})
+    _, front = first_images({"camera": "front"})
+    np.testing.assert_array_equal(both[..., :3], side)
+    np.testing.assert_array_equal(both[..., 3:], front)
+
+
 @pytest.mark.parametrize(
     "kwargs, message",
     [
@@ -64,6 +80,7 @@ def test_pixel_observations_are_uint8_images_with_final_frames_and_the_same_for_
         ({"obs": "pixels", "pixels": {"width": 0}}, "pixels.width = 0"),
         ({"obs": "pixels", "pixels": {"frames": 9}}, "pixels.frames = 9"),
         ({"obs": "pixels", "pixels": {"camera": "ceiling"}}, "pixels.camera = \"ceiling\": must be one of side, front, iso, top"),
+        ({"obs": "pixels", "pixels": {"more_cameras": ["front", "front"]}}, "pixels.more_cameras: \"front\" is named twice"),
         ({"obs": "pixels", "pixels": {"colour": 3}}, "unknown field `colour`"),
         ({"obs": "pixels", "pixels": {"fov": 180}}, "pixels.fov = 180: must be in (0, 180) degrees"),
         ({"obs": "pixels", "pixels": {"fov": -5.0}}, "pixels.fov = -5: must be in (0, 180) degrees"),
