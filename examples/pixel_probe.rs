@@ -25,8 +25,7 @@
 //! over the epochs (without it: the collection order and 3e-4 throughout).
 //!
 //! `--more-cameras front` (or several, comma-separated) sees each image through those cameras
-//! too, their pictures beside the first's along the channels (`[pixels] more_cameras`);
-//! `--tile-cameras` lays them side by side along the width instead (the reach).
+//! too, their pictures beside the first's along the width (`[pixels] more_cameras`).
 //!
 //! `--jitter` fits on every image under a colour jitter of its own, drawn each time it is read
 //! (brightness, contrast and saturation ±40 %, each channel ±10 %), as RAD (Laskin et al. 2020)
@@ -42,7 +41,7 @@ use candle_core::{Device, Tensor, Var};
 use clap::Parser;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use twinbots_api::{DesignPattern, Space, VecEnv};
+use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_learn::nn::{Adam, AdamConfig, Encoder, PolicyKind};
 use twinbots_render::PixelSettings;
 use twinbots_render::pixels::TaskObservation;
@@ -109,19 +108,15 @@ struct Args {
     /// reaches are seed 1000's.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Cameras (comma-separated) whose images follow the robot's camera's along the channels
+    /// Cameras (comma-separated) whose images follow the robot's camera's along the width
     /// (`[pixels] more_cameras`), e.g. `front`.
     #[arg(long, value_delimiter = ',')]
     more_cameras: Vec<String>,
-    /// The cameras' images side by side along the width (one image `cameras` times as wide)
-    /// instead of along the channels, so that the CNN's filters see each view alike.
-    #[arg(long)]
-    tile_cameras: bool,
 }
 
 fn main() -> anyhow::Result<()> {
     twinbots_learn::threads::configure();
-    let Args { robot, images: samples, epochs, fov, encoder: kind, looks, save, frames, size, from, annealed, held_out, jitter: jittered, seed, more_cameras, tile_cameras } = Args::parse();
+    let Args { robot, images: samples, epochs, fov, encoder: kind, looks, save, frames, size, from, annealed, held_out, jitter: jittered, seed, more_cameras } = Args::parse();
     let kind = match kind {
         EncoderKind::Cnn => PolicyKind::Cnn,
         EncoderKind::Keypoints => PolicyKind::Keypoints,
@@ -138,7 +133,6 @@ fn main() -> anyhow::Result<()> {
         .collect::<anyhow::Result<_>>()?;
     anyhow::ensure!(samples >= 5, "--images {samples}: at least 5 (a fifth of them are held out)");
     anyhow::ensure!(seed == 0 || robot == Robot::Ur5e, "--seed: the ur5e probe's");
-    anyhow::ensure!(!tile_cameras || robot == Robot::Ur5e, "--tile-cameras: the ur5e probe's (one frame a camera)");
     anyhow::ensure!(held_out_looks.is_empty() || robot == Robot::Ur5e, "--held-out: the ur5e probe's (the cart-pole has no held-out looks)");
     // The camera: the cart-pole's side one (`frames` frames), the reach's iso one (one frame).
     let camera = match robot {
@@ -149,20 +143,16 @@ fn main() -> anyhow::Result<()> {
         Robot::Cartpole => cartpole_samples(samples, &camera, randomized)?,
         Robot::Ur5e => ur5e_samples(samples, &camera, randomized, seed)?,
     };
-    let cameras = camera.cameras().count();
-    let tiled = tile_cameras && cameras > 1;
-    let space = if tiled { Space::Image { height: size as usize, width: size as usize * cameras, channels: 3 * camera.frames as usize } } else { env.observation_space().clone() };
-    let images = if tiled { side_by_side(images, size as usize, cameras) } else { images };
-    let (dim, k) = (space.dim(), names.len());
+    let (dim, k) = (env.observation_space().dim(), names.len());
     // A fifth held out, at most 4,800 images (one tensor, read after every epoch).
     let held_out = (samples / 5).min(4800);
     let train = samples - held_out;
     let name = if robot == Robot::Ur5e { "ur5e" } else { "cartpole" };
-    let seen_by = camera.cameras().collect::<Vec<_>>().join(" + ") + if tiled { " (side by side)" } else { "" };
+    let seen_by = camera.cameras().collect::<Vec<_>>().join(" + ");
     println!("{name}: {samples} images ({train} to fit, {held_out} held out), {seen_by} camera, field of view {fov}°{}", if jittered { ", colour-jittered fit" } else { "" });
 
     let dev = Device::Cpu;
-    let encoder = Encoder::new(kind, &space, 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
+    let encoder = Encoder::new(kind, env.observation_space(), 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
     if let Some(path) = &from {
         twinbots_learn::model_io::set_encoder_from_file(&encoder, path)?;
     }
@@ -222,7 +212,6 @@ fn main() -> anyhow::Result<()> {
     for (file, looks) in held_out_looks {
         // Reaches under looks the fit never drew from: what the encoder still reads there.
         let (_, _, _, images, labels) = ur5e_samples(2400, &camera, Some(looks), 1000)?;
-        let images = if tiled { side_by_side(images, size as usize, cameras) } else { images };
         let x = Tensor::from_vec(images.iter().map(|&v| v as f32).collect::<Vec<f32>>(), (2400, dim), &dev)?;
         let (read, truth) = (predict(&x)?, Tensor::from_vec(labels, (2400, k), &dev)?);
         let residual = (&read - &truth)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
@@ -294,20 +283,6 @@ fn colour_jitter(image: &mut [f32], rng: &mut ChaCha8Rng) {
             *v = (contrasted * gain[c]).clamp(0.0, 255.0);
         }
     }
-}
-
-/// Square `size`² images of `cameras` views each (one frame: each pixel the cameras' RGB in
-/// turn) laid out side by side along the width: each row the first camera's, then the next's.
-fn side_by_side(images: Vec<u8>, size: usize, cameras: usize) -> Vec<u8> {
-    let mut tiled = Vec::with_capacity(images.len());
-    for image in images.chunks(size * size * 3 * cameras) {
-        for row in image.chunks(size * 3 * cameras) {
-            for c in 0..cameras {
-                tiled.extend(row.chunks(3 * cameras).flat_map(|px| &px[3 * c..3 * c + 3]));
-            }
-        }
-    }
-    tiled
 }
 
 /// A new look per arena at every reset, drawn from `looks`.

@@ -56,7 +56,7 @@ def test_pixel_observations_are_uint8_images_with_final_frames_and_the_same_for_
     np.testing.assert_array_equal(frames, again)
 
 
-def test_more_cameras_lie_side_by_side_along_the_channels():
+def test_more_cameras_lie_side_by_side_along_the_width():
     def first_images(pixels):
         envs = _pixel_envs(num_envs=2, seed=3, pixels={"width": 32, "height": 24, **pixels})
         obs, _ = envs.reset(seed=3)
@@ -65,11 +65,11 @@ def test_more_cameras_lie_side_by_side_along_the_channels():
         return envs.single_observation_space, obs
 
     space, both = first_images({"camera": "side", "more_cameras": ["front"]})
-    assert space == spaces.Box(0, 255, (24, 32, 6), np.uint8)
+    assert space == spaces.Box(0, 255, (24, 64, 3), np.uint8)
     _, side = first_images({"camera": "side"})
     _, front = first_images({"camera": "front"})
-    np.testing.assert_array_equal(both[..., :3], side)
-    np.testing.assert_array_equal(both[..., 3:], front)
+    np.testing.assert_array_equal(both[..., :32, :], side)
+    np.testing.assert_array_equal(both[..., 32:, :], front)
 
 
 @pytest.mark.parametrize(

@@ -180,11 +180,11 @@ fn more_cameras_see_each_arena_at_the_same_instant_under_its_one_look() {
         (env.observation_space().clone(), seen)
     };
     let (space, both) = seen("side", &["front"]);
-    assert_eq!(space, Space::Image { height: 16, width: 24, channels: 12 });
+    assert_eq!(space, Space::Image { height: 16, width: 48, channels: 6 });
     let (_, side) = seen("side", &[]);
     let (_, front) = seen("front", &[]);
-    // Pixel by pixel: the older frame's side RGB and front RGB, then the newer frame's.
-    let camera = |obs: &[f32], c: usize| -> Vec<f32> { obs.chunks(6).flat_map(|px| px[3 * c..3 * c + 3].to_vec()).collect() };
+    // Row by row: the side camera's 24 pixels (two frames' RGB each), then the front camera's.
+    let camera = |obs: &[f32], c: usize| -> Vec<f32> { obs.chunks(48 * 6).flat_map(|row| row[c * 24 * 6..(c + 1) * 24 * 6].to_vec()).collect() };
     for t in 0..both.len() {
         assert_eq!(camera(&both[t], 0), side[t], "step {t}: the first camera's images are its alone");
         assert_eq!(camera(&both[t], 1), front[t], "step {t}: the second camera's too");

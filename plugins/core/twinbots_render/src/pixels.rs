@@ -4,13 +4,14 @@
 //! ([`Renderer::tiled`]), read back once; an arena that resets renders its first frame at once,
 //! so the step that ends an episode has its final frame and the next episode's first one.
 //! With `more_cameras`, each arena is seen through each camera at the same instant, and the
-//! cameras' images lie side by side along the channels (robosuite's `camera_names`).
+//! cameras' images lie side by side along the width, so that a CNN's filters read every view
+//! alike (side by side along the channels, pixels of different views would share filters
+//! without showing the same thing; measured in docs/pixels.md).
 //!
 //! The task's terms still run on its state (rewards, terminations, success); only what the
-//! learner sees changes. The observation space becomes [`Space::Image`]: `height × width ×
-//! 3·cameras·frames` whole numbers in [0, 255], the last `frames` images stacked along the
-//! channels (oldest first; within each, the cameras in order), a new episode's first image
-//! repeated (gym's `FrameStack`). With `state`, the
+//! learner sees changes. The observation space becomes [`Space::Image`]: `height ×
+//! width·cameras × 3·frames` whole numbers in [0, 255], the last `frames` images stacked along
+//! the channels (oldest first), a new episode's first image repeated (gym's `FrameStack`). With `state`, the
 //! robot's own readings the task observes follow the image ([`Space::ImageAndState`]: image
 //! plus proprioception, as robosuite and ManiSkill give a camera policy); a target is then
 //! known only from the image.
@@ -32,7 +33,7 @@ use crate::{Renderer, View};
 pub struct PixelSettings {
     /// One of the robot's framed cameras ([`Framing::CAMERAS`]).
     pub camera: String,
-    /// Further framed cameras, whose images follow `camera`'s along the channels: views from
+    /// Further framed cameras, whose images follow `camera`'s along the width: views from
     /// other sides, for what one camera sees only along its line of sight (depth).
     pub more_cameras: Vec<String>,
     /// Vertical field of view (degrees): narrower zooms in on the robot.
@@ -78,15 +79,15 @@ impl PixelSettings {
         Ok(())
     }
 
-    /// The cameras in the order their images lie along the channels.
+    /// The cameras in the order their images lie along the width.
     pub fn cameras(&self) -> impl Iterator<Item = &str> {
         std::iter::once(self.camera.as_str()).chain(self.more_cameras.iter().map(String::as_str))
     }
 
-    /// The image's space: `height × width × 3·cameras·frames`.
+    /// The image's space: `height × width·cameras × 3·frames`.
     pub fn space(&self) -> Space {
-        let channels = 3 * self.cameras().count() * self.frames as usize;
-        Space::Image { height: self.height as usize, width: self.width as usize, channels }
+        let width = self.width as usize * self.cameras().count();
+        Space::Image { height: self.height as usize, width, channels: 3 * self.frames as usize }
     }
 
     /// `task` as it is observed through this camera: its observation space, plausible range and
@@ -145,7 +146,7 @@ impl PixelSettings {
         self.check(app)?;
         let views = self.cameras().map(|name| View { fov_y: self.fov.to_radians(), ..View::framed(framing, name).expect("validated: a framed camera") }).collect();
         let renderer = Renderer::tiled(self.width, self.height, arenas.max(1))?;
-        app.insert_non_send(PixelCamera { renderer, views, frames: self.frames as usize, state: Vec::new(), stacks: HashMap::new() })
+        app.insert_non_send(PixelCamera { renderer, views, width: self.width as usize, frames: self.frames as usize, state: Vec::new(), stacks: HashMap::new() })
             .insert_resource(PixelTask(self.clone()))
             .add_plugins(PixelObservationPlugin);
         Ok(())
@@ -165,8 +166,10 @@ struct PixelTask(PixelSettings);
 /// The renderer and each arena's latest images (all its cameras' at one instant).
 struct PixelCamera {
     renderer: Renderer,
-    /// One per camera, in channel order.
+    /// One per camera, in the order their images lie along the width.
     views: Vec<View>,
+    /// One camera's image width, pixels.
+    width: usize,
     frames: usize,
     /// Where the values kept beside the image are in the task's own observation.
     state: Vec<usize>,
@@ -225,7 +228,7 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
         // Rendering worked when the renderer was made: a failure now is the machine's.
         Err(e) => panic!("pixel observations cannot render: {e}"),
     };
-    let images = side_by_side(shot_images, arenas.len());
+    let images = side_by_side(shot_images, arenas.len(), 3 * camera.width);
     let frames = camera.frames;
     for (arena, image) in arenas.into_iter().zip(images) {
         let stack = camera.stacks.entry(arena).or_default();
@@ -241,7 +244,7 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
             // The task's terms just observed the state: its kept values follow the image.
             let observed = TaskObservation(episode.observation.clone());
             let state: Vec<f32> = camera.state.iter().map(|&i| episode.observation[i]).collect();
-            write_stack(stack, 3 * camera.views.len(), &mut episode.observation);
+            write_stack(stack, &mut episode.observation);
             episode.observation.extend(state);
             world.entity_mut(arena).insert(observed);
         }
@@ -250,19 +253,20 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
 }
 
 /// Each arena's image from `shots` (camera-major: every arena's shot through the first camera,
-/// then through the next): pixel by pixel, each camera's RGB in turn.
-fn side_by_side(shots: Vec<Vec<u8>>, arenas: usize) -> Vec<Vec<u8>> {
+/// then through the next; rows of `row` bytes): row by row, the first camera's row, then the
+/// next camera's.
+fn side_by_side(shots: Vec<Vec<u8>>, arenas: usize, row: usize) -> Vec<Vec<u8>> {
     let cameras = shots.len() / arenas.max(1);
     if cameras == 1 {
         return shots;
     }
     (0..arenas)
         .map(|a| {
-            let pixels = shots[a].len() / 3;
-            let mut image = Vec::with_capacity(pixels * 3 * cameras);
-            for p in 0..pixels {
+            let rows = shots[a].len() / row;
+            let mut image = Vec::with_capacity(rows * row * cameras);
+            for r in 0..rows {
                 for c in 0..cameras {
-                    image.extend_from_slice(&shots[c * arenas + a][p * 3..p * 3 + 3]);
+                    image.extend_from_slice(&shots[c * arenas + a][r * row..(r + 1) * row]);
                 }
             }
             image
@@ -270,15 +274,14 @@ fn side_by_side(shots: Vec<Vec<u8>>, arenas: usize) -> Vec<Vec<u8>> {
         .collect()
 }
 
-/// `height × width × channels·frames`: pixel by pixel, each frame's `channels` values in turn
-/// (oldest first).
-fn write_stack(stack: &VecDeque<Vec<u8>>, channels: usize, out: &mut Vec<f32>) {
+/// `height × width × 3·frames`: pixel by pixel, each frame's RGB in turn (oldest first).
+fn write_stack(stack: &VecDeque<Vec<u8>>, out: &mut Vec<f32>) {
     out.clear();
-    let pixels = stack.front().map_or(0, |f| f.len() / channels);
-    out.reserve(pixels * channels * stack.len());
+    let pixels = stack.front().map_or(0, |f| f.len() / 3);
+    out.reserve(pixels * 3 * stack.len());
     for p in 0..pixels {
         for frame in stack {
-            out.extend(frame[p * channels..(p + 1) * channels].iter().map(|&v| v as f32));
+            out.extend(frame[p * 3..p * 3 + 3].iter().map(|&v| v as f32));
         }
     }
 }
