@@ -11,10 +11,10 @@
 //! The task's terms still run on its state (rewards, terminations, success); only what the
 //! learner sees changes. The observation space becomes [`Space::Image`]: `height ×
 //! width·cameras × 3·frames` whole numbers in [0, 255], the last `frames` images stacked along
-//! the channels (oldest first), a new episode's first image repeated (gym's `FrameStack`). With `state`, the
-//! robot's own readings the task observes follow the image ([`Space::ImageAndState`]: image
-//! plus proprioception, as robosuite and ManiSkill give a camera policy); a target is then
-//! known only from the image.
+//! the channels (oldest first), a new episode's first image repeated (gym's `FrameStack`).
+//! With `state`, the robot's own readings the task observes follow the image
+//! ([`Space::ImageAndState`]: image plus proprioception, as robosuite and ManiSkill give a
+//! camera policy); a target is then known only from the image.
 
 use std::collections::{HashMap, VecDeque};
 
