@@ -82,11 +82,15 @@ pub(crate) struct Parts<'a> {
     pub env_state: &'a mut Option<EnvState>,
 }
 
-/// An empty replay buffer for `model`'s spaces with `lanes` envs; image observations are kept
-/// as bytes, as they came.
-pub(crate) fn replay_buffer<M: OffPolicy>(model: &M, lanes: usize) -> ReplayBuffer {
-    let ring = ReplayBuffer::new(model.schedule().buffer_size, lanes, model.observation_space().dim(), model.action_space().dim());
-    if matches!(model.observation_space(), Space::Image { .. }) { ring.with_byte_observations() } else { ring }
+/// Gives `model` an empty replay buffer for `lanes` envs if it has none yet (image
+/// observations kept as bytes, as they came); returns the lanes of the buffer it has.
+pub(crate) fn replay_buffer<M: OffPolicy>(model: &mut M, lanes: usize) -> usize {
+    if model.parts().buffer.is_none() {
+        let ring = ReplayBuffer::new(model.schedule().buffer_size, lanes, model.observation_space().dim(), model.action_space().dim());
+        let ring = if matches!(model.observation_space(), Space::Image { .. }) { ring.with_byte_observations() } else { ring };
+        *model.parts().buffer = Some(ring);
+    }
+    model.parts().buffer.as_ref().map_or(lanes, |b| b.n_envs)
 }
 
 /// Trains `model` for `total_timesteps` more env steps (summed over envs), calling `callback`
@@ -95,13 +99,9 @@ pub(crate) fn learn<M: OffPolicy>(model: &mut M, env: &mut dyn VecEnv, total_tim
     model.check_spaces(env.observation_space(), env.action_space())?;
     let n_envs = env.num_envs();
     let schedule = model.schedule();
-    if model.parts().buffer.is_none() {
-        let buffer = replay_buffer(model, n_envs);
-        *model.parts().buffer = Some(buffer);
-    }
-    let parts = model.parts();
-    let lanes = parts.buffer.as_ref().map_or(n_envs, |b| b.n_envs);
+    let lanes = replay_buffer(model, n_envs);
     anyhow::ensure!(lanes == n_envs, "the replay buffer was filled by {lanes} envs, this env has {n_envs}");
+    let parts = model.parts();
     let end = *parts.timesteps + total_timesteps;
     // A model that learnt before continues its envs' episodes (replayed); a new one starts.
     let mut obs = match parts.env_state.take() {

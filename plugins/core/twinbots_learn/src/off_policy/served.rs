@@ -46,15 +46,10 @@ pub(crate) struct ServedOffPolicy<M: OffPolicy> {
 
 impl<M: OffPolicy> ServedOffPolicy<M> {
     pub fn new(mut model: M, robots: usize) -> anyhow::Result<Self> {
-        if model.parts().buffer.is_none() {
-            let buffer = super::replay_buffer(&model, 1);
-            *model.parts().buffer = Some(buffer);
-        }
-        let buffer = model.parts().buffer.as_ref().expect("made above");
+        let lanes = super::replay_buffer(&mut model, 1);
         anyhow::ensure!(
-            buffer.n_envs == 1,
-            "this model's replay buffer was filled by {} envs stepped together; a RobotServer continues only a model it trained (or a new one)",
-            buffer.n_envs
+            lanes == 1,
+            "this model's replay buffer was filled by {lanes} envs stepped together; a RobotServer continues only a model it trained (or a new one)"
         );
         Ok(Self { model, robots: robots.max(1) as u64, episodes: HashMap::new(), unseen: 0, row: Row::default() })
     }
