@@ -9,13 +9,16 @@ use std::path::Path;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_task::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
-use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
 use twinbots_api::*;
 use twinbots_learn::*;
-use twinbots_task::*;
 use twinbots_sim::urdf::parse_urdf;
-use twinbots_sim::{ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, Supervisor, spawn_robot};
+use twinbots_sim::{
+    ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions,
+    Supervisor, spawn_robot,
+};
+use twinbots_task::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
+use twinbots_task::*;
 
 // 1. The robot: a 1 kg, 0.5 m arm on a motorised hinge 1 m above the ground, torque ≤ 2 N·m.
 const URDF: &str = r#"<robot name="swing_arm"><link name="world"/>
@@ -28,7 +31,12 @@ const URDF: &str = r#"<robot name="swing_arm"><link name="world"/>
 // 2. What the controller knows: the arm's angle (θ = 0 upright) and speed from its encoder, the
 //    torque it applied, and the start angle the next episode drew.
 #[derive(Component, Clone, Copy, Default)]
-struct SwingState { angle: f32, speed: f32, torque: f32, start: f32 }
+struct SwingState {
+    angle: f32,
+    speed: f32,
+    torque: f32,
+    start: f32,
+}
 
 // 3. The task as terms (Gymnasium's Pendulum): observe [cos θ, sin θ, θ̇], pay for angle, speed
 //    and torque, 200 steps, start anywhere.
@@ -47,7 +55,9 @@ fn swing_up() -> TaskDefinition<SwingState> {
                 RewardTerm::new("torque", -0.001, |s: &SwingState| s.torque * s.torque),
             ],
             time_limit: Some(200),
-            start_events: vec![StartEvent::new("start_angle", |s: &mut SwingState, rng| s.start = rng.random_range(-3.1..3.1))],
+            start_events: vec![StartEvent::new("start_angle", |s: &mut SwingState, rng| {
+                s.start = rng.random_range(-3.1..3.1)
+            })],
             ..default()
         },
         action_space: Space::Box { low: vec![-2.0], high: vec![2.0] },
@@ -112,7 +122,13 @@ fn swing_arm() -> RobotDescription {
     RobotDescription {
         name: "swing_arm",
         description: "a torque-driven pendulum arm (swing-up)",
-        tasks: vec![TaskDescription { name: "swing-up", description: "swing up and balance", spec: || swing_up().spec(), server: false, training: None }],
+        tasks: vec![TaskDescription {
+            name: "swing-up",
+            description: "swing up and balance",
+            spec: || swing_up().spec(),
+            server: false,
+            training: None,
+        }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),
         defaults: TrainingDefaults {
@@ -135,13 +151,18 @@ fn main() -> anyhow::Result<()> {
     registry.register(swing_arm())?;
     let robot = registry.find("swing_arm")?;
     let mut env = AppVecEnv::new(robot.app(None, 4, 1, DesignPattern::Supervised)?);
-    let mut model = Ppo::new(robot.defaults.of("ppo").config()?, env.observation_space().clone(), env.action_space().clone(), 1)?;
+    let mut model =
+        Ppo::new(robot.defaults.of("ppo").config()?, env.observation_space().clone(), env.action_space().clone(), 1)?;
     let mut first = None;
     model.learn(&mut env, 120_000, &mut |s: &UpdateStats, _: &dyn twinbots_learn::Agent| {
         first = first.or((s.episodes > 0).then_some(s.mean_reward));
         println!("{:>7} steps  mean episode reward {:>8.1}", s.timesteps, s.mean_reward);
         Ok(Flow::Continue)
     })?;
-    println!("swing_arm: first episodes {:.0}, after training {:.0}", first.unwrap_or(f32::NAN), model.mean_recent_score());
+    println!(
+        "swing_arm: first episodes {:.0}, after training {:.0}",
+        first.unwrap_or(f32::NAN),
+        model.mean_recent_score()
+    );
     Ok(())
 }

@@ -28,7 +28,11 @@ fn main() -> anyhow::Result<()> {
         for y in 0..h {
             for x in 0..size * scale {
                 let p = ((y / scale) * size + x / scale) as usize * 3 + a * dim;
-                tile.put_pixel(a as u32 * size * scale + x, y, image::Rgb([obs[p] as u8, obs[p + 1] as u8, obs[p + 2] as u8]));
+                tile.put_pixel(
+                    a as u32 * size * scale + x,
+                    y,
+                    image::Rgb([obs[p] as u8, obs[p + 1] as u8, obs[p + 2] as u8]),
+                );
             }
         }
     }

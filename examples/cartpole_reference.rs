@@ -4,18 +4,24 @@
 //!
 //! `cargo run --release --example cartpole_reference <run-dir> [episodes]`
 
-use twinbots_task::robot::{AppRequest, headless_app};
 use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_learn::Ppo;
-use twinbots_task::AppVecEnv;
 use twinbots_sim::SimSettings;
+use twinbots_task::AppVecEnv;
+use twinbots_task::robot::{AppRequest, headless_app};
 
 fn main() -> anyhow::Result<()> {
-    let run = std::env::args().nth(1).ok_or_else(|| anyhow::anyhow!("usage: cartpole_reference <run-dir> [episodes]"))?;
+    let run =
+        std::env::args().nth(1).ok_or_else(|| anyhow::anyhow!("usage: cartpole_reference <run-dir> [episodes]"))?;
     let episodes: usize = std::env::args().nth(2).and_then(|a| a.parse().ok()).unwrap_or(20);
     let model = Ppo::load(std::path::Path::new(&run).join("model"))?;
     let training = cartpole::sim_settings();
-    let reference = SimSettings { dt: 0.001, substeps: (training.control_dt() / 0.001).round() as u32, solver_iterations: 16, ..training };
+    let reference = SimSettings {
+        dt: 0.001,
+        substeps: (training.control_dt() / 0.001).round() as u32,
+        solver_iterations: 16,
+        ..training
+    };
     for (name, settings) in [("training timing", training), ("reference timing", reference)] {
         let request = AppRequest { task: "balance", arenas: 4, seed: 12345, pattern: DesignPattern::Supervised };
         let mut env = AppVecEnv::new(headless_app(settings, &request, cartpole::CartPolePlugin::default()));

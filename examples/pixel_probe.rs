@@ -45,9 +45,9 @@ use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_learn::nn::{Adam, AdamConfig, Encoder, PolicyKind};
 use twinbots_render::PixelSettings;
 use twinbots_render::pixels::TaskObservation;
+use twinbots_task::AppVecEnv;
 use twinbots_task::randomization::visual::{VisualRandomization, redraw_looks};
 use twinbots_task::randomization::{Randomization, RandomizationPlugin};
-use twinbots_task::AppVecEnv;
 
 const ARENAS: usize = 8;
 
@@ -116,7 +116,23 @@ struct Args {
 
 fn main() -> anyhow::Result<()> {
     twinbots_learn::threads::configure();
-    let Args { robot, images: samples, epochs, fov, encoder: kind, looks, save, frames, size, from, annealed, held_out, jitter: jittered, seed, more_cameras } = Args::parse();
+    let Args {
+        robot,
+        images: samples,
+        epochs,
+        fov,
+        encoder: kind,
+        looks,
+        save,
+        frames,
+        size,
+        from,
+        annealed,
+        held_out,
+        jitter: jittered,
+        seed,
+        more_cameras,
+    } = Args::parse();
     let kind = match kind {
         EncoderKind::Cnn => PolicyKind::Cnn,
         EncoderKind::Keypoints => PolicyKind::Keypoints,
@@ -124,20 +140,41 @@ fn main() -> anyhow::Result<()> {
     let randomized = match looks.as_str() {
         "plain" => None,
         "randomized" => Some(VisualRandomization::default()),
-        file if file.ends_with(".toml") => Some(Randomization::looks_of(std::path::Path::new(file)).map_err(|e| anyhow::anyhow!("--looks {e}"))?),
-        other => anyhow::bail!("--looks '{other}': plain, randomized or a .toml file with a [randomization.visual] table"),
+        file if file.ends_with(".toml") => {
+            Some(Randomization::looks_of(std::path::Path::new(file)).map_err(|e| anyhow::anyhow!("--looks {e}"))?)
+        }
+        other => {
+            anyhow::bail!("--looks '{other}': plain, randomized or a .toml file with a [randomization.visual] table")
+        }
     };
     let held_out_looks: Vec<(String, VisualRandomization)> = held_out
         .iter()
-        .map(|file| Ok((file.display().to_string(), Randomization::looks_of(file).map_err(|e| anyhow::anyhow!("--held-out {e}"))?)))
+        .map(|file| {
+            Ok((
+                file.display().to_string(),
+                Randomization::looks_of(file).map_err(|e| anyhow::anyhow!("--held-out {e}"))?,
+            ))
+        })
         .collect::<anyhow::Result<_>>()?;
     anyhow::ensure!(samples >= 5, "--images {samples}: at least 5 (a fifth of them are held out)");
     anyhow::ensure!(seed == 0 || robot == Robot::Ur5e, "--seed: the ur5e probe's");
-    anyhow::ensure!(held_out_looks.is_empty() || robot == Robot::Ur5e, "--held-out: the ur5e probe's (the cart-pole has no held-out looks)");
+    anyhow::ensure!(
+        held_out_looks.is_empty() || robot == Robot::Ur5e,
+        "--held-out: the ur5e probe's (the cart-pole has no held-out looks)"
+    );
     // The camera: the cart-pole's side one (`frames` frames), the reach's iso one (one frame).
     let camera = match robot {
-        Robot::Cartpole => PixelSettings { fov, frames, width: size, height: size, more_cameras, ..PixelSettings::default() },
-        Robot::Ur5e => PixelSettings { camera: "iso".into(), fov, width: size, height: size, more_cameras, ..PixelSettings::default() },
+        Robot::Cartpole => {
+            PixelSettings { fov, frames, width: size, height: size, more_cameras, ..PixelSettings::default() }
+        }
+        Robot::Ur5e => PixelSettings {
+            camera: "iso".into(),
+            fov,
+            width: size,
+            height: size,
+            more_cameras,
+            ..PixelSettings::default()
+        },
     };
     let (env, names, scale, images, labels) = match robot {
         Robot::Cartpole => cartpole_samples(samples, &camera, randomized)?,
@@ -149,7 +186,10 @@ fn main() -> anyhow::Result<()> {
     let train = samples - held_out;
     let name = if robot == Robot::Ur5e { "ur5e" } else { "cartpole" };
     let seen_by = camera.cameras().collect::<Vec<_>>().join(" + ");
-    println!("{name}: {samples} images ({train} to fit, {held_out} held out), {seen_by} camera, field of view {fov}°{}", if jittered { ", colour-jittered fit" } else { "" });
+    println!(
+        "{name}: {samples} images ({train} to fit, {held_out} held out), {seen_by} camera, field of view {fov}°{}",
+        if jittered { ", colour-jittered fit" } else { "" }
+    );
 
     let dev = Device::Cpu;
     let encoder = Encoder::new(kind, env.observation_space(), 64, "probe", &mut ChaCha8Rng::seed_from_u64(2), &dev)?;
@@ -158,15 +198,19 @@ fn main() -> anyhow::Result<()> {
     }
     let head_w = Var::from_tensor(&(Tensor::randn(0f32, 0.1, (k, encoder.dim()), &dev)?))?;
     // The head starts at the labels' mean: what is left to fit is what the images show.
-    let mean: Vec<f32> = (0..k).map(|i| labels[..train * k].iter().skip(i).step_by(k).sum::<f32>() / train as f32).collect();
+    let mean: Vec<f32> =
+        (0..k).map(|i| labels[..train * k].iter().skip(i).step_by(k).sum::<f32>() / train as f32).collect();
     let head_b = Var::from_tensor(&Tensor::from_vec(mean, k, &dev)?)?;
     let mut vars: Vec<Var> = encoder.named_vars().into_iter().map(|(_, v)| v).collect();
     vars.extend([head_w.clone(), head_b.clone()]);
     let mut adam = Adam::new(vars, AdamConfig { learning_rate: 3e-4, ..AdamConfig::default() });
-    let predict = |x: &Tensor| -> candle_core::Result<Tensor> { encoder.forward(x)?.matmul(&head_w.as_tensor().t()?)?.broadcast_add(head_b.as_tensor()) };
+    let predict = |x: &Tensor| -> candle_core::Result<Tensor> {
+        encoder.forward(x)?.matmul(&head_w.as_tensor().t()?)?.broadcast_add(head_b.as_tensor())
+    };
     // Batches gathered by index: in collection order, or shuffled every epoch (`annealed`).
     let gathered = |picked: &[usize], jitter: Option<&mut ChaCha8Rng>| -> candle_core::Result<(Tensor, Tensor)> {
-        let mut x: Vec<f32> = picked.iter().flat_map(|&i| images[i * dim..(i + 1) * dim].iter().map(|&v| v as f32)).collect();
+        let mut x: Vec<f32> =
+            picked.iter().flat_map(|&i| images[i * dim..(i + 1) * dim].iter().map(|&v| v as f32)).collect();
         if let Some(rng) = jitter {
             x.chunks_mut(dim).for_each(|image| colour_jitter(image, rng));
         }
@@ -215,12 +259,22 @@ fn main() -> anyhow::Result<()> {
         let x = Tensor::from_vec(images.iter().map(|&v| v as f32).collect::<Vec<f32>>(), (2400, dim), &dev)?;
         let (read, truth) = (predict(&x)?, Tensor::from_vec(labels, (2400, k), &dev)?);
         let residual = (&read - &truth)?.sqr()?.mean(0)?.to_vec1::<f32>()?;
-        println!("on 2,400 images under held-out looks ({file}): RMS error {}; {}", rms_mm(&residual, scale), distances(&read, &truth, scale)?);
+        println!(
+            "on 2,400 images under held-out looks ({file}): RMS error {}; {}",
+            rms_mm(&residual, scale),
+            distances(&read, &truth, scale)?
+        );
     }
     // The scale of what the encoder hands an MLP (a frozen encoder's features go in as they are).
     let features = encoder.forward(&held_x)?;
-    let (mean, spread) = (features.mean_all()?.to_scalar::<f32>()?, features.flatten_all()?.sqr()?.mean_all()?.sqrt()?.to_scalar::<f32>()?);
-    println!("features on the held-out images: mean {mean:.3}, RMS {spread:.3}, largest {:.3}", features.flatten_all()?.max(0)?.to_scalar::<f32>()?);
+    let (mean, spread) = (
+        features.mean_all()?.to_scalar::<f32>()?,
+        features.flatten_all()?.sqr()?.mean_all()?.sqrt()?.to_scalar::<f32>()?,
+    );
+    println!(
+        "features on the held-out images: mean {mean:.3}, RMS {spread:.3}, largest {:.3}",
+        features.flatten_all()?.max(0)?.to_scalar::<f32>()?
+    );
     if robot == Robot::Cartpole {
         // Closed loop: the classical controller acting on the states the fitted encoder reads
         // from the images, as a policy on its features would at best.
@@ -229,7 +283,8 @@ fn main() -> anyhow::Result<()> {
         let (mut lengths, mut ends) = (Vec::new(), std::collections::BTreeMap::<String, usize>::new());
         for _ in 0..2000 {
             let read = predict(&Tensor::from_slice(&obs, (ARENAS, dim), &dev)?)?.to_vec2::<f32>()?;
-            let state = |r: &[f32]| -> Vec<f32> { r.iter().zip(CARTPOLE_UNITS).map(|(label, unit)| label * unit).collect() };
+            let state =
+                |r: &[f32]| -> Vec<f32> { r.iter().zip(CARTPOLE_UNITS).map(|(label, unit)| label * unit).collect() };
             let actions: Vec<f32> = read.iter().map(|r| cartpole::feedback(&state(r))[0]).collect();
             let step = env.step(&actions)?;
             for i in 0..ARENAS {
@@ -241,7 +296,10 @@ fn main() -> anyhow::Result<()> {
             obs = step.obs;
         }
         let mean = lengths.iter().map(|&l| l as f64).sum::<f64>() / lengths.len().max(1) as f64;
-        println!("closed loop, the classical controller on the read states: {} episodes ended in 2,000 steps × {ARENAS}, mean length {mean:.0}, ended by {ends:?}", lengths.len());
+        println!(
+            "closed loop, the classical controller on the read states: {} episodes ended in 2,000 steps × {ARENAS}, mean length {mean:.0}, ended by {ends:?}",
+            lengths.len()
+        );
     }
     if let Some(path) = save {
         let tensors = twinbots_learn::model_io::var_tensors(&encoder.named_vars());
@@ -260,10 +318,16 @@ fn rms_mm(residual: &[f32], scale: f32) -> String {
 /// How far the read places are from the true ones in three dimensions (the reach arrives within
 /// 10 mm): the median, the 90th percentile and the share within 10 mm.
 fn distances(read: &Tensor, truth: &Tensor, scale: f32) -> candle_core::Result<String> {
-    let mut mm: Vec<f32> = (read - truth)?.sqr()?.sum(1)?.sqrt()?.to_vec1::<f32>()?.iter().map(|d| 1000.0 * d / scale).collect();
+    let mut mm: Vec<f32> =
+        (read - truth)?.sqr()?.sum(1)?.sqrt()?.to_vec1::<f32>()?.iter().map(|d| 1000.0 * d / scale).collect();
     mm.sort_by(f32::total_cmp);
     let within = mm.iter().filter(|&&d| d <= 10.0).count() as f32 / mm.len() as f32;
-    Ok(format!("3-D error median {:.0} mm, 90th percentile {:.0} mm, {:.0} % within 10 mm", mm[mm.len() / 2], mm[mm.len() * 9 / 10], 100.0 * within))
+    Ok(format!(
+        "3-D error median {:.0} mm, 90th percentile {:.0} mm, {:.0} % within 10 mm",
+        mm[mm.len() / 2],
+        mm[mm.len() * 9 / 10],
+        100.0 * within
+    ))
 }
 
 /// Colour jitter on one image (RGB, channels last, values 0–255): torchvision's
@@ -308,7 +372,11 @@ const CARTPOLE_LABELS: usize = CARTPOLE_UNITS.len();
 /// The classical controller with random actions mixed in; each image labelled with the state
 /// it shows (the arena's state after the step, before an ended episode's reset: skipped where
 /// one ended).
-fn cartpole_samples(samples: usize, settings: &PixelSettings, randomized: Option<VisualRandomization>) -> anyhow::Result<Samples> {
+fn cartpole_samples(
+    samples: usize,
+    settings: &PixelSettings,
+    randomized: Option<VisualRandomization>,
+) -> anyhow::Result<Samples> {
     let mut app = cartpole::headless_app(ARENAS, 0);
     settings.install(&mut app, &cartpole::robot().framing, ARENAS)?;
     randomize_looks(&mut app, randomized);
@@ -325,7 +393,11 @@ fn cartpole_samples(samples: usize, settings: &PixelSettings, randomized: Option
             .iter()
             .map(|&arena| {
                 let s = *env.app().world().get::<cartpole::CartPoleState>(arena).expect("every arena has a state");
-                if rng.random_bool(0.25) { rng.random_range(0..2) as f32 } else { cartpole::feedback(&[s.x, s.v, s.angle, s.rate])[0] }
+                if rng.random_bool(0.25) {
+                    rng.random_range(0..2) as f32
+                } else {
+                    cartpole::feedback(&[s.x, s.v, s.angle, s.rate])[0]
+                }
             })
             .collect();
         let step = env.step(&actions)?;
@@ -354,7 +426,12 @@ const UR5E_STRIDE: usize = 3;
 /// arrival takes). The classical controller drives every arena, its action jittered by ±0.3 and
 /// replaced by a random one a quarter of the time (a learning policy's strays); an arrival
 /// resets the arena, and the image and the target after it are the next episode's alike.
-fn ur5e_samples(samples: usize, settings: &PixelSettings, randomized: Option<VisualRandomization>, seed: u64) -> anyhow::Result<Samples> {
+fn ur5e_samples(
+    samples: usize,
+    settings: &PixelSettings,
+    randomized: Option<VisualRandomization>,
+    seed: u64,
+) -> anyhow::Result<Samples> {
     let mut app = ur5e::headless_app_with(ARENAS, 0, DesignPattern::Supervised);
     settings.install(&mut app, &ur5e::robot().framing, ARENAS)?;
     randomize_looks(&mut app, randomized);
@@ -382,7 +459,11 @@ fn ur5e_samples(samples: usize, settings: &PixelSettings, randomized: Option<Vis
             if rng.random_bool(0.25) {
                 actions.extend((0..5).map(|_| rng.random_range(-1.0f32..1.0)));
             } else {
-                actions.extend(ur5e::controller::act(&observed.0).into_iter().map(|a| (a + rng.random_range(-0.3..0.3)).clamp(-1.0, 1.0)));
+                actions.extend(
+                    ur5e::controller::act(&observed.0)
+                        .into_iter()
+                        .map(|a| (a + rng.random_range(-0.3..0.3)).clamp(-1.0, 1.0)),
+                );
             }
         }
         if (step + 1) % UR5E_STRIDE == 0 {

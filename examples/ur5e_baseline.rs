@@ -43,6 +43,8 @@ fn main() {
     let seed = std::env::args().nth(2).and_then(|a| a.parse().ok()).unwrap_or(7);
     run("reach", ur5e::headless_app_with(8, seed, DesignPattern::Supervised), episodes, seed, ur5e::controller::act);
     run("pick-place", ur5e::pick_place_app(8, seed, DesignPattern::Supervised), episodes, seed, ur5e::controller::act);
-    let learned = ur5e::robot().app(Some("pick-place-learned"), 8, seed, DesignPattern::Supervised).expect("the UR5e has the task");
+    let learned = ur5e::robot()
+        .app(Some("pick-place-learned"), 8, seed, DesignPattern::Supervised)
+        .expect("the UR5e has the task");
     run("pick-place-learned (scripted)", learned, episodes, seed, ur5e::pick_place_learned::scripted);
 }

@@ -21,7 +21,10 @@ fn main() -> anyhow::Result<()> {
     let out = args.get(2).map_or("visual-looks.png", String::as_str);
     let randomization = match args.get(3) {
         Some(path) => Randomization::from_config(&std::fs::read_to_string(path).with_context(|| path.clone())?)?,
-        None => Randomization { visual: Some(VisualRandomization { distractors: [2, 4], ..Default::default() }), ..Default::default() },
+        None => Randomization {
+            visual: Some(VisualRandomization { distractors: [2, 4], ..Default::default() }),
+            ..Default::default()
+        },
     };
     let entry = twinbots::registry::find(robot)?;
     let view = View::framed(&entry.framing, "iso").context("the iso camera")?;

@@ -12,7 +12,8 @@ use anyhow::Context;
 const PERIOD: Duration = Duration::from_micros(2000);
 
 fn main() -> anyhow::Result<()> {
-    let seconds: u64 = std::env::args().nth(1).map_or(Ok(600), |s| s.parse()).context("SECONDS must be a whole number")?;
+    let seconds: u64 =
+        std::env::args().nth(1).map_or(Ok(600), |s| s.parse()).context("SECONDS must be a whole number")?;
     anyhow::ensure!(seconds > 0, "SECONDS must be at least 1, not {seconds}");
     let cycles = seconds * 500;
     let start = Instant::now();

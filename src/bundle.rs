@@ -90,8 +90,16 @@ pub struct Bundle {
 }
 
 /// What a robot's deployment needs: the UR5e's (the only robot with a controller link so far).
-pub fn manifest_for(robot: &str, metadata: &twinbots_onnx::PolicyMetadata, calibration: Option<String>, cell: Option<String>) -> anyhow::Result<Manifest> {
-    anyhow::ensure!(robot == "ur5e", "robot '{robot}' has no deployment (joint order, signs and limits on a real controller): only ur5e does; `export --onnx` writes its policy alone");
+pub fn manifest_for(
+    robot: &str,
+    metadata: &twinbots_onnx::PolicyMetadata,
+    calibration: Option<String>,
+    cell: Option<String>,
+) -> anyhow::Result<Manifest> {
+    anyhow::ensure!(
+        robot == "ur5e",
+        "robot '{robot}' has no deployment (joint order, signs and limits on a real controller): only ur5e does; `export --onnx` writes its policy alone"
+    );
     anyhow::ensure!(
         metadata.task == "reach",
         "task '{}' has no deployment yet: the UR5e's controller program drives the reach's joint speeds (a learned pick-and-place moves the tool and the suction); `export --onnx` writes its policy alone",
@@ -119,7 +127,10 @@ pub fn manifest_for(robot: &str, metadata: &twinbots_onnx::PolicyMetadata, calib
         joints,
         action: ActionMapping {
             kind: "joint_speeds".into(),
-            joints: ur5e::deploy::ROBOT_JOINTS[..ur5e::deploy::COMMANDED_JOINTS].iter().map(|s| s.to_string()).collect(),
+            joints: ur5e::deploy::ROBOT_JOINTS[..ur5e::deploy::COMMANDED_JOINTS]
+                .iter()
+                .map(|s| s.to_string())
+                .collect(),
             scale: decimal(ur5e::arm::ACTION_SPEED),
             clip: [-1.0, 1.0],
         },
@@ -144,9 +155,19 @@ fn decimal(v: f32) -> f64 {
 
 /// Writes a bundle to `dir` (all files first into `dir.partial`, then renamed, so a bundle is
 /// whole or absent). An existing bundle there is replaced; any other existing path is an error.
-pub fn write(dir: &Path, manifest: &Manifest, policy_bytes: &[u8], calibration_text: Option<&str>, cell_text: Option<&str>) -> anyhow::Result<()> {
+pub fn write(
+    dir: &Path,
+    manifest: &Manifest,
+    policy_bytes: &[u8],
+    calibration_text: Option<&str>,
+    cell_text: Option<&str>,
+) -> anyhow::Result<()> {
     if dir.exists() {
-        anyhow::ensure!(dir.join(MANIFEST).is_file(), "{} exists and is not a bundle: choose another --bundle", dir.display());
+        anyhow::ensure!(
+            dir.join(MANIFEST).is_file(),
+            "{} exists and is not a bundle: choose another --bundle",
+            dir.display()
+        );
     }
     let partial = dir.with_extension("partial");
     let named = |p: &Path| p.display().to_string();
@@ -154,7 +175,9 @@ pub fn write(dir: &Path, manifest: &Manifest, policy_bytes: &[u8], calibration_t
         std::fs::remove_dir_all(&partial).with_context(|| named(&partial))?;
     }
     std::fs::create_dir_all(&partial).with_context(|| named(&partial))?;
-    let write = |name: &str, bytes: &[u8]| std::fs::write(partial.join(name), bytes).with_context(|| named(&partial.join(name)));
+    let write = |name: &str, bytes: &[u8]| {
+        std::fs::write(partial.join(name), bytes).with_context(|| named(&partial.join(name)))
+    };
     write(POLICY, policy_bytes)?;
     if let Some(text) = calibration_text {
         write(CALIBRATION, text.as_bytes())?;
@@ -175,9 +198,16 @@ impl Bundle {
     /// its policy's own metadata is an error naming it.
     pub fn read(dir: &Path) -> anyhow::Result<Self> {
         let path = dir.join(MANIFEST);
-        let text = std::fs::read_to_string(&path).map_err(|e| anyhow::anyhow!("{}: {e} (is {} a bundle of `twinbots export --bundle`?)", path.display(), dir.display()))?;
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            anyhow::anyhow!("{}: {e} (is {} a bundle of `twinbots export --bundle`?)", path.display(), dir.display())
+        })?;
         let manifest: Manifest = serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        anyhow::ensure!(manifest.format == FORMAT, "{}: format '{}', this twinbots reads '{FORMAT}'", path.display(), manifest.format);
+        anyhow::ensure!(
+            manifest.format == FORMAT,
+            "{}: format '{}', this twinbots reads '{FORMAT}'",
+            path.display(),
+            manifest.format
+        );
         let policy = OnnxPolicy::load(&dir.join(POLICY))?;
         let m = &policy.metadata;
         anyhow::ensure!(
@@ -190,10 +220,15 @@ impl Bundle {
             m.task
         );
         if let Some(file) = &manifest.calibration {
-            anyhow::ensure!(dir.join(file).is_file(), "{}: the manifest names calibration '{file}', which is missing", dir.display());
+            anyhow::ensure!(
+                dir.join(file).is_file(),
+                "{}: the manifest names calibration '{file}', which is missing",
+                dir.display()
+            );
         }
         let cell = match &manifest.cell {
-            Some(file) => ur5e::layout::CellLayout::read(&dir.join(file)).map_err(|e| anyhow::anyhow!("{}: the manifest's cell: {e}", dir.display()))?,
+            Some(file) => ur5e::layout::CellLayout::read(&dir.join(file))
+                .map_err(|e| anyhow::anyhow!("{}: the manifest's cell: {e}", dir.display()))?,
             None => Default::default(),
         };
         Ok(Self { dir: dir.to_path_buf(), manifest, policy, cell })
@@ -203,9 +238,17 @@ impl Bundle {
     /// control period (s).
     pub fn check(&self, robot: &str, joints: &[&str], control_period_s: f64) -> anyhow::Result<()> {
         let m = &self.manifest;
-        anyhow::ensure!(m.robot == robot, "the bundle {} is for the robot '{}', not '{robot}'", self.dir.display(), m.robot);
+        anyhow::ensure!(
+            m.robot == robot,
+            "the bundle {} is for the robot '{}', not '{robot}'",
+            self.dir.display(),
+            m.robot
+        );
         let names: Vec<&str> = m.joints.iter().map(|j| j.name.as_str()).collect();
-        anyhow::ensure!(names == joints, "the bundle's joints {names:?} are not this robot's {joints:?} (names and order must match)");
+        anyhow::ensure!(
+            names == joints,
+            "the bundle's joints {names:?} are not this robot's {joints:?} (names and order must match)"
+        );
         anyhow::ensure!(
             (m.control_period_s - control_period_s).abs() < 1e-6,
             "the bundle's policy acts every {} s, this robot's task every {control_period_s} s",

@@ -22,9 +22,9 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use twinbots_api::{EpisodeSummary, Space, VecEnv};
+use twinbots_learn::RunDir;
 use twinbots_learn::nn::{Adam, AdamConfig, Encoder, NatureCnn};
 use twinbots_learn::ppo::{Head, Ppo};
-use twinbots_learn::RunDir;
 use twinbots_render::pixels::TaskObservation;
 use twinbots_task::AppVecEnv;
 use twinbots_task::randomization::RandomizationPlugin;
@@ -87,18 +87,45 @@ pub struct Round {
 /// run directory `out` (its `config.toml`, the taught `model/`, `distill.csv`, `distill.png`,
 /// `distill.json`),
 /// which `twinbots eval` judges as any run. `report` sees every round.
-pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &DistillOptions, mut report: impl FnMut(&Round)) -> anyhow::Result<Vec<Round>> {
-    anyhow::ensure!(options.rounds > 0 && options.steps > 0 && options.epochs > 0, "--rounds, --steps and --epochs must each be at least 1");
+pub fn distill(
+    entry: &RobotEntry,
+    student: &Path,
+    out: &Path,
+    options: &DistillOptions,
+    mut report: impl FnMut(&Round),
+) -> anyhow::Result<Vec<Round>> {
+    anyhow::ensure!(
+        options.rounds > 0 && options.steps > 0 && options.epochs > 0,
+        "--rounds, --steps and --epochs must each be at least 1"
+    );
     let run = RunDir::new(student);
     let settings = TrainSettings::of_run(&run)?;
-    anyhow::ensure!(settings.robot == entry.name, "{}: a run of {}, not of {}", student.display(), settings.robot, entry.name);
-    anyhow::ensure!(settings.pixels.is_some(), "{}: not a pixel run (no [pixels]): its policy already sees the state", student.display());
-    let (from, mut ppo) = run.trained_with(|dir| Ppo::load(dir)).map_err(|e| anyhow::anyhow!("{e:#} (the student must be a PPO run)"))?;
+    anyhow::ensure!(
+        settings.robot == entry.name,
+        "{}: a run of {}, not of {}",
+        student.display(),
+        settings.robot,
+        entry.name
+    );
+    anyhow::ensure!(
+        settings.pixels.is_some(),
+        "{}: not a pixel run (no [pixels]): its policy already sees the state",
+        student.display()
+    );
+    let (from, mut ppo) =
+        run.trained_with(|dir| Ppo::load(dir)).map_err(|e| anyhow::anyhow!("{e:#} (the student must be a PPO run)"))?;
     let teacher = NamedController::open(&options.teacher, Path::new("."), entry)?;
     // The teacher's spaces against the task's own (as it observes the state).
     teacher.env(entry, settings.task.as_deref(), 1, 0, |_| Ok(()))?;
 
-    let mut app = crate::run::evaluation_app(entry, None, settings.arenas, settings.seed, &settings, &settings.calibration_parameters())?;
+    let mut app = crate::run::evaluation_app(
+        entry,
+        None,
+        settings.arenas,
+        settings.seed,
+        &settings,
+        &settings.calibration_parameters(),
+    )?;
     if !settings.randomization.is_off() {
         app.add_plugins(RandomizationPlugin(settings.randomization.clone()));
     }
@@ -106,19 +133,41 @@ pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &Distill
     ppo.check_spaces(env.observation_space(), env.action_space())?;
     let mut learner = Learner::new(&ppo, options)?;
     let out_run = RunDir::new(out);
-    anyhow::ensure!(!out_run.holds_run() && !out_run.file(twinbots_learn::run_dir::CONFIG).exists(), "{} already holds a run: choose another --out", out.display());
+    anyhow::ensure!(
+        !out_run.holds_run() && !out_run.file(twinbots_learn::run_dir::CONFIG).exists(),
+        "{} already holds a run: choose another --out",
+        out.display()
+    );
     out_run.create()?;
     out_run.write_config(&settings)?;
-    println!("teaching {} (from {}) by {} for {} rounds of {} steps × {} arenas", student.display(), from.display(), teacher.label, options.rounds, options.steps, env.num_envs());
+    println!(
+        "teaching {} (from {}) by {} for {} rounds of {} steps × {} arenas",
+        student.display(),
+        from.display(),
+        teacher.label,
+        options.rounds,
+        options.steps,
+        env.num_envs()
+    );
 
     let mut answers = Answers::default();
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
     let mut rounds = Vec::new();
     for round in 0..options.rounds {
         let started = std::time::Instant::now();
-        let (episodes, disagreement) = roll_out(&mut env, &ppo, &learner, &teacher, options.steps, settings.seed.wrapping_add(ROUND_SEED_OFFSET + round as u64), &mut answers)?;
+        let (episodes, disagreement) = roll_out(
+            &mut env,
+            &ppo,
+            &learner,
+            &teacher,
+            options.steps,
+            settings.seed.wrapping_add(ROUND_SEED_OFFSET + round as u64),
+            &mut answers,
+        )?;
         let cross_entropy = learner.fit(&ppo, &answers, options.epochs, &mut rng)?;
-        let mean = |values: &[f64]| if values.is_empty() { f64::NAN } else { values.iter().sum::<f64>() / values.len() as f64 };
+        let mean = |values: &[f64]| {
+            if values.is_empty() { f64::NAN } else { values.iter().sum::<f64>() / values.len() as f64 }
+        };
         let scores: Vec<f64> = episodes.iter().map(|e| e.score as f64).collect();
         let successes: Vec<f64> = episodes.iter().filter_map(|e| e.success).map(|s| f64::from(u8::from(s))).collect();
         let row = Round {
@@ -140,7 +189,8 @@ pub fn distill(entry: &RobotEntry, student: &Path, out: &Path, options: &Distill
     // --resume` of the taught run starts its envs afresh.
     ppo.env_state = None;
     out_run.save_model(&ppo)?;
-    out_run.write_json("distill.json", &serde_json::json!({ "student": student, "options": options, "rounds": rounds }))?;
+    out_run
+        .write_json("distill.json", &serde_json::json!({ "student": student, "options": options, "rounds": rounds }))?;
     Ok(rounds)
 }
 
@@ -156,16 +206,30 @@ fn plot_rounds(path: &Path, title: &str, rounds: &[Round]) -> anyhow::Result<()>
         let root = root.titled(title, ("sans-serif", 22))?;
         let panels = root.split_evenly((2, 1));
         let last = rounds.len().saturating_sub(1).max(1) as f64;
-        let series: [(&str, Box<dyn Fn(&Round) -> f64>); 2] =
-            [("mean score of the round's episodes", Box::new(|r| r.mean_score)), ("disagreement with the teacher", Box::new(|r| r.disagreement))];
+        let series: [(&str, Box<dyn Fn(&Round) -> f64>); 2] = [
+            ("mean score of the round's episodes", Box::new(|r| r.mean_score)),
+            ("disagreement with the teacher", Box::new(|r| r.disagreement)),
+        ];
         for (panel, (label, value)) in panels.iter().zip(series) {
-            let points: Vec<(f64, f64)> = rounds.iter().map(|r| (r.round as f64, value(r))).filter(|p| p.1.is_finite()).collect();
+            let points: Vec<(f64, f64)> =
+                rounds.iter().map(|r| (r.round as f64, value(r))).filter(|p| p.1.is_finite()).collect();
             let (low, high) = points.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| (lo.min(p.1), hi.max(p.1)));
             let (low, high) = if low > high { (0.0, 1.0) } else { (low, high) };
             let pad = (high - low).max(1e-3) * 0.08;
-            let mut chart = ChartBuilder::on(panel).margin(12).x_label_area_size(36).y_label_area_size(70).build_cartesian_2d(0f64..last, low - pad..high + pad)?;
+            let mut chart = ChartBuilder::on(panel)
+                .margin(12)
+                .x_label_area_size(36)
+                .y_label_area_size(70)
+                .build_cartesian_2d(0f64..last, low - pad..high + pad)?;
             let whole = |x: &f64| format!("{x:.0}");
-            chart.configure_mesh().x_labels((last as usize + 1).min(21)).x_label_formatter(&whole).x_desc("round").y_desc(label).label_style(("sans-serif", 14)).draw()?;
+            chart
+                .configure_mesh()
+                .x_labels((last as usize + 1).min(21))
+                .x_label_formatter(&whole)
+                .x_desc("round")
+                .y_desc(label)
+                .label_style(("sans-serif", 14))
+                .draw()?;
             chart.draw_series(LineSeries::new(points.iter().copied(), BLUE.stroke_width(2)))?;
             chart.draw_series(points.iter().map(|&p| Circle::new(p, 3, BLUE.filled())))?;
         }
@@ -178,7 +242,10 @@ fn write_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {
     let mut text = String::from("round,episodes,mean_score,success_rate,disagreement,answers,cross_entropy,seconds\n");
     for r in rounds {
         let success = r.success_rate.map_or(String::new(), |s| s.to_string());
-        text += &format!("{},{},{},{success},{},{},{},{:.1}\n", r.round, r.episodes, r.mean_score, r.disagreement, r.answers, r.cross_entropy, r.seconds);
+        text += &format!(
+            "{},{},{},{success},{},{},{},{:.1}\n",
+            r.round, r.episodes, r.mean_score, r.disagreement, r.answers, r.cross_entropy, r.seconds
+        );
     }
     twinbots_learn::ppo::write_atomic(path, text.as_bytes()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
@@ -201,7 +268,15 @@ impl Answers {
 /// One round: the student drives every arena for `steps` steps from `seed`; every observation's
 /// kept values and the teacher's action there are added to `answers`. Returns the episodes that
 /// ended and the disagreement.
-fn roll_out(env: &mut AppVecEnv, ppo: &Ppo, learner: &Learner, teacher: &NamedController, steps: usize, seed: u64, answers: &mut Answers) -> anyhow::Result<(Vec<EpisodeSummary>, f64)> {
+fn roll_out(
+    env: &mut AppVecEnv,
+    ppo: &Ppo,
+    learner: &Learner,
+    teacher: &NamedController,
+    steps: usize,
+    seed: u64,
+    answers: &mut Answers,
+) -> anyhow::Result<(Vec<EpisodeSummary>, f64)> {
     let n = env.num_envs();
     let dim = ppo.observation_space.dim();
     let mut obs = env.reset(Some(seed))?;
@@ -215,15 +290,29 @@ fn roll_out(env: &mut AppVecEnv, ppo: &Ppo, learner: &Learner, teacher: &NamedCo
         let actions = ppo.clip_to_space(actions);
         let mut state = Vec::new();
         for &arena in env.arenas() {
-            let observed = env.app().world().get::<TaskObservation>(arena).ok_or_else(|| anyhow::anyhow!("the pixel env keeps no task observation"))?;
+            let observed = env
+                .app()
+                .world()
+                .get::<TaskObservation>(arena)
+                .ok_or_else(|| anyhow::anyhow!("the pixel env keeps no task observation"))?;
             state.extend_from_slice(&observed.0);
         }
         // What the env would do with the teacher's actions: a box's clipped to its bounds.
         let told = ppo.clip_to_space(teacher.act(&state, state.len() / n)?);
-        anyhow::ensure!(told.len() == actions.len(), "the teacher gives {} actions for {n} arenas, the student {}", told.len(), actions.len());
+        anyhow::ensure!(
+            told.len() == actions.len(),
+            "the teacher gives {} actions for {n} arenas, the student {}",
+            told.len(),
+            actions.len()
+        );
         (gap, compared) = match ppo.action_space {
-            Space::Discrete { .. } => (gap + told.iter().zip(&actions).filter(|(t, a)| t != a).count() as f64, compared + n),
-            _ => (gap + told.iter().zip(&actions).map(|(t, a)| ((t - a) as f64).powi(2)).sum::<f64>(), compared + told.len()),
+            Space::Discrete { .. } => {
+                (gap + told.iter().zip(&actions).filter(|(t, a)| t != a).count() as f64, compared + n)
+            }
+            _ => (
+                gap + told.iter().zip(&actions).map(|(t, a)| ((t - a) as f64).powi(2)).sum::<f64>(),
+                compared + told.len(),
+            ),
         };
         answers.kept_dim = kept.dim(1)?;
         answers.action_dim = told.len() / n;
@@ -255,8 +344,12 @@ impl<'a> Learner<'a> {
         let Encoder::Cnn { cnn, state } = &ppo.policy.encoder else {
             anyhow::bail!("the student's policy must be \"cnn\" (NatureCNN) on the image");
         };
-        anyhow::ensure!(ppo.policy.value_encoder.is_none() || options.tune == Tune::Actor, "--tune dense needs a student whose features are shared (share_features_extractor = true)");
-        let mut actor: Vec<Var> = ppo.policy.pi.layers.iter().flat_map(|l| [l.weight.clone(), l.bias.clone()]).collect();
+        anyhow::ensure!(
+            ppo.policy.value_encoder.is_none() || options.tune == Tune::Actor,
+            "--tune dense needs a student whose features are shared (share_features_extractor = true)"
+        );
+        let mut actor: Vec<Var> =
+            ppo.policy.pi.layers.iter().flat_map(|l| [l.weight.clone(), l.bias.clone()]).collect();
         if let Head::Gaussian { log_std, .. } = &ppo.policy.head {
             actor.push(log_std.clone());
         }
@@ -298,13 +391,20 @@ impl<'a> Learner<'a> {
             order.shuffle(rng);
             let mut sum = 0.0;
             for chunk in order.chunks(BATCH) {
-                let x: Vec<f32> = chunk.iter().flat_map(|&i| answers.kept[i * k..(i + 1) * k].iter().copied()).collect();
-                let y: Vec<f32> = chunk.iter().flat_map(|&i| answers.actions[i * a..(i + 1) * a].iter().copied()).collect();
+                let x: Vec<f32> =
+                    chunk.iter().flat_map(|&i| answers.kept[i * k..(i + 1) * k].iter().copied()).collect();
+                let y: Vec<f32> =
+                    chunk.iter().flat_map(|&i| answers.actions[i * a..(i + 1) * a].iter().copied()).collect();
                 let x = Tensor::from_vec(x, (chunk.len(), k), &Device::Cpu)?;
                 let y = Tensor::from_vec(y, (chunk.len(), a), &Device::Cpu)?;
                 // A categorical head takes one action index a row.
                 let y = if matches!(ppo.action_space, Space::Discrete { .. }) { y.squeeze(D::Minus1)? } else { y };
-                let loss = ppo.policy.evaluate_features(&self.features(&x)?, None, &y.to_dtype(DType::F32)?)?.log_prob.mean_all()?.neg()?;
+                let loss = ppo
+                    .policy
+                    .evaluate_features(&self.features(&x)?, None, &y.to_dtype(DType::F32)?)?
+                    .log_prob
+                    .mean_all()?
+                    .neg()?;
                 sum += loss.to_scalar::<f32>()? as f64 * chunk.len() as f64;
                 let grads = loss.backward()?;
                 self.actor.step(&grads, Some(0.5))?;

@@ -22,7 +22,10 @@ pub fn set_rt_priority(priority: i32) -> anyhow::Result<()> {
         }
         // SAFETY: as above.
         if unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } != 0 {
-            eprintln!("--rt-priority: memory not locked ({}); page faults may still delay a cycle", std::io::Error::last_os_error());
+            eprintln!(
+                "--rt-priority: memory not locked ({}); page faults may still delay a cycle",
+                std::io::Error::last_os_error()
+            );
         }
         Ok(())
     }

@@ -109,7 +109,11 @@ pub struct RobotLogPlugin {
 impl RobotLogPlugin {
     /// The plugin for `robot`'s twin, its joints in the robot's own (rig's) order.
     /// The path must name an `.mcap` or `.csv` file.
-    pub fn new(entry: &crate::registry::RobotEntry, path: PathBuf, calibration: Option<&std::path::Path>) -> anyhow::Result<Self> {
+    pub fn new(
+        entry: &crate::registry::RobotEntry,
+        path: PathBuf,
+        calibration: Option<&std::path::Path>,
+    ) -> anyhow::Result<Self> {
         twinbots_log::Format::of(&path)?;
         let order = twinbots_sysid::Rig::of(entry).map(|rig| rig.joints).unwrap_or_default();
         let calibration = calibration.map(|p| p.display().to_string()).unwrap_or_default();

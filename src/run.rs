@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 
 use twinbots_api::{SolvedCriterion, VecEnv};
 use twinbots_learn::callbacks::{
-    CheckpointCallback, EvalCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, StopTrainingOnSolved,
-    TensorBoardCallback,
+    CheckpointCallback, EvalCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback,
+    StopTrainingOnSolved, TensorBoardCallback,
 };
 use twinbots_learn::run_dir::{EVAL, Summary, TimeBreakdown};
 use twinbots_learn::{Agent, CallbackList, EvalResult, RunDir, TrainingEnd, evaluate_policy};
@@ -45,7 +45,15 @@ pub fn finish(
 ) -> anyhow::Result<(EvalResult, Summary)> {
     run.save_model(model)?;
     let seed = settings.final_eval_seed();
-    let mut env = evaluation_env(entry, None, settings.arenas, settings.eval_episodes, seed, settings, &settings.calibration_parameters())?;
+    let mut env = evaluation_env(
+        entry,
+        None,
+        settings.arenas,
+        settings.eval_episodes,
+        seed,
+        settings,
+        &settings.calibration_parameters(),
+    )?;
     let evaluation = evaluate_policy(settings.task_name(entry)?, model, &mut env, settings.eval_episodes, seed)?;
     run.write_json(EVAL, &evaluation)?;
     let mut summary = Summary::new(&settings.robot, settings.pattern, model, end, wall_s, Some(&evaluation));
@@ -58,7 +66,13 @@ pub fn finish(
 /// progress bar (or lines), the stop on solved training episodes, periodic evaluation
 /// (which may stop training too; into `evaluations.csv` and TensorBoard), checkpoints, and
 /// the learning curve (last: it draws what the others wrote).
-pub fn callbacks(settings: &TrainSettings, run: &RunDir, entry: &RobotEntry, title: String, solved: Option<SolvedCriterion>) -> anyhow::Result<CallbackList> {
+pub fn callbacks(
+    settings: &TrainSettings,
+    run: &RunDir,
+    entry: &RobotEntry,
+    title: String,
+    solved: Option<SolvedCriterion>,
+) -> anyhow::Result<CallbackList> {
     let events = run.event_writer()?;
     let mut callbacks = CallbackList::new()
         .with(ProgressCsvCallback::new(run.clone()))
@@ -74,9 +88,15 @@ pub fn callbacks(settings: &TrainSettings, run: &RunDir, entry: &RobotEntry, tit
         let make_env = move |seed: u64| -> anyhow::Result<Box<dyn VecEnv>> {
             Ok(Box::new(evaluation_env(&robot, None, arenas, episodes, seed, &run_settings, &calibration)?))
         };
-        let mut evaluation = EvalCallback::new(settings.task_name(entry)?, make_env, settings.eval_every, episodes, settings.periodic_eval_seed())
-            .log_to(run.clone())
-            .events_to(events);
+        let mut evaluation = EvalCallback::new(
+            settings.task_name(entry)?,
+            make_env,
+            settings.eval_every,
+            episodes,
+            settings.periodic_eval_seed(),
+        )
+        .log_to(run.clone())
+        .events_to(events);
         if let Some(criterion) = solved {
             evaluation = evaluation.stop_when_solved(criterion);
         }
@@ -120,8 +140,6 @@ pub fn evaluation_app(
 
 /// Default run directory: `runs/<robot>-<unix seconds>`.
 pub fn default_run_dir(robot: &str) -> PathBuf {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
     PathBuf::from("runs").join(format!("{robot}-{secs}"))
 }

@@ -7,9 +7,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 use twinbots_api::DesignPattern;
+use twinbots_learn::RunDir;
 use twinbots_learn::algos;
 use twinbots_learn::learner::{Algorithm, config_from};
-use twinbots_learn::RunDir;
 use twinbots_render::PixelSettings;
 use twinbots_task::randomization::{FitSpread, Randomization};
 
@@ -42,7 +42,8 @@ impl CalibrationSetting {
     /// Reads a calibration file, checked against the robot's parameters.
     pub fn read(entry: &RobotEntry, path: &Path) -> anyhow::Result<Self> {
         let rig = twinbots_sysid::Rig::of(entry)?;
-        let (params, spread) = twinbots_task::calibration::read_calibration_with_spread(path, &rig.catalogue, rig.robot)?;
+        let (params, spread) =
+            twinbots_task::calibration::read_calibration_with_spread(path, &rig.catalogue, rig.robot)?;
         Ok(Self { file: path.display().to_string(), parameters: params.0, spread: spread.0 })
     }
 
@@ -142,9 +143,13 @@ pub struct ConfigFile {
 /// `value` as the table `[name]` of a known algorithm; anything else is an error naming the key.
 fn algorithm_table<'v>(name: &str, value: &'v toml::Value) -> anyhow::Result<(&'static Algorithm, &'v toml::Table)> {
     let algorithm = algos::find(name).map_err(|_| {
-        anyhow::anyhow!("unknown field `{name}`: a config file holds {KEYS} and the tables [{}]", algos::names().join("], ["))
+        anyhow::anyhow!(
+            "unknown field `{name}`: a config file holds {KEYS} and the tables [{}]",
+            algos::names().join("], [")
+        )
     })?;
-    let table = value.as_table().ok_or_else(|| anyhow::anyhow!("{name} = {value}: must be a table ([{name}] and its keys)"))?;
+    let table =
+        value.as_table().ok_or_else(|| anyhow::anyhow!("{name} = {value}: must be a table ([{name}] and its keys)"))?;
     Ok((algorithm, table))
 }
 
@@ -152,14 +157,17 @@ fn algorithm_table<'v>(name: &str, value: &'v toml::Value) -> anyhow::Result<(&'
 pub fn read_cell(entry: &RobotEntry, path: &Path) -> anyhow::Result<toml::Table> {
     let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let table: toml::Table = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    let description = entry.cell.ok_or_else(|| anyhow::anyhow!("--cell: {}'s cell is not laid out by a file", entry.name))?;
-    (description.install)(&mut bevy::prelude::App::new(), &text, &path.display().to_string()).map_err(anyhow::Error::msg)?;
+    let description =
+        entry.cell.ok_or_else(|| anyhow::anyhow!("--cell: {}'s cell is not laid out by a file", entry.name))?;
+    (description.install)(&mut bevy::prelude::App::new(), &text, &path.display().to_string())
+        .map_err(anyhow::Error::msg)?;
     Ok(table)
 }
 
 /// Makes `cell` (a layout as a table) every arena's in `app`.
 fn install_cell(app: &mut bevy::prelude::App, entry: &RobotEntry, cell: &toml::Table) -> anyhow::Result<()> {
-    let description = entry.cell.ok_or_else(|| anyhow::anyhow!("[cell]: {}'s cell is not laid out by a file", entry.name))?;
+    let description =
+        entry.cell.ok_or_else(|| anyhow::anyhow!("[cell]: {}'s cell is not laid out by a file", entry.name))?;
     (description.install)(app, &toml::to_string(cell)?, "[cell]").map_err(anyhow::Error::msg)
 }
 
@@ -195,7 +203,9 @@ impl TrainSettings {
     /// The settings a run directory was made with (its `config.toml`).
     pub fn of_run(run: &RunDir) -> anyhow::Result<Self> {
         let settings: Self = run.read_config()?;
-        settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", run.file(twinbots_learn::run_dir::CONFIG).display()))?;
+        settings
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", run.file(twinbots_learn::run_dir::CONFIG).display()))?;
         Ok(settings)
     }
 
@@ -212,18 +222,28 @@ impl TrainSettings {
     /// ranges.
     /// A minibatch larger than a rollout is allowed: it takes the whole rollout, as in SB3.
     pub fn validate(&self) -> anyhow::Result<()> {
-        for (key, value) in [("timesteps", self.timesteps), ("arenas", self.arenas as u64), ("checkpoint_every", self.checkpoint_every as u64), ("eval_episodes", self.eval_episodes as u64)] {
+        for (key, value) in [
+            ("timesteps", self.timesteps),
+            ("arenas", self.arenas as u64),
+            ("checkpoint_every", self.checkpoint_every as u64),
+            ("eval_episodes", self.eval_episodes as u64),
+        ] {
             anyhow::ensure!(value >= 1, "{key} = {value}: must be a whole number ≥ 1");
         }
         anyhow::ensure!(self.arenas <= 4096, "arenas = {}: must be at most 4096", self.arenas);
-        anyhow::ensure!(self.eval_episodes <= 100_000, "eval_episodes = {}: must be at most 100000", self.eval_episodes);
+        anyhow::ensure!(
+            self.eval_episodes <= 100_000,
+            "eval_episodes = {}: must be at most 100000",
+            self.eval_episodes
+        );
         let algorithm = algos::find(&self.algo).map_err(|e| anyhow::anyhow!("algo = {:?}: {e}", self.algo))?;
         if !algorithm.serves {
             let serving: Vec<&str> = algos::ALGOS.iter().filter(|a| a.serves).map(|a| a.name).collect();
             anyhow::ensure!(
                 self.design_pattern()? != DesignPattern::Server,
                 "algo = {}: design pattern 3 (the RobotServer) trains with {} only; use pattern 1 or 2",
-                self.algo, serving.join(", ")
+                self.algo,
+                serving.join(", ")
             );
         }
         // Every table is checked, whichever learner runs: a typo is never kept silently.
@@ -276,7 +296,12 @@ impl TrainSettings {
     /// [`TrainSettings::observe`] with the settings of the run in `run`: a model of that run
     /// driving an app of another command (`capture --model`, `view --model`) sees what it
     /// learnt on.
-    pub fn observe_as_run(run: &Path, app: &mut bevy::prelude::App, entry: &RobotEntry, arenas: usize) -> anyhow::Result<()> {
+    pub fn observe_as_run(
+        run: &Path,
+        app: &mut bevy::prelude::App,
+        entry: &RobotEntry,
+        arenas: usize,
+    ) -> anyhow::Result<()> {
         Self::of_run(&RunDir::new(run))?.observe(app, entry, arenas)
     }
 
@@ -371,14 +396,18 @@ impl TrainSettings {
             anyhow::ensure!(
                 matches!(actions, twinbots_api::Space::Box { .. }),
                 "algo = {}: {}'s actions are {actions}; {} needs continuous (Box) actions: use algo = {}",
-                algorithm.name, entry.name, algorithm.name.to_uppercase(), algos::ALGOS[0].name
+                algorithm.name,
+                entry.name,
+                algorithm.name.to_uppercase(),
+                algos::ALGOS[0].name
             );
         }
         // Each table named anywhere starts from the robot's tuning of that algorithm.
         let tuned = |algorithm: &Algorithm| -> anyhow::Result<toml::Table> {
             defaults.of(algorithm.name).keys().map_err(|e| anyhow::anyhow!("robot {}: {e}", entry.name))
         };
-        let mut tables: BTreeMap<String, toml::Table> = BTreeMap::from([(algorithm.name.to_string(), tuned(algorithm)?)]);
+        let mut tables: BTreeMap<String, toml::Table> =
+            BTreeMap::from([(algorithm.name.to_string(), tuned(algorithm)?)]);
         for layer in [file, flags] {
             s.timesteps = layer.timesteps.unwrap_or(s.timesteps);
             s.arenas = layer.arenas.unwrap_or(s.arenas);
@@ -424,9 +453,16 @@ mod tests {
         let file: ConfigFile = toml::from_str("algo = \"sac\"\n[sac]\nbatch_size = 128\n").unwrap();
         let s = TrainSettings::resolve(&ur5e, file, ConfigFile::default()).unwrap();
         let defaults = ur5e.defaults.of("sac");
-        assert_eq!((s.algo.as_str(), s.arenas, s.timesteps, s.eval_every), ("sac", defaults.arenas, defaults.timesteps, defaults.eval_every));
+        assert_eq!(
+            (s.algo.as_str(), s.arenas, s.timesteps, s.eval_every),
+            ("sac", defaults.arenas, defaults.timesteps, defaults.eval_every)
+        );
         let tuned: SacConfig = defaults.config().unwrap();
-        assert_eq!(s.config_of::<SacConfig>("sac").unwrap(), SacConfig { batch_size: 128, ..tuned }, "a [sac] key replaced more than itself");
+        assert_eq!(
+            s.config_of::<SacConfig>("sac").unwrap(),
+            SacConfig { batch_size: 128, ..tuned },
+            "a [sac] key replaced more than itself"
+        );
         let flags = ConfigFile { algo: Some("ppo".into()), ..Default::default() };
         let file: ConfigFile = toml::from_str("algo = \"sac\"\n").unwrap();
         assert_eq!(TrainSettings::resolve(&ur5e, file, flags).unwrap().algo, "ppo", "the flag did not win");
@@ -445,22 +481,97 @@ mod tests {
 
     /// Every key a config file may hold, with the kind of value it takes.
     const KEYS: &[&str] = &[
-        "task", "timesteps", "arenas", "seed", "pattern", "checkpoint_every", "eval_every", "eval_episodes",
-        "ppo.learning_rate", "ppo.linear_lr", "ppo.n_steps", "ppo.batch_size", "ppo.n_epochs", "ppo.gamma", "ppo.gae_lambda",
-        "ppo.clip_range", "ppo.ent_coef", "ppo.vf_coef", "ppo.max_grad_norm", "ppo.target_kl", "ppo.normalize_advantage",
-        "ppo.normalize_observations", "ppo.hidden", "ppo.log_std_init", "ppo.no_such_key", "algo",
-        "sac.learning_rate", "sac.buffer_size", "sac.learning_starts", "sac.batch_size", "sac.tau", "sac.gamma", "sac.train_freq",
-        "sac.gradient_steps", "sac.learn_ent_coef", "sac.ent_coef_init", "sac.target_entropy", "sac.target_update_interval",
-        "sac.hidden", "sac.normalize_observations", "sac.log_interval", "sac.her_goals", "sac.typo",
-        "randomization.start_window", "randomization.action_probability", "randomization.mass_scale", "randomization.friction",
-        "randomization.motor_strength", "randomization.sensor_noise", "randomization.action_latency", "randomization.typo",
-        "randomization.visual.lights", "randomization.visual.light_intensity", "randomization.visual.field_of_view",
-        "randomization.visual.ambient", "randomization.visual.textures", "randomization.visual.typo",
+        "task",
+        "timesteps",
+        "arenas",
+        "seed",
+        "pattern",
+        "checkpoint_every",
+        "eval_every",
+        "eval_episodes",
+        "ppo.learning_rate",
+        "ppo.linear_lr",
+        "ppo.n_steps",
+        "ppo.batch_size",
+        "ppo.n_epochs",
+        "ppo.gamma",
+        "ppo.gae_lambda",
+        "ppo.clip_range",
+        "ppo.ent_coef",
+        "ppo.vf_coef",
+        "ppo.max_grad_norm",
+        "ppo.target_kl",
+        "ppo.normalize_advantage",
+        "ppo.normalize_observations",
+        "ppo.hidden",
+        "ppo.log_std_init",
+        "ppo.no_such_key",
+        "algo",
+        "sac.learning_rate",
+        "sac.buffer_size",
+        "sac.learning_starts",
+        "sac.batch_size",
+        "sac.tau",
+        "sac.gamma",
+        "sac.train_freq",
+        "sac.gradient_steps",
+        "sac.learn_ent_coef",
+        "sac.ent_coef_init",
+        "sac.target_entropy",
+        "sac.target_update_interval",
+        "sac.hidden",
+        "sac.normalize_observations",
+        "sac.log_interval",
+        "sac.her_goals",
+        "sac.typo",
+        "randomization.start_window",
+        "randomization.action_probability",
+        "randomization.mass_scale",
+        "randomization.friction",
+        "randomization.motor_strength",
+        "randomization.sensor_noise",
+        "randomization.action_latency",
+        "randomization.typo",
+        "randomization.visual.lights",
+        "randomization.visual.light_intensity",
+        "randomization.visual.field_of_view",
+        "randomization.visual.ambient",
+        "randomization.visual.textures",
+        "randomization.visual.typo",
     ];
     const VALUES: &[&str] = &[
-        "0", "1", "-1", "2", "3", "64", "4096", "4097", "18446744073709551615", "-9223372036854775808", "0.5", "1e-300", "1e300",
-        "1e39", "nan", "inf", "-inf", "true", "\"x\"", "[]", "[0]", "[64, 64]", "[1.0, 0.5]", "[0.5, 1.0]", "[0, inf]", "[nan, 1]",
-        "[1, 2, 3]", "[100000000, 1]", "{}", "\"sac\"", "\"ppo\"", "\"balance\"",
+        "0",
+        "1",
+        "-1",
+        "2",
+        "3",
+        "64",
+        "4096",
+        "4097",
+        "18446744073709551615",
+        "-9223372036854775808",
+        "0.5",
+        "1e-300",
+        "1e300",
+        "1e39",
+        "nan",
+        "inf",
+        "-inf",
+        "true",
+        "\"x\"",
+        "[]",
+        "[0]",
+        "[64, 64]",
+        "[1.0, 0.5]",
+        "[0.5, 1.0]",
+        "[0, inf]",
+        "[nan, 1]",
+        "[1, 2, 3]",
+        "[100000000, 1]",
+        "{}",
+        "\"sac\"",
+        "\"ppo\"",
+        "\"balance\"",
     ];
 
     /// Random config files made of real keys and hostile values: every one resolves to valid
@@ -488,8 +599,8 @@ mod tests {
                     text.push('\n');
                 }
             }
-            let outcome = ConfigFile::parse(&text)
-                .and_then(|file| TrainSettings::resolve(&entry, file, ConfigFile::default()));
+            let outcome =
+                ConfigFile::parse(&text).and_then(|file| TrainSettings::resolve(&entry, file, ConfigFile::default()));
             match outcome {
                 Ok(settings) => {
                     settings.validate().unwrap();
@@ -497,7 +608,8 @@ mod tests {
                 }
                 Err(e) => {
                     let message = format!("{e:#}");
-                    let named = KEYS.iter().any(|k| message.contains(k.rsplit('.').next().unwrap())) || message.contains("duplicate key");
+                    let named = KEYS.iter().any(|k| message.contains(k.rsplit('.').next().unwrap()))
+                        || message.contains("duplicate key");
                     assert!(named, "{text:?} was refused without naming a key: {message}");
                     refused += 1;
                 }

@@ -20,7 +20,10 @@ impl Twin {
     /// The twin of the files given: a calibration file (read and checked against `entry`'s
     /// parameters) and a log path.
     pub fn of_files(entry: &RobotEntry, calibration: Option<&Path>, log: Option<&Path>) -> anyhow::Result<Self> {
-        Ok(Self { calibration: CalibrationSetting::read_optional(entry, calibration)?, log: log.map(Path::to_path_buf) })
+        Ok(Self {
+            calibration: CalibrationSetting::read_optional(entry, calibration)?,
+            log: log.map(Path::to_path_buf),
+        })
     }
 
     /// Calibrates `app` (a twin of `entry`) and logs it, each if asked for. The log's path is

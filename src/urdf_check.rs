@@ -5,7 +5,9 @@
 
 use bevy::prelude::*;
 use twinbots_sim::urdf::{JointKind, RobotModel, load_urdf};
-use twinbots_sim::{Arena, JointState, Motor, MotorCommand, PhysicsSubstep, SimPlugin, SimSettings, SpawnOptions, spawn_robot};
+use twinbots_sim::{
+    Arena, JointState, Motor, MotorCommand, PhysicsSubstep, SimPlugin, SimSettings, SpawnOptions, spawn_robot,
+};
 
 /// What the check found.
 pub struct UrdfReport {
@@ -27,7 +29,10 @@ pub struct UrdfReport {
 /// every drive holding its joint at 0 (a robot switched on at its zero pose); the collision
 /// meshes of the links in `decompose` split into convex parts.
 pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyhow::Result<UrdfReport> {
-    anyhow::ensure!(seconds >= 0.0 && seconds.is_finite() && seconds <= 600.0, "--seconds must be from 0 to 600, not {seconds}");
+    anyhow::ensure!(
+        seconds >= 0.0 && seconds.is_finite() && seconds <= 600.0,
+        "--seconds must be from 0 to 600, not {seconds}"
+    );
     let model = load_urdf(path)?;
     if let Some(unknown) = decompose.iter().find(|n| model.link_index(n).is_none()) {
         let links: Vec<&str> = model.links.iter().map(|l| l.name.as_str()).collect();
@@ -44,7 +49,13 @@ pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyh
     let mut a = Arena::new(0, 0, settings.dt, settings.gravity);
     let spawned = {
         let mut commands = world.commands();
-        spawn_robot(&mut commands, arena, &mut a, &model, SpawnOptions { fixed_base: true, decompose: decompose.to_vec(), ..Default::default() })
+        spawn_robot(
+            &mut commands,
+            arena,
+            &mut a,
+            &model,
+            SpawnOptions { fixed_base: true, decompose: decompose.to_vec(), ..Default::default() },
+        )
     };
     world.flush();
     world.entity_mut(arena).insert(a);
@@ -60,7 +71,8 @@ pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyh
         app.world_mut().run_schedule(PhysicsSubstep);
         for (name, &joint) in &spawned.joints {
             if let Some(s) = app.world().get::<JointState>(joint) {
-                let speed = if s.velocity.is_finite() && s.position.is_finite() { s.velocity.abs() } else { f32::INFINITY };
+                let speed =
+                    if s.velocity.is_finite() && s.position.is_finite() { s.velocity.abs() } else { f32::INFINITY };
                 if speed > fastest.0 || (speed.is_infinite() && fastest.0.is_finite()) {
                     fastest = (speed, name.clone());
                 }
@@ -68,9 +80,15 @@ pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyh
         }
     }
     if !fastest.0.is_finite() {
-        warnings.push(format!("joint '{}' left the numbers (NaN or infinite) while the robot stood: the physics blew up", fastest.1));
+        warnings.push(format!(
+            "joint '{}' left the numbers (NaN or infinite) while the robot stood: the physics blew up",
+            fastest.1
+        ));
     } else if fastest.0 > 50.0 {
-        warnings.push(format!("joint '{}' reached {:.0} rad/s (or m/s) while the robot stood: the physics is unstable", fastest.1, fastest.0));
+        warnings.push(format!(
+            "joint '{}' reached {:.0} rad/s (or m/s) while the robot stood: the physics is unstable",
+            fastest.1, fastest.0
+        ));
     }
     Ok(UrdfReport { model, tree, warnings, fastest, seconds: steps as f64 * settings.dt_seconds(), app, arena })
 }

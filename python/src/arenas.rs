@@ -5,11 +5,11 @@ use numpy::ndarray::ArrayD;
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArray4};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
+use twinbots::settings::CalibrationSetting;
+use twinbots_api::{DesignPattern, Space, StepResult, TaskSpec, VecEnv};
 use twinbots_render::{PixelSettings, Renderer, View};
 use twinbots_task::randomization::{Randomization, RandomizationPlugin};
-use twinbots_api::{DesignPattern, Space, StepResult, TaskSpec, VecEnv};
 use twinbots_task::{AppVecEnv, RobotDescription};
-use twinbots::settings::CalibrationSetting;
 
 use crate::actions::{action_values, check_and_clip};
 use crate::convert::{OnThisThread, episode_dict, no_panic, runtime_error, space_dict, task_dict, value_error};
@@ -30,10 +30,9 @@ impl Arenas {
     /// The env and its renderer, or why there is none.
     fn rendering(&mut self) -> PyResult<(&mut AppVecEnv, &mut Frames)> {
         let env = self.env.as_mut().ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("this env is closed"))?;
-        let frames = self
-            .frames
-            .as_mut()
-            .ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("rendering is off: create the env with render_mode=\"rgb_array\""))?;
+        let frames = self.frames.as_mut().ok_or_else(|| {
+            pyo3::exceptions::PyRuntimeError::new_err("rendering is off: create the env with render_mode=\"rgb_array\"")
+        })?;
         Ok((env, frames))
     }
 
@@ -99,7 +98,8 @@ impl Arenas {
             }
         };
         let randomization = config.map(Randomization::from_config).transpose().map_err(value_error)?;
-        let twin = twinbots::twin::Twin::of_files(&entry, calibration.as_deref(), log.as_deref()).map_err(value_error)?;
+        let twin =
+            twinbots::twin::Twin::of_files(&entry, calibration.as_deref(), log.as_deref()).map_err(value_error)?;
         if let Some(r) = &randomization {
             CalibrationSetting::check_randomization(twin.calibration.as_ref(), r).map_err(value_error)?;
         }
@@ -232,12 +232,18 @@ impl Arenas {
     #[pyo3(signature = (width=640, height=480, camera="iso"))]
     fn enable_rendering(&mut self, width: u32, height: u32, camera: &str) -> PyResult<()> {
         let view = View::framed(&self.robot.framing, camera).ok_or_else(|| {
-            value_error(anyhow::anyhow!("unknown camera '{camera}'; cameras: {}", twinbots_render::Framing::CAMERAS.join(", ")))
+            value_error(anyhow::anyhow!(
+                "unknown camera '{camera}'; cameras: {}",
+                twinbots_render::Framing::CAMERAS.join(", ")
+            ))
         })?;
         if width == 0 || height == 0 || width > 4096 || height > 4096 {
-            return Err(value_error(anyhow::anyhow!("image size must be between 1x1 and 4096x4096, got {width}x{height}")));
+            return Err(value_error(anyhow::anyhow!(
+                "image size must be between 1x1 and 4096x4096, got {width}x{height}"
+            )));
         }
-        let renderer = no_panic("creating the renderer", || Ok(Renderer::new(width, height)?)).map_err(runtime_error)?;
+        let renderer =
+            no_panic("creating the renderer", || Ok(Renderer::new(width, height)?)).map_err(runtime_error)?;
         self.frames = Some(Frames::new(renderer, view));
         Ok(())
     }
@@ -289,24 +295,33 @@ impl Arenas {
     /// Observations shaped `batch` × one observation's shape: float32 rows, or uint8 images
     /// (their values are whole numbers 0–255: the cast is exact).
     fn array<'py>(&self, py: Python<'py>, obs: Vec<f32>, batch: &[usize]) -> PyResult<Bound<'py, PyAny>> {
-        let wrong = |e: numpy::ndarray::ShapeError| runtime_error(anyhow::anyhow!("observation of the wrong size from the simulation: {e}"));
+        let wrong = |e: numpy::ndarray::ShapeError| {
+            runtime_error(anyhow::anyhow!("observation of the wrong size from the simulation: {e}"))
+        };
         let shape = |one: &[usize]| [batch, one].concat();
         Ok(match self.spec.observation_space {
             Space::Image { height, width, channels } => {
                 let bytes: Vec<u8> = obs.iter().map(|&v| v as u8).collect();
-                ArrayD::from_shape_vec(shape(&[height, width, channels]), bytes).map_err(wrong)?.into_pyarray(py).into_any()
+                ArrayD::from_shape_vec(shape(&[height, width, channels]), bytes)
+                    .map_err(wrong)?
+                    .into_pyarray(py)
+                    .into_any()
             }
             // Gymnasium's Dict: {"image": uint8 images, "state": float32 rows}.
             Space::ImageAndState { height, width, channels, ref low, .. } => {
                 let (pixels, state) = (height * width * channels, low.len());
-                let (mut bytes, mut values) = (Vec::with_capacity(obs.len()), Vec::with_capacity(obs.len() / pixels.max(1) * state));
+                let (mut bytes, mut values) =
+                    (Vec::with_capacity(obs.len()), Vec::with_capacity(obs.len() / pixels.max(1) * state));
                 for row in obs.chunks(pixels + state) {
                     let (image, rest) = row.split_at(pixels.min(row.len()));
                     bytes.extend(image.iter().map(|&v| v as u8));
                     values.extend_from_slice(rest);
                 }
                 let d = PyDict::new(py);
-                d.set_item("image", ArrayD::from_shape_vec(shape(&[height, width, channels]), bytes).map_err(wrong)?.into_pyarray(py))?;
+                d.set_item(
+                    "image",
+                    ArrayD::from_shape_vec(shape(&[height, width, channels]), bytes).map_err(wrong)?.into_pyarray(py),
+                )?;
                 d.set_item("state", ArrayD::from_shape_vec(shape(&[state]), values).map_err(wrong)?.into_pyarray(py))?;
                 d.into_any()
             }
@@ -333,7 +348,8 @@ impl Arenas {
         } else if ended.is_empty() {
             py.None().into_bound(py)
         } else {
-            let ended: Vec<_> = ended.into_iter().map(|(i, obs, episode)| (i, obs, crate::infos::Summary::from(&episode))).collect();
+            let ended: Vec<_> =
+                ended.into_iter().map(|(i, obs, episode)| (i, obs, crate::infos::Summary::from(&episode))).collect();
             crate::infos::build(py, self.num_envs, &ended, true)?.into_any()
         };
         let obs = self.observations(py, r.obs)?;

@@ -26,7 +26,13 @@ pub struct RustLoop {
 impl RustLoop {
     #[new]
     #[pyo3(signature = (robot, num_envs, actions, seed=0))]
-    fn new(py: Python<'_>, robot: &str, num_envs: usize, actions: PyReadonlyArray2<'_, f32>, seed: u64) -> PyResult<Self> {
+    fn new(
+        py: Python<'_>,
+        robot: &str,
+        num_envs: usize,
+        actions: PyReadonlyArray2<'_, f32>,
+        seed: u64,
+    ) -> PyResult<Self> {
         let entry = twinbots::registry::find(robot).map_err(value_error)?;
         let rows: Vec<Vec<f32>> = actions.as_array().rows().into_iter().map(|r| r.to_vec()).collect();
         if rows.is_empty() {
@@ -49,7 +55,8 @@ impl RustLoop {
 
     /// Steps `steps` times with the GIL released; returns the seconds they took.
     fn run(&mut self, py: Python<'_>, steps: usize) -> PyResult<f64> {
-        let env = OnThisThread(self.env.as_mut().ok_or_else(|| runtime_error(anyhow::anyhow!("a step failed earlier")))?);
+        let env =
+            OnThisThread(self.env.as_mut().ok_or_else(|| runtime_error(anyhow::anyhow!("a step failed earlier")))?);
         let (rows, first) = (&self.rows, self.next_row);
         let result = py.detach(move || {
             let env = env;

@@ -9,10 +9,10 @@ use std::path::PathBuf;
 use numpy::{PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use twinbots_learn::callbacks::draw_learning_curve;
-use twinbots_learn::normalize::RunningMeanStd;
 use twinbots::settings::{ConfigFile, TrainSettings};
 use twinbots_api::Measure;
+use twinbots_learn::callbacks::draw_learning_curve;
+use twinbots_learn::normalize::RunningMeanStd;
 use twinbots_learn::{Ppo, PpoConfig, RunDir, SolvedBy, TrainingEnd, ppo};
 
 use crate::convert::{runtime_error, space_dict, value_error};
@@ -62,7 +62,15 @@ pub fn create_run(run_dir: PathBuf, robot: &str, seed: u64, arenas: usize, times
     let mut ppo = toml::Table::new();
     ppo.insert("batch_size".into(), (batch_size as i64).into());
     // RLlib runs make no periodic twinbots evaluations.
-    let flags = ConfigFile { timesteps: Some(timesteps), arenas: Some(arenas), seed: Some(seed), pattern: Some(1), eval_every: Some(0), hyperparams: [(ppo::NAME.to_string(), toml::Value::Table(ppo))].into(), ..Default::default() };
+    let flags = ConfigFile {
+        timesteps: Some(timesteps),
+        arenas: Some(arenas),
+        seed: Some(seed),
+        pattern: Some(1),
+        eval_every: Some(0),
+        hyperparams: [(ppo::NAME.to_string(), toml::Value::Table(ppo))].into(),
+        ..Default::default()
+    };
     let settings = TrainSettings::resolve(&entry, ConfigFile::default(), flags).map_err(value_error)?;
     run.create().map_err(runtime_error)?;
     run.write_config(&settings).map_err(runtime_error)
@@ -103,7 +111,11 @@ pub fn finish_run(py: Python<'_>, run_dir: PathBuf, solved: bool, wall_s: f64) -
     py.detach(|| {
         let model = twinbots_learn::algos::load_run(&run)?;
         let timesteps = model.timesteps();
-        let end = if solved { TrainingEnd::Solved { timesteps, by: SolvedBy::TrainingEpisodes } } else { TrainingEnd::BudgetSpent { timesteps } };
+        let end = if solved {
+            TrainingEnd::Solved { timesteps, by: SolvedBy::TrainingEpisodes }
+        } else {
+            TrainingEnd::BudgetSpent { timesteps }
+        };
         let (evaluation, _) = twinbots::run::finish(&settings, &run, &entry, model.as_ref(), &end, wall_s, None)?;
         Ok(evaluation.describe())
     })
@@ -133,7 +145,8 @@ pub fn save_model(
     let spec = (entry.find_task(task).map_err(value_error)?.spec)();
     let mut config: PpoConfig = entry.defaults.of(ppo::NAME).config().map_err(runtime_error)?;
     config.normalize_observations = obs_mean.is_some();
-    let mut model = Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), seed).map_err(runtime_error)?;
+    let mut model =
+        Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), seed).map_err(runtime_error)?;
     let expected: Vec<String> = model.policy.named_vars().into_iter().map(|(n, _)| n).collect();
     for name in weights.keys() {
         if !expected.contains(name) {
@@ -153,7 +166,11 @@ pub fn save_model(
         (Some(mean), Some(var)) => {
             let dim = spec.observation_space.dim();
             if mean.len() != dim || var.len() != dim {
-                return Err(value_error(anyhow::anyhow!("observation statistics of {} and {} values; the task has {dim} observations", mean.len(), var.len())));
+                return Err(value_error(anyhow::anyhow!(
+                    "observation statistics of {} and {} values; the task has {dim} observations",
+                    mean.len(),
+                    var.len()
+                )));
             }
             Some(RunningMeanStd { mean, var, count: obs_count.unwrap_or(1.0) })
         }

@@ -29,7 +29,13 @@ pub struct Summary {
 impl From<&EpisodeSummary> for Summary {
     fn from(e: &EpisodeSummary) -> Self {
         let widen = |m: &BTreeMap<String, f32>| m.iter().map(|(k, &v)| (k.clone(), f64::from(v))).collect();
-        Self { score: f64::from(e.score), length: i64::from(e.length), success: e.success, metrics: widen(&e.metrics), rewards: widen(&e.rewards) }
+        Self {
+            score: f64::from(e.score),
+            length: i64::from(e.length),
+            success: e.success,
+            metrics: widen(&e.metrics),
+            rewards: widen(&e.rewards),
+        }
     }
 }
 
@@ -51,7 +57,12 @@ pub fn vector_infos<'py>(
 }
 
 /// The infos of [`vector_infos`], every env in `ended` below `num_envs`.
-pub fn build<'py>(py: Python<'py>, num_envs: usize, ended: &[(usize, Bound<'py, PyAny>, Summary)], final_obs: bool) -> PyResult<Bound<'py, PyDict>> {
+pub fn build<'py>(
+    py: Python<'py>,
+    num_envs: usize,
+    ended: &[(usize, Bound<'py, PyAny>, Summary)],
+    final_obs: bool,
+) -> PyResult<Bound<'py, PyDict>> {
     let envs: Vec<usize> = ended.iter().map(|(env, _, _)| *env).collect();
     let mask_of = |envs: &[usize]| {
         let mut mask = vec![false; num_envs];
@@ -79,11 +90,13 @@ pub fn build<'py>(py: Python<'py>, num_envs: usize, ended: &[(usize, Bound<'py, 
         infos.set_item("is_success", column(num_envs, with_goal.iter().copied()).into_pyarray(py))?;
         infos.set_item("_is_success", mask_of(&with_goal.iter().map(|(i, _)| *i).collect::<Vec<_>>()))?;
     }
-    let fields: [(&str, fn(&Summary) -> &BTreeMap<String, f64>); 2] = [("", |s| &s.metrics), ("reward/", |s| &s.rewards)];
+    let fields: [(&str, fn(&Summary) -> &BTreeMap<String, f64>); 2] =
+        [("", |s| &s.metrics), ("reward/", |s| &s.rewards)];
     for (prefix, field) in fields {
         let names: BTreeSet<&String> = ended.iter().flat_map(|(_, _, s)| field(s).keys()).collect();
         for name in names {
-            let values: Vec<(usize, f64)> = ended.iter().filter_map(|(i, _, s)| field(s).get(name).map(|&v| (*i, v))).collect();
+            let values: Vec<(usize, f64)> =
+                ended.iter().filter_map(|(i, _, s)| field(s).get(name).map(|&v| (*i, v))).collect();
             infos.set_item(format!("{prefix}{name}"), column(num_envs, values.iter().copied()).into_pyarray(py))?;
             infos.set_item(format!("_{prefix}{name}"), mask_of(&values.iter().map(|(i, _)| *i).collect::<Vec<_>>()))?;
         }

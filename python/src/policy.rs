@@ -52,7 +52,12 @@ impl Policy {
     /// action_dim)` float32: the policy's mean (deterministic) or a sample, normalised and
     /// clipped as in Rust.
     #[pyo3(signature = (obs, deterministic=true))]
-    fn predict<'py>(&mut self, py: Python<'py>, obs: PyReadonlyArray2<'py, f32>, deterministic: bool) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    fn predict<'py>(
+        &mut self,
+        py: Python<'py>,
+        obs: PyReadonlyArray2<'py, f32>,
+        deterministic: bool,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (rows, cols) = (obs.shape()[0], obs.shape()[1]);
         let dim = self.model.observation_space().dim();
         if cols != dim {
@@ -63,10 +68,7 @@ impl Policy {
             return Err(value_error(anyhow::anyhow!("observations contain NaN or infinity")));
         }
         let model = &mut self.model;
-        let actions = no_panic("predict", || {
-            model.predict(&flat, deterministic)
-        })
-        .map_err(runtime_error)?;
+        let actions = no_panic("predict", || model.predict(&flat, deterministic)).map_err(runtime_error)?;
         let action_dim = actions.len() / rows.max(1);
         let array = Array2::from_shape_vec((rows, action_dim), actions).map_err(|e| runtime_error(e.into()))?;
         Ok(array.into_pyarray(py))

@@ -4,11 +4,11 @@
 
 use std::time::Instant;
 
-use twinbots_learn::classic::ClassicCartPole;
 use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_learn::classic::ClassicCartPole;
 use twinbots_learn::{Flow, Ppo, PpoConfig};
-use twinbots_task::{AppVecEnv, bridge, env};
 use twinbots_sim::SimSettings;
+use twinbots_task::{AppVecEnv, bridge, env};
 
 use crate::registry;
 
@@ -44,7 +44,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         BenchKind::Physics => print_physics(&args.robot, &args.arenas, steps),
         BenchKind::Server => print_server(&args.arenas, steps),
         BenchKind::Capture => print_capture(&args.robot, &[(640, 480), (64, 64)], 60),
-        BenchKind::Cameras => print_cameras(&args.robot, args.arenas.iter().copied().max().unwrap_or(16), args.steps.unwrap_or(40)),
+        BenchKind::Cameras => {
+            print_cameras(&args.robot, args.arenas.iter().copied().max().unwrap_or(16), args.steps.unwrap_or(40))
+        }
         BenchKind::Rl => print_rl(&args.robot, args.arenas.first().copied().unwrap_or(8), steps),
         BenchKind::Rtde => print_rtde(args.bundle.as_deref(), args.seconds, args.rt_priority),
     }
@@ -71,16 +73,28 @@ pub enum BenchKind {
 }
 
 fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64, rt_priority: Option<i32>) -> anyhow::Result<()> {
-    let dir = bundle.ok_or_else(|| anyhow::anyhow!("bench rtde needs --bundle DIR (`twinbots export <ur5e run> --bundle DIR`)"))?;
+    let dir = bundle
+        .ok_or_else(|| anyhow::anyhow!("bench rtde needs --bundle DIR (`twinbots export <ur5e run> --bundle DIR`)"))?;
     anyhow::ensure!(seconds > 0.0 && seconds.is_finite(), "--seconds must be positive");
     let bundle = twinbots::bundle::Bundle::read(dir)?;
     bundle.check("ur5e", &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
-    let scheduling = rt_priority.map_or("default scheduling".to_string(), |p| format!("SCHED_FIFO {p}, the stand-in {}", p - 1));
-    println!("bench rtde: a UR stand-in at 500 Hz on loopback, every report answered by {} ({seconds} s, {scheduling})", dir.display());
+    let scheduling =
+        rt_priority.map_or("default scheduling".to_string(), |p| format!("SCHED_FIFO {p}, the stand-in {}", p - 1));
+    println!(
+        "bench rtde: a UR stand-in at 500 Hz on loopback, every report answered by {} ({seconds} s, {scheduling})",
+        dir.display()
+    );
     let show = |r: &twinbots::deploy::latency::LatencyReport| {
         println!(
             "  {:6.1} s: {} commands, report in -> command out p50 {:.0} us, p99 {:.0} us, max {:.0} us; {} later than 2 ms, {} reports missed, stand-in missed {} cycles",
-            r.seconds, r.commands, r.p50_us, r.p99_us, r.max_us, r.late_commands, r.missed_reports, r.standin_missed_cycles
+            r.seconds,
+            r.commands,
+            r.p50_us,
+            r.p99_us,
+            r.max_us,
+            r.late_commands,
+            r.missed_reports,
+            r.standin_missed_cycles
         )
     };
     let report = twinbots::deploy::latency::measure(&bundle, seconds, rt_priority, show)?;
@@ -106,9 +120,7 @@ pub fn physics(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<Physi
     let mut env = AppVecEnv::new(entry.app(None, arenas, 0, DesignPattern::Supervised)?);
     env.reset(Some(0))?;
     let dim = env.action_space().dim();
-    let actions: Vec<Vec<f32>> = (0..2)
-        .map(|k| vec![k as f32; arenas * dim])
-        .collect();
+    let actions: Vec<Vec<f32>> = (0..2).map(|k| vec![k as f32; arenas * dim]).collect();
     // Warm up (allocations, contact graphs), then time the whole control step.
     for i in 0..20 {
         env.step(&actions[(i / 4) % 2])?;
@@ -140,7 +152,9 @@ pub fn physics(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<Physi
 pub fn print_physics(robot: &str, arena_counts: &[usize], steps: usize) -> anyhow::Result<()> {
     registry::find(robot)?;
     let threads = twinbots_learn::threads::configure();
-    println!("physics benchmark: {robot}, {steps} control steps per row (one process; arenas step on {threads} threads)");
+    println!(
+        "physics benchmark: {robot}, {steps} control steps per row (one process; arenas step on {threads} threads)"
+    );
     println!(
         "{:>7} {:>14} {:>18} {:>16} {:>18}",
         "arenas", "vec steps/s", "arena steps/s", "rapier µs/step", "schedule µs/step"
@@ -202,7 +216,10 @@ pub fn print_rl(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<()> 
     // is subtracted to leave the update.
     let full = time_learn(PpoConfig::default(), 2048)?;
     let rollout = time_learn(PpoConfig { n_epochs: 0, ..Default::default() }, 2048)?;
-    println!("PPO update of 2048 samples (10 epochs × 32 minibatches of 64, MLP 64-64): {:.0} ms", (full - rollout) * 1e3);
+    println!(
+        "PPO update of 2048 samples (10 epochs × 32 minibatches of 64, MLP 64-64): {:.0} ms",
+        (full - rollout) * 1e3
+    );
     println!("PPO rollout of 2048 CartPole-v1 steps with policy inference: {:.0} ms", rollout * 1e3);
     let (direct, bridged) = direct_vs_bridge(robot, arenas, steps)?;
     println!(
@@ -229,7 +246,12 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
     // A rollout never filled: this measures the protocol and the policy's inference only.
     let mut settings = ServerSettings::new("cartpole", &spec, usize::MAX, u64::MAX);
     settings.limits.max_robots = robots.max(1);
-    let server = RobotServer::start("127.0.0.1:0".parse()?, Box::new(model), settings, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)))?;
+    let server = RobotServer::start(
+        "127.0.0.1:0".parse()?,
+        Box::new(model),
+        settings,
+        Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)),
+    )?;
     let addr = server.addr;
     let start = Instant::now();
     let threads: Vec<_> = (0..robots)
@@ -242,7 +264,14 @@ fn server_throughput(robots: usize, steps: usize) -> anyhow::Result<(f64, f64)> 
                 c.receive()?;
                 let t = Instant::now();
                 for _ in 0..steps {
-                    c.send(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false, success: None, ended_by: None })?;
+                    c.send(&RobotMessage::Step {
+                        obs: vec![0.0; 4],
+                        reward: 1.0,
+                        terminated: false,
+                        truncated: false,
+                        success: None,
+                        ended_by: None,
+                    })?;
                     anyhow::ensure!(matches!(c.receive()?, ServerMessage::Action { .. }), "unexpected reply");
                 }
                 Ok(t.elapsed().as_secs_f64() / steps as f64)
@@ -277,7 +306,8 @@ pub fn print_capture(robot: &str, sizes: &[(u32, u32)], frames: usize) -> anyhow
         let mut env = AppVecEnv::new(entry.app(None, 1, 0, DesignPattern::Supervised)?);
         env.reset(Some(0))?;
         let dir = std::env::temp_dir().join(format!("twinbots-bench-capture-{}", std::process::id()));
-        let mut recorder = crate::cli::capture::Recorder::new((w, h), crate::cli::capture::camera(&entry, "side")?, &dir)?;
+        let mut recorder =
+            crate::cli::capture::Recorder::new((w, h), crate::cli::capture::camera(&entry, "side")?, &dir)?;
         recorder.frame(&mut env, 0)?; // warm-up: pipelines compile
         let mut spent = 0.0;
         for i in 1..=frames {
@@ -301,7 +331,9 @@ pub fn print_capture(robot: &str, sizes: &[(u32, u32)], frames: usize) -> anyhow
 /// a minute, and one setup measured after another compared the drift, not the setups.
 pub fn print_cameras(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
-    println!("camera sensors of {robot}: {arenas} arenas x 64x64, {steps} control steps each, in turns of {CAMERA_BLOCK} (renderer: whatever adapter wgpu picks)");
+    println!(
+        "camera sensors of {robot}: {arenas} arenas x 64x64, {steps} control steps each, in turns of {CAMERA_BLOCK} (renderer: whatever adapter wgpu picks)"
+    );
     println!("{:>26} {:>12} {:>16}", "looks, frames", "frames/s", "ms/step");
     let mut setups = [(false, 1), (false, 0), (true, 0)]
         .into_iter()
@@ -322,7 +354,11 @@ pub fn print_cameras(robot: &str, arenas: usize, steps: usize) -> anyhow::Result
             (false, 1) => "plain, one camera a frame",
             _ => "plain, one frame",
         };
-        println!("{label:>26} {:>12.0} {:>16.2}", (setup.steps * arenas) as f64 / setup.spent, setup.spent / setup.steps as f64 * 1e3);
+        println!(
+            "{label:>26} {:>12.0} {:>16.2}",
+            (setup.steps * arenas) as f64 / setup.spent,
+            setup.spent / setup.steps as f64 * 1e3
+        );
     }
     Ok(())
 }
@@ -346,7 +382,10 @@ impl CameraSetup {
         use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
         let mut app = entry.app(None, arenas, 0, DesignPattern::Supervised)?;
         if randomized {
-            app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
+            app.add_plugins(RandomizationPlugin(Randomization {
+                visual: Some(VisualRandomization::default()),
+                ..Default::default()
+            }));
         }
         let mut env = AppVecEnv::new(app);
         env.reset(Some(0))?;
@@ -394,8 +433,16 @@ fn mount_cameras(world: &mut bevy::prelude::World, framing: &twinbots_sim::Frami
         }
     }
     for (arena, (entity, link)) in first {
-        let Some(body) = twinbots_sim::physics_in(world, arena).and_then(|w| w.bodies.get(link.body).map(|b| *b.position() * link.offset)) else { continue };
+        let Some(body) = twinbots_sim::physics_in(world, arena)
+            .and_then(|w| w.bodies.get(link.body).map(|b| *b.position() * link.offset))
+        else {
+            continue;
+        };
         let offset = body.inverse() * camera;
-        world.spawn((CameraSensor::new(45f32.to_radians(), width, height), Mount { link: entity, offset }, InArena(arena)));
+        world.spawn((
+            CameraSensor::new(45f32.to_radians(), width, height),
+            Mount { link: entity, offset },
+            InArena(arena),
+        ));
     }
 }

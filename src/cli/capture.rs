@@ -6,9 +6,9 @@ use anyhow::Context;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use twinbots_render::{Framing, Renderer, View};
 use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_learn::RunDir;
+use twinbots_render::{Framing, Renderer, View};
 use twinbots_sim::Look;
 use twinbots_task::AppVecEnv;
 use twinbots_task::randomization::{Randomization, RandomizationPlugin};
@@ -66,7 +66,21 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         }
         None => Randomization::default(),
     };
-    capture(CaptureArgs { robot, model, frames, every, size: parse_size(&size)?, camera, seed, task, out, calibration, randomization, shadows, log })
+    capture(CaptureArgs {
+        robot,
+        model,
+        frames,
+        every,
+        size: parse_size(&size)?,
+        camera,
+        seed,
+        task,
+        out,
+        calibration,
+        randomization,
+        shadows,
+        log,
+    })
 }
 
 /// A named camera of a robot's cell.
@@ -116,13 +130,18 @@ impl Recorder {
             self.look = look.cloned();
             let line = serde_json::json!({ "frame": step, "look": self.look });
             let path = self.out.join("looks.jsonl");
-            let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&path).with_context(|| path.display().to_string())?;
+            let mut file = std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(&path)
+                .with_context(|| path.display().to_string())?;
             writeln!(file, "{line}").with_context(|| path.display().to_string())?;
         }
         self.renderer.sync(env.app_mut().world_mut(), arena);
         let rgb = self.renderer.render()?;
         let path = self.out.join(format!("frame_{step:05}.png"));
-        image::save_buffer(&path, &rgb, self.renderer.width, self.renderer.height, image::ExtendedColorType::Rgb8).with_context(|| path.display().to_string())?;
+        image::save_buffer(&path, &rgb, self.renderer.width, self.renderer.height, image::ExtendedColorType::Rgb8)
+            .with_context(|| path.display().to_string())?;
         self.written += 1;
         Ok(path)
     }
@@ -179,7 +198,9 @@ pub fn capture(args: CaptureArgs) -> anyhow::Result<()> {
         }
     }
     println!("wrote {} frames ({}x{}) to {}", recorder.written, args.size.0, args.size.1, args.out.display());
-    if let (Some(path), Some((states, commands))) = (&args.log, twinbots::robot_log::finish_log(env.app_mut().world_mut())?) {
+    if let (Some(path), Some((states, commands))) =
+        (&args.log, twinbots::robot_log::finish_log(env.app_mut().world_mut())?)
+    {
         println!("logged the latest episode ({states} states, {commands} commands) to {}", path.display());
     }
     Ok(())

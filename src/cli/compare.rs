@@ -9,8 +9,8 @@ use twinbots_api::Measure;
 use twinbots_learn::RunDir;
 use twinbots_learn::seeds::{Spread, band};
 
-use twinbots::settings::TrainSettings;
 use crate::registry;
+use twinbots::settings::TrainSettings;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -64,11 +64,21 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         match &first {
             None => first = Some(settings.clone()),
             Some(f) if f.robot != settings.robot => {
-                anyhow::bail!("{}: a run of {}, the others are of {}: compare runs of one robot", path.display(), settings.robot, f.robot)
+                anyhow::bail!(
+                    "{}: a run of {}, the others are of {}: compare runs of one robot",
+                    path.display(),
+                    settings.robot,
+                    f.robot
+                )
             }
             Some(f) if f.task != settings.task => {
                 let name = |t: &Option<String>| t.clone().unwrap_or_else(|| "its main task".into());
-                anyhow::bail!("{}: a run of {}, the others of {}: compare runs of one task", path.display(), name(&settings.task), name(&f.task))
+                anyhow::bail!(
+                    "{}: a run of {}, the others of {}: compare runs of one task",
+                    path.display(),
+                    name(&settings.task),
+                    name(&f.task)
+                )
             }
             Some(_) => {}
         }
@@ -94,7 +104,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let spread = |values: Vec<f64>| Spread::of(&values);
     let comparison = Comparison {
         solved: runs.iter().filter(|r| r.solved).count(),
-        steps_to_solve: spread(runs.iter().map(|r| r.solved_at_timesteps.map_or(f64::INFINITY, |t| t as f64)).collect()),
+        steps_to_solve: spread(
+            runs.iter().map(|r| r.solved_at_timesteps.map_or(f64::INFINITY, |t| t as f64)).collect(),
+        ),
         wall_clock_s: spread(runs.iter().map(|r| r.wall_clock_s).collect()),
         final_success_rate: spread(runs.iter().filter_map(|r| r.final_success_rate.map(f64::from)).collect()),
         final_mean_score: spread(runs.iter().filter_map(|r| r.final_mean_score.map(f64::from)).collect()),
@@ -112,9 +124,16 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         let mut lines = Vec::new();
         for dir in &curves {
             let line: Vec<(f64, f64)> = if by_success {
-                dir.read_evaluations()?.iter().filter_map(|e| Some((e.timesteps as f64, f64::from(e.success_rate?)))).collect()
+                dir.read_evaluations()?
+                    .iter()
+                    .filter_map(|e| Some((e.timesteps as f64, f64::from(e.success_rate?))))
+                    .collect()
             } else {
-                dir.read_progress()?.iter().filter(|s| s.mean_reward.is_finite()).map(|s| (s.timesteps as f64, f64::from(s.mean_reward))).collect()
+                dir.read_progress()?
+                    .iter()
+                    .filter(|s| s.mean_reward.is_finite())
+                    .map(|s| (s.timesteps as f64, f64::from(s.mean_reward)))
+                    .collect()
             };
             lines.push(line);
         }
@@ -132,7 +151,13 @@ fn print(c: &Comparison) {
     for r in &c.runs {
         let solved = r.solved_at_timesteps.map_or("not solved".to_string(), |t| format!("solved at {t}"));
         let success = r.final_success_rate.map_or(String::new(), |s| format!(", final evaluation {:.1} %", 100.0 * s));
-        println!("  seed {:<3} {solved}, {} steps, {:.0} s{success}  ({})", r.seed, r.timesteps, r.wall_clock_s, r.run.display());
+        println!(
+            "  seed {:<3} {solved}, {} steps, {:.0} s{success}  ({})",
+            r.seed,
+            r.timesteps,
+            r.wall_clock_s,
+            r.run.display()
+        );
     }
     let line = |name: &str, s: &Option<Spread>, scale: f64, decimals: usize, unit: &str| {
         if let Some(s) = s {

@@ -55,14 +55,22 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let entry = registry::find(&args.robot)?;
     anyhow::ensure!(args.robot == "ur5e", "robot '{}' has no controller link: only ur5e deploys (RTDE)", args.robot);
     anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
-    anyhow::ensure!(args.deadline_ms > 0.0 && args.patience_ms > 0.0, "--deadline-ms and --patience-ms must be positive");
+    anyhow::ensure!(
+        args.deadline_ms > 0.0 && args.patience_ms > 0.0,
+        "--deadline-ms and --patience-ms must be positive"
+    );
     let bundle = Bundle::read(&args.bundle)?;
     bundle.check(&args.robot, &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
     if let Some(p) = args.rt_priority {
         twinbots::realtime::set_rt_priority(p)?;
     }
     let patience = Duration::from_secs_f64(args.patience_ms / 1e3);
-    let options = DeployOptions { episodes: args.episodes, seed: args.seed, deadline: Duration::from_secs_f64(args.deadline_ms / 1e3), ..Default::default() };
+    let options = DeployOptions {
+        episodes: args.episodes,
+        seed: args.seed,
+        deadline: Duration::from_secs_f64(args.deadline_ms / 1e3),
+        ..Default::default()
+    };
     let mut arm: Box<dyn Arm> = if args.dry_run {
         let start = args.rtde.as_deref().map(|address| robot_joints(address, patience)).transpose()?;
         let rig = Rig::of(&entry)?;
@@ -74,17 +82,28 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     } else {
         Box::new(RtdeArm::connect(args.rtde.as_deref().expect("clap requires --rtde without --dry-run"), patience)?)
     };
-    println!("deploying {} ({} steps of training) on {}: {} episodes", bundle.dir.display(), bundle.manifest.timesteps, arm.describe(), args.episodes);
+    println!(
+        "deploying {} ({} steps of training) on {}: {} episodes",
+        bundle.dir.display(),
+        bundle.manifest.timesteps,
+        arm.describe(),
+        args.episodes
+    );
     let mut successes = 0;
     let report = deploy(arm.as_mut(), &bundle, &options, |e| {
         successes += usize::from(e.success);
-        let outcome = e.cycle_time_s.map_or(format!("missed after {} steps", e.steps), |t| format!("arrived in {t:.2} s"));
+        let outcome =
+            e.cycle_time_s.map_or(format!("missed after {} steps", e.steps), |t| format!("arrived in {t:.2} s"));
         println!(
             "episode {:3}: {outcome}, error {:.1} mm, energy {:.1} J{} (success {successes}/{})",
             e.episode + 1,
             e.final_error_mm,
             e.energy_j,
-            if e.clipped + e.refused > 0 { format!(", shadow clipped {} refused {}", e.clipped, e.refused) } else { String::new() },
+            if e.clipped + e.refused > 0 {
+                format!(", shadow clipped {} refused {}", e.clipped, e.refused)
+            } else {
+                String::new()
+            },
             e.episode + 1
         );
     })?;

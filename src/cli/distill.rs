@@ -41,7 +41,14 @@ pub struct Args {
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let settings = twinbots::settings::TrainSettings::of_run(&twinbots_learn::RunDir::new(&args.run))?;
     let entry = registry::find(&settings.robot)?;
-    let options = DistillOptions { teacher: args.teacher, rounds: args.rounds, steps: args.steps, epochs: args.epochs, tune: args.tune, learning_rate: args.learning_rate };
+    let options = DistillOptions {
+        teacher: args.teacher,
+        rounds: args.rounds,
+        steps: args.steps,
+        epochs: args.epochs,
+        tune: args.tune,
+        learning_rate: args.learning_rate,
+    };
     let rounds = distill(&entry, &args.run, &args.out, &options, |r| {
         println!(
             "round {}: {} episodes ended, mean score {:.1}{}; disagreement with the teacher {:.4}; {} answers, cross-entropy {:.4} ({:.0} s)",
@@ -55,6 +62,11 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             r.seconds
         );
     })?;
-    println!("{} rounds; the taught run is {}: judge it with `twinbots eval {} --episodes 100`", rounds.len(), args.out.display(), args.out.display());
+    println!(
+        "{} rounds; the taught run is {}: judge it with `twinbots eval {} --episodes 100`",
+        rounds.len(),
+        args.out.display(),
+        args.out.display()
+    );
     Ok(())
 }

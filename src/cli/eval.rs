@@ -6,13 +6,13 @@ use twinbots_api::VecEnv;
 use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
 use twinbots_task::AppVecEnv;
 
+use crate::registry;
 use twinbots::robot_log::finish_log;
 use twinbots::run::{evaluation_app, evaluation_env};
-use twinbots_task::randomization::Randomization;
-use twinbots_task::randomization::visual::VisualRandomizationPlugin;
 use twinbots::settings::{CalibrationSetting, TrainSettings};
 use twinbots::twin::Twin;
-use crate::registry;
+use twinbots_task::randomization::Randomization;
+use twinbots_task::randomization::visual::VisualRandomizationPlugin;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -52,13 +52,23 @@ pub struct Args {
 
 /// `twinbots eval`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let on = Evaluated { task: args.task.as_deref(), calibration: args.calibration.as_deref(), looks: args.looks.as_deref() };
+    let on = Evaluated {
+        task: args.task.as_deref(),
+        calibration: args.calibration.as_deref(),
+        looks: args.looks.as_deref(),
+    };
     eval_run(&args.run, args.episodes, args.arenas, on)?;
     if let Some(path) = &args.log {
         log_episode(&args.run, path, args.task.as_deref(), args.calibration.as_deref())?;
     }
     if let Some(dir) = &args.record {
-        record_episode(&args.run, dir, crate::cli::capture::parse_size(&args.size)?, &args.camera, args.task.as_deref())?;
+        record_episode(
+            &args.run,
+            dir,
+            crate::cli::capture::parse_size(&args.size)?,
+            &args.camera,
+            args.task.as_deref(),
+        )?;
     }
     Ok(())
 }
@@ -94,7 +104,9 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, on: Evaluate
         None => evaluation_env(&entry, Some(name), arenas, episodes, seed, &settings, &params)?,
         Some(file) => {
             let mut app = evaluation_app(&entry, Some(name), arenas.clamp(1, episodes), seed, &settings, &params)?;
-            app.add_plugins(VisualRandomizationPlugin(Randomization::looks_of(file).map_err(|e| anyhow::anyhow!("--looks {e}"))?));
+            app.add_plugins(VisualRandomizationPlugin(
+                Randomization::looks_of(file).map_err(|e| anyhow::anyhow!("--looks {e}"))?,
+            ));
             AppVecEnv::new(app)
         }
     };
@@ -114,7 +126,11 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, on: Evaluate
 }
 
 /// The calibration a run is evaluated with: the file's if given, else the run's own.
-fn evaluated_calibration(entry: &registry::RobotEntry, settings: &TrainSettings, file: Option<&Path>) -> anyhow::Result<Option<CalibrationSetting>> {
+fn evaluated_calibration(
+    entry: &registry::RobotEntry,
+    settings: &TrainSettings,
+    file: Option<&Path>,
+) -> anyhow::Result<Option<CalibrationSetting>> {
     Ok(CalibrationSetting::read_optional(entry, file)?.or_else(|| settings.calibration.clone()))
 }
 
@@ -134,7 +150,8 @@ fn one_episode(
     let entry = registry::find(&settings.robot)?;
     let model = twinbots_learn::algos::load_run(&run_dir)?;
     let seed = settings.final_eval_seed();
-    let twin = Twin { calibration: evaluated_calibration(&entry, &settings, calibration)?, log: log.map(Path::to_path_buf) };
+    let twin =
+        Twin { calibration: evaluated_calibration(&entry, &settings, calibration)?, log: log.map(Path::to_path_buf) };
     let mut app = entry.app(task.or(settings.task.as_deref()), 1, seed, settings.in_process_pattern()?)?;
     twin.configure(&mut app, &entry)?;
     settings.observe(&mut app, &entry, 1)?;
@@ -163,12 +180,19 @@ pub fn log_episode(run: &Path, path: &Path, task: Option<&str>, calibration: Opt
 
 /// Writes the frames of one deterministic evaluation episode of the run's model (on the run's
 /// own twin, as `eval` evaluates it).
-pub fn record_episode(run: &Path, dir: &Path, size: (u32, u32), camera: &str, task: Option<&str>) -> anyhow::Result<()> {
+pub fn record_episode(
+    run: &Path,
+    dir: &Path,
+    size: (u32, u32),
+    camera: &str,
+    task: Option<&str>,
+) -> anyhow::Result<()> {
     let mut recorder: Option<crate::cli::capture::Recorder> = None;
     one_episode(run, task, None, None, |env, settings, step| {
         if recorder.is_none() {
             let entry = registry::find(&settings.robot)?;
-            recorder = Some(crate::cli::capture::Recorder::new(size, crate::cli::capture::camera(&entry, camera)?, dir)?);
+            recorder =
+                Some(crate::cli::capture::Recorder::new(size, crate::cli::capture::camera(&entry, camera)?, dir)?);
         }
         recorder.as_mut().expect("made above").frame(env, step).map(|_| ())
     })?;

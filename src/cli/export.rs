@@ -4,12 +4,12 @@
 
 use std::path::Path;
 
-use twinbots_onnx::PolicyMetadata;
 use twinbots_learn::RunDir;
+use twinbots_onnx::PolicyMetadata;
 use twinbots_sim::SimSettings;
 
-use twinbots::settings::TrainSettings;
 use crate::registry;
+use twinbots::settings::TrainSettings;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -50,9 +50,19 @@ pub fn export_bundle(run: &Path, dir: &Path) -> anyhow::Result<twinbots::bundle:
         let body = toml::to_string(&File { parameters: &c.parameters }).expect("parameters serialise");
         format!("# The calibration the policy was trained on (from {}).\n{body}", c.file)
     });
-    let cell = settings.cell.as_ref().map(|c| format!("# The cell the policy was trained in (the run's [cell]).\n{}", toml::to_string(c).expect("a cell table serialises")));
+    let cell = settings.cell.as_ref().map(|c| {
+        format!(
+            "# The cell the policy was trained in (the run's [cell]).\n{}",
+            toml::to_string(c).expect("a cell table serialises")
+        )
+    });
     let named = |text: &Option<String>, file: &str| text.as_ref().map(|_| file.to_string());
-    let manifest = twinbots::bundle::manifest_for(&settings.robot, &metadata, named(&calibration, twinbots::bundle::CALIBRATION), named(&cell, twinbots::bundle::CELL))?;
+    let manifest = twinbots::bundle::manifest_for(
+        &settings.robot,
+        &metadata,
+        named(&calibration, twinbots::bundle::CALIBRATION),
+        named(&cell, twinbots::bundle::CELL),
+    )?;
     let bytes = twinbots_onnx::policy_bytes(model.as_ref(), &metadata)?;
     twinbots::bundle::write(dir, &manifest, &bytes, calibration.as_deref(), cell.as_deref())?;
     println!(

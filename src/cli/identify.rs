@@ -68,9 +68,21 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let logs = prepare_all(&rig, &args.logs)?;
     let validation = prepare_all(&rig, &args.validate)?;
     let options = FitOptions { params, popsize: args.popsize, generations: args.generations, seed: args.seed };
-    println!("{}: fitting {} parameters to {} log(s), {:.1} s in all", rig.robot, options.params.len(), logs.len(), seconds(&rig, &logs));
+    println!(
+        "{}: fitting {} parameters to {} log(s), {:.1} s in all",
+        rig.robot,
+        options.params.len(),
+        logs.len(),
+        seconds(&rig, &logs)
+    );
     let fit = identify(&rig, &logs, &base, &options, |g| {
-        println!("generation {:>3}: best {:.4}  mean {:.4}  best so far {:.4}", g.generation + 1, g.best, g.mean, g.best_so_far);
+        println!(
+            "generation {:>3}: best {:.4}  mean {:.4}  best so far {:.4}",
+            g.generation + 1,
+            g.best,
+            g.mean,
+            g.best_so_far
+        );
     })?;
     let mut calibrated = base.clone();
     calibrated.extend(&fit.values());
@@ -80,11 +92,21 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let validation_report = validate(&rig, &validation, &nominal, &calibrated, &out)?;
     print!("{}", fit_table(&fit));
     if let Some(v) = &validation_report {
-        println!("held-out position RMSE: nominal {:.6}, calibrated {:.6} ({:+.1} %)", v.nominal, v.calibrated, v.change * 100.0);
+        println!(
+            "held-out position RMSE: nominal {:.6}, calibrated {:.6} ({:+.1} %)",
+            v.nominal,
+            v.calibrated,
+            v.change * 100.0
+        );
     }
     write_calibration(&out.join("calibration.toml"), &rig, &fit, &args.logs, validation_report.as_ref())?;
     write_json(&out.join("fit.json"), &serde_json::json!({ "fit": fit, "validation": validation_report }))?;
-    twinbots_sysid::plot::convergence_png(&out.join("convergence.png"), &format!("{}: calibration", rig.robot), &fit.history, fit.cost_nominal)?;
+    twinbots_sysid::plot::convergence_png(
+        &out.join("convergence.png"),
+        &format!("{}: calibration", rig.robot),
+        &fit.history,
+        fit.cost_nominal,
+    )?;
     println!(
         "{} candidates ({} replays) in {:.1} s, {:.3} s per replay; wrote {}/calibration.toml",
         fit.candidates,
@@ -136,7 +158,13 @@ pub struct Validation {
     pub change: f64,
 }
 
-fn validate(rig: &Rig, logs: &[PreparedLog], nominal: &Parameters, calibrated: &Parameters, out: &Path) -> anyhow::Result<Option<Validation>> {
+fn validate(
+    rig: &Rig,
+    logs: &[PreparedLog],
+    nominal: &Parameters,
+    calibrated: &Parameters,
+    out: &Path,
+) -> anyhow::Result<Option<Validation>> {
     let Some(first) = logs.first() else { return Ok(None) };
     let before = position_rmse(rig, logs, nominal, 0.05);
     let after = position_rmse(rig, logs, calibrated, 0.05);
@@ -147,13 +175,26 @@ fn validate(rig: &Rig, logs: &[PreparedLog], nominal: &Parameters, calibrated: &
         first,
         &[("twin (nominal)", &twins[0], rig.biases(nominal)), ("twin (calibrated)", &twins[1], rig.biases(calibrated))],
     )?;
-    Ok(Some(Validation { logs: logs.iter().map(|l| l.name.clone()).collect(), nominal: before, calibrated: after, change: (after - before) / before.max(1e-12) }))
+    Ok(Some(Validation {
+        logs: logs.iter().map(|l| l.name.clone()).collect(),
+        nominal: before,
+        calibrated: after,
+        change: (after - before) / before.max(1e-12),
+    }))
 }
 
 fn fit_table(fit: &Fit) -> String {
     let mut out = format!(
         "tracking error (χ² per step): nominal {:.4}, calibrated {:.4}; the replay's numerical noise ±{:.0} in χ² over {} samples\n{:<32} {:>12} {:>12} {:>12}  {}\n",
-        fit.cost_nominal, fit.cost_fitted, fit.replay_noise, fit.samples, "parameter", "nominal", "fitted", "spread", "unit"
+        fit.cost_nominal,
+        fit.cost_fitted,
+        fit.replay_noise,
+        fit.samples,
+        "parameter",
+        "nominal",
+        "fitted",
+        "spread",
+        "unit"
     );
     for p in &fit.parameters {
         out += &format!("{:<32} {:>12.5e} {:>12.5e} {:>12.2e}  {}\n", p.name, p.nominal, p.value, p.spread, p.unit);
@@ -164,7 +205,13 @@ fn fit_table(fit: &Fit) -> String {
     out
 }
 
-fn write_calibration(path: &Path, rig: &Rig, fit: &Fit, logs: &[PathBuf], validation: Option<&Validation>) -> anyhow::Result<()> {
+fn write_calibration(
+    path: &Path,
+    rig: &Rig,
+    fit: &Fit,
+    logs: &[PathBuf],
+    validation: Option<&Validation>,
+) -> anyhow::Result<()> {
     let mut meta = toml::Table::new();
     let mut about = toml::Table::new();
     about.insert("robot".into(), rig.robot.into());
@@ -182,7 +229,11 @@ fn write_calibration(path: &Path, rig: &Rig, fit: &Fit, logs: &[PathBuf], valida
     meta.insert("fit".into(), toml::Value::Table(about));
     let spread: toml::Table = fit.parameters.iter().map(|p| (p.name.clone(), p.spread.into())).collect();
     meta.insert("spread".into(), toml::Value::Table(spread));
-    let not: toml::Table = fit.parameters.iter().filter_map(|p| p.not_identifiable.as_ref().map(|w| (p.name.clone(), w.clone().into()))).collect();
+    let not: toml::Table = fit
+        .parameters
+        .iter()
+        .filter_map(|p| p.not_identifiable.as_ref().map(|w| (p.name.clone(), w.clone().into())))
+        .collect();
     if !not.is_empty() {
         meta.insert("not_identifiable".into(), toml::Value::Table(not));
     }

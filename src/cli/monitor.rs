@@ -6,9 +6,9 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use twinbots::monitor::{Monitor, MonitorOptions, Report};
+use twinbots::settings::CalibrationSetting;
 use twinbots_render::{Renderer, View};
 use twinbots_rtde::{DataPackage, RtdeClient};
-use twinbots::settings::CalibrationSetting;
 
 use crate::registry;
 
@@ -75,7 +75,10 @@ impl Source {
     fn open(args: &Args, patience: Duration) -> anyhow::Result<Self> {
         if let Some(address) = &args.rtde {
             let mut client = RtdeClient::connect(address, patience)?;
-            client.setup_outputs(&["timestamp", "actual_q", "actual_qd", "target_qd", "target_moment"], twinbots_rtde::MAX_FREQUENCY)?;
+            client.setup_outputs(
+                &["timestamp", "actual_q", "actual_qd", "target_qd", "target_moment"],
+                twinbots_rtde::MAX_FREQUENCY,
+            )?;
             client.start()?;
             return Ok(Source::Rtde(client));
         }
@@ -119,7 +122,9 @@ impl Source {
                 loop {
                     match source.next()? {
                         Next::Report(r) => return Ok(Ok(r)),
-                        Next::Silent(wait) => return Ok(Err(format!("no joint state for {:.1} s", wait.as_secs_f64()))),
+                        Next::Silent(wait) => {
+                            return Ok(Err(format!("no joint state for {:.1} s", wait.as_secs_f64())));
+                        }
                         Next::Note(note) => println!("monitor: {note}"),
                     }
                 }
@@ -167,7 +172,8 @@ impl TwinFrames {
         let rgb = self.renderer.render()?;
         let path = self.dir.join(format!("frame_{:07}.png", ((time - start) * 1e3).round() as u64));
         let (w, h) = (self.renderer.width, self.renderer.height);
-        image::save_buffer(&path, &rgb, w, h, image::ExtendedColorType::Rgb8).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        image::save_buffer(&path, &rgb, w, h, image::ExtendedColorType::Rgb8)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         self.written += 1;
         Ok(())
     }
@@ -176,12 +182,18 @@ impl TwinFrames {
 /// `twinbots monitor`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let entry = registry::find(&args.robot)?;
-    anyhow::ensure!(args.robot == "ur5e", "robot '{}' has no controller link: only ur5e is monitored (RTDE, ROS 2)", args.robot);
+    anyhow::ensure!(
+        args.robot == "ur5e",
+        "robot '{}' has no controller link: only ur5e is monitored (RTDE, ROS 2)",
+        args.robot
+    );
     if let Some(s) = args.seconds {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
     anyhow::ensure!(args.patience_ms > 0.0, "--patience-ms must be positive");
-    let calibration = CalibrationSetting::read_optional(&entry, args.calibration.as_deref())?.map(|c| c.parameters()).unwrap_or_default();
+    let calibration = CalibrationSetting::read_optional(&entry, args.calibration.as_deref())?
+        .map(|c| c.parameters())
+        .unwrap_or_default();
     std::fs::create_dir_all(&args.out).map_err(|e| anyhow::anyhow!("{}: {e}", args.out.display()))?;
     let label = Source::label(&args);
     let options = MonitorOptions {
@@ -234,7 +246,13 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     twinbots_log::write(&monitor.twin_log, &args.out.join("twin.mcap"))?;
     crate::cli::replay::write_json(&args.out.join("monitor.json"), account)?;
     let alarms: Vec<f64> = account.alarms.iter().map(|a| a.time).collect();
-    twinbots_sysid::plot::divergence_png(&args.out.join("divergence.png"), "ur5e: robot vs twin, live", &monitor.robot_log, &monitor.twin_log, &alarms)?;
+    twinbots_sysid::plot::divergence_png(
+        &args.out.join("divergence.png"),
+        "ur5e: robot vs twin, live",
+        &monitor.robot_log,
+        &monitor.twin_log,
+        &alarms,
+    )?;
     let frames_line = frames.map_or(String::new(), |f| format!(", {} frame(s) in frames/", f.written));
     println!(
         "monitor: {:.1} s, {} reports ({} skipped), {} alarm(s), {} motion(s); worst position RMSE {:.3} mrad, worst effort RMSE {:.3} N*m; wrote {}/robot.mcap, twin.mcap, monitor.json, divergence.png{frames_line}",
@@ -255,7 +273,10 @@ fn print_line(monitor: &Monitor, time: f64) {
     let (rmse, effort) = (monitor.rmse(), monitor.effort_rmse());
     let worst = (0..6).max_by(|&a, &b| effort[a].total_cmp(&effort[b])).unwrap_or(0);
     let account = monitor.report();
-    let last = account.motions.last().map_or(String::new(), |m| format!(", last motion {:.2} s, {:.1} J", m.duration_s, m.energy_j));
+    let last = account
+        .motions
+        .last()
+        .map_or(String::new(), |m| format!(", last motion {:.2} s, {:.1} J", m.duration_s, m.energy_j));
     println!(
         "[{time:9.3} s] worst joint {}: position RMSE {:.3} mrad, effort RMSE {:.3} N*m; {} motion(s){last}; {} alarm(s)",
         ur5e::kinematics::JOINTS[worst],

@@ -56,7 +56,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         [noise.position, noise.velocity, noise.effort].iter().all(|n| n.is_finite() && *n >= 0.0),
         "noise levels must be finite and not negative"
     );
-    let recording = Recording { excitation: Excitation::parse(&args.excitation)?, seconds: args.seconds, seed: args.seed, noise };
+    let recording =
+        Recording { excitation: Excitation::parse(&args.excitation)?, seconds: args.seconds, seed: args.seed, noise };
     let log = record(&rig, &truth, &recording)?;
     twinbots_log::write(&log, &args.out)?;
     println!(

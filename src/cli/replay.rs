@@ -40,7 +40,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let prepared = prepare(&rig, &log, &name).map_err(|e| anyhow::anyhow!("{name}: {e:#}"))?;
     let params = rig.parameters(&calibration)?;
     let bias = rig.biases(&params);
-    let twin = run(&rig, &prepared.start_positions(&rig, &params), &prepared.program, std::slice::from_ref(&params)).pop().expect("one arena");
+    let twin = run(&rig, &prepared.start_positions(&rig, &params), &prepared.program, std::slice::from_ref(&params))
+        .pop()
+        .expect("one arena");
     let report = compare(&rig, &prepared, &twin, &bias, args.threshold);
     print!("{}", report.table());
     let out = args.out.unwrap_or_else(|| PathBuf::from(format!("{}.replay", args.log.display())));
@@ -61,5 +63,6 @@ pub fn load(rig: &Rig, path: Option<&Path>) -> anyhow::Result<Parameters> {
 
 /// Writes JSON atomically.
 pub fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
-    twinbots_learn::model_io::write_atomic(path, serde_json::to_string_pretty(value)?.as_bytes()).with_context(|| path.display().to_string())
+    twinbots_learn::model_io::write_atomic(path, serde_json::to_string_pretty(value)?.as_bytes())
+        .with_context(|| path.display().to_string())
 }

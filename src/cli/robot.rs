@@ -10,13 +10,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use bevy::prelude::*;
-use twinbots_onnx::OnnxPolicy;
 use twinbots_api::DesignPattern;
 use twinbots_learn::EvalResult;
-use twinbots_task::Episode;
 use twinbots_link::audit::Plumbing;
 use twinbots_link::robot::{OnBoardPolicy, RobotRunState, ServerAddress, ServerTlsLink, ServerToken};
 use twinbots_link::tls::ClientTls;
+use twinbots_onnx::OnnxPolicy;
+use twinbots_task::Episode;
 
 use twinbots::twin::Twin;
 
@@ -80,9 +80,20 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 None => None,
             };
             let link = ServerLink { token, tls };
-            against_server_with(&args.robot, server, args.arenas, args.seed, Duration::from_secs(args.patience), link, &twin).map(|_| ())
+            against_server_with(
+                &args.robot,
+                server,
+                args.arenas,
+                args.seed,
+                Duration::from_secs(args.patience),
+                link,
+                &twin,
+            )
+            .map(|_| ())
         }
-        (None, Some(policy)) => with_policy(&args.robot, &policy, args.arenas, args.episodes, args.seed, &twin).map(|_| ()),
+        (None, Some(policy)) => {
+            with_policy(&args.robot, &policy, args.arenas, args.episodes, args.seed, &twin).map(|_| ())
+        }
         (None, None) => unreachable!("clap requires --server or --policy"),
     }
 }
@@ -139,7 +150,14 @@ struct RobotEnd {
 
 /// Runs `arenas` simulated robots of `twin` against the server at `server` until it says
 /// training is over. Returns the server's reason.
-pub fn against_server(robot: &str, server: SocketAddr, arenas: usize, seed: u64, patience: Duration, twin: &Twin) -> anyhow::Result<String> {
+pub fn against_server(
+    robot: &str,
+    server: SocketAddr,
+    arenas: usize,
+    seed: u64,
+    patience: Duration,
+    twin: &Twin,
+) -> anyhow::Result<String> {
     against_server_with(robot, server, arenas, seed, patience, ServerLink::default(), twin)
 }
 
@@ -171,13 +189,26 @@ pub fn against_server_with(
             .map(|k| {
                 let halt = &halt;
                 scope.spawn(move || {
-                    let end = run_robot(k, robot, seed, twin, plumbing, ServerAddress { addr: server, patience }, token, tls, halt);
+                    let end = run_robot(
+                        k,
+                        robot,
+                        seed,
+                        twin,
+                        plumbing,
+                        ServerAddress { addr: server, patience },
+                        token,
+                        tls,
+                        halt,
+                    );
                     halt.store(true, Ordering::Relaxed);
                     end
                 })
             })
             .collect();
-        robots.into_iter().map(|r| r.join().unwrap_or_else(|_| Err(anyhow::anyhow!("a robot's thread panicked")))).collect()
+        robots
+            .into_iter()
+            .map(|r| r.join().unwrap_or_else(|_| Err(anyhow::anyhow!("a robot's thread panicked"))))
+            .collect()
     });
     let ends = ends.into_iter().collect::<anyhow::Result<Vec<RobotEnd>>>()?;
     let (episodes, reconnects) = ends.iter().fold((0, 0), |(e, r), end| (e + end.episodes, r + end.reconnects));
@@ -227,13 +258,25 @@ fn run_robot(
 
 /// Runs `arenas` robots on the exported policy at `policy` until `episodes` episodes have
 /// ended, prints their figures as `eval` does and returns them.
-pub fn with_policy(robot: &str, policy: &Path, arenas: usize, episodes: usize, seed: u64, twin: &Twin) -> anyhow::Result<EvalResult> {
+pub fn with_policy(
+    robot: &str,
+    policy: &Path,
+    arenas: usize,
+    episodes: usize,
+    seed: u64,
+    twin: &Twin,
+) -> anyhow::Result<EvalResult> {
     anyhow::ensure!(episodes > 0, "--episodes must be at least 1");
     let entry = registry::find(robot)?;
     let onnx = if policy.is_dir() {
         // A deploy bundle: refused unless it is this robot's, with its joints and control period.
         let bundle = twinbots::bundle::Bundle::read(policy)?;
-        anyhow::ensure!(bundle.manifest.robot == robot, "the bundle {} is for the robot '{}', not '{robot}'", policy.display(), bundle.manifest.robot);
+        anyhow::ensure!(
+            bundle.manifest.robot == robot,
+            "the bundle {} is for the robot '{}', not '{robot}'",
+            policy.display(),
+            bundle.manifest.robot
+        );
         let app = entry.app(None, 1, seed, twinbots_api::DesignPattern::Server)?;
         let period = app.world().resource::<twinbots_sim::SimSettings>().control_seconds();
         let joints: Vec<&str> = if robot == "ur5e" { ur5e::deploy::ROBOT_JOINTS.to_vec() } else { Vec::new() };

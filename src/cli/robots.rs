@@ -17,7 +17,9 @@ pub struct Args {
 
 /// `twinbots robots`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    if args.json { print_json() } else {
+    if args.json {
+        print_json()
+    } else {
         print();
         Ok(())
     }
@@ -41,7 +43,11 @@ pub fn print_json() -> anyhow::Result<()> {
     let robots: Vec<serde_json::Value> = registry::robots()
         .iter()
         .map(|robot| {
-            let tasks: Vec<TaskInterface> = robot.tasks.iter().map(|t| TaskInterface::of(robot.name, &(t.spec)()).with_control_period(robot.control_period_s())).collect();
+            let tasks: Vec<TaskInterface> = robot
+                .tasks
+                .iter()
+                .map(|t| TaskInterface::of(robot.name, &(t.spec)()).with_control_period(robot.control_period_s()))
+                .collect();
             serde_json::json!({
                 "name": robot.name,
                 "description": robot.description,

@@ -54,17 +54,27 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         Some(d) => parse_domain(d)?,
         None => domain_from_env()?,
     };
-    let truth = CalibrationSetting::read_optional(&entry, args.truth.as_deref())?.map(|c| c.parameters()).unwrap_or_default();
+    let truth =
+        CalibrationSetting::read_optional(&entry, args.truth.as_deref())?.map(|c| c.parameters()).unwrap_or_default();
     let step = match args.step_ms {
         Some(ms) => Some(ms / 1e3),
         None => (entry.name == "ur5e").then_some(twinbots::ur_sim::CYCLE),
     };
-    let payload = args.payload.map(|mass| Payload { mass, link: args.payload_link.clone(), at: bevy::math::Vec3::new(0.0, 0.0, 0.05) });
+    let payload = args.payload.map(|mass| Payload {
+        mass,
+        link: args.payload_link.clone(),
+        at: bevy::math::Vec3::new(0.0, 0.0, 0.05),
+    });
     let mut twin = Ros2Twin::new(&entry, &TwinOptions { step, truth, payload })?;
     let name = args.node.unwrap_or_else(|| format!("twinbots_{}", twin.robot()));
     let node = Ros2Node::open(domain, &name)?;
     let joints: Vec<&str> = twin.commandable().collect();
-    println!("ros2: {} twin as node /{name} on DDS domain {domain}, {:.0} Hz physics, states at {} Hz", twin.robot(), 1.0 / twin.dt(), args.rate);
+    println!(
+        "ros2: {} twin as node /{name} on DDS domain {domain}, {:.0} Hz physics, states at {} Hz",
+        twin.robot(),
+        1.0 / twin.dt(),
+        args.rate
+    );
     println!("ros2: publishing /joint_states, /tf, /tf_static; commands for [{}] on", joints.join(", "));
     for interface in Interface::ALL {
         println!("ros2:   {} (std_msgs/msg/Float64MultiArray, {})", interface.topic(), interface.name());

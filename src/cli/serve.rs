@@ -14,8 +14,8 @@ use twinbots_learn::{Learner, RunDir};
 use twinbots_link::tls::ServerTls;
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
-use twinbots::settings::{CalibrationSetting, ConfigFile, TrainSettings};
 use crate::registry;
+use twinbots::settings::{CalibrationSetting, ConfigFile, TrainSettings};
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -87,7 +87,25 @@ pub struct Args {
 /// `twinbots serve`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let Args {
-        robot, listen, max_robots, token, handshake_timeout, read_timeout, robots, algo, timesteps, seed, config, settings, out, calibration, resume, tls_cert, tls_key, insecure, exit_with_stdin,
+        robot,
+        listen,
+        max_robots,
+        token,
+        handshake_timeout,
+        read_timeout,
+        robots,
+        algo,
+        timesteps,
+        seed,
+        config,
+        settings,
+        out,
+        calibration,
+        resume,
+        tls_cert,
+        tls_key,
+        insecure,
+        exit_with_stdin,
     } = args;
     if exit_with_stdin {
         exit_when_stdin_closes();
@@ -118,7 +136,15 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 None => Default::default(),
             };
             let calibration = CalibrationSetting::read_optional(&entry, calibration.as_deref())?;
-            let flags = ConfigFile { algo, timesteps, arenas: robots, seed, pattern: Some(3), calibration, ..Default::default() };
+            let flags = ConfigFile {
+                algo,
+                timesteps,
+                arenas: robots,
+                seed,
+                pattern: Some(3),
+                calibration,
+                ..Default::default()
+            };
             TrainSettings::resolve(&entry, file, flags)?
         }
     };
@@ -156,7 +182,10 @@ fn check_exposure(listen: SocketAddr, limits: &ServerLimits, insecure: bool) -> 
         "--listen {listen} reaches beyond this machine: it needs {}, or --insecure on a trusted network",
         missing.join(" and ")
     );
-    eprintln!("warning: --insecure: listening on {listen} without {}; the token and every observation travel in clear, and anyone who reaches the port can train this model", missing.join(" or "));
+    eprintln!(
+        "warning: --insecure: listening on {listen} without {}; the token and every observation travel in clear, and anyone who reaches the port can train this model",
+        missing.join(" or ")
+    );
     Ok(())
 }
 
@@ -215,30 +244,53 @@ pub fn serve(settings: TrainSettings, listen: SocketAddr, limits: ServerLimits, 
 pub fn resume(run: &Path, listen: SocketAddr, limits: ServerLimits) -> anyhow::Result<()> {
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
-    anyhow::ensure!(settings.design_pattern()? == DesignPattern::Server, "{}: not a RobotServer run (resume it with `twinbots train --resume`)", run.display());
+    anyhow::ensure!(
+        settings.design_pattern()? == DesignPattern::Server,
+        "{}: not a RobotServer run (resume it with `twinbots train --resume`)",
+        run.display()
+    );
     anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
     let spec = registry::find(&settings.robot)?.task();
     let (checkpoint, model) = super::learner::resume(&run_dir, &settings, &spec)?;
     run_dir.check_progress_columns(model.train_figures())?;
     model.check_spaces(&spec.observation_space, &spec.action_space)?;
-    eprintln!("resuming {} from {} ({} steps, {} episodes)", run.display(), checkpoint.display(), model.timesteps(), model.episodes());
+    eprintln!(
+        "resuming {} from {} ({} steps, {} episodes)",
+        run.display(),
+        checkpoint.display(),
+        model.timesteps(),
+        model.episodes()
+    );
     run_dir.truncate_after(model.timesteps())?;
     host(settings, run_dir, model, listen, limits)
 }
 
 /// Hosts `model` and its learner until training ends, into `run_dir`.
-fn host(settings: TrainSettings, run_dir: RunDir, model: Box<dyn Learner>, listen: SocketAddr, limits: ServerLimits) -> anyhow::Result<()> {
+fn host(
+    settings: TrainSettings,
+    run_dir: RunDir,
+    model: Box<dyn Learner>,
+    listen: SocketAddr,
+    limits: ServerLimits,
+) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let spec = entry.task();
     let out = run_dir.path().to_path_buf();
-    let title = format!("{} — {} through the RobotServer (pattern 3), seed {}", settings.robot, model.algorithm(), settings.seed);
+    let title = format!(
+        "{} — {} through the RobotServer (pattern 3), seed {}",
+        settings.robot,
+        model.algorithm(),
+        settings.seed
+    );
     let mut callbacks = twinbots::run::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     let tally = twinbots_learn::callbacks::GradientStepTally::default();
     callbacks.push(tally.clone());
     if std::env::var_os(PANIC_IN_UPDATE_ENV).is_some() {
-        callbacks = callbacks.with(|_: &twinbots_learn::UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<twinbots_learn::Flow> {
-            panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
-        });
+        callbacks = callbacks.with(
+            |_: &twinbots_learn::UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<twinbots_learn::Flow> {
+                panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
+            },
+        );
     }
     let mut server_settings = ServerSettings::new(&settings.robot, &spec, settings.arenas.max(1), settings.timesteps);
     server_settings.limits = limits;

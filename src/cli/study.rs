@@ -27,7 +27,8 @@ pub struct Args {
 /// `twinbots study`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let entry = registry::find(&args.robot)?;
-    let suite = args.suite.clone().unwrap_or_else(|| PathBuf::from("assets/studies").join(format!("{}.toml", entry.name)));
+    let suite =
+        args.suite.clone().unwrap_or_else(|| PathBuf::from("assets/studies").join(format!("{}.toml", entry.name)));
     anyhow::ensure!(
         suite.exists(),
         "{}: no such suite file{}",
@@ -38,12 +39,20 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         let result = cell::run(&entry, &suite, &args.controller)?;
         cell::report::write(&result, &suite, &args.out)?;
         let placed = result.episodes.iter().filter(|e| e.success).count();
-        println!("{} episodes, {placed} placed; results in {} (results.csv, summary.csv, phases.csv, report.md, plots/)", result.episodes.len(), args.out.display());
+        println!(
+            "{} episodes, {placed} placed; results in {} (results.csv, summary.csv, phases.csv, report.md, plots/)",
+            result.episodes.len(),
+            args.out.display()
+        );
         return Ok(());
     }
     let result = run_suite(&entry, &suite, &args.controller)?;
     report::write(&result, &suite, &args.out)?;
     let survived = result.runs.iter().filter(|r| r.survived).count();
-    println!("{} runs, {survived} survived; results in {} (summary.csv, report.md, plots/)", result.runs.len(), args.out.display());
+    println!(
+        "{} runs, {survived} survived; results in {} (summary.csv, report.md, plots/)",
+        result.runs.len(),
+        args.out.display()
+    );
     Ok(())
 }

@@ -13,16 +13,16 @@ use anyhow::Context;
 use std::path::Path;
 use std::time::Instant;
 
-use twinbots_task::randomization::RandomizationPlugin;
-use twinbots_learn::run_dir::TimeBreakdown;
 use twinbots_api::DesignPattern;
+use twinbots_learn::run_dir::TimeBreakdown;
 use twinbots_learn::{RunDir, TrainingEnd};
+use twinbots_task::randomization::RandomizationPlugin;
 use twinbots_task::{bridge, env};
 
 use crate::cli::learner;
-use twinbots_learn::Learner;
-use twinbots::settings::{CalibrationSetting, ConfigFile, TrainSettings};
 use crate::registry;
+use twinbots::settings::{CalibrationSetting, ConfigFile, TrainSettings};
+use twinbots_learn::Learner;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -84,7 +84,23 @@ pub struct Args {
 
 /// `twinbots train`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let Args { robot, task, timesteps, arenas, seed, pattern, algo, config, out, checkpoint_every, view, calibration, cell, resume, print_config } = args;
+    let Args {
+        robot,
+        task,
+        timesteps,
+        arenas,
+        seed,
+        pattern,
+        algo,
+        config,
+        out,
+        checkpoint_every,
+        view,
+        calibration,
+        cell,
+        resume,
+        print_config,
+    } = args;
     if let Some(run) = resume {
         if print_config {
             print!("{}", toml::to_string_pretty(&TrainSettings::of_run(&RunDir::new(run))?)?);
@@ -103,7 +119,18 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     };
     let calibration = calibration.map(|path| CalibrationSetting::read(&entry, &path)).transpose()?;
     let cell = cell.map(|path| twinbots::settings::read_cell(&entry, &path)).transpose()?;
-    let flags = ConfigFile { task, timesteps, arenas, seed, pattern, checkpoint_every, algo, calibration, cell, ..Default::default() };
+    let flags = ConfigFile {
+        task,
+        timesteps,
+        arenas,
+        seed,
+        pattern,
+        checkpoint_every,
+        algo,
+        calibration,
+        cell,
+        ..Default::default()
+    };
     let settings = TrainSettings::resolve(&entry, file, flags)?;
     if print_config {
         print!("{}", toml::to_string_pretty(&settings)?);
@@ -124,8 +151,13 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
         command.arg("serve").arg("--resume").arg(out).args(["--listen", "127.0.0.1:0"]);
     } else {
         std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
-        std::fs::write(&config_path, toml::to_string_pretty(&settings)?).with_context(|| config_path.display().to_string())?;
-        command.args(["serve", &settings.robot, "--listen", "127.0.0.1:0", "--settings"]).arg(&config_path).arg("--out").arg(out);
+        std::fs::write(&config_path, toml::to_string_pretty(&settings)?)
+            .with_context(|| config_path.display().to_string())?;
+        command
+            .args(["serve", &settings.robot, "--listen", "127.0.0.1:0", "--settings"])
+            .arg(&config_path)
+            .arg("--out")
+            .arg(out);
     }
     // The server exits when our end of its stdin closes: it cannot outlive this process.
     command.arg("--exit-with-stdin").stdin(std::process::Stdio::piped());
@@ -145,7 +177,14 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
     println!("RobotServer (pid {}) listening on {addr}", server.id());
     // The robots run the run's twin.
     let twin = twinbots::twin::Twin { calibration: settings.calibration.clone(), log: None };
-    let result = crate::cli::robot::against_server(&settings.robot, addr, settings.arenas, settings.seed, std::time::Duration::from_secs(60), &twin);
+    let result = crate::cli::robot::against_server(
+        &settings.robot,
+        addr,
+        settings.arenas,
+        settings.seed,
+        std::time::Duration::from_secs(60),
+        &twin,
+    );
     if result.is_err() {
         // The robots gave up: the server would wait for robots for ever.
         drop(server.stdin.take());
@@ -187,7 +226,10 @@ pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
     run_dir.check_progress_columns(model.train_figures())?;
     println!(
         "resuming {} from {} ({} steps, {} episodes)",
-        run_dir.path().display(), checkpoint.display(), model.timesteps(), model.episodes()
+        run_dir.path().display(),
+        checkpoint.display(),
+        model.timesteps(),
+        model.episodes()
     );
     run(settings, run_dir, model, true, view)
 }
@@ -213,13 +255,23 @@ pub fn extend(run_dir: &Path, more: u64, view: bool) -> anyhow::Result<()> {
     run_dir.write_config(&settings)?;
     println!(
         "training {} for {more} more steps from {} ({} steps, {} episodes) to {}",
-        run_dir.path().display(), source.display(), model.timesteps(), model.episodes(), settings.timesteps
+        run_dir.path().display(),
+        source.display(),
+        model.timesteps(),
+        model.episodes(),
+        settings.timesteps
     );
     run(settings, run_dir, model, true, view)
 }
 
 /// Trains `learner` (made for the run, or `resumed` from it) in `run_dir`.
-fn run(settings: TrainSettings, run_dir: RunDir, mut learner: Box<dyn Learner>, resumed: bool, view: bool) -> anyhow::Result<()> {
+fn run(
+    settings: TrainSettings,
+    run_dir: RunDir,
+    mut learner: Box<dyn Learner>,
+    resumed: bool,
+    view: bool,
+) -> anyhow::Result<()> {
     let entry = registry::find(&settings.robot)?;
     let pattern = settings.design_pattern()?;
     anyhow::ensure!(
@@ -239,7 +291,11 @@ fn run(settings: TrainSettings, run_dir: RunDir, mut learner: Box<dyn Learner>, 
     learner.check_spaces(&spec.observation_space, &spec.action_space)?;
     let title = format!(
         "{} — {}, pattern {}, {} arenas, seed {}",
-        settings.robot, learner.algorithm(), settings.pattern, settings.arenas, settings.seed
+        settings.robot,
+        learner.algorithm(),
+        settings.pattern,
+        settings.arenas,
+        settings.seed
     );
     let mut callbacks = twinbots::run::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
     let tally = twinbots_learn::callbacks::GradientStepTally::default();
@@ -262,8 +318,19 @@ fn run(settings: TrainSettings, run_dir: RunDir, mut learner: Box<dyn Learner>, 
     let sim = if view {
         // The window drives the app in time slices; closing the window stops training.
         let arena = app.world().resource::<env::ArenaOrder>().0[0];
-        let source = crate::cli::view::TrainingView { app, arena, frames: 0, updates: 0, started: Instant::now(), last_slice_end: None };
-        let shown = twinbots_render::viewer::run(Box::new(source), &format!("twinbots — training {}", settings.robot), entry.framing);
+        let source = crate::cli::view::TrainingView {
+            app,
+            arena,
+            frames: 0,
+            updates: 0,
+            started: Instant::now(),
+            last_slice_end: None,
+        };
+        let shown = twinbots_render::viewer::run(
+            Box::new(source),
+            &format!("twinbots — training {}", settings.robot),
+            entry.framing,
+        );
         Ok(shown)
     } else {
         let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| bridge::run_until_closed(&mut app)));
@@ -271,9 +338,7 @@ fn run(settings: TrainSettings, run_dir: RunDir, mut learner: Box<dyn Learner>, 
         drop(app); // closes the bridge, so a learner still waiting gets an error rather than a hang
         r.map(Ok)
     };
-    let learned = trainer
-        .join()
-        .map_err(|p| anyhow::anyhow!("the trainer thread panicked: {}", panic_message(&p)))?;
+    let learned = trainer.join().map_err(|p| anyhow::anyhow!("the trainer thread panicked: {}", panic_message(&p)))?;
     match sim {
         Err(p) => anyhow::bail!("the simulation panicked: {}", panic_message(&p)),
         Ok(Err(e)) => return Err(e),
@@ -287,9 +352,16 @@ fn run(settings: TrainSettings, run_dir: RunDir, mut learner: Box<dyn Learner>, 
     let (evaluation, summary) = twinbots::run::finish(&settings, &run_dir, &entry, model, &end, wall, time)?;
     match end {
         TrainingEnd::Solved { timesteps, by } => {
-            println!("solved ({by}) after {timesteps} steps in {wall:.1} s (mean of last 100 episodes {:.1})", model.history().mean_score())
+            println!(
+                "solved ({by}) after {timesteps} steps in {wall:.1} s (mean of last 100 episodes {:.1})",
+                model.history().mean_score()
+            )
         }
-        _ => println!("not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}", model.timesteps(), model.history().mean_score()),
+        _ => println!(
+            "not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}",
+            model.timesteps(),
+            model.history().mean_score()
+        ),
     }
     if let Some(time) = &summary.time_breakdown {
         println!("time: {}", time.describe());

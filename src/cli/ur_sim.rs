@@ -59,14 +59,21 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         velocity: args.velocity_noise.unwrap_or(default(ur.velocity)),
         effort: default(ur.effort),
     };
-    anyhow::ensure!([noise.position, noise.velocity].iter().all(|n| n.is_finite() && *n >= 0.0), "noise levels must be finite and not negative");
+    anyhow::ensure!(
+        [noise.position, noise.velocity].iter().all(|n| n.is_finite() && *n >= 0.0),
+        "noise levels must be finite and not negative"
+    );
     if let Some(s) = args.seconds {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
     let options = UrSimOptions { truth, noise, seed: args.seed, watchdog: args.watchdog, payload: args.payload };
     let mut sim = UrSim::new(&options)?;
     let server = RtdeServer::bind(&args.listen, controller_info())?;
-    println!("ur-sim: UR5e twin ({}) serving RTDE on {} at 500 Hz", args.truth.as_ref().map_or("nominal".to_string(), |p| format!("truth {}", p.display())), server.local_addr());
+    println!(
+        "ur-sim: UR5e twin ({}) serving RTDE on {} at 500 Hz",
+        args.truth.as_ref().map_or("nominal".to_string(), |p| format!("truth {}", p.display())),
+        server.local_addr()
+    );
     if let Some(p) = args.rt_priority {
         twinbots::realtime::set_rt_priority(p)?;
     }

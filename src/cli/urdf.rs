@@ -33,7 +33,13 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let mass: f32 = m.links.iter().filter_map(|l| l.inertial.map(|i| i.mass)).sum();
     let movable = m.joints.iter().filter(|j| j.kind.is_movable()).count();
     let motors = m.joints.iter().filter(|j| j.kind.is_movable() && j.limits.effort > 0.0).count();
-    println!("{}: robot '{}', {} links, {} joints ({movable} movable, {motors} with motors), {mass:.3} kg", args.file.display(), m.name, m.links.len(), m.joints.len());
+    println!(
+        "{}: robot '{}', {} links, {} joints ({movable} movable, {motors} with motors), {mass:.3} kg",
+        args.file.display(),
+        m.name,
+        m.links.len(),
+        m.joints.len()
+    );
     for line in &report.tree {
         println!("  {line}");
     }
@@ -58,7 +64,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         renderer.set_view(View::looking_at(eye, target, 45f32.to_radians()));
         renderer.sync(report.app.world_mut(), report.arena);
         let rgb = renderer.render()?;
-        image::save_buffer(png, &rgb, width, height, image::ExtendedColorType::Rgb8).map_err(|e| anyhow::anyhow!("{}: {e}", png.display()))?;
+        image::save_buffer(png, &rgb, width, height, image::ExtendedColorType::Rgb8)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", png.display()))?;
         println!("wrote {}", png.display());
     }
     Ok(())
@@ -74,12 +81,20 @@ fn extent(model: &RobotModel) -> (Vec3, f32) {
             let at = pose[l] * v.geometry.origin;
             match &v.geometry.shape {
                 Shape::Mesh(mesh) => points.extend(mesh.vertices.iter().map(|p| at * *p)),
-                Shape::Box { half_extents } => points.extend([-1.0f32, 1.0].iter().flat_map(|&s| [at * (*half_extents * s), at * (*half_extents * Vec3::new(s, -s, s))])),
-                Shape::Cylinder { radius, length } => points.extend([at * Vec3::new(*radius, *radius, length / 2.0), at * Vec3::new(-radius, -radius, -length / 2.0)]),
+                Shape::Box { half_extents } => points.extend(
+                    [-1.0f32, 1.0]
+                        .iter()
+                        .flat_map(|&s| [at * (*half_extents * s), at * (*half_extents * Vec3::new(s, -s, s))]),
+                ),
+                Shape::Cylinder { radius, length } => points.extend([
+                    at * Vec3::new(*radius, *radius, length / 2.0),
+                    at * Vec3::new(-radius, -radius, -length / 2.0),
+                ]),
                 Shape::Sphere { radius } => points.extend([at * Vec3::splat(*radius), at * Vec3::splat(-radius)]),
             }
         }
     }
-    let (lo, hi) = points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let (lo, hi) =
+        points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
     ((lo + hi) / 2.0, (hi - lo).max_element())
 }

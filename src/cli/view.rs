@@ -4,9 +4,9 @@
 use std::time::{Duration, Instant};
 
 use bevy::prelude::*;
-use twinbots_render::viewer::{self, RealTime, ViewSource};
 use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_learn::RunDir;
+use twinbots_render::viewer::{self, RealTime, ViewSource};
 use twinbots_task::AppVecEnv;
 
 use crate::registry;
@@ -82,7 +82,13 @@ impl ViewSource for Player {
     }
 }
 
-pub fn view(robot: &str, model: Option<&std::path::Path>, seed: u64, task: Option<&str>, calibration: Option<&std::path::Path>) -> anyhow::Result<()> {
+pub fn view(
+    robot: &str,
+    model: Option<&std::path::Path>,
+    seed: u64,
+    task: Option<&str>,
+    calibration: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
     let loaded = model.map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
     let task = twinbots::settings::TrainSettings::task_for(task, model)?;
@@ -147,7 +153,8 @@ impl TrainingView {
             }
             self.app.update();
             self.updates += 1;
-            let closed = self.app.world().get_resource::<twinbots_task::bridge::BridgeEndpoint>().is_none_or(|e| e.closed);
+            let closed =
+                self.app.world().get_resource::<twinbots_task::bridge::BridgeEndpoint>().is_none_or(|e| e.closed);
             if closed {
                 return false;
             }

@@ -3,8 +3,8 @@
 
 use std::time::{Duration, Instant};
 
-use twinbots_rtde::{InputRecipe, RtdeClient, Value};
 use twinbots_rtde::server::InputState;
+use twinbots_rtde::{InputRecipe, RtdeClient, Value};
 
 use crate::ur_sim::program::{ACCELERATION, COUNTER, MODE, MODE_SPEEDJ, MODE_STOP, STATE, TARGET};
 use crate::ur_sim::{UrSim, UrSimOptions};
@@ -51,7 +51,10 @@ impl RtdeArm {
     pub fn connect(address: &str, patience: Duration) -> anyhow::Result<Self> {
         let mut client = RtdeClient::connect(address, patience)?;
         let version = client.controller_version()?;
-        anyhow::ensure!(version.major >= 5, "the controller at {address} runs software {version}: deploy needs an e-Series (5.x) for 500 Hz RTDE");
+        anyhow::ensure!(
+            version.major >= 5,
+            "the controller at {address} runs software {version}: deploy needs an e-Series (5.x) for 500 Hz RTDE"
+        );
         client.setup_outputs(&OUTPUTS, twinbots_rtde::MAX_FREQUENCY)?;
         let mut names = vec![MODE, COUNTER, ACCELERATION];
         names.extend(TARGET);

@@ -36,9 +36,17 @@ pub struct LatencyReport {
 /// Measures for `seconds` of controller time; `progress` sees the report so far every 10 s.
 /// With `rt_priority` N the client runs on SCHED_FIFO at N and the stand-in's loop at N − 1:
 /// on two shared cores the link comes first, as on a controller PC beside a real controller.
-pub fn measure(bundle: &Bundle, seconds: f64, rt_priority: Option<i32>, mut progress: impl FnMut(&LatencyReport)) -> anyhow::Result<LatencyReport> {
+pub fn measure(
+    bundle: &Bundle,
+    seconds: f64,
+    rt_priority: Option<i32>,
+    mut progress: impl FnMut(&LatencyReport),
+) -> anyhow::Result<LatencyReport> {
     if let Some(p) = rt_priority {
-        anyhow::ensure!((2..=99).contains(&p), "--rt-priority must be 2 to 99 for bench rtde (the stand-in runs at one less), not {p}");
+        anyhow::ensure!(
+            (2..=99).contains(&p),
+            "--rt-priority must be 2 to 99 for bench rtde (the stand-in runs at one less), not {p}"
+        );
     }
     let server = RtdeServer::bind("127.0.0.1:0", controller_info())?;
     let address = server.local_addr().to_string();
@@ -80,7 +88,11 @@ pub fn measure(bundle: &Bundle, seconds: f64, rt_priority: Option<i32>, mut prog
             let action = bundle.policy.act(&observation)?;
             let wanted = controller.act(&action);
             let verdict = shadow.check(&m.q, &wanted, &last, CYCLE);
-            if verdict.refused { arm.stop()? } else { arm.command(&verdict.command)? };
+            if verdict.refused {
+                arm.stop()?
+            } else {
+                arm.command(&verdict.command)?
+            };
             last = if verdict.refused { [0.0; 6] } else { verdict.command };
             latencies.push(m.received.elapsed().as_secs_f64() * 1e6);
             let elapsed = m.time - t0;

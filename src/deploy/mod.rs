@@ -96,7 +96,12 @@ pub type PolicyFn<'a> = &'a dyn Fn(&[f32]) -> anyhow::Result<Vec<f32>>;
 
 /// Runs `options.episodes` episodes of the bundle's policy on `arm`; `progress` sees each as it
 /// ends. On any error the robot is told to stop first.
-pub fn deploy(arm: &mut dyn Arm, bundle: &Bundle, options: &DeployOptions, progress: impl FnMut(&EpisodeReport)) -> anyhow::Result<DeployReport> {
+pub fn deploy(
+    arm: &mut dyn Arm,
+    bundle: &Bundle,
+    options: &DeployOptions,
+    progress: impl FnMut(&EpisodeReport),
+) -> anyhow::Result<DeployReport> {
     deploy_policy(arm, bundle, &|obs| bundle.policy.act(obs), options, progress)
 }
 
@@ -166,7 +171,12 @@ impl<'a> Deployment<'a> {
     fn wait_step(&mut self, arm: &mut dyn Arm) -> anyhow::Result<Measured> {
         loop {
             let m = arm.read()?;
-            anyhow::ensure!(m.q.iter().chain(&m.qd).all(|v| v.is_finite()), "the robot reported joints {:?}, speeds {:?}", m.q, m.qd);
+            anyhow::ensure!(
+                m.q.iter().chain(&m.qd).all(|v| v.is_finite()),
+                "the robot reported joints {:?}, speeds {:?}",
+                m.q,
+                m.qd
+            );
             if let Some(p) = &self.previous {
                 let dt = (m.time - p.time).max(0.0);
                 self.energy += dt * m.effort.iter().zip(&m.qd).map(|(e, v)| (e * v).abs()).sum::<f64>();
@@ -215,7 +225,12 @@ impl<'a> Deployment<'a> {
         let start = m.time;
         let mut m = m;
         while !self.controller.is_home() {
-            anyhow::ensure!(m.time - start < self.homing_limit, "the arm did not home within {} s (joints at {:?})", self.homing_limit, m.q);
+            anyhow::ensure!(
+                m.time - start < self.homing_limit,
+                "the arm did not home within {} s (joints at {:?})",
+                self.homing_limit,
+                m.q
+            );
             let speeds = self.controller.homing();
             self.send(arm, &m, speeds)?;
             m = self.wait_step(arm)?;

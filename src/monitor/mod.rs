@@ -67,7 +67,14 @@ pub struct MonitorOptions {
 
 impl Default for MonitorOptions {
     fn default() -> Self {
-        Self { calibration: Parameters::default(), position_threshold: 0.005, effort_threshold: 1.5, window: 1.0, source: "robot (RTDE)".into(), shadow: Shadow::default() }
+        Self {
+            calibration: Parameters::default(),
+            position_threshold: 0.005,
+            effort_threshold: 1.5,
+            window: 1.0,
+            source: "robot (RTDE)".into(),
+            shadow: Shadow::default(),
+        }
     }
 }
 
@@ -164,9 +171,20 @@ impl Monitor {
         }
         let at: Vec<f32> = (0..6).map(|j| (first.q[j] - bias[j]) as f32).collect();
         stand.place(0, &at);
-        let meta = |source: &str| LogMeta { robot: "ur5e".into(), source: source.into(), control_period: CYCLE, ..Default::default() };
+        let meta = |source: &str| LogMeta {
+            robot: "ur5e".into(),
+            source: source.into(),
+            control_period: CYCLE,
+            ..Default::default()
+        };
         let joints: Vec<String> = JOINTS.iter().map(|s| s.to_string()).collect();
-        let log = |source: &str| RobotLog { meta: meta(source), joints: joints.clone(), states: Vec::new(), commands: Vec::new(), tool: Vec::new() };
+        let log = |source: &str| RobotLog {
+            meta: meta(source),
+            joints: joints.clone(),
+            states: Vec::new(),
+            commands: Vec::new(),
+            tool: Vec::new(),
+        };
         let robot_log = log(&options.source);
         let shadow = options.shadow.clone();
         Ok(Self {
@@ -242,7 +260,9 @@ impl Monitor {
         }
         // The joint furthest past its threshold, in units of it.
         let (worst, ratio) = (0..6)
-            .map(|j| (j, (rmse[j] / self.options.position_threshold).max(effort_rmse[j] / self.options.effort_threshold)))
+            .map(|j| {
+                (j, (rmse[j] / self.options.position_threshold).max(effort_rmse[j] / self.options.effort_threshold))
+            })
             .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
         if !self.divergence_alarm && ratio > 1.0 {
             self.divergence_alarm = true;
@@ -266,7 +286,11 @@ impl Monitor {
         // What the command would do next, by the twin's kinematics.
         let verdict = self.shadow.check(&r.q, &r.command, &r.command, CYCLE);
         if verdict.refused && !self.predicted_alarm {
-            raised.push(Alarm { time: r.time, kind: "predicted".into(), message: format!("predicted: {}", verdict.notes.join("; ")) });
+            raised.push(Alarm {
+                time: r.time,
+                kind: "predicted".into(),
+                message: format!("predicted: {}", verdict.notes.join("; ")),
+            });
         }
         self.predicted_alarm = verdict.refused;
 
@@ -300,7 +324,12 @@ impl Monitor {
     }
 
     fn log(&mut self, r: &Report, twin: &twinbots_sysid::rig::Reading, twin_q: &[f64; 6]) {
-        self.robot_log.states.push(JointSample { time: r.time, position: r.q.to_vec(), velocity: r.qd.to_vec(), effort: r.effort.to_vec() });
+        self.robot_log.states.push(JointSample {
+            time: r.time,
+            position: r.q.to_vec(),
+            velocity: r.qd.to_vec(),
+            effort: r.effort.to_vec(),
+        });
         self.robot_log.commands.push(CommandSample {
             time: r.time,
             joints: JOINTS.iter().map(|s| s.to_string()).collect(),

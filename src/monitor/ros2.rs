@@ -41,7 +41,15 @@ impl Ros2Source {
     /// Joins `domain` as node `/<name>`.
     pub fn open(domain: u16, name: &str, patience: Duration) -> anyhow::Result<Self> {
         let listener = Ros2Listener::open(domain, name)?;
-        Ok(Self { listener, command: [0.0; 6], patience, pending: Default::default(), notes: Default::default(), unfollowed: Vec::new(), started: false })
+        Ok(Self {
+            listener,
+            command: [0.0; 6],
+            patience,
+            pending: Default::default(),
+            notes: Default::default(),
+            unfollowed: Vec::new(),
+            started: false,
+        })
     }
 
     /// The next joint state with the command in force when it arrived, a note, or silence.
@@ -85,7 +93,10 @@ impl Ros2Source {
                 return None;
             }
             Ok(Command::Forward(Interface::Velocity, v)) => {
-                return Some(format!("a velocity command of {v:?} is not 6 finite speeds ({}): the robot's driver refuses it, the twin keeps the last", JOINTS.join(", ")));
+                return Some(format!(
+                    "a velocity command of {v:?} is not 6 finite speeds ({}): the robot's driver refuses it, the twin keeps the last",
+                    JOINTS.join(", ")
+                ));
             }
             Ok(Command::Forward(interface, _)) => (interface.name().to_string(), interface.topic()),
             Ok(Command::Trajectory(_)) => ("trajectory".to_string(), TRAJECTORY_TOPIC.to_string()),
@@ -112,10 +123,17 @@ pub fn report(state: &JointState, command: [f64; 6]) -> anyhow::Result<Report> {
         state.velocity.len(),
         state.effort.len()
     );
-    anyhow::ensure!(state.header.stamp.seconds() > 0.0, "an unstamped joint state: the monitor steps the twin by the robot's stamps");
+    anyhow::ensure!(
+        state.header.stamp.seconds() > 0.0,
+        "an unstamped joint state: the monitor steps the twin by the robot's stamps"
+    );
     let mut out = Report { time: state.header.stamp.seconds(), q: [0.0; 6], qd: [0.0; 6], command, effort: [0.0; 6] };
     for (j, joint) in JOINTS.iter().enumerate() {
-        let i = state.name.iter().position(|n| n == joint).ok_or_else(|| anyhow::anyhow!("a joint state without {joint} (it names {:?})", state.name))?;
+        let i = state
+            .name
+            .iter()
+            .position(|n| n == joint)
+            .ok_or_else(|| anyhow::anyhow!("a joint state without {joint} (it names {:?})", state.name))?;
         out.q[j] = state.position[i];
         out.qd[j] = state.velocity[i];
         out.effort[j] = state.effort[i];
@@ -155,7 +173,12 @@ mod tests {
 
         let mut no_effort = state(&JOINTS);
         no_effort.effort.clear();
-        assert!(report(&no_effort, [0.0; 6]).unwrap_err().to_string().contains("6 names, 6 positions, 6 velocities and 0 efforts"));
+        assert!(
+            report(&no_effort, [0.0; 6])
+                .unwrap_err()
+                .to_string()
+                .contains("6 names, 6 positions, 6 velocities and 0 efforts")
+        );
         let err = report(&state(&JOINTS[..5]), [0.0; 6]).unwrap_err().to_string();
         assert!(err.contains("without wrist_3_joint"), "{err}");
         let mut unstamped = state(&JOINTS);

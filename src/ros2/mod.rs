@@ -14,8 +14,8 @@ use twinbots_sim::MotorCommand;
 use twinbots_sim::rapier::prelude::Pose;
 use twinbots_sysid::{Rig, Stand};
 
-use crate::registry::RobotEntry;
 use self::trajectory::Following;
+use crate::registry::RobotEntry;
 
 /// The frame the robot's root link stands in.
 pub const WORLD_FRAME: &str = "world";
@@ -58,8 +58,14 @@ pub struct Payload {
 /// `ur-sim --payload` hangs its load), else that moving link itself.
 pub fn flange_link(rig: &Rig) -> anyhow::Result<String> {
     let model = &rig.model;
-    let last = model.joints.iter().rev().find(|j| j.kind.is_movable()).ok_or_else(|| anyhow::anyhow!("robot '{}' has no moving link to carry a payload", rig.robot))?;
-    let flange = model.joints.iter().find(|j| j.parent == last.child && !j.kind.is_movable()).map_or(last.child, |j| j.child);
+    let last = model
+        .joints
+        .iter()
+        .rev()
+        .find(|j| j.kind.is_movable())
+        .ok_or_else(|| anyhow::anyhow!("robot '{}' has no moving link to carry a payload", rig.robot))?;
+    let flange =
+        model.joints.iter().find(|j| j.parent == last.child && !j.kind.is_movable()).map_or(last.child, |j| j.child);
     Ok(model.links[flange].name.clone())
 }
 
@@ -79,14 +85,19 @@ impl Ros2Twin {
         let params = rig.parameters(&options.truth)?;
         let mut stand = Stand::new(&rig, &[], std::slice::from_ref(&params));
         if let Some(payload) = &options.payload {
-            anyhow::ensure!(payload.mass.is_finite() && payload.mass > 0.0, "a payload of {} kg is not one", payload.mass);
+            anyhow::ensure!(
+                payload.mass.is_finite() && payload.mass > 0.0,
+                "a payload of {} kg is not one",
+                payload.mass
+            );
             let link = match &payload.link {
                 Some(l) => l.clone(),
                 None => flange_link(&rig)?,
             };
             stand.add_payload(0, &link, payload.mass, payload.at)?;
         }
-        let commandable = rig.joints.iter().enumerate().filter(|&(i, _)| rig.actuated[i]).map(|(i, n)| (n.clone(), i)).collect();
+        let commandable =
+            rig.joints.iter().enumerate().filter(|&(i, _)| rig.actuated[i]).map(|(i, n)| (n.clone(), i)).collect();
         let mut twin = Self { rig, stand, time: 0.0, commandable, following: None };
         let now = twin.positions();
         let hold: Vec<f64> = twin.commandable.iter().map(|&(_, i)| now[i]).collect();
@@ -133,7 +144,8 @@ impl Ros2Twin {
                 let delay = if stamp == Time::default() { 0.0 } else { stamp.seconds() - wall_now };
                 let current = self.positions();
                 let range = |j| self.limits(j).position.map(|r| r.map(f64::from));
-                let (following, clipped) = Following::new(&message, &self.commandable, &current, range, self.time, delay)?;
+                let (following, clipped) =
+                    Following::new(&message, &self.commandable, &current, range, self.time, delay)?;
                 self.following = Some(following);
                 Ok(clipped)
             }
@@ -208,7 +220,11 @@ impl Ros2Twin {
             .joints
             .iter()
             .zip(positions)
-            .filter_map(|(name, q)| model.joint(name).map(|j| frame(stamp, &model.links[j.parent].name, &model.links[j.child].name, &j.child_pose(q))))
+            .filter_map(|(name, q)| {
+                model
+                    .joint(name)
+                    .map(|j| frame(stamp, &model.links[j.parent].name, &model.links[j.child].name, &j.child_pose(q)))
+            })
             .collect();
         let root = &model.links[model.root].name;
         if root != WORLD_FRAME
@@ -223,7 +239,11 @@ impl Ros2Twin {
     pub fn fixed_frames(&self, stamp: Time) -> TFMessage {
         let model = &self.rig.model;
         let fixed = model.joints.iter().filter(|j| !j.kind.is_movable());
-        TFMessage { transforms: fixed.map(|j| frame(stamp, &model.links[j.parent].name, &model.links[j.child].name, &j.child_pose(0.0))).collect() }
+        TFMessage {
+            transforms: fixed
+                .map(|j| frame(stamp, &model.links[j.parent].name, &model.links[j.child].name, &j.child_pose(0.0)))
+                .collect(),
+        }
     }
 }
 
@@ -264,7 +284,12 @@ pub struct ServeSummary {
 /// Runs `twin` in real time on `node` until `stop` is set or the time is up: commands taken
 /// every physics step, states published at `options.rate`, a line of progress every
 /// `options.report` seconds and one per refused command.
-pub fn serve(twin: &mut Ros2Twin, node: &Ros2Node, options: &ServeOptions, stop: &AtomicBool) -> anyhow::Result<ServeSummary> {
+pub fn serve(
+    twin: &mut Ros2Twin,
+    node: &Ros2Node,
+    options: &ServeOptions,
+    stop: &AtomicBool,
+) -> anyhow::Result<ServeSummary> {
     let dt = twin.dt();
     anyhow::ensure!(options.rate > 0.0 && options.rate.is_finite(), "--rate must be positive, not {}", options.rate);
     let period = 1.0 / options.rate;

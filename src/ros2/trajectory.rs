@@ -42,7 +42,11 @@ impl Following {
         for name in &message.joint_names {
             let Some(&(_, index)) = commandable.iter().find(|(n, _)| n == name) else {
                 let known: Vec<&str> = commandable.iter().map(|(n, _)| n.as_str()).collect();
-                return Err(format!("no commandable joint '{}' (the robot's: {})", truncated(name, NAME_SHOWN), known.join(", ")));
+                return Err(format!(
+                    "no commandable joint '{}' (the robot's: {})",
+                    truncated(name, NAME_SHOWN),
+                    known.join(", ")
+                ));
             };
             if joints.contains(&index) {
                 return Err(format!("joint '{}' named twice", truncated(name, NAME_SHOWN)));
@@ -109,7 +113,11 @@ mod tests {
             joint_names: names.iter().map(|s| s.to_string()).collect(),
             points: points
                 .iter()
-                .map(|(t, q)| JointTrajectoryPoint { positions: q.to_vec(), time_from_start: Duration::from_seconds(*t), ..Default::default() })
+                .map(|(t, q)| JointTrajectoryPoint {
+                    positions: q.to_vec(),
+                    time_from_start: Duration::from_seconds(*t),
+                    ..Default::default()
+                })
                 .collect(),
             ..Default::default()
         }

@@ -6,8 +6,8 @@ use std::path::Path;
 use twinbots_api::VecEnv;
 use twinbots_learn::{Learner, RunDir};
 use twinbots_onnx::OnnxPolicy;
-use twinbots_task::{AppVecEnv, DesignPattern};
 use twinbots_task::robot::Feedback;
+use twinbots_task::{AppVecEnv, DesignPattern};
 
 use crate::registry::RobotEntry;
 use crate::run::evaluation_app;
@@ -34,7 +34,9 @@ impl NamedController {
     /// `entry`'s main task. Errors say which and why.
     pub fn open(spec: &str, base: &Path, entry: &RobotEntry) -> anyhow::Result<Self> {
         if spec == "classic" {
-            let feedback = entry.feedback.ok_or_else(|| anyhow::anyhow!("controller 'classic': {} has no classical controller", entry.name))?;
+            let feedback = entry
+                .feedback
+                .ok_or_else(|| anyhow::anyhow!("controller 'classic': {} has no classical controller", entry.name))?;
             return Ok(Self { label: spec.into(), spec: spec.into(), controller: Controller::Classic(feedback) });
         }
         let path = base.join(spec);
@@ -51,14 +53,22 @@ impl NamedController {
         } else if path.is_dir() {
             let run = RunDir::new(&path);
             let settings = TrainSettings::of_run(&run)?;
-            anyhow::ensure!(settings.robot == entry.name, "controller '{spec}': a run of {}, not of {}", settings.robot, entry.name);
+            anyhow::ensure!(
+                settings.robot == entry.name,
+                "controller '{spec}': a run of {}, not of {}",
+                settings.robot,
+                entry.name
+            );
             anyhow::ensure!(
                 settings.pixels.is_none(),
                 "controller '{spec}': a pixel policy; studies read their signal from the state the task observes, so they take state policies"
             );
             Controller::Run { model: twinbots_learn::algos::load_run(&run)?, settings: Box::new(settings) }
         } else {
-            anyhow::bail!("controller '{spec}': neither 'classic', a run directory nor an .onnx file ({} does not exist)", path.display());
+            anyhow::bail!(
+                "controller '{spec}': neither 'classic', a run directory nor an .onnx file ({} does not exist)",
+                path.display()
+            );
         };
         Ok(Self { label, spec: spec.into(), controller })
     }
@@ -75,7 +85,9 @@ impl NamedController {
         prepare: impl FnOnce(&mut bevy::app::App) -> anyhow::Result<()>,
     ) -> anyhow::Result<AppVecEnv> {
         let mut app = match &self.controller {
-            Controller::Run { settings, .. } => evaluation_app(entry, task, arenas, seed, settings, &settings.calibration_parameters())?,
+            Controller::Run { settings, .. } => {
+                evaluation_app(entry, task, arenas, seed, settings, &settings.calibration_parameters())?
+            }
             _ => entry.app(task, arenas, seed, DesignPattern::Supervised)?,
         };
         prepare(&mut app)?;
@@ -106,10 +118,17 @@ impl NamedController {
 
 /// The controllers of a study: `cli`'s if any (paths from the working directory), else the
 /// study file's `listed` (paths from its folder; errors name the file), with distinct labels.
-pub fn open_all(entry: &RobotEntry, file: &Path, listed: &[String], cli: &[String]) -> anyhow::Result<Vec<NamedController>> {
+pub fn open_all(
+    entry: &RobotEntry,
+    file: &Path,
+    listed: &[String],
+    cli: &[String],
+) -> anyhow::Result<Vec<NamedController>> {
     let mut named = if cli.is_empty() {
         let base = file.parent().unwrap_or(Path::new("."));
-        let open = |s: &String| NamedController::open(s, base, entry).map_err(|e| anyhow::anyhow!("{}: {e:#}", file.display()));
+        let open = |s: &String| {
+            NamedController::open(s, base, entry).map_err(|e| anyhow::anyhow!("{}: {e:#}", file.display()))
+        };
         listed.iter().map(open).collect::<anyhow::Result<Vec<_>>>()?
     } else {
         cli.iter().map(|s| NamedController::open(s, Path::new("."), entry)).collect::<anyhow::Result<Vec<_>>>()?

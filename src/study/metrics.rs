@@ -45,7 +45,8 @@ pub fn disturbance(t: &[f64], y: &[f64], onset: f64, setpoint: f64, band: f64, w
         return empty(setpoint, y, t, window);
     };
     let side = (start..y.len()).map(deviation).find(|d| d.abs() > band).unwrap_or(deviation(largest)).signum();
-    let peak_at = (start..y.len()).max_by(|&a, &b| (deviation(a) * side).total_cmp(&(deviation(b) * side))).unwrap_or(largest);
+    let peak_at =
+        (start..y.len()).max_by(|&a, &b| (deviation(a) * side).total_cmp(&(deviation(b) * side))).unwrap_or(largest);
     let peak = deviation(peak_at);
     let swing = (peak_at..y.len()).map(|i| -deviation(i) * side).fold(0.0, f64::max);
     Response {
@@ -67,7 +68,9 @@ pub fn step(t: &[f64], y: &[f64], onset: f64, target: f64, band_fraction: f64, w
     };
     let size = target - initial;
     let direction = size.signum();
-    let peak_at = (start..y.len()).max_by(|&a, &b| ((y[a] - initial) * direction).total_cmp(&((y[b] - initial) * direction))).unwrap_or(start);
+    let peak_at = (start..y.len())
+        .max_by(|&a, &b| ((y[a] - initial) * direction).total_cmp(&((y[b] - initial) * direction)))
+        .unwrap_or(start);
     let beyond = y[start..].iter().map(|v| (v - target) * direction).fold(0.0, f64::max);
     Response {
         peak: y[peak_at] - initial,
@@ -119,7 +122,10 @@ mod tests {
     /// The closed forms of x'' + 2ζω x' + ω² x = ω² u: its unit step and unit impulse responses.
     fn second_order(zeta: f64, omega: f64) -> (impl Fn(f64) -> f64, impl Fn(f64) -> f64, f64) {
         let damped = omega * (1.0 - zeta * zeta).sqrt();
-        let step = move |t: f64| 1.0 - (-zeta * omega * t).exp() * ((damped * t).cos() + zeta / (1.0 - zeta * zeta).sqrt() * (damped * t).sin());
+        let step = move |t: f64| {
+            1.0 - (-zeta * omega * t).exp()
+                * ((damped * t).cos() + zeta / (1.0 - zeta * zeta).sqrt() * (damped * t).sin())
+        };
         let impulse = move |t: f64| (-zeta * omega * t).exp() * (damped * t).sin() / damped;
         (step, impulse, damped)
     }
@@ -135,13 +141,25 @@ mod tests {
             let t = times(15.0);
             let y: Vec<f64> = t.iter().map(|&s| response(s)).collect();
             let r = step(&t, &y, 0.0, 1.0, 0.02, 1.0);
-            assert!((r.overshoot - overshoot_formula(zeta)).abs() < 1e-4, "ζ {zeta}: overshoot {} vs {}", r.overshoot, overshoot_formula(zeta));
-            assert!((r.peak_time_s - std::f64::consts::PI / damped).abs() < 2.0 * DT, "ζ {zeta}: peak at {}", r.peak_time_s);
+            assert!(
+                (r.overshoot - overshoot_formula(zeta)).abs() < 1e-4,
+                "ζ {zeta}: overshoot {} vs {}",
+                r.overshoot,
+                overshoot_formula(zeta)
+            );
+            assert!(
+                (r.peak_time_s - std::f64::consts::PI / damped).abs() < 2.0 * DT,
+                "ζ {zeta}: peak at {}",
+                r.peak_time_s
+            );
             // The envelope 1 + e^(−ζωt)/√(1−ζ²) enters the 2 % band at t_env; the response itself
             // enters it at most half a period earlier.
             let envelope = -(0.02 * (1.0 - zeta * zeta).sqrt()).ln() / (zeta * omega);
             let settled = r.settling_time_s.expect("settles within 15 s");
-            assert!(settled <= envelope + DT && settled > envelope - std::f64::consts::PI / damped, "ζ {zeta}: settled {settled}, envelope {envelope}");
+            assert!(
+                settled <= envelope + DT && settled > envelope - std::f64::consts::PI / damped,
+                "ζ {zeta}: settled {settled}, envelope {envelope}"
+            );
             assert!(r.steady_state_error < 1e-3);
         }
     }
@@ -155,13 +173,21 @@ mod tests {
             let y: Vec<f64> = t.iter().map(|&s| if s < onset { 0.0 } else { -0.3 * impulse(s - onset) }).collect();
             let band = 0.001;
             let r = disturbance(&t, &y, onset, 0.0, band, 1.0);
-            assert!((r.overshoot - overshoot_formula(zeta)).abs() < 1e-4, "ζ {zeta}: overshoot {} vs {}", r.overshoot, overshoot_formula(zeta));
+            assert!(
+                (r.overshoot - overshoot_formula(zeta)).abs() < 1e-4,
+                "ζ {zeta}: overshoot {} vs {}",
+                r.overshoot,
+                overshoot_formula(zeta)
+            );
             let peak_time = ((1.0 - zeta * zeta).sqrt() / zeta).atan() / damped;
             assert!((r.peak_time_s - peak_time).abs() < 2.0 * DT, "ζ {zeta}: peak at {} vs {peak_time}", r.peak_time_s);
             assert!(r.peak < 0.0, "knocked downwards");
             let envelope = (0.3 / (damped * band)).ln() / (zeta * omega);
             let settled = r.settling_time_s.expect("settles");
-            assert!(settled <= envelope + DT && settled > envelope - std::f64::consts::PI / damped, "ζ {zeta}: settled {settled}, envelope {envelope}");
+            assert!(
+                settled <= envelope + DT && settled > envelope - std::f64::consts::PI / damped,
+                "ζ {zeta}: settled {settled}, envelope {envelope}"
+            );
         }
     }
 

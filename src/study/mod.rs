@@ -63,19 +63,36 @@ pub struct StudyResult {
 pub fn run_suite(entry: &RobotEntry, suite_path: &Path, controllers: &[String]) -> anyhow::Result<StudyResult> {
     let suite = Suite::read(suite_path)?;
     if let Some(robot) = &suite.robot {
-        anyhow::ensure!(robot == entry.name, "{}: robot = '{robot}', but the study runs {}", suite_path.display(), entry.name);
+        anyhow::ensure!(
+            robot == entry.name,
+            "{}: robot = '{robot}', but the study runs {}",
+            suite_path.display(),
+            entry.name
+        );
     }
     let named = open_all(entry, suite_path, &suite.controllers, controllers)?;
     let spec = (entry.main_task().spec)();
     let signal = spec.observation_names.iter().position(|n| *n == suite.signal).ok_or_else(|| {
-        anyhow::anyhow!("{}: signal = '{}': {}'s observation has {}", suite_path.display(), suite.signal, entry.name, spec.observation_names.join(", "))
+        anyhow::anyhow!(
+            "{}: signal = '{}': {}'s observation has {}",
+            suite_path.display(),
+            suite.signal,
+            entry.name,
+            spec.observation_names.join(", ")
+        )
     })?;
     let mut runs = Vec::new();
     for controller in &named {
         let started = std::time::Instant::now();
-        let done = run_controller(entry, &suite, controller).map_err(|e| anyhow::anyhow!("{}: {e:#}", suite_path.display()))?;
+        let done = run_controller(entry, &suite, controller)
+            .map_err(|e| anyhow::anyhow!("{}: {e:#}", suite_path.display()))?;
         let survived = done.iter().filter(|r| r.survived).count();
-        println!("{}: {} runs, {survived} survived, {:.1} s", controller.label, done.len(), started.elapsed().as_secs_f64());
+        println!(
+            "{}: {} runs, {survived} survived, {:.1} s",
+            controller.label,
+            done.len(),
+            started.elapsed().as_secs_f64()
+        );
         runs.extend(done);
     }
     Ok(StudyResult { robot: entry.name.to_string(), suite, signal_column: signal + 1, runs })
@@ -124,7 +141,8 @@ fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedControlle
             Test::Payload { .. } => None,
         })
         .collect();
-    let mut records: Vec<RunRecord> = plan.iter().map(|(test, seed)| record(controller, test, *seed, &columns)).collect();
+    let mut records: Vec<RunRecord> =
+        plan.iter().map(|(test, seed)| record(controller, test, *seed, &columns)).collect();
     for (r, push) in records.iter_mut().zip(&pushes) {
         if let Some((start, _, physics_steps)) = push {
             r.at_s = *start as f64 * control_dt;
@@ -147,7 +165,11 @@ fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedControlle
         for i in (0..plan.len()).filter(|&i| live[i]) {
             // The force during this control step (a push that ends inside it still counts).
             let pushing = match pushes[i] {
-                Some((start, force, physics_steps)) if k >= start && (k - start) * (settings.substeps as usize) < physics_steps as usize => force,
+                Some((start, force, physics_steps))
+                    if k >= start && (k - start) * (settings.substeps as usize) < physics_steps as usize =>
+                {
+                    force
+                }
                 _ => 0.0,
             };
             let mut row = vec![t];
@@ -225,12 +247,14 @@ fn record(controller: &NamedController, test: &NamedTest, seed: u64, columns: &[
 
 /// The entity of the link named `name` in each arena; an unknown name lists the robot's links.
 fn find_links(world: &mut World, arenas: &[Entity], name: &str) -> anyhow::Result<Vec<Entity>> {
-    let links: Vec<(Entity, String, Entity)> = world.query::<(Entity, &Link, &InArena)>().iter(world).map(|(e, l, a)| (e, l.name.clone(), a.0)).collect();
+    let links: Vec<(Entity, String, Entity)> =
+        world.query::<(Entity, &Link, &InArena)>().iter(world).map(|(e, l, a)| (e, l.name.clone(), a.0)).collect();
     arenas
         .iter()
         .map(|&arena| {
             links.iter().find(|(_, n, a)| n == name && *a == arena).map(|(e, _, _)| *e).ok_or_else(|| {
-                let mut names: Vec<&str> = links.iter().filter(|(_, _, a)| *a == arena).map(|(_, n, _)| n.as_str()).collect();
+                let mut names: Vec<&str> =
+                    links.iter().filter(|(_, _, a)| *a == arena).map(|(_, n, _)| n.as_str()).collect();
                 names.sort_unstable();
                 anyhow::anyhow!("link '{name}' is not one of the robot's: {}", names.join(", "))
             })
@@ -268,7 +292,9 @@ fn put_on_payloads(
 /// The payload that makes the link's mass `mass` (kg) in one arena: the difference to its URDF
 /// mass, checked against the link's body.
 fn payload(entry: &RobotEntry, world: &mut World, arena: Entity, link: &str, mass: f64) -> anyhow::Result<Payload> {
-    let rig = entry.rig.ok_or_else(|| anyhow::anyhow!("payload: {} has no robot model to take the link's mass from", entry.name))?;
+    let rig = entry
+        .rig
+        .ok_or_else(|| anyhow::anyhow!("payload: {} has no robot model to take the link's mass from", entry.name))?;
     let model = (rig.model)();
     let nominal = model
         .links
@@ -282,7 +308,8 @@ fn payload(entry: &RobotEntry, world: &mut World, arena: Entity, link: &str, mas
     let extra_kg = mass as f32 - nominal;
     // Put on once now, which checks it; the reset that starts the runs restores the URDF's mass
     // and puts it on again, as every later reset does.
-    let mut physics = twinbots_sim::physics_in_mut(world, arena).ok_or_else(|| anyhow::anyhow!("payload: the study's app does not grant the Supervisor"))?;
+    let mut physics = twinbots_sim::physics_in_mut(world, arena)
+        .ok_or_else(|| anyhow::anyhow!("payload: the study's app does not grant the Supervisor"))?;
     add_link_mass(&mut physics, &link_component, extra_kg).map_err(|e| anyhow::anyhow!("payload: {e}"))?;
     Ok(Payload { link: entity, extra_kg })
 }

@@ -106,13 +106,24 @@ fn plot_tests(result: &StudyResult, out: &Path) -> anyhow::Result<Vec<(String, S
         let lines: Vec<(String, Vec<(f64, f64)>)> = runs
             .iter()
             .map(|r| {
-                let label = if suite.seeds.len() > 1 { format!("{} seed {}", r.controller, r.seed) } else { r.controller.clone() };
+                let label = if suite.seeds.len() > 1 {
+                    format!("{} seed {}", r.controller, r.seed)
+                } else {
+                    r.controller.clone()
+                };
                 (label, r.series.iter().map(|row| (row[0], row[result.signal_column])).collect())
             })
             .collect();
         let marks: Vec<f64> = runs.first().filter(|r| r.push_s > 0.0).map(|r| r.at_s).into_iter().collect();
         let file = format!("{test}.png");
-        twinbots_learn::plot::time_series(&out.join("plots").join(&file), &format!("{}: {test}", result.robot), &suite.signal, &lines, &band, &marks)?;
+        twinbots_learn::plot::time_series(
+            &out.join("plots").join(&file),
+            &format!("{}: {test}", result.robot),
+            &suite.signal,
+            &lines,
+            &band,
+            &marks,
+        )?;
         files.push((test.to_string(), file));
     }
     Ok(files)

@@ -133,7 +133,9 @@ impl Suite {
     }
 
     fn check(&self) -> Result<(), String> {
-        let positive = |key: &str, v: f64| if v > 0.0 && v.is_finite() { Ok(()) } else { Err(format!("{key} = {v}: must be a positive number")) };
+        let positive = |key: &str, v: f64| {
+            if v > 0.0 && v.is_finite() { Ok(()) } else { Err(format!("{key} = {v}: must be a positive number")) }
+        };
         positive("duration", self.duration)?;
         positive("settle_band", self.settle_band)?;
         positive("window", self.window)?;
@@ -151,7 +153,11 @@ impl Suite {
             return Err(format!("push.direction = {d:?}: must be a non-zero vector"));
         }
         let within = |key: &str, at: f64| {
-            if (0.0..self.duration).contains(&at) { Ok(()) } else { Err(format!("{key} = {at} s: must lie in [0, duration = {} s)", self.duration)) }
+            if (0.0..self.duration).contains(&at) {
+                Ok(())
+            } else {
+                Err(format!("{key} = {at} s: must lie in [0, duration = {} s)", self.duration))
+            }
         };
         let finite = |key: &str, values: &[f64]| match values.iter().find(|v| !v.is_finite()) {
             _ if values.is_empty() => Err(format!("{key} = []: give at least one value, or leave the table out")),
@@ -198,14 +204,22 @@ impl Suite {
             for &force in &i.forces {
                 for &at in &i.at {
                     let test = Test::Push { force, at, seconds: i.duration };
-                    tests.push(NamedTest { name: format!("impulse-{}N-at-{}s", number(force), number(at)), kind: "impulse", test });
+                    tests.push(NamedTest {
+                        name: format!("impulse-{}N-at-{}s", number(force), number(at)),
+                        kind: "impulse",
+                        test,
+                    });
                 }
             }
         }
         if let Some(p) = &self.payload {
             let link = p.link.clone().unwrap_or_else(|| self.push.link.clone());
             for &mass in &p.mass {
-                tests.push(NamedTest { name: format!("payload-{}kg", number(mass)), kind: "payload", test: Test::Payload { link: link.clone(), mass } });
+                tests.push(NamedTest {
+                    name: format!("payload-{}kg", number(mass)),
+                    kind: "payload",
+                    test: Test::Payload { link: link.clone(), mass },
+                });
             }
         }
         tests
@@ -221,11 +235,16 @@ fn number(v: f64) -> String {
 mod tests {
     use super::*;
 
-    const BASE: &str = "signal = \"pole_angle\"\nsettle_band = 0.02\n[push]\nlink = \"pole_tip\"\ndirection = [1, 0, 0]\n";
+    const BASE: &str =
+        "signal = \"pole_angle\"\nsettle_band = 0.02\n[push]\nlink = \"pole_tip\"\ndirection = [1, 0, 0]\n";
 
     /// Top-level keys go before the base's tables, anything else after them.
     fn parse(extra: &str) -> Result<Suite, String> {
-        let split = extra.match_indices('[').map(|(i, _)| i).find(|&i| i == 0 || extra[..i].ends_with('\n')).unwrap_or(extra.len());
+        let split = extra
+            .match_indices('[')
+            .map(|(i, _)| i)
+            .find(|&i| i == 0 || extra[..i].ends_with('\n'))
+            .unwrap_or(extra.len());
         let (top, tables) = extra.split_at(split);
         let suite: Suite = toml::from_str(&format!("{top}{BASE}{tables}")).map_err(|e| e.to_string())?;
         suite.check().map(|_| suite)
@@ -233,7 +252,10 @@ mod tests {
 
     #[test]
     fn tables_expand_into_named_tests() {
-        let suite = parse("[step_response]\nforces = [20, 40]\n[impulse]\nforces = [30]\nat = [2, 4.5]\n[payload]\nmass = [0.05]\n").unwrap();
+        let suite = parse(
+            "[step_response]\nforces = [20, 40]\n[impulse]\nforces = [30]\nat = [2, 4.5]\n[payload]\nmass = [0.05]\n",
+        )
+        .unwrap();
         let names: Vec<String> = suite.tests(0.032).into_iter().map(|t| t.name).collect();
         assert_eq!(names, ["step-20N", "step-40N", "impulse-30N-at-2s", "impulse-30N-at-4.5s", "payload-0.05kg"]);
         assert_eq!(suite.tests(0.032)[0].test, Test::Push { force: 20.0, at: 2.0, seconds: 0.064 });

@@ -44,7 +44,13 @@ pub struct UrSimOptions {
 
 impl Default for UrSimOptions {
     fn default() -> Self {
-        Self { truth: Parameters::default(), noise: SensorNoise { position: 0.0, velocity: 0.0, effort: 0.0 }, seed: 0, watchdog: 0.1, payload: None }
+        Self {
+            truth: Parameters::default(),
+            noise: SensorNoise { position: 0.0, velocity: 0.0, effort: 0.0 },
+            seed: 0,
+            watchdog: 0.1,
+            payload: None,
+        }
     }
 }
 
@@ -62,7 +68,8 @@ pub fn controller_stand(truth: &Parameters, q: &[f64; 6]) -> anyhow::Result<(Sta
     let params = rig.parameters(truth)?;
     let bias = rig.biases(&params);
     // The encoders read the joint plus its bias: the joint stands at the reading less it.
-    let at: Vec<(String, f32)> = JOINTS.iter().zip(q).zip(&bias).map(|((n, v), b)| (n.to_string(), (v - b) as f32)).collect();
+    let at: Vec<(String, f32)> =
+        JOINTS.iter().zip(q).zip(&bias).map(|((n, v), b)| (n.to_string(), (v - b) as f32)).collect();
     Ok((Stand::new(&rig, &at, std::slice::from_ref(&params)), bias))
 }
 
@@ -87,7 +94,11 @@ impl UrSim {
 
     /// The stand-in with the arm at `start` (joint angles, rad; default: home).
     pub fn with_start(options: &UrSimOptions, start: Option<[f64; 6]>) -> anyhow::Result<Self> {
-        anyhow::ensure!(options.watchdog > 0.0 && options.watchdog.is_finite(), "--watchdog must be positive, not {}", options.watchdog);
+        anyhow::ensure!(
+            options.watchdog > 0.0 && options.watchdog.is_finite(),
+            "--watchdog must be positive, not {}",
+            options.watchdog
+        );
         let q = start.unwrap_or(HOME.map(|v| v as f64));
         let (mut stand, bias) = controller_stand(&options.truth, &q)?;
         if let Some(mass) = options.payload {
@@ -134,7 +145,9 @@ impl UrSim {
     /// What the encoders read now: positions (with their bias and noise), speeds, efforts.
     fn measure(&mut self) -> ([f64; 6], [f64; 6], [f64; 6]) {
         let r = self.stand.reading(0);
-        let mut noisy = |sigma: f64| if sigma > 0.0 { Normal::new(0.0, sigma).expect("finite noise").sample(&mut self.rng) } else { 0.0 };
+        let mut noisy = |sigma: f64| {
+            if sigma > 0.0 { Normal::new(0.0, sigma).expect("finite noise").sample(&mut self.rng) } else { 0.0 }
+        };
         let q = std::array::from_fn(|j| r.position[j] as f64 + self.bias[j] + noisy(self.noise.position));
         let qd = std::array::from_fn(|j| r.velocity[j] as f64 + noisy(self.noise.velocity));
         let effort = std::array::from_fn(|j| r.effort[j] as f64 + noisy(self.noise.effort));
@@ -215,7 +228,13 @@ impl UrSim {
             }
             if self.time() - last_report >= report {
                 last_report = self.time();
-                println!("[{:8.3} s] {} client(s), program {:?}, {} missed cycle(s)", self.time(), server.clients(), self.program.state, pacer.missed);
+                println!(
+                    "[{:8.3} s] {} client(s), program {:?}, {} missed cycle(s)",
+                    self.time(),
+                    server.clients(),
+                    self.program.state,
+                    pacer.missed
+                );
             }
             pacer.wait();
         }
@@ -325,7 +344,10 @@ impl Slots {
             execution_time: at("actual_execution_time"),
             program_state: at(STATE),
             applied: at(APPLIED),
-            input_echo: twinbots_rtde::variables::inputs().iter().map(|v| twinbots_rtde::variables::output_index(&v.name)).collect(),
+            input_echo: twinbots_rtde::variables::inputs()
+                .iter()
+                .map(|v| twinbots_rtde::variables::output_index(&v.name))
+                .collect(),
         }
     }
 }

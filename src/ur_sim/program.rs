@@ -93,7 +93,15 @@ pub struct ControlProgram {
 
 impl ControlProgram {
     pub fn new(limits: Limits, q: [f64; 6]) -> Self {
-        Self { limits, state: ProgramState::Idle, counter: 0, counter_age: 0.0, target_q: q, target_qd: [0.0; 6], target_qdd: [0.0; 6] }
+        Self {
+            limits,
+            state: ProgramState::Idle,
+            counter: 0,
+            counter_age: 0.0,
+            target_q: q,
+            target_qd: [0.0; 6],
+            target_qdd: [0.0; 6],
+        }
     }
 
     /// The counter of the last command applied.
@@ -121,7 +129,12 @@ impl ControlProgram {
             }
         } else if let Some(joint) = (0..6).find(|&j| q[j].abs() > self.limits.range[j]) {
             self.state = ProgramState::ProtectiveStop;
-            note = Some(Note::warning(format!("protective stop: joint {} at {:.3} rad is past its range ±{:.3}", joint + 1, q[joint], self.limits.range[joint])));
+            note = Some(Note::warning(format!(
+                "protective stop: joint {} at {:.3} rad is past its range ±{:.3}",
+                joint + 1,
+                q[joint],
+                self.limits.range[joint]
+            )));
         } else if mode != MODE_STOP && self.counter_age > self.limits.watchdog {
             self.state = ProgramState::WatchdogStop;
             note = Some(Note::warning(format!(
@@ -147,11 +160,14 @@ impl ControlProgram {
                 let a = if a > 0.0 { a.min(MAX_ACCELERATION) } else { DEFAULT_ACCELERATION };
                 (std::array::from_fn(|j| double(inputs, TARGET[j])), a)
             }
-            ProgramState::Servoj => (std::array::from_fn(|j| SERVO_GAIN * (double(inputs, TARGET[j]) - q[j])), MAX_ACCELERATION),
+            ProgramState::Servoj => {
+                (std::array::from_fn(|j| SERVO_GAIN * (double(inputs, TARGET[j]) - q[j])), MAX_ACCELERATION)
+            }
             _ => ([0.0; 6], MAX_ACCELERATION),
         };
         for j in 0..6 {
-            let goal = if wanted[j].is_finite() { wanted[j].clamp(-self.limits.speed[j], self.limits.speed[j]) } else { 0.0 };
+            let goal =
+                if wanted[j].is_finite() { wanted[j].clamp(-self.limits.speed[j], self.limits.speed[j]) } else { 0.0 };
             let change = (goal - self.target_qd[j]).clamp(-acceleration * dt, acceleration * dt);
             self.target_qd[j] += change;
             self.target_qdd[j] = change / dt;

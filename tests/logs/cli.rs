@@ -22,7 +22,12 @@ fn scratch(name: &str) -> PathBuf {
 
 fn ur5e_log(seconds: f64) -> RobotLog {
     let rig = Rig::of(&ur5e::robot()).unwrap();
-    record(&rig, &Default::default(), &Recording { excitation: Excitation::Multisine, seconds, seed: 7, noise: SensorNoise::default() }).unwrap()
+    record(
+        &rig,
+        &Default::default(),
+        &Recording { excitation: Excitation::Multisine, seconds, seed: 7, noise: SensorNoise::default() },
+    )
+    .unwrap()
 }
 
 /// Writes a log as it is, unchecked (so a test can write what the writer would refuse).
@@ -56,9 +61,19 @@ fn list_params_prints_name_default_unit() {
 fn record_replay_identify_write_their_files() {
     let dir = scratch("files");
     let truth = dir.join("truth.toml");
-    std::fs::write(&truth, "[parameters]\ncommand_delay = 0.012\nelbow_joint.damping = 1.8\n[note]\nwhy = 'a test'\n").unwrap();
+    std::fs::write(&truth, "[parameters]\ncommand_delay = 0.012\nelbow_joint.damping = 1.8\n[note]\nwhy = 'a test'\n")
+        .unwrap();
     let log = dir.join("fit.mcap");
-    let (ok, _, err) = twinbots(&["record", "ur5e", "--truth", truth.to_str().unwrap(), "--seconds", "2", "--out", log.to_str().unwrap()]);
+    let (ok, _, err) = twinbots(&[
+        "record",
+        "ur5e",
+        "--truth",
+        truth.to_str().unwrap(),
+        "--seconds",
+        "2",
+        "--out",
+        log.to_str().unwrap(),
+    ]);
     assert!(ok, "{err}");
     let replay = dir.join("replay");
     let (ok, nominal, err) = twinbots(&["replay", "ur5e", log.to_str().unwrap(), "--out", replay.to_str().unwrap()]);
@@ -67,13 +82,24 @@ fn record_replay_identify_write_their_files() {
     for file in ["replay.png", "twin.mcap", "replay.json"] {
         assert!(replay.join(file).is_file(), "no {file}");
     }
-    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(replay.join("replay.json")).unwrap()).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(replay.join("replay.json")).unwrap()).unwrap();
     assert_eq!(report["joints"].as_array().unwrap().len(), 6);
     // The twin's own log reads back as a log of the robot.
     let twin = twinbots_log::read(&replay.join("twin.mcap")).unwrap();
     assert_eq!(twin.meta.robot, "ur5e");
     let cal = dir.join("cal");
-    let (ok, out, err) = twinbots(&["identify", "ur5e", log.to_str().unwrap(), "--params", "command_delay", "--generations", "4", "--out", cal.to_str().unwrap()]);
+    let (ok, out, err) = twinbots(&[
+        "identify",
+        "ur5e",
+        log.to_str().unwrap(),
+        "--params",
+        "command_delay",
+        "--generations",
+        "4",
+        "--out",
+        cal.to_str().unwrap(),
+    ]);
     assert!(ok, "{err}");
     assert!(out.contains("command_delay"), "{out}");
     let text = std::fs::read_to_string(cal.join("calibration.toml")).unwrap();
@@ -82,7 +108,15 @@ fn record_replay_identify_write_their_files() {
     assert!((delay - 0.012).abs() < 0.004, "fitted delay {delay}\n{text}");
     assert!(cal.join("convergence.png").is_file());
     // The calibrated replay tracks better than the nominal one.
-    let (ok, out_cal, err) = twinbots(&["replay", "ur5e", log.to_str().unwrap(), "--calibration", cal.join("calibration.toml").to_str().unwrap(), "--out", replay.to_str().unwrap()]);
+    let (ok, out_cal, err) = twinbots(&[
+        "replay",
+        "ur5e",
+        log.to_str().unwrap(),
+        "--calibration",
+        cal.join("calibration.toml").to_str().unwrap(),
+        "--out",
+        replay.to_str().unwrap(),
+    ]);
     assert!(ok, "{err}");
     let rmse = |s: &str| -> f64 { s.lines().next().unwrap().rsplit(' ').next().unwrap().parse().unwrap() };
     assert!(rmse(&out_cal) < rmse(&nominal), "calibrated {out_cal}\nnominal {nominal}");
@@ -96,7 +130,12 @@ fn bad_logs_and_parameters_are_clear_errors_and_write_nothing() {
 
     let cartpole = dir.join("cartpole.mcap");
     let rig = Rig::of(&cartpole::robot()).unwrap();
-    let log = record(&rig, &Default::default(), &Recording { excitation: Excitation::Chirp, seconds: 0.5, seed: 1, noise: SensorNoise::default() }).unwrap();
+    let log = record(
+        &rig,
+        &Default::default(),
+        &Recording { excitation: Excitation::Chirp, seconds: 0.5, seed: 1, noise: SensorNoise::default() },
+    )
+    .unwrap();
     write_raw(&log, &cartpole);
     cases.push(("another robot's log", cartpole, "robot 'cartpole', not 'ur5e'"));
 
@@ -146,7 +185,10 @@ fn bad_logs_and_parameters_are_clear_errors_and_write_nothing() {
             let (ok, _, err) = twinbots(&[command, "ur5e", path.to_str().unwrap(), "--out", out.to_str().unwrap()]);
             assert!(!ok, "{command} accepted {what}");
             let file = path.file_name().unwrap().to_str().unwrap();
-            assert!(err.contains(file) && err.contains(expected), "{command}, {what}: '{err}' should name {file} and say '{expected}'");
+            assert!(
+                err.contains(file) && err.contains(expected),
+                "{command}, {what}: '{err}' should name {file} and say '{expected}'"
+            );
             assert!(!err.contains("panicked"), "{err}");
             assert!(!out.exists(), "{command} wrote {} for {what}", out.display());
         }
@@ -155,12 +197,30 @@ fn bad_logs_and_parameters_are_clear_errors_and_write_nothing() {
     let log = dir.join("good.mcap");
     twinbots_log::write(&good, &log).unwrap();
     let out = dir.join("out");
-    let (ok, _, err) = twinbots(&["identify", "ur5e", log.to_str().unwrap(), "--params", "elbow_joint.stiffness", "--out", out.to_str().unwrap()]);
-    assert!(!ok && err.contains("unknown parameter 'elbow_joint.stiffness'") && err.contains("elbow_joint.damping"), "{err}");
+    let (ok, _, err) = twinbots(&[
+        "identify",
+        "ur5e",
+        log.to_str().unwrap(),
+        "--params",
+        "elbow_joint.stiffness",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("unknown parameter 'elbow_joint.stiffness'") && err.contains("elbow_joint.damping"),
+        "{err}"
+    );
     assert!(!out.exists());
     let truth = dir.join("truth.toml");
     std::fs::write(&truth, "[parameters]\nelbow_joint.stiffnes = 3.0\n").unwrap();
-    let (ok, _, err) = twinbots(&["record", "ur5e", "--truth", truth.to_str().unwrap(), "--out", dir.join("never.mcap").to_str().unwrap()]);
+    let (ok, _, err) = twinbots(&[
+        "record",
+        "ur5e",
+        "--truth",
+        truth.to_str().unwrap(),
+        "--out",
+        dir.join("never.mcap").to_str().unwrap(),
+    ]);
     assert!(!ok && err.contains("truth.toml") && err.contains("unknown parameter 'elbow_joint.stiffnes'"), "{err}");
     assert!(!dir.join("never.mcap").exists());
 }
@@ -179,7 +239,17 @@ fn a_calibration_reaches_the_run_settings() {
     // Randomization around the fit needs the fit's spread…
     let config = dir.join("config.toml");
     std::fs::write(&config, "[randomization]\ncalibration_spread = 2.0\n").unwrap();
-    let train = |cal: &Path| twinbots(&["train", "cartpole", "--calibration", cal.to_str().unwrap(), "--config", config.to_str().unwrap(), "--print-config"]);
+    let train = |cal: &Path| {
+        twinbots(&[
+            "train",
+            "cartpole",
+            "--calibration",
+            cal.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+            "--print-config",
+        ])
+    };
     let (ok, _, err) = train(&cal);
     assert!(!ok && err.contains("calibration_spread = 2 needs a calibration with a [spread] table"), "{err}");
     // …which the run records with the calibration.
@@ -193,10 +263,16 @@ fn a_calibration_reaches_the_run_settings() {
     assert!(!ok && err.contains("calibration.toml") && err.contains("[spread] names 'command_delay'"), "{err}");
     std::fs::write(&cal, "[parameters]\npole_joint.stiffness = 1.0\n").unwrap();
     let (ok, _, err) = twinbots(&["train", "cartpole", "--calibration", cal.to_str().unwrap(), "--print-config"]);
-    assert!(!ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"), "{err}");
+    assert!(
+        !ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"),
+        "{err}"
+    );
     // `view` reads and checks the file before any window opens.
     let (ok, _, err) = twinbots(&["view", "cartpole", "--calibration", cal.to_str().unwrap()]);
-    assert!(!ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"), "{err}");
+    assert!(
+        !ok && err.contains("calibration.toml") && err.contains("unknown parameter 'pole_joint.stiffness'"),
+        "{err}"
+    );
 }
 
 /// A briefly trained cart-pole run in `dir/run`.
@@ -209,7 +285,10 @@ fn trained_cartpole(dir: &Path) -> PathBuf {
 
 /// Wheel 1's position RMSE (rad) in `twinbots replay`'s report.
 fn wheel_rmse(report: &str) -> f64 {
-    let line = report.lines().find(|l| l.starts_with("wheel1_joint")).unwrap_or_else(|| panic!("no wheel1_joint line in\n{report}"));
+    let line = report
+        .lines()
+        .find(|l| l.starts_with("wheel1_joint"))
+        .unwrap_or_else(|| panic!("no wheel1_joint line in\n{report}"));
     line.split_whitespace().nth(1).unwrap().parse().unwrap()
 }
 
@@ -224,10 +303,16 @@ fn eval_logs_an_episode_that_replays() {
     let read = twinbots_log::read(&log).unwrap();
     assert_eq!(read.meta.robot, "cartpole");
     assert_eq!(read.joints, ["wheel1_joint", "wheel2_joint", "wheel3_joint", "wheel4_joint", "pole_joint"]);
-    assert!(read.states.len() > 5 && !read.commands.is_empty(), "{} states, {} commands", read.states.len(), read.commands.len());
+    assert!(
+        read.states.len() > 5 && !read.commands.is_empty(),
+        "{} states, {} commands",
+        read.states.len(),
+        read.commands.len()
+    );
     assert!((read.meta.control_period - 0.032).abs() < 1e-9, "{}", read.meta.control_period);
     // The twin's own episode, replayed on its rig: the wheels follow their logged commands.
-    let (ok, out, err) = twinbots(&["replay", "cartpole", log.to_str().unwrap(), "--out", dir.join("replay").to_str().unwrap()]);
+    let (ok, out, err) =
+        twinbots(&["replay", "cartpole", log.to_str().unwrap(), "--out", dir.join("replay").to_str().unwrap()]);
     assert!(ok, "{err}");
     let wheel = wheel_rmse(&out);
     assert!(wheel < 0.05, "wheel 1 position RMSE {wheel} rad\n{out}");
@@ -243,10 +328,20 @@ fn robot_logs_its_episodes_on_a_calibrated_twin() {
     let cal = dir.join("calibration.toml");
     std::fs::write(&cal, "[parameters]\ncommand_delay = 0.008\n").unwrap();
     let log = dir.join("robot.csv");
-    let (ok, _, err) = twinbots(&["robot", "cartpole", "--policy", onnx.to_str().unwrap(), "--episodes", "2", "--log", "robot.txt"]);
+    let (ok, _, err) =
+        twinbots(&["robot", "cartpole", "--policy", onnx.to_str().unwrap(), "--episodes", "2", "--log", "robot.txt"]);
     assert!(!ok && err.contains("robot.txt") && err.contains(".mcap or a .csv"), "{err}");
     let (ok, out, err) = twinbots(&[
-        "robot", "cartpole", "--policy", onnx.to_str().unwrap(), "--episodes", "2", "--calibration", cal.to_str().unwrap(), "--log", log.to_str().unwrap(),
+        "robot",
+        "cartpole",
+        "--policy",
+        onnx.to_str().unwrap(),
+        "--episodes",
+        "2",
+        "--calibration",
+        cal.to_str().unwrap(),
+        "--log",
+        log.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
     assert!(out.contains("logged robot 0's run"), "{out}");
@@ -255,7 +350,15 @@ fn robot_logs_its_episodes_on_a_calibrated_twin() {
     assert!(read.states.len() > 5 && read.states[0].time == 0.0, "{} states", read.states.len());
     // Two episodes and the homing between them, continuous: replayed on the calibrated rig,
     // the wheels follow.
-    let (ok, out, err) = twinbots(&["replay", "cartpole", log.to_str().unwrap(), "--calibration", cal.to_str().unwrap(), "--out", dir.join("replay").to_str().unwrap()]);
+    let (ok, out, err) = twinbots(&[
+        "replay",
+        "cartpole",
+        log.to_str().unwrap(),
+        "--calibration",
+        cal.to_str().unwrap(),
+        "--out",
+        dir.join("replay").to_str().unwrap(),
+    ]);
     assert!(ok, "{err}");
     let wheel = wheel_rmse(&out);
     assert!(wheel < 0.05, "wheel 1 position RMSE {wheel} rad\n{out}");

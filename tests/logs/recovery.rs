@@ -11,7 +11,11 @@ fn recording(excitation: Excitation, seconds: f64, seed: u64) -> Recording {
 }
 
 /// Fits `robot` to a multisine log of its perturbed truth and checks the fit on a chirp.
-fn recover(robot: &twinbots_task::RobotDescription, seconds: f64, generations: usize) -> (Rig, Parameters, twinbots_sysid::Fit, f64, f64) {
+fn recover(
+    robot: &twinbots_task::RobotDescription,
+    seconds: f64,
+    generations: usize,
+) -> (Rig, Parameters, twinbots_sysid::Fit, f64, f64) {
     let rig = Rig::of(robot).unwrap();
     let truth = perturbed_truth(&rig);
     let fit_log = record(&rig, &truth, &recording(Excitation::Multisine, seconds, 1)).unwrap();
@@ -32,7 +36,13 @@ fn recover(robot: &twinbots_task::RobotDescription, seconds: f64, generations: u
     for p in &fit.parameters {
         let t = truth.get(&p.name).unwrap();
         let verdict = p.not_identifiable.as_deref().unwrap_or("identified");
-        eprintln!("  {:<30} truth {t:>10.5} fit {:>10.5} ({:+6.1} %) spread {:.1e}  {verdict}", p.name, p.value, (p.value / t - 1.0) * 100.0, p.spread);
+        eprintln!(
+            "  {:<30} truth {t:>10.5} fit {:>10.5} ({:+6.1} %) spread {:.1e}  {verdict}",
+            p.name,
+            p.value,
+            (p.value / t - 1.0) * 100.0,
+            p.spread
+        );
     }
     (rig, truth, fit, before, after)
 }
@@ -47,7 +57,12 @@ fn ur5e_calibration_finds_the_delay_and_cuts_held_out_error() {
     // Every parameter within 10 % of its truth, or reported as not pinned down, with why.
     for p in &fit.parameters {
         let t = truth.get(&p.name).unwrap();
-        assert!((p.value / t - 1.0).abs() < 0.1 || p.not_identifiable.is_some(), "{}: {} vs truth {t}, reported identified", p.name, p.value);
+        assert!(
+            (p.value / t - 1.0).abs() < 0.1 || p.not_identifiable.is_some(),
+            "{}: {} vs truth {t}, reported identified",
+            p.name,
+            p.value
+        );
     }
     assert!(fit.parameters.iter().all(|p| p.spread.is_finite() || p.not_identifiable.is_some()));
 }
@@ -63,7 +78,12 @@ fn wheeled_robots_record_replay_and_identify() {
         let truth = perturbed_truth(&rig);
         for p in fit.parameters.iter().filter(|p| p.name != "command_delay") {
             let t = truth.get(&p.name).unwrap();
-            assert!((p.value / t - 1.0).abs() < 0.1 || p.not_identifiable.is_some(), "{}: {} vs truth {t}, reported identified", p.name, p.value);
+            assert!(
+                (p.value / t - 1.0).abs() < 0.1 || p.not_identifiable.is_some(),
+                "{}: {} vs truth {t}, reported identified",
+                p.name,
+                p.value
+            );
         }
     }
 }
@@ -72,12 +92,19 @@ fn wheeled_robots_record_replay_and_identify() {
 fn same_seed_same_log_and_logs_replay_exactly_on_their_own_physics() {
     let rig = Rig::of(&ur5e::robot()).unwrap();
     let truth = perturbed_truth(&rig);
-    let quiet = Recording { noise: SensorNoise { position: 0.0, velocity: 0.0, effort: 0.0 }, ..recording(Excitation::Multisine, 2.0, 5) };
+    let quiet = Recording {
+        noise: SensorNoise { position: 0.0, velocity: 0.0, effort: 0.0 },
+        ..recording(Excitation::Multisine, 2.0, 5)
+    };
     let a = record(&rig, &truth, &quiet).unwrap();
     assert_eq!(a, record(&rig, &truth, &quiet).unwrap(), "same seed, same log");
     // Replayed on the very physics that recorded it, a noise-free log is matched exactly.
     let prepared = prepare(&rig, &a, "quiet").unwrap();
-    let costs = twinbots_sysid::search::costs(&rig, std::slice::from_ref(&prepared), &[rig.parameters(&truth).unwrap(), rig.nominal.clone()]);
+    let costs = twinbots_sysid::search::costs(
+        &rig,
+        std::slice::from_ref(&prepared),
+        &[rig.parameters(&truth).unwrap(), rig.nominal.clone()],
+    );
     assert!(costs[0] < 1e-6 * costs[1], "truth {} vs nominal {}", costs[0], costs[1]);
 }
 
@@ -86,17 +113,25 @@ fn residuals_square_to_the_tracking_error_and_a_gauss_newton_step_heads_for_the_
     use twinbots_sysid::replay::{residuals, tracking_cost};
     let rig = Rig::of(&ur5e::robot()).unwrap();
     let truth = perturbed_truth(&rig);
-    let log = prepare(&rig, &record(&rig, &truth, &recording(Excitation::Multisine, 2.0, 7)).unwrap(), "short").unwrap();
+    let log =
+        prepare(&rig, &record(&rig, &truth, &recording(Excitation::Multisine, 2.0, 7)).unwrap(), "short").unwrap();
     let logs = std::slice::from_ref(&log);
     // Where `identify`'s joint search starts: the prior, the delay found.
     let mut start = rig.parameters(&rig.description.prior_parameters()).unwrap();
     start.0.insert("command_delay".into(), 0.012);
     let bias = rig.biases(&start);
-    let twin = twinbots_sysid::run(&rig, &log.start_positions(&rig, &start), &log.program, std::slice::from_ref(&start)).pop().unwrap();
+    let twin =
+        twinbots_sysid::run(&rig, &log.start_positions(&rig, &start), &log.program, std::slice::from_ref(&start))
+            .pop()
+            .unwrap();
     let mut r = Vec::new();
     residuals(&log, &twin, &bias, &mut r);
     let total: f64 = tracking_cost(&log, &twin, &bias).iter().sum();
-    assert!((r.iter().map(|v| v * v).sum::<f64>() / total - 1.0).abs() < 1e-9, "Σr² {} vs χ² {total}", r.iter().map(|v| v * v).sum::<f64>());
+    assert!(
+        (r.iter().map(|v| v * v).sum::<f64>() / total - 1.0).abs() < 1e-9,
+        "Σr² {} vs χ² {total}",
+        r.iter().map(|v| v * v).sum::<f64>()
+    );
     // One Gauss–Newton step over every fitted parameter takes most of the error away.
     let names: Vec<String> = rig.description.fit.iter().map(|s| s.to_string()).collect();
     let specs = twinbots_sysid::identify::parameter_specs(&rig, &names).unwrap();

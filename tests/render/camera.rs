@@ -23,7 +23,8 @@ fn camera_scene(setup: impl FnOnce(&mut App), size: (u32, u32)) -> (App, Entity,
     let arena_entity = world.spawn_empty().id();
     let mut arena = Arena::new(0, 0, SimSettings::default().dt, SimSettings::default().gravity);
     let model = |text: &str| parse_urdf(text, "t.urdf".as_ref(), ".".as_ref()).unwrap();
-    let at = |x: f32| SpawnOptions { base: Pose::from_translation(Vec3::new(x, 0.0, 0.5)), fixed_base: true, ..default() };
+    let at =
+        |x: f32| SpawnOptions { base: Pose::from_translation(Vec3::new(x, 0.0, 0.5)), fixed_base: true, ..default() };
     let mut queue = CommandQueue::default();
     let (post, target) = {
         let mut commands = Commands::new(&mut queue, world);
@@ -50,9 +51,12 @@ fn the_camera_sees_an_object_placed_in_front_of_it_and_not_once_it_is_removed() 
     if crate::renderer("the_camera_sees_an_object_placed_in_front_of_it_and_not_once_it_is_removed", 8, 8).is_none() {
         return;
     }
-    let (mut app, camera, target) = camera_scene(|app| {
-        app.add_plugins(MinimalPlugins).add_plugins(SimPlugin::default());
-    }, (64, 48));
+    let (mut app, camera, target) = camera_scene(
+        |app| {
+            app.add_plugins(MinimalPlugins).add_plugins(SimPlugin::default());
+        },
+        (64, 48),
+    );
     let mut rig = CameraRig::default();
     assert_eq!(rig.sample(app.world_mut()).unwrap(), 1);
     let centre = |app: &App| app.world().get::<CameraSensor>(camera).unwrap().pixel(32, 24).unwrap();
@@ -70,9 +74,14 @@ fn with_the_camera_plugin_images_are_fresh_in_every_control_step() {
     if crate::renderer("with_the_camera_plugin_images_are_fresh_in_every_control_step", 8, 8).is_none() {
         return;
     }
-    let (mut app, camera, _) = camera_scene(|app| {
-        app.add_plugins(MinimalPlugins).add_plugins(SimPlugin::default()).add_plugins(twinbots_render::CameraPlugin);
-    }, (32, 24));
+    let (mut app, camera, _) = camera_scene(
+        |app| {
+            app.add_plugins(MinimalPlugins)
+                .add_plugins(SimPlugin::default())
+                .add_plugins(twinbots_render::CameraPlugin);
+        },
+        (32, 24),
+    );
     for step in 0..3u64 {
         app.update();
         let c = app.world().get::<CameraSensor>(camera).unwrap();

@@ -2,10 +2,10 @@
 
 use std::process::Command;
 
-use twinbots_render::View;
 use twinbots_api::VecEnv;
-use twinbots_task::AppVecEnv;
+use twinbots_render::View;
 use twinbots_sim::Link;
+use twinbots_task::AppVecEnv;
 
 use crate::{orange, renderer};
 

@@ -37,7 +37,8 @@ fn wall_seen_under(look: Look) -> Result<([u8; 3], Vec<u8>), RenderError> {
     let arena_entity = world.spawn_empty().id();
     let mut arena = Arena::new(0, 0, SimSettings::default().dt, SimSettings::default().gravity);
     let model = |text: &str| parse_urdf(text, "t.urdf".as_ref(), ".".as_ref()).unwrap();
-    let at = |x: f32| SpawnOptions { base: Pose::from_translation(Vec3::new(x, 0.0, 0.5)), fixed_base: true, ..default() };
+    let at =
+        |x: f32| SpawnOptions { base: Pose::from_translation(Vec3::new(x, 0.0, 0.5)), fixed_base: true, ..default() };
     let mut queue = bevy::ecs::world::CommandQueue::default();
     let post = {
         let mut commands = Commands::new(&mut queue, world);
@@ -94,10 +95,14 @@ fn a_known_colour_under_known_lights_gives_the_pixel_of_the_light_model() {
     // A highlight: the light and the eye straight in front of the wall, so n·h = 1 and the
     // surface adds specular × the light's colour × intensity to the diffuse term.
     let white = vec![Light { direction: [1.0, 0.0, 0.0], color: [1.0; 3], intensity: 0.5 }];
-    let shiny = BTreeMap::from([("wall/0".to_string(), Surface { color: WALL, texture: Texture::Plain, specular: 0.5 })]);
+    let shiny =
+        BTreeMap::from([("wall/0".to_string(), Surface { color: WALL, texture: Texture::Plain, specular: 0.5 })]);
     let (pixel, _) = wall_seen_under(look(white, 0.1, shiny)).unwrap();
     let expected: Vec<f32> = (0..3).map(|c| linear_to_srgb8(srgb_to_linear(WALL[c]) * 0.6 + 0.5 * 0.5)).collect();
-    assert!(pixel.iter().zip(&expected).all(|(p, e)| (*p as f32 - e).abs() <= 2.0), "specular: {pixel:?}, the model says {expected:?}");
+    assert!(
+        pixel.iter().zip(&expected).all(|(p, e)| (*p as f32 - e).abs() <= 2.0),
+        "specular: {pixel:?}, the model says {expected:?}"
+    );
 }
 
 #[test]
@@ -106,10 +111,14 @@ fn textures_pattern_a_surface_in_metres_and_an_unreadable_image_is_an_error() {
         return;
     }
     let white = vec![Light { direction: [1.0, 0.0, 0.0], color: [1.0; 3], intensity: 1.0 }];
-    let on_wall = |texture: Texture| BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0, 0.0, 0.0], texture, specular: 0.0 })]);
+    let on_wall = |texture: Texture| {
+        BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0, 0.0, 0.0], texture, specular: 0.0 })])
+    };
     // Red and blue squares of 10 cm: the 32-pixel-wide view of 0.73 m of wall shows both, in
     // about equal shares, and nothing else.
-    let (_, image) = wall_seen_under(look(white.clone(), 0.0, on_wall(Texture::Checker { color: [0.0, 0.0, 1.0], size: 0.1 }))).unwrap();
+    let (_, image) =
+        wall_seen_under(look(white.clone(), 0.0, on_wall(Texture::Checker { color: [0.0, 0.0, 1.0], size: 0.1 })))
+            .unwrap();
     let pixels: Vec<[u8; 3]> = image.chunks(3).map(|p| [p[0], p[1], p[2]]).collect();
     let red = pixels.iter().filter(|p| p[0] > 240 && p[2] < 15).count();
     let blue = pixels.iter().filter(|p| p[2] > 240 && p[0] < 15).count();
@@ -119,11 +128,17 @@ fn textures_pattern_a_surface_in_metres_and_an_unreadable_image_is_an_error() {
     std::fs::create_dir_all(&dir).unwrap();
     let green = dir.join("green.png");
     image::RgbImage::from_pixel(8, 8, image::Rgb([20, 200, 40])).save(&green).unwrap();
-    let surfaces = BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0; 3], texture: Texture::Image { path: green, size: 0.2 }, specular: 0.0 })]);
+    let surfaces = BTreeMap::from([(
+        "wall/0".to_string(),
+        Surface { color: [1.0; 3], texture: Texture::Image { path: green, size: 0.2 }, specular: 0.0 },
+    )]);
     let (pixel, _) = wall_seen_under(look(white.clone(), 0.0, surfaces)).unwrap();
     assert!(pixel.iter().zip([20u8, 200, 40]).all(|(a, b)| a.abs_diff(b) <= 2), "{pixel:?}");
     // An image that is not there: the frame fails, naming the file.
-    let missing = BTreeMap::from([("wall/0".to_string(), Surface { color: [1.0; 3], texture: Texture::Image { path: dir.join("gone.png"), size: 0.2 }, specular: 0.0 })]);
+    let missing = BTreeMap::from([(
+        "wall/0".to_string(),
+        Surface { color: [1.0; 3], texture: Texture::Image { path: dir.join("gone.png"), size: 0.2 }, specular: 0.0 },
+    )]);
     let message = wall_seen_under(look(white.clone(), 0.0, missing)).unwrap_err().to_string();
     assert!(message.contains("gone.png") && message.contains("image texture"), "{message}");
     // A distractor between the camera and the wall: seen in the first frame, in its colour,
@@ -153,7 +168,8 @@ fn capture_with_visual_randomization_is_seeded_and_records_each_look() {
     let capture = |name: &str, seed: &str, randomized: bool| {
         let out = dir.join(name);
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_twinbots"));
-        cmd.args(["capture", "cartpole", "--frames", "2", "--every", "40", "--size", "96x72", "--seed", seed, "--out"]).arg(&out);
+        cmd.args(["capture", "cartpole", "--frames", "2", "--every", "40", "--size", "96x72", "--seed", seed, "--out"])
+            .arg(&out);
         if randomized {
             cmd.arg("--config").arg(&config);
         }
@@ -162,7 +178,8 @@ fn capture_with_visual_randomization_is_seeded_and_records_each_look() {
         out
     };
     let frame = |out: &std::path::Path, i: u32| std::fs::read(out.join(format!("frame_{:05}.png", i * 40))).unwrap();
-    let (a, b, c, plain) = (capture("a", "3", true), capture("b", "3", true), capture("c", "4", true), capture("plain", "3", false));
+    let (a, b, c, plain) =
+        (capture("a", "3", true), capture("b", "3", true), capture("c", "4", true), capture("plain", "3", false));
     for i in 0..3 {
         assert_eq!(frame(&a, i), frame(&b, i), "frame {i}: the same seed, the same frame");
     }
@@ -187,7 +204,10 @@ fn arenas_rendered_together_in_tiles_look_as_each_does_alone() {
     use twinbots_task::randomization::visual::VisualRandomization;
     use twinbots_task::randomization::{Randomization, RandomizationPlugin};
     let mut app = cartpole::headless_app(3, 2);
-    app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
+    app.add_plugins(RandomizationPlugin(Randomization {
+        visual: Some(VisualRandomization::default()),
+        ..Default::default()
+    }));
     let mut env = twinbots_task::AppVecEnv::new(app);
     env.reset(Some(2)).unwrap();
     let view = View::looking_at([0.0, -2.6, 0.7].into(), [0.0, 0.0, 0.5].into(), 45f32.to_radians());
@@ -265,6 +285,11 @@ fn with_shadows_a_box_shades_the_floor_under_it() {
     let expect = |light: f32| ground.map(|c| linear_to_srgb8(srgb_to_linear(c) * light));
     let near = |p: [u8; 3], e: [f32; 3], tol: f32| p.iter().zip(e).all(|(a, b)| (*a as f32 - b).abs() <= tol);
     assert!(near(pixel(&plain, under), expect(1.0), 2.0), "no shadows: lit under the slab, {:?}", pixel(&plain, under));
-    assert!(near(pixel(&shaded, under), expect(0.3), 4.0), "shadows: ambient only under the slab, {:?} vs {:?}", pixel(&shaded, under), expect(0.3));
+    assert!(
+        near(pixel(&shaded, under), expect(0.3), 4.0),
+        "shadows: ambient only under the slab, {:?} vs {:?}",
+        pixel(&shaded, under),
+        expect(0.3)
+    );
     assert!(near(pixel(&shaded, open), expect(1.0), 2.0), "shadows: lit in the open, {:?}", pixel(&shaded, open));
 }

@@ -12,7 +12,9 @@ fn monitor_at(q: [f64; 6]) -> Monitor {
 #[test]
 fn the_monitors_twin_is_rendered_where_the_robot_stands() {
     let (w, h) = (160, 120);
-    let Some(mut renderer) = crate::renderer("the_monitors_twin_is_rendered_where_the_robot_stands", w, h) else { return };
+    let Some(mut renderer) = crate::renderer("the_monitors_twin_is_rendered_where_the_robot_stands", w, h) else {
+        return;
+    };
     let entry = twinbots::registry::find("ur5e").unwrap();
     renderer.set_view(View::framed(&entry.framing, "iso").unwrap());
     let mut frame = |q: [f64; 6]| {
@@ -30,6 +32,7 @@ fn the_monitors_twin_is_rendered_where_the_robot_stands() {
     let background = [a[0], a[1], a[2]];
     let arm = a.chunks(3).filter(|p| p.iter().zip(background).any(|(c, b)| c.abs_diff(b) > 30)).count();
     assert!(arm > 200, "the arm covers {arm} pixels of {}", w * h);
-    let moved = a.chunks(3).zip(b.chunks(3)).filter(|(p, q)| p.iter().zip(q.iter()).any(|(x, y)| x.abs_diff(*y) > 30)).count();
+    let moved =
+        a.chunks(3).zip(b.chunks(3)).filter(|(p, q)| p.iter().zip(q.iter()).any(|(x, y)| x.abs_diff(*y) > 30)).count();
     assert!(moved > 100, "turning the pan by 1.2 rad changed {moved} pixels");
 }

@@ -31,7 +31,9 @@ fn run(seed: u64, settings: &PixelSettings, steps: usize) -> (Vec<Vec<f32>>, Vec
 
 #[test]
 fn pixel_observations_stack_the_arenas_images_keep_the_final_frame_and_repeat_with_the_seed() {
-    if crate::renderer("pixel_observations_stack_the_arenas_images_keep_the_final_frame_and_repeat_with_the_seed", 8, 8).is_none() {
+    if crate::renderer("pixel_observations_stack_the_arenas_images_keep_the_final_frame_and_repeat_with_the_seed", 8, 8)
+        .is_none()
+    {
         return;
     }
     let settings = PixelSettings { width: 48, height: 40, frames: 2, ..PixelSettings::default() };
@@ -71,13 +73,25 @@ fn pixel_observations_stack_the_arenas_images_keep_the_final_frame_and_repeat_wi
 #[test]
 fn bad_pixel_settings_are_errors_naming_the_key() {
     let cases = [
-        (PixelSettings { camera: "ceiling".into(), ..PixelSettings::default() }, "pixels.camera = \"ceiling\": must be one of side, front, iso, top"),
-        (PixelSettings { more_cameras: vec!["ceiling".into()], ..PixelSettings::default() }, "pixels.more_cameras: \"ceiling\" must be one of side, front, iso, top"),
-        (PixelSettings { more_cameras: vec!["front".into(), "side".into()], ..PixelSettings::default() }, "pixels.more_cameras: \"side\" is named twice (with camera = \"side\")"),
+        (
+            PixelSettings { camera: "ceiling".into(), ..PixelSettings::default() },
+            "pixels.camera = \"ceiling\": must be one of side, front, iso, top",
+        ),
+        (
+            PixelSettings { more_cameras: vec!["ceiling".into()], ..PixelSettings::default() },
+            "pixels.more_cameras: \"ceiling\" must be one of side, front, iso, top",
+        ),
+        (
+            PixelSettings { more_cameras: vec!["front".into(), "side".into()], ..PixelSettings::default() },
+            "pixels.more_cameras: \"side\" is named twice (with camera = \"side\")",
+        ),
         (PixelSettings { fov: 0.0, ..PixelSettings::default() }, "pixels.fov = 0: must be in (0, 180) degrees"),
         (PixelSettings { fov: 180.0, ..PixelSettings::default() }, "pixels.fov = 180: must be in (0, 180) degrees"),
         (PixelSettings { fov: f32::NAN, ..PixelSettings::default() }, "pixels.fov = NaN"),
-        (PixelSettings { width: 0, ..PixelSettings::default() }, "pixels.width = 0: must be a whole number in 8..=1024"),
+        (
+            PixelSettings { width: 0, ..PixelSettings::default() },
+            "pixels.width = 0: must be a whole number in 8..=1024",
+        ),
         (PixelSettings { frames: 0, ..PixelSettings::default() }, "pixels.frames = 0: must be a whole number in 1..=8"),
     ];
     for (settings, message) in cases {
@@ -90,7 +104,9 @@ fn bad_pixel_settings_are_errors_naming_the_key() {
 
 #[test]
 fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_exports_its_cnn_policy() {
-    if crate::renderer("a_pixel_run_trains_evaluates_captures_with_its_camera_and_says_it_cannot_be_exported", 8, 8).is_none() {
+    if crate::renderer("a_pixel_run_trains_evaluates_captures_with_its_camera_and_says_it_cannot_be_exported", 8, 8)
+        .is_none()
+    {
         return;
     }
     let dir = std::env::temp_dir().join(format!("twinbots-pixel-run-{}", std::process::id()));
@@ -104,7 +120,8 @@ fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_exports_its_cnn_pol
     )
     .unwrap();
     let run = dir.join("run");
-    let twinbots = |args: &[&str]| std::process::Command::new(env!("CARGO_BIN_EXE_twinbots")).args(args).output().unwrap();
+    let twinbots =
+        |args: &[&str]| std::process::Command::new(env!("CARGO_BIN_EXE_twinbots")).args(args).output().unwrap();
     let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
     let out = twinbots(&["train", "cartpole", "--config", &path(&config), "--out", &path(&run)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -115,13 +132,25 @@ fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_exports_its_cnn_pol
     // Under looks it never saw (held-out textures and lights), beside its own evaluation.
     let out = twinbots(&["eval", &path(&run), "--episodes", "2", "--looks", "assets/looks/held-out.toml"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let held_out: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("eval-balance-in-held-out.json")).unwrap()).unwrap();
+    let held_out: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("eval-balance-in-held-out.json")).unwrap()).unwrap();
     assert_eq!(held_out["episodes"], 2, "{held_out}");
     let out = twinbots(&["eval", &path(&run), "--episodes", "2", "--looks", &path(&config)]);
     let e = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && e.contains("pixels.toml: has no [randomization.visual] table"), "{e}");
     let frames = dir.join("frames");
-    let out = twinbots(&["capture", "cartpole", "--model", &path(&run), "--frames", "2", "--size", "64x48", "--out", &path(&frames)]);
+    let out = twinbots(&[
+        "capture",
+        "cartpole",
+        "--model",
+        &path(&run),
+        "--frames",
+        "2",
+        "--size",
+        "64x48",
+        "--out",
+        &path(&frames),
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(std::fs::read_dir(&frames).unwrap().count() >= 2);
     // The CNN policy leaves as ONNX: it reads camera images and chooses as the model does.
@@ -139,13 +168,18 @@ fn a_pixel_run_trains_evaluates_captures_with_its_camera_and_exports_its_cnn_pol
 #[test]
 fn with_visual_randomization_each_arena_sees_its_own_look_and_the_seed_repeats_them() {
     use twinbots_task::randomization::{Randomization, RandomizationPlugin, visual::VisualRandomization};
-    if crate::renderer("with_visual_randomization_each_arena_sees_its_own_look_and_the_seed_repeats_them", 8, 8).is_none() {
+    if crate::renderer("with_visual_randomization_each_arena_sees_its_own_look_and_the_seed_repeats_them", 8, 8)
+        .is_none()
+    {
         return;
     }
     let settings = PixelSettings { width: 40, height: 40, ..PixelSettings::default() };
     let images = |seed: u64| -> Vec<Vec<f32>> {
         let mut app = cartpole::headless_app(2, seed);
-        app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
+        app.add_plugins(RandomizationPlugin(Randomization {
+            visual: Some(VisualRandomization::default()),
+            ..Default::default()
+        }));
         settings.install(&mut app, &cartpole::robot().framing, 2).unwrap();
         let mut env = AppVecEnv::new(app);
         let mut seen = vec![env.reset(Some(seed)).unwrap()];
@@ -168,9 +202,19 @@ fn more_cameras_see_each_arena_at_the_same_instant_under_its_one_look() {
         return;
     }
     let seen = |camera: &str, more: &[&str]| -> (Space, Vec<Vec<f32>>) {
-        let settings = PixelSettings { camera: camera.into(), more_cameras: more.iter().map(|c| c.to_string()).collect(), width: 24, height: 16, frames: 2, ..PixelSettings::default() };
+        let settings = PixelSettings {
+            camera: camera.into(),
+            more_cameras: more.iter().map(|c| c.to_string()).collect(),
+            width: 24,
+            height: 16,
+            frames: 2,
+            ..PixelSettings::default()
+        };
         let mut app = cartpole::headless_app(2, 5);
-        app.add_plugins(RandomizationPlugin(Randomization { visual: Some(VisualRandomization::default()), ..Default::default() }));
+        app.add_plugins(RandomizationPlugin(Randomization {
+            visual: Some(VisualRandomization::default()),
+            ..Default::default()
+        }));
         settings.install(&mut app, &cartpole::robot().framing, 2).unwrap();
         let mut env = AppVecEnv::new(app);
         let mut seen = vec![env.reset(Some(5)).unwrap()];
@@ -184,7 +228,9 @@ fn more_cameras_see_each_arena_at_the_same_instant_under_its_one_look() {
     let (_, side) = seen("side", &[]);
     let (_, front) = seen("front", &[]);
     // Row by row: the side camera's 24 pixels (two frames' RGB each), then the front camera's.
-    let camera = |obs: &[f32], c: usize| -> Vec<f32> { obs.chunks(48 * 6).flat_map(|row| row[c * 24 * 6..(c + 1) * 24 * 6].to_vec()).collect() };
+    let camera = |obs: &[f32], c: usize| -> Vec<f32> {
+        obs.chunks(48 * 6).flat_map(|row| row[c * 24 * 6..(c + 1) * 24 * 6].to_vec()).collect()
+    };
     for t in 0..both.len() {
         assert_eq!(camera(&both[t], 0), side[t], "step {t}: the first camera's images are its alone");
         assert_eq!(camera(&both[t], 1), front[t], "step {t}: the second camera's too");
@@ -194,12 +240,18 @@ fn more_cameras_see_each_arena_at_the_same_instant_under_its_one_look() {
 
 /// Pixels of a signal-green surface (the reach's target marker) in an RGB image.
 fn green(image: &[f32]) -> Vec<usize> {
-    image.chunks(3).enumerate().filter(|(_, p)| p[1] > 100.0 && p[0] < 0.6 * p[1] && p[2] < 0.6 * p[1]).map(|(i, _)| i).collect()
+    image
+        .chunks(3)
+        .enumerate()
+        .filter(|(_, p)| p[1] > 100.0 && p[0] < 0.6 * p[1] && p[2] < 0.6 * p[1])
+        .map(|(i, _)| i)
+        .collect()
 }
 
 #[test]
 fn the_camera_reach_shows_its_target_and_gets_the_arms_own_state_beside_the_image() {
-    if crate::renderer("the_camera_reach_shows_its_target_and_gets_the_arms_own_state_beside_the_image", 8, 8).is_none() {
+    if crate::renderer("the_camera_reach_shows_its_target_and_gets_the_arms_own_state_beside_the_image", 8, 8).is_none()
+    {
         return;
     }
     let state = vec!["joint_positions".to_string(), "joint_velocities".to_string()];
@@ -216,7 +268,10 @@ fn the_camera_reach_shows_its_target_and_gets_the_arms_own_state_beside_the_imag
     let space = camera.observation_space().clone();
     let image = 64 * 64 * 3;
     assert_eq!((space.image_shape(), space.state_dim(), space.dim()), (Some((64, 64, 3)), 12, image + 12), "{space}");
-    assert_eq!(camera.task().observation_names[1..3], ["joint_positions[0]".to_string(), "joint_positions[1]".to_string()]);
+    assert_eq!(
+        camera.task().observation_names[1..3],
+        ["joint_positions[0]".to_string(), "joint_positions[1]".to_string()]
+    );
     assert!(camera.task().goal.is_none(), "a goal seen by a camera is not relabelled");
     let (dim, full) = (space.dim(), plain.observation_space().dim());
     let mut seen = (camera.reset(Some(5)).unwrap(), plain.reset(Some(5)).unwrap());
@@ -225,9 +280,17 @@ fn the_camera_reach_shows_its_target_and_gets_the_arms_own_state_beside_the_imag
         for arena in 0..2 {
             let (c, p) = (&seen.0[arena * dim..(arena + 1) * dim], &seen.1[arena * full..(arena + 1) * full]);
             assert!(space.contains(c), "step {t}");
-            assert_eq!(c[image..], p[..12], "step {t}, arena {arena}: the arm's angles and speeds, as the task observes them");
+            assert_eq!(
+                c[image..],
+                p[..12],
+                "step {t}, arena {arena}: the arm's angles and speeds, as the task observes them"
+            );
             let marker = green(&c[..image]);
-            assert!(marker.len() >= 2, "step {t}, arena {arena}: the target's marker in view ({} green pixels)", marker.len());
+            assert!(
+                marker.len() >= 2,
+                "step {t}, arena {arena}: the target's marker in view ({} green pixels)",
+                marker.len()
+            );
             spots.push(marker);
         }
         let action: Vec<f32> = (0..10).map(|i| if (t / 5 + i) % 3 == 0 { 0.6 } else { -0.3 }).collect();
@@ -245,7 +308,9 @@ fn the_camera_reach_shows_its_target_and_gets_the_arms_own_state_beside_the_imag
 
 #[test]
 fn distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_evaluates() {
-    if crate::renderer("distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_evaluates", 8, 8).is_none() {
+    if crate::renderer("distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_evaluates", 8, 8)
+        .is_none()
+    {
         return;
     }
     let dir = std::env::temp_dir().join(format!("twinbots-distill-{}", std::process::id()));
@@ -253,13 +318,23 @@ fn distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_ev
     std::fs::create_dir_all(&dir).unwrap();
     let config = dir.join("pixels.toml");
     std::fs::write(&config, "timesteps = 128\narenas = 4\neval_episodes = 2\n[pixels]\nwidth = 40\nheight = 40\nframes = 2\n[ppo]\nn_steps = 32\nbatch_size = 64\nn_epochs = 1\nfeatures_dim = 16\n").unwrap();
-    let twinbots = |args: &[&str]| std::process::Command::new(env!("CARGO_BIN_EXE_twinbots")).args(args).output().unwrap();
+    let twinbots =
+        |args: &[&str]| std::process::Command::new(env!("CARGO_BIN_EXE_twinbots")).args(args).output().unwrap();
     let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
     let (student, taught) = (dir.join("student"), dir.join("taught"));
     let out = twinbots(&["train", "cartpole", "--config", &path(&config), "--out", &path(&student)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let distill = |out: &std::path::Path, more: &[&str]| {
-        let mut args = vec!["distill".to_string(), path(&student), "--out".into(), path(out), "--rounds".into(), "5".into(), "--steps".into(), "150".into()];
+        let mut args = vec![
+            "distill".to_string(),
+            path(&student),
+            "--out".into(),
+            path(out),
+            "--rounds".into(),
+            "5".into(),
+            "--steps".into(),
+            "150".into(),
+        ];
         args.extend(["--epochs", "30", "--learning-rate", "3e-3"].map(String::from));
         args.extend(more.iter().map(|s| s.to_string()));
         twinbots(&args.iter().map(String::as_str).collect::<Vec<_>>())
@@ -270,7 +345,8 @@ fn distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_ev
     // or so; fitted to its answers (DAgger: the first fit only swings it to the other side),
     // it disagrees far less and balances longer.
     let csv = std::fs::read_to_string(taught.join("distill.csv")).unwrap();
-    let column = |i: usize| -> Vec<f64> { csv.lines().skip(1).map(|l| l.split(',').nth(i).unwrap().parse().unwrap()).collect() };
+    let column =
+        |i: usize| -> Vec<f64> { csv.lines().skip(1).map(|l| l.split(',').nth(i).unwrap().parse().unwrap()).collect() };
     let (score, disagreement, answers) = (column(2), column(4), column(5));
     assert_eq!(answers, [600.0, 1200.0, 1800.0, 2400.0, 3000.0], "{csv}");
     assert!(disagreement[0] > 0.5 && disagreement[2..].iter().any(|&d| d < 0.6 * disagreement[0]), "{csv}");
@@ -282,7 +358,10 @@ fn distill_teaches_a_pixel_run_by_the_classical_controller_and_the_taught_run_ev
     // The same rounds again give the same student.
     let again = dir.join("again");
     assert!(distill(&again, &[]).status.success());
-    assert_eq!(std::fs::read(taught.join("model/model.safetensors")).unwrap(), std::fs::read(again.join("model/model.safetensors")).unwrap());
+    assert_eq!(
+        std::fs::read(taught.join("model/model.safetensors")).unwrap(),
+        std::fs::read(again.join("model/model.safetensors")).unwrap()
+    );
     // Errors name what is wrong: a taken --out, a teacher that is not there, a state run as the student.
     let e = String::from_utf8_lossy(&distill(&taught, &[]).stderr).to_string();
     assert!(e.contains("already holds a run"), "{e}");

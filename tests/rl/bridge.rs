@@ -1,10 +1,10 @@
 //! The channel bridge: steps match direct stepping, and either side ending ends the other.
 
 use bevy::prelude::*;
-use twinbots_task::bridge::{self, BridgePlugin};
 use twinbots_api::{SingleEnv, VecEnv};
-use twinbots_task::{AppVecEnv, env};
 use twinbots_sim::SimSet;
+use twinbots_task::bridge::{self, BridgePlugin};
+use twinbots_task::{AppVecEnv, env};
 
 fn bridged_app(arenas: usize) -> (App, bridge::ChannelVecEnv) {
     let mut app = cartpole::headless_app(arenas, 4);

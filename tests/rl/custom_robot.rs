@@ -7,17 +7,18 @@ use std::time::Duration;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_task::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
-use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
 use twinbots_api::*;
 use twinbots_learn::*;
-use twinbots_task::*;
 use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerAddress, ServerRobotPlugin};
 use twinbots_server::server::{RobotServer, ServerSettings};
 use twinbots_sim::urdf::parse_urdf;
 use twinbots_sim::{
-    ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, Supervisor, spawn_robot,
+    ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions,
+    Supervisor, spawn_robot,
 };
+use twinbots_task::robot::{RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
+use twinbots_task::*;
 
 /// A motorised turntable: a 2 kg plate on a vertical hinge, speed ≤ 2 rad/s.
 const URDF: &str = r#"<robot name="turntable">
@@ -85,7 +86,8 @@ impl Plugin for TurntablePlugin {
             .add_systems(Startup, spawn)
             .add_systems(Update, (act.in_set(SimSet::Actuate), read.in_set(TaskSet::Read)));
         if self.0 == DesignPattern::Server {
-            app.add_plugins(ServerRobotPlugin::<TableState>::new("turntable")).add_systems(Update, home.in_set(RobotCycleSet::Home));
+            app.add_plugins(ServerRobotPlugin::<TableState>::new("turntable"))
+                .add_systems(Update, home.in_set(RobotCycleSet::Home));
         } else {
             app.add_systems(EnvReset, (place.in_set(ResetSet::Place), read.in_set(ResetSet::Read)));
         }
@@ -139,11 +141,21 @@ fn turntable() -> RobotDescription {
     RobotDescription {
         name: "turntable",
         description: "a motorised turntable (test robot)",
-        tasks: vec![TaskDescription { name: "turn", description: "turn to a target angle", spec: || turn_task().spec(), server: true, training: None }],
+        tasks: vec![TaskDescription {
+            name: "turn",
+            description: "turn to a target angle",
+            spec: || turn_task().spec(),
+            server: true,
+            training: None,
+        }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),
         defaults: TrainingDefaults {
-            algos: vec![AlgoDefaults { arenas: 4, hyperparams: "n_steps = 128\nbatch_size = 64", ..AlgoDefaults::new("ppo") }],
+            algos: vec![AlgoDefaults {
+                arenas: 4,
+                hyperparams: "n_steps = 128\nbatch_size = 64",
+                ..AlgoDefaults::new("ppo")
+            }],
             ..Default::default()
         },
         settings: turntable_timing,
@@ -167,9 +179,18 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     assert!(robot.app(None, 1, 0, DesignPattern::Radio).unwrap_err().to_string().contains("supported: 1, 3"));
 
     // Trained for a few updates.
-    let mut env = AppVecEnv::new(robot.app(None, robot.defaults.of("ppo").arenas, 0, DesignPattern::Supervised).unwrap());
-    let mut model = Ppo::new(robot.defaults.of("ppo").config().unwrap(), spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap();
-    model.learn(&mut env, 4 * 128 * 4, &mut |_: &UpdateStats, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)).unwrap();
+    let mut env =
+        AppVecEnv::new(robot.app(None, robot.defaults.of("ppo").arenas, 0, DesignPattern::Supervised).unwrap());
+    let mut model = Ppo::new(
+        robot.defaults.of("ppo").config().unwrap(),
+        spec.observation_space.clone(),
+        spec.action_space.clone(),
+        0,
+    )
+    .unwrap();
+    model
+        .learn(&mut env, 4 * 128 * 4, &mut |_: &UpdateStats, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))
+        .unwrap();
     assert_eq!(model.updates, 4);
     assert!(model.episodes > 0, "episodes of at most 50 steps ended in 2048 steps");
 
@@ -181,10 +202,23 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     assert!(result.success_rate.is_some_and(|r| (0.0..=1.0).contains(&r)), "a goal task reports success");
     let terms: f32 = result.rewards.values().sum();
     assert_eq!(result.rewards.len(), 2, "{:?}", result.rewards);
-    assert!((terms - result.mean_score).abs() < 1e-3 * result.mean_score.abs().max(1.0), "{:?} vs {}", result.rewards, result.mean_score);
+    assert!(
+        (terms - result.mean_score).abs() < 1e-3 * result.mean_score.abs().max(1.0),
+        "{:?} vs {}",
+        result.rewards,
+        result.mean_score
+    );
 
     // Served under pattern 3: robots that home themselves, no Supervisor, the same terms.
-    let learner = Box::new(Ppo::new(robot.defaults.of("ppo").config().unwrap(), spec.observation_space.clone(), spec.action_space.clone(), 1).unwrap());
+    let learner = Box::new(
+        Ppo::new(
+            robot.defaults.of("ppo").config().unwrap(),
+            spec.observation_space.clone(),
+            spec.action_space.clone(),
+            1,
+        )
+        .unwrap(),
+    );
     let settings = ServerSettings::new("turntable", &spec, 2, 1024);
     let updates = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
     let counted = updates.clone();

@@ -42,7 +42,8 @@ fn export(run: &Path) -> PathBuf {
 
 /// The success rate a report (`eval`'s or the runner's) states, as a fraction.
 fn success_rate(report: &str) -> f32 {
-    let line = report.lines().find(|l| l.trim_start().starts_with("success rate")).unwrap_or_else(|| panic!("{report}"));
+    let line =
+        report.lines().find(|l| l.trim_start().starts_with("success rate")).unwrap_or_else(|| panic!("{report}"));
     line.trim().trim_start_matches("success rate").trim_end_matches('%').trim().parse::<f32>().unwrap() / 100.0
 }
 
@@ -51,10 +52,18 @@ fn an_exported_cartpole_policy_balances_full_episodes_on_the_robot() {
     let run = fixture_run("cartpole-balance", "balance");
     let onnx = export(&run);
     let report = succeeded(
-        twinbots().args(["robot", "cartpole", "--policy"]).arg(&onnx).args(["--episodes", "3", "--arenas", "3"]).output().unwrap(),
+        twinbots()
+            .args(["robot", "cartpole", "--policy"])
+            .arg(&onnx)
+            .args(["--episodes", "3", "--arenas", "3"])
+            .output()
+            .unwrap(),
     );
     // 1951 is the most an episode can score: the pole stayed up until the time limit.
-    assert!(report.contains("balance: 3 episodes, score 1951.0 ± 0.0 (min 1951, max 1951), mean length 1951.0"), "{report}");
+    assert!(
+        report.contains("balance: 3 episodes, score 1951.0 ± 0.0 (min 1951, max 1951), mean length 1951.0"),
+        "{report}"
+    );
     std::fs::remove_dir_all(&run).ok();
 }
 
@@ -62,12 +71,23 @@ fn an_exported_cartpole_policy_balances_full_episodes_on_the_robot() {
 fn the_exported_ur5e_reach_policy_reaches_on_the_robot_as_often_as_in_eval() {
     let run = fixture_run("ur5e-reach", "reach");
     let episodes = "200";
-    let eval = succeeded(twinbots().arg("eval").arg(&run).args(["--episodes", episodes, "--arenas", "4"]).output().unwrap());
+    let eval =
+        succeeded(twinbots().arg("eval").arg(&run).args(["--episodes", episodes, "--arenas", "4"]).output().unwrap());
     let onnx = export(&run);
-    let robot = || twinbots().args(["robot", "ur5e", "--policy"]).arg(&onnx).args(["--episodes", episodes, "--arenas", "4"]).output();
+    let robot = || {
+        twinbots()
+            .args(["robot", "ur5e", "--policy"])
+            .arg(&onnx)
+            .args(["--episodes", episodes, "--arenas", "4"])
+            .output()
+    };
     let on_board = succeeded(robot().unwrap());
     let (in_eval, on_robot) = (success_rate(&eval), success_rate(&on_board));
-    eprintln!("UR5e reach, {episodes} episodes each: eval {:.1} %, robot --policy {:.1} %", 100.0 * in_eval, 100.0 * on_robot);
+    eprintln!(
+        "UR5e reach, {episodes} episodes each: eval {:.1} %, robot --policy {:.1} %",
+        100.0 * in_eval,
+        100.0 * on_robot
+    );
     eprintln!("eval:\n{eval}robot --policy:\n{on_board}");
     // Two samples of 200 episodes from (nearly) the same success probability: their rates differ
     // by binomial noise, ≈ 1.5 points at 97 %. Pattern 3 starts from home exactly where eval
@@ -100,9 +120,12 @@ fn export_and_the_runner_refuse_bad_input_with_a_clear_error() {
     std::fs::copy(run.join("config.toml"), empty.join("config.toml")).unwrap();
     let err = failed(twinbots().arg("export").arg(&empty).arg("--onnx").arg(run.join("x.onnx")).output().unwrap());
     assert!(err.contains("no model or checkpoint"), "{err}");
-    let err = failed(twinbots().arg("export").arg(run.join("nothing-here")).arg("--onnx").arg(run.join("x.onnx")).output().unwrap());
+    let err = failed(
+        twinbots().arg("export").arg(run.join("nothing-here")).arg("--onnx").arg(run.join("x.onnx")).output().unwrap(),
+    );
     assert!(err.contains("not a run directory"), "{err}");
-    let config = std::fs::read_to_string(run.join("config.toml")).unwrap().replace("robot = \"cartpole\"", "robot = \"ur5e\"");
+    let config =
+        std::fs::read_to_string(run.join("config.toml")).unwrap().replace("robot = \"cartpole\"", "robot = \"ur5e\"");
     std::fs::write(run.join("config.toml"), config).unwrap();
     let err = failed(twinbots().arg("export").arg(&run).arg("--onnx").arg(run.join("x.onnx")).output().unwrap());
     assert!(err.contains("the model was trained for observations of dimension 4, but this robot has 26"), "{err}");

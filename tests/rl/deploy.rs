@@ -140,19 +140,35 @@ fn deploy_refuses_mismatched_bundles_and_stops_a_late_or_silent_robot() {
     let slower = edit("slower", "\"control_period_s\": 0.04", "\"control_period_s\": 0.08");
     let err = failed(twinbots().args(["deploy", "ur5e", "--dry-run", "--bundle"]).arg(&slower).output().unwrap());
     assert!(err.contains("acts every 0.08 s, this robot's task every 0.04 s"), "{err}");
-    let err = failed(twinbots().args(["deploy", "ur5e", "--dry-run", "--bundle"]).arg(Path::new("/nonexistent/bundle")).output().unwrap());
+    let err = failed(
+        twinbots()
+            .args(["deploy", "ur5e", "--dry-run", "--bundle"])
+            .arg(Path::new("/nonexistent/bundle"))
+            .output()
+            .unwrap(),
+    );
     assert!(err.contains("bundle.json") && err.contains("is /nonexistent/bundle a bundle"), "{err}");
     let err = failed(twinbots().args(["robot", "cartpole", "--policy"]).arg(&dir).output().unwrap());
     assert!(err.contains("is for the robot 'ur5e', not 'cartpole'"), "{err}");
     let err = failed(twinbots().args(["robot", "ur5e", "--policy"]).arg(&slower).output().unwrap());
     assert!(err.contains("acts every 0.08 s"), "{err}");
-    let ok = succeeded(twinbots().args(["deploy", "ur5e", "--dry-run", "--episodes", "2", "--deadline-ms", "250", "--bundle"]).arg(&dir).output().unwrap());
+    let ok = succeeded(
+        twinbots()
+            .args(["deploy", "ur5e", "--dry-run", "--episodes", "2", "--deadline-ms", "250", "--bundle"])
+            .arg(&dir)
+            .output()
+            .unwrap(),
+    );
     assert!(ok.contains("success") && ok.contains("of 2"), "{ok}");
 
     // Reports that come 30 ms late: the first command misses its 20 ms deadline, the robot is
     // told to stop, and the error says why.
     let bundle = Bundle::read(&dir).unwrap();
-    let mut late = LateArm { twin: TwinArm::new(&UrSimOptions::default(), None).unwrap(), lag: Duration::from_millis(30), told: Vec::new() };
+    let mut late = LateArm {
+        twin: TwinArm::new(&UrSimOptions::default(), None).unwrap(),
+        lag: Duration::from_millis(30),
+        told: Vec::new(),
+    };
     let err = deploy(&mut late, &bundle, &DeployOptions::default(), |_| {}).unwrap_err().to_string();
     assert!(err.contains("missed the control deadline"), "{err}");
     assert_eq!(late.told.last(), Some(&"stop"));
@@ -215,7 +231,11 @@ fn a_bundle_carries_its_cell_and_the_shadow_keeps_the_arm_off_its_obstacles() {
     );
     std::fs::write(dir.join("cell.toml"), &cell).unwrap();
     let manifest = std::fs::read_to_string(dir.join("bundle.json")).unwrap();
-    std::fs::write(dir.join("bundle.json"), manifest.replacen("\"timesteps\"", "\"cell\": \"cell.toml\",\n  \"timesteps\"", 1)).unwrap();
+    std::fs::write(
+        dir.join("bundle.json"),
+        manifest.replacen("\"timesteps\"", "\"cell\": \"cell.toml\",\n  \"timesteps\"", 1),
+    )
+    .unwrap();
     let bundle = Bundle::read(&dir).unwrap();
     assert_eq!(bundle.cell.obstacles.len(), 1);
     let shadow = twinbots::deploy::shadow_of(&bundle);
@@ -223,7 +243,11 @@ fn a_bundle_carries_its_cell_and_the_shadow_keeps_the_arm_off_its_obstacles() {
 
     // Pan at full speed, every step: into the column.
     let turn = |_: &[f32]| Ok(vec![1.0, 0.0, 0.0, 0.0, 0.0]);
-    let mut arm = WatchedArm { twin: TwinArm::new(&UrSimOptions::default(), None).unwrap(), shadow: shadow.clone(), closest: f64::INFINITY };
+    let mut arm = WatchedArm {
+        twin: TwinArm::new(&UrSimOptions::default(), None).unwrap(),
+        shadow: shadow.clone(),
+        closest: f64::INFINITY,
+    };
     let report = deploy_policy(&mut arm, &bundle, &turn, &patient(1), |_| {}).unwrap();
     assert!(report.refused > 0, "the shadow refused the turn: {report:#?}");
     assert!(arm.closest > 0.0, "the arm touched the column");

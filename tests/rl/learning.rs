@@ -9,9 +9,12 @@ use std::process::Command;
 fn trained(name: &str, args: &[&str]) -> (serde_json::Value, serde_json::Value) {
     let out = std::env::temp_dir().join(format!("twinbots-learning-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let output = Command::new(env!("CARGO_BIN_EXE_twinbots")).arg("train").args(args).arg("--out").arg(&out).output().unwrap();
+    let output =
+        Command::new(env!("CARGO_BIN_EXE_twinbots")).arg("train").args(args).arg("--out").arg(&out).output().unwrap();
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
-    let read = |file: &str| -> serde_json::Value { serde_json::from_slice(&std::fs::read(Path::new(&out).join(file)).unwrap()).unwrap() };
+    let read = |file: &str| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(Path::new(&out).join(file)).unwrap()).unwrap()
+    };
     let files = (read("summary.json"), read("eval.json"));
     std::fs::remove_dir_all(&out).ok();
     files

@@ -2,9 +2,9 @@
 
 mod bridge;
 mod custom_robot;
-mod learning;
 mod delivery;
 mod deploy;
+mod learning;
 mod model;
 mod monitor;
 mod onnx;
@@ -12,19 +12,19 @@ mod patterns;
 mod pixels;
 mod ppo;
 mod randomization;
-mod sac;
-mod td3;
-mod tls;
 mod resume;
 mod robot_hostile;
 #[cfg(feature = "ros2")]
 mod ros2;
 mod rtde;
+mod sac;
 mod served;
 mod server;
 mod server_fuzz;
 mod server_hostile;
 mod server_load;
 mod study;
+mod td3;
+mod tls;
 mod train_cli;
 mod ur5e_tasks;

@@ -1,7 +1,7 @@
 //! The model lifecycle: save/load round trips exactly; spaces are checked.
 
-use twinbots_learn::classic::ClassicCartPole;
 use twinbots_api::{Space, VecEnv};
+use twinbots_learn::classic::ClassicCartPole;
 use twinbots_learn::{Ppo, PpoConfig};
 
 pub fn temp_dir(name: &str) -> std::path::PathBuf {
@@ -38,8 +38,15 @@ fn a_snapshot_predicts_as_the_original_and_does_not_train_with_it() {
     model.learn(&mut env, 512, &mut |_: &_, _: &dyn twinbots_learn::Agent| Ok(twinbots_learn::Flow::Continue)).unwrap();
     let mut snapshot = model.snapshot().unwrap();
     let obs = env.reset(Some(9)).unwrap();
-    assert_eq!(snapshot.predict(&obs, false).unwrap(), model.predict(&obs, false).unwrap(), "same weights, same stream");
-    assert_eq!((snapshot.timesteps, snapshot.updates, &snapshot.obs_rms), (model.timesteps, model.updates, &model.obs_rms));
+    assert_eq!(
+        snapshot.predict(&obs, false).unwrap(),
+        model.predict(&obs, false).unwrap(),
+        "same weights, same stream"
+    );
+    assert_eq!(
+        (snapshot.timesteps, snapshot.updates, &snapshot.obs_rms),
+        (model.timesteps, model.updates, &model.obs_rms)
+    );
     let weights = |m: &Ppo| -> Vec<Vec<f32>> {
         m.policy.named_vars().iter().map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap()).collect()
     };
@@ -58,10 +65,7 @@ fn a_model_for_other_spaces_is_a_clear_error() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("Discrete(2)") && err.contains("Box(1)"), "{err}");
-    let err = model
-        .check_spaces(&Space::uniform_box(5, -1.0, 1.0), &Space::Discrete { n: 2 })
-        .unwrap_err()
-        .to_string();
+    let err = model.check_spaces(&Space::uniform_box(5, -1.0, 1.0), &Space::Discrete { n: 2 }).unwrap_err().to_string();
     assert!(err.contains('4') && err.contains('5'), "{err}");
 }
 

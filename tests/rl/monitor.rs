@@ -24,7 +24,13 @@ pub fn report_of(out: &OutputState) -> Report {
 /// A pick-and-place-like cycle: rest, shoulder and elbow out, rest, back.
 fn program(t: f64) -> [f64; 6] {
     let phase = t % 4.0;
-    let s = if (0.5..1.5).contains(&phase) { 0.6 } else if (2.5..3.5).contains(&phase) { -0.6 } else { 0.0 };
+    let s = if (0.5..1.5).contains(&phase) {
+        0.6
+    } else if (2.5..3.5).contains(&phase) {
+        -0.6
+    } else {
+        0.0
+    };
     [0.5 * s, s, -s, 0.3 * s, 0.0, 0.0]
 }
 
@@ -59,7 +65,10 @@ fn follow(robot: &UrSimOptions, seconds: f64, skip: Option<usize>) -> (Vec<(f64,
 #[test]
 fn the_monitor_notices_an_unmodelled_payload_within_a_second_of_motion() {
     let (alarms, worst) = follow(&UrSimOptions { payload: Some(1.0), ..Default::default() }, 4.0, None);
-    let first = alarms.iter().find(|(_, k)| k == "divergence").unwrap_or_else(|| panic!("no divergence alarm: {alarms:?}, worst effort RMSE {worst}"));
+    let first = alarms
+        .iter()
+        .find(|(_, k)| k == "divergence")
+        .unwrap_or_else(|| panic!("no divergence alarm: {alarms:?}, worst effort RMSE {worst}"));
     // The first motion starts at 0.5 s.
     assert!(first.0 < 1.5, "the alarm came at {} s", first.0);
     assert!(worst > 2.0, "a 1 kg load the twin does not know: worst effort RMSE {worst} N*m");

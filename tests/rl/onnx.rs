@@ -6,12 +6,12 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use twinbots_onnx::{OnnxPolicy, PolicyMetadata};
-use twinbots_learn::classic::{ClassicCartPole, ClassicPendulum};
-use twinbots_learn::normalize::RunningMeanStd;
 use twinbots_api::{Space, VecEnv};
+use twinbots_learn::classic::{ClassicCartPole, ClassicPendulum};
 use twinbots_learn::nn::PolicyKind;
+use twinbots_learn::normalize::RunningMeanStd;
 use twinbots_learn::{Agent, Flow, Ppo, PpoConfig, Sac, SacConfig};
+use twinbots_onnx::{OnnxPolicy, PolicyMetadata};
 
 const OBSERVATIONS: usize = 1000;
 
@@ -116,7 +116,11 @@ fn a_sac_policy_gives_the_same_squashed_and_rescaled_actions() {
     let action_space = Space::Box { low: vec![-1.0, -2.0, 0.0], high: vec![1.0, 0.5, 3.0] };
     let config = SacConfig { hidden: vec![32, 32], normalize_observations: true, ..Default::default() };
     let mut model = Sac::new(config, Space::uniform_box(6, -5.0, 5.0), action_space.clone(), 11).unwrap();
-    model.obs_rms = Some(RunningMeanStd { mean: vec![0.5, -1.0, 0.0, 2.0, 0.1, -0.3], var: vec![4.0, 0.25, 1.0, 9.0, 0.01, 2.0], count: 1e4 });
+    model.obs_rms = Some(RunningMeanStd {
+        mean: vec![0.5, -1.0, 0.0, 2.0, 0.1, -0.3],
+        var: vec![4.0, 0.25, 1.0, 9.0, 0.01, 2.0],
+        count: 1e4,
+    });
     for (name, var) in model.actor.named_vars() {
         if name == "actor.mu.weight" {
             var.set(&var.as_tensor().affine(20.0, 0.0).unwrap()).unwrap();
@@ -169,7 +173,8 @@ fn policies_on_camera_images_export_their_cnn() {
     assert!(delta <= 1e-4, "max |Δ| {delta}");
 
     // An image and state values: the graph slices them apart and joins the state to the features.
-    let with_state = Space::ImageAndState { height: 40, width: 44, channels: 6, low: vec![-300.0; 5], high: vec![300.0; 5] };
+    let with_state =
+        Space::ImageAndState { height: 40, width: 44, channels: 6, low: vec![-300.0; 5], high: vec![300.0; 5] };
     let obs = images(&with_state, rows, 7);
     let config = SacConfig { hidden: vec![32], features_dim: 24, buffer_size: 1000, ..Default::default() };
     let model = Sac::new(config, with_state.clone(), action_space, 14).unwrap();
@@ -177,7 +182,8 @@ fn policies_on_camera_images_export_their_cnn() {
     let delta = largest_difference(&onnx, &own);
     eprintln!("SAC on an image and state: max |Δ| {delta:e} over {rows} observations");
     assert!(delta <= 1e-4, "max |Δ| {delta}");
-    let moved: Vec<f32> = obs.chunks(with_state.dim()).flat_map(|o| [&o[..o.len() - 5], &[299.0; 5][..]].concat()).collect();
+    let moved: Vec<f32> =
+        obs.chunks(with_state.dim()).flat_map(|o| [&o[..o.len() - 5], &[299.0; 5][..]].concat()).collect();
     assert_ne!(both(&model, &moved).1, own, "the state values reach the actions");
 }
 
@@ -196,7 +202,8 @@ fn keypoint_policies_export_their_spatial_softmax() {
     // read in the wrong order would move them.
     let action_space = Space::Box { low: vec![-1.0, -2.0], high: vec![1.0, 0.5] };
     let rows = 100;
-    let with_state = Space::ImageAndState { height: 64, width: 64, channels: 3, low: vec![-3.0; 5], high: vec![3.0; 5] };
+    let with_state =
+        Space::ImageAndState { height: 64, width: 64, channels: 3, low: vec![-3.0; 5], high: vec![3.0; 5] };
     let obs = images(&with_state, rows, 8);
     let config = PpoConfig { policy: PolicyKind::Keypoints, share_features_extractor: false, ..Default::default() };
     let model = Ppo::new(config, with_state.clone(), action_space.clone(), 15).unwrap();

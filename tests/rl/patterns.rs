@@ -1,8 +1,8 @@
 //! The paper's design patterns on the cart-pole.
 
 use twinbots_api::{DesignPattern, VecEnv};
-use twinbots_task::AppVecEnv;
 use twinbots_sim::{Motor, MotorCommand, PositionSensor};
+use twinbots_task::AppVecEnv;
 
 fn radio_env() -> AppVecEnv {
     let mut env = AppVecEnv::new(cartpole::headless_app_with(1, 6, DesignPattern::Radio));

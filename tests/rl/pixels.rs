@@ -25,7 +25,15 @@ const LENGTH: u32 = 8;
 impl LitHalf {
     fn new(envs: usize) -> Self {
         let space = Space::Image { height: SIZE, width: SIZE, channels: 1 };
-        Self { envs, space, actions: Space::Discrete { n: 2 }, rng: ChaCha8Rng::seed_from_u64(0), lit: vec![0; envs], steps: vec![0; envs], scores: vec![0.0; envs] }
+        Self {
+            envs,
+            space,
+            actions: Space::Discrete { n: 2 },
+            rng: ChaCha8Rng::seed_from_u64(0),
+            lit: vec![0; envs],
+            steps: vec![0; envs],
+            scores: vec![0.0; envs],
+        }
     }
 
     fn observe(&mut self) -> Vec<f32> {
@@ -72,14 +80,23 @@ impl VecEnv for LitHalf {
             out.terminated.push(false);
             out.truncated.push(ended);
             out.ended_by.push(None);
-            out.episodes.push(ended.then(|| EpisodeSummary { score: self.scores[i], length: LENGTH, ..Default::default() }));
+            out.episodes.push(ended.then(|| EpisodeSummary {
+                score: self.scores[i],
+                length: LENGTH,
+                ..Default::default()
+            }));
             if ended {
                 (self.steps[i], self.scores[i]) = (0, 0.0);
             }
         }
         out.obs = self.observe();
         // The final image is as uninformative as any other: the next one stands in for it.
-        out.final_obs = out.truncated.iter().enumerate().map(|(i, &t)| t.then(|| out.obs[i * SIZE * SIZE..(i + 1) * SIZE * SIZE].to_vec())).collect();
+        out.final_obs = out
+            .truncated
+            .iter()
+            .enumerate()
+            .map(|(i, &t)| t.then(|| out.obs[i * SIZE * SIZE..(i + 1) * SIZE * SIZE].to_vec()))
+            .collect();
         Ok(out)
     }
 }
@@ -124,8 +141,14 @@ fn lit_half_settings() -> PpoConfig {
 
 #[test]
 fn ppo_with_a_cnn_learns_which_half_of_the_image_is_lit_and_saves_and_loads_it() {
-    let model = learns_the_lit_half_and_loads(PpoConfig { policy: PolicyKind::Cnn, features_dim: 64, ..lit_half_settings() }, "cnn");
-    assert!(model.policy.named_vars().iter().any(|(name, _)| name == "features.3.weight"), "NatureCNN's 3 convolutions and dense layer");
+    let model = learns_the_lit_half_and_loads(
+        PpoConfig { policy: PolicyKind::Cnn, features_dim: 64, ..lit_half_settings() },
+        "cnn",
+    );
+    assert!(
+        model.policy.named_vars().iter().any(|(name, _)| name == "features.3.weight"),
+        "NatureCNN's 3 convolutions and dense layer"
+    );
 }
 
 #[test]
@@ -146,7 +169,8 @@ fn cnn_settings_that_cannot_work_are_errors_naming_the_key() {
     let e = Ppo::new(cnn, Space::uniform_box(4, -1.0, 1.0), discrete.clone(), 0).unwrap_err().to_string();
     assert!(e.contains("is not an image"), "{e}");
     let normalized = PpoConfig { normalize_observations: true, ..PpoConfig::default() };
-    let e = Ppo::new(normalized, Space::Image { height: 40, width: 40, channels: 3 }, discrete, 0).unwrap_err().to_string();
+    let e =
+        Ppo::new(normalized, Space::Image { height: 40, width: 40, channels: 3 }, discrete, 0).unwrap_err().to_string();
     assert!(e.contains("ppo.normalize_observations = true: camera images"), "{e}");
 }
 
@@ -215,11 +239,32 @@ impl VecEnv for LitColumn {
 fn sac_with_cnns_learns_where_the_lit_column_is() {
     use twinbots_learn::{Sac, SacConfig};
     let space = Space::Image { height: SIZE, width: SIZE, channels: 1 };
-    let mut env = LitColumn { space, actions: Space::uniform_box(1, -1.0, 1.0), rng: ChaCha8Rng::seed_from_u64(0), column: 0, steps: 0, score: 0.0 };
-    let config = SacConfig { policy: PolicyKind::Cnn, features_dim: 32, hidden: vec![64], batch_size: 32, learning_starts: 200, buffer_size: 10_000, learning_rate: 1e-3, log_interval: 200, ..SacConfig::default() };
+    let mut env = LitColumn {
+        space,
+        actions: Space::uniform_box(1, -1.0, 1.0),
+        rng: ChaCha8Rng::seed_from_u64(0),
+        column: 0,
+        steps: 0,
+        score: 0.0,
+    };
+    let config = SacConfig {
+        policy: PolicyKind::Cnn,
+        features_dim: 32,
+        hidden: vec![64],
+        batch_size: 32,
+        learning_starts: 200,
+        buffer_size: 10_000,
+        learning_rate: 1e-3,
+        log_interval: 200,
+        ..SacConfig::default()
+    };
     let mut model = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 5).unwrap();
-    let names: Vec<String> = model.actor.named_vars().into_iter().chain(model.critic.named_vars("critic")).map(|(n, _)| n).collect();
-    assert!(names.contains(&"actor.features.0.weight".to_string()) && names.contains(&"critic.features.3.bias".to_string()), "{names:?}");
+    let names: Vec<String> =
+        model.actor.named_vars().into_iter().chain(model.critic.named_vars("critic")).map(|(n, _)| n).collect();
+    assert!(
+        names.contains(&"actor.features.0.weight".to_string()) && names.contains(&"critic.features.3.bias".to_string()),
+        "{names:?}"
+    );
     let best = learn_until(&mut model, &mut env, 6_000, 50, 3.0);
     // Acting at random scores about 4 × 1/3.
     assert!(best >= 3.0, "mean score {best} of 4 after {} steps", model.timesteps);
@@ -233,8 +278,20 @@ fn sac_with_cnns_learns_where_the_lit_column_is() {
     let obs = env.reset(Some(3)).unwrap();
     assert_eq!(loaded.predict_deterministic(&obs).unwrap(), model.predict_deterministic(&obs).unwrap());
     std::fs::remove_dir_all(&dir).ok();
-    let e = Sac::new(SacConfig::default(), Space::Image { height: 64, width: 64, channels: 3 }, Space::uniform_box(1, -1.0, 1.0), 0).unwrap_err().to_string();
-    assert!(e.starts_with("sac.buffer_size = 1000000: 1000000 transitions of Image(64×64×3) observations take 23 GiB; at most 16 GiB"), "{e}");
+    let e = Sac::new(
+        SacConfig::default(),
+        Space::Image { height: 64, width: 64, channels: 3 },
+        Space::uniform_box(1, -1.0, 1.0),
+        0,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.starts_with(
+            "sac.buffer_size = 1000000: 1000000 transitions of Image(64×64×3) observations take 23 GiB; at most 16 GiB"
+        ),
+        "{e}"
+    );
 }
 
 /// `[ppo] features_from`: a new model's image encoders (the policy's and the value's own) start
@@ -245,7 +302,13 @@ fn a_new_model_starts_its_image_encoders_from_features_from() {
     let space = LitHalf::new(1).space;
     let dir = std::env::temp_dir().join(format!("twinbots-features-from-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let donor = Ppo::new(PpoConfig { policy: PolicyKind::Keypoints, ..Default::default() }, space.clone(), Space::Discrete { n: 2 }, 7).unwrap();
+    let donor = Ppo::new(
+        PpoConfig { policy: PolicyKind::Keypoints, ..Default::default() },
+        space.clone(),
+        Space::Discrete { n: 2 },
+        7,
+    )
+    .unwrap();
     let encoder = twinbots_learn::model_io::var_tensors(&donor.policy.encoder.named_vars());
     let file = dir.join("encoder.safetensors");
     twinbots_learn::model_io::save_tensors(&encoder, &file).unwrap();
@@ -253,11 +316,17 @@ fn a_new_model_starts_its_image_encoders_from_features_from() {
     let spec = spec_of(&space);
     let algorithm = twinbots_learn::algos::find("ppo").unwrap();
     let new = |from: &std::path::Path| {
-        let keys: toml::Table = format!("policy = \"keypoints\"\nshare_features_extractor = false\nfeatures_from = {:?}\n", from.display().to_string()).parse().unwrap();
+        let keys: toml::Table = format!(
+            "policy = \"keypoints\"\nshare_features_extractor = false\nfeatures_from = {:?}\n",
+            from.display().to_string()
+        )
+        .parse()
+        .unwrap();
         (algorithm.new)(&(algorithm.config)(&keys, 1).unwrap(), &spec, 0)
     };
     new(&file).unwrap().save(&dir.join("model")).unwrap();
-    let saved = candle_core::safetensors::load(dir.join("model").join("model.safetensors"), &candle_core::Device::Cpu).unwrap();
+    let saved =
+        candle_core::safetensors::load(dir.join("model").join("model.safetensors"), &candle_core::Device::Cpu).unwrap();
     for (name, want) in &encoder {
         for prefix in ["", "vf_"] {
             let got = saved[&format!("{prefix}{name}")].flatten_all().unwrap().to_vec1::<f32>().unwrap();
@@ -293,10 +362,20 @@ fn spec_of(space: &Space) -> twinbots_api::TaskSpec {
 #[test]
 fn frozen_image_encoders_keep_their_weights_while_the_mlps_learn() {
     let mut env = LitHalf::new(4);
-    let config = PpoConfig { policy: PolicyKind::Cnn, features_dim: 64, share_features_extractor: false, freeze_features: true, ..lit_half_settings() };
+    let config = PpoConfig {
+        policy: PolicyKind::Cnn,
+        features_dim: 64,
+        share_features_extractor: false,
+        freeze_features: true,
+        ..lit_half_settings()
+    };
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 2).unwrap();
     let weights = |m: &Ppo| -> Vec<(String, Vec<f32>)> {
-        m.policy.named_vars().into_iter().map(|(n, v)| (n, v.as_tensor().flatten_all().unwrap().to_vec1().unwrap())).collect()
+        m.policy
+            .named_vars()
+            .into_iter()
+            .map(|(n, v)| (n, v.as_tensor().flatten_all().unwrap().to_vec1().unwrap()))
+            .collect()
     };
     let before = weights(&model);
     let best = learn_until(&mut model, &mut env, 20_000, 20, 7.5);
@@ -313,7 +392,8 @@ fn frozen_image_encoders_keep_their_weights_while_the_mlps_learn() {
     let mut buffer = twinbots_learn::ppo::RolloutBuffer::new(4, SIZE * SIZE, 1);
     model.collect_rollout(&mut env, &mut obs, &mut buffer).unwrap();
     assert_eq!((buffer.cached_width(&buffer.features), buffer.cached_width(&buffer.value_features)), (64, 64));
-    let images = candle_core::Tensor::from_slice(&buffer.obs, (buffer.len(), SIZE * SIZE), &candle_core::Device::Cpu).unwrap();
+    let images =
+        candle_core::Tensor::from_slice(&buffer.obs, (buffer.len(), SIZE * SIZE), &candle_core::Device::Cpu).unwrap();
     let (features, value_features) = model.policy.features(&images).unwrap();
     for (cached, computed) in [(&buffer.features, features), (&buffer.value_features, value_features.unwrap())] {
         let computed: Vec<f32> = computed.flatten_all().unwrap().to_vec1().unwrap();

@@ -1,13 +1,14 @@
 //! PPO learns.
 
-use twinbots_learn::classic::ClassicCartPole;
 use twinbots_api::VecEnv;
+use twinbots_learn::classic::ClassicCartPole;
 use twinbots_learn::{Flow, Ppo, PpoConfig, UpdateStats};
 
 #[test]
 fn ppo_reaches_475_on_classic_cartpole_within_150k_steps() {
     let mut env = ClassicCartPole::new(8);
-    let mut model = Ppo::new(PpoConfig::zoo_cartpole(), env.observation_space().clone(), env.action_space().clone(), 1).unwrap();
+    let mut model =
+        Ppo::new(PpoConfig::zoo_cartpole(), env.observation_space().clone(), env.action_space().clone(), 1).unwrap();
     let mut best = f32::MIN;
     let mut history = Vec::new();
     model
@@ -128,7 +129,10 @@ fn a_non_finite_reward_skips_the_gradient_steps_it_poisons_counts_them_and_learn
         let values = var.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap();
         assert!(values.iter().all(|x| x.is_finite()), "{name} is not finite");
     }
-    assert!(rows[2..].iter().all(|s| s.train("policy_loss").is_finite() && s.train("value_loss").is_finite()), "{rows:?}");
+    assert!(
+        rows[2..].iter().all(|s| s.train("policy_loss").is_finite() && s.train("value_loss").is_finite()),
+        "{rows:?}"
+    );
     let actions = model.predict_deterministic(&[0.0, 0.0, 0.02, 0.0]).unwrap();
     assert!(actions[0] == 0.0 || actions[0] == 1.0);
 }
@@ -161,7 +165,8 @@ fn a_session_whose_gradient_steps_were_all_skipped_is_an_error() {
     use twinbots_learn::callbacks::GradientStepTally;
     let config = PpoConfig { n_steps: 64, batch_size: 64, n_epochs: 2, ..PpoConfig::default() };
     let learn = |env: &mut dyn VecEnv| {
-        let mut model = Ppo::new(config.clone(), env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
+        let mut model =
+            Ppo::new(config.clone(), env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
         let mut tally = GradientStepTally::default();
         model.learn(env, 64 * 2 * 3, &mut tally).unwrap();
         tally

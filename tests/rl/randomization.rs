@@ -1,13 +1,13 @@
 //! Domain randomization: physical parameters per episode, d_randomize on actions, latency.
 
-use twinbots_sim::Look;
 use rand::SeedableRng;
-use twinbots_task::randomization::visual::{VisualRandomization, redraw_looks};
-use twinbots_task::randomization::{FitSpread, Randomization, RandomizationPlugin};
 use twinbots_api::VecEnv;
-use twinbots_task::AppVecEnv;
+use twinbots_sim::Look;
 use twinbots_sim::rapier::dynamics::RigidBodyAdditionalMassProps;
 use twinbots_sim::{InArena, Joint, JointDynamics, JointState, Motor, MotorCommand, Parameters, PositionSensor};
+use twinbots_task::AppVecEnv;
+use twinbots_task::randomization::visual::{VisualRandomization, redraw_looks};
+use twinbots_task::randomization::{FitSpread, Randomization, RandomizationPlugin};
 
 fn env(r: Randomization) -> (AppVecEnv, cartpole::CartPoleParts) {
     let mut app = cartpole::headless_app(1, 3);
@@ -89,8 +89,18 @@ fn backwards_ranges_are_a_clear_error() {
 fn calibrated_draws(k: f32, seed: u64, resets: usize) -> Vec<Vec<[f64; 4]>> {
     let fitted = |pairs: &[(&str, f64)]| Parameters(pairs.iter().map(|(n, v)| (n.to_string(), *v)).collect());
     let mut app = cartpole::headless_app(3, seed);
-    app.insert_resource(fitted(&[("pole_joint.damping", 0.01), ("pole_joint.armature", 0.002), ("command_delay", 0.004), ("pole_joint.bias", 0.1)]));
-    app.insert_resource(FitSpread(fitted(&[("pole_joint.damping", 0.002), ("pole_joint.armature", 0.0005), ("command_delay", 0.001), ("pole_joint.bias", 0.01)])));
+    app.insert_resource(fitted(&[
+        ("pole_joint.damping", 0.01),
+        ("pole_joint.armature", 0.002),
+        ("command_delay", 0.004),
+        ("pole_joint.bias", 0.1),
+    ]));
+    app.insert_resource(FitSpread(fitted(&[
+        ("pole_joint.damping", 0.002),
+        ("pole_joint.armature", 0.0005),
+        ("command_delay", 0.001),
+        ("pole_joint.bias", 0.01),
+    ])));
     app.add_plugins(RandomizationPlugin(Randomization { calibration_spread: k, ..Default::default() }));
     let mut env = AppVecEnv::new(app);
     (0..resets)
@@ -106,9 +116,18 @@ fn calibrated_draws(k: f32, seed: u64, resets: usize) -> Vec<Vec<[f64; 4]>> {
                     let delay = world.get::<Motor>(parts.wheels[0]).unwrap().delay;
                     assert_eq!(world.get::<InArena>(parts.wheels[0]).unwrap().0, arena);
                     let body = &twinbots_sim::physics_in(world, arena).unwrap().bodies[joint.child_body];
-                    let Some(RigidBodyAdditionalMassProps::MassProps(props)) = body.mass_properties().additional_local_mprops.as_deref() else { panic!("the pole carries its URDF inertial") };
+                    let Some(RigidBodyAdditionalMassProps::MassProps(props)) =
+                        body.mass_properties().additional_local_mprops.as_deref()
+                    else {
+                        panic!("the pole carries its URDF inertial")
+                    };
                     let inertia = props.principal_inertia();
-                    [dynamics.damping as f64, dynamics.armature() as f64, delay as f64, (inertia.x + inertia.y + inertia.z) as f64]
+                    [
+                        dynamics.damping as f64,
+                        dynamics.armature() as f64,
+                        delay as f64,
+                        (inertia.x + inertia.y + inertia.z) as f64,
+                    ]
                 })
                 .collect()
         })
@@ -119,7 +138,10 @@ fn calibrated_draws(k: f32, seed: u64, resets: usize) -> Vec<Vec<[f64; 4]>> {
 fn randomization_centred_on_a_calibration_draws_per_arena_around_the_fit() {
     let centred = calibrated_draws(0.0, 5, 1);
     let [_, _, _, fitted_trace] = centred[0][0];
-    assert!(centred[0].iter().all(|d| d[..3] == [0.01f32 as f64, 0.002f32 as f64, 0.004f32 as f64]), "k = 0: the fit as it is: {centred:?}");
+    assert!(
+        centred[0].iter().all(|d| d[..3] == [0.01f32 as f64, 0.002f32 as f64, 0.004f32 as f64]),
+        "k = 0: the fit as it is: {centred:?}"
+    );
     let draws = calibrated_draws(2.0, 5, 20);
     assert_eq!(draws, calibrated_draws(2.0, 5, 20), "the seed fixes the draws");
     let all: Vec<[f64; 4]> = draws.iter().flatten().copied().collect();
@@ -134,7 +156,12 @@ fn randomization_centred_on_a_calibration_draws_per_arena_around_the_fit() {
     assert!(draws.iter().all(|arenas| arenas[0] != arenas[1] && arenas[1] != arenas[2]), "each arena draws its own");
     // The drawn armature replaces the fitted one on the body: resets never pile inertia up.
     for d in &all {
-        assert!((d[3] - fitted_trace - (d[1] - 0.002)).abs() < 1e-6, "inertia {} for armature {} (fitted: {fitted_trace})", d[3], d[1]);
+        assert!(
+            (d[3] - fitted_trace - (d[1] - 0.002)).abs() < 1e-6,
+            "inertia {} for armature {} (fitted: {fitted_trace})",
+            d[3],
+            d[1]
+        );
     }
 }
 
@@ -171,7 +198,11 @@ fn visual_randomization_draws_a_look_per_arena_and_episode_from_the_seed_alone()
     let names: Vec<&str> = look.surfaces.keys().map(String::as_str).collect();
     assert!(names.contains(&"floor") && names.iter().any(|n| n.starts_with("pole/")), "{names:?}");
     assert!((1..=3).contains(&look.lights.len()), "{:?}", look.lights);
-    assert!(look.lights.iter().all(|l| (0.3..=0.9).contains(&l.intensity) && l.direction[2] < 0.0), "lights shine down: {:?}", look.lights);
+    assert!(
+        look.lights.iter().all(|l| (0.3..=0.9).contains(&l.intensity) && l.direction[2] < 0.0),
+        "lights shine down: {:?}",
+        look.lights
+    );
     assert!(look.camera.offset.iter().all(|d| d.abs() <= 0.01) && look.camera.fov.abs() <= 5f32.to_radians());
     // The look comes from a stream of its own: switching it on changes no trajectory.
     let (none, plain) = looks(None, 4, 3);
@@ -193,7 +224,12 @@ fn visual_randomization_draws_a_look_per_arena_and_episode_from_the_seed_alone()
     let (draws, _) = looks(Some(cluttered), 4, 1);
     let boxes = &draws[0][0].as_ref().unwrap().distractors;
     assert_eq!(boxes.len(), 2);
-    assert!(boxes.iter().all(|d| d.half_extents.iter().all(|h| (0.015..=0.05).contains(h)) && d.centre[2] >= d.half_extents[2]), "{boxes:?}");
+    assert!(
+        boxes
+            .iter()
+            .all(|d| d.half_extents.iter().all(|h| (0.015..=0.05).contains(h)) && d.centre[2] >= d.half_extents[2]),
+        "{boxes:?}"
+    );
     // Only the surfaces asked for change.
     let floor_only = VisualRandomization { surfaces: vec!["floor".into()], ..visual };
     let (draws, _) = looks(Some(floor_only), 4, 1);

@@ -48,7 +48,11 @@ fn killed_and_resumed_run_matches_an_uninterrupted_one(name: &str, args: &[&str]
 
     let mut child = train(args, &config, &killed).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
     let deadline = Instant::now() + Duration::from_secs(120);
-    let checkpoints = || std::fs::read_dir(killed.join("checkpoints")).map_or(0, |d| d.filter(|e| !e.as_ref().unwrap().file_name().to_string_lossy().ends_with(".partial")).count());
+    let checkpoints = || {
+        std::fs::read_dir(killed.join("checkpoints")).map_or(0, |d| {
+            d.filter(|e| !e.as_ref().unwrap().file_name().to_string_lossy().ends_with(".partial")).count()
+        })
+    };
     while checkpoints() < 2 && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(2));
     }
@@ -68,7 +72,8 @@ fn killed_and_resumed_run_matches_an_uninterrupted_one(name: &str, args: &[&str]
         files.push("model/replay_buffer.safetensors");
     }
     for file in files {
-        let read = |run: &Path| std::fs::read(run.join(file)).unwrap_or_else(|e| panic!("{}: {e}", run.join(file).display()));
+        let read =
+            |run: &Path| std::fs::read(run.join(file)).unwrap_or_else(|e| panic!("{}: {e}", run.join(file).display()));
         assert!(read(&killed) == read(&straight), "{file} differs between the resumed and the uninterrupted run");
     }
     std::fs::remove_dir_all(&dir).ok();
@@ -109,7 +114,8 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
         .output()
         .unwrap();
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
-    let mut checkpoints: Vec<PathBuf> = std::fs::read_dir(run.join("checkpoints")).unwrap().map(|e| e.unwrap().path()).collect();
+    let mut checkpoints: Vec<PathBuf> =
+        std::fs::read_dir(run.join("checkpoints")).unwrap().map(|e| e.unwrap().path()).collect();
     checkpoints.sort();
     assert_eq!(checkpoints.len(), 5, "every 4th of 20 updates");
     // The newest: its metadata cut short. The one before: a weight turned NaN (0xffffffff).
@@ -143,7 +149,11 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
     let output = twinbots().args(["train", "--resume"]).arg(&run).output().unwrap();
     let (out, err) = (String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success(), "{err}");
-    for (checkpoint, why) in [(poisoned, "non-finite values"), (huge, "holds 3.4028235e38, beyond ±1e4"), (incomplete, "env_state.json: missing")] {
+    for (checkpoint, why) in [
+        (poisoned, "non-finite values"),
+        (huge, "holds 3.4028235e38, beyond ±1e4"),
+        (incomplete, "env_state.json: missing"),
+    ] {
         assert!(err.contains(&format!("checkpoint {} is unusable", checkpoint.display())), "{err}");
         assert!(err.contains(why), "{why:?} not in {err}");
     }
@@ -158,7 +168,19 @@ fn a_killed_pattern_3_run_resumes_through_its_server_and_its_server_does_not_out
     let dir = temp_dir("resume-p3");
     let run = dir.join("run");
     let mut child = twinbots()
-        .args(["train", "cartpole", "--pattern", "3", "--timesteps", "4096", "--arenas", "2", "--checkpoint-every", "2", "--out"])
+        .args([
+            "train",
+            "cartpole",
+            "--pattern",
+            "3",
+            "--timesteps",
+            "4096",
+            "--arenas",
+            "2",
+            "--checkpoint-every",
+            "2",
+            "--out",
+        ])
         .arg(&run)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
@@ -186,13 +208,23 @@ fn a_killed_pattern_3_run_resumes_through_its_server_and_its_server_does_not_out
     assert!(!run.join("model").exists(), "killed before it finished");
 
     let output = twinbots().args(["train", "--resume"]).arg(&run).output().unwrap();
-    assert!(output.status.success(), "{}\n{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(
+        output.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
     let progress = twinbots_learn::RunDir::new(&run).read_progress().unwrap();
     let updates: Vec<usize> = progress.iter().map(|row| row.update).collect();
     assert!(updates.iter().enumerate().all(|(i, &u)| u == i + 1), "{updates:?}");
     assert!(progress.windows(2).all(|w| w[1].timesteps > w[0].timesteps));
     let model = twinbots_learn::Ppo::load(run.join("model")).unwrap();
-    assert!(model.timesteps >= 4096 && model.updates as usize == updates.len(), "{} steps, {} updates", model.timesteps, model.updates);
+    assert!(
+        model.timesteps >= 4096 && model.updates as usize == updates.len(),
+        "{} steps, {} updates",
+        model.timesteps,
+        model.updates
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -206,7 +238,8 @@ fn a_finished_run_trains_more_with_resume_and_timesteps() {
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     let updates = |run: &Path| std::fs::read_to_string(run.join("progress.csv")).unwrap().lines().count() - 1;
     let timesteps = |run: &Path| -> u64 {
-        let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
+        let summary: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
         summary["timesteps"].as_u64().unwrap_or_else(|| panic!("{summary}"))
     };
     let (before, steps) = (updates(&run), timesteps(&run));
@@ -221,7 +254,8 @@ fn a_finished_run_trains_more_with_resume_and_timesteps() {
     let settings: toml::Table = toml::from_str(&std::fs::read_to_string(run.join("config.toml")).unwrap()).unwrap();
     assert_eq!(settings["timesteps"].as_integer(), Some(768), "config.toml records the new budget");
     // Other flags still do not go with --resume.
-    let output = twinbots().args(["train", "--resume"]).arg(&run).args(["--timesteps", "256", "--seed", "3"]).output().unwrap();
+    let output =
+        twinbots().args(["train", "--resume"]).arg(&run).args(["--timesteps", "256", "--seed", "3"]).output().unwrap();
     assert!(!output.status.success() && String::from_utf8_lossy(&output.stderr).contains("--seed"));
     std::fs::remove_dir_all(&dir).ok();
 }

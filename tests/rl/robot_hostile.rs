@@ -38,7 +38,12 @@ fn send(stream: &mut TcpStream, message: &ServerMessage) {
 /// What a cart-pole server's welcome says, as JSON (to be edited by a test).
 fn welcome() -> serde_json::Value {
     let spec = twinbots::registry::find("cartpole").unwrap().task();
-    serde_json::to_value(ServerMessage::Welcome { version: VERSION, robot_id: 7, task: TaskInterface::of("cartpole", &spec) }).unwrap()
+    serde_json::to_value(ServerMessage::Welcome {
+        version: VERSION,
+        robot_id: 7,
+        task: TaskInterface::of("cartpole", &spec),
+    })
+    .unwrap()
 }
 
 /// Reads the hello, welcomes, and answers the next `answered` requests with an action.
@@ -60,7 +65,8 @@ fn silent(stream: TcpStream) {
 /// `twinbots robot cartpole` against `addr` with 2 s of patience: its output and how long it ran.
 fn robot(addr: SocketAddr) -> (Output, Duration) {
     let started = Instant::now();
-    let output = twinbots().args(["robot", "cartpole", "--server", &addr.to_string(), "--patience", "2"]).output().unwrap();
+    let output =
+        twinbots().args(["robot", "cartpole", "--server", &addr.to_string(), "--patience", "2"]).output().unwrap();
     (output, started.elapsed())
 }
 
@@ -142,7 +148,10 @@ fn garbage_other_versions_and_other_robots_are_named_not_unreachable() {
     let cases = [
         (edited(|w| w["version"] = 3.into()), "it speaks protocol version 3; this robot speaks version 2"),
         (edited(|w| w["task"]["robot"] = "ur5e".into()), "it welcomed a \"ur5e\", not this \"cartpole\""),
-        (edited(|w| w["task"]["action_space"] = serde_json::json!({"Discrete": {"n": 3}})), "its model has observation Box(4) and action Discrete(3)"),
+        (
+            edited(|w| w["task"]["action_space"] = serde_json::json!({"Discrete": {"n": 3}})),
+            "its model has observation Box(4) and action Discrete(3)",
+        ),
     ];
     for (welcome, reason) in cases {
         let (addr, _) = fake_server(move |mut s| {
@@ -155,7 +164,10 @@ fn garbage_other_versions_and_other_robots_are_named_not_unreachable() {
 
 #[test]
 fn an_empty_token_is_refused_as_a_value() {
-    for command in [&["serve", "cartpole", "--token", ""][..], &["robot", "cartpole", "--server", "127.0.0.1:9", "--token", ""][..]] {
+    for command in [
+        &["serve", "cartpole", "--token", ""][..],
+        &["robot", "cartpole", "--server", "127.0.0.1:9", "--token", ""][..],
+    ] {
         let output = twinbots().args(command).output().unwrap();
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert!(!output.status.success(), "{command:?} accepted an empty token");

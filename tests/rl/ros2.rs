@@ -64,7 +64,11 @@ fn bad_commands_are_refused_and_change_nothing() {
     nan[3] = f64::NAN;
     let e = twin.apply(Command::Forward(Interface::Effort, nan), 0.0).unwrap_err();
     assert!(e.contains("effort command NaN is not a number"), "{e}");
-    let bad = JointTrajectory { joint_names: vec!["elbow".into()], points: vec![JointTrajectoryPoint::default()], ..Default::default() };
+    let bad = JointTrajectory {
+        joint_names: vec!["elbow".into()],
+        points: vec![JointTrajectoryPoint::default()],
+        ..Default::default()
+    };
     let e = twin.apply(Command::Trajectory(bad), 0.0).unwrap_err();
     assert!(e.contains("no commandable joint 'elbow' (the robot's: shoulder_pan_joint"), "{e}");
     run(&mut twin, 0.5);
@@ -75,7 +79,11 @@ fn bad_commands_are_refused_and_change_nothing() {
 fn a_trajectory_is_followed_through_its_points() {
     let mut twin = ur5e();
     let start = positions(&twin);
-    let point = |q: f64, t: f64| JointTrajectoryPoint { positions: vec![q], time_from_start: Duration::from_seconds(t), ..Default::default() };
+    let point = |q: f64, t: f64| JointTrajectoryPoint {
+        positions: vec![q],
+        time_from_start: Duration::from_seconds(t),
+        ..Default::default()
+    };
     let message = JointTrajectory {
         joint_names: vec!["shoulder_pan_joint".into()],
         points: vec![point(0.5, 1.0), point(-0.5, 3.0)],
@@ -98,7 +106,8 @@ fn chain(messages: &[&TFMessage], root: &str, child: &str) -> DMat4 {
     for m in messages {
         for t in &m.transforms {
             let (p, r) = (t.transform.translation, t.transform.rotation);
-            let pose = DMat4::from_rotation_translation(DQuat::from_xyzw(r.x, r.y, r.z, r.w), DVec3::new(p.x, p.y, p.z));
+            let pose =
+                DMat4::from_rotation_translation(DQuat::from_xyzw(r.x, r.y, r.z, r.w), DVec3::new(p.x, p.y, p.z));
             by_child.insert(&t.child_frame_id, (&t.header.frame_id, pose));
         }
     }
@@ -136,7 +145,13 @@ fn the_cartpoles_wheels_take_speeds_its_pole_none_and_its_base_moves_in_the_worl
     assert_eq!(names.len(), joints.len() + 1, "the pole's hinge is published, not commanded: {names:?}");
     let base = |twin: &Ros2Twin| {
         let frames = twin.frames(Time::default());
-        let t = frames.transforms.iter().find(|t| t.header.frame_id == "world").expect("the base in the world").transform.translation;
+        let t = frames
+            .transforms
+            .iter()
+            .find(|t| t.header.frame_id == "world")
+            .expect("the base in the world")
+            .transform
+            .translation;
         DVec3::new(t.x, t.y, t.z)
     };
     let before = base(&twin);

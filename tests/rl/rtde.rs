@@ -67,8 +67,12 @@ fn rtde_speedj_moves_the_twin_and_the_watchdog_stops_it() {
     let mut client = RtdeClient::connect(&standin.address(), PATIENCE).unwrap();
     let version = client.controller_version().unwrap();
     assert_eq!((version.major, version.minor), (5, 11));
-    let outputs = client.setup_outputs(&["timestamp", "actual_q", "actual_qd", "actual_TCP_pose", STATE], 125.0).unwrap();
-    assert_eq!(outputs.types.iter().map(|t| t.name()).collect::<Vec<_>>(), ["DOUBLE", "VECTOR6D", "VECTOR6D", "VECTOR6D", "INT32"]);
+    let outputs =
+        client.setup_outputs(&["timestamp", "actual_q", "actual_qd", "actual_TCP_pose", STATE], 125.0).unwrap();
+    assert_eq!(
+        outputs.types.iter().map(|t| t.name()).collect::<Vec<_>>(),
+        ["DOUBLE", "VECTOR6D", "VECTOR6D", "VECTOR6D", "INT32"]
+    );
     let mut names = vec![MODE, COUNTER, ACCELERATION];
     names.extend(TARGET);
     let inputs = client.setup_inputs(&names).unwrap();

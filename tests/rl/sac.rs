@@ -2,8 +2,8 @@
 
 use std::time::Instant;
 
-use twinbots_learn::classic::ClassicPendulum;
 use twinbots_api::VecEnv;
+use twinbots_learn::classic::ClassicPendulum;
 use twinbots_learn::{Agent, Flow, Sac, SacConfig, UpdateStats};
 
 /// SB3's SAC defaults but for 64-unit layers (256 cost 16× the arithmetic: a gradient step took
@@ -19,7 +19,14 @@ fn sac_reaches_minus_200_on_pendulum_within_20k_steps() {
     model
         .learn(&mut env, 20_000, &mut |s: &UpdateStats, _: &dyn Agent| {
             rows.push((s.timesteps, s.mean_reward, s.train("actor_loss"), s.train("critic_loss")));
-            eprintln!("{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)", s.timesteps, s.mean_reward, s.train("actor_loss"), s.train("critic_loss"), started.elapsed().as_secs_f32());
+            eprintln!(
+                "{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)",
+                s.timesteps,
+                s.mean_reward,
+                s.train("actor_loss"),
+                s.train("critic_loss"),
+                started.elapsed().as_secs_f32()
+            );
             Ok(Flow::Continue)
         })
         .unwrap();
@@ -32,7 +39,13 @@ fn sac_reaches_minus_200_on_pendulum_within_20k_steps() {
 
 fn small_pendulum_model(steps: u64) -> (Sac, ClassicPendulum) {
     let mut env = ClassicPendulum::new(2);
-    let config = SacConfig { hidden: vec![16, 16], learning_starts: 100, batch_size: 32, log_interval: 100, ..SacConfig::default() };
+    let config = SacConfig {
+        hidden: vec![16, 16],
+        learning_starts: 100,
+        batch_size: 32,
+        log_interval: 100,
+        ..SacConfig::default()
+    };
     let mut model = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 4).unwrap();
     model.learn(&mut env, steps, &mut |_: &UpdateStats, _: &dyn Agent| Ok(Flow::Continue)).unwrap();
     (model, env)
@@ -54,7 +67,11 @@ fn a_saved_sac_model_loads_as_it_was_and_learns_on_alike() {
     assert_eq!(loaded.history, model.history);
     let obs = [0.3f32, -0.9, 1.5, 1.0, 0.0, -4.0];
     assert_eq!(loaded.predict_deterministic(&obs).unwrap(), model.predict_deterministic(&obs).unwrap());
-    assert_eq!(loaded.predict(&obs, false).unwrap(), model.predict(&obs, false).unwrap(), "the sampling stream differs");
+    assert_eq!(
+        loaded.predict(&obs, false).unwrap(),
+        model.predict(&obs, false).unwrap(),
+        "the sampling stream differs"
+    );
     // Both go on from the same env: every gradient step (optimisers, targets, α) alike.
     let mut env2 = ClassicPendulum::new(2);
     let obs_now = env.reset(Some(9)).unwrap();
@@ -89,10 +106,16 @@ fn damaged_sac_files_are_named_and_a_ppo_loader_refuses_a_sac_model() {
 #[test]
 fn sac_refuses_discrete_actions_and_a_her_option_without_a_goal() {
     let env = twinbots_learn::classic::ClassicCartPole::new(1);
-    let err = Sac::new(SacConfig::default(), env.observation_space().clone(), env.action_space().clone(), 0).unwrap_err().to_string();
+    let err = Sac::new(SacConfig::default(), env.observation_space().clone(), env.action_space().clone(), 0)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("continuous (Box) actions"), "{err}");
     let env = ClassicPendulum::new(1);
     let her = SacConfig { her_goals: 4, ..SacConfig::default() };
-    let err = Sac::new(her, env.observation_space().clone(), env.action_space().clone(), 0).unwrap().with_goal(None).unwrap_err().to_string();
+    let err = Sac::new(her, env.observation_space().clone(), env.action_space().clone(), 0)
+        .unwrap()
+        .with_goal(None)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("sac.her_goals = 4"), "{err}");
 }

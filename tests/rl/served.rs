@@ -36,7 +36,13 @@ fn pendulum_task() -> TaskSpec {
 fn pendulum_robot(addr: SocketAddr, seed: u64) -> u32 {
     let spec = pendulum_task();
     let mut robot = Robot::connect(addr);
-    let hello = RobotMessage::Hello { version: VERSION, robot: "pendulum".into(), observation_space: spec.observation_space, action_space: spec.action_space, token: None };
+    let hello = RobotMessage::Hello {
+        version: VERSION,
+        robot: "pendulum".into(),
+        observation_space: spec.observation_space,
+        action_space: spec.action_space,
+        token: None,
+    };
     assert!(matches!(robot.call(&hello), ServerMessage::Welcome { .. }));
     let mut env = ClassicPendulum::new(1);
     let mut obs = env.reset(Some(seed)).unwrap();
@@ -110,7 +116,13 @@ fn sac_served_to_two_robots_reaches_minus_200_on_pendulum_within_20k_steps() {
 #[test]
 fn td3_is_served_and_learns_from_every_step() {
     let spec = pendulum_task();
-    let config = Td3Config { hidden: vec![16, 16], learning_starts: 200, batch_size: 32, log_interval: 100, ..Td3Config::default() };
+    let config = Td3Config {
+        hidden: vec![16, 16],
+        learning_starts: 200,
+        batch_size: 32,
+        log_interval: 100,
+        ..Td3Config::default()
+    };
     let model = Td3::new(config, spec.observation_space, spec.action_space, 0).unwrap();
     let (mean, rows) = serve_pendulum(Box::new(model), 2_000);
     assert!(mean.is_finite());
@@ -145,9 +157,18 @@ fn sac_with_her_served_to_ur5e_robots_stores_whole_episodes_with_their_ending_te
     // over TCP take turns as they come, so runs differ).
     let config = SacConfig { learning_starts: 800, ..ur5e::robot().defaults.of("sac").config().unwrap() };
     assert!(config.her_goals > 0);
-    let model = Sac::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap().with_goal(spec.goal).unwrap();
+    let model = Sac::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0)
+        .unwrap()
+        .with_goal(spec.goal)
+        .unwrap();
     let settings = ServerSettings::new("ur5e", &spec, 2, 1600);
-    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), Box::new(model), settings, Box::new(|_: &_, _: &dyn Agent| Ok(Flow::Continue))).unwrap();
+    let server = RobotServer::start(
+        "127.0.0.1:0".parse().unwrap(),
+        Box::new(model),
+        settings,
+        Box::new(|_: &_, _: &dyn Agent| Ok(Flow::Continue)),
+    )
+    .unwrap();
     let mut app = ur5e::headless_app_with(2, 4, DesignPattern::Server);
     app.insert_resource(ServerAddress { addr: server.addr, patience: std::time::Duration::from_secs(10) });
     app.finish();
@@ -160,7 +181,12 @@ fn sac_with_her_served_to_ur5e_robots_stores_whole_episodes_with_their_ending_te
     let _ = std::fs::remove_dir_all(&dir);
     let buffer = sac.buffer.as_ref().expect("the served model keeps its replay buffer");
     assert_eq!((buffer.n_envs, buffer.len() as u64), (1, sac.timesteps), "one lane, every step learnt from stored");
-    assert!(sac.timesteps >= 1600 && sac.gradient_steps > 0, "{} steps, {} gradient steps", sac.timesteps, sac.gradient_steps);
+    assert!(
+        sac.timesteps >= 1600 && sac.gradient_steps > 0,
+        "{} steps, {} gradient steps",
+        sac.timesteps,
+        sac.gradient_steps
+    );
     // Whole episodes: each ends where its `remaining` count reaches 0, one after another.
     let ends = buffer.remaining.iter().filter(|&&r| r == 0).count() as u64;
     assert_eq!(ends, sac.episodes, "an episode's steps are stored together");
@@ -170,5 +196,9 @@ fn sac_with_her_served_to_ur5e_robots_stores_whole_episodes_with_their_ending_te
     }
     // Random exploration trips the protective stop (`ended_by` "protective_stop").
     let stops = buffer.ended_by.iter().filter(|&&code| code > 0).count();
-    assert!(stops > 0 && buffer.terminations.iter().all(|t| spec.termination_terms.contains(t)), "{stops} {:?}", buffer.terminations);
+    assert!(
+        stops > 0 && buffer.terminations.iter().all(|t| spec.termination_terms.contains(t)),
+        "{stops} {:?}",
+        buffer.terminations
+    );
 }

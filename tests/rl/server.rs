@@ -12,11 +12,21 @@ use twinbots_link::protocol::{RobotMessage, ServerMessage, VERSION};
 use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
 
 pub fn server(timesteps: u64) -> RobotServer {
-    server_with(timesteps, 256, ServerLimits::default(), Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)))
+    server_with(
+        timesteps,
+        256,
+        ServerLimits::default(),
+        Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)),
+    )
 }
 
 /// A cart-pole server with these limits and callbacks.
-pub fn server_with(timesteps: u64, rollout: usize, limits: ServerLimits, callbacks: Box<dyn twinbots_learn::Callback + Send>) -> RobotServer {
+pub fn server_with(
+    timesteps: u64,
+    rollout: usize,
+    limits: ServerLimits,
+    callbacks: Box<dyn twinbots_learn::Callback + Send>,
+) -> RobotServer {
     let spec = cartpole::task_spec();
     // One robot's worth of `rollout` steps per update.
     let config = PpoConfig { n_steps: rollout, ..PpoConfig::zoo_cartpole() };
@@ -69,7 +79,14 @@ impl Robot {
         r
     }
     pub fn step(&mut self) -> ServerMessage {
-        self.call(&RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: false, truncated: false, success: None, ended_by: None })
+        self.call(&RobotMessage::Step {
+            obs: vec![0.0; 4],
+            reward: 1.0,
+            terminated: false,
+            truncated: false,
+            success: None,
+            ended_by: None,
+        })
     }
 }
 
@@ -134,7 +151,10 @@ fn a_bad_hello_is_refused() {
         action_space: id.action_space.clone(),
         token: None,
     });
-    assert!(matches!(&reply, ServerMessage::Error { fatal: true, message, .. } if message.contains("version")), "{reply:?}");
+    assert!(
+        matches!(&reply, ServerMessage::Error { fatal: true, message, .. } if message.contains("version")),
+        "{reply:?}"
+    );
     let mut r = Robot::connect(server.addr);
     let reply = r.call(&RobotMessage::Hello {
         version: VERSION,
@@ -143,7 +163,10 @@ fn a_bad_hello_is_refused() {
         action_space: twinbots_api::Space::Discrete { n: 3 },
         token: None,
     });
-    assert!(matches!(&reply, ServerMessage::Error { fatal: true, message, .. } if message.contains("Discrete(3)")), "{reply:?}");
+    assert!(
+        matches!(&reply, ServerMessage::Error { fatal: true, message, .. } if message.contains("Discrete(3)")),
+        "{reply:?}"
+    );
     // After a fatal error the server closes the connection.
     let mut byte = [0u8; 1];
     assert_eq!(r.reader.read(&mut byte).unwrap_or(0), 0);
@@ -175,11 +198,14 @@ fn a_robot_that_disconnects_mid_episode_has_that_episode_discarded() {
 
 #[test]
 fn the_server_trains_with_callbacks_and_stops_once_solved() {
-    use twinbots_learn::callbacks::StopTrainingOnSolved;
     use twinbots_api::SolvedCriterion;
+    use twinbots_learn::callbacks::StopTrainingOnSolved;
     use twinbots_learn::{CallbackList, SolvedBy, TrainingEnd, UpdateStats};
     let id = cartpole::task_spec();
-    let model = Box::new(Ppo::new(PpoConfig { n_steps: 8, ..PpoConfig::zoo_cartpole() }, id.observation_space, id.action_space, 0).unwrap());
+    let model = Box::new(
+        Ppo::new(PpoConfig { n_steps: 8, ..PpoConfig::zoo_cartpole() }, id.observation_space, id.action_space, 0)
+            .unwrap(),
+    );
     let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
     let seen = rows.clone();
     let callbacks = CallbackList::new()
@@ -196,7 +222,14 @@ fn the_server_trains_with_callbacks_and_stops_once_solved() {
         for _ in 0..3 {
             assert!(matches!(robot.step(), ServerMessage::Action { .. }));
         }
-        let last = RobotMessage::Step { obs: vec![0.0; 4], reward: 1.0, terminated: true, truncated: false, success: None, ended_by: None };
+        let last = RobotMessage::Step {
+            obs: vec![0.0; 4],
+            reward: 1.0,
+            terminated: true,
+            truncated: false,
+            success: None,
+            ended_by: None,
+        };
         assert!(matches!(robot.call(&last), ServerMessage::Ack));
     };
     // Two episodes of 4 steps (score 4 > 2) fill the rollout of 8: one update, then solved.
@@ -222,7 +255,12 @@ pub fn serve_process(listen: &str, timesteps: u64, out: &std::path::Path) -> (st
 }
 
 /// [`serve_process`] with more flags.
-pub fn serve_process_with(listen: &str, timesteps: u64, out: &std::path::Path, extra: &[&str]) -> (std::process::Child, SocketAddr) {
+pub fn serve_process_with(
+    listen: &str,
+    timesteps: u64,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> (std::process::Child, SocketAddr) {
     let mut child = twinbots()
         .args(["serve", "cartpole", "--listen", listen, "--timesteps", &timesteps.to_string(), "--out"])
         .arg(out)
@@ -249,10 +287,8 @@ pub fn temp(name: &str) -> std::path::PathBuf {
 fn serve_and_robot_as_two_processes_train_a_round_trip() {
     let out = temp("serve");
     let (mut server, addr) = serve_process("127.0.0.1:0", 2048, &out);
-    let robots = twinbots()
-        .args(["robot", "cartpole", "--arenas", "2", "--server", &addr.to_string()])
-        .output()
-        .unwrap();
+    let robots =
+        twinbots().args(["robot", "cartpole", "--arenas", "2", "--server", &addr.to_string()]).output().unwrap();
     assert!(robots.status.success(), "{}", String::from_utf8_lossy(&robots.stderr));
     assert!(String::from_utf8_lossy(&robots.stdout).contains("robots done"));
     assert!(server.wait().unwrap().success());
@@ -263,9 +299,11 @@ fn serve_and_robot_as_two_processes_train_a_round_trip() {
     let losses = crate::train_cli::event_scalars(&out).into_iter().filter(|(_, tag, _)| tag == "train/loss").count();
     assert_eq!(losses, rows, "the server logs TensorBoard scalars as train does");
     // It ends as `train` does (`twinbots::run::finish`): the final model evaluated in-process.
-    let evaluation: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).unwrap()).unwrap();
+    let evaluation: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).unwrap()).unwrap();
     assert!(evaluation["episodes"].as_u64().is_some_and(|n| n >= 1), "{evaluation}");
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["evaluation"]["episodes"], evaluation["episodes"], "{summary}");
     std::fs::remove_dir_all(&out).ok();
 }

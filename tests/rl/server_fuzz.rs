@@ -23,7 +23,8 @@ const SEEDS: &[&str] = &[
     r#"{"type":"abort"}"#,
     r#"{"type":"bye"}"#,
 ];
-const TOKENS: &[&str] = &["1e39", "NaN", "null", "[]", "{}", "\"\"", "-1", "[0,0,0]", "\"step\"", "18446744073709551616"];
+const TOKENS: &[&str] =
+    &["1e39", "NaN", "null", "[]", "{}", "\"\"", "-1", "[0,0,0]", "\"step\"", "18446744073709551616"];
 
 fn input(rng: &mut impl Rng) -> Vec<u8> {
     let seed = SEEDS[rng.random_range(0..SEEDS.len())].as_bytes().to_vec();
@@ -56,8 +57,13 @@ fn input(rng: &mut impl Rng) -> Vec<u8> {
 
 #[test]
 fn fuzzed_connections_get_a_reply_or_a_close_in_time_and_the_server_serves_on() {
-    let limits = ServerLimits { read_timeout: Duration::from_millis(200), handshake_timeout: Duration::from_millis(200), ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
+    let limits = ServerLimits {
+        read_timeout: Duration::from_millis(200),
+        handshake_timeout: Duration::from_millis(200),
+        ..Default::default()
+    };
+    let server =
+        server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
     let cases: usize = std::env::var("TWINBOTS_SERVER_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(240);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(31);
     let (mut replies, mut closes) = (0, 0);

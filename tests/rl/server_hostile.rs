@@ -12,7 +12,7 @@ use twinbots_learn::{Flow, UpdateStats};
 use twinbots_link::protocol::{ErrorCode, RobotMessage, ServerMessage, VERSION};
 use twinbots_server::server::ServerLimits;
 
-use crate::server::{Robot, frame, hello, server, server_with, serve_process, temp, twinbots};
+use crate::server::{Robot, frame, hello, serve_process, server, server_with, temp, twinbots};
 
 fn code(reply: &ServerMessage) -> (ErrorCode, bool) {
     match reply {
@@ -77,15 +77,22 @@ fn non_finite_observations_are_refused() {
 
 #[test]
 fn rewards_outside_the_tasks_range_are_refused_so_no_robot_can_claim_solved() {
-    use twinbots_learn::callbacks::StopTrainingOnSolved;
     use twinbots_api::SolvedCriterion;
     use twinbots_learn::CallbackList;
+    use twinbots_learn::callbacks::StopTrainingOnSolved;
     // The cart-pole pays exactly 1 per step; a robot claiming 1000 per step once ended
     // training as "solved after 128 steps".
     let callbacks = CallbackList::new().with(StopTrainingOnSolved::new(SolvedCriterion::mean_score(1, 100.0)));
     let server = server_with(1_000_000, 8, ServerLimits::default(), Box::new(callbacks));
     let mut robot = Robot::hello(server.addr);
-    let rich = |terminated| RobotMessage::Step { obs: vec![0.0; 4], reward: 1000.0, terminated, truncated: false, success: None, ended_by: None };
+    let rich = |terminated| RobotMessage::Step {
+        obs: vec![0.0; 4],
+        reward: 1000.0,
+        terminated,
+        truncated: false,
+        success: None,
+        ended_by: None,
+    };
     for _ in 0..3 {
         robot.call(&RobotMessage::Start { obs: vec![0.0; 4] });
         for i in 0..4 {
@@ -117,8 +124,13 @@ fn a_4_gib_length_prefix_is_refused_at_once_and_the_others_are_served() {
 
 #[test]
 fn half_a_frame_then_silence_times_out() {
-    let limits = ServerLimits { read_timeout: Duration::from_millis(300), handshake_timeout: Duration::from_millis(300), ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
+    let limits = ServerLimits {
+        read_timeout: Duration::from_millis(300),
+        handshake_timeout: Duration::from_millis(300),
+        ..Default::default()
+    };
+    let server =
+        server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
     // After the handshake: a frame of 100 bytes announced, 10 sent.
     let mut robot = Robot::hello(server.addr);
     let t = Instant::now();
@@ -180,7 +192,8 @@ fn the_65th_robot_is_refused_over_the_cap_of_64() {
 #[test]
 fn a_wrong_or_missing_token_is_refused() {
     let limits = ServerLimits { token: Some("s3cret".into()), ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
+    let server =
+        server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
     for (token, why) in [(None, "needs a token"), (Some("guess"), "wrong token"), (Some("s3cre"), "wrong token")] {
         let mut robot = Robot::connect(server.addr);
         let reply = robot.call(&hello(token));
@@ -198,7 +211,8 @@ fn a_version_1_hello_is_told_which_version_to_speak() {
     let server = server(1_000_000);
     // Exactly what a v1 Communicator sent.
     let v1 = br#"{"type":"hello","version":1,"robot":"cartpole","observation_space":{"Box":{"low":["-inf","-inf","-inf","-inf"],"high":["inf","inf","inf","inf"]}},"action_space":{"Discrete":{"n":2}}}"#;
-    for payload in [&v1[..], br#"{"type":"hello","robot":"cartpole"}"#, br#"{"type":"hello","version":3,"shiny":true}"#] {
+    for payload in [&v1[..], br#"{"type":"hello","robot":"cartpole"}"#, br#"{"type":"hello","version":3,"shiny":true}"#]
+    {
         let mut robot = Robot::connect(server.addr);
         let reply = robot.raw(&frame(payload));
         assert_eq!(code(&reply), (ErrorCode::UnsupportedVersion, true), "{reply:?}");
@@ -256,7 +270,8 @@ fn abort_drops_the_running_episode_and_is_acknowledged() {
 
 #[test]
 fn a_panic_in_the_learner_ends_wait_with_the_reason() {
-    let panicking = |_: &UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<Flow> { panic!("boom in the update") };
+    let panicking =
+        |_: &UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<Flow> { panic!("boom in the update") };
     let server = server_with(1_000_000, 8, ServerLimits::default(), Box::new(panicking));
     let mut robot = Robot::hello(server.addr);
     let mut bystander = Robot::hello(server.addr);
@@ -279,7 +294,8 @@ fn a_panic_in_the_learner_ends_wait_with_the_reason() {
 fn a_connection_without_a_thread_is_refused_and_accepting_goes_on() {
     // A stack no system can give: every connection thread fails to start.
     let limits = ServerLimits { connection_stack: 1 << 50, ..Default::default() };
-    let server = server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
+    let server =
+        server_with(1_000_000, 256, limits, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)));
     for _ in 0..3 {
         let mut robot = Robot::connect(server.addr);
         let reply = robot.call(&hello(None));
@@ -311,13 +327,18 @@ fn fails_quickly(args: &[&str], limit: Duration) -> String {
 
 #[test]
 fn zero_arenas_are_a_clear_error_not_a_spin() {
-    let stderr = fails_quickly(&["robot", "cartpole", "--arenas", "0", "--server", "127.0.0.1:9"], Duration::from_secs(30));
+    let stderr =
+        fails_quickly(&["robot", "cartpole", "--arenas", "0", "--server", "127.0.0.1:9"], Duration::from_secs(30));
     assert!(stderr.contains("--arenas 0: at least one robot"), "{stderr}");
     let out = temp("arenas-0");
     let out = out.to_str().unwrap();
-    let stderr = fails_quickly(&["train", "cartpole", "--pattern", "3", "--arenas", "0", "--out", out], Duration::from_secs(30));
+    let stderr =
+        fails_quickly(&["train", "cartpole", "--pattern", "3", "--arenas", "0", "--out", out], Duration::from_secs(30));
     assert!(stderr.contains("arenas = 0"), "{stderr}");
-    let stderr = fails_quickly(&["serve", "cartpole", "--listen", "127.0.0.1:0", "--max-robots", "0", "--out", out], Duration::from_secs(30));
+    let stderr = fails_quickly(
+        &["serve", "cartpole", "--listen", "127.0.0.1:0", "--max-robots", "0", "--out", out],
+        Duration::from_secs(30),
+    );
     assert!(stderr.contains("--max-robots must be at least 1"), "{stderr}");
 }
 
@@ -382,8 +403,13 @@ fn serve_and_robot_agree_on_a_token_from_the_environment() {
     let addr = line.trim().strip_prefix("listening on ").unwrap().to_string();
     let wrong = twinbots().args(["robot", "cartpole", "--server", &addr, "--token", "nope"]).output().unwrap();
     assert!(!wrong.status.success());
-    assert!(String::from_utf8_lossy(&wrong.stderr).contains("wrong token"), "{}", String::from_utf8_lossy(&wrong.stderr));
-    let right = twinbots().args(["robot", "cartpole", "--server", &addr]).env("TWINBOTS_TOKEN", "from-env").output().unwrap();
+    assert!(
+        String::from_utf8_lossy(&wrong.stderr).contains("wrong token"),
+        "{}",
+        String::from_utf8_lossy(&wrong.stderr)
+    );
+    let right =
+        twinbots().args(["robot", "cartpole", "--server", &addr]).env("TWINBOTS_TOKEN", "from-env").output().unwrap();
     assert!(right.status.success(), "{}", String::from_utf8_lossy(&right.stderr));
     assert!(server.wait().unwrap().success());
     std::fs::remove_dir_all(&out).ok();
@@ -394,13 +420,23 @@ fn serve_and_robot_agree_on_a_token_from_the_environment() {
 /// plausible sensor sequence; with `attack`, its sensor also reports ±1e6 every seventh step
 /// (each such step is sent before the true one). The actions it got and the server's
 /// observation statistics.
-fn trained_under_attack(robot_name: &str, spec: &twinbots_api::TaskSpec, attack: bool) -> (Vec<Vec<f32>>, twinbots_learn::normalize::RunningMeanStd) {
+fn trained_under_attack(
+    robot_name: &str,
+    spec: &twinbots_api::TaskSpec,
+    attack: bool,
+) -> (Vec<Vec<f32>>, twinbots_learn::normalize::RunningMeanStd) {
     use twinbots_learn::{Ppo, PpoConfig};
     use twinbots_server::server::{RobotServer, ServerSettings};
     let config = PpoConfig { normalize_observations: true, ..PpoConfig::zoo_cartpole() };
     let model = Box::new(Ppo::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0).unwrap());
     // Updates every 128 steps: 4 robots' worth of 32.
-    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, ServerSettings::new(robot_name, spec, 4, 300), Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))).unwrap();
+    let server = RobotServer::start(
+        "127.0.0.1:0".parse().unwrap(),
+        model,
+        ServerSettings::new(robot_name, spec, 4, 300),
+        Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)),
+    )
+    .unwrap();
     let mut robot = crate::server::Robot::connect(server.addr);
     let hello = RobotMessage::Hello {
         version: VERSION,
@@ -426,12 +462,26 @@ fn trained_under_attack(robot_name: &str, spec: &twinbots_api::TaskSpec, attack:
         if attack && t % 7 == 0 {
             let mut wild = reading(t);
             wild[t % dim] = if t % 14 == 0 { -1e6 } else { 1e6 };
-            let refused = robot.call(&RobotMessage::Step { obs: wild, reward, terminated: false, truncated: false, success: None, ended_by: None });
+            let refused = robot.call(&RobotMessage::Step {
+                obs: wild,
+                reward,
+                terminated: false,
+                truncated: false,
+                success: None,
+                ended_by: None,
+            });
             assert_eq!(code(&refused), (ErrorCode::ObservationOutOfRange, false), "{refused:?}");
             assert!(message(&refused).contains("outside its plausible range"), "{refused:?}");
         }
         let ended = t % 50 == 0;
-        reply = robot.call(&RobotMessage::Step { obs: reading(t), reward, terminated: ended, truncated: false, success: None, ended_by: None });
+        reply = robot.call(&RobotMessage::Step {
+            obs: reading(t),
+            reward,
+            terminated: ended,
+            truncated: false,
+            success: None,
+            ended_by: None,
+        });
         if ended {
             assert_eq!(reply, ServerMessage::Ack);
             reply = robot.call(&RobotMessage::Start { obs: reading(t) });

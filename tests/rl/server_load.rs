@@ -44,7 +44,12 @@ fn load(robots: usize, steps: usize) -> Figures {
     let mut settings = ServerSettings::new("cartpole", &spec, robots, u64::MAX);
     settings.limits.max_robots = robots;
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(callback)).unwrap();
-    let identity = Identity { robot: "cartpole".into(), observation_space: spec.observation_space, action_space: spec.action_space, token: None };
+    let identity = Identity {
+        robot: "cartpole".into(),
+        observation_space: spec.observation_space,
+        action_space: spec.action_space,
+        token: None,
+    };
     let t = Instant::now();
     let threads: Vec<_> = (0..robots)
         .map(|r| {
@@ -57,14 +62,29 @@ fn load(robots: usize, steps: usize) -> Figures {
                     let in_episode = step % EPISODE;
                     if in_episode == 0 {
                         c.send(&RobotMessage::Start { obs: vec![r as f32 * 1e-3, 0.0, 0.0, 0.0] }).unwrap();
-                        assert!(matches!(c.receive().unwrap(), ServerMessage::Action { .. }), "robot {r}, start at {step}");
+                        assert!(
+                            matches!(c.receive().unwrap(), ServerMessage::Action { .. }),
+                            "robot {r}, start at {step}"
+                        );
                         replies += 1;
                     }
                     let last = in_episode == EPISODE - 1;
                     let obs = vec![r as f32 * 1e-3, step as f32 * 1e-4, 0.0, 0.0];
-                    c.send(&RobotMessage::Step { obs, reward: 1.0, terminated: last, truncated: false, success: None, ended_by: None }).unwrap();
+                    c.send(&RobotMessage::Step {
+                        obs,
+                        reward: 1.0,
+                        terminated: last,
+                        truncated: false,
+                        success: None,
+                        ended_by: None,
+                    })
+                    .unwrap();
                     let reply = c.receive().unwrap();
-                    let expected = if last { matches!(reply, ServerMessage::Ack) } else { matches!(reply, ServerMessage::Action { .. }) };
+                    let expected = if last {
+                        matches!(reply, ServerMessage::Ack)
+                    } else {
+                        matches!(reply, ServerMessage::Action { .. })
+                    };
                     assert!(expected, "robot {r}, step {step}: {reply:?}");
                     replies += 1;
                 }
@@ -80,7 +100,11 @@ fn load(robots: usize, steps: usize) -> Figures {
     let learned = learned.lock().unwrap();
     let updates = learned.len();
     assert_eq!(updates as u64, total / (N_STEPS * robots) as u64, "every rollout became an update");
-    assert_eq!(learned.last().copied(), Some((total, total / EPISODE as u64)), "every step and episode learned from once");
+    assert_eq!(
+        learned.last().copied(),
+        Some((total, total / EPISODE as u64)),
+        "every step and episode learned from once"
+    );
     assert_eq!(server.rejections(), 0);
     Figures { steps: total, seconds, updates }
 }

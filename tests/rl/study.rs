@@ -31,17 +31,28 @@ fn the_cartpole_suite_sets_a_run_and_its_onnx_export_beside_the_classical_contro
     succeeded(twinbots().arg("export").arg(&run).arg("--onnx").arg(&onnx).output().unwrap());
     let out = temp("cartpole");
     let controllers = format!("classic,{},{}", run.display(), onnx.display());
-    let stdout = succeeded(study(&["cartpole".as_ref(), "--controller".as_ref(), controllers.as_ref(), "--out".as_ref(), out.as_os_str()]));
+    let stdout = succeeded(study(&[
+        "cartpole".as_ref(),
+        "--controller".as_ref(),
+        controllers.as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]));
     assert!(stdout.contains("30 runs"), "{stdout}");
     let rows = summary(&out);
     assert_eq!(rows.len(), 30, "10 tests × 3 controllers");
-    let row = |controller: &str, test: &str| rows.iter().find(|r| r["controller"] == controller && r["test"] == test).unwrap_or_else(|| panic!("{controller} {test}"));
+    let row = |controller: &str, test: &str| {
+        rows.iter()
+            .find(|r| r["controller"] == controller && r["test"] == test)
+            .unwrap_or_else(|| panic!("{controller} {test}"))
+    };
     // The classical controller recovers from a light kick and falls to a 0.5 N one: the push acts.
     assert_eq!(row("classic", "step-0.1N")["survived"], "true");
     assert_eq!(row("classic", "step-0.5N")["survived"], "false");
     assert_eq!(row("classic", "step-0.5N")["ended_by"], "pole_fallen");
     // The run and its export are one policy on one twin: the same figures.
-    let (run_label, onnx_label) = (run.file_name().unwrap().to_str().unwrap(), onnx.file_name().unwrap().to_str().unwrap());
+    let (run_label, onnx_label) =
+        (run.file_name().unwrap().to_str().unwrap(), onnx.file_name().unwrap().to_str().unwrap());
     for test in ["step-0.2N", "impulse-0.2N-at-4s", "payload-0.1kg"] {
         let (a, b) = (row(run_label, test), row(onnx_label, test));
         for column in ["survived", "peak", "overshoot", "settling_time_s", "steady_state_error"] {
@@ -58,7 +69,9 @@ fn the_cartpole_suite_sets_a_run_and_its_onnx_export_beside_the_classical_contro
     assert_eq!(lines.next().unwrap(), "time_s,cart_x,cart_velocity,pole_angle,pole_rate,action_0,push_n");
     let pushed: Vec<&str> = lines.filter(|l| l.ends_with(",0.5")).map(|l| l.split(',').next().unwrap()).collect();
     assert_eq!(pushed, ["2.016", "2.048"], "from the first control step at or after 2 s, for 2 steps of 32 ms");
-    let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("classic/step-0.5N-seed0/metadata.json")).unwrap()).unwrap();
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("classic/step-0.5N-seed0/metadata.json")).unwrap())
+            .unwrap();
     assert_eq!(meta["robot"], "cartpole");
     assert_eq!(meta["run"]["survived"], false);
     assert_eq!(meta["run"]["force_n"], 0.5);
@@ -68,11 +81,21 @@ fn the_cartpole_suite_sets_a_run_and_its_onnx_export_beside_the_classical_contro
         assert!(image::open(plot).is_ok(), "{} is a PNG", plot.display());
     }
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    assert!(report.contains("![step-0.5N](plots/step-0.5N.png)") && report.contains("| classic | step-0.5N | 0 | no (pole_fallen at"), "{report}");
+    assert!(
+        report.contains("![step-0.5N](plots/step-0.5N.png)")
+            && report.contains("| classic | step-0.5N | 0 | no (pole_fallen at"),
+        "{report}"
+    );
 
     // Same suite, same seeds: the same results.
     let again = temp("cartpole-again");
-    succeeded(study(&["cartpole".as_ref(), "--controller".as_ref(), controllers.as_ref(), "--out".as_ref(), again.as_os_str()]));
+    succeeded(study(&[
+        "cartpole".as_ref(),
+        "--controller".as_ref(),
+        controllers.as_ref(),
+        "--out".as_ref(),
+        again.as_os_str(),
+    ]));
     assert_eq!(std::fs::read(out.join("summary.csv")).unwrap(), std::fs::read(again.join("summary.csv")).unwrap());
     for dir in [&out, &again, &run] {
         let _ = std::fs::remove_dir_all(dir);
@@ -103,26 +126,66 @@ fn the_pioneer_suite_separates_kicks_its_controller_catches_from_those_it_cannot
 fn bad_suites_and_controllers_are_clear_errors() {
     let dir = temp("bad");
     std::fs::create_dir_all(&dir).unwrap();
-    let shipped = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/studies/cartpole.toml")).unwrap();
+    let shipped =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/studies/cartpole.toml")).unwrap();
     let ur5e_run = fixture_run("ur5e-reach", "study-bad");
     for (name, text, args, expected) in [
-        ("link", shipped.replace("link = \"pole_tip\"", "link = \"nose\""), vec![], "link 'nose' is not one of the robot's: cart, pole, pole_tip, wheel1"),
-        ("signal", shipped.replace("signal = \"pole_angle\"", "signal = \"tilt\""), vec![], "signal = 'tilt': cartpole's observation has cart_x, cart_velocity, pole_angle, pole_rate"),
-        ("robot", shipped.replace("robot = \"cartpole\"", "robot = \"pioneer3at\""), vec![], "robot = 'pioneer3at', but the study runs cartpole"),
+        (
+            "link",
+            shipped.replace("link = \"pole_tip\"", "link = \"nose\""),
+            vec![],
+            "link 'nose' is not one of the robot's: cart, pole, pole_tip, wheel1",
+        ),
+        (
+            "signal",
+            shipped.replace("signal = \"pole_angle\"", "signal = \"tilt\""),
+            vec![],
+            "signal = 'tilt': cartpole's observation has cart_x, cart_velocity, pole_angle, pole_rate",
+        ),
+        (
+            "robot",
+            shipped.replace("robot = \"cartpole\"", "robot = \"pioneer3at\""),
+            vec![],
+            "robot = 'pioneer3at', but the study runs cartpole",
+        ),
         ("key", shipped.replace("window = 1.0", "windw = 1.0"), vec![], "unknown field `windw`"),
-        ("at", shipped.replace("at = [2.0, 4.0]", "at = [2.0, 40.0]"), vec![], "impulse.at = 40 s: must lie in [0, duration = 10 s)"),
-        ("missing", shipped.clone(), vec!["--controller", "no/such/run"], "controller 'no/such/run': neither 'classic', a run directory nor an .onnx file"),
-        ("other-robot", shipped.clone(), vec!["--controller", ur5e_run.to_str().unwrap()], "a run of ur5e, not of cartpole"),
+        (
+            "at",
+            shipped.replace("at = [2.0, 4.0]", "at = [2.0, 40.0]"),
+            vec![],
+            "impulse.at = 40 s: must lie in [0, duration = 10 s)",
+        ),
+        (
+            "missing",
+            shipped.clone(),
+            vec!["--controller", "no/such/run"],
+            "controller 'no/such/run': neither 'classic', a run directory nor an .onnx file",
+        ),
+        (
+            "other-robot",
+            shipped.clone(),
+            vec!["--controller", ur5e_run.to_str().unwrap()],
+            "a run of ur5e, not of cartpole",
+        ),
     ] {
         let file = dir.join(format!("{name}.toml"));
         std::fs::write(&file, text).unwrap();
-        let mut all: Vec<&std::ffi::OsStr> = vec!["cartpole".as_ref(), file.as_os_str(), "--out".as_ref(), dir.join("out").into_os_string().leak()];
+        let mut all: Vec<&std::ffi::OsStr> =
+            vec!["cartpole".as_ref(), file.as_os_str(), "--out".as_ref(), dir.join("out").into_os_string().leak()];
         all.extend(args.iter().map(|a| std::ffi::OsStr::new(a)));
         let stderr = failed(study(&all));
         assert!(stderr.contains(expected), "{name}: {stderr}");
-        assert!(stderr.contains(&format!("{name}.toml")) || name == "missing" || name == "other-robot", "{name}: names the file: {stderr}");
+        assert!(
+            stderr.contains(&format!("{name}.toml")) || name == "missing" || name == "other-robot",
+            "{name}: names the file: {stderr}"
+        );
     }
-    let stderr = failed(study(&["cartpole".as_ref(), "--controller".as_ref(), "classic".as_ref(), dir.join("none.toml").as_os_str()]));
+    let stderr = failed(study(&[
+        "cartpole".as_ref(),
+        "--controller".as_ref(),
+        "classic".as_ref(),
+        dir.join("none.toml").as_os_str(),
+    ]));
     assert!(stderr.contains("none.toml: no such suite file"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&ur5e_run);
@@ -145,7 +208,9 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
     let rows = summary(&out);
     assert_eq!(rows.len(), 2 * 2 * 2, "layouts × payloads × failures");
     let row = |layout: &str, payload: &str, failure: &str| {
-        rows.iter().find(|r| r["layout"] == layout && r["payload_kg"] == payload && r["failure"] == failure).unwrap_or_else(|| panic!("{layout} {payload} {failure}"))
+        rows.iter()
+            .find(|r| r["layout"] == layout && r["payload_kg"] == payload && r["failure"] == failure)
+            .unwrap_or_else(|| panic!("{layout} {payload} {failure}"))
     };
     for payload in ["0.2", "1.5"] {
         // The place fixture beyond the arm's reach: every cycle that gets that far is a reach
@@ -159,14 +224,26 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
         assert_eq!(row("default", payload, "failed-grasp")["success_rate"], "0.0000");
     }
     let energy = |payload: &str| row("default", payload, "none")["energy_mean_j"].parse::<f64>().unwrap();
-    assert!(energy("1.5") > energy("0.2") * 1.02, "a heavier part costs energy: {} vs {}", energy("1.5"), energy("0.2"));
+    assert!(
+        energy("1.5") > energy("0.2") * 1.02,
+        "a heavier part costs energy: {} vs {}",
+        energy("1.5"),
+        energy("0.2")
+    );
     let results = std::fs::read_to_string(out.join("results.csv")).unwrap();
     assert_eq!(results.lines().count(), 1 + 16, "one row per episode");
     assert!(results.lines().next().unwrap().contains("approach_s,descend_s,grip_s"), "phase times per episode");
     assert!(results.lines().any(|l| l.contains(",false,grasp_missed,")), "a failed grasp's outcome");
     let phases = std::fs::read_to_string(out.join("phases.csv")).unwrap();
     assert!(phases.contains("classic,default,"), "{phases}");
-    for plot in ["cycle-time-vs-layout.png", "cycle-time-vs-payload_kg.png", "success-classic.png", "reach-default.png", "reach-place-far.png", "phases.png"] {
+    for plot in [
+        "cycle-time-vs-layout.png",
+        "cycle-time-vs-payload_kg.png",
+        "success-classic.png",
+        "reach-default.png",
+        "reach-place-far.png",
+        "phases.png",
+    ] {
         assert!(image::open(out.join("plots").join(plot)).is_ok(), "{plot}");
     }
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
@@ -178,9 +255,19 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
     std::fs::write(&file, "episodes = 3\n[factors]\nlatency = [0, 1]\n").unwrap();
     let late = dir.join("late");
     let controllers = format!("classic,{}", run.display());
-    succeeded(study(&["ur5e".as_ref(), file.as_os_str(), "--controller".as_ref(), controllers.as_ref(), "--out".as_ref(), late.as_os_str()]));
+    succeeded(study(&[
+        "ur5e".as_ref(),
+        file.as_os_str(),
+        "--controller".as_ref(),
+        controllers.as_ref(),
+        "--out".as_ref(),
+        late.as_os_str(),
+    ]));
     let rows = summary(&late);
-    let rate = |controller: &str, latency: &str| rows.iter().find(|r| r["controller"] == controller && r["latency_steps"] == latency).unwrap()["success_rate"].clone();
+    let rate = |controller: &str, latency: &str| {
+        rows.iter().find(|r| r["controller"] == controller && r["latency_steps"] == latency).unwrap()["success_rate"]
+            .clone()
+    };
     let label = run.file_name().unwrap().to_str().unwrap();
     let trained = |latency: &str| rate(label, latency).parse::<f64>().unwrap();
     assert!(trained("0") == 1.0 && trained("1") <= 1.0 / 3.0, "{rows:?}");
@@ -190,7 +277,10 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
     // Bad studies: an unknown factor, a layout off the table, named with the file.
     for (text, expected) in [
         ("[factors]\ntemperature = [20]\n", "unknown field `temperature`"),
-        ("[[layout]]\nname = \"off\"\nplace = [-1.2, 0.0]\n", "layout[0] ('off'): place.position = [-1.2, 0.0]: the fixture's 12 cm plate leaves the table top"),
+        (
+            "[[layout]]\nname = \"off\"\nplace = [-1.2, 0.0]\n",
+            "layout[0] ('off'): place.position = [-1.2, 0.0]: the fixture's 12 cm plate leaves the table top",
+        ),
     ] {
         std::fs::write(&file, text).unwrap();
         let stderr = failed(study(&["ur5e".as_ref(), file.as_os_str(), "--out".as_ref(), out.as_os_str()]));

@@ -18,13 +18,21 @@ fn pendulum_config() -> Td3Config {
 #[test]
 fn td3_reaches_minus_200_on_pendulum_within_20k_steps() {
     let mut env = ClassicPendulum::new(1);
-    let mut model = Td3::new(pendulum_config(), env.observation_space().clone(), env.action_space().clone(), 0).unwrap();
+    let mut model =
+        Td3::new(pendulum_config(), env.observation_space().clone(), env.action_space().clone(), 0).unwrap();
     let started = Instant::now();
     let mut rows = Vec::new();
     model
         .learn(&mut env, 20_000, &mut |s: &UpdateStats, _: &dyn Agent| {
             rows.push((s.timesteps, s.mean_reward));
-            eprintln!("{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)", s.timesteps, s.mean_reward, s.train("actor_loss"), s.train("critic_loss"), started.elapsed().as_secs_f32());
+            eprintln!(
+                "{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)",
+                s.timesteps,
+                s.mean_reward,
+                s.train("actor_loss"),
+                s.train("critic_loss"),
+                started.elapsed().as_secs_f32()
+            );
             Ok(Flow::Continue)
         })
         .unwrap();
@@ -37,7 +45,13 @@ fn td3_reaches_minus_200_on_pendulum_within_20k_steps() {
 #[test]
 fn a_saved_td3_model_loads_through_the_algorithm_table_and_learns_on_alike() {
     let mut env = ClassicPendulum::new(2);
-    let config = Td3Config { hidden: vec![16, 16], learning_starts: 100, batch_size: 32, log_interval: 100, ..Td3Config::default() };
+    let config = Td3Config {
+        hidden: vec![16, 16],
+        learning_starts: 100,
+        batch_size: 32,
+        log_interval: 100,
+        ..Td3Config::default()
+    };
     let mut model = Td3::new(config, env.observation_space().clone(), env.action_space().clone(), 4).unwrap();
     model.learn(&mut env, 600, &mut |_: &UpdateStats, _: &dyn Agent| Ok(Flow::Continue)).unwrap();
     let dir = std::env::temp_dir().join(format!("twinbots-td3-save-{}", std::process::id()));

@@ -22,7 +22,10 @@ fn pki(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
     ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
     let ca = ca_params.self_signed(&ca_key).unwrap();
     let key = KeyPair::generate().unwrap();
-    let cert = CertificateParams::new(vec!["127.0.0.1".to_string(), "localhost".to_string()]).unwrap().signed_by(&key, &ca, &ca_key).unwrap();
+    let cert = CertificateParams::new(vec!["127.0.0.1".to_string(), "localhost".to_string()])
+        .unwrap()
+        .signed_by(&key, &ca, &ca_key)
+        .unwrap();
     let files = (dir.join("ca.pem"), dir.join("server.pem"), dir.join("server.key"));
     std::fs::write(&files.0, ca.pem()).unwrap();
     std::fs::write(&files.1, cert.pem()).unwrap();
@@ -101,13 +104,20 @@ fn a_robot_that_trusts_another_authority_is_refused_with_the_reason() {
     let dir = temp("tls-wrong-ca");
     let (_, cert, key) = pki(&dir.join("server"));
     let (other_ca, _, _) = pki(&dir.join("other"));
-    let (mut server, addr) = serve(&dir.join("run"), &["--tls-cert", cert.to_str().unwrap(), "--tls-key", key.to_str().unwrap()]);
-    let output = twinbots().args(["robot", "cartpole", "--server", &addr.to_string(), "--patience", "5"]).arg("--tls-ca").arg(&other_ca).output().unwrap();
+    let (mut server, addr) =
+        serve(&dir.join("run"), &["--tls-cert", cert.to_str().unwrap(), "--tls-key", key.to_str().unwrap()]);
+    let output = twinbots()
+        .args(["robot", "cartpole", "--server", &addr.to_string(), "--patience", "5"])
+        .arg("--tls-ca")
+        .arg(&other_ca)
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success());
     assert!(err.contains(&format!("TLS with the server at {addr} failed: invalid peer certificate")), "{err}");
     // A robot without TLS: the server closes its connections before any welcome, and it says so.
-    let output = twinbots().args(["robot", "cartpole", "--server", &addr.to_string(), "--patience", "2"]).output().unwrap();
+    let output =
+        twinbots().args(["robot", "cartpole", "--server", &addr.to_string(), "--patience", "2"]).output().unwrap();
     let err = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success() && err.contains("before its welcome (does it speak TLS?"), "{err}");
     server.kill().unwrap();
@@ -118,7 +128,11 @@ fn a_robot_that_trusts_another_authority_is_refused_with_the_reason() {
 #[test]
 fn listening_beyond_loopback_needs_tls_and_a_token_or_insecure_which_warns() {
     let dir = temp("tls-exposure");
-    let output = twinbots().args(["serve", "cartpole", "--listen", "0.0.0.0:0", "--timesteps", "512", "--out"]).arg(dir.join("run")).output().unwrap();
+    let output = twinbots()
+        .args(["serve", "cartpole", "--listen", "0.0.0.0:0", "--timesteps", "512", "--out"])
+        .arg(dir.join("run"))
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success());
     assert!(err.contains("reaches beyond this machine: it needs TLS (--tls-cert and --tls-key) and a token"), "{err}");

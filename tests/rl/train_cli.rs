@@ -31,7 +31,8 @@ fn short_training_run_writes_its_run_directory() {
     let checkpoints = std::fs::read_dir(out.join("checkpoints")).unwrap().count();
     assert_eq!(checkpoints, 4, "every 4th of 16 updates");
     // Where the time went: every part measured, together no more than the wall clock.
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let time = &summary["time_breakdown"];
     let part = |name: &str| time[name].as_f64().unwrap_or_else(|| panic!("no {name} in {summary}"));
     let parts = ["simulation_s", "inference_s", "update_s", "bridge_s", "logging_s", "other_s"].map(part);
@@ -121,7 +122,13 @@ fn a_ppo_table_changes_only_its_keys_and_nonsense_is_refused_before_anything_run
     // One key of [ppo] replaces that key only: the cart-pole keeps its tuned n_steps and rate.
     std::fs::write(&config, "[ppo]\nn_epochs = 5\n").unwrap();
     let run = dir.join("run");
-    let output = twinbots().args(["train", "cartpole", "--timesteps", "64", "--arenas", "2", "--config"]).arg(&config).arg("--out").arg(&run).output().unwrap();
+    let output = twinbots()
+        .args(["train", "cartpole", "--timesteps", "64", "--arenas", "2", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(&run)
+        .output()
+        .unwrap();
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     let written = std::fs::read_to_string(run.join("config.toml")).unwrap();
     for line in ["n_epochs = 5", "n_steps = 32", "learning_rate = 0.001", "batch_size = 256"] {
@@ -144,7 +151,8 @@ fn a_ppo_table_changes_only_its_keys_and_nonsense_is_refused_before_anything_run
     for (i, (text, expected)) in refused.iter().enumerate() {
         std::fs::write(&config, text).unwrap();
         let run = dir.join(format!("refused-{i}"));
-        let output = twinbots().args(["train", "cartpole", "--config"]).arg(&config).arg("--out").arg(&run).output().unwrap();
+        let output =
+            twinbots().args(["train", "cartpole", "--config"]).arg(&config).arg("--out").arg(&run).output().unwrap();
         let err = String::from_utf8_lossy(&output.stderr);
         assert!(!output.status.success() && err.contains(expected), "{text:?}: expected {expected:?} in {err}");
         assert!(!err.contains("panicked"), "{text:?}: {err}");
@@ -152,13 +160,18 @@ fn a_ppo_table_changes_only_its_keys_and_nonsense_is_refused_before_anything_run
     }
     // --print-config shows the merge, key by key: defaults ← file ← flags.
     std::fs::write(&config, "seed = 9\narenas = 4\n[ppo]\nn_epochs = 5\n").unwrap();
-    let output = twinbots().args(["train", "cartpole", "--arenas", "3", "--print-config", "--config"]).arg(&config).output().unwrap();
+    let output = twinbots()
+        .args(["train", "cartpole", "--arenas", "3", "--print-config", "--config"])
+        .arg(&config)
+        .output()
+        .unwrap();
     let printed = String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     for line in ["seed = 9", "arenas = 3", "n_epochs = 5", "n_steps = 32", "learning_rate = 0.001"] {
         assert!(printed.lines().any(|l| l == line), "{line:?} missing from {printed}");
     }
-    let output = twinbots().args(["train", "cartpole", "--arenas", "0", "--out"]).arg(dir.join("zero")).output().unwrap();
+    let output =
+        twinbots().args(["train", "cartpole", "--arenas", "0", "--out"]).arg(dir.join("zero")).output().unwrap();
     assert!(String::from_utf8_lossy(&output.stderr).contains("arenas = 0: must be a whole number ≥ 1"));
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -205,7 +218,8 @@ fn compare_gives_the_median_and_quartiles_over_seeds() {
         assert!(status.success());
     }
     let (json, png) = (out.join("compare.json"), out.join("curves.png"));
-    let output = twinbots().arg("compare").args(&runs).arg("--json").arg(&json).arg("--png").arg(&png).output().unwrap();
+    let output =
+        twinbots().arg("compare").args(&runs).arg("--json").arg(&json).arg("--png").arg(&png).output().unwrap();
     let text = String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     assert!(text.contains("cartpole: 3 runs, 0 solved") && text.contains("steps to solve: median never"), "{text}");
@@ -216,7 +230,8 @@ fn compare_gives_the_median_and_quartiles_over_seeds() {
     let mut walls: Vec<f64> = runs
         .iter()
         .map(|r| {
-            let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(r.join("summary.json")).unwrap()).unwrap();
+            let s: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(r.join("summary.json")).unwrap()).unwrap();
             s["wall_clock_s_this_session"].as_f64().unwrap()
         })
         .collect();

@@ -8,9 +8,9 @@ use std::time::Duration;
 
 use twinbots_api::{DesignPattern, EpisodeSummary, VecEnv};
 use twinbots_learn::{Flow, Ppo};
-use twinbots_task::AppVecEnv;
 use twinbots_link::robot::{Controller, Phase, RobotRunState, ServerAddress};
 use twinbots_server::server::{RobotServer, ServerSettings};
+use twinbots_task::AppVecEnv;
 
 /// Steps `env` with `policy` until `episodes` episodes have ended; returns them.
 fn run_episodes(env: &mut AppVecEnv, episodes: usize, policy: impl Fn(&[f32]) -> Vec<f32>) -> Vec<EpisodeSummary> {
@@ -90,7 +90,8 @@ fn pick_and_place_moves_the_part_from_fixture_a_to_fixture_b() {
 fn each_arena_builds_its_own_layout_and_the_program_follows_its_fixtures() {
     use ur5e::layout::{CellLayout, CellLayouts};
     let default = ur5e::layout::DEFAULT;
-    let moved = default.replace("position = [-0.45, -0.35]", "position = [-0.30, -0.50]").replace("yaw = 0.0", "yaw = 30.0");
+    let moved =
+        default.replace("position = [-0.45, -0.35]", "position = [-0.30, -0.50]").replace("yaw = 0.0", "yaw = 30.0");
     // Beyond the arm's 0.85 m reach from the base, still on the table.
     let far = default.replace("position = [-0.45, -0.35]", "position = [-0.93, -0.50]");
     let layouts: Vec<CellLayout> = [("default", default.to_string()), ("moved", moved), ("far", far)]
@@ -136,7 +137,11 @@ fn the_same_seed_gives_the_same_reach_trajectory() {
     let run = || {
         let mut env = AppVecEnv::new(ur5e::headless_app_with(2, 9, DesignPattern::Supervised));
         let episodes = run_episodes(&mut env, 4, ur5e::controller::act);
-        let state: Vec<u64> = env.arenas().iter().map(|&a| env.app().world().get::<twinbots_sim::Arena>(a).unwrap().state_hash()).collect();
+        let state: Vec<u64> = env
+            .arenas()
+            .iter()
+            .map(|&a| env.app().world().get::<twinbots_sim::Arena>(a).unwrap().state_hash())
+            .collect();
         (episodes.iter().map(|e| (e.score.to_bits(), e.length)).collect::<Vec<_>>(), state)
     };
     assert_eq!(run(), run());
@@ -148,27 +153,45 @@ fn an_evaluation_that_can_no_longer_pass_stops_on_the_failure_that_rules_it_out(
     let spec = ur5e::task_spec();
     let criterion = spec.solved.expect("the reach has a solved criterion");
     // An untrained policy: no reach succeeds, so 98 % of 200 is out of reach at the fifth failure.
-    let model = Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), spec.observation_space, spec.action_space, 0).unwrap();
+    let model =
+        Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), spec.observation_space, spec.action_space, 0)
+            .unwrap();
     let env = || AppVecEnv::new(ur5e::headless_app_with(4, 11, DesignPattern::Supervised));
     let judged = evaluate_against("reach", &model, &mut env(), 200, 11, &criterion).unwrap();
-    assert!((5..=8).contains(&judged.episodes), "stopped after {} episodes (5 failures, up to 3 more ending in the same step)", judged.episodes);
+    assert!(
+        (5..=8).contains(&judged.episodes),
+        "stopped after {} episodes (5 failures, up to 3 more ending in the same step)",
+        judged.episodes
+    );
     assert_eq!(judged.success_rate, Some(0.0));
     assert!(!judged.meets(&criterion));
     // Each episode says how it ended: a termination term of the task, or its time limit.
     assert_eq!(judged.ended_by.values().sum::<usize>(), judged.episodes, "{:?}", judged.ended_by);
-    let ways: Vec<String> = spec.termination_terms.iter().cloned().chain([twinbots_learn::evaluation::TIME_LIMIT.to_string()]).collect();
+    let ways: Vec<String> =
+        spec.termination_terms.iter().cloned().chain([twinbots_learn::evaluation::TIME_LIMIT.to_string()]).collect();
     assert!(judged.ended_by.keys().all(|way| ways.contains(way)), "{:?} not among {ways:?}", judged.ended_by);
     // The episodes it ran are the first of the full evaluation, bit for bit.
     let full = evaluate_policy("reach", &model, &mut env(), judged.episodes, 11).unwrap();
-    assert_eq!(full.scores.iter().map(|s| s.to_bits()).collect::<Vec<_>>(), judged.scores.iter().map(|s| s.to_bits()).collect::<Vec<_>>());
+    assert_eq!(
+        full.scores.iter().map(|s| s.to_bits()).collect::<Vec<_>>(),
+        judged.scores.iter().map(|s| s.to_bits()).collect::<Vec<_>>()
+    );
 }
 
 #[test]
 fn under_pattern_3_the_arm_drives_itself_to_its_drawn_start_before_every_episode() {
     let id = ur5e::task_spec();
-    let model = Box::new(Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), id.observation_space, id.action_space, 0).unwrap());
+    let model = Box::new(
+        Ppo::new(ur5e::robot().defaults.of("ppo").config().unwrap(), id.observation_space, id.action_space, 0).unwrap(),
+    );
     let settings = ServerSettings::new("ur5e", &ur5e::task_spec(), 2, 1_000_000);
-    let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))).unwrap();
+    let server = RobotServer::start(
+        "127.0.0.1:0".parse().unwrap(),
+        model,
+        settings,
+        Box::new(|_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue)),
+    )
+    .unwrap();
     let address = ServerAddress { addr: server.addr, patience: Duration::from_secs(5) };
     let mut app = ur5e::headless_app_with(2, 5, DesignPattern::Server);
     app.insert_resource(address);
@@ -185,7 +208,11 @@ fn under_pattern_3_the_arm_drives_itself_to_its_drawn_start_before_every_episode
         app.update();
         steps += 1;
         assert!(steps < 2000, "only {} episodes in {steps} steps", app.world().resource::<RobotRunState>().episodes);
-        assert!(app.world().resource::<RobotRunState>().stop.is_none(), "{:?}", app.world().resource::<RobotRunState>().stop);
+        assert!(
+            app.world().resource::<RobotRunState>().stop.is_none(),
+            "{:?}",
+            app.world().resource::<RobotRunState>().stop
+        );
         for (entity, robot, state) in robots.iter(app.world()) {
             // Homed, announced and answered within one step: the reading it started on, the
             // previous step's, was the start its task drew (near home, as under pattern 1).
@@ -195,7 +222,13 @@ fn under_pattern_3_the_arm_drives_itself_to_its_drawn_start_before_every_episode
             {
                 starts += 1;
                 let arm = reading.expect("a robot starts only once it has read its encoders");
-                assert!(arm.is_at(&state.start_pose), "an episode started away from its drawn start {:?}: {:?} at {:?}", state.start_pose, arm.q, arm.qd);
+                assert!(
+                    arm.is_at(&state.start_pose),
+                    "an episode started away from its drawn start {:?}: {:?} at {:?}",
+                    state.start_pose,
+                    arm.q,
+                    arm.qd
+                );
                 away_from_home += usize::from(!arm.is_home());
             }
         }
@@ -214,21 +247,42 @@ fn train_and_eval_ur5e_from_the_cli_report_success_and_twin_figures() {
     let _ = std::fs::remove_dir_all(&out);
     std::fs::create_dir_all(&out).unwrap();
     let config = out.join("short.toml");
-    std::fs::write(&config, "timesteps = 2048\narenas = 2\neval_every = 2\neval_episodes = 4\n[ppo]\nn_steps = 256\n").unwrap();
+    std::fs::write(&config, "timesteps = 2048\narenas = 2\neval_every = 2\neval_episodes = 4\n[ppo]\nn_steps = 256\n")
+        .unwrap();
     // In a cell of its own: the place fixture moved (docs/cells.md).
     let cell = out.join("cell.toml");
-    std::fs::write(&cell, ur5e::layout::DEFAULT.replace("position = [-0.45, -0.35]", "position = [-0.30, -0.45]")).unwrap();
+    std::fs::write(&cell, ur5e::layout::DEFAULT.replace("position = [-0.45, -0.35]", "position = [-0.30, -0.45]"))
+        .unwrap();
     let run = out.join("run");
-    let status = twinbots().args(["train", "ur5e", "--config"]).arg(&config).arg("--cell").arg(&cell).arg("--out").arg(&run).status().unwrap();
+    let status = twinbots()
+        .args(["train", "ur5e", "--config"])
+        .arg(&config)
+        .arg("--cell")
+        .arg(&cell)
+        .arg("--out")
+        .arg(&run)
+        .status()
+        .unwrap();
     assert!(status.success());
     let recorded: toml::Table = toml::from_str(&std::fs::read_to_string(run.join("config.toml")).unwrap()).unwrap();
-    assert_eq!(recorded["cell"]["place"]["position"].as_array().unwrap()[1].as_float(), Some(-0.45), "the run keeps its cell: {recorded:?}");
+    assert_eq!(
+        recorded["cell"]["place"]["position"].as_array().unwrap()[1].as_float(),
+        Some(-0.45),
+        "the run keeps its cell: {recorded:?}"
+    );
     // A cell that cannot stand, or a robot without a cell file, is a clear error.
     let bad = out.join("bad-cell.toml");
-    std::fs::write(&bad, ur5e::layout::DEFAULT.replace("position = [-0.45, -0.35]", "position = [-0.45, -0.95]")).unwrap();
+    std::fs::write(&bad, ur5e::layout::DEFAULT.replace("position = [-0.45, -0.35]", "position = [-0.45, -0.95]"))
+        .unwrap();
     let output = twinbots().args(["train", "ur5e", "--print-config", "--cell"]).arg(&bad).output().unwrap();
     let err = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success() && err.contains("bad-cell.toml: place.position = [-0.45, -0.95]: the fixture's 12 cm plate leaves the table top"), "{err}");
+    assert!(
+        !output.status.success()
+            && err.contains(
+                "bad-cell.toml: place.position = [-0.45, -0.95]: the fixture's 12 cm plate leaves the table top"
+            ),
+        "{err}"
+    );
     let output = twinbots().args(["train", "cartpole", "--print-config", "--cell"]).arg(&cell).output().unwrap();
     let err = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success() && err.contains("cartpole's cell is not laid out by a file"), "{err}");
@@ -239,15 +293,21 @@ fn train_and_eval_ur5e_from_the_cli_report_success_and_twin_figures() {
     assert_eq!(rows.len(), 1 + 2, "evaluations after updates 2 and 4: {evaluations}");
     let rate: f32 = rows[1].rsplit(',').next().unwrap().parse().expect("a success rate");
     assert!((0.0..=1.0).contains(&rate));
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
     assert!(summary["evaluation"]["success_rate"].is_number(), "{summary}");
 
     // The reach model runs pick-and-place: its own figures, in their own file.
-    let output = twinbots().args(["eval"]).arg(&run).args(["--episodes", "2", "--task", "pick-place"]).output().unwrap();
+    let output =
+        twinbots().args(["eval"]).arg(&run).args(["--episodes", "2", "--task", "pick-place"]).output().unwrap();
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     let text = String::from_utf8_lossy(&output.stdout);
-    assert!(text.contains("pick-place: 2 episodes") && text.contains("success rate") && text.contains("energy_j"), "{text}");
-    let eval: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("eval-pick-place.json")).unwrap()).unwrap();
+    assert!(
+        text.contains("pick-place: 2 episodes") && text.contains("success rate") && text.contains("energy_j"),
+        "{text}"
+    );
+    let eval: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("eval-pick-place.json")).unwrap()).unwrap();
     assert_eq!(eval["task"], "pick-place");
     assert!(eval["metrics"]["energy_j"].as_f64().unwrap() > 0.0);
 
@@ -269,7 +329,11 @@ fn a_reach_succeeds_only_within_a_centimetre_pointing_down_and_at_rest() {
     let still = [0.0; 6];
     let at = |arm: &ArmState| arm.tcp.translation;
     let conditions = |arm: &ArmState, target| {
-        (arm.distance_to(target) < REACH_TOLERANCE, tilt(&arm.tcp) < TILT_TOLERANCE, arm.tcp_velocity.length() < SETTLED_SPEED)
+        (
+            arm.distance_to(target) < REACH_TOLERANCE,
+            tilt(&arm.tcp) < TILT_TOLERANCE,
+            arm.tcp_velocity.length() < SETTLED_SPEED,
+        )
     };
 
     // All three met: home points straight down, at rest, on its target.
@@ -330,11 +394,24 @@ fn train_learns_the_pick_and_place_task_by_name_and_eval_judges_the_run_on_it() 
     let _ = std::fs::remove_dir_all(&out);
     let output = twinbots().args(["train", "ur5e", "--task", "pick-place-learned", "--print-config"]).output().unwrap();
     let config = String::from_utf8_lossy(&output.stdout);
-    assert!(output.status.success() && config.contains("task = \"pick-place-learned\"") && config.contains("algo = \"sac\""), "{config}");
-    assert!(config.contains("her_goals = 4") && config.contains("hidden = [\n    128,\n    128,\n]"), "the task's own SAC defaults: {config}");
+    assert!(
+        output.status.success()
+            && config.contains("task = \"pick-place-learned\"")
+            && config.contains("algo = \"sac\""),
+        "{config}"
+    );
+    assert!(
+        config.contains("her_goals = 4") && config.contains("hidden = [\n    128,\n    128,\n]"),
+        "the task's own SAC defaults: {config}"
+    );
     let output = twinbots().args(["train", "ur5e", "--task", "pick-place", "--print-config"]).output().unwrap();
     let err = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success() && err.contains("task 'pick-place' runs a model of its task 'reach'") && err.contains("tasks that train: reach, pick-place-learned"), "{err}");
+    assert!(
+        !output.status.success()
+            && err.contains("task 'pick-place' runs a model of its task 'reach'")
+            && err.contains("tasks that train: reach, pick-place-learned"),
+        "{err}"
+    );
 
     let run = out.join("run");
     let status = twinbots()
@@ -343,15 +420,24 @@ fn train_learns_the_pick_and_place_task_by_name_and_eval_judges_the_run_on_it() 
         .status()
         .unwrap();
     assert!(status.success());
-    let eval: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("eval.json")).unwrap()).unwrap();
+    let eval: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("eval.json")).unwrap()).unwrap();
     assert_eq!(eval["task"], "pick-place-learned", "{eval}");
     assert!(eval["metrics"]["final_distance_mm"].as_f64().unwrap() > 0.0, "{eval}");
     let output = twinbots().args(["eval"]).arg(&run).args(["--episodes", "2"]).output().unwrap();
     let text = String::from_utf8_lossy(&output.stdout);
-    assert!(output.status.success() && text.contains("pick-place-learned: 2 episodes"), "{text}{}", String::from_utf8_lossy(&output.stderr));
+    assert!(
+        output.status.success() && text.contains("pick-place-learned: 2 episodes"),
+        "{text}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
     // Its policy exports as ONNX; a deploy bundle (the reach's joint-speed program) refuses it.
     let output = twinbots().args(["export", "--onnx"]).arg(out.join("policy.onnx")).arg(&run).output().unwrap();
-    assert!(output.status.success() && String::from_utf8_lossy(&output.stdout).contains("pick-place-learned (26 observations → Box(4))"), "{output:?}");
+    assert!(
+        output.status.success()
+            && String::from_utf8_lossy(&output.stdout).contains("pick-place-learned (26 observations → Box(4))"),
+        "{output:?}"
+    );
     let output = twinbots().args(["export", "--bundle"]).arg(out.join("bundle")).arg(&run).output().unwrap();
     let err = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success() && err.contains("task 'pick-place-learned' has no deployment yet"), "{err}");

@@ -5,10 +5,10 @@
 //! kinematics tests (tests/sim/ur5e_cell.rs).
 
 use rand::{Rng, SeedableRng};
-use twinbots_task::robot::{AppRequest, headless_app};
 use twinbots_api::{DesignPattern, VecEnv};
-use twinbots_task::AppVecEnv;
 use twinbots_sim::SimSettings;
+use twinbots_task::AppVecEnv;
+use twinbots_task::robot::{AppRequest, headless_app};
 
 /// Which twin a rollout runs.
 #[derive(Clone, Copy)]
@@ -74,7 +74,10 @@ const CARTPOLE_BOUND: [f32; 4] = [0.01, f32::INFINITY, 0.015, f32::INFINITY];
 #[test]
 fn the_cartpole_training_timing_tracks_a_fine_step_reference() {
     let error = max_error(Twin::CartPole, cartpole::sim_settings(), 8, 20);
-    assert!(error[0] < CARTPOLE_BOUND[0] && error[2] < CARTPOLE_BOUND[2], "error {error:?} vs bound {CARTPOLE_BOUND:?}");
+    assert!(
+        error[0] < CARTPOLE_BOUND[0] && error[2] < CARTPOLE_BOUND[2],
+        "error {error:?} vs bound {CARTPOLE_BOUND:?}"
+    );
     // The bound separates: one 32 ms physics step of 4 solver iterations does not keep it.
     let coarse = SimSettings { dt: 0.032, substeps: 1, solver_iterations: 4, ..cartpole::sim_settings() };
     let error = max_error(Twin::CartPole, coarse, 8, 20);

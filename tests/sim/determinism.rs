@@ -1,10 +1,10 @@
 //! Same seed and actions, same trajectory, bit for bit; another seed, another trajectory.
 
 use rand::{Rng, SeedableRng};
-use twinbots_task::randomization::{Randomization, RandomizationPlugin};
 use twinbots_api::VecEnv;
-use twinbots_task::AppVecEnv;
 use twinbots_sim::Arena;
+use twinbots_task::AppVecEnv;
+use twinbots_task::randomization::{Randomization, RandomizationPlugin};
 
 fn run(seed: u64, steps: usize) -> Vec<u64> {
     let arenas = 3;
@@ -15,10 +15,7 @@ fn run(seed: u64, steps: usize) -> Vec<u64> {
         let a: Vec<f32> = (0..arenas).map(|_| actions.random_range(0..2) as f32).collect();
         env.step(&a).unwrap();
     }
-    env.arenas()
-        .iter()
-        .map(|&e| env.app().world().get::<Arena>(e).unwrap().state_hash())
-        .collect()
+    env.arenas().iter().map(|&e| env.app().world().get::<Arena>(e).unwrap().state_hash()).collect()
 }
 
 #[test]
@@ -34,7 +31,11 @@ fn arena_0_beside(others: usize, steps: usize) -> Vec<(u64, Vec<u32>)> {
     let mut app = cartpole::headless_app(1 + others, 11);
     // Noisy sensors and injected actions draw from the arena's stream every step and at every
     // reset: a draw made for another arena's reset would show in arena 0's readings.
-    app.add_plugins(RandomizationPlugin(Randomization { sensor_noise: 0.01, action_probability: 0.1, ..Default::default() }));
+    app.add_plugins(RandomizationPlugin(Randomization {
+        sensor_noise: 0.01,
+        action_probability: 0.1,
+        ..Default::default()
+    }));
     let mut env = AppVecEnv::new(app);
     env.reset(Some(11)).unwrap();
     let mut ours = rand_chacha::ChaCha8Rng::seed_from_u64(5);

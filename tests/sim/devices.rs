@@ -26,9 +26,7 @@ const PROBE: &str = r#"<robot name="probe">
 </robot>"#;
 
 fn mount<T: Component>(app: &mut App, arena: Entity, link: Entity, device: T) -> Entity {
-    app.world_mut()
-        .spawn((device, Mount { link, offset: Pose::IDENTITY }, InArena(arena)))
-        .id()
+    app.world_mut().spawn((device, Mount { link, offset: Pose::IDENTITY }, InArena(arena))).id()
 }
 
 fn fixed_at(pose: Pose) -> SpawnOptions {
@@ -71,7 +69,10 @@ fn inertial_unit_reads_roll_pitch_yaw() {
     let imu = mount(&mut app, arena, robot.link("base").unwrap(), InertialUnit::default());
     app.update();
     let [roll, pitch, yaw] = app.world().get::<InertialUnit>(imu).unwrap().roll_pitch_yaw;
-    assert!((roll + 0.1).abs() < 1e-4 && (pitch - 0.2).abs() < 1e-4 && (yaw - 0.5).abs() < 1e-4, "{roll} {pitch} {yaw}");
+    assert!(
+        (roll + 0.1).abs() < 1e-4 && (pitch - 0.2).abs() < 1e-4 && (yaw - 0.5).abs() < 1e-4,
+        "{roll} {pitch} {yaw}"
+    );
 }
 
 #[test]
@@ -137,16 +138,20 @@ fn touch_sensor_reads_the_weight_of_a_resting_body() {
 
 #[test]
 fn sampling_period_holds_readings_between_samples() {
-    let (mut app, arena, robot) = robot_app(&model_from(PROBE), SpawnOptions {
-        base: Pose::from_translation(Vec3::new(0.0, 0.0, 50.0)),
-        ..Default::default()
-    }, SimSettings::default());
-    let gps = app.world_mut().spawn((
-        Gps::default(),
-        Mount { link: robot.link("base").unwrap(), offset: Pose::IDENTITY },
-        InArena(arena),
-        SamplingPeriod(4),
-    )).id();
+    let (mut app, arena, robot) = robot_app(
+        &model_from(PROBE),
+        SpawnOptions { base: Pose::from_translation(Vec3::new(0.0, 0.0, 50.0)), ..Default::default() },
+        SimSettings::default(),
+    );
+    let gps = app
+        .world_mut()
+        .spawn((
+            Gps::default(),
+            Mount { link: robot.link("base").unwrap(), offset: Pose::IDENTITY },
+            InArena(arena),
+            SamplingPeriod(4),
+        ))
+        .id();
     let mut heights = Vec::new();
     for _ in 0..8 {
         app.update();
@@ -163,13 +168,17 @@ struct ResetSense;
 
 #[test]
 fn a_reset_samples_every_device_of_the_arena_whatever_its_period() {
-    let (mut app, arena, robot) = robot_app(&model_from(PROBE), SpawnOptions {
-        base: Pose::from_translation(Vec3::new(0.0, 0.0, 50.0)),
-        ..Default::default()
-    }, SimSettings::default());
+    let (mut app, arena, robot) = robot_app(
+        &model_from(PROBE),
+        SpawnOptions { base: Pose::from_translation(Vec3::new(0.0, 0.0, 50.0)), ..Default::default() },
+        SimSettings::default(),
+    );
     app.add_systems(ResetSense, twinbots_sim::devices::sample_devices());
     let base = robot.link("base").unwrap();
-    let gps = app.world_mut().spawn((Gps::default(), Mount { link: base, offset: Pose::IDENTITY }, InArena(arena), SamplingPeriod(4))).id();
+    let gps = app
+        .world_mut()
+        .spawn((Gps::default(), Mount { link: base, offset: Pose::IDENTITY }, InArena(arena), SamplingPeriod(4)))
+        .id();
     let acc = mount(&mut app, arena, base, Accelerometer::default());
     for _ in 0..6 {
         app.update();
@@ -196,10 +205,19 @@ fn a_reset_samples_every_device_of_the_arena_whatever_its_period() {
 fn contact_sensor_tells_what_its_body_touches() {
     let cube = model_from(CUBE);
     // Objects of the cell (the environment group) touch each other; robots' links would not.
-    let at = |z: f32| SpawnOptions { base: Pose::from_translation(Vec3::new(0.0, 0.0, z)), environment: true, ..Default::default() };
+    let at = |z: f32| SpawnOptions {
+        base: Pose::from_translation(Vec3::new(0.0, 0.0, z)),
+        environment: true,
+        ..Default::default()
+    };
     let (mut app, arena, bottom) = robot_app(&cube, at(0.1), SimSettings::default());
     let top = spawn_into(&mut app, arena, &cube, at(0.3));
-    let falling = spawn_into(&mut app, arena, &cube, SpawnOptions { base: Pose::from_translation(Vec3::new(3.0, 0.0, 50.0)), ..at(0.0) });
+    let falling = spawn_into(
+        &mut app,
+        arena,
+        &cube,
+        SpawnOptions { base: Pose::from_translation(Vec3::new(3.0, 0.0, 50.0)), ..at(0.0) },
+    );
     let link = |r: &twinbots_sim::SpawnedRobot| r.link("base").unwrap();
     let sensors = [&bottom, &top, &falling].map(|r| mount(&mut app, arena, link(r), ContactSensor::default()));
     for _ in 0..30 {
@@ -208,8 +226,14 @@ fn contact_sensor_tells_what_its_body_touches() {
     let read = |e| app.world().get::<ContactSensor>(e).unwrap().clone();
     let below = read(sensors[0]);
     assert_eq!(below.contacts.len(), 2, "{below:?}");
-    assert!(below.contacts.contains(&Touched::Fixed) && below.contacts.contains(&Touched::Link(link(&top))), "{below:?}");
+    assert!(
+        below.contacts.contains(&Touched::Fixed) && below.contacts.contains(&Touched::Link(link(&top))),
+        "{below:?}"
+    );
     assert_eq!(read(sensors[1]).contacts, vec![Touched::Link(link(&bottom))]);
-    assert!(read(sensors[1]).touches_other_than(Touched::Fixed) && !read(sensors[1]).touches_other_than(Touched::Link(link(&bottom))));
+    assert!(
+        read(sensors[1]).touches_other_than(Touched::Fixed)
+            && !read(sensors[1]).touches_other_than(Touched::Link(link(&bottom)))
+    );
     assert!(!read(sensors[2]).touching(), "{:?}", read(sensors[2]));
 }

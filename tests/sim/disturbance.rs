@@ -16,7 +16,10 @@ const FLOATING: &str = r#"<robot name="floating">
 
 fn floating() -> (App, Entity, twinbots_sim::SpawnedRobot, SimSettings) {
     let settings = SimSettings { dt: 0.01, substeps: 4, gravity: Vec3::ZERO, ..default() };
-    let options = SpawnOptions { base: twinbots_sim::rapier::math::Pose::from_translation(Vec3::new(0.0, 0.0, 2.0)), ..default() };
+    let options = SpawnOptions {
+        base: twinbots_sim::rapier::math::Pose::from_translation(Vec3::new(0.0, 0.0, 2.0)),
+        ..default()
+    };
     let (app, arena, robot) = robot_app(&model_from(FLOATING), options, settings);
     (app, arena, robot, settings)
 }
@@ -59,7 +62,12 @@ fn a_push_gives_its_impulse_and_then_lets_go() {
 fn a_push_off_the_centre_of_mass_spins_the_body() {
     let (mut app, arena, robot, settings) = floating();
     let body = robot.link("body").unwrap();
-    app.world_mut().entity_mut(body).insert(Push::lasting(Vec3::new(0.0, 5.0, 0.0), Vec3::new(1.0, 0.0, 0.0), 0.01, settings.dt));
+    app.world_mut().entity_mut(body).insert(Push::lasting(
+        Vec3::new(0.0, 5.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        0.01,
+        settings.dt,
+    ));
     app.update();
     let state = with_supervisor(&mut app, |s| s.link_state(body).unwrap());
     assert!(state.angvel.z > 0.01, "pushed +y at +x spins it about +z: {:?}", state.angvel);

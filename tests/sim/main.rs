@@ -3,8 +3,8 @@
 mod accuracy;
 mod common;
 mod determinism;
-mod disturbance;
 mod devices;
+mod disturbance;
 mod motors;
 mod pattern3_access;
 mod pendulum;

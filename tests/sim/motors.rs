@@ -1,8 +1,8 @@
 //! Motors reach their commanded speed and never exceed their max velocity or max torque.
 
 use twinbots_api::VecEnv;
-use twinbots_task::AppVecEnv;
 use twinbots_sim::{JointState, Motor, MotorCommand, SimSettings, SpawnOptions, SpawnedRobot};
+use twinbots_task::AppVecEnv;
 
 use crate::common::{model_from, robot_app};
 

@@ -30,7 +30,10 @@ fn no_pattern_3_robot_system_reaches_the_physics_world_or_the_supervisor() {
     let apps = pattern_3_apps();
     assert!(apps.len() >= 2, "the cart-pole and the UR5e run under pattern 3");
     for (name, mut app) in apps {
-        assert!(!app.world().contains_resource::<SupervisorAccess>(), "{name}: the pattern-3 app grants the Supervisor");
+        assert!(
+            !app.world().contains_resource::<SupervisorAccess>(),
+            "{name}: the pattern-3 app grants the Supervisor"
+        );
         let found = violations(&mut app);
         assert!(found.is_empty(), "{name}:\n{}", found.join("\n"));
     }
@@ -79,13 +82,18 @@ fn the_audit_catches_the_supervisor_a_changed_arena_or_the_whole_world() {
     assert!(found[0].contains("grants the Supervisor") && found[1].contains("Supervisor's privilege"), "{found:?}");
 
     /// A robot no registry knows: the simulation without the Supervisor, one system of its own.
-    fn unregistered_robot_with<M>(system: impl IntoScheduleConfigs<bevy::ecs::system::ScheduleSystem, M>) -> Vec<String> {
+    fn unregistered_robot_with<M>(
+        system: impl IntoScheduleConfigs<bevy::ecs::system::ScheduleSystem, M>,
+    ) -> Vec<String> {
         let mut app = App::new();
         app.add_plugins(MinimalPlugins).add_plugins(twinbots_sim::SimPlugin { supervisor: false, ..default() });
         app.add_systems(Update, system);
         violations(&mut app)
     }
-    for (found, what) in [(unregistered_robot_with(reseeds_an_arena), "changes an Arena"), (unregistered_robot_with(holds_the_world), "whole world")] {
+    for (found, what) in [
+        (unregistered_robot_with(reseeds_an_arena), "changes an Arena"),
+        (unregistered_robot_with(holds_the_world), "whole world"),
+    ] {
         assert_eq!(found.len(), 1, "only the added system: {found:?}");
         assert!(found[0].contains(what), "{found:?}");
     }

@@ -51,9 +51,5 @@ fn pole_small_angle_period_matches_compound_pendulum() {
     let periods: Vec<f32> = crossings.windows(2).map(|w| w[1] - w[0]).collect();
     let measured = periods.iter().sum::<f32>() / periods.len() as f32;
     let error = (measured - expected).abs() / expected;
-    assert!(
-        error < 0.03,
-        "period {measured:.4} s vs compound pendulum {expected:.4} s ({:.1}% off)",
-        error * 100.0
-    );
+    assert!(error < 0.03, "period {measured:.4} s vs compound pendulum {expected:.4} s ({:.1}% off)", error * 100.0);
 }

@@ -93,9 +93,17 @@ fn sonars_read_the_distance_to_a_wall() {
         let pose = base_pose * pioneer3at::sonar_offset(i);
         let dir = pose.rotation * Vec3::X;
         // The wall's face is the plane x = 1.95; sonars facing away see nothing within range.
-        let expected = if dir.x > 1e-3 { ((1.95 - pose.translation.x) / dir.x).min(pioneer3at::SONAR_RANGE) } else { pioneer3at::SONAR_RANGE };
+        let expected = if dir.x > 1e-3 {
+            ((1.95 - pose.translation.x) / dir.x).min(pioneer3at::SONAR_RANGE)
+        } else {
+            pioneer3at::SONAR_RANGE
+        };
         let hits_wall = (pose.translation + dir * expected).y.abs() < 2.0;
         let expected = if hits_wall { expected } else { pioneer3at::SONAR_RANGE };
-        assert!((reading - expected).abs() < 0.01, "sonar {i} ({}°): {reading:.3} m, expected {expected:.3} m", pioneer3at::SONAR_BEARINGS[i]);
+        assert!(
+            (reading - expected).abs() < 0.01,
+            "sonar {i} ({}°): {reading:.3} m, expected {expected:.3} m",
+            pioneer3at::SONAR_BEARINGS[i]
+        );
     }
 }

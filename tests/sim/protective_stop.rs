@@ -6,9 +6,9 @@
 
 use bevy::prelude::*;
 use twinbots_api::{DesignPattern, EpisodeSummary, VecEnv};
-use twinbots_task::{AppVecEnv, Episode};
 use twinbots_link::robot::{Controller, OnBoardPolicy, Phase, RobotRunState};
 use twinbots_sim::{Motor, MotorCommand};
+use twinbots_task::{AppVecEnv, Episode};
 use ur5e::CellState;
 use ur5e::safety::{EFFORT_MARGIN, MAX_BRAKING_STEPS, REST_SPEED, SPEED_MARGIN, StopCause};
 
@@ -104,12 +104,19 @@ fn under_pattern_3_a_protective_stop_ends_the_episode_and_the_arm_brakes_to_rest
                 assert!(*steps <= MAX_BRAKING_STEPS, "braked for {steps} steps");
                 let parts = world.query::<&ur5e::cell::CellParts>().single(world).unwrap().clone();
                 for &joint in &parts.joints {
-                    assert_eq!(world.get::<Motor>(joint).unwrap().command, MotorCommand::Velocity(0.0), "a stopped joint holds");
+                    assert_eq!(
+                        world.get::<Motor>(joint).unwrap().command,
+                        MotorCommand::Velocity(0.0),
+                        "a stopped joint holds"
+                    );
                 }
             } else {
                 // Unlocked (and homing) only once the arm had come to rest.
                 let at_rest = last_speeds.iter().all(|v| v.abs() < REST_SPEED);
-                assert!(*steps >= 1 && (at_rest || *steps == MAX_BRAKING_STEPS), "unlocked after {steps} steps at {last_speeds:?}");
+                assert!(
+                    *steps >= 1 && (at_rest || *steps == MAX_BRAKING_STEPS),
+                    "unlocked after {steps} steps at {last_speeds:?}"
+                );
                 eprintln!("braked to rest in {steps} control steps");
                 braking = None;
                 if stops == 2 {

@@ -17,18 +17,19 @@ fn radio(emitter: Emitter, receivers: &[(Vec3, Receiver)], packets: &[&[u8]]) ->
     let link = robot.link("world").unwrap();
     let at = |p: Vec3| Mount { link, offset: Pose::from_translation(p) };
     app.world_mut().spawn((emitter, at(Vec3::ZERO), InArena(arena)));
-    let ids = receivers
-        .iter()
-        .map(|(p, r)| app.world_mut().spawn((r.clone(), at(*p), InArena(arena))).id())
-        .collect();
+    let ids = receivers.iter().map(|(p, r)| app.world_mut().spawn((r.clone(), at(*p), InArena(arena))).id()).collect();
     let packets: Vec<Vec<u8>> = packets.iter().map(|p| p.to_vec()).collect();
-    app.add_systems(Update, (move |clock: Res<SimClock>, mut e: Query<&mut Emitter>| {
-        if clock.control_steps == 3 {
-            for p in &packets {
-                e.single_mut().unwrap().send(p.clone());
+    app.add_systems(
+        Update,
+        (move |clock: Res<SimClock>, mut e: Query<&mut Emitter>| {
+            if clock.control_steps == 3 {
+                for p in &packets {
+                    e.single_mut().unwrap().send(p.clone());
+                }
             }
-        }
-    }).in_set(SimSet::Task));
+        })
+        .in_set(SimSet::Task),
+    );
     (app, ids)
 }
 
@@ -51,11 +52,7 @@ fn a_packet_sent_during_a_step_arrives_at_the_start_of_the_next() {
 
 #[test]
 fn channels_select_who_hears() {
-    let rx = [
-        (Vec3::X, Receiver::new(1)),
-        (Vec3::X, Receiver::new(2)),
-        (Vec3::X, Receiver::new(BROADCAST)),
-    ];
+    let rx = [(Vec3::X, Receiver::new(1)), (Vec3::X, Receiver::new(2)), (Vec3::X, Receiver::new(BROADCAST))];
     let (mut app, r) = radio(Emitter::new(1), &rx, &[b"a"]);
     for _ in 0..5 {
         app.update();

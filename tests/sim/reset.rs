@@ -1,8 +1,8 @@
 //! The Supervisor resets an arena to exactly its initial state, and arenas are independent.
 
 use twinbots_api::VecEnv;
-use twinbots_task::AppVecEnv;
 use twinbots_sim::{Arena, JointState, Motor, MotorCommand};
+use twinbots_task::AppVecEnv;
 
 use crate::common::with_supervisor;
 

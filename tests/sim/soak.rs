@@ -18,8 +18,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use twinbots::registry;
 use twinbots_api::{DesignPattern, VecEnv};
-use twinbots_task::AppVecEnv;
 use twinbots_sim::{Arena, InArena, Joint, JointState, Motor, PhysicsSubstep, SimSettings, SubstepSet};
+use twinbots_task::AppVecEnv;
 use ur5e::safety::{OVERSPEED_TIME, PEAK_SPEED_MARGIN, SPEED_MARGIN};
 
 /// How far (rad or m) a joint may be measured past a position stop: contacts and the solver
@@ -65,7 +65,10 @@ impl SoakReport {
             out.push(format!("{} non-finite readings", self.non_finite));
         }
         if self.worst_position_overrun.0 > POSITION_TOLERANCE {
-            out.push(format!("{} went {:.4} past its stop", self.worst_position_overrun.1, self.worst_position_overrun.0));
+            out.push(format!(
+                "{} went {:.4} past its stop",
+                self.worst_position_overrun.1, self.worst_position_overrun.0
+            ));
         }
         if self.peak_speed_ratio_running.0 > 1.0 + PEAK_SPEED_MARGIN {
             let (ratio, joint) = &self.peak_speed_ratio_running;
@@ -74,7 +77,10 @@ impl SoakReport {
         // Half a physics step's slack, as the safety system allows for rounding.
         if self.longest_overspeed.0 > OVERSPEED_TIME - 0.002 {
             let (time, joint) = &self.longest_overspeed;
-            out.push(format!("{joint} ran over {:.0} % of its velocity limit for {time:.3} s, not in a protective stop", SPEED_MARGIN * 100.0));
+            out.push(format!(
+                "{joint} ran over {:.0} % of its velocity limit for {time:.3} s, not in a protective stop",
+                SPEED_MARGIN * 100.0
+            ));
         }
         if self.stops_not_ending_episode > 0 {
             out.push(format!("{} protective stops did not end their episode at once", self.stops_not_ending_episode));
@@ -173,7 +179,8 @@ pub fn soak(robot: &str, arenas: usize, steps: u64, seed: u64) -> SoakReport {
         for (i, episode) in step.episodes.iter().enumerate() {
             let Some(episode) = episode else { continue };
             report.episodes += 1;
-            report.protective_stops += u64::from(episode.metrics.get("protective_stops").is_some_and(|&n| n > 0.0) && step.terminated[i]);
+            report.protective_stops +=
+                u64::from(episode.metrics.get("protective_stops").is_some_and(|&n| n > 0.0) && step.terminated[i]);
         }
         // A stop ends its episode the step it trips, and the reset unlocks it: an arena whose
         // episode goes on is never stopped.
@@ -219,8 +226,10 @@ fn the_pioneer_stays_sound_under_random_actions() {
 #[test]
 #[ignore = "long: 1 M control steps a robot (see the module's doc)"]
 fn soak_long() {
-    let steps = std::env::var("TWINBOTS_SOAK_STEPS").map_or(1_000_000, |s| s.parse().expect("TWINBOTS_SOAK_STEPS is a count"));
-    let robots = std::env::var("TWINBOTS_SOAK_ROBOT").map_or(vec!["cartpole".to_string(), "pioneer3at".into(), "ur5e".into()], |r| vec![r]);
+    let steps =
+        std::env::var("TWINBOTS_SOAK_STEPS").map_or(1_000_000, |s| s.parse().expect("TWINBOTS_SOAK_STEPS is a count"));
+    let robots = std::env::var("TWINBOTS_SOAK_ROBOT")
+        .map_or(vec!["cartpole".to_string(), "pioneer3at".into(), "ur5e".into()], |r| vec![r]);
     for robot in robots {
         assert_sound(&soak(&robot, 1, steps, 1));
     }

@@ -22,7 +22,14 @@ fn cell_app(start: [f32; 6]) -> (App, Entity, CellParts) {
     let mut queue = CommandQueue::default();
     let parts = {
         let mut commands = Commands::new(&mut queue, world);
-        spawn_cell(&mut commands, arena_entity, &mut arena, &CellModels::default(), &ur5e::layout::CellLayout::default(), start)
+        spawn_cell(
+            &mut commands,
+            arena_entity,
+            &mut arena,
+            &CellModels::default(),
+            &ur5e::layout::CellLayout::default(),
+            start,
+        )
     };
     queue.apply(world);
     arena.mark_initial();
@@ -297,7 +304,11 @@ fn collisions_are_what_the_arms_contact_sensors_report() {
         steps += 1;
         assert!(steps < 100, "no collision after 4 s");
     }
-    let touched: Vec<Touched> = parts.contact_sensors.iter().flat_map(|&s| app.world().get::<ContactSensor>(s).unwrap().contacts.clone()).collect();
+    let touched: Vec<Touched> = parts
+        .contact_sensors
+        .iter()
+        .flat_map(|&s| app.world().get::<ContactSensor>(s).unwrap().contacts.clone())
+        .collect();
     assert_eq!(touched, vec![Touched::Fixed], "the arm touches the table (no link), and only it");
 }
 
@@ -318,5 +329,3 @@ fn move_tool(app: &mut App, parts: &CellParts, target: Vec3) {
     }
     panic!("the tool did not reach {target}: at {}", arm_state(app, parts).tcp.translation);
 }
-
-

@@ -12,7 +12,8 @@ fn parse(text: &str) -> Result<twinbots_sim::urdf::RobotModel, UrdfError> {
     parse_urdf(text, Path::new("robots/bad.urdf"), Path::new("/nonexistent-mesh-dir"))
 }
 
-const LINK: &str = r#"<inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial>"#;
+const LINK: &str =
+    r#"<inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial>"#;
 
 fn robot(body: &str) -> String {
     format!("<robot name=\"t\">\n{}\n</robot>\n", body.replace("INERTIAL", LINK))
@@ -173,9 +174,14 @@ fn flat_stl_mesh_is_rejected() {
     let dir = std::env::temp_dir().join(format!("twinbots-flat-stl-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let v = |x: f32, y: f32| stl_io::Vector::new([x, y, 0.0]);
-    let flat = [stl_io::Triangle { normal: stl_io::Vector::new([0.0, 0.0, 1.0]), vertices: [v(0., 0.), v(1., 0.), v(0., 1.)] }];
+    let flat = [stl_io::Triangle {
+        normal: stl_io::Vector::new([0.0, 0.0, 1.0]),
+        vertices: [v(0., 0.), v(1., 0.), v(0., 1.)],
+    }];
     stl_io::write_stl(&mut std::fs::File::create(dir.join("flat.stl")).unwrap(), flat.iter()).unwrap();
-    let text = robot("<link name=\"a\">INERTIAL<collision><geometry><mesh filename=\"flat.stl\"/></geometry></collision></link>");
+    let text = robot(
+        "<link name=\"a\">INERTIAL<collision><geometry><mesh filename=\"flat.stl\"/></geometry></collision></link>",
+    );
     let err = parse_urdf(&text, &dir.join("t.urdf"), &dir).unwrap_err().to_string();
     assert!(err.contains("degenerate") && err.contains("<link name=\"a\">"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
@@ -194,15 +200,22 @@ fn a_visual_naming_an_undefined_material_is_rejected() {
 
 #[test]
 fn a_non_finite_or_absurd_number_names_its_line_element_and_attribute() {
-    let text = robot(r#"<link name="base">
+    let text = robot(
+        r#"<link name="base">
   <inertial><origin xyz="0 0 inf"/><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial>
-</link>"#);
+</link>"#,
+    );
     let (line, element, name, problem) = element_error(parse(&text).unwrap_err());
     assert_eq!((line, element, name.as_str()), (3, "link", "base"));
     assert!(problem.contains(r#"<origin xyz="0 0 inf">: inf is not a finite number"#), "{problem}");
-    let text = robot(r#"<link name="base">INERTIAL<collision><geometry><box size="0.1 1e39 0.1"/></geometry></collision></link>"#);
+    let text = robot(
+        r#"<link name="base">INERTIAL<collision><geometry><box size="0.1 1e39 0.1"/></geometry></collision></link>"#,
+    );
     let (_, _, _, problem) = element_error(parse(&text).unwrap_err());
-    assert!(problem.contains("1000000000000000000000000000000000000000 is not a finite number") || problem.contains("1e39"), "{problem}");
+    assert!(
+        problem.contains("1000000000000000000000000000000000000000 is not a finite number") || problem.contains("1e39"),
+        "{problem}"
+    );
 }
 
 #[test]
@@ -222,7 +235,11 @@ fn the_urdf_check_lists_the_tree_stands_the_robot_and_flags_what_will_not_simula
     .unwrap();
     let report = twinbots::urdf_check::check(&path, 0.5, &[]).unwrap();
     assert_eq!(report.tree.len(), 3, "{:?}", report.tree);
-    assert!(report.tree[1].contains("stuck (Revolute, range [0.000, 0.000], motor: effort 5 velocity 0) -> arm"), "{:?}", report.tree);
+    assert!(
+        report.tree[1].contains("stuck (Revolute, range [0.000, 0.000], motor: effort 5 velocity 0) -> arm"),
+        "{:?}",
+        report.tree
+    );
     let warnings = report.warnings.join("\n");
     assert!(warnings.contains("joint 'stuck' (Revolute) has no range"), "{warnings}");
     assert!(warnings.contains("joint 'stuck' has a motor but no speed limit"), "{warnings}");
@@ -230,7 +247,12 @@ fn the_urdf_check_lists_the_tree_stands_the_robot_and_flags_what_will_not_simula
     assert_eq!(report.warnings.len(), 3, "{warnings}");
     assert!((report.seconds - 0.5).abs() < 1e-9 && report.fastest.0.is_finite());
     // The project's own arm stands without a warning.
-    let ur5e = twinbots::urdf_check::check(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/robots/ur5e/ur5e.urdf")), 0.5, &[]).unwrap();
+    let ur5e = twinbots::urdf_check::check(
+        std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/robots/ur5e/ur5e.urdf")),
+        0.5,
+        &[],
+    )
+    .unwrap();
     assert!(ur5e.warnings.is_empty(), "{:?}", ur5e.warnings);
     let e = twinbots::urdf_check::check(&path, 0.5, &["elbow".into()]).err().unwrap().to_string();
     assert!(e.contains("--decompose: robot 'flagged' has no link 'elbow' (its links: base, arm)"), "{e}");
@@ -263,11 +285,19 @@ fn a_mass_without_inertia_takes_the_collision_geometrys() {
 /// A U of three blocks as one OBJ mesh (0.6 m wide, 0.5 m high, a notch 0.4 m wide above a
 /// 0.1 m floor): concave, as a nest or a bin is.
 fn u_mesh(dir: &Path) -> PathBuf {
-    let blocks = [([-0.3, -0.2, 0.0], [0.3, 0.2, 0.1]), ([-0.3, -0.2, 0.1], [-0.2, 0.2, 0.5]), ([0.2, -0.2, 0.1], [0.3, 0.2, 0.5])];
+    let blocks = [
+        ([-0.3, -0.2, 0.0], [0.3, 0.2, 0.1]),
+        ([-0.3, -0.2, 0.1], [-0.2, 0.2, 0.5]),
+        ([0.2, -0.2, 0.1], [0.3, 0.2, 0.5]),
+    ];
     let mut obj = String::new();
     for (b, (lo, hi)) in blocks.iter().enumerate() {
         for k in 0..8 {
-            let p = [if k & 1 == 0 { lo[0] } else { hi[0] }, if k & 2 == 0 { lo[1] } else { hi[1] }, if k & 4 == 0 { lo[2] } else { hi[2] }];
+            let p = [
+                if k & 1 == 0 { lo[0] } else { hi[0] },
+                if k & 2 == 0 { lo[1] } else { hi[1] },
+                if k & 4 == 0 { lo[2] } else { hi[2] },
+            ];
             obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
         }
         let o = b * 8 + 1;
@@ -297,9 +327,18 @@ fn a_decomposed_concave_mesh_lets_a_part_into_its_notch_where_its_hull_would_not
              <collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision></link></robot>"#,
     );
     let rest_height = |decompose: bool| {
-        let options = SpawnOptions { fixed_base: true, environment: true, decompose: if decompose { vec!["nest".into()] } else { vec![] }, ..Default::default() };
+        let options = SpawnOptions {
+            fixed_base: true,
+            environment: true,
+            decompose: if decompose { vec!["nest".into()] } else { vec![] },
+            ..Default::default()
+        };
         let (mut app, arena, _) = robot_app(&nest, options, SimSettings::default());
-        let dropped = SpawnOptions { base: twinbots_sim::rapier::prelude::Pose::from_translation(bevy::math::Vec3::new(0.0, 0.0, 0.9)), environment: true, ..Default::default() };
+        let dropped = SpawnOptions {
+            base: twinbots_sim::rapier::prelude::Pose::from_translation(bevy::math::Vec3::new(0.0, 0.0, 0.9)),
+            environment: true,
+            ..Default::default()
+        };
         let part = crate::common::spawn_into(&mut app, arena, &part, dropped);
         for _ in 0..60 {
             app.update();

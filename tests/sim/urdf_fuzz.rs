@@ -14,11 +14,18 @@ use twinbots_sim::{JointState, PhysicsSubstep, SimSettings, SpawnOptions};
 
 /// Spawns `model` (base welded) and steps it 0.2 s: whether every joint state stays finite.
 fn stands(model: &RobotModel) -> bool {
-    let (mut app, _, spawned) = crate::common::robot_app(model, SpawnOptions { fixed_base: true, ..Default::default() }, SimSettings::default());
+    let (mut app, _, spawned) = crate::common::robot_app(
+        model,
+        SpawnOptions { fixed_base: true, ..Default::default() },
+        SimSettings::default(),
+    );
     for _ in 0..50 {
         app.world_mut().run_schedule(PhysicsSubstep);
     }
-    spawned.joints.values().all(|&j| app.world().get::<JointState>(j).is_none_or(|s| s.position.is_finite() && s.velocity.is_finite()))
+    spawned
+        .joints
+        .values()
+        .all(|&j| app.world().get::<JointState>(j).is_none_or(|s| s.position.is_finite() && s.velocity.is_finite()))
 }
 
 /// A robot of meshes as CAD tools export them — STL, OBJ and glTF, through `package://` and
@@ -29,7 +36,10 @@ fn mesh_robot() -> (std::path::PathBuf, String) {
     std::fs::create_dir_all(root.join("urdf")).unwrap();
     let tetra = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
     std::fs::write(root.join("meshes/tetra.obj"), tetra).unwrap();
-    let tri = |a: [f32; 3], b: [f32; 3], c: [f32; 3]| stl_io::Triangle { normal: stl_io::Normal::new([0.0, 0.0, 1.0]), vertices: [stl_io::Vertex::new(a), stl_io::Vertex::new(b), stl_io::Vertex::new(c)] };
+    let tri = |a: [f32; 3], b: [f32; 3], c: [f32; 3]| stl_io::Triangle {
+        normal: stl_io::Normal::new([0.0, 0.0, 1.0]),
+        vertices: [stl_io::Vertex::new(a), stl_io::Vertex::new(b), stl_io::Vertex::new(c)],
+    };
     let (p0, p1, p2, p3) = ([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]);
     let mut file = std::fs::File::create(root.join("meshes/tetra.stl")).unwrap();
     stl_io::write_stl(&mut file, [tri(p0, p2, p1), tri(p0, p1, p3), tri(p0, p3, p2), tri(p1, p2, p3)].iter()).unwrap();
@@ -50,10 +60,29 @@ fn mesh_robot() -> (std::path::PathBuf, String) {
 }
 
 const HOSTILE_NUMBERS: &[&str] = &[
-    "nan", "NaN", "inf", "-inf", "1e39", "-1e39", "1e308", "-0", "0", "1e-45", "99999999999999999999", "", "abc", "1 2 3",
-    "0x10", "--1", "1e", ".", "-", "3.4028236e38",
+    "nan",
+    "NaN",
+    "inf",
+    "-inf",
+    "1e39",
+    "-1e39",
+    "1e308",
+    "-0",
+    "0",
+    "1e-45",
+    "99999999999999999999",
+    "",
+    "abc",
+    "1 2 3",
+    "0x10",
+    "--1",
+    "1e",
+    ".",
+    "-",
+    "3.4028236e38",
 ];
-const INSERTS: &[&str] = &["<", ">", "\"", "&", "&amp;", "</link>", "<joint", "<!--", "]]>", "\u{0}", "é", "<limit effort=\"nan\"/>"];
+const INSERTS: &[&str] =
+    &["<", ">", "\"", "&", "&amp;", "</link>", "<joint", "<!--", "]]>", "\u{0}", "é", "<limit effort=\"nan\"/>"];
 
 fn mutate(text: &str, rng: &mut impl Rng) -> String {
     let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
@@ -105,8 +134,8 @@ fn has_hostile_number(text: &str) -> bool {
     }
     // Only attributes the URDF schema reads as numbers (a garbled name is ignored by the loader).
     const NUMBERS: &[&str] = &[
-        "xyz", "rpy", "size", "radius", "length", "value", "ixx", "ixy", "ixz", "iyy", "iyz", "izz", "effort", "velocity", "lower",
-        "upper", "damping", "friction", "scale", "rgba",
+        "xyz", "rpy", "size", "radius", "length", "value", "ixx", "ixy", "ixz", "iyy", "iyz", "izz", "effort",
+        "velocity", "lower", "upper", "damping", "friction", "scale", "rgba",
     ];
     let pieces: Vec<&str> = outside.split("=\"").collect();
     pieces.windows(2).any(|pair| {
@@ -150,7 +179,8 @@ fn garble_an_attribute(line: &str, rng: &mut impl Rng) -> String {
         return line.to_string();
     }
     let k = rng.random_range(0..quotes.len() / 2) * 2;
-    let junk: String = (0..rng.random_range(0..12)).map(|_| rng.random_range(b' '..=b'~') as char).filter(|&c| c != '"').collect();
+    let junk: String =
+        (0..rng.random_range(0..12)).map(|_| rng.random_range(b' '..=b'~') as char).filter(|&c| c != '"').collect();
     format!("{}{}{}", &line[..=quotes[k]], junk, &line[quotes[k + 1]..])
 }
 
@@ -158,14 +188,20 @@ fn garble_an_attribute(line: &str, rng: &mut impl Rng) -> String {
 fn mutated_urdfs_load_or_name_their_file_and_never_panic() {
     let cases: usize = std::env::var("TWINBOTS_URDF_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(20_000);
     let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/robots");
-    let mut sources: Vec<(std::path::PathBuf, String)> = ["cartpole/cartpole.urdf", "pioneer3at/pioneer3at.urdf", "ur5e/ur5e.urdf", "ur5e/part.urdf", "ur5e/fixture.urdf"]
-        .iter()
-        .map(|f| {
-            let path = assets.join(f);
-            let text = std::fs::read_to_string(&path).unwrap();
-            (path, text)
-        })
-        .collect();
+    let mut sources: Vec<(std::path::PathBuf, String)> = [
+        "cartpole/cartpole.urdf",
+        "pioneer3at/pioneer3at.urdf",
+        "ur5e/ur5e.urdf",
+        "ur5e/part.urdf",
+        "ur5e/fixture.urdf",
+    ]
+    .iter()
+    .map(|f| {
+        let path = assets.join(f);
+        let text = std::fs::read_to_string(&path).unwrap();
+        (path, text)
+    })
+    .collect();
     sources.push(mesh_robot());
     // Hooks off: a caught panic is counted, not printed a million times.
     let previous_hook = std::panic::take_hook();
@@ -194,7 +230,10 @@ fn mutated_urdfs_load_or_name_their_file_and_never_panic() {
             }
             Ok(Err(e)) => {
                 let message = e.to_string();
-                assert!(message.starts_with(&path.display().to_string()), "an error that does not name its file: {message}");
+                assert!(
+                    message.starts_with(&path.display().to_string()),
+                    "an error that does not name its file: {message}"
+                );
                 refused += 1;
             }
             Err(_) => panics.push(input),
@@ -206,8 +245,21 @@ fn mutated_urdfs_load_or_name_their_file_and_never_panic() {
         started.elapsed().as_secs_f64(),
         panics.len()
     );
-    assert!(spawned > 0 && unstable.is_empty(), "{spawned} spawned; {} left the numbers, the first:\n{}", unstable.len(), unstable.first().map_or("", String::as_str));
+    assert!(
+        spawned > 0 && unstable.is_empty(),
+        "{spawned} spawned; {} left the numbers, the first:\n{}",
+        unstable.len(),
+        unstable.first().map_or("", String::as_str)
+    );
     assert!(panics.is_empty(), "{} inputs panicked the loader; the first:\n{}", panics.len(), panics[0]);
-    assert!(hostile_loaded.is_empty(), "{} inputs with a non-finite or absurd number loaded; the first:\n{}", hostile_loaded.len(), hostile_loaded[0]);
-    assert!(loaded > cases / 20 && refused > cases / 20, "{loaded} loaded, {refused} refused: the mutations are not a mix");
+    assert!(
+        hostile_loaded.is_empty(),
+        "{} inputs with a non-finite or absurd number loaded; the first:\n{}",
+        hostile_loaded.len(),
+        hostile_loaded[0]
+    );
+    assert!(
+        loaded > cases / 20 && refused > cases / 20,
+        "{loaded} loaded, {refused} refused: the mutations are not a mix"
+    );
 }

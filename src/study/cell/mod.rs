@@ -80,28 +80,58 @@ pub fn run(entry: &RobotEntry, path: &Path, controllers: &[String]) -> anyhow::R
     let started = Instant::now();
     let study = CellStudy::read(path)?;
     if let Some(robot) = &study.robot {
-        anyhow::ensure!(robot == entry.name, "{}: robot = '{robot}', but the study runs {}", path.display(), entry.name);
+        anyhow::ensure!(
+            robot == entry.name,
+            "{}: robot = '{robot}', but the study runs {}",
+            path.display(),
+            entry.name
+        );
     }
-    anyhow::ensure!(entry.name == "ur5e", "cell studies run the UR5e's pick-and-place program; {} has none", entry.name);
+    anyhow::ensure!(
+        entry.name == "ur5e",
+        "cell studies run the UR5e's pick-and-place program; {} has none",
+        entry.name
+    );
     let base = path.parent().unwrap_or(Path::new("."));
     let layouts = study.layouts(base).map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
     let named = open_all(entry, path, &study.controllers, controllers)?;
-    let nominal_part = ur5e::cell::CellModels::default().part.links.iter().find_map(|l| l.inertial.map(|i| i.mass)).unwrap_or(0.0);
+    let nominal_part =
+        ur5e::cell::CellModels::default().part.links.iter().find_map(|l| l.inertial.map(|i| i.mass)).unwrap_or(0.0);
     let combinations = study.combinations(named.len(), layouts.len());
     // Which waypoints of each layout the arm cannot reach.
     let unreachable: Vec<Vec<Stage>> = layouts
         .iter()
-        .map(|(_, l)| PHASES.iter().map(|(s, _)| *s).filter(|&s| !ur5e::controller::reachable(waypoint(s, &l.fixtures()))).collect())
+        .map(|(_, l)| {
+            PHASES
+                .iter()
+                .map(|(s, _)| *s)
+                .filter(|&s| !ur5e::controller::reachable(waypoint(s, &l.fixtures())))
+                .collect()
+        })
         .collect();
     let total = combinations.len() * study.episodes;
-    println!("{}: {} combinations × {} episodes = {total} episodes, {} controller(s), {} layout(s)", path.display(), combinations.len(), study.episodes, named.len(), layouts.len());
+    println!(
+        "{}: {} combinations × {} episodes = {total} episodes, {} controller(s), {} layout(s)",
+        path.display(),
+        combinations.len(),
+        study.episodes,
+        named.len(),
+        layouts.len()
+    );
     let mut episodes = Vec::new();
     let mut control_dt = 0.0;
     let mut progress = Progress::new(total);
     for (c, controller) in named.iter().enumerate() {
         let mine: Vec<usize> = (0..combinations.len()).filter(|&i| combinations[i].controller == c).collect();
         for batch in mine.chunks(BATCH) {
-            let setup = Batch { study: &study, layouts: &layouts, unreachable: &unreachable, combinations: &combinations, members: batch, nominal_part };
+            let setup = Batch {
+                study: &study,
+                layouts: &layouts,
+                unreachable: &unreachable,
+                combinations: &combinations,
+                members: batch,
+                nominal_part,
+            };
             let (records, dt) = setup.run(entry, controller, &mut progress)?;
             episodes.extend(records);
             control_dt = dt;
@@ -136,7 +166,9 @@ impl Progress {
         use std::io::IsTerminal;
         let bar = std::io::stderr().is_terminal().then(|| {
             let bar = indicatif::ProgressBar::new(total as u64);
-            if let Ok(style) = indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} episodes ({eta} left)") {
+            if let Ok(style) = indicatif::ProgressStyle::with_template(
+                "{elapsed_precise} [{bar:30}] {pos}/{len} episodes ({eta} left)",
+            ) {
                 bar.set_style(style.progress_chars("=> "));
             }
             bar
@@ -180,7 +212,12 @@ struct Tally {
 }
 
 impl Batch<'_> {
-    fn run(&self, entry: &RobotEntry, controller: &NamedController, progress: &mut Progress) -> anyhow::Result<(Vec<EpisodeRecord>, f64)> {
+    fn run(
+        &self,
+        entry: &RobotEntry,
+        controller: &NamedController,
+        progress: &mut Progress,
+    ) -> anyhow::Result<(Vec<EpisodeRecord>, f64)> {
         let combos: Vec<&Combination> = self.members.iter().map(|&i| &self.combinations[i]).collect();
         let cell_layouts = CellLayouts(combos.iter().map(|c| self.layouts[c.layout].1.clone()).collect());
         let mut env = controller.env(entry, Some("pick-place"), combos.len(), self.study.seed, |app| {
@@ -210,7 +247,10 @@ impl Batch<'_> {
         let dim = env.observation_space().dim();
         let action_dim = env.action_space().dim();
         let steps_at = |s: f64| (s / dt).round() as u32;
-        let (push_at, dropout) = (steps_at(self.study.push.at), (steps_at(self.study.dropout.at), steps_at(self.study.dropout.duration).max(1)));
+        let (push_at, dropout) = (
+            steps_at(self.study.push.at),
+            (steps_at(self.study.dropout.at), steps_at(self.study.dropout.duration).max(1)),
+        );
         let mut tallies: Vec<Tally> = (0..arenas.len()).map(|_| Tally::default()).collect();
         let mut records = Vec::new();
         let limit = (self.study.episodes as u64 + 1) * u64::from(ur5e::pick_place::EPISODE_STEPS) + 10;
@@ -228,7 +268,12 @@ impl Batch<'_> {
                     let world = env.app_mut().world_mut();
                     let parts = world.get::<CellParts>(arenas[i]).expect("a UR5e cell").clone();
                     let link = if combo.failure == Failure::PushTool { parts.tcp } else { parts.part };
-                    let push = Push::lasting(Vec3::from(self.study.push.force), Vec3::ZERO, self.study.push.duration as f32, settings.dt);
+                    let push = Push::lasting(
+                        Vec3::from(self.study.push.force),
+                        Vec3::ZERO,
+                        self.study.push.duration as f32,
+                        settings.dt,
+                    );
                     world.entity_mut(link).insert(push);
                 }
             }
@@ -237,7 +282,11 @@ impl Batch<'_> {
             for (i, (t, combo)) in tallies.iter_mut().zip(&combos).enumerate() {
                 t.queue.push_back(wanted[i * action_dim..(i + 1) * action_dim].to_vec());
                 // Until the first command arrives, the arm holds (zero joint speeds).
-                let applied = if t.queue.len() > combo.latency as usize { t.queue.pop_front().expect("non-empty") } else { vec![0.0; action_dim] };
+                let applied = if t.queue.len() > combo.latency as usize {
+                    t.queue.pop_front().expect("non-empty")
+                } else {
+                    vec![0.0; action_dim]
+                };
                 actions.extend(applied);
                 let state = env.app().world().get::<CellState>(arenas[i]).expect("a UR5e cell");
                 let stage = state.program.stage;
@@ -258,14 +307,21 @@ impl Batch<'_> {
             }
             obs = out.obs;
         }
-        anyhow::ensure!(tallies.iter().all(|t| t.done >= self.study.episodes), "the study's episodes did not end within {limit} control steps");
+        anyhow::ensure!(
+            tallies.iter().all(|t| t.done >= self.study.episodes),
+            "the study's episodes did not end within {limit} control steps"
+        );
         Ok((records, dt))
     }
 }
 
 fn record(combination: usize, t: &Tally, summary: &EpisodeSummary) -> EpisodeRecord {
     let metric = |name: &str| summary.metrics.get(name).copied().map(f64::from);
-    let outcome = summary.metrics.iter().find(|(k, v)| k.starts_with("outcome_") && **v > 0.5).map_or("unknown", |(k, _)| &k["outcome_".len()..]);
+    let outcome = summary
+        .metrics
+        .iter()
+        .find(|(k, v)| k.starts_with("outcome_") && **v > 0.5)
+        .map_or("unknown", |(k, _)| &k["outcome_".len()..]);
     EpisodeRecord {
         combination,
         episode: t.done,

@@ -148,7 +148,8 @@ pub enum Failure {
 }
 
 impl Failure {
-    pub const ALL: [Failure; 5] = [Failure::None, Failure::PushTool, Failure::PushPart, Failure::SensorDropout, Failure::FailedGrasp];
+    pub const ALL: [Failure; 5] =
+        [Failure::None, Failure::PushTool, Failure::PushPart, Failure::SensorDropout, Failure::FailedGrasp];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -162,7 +163,10 @@ impl Failure {
 
     fn parse(name: &str) -> Result<Self, String> {
         Self::ALL.into_iter().find(|f| f.name() == name).ok_or_else(|| {
-            format!("factors.failure: unknown scenario '{name}'; the scenarios: {}", Self::ALL.map(Failure::name).join(", "))
+            format!(
+                "factors.failure: unknown scenario '{name}'; the scenarios: {}",
+                Self::ALL.map(Failure::name).join(", ")
+            )
         })
     }
 }
@@ -195,7 +199,11 @@ impl CellStudy {
             return Err("controllers = []: give at least one (classic, a run directory or an .onnx file)".into());
         }
         let f = &self.factors;
-        for (key, empty) in [("factors.speed", f.speed.is_empty()), ("factors.latency", f.latency.is_empty()), ("factors.failure", f.failure.is_empty())] {
+        for (key, empty) in [
+            ("factors.speed", f.speed.is_empty()),
+            ("factors.latency", f.latency.is_empty()),
+            ("factors.failure", f.failure.is_empty()),
+        ] {
             if empty {
                 return Err(format!("{key} = []: give at least one level, or leave it out"));
             }
@@ -212,7 +220,9 @@ impl CellStudy {
         for name in &f.failure {
             Failure::parse(name)?;
         }
-        for (key, at, duration) in [("push", self.push.at, self.push.duration), ("dropout", self.dropout.at, self.dropout.duration)] {
+        for (key, at, duration) in
+            [("push", self.push.at, self.push.duration), ("dropout", self.dropout.at, self.dropout.duration)]
+        {
             if !(at >= 0.0 && at.is_finite()) {
                 return Err(format!("{key}.at = {at}: must be a time ≥ 0 (s)"));
             }
@@ -223,7 +233,10 @@ impl CellStudy {
         let mut names: Vec<&str> = Vec::new();
         for (i, l) in self.layouts.iter().enumerate() {
             if names.contains(&l.name.as_str()) || l.name.is_empty() || l.name.contains(['/', '\\', ',']) {
-                return Err(format!("layout[{i}].name = '{}': names are distinct, non-empty, without / \\ or ,", l.name));
+                return Err(format!(
+                    "layout[{i}].name = '{}': names are distinct, non-empty, without / \\ or ,",
+                    l.name
+                ));
             }
             names.push(&l.name);
         }
@@ -266,7 +279,8 @@ impl CellStudy {
     /// that order of nesting (the last varies fastest).
     pub fn combinations(&self, controllers: usize, layouts: usize) -> Vec<Combination> {
         let f = &self.factors;
-        let payloads: Vec<Option<f64>> = if f.payload.is_empty() { vec![None] } else { f.payload.iter().copied().map(Some).collect() };
+        let payloads: Vec<Option<f64>> =
+            if f.payload.is_empty() { vec![None] } else { f.payload.iter().copied().map(Some).collect() };
         let failures: Vec<Failure> = f.failure.iter().map(|n| Failure::parse(n).expect("checked on reading")).collect();
         let mut out = Vec::new();
         for controller in 0..controllers {
@@ -321,6 +335,11 @@ mod tests {
         }
         let study = parse("[[layout]]\nname = \"off\"\nplace = [-1.2, 0.0]\n").unwrap();
         let err = study.layouts(Path::new(".")).unwrap_err().to_string();
-        assert!(err.contains("layout[0] ('off'): place.position = [-1.2, 0.0]: the fixture's 12 cm plate leaves the table top"), "{err}");
+        assert!(
+            err.contains(
+                "layout[0] ('off'): place.position = [-1.2, 0.0]: the fixture's 12 cm plate leaves the table top"
+            ),
+            "{err}"
+        );
     }
 }

@@ -10,7 +10,13 @@ use ur5e::layout::{CellLayout, FIXTURE_HALF};
 
 /// Grouped bars: for each category (a factor's level), one bar per series (a controller);
 /// `None` draws no bar (nothing to average: no successful episode).
-pub fn grouped_bars(path: &Path, title: &str, y_label: &str, categories: &[String], series: &[(String, Vec<Option<f64>>)]) -> anyhow::Result<()> {
+pub fn grouped_bars(
+    path: &Path,
+    title: &str,
+    y_label: &str,
+    categories: &[String],
+    series: &[(String, Vec<Option<f64>>)],
+) -> anyhow::Result<()> {
     png(path, (900, 540), |root| {
         let top = series.iter().flat_map(|(_, v)| v.iter().flatten()).fold(1e-6f64, |m, &v| m.max(v)) * 1.15;
         let n = categories.len().max(1);
@@ -21,7 +27,13 @@ pub fn grouped_bars(path: &Path, title: &str, y_label: &str, categories: &[Strin
             .y_label_area_size(60)
             .build_cartesian_2d(-0.5f64..n as f64 - 0.5, 0f64..top)?;
         // Ticks at whole numbers: each group of bars centred on its category's.
-        let label = |x: &f64| if (x - x.round()).abs() < 1e-6 && *x >= 0.0 { categories.get(x.round() as usize).cloned().unwrap_or_default() } else { String::new() };
+        let label = |x: &f64| {
+            if (x - x.round()).abs() < 1e-6 && *x >= 0.0 {
+                categories.get(x.round() as usize).cloned().unwrap_or_default()
+            } else {
+                String::new()
+            }
+        };
         chart
             .configure_mesh()
             .disable_x_mesh()
@@ -37,16 +49,30 @@ pub fn grouped_bars(path: &Path, title: &str, y_label: &str, categories: &[Strin
                 let x = c as f64 - 0.4 + s as f64 * width;
                 v.map(|v| Rectangle::new([(x, 0.0), (x + width * 0.9, v)], colour.filled()))
             });
-            chart.draw_series(bars)?.label(label.clone()).legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], colour.filled()));
+            chart
+                .draw_series(bars)?
+                .label(label.clone())
+                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], colour.filled()));
         }
-        chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).label_font(("sans-serif", 14)).draw()?;
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .draw()?;
         Ok(())
     })
 }
 
 /// A heat map of values in [0, 1] (success rates): `rows` × `columns`, each cell labelled with
 /// its value as a percentage; `None` cells stay grey.
-pub fn heat_map(path: &Path, title: &str, rows: &[String], columns: &[String], values: &[Vec<Option<f64>>]) -> anyhow::Result<()> {
+pub fn heat_map(
+    path: &Path,
+    title: &str,
+    rows: &[String],
+    columns: &[String],
+    values: &[Vec<Option<f64>>],
+) -> anyhow::Result<()> {
     let size = (220 + 150 * columns.len() as u32, 120 + 60 * rows.len() as u32);
     png(path, size, |root| {
         let root = root.titled(title, ("sans-serif", 22))?;
@@ -101,7 +127,10 @@ pub fn reach_map(path: &Path, title: &str, layout: &CellLayout, step: f32, reach
         });
         chart.draw_series(cells)?;
         let base = layout.robot.position.map(f64::from);
-        chart.draw_series(std::iter::once(Circle::new((base[0], base[1]), 12, BLACK.filled())))?.label("robot base").legend(|(x, y)| Circle::new((x + 6, y), 5, BLACK.filled()));
+        chart
+            .draw_series(std::iter::once(Circle::new((base[0], base[1]), 12, BLACK.filled())))?
+            .label("robot base")
+            .legend(|(x, y)| Circle::new((x + 6, y), 5, BLACK.filled()));
         for (name, fixture, colour) in [("pick fixture", &layout.pick, BLUE), ("place fixture", &layout.place, RED)] {
             let [x, y] = fixture.position.map(f64::from);
             let h = f64::from(FIXTURE_HALF);
@@ -110,7 +139,13 @@ pub fn reach_map(path: &Path, title: &str, layout: &CellLayout, step: f32, reach
                 .label(name)
                 .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], colour.stroke_width(3)));
         }
-        chart.configure_series_labels().position(SeriesLabelPosition::UpperLeft).background_style(WHITE.mix(0.85)).border_style(BLACK).label_font(("sans-serif", 14)).draw()?;
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .draw()?;
         Ok(())
     })
 }
@@ -128,7 +163,13 @@ pub fn phases(path: &Path, title: &str, phases: &[&str], rows: &[(String, Vec<f6
             .x_label_area_size(40)
             .y_label_area_size(260)
             .build_cartesian_2d(0f64..total, -0.5f64..n as f64 - 0.5)?;
-        let label = |y: &f64| if (y - y.round()).abs() < 1e-6 && *y >= 0.0 { rows.get(y.round() as usize).map(|r| r.0.clone()).unwrap_or_default() } else { String::new() };
+        let label = |y: &f64| {
+            if (y - y.round()).abs() < 1e-6 && *y >= 0.0 {
+                rows.get(y.round() as usize).map(|r| r.0.clone()).unwrap_or_default()
+            } else {
+                String::new()
+            }
+        };
         chart
             .configure_mesh()
             .disable_y_mesh()
@@ -143,9 +184,18 @@ pub fn phases(path: &Path, title: &str, phases: &[&str], rows: &[(String, Vec<f6
                 let start: f64 = times[..p].iter().sum();
                 Rectangle::new([(start, r as f64 - 0.35), (start + times[p], r as f64 + 0.35)], colour.filled())
             });
-            chart.draw_series(bars)?.label(*name).legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], colour.filled()));
+            chart
+                .draw_series(bars)?
+                .label(*name)
+                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], colour.filled()));
         }
-        chart.configure_series_labels().position(SeriesLabelPosition::UpperRight).background_style(WHITE.mix(0.85)).border_style(BLACK).label_font(("sans-serif", 13)).draw()?;
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 13))
+            .draw()?;
         Ok(())
     })
 }

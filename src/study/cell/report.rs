@@ -106,7 +106,10 @@ pub fn write(result: &CellStudyResult, study_file: &Path, out: &Path) -> anyhow:
     write_atomic(&path, results.as_bytes()).map_err(|e| io(&path, e))?;
 
     let summaries: Vec<Summary> = (0..result.combinations.len()).map(|c| Summary::of(&result.episodes_of(c))).collect();
-    let mut summary = format!("{},episodes,success_rate,cycle_time_mean_s,cycle_time_p95_s,energy_mean_j,collision_events,protective_stops,reach_failures\n", FACTORS.join(","));
+    let mut summary = format!(
+        "{},episodes,success_rate,cycle_time_mean_s,cycle_time_p95_s,energy_mean_j,collision_events,protective_stops,reach_failures\n",
+        FACTORS.join(",")
+    );
     for (c, s) in result.combinations.iter().zip(&summaries) {
         let _ = writeln!(
             summary,
@@ -126,10 +129,14 @@ pub fn write(result: &CellStudyResult, study_file: &Path, out: &Path) -> anyhow:
     write_atomic(&path, summary.as_bytes()).map_err(|e| io(&path, e))?;
 
     let breakdown = phase_breakdown(result);
-    let mut phases = format!("controller,layout,cycles,{}\n", phase_names.iter().map(|p| format!("{p}_s")).collect::<Vec<_>>().join(","));
+    let mut phases = format!(
+        "controller,layout,cycles,{}\n",
+        phase_names.iter().map(|p| format!("{p}_s")).collect::<Vec<_>>().join(",")
+    );
     for (label, cycles, times) in &breakdown {
         // No successful cycle: no times to give.
-        let cells: Vec<String> = times.iter().map(|t| if *cycles > 0 { format!("{t:.3}") } else { String::new() }).collect();
+        let cells: Vec<String> =
+            times.iter().map(|t| if *cycles > 0 { format!("{t:.3}") } else { String::new() }).collect();
         let _ = writeln!(phases, "{},{cycles},{}", label.replace(" in ", ","), cells.join(","));
     }
     let path = out.join("phases.csv");
@@ -137,7 +144,8 @@ pub fn write(result: &CellStudyResult, study_file: &Path, out: &Path) -> anyhow:
 
     let figures = draw(result, out, &breakdown)?;
     let path = out.join("report.md");
-    write_atomic(&path, report_md(result, study_file, &summaries, &breakdown, &figures).as_bytes()).map_err(|e| io(&path, e))?;
+    write_atomic(&path, report_md(result, study_file, &summaries, &breakdown, &figures).as_bytes())
+        .map_err(|e| io(&path, e))?;
     Ok(())
 }
 
@@ -146,10 +154,16 @@ fn phase_breakdown(result: &CellStudyResult) -> Vec<(String, usize, Vec<f64>)> {
     let mut rows = Vec::new();
     for (c, controller) in result.controllers.iter().enumerate() {
         for (l, (layout, _)) in result.layouts.iter().enumerate() {
-            let cycles: Vec<&EpisodeRecord> = result.episodes.iter().filter(|e| e.success && {
-                let k = &result.combinations[e.combination];
-                k.controller == c && k.layout == l
-            }).collect();
+            let cycles: Vec<&EpisodeRecord> = result
+                .episodes
+                .iter()
+                .filter(|e| {
+                    e.success && {
+                        let k = &result.combinations[e.combination];
+                        k.controller == c && k.layout == l
+                    }
+                })
+                .collect();
             let n = cycles.len().max(1) as f64;
             let times = (0..PHASES.len()).map(|p| cycles.iter().map(|e| e.phases_s[p]).sum::<f64>() / n).collect();
             rows.push((format!("{controller} in {layout}"), cycles.len(), times));
@@ -159,7 +173,11 @@ fn phase_breakdown(result: &CellStudyResult) -> Vec<(String, usize, Vec<f64>)> {
 }
 
 /// Every plot; returns (caption, file under plots/).
-fn draw(result: &CellStudyResult, out: &Path, breakdown: &[(String, usize, Vec<f64>)]) -> anyhow::Result<Vec<(String, String)>> {
+fn draw(
+    result: &CellStudyResult,
+    out: &Path,
+    breakdown: &[(String, usize, Vec<f64>)],
+) -> anyhow::Result<Vec<(String, String)>> {
     let dir = out.join("plots");
     let mut figures = Vec::new();
     // Cycle time against each factor with more than one level (the others averaged over).
@@ -199,7 +217,13 @@ fn draw(result: &CellStudyResult, out: &Path, breakdown: &[(String, usize, Vec<f
             })
             .collect();
         let file = format!("cycle-time-vs-{factor}.png");
-        plots::grouped_bars(&dir.join(&file), &format!("{}: cycle time by {factor}", result.robot), "mean cycle time of successes (s)", &levels, &series)?;
+        plots::grouped_bars(
+            &dir.join(&file),
+            &format!("{}: cycle time by {factor}", result.robot),
+            "mean cycle time of successes (s)",
+            &levels,
+            &series,
+        )?;
         figures.push((format!("Cycle time by {factor}"), file));
     }
     // Success: layouts × failure scenarios, per controller (other factors pooled).
@@ -234,15 +258,28 @@ fn draw(result: &CellStudyResult, out: &Path, breakdown: &[(String, usize, Vec<f
         let file = format!("success-{controller}.png");
         let rows: Vec<String> = result.layouts.iter().map(|(n, _)| n.clone()).collect();
         let columns: Vec<String> = failures.iter().map(|s| s.to_string()).collect();
-        plots::heat_map(&dir.join(&file), &format!("{controller}: success by layout and failure"), &rows, &columns, &values)?;
+        plots::heat_map(
+            &dir.join(&file),
+            &format!("{controller}: success by layout and failure"),
+            &rows,
+            &columns,
+            &values,
+        )?;
         figures.push((format!("Success of {controller}, layouts × failure scenarios"), file));
     }
     for (name, layout) in &result.layouts {
         let file = format!("reach-{name}.png");
-        plots::reach_map(&dir.join(&file), &format!("{name}: where the tool reaches, {:.2} m above the table", approach_height()), layout, REACH_STEP, &reach_grid(layout))?;
+        plots::reach_map(
+            &dir.join(&file),
+            &format!("{name}: where the tool reaches, {:.2} m above the table", approach_height()),
+            layout,
+            REACH_STEP,
+            &reach_grid(layout),
+        )?;
         figures.push((format!("Reachability over the table, layout {name}"), file));
     }
-    let rows: Vec<(String, Vec<f64>)> = breakdown.iter().filter(|(_, n, _)| *n > 0).map(|(l, _, t)| (l.clone(), t.clone())).collect();
+    let rows: Vec<(String, Vec<f64>)> =
+        breakdown.iter().filter(|(_, n, _)| *n > 0).map(|(l, _, t)| (l.clone(), t.clone())).collect();
     if !rows.is_empty() {
         let names: Vec<&str> = PHASES.iter().map(|(_, n)| *n).collect();
         plots::phases(&dir.join("phases.png"), &format!("{}: a cycle's time per phase", result.robot), &names, &rows)?;
@@ -275,7 +312,13 @@ pub fn reach_grid(layout: &CellLayout) -> Vec<Vec<bool>> {
         .collect()
 }
 
-fn report_md(result: &CellStudyResult, study_file: &Path, summaries: &[Summary], breakdown: &[(String, usize, Vec<f64>)], figures: &[(String, String)]) -> String {
+fn report_md(
+    result: &CellStudyResult,
+    study_file: &Path,
+    summaries: &[Summary],
+    breakdown: &[(String, usize, Vec<f64>)],
+    figures: &[(String, String)],
+) -> String {
     let s = &result.study;
     let mut text = format!(
         "# {}: cell study\n\nStudy `{}`: {} combinations × {} episodes ({} in all) in {:.0} s; controllers {}; layouts {}.\n\n",

@@ -32,7 +32,9 @@ impl StepResult {
     pub fn way_ended(&self, i: usize) -> Option<String> {
         match self.ended_by.get(i).cloned().flatten() {
             Some(term) => Some(term),
-            None if self.truncated.get(i) == Some(&true) && self.terminated.get(i) != Some(&true) => Some(TIME_LIMIT.to_string()),
+            None if self.truncated.get(i) == Some(&true) && self.terminated.get(i) != Some(&true) => {
+                Some(TIME_LIMIT.to_string())
+            }
             None => None,
         }
     }
@@ -96,10 +98,7 @@ impl<V: VecEnv> SingleEnv<V> {
             self.0.action_space()
         );
         let mut r = self.0.step(action)?;
-        let info = Info {
-            final_observation: r.final_obs.pop().flatten(),
-            episode: r.episodes.pop().flatten(),
-        };
+        let info = Info { final_observation: r.final_obs.pop().flatten(), episode: r.episodes.pop().flatten() };
         Ok((r.obs, r.rewards[0], r.terminated[0], r.truncated[0], info))
     }
 }

@@ -99,5 +99,3 @@ mod tests {
         assert!(!SolvedCriterion::mean_score(100, 1950.0).out_of_reach(&[0.0; 99], 100));
     }
 }
-
-

@@ -34,7 +34,15 @@ impl GoalSpec {
     /// MDP or not (`done`) and was ended by the termination term `ended_by`, would have had
     /// with the goal `goal`: an end the old goal caused is undone, one the new goal causes is
     /// added, any other end stays.
-    pub fn relabel(&self, obs: &[f32], next_obs: &[f32], reward: f32, done: bool, ended_by: Option<&str>, goal: &[f32]) -> (f32, bool) {
+    pub fn relabel(
+        &self,
+        obs: &[f32],
+        next_obs: &[f32],
+        reward: f32,
+        done: bool,
+        ended_by: Option<&str>,
+        goal: &[f32],
+    ) -> (f32, bool) {
         let change = (self.change)(obs, next_obs, ended_by, &(self.desired)(obs), goal);
         (reward + change.reward, (done && !change.ends_at_from) || change.ends_at_to)
     }

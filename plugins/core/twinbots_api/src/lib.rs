@@ -14,8 +14,8 @@ pub mod task;
 
 pub use env::{Info, SingleEnv, StepResult, Transition, VecEnv};
 pub use env_state::{EnvState, RunningEpisode, StreamState};
-pub use replay::replay;
 pub use episode::{EpisodeSummary, Measure, SolvedCriterion};
 pub use goal::{GoalChange, GoalSpec};
+pub use replay::replay;
 pub use spaces::Space;
 pub use task::{DesignPattern, TaskSpec};

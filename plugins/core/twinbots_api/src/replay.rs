@@ -29,20 +29,26 @@ pub fn replay(env: &mut dyn VecEnv, state: &EnvState) -> anyhow::Result<Vec<f32>
         .episodes
         .iter()
         .map(|e| {
-            anyhow::ensure!(e.actions.len() % dim == 0, "a recorded episode's actions do not fit the action dimension {dim}");
+            anyhow::ensure!(
+                e.actions.len() % dim == 0,
+                "a recorded episode's actions do not fit the action dimension {dim}"
+            );
             Ok(e.actions.len() / dim)
         })
         .collect::<anyhow::Result<_>>()?;
     let longest = lengths.iter().copied().max().unwrap_or(0);
-    anyhow::ensure!(state.clock >= longest as u64, "a recorded episode is older than the clock ({} steps at step {})", longest, state.clock);
+    anyhow::ensure!(
+        state.clock >= longest as u64,
+        "a recorded episode is older than the clock ({} steps at step {})",
+        longest,
+        state.clock
+    );
     let neutral = env.action_space().neutral();
     let mut obs = Vec::new();
     for step in 0..=longest {
         // Episodes with `longest - step` steps to go start now.
-        let starts: Vec<(usize, StreamState)> = (0..n)
-            .filter(|&i| longest - lengths[i] == step)
-            .map(|i| (i, state.episodes[i].start.clone()))
-            .collect();
+        let starts: Vec<(usize, StreamState)> =
+            (0..n).filter(|&i| longest - lengths[i] == step).map(|i| (i, state.episodes[i].start.clone())).collect();
         let clock = (step == 0).then(|| state.clock - longest as u64);
         if !starts.is_empty() || clock.is_some() {
             obs = env.begin_episodes(&starts, clock)?;

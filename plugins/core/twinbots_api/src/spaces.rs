@@ -39,10 +39,7 @@ pub enum Space {
 impl Space {
     /// A box with the same bounds in every one of `dim` dimensions.
     pub fn uniform_box(dim: usize, low: f32, high: f32) -> Self {
-        Space::Box {
-            low: vec![low; dim],
-            high: vec![high; dim],
-        }
+        Space::Box { low: vec![low; dim], high: vec![high; dim] }
     }
 
     /// Length of the flat vector that holds one element.
@@ -59,7 +56,9 @@ impl Space {
     /// The camera image's `(height, width, channels)`, for the spaces that hold one.
     pub fn image_shape(&self) -> Option<(usize, usize, usize)> {
         match self {
-            Space::Image { height, width, channels } | Space::ImageAndState { height, width, channels, .. } => Some((*height, *width, *channels)),
+            Space::Image { height, width, channels } | Space::ImageAndState { height, width, channels, .. } => {
+                Some((*height, *width, *channels))
+            }
             _ => None,
         }
     }
@@ -80,15 +79,13 @@ impl Space {
         let choice = |v: f32, n: usize| v.fract() == 0.0 && v >= 0.0 && (v as usize) < n;
         match self {
             Space::Discrete { n } => choice(x[0], *n),
-            Space::Box { low, high } => x
-                .iter()
-                .zip(low.iter().zip(high))
-                .all(|(v, (lo, hi))| *v >= *lo && *v <= *hi),
+            Space::Box { low, high } => x.iter().zip(low.iter().zip(high)).all(|(v, (lo, hi))| *v >= *lo && *v <= *hi),
             Space::MultiDiscrete { nvec } => x.iter().zip(nvec).all(|(v, n)| choice(*v, *n)),
             Space::Image { .. } => x.iter().all(|v| choice(*v, 256)),
             Space::ImageAndState { low, high, .. } => {
                 let (image, state) = x.split_at(x.len() - low.len());
-                image.iter().all(|v| choice(*v, 256)) && state.iter().zip(low.iter().zip(high)).all(|(v, (lo, hi))| *v >= *lo && *v <= *hi)
+                image.iter().all(|v| choice(*v, 256))
+                    && state.iter().zip(low.iter().zip(high)).all(|(v, (lo, hi))| *v >= *lo && *v <= *hi)
             }
         }
     }
@@ -116,12 +113,11 @@ impl Space {
                     }
                 })
                 .collect(),
-            Space::MultiDiscrete { nvec } => {
-                nvec.iter().map(|n| rng.random_range(0..*n) as f32).collect()
-            }
+            Space::MultiDiscrete { nvec } => nvec.iter().map(|n| rng.random_range(0..*n) as f32).collect(),
             Space::Image { .. } => (0..self.dim()).map(|_| rng.random_range(0..256u32) as f32).collect(),
             Space::ImageAndState { height, width, channels, low, high } => {
-                let mut x: Vec<f32> = (0..height * width * channels).map(|_| rng.random_range(0..256u32) as f32).collect();
+                let mut x: Vec<f32> =
+                    (0..height * width * channels).map(|_| rng.random_range(0..256u32) as f32).collect();
                 x.extend(Space::Box { low: low.clone(), high: high.clone() }.sample(rng));
                 x
             }
@@ -136,7 +132,9 @@ impl std::fmt::Display for Space {
             Space::Box { low, .. } => write!(f, "Box({})", low.len()),
             Space::MultiDiscrete { nvec } => write!(f, "MultiDiscrete({nvec:?})"),
             Space::Image { height, width, channels } => write!(f, "Image({height}×{width}×{channels})"),
-            Space::ImageAndState { height, width, channels, low, .. } => write!(f, "Image({height}×{width}×{channels})+Box({})", low.len()),
+            Space::ImageAndState { height, width, channels, low, .. } => {
+                write!(f, "Image({height}×{width}×{channels})+Box({})", low.len())
+            }
         }
     }
 }
@@ -184,7 +182,13 @@ mod tests {
 
     #[test]
     fn an_image_and_state_holds_whole_pixel_values_then_bounded_state_values() {
-        let space = Space::ImageAndState { height: 2, width: 2, channels: 3, low: vec![-1.0, 0.0], high: vec![1.0, f32::INFINITY] };
+        let space = Space::ImageAndState {
+            height: 2,
+            width: 2,
+            channels: 3,
+            low: vec![-1.0, 0.0],
+            high: vec![1.0, f32::INFINITY],
+        };
         assert_eq!((space.dim(), space.image_shape(), space.state_dim()), (14, Some((2, 2, 3)), 2));
         assert_eq!(space.to_string(), "Image(2×2×3)+Box(2)");
         let mut x = vec![255.0; 12];
@@ -199,6 +203,12 @@ mod tests {
         assert!(space.contains(&space.sample(&mut rng)));
         let json = serde_json::to_string(&space).unwrap();
         assert_eq!(serde_json::from_str::<Space>(&json).unwrap(), space, "{json}");
-        assert_eq!((Space::Image { height: 2, width: 2, channels: 3 }.state_dim(), Space::uniform_box(3, 0.0, 1.0).image_shape()), (0, None));
+        assert_eq!(
+            (
+                Space::Image { height: 2, width: 2, channels: 3 }.state_dim(),
+                Space::uniform_box(3, 0.0, 1.0).image_shape()
+            ),
+            (0, None)
+        );
     }
 }

@@ -50,7 +50,11 @@ pub trait Agent {
             });
         }
         if action != self.action_space() {
-            return Err(ModelError::SpaceMismatch { what: "actions", model: self.action_space().to_string(), robot: action.to_string() });
+            return Err(ModelError::SpaceMismatch {
+                what: "actions",
+                model: self.action_space().to_string(),
+                robot: action.to_string(),
+            });
         }
         Ok(())
     }

@@ -14,7 +14,10 @@ pub const ALGOS: &[Algorithm] = &[crate::ppo::ALGORITHM, crate::sac::ALGORITHM, 
 /// The algorithm named `name` (lower case, as `--algo` takes it); an unknown name is an error
 /// listing the known ones.
 pub fn find(name: &str) -> anyhow::Result<&'static Algorithm> {
-    ALGOS.iter().find(|a| a.name == name).ok_or_else(|| anyhow::anyhow!("unknown algorithm '{name}'; known: {}", names().join(", ")))
+    ALGOS
+        .iter()
+        .find(|a| a.name == name)
+        .ok_or_else(|| anyhow::anyhow!("unknown algorithm '{name}'; known: {}", names().join(", ")))
 }
 
 /// The names `--algo` takes.
@@ -95,7 +98,8 @@ mod tests {
 
     #[test]
     fn every_callback_of_a_list_runs_and_the_first_to_stop_says_why() {
-        let model = Ppo::new(PpoConfig::default(), Space::uniform_box(2, -1.0, 1.0), Space::Discrete { n: 2 }, 0).unwrap();
+        let model =
+            Ppo::new(PpoConfig::default(), Space::uniform_box(2, -1.0, 1.0), Space::Discrete { n: 2 }, 0).unwrap();
         let calls = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
         let counter = |answer: Flow| {
             let calls = calls.clone();

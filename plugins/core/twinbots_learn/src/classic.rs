@@ -4,9 +4,9 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use twinbots_api::EpisodeSummary;
 use twinbots_api::env::{StepResult, VecEnv};
 use twinbots_api::spaces::Space;
-use twinbots_api::EpisodeSummary;
 
 const GRAVITY: f32 = 9.8;
 const MASS_CART: f32 = 1.0;
@@ -76,8 +76,8 @@ impl VecEnv for ClassicCartPole {
             let force = if actions[i] >= 0.5 { FORCE_MAG } else { -FORCE_MAG };
             let (sin, cos) = theta.sin_cos();
             let temp = (force + POLE_MASS_LENGTH * theta_dot * theta_dot * sin) / TOTAL_MASS;
-            let theta_acc = (GRAVITY * sin - cos * temp)
-                / (HALF_LENGTH * (4.0 / 3.0 - MASS_POLE * cos * cos / TOTAL_MASS));
+            let theta_acc =
+                (GRAVITY * sin - cos * temp) / (HALF_LENGTH * (4.0 / 3.0 - MASS_POLE * cos * cos / TOTAL_MASS));
             let x_acc = temp - POLE_MASS_LENGTH * theta_acc * cos / TOTAL_MASS;
             let state = [x + TAU * x_dot, x_dot + TAU * x_acc, theta + TAU * theta_dot, theta_dot + TAU * theta_acc];
             self.states[i] = state;
@@ -89,7 +89,11 @@ impl VecEnv for ClassicCartPole {
             out.truncated.push(truncated);
             if terminated || truncated {
                 out.final_obs.push(Some(state.to_vec()));
-                out.episodes.push(Some(EpisodeSummary { score: self.steps[i] as f32, length: self.steps[i], ..Default::default() }));
+                out.episodes.push(Some(EpisodeSummary {
+                    score: self.steps[i] as f32,
+                    length: self.steps[i],
+                    ..Default::default()
+                }));
                 self.reset_one(i);
             } else {
                 out.final_obs.push(None);
@@ -187,7 +191,8 @@ impl VecEnv for ClassicPendulum {
             if out.truncated[i] {
                 let [th, thdot] = self.states[i];
                 out.final_obs[i] = Some(vec![th.cos(), th.sin(), thdot]);
-                out.episodes[i] = Some(EpisodeSummary { score: self.scores[i], length: self.steps[i], ..Default::default() });
+                out.episodes[i] =
+                    Some(EpisodeSummary { score: self.scores[i], length: self.steps[i], ..Default::default() });
                 self.reset_one(i);
             }
         }

@@ -5,8 +5,8 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use twinbots_api::env::VecEnv;
 use crate::agent::Agent;
+use twinbots_api::env::VecEnv;
 use twinbots_api::{EpisodeSummary, Measure, SolvedCriterion};
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -70,7 +70,13 @@ impl EvalResult {
 
 /// Runs `model`'s deterministic policy on `env` (reset with `seed`) until `episodes` episodes
 /// have ended, and reports them under the name `task`.
-pub fn evaluate_policy(task: &str, model: &dyn Agent, env: &mut dyn VecEnv, episodes: usize, seed: u64) -> anyhow::Result<EvalResult> {
+pub fn evaluate_policy(
+    task: &str,
+    model: &dyn Agent,
+    env: &mut dyn VecEnv,
+    episodes: usize,
+    seed: u64,
+) -> anyhow::Result<EvalResult> {
     run_episodes(task, model, env, episodes, seed, |_| false)
 }
 

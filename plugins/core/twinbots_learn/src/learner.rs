@@ -17,7 +17,12 @@ use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats};
 pub trait Learner: Agent + Send {
     /// Trains on `env` for `total_timesteps` more steps (summed over envs) or until a callback
     /// stops it; schedules run over the whole budget, earlier sessions included.
-    fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd>;
+    fn learn(
+        &mut self,
+        env: &mut dyn VecEnv,
+        total_timesteps: u64,
+        callback: &mut dyn Callback,
+    ) -> anyhow::Result<TrainingEnd>;
     /// Where its training time went, since it was made or loaded.
     fn times(&self) -> TrainingTimes;
     /// The task's goal (achieved and desired parts, and its reward), for algorithms that

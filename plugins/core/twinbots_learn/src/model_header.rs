@@ -30,7 +30,14 @@ pub struct ModelHeader {
 }
 
 impl ModelHeader {
-    pub fn of(agent: &dyn Agent, format: u32, obs_rms: Option<&RunningMeanStd>, seed: u64, updates: u64, env_state: bool) -> Self {
+    pub fn of(
+        agent: &dyn Agent,
+        format: u32,
+        obs_rms: Option<&RunningMeanStd>,
+        seed: u64,
+        updates: u64,
+        env_state: bool,
+    ) -> Self {
         Self {
             format,
             twinbots_version: env!("CARGO_PKG_VERSION").into(),

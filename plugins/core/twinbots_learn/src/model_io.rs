@@ -49,11 +49,21 @@ pub const MAX_WEIGHT: f32 = 1e4;
 pub fn set_vars(named: &[(String, Var)], tensors: &HashMap<String, Tensor>) -> anyhow::Result<()> {
     for (name, var) in named {
         let t = tensors.get(name).ok_or_else(|| anyhow::anyhow!("missing tensor '{name}'"))?;
-        anyhow::ensure!(t.shape() == var.shape(), "tensor '{name}' has shape {:?}, expected {:?}", t.shape(), var.shape());
+        anyhow::ensure!(
+            t.shape() == var.shape(),
+            "tensor '{name}' has shape {:?}, expected {:?}",
+            t.shape(),
+            var.shape()
+        );
         let values = t.flatten_all()?.to_dtype(candle_core::DType::F32)?.to_vec1::<f32>()?;
-        anyhow::ensure!(values.iter().all(|x| x.is_finite()), "tensor '{name}' holds non-finite values (NaN or infinity): these weights are unusable");
+        anyhow::ensure!(
+            values.iter().all(|x| x.is_finite()),
+            "tensor '{name}' holds non-finite values (NaN or infinity): these weights are unusable"
+        );
         if let Some(x) = values.iter().find(|x| x.abs() > MAX_WEIGHT) {
-            anyhow::bail!("tensor '{name}' holds {x:e}, beyond ±{MAX_WEIGHT:e}, which no trained network's weight reaches: the file is damaged");
+            anyhow::bail!(
+                "tensor '{name}' holds {x:e}, beyond ±{MAX_WEIGHT:e}, which no trained network's weight reaches: the file is damaged"
+            );
         }
         var.set(t)?;
     }
@@ -78,10 +88,17 @@ pub fn var_tensors(named: &[(String, Var)]) -> HashMap<String, Tensor> {
 
 /// Adam's moments as tensors `m.<name>` and `v.<name>` (in `out`), for the variables `named`
 /// it optimises (in its order); returns its step count.
-pub fn moment_tensors(adam: &Adam, named: &[(String, Var)], out: &mut HashMap<String, Tensor>, path: &Path) -> Result<u64, ModelError> {
+pub fn moment_tensors(
+    adam: &Adam,
+    named: &[(String, Var)],
+    out: &mut HashMap<String, Tensor>,
+    path: &Path,
+) -> Result<u64, ModelError> {
     let (first, second, steps) = adam.moments();
     for (((name, var), m), v) in named.iter().zip(first).zip(second) {
-        let tensor = |x: &Vec<f32>| Tensor::from_vec(x.clone(), var.shape().clone(), &Device::Cpu).map_err(|e| file_error(path, e));
+        let tensor = |x: &Vec<f32>| {
+            Tensor::from_vec(x.clone(), var.shape().clone(), &Device::Cpu).map_err(|e| file_error(path, e))
+        };
         out.insert(format!("m.{name}"), tensor(m)?);
         out.insert(format!("v.{name}"), tensor(v)?);
     }
@@ -89,12 +106,20 @@ pub fn moment_tensors(adam: &Adam, named: &[(String, Var)], out: &mut HashMap<St
 }
 
 /// Puts back into `adam` the moments [`moment_tensors`] wrote for `named`.
-pub fn restore_moments(adam: &mut Adam, named: &[(String, Var)], tensors: &HashMap<String, Tensor>, steps: u64, path: &Path) -> Result<(), ModelError> {
+pub fn restore_moments(
+    adam: &mut Adam,
+    named: &[(String, Var)],
+    tensors: &HashMap<String, Tensor>,
+    steps: u64,
+    path: &Path,
+) -> Result<(), ModelError> {
     let take = |prefix: &str| -> Result<Vec<Vec<f32>>, ModelError> {
         named
             .iter()
             .map(|(name, _)| {
-                let t = tensors.get(&format!("{prefix}.{name}")).ok_or_else(|| file_error(path, format!("missing tensor '{prefix}.{name}'")))?;
+                let t = tensors
+                    .get(&format!("{prefix}.{name}"))
+                    .ok_or_else(|| file_error(path, format!("missing tensor '{prefix}.{name}'")))?;
                 t.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|e| file_error(path, e))
             })
             .collect()
@@ -118,15 +143,24 @@ pub fn save_optimizers(parts: Vec<(&str, Vec<(String, Var)>, &Adam)>, dir: &Path
 }
 
 /// Puts back what [`save_optimizers`] saved in `dir`, with the step counts it returned.
-pub fn restore_optimizers(parts: Vec<(&str, Vec<(String, Var)>, &mut Adam)>, steps: &[u64], dir: &Path) -> Result<(), ModelError> {
+pub fn restore_optimizers(
+    parts: Vec<(&str, Vec<(String, Var)>, &mut Adam)>,
+    steps: &[u64],
+    dir: &Path,
+) -> Result<(), ModelError> {
     let path = dir.join(OPTIMIZER_FILE);
     let moments = load_tensors(&path)?;
     if steps.len() != parts.len() {
-        return Err(file_error(&dir.join(METADATA_FILE), format!("{} optimiser step counts for {} optimisers", steps.len(), parts.len())));
+        return Err(file_error(
+            &dir.join(METADATA_FILE),
+            format!("{} optimiser step counts for {} optimisers", steps.len(), parts.len()),
+        ));
     }
     for ((prefix, named, adam), &count) in parts.into_iter().zip(steps) {
-        let part: HashMap<String, Tensor> =
-            moments.iter().filter_map(|(name, t)| name.strip_prefix(&format!("{prefix}.")).map(|n| (n.to_string(), t.clone()))).collect();
+        let part: HashMap<String, Tensor> = moments
+            .iter()
+            .filter_map(|(name, t)| name.strip_prefix(&format!("{prefix}.")).map(|n| (n.to_string(), t.clone())))
+            .collect();
         restore_moments(adam, &named, &part, count, &path)?;
     }
     Ok(())
@@ -153,7 +187,10 @@ pub fn load_env_state(dir: &Path, saved: bool) -> Result<Option<EnvState>, Model
     let path = dir.join(ENV_STATE_FILE);
     if !path.is_file() {
         if saved {
-            return Err(file_error(&path, "missing: its model.json says it was saved with the envs' running episodes, which a resumed run needs to go on exactly"));
+            return Err(file_error(
+                &path,
+                "missing: its model.json says it was saved with the envs' running episodes, which a resumed run needs to go on exactly",
+            ));
         }
         return Ok(None);
     }
@@ -169,7 +206,11 @@ pub fn save_metadata(dir: &Path, value: &impl serde::Serialize) -> Result<(), Mo
 }
 
 /// Reads `dir/model.json`, checking its format number and that `algorithm` saved it.
-pub fn load_metadata<T: serde::de::DeserializeOwned>(dir: &Path, algorithm: &str, format: u32) -> Result<T, ModelError> {
+pub fn load_metadata<T: serde::de::DeserializeOwned>(
+    dir: &Path,
+    algorithm: &str,
+    format: u32,
+) -> Result<T, ModelError> {
     #[derive(serde::Deserialize)]
     struct Header {
         format: u32,
@@ -179,7 +220,10 @@ pub fn load_metadata<T: serde::de::DeserializeOwned>(dir: &Path, algorithm: &str
     let text = std::fs::read_to_string(&path).map_err(|e| file_error(&path, e))?;
     let header: Header = serde_json::from_str(&text).map_err(|e| file_error(&path, e))?;
     if header.algorithm != algorithm {
-        return Err(file_error(&path, format!("a {} model, not {algorithm} (load it with twinbots_learn::algos::load_agent)", header.algorithm)));
+        return Err(file_error(
+            &path,
+            format!("a {} model, not {algorithm} (load it with twinbots_learn::algos::load_agent)", header.algorithm),
+        ));
     }
     if header.format != format {
         return Err(file_error(&path, format!("model format {} (this build reads {format})", header.format)));
@@ -194,9 +238,14 @@ pub fn load_metadata<T: serde::de::DeserializeOwned>(dir: &Path, algorithm: &str
 /// (no CNN) is an error.
 pub fn set_encoder_from_file(encoder: &Encoder, path: &Path) -> anyhow::Result<()> {
     let vars = encoder.named_vars();
-    anyhow::ensure!(!vars.is_empty(), "{}: the policy has no image encoder to start from it (policy = \"cnn\" or \"keypoints\")", path.display());
+    anyhow::ensure!(
+        !vars.is_empty(),
+        "{}: the policy has no image encoder to start from it (policy = \"cnn\" or \"keypoints\")",
+        path.display()
+    );
     let tensors = load_tensors(path)?;
-    set_vars(&vars, &tensors).map_err(|e| anyhow::anyhow!("{}: {e} (it has {})", path.display(), sorted_names(&tensors)))
+    set_vars(&vars, &tensors)
+        .map_err(|e| anyhow::anyhow!("{}: {e} (it has {})", path.display(), sorted_names(&tensors)))
 }
 
 fn sorted_names(tensors: &HashMap<String, Tensor>) -> String {
@@ -217,8 +266,14 @@ mod tests {
     fn an_encoder_starts_from_a_files_tensors_of_its_names_and_shapes_or_says_what_is_wrong() {
         let dev = Device::Cpu;
         let image = Space::Image { height: 40, width: 40, channels: 3 };
-        let encoder = |kind, seed| Encoder::new(kind, &image, 64, "ppo", &mut ChaCha8Rng::seed_from_u64(seed), &dev).unwrap();
-        let values = |e: &Encoder| e.named_vars().into_iter().map(|(n, v)| (n, v.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap())).collect::<Vec<_>>();
+        let encoder =
+            |kind, seed| Encoder::new(kind, &image, 64, "ppo", &mut ChaCha8Rng::seed_from_u64(seed), &dev).unwrap();
+        let values = |e: &Encoder| {
+            e.named_vars()
+                .into_iter()
+                .map(|(n, v)| (n, v.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap()))
+                .collect::<Vec<_>>()
+        };
         let dir = std::env::temp_dir().join(format!("twinbots-encoder-file-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let save = |e: &Encoder, name: &str, skip: usize| {
@@ -232,10 +287,22 @@ mod tests {
         assert_eq!(values(&trained), values(&fresh), "every variable taken from the file");
 
         let e = set_encoder_from_file(&fresh, &save(&trained, "short.safetensors", 1)).unwrap_err().to_string();
-        assert!(e.contains("short.safetensors: missing tensor 'features.0.weight' (it has features.0.bias, features.1.bias"), "{e}");
-        let e = set_encoder_from_file(&encoder(PolicyKind::Cnn, 3), &dir.join("keypoints.safetensors")).unwrap_err().to_string();
-        assert!(e.contains("keypoints.safetensors: tensor 'features.0.weight' has shape") && e.contains("expected"), "another encoder's shapes: {e}");
-        let e = set_encoder_from_file(&encoder(PolicyKind::Mlp, 3), &dir.join("keypoints.safetensors")).unwrap_err().to_string();
+        assert!(
+            e.contains(
+                "short.safetensors: missing tensor 'features.0.weight' (it has features.0.bias, features.1.bias"
+            ),
+            "{e}"
+        );
+        let e = set_encoder_from_file(&encoder(PolicyKind::Cnn, 3), &dir.join("keypoints.safetensors"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("keypoints.safetensors: tensor 'features.0.weight' has shape") && e.contains("expected"),
+            "another encoder's shapes: {e}"
+        );
+        let e = set_encoder_from_file(&encoder(PolicyKind::Mlp, 3), &dir.join("keypoints.safetensors"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("the policy has no image encoder"), "{e}");
         let e = set_encoder_from_file(&fresh, &dir.join("missing.safetensors")).unwrap_err().to_string();
         assert!(e.starts_with(&format!("{}", dir.join("missing.safetensors").display())), "{e}");

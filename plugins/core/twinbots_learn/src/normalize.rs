@@ -40,7 +40,8 @@ impl RunningMeanStd {
         for k in 0..dim {
             let reach = ROBUST_SIGMAS * (self.var[k] + 1e-8).sqrt();
             let (lo, hi) = (self.mean[k] - reach, self.mean[k] + reach);
-            let xs = batch.iter().skip(k).step_by(dim).map(|&x| if robust { (x as f64).clamp(lo, hi) } else { x as f64 });
+            let xs =
+                batch.iter().skip(k).step_by(dim).map(|&x| if robust { (x as f64).clamp(lo, hi) } else { x as f64 });
             let mean = xs.clone().sum::<f64>() / n;
             let var = xs.map(|x| (x - mean).powi(2)).sum::<f64>() / n;
             let delta = mean - self.mean[k];

@@ -31,13 +31,20 @@ pub struct EvaluationPoint {
 }
 
 /// A 900 × 540 PNG drawn by `draw` on white, written atomically to `path`.
-fn write_png(path: &Path, draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>) -> anyhow::Result<()> {
+fn write_png(
+    path: &Path,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     png(path, (900, 540), draw)
 }
 
 /// A PNG of `size` pixels drawn by `draw` on white, written atomically to `path`, with the
 /// shipped font registered as "sans-serif": for figures of other crates.
-pub fn png(path: &Path, size: (u32, u32), draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>) -> anyhow::Result<()> {
+pub fn png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     REGISTER.call_once(|| {
         // The font is compiled in; failing to parse it is a build defect the tests catch.
         let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
@@ -54,7 +61,10 @@ pub fn png(path: &Path, size: (u32, u32), draw: impl FnOnce(&DrawingArea<BitMapB
 }
 
 /// The series' legend, boxed, at `position`.
-fn draw_legend<'a, X: Ranged, Y: Ranged>(chart: &mut ChartContext<'a, BitMapBackend<'a>, Cartesian2d<X, Y>>, position: SeriesLabelPosition) -> anyhow::Result<()> {
+fn draw_legend<'a, X: Ranged, Y: Ranged>(
+    chart: &mut ChartContext<'a, BitMapBackend<'a>, Cartesian2d<X, Y>>,
+    position: SeriesLabelPosition,
+) -> anyhow::Result<()> {
     chart
         .configure_series_labels()
         .background_style(WHITE.mix(0.8))
@@ -157,8 +167,7 @@ pub fn learning_curve(
                 .label("success rate (training episodes)")
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], green.stroke_width(2)));
             if !evaluated_successes.is_empty() {
-                chart
-                    .draw_secondary_series(LineSeries::new(evaluated_successes.clone(), green.mix(0.6)))?;
+                chart.draw_secondary_series(LineSeries::new(evaluated_successes.clone(), green.mix(0.6)))?;
                 chart
                     .draw_secondary_series(evaluated_successes.iter().map(move |&p| Circle::new(p, 4, green.filled())))?
                     .label("evaluation success rate (deterministic)")
@@ -198,11 +207,18 @@ pub fn seed_band(
             .x_label_area_size(40)
             .y_label_area_size(60)
             .build_cartesian_2d(0f64..x_max, (y_min - pad)..(y_max + pad))?;
-        chart.configure_mesh().x_desc("timesteps").x_label_formatter(&steps_label).y_desc(y_label).label_style(("sans-serif", 14)).draw()?;
+        chart
+            .configure_mesh()
+            .x_desc("timesteps")
+            .x_label_formatter(&steps_label)
+            .y_desc(y_label)
+            .label_style(("sans-serif", 14))
+            .draw()?;
         for run in runs {
             chart.draw_series(LineSeries::new(run.iter().copied(), BLUE.mix(0.2)))?;
         }
-        let area: Vec<(f64, f64)> = band.iter().map(|b| (b.0, b.3)).chain(band.iter().rev().map(|b| (b.0, b.1))).collect();
+        let area: Vec<(f64, f64)> =
+            band.iter().map(|b| (b.0, b.3)).chain(band.iter().rev().map(|b| (b.0, b.1))).collect();
         if !area.is_empty() {
             chart
                 .draw_series(std::iter::once(Polygon::new(area, BLUE.mix(0.2))))?
@@ -227,11 +243,21 @@ pub fn seed_band(
 /// Labelled time series (x: seconds) into `path`, written atomically: one colour per label,
 /// dashed grey lines at each of `levels` (a settling band) and a vertical one at each of
 /// `marks` (when something happened). NaN points are skipped.
-pub fn time_series(path: &Path, title: &str, y_label: &str, lines: &[(String, Vec<(f64, f64)>)], levels: &[f64], marks: &[f64]) -> anyhow::Result<()> {
+pub fn time_series(
+    path: &Path,
+    title: &str,
+    y_label: &str,
+    lines: &[(String, Vec<(f64, f64)>)],
+    levels: &[f64],
+    marks: &[f64],
+) -> anyhow::Result<()> {
     write_png(path, |root| {
         let points = || lines.iter().flat_map(|(_, l)| l.iter()).filter(|p| p.1.is_finite());
         let x_max = points().map(|p| p.0).fold(1e-3, f64::max);
-        let (y_min, y_max) = points().map(|p| p.1).chain(levels.iter().copied()).fold((f64::MAX, f64::MIN), |(lo, hi), y| (lo.min(y), hi.max(y)));
+        let (y_min, y_max) = points()
+            .map(|p| p.1)
+            .chain(levels.iter().copied())
+            .fold((f64::MAX, f64::MIN), |(lo, hi), y| (lo.min(y), hi.max(y)));
         let (y_min, y_max) = if y_min > y_max { (-1.0, 1.0) } else { (y_min, y_max) };
         let pad = (y_max - y_min).max(1e-6) * 0.05;
         let y_range = (y_min - pad)..(y_max + pad);
@@ -247,7 +273,12 @@ pub fn time_series(path: &Path, title: &str, y_label: &str, lines: &[(String, Ve
             chart.draw_series(DashedLineSeries::new([(0.0, level), (x_max, level)], 6, 4, grey.into()))?;
         }
         for &mark in marks {
-            chart.draw_series(DashedLineSeries::new([(mark, y_range.start), (mark, y_range.end)], 3, 3, grey.into()))?;
+            chart.draw_series(DashedLineSeries::new(
+                [(mark, y_range.start), (mark, y_range.end)],
+                3,
+                3,
+                grey.into(),
+            ))?;
         }
         for (i, (label, line)) in lines.iter().enumerate() {
             let colour = Palette99::pick(i).to_rgba();
@@ -264,7 +295,8 @@ pub fn time_series(path: &Path, title: &str, y_label: &str, lines: &[(String, Ve
 
 /// A timesteps tick as people write it: 0, 750, 50k, 1.5M (plotters' default prints 450000.0).
 fn steps_label(x: &f64) -> String {
-    let short = |v: f64, unit: &str| if v.fract().abs() < 1e-9 { format!("{v:.0}{unit}") } else { format!("{v:.1}{unit}") };
+    let short =
+        |v: f64, unit: &str| if v.fract().abs() < 1e-9 { format!("{v:.0}{unit}") } else { format!("{v:.1}{unit}") };
     match x.abs() {
         a if a >= 1e6 => short(x / 1e6, "M"),
         a if a >= 1e3 => short(x / 1e3, "k"),
@@ -276,7 +308,10 @@ fn steps_label(x: &f64) -> String {
 mod tests {
     #[test]
     fn timesteps_ticks_read_as_people_write_them() {
-        let labels: Vec<String> = [0.0, 750.0, 50_000.0, 450_000.0, 12_500.0, 1_500_000.0, 3_000_000.0].iter().map(super::steps_label).collect();
+        let labels: Vec<String> = [0.0, 750.0, 50_000.0, 450_000.0, 12_500.0, 1_500_000.0, 3_000_000.0]
+            .iter()
+            .map(super::steps_label)
+            .collect();
         assert_eq!(labels, ["0", "750", "50k", "450k", "12.5k", "1.5M", "3M"]);
     }
 }

@@ -88,7 +88,9 @@ pub enum InputEncoding {
     /// The (normalised) observation as it is.
     Flat,
     /// Every value times `scale` (an MLP on pixels: 1/255).
-    Scaled { scale: f32 },
+    Scaled {
+        scale: f32,
+    },
     Cnn(ConvEncoder),
 }
 

@@ -9,9 +9,9 @@
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use twinbots_api::GoalSpec;
 #[cfg(test)]
 use twinbots_api::GoalChange;
+use twinbots_api::GoalSpec;
 
 /// `remaining` of a transition whose episode has not ended yet.
 const RUNNING: u32 = u32::MAX;
@@ -137,7 +137,16 @@ impl ReplayBuffer {
     /// (terminated or truncated), `terminated` those that ended in the MDP, `ended_by` the
     /// termination term that ended each (empty where the env does not say).
     #[allow(clippy::too_many_arguments)]
-    pub fn push(&mut self, obs: &[f32], actions: &[f32], rewards: &[f32], next_obs: &[f32], terminated: &[bool], ended: &[bool], ended_by: &[Option<String>]) {
+    pub fn push(
+        &mut self,
+        obs: &[f32],
+        actions: &[f32],
+        rewards: &[f32],
+        next_obs: &[f32],
+        terminated: &[bool],
+        ended: &[bool],
+        ended_by: &[Option<String>],
+    ) {
         let (o, a) = (self.obs_dim, self.act_dim);
         for e in 0..self.n_envs {
             let i = self.pos;
@@ -342,7 +351,11 @@ mod tests {
         // One env, one-step episodes: the first ended by "stop", the second by "arrived", the
         // third by no term (the env did not say). The goal's reward change is −100 for a stopped step.
         let goal = GoalSpec {
-            change: |_, _, ended_by, _, _| GoalChange { reward: if ended_by == Some("stop") { -100.0 } else { 0.0 }, ends_at_from: false, ends_at_to: false },
+            change: |_, _, ended_by, _, _| GoalChange {
+                reward: if ended_by == Some("stop") { -100.0 } else { 0.0 },
+                ends_at_from: false,
+                ends_at_to: false,
+            },
             ..line_goal()
         };
         let mut buffer = ReplayBuffer::new(8, 1, 2, 1);
@@ -355,7 +368,12 @@ mod tests {
         let batch = buffer.sample(300, &mut ChaCha8Rng::seed_from_u64(2), Some((&goal, 1_000_000)));
         for r in 0..300 {
             let stopped = batch.obs[2 * r] == 0.0;
-            assert_eq!(batch.rewards[r], if stopped { -100.0 } else { 0.0 }, "row {r}: {:?}", &batch.obs[2 * r..2 * r + 2]);
+            assert_eq!(
+                batch.rewards[r],
+                if stopped { -100.0 } else { 0.0 },
+                "row {r}: {:?}",
+                &batch.obs[2 * r..2 * r + 2]
+            );
         }
     }
 }

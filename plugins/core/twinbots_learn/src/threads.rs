@@ -104,7 +104,10 @@ pub fn share<J, R>(helper: Option<&Helper<J, R>>, work: &impl Fn(J) -> R, jobs: 
 /// Runs `body` with a helper thread that answers each job with `work`, while the pool has two
 /// threads or more; with one, `body` gets none and does the jobs itself. The helper spins
 /// between jobs ([`SPIN`]), so it lives only as long as `body`: one burst.
-pub fn with_helper<J: Send, R: Send, T>(work: impl Fn(J) -> R + Sync, body: impl FnOnce(Option<&Helper<J, R>>) -> T) -> T {
+pub fn with_helper<J: Send, R: Send, T>(
+    work: impl Fn(J) -> R + Sync,
+    body: impl FnOnce(Option<&Helper<J, R>>) -> T,
+) -> T {
     if rayon::current_num_threads() < 2 {
         return body(None);
     }

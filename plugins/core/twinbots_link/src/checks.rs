@@ -66,11 +66,14 @@ pub fn check_hello(payload: &[u8], admission: &Admission) -> Result<RobotMessage
             let theirs = other.map_or_else(|| "without a version".to_string(), |v| format!("version {v}"));
             return Err(fatal(
                 ErrorCode::UnsupportedVersion,
-                format!("protocol {theirs} is not supported: this server speaks version {VERSION} only (docs/protocol.md)"),
+                format!(
+                    "protocol {theirs} is not supported: this server speaks version {VERSION} only (docs/protocol.md)"
+                ),
             ));
         }
     }
-    let hello: RobotMessage = serde_json::from_value(value).map_err(|e| fatal(ErrorCode::Malformed, format!("malformed hello: {e}")))?;
+    let hello: RobotMessage =
+        serde_json::from_value(value).map_err(|e| fatal(ErrorCode::Malformed, format!("malformed hello: {e}")))?;
     let RobotMessage::Hello { robot, observation_space, action_space, token, .. } = &hello else {
         unreachable!("the type was checked to be hello");
     };
@@ -113,7 +116,9 @@ pub fn check_request(message: &RobotMessage, task: &TaskInterface) -> Result<(),
     let refuse = |code, message: String| Err(Rejection::new(code, false, message));
     let obs = match message {
         RobotMessage::Start { obs } | RobotMessage::Step { obs, .. } => obs,
-        RobotMessage::Hello { .. } => return refuse(ErrorCode::HandshakeExpected, "already introduced: 'hello' comes once".into()),
+        RobotMessage::Hello { .. } => {
+            return refuse(ErrorCode::HandshakeExpected, "already introduced: 'hello' comes once".into());
+        }
         RobotMessage::Abort | RobotMessage::Bye => return Ok(()),
     };
     let dim = task.observation_space.dim();
@@ -123,25 +128,44 @@ pub fn check_request(message: &RobotMessage, task: &TaskInterface) -> Result<(),
     // " (its name)" of observation value i, where the task names it.
     let name = |i: usize| task.observation_names.get(i).map_or(String::new(), |n| format!(" ({n})"));
     if let Some(i) = obs.iter().position(|v| !v.is_finite()) {
-        return refuse(ErrorCode::NonFinite, format!("observation value {i}{} is {}: not a finite f32", name(i), obs[i]));
+        return refuse(
+            ErrorCode::NonFinite,
+            format!("observation value {i}{} is {}: not a finite f32", name(i), obs[i]),
+        );
     }
     if let Some(Space::Box { low, high }) = &task.observation_plausible
         && let Some(i) = (0..obs.len().min(low.len()).min(high.len())).find(|&i| obs[i] < low[i] || obs[i] > high[i])
     {
         return refuse(
             ErrorCode::ObservationOutOfRange,
-            format!("observation value {i}{} is {}, outside its plausible range [{}, {}]: a faulty sensor?", name(i), obs[i], low[i], high[i]),
+            format!(
+                "observation value {i}{} is {}, outside its plausible range [{}, {}]: a faulty sensor?",
+                name(i),
+                obs[i],
+                low[i],
+                high[i]
+            ),
         );
     }
     if let RobotMessage::Step { reward, terminated, ended_by, .. } = message {
         if let Some(term) = ended_by {
             let shown = truncated(term, 64);
             if !terminated {
-                return refuse(ErrorCode::UnknownTermination, format!("ended_by '{shown}' on a step that did not terminate"));
+                return refuse(
+                    ErrorCode::UnknownTermination,
+                    format!("ended_by '{shown}' on a step that did not terminate"),
+                );
             }
             if !task.termination_terms.iter().any(|t| t == term) {
-                let known = if task.termination_terms.is_empty() { "none".to_string() } else { task.termination_terms.join(", ") };
-                return refuse(ErrorCode::UnknownTermination, format!("ended_by '{shown}' is not one of this task's termination terms ({known})"));
+                let known = if task.termination_terms.is_empty() {
+                    "none".to_string()
+                } else {
+                    task.termination_terms.join(", ")
+                };
+                return refuse(
+                    ErrorCode::UnknownTermination,
+                    format!("ended_by '{shown}' is not one of this task's termination terms ({known})"),
+                );
             }
         }
         if !reward.is_finite() {
@@ -162,7 +186,12 @@ pub fn check_request(message: &RobotMessage, task: &TaskInterface) -> Result<(),
 /// for this robot kind and its spaces (version first, as the server does for `hello`), or an
 /// error reply (returned as it is, for the caller to tell retryable from fatal). Anything else
 /// is the problem, in words.
-pub fn check_welcome(payload: &[u8], robot: &str, observation_space: &Space, action_space: &Space) -> Result<ServerMessage, String> {
+pub fn check_welcome(
+    payload: &[u8],
+    robot: &str,
+    observation_space: &Space,
+    action_space: &Space,
+) -> Result<ServerMessage, String> {
     let value: serde_json::Value = decode(payload).map_err(|e| format!("its reply to hello is not a message: {e}"))?;
     let kind = value.get("type").and_then(|t| t.as_str()).unwrap_or("").to_string();
     if kind == "error" {
@@ -238,7 +267,11 @@ mod tests {
         let hello = serde_json::json!({"type": "hello", "version": VERSION, "robot": name, "observation_space": task.observation_space, "action_space": task.action_space});
         let refused = check_hello(hello.to_string().as_bytes(), &Admission { task: &task, token: None }).unwrap_err();
         assert_eq!(refused.code, ErrorCode::WrongRobot);
-        assert!(refused.message.chars().count() <= MAX_MESSAGE + 1 && refused.message.ends_with('…'), "{} chars", refused.message.len());
+        assert!(
+            refused.message.chars().count() <= MAX_MESSAGE + 1 && refused.message.ends_with('…'),
+            "{} chars",
+            refused.message.len()
+        );
         assert_eq!(truncated("short", 10), "short");
     }
 
@@ -256,7 +289,11 @@ mod tests {
         assert!(check_request(&step(true, "fallen"), &task).is_ok());
         let unknown = check_request(&step(true, "tipped"), &task).unwrap_err();
         assert_eq!(unknown.code, ErrorCode::UnknownTermination);
-        assert!(unknown.message.contains("'tipped'") && unknown.message.contains("(fallen)") && !unknown.fatal, "{}", unknown.message);
+        assert!(
+            unknown.message.contains("'tipped'") && unknown.message.contains("(fallen)") && !unknown.fatal,
+            "{}",
+            unknown.message
+        );
         let running = check_request(&step(false, "fallen"), &task).unwrap_err();
         assert_eq!(running.code, ErrorCode::UnknownTermination);
         assert!(running.message.contains("did not terminate"), "{}", running.message);

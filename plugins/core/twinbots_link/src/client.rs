@@ -43,10 +43,14 @@ pub enum CommunicatorError {
     #[error("TLS with the server at {addr} failed: {problem}")]
     Tls { addr: SocketAddr, problem: String },
     /// It keeps taking connections and dropping them before answering a request.
-    #[error("the server at {addr} took {connections} connections in {waited:.1?} but answered no request on them (it closes them)")]
+    #[error(
+        "the server at {addr} took {connections} connections in {waited:.1?} but answered no request on them (it closes them)"
+    )]
     Unresponsive { addr: SocketAddr, connections: u32, waited: Duration },
     /// It takes connections and closes them before any `welcome`: often TLS on one side only.
-    #[error("the server at {addr} closed {connections} connections in {waited:.1?} before its welcome (does it speak TLS? `--tls-ca` must match how it serves)")]
+    #[error(
+        "the server at {addr} closed {connections} connections in {waited:.1?} before its welcome (does it speak TLS? `--tls-ca` must match how it serves)"
+    )]
     Unwelcoming { addr: SocketAddr, connections: u32, waited: Duration },
 }
 
@@ -84,7 +88,18 @@ pub struct Communicator {
 
 impl Communicator {
     pub fn new(addr: SocketAddr, identity: Identity, patience: Duration) -> Self {
-        Self { addr, identity, patience, link: None, tls: None, robot_id: None, task: None, reconnects: 0, unanswered: None, backoff: None }
+        Self {
+            addr,
+            identity,
+            patience,
+            link: None,
+            tls: None,
+            robot_id: None,
+            task: None,
+            reconnects: 0,
+            unanswered: None,
+            backoff: None,
+        }
     }
 
     /// Speaks TLS, trusting `tls`'s authorities for a certificate that bears `name`.
@@ -126,8 +141,12 @@ impl Communicator {
     /// Why the connection attempts ended.
     fn gave_up(&self, waited: Duration) -> CommunicatorError {
         match self.unanswered {
-            Some((_, connections, 0)) if connections > 0 => CommunicatorError::Unwelcoming { addr: self.addr, connections, waited },
-            Some((_, connections, _)) if connections > 0 => CommunicatorError::Unresponsive { addr: self.addr, connections, waited },
+            Some((_, connections, 0)) if connections > 0 => {
+                CommunicatorError::Unwelcoming { addr: self.addr, connections, waited }
+            }
+            Some((_, connections, _)) if connections > 0 => {
+                CommunicatorError::Unresponsive { addr: self.addr, connections, waited }
+            }
             _ => CommunicatorError::Unreachable { addr: self.addr, waited },
         }
     }
@@ -168,8 +187,12 @@ impl Communicator {
                 Ok(())
             }
             // A full or busy server may have room later: keep trying within the patience.
-            ServerMessage::Error { code: ErrorCode::ServerFull | ErrorCode::Unavailable, .. } => Err(CommunicatorError::Disconnected(self.addr)),
-            ServerMessage::Error { message, .. } => Err(CommunicatorError::Refused(truncated(&message, MAX_SERVER_TEXT))),
+            ServerMessage::Error { code: ErrorCode::ServerFull | ErrorCode::Unavailable, .. } => {
+                Err(CommunicatorError::Disconnected(self.addr))
+            }
+            ServerMessage::Error { message, .. } => {
+                Err(CommunicatorError::Refused(truncated(&message, MAX_SERVER_TEXT)))
+            }
             other => unreachable!("check_welcome passes a welcome or an error only, not {other:?}"),
         }
     }
@@ -180,9 +203,11 @@ impl Communicator {
             return CommunicatorError::Tls { addr: self.addr, problem: e.to_string() };
         }
         match e.kind() {
-            io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut => {
-                CommunicatorError::Silent { addr: self.addr, what: "room for a request (it reads nothing)", waited: self.patience }
-            }
+            io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut => CommunicatorError::Silent {
+                addr: self.addr,
+                what: "room for a request (it reads nothing)",
+                waited: self.patience,
+            },
             _ => CommunicatorError::Disconnected(self.addr),
         }
     }
@@ -190,7 +215,9 @@ impl Communicator {
     /// A reply that could not be read: gone (reconnect), silent, or not a frame of this protocol.
     fn read_failed(&self, e: FrameError, what: &'static str) -> CommunicatorError {
         match e {
-            FrameError::Io(e) if is_tls_refusal(&e) => CommunicatorError::Tls { addr: self.addr, problem: e.to_string() },
+            FrameError::Io(e) if is_tls_refusal(&e) => {
+                CommunicatorError::Tls { addr: self.addr, problem: e.to_string() }
+            }
             FrameError::Io(_) => CommunicatorError::Disconnected(self.addr),
             FrameError::TimedOut => CommunicatorError::Silent { addr: self.addr, what, waited: self.patience },
             other => CommunicatorError::Protocol { addr: self.addr, problem: format!("unreadable {what}: {other}") },
@@ -223,7 +250,8 @@ impl Communicator {
             }
         };
         if let ServerMessage::Action { action } = &reply {
-            check_action(action, &self.identity.action_space).map_err(|problem| CommunicatorError::Protocol { addr, problem })?;
+            check_action(action, &self.identity.action_space)
+                .map_err(|problem| CommunicatorError::Protocol { addr, problem })?;
         }
         // An answered request: the connection works, so a later loss reconnects at once.
         self.unanswered = None;

@@ -9,8 +9,8 @@ use std::sync::Arc;
 use bevy::prelude::*;
 
 use crate::client::CommunicatorError;
-use crate::protocol::{ErrorCode, RobotMessage, ServerMessage, error};
 use crate::policy_link::PolicyLink;
+use crate::protocol::{ErrorCode, RobotMessage, ServerMessage, error};
 
 /// A deterministic policy: the action for one observation (flat, as the task's spaces).
 pub type PolicyFn = Arc<dyn Fn(&[f32]) -> anyhow::Result<Vec<f32>> + Send + Sync>;
@@ -80,7 +80,14 @@ mod tests {
             Ok(vec![obs[0] + obs[1]])
         });
         let mut link = policy.link();
-        let step = |obs: Vec<f32>, terminated: bool| RobotMessage::Step { obs, reward: 1.0, terminated, truncated: false, success: None, ended_by: None };
+        let step = |obs: Vec<f32>, terminated: bool| RobotMessage::Step {
+            obs,
+            reward: 1.0,
+            terminated,
+            truncated: false,
+            success: None,
+            ended_by: None,
+        };
         link.send(&RobotMessage::Start { obs: vec![1.0, 2.0] }).unwrap();
         assert_eq!(link.receive().unwrap(), ServerMessage::Action { action: vec![3.0] });
         link.send(&step(vec![0.5, 0.25], false)).unwrap();
@@ -89,7 +96,9 @@ mod tests {
         assert_eq!(link.receive().unwrap(), ServerMessage::Ack, "an episode's last step is acknowledged");
         link.send(&RobotMessage::Start { obs: vec![1.0] }).unwrap();
         match link.receive().unwrap() {
-            ServerMessage::Error { message, fatal: true, .. } => assert!(message.contains("two values expected, got 1"), "{message}"),
+            ServerMessage::Error { message, fatal: true, .. } => {
+                assert!(message.contains("two values expected, got 1"), "{message}")
+            }
             other => panic!("expected a fatal error, got {other:?}"),
         }
     }

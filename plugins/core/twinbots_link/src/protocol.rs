@@ -209,7 +209,9 @@ impl<'de> Deserialize<'de> for RewardRange {
             high: serde_json::Value,
         }
         let w = Wire::deserialize(d)?;
-        let bound = |v: &serde_json::Value| bound_from_json(v).ok_or_else(|| serde::de::Error::custom(format!("bad reward bound {v}")));
+        let bound = |v: &serde_json::Value| {
+            bound_from_json(v).ok_or_else(|| serde::de::Error::custom(format!("bad reward bound {v}")))
+        };
         Ok(Self { low: bound(&w.low)?, high: bound(&w.high)? })
     }
 }

@@ -24,9 +24,9 @@ use std::time::Duration;
 use bevy::ecs::component::Mutable;
 use bevy::prelude::*;
 use rand_chacha::ChaCha8Rng;
+use twinbots_sim::{Arena, SimSet};
 use twinbots_task::task::{TaskSet, Terms, configure_task_sets};
 use twinbots_task::{Action, ActiveTask, Episode};
-use twinbots_sim::{Arena, SimSet};
 
 use crate::checks::{MAX_SERVER_TEXT, truncated};
 use crate::client::{Communicator, CommunicatorError, Identity};
@@ -94,7 +94,11 @@ impl Conversation {
 
     /// Connects to a RobotServer (retrying until the address's patience runs out) and begins
     /// by homing.
-    pub fn connect(address: &ServerAddress, identity: Identity, tls: Option<&ServerTlsLink>) -> Result<Self, CommunicatorError> {
+    pub fn connect(
+        address: &ServerAddress,
+        identity: Identity,
+        tls: Option<&ServerTlsLink>,
+    ) -> Result<Self, CommunicatorError> {
         let mut communicator = Communicator::new(address.addr, identity, address.patience);
         if let Some(link) = tls {
             communicator = communicator.with_tls(link.tls.clone(), link.name.clone());
@@ -104,10 +108,14 @@ impl Conversation {
     }
 
     /// Connects the robot of arena `index`; if it cannot, the robots stop, naming it.
-    pub fn connect_robot(address: &ServerAddress, identity: Identity, tls: Option<&ServerTlsLink>, index: usize, state: &mut RobotRunState) -> Option<Self> {
-        Self::connect(address, identity, tls)
-            .map_err(|e| state.stop = Some(Err(format!("robot {index}: {e}"))))
-            .ok()
+    pub fn connect_robot(
+        address: &ServerAddress,
+        identity: Identity,
+        tls: Option<&ServerTlsLink>,
+        index: usize,
+        state: &mut RobotRunState,
+    ) -> Option<Self> {
+        Self::connect(address, identity, tls).map_err(|e| state.stop = Some(Err(format!("robot {index}: {e}")))).ok()
     }
 
     /// Sends this step's message: `start` when starting, the step's outcome when running.
@@ -141,7 +149,9 @@ impl Conversation {
             // The server closed an idle connection (a robot that homed for longer than its
             // read timeout): the link is lost, not the training.
             Ok(ServerMessage::Error { code: ErrorCode::Timeout, .. }) => self.lost(state),
-            Ok(ServerMessage::Error { message, fatal: true, .. }) => state.stop = Some(Err(truncated(&message, MAX_SERVER_TEXT))),
+            Ok(ServerMessage::Error { message, fatal: true, .. }) => {
+                state.stop = Some(Err(truncated(&message, MAX_SERVER_TEXT)))
+            }
             // The request was not used: the episode cannot go on without an action. The robot
             // homes and starts afresh (a `start` drops the running episode), and stops if the
             // server refuses request after request.
@@ -151,11 +161,14 @@ impl Conversation {
                 self.refused += 1;
                 self.phase = Phase::Homing;
                 if self.refused >= MAX_REFUSED {
-                    state.stop = Some(Err(format!("the server refused {MAX_REFUSED} requests in a row; the last: {message}")));
+                    state.stop =
+                        Some(Err(format!("the server refused {MAX_REFUSED} requests in a row; the last: {message}")));
                 }
                 return None;
             }
-            Ok(ServerMessage::Welcome { .. }) => state.stop = Some(Err("the server sent a second welcome in the middle of the conversation".into())),
+            Ok(ServerMessage::Welcome { .. }) => {
+                state.stop = Some(Err("the server sent a second welcome in the middle of the conversation".into()))
+            }
             Err(CommunicatorError::Disconnected(_)) => self.lost(state),
             Err(e) => state.stop = Some(Err(e.to_string())),
         }
@@ -240,10 +253,15 @@ impl<S: Component<Mutability = Mutable>> Plugin for ServerRobotPlugin<S> {
             .insert_resource(RobotKind(self.robot.clone()))
             .configure_sets(
                 Update,
-                (RobotCycleSet::Draw, RobotCycleSet::Home, RobotCycleSet::Start, RobotCycleSet::Operate).chain().in_set(SimSet::Actuate),
+                (RobotCycleSet::Draw, RobotCycleSet::Home, RobotCycleSet::Start, RobotCycleSet::Operate)
+                    .chain()
+                    .in_set(SimSet::Actuate),
             )
             .add_systems(PostStartup, connect_robots)
-            .add_systems(Update, (draw_starts::<S>.in_set(RobotCycleSet::Draw), begin_episodes.in_set(RobotCycleSet::Start)))
+            .add_systems(
+                Update,
+                (draw_starts::<S>.in_set(RobotCycleSet::Draw), begin_episodes.in_set(RobotCycleSet::Start)),
+            )
             .add_systems(Update, exchange::<S>.in_set(TaskSet::Evaluate))
             .add_systems(Update, tally_steps.in_set(TaskSet::Tally));
     }
@@ -272,7 +290,9 @@ fn connect_robots(world: &mut World) {
     for (entity, index, rng) in arenas {
         let mut state = world.resource_mut::<RobotRunState>();
         let conversation = match (&address, &on_board) {
-            (Some(address), _) => Conversation::connect_robot(address, identity.clone(), tls.as_ref(), index, &mut state),
+            (Some(address), _) => {
+                Conversation::connect_robot(address, identity.clone(), tls.as_ref(), index, &mut state)
+            }
             (None, Some(policy)) => Some(Conversation::over(Box::new(policy.link()))),
             (None, None) => {
                 state.stop = Some(Err("a pattern-3 robot needs a ServerAddress or an OnBoardPolicy resource".into()));
@@ -280,7 +300,9 @@ fn connect_robots(world: &mut World) {
             }
         };
         let Some(conversation) = conversation else { return };
-        world.entity_mut(entity).insert((Controller { conversation, rng, evaluated: false, start_drawn: false }, AtHome(false)));
+        world
+            .entity_mut(entity)
+            .insert((Controller { conversation, rng, evaluated: false, start_drawn: false }, AtHome(false)));
     }
 }
 
@@ -333,7 +355,8 @@ fn exchange<S: Component>(
             Phase::Running => {
                 terms.0.observe(state, &mut e.observation);
                 let outcome = terms.0.evaluate(state, e.length, &mut e.reward_sums);
-                (e.reward, e.terminated, e.truncated, e.ended_by) = (outcome.reward, outcome.terminated, outcome.truncated, outcome.ended_by);
+                (e.reward, e.terminated, e.truncated, e.ended_by) =
+                    (outcome.reward, outcome.terminated, outcome.truncated, outcome.ended_by);
                 if outcome.success.is_some() {
                     e.success = outcome.success;
                 }

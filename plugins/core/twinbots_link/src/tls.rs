@@ -39,7 +39,8 @@ impl ServerTls {
     /// the file.
     pub fn from_pem_files(cert: &Path, key: &Path) -> anyhow::Result<Self> {
         let chain = certificates(cert)?;
-        let private = PrivateKeyDer::from_pem_file(key).map_err(|e| anyhow::anyhow!("{}: not a PEM private key: {e}", key.display()))?;
+        let private = PrivateKeyDer::from_pem_file(key)
+            .map_err(|e| anyhow::anyhow!("{}: not a PEM private key: {e}", key.display()))?;
         let config = ServerConfig::builder_with_provider(provider())
             .with_safe_default_protocol_versions()?
             .with_no_client_auth()
@@ -96,7 +97,10 @@ impl Transport {
     pub fn accept(stream: TcpStream, tls: Option<&ServerTls>) -> io::Result<Self> {
         Ok(match tls {
             None => Self::Tcp(stream),
-            Some(tls) => Self::Server(Box::new(StreamOwned::new(ServerConnection::new(tls.0.clone()).map_err(io::Error::other)?, stream))),
+            Some(tls) => Self::Server(Box::new(StreamOwned::new(
+                ServerConnection::new(tls.0.clone()).map_err(io::Error::other)?,
+                stream,
+            ))),
         })
     }
 
@@ -104,7 +108,10 @@ impl Transport {
     pub fn connect(stream: TcpStream, tls: Option<(&ClientTls, ServerName<'static>)>) -> io::Result<Self> {
         Ok(match tls {
             None => Self::Tcp(stream),
-            Some((tls, name)) => Self::Client(Box::new(StreamOwned::new(ClientConnection::new(tls.0.clone(), name).map_err(io::Error::other)?, stream))),
+            Some((tls, name)) => Self::Client(Box::new(StreamOwned::new(
+                ClientConnection::new(tls.0.clone(), name).map_err(io::Error::other)?,
+                stream,
+            ))),
         })
     }
 

@@ -139,7 +139,9 @@ impl<'a> Reader<'a> {
     }
     fn take(&mut self, n: usize) -> anyhow::Result<&'a [u8]> {
         let end = self.at.checked_add(n).filter(|&e| e <= self.buf.len());
-        let end = end.ok_or_else(|| anyhow::anyhow!("the message ends at byte {} while {n} more were expected at {}", self.buf.len(), self.at))?;
+        let end = end.ok_or_else(|| {
+            anyhow::anyhow!("the message ends at byte {} while {n} more were expected at {}", self.buf.len(), self.at)
+        })?;
         let bytes = &self.buf[self.at..end];
         self.at = end;
         Ok(bytes)
@@ -159,7 +161,10 @@ impl<'a> Reader<'a> {
     fn count(&mut self) -> anyhow::Result<usize> {
         let n = self.u32()? as usize;
         // Each element takes at least a byte: a count beyond the rest is corrupt, not a size to allocate.
-        anyhow::ensure!(n <= self.buf.len() - self.at.min(self.buf.len()), "a sequence of {n} elements overruns the message");
+        anyhow::ensure!(
+            n <= self.buf.len() - self.at.min(self.buf.len()),
+            "a sequence of {n} elements overruns the message"
+        );
         Ok(n)
     }
     fn string(&mut self) -> anyhow::Result<String> {
@@ -246,7 +251,15 @@ mod tests {
 
     #[test]
     fn truncated_and_oversized_messages_are_errors() {
-        let bytes = JointStateMsg { stamp: 1.0, frame_id: "base".into(), name: vec!["j".into()], position: vec![1.0], velocity: vec![2.0], effort: vec![3.0] }.encode();
+        let bytes = JointStateMsg {
+            stamp: 1.0,
+            frame_id: "base".into(),
+            name: vec!["j".into()],
+            position: vec![1.0],
+            velocity: vec![2.0],
+            effort: vec![3.0],
+        }
+        .encode();
         for cut in [0, 3, 10, bytes.len() - 1] {
             assert!(JointStateMsg::decode(&bytes[..cut]).is_err(), "cut at {cut}");
         }

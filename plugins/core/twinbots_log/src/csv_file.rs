@@ -24,7 +24,12 @@ const TOOL: [&str; 7] = ["tool.x", "tool.y", "tool.z", "tool.qx", "tool.qy", "to
 pub fn to_string(log: &RobotLog) -> String {
     let mut out = String::new();
     let m = &log.meta;
-    for (k, v) in [("robot", m.robot.clone()), ("source", m.source.clone()), ("calibration", m.calibration.clone()), ("control_period", m.control_period.to_string())] {
+    for (k, v) in [
+        ("robot", m.robot.clone()),
+        ("source", m.source.clone()),
+        ("calibration", m.calibration.clone()),
+        ("control_period", m.control_period.to_string()),
+    ] {
         out += &format!("# {k} = {v}\n");
     }
     let mut modes = BTreeMap::new();
@@ -83,7 +88,8 @@ pub fn to_string(log: &RobotLog) -> String {
     times.sort_by(f64::total_cmp);
     for t in times {
         let row = &rows[&key(t)];
-        let cells: Vec<String> = header[1..].iter().map(|h| row.get(h).map_or(String::new(), |v| v.to_string())).collect();
+        let cells: Vec<String> =
+            header[1..].iter().map(|h| row.get(h).map_or(String::new(), |v| v.to_string())).collect();
         out += &format!("{t},{}\n", cells.join(","));
     }
     out
@@ -110,27 +116,43 @@ pub fn from_str(text: &str) -> anyhow::Result<RobotLog> {
         }
     };
     let columns: Vec<&str> = header.1.split(',').map(str::trim).collect();
-    anyhow::ensure!(columns.first() == Some(&"time"), "line {}: the first column must be 'time', not '{}'", header.0, columns[0]);
+    anyhow::ensure!(
+        columns.first() == Some(&"time"),
+        "line {}: the first column must be 'time', not '{}'",
+        header.0,
+        columns[0]
+    );
     let mut joints: Vec<String> = Vec::new();
     for c in &columns[1..] {
-        let Some((joint, field)) = c.rsplit_once('.') else { anyhow::bail!("line {}: column '{c}' is not <joint>.<field>", header.0) };
+        let Some((joint, field)) = c.rsplit_once('.') else {
+            anyhow::bail!("line {}: column '{c}' is not <joint>.<field>", header.0)
+        };
         match field {
             "position" => joints.push(joint.to_string()),
             "velocity" | "effort" | "command" => {}
             _ if joint == "tool" && TOOL.contains(c) => {}
-            _ => anyhow::bail!("line {}: column '{c}': unknown field '{field}' (known: position, velocity, effort, command, tool.*)", header.0),
+            _ => anyhow::bail!(
+                "line {}: column '{c}': unknown field '{field}' (known: position, velocity, effort, command, tool.*)",
+                header.0
+            ),
         }
     }
     let column = |name: &str| columns.iter().position(|c| *c == name);
     let mut log = RobotLog { joints: joints.clone(), ..Default::default() };
     for j in &joints {
-        anyhow::ensure!(column(&format!("{j}.velocity")).is_some(), "line {}: joint '{j}' has no '{j}.velocity' column", header.0);
+        anyhow::ensure!(
+            column(&format!("{j}.velocity")).is_some(),
+            "line {}: joint '{j}' has no '{j}.velocity' column",
+            header.0
+        );
     }
     let default_mode = meta.get("command_mode").map(|m| CommandMode::parse(m)).transpose()?;
     let mode_of = |j: &str| -> anyhow::Result<CommandMode> {
         match meta.get(&format!("command_mode.{j}")) {
             Some(m) => CommandMode::parse(m),
-            None => default_mode.ok_or_else(|| anyhow::anyhow!("column '{j}.command' but no '# command_mode = ...' line says its mode")),
+            None => default_mode.ok_or_else(|| {
+                anyhow::anyhow!("column '{j}.command' but no '# command_mode = ...' line says its mode")
+            }),
         }
     };
     let commanded: Vec<(String, usize, CommandMode)> = joints
@@ -143,19 +165,30 @@ pub fn from_str(text: &str) -> anyhow::Result<RobotLog> {
     for (n, line) in lines {
         let line_no = n + 1;
         let cells: Vec<&str> = line.split(',').map(str::trim).collect();
-        anyhow::ensure!(cells.len() == columns.len(), "line {line_no}: {} cells for {} columns", cells.len(), columns.len());
+        anyhow::ensure!(
+            cells.len() == columns.len(),
+            "line {line_no}: {} cells for {} columns",
+            cells.len(),
+            columns.len()
+        );
         let number = |k: usize| -> anyhow::Result<Option<f64>> {
             if cells[k].is_empty() {
                 return Ok(None);
             }
-            let v: f64 = cells[k].parse().map_err(|_| anyhow::anyhow!("line {line_no}, column '{}': '{}' is not a number", columns[k], cells[k]))?;
+            let v: f64 = cells[k].parse().map_err(|_| {
+                anyhow::anyhow!("line {line_no}, column '{}': '{}' is not a number", columns[k], cells[k])
+            })?;
             Ok(Some(v))
         };
         let time = number(0)?.ok_or_else(|| anyhow::anyhow!("line {line_no}: empty time"))?;
         let field = |j: &str, f: &str| column(&format!("{j}.{f}")).map_or(Ok(None), number);
         let positions: Vec<Option<f64>> = joints.iter().map(|j| field(j, "position")).collect::<anyhow::Result<_>>()?;
         if positions.iter().any(Option::is_some) {
-            let need = |v: Option<f64>, j: &str, f: &str| v.ok_or_else(|| anyhow::anyhow!("line {line_no}: '{j}.{f}' is empty while other joints' states are given"));
+            let need = |v: Option<f64>, j: &str, f: &str| {
+                v.ok_or_else(|| {
+                    anyhow::anyhow!("line {line_no}: '{j}.{f}' is empty while other joints' states are given")
+                })
+            };
             let mut s = JointSample { time, position: vec![], velocity: vec![], effort: vec![] };
             for (j, p) in joints.iter().zip(&positions) {
                 s.position.push(need(*p, j, "position")?);
@@ -189,7 +222,11 @@ pub fn from_str(text: &str) -> anyhow::Result<RobotLog> {
         robot: meta.remove("robot").unwrap_or_default(),
         source: meta.remove("source").unwrap_or_default(),
         calibration: meta.remove("calibration").unwrap_or_default(),
-        control_period: if period.is_empty() { 0.0 } else { period.parse().map_err(|_| anyhow::anyhow!("'# control_period = {period}' is not a number of seconds"))? },
+        control_period: if period.is_empty() {
+            0.0
+        } else {
+            period.parse().map_err(|_| anyhow::anyhow!("'# control_period = {period}' is not a number of seconds"))?
+        },
         extra: meta.into_iter().filter(|(k, _)| !k.starts_with("command_mode")).collect(),
     };
     Ok(log)

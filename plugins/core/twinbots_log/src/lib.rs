@@ -29,7 +29,10 @@ impl Format {
         match path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase().as_str() {
             "mcap" => Ok(Self::Mcap),
             "csv" => Ok(Self::Csv),
-            other => anyhow::bail!("{}: unknown log format '.{other}': a robot log is an .mcap or a .csv file (docs/logs.md)", path.display()),
+            other => anyhow::bail!(
+                "{}: unknown log format '.{other}': a robot log is an .mcap or a .csv file (docs/logs.md)",
+                path.display()
+            ),
         }
     }
 
@@ -84,7 +87,12 @@ mod tests {
                 })
                 .collect(),
             commands: (0..3)
-                .map(|i| CommandSample { time: i as f64 * 0.008, joints: joints.clone(), modes: vec![CommandMode::Velocity; 2], values: vec![1.0, -1.0] })
+                .map(|i| CommandSample {
+                    time: i as f64 * 0.008,
+                    joints: joints.clone(),
+                    modes: vec![CommandMode::Velocity; 2],
+                    values: vec![1.0, -1.0],
+                })
                 .collect(),
             tool: vec![ToolSample { time: 0.0, position: [0.1, 0.2, 0.3], orientation: [0.0, 0.0, 0.0, 1.0] }],
             joints,

@@ -121,7 +121,12 @@ impl RobotLog {
             last = s.time;
             anyhow::ensure!(s.position.len() == n, "{}: {} positions for {n} joints", at(), s.position.len());
             anyhow::ensure!(s.velocity.len() == n, "{}: {} velocities for {n} joints", at(), s.velocity.len());
-            anyhow::ensure!(s.effort.is_empty() || s.effort.len() == n, "{}: {} efforts for {n} joints", at(), s.effort.len());
+            anyhow::ensure!(
+                s.effort.is_empty() || s.effort.len() == n,
+                "{}: {} efforts for {n} joints",
+                at(),
+                s.effort.len()
+            );
             for (what, values) in [("position", &s.position), ("velocity", &s.velocity), ("effort", &s.effort)] {
                 if let Some(j) = values.iter().position(|v| !v.is_finite()) {
                     anyhow::bail!("{}: {what} of '{}' is {}", at(), self.joints[j], values[j]);
@@ -143,7 +148,12 @@ impl RobotLog {
                 c.values.len()
             );
             for (j, v) in c.joints.iter().zip(&c.values) {
-                anyhow::ensure!(self.joints.contains(j), "{}: joint '{j}' is not among the logged joints ({})", at(), self.joints.join(", "));
+                anyhow::ensure!(
+                    self.joints.contains(j),
+                    "{}: joint '{j}' is not among the logged joints ({})",
+                    at(),
+                    self.joints.join(", ")
+                );
                 anyhow::ensure!(v.is_finite(), "{}: the command to '{j}' is {v}", at());
             }
         }

@@ -73,7 +73,8 @@ pub fn to_bytes(log: &RobotLog) -> anyhow::Result<Vec<u8>> {
         messages.push((nanos(c.time), commands, serde_json::to_vec(&msg)?));
     }
     for t in &log.tool {
-        let msg = PoseStampedMsg { stamp: t.time, frame_id: "base".into(), position: t.position, orientation: t.orientation };
+        let msg =
+            PoseStampedMsg { stamp: t.time, frame_id: "base".into(), position: t.position, orientation: t.orientation };
         messages.push((nanos(t.time), tool, msg.encode()));
     }
     messages.sort_by_key(|m| m.0);
@@ -81,7 +82,10 @@ pub fn to_bytes(log: &RobotLog) -> anyhow::Result<Vec<u8>> {
     for (time, channel_id, data) in messages {
         let seq = sequence.entry(channel_id).or_default();
         *seq += 1;
-        w.write_to_known_channel(&MessageHeader { channel_id, sequence: *seq, log_time: time, publish_time: time }, &data)?;
+        w.write_to_known_channel(
+            &MessageHeader { channel_id, sequence: *seq, log_time: time, publish_time: time },
+            &data,
+        )?;
     }
     w.finish()?;
     Ok(w.into_inner().into_inner())
@@ -109,7 +113,9 @@ fn mcap_error(e: mcap::McapError) -> anyhow::Error {
 pub fn from_bytes(bytes: &[u8]) -> anyhow::Result<RobotLog> {
     let mut log = RobotLog::default();
     // A truncated file has no footer; the message stream would stop quietly at the cut.
-    mcap::read::footer(bytes).map_err(|_| anyhow::anyhow!("truncated MCAP: the file ends without its footer (`mcap recover` can salvage it)"))?;
+    mcap::read::footer(bytes).map_err(|_| {
+        anyhow::anyhow!("truncated MCAP: the file ends without its footer (`mcap recover` can salvage it)")
+    })?;
     for record in mcap::read::LinearReader::new(bytes).map_err(mcap_error)? {
         if let Record::Metadata(m) = record.map_err(mcap_error)?
             && m.name == METADATA_NAME
@@ -123,20 +129,33 @@ pub fn from_bytes(bytes: &[u8]) -> anyhow::Result<RobotLog> {
         match message.channel.topic.as_str() {
             JOINT_STATES_TOPIC => {
                 check_encoding(&message.channel.message_encoding, "cdr", JOINT_STATES_TOPIC)?;
-                let msg = JointStateMsg::decode(&message.data).map_err(|e| anyhow::anyhow!("{JOINT_STATES_TOPIC} message {i}: {e}"))?;
+                let msg = JointStateMsg::decode(&message.data)
+                    .map_err(|e| anyhow::anyhow!("{JOINT_STATES_TOPIC} message {i}: {e}"))?;
                 let time = when(msg.stamp);
-                let sample = joint_sample(&mut log.joints, msg, time).map_err(|e| anyhow::anyhow!("{JOINT_STATES_TOPIC} message {i} (t = {time} s): {e}"))?;
+                let sample = joint_sample(&mut log.joints, msg, time)
+                    .map_err(|e| anyhow::anyhow!("{JOINT_STATES_TOPIC} message {i} (t = {time} s): {e}"))?;
                 log.states.push(sample);
             }
             COMMANDS_TOPIC => {
                 check_encoding(&message.channel.message_encoding, "json", COMMANDS_TOPIC)?;
-                let msg: CommandMsg = serde_json::from_slice(&message.data).map_err(|e| anyhow::anyhow!("{COMMANDS_TOPIC} message {i}: {e}"))?;
-                log.commands.push(CommandSample { time: msg.time, joints: msg.name, modes: msg.mode, values: msg.value });
+                let msg: CommandMsg = serde_json::from_slice(&message.data)
+                    .map_err(|e| anyhow::anyhow!("{COMMANDS_TOPIC} message {i}: {e}"))?;
+                log.commands.push(CommandSample {
+                    time: msg.time,
+                    joints: msg.name,
+                    modes: msg.mode,
+                    values: msg.value,
+                });
             }
             TOOL_POSE_TOPIC => {
                 check_encoding(&message.channel.message_encoding, "cdr", TOOL_POSE_TOPIC)?;
-                let msg = PoseStampedMsg::decode(&message.data).map_err(|e| anyhow::anyhow!("{TOOL_POSE_TOPIC} message {i}: {e}"))?;
-                log.tool.push(ToolSample { time: when(msg.stamp), position: msg.position, orientation: msg.orientation });
+                let msg = PoseStampedMsg::decode(&message.data)
+                    .map_err(|e| anyhow::anyhow!("{TOOL_POSE_TOPIC} message {i}: {e}"))?;
+                log.tool.push(ToolSample {
+                    time: when(msg.stamp),
+                    position: msg.position,
+                    orientation: msg.orientation,
+                });
             }
             _ => {}
         }
@@ -156,7 +175,11 @@ fn joint_sample(joints: &mut Vec<String>, msg: JointStateMsg, time: f64) -> anyh
     let n = msg.name.len();
     anyhow::ensure!(n > 0, "the message names no joints");
     anyhow::ensure!(msg.position.len() == n, "{} positions for {n} names", msg.position.len());
-    anyhow::ensure!(msg.velocity.len() == n, "{} velocities for {n} names (velocities are required)", msg.velocity.len());
+    anyhow::ensure!(
+        msg.velocity.len() == n,
+        "{} velocities for {n} names (velocities are required)",
+        msg.velocity.len()
+    );
     anyhow::ensure!(msg.effort.is_empty() || msg.effort.len() == n, "{} efforts for {n} names", msg.effort.len());
     if joints.is_empty() {
         *joints = msg.name.clone();
@@ -176,7 +199,9 @@ fn meta_from(mut m: BTreeMap<String, String>) -> anyhow::Result<LogMeta> {
     let control_period = if period.is_empty() {
         0.0
     } else {
-        period.parse().map_err(|_| anyhow::anyhow!("metadata 'control_period' = '{period}' is not a number of seconds"))?
+        period
+            .parse()
+            .map_err(|_| anyhow::anyhow!("metadata 'control_period' = '{period}' is not a number of seconds"))?
     };
     m.remove("units");
     Ok(LogMeta {

@@ -36,7 +36,9 @@ use twinbots_learn::Agent;
 use twinbots_learn::model_io::write_atomic;
 use twinbots_learn::nn::Patches;
 use twinbots_learn::normalize::CLIP;
-use twinbots_learn::policy_net::{Activation, ConvEncoder, ConvHead, ConvLayer, DenseLayer, InputEncoding, PolicyHead, keypoint_grid};
+use twinbots_learn::policy_net::{
+    Activation, ConvEncoder, ConvHead, ConvLayer, DenseLayer, InputEncoding, PolicyHead, keypoint_grid,
+};
 
 use crate::metadata::PolicyMetadata;
 
@@ -50,7 +52,8 @@ pub const OUTPUT: &str = "action";
 /// must be the model's).
 pub fn policy_model(agent: &dyn Agent, metadata: &PolicyMetadata) -> anyhow::Result<pb::ModelProto> {
     anyhow::ensure!(
-        metadata.observation_space.dim() == agent.observation_space().dim() && metadata.action_space == *agent.action_space(),
+        metadata.observation_space.dim() == agent.observation_space().dim()
+            && metadata.action_space == *agent.action_space(),
         "the model's spaces ({} observations, {}) differ from the description's ({} observations, {})",
         agent.observation_space().dim(),
         agent.action_space(),
@@ -63,7 +66,12 @@ pub fn policy_model(agent: &dyn Agent, metadata: &PolicyMetadata) -> anyhow::Res
         opset_import: vec![pb::OperatorSetIdProto { domain: String::new(), version: OPSET }],
         producer_name: "twinbots".into(),
         producer_version: metadata.twinbots_version.clone(),
-        doc_string: format!("{} ({}): the deterministic policy of a {} model; see docs/export.md", metadata.robot, metadata.task, agent.algorithm()),
+        doc_string: format!(
+            "{} ({}): the deterministic policy of a {} model; see docs/export.md",
+            metadata.robot,
+            metadata.task,
+            agent.algorithm()
+        ),
         graph: Some(graph),
         metadata_props: metadata
             .to_props()
@@ -112,13 +120,27 @@ fn policy_graph(model: &dyn Agent) -> anyhow::Result<pb::GraphProto> {
     for (i, layer) in net.layers.iter().enumerate() {
         x = g.dense(layer, &x);
         if i + 1 < net.layers.len() {
-            x = g.node(match net.hidden { Activation::Tanh => "Tanh", Activation::Relu => "Relu" }, &[&x], vec![]);
+            x = g.node(
+                match net.hidden {
+                    Activation::Tanh => "Tanh",
+                    Activation::Relu => "Relu",
+                },
+                &[&x],
+                vec![],
+            );
         }
     }
     let output_type = match net.head {
         PolicyHead::ArgMax => {
-            anyhow::ensure!(matches!(action_space, Space::Discrete { .. }), "an arg-max head needs discrete actions, not {action_space}");
-            g.output_node("ArgMax", &[&x], vec![int_attr("axis", 1), int_attr("keepdims", 0), int_attr("select_last_index", 1)]);
+            anyhow::ensure!(
+                matches!(action_space, Space::Discrete { .. }),
+                "an arg-max head needs discrete actions, not {action_space}"
+            );
+            g.output_node(
+                "ArgMax",
+                &[&x],
+                vec![int_attr("axis", 1), int_attr("keepdims", 0), int_attr("select_last_index", 1)],
+            );
             tensor_type(DataType::Int64, &[batch_dim()])
         }
         PolicyHead::ClipToBox => clip_head(&mut g, &x, action_space)?,
@@ -131,7 +153,10 @@ fn policy_graph(model: &dyn Agent) -> anyhow::Result<pb::GraphProto> {
         name: "twinbots_policy".into(),
         node: g.nodes,
         initializer: g.initializers,
-        input: vec![value_info(INPUT, tensor_type(DataType::Float, &[batch_dim(), fixed_dim(observation_space.dim())]))],
+        input: vec![value_info(
+            INPUT,
+            tensor_type(DataType::Float, &[batch_dim(), fixed_dim(observation_space.dim())]),
+        )],
         output: vec![value_info(OUTPUT, output_type)],
         ..Default::default()
     })
@@ -146,7 +171,11 @@ fn conv_features(g: &mut GraphBuilder, cnn: &ConvEncoder, x: &str) -> anyhow::Re
     }
     let pixels = (cnn.height * cnn.width * cnn.channels) as i64;
     let axes = g.constant_i64("split_axis", &[1]);
-    let (start, split, end) = (g.constant_i64("image_start", &[0]), g.constant_i64("state_start", &[pixels]), g.constant_i64("state_end", &[pixels + cnn.state as i64]));
+    let (start, split, end) = (
+        g.constant_i64("image_start", &[0]),
+        g.constant_i64("state_start", &[pixels]),
+        g.constant_i64("state_end", &[pixels + cnn.state as i64]),
+    );
     let image = g.node("Slice", &[x, &start, &split, &axes], vec![]);
     let state = g.node("Slice", &[x, &split, &end, &axes], vec![]);
     let features = image_features(g, cnn, &image)?;
@@ -163,12 +192,25 @@ fn image_features(g: &mut GraphBuilder, cnn: &ConvEncoder, x: &str) -> anyhow::R
     let last = cnn.convs.len().saturating_sub(1);
     for (i, conv) in cnn.convs.iter().enumerate() {
         let (k, c) = (conv.kernel, conv.in_channels);
-        anyhow::ensure!(conv.weight.len() == conv.filters * k * k * c, "{}: {} weights for {} filters of {k}×{k}×{c}", conv.name, conv.weight.len(), conv.filters);
+        anyhow::ensure!(
+            conv.weight.len() == conv.filters * k * k * c,
+            "{}: {} weights for {} filters of {k}×{k}×{c}",
+            conv.name,
+            conv.weight.len(),
+            conv.filters
+        );
         anyhow::ensure!(h >= k && w >= k, "{}: a {k}×{k} kernel on a {h}×{w} map", conv.name);
         let name = &conv.name;
-        let weight = g.constant_f32(&format!("{name}.weight"), &[conv.filters as i64, c as i64, k as i64, k as i64], &oihw(conv));
+        let weight = g.constant_f32(
+            &format!("{name}.weight"),
+            &[conv.filters as i64, c as i64, k as i64, k as i64],
+            &oihw(conv),
+        );
         let bias = g.constant_f32(&format!("{name}.bias"), &[conv.filters as i64], &conv.bias);
-        let attributes = vec![ints_attr("kernel_shape", &[k as i64, k as i64]), ints_attr("strides", &[conv.stride as i64, conv.stride as i64])];
+        let attributes = vec![
+            ints_attr("kernel_shape", &[k as i64, k as i64]),
+            ints_attr("strides", &[conv.stride as i64, conv.stride as i64]),
+        ];
         x = g.node("Conv", &[&x, &weight, &bias], attributes);
         (h, w) = Patches { height: h, width: w, channels: c, kernel: k, stride: conv.stride }.output();
         if !(i == last && cnn.head == ConvHead::Keypoints) {
@@ -215,7 +257,9 @@ fn oihw(conv: &ConvLayer) -> Vec<f32> {
 
 /// A Gaussian's mode: its mean, clipped to the box.
 fn clip_head(g: &mut GraphBuilder, x: &str, action_space: &Space) -> anyhow::Result<pb::TypeProto> {
-    let Space::Box { low, high } = action_space else { anyhow::bail!("a clipped head acts in a box, not {action_space}") };
+    let Space::Box { low, high } = action_space else {
+        anyhow::bail!("a clipped head acts in a box, not {action_space}")
+    };
     let low = g.constant_f32("action_low", &[low.len() as i64], low);
     let high = g.constant_f32("action_high", &[high.len() as i64], high);
     let floor = g.node("Max", &[x, &low], vec![]);
@@ -225,7 +269,9 @@ fn clip_head(g: &mut GraphBuilder, x: &str, action_space: &Space) -> anyhow::Res
 
 /// A squashed mode, tanh(μ) in [−1, 1], rescaled to the box: low + (a + 1) · (high − low) / 2.
 fn squash_head(g: &mut GraphBuilder, squashed: &str, action_space: &Space) -> anyhow::Result<pb::TypeProto> {
-    let Space::Box { low, high } = action_space else { anyhow::bail!("a squashed policy acts in a box, not {action_space}") };
+    let Space::Box { low, high } = action_space else {
+        anyhow::bail!("a squashed policy acts in a box, not {action_space}")
+    };
     let half_range: Vec<f32> = low.iter().zip(high).map(|(l, h)| 0.5 * (h - l)).collect();
     let one = g.scalar_f32("one", 1.0);
     let half_range = g.constant_f32("action_half_range", &[low.len() as i64], &half_range);
@@ -247,7 +293,8 @@ impl GraphBuilder {
     /// A `Gemm` (x Wᵀ + b) with the layer's tensors as constants `<name>.weight`, `<name>.bias`.
     fn dense(&mut self, layer: &DenseLayer, x: &str) -> String {
         let name = &layer.name;
-        let w = self.constant_f32(&format!("{name}.weight"), &[layer.outputs as i64, layer.inputs as i64], &layer.weight);
+        let w =
+            self.constant_f32(&format!("{name}.weight"), &[layer.outputs as i64, layer.inputs as i64], &layer.weight);
         let b = self.constant_f32(&format!("{name}.bias"), &[layer.outputs as i64], &layer.bias);
         self.node("Gemm", &[x, &w, &b], vec![int_attr("transB", 1)])
     }

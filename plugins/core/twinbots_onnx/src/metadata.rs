@@ -94,7 +94,8 @@ impl PolicyMetadata {
         anyhow::ensure!(self.robot == robot, "the policy was exported for the robot '{}', not '{robot}'", self.robot);
         anyhow::ensure!(self.task == task, "the policy was exported for the task '{}', not '{task}'", self.task);
         anyhow::ensure!(
-            self.observation_space.dim() == spec.observation_space.dim() && self.observation_names == spec.observation_names,
+            self.observation_space.dim() == spec.observation_space.dim()
+                && self.observation_names == spec.observation_names,
             "the policy observes {:?}, but this robot's task observes {:?}",
             self.observation_names,
             spec.observation_names

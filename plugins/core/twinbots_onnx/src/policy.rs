@@ -34,7 +34,8 @@ impl OnnxPolicy {
     pub fn from_bytes(bytes: &[u8]) -> anyhow::Result<Self> {
         let proto = pb::ModelProto::decode(bytes).map_err(|e| anyhow::anyhow!("not an ONNX model ({e})"))?;
         anyhow::ensure!(proto.graph.as_ref().is_some_and(|g| !g.node.is_empty()), "not an ONNX model (no graph)");
-        let props: Vec<(String, String)> = proto.metadata_props.iter().map(|p| (p.key.clone(), p.value.clone())).collect();
+        let props: Vec<(String, String)> =
+            proto.metadata_props.iter().map(|p| (p.key.clone(), p.value.clone())).collect();
         let metadata = PolicyMetadata::from_props(&props)?;
         let plan = tract_onnx::onnx()
             .model_for_proto_model(&proto)

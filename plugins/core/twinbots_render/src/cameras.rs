@@ -67,8 +67,10 @@ pub struct CameraPlugin;
 
 impl Plugin for CameraPlugin {
     fn build(&self, app: &mut App) {
-        app.insert_non_send(CameraRig::default())
-            .add_systems(Update, sample_cameras.in_set(twinbots_sim::SimSet::Sense).after(twinbots_sim::devices::DeviceSampling));
+        app.insert_non_send(CameraRig::default()).add_systems(
+            Update,
+            sample_cameras.in_set(twinbots_sim::SimSet::Sense).after(twinbots_sim::devices::DeviceSampling),
+        );
     }
 }
 

@@ -13,5 +13,5 @@ pub mod viewer;
 
 pub use cameras::{CameraPlugin, CameraRig};
 pub use pixels::PixelSettings;
-pub use shading::{LambertMaterial, ShadingPlugin};
 pub use renderer::{Framing, RenderError, Renderer, View, adapter_required};
+pub use shading::{LambertMaterial, ShadingPlugin};

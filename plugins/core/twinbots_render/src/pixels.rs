@@ -18,9 +18,9 @@
 
 use std::collections::{HashMap, VecDeque};
 
+use bevy::ecs::query::QueryFilter;
 use bevy::prelude::*;
 use serde::{Deserialize, Serialize};
-use bevy::ecs::query::QueryFilter;
 use twinbots_api::{Space, TaskSpec};
 use twinbots_sim::{Arena, Framing, SimSet};
 use twinbots_task::task::{ActiveTask, EnvReset, Episode, ResetSet, Resetting, TaskSet};
@@ -50,7 +50,15 @@ pub struct PixelSettings {
 impl Default for PixelSettings {
     /// A small image (64×64, one frame) through the robot's side camera at the framing's 45°.
     fn default() -> Self {
-        Self { camera: "side".into(), more_cameras: Vec::new(), fov: 45.0, width: 64, height: 64, frames: 1, state: Vec::new() }
+        Self {
+            camera: "side".into(),
+            more_cameras: Vec::new(),
+            fov: 45.0,
+            width: 64,
+            height: 64,
+            frames: 1,
+            state: Vec::new(),
+        }
     }
 }
 
@@ -69,13 +77,21 @@ impl PixelSettings {
                 "pixels.more_cameras: {more:?} must be one of {}",
                 Framing::CAMERAS.join(", ")
             );
-            anyhow::ensure!(*more != self.camera && !self.more_cameras[..i].contains(more), "pixels.more_cameras: {more:?} is named twice (with camera = {:?})", self.camera);
+            anyhow::ensure!(
+                *more != self.camera && !self.more_cameras[..i].contains(more),
+                "pixels.more_cameras: {more:?} is named twice (with camera = {:?})",
+                self.camera
+            );
         }
         anyhow::ensure!(self.fov > 0.0 && self.fov < 180.0, "pixels.fov = {}: must be in (0, 180) degrees", self.fov);
         for (key, value) in [("width", self.width), ("height", self.height)] {
             anyhow::ensure!((8..=1024).contains(&value), "pixels.{key} = {value}: must be a whole number in 8..=1024");
         }
-        anyhow::ensure!((1..=8).contains(&self.frames), "pixels.frames = {}: must be a whole number in 1..=8", self.frames);
+        anyhow::ensure!(
+            (1..=8).contains(&self.frames),
+            "pixels.frames = {}: must be a whole number in 1..=8",
+            self.frames
+        );
         Ok(())
     }
 
@@ -101,8 +117,16 @@ impl PixelSettings {
         let pick = |v: &[f32]| kept.iter().map(|&i| v[i]).collect();
         let with_state = |space: &Space| match space {
             _ if kept.is_empty() => image.clone(),
-            Space::Box { low, high } => Space::ImageAndState { height, width, channels, low: pick(low), high: pick(high) },
-            _ => Space::ImageAndState { height, width, channels, low: vec![f32::NEG_INFINITY; kept.len()], high: vec![f32::INFINITY; kept.len()] },
+            Space::Box { low, high } => {
+                Space::ImageAndState { height, width, channels, low: pick(low), high: pick(high) }
+            }
+            _ => Space::ImageAndState {
+                height,
+                width,
+                channels,
+                low: vec![f32::NEG_INFINITY; kept.len()],
+                high: vec![f32::INFINITY; kept.len()],
+            },
         };
         task.observation_space = with_state(&task.observation_space);
         task.observation_plausible = with_state(&task.observation_plausible);
@@ -118,11 +142,16 @@ impl PixelSettings {
         let term = |name: &str| name.split_once('[').map_or(name, |(term, _)| term).to_string();
         let mut kept = Vec::new();
         for wanted in &self.state {
-            let at: Vec<usize> = (0..task.observation_names.len()).filter(|&i| term(&task.observation_names[i]) == *wanted).collect();
+            let at: Vec<usize> =
+                (0..task.observation_names.len()).filter(|&i| term(&task.observation_names[i]) == *wanted).collect();
             if at.is_empty() {
                 let mut terms: Vec<String> = task.observation_names.iter().map(|n| term(n)).collect();
                 terms.dedup();
-                anyhow::bail!("pixels.state: the task {} observes no '{wanted}'; its terms: {}", task.name, terms.join(", "));
+                anyhow::bail!(
+                    "pixels.state: the task {} observes no '{wanted}'; its terms: {}",
+                    task.name,
+                    terms.join(", ")
+                );
             }
             anyhow::ensure!(!kept.contains(&at[0]), "pixels.state: '{wanted}' is named twice");
             kept.extend(at);
@@ -144,11 +173,24 @@ impl PixelSettings {
     /// `framing`. Fails as [`PixelSettings::check`] does, or when no graphics adapter exists.
     pub fn install(&self, app: &mut App, framing: &Framing, arenas: usize) -> anyhow::Result<()> {
         self.check(app)?;
-        let views = self.cameras().map(|name| View { fov_y: self.fov.to_radians(), ..View::framed(framing, name).expect("validated: a framed camera") }).collect();
+        let views = self
+            .cameras()
+            .map(|name| View {
+                fov_y: self.fov.to_radians(),
+                ..View::framed(framing, name).expect("validated: a framed camera")
+            })
+            .collect();
         let renderer = Renderer::tiled(self.width, self.height, arenas.max(1))?;
-        app.insert_non_send(PixelCamera { renderer, views, width: self.width as usize, frames: self.frames as usize, state: Vec::new(), stacks: HashMap::new() })
-            .insert_resource(PixelTask(self.clone()))
-            .add_plugins(PixelObservationPlugin);
+        app.insert_non_send(PixelCamera {
+            renderer,
+            views,
+            width: self.width as usize,
+            frames: self.frames as usize,
+            state: Vec::new(),
+            stacks: HashMap::new(),
+        })
+        .insert_resource(PixelTask(self.clone()))
+        .add_plugins(PixelObservationPlugin);
         Ok(())
     }
 }
@@ -209,7 +251,8 @@ fn observe_reset(world: &mut World) {
 
 /// The arenas `F` selects, in env order (by `Arena::index`), so each keeps its tile.
 fn in_order<F: QueryFilter>(world: &mut World) -> Vec<Entity> {
-    let mut arenas: Vec<(usize, Entity)> = world.query_filtered::<(Entity, &Arena), F>().iter(world).map(|(e, a)| (a.index, e)).collect();
+    let mut arenas: Vec<(usize, Entity)> =
+        world.query_filtered::<(Entity, &Arena), F>().iter(world).map(|(e, a)| (a.index, e)).collect();
     arenas.sort();
     arenas.into_iter().map(|(_, e)| e).collect()
 }
@@ -222,7 +265,8 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
     }
     let Some(mut camera) = world.remove_non_send::<PixelCamera>() else { return };
     // Camera by camera, so that each frame draws every arena once (its tile).
-    let shots: Vec<(Entity, View)> = camera.views.iter().flat_map(|&view| arenas.iter().map(move |&a| (a, view))).collect();
+    let shots: Vec<(Entity, View)> =
+        camera.views.iter().flat_map(|&view| arenas.iter().map(move |&a| (a, view))).collect();
     let shot_images = match camera.renderer.render_shots(world, &shots) {
         Ok(images) => images,
         // Rendering worked when the renderer was made: a failure now is the machine's.

@@ -16,15 +16,15 @@ use bevy::render::render_resource::{
     TexelCopyBufferInfo, TexelCopyBufferLayout, TextureDimension, TextureFormat, TextureUsages,
 };
 use bevy::render::renderer::{RenderDevice, RenderQueue, initialize_renderer};
-use bevy::render::texture::GpuImage;
 use bevy::render::settings::{InstanceFlags, RenderCreation, WgpuFeatures, WgpuSettings};
+use bevy::render::texture::GpuImage;
 use bevy::render::{RenderApp, RenderPlugin};
 use bevy::window::ExitCondition;
 use twinbots_sim::look::CameraJitter;
 use twinbots_sim::rapier::math::Pose;
 
-use crate::scene;
 use crate::batch::{self, Batch};
+use crate::scene;
 use crate::shading::{self, ArenaView, ShadingPlugin};
 
 #[derive(Debug, thiserror::Error)]
@@ -77,8 +77,8 @@ impl View {
 
     /// A camera at `eye` looking at `target` (physics coordinates, Z up).
     pub fn looking_at(eye: Vec3, target: Vec3, fov_y: f32) -> Self {
-        let transform = Transform::from_translation(scene::point_to_bevy(eye))
-            .looking_at(scene::point_to_bevy(target), Vec3::Y);
+        let transform =
+            Transform::from_translation(scene::point_to_bevy(eye)).looking_at(scene::point_to_bevy(target), Vec3::Y);
         Self { transform, fov_y }
     }
 
@@ -87,8 +87,8 @@ impl View {
         let forward = pose.rotation * Vec3::X;
         let up = pose.rotation * Vec3::Z;
         let eye = scene::point_to_bevy(pose.translation);
-        let transform = Transform::from_translation(eye)
-            .looking_to(scene::point_to_bevy(forward), scene::point_to_bevy(up));
+        let transform =
+            Transform::from_translation(eye).looking_to(scene::point_to_bevy(forward), scene::point_to_bevy(up));
         Self { transform, fov_y }
     }
 
@@ -185,7 +185,8 @@ impl Renderer {
         }
         app.finish();
         app.cleanup();
-        let batched = app.sub_app(RenderApp).world().resource::<RenderDevice>().features().contains(WgpuFeatures::CLIP_DISTANCES);
+        let batched =
+            app.sub_app(RenderApp).world().resource::<RenderDevice>().features().contains(WgpuFeatures::CLIP_DISTANCES);
 
         let world = app.world_mut();
         let mut image = Image::new_uninit(
@@ -199,7 +200,10 @@ impl Renderer {
         world.insert_resource(Target(handle.clone()));
         world.insert_resource(Batch::default());
         let camera = spawn_camera(world, &handle, None, 0);
-        let view = View { transform: Transform::from_xyz(0.0, 1.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y), fov_y: PerspectiveProjection::default().fov };
+        let view = View {
+            transform: Transform::from_xyz(0.0, 1.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y),
+            fov_y: PerspectiveProjection::default().fov,
+        };
         let renderer = Self {
             app,
             width,
@@ -431,7 +435,8 @@ impl Renderer {
                 mapped_at_creation: false,
             })
         });
-        let mut encoder = device.create_command_encoder(&CommandEncoderDescriptor { label: Some("twinbots frame copy") });
+        let mut encoder =
+            device.create_command_encoder(&CommandEncoderDescriptor { label: Some("twinbots frame copy") });
         encoder.copy_texture_to_buffer(
             image.texture.as_image_copy(),
             TexelCopyBufferInfo {
@@ -453,7 +458,12 @@ impl Renderer {
         }
         let images = {
             let data = slice.get_mapped_range();
-            rects.iter().map(|r| tile(&data, padded, (r.min.x as usize, r.min.y as usize), (r.width() as usize, r.height() as usize))).collect()
+            rects
+                .iter()
+                .map(|r| {
+                    tile(&data, padded, (r.min.x as usize, r.min.y as usize), (r.width() as usize, r.height() as usize))
+                })
+                .collect()
         };
         buffer.unmap();
         Ok(images)
@@ -464,14 +474,8 @@ impl Renderer {
         for _ in 0..200 {
             self.app.update();
             self.poll()?;
-            let waiting = self
-                .app
-                .sub_app(RenderApp)
-                .world()
-                .resource::<PipelineCache>()
-                .waiting_pipelines()
-                .next()
-                .is_some();
+            let waiting =
+                self.app.sub_app(RenderApp).world().resource::<PipelineCache>().waiting_pipelines().next().is_some();
             if !waiting {
                 return Ok(());
             }
@@ -490,7 +494,6 @@ impl Renderer {
             .map(|_| ())
             .map_err(|e| RenderError::Failed(format!("{e:?}")))
     }
-
 }
 
 /// A camera drawing into `target` (its `viewport` of it, or all of it), in `order` (so tiles

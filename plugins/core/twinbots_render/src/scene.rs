@@ -8,10 +8,10 @@ use std::f32::consts::FRAC_PI_2;
 use std::path::{Path, PathBuf};
 
 use bevy::asset::RenderAssetUsages;
-use bevy::image::{ImageAddressMode, ImageSampler, ImageSamplerDescriptor};
 use bevy::camera::visibility::{NoFrustumCulling, RenderLayers};
-use bevy::mesh::MeshTag;
+use bevy::image::{ImageAddressMode, ImageSampler, ImageSamplerDescriptor};
 use bevy::light::{AmbientLight, CascadeShadowConfigBuilder};
+use bevy::mesh::MeshTag;
 use bevy::mesh::{Indices, PrimitiveTopology, VertexAttributeValues};
 use bevy::prelude::*;
 use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
@@ -111,12 +111,10 @@ pub struct VisualPose {
 pub fn read_visuals(sim: &mut World, arena: Entity) -> Vec<VisualPose> {
     // Link data first (the query borrows the world mutably), then the arena's bodies.
     let mut links = sim.query::<(Entity, &Link, &Visuals, &InArena)>();
-    let items: Vec<(Entity, Link, Vec<Visual>)> = links
-        .iter(sim)
-        .filter(|(_, _, _, a)| a.0 == arena)
-        .map(|(e, l, v, _)| (e, l.clone(), v.0.clone()))
-        .collect();
-    let names: HashMap<Entity, String> = Look::link_names(items.iter().map(|(e, l, _)| (*e, l.name.as_str()))).into_iter().collect();
+    let items: Vec<(Entity, Link, Vec<Visual>)> =
+        links.iter(sim).filter(|(_, _, _, a)| a.0 == arena).map(|(e, l, v, _)| (e, l.clone(), v.0.clone())).collect();
+    let names: HashMap<Entity, String> =
+        Look::link_names(items.iter().map(|(e, l, _)| (*e, l.name.as_str()))).into_iter().collect();
     // The twin's view shows the true world: read as the Supervisor would (`sync_into` refuses
     // an app without its privilege).
     let Some(world) = twinbots_sim::physics_in(sim, arena) else { return Vec::new() };
@@ -133,7 +131,12 @@ pub fn read_visuals(sim: &mut World, arena: Entity) -> Vec<VisualPose> {
     let mut markers = sim.query::<(Entity, &Marker, &InArena)>();
     for (entity, marker, _) in markers.iter(sim).filter(|(_, _, a)| a.0 == arena) {
         let pose = marker.pose * marker.visual.geometry.origin;
-        out.push(VisualPose { key: (entity, 0), surface: Look::marker_surface(&marker.name), visual: marker.visual.clone(), pose });
+        out.push(VisualPose {
+            key: (entity, 0),
+            surface: Look::marker_surface(&marker.name),
+            visual: marker.visual.clone(),
+            pose,
+        });
     }
     out
 }
@@ -218,10 +221,18 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<b
         let boxes: Vec<(Vec3, Pose)> = sim.get::<Arena>(arena).map(|a| a.static_boxes().collect()).unwrap_or_default();
         // Layer 0 is every camera's default: arenas start at 1.
         let layer = render.resource::<Mirror>().arenas.len() + 1;
-        let mirror = ArenaMirror { layer, links: HashMap::new(), surfaces: HashMap::new(), look: None, lights: Vec::new(), distractors: Vec::new() };
+        let mirror = ArenaMirror {
+            layer,
+            links: HashMap::new(),
+            surfaces: HashMap::new(),
+            look: None,
+            lights: Vec::new(),
+            distractors: Vec::new(),
+        };
         render.resource_mut::<Mirror>().arenas.insert(arena, mirror);
         // The ground: a large plane at physics z = 0.
-        let ground = shared_mesh(render, "ground".into(), || metric_uvs(Plane3d::default().mesh().size(40.0, 40.0).into()));
+        let ground =
+            shared_mesh(render, "ground".into(), || metric_uvs(Plane3d::default().mesh().size(40.0, 40.0).into()));
         spawn_surface(render, arena, "floor".into(), ground, GROUND_COLOR, Transform::IDENTITY, None);
         for (i, (half, pose)) in boxes.into_iter().enumerate() {
             let mesh = shared_mesh(render, format!("box {half}"), || box_mesh(half));
@@ -232,7 +243,8 @@ pub fn sync_into(render: &mut World, sim: &mut World, arena: Entity) -> Result<b
     let layer = RenderLayers::layer(render.resource::<Mirror>().arenas[&arena].layer);
     // Links that left the sim (despawned) leave the picture too.
     let live: HashSet<(Entity, usize)> = visuals.iter().map(|v| v.key).collect();
-    let gone: Vec<(Entity, usize)> = render.resource::<Mirror>().arenas[&arena].links.keys().filter(|k| !live.contains(k)).copied().collect();
+    let gone: Vec<(Entity, usize)> =
+        render.resource::<Mirror>().arenas[&arena].links.keys().filter(|k| !live.contains(k)).copied().collect();
     for key in gone {
         let entity = arena_mut(render, arena).links.remove(&key);
         if let Some(e) = entity {
@@ -363,7 +375,8 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
     let batched = render.contains_resource::<Batch>();
     let shadows = render.get_resource::<Shadows>().is_some_and(|s| s.0);
     // How every material of the arena is lit.
-    let lit = |m: LambertMaterial| LambertMaterial { lights: look.lights.len().min(Look::MAX_LIGHTS) as u32, shadows, ..m };
+    let lit =
+        |m: LambertMaterial| LambertMaterial { lights: look.lights.len().min(Look::MAX_LIGHTS) as u32, shadows, ..m };
     for (name, entity, own) in surfaces {
         let material = match look.surfaces.get(&name) {
             Some(surface) => surface_material(render, surface)?,
@@ -397,10 +410,21 @@ fn show(render: &mut World, arena: Entity, look: &Look) -> Result<(), RenderErro
         .map(|l| {
             let [r, g, b] = l.color;
             let towards = point_to_bevy(Vec3::from_array(l.direction));
-            let light = DirectionalLight { illuminance: l.intensity, color: Color::linear_rgb(r, g, b), shadow_maps_enabled: shadows, ..default() };
+            let light = DirectionalLight {
+                illuminance: l.intensity,
+                color: Color::linear_rgb(r, g, b),
+                shadow_maps_enabled: shadows,
+                ..default()
+            };
             let pose = Transform::default().looking_to(towards, any_orthogonal(towards));
             // A cell is a few metres across: two cascades over 8 m keep the shadows sharp.
-            let cascades = CascadeShadowConfigBuilder { num_cascades: 2, first_cascade_far_bound: 2.5, maximum_distance: 8.0, ..default() }.build();
+            let cascades = CascadeShadowConfigBuilder {
+                num_cascades: 2,
+                first_cascade_far_bound: 2.5,
+                maximum_distance: 8.0,
+                ..default()
+            }
+            .build();
             render.spawn((light, cascades, pose, RenderLayers::layer(layer))).id()
         })
         .collect();
@@ -430,7 +454,8 @@ fn image_texture(render: &mut World, path: &Path) -> Result<Handle<Image>, Rende
     if let Some(h) = render.resource::<Mirror>().images.get(path) {
         return Ok(h.clone());
     }
-    let read = image::open(path).map_err(|e| RenderError::Failed(format!("image texture '{}': {e}", path.display())))?;
+    let read =
+        image::open(path).map_err(|e| RenderError::Failed(format!("image texture '{}': {e}", path.display())))?;
     let rgba = read.to_rgba8();
     let mut image = Image::new(
         Extent3d { width: rgba.width(), height: rgba.height(), depth_or_array_layers: 1 },

@@ -23,11 +23,11 @@
 //! between the light and the eye, only where the light reaches), where Bevy carries a light's relative intensity as its `illuminance` and the
 //! ambient share as `GlobalAmbientLight::brightness` (see `twinbots_sim::look`).
 
+use bevy::asset::{RenderAssetUsages, load_internal_asset, uuid_handle};
+use bevy::color::ColorToComponents;
 use bevy::mesh::MeshVertexBufferLayoutRef;
 use bevy::pbr::{MaterialPipeline, MaterialPipelineKey};
 use bevy::prelude::*;
-use bevy::asset::{RenderAssetUsages, load_internal_asset, uuid_handle};
-use bevy::color::ColorToComponents;
 use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
 use bevy::render::storage::ShaderBuffer;
 use bevy::shader::{ShaderDefVal, ShaderRef};
@@ -152,7 +152,8 @@ impl Material for LambertMaterial {
     ) -> Result<(), SpecializedMeshPipelineError> {
         // One file holds both stages: each is compiled with every def.
         let key = key.bind_group_data;
-        let mut defs = vec![ShaderDefVal::UInt("PATTERN".into(), key.kind), ShaderDefVal::UInt("LIGHTS".into(), key.lights)];
+        let mut defs =
+            vec![ShaderDefVal::UInt("PATTERN".into(), key.kind), ShaderDefVal::UInt("LIGHTS".into(), key.lights)];
         for (on, def) in [(key.shadows, "SHADOWS"), (key.specular, "SPECULAR"), (key.batched, "BATCHED")] {
             if on {
                 defs.push(def.into());

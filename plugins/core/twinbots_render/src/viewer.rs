@@ -45,7 +45,9 @@ struct Orbit {
 /// Opens the window and runs until it is closed, Esc is pressed, or the source finishes.
 pub fn run(source: Box<dyn ViewSource>, title: &str, framing: crate::Framing) -> anyhow::Result<()> {
     if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
-        anyhow::bail!("visual mode needs a display (DISPLAY is not set); for frames without one use `twinbots capture`");
+        anyhow::bail!(
+            "visual mode needs a display (DISPLAY is not set); for frames without one use `twinbots capture`"
+        );
     }
     let mut app = App::new();
     app.add_plugins(DefaultPlugins.set(WindowPlugin {
@@ -72,7 +74,12 @@ fn setup(mut commands: Commands, framing: Res<InitialFraming>) {
     commands.spawn((
         Camera3d::default(),
         Transform::default(),
-        Orbit { yaw: -0.3, pitch: 0.25, distance: framing.distance * 1.15, target: scene::point_to_bevy(framing.target) },
+        Orbit {
+            yaw: -0.3,
+            pitch: 0.25,
+            distance: framing.distance * 1.15,
+            target: scene::point_to_bevy(framing.target),
+        },
     ));
 }
 

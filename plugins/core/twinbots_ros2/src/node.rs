@@ -3,12 +3,12 @@
 //! controllers take them: the forward command controllers' `Float64MultiArray` and the joint
 //! trajectory controller's `JointTrajectory`.
 
-use ros2_client::{Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile, Subscription};
 use ros2_client::dds::ContextOptions;
 use ros2_client::qos::{Durability, History, WhenFull};
+use ros2_client::{Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile, Subscription};
 
-use crate::messages::{Float64MultiArray, JointState, JointTrajectory, Ros2Type, TFMessage};
 use crate::Ros2Error;
+use crate::messages::{Float64MultiArray, JointState, JointTrajectory, Ros2Type, TFMessage};
 
 /// The joint states a robot driver publishes (ros2_control's joint_state_broadcaster).
 pub const JOINT_STATES_TOPIC: &str = "/joint_states";
@@ -119,7 +119,8 @@ fn create(what: &str, e: &dyn std::fmt::Debug) -> Ros2Error {
 
 /// A node on domain `domain` named `/<name>`.
 fn open_node(domain: u16, name: &str) -> Result<Node, Ros2Error> {
-    let context = Context::with_options(ContextOptions::new().domain_id(domain)).map_err(|e| create("the DDS participant", &e))?;
+    let context = Context::with_options(ContextOptions::new().domain_id(domain))
+        .map_err(|e| create("the DDS participant", &e))?;
     let node_name = NodeName::new("/", name).map_err(|e| create(&format!("node name '{name}'"), &e))?;
     context.new_node(node_name, NodeOptions::new().enable_rosout(false)).map_err(|e| create("the node", &e))
 }
@@ -132,9 +133,14 @@ fn default_qos() -> QosProfile {
         .history(History::KeepLast { depth: 10 })
 }
 
-fn topic<M: Ros2Type>(node: &Node, name: &str, qos: &QosProfile) -> Result<ros2_client::dds::rustdds::Topic, Ros2Error> {
+fn topic<M: Ros2Type>(
+    node: &Node,
+    name: &str,
+    qos: &QosProfile,
+) -> Result<ros2_client::dds::rustdds::Topic, Ros2Error> {
     let name = Name::parse(name).map_err(|e| Ros2Error::Create(format!("topic {name}: {e:?}")))?;
-    node.create_topic(&name, MessageTypeName::new(M::PACKAGE, M::NAME), qos).map_err(|e| Ros2Error::Create(format!("topic {name:?}: {e:?}")))
+    node.create_topic(&name, MessageTypeName::new(M::PACKAGE, M::NAME), qos)
+        .map_err(|e| Ros2Error::Create(format!("topic {name:?}: {e:?}")))
 }
 
 impl Ros2Node {
@@ -245,7 +251,11 @@ mod tests {
         let topics: Vec<String> = Interface::ALL.iter().map(|i| i.topic()).collect();
         assert_eq!(
             topics,
-            ["/forward_position_controller/commands", "/forward_velocity_controller/commands", "/forward_effort_controller/commands"]
+            [
+                "/forward_position_controller/commands",
+                "/forward_velocity_controller/commands",
+                "/forward_effort_controller/commands"
+            ]
         );
     }
 }

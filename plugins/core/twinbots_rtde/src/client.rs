@@ -78,7 +78,8 @@ impl RtdeClient {
                 Err(e) => last = Some(e),
             }
         }
-        let stream = stream.ok_or_else(|| connect_error(last.unwrap_or_else(|| std::io::Error::other("the host has no address"))))?;
+        let stream = stream
+            .ok_or_else(|| connect_error(last.unwrap_or_else(|| std::io::Error::other("the host has no address"))))?;
         stream.set_nodelay(true)?;
         stream.set_read_timeout(Some(timeout))?;
         stream.set_write_timeout(Some(timeout))?;
@@ -107,7 +108,12 @@ impl RtdeClient {
         payload.extend_from_slice(names.join(",").as_bytes());
         let reply = RecipeReply::decode(&self.request(kind::SETUP_OUTPUTS, payload)?)?;
         let types = self.recipe_types("the output recipe", names, &reply)?;
-        let recipe = OutputRecipe { id: reply.id, names: Arc::new(names.iter().map(|s| s.to_string()).collect()), types, frequency };
+        let recipe = OutputRecipe {
+            id: reply.id,
+            names: Arc::new(names.iter().map(|s| s.to_string()).collect()),
+            types,
+            frequency,
+        };
         self.output = Some(recipe.clone());
         Ok(recipe)
     }
@@ -147,7 +153,8 @@ impl RtdeClient {
             }
         };
         let recipe = self.output.as_ref().expect("checked above");
-        let (&id, rest) = package.payload.split_first().ok_or_else(|| RtdeError::Malformed("an empty data package".into()))?;
+        let (&id, rest) =
+            package.payload.split_first().ok_or_else(|| RtdeError::Malformed("an empty data package".into()))?;
         if id != recipe.id {
             return Err(RtdeError::Malformed(format!("a data package of recipe {id}; ours is {}", recipe.id)));
         }
@@ -158,12 +165,21 @@ impl RtdeClient {
     /// Sends `values` for `recipe`'s inputs, in its order and types.
     pub fn send(&mut self, recipe: &InputRecipe, values: &[Value]) -> Result<(), RtdeError> {
         if values.len() != recipe.types.len() {
-            return Err(RtdeError::Usage(format!("{} values for the {} inputs {:?}", values.len(), recipe.types.len(), recipe.names)));
+            return Err(RtdeError::Usage(format!(
+                "{} values for the {} inputs {:?}",
+                values.len(),
+                recipe.types.len(),
+                recipe.names
+            )));
         }
         let mut payload = vec![recipe.id];
         for ((value, &t), name) in values.iter().zip(&recipe.types).zip(&recipe.names) {
             if value.data_type() != t {
-                return Err(RtdeError::Usage(format!("input {name} is {}, not {}", t.name(), value.data_type().name())));
+                return Err(RtdeError::Usage(format!(
+                    "input {name} is {}, not {}",
+                    t.name(),
+                    value.data_type().name()
+                )));
             }
             value.encode(&mut payload);
         }

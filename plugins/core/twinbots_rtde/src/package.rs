@@ -49,8 +49,13 @@ impl Package {
 
     /// The package on the wire; an error if it exceeds the 65,535 bytes the size field holds.
     pub fn encode(&self) -> Result<Vec<u8>, RtdeError> {
-        let size = u16::try_from(HEADER + self.payload.len())
-            .map_err(|_| RtdeError::Usage(format!("a {} of {} bytes exceeds RTDE's 65,535", kind::name(self.kind), self.payload.len())))?;
+        let size = u16::try_from(HEADER + self.payload.len()).map_err(|_| {
+            RtdeError::Usage(format!(
+                "a {} of {} bytes exceeds RTDE's 65,535",
+                kind::name(self.kind),
+                self.payload.len()
+            ))
+        })?;
         let mut out = Vec::with_capacity(size as usize);
         out.extend_from_slice(&size.to_be_bytes());
         out.push(self.kind);
@@ -78,7 +83,11 @@ impl Package {
         let mut payload = vec![0u8; size - HEADER];
         let got = read_full(reader, &mut payload)?;
         if got < payload.len() {
-            return Err(RtdeError::Truncated(format!("{got} of a {}'s {} payload bytes", kind::name(header[2]), payload.len())));
+            return Err(RtdeError::Truncated(format!(
+                "{got} of a {}'s {} payload bytes",
+                kind::name(header[2]),
+                payload.len()
+            )));
         }
         Ok(Self { kind: header[2], payload })
     }
@@ -93,7 +102,11 @@ fn read_full(reader: &mut impl Read, buf: &mut [u8]) -> Result<usize, RtdeError>
             Ok(n) => filled += n,
             Err(e) if e.kind() == ErrorKind::Interrupted => {}
             Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
-                return Err(RtdeError::Timeout(if filled == 0 { "package".into() } else { "rest of a package".into() }));
+                return Err(RtdeError::Timeout(if filled == 0 {
+                    "package".into()
+                } else {
+                    "rest of a package".into()
+                }));
             }
             Err(e) => return Err(RtdeError::Io(e)),
         }
@@ -209,7 +222,8 @@ impl RecipeReply {
 
     pub fn decode(payload: &[u8]) -> Result<Self, RtdeError> {
         let (&id, rest) = payload.split_first().ok_or_else(|| RtdeError::Malformed("an empty recipe reply".into()))?;
-        let text = std::str::from_utf8(rest).map_err(|_| RtdeError::Malformed("a recipe reply's types are not UTF-8".into()))?;
+        let text = std::str::from_utf8(rest)
+            .map_err(|_| RtdeError::Malformed("a recipe reply's types are not UTF-8".into()))?;
         let types = if text.is_empty() { Vec::new() } else { text.split(',').map(str::to_string).collect() };
         Ok(Self { id, types })
     }

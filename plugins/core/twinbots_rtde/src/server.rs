@@ -121,7 +121,8 @@ pub struct RtdeServer {
 impl RtdeServer {
     /// Listens on `address` (e.g. `127.0.0.1:30004`; port 0 picks a free one).
     pub fn bind(address: &str, info: ControllerInfo) -> Result<Self, RtdeError> {
-        let listener = TcpListener::bind(address).map_err(|source| RtdeError::Connect { address: address.to_string(), source })?;
+        let listener =
+            TcpListener::bind(address).map_err(|source| RtdeError::Connect { address: address.to_string(), source })?;
         let local = listener.local_addr()?;
         listener.set_nonblocking(true)?;
         let shared = Arc::new(Shared {
@@ -133,7 +134,9 @@ impl RtdeServer {
             next_session: AtomicU64::new(1),
         });
         let accept_shared = shared.clone();
-        let accept = std::thread::Builder::new().name("rtde-accept".into()).spawn(move || accept_loop(listener, accept_shared))?;
+        let accept = std::thread::Builder::new()
+            .name("rtde-accept".into())
+            .spawn(move || accept_loop(listener, accept_shared))?;
         Ok(Self { shared, address: local, accept: Some(accept) })
     }
 
@@ -203,7 +206,9 @@ fn accept_loop(listener: TcpListener, shared: Arc<Shared>) {
         match listener.accept() {
             Ok((stream, peer)) => {
                 let shared = shared.clone();
-                let _ = std::thread::Builder::new().name(format!("rtde-{peer}")).spawn(move || Session::run(stream, peer, shared));
+                let _ = std::thread::Builder::new()
+                    .name(format!("rtde-{peer}"))
+                    .spawn(move || Session::run(stream, peer, shared));
             }
             // Nothing to accept (or a failed accept): look again shortly, so `stop` is seen.
             Err(_) => std::thread::sleep(Duration::from_millis(5)),
@@ -243,8 +248,17 @@ impl Session {
         let writer = Arc::new(Mutex::new(writer));
         lock(&shared.sessions).push(SessionHandle { id, writer: writer.clone(), stream: None });
         lock(&shared.events).push(format!("{peer}: connected"));
-        let mut session =
-            Session { id, peer, shared, writer, version_agreed: false, next_recipe: 1, output: None, input_recipes: Vec::new(), streamer: None };
+        let mut session = Session {
+            id,
+            peer,
+            shared,
+            writer,
+            version_agreed: false,
+            next_recipe: 1,
+            output: None,
+            input_recipes: Vec::new(),
+            streamer: None,
+        };
         let mut reader = stream;
         let end = loop {
             if session.shared.stop.load(Ordering::SeqCst) {
@@ -274,7 +288,11 @@ impl Session {
             kind::REQUEST_PROTOCOL_VERSION => {
                 let ok = p.len() == 2 && u16::from_be_bytes([p[0], p[1]]) == PROTOCOL_VERSION;
                 if !ok {
-                    let asked = if p.len() == 2 { u16::from_be_bytes([p[0], p[1]]).to_string() } else { format!("a {}-byte payload", p.len()) };
+                    let asked = if p.len() == 2 {
+                        u16::from_be_bytes([p[0], p[1]]).to_string()
+                    } else {
+                        format!("a {}-byte payload", p.len())
+                    };
                     self.event(format!("refused protocol version {asked}: this stand-in speaks version 2 only"));
                 }
                 self.version_agreed |= ok;
@@ -331,20 +349,26 @@ impl Session {
             return self.refuse_recipe(kind::SETUP_OUTPUTS, why);
         }
         if p.len() < 8 {
-            return self.refuse_recipe(kind::SETUP_OUTPUTS, &format!("{} bytes: a frequency (8) and variable names are expected", p.len()));
+            return self.refuse_recipe(
+                kind::SETUP_OUTPUTS,
+                &format!("{} bytes: a frequency (8) and variable names are expected", p.len()),
+            );
         }
         let frequency = f64::from_be_bytes(p[..8].try_into().unwrap());
         if !(frequency > 0.0 && frequency <= MAX_FREQUENCY) {
-            return self.refuse_recipe(kind::SETUP_OUTPUTS, &format!("frequency {frequency} Hz outside (0, {MAX_FREQUENCY}]"));
+            return self
+                .refuse_recipe(kind::SETUP_OUTPUTS, &format!("frequency {frequency} Hz outside (0, {MAX_FREQUENCY}]"));
         }
         let wanted = match names(&p[8..]) {
             Ok(n) => n,
             Err(e) => return self.refuse_recipe(kind::SETUP_OUTPUTS, &e.to_string()),
         };
         let found: Vec<Option<usize>> = wanted.iter().map(|n| output_index(n)).collect();
-        let types = found.iter().map(|f| f.map_or("NOT_FOUND", |i| outputs()[i].data_type.name()).to_string()).collect();
+        let types =
+            found.iter().map(|f| f.map_or("NOT_FOUND", |i| outputs()[i].data_type.name()).to_string()).collect();
         if found.iter().any(Option::is_none) {
-            let missing: Vec<&String> = wanted.iter().zip(&found).filter(|(_, f)| f.is_none()).map(|(n, _)| n).collect();
+            let missing: Vec<&String> =
+                wanted.iter().zip(&found).filter(|(_, f)| f.is_none()).map(|(n, _)| n).collect();
             self.event(format!("output recipe: no variable {missing:?}"));
             return self.reply(kind::SETUP_OUTPUTS, RecipeReply { id: 0, types }.encode());
         }
@@ -401,7 +425,10 @@ impl Session {
             if let Some(old) = self.streamer.take() {
                 let _ = old.join();
             }
-            self.streamer = std::thread::Builder::new().name(format!("rtde-out-{}", self.peer)).spawn(move || stream(rx, writer, recipe, step)).ok();
+            self.streamer = std::thread::Builder::new()
+                .name(format!("rtde-out-{}", self.peer))
+                .spawn(move || stream(rx, writer, recipe, step))
+                .ok();
             self.set_stream(Some(tx));
         }
         self.reply(kind::START, vec![1])
@@ -409,7 +436,9 @@ impl Session {
 
     fn apply_inputs(&mut self, p: &[u8]) -> Result<(), String> {
         let (&id, rest) = p.split_first().ok_or("an empty data package")?;
-        let recipe = self.input_recipes.iter().find(|r| r.id == id).ok_or_else(|| format!("a data package for recipe {id}, which is no input recipe of this client; ignored"))?;
+        let recipe = self.input_recipes.iter().find(|r| r.id == id).ok_or_else(|| {
+            format!("a data package for recipe {id}, which is no input recipe of this client; ignored")
+        })?;
         if !self.streaming() {
             return Err("inputs before RTDE_CONTROL_PACKAGE_START are ignored".into());
         }
@@ -446,7 +475,11 @@ impl Session {
     /// An error text message to the client, and an event.
     fn error(&self, message: &str) {
         self.event(message.to_string());
-        let text = TextMessage { level: MessageLevel::Error, message: message.to_string(), source: self.shared.info.source.clone() };
+        let text = TextMessage {
+            level: MessageLevel::Error,
+            message: message.to_string(),
+            source: self.shared.info.source.clone(),
+        };
         let _ = self.reply(kind::TEXT_MESSAGE, text.encode());
     }
 

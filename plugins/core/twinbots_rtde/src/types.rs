@@ -132,10 +132,17 @@ impl Value {
     /// Reads a value of type `t` from the front of `bytes`; returns it and the bytes after it.
     pub fn decode(t: DataType, bytes: &[u8]) -> Result<(Value, &[u8]), RtdeError> {
         if bytes.len() < t.size() {
-            return Err(RtdeError::Malformed(format!("{} needs {} bytes, {} left in the package", t.name(), t.size(), bytes.len())));
+            return Err(RtdeError::Malformed(format!(
+                "{} needs {} bytes, {} left in the package",
+                t.name(),
+                t.size(),
+                bytes.len()
+            )));
         }
         let (head, rest) = bytes.split_at(t.size());
-        let f64s = |n: usize| -> Vec<f64> { (0..n).map(|i| f64::from_be_bytes(head[8 * i..8 * i + 8].try_into().unwrap())).collect() };
+        let f64s = |n: usize| -> Vec<f64> {
+            (0..n).map(|i| f64::from_be_bytes(head[8 * i..8 * i + 8].try_into().unwrap())).collect()
+        };
         let u32_at = |i: usize| u32::from_be_bytes(head[4 * i..4 * i + 4].try_into().unwrap());
         let u32s = || -> [u32; 6] { std::array::from_fn(u32_at) };
         let value = match t {

@@ -9,13 +9,13 @@ use std::io::BufReader;
 use std::net::{SocketAddr, TcpStream};
 use std::time::Duration;
 
-use twinbots_link::checks::{Admission, Rejection, check_hello, check_request};
 use crate::closing::close_after_reply;
+use crate::shared::{Shared, panic_message};
+use twinbots_link::checks::{Admission, Rejection, check_hello, check_request};
 use twinbots_link::deadline::DeadlineStream;
 use twinbots_link::frame::{FrameError, read_frame, read_message, write_message};
 use twinbots_link::protocol::{ErrorCode, RobotMessage, ServerMessage, VERSION, error};
 use twinbots_link::tls::{Transport, is_tls_refusal};
-use crate::shared::{Shared, panic_message};
 
 /// How long a closing connection waits for what its client already sent (see `closing`).
 const LINGER: Duration = Duration::from_millis(200);
@@ -80,7 +80,11 @@ pub(crate) fn serve(stream: TcpStream, peer: SocketAddr, id: u64, shared: &Share
             if let FrameError::Io(io) = &e
                 && is_tls_refusal(io)
             {
-                shared.log_rejection(peer, "new connection", &Rejection::new(ErrorCode::HandshakeExpected, true, format!("TLS handshake failed: {io}")));
+                shared.log_rejection(
+                    peer,
+                    "new connection",
+                    &Rejection::new(ErrorCode::HandshakeExpected, true, format!("TLS handshake failed: {io}")),
+                );
             }
             Rejection::of_frame(&e)
         })

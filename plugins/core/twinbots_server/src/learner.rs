@@ -82,7 +82,8 @@ impl Learner {
                 Some(self.act(id, &obs))
             }
             RobotMessage::Step { obs, reward, terminated, truncated, success, ended_by } => {
-                let step = RobotStep { obs: &obs, reward, terminated, truncated, success, ended_by: ended_by.as_deref() };
+                let step =
+                    RobotStep { obs: &obs, reward, terminated, truncated, success, ended_by: ended_by.as_deref() };
                 Some(self.record_step(id, &step))
             }
         }
@@ -94,7 +95,13 @@ impl Learner {
         let model = self.model.as_mut().expect("checked by handle");
         match model.awaits_outcome(id) {
             None => return error(ErrorCode::HandshakeExpected, true, "this robot is not known"),
-            Some(false) => return error(ErrorCode::OutOfOrder, false, "'step' before 'start': no action is waiting for its outcome"),
+            Some(false) => {
+                return error(
+                    ErrorCode::OutOfOrder,
+                    false,
+                    "'step' before 'start': no action is waiting for its outcome",
+                );
+            }
             Some(true) => {}
         }
         if let Err(e) = model.record(id, step) {

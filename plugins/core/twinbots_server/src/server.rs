@@ -14,11 +14,11 @@ use std::time::Duration;
 use twinbots_api::TaskSpec;
 use twinbots_learn::{Callback, Learner as Model, TrainingEnd};
 
-use twinbots_link::checks::Rejection;
-use twinbots_link::frame::write_message;
 use crate::learner::Learner;
 pub use crate::shared::ServerLimits;
 use crate::shared::{Shared, Slot, panic_message};
+use twinbots_link::checks::Rejection;
+use twinbots_link::frame::write_message;
 use twinbots_link::protocol::{ErrorCode, TaskInterface};
 
 /// What the server trains.
@@ -51,7 +51,12 @@ impl RobotServer {
     /// Binds `listen` (port 0 picks a free port) and starts accepting robots. `callbacks` hear
     /// the training as `learn`'s do (a `twinbots_learn::CallbackList` composes several). A
     /// model whose algorithm cannot be served is an error.
-    pub fn start(listen: SocketAddr, model: Box<dyn Model>, settings: ServerSettings, mut callbacks: Box<dyn Callback + Send>) -> anyhow::Result<Self> {
+    pub fn start(
+        listen: SocketAddr,
+        model: Box<dyn Model>,
+        settings: ServerSettings,
+        mut callbacks: Box<dyn Callback + Send>,
+    ) -> anyhow::Result<Self> {
         anyhow::ensure!(settings.limits.max_robots >= 1, "max_robots must be at least 1");
         anyhow::ensure!(
             !settings.limits.handshake_timeout.is_zero() && !settings.limits.read_timeout.is_zero(),
@@ -73,7 +78,8 @@ impl RobotServer {
         std::thread::Builder::new()
             .name("robot-server-accept".into())
             .spawn(move || {
-                let stopped = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| accept_robots(&listener, &accepting)));
+                let stopped =
+                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| accept_robots(&listener, &accepting)));
                 let why = match stopped {
                     Err(panic) => format!("the accept loop panicked: {}", panic_message(&*panic)),
                     Ok(never) => match never {},
@@ -147,7 +153,9 @@ fn admit(stream: TcpStream, peer: SocketAddr, id: u64, shared: &Arc<Shared>) {
         .stack_size(shared.limits.connection_stack)
         .spawn(move || {
             let _slot = slot;
-            let served = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| crate::connection::serve(stream, peer, id, &serving)));
+            let served = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                crate::connection::serve(stream, peer, id, &serving)
+            }));
             if let Err(panic) = served {
                 serving.fail(format!("the connection thread of {peer} panicked: {}", panic_message(&*panic)));
             }

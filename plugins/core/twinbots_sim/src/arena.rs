@@ -8,8 +8,8 @@ use bevy::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::rapier::prelude::*;
 use crate::privilege::SupervisorAccess;
+use crate::rapier::prelude::*;
 
 /// Collision group of the environment (ground, walls, objects of the cell).
 pub const ENVIRONMENT_GROUP: Group = Group::GROUP_1;
@@ -113,11 +113,7 @@ impl Arena {
         self.world.colliders.insert(
             ColliderBuilder::halfspace(crate::rapier::na::Unit::new_unchecked(Vec3::Z))
                 .friction(friction)
-                .collision_groups(InteractionGroups::new(
-                    ENVIRONMENT_GROUP,
-                    Group::ALL,
-                    InteractionTestMode::And,
-                )),
+                .collision_groups(InteractionGroups::new(ENVIRONMENT_GROUP, Group::ALL, InteractionTestMode::And)),
         )
     }
 
@@ -127,11 +123,7 @@ impl Arena {
             ColliderBuilder::cuboid(half_extents.x, half_extents.y, half_extents.z)
                 .translation(centre)
                 .friction(friction)
-                .collision_groups(InteractionGroups::new(
-                    ENVIRONMENT_GROUP,
-                    Group::ALL,
-                    InteractionTestMode::And,
-                )),
+                .collision_groups(InteractionGroups::new(ENVIRONMENT_GROUP, Group::ALL, InteractionTestMode::And)),
         )
     }
 

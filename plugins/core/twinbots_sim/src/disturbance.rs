@@ -33,7 +33,11 @@ impl Push {
 
 /// In each physics step (`SubstepSet::Actuate`): pushed links get their force, finished pushes
 /// let go.
-pub(crate) fn apply_pushes(mut commands: Commands, mut pushes: Query<(Entity, &Link, &InArena, &mut Push)>, mut arenas: Query<&mut Arena>) {
+pub(crate) fn apply_pushes(
+    mut commands: Commands,
+    mut pushes: Query<(Entity, &Link, &InArena, &mut Push)>,
+    mut arenas: Query<&mut Arena>,
+) {
     for (entity, link, in_arena, mut push) in &mut pushes {
         let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
         let Some(body) = arena.world.bodies.get_mut(link.body) else { continue };
@@ -54,7 +58,8 @@ pub(crate) fn apply_pushes(mut commands: Commands, mut pushes: Query<(Entity, &L
 /// state (an episode reset undoes it). Errors when the link has no body or the body would end
 /// with no positive mass.
 pub fn add_link_mass(world: &mut PhysicsWorld, link: &Link, mass: f32) -> Result<(), String> {
-    let body = world.bodies.get_mut(link.body).ok_or_else(|| format!("link '{}' has no body in its arena", link.name))?;
+    let body =
+        world.bodies.get_mut(link.body).ok_or_else(|| format!("link '{}' has no body in its arena", link.name))?;
     let current = body.mass_properties().additional_local_mprops.as_deref().cloned();
     let base = match current {
         Some(RigidBodyAdditionalMassProps::MassProps(props)) => props,

@@ -94,7 +94,13 @@ pub fn catalogue(model: &RobotModel, nominal: &Parameters) -> Vec<ParameterSpec>
         let mut push = |kind: ParameterKind, default: f32, unit_rot: &'static str, unit_lin: &'static str| {
             let name = kind.of_joint(&j.name);
             let default = nominal.get(&name).unwrap_or(default as f64);
-            out.push(ParameterSpec { name, kind, joint: Some(j.name.clone()), default, unit: if rot { unit_rot } else { unit_lin } });
+            out.push(ParameterSpec {
+                name,
+                kind,
+                joint: Some(j.name.clone()),
+                default,
+                unit: if rot { unit_rot } else { unit_lin },
+            });
         };
         push(ParameterKind::Damping, j.damping, "N*m*s/rad", "N*s/m");
         push(ParameterKind::Friction, j.friction, "N*m", "N");
@@ -105,13 +111,25 @@ pub fn catalogue(model: &RobotModel, nominal: &Parameters) -> Vec<ParameterSpec>
         push(ParameterKind::Bias, 0.0, "rad", "m");
     }
     let delay = nominal.get("command_delay").unwrap_or(0.0);
-    out.push(ParameterSpec { name: "command_delay".into(), kind: ParameterKind::CommandDelay, joint: None, default: delay, unit: "s" });
+    out.push(ParameterSpec {
+        name: "command_delay".into(),
+        kind: ParameterKind::CommandDelay,
+        joint: None,
+        default: delay,
+        unit: "s",
+    });
     out
 }
 
 /// Sets one joint's damping, friction, armature, gain and delay from `params` (the names it
 /// holds; others stay as they are).
-pub fn apply_to_joint(world: &mut PhysicsWorld, joint: &Joint, dynamics: &mut JointDynamics, motor: Option<&mut Motor>, params: &Parameters) {
+pub fn apply_to_joint(
+    world: &mut PhysicsWorld,
+    joint: &Joint,
+    dynamics: &mut JointDynamics,
+    motor: Option<&mut Motor>,
+    params: &Parameters,
+) {
     let get = |kind: ParameterKind| params.get(&kind.of_joint(&joint.name));
     if let Some(v) = get(ParameterKind::Damping) {
         dynamics.damping = v as f32;

@@ -1,8 +1,8 @@
 //! Fixed-step physics: a control step is `substeps` physics steps of `dt` seconds, with motors
 //! re-applied before and joint states measured after every physics step.
 
-use std::sync::{Mutex, OnceLock};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use bevy::ecs::schedule::{ScheduleLabel, SingleThreadedExecutor};
@@ -86,12 +86,7 @@ impl SimSettings {
 
 impl Default for SimSettings {
     fn default() -> Self {
-        Self {
-            dt: 0.004,
-            substeps: 8,
-            gravity: Vec3::new(0.0, 0.0, -9.81),
-            solver_iterations: 4,
-        }
+        Self { dt: 0.004, substeps: 8, gravity: Vec3::new(0.0, 0.0, -9.81), solver_iterations: 4 }
     }
 }
 
@@ -211,7 +206,11 @@ fn physics_helpers() -> Option<&'static rayon::ThreadPool> {
     static POOL: OnceLock<Option<rayon::ThreadPool>> = OnceLock::new();
     POOL.get_or_init(|| {
         let helpers = rayon::current_num_threads().saturating_sub(1).max(1);
-        rayon::ThreadPoolBuilder::new().num_threads(helpers).thread_name(|i| format!("twinbots-physics-{i}")).build().ok()
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(helpers)
+            .thread_name(|i| format!("twinbots-physics-{i}"))
+            .build()
+            .ok()
     })
     .as_ref()
 }

@@ -8,8 +8,8 @@ use bevy::prelude::*;
 
 use crate::arena::{Arena, ENVIRONMENT_GROUP, InArena, ROBOT_GROUP};
 use crate::devices::{Joint, JointDynamics, JointState, Motor, PositionSensor};
-use crate::robot::{Link, Robot, Visuals};
 use crate::rapier::prelude::*;
+use crate::robot::{Link, Robot, Visuals};
 use crate::urdf::{JointKind, JointModel, RobotModel, Shape};
 
 /// How a robot is placed and attached.
@@ -85,9 +85,7 @@ pub fn spawn_robot(
             model.name
         );
     }
-    let robot = commands
-        .spawn((Robot { name: model.name.clone() }, InArena(arena_entity)))
-        .id();
+    let robot = commands.spawn((Robot { name: model.name.clone() }, InArena(arena_entity))).id();
     let groups = if options.environment {
         InteractionGroups::new(ENVIRONMENT_GROUP, Group::ALL, InteractionTestMode::And)
     } else {
@@ -119,11 +117,7 @@ pub fn spawn_robot(
     let mut bodies: HashMap<usize, RigidBodyHandle> = HashMap::new();
     for &l in order.iter().filter(|&&l| owner[l] == l) {
         let mass = body_mass(model, &owner, &offset, l);
-        let builder = if l == root && fixed {
-            RigidBodyBuilder::fixed()
-        } else {
-            RigidBodyBuilder::dynamic()
-        };
+        let builder = if l == root && fixed { RigidBodyBuilder::fixed() } else { RigidBodyBuilder::dynamic() };
         // A robot never sleeps (rapier would freeze an arm holding still under its motors); a
         // part of the cell may, once at rest: its contacts then leave the solver until touched.
         let mut builder = builder.pose(world_pose[l]).can_sleep(options.environment);
@@ -140,10 +134,7 @@ pub fn spawn_robot(
         bodies.insert(l, handle);
     }
 
-    let mut spawned = SpawnedRobot {
-        robot: Some(robot),
-        ..default()
-    };
+    let mut spawned = SpawnedRobot { robot: Some(robot), ..default() };
     for &l in &order {
         let body = bodies[&owner[l]];
         let link = &model.links[l];
@@ -158,12 +149,7 @@ pub fn spawn_robot(
         }
         let entity = commands
             .spawn((
-                Link {
-                    name: link.name.clone(),
-                    robot,
-                    body,
-                    offset: offset[l],
-                },
+                Link { name: link.name.clone(), robot, body, offset: offset[l] },
                 Visuals(link.visuals.clone()),
                 InArena(arena_entity),
             ))
@@ -190,10 +176,7 @@ pub fn spawn_robot(
         if let Some(stops) = crate::devices::stop_window(j.kind, j.limits.position, start_position(&options, j)) {
             data.set_limits(axis, stops);
         }
-        let handle = arena
-            .world
-            .impulse_joints
-            .insert(parent_body, child_body, data, true);
+        let handle = arena.world.impulse_joints.insert(parent_body, child_body, data, true);
         let joint = Joint {
             name: j.name.clone(),
             kind: j.kind,
@@ -228,12 +211,7 @@ fn start_position(options: &SpawnOptions, joint: &JointModel) -> f32 {
 }
 
 /// The summed mass properties of the links welded into `body`, in that body's frame.
-fn body_mass(
-    model: &RobotModel,
-    owner: &[usize],
-    offset: &[Pose],
-    body: usize,
-) -> Option<MassProperties> {
+fn body_mass(model: &RobotModel, owner: &[usize], offset: &[Pose], body: usize) -> Option<MassProperties> {
     let mut total: Option<MassProperties> = None;
     for l in (0..model.links.len()).filter(|&l| owner[l] == body) {
         let Some(inertial) = model.links[l].inertial else { continue };

@@ -10,8 +10,8 @@ use bevy::math::Vec3;
 use bevy::prelude::*;
 
 use crate::arena::{Arena, InArena};
-pub use crate::privilege::SupervisorAccess;
 use crate::devices::{Joint, JointState, Motor, VacuumGripper};
+pub use crate::privilege::SupervisorAccess;
 use crate::rapier::prelude::*;
 use crate::robot::Link;
 
@@ -38,16 +38,8 @@ impl Plugin for SupervisorPlugin {
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct OperatorAccess;
 
-type JointQuery<'w, 's> = Query<
-    'w,
-    's,
-    (
-        &'static Joint,
-        &'static InArena,
-        &'static mut JointState,
-        Option<&'static mut Motor>,
-    ),
->;
+type JointQuery<'w, 's> =
+    Query<'w, 's, (&'static Joint, &'static InArena, &'static mut JointState, Option<&'static mut Motor>)>;
 
 #[derive(SystemParam)]
 pub struct Supervisor<'w, 's> {
@@ -146,11 +138,7 @@ impl Supervisor<'_, '_> {
         let (link, in_arena) = self.links.get(link).ok()?;
         let body = self.arenas.get(in_arena.0).ok()?.world.bodies.get(link.body)?;
         let pose = *body.position() * link.offset;
-        Some(LinkState {
-            pose,
-            linvel: body.velocity_at_point(pose.translation),
-            angvel: body.angvel(),
-        })
+        Some(LinkState { pose, linvel: body.velocity_at_point(pose.translation), angvel: body.angvel() })
     }
 
     /// The true position of any joint (privileged: no sensor noise, no sampling period).

@@ -111,7 +111,12 @@ pub fn program(rig: &Rig, kind: Excitation, seconds: f64, seed: u64) -> Program 
     let every = rig.description.command_steps.max(1) as usize;
     let targets: Vec<usize> = excitation
         .iter()
-        .map(|e| rig.joints.iter().position(|j| j == e.joint).unwrap_or_else(|| panic!("the rig excites '{}', not a joint of it", e.joint)))
+        .map(|e| {
+            rig.joints
+                .iter()
+                .position(|j| j == e.joint)
+                .unwrap_or_else(|| panic!("the rig excites '{}', not a joint of it", e.joint))
+        })
         .collect();
     let changes = (0..steps)
         .map(|k| {

@@ -110,7 +110,9 @@ pub fn position_rmse(rig: &Rig, logs: &[PreparedLog], params: &Parameters, thres
     let sum: f64 = logs
         .iter()
         .map(|log| {
-            let twin = run(rig, &log.start_positions(rig, params), &log.program, std::slice::from_ref(params)).pop().expect("one arena");
+            let twin = run(rig, &log.start_positions(rig, params), &log.program, std::slice::from_ref(params))
+                .pop()
+                .expect("one arena");
             compare(rig, log, &twin, &bias, threshold).position_rmse
         })
         .sum();
@@ -119,7 +121,13 @@ pub fn position_rmse(rig: &Rig, logs: &[PreparedLog], params: &Parameters, thres
 
 /// Fits `options.params` of the twin (over `base`, the parameters not fitted) to `logs`,
 /// calling `progress` after every generation.
-pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &FitOptions, mut progress: impl FnMut(&Generation)) -> anyhow::Result<Fit> {
+pub fn identify(
+    rig: &Rig,
+    logs: &[PreparedLog],
+    base: &Parameters,
+    options: &FitOptions,
+    mut progress: impl FnMut(&Generation),
+) -> anyhow::Result<Fit> {
     anyhow::ensure!(!logs.is_empty(), "no logs to fit");
     let specs = parameter_specs(rig, &options.params)?;
     // The twin as it runs (what "nominal" compares against), and where the search starts: the
@@ -144,7 +152,8 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     let mut candidates = 1;
     // CMA-ES's own default, 4 + ⌊3 ln n⌋ over the joints' parameters (12 for the UR5e's 18).
     let joint_count = joints.iter().map(|b| b.members.len()).sum::<usize>().max(1);
-    let popsize = if options.popsize > 0 { options.popsize } else { 4 + (3.0 * (joint_count as f64).ln()).floor() as usize };
+    let popsize =
+        if options.popsize > 0 { options.popsize } else { 4 + (3.0 * (joint_count as f64).ln()).floor() as usize };
     let samples: usize = logs.iter().map(|l| l.reference.len()).sum();
     // A search along the delay (or a bias) may stop once its generation spreads less than a
     // half of what the delay must be known to; the joints' parameters once under 2e-3 of the
@@ -165,7 +174,18 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
     let mut unsettled = vec![0.0; specs.len()];
     let g = options.generations;
     // 1. The delay alone, the rest nominal: it moves every joint, and it is 1-D.
-    candidates += search.evolve(&mut u, &global, &Basis::diagonal(&vec![0.1; global.len()]), &settled, (g / 2).max(10), 6, &mut history, &mut progress).0;
+    candidates += search
+        .evolve(
+            &mut u,
+            &global,
+            &Basis::diagonal(&vec![0.1; global.len()]),
+            &settled,
+            (g / 2).max(10),
+            6,
+            &mut history,
+            &mut progress,
+        )
+        .0;
     // 2. Every parameter in one search scored by the total error: a joint's parameters reach
     //    the other joints' errors too (the arm's dynamics share their efforts), and the delay
     //    every joint's. The error is near a sum of squares of residuals that move smoothly with
@@ -189,7 +209,9 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
             let scores = costs(rig, logs, &sets);
             extra += sets.len();
             // Against the error where the curvature was measured (its own replay's).
-            if let Some(best) = (0..scores.len()).filter(|&k| scores[k] < at.value).min_by(|&a, &b| scores[a].total_cmp(&scores[b])) {
+            if let Some(best) =
+                (0..scores.len()).filter(|&k| scores[k] < at.value).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))
+            {
                 u = tries[best].clone();
                 // Whitened where the search starts.
                 let (moved, probes) = gauss_newton(rig, logs, &search.set(&u), &specs, &all);
@@ -279,4 +301,3 @@ pub fn identify(rig: &Rig, logs: &[PreparedLog], base: &Parameters, options: &Fi
         samples,
     })
 }
-

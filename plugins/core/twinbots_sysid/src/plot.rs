@@ -5,9 +5,9 @@ use std::sync::Once;
 
 use plotters::prelude::*;
 
-use crate::search::Generation;
 use crate::replay::PreparedLog;
 use crate::rig::{Rig, Trajectory};
+use crate::search::Generation;
 
 static FONT: &[u8] = include_bytes!("../../../../assets/fonts/DejaVuSans.ttf");
 static REGISTER: Once = Once::new();
@@ -20,7 +20,11 @@ fn register_font() {
 }
 
 /// Writes a PNG through `draw`, atomically.
-fn write_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>) -> anyhow::Result<()> {
+fn write_png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     register_font();
     let tmp = path.with_extension("tmp.png");
     {
@@ -35,7 +39,12 @@ fn write_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&DrawingArea<BitMa
 
 /// One row per joint: the logged position and each labelled twin's against time (left), and
 /// each twin's position error, twin − log (right: at the left's scale they overlap).
-pub fn replay_png(path: &Path, rig: &Rig, log: &PreparedLog, twins: &[(&str, &Trajectory, Vec<f64>)]) -> anyhow::Result<()> {
+pub fn replay_png(
+    path: &Path,
+    rig: &Rig,
+    log: &PreparedLog,
+    twins: &[(&str, &Trajectory, Vec<f64>)],
+) -> anyhow::Result<()> {
     let rows = rig.joints.len();
     write_png(path, (1400, 220 * rows as u32 + 40), |root| {
         let root = root.titled(&format!("{}: twin vs log ({})", rig.robot, log.name), ("sans-serif", 20))?;
@@ -44,10 +53,13 @@ pub fn replay_png(path: &Path, rig: &Rig, log: &PreparedLog, twins: &[(&str, &Tr
         for (j, row) in root.split_evenly((rows, 1)).iter().enumerate() {
             let (left, right) = row.split_horizontally(row.dim_in_pixel().0 as i32 / 2);
             let time = |k: usize| (k + 1) as f64 * dt;
-            let logged: Vec<(f64, f64)> = log.reference.iter().enumerate().map(|(k, r)| (time(k), r.position[j] as f64)).collect();
+            let logged: Vec<(f64, f64)> =
+                log.reference.iter().enumerate().map(|(k, r)| (time(k), r.position[j] as f64)).collect();
             let twin_series: Vec<Vec<(f64, f64)>> = twins
                 .iter()
-                .map(|(_, t, bias)| t.steps.iter().enumerate().map(|(k, r)| (time(k), r.position[j] as f64 + bias[j])).collect())
+                .map(|(_, t, bias)| {
+                    t.steps.iter().enumerate().map(|(k, r)| (time(k), r.position[j] as f64 + bias[j])).collect()
+                })
                 .collect();
             let errors: Vec<Vec<(f64, f64)>> = twin_series
                 .iter()
@@ -55,7 +67,12 @@ pub fn replay_png(path: &Path, rig: &Rig, log: &PreparedLog, twins: &[(&str, &Tr
                 .collect();
             let t_max = logged.last().map_or(1.0, |p| p.0);
             let mut panels = [
-                (&left, format!("{} (rad or m)", rig.joints[j]), std::iter::once(logged.clone()).chain(twin_series).collect::<Vec<_>>(), true),
+                (
+                    &left,
+                    format!("{} (rad or m)", rig.joints[j]),
+                    std::iter::once(logged.clone()).chain(twin_series).collect::<Vec<_>>(),
+                    true,
+                ),
                 (&right, format!("{}: twin − log", rig.joints[j]), errors, false),
             ];
             for (area, caption, series, with_log) in panels.iter_mut() {
@@ -73,7 +90,10 @@ pub fn replay_png(path: &Path, rig: &Rig, log: &PreparedLog, twins: &[(&str, &Tr
                 let mut lines = series.iter();
                 if *with_log {
                     chart
-                        .draw_series(LineSeries::new(lines.next().expect("the log's line").clone(), BLACK.stroke_width(2)))?
+                        .draw_series(LineSeries::new(
+                            lines.next().expect("the log's line").clone(),
+                            BLACK.stroke_width(2),
+                        ))?
                         .label("log")
                         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(2)));
                 }
@@ -84,7 +104,12 @@ pub fn replay_png(path: &Path, rig: &Rig, log: &PreparedLog, twins: &[(&str, &Tr
                         .label(*label)
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
                 }
-                chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).label_font(("sans-serif", 11)).draw()?;
+                chart
+                    .configure_series_labels()
+                    .background_style(WHITE.mix(0.8))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 11))
+                    .draw()?;
             }
         }
         Ok(())
@@ -94,7 +119,11 @@ pub fn replay_png(path: &Path, rig: &Rig, log: &PreparedLog, twins: &[(&str, &Tr
 /// The best and mean tracking error of every generation (log scale), and the nominal twin's.
 pub fn convergence_png(path: &Path, title: &str, history: &[Generation], nominal: f64) -> anyhow::Result<()> {
     write_png(path, (900, 540), |root| {
-        let values = history.iter().flat_map(|g| [g.best, g.mean, g.best_so_far]).chain([nominal]).filter(|v| v.is_finite() && *v > 0.0);
+        let values = history
+            .iter()
+            .flat_map(|g| [g.best, g.mean, g.best_so_far])
+            .chain([nominal])
+            .filter(|v| v.is_finite() && *v > 0.0);
         let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
         let (lo, hi) = if lo.is_finite() { (lo * 0.8, hi * 1.25) } else { (1e-3, 1.0) };
         let x_max = history.len().max(2) as f64;
@@ -104,8 +133,15 @@ pub fn convergence_png(path: &Path, title: &str, history: &[Generation], nominal
             .x_label_area_size(40)
             .y_label_area_size(70)
             .build_cartesian_2d(0.0..x_max, (lo..hi).log_scale())?;
-        chart.configure_mesh().x_desc("generation").y_desc("tracking error (weighted)").label_style(("sans-serif", 13)).draw()?;
-        let line = |f: fn(&Generation) -> f64| history.iter().map(move |g| ((g.generation + 1) as f64, f(g))).collect::<Vec<_>>();
+        chart
+            .configure_mesh()
+            .x_desc("generation")
+            .y_desc("tracking error (weighted)")
+            .label_style(("sans-serif", 13))
+            .draw()?;
+        let line = |f: fn(&Generation) -> f64| {
+            history.iter().map(move |g| ((g.generation + 1) as f64, f(g))).collect::<Vec<_>>()
+        };
         chart
             .draw_series(LineSeries::new(line(|g| g.mean), BLUE.mix(0.5)))?
             .label("generation mean")
@@ -118,7 +154,12 @@ pub fn convergence_png(path: &Path, title: &str, history: &[Generation], nominal
             .draw_series(LineSeries::new([(0.0, nominal), (x_max, nominal)], RED.mix(0.7)))?
             .label("nominal twin")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-        chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).label_font(("sans-serif", 13)).draw()?;
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 13))
+            .draw()?;
         Ok(())
     })
 }
@@ -126,7 +167,13 @@ pub fn convergence_png(path: &Path, title: &str, history: &[Generation], nominal
 /// A robot followed live by its twin (`twinbots monitor`): one row per joint, the position
 /// error (robot − twin, mrad) on the left and the effort residual (robot − twin, N·m) on the
 /// right, against the controller's time; `alarms` (times, s) drawn as vertical red lines.
-pub fn divergence_png(path: &Path, title: &str, robot: &twinbots_log::RobotLog, twin: &twinbots_log::RobotLog, alarms: &[f64]) -> anyhow::Result<()> {
+pub fn divergence_png(
+    path: &Path,
+    title: &str,
+    robot: &twinbots_log::RobotLog,
+    twin: &twinbots_log::RobotLog,
+    alarms: &[f64],
+) -> anyhow::Result<()> {
     let rows = robot.joints.len();
     anyhow::ensure!(rows > 0 && robot.states.len() == twin.states.len(), "robot and twin logs do not pair up");
     let t_max = robot.states.last().map_or(1.0, |s| s.time).max(1e-3);
@@ -136,11 +183,19 @@ pub fn divergence_png(path: &Path, title: &str, robot: &twinbots_log::RobotLog, 
         for (j, row) in root.split_evenly((rows, 1)).iter().enumerate() {
             let (left, right) = row.split_horizontally(row.dim_in_pixel().0 as i32 / 2);
             let pairs = robot.states.iter().zip(&twin.states);
-            let position: Vec<(f64, f64)> = pairs.clone().map(|(r, t)| (r.time, 1e3 * (r.position[j] - t.position[j]))).collect();
-            let effort: Vec<(f64, f64)> =
-                pairs.map(|(r, t)| (r.time, r.effort.get(j).copied().unwrap_or(0.0) - t.effort.get(j).copied().unwrap_or(0.0))).collect();
-            for (area, caption, series) in [(&left, format!("{}: robot − twin (mrad)", robot.joints[j]), position), (&right, format!("{}: effort residual (N·m)", robot.joints[j]), effort)] {
-                let (lo, hi) = series.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.1), b.max(p.1)));
+            let position: Vec<(f64, f64)> =
+                pairs.clone().map(|(r, t)| (r.time, 1e3 * (r.position[j] - t.position[j]))).collect();
+            let effort: Vec<(f64, f64)> = pairs
+                .map(|(r, t)| {
+                    (r.time, r.effort.get(j).copied().unwrap_or(0.0) - t.effort.get(j).copied().unwrap_or(0.0))
+                })
+                .collect();
+            for (area, caption, series) in [
+                (&left, format!("{}: robot − twin (mrad)", robot.joints[j]), position),
+                (&right, format!("{}: effort residual (N·m)", robot.joints[j]), effort),
+            ] {
+                let (lo, hi) =
+                    series.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.1), b.max(p.1)));
                 let (lo, hi) = if lo.is_finite() { (lo.min(-1e-3), hi.max(1e-3)) } else { (-1.0, 1.0) };
                 let pad = (hi - lo) * 0.05;
                 let mut chart = ChartBuilder::on(area)

@@ -56,14 +56,19 @@ pub struct Recording {
 
 /// Records the rig run with `truth` (over its nominal parameters): a log of every physics step.
 pub fn record(rig: &Rig, truth: &Parameters, recording: &Recording) -> anyhow::Result<RobotLog> {
-    anyhow::ensure!(recording.seconds > 0.0 && recording.seconds.is_finite(), "--seconds must be positive, not {}", recording.seconds);
+    anyhow::ensure!(
+        recording.seconds > 0.0 && recording.seconds.is_finite(),
+        "--seconds must be positive, not {}",
+        recording.seconds
+    );
     let params = rig.parameters(truth)?;
     let program = program(rig, recording.excitation, recording.seconds, recording.seed);
     let trajectory = run(rig, &[], &program, std::slice::from_ref(&params)).pop().expect("one arena, one trajectory");
     let bias = rig.biases(&params);
     let mut rng = ChaCha8Rng::seed_from_u64(recording.seed ^ 0x5e75_0a15);
     let noise = recording.noise;
-    let mut n = |std: f64| if std > 0.0 { Normal::new(0.0, std).expect("a positive std").sample(&mut rng) } else { 0.0 };
+    let mut n =
+        |std: f64| if std > 0.0 { Normal::new(0.0, std).expect("a positive std").sample(&mut rng) } else { 0.0 };
     let states: Vec<JointSample> = trajectory
         .samples(rig.dt(), &bias)
         .into_iter()
@@ -97,9 +102,12 @@ pub fn record(rig: &Rig, truth: &Parameters, recording: &Recording) -> anyhow::R
         source: format!("twinbots {} record (a stand-in robot)", env!("CARGO_PKG_VERSION")),
         calibration: String::new(),
         control_period: dt * rig.description.command_steps.max(1) as f64,
-        extra: [("excitation".to_string(), recording.excitation.name().to_string()), ("seed".to_string(), recording.seed.to_string())]
-            .into_iter()
-            .collect(),
+        extra: [
+            ("excitation".to_string(), recording.excitation.name().to_string()),
+            ("seed".to_string(), recording.seed.to_string()),
+        ]
+        .into_iter()
+        .collect(),
     };
     Ok(RobotLog { meta, joints: rig.joints.clone(), states, commands, tool: Vec::new() })
 }

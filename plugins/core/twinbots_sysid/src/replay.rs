@@ -29,7 +29,8 @@ pub struct PreparedLog {
 pub fn prepare(rig: &Rig, log: &RobotLog, name: &str) -> anyhow::Result<PreparedLog> {
     log.validate()?;
     log.check_robot(rig.robot, &rig.joints)?;
-    let index: Vec<usize> = rig.joints.iter().map(|j| log.joint_index(j).expect("checked: every joint is logged")).collect();
+    let index: Vec<usize> =
+        rig.joints.iter().map(|j| log.joint_index(j).expect("checked: every joint is logged")).collect();
     let dt = rig.dt();
     let t0 = log.states[0].time;
     let steps = ((log.duration() / dt) + 1e-6).floor() as usize;
@@ -43,7 +44,11 @@ pub fn prepare(rig: &Rig, log: &RobotLog, name: &str) -> anyhow::Result<Prepared
         }
         for ((joint, mode), value) in c.joints.iter().zip(&c.modes).zip(&c.values) {
             let j = rig.joints.iter().position(|n| n == joint).ok_or_else(|| {
-                anyhow::anyhow!("command {i} (t = {} s) drives '{joint}', which robot '{}' does not have", c.time, rig.robot)
+                anyhow::anyhow!(
+                    "command {i} (t = {} s) drives '{joint}', which robot '{}' does not have",
+                    c.time,
+                    rig.robot
+                )
             })?;
             anyhow::ensure!(rig.actuated[j], "command {i} (t = {} s) drives '{joint}', which has no motor", c.time);
             let v = *value as f32;
@@ -115,7 +120,13 @@ impl PreparedLog {
 
 /// Joint `j`'s errors in one signal (0 position, 1 speed, 2 effort), twin less log, step by
 /// step: what both the tracking error and its residuals are made of.
-fn errors<'a>(log: &'a PreparedLog, twin: &'a Trajectory, bias: &'a [f64], j: usize, signal: usize) -> impl Iterator<Item = f64> + 'a {
+fn errors<'a>(
+    log: &'a PreparedLog,
+    twin: &'a Trajectory,
+    bias: &'a [f64],
+    j: usize,
+    signal: usize,
+) -> impl Iterator<Item = f64> + 'a {
     log.reference.iter().zip(&twin.steps).map(move |(r, t)| match signal {
         0 => t.position[j] as f64 + bias[j] - r.position[j] as f64,
         1 => t.velocity[j] as f64 - r.velocity[j] as f64,
@@ -133,7 +144,9 @@ pub fn tracking_cost(log: &PreparedLog, twin: &Trajectory, bias: &[f64]) -> Vec<
     (0..log.scale.len())
         .map(|j| {
             let compared = log.scale[j].iter().enumerate().filter(|(_, s)| **s > 0.0);
-            compared.map(|(signal, s)| errors(log, twin, bias, j, signal).map(|e| e * e).sum::<f64>() / n / (s * s)).sum()
+            compared
+                .map(|(signal, s)| errors(log, twin, bias, j, signal).map(|e| e * e).sum::<f64>() / n / (s * s))
+                .sum()
         })
         .collect()
 }
@@ -221,7 +234,16 @@ impl ReplayReport {
     pub fn table(&self) -> String {
         let mut out = format!(
             "{}: {:.2} s replayed; position RMSE over joints {:.5}\n{:<22} {:>12} {:>12} {:>12} {:>12} {:>11} {:>12}\n",
-            self.log, self.seconds, self.position_rmse, "joint", "pos RMSE", "pos max", "vel RMSE", "vel max", "effort RMSE", "diverged at"
+            self.log,
+            self.seconds,
+            self.position_rmse,
+            "joint",
+            "pos RMSE",
+            "pos max",
+            "vel RMSE",
+            "vel max",
+            "effort RMSE",
+            "diverged at"
         );
         for j in &self.joints {
             let effort = j.effort_rmse.map_or("-".to_string(), |e| format!("{e:.4}"));
@@ -231,7 +253,10 @@ impl ReplayReport {
                 j.joint, j.position_rmse, j.position_max, j.velocity_rmse, j.velocity_max, effort, diverged
             );
         }
-        out + &format!("(SI units: rad or m, rad/s or m/s, N*m or N; diverged: position error over {} first)\n", self.threshold)
+        out + &format!(
+            "(SI units: rad or m, rad/s or m/s, N*m or N; diverged: position error over {} first)\n",
+            self.threshold
+        )
     }
 }
 

@@ -2,10 +2,13 @@
 //! `identify` drive, one arena per candidate, all stepped side by side.
 
 use bevy::prelude::*;
+use twinbots_log::JointSample;
 use twinbots_sim::parameters::{apply_to_joint, catalogue};
 use twinbots_sim::urdf::RobotModel;
-use twinbots_sim::{Arena, Joint, JointDynamics, JointState, Motor, MotorCommand, ParameterSpec, Parameters, PhysicsSubstep, SimPlugin, SimSettings};
-use twinbots_log::JointSample;
+use twinbots_sim::{
+    Arena, Joint, JointDynamics, JointState, Motor, MotorCommand, ParameterSpec, Parameters, PhysicsSubstep, SimPlugin,
+    SimSettings,
+};
 use twinbots_task::robot::{RigDescription, RobotDescription};
 
 /// A robot's test rig and what a log of it holds.
@@ -37,7 +40,8 @@ impl Rig {
         let nominal = description.nominal_parameters();
         let catalogue = catalogue(&model, &nominal);
         let movable = model.joints.iter().filter(|j| j.kind.is_movable());
-        let (joints, actuated): (Vec<String>, Vec<bool>) = movable.map(|j| (j.name.clone(), j.limits.effort > 0.0)).unzip();
+        let (joints, actuated): (Vec<String>, Vec<bool>) =
+            movable.map(|j| (j.name.clone(), j.limits.effort > 0.0)).unzip();
         let settings = (description.settings)();
         let ancestors = ancestors(&model, &joints);
         Ok(Self { robot: robot.name, description, model, settings, nominal, catalogue, joints, actuated, ancestors })
@@ -125,7 +129,9 @@ impl Trajectory {
             velocity: r.velocity.iter().map(|&v| v as f64).collect(),
             effort: r.effort.iter().map(|&e| e as f64).collect(),
         };
-        std::iter::once(sample(&self.start, 0.0)).chain(self.steps.iter().enumerate().map(|(k, r)| sample(r, (k + 1) as f64 * dt))).collect()
+        std::iter::once(sample(&self.start, 0.0))
+            .chain(self.steps.iter().enumerate().map(|(k, r)| sample(r, (k + 1) as f64 * dt)))
+            .collect()
     }
 }
 
@@ -133,8 +139,9 @@ impl Trajectory {
 /// joints started at `start` (by name); returns each arena's trajectory.
 pub fn run(rig: &Rig, start: &[(String, f32)], program: &Program, sets: &[Parameters]) -> Vec<Trajectory> {
     let mut stand = Stand::new(rig, start, sets);
-    let mut out: Vec<Trajectory> =
-        (0..sets.len()).map(|a| Trajectory { start: stand.reading(a), steps: Vec::with_capacity(program.steps()) }).collect();
+    let mut out: Vec<Trajectory> = (0..sets.len())
+        .map(|a| Trajectory { start: stand.reading(a), steps: Vec::with_capacity(program.steps()) })
+        .collect();
     for changes in &program.changes {
         for arena in 0..sets.len() {
             for &(j, command) in changes {
@@ -165,7 +172,8 @@ impl Stand {
         let mut app = App::new();
         // A test stand is the lab's, not the robot's: its operator may place the joints (`place`).
         app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings: rig.settings, supervisor: true });
-        let (joints, arenas) = sets.iter().enumerate().map(|(index, params)| spawn(&mut app, rig, index, start, params)).unzip();
+        let (joints, arenas) =
+            sets.iter().enumerate().map(|(index, params)| spawn(&mut app, rig, index, start, params)).unzip();
         // Start-up only: the world as built.
         app.update();
         Self { app, joints, arenas }
@@ -193,7 +201,8 @@ impl Stand {
         let joints = self.joints[arena].clone();
         let before: Vec<f32> = self.reading(arena).position;
         let world = self.app.world_mut();
-        let mut state: bevy::ecs::system::SystemState<twinbots_sim::Supervisor> = bevy::ecs::system::SystemState::new(world);
+        let mut state: bevy::ecs::system::SystemState<twinbots_sim::Supervisor> =
+            bevy::ecs::system::SystemState::new(world);
         let mut supervisor = state.get_mut(world).expect("the rig app has the Supervisor's resources");
         for (&joint, &q) in joints.iter().zip(positions) {
             supervisor.set_joint_position(joint, q);

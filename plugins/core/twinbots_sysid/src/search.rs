@@ -31,7 +31,9 @@ pub struct Range {
 impl Range {
     pub fn of(spec: &ParameterSpec, dt: f64) -> Self {
         match spec.kind {
-            ParameterKind::CommandDelay => Self { lo: 0.0, hi: (spec.default * 3.0).max(8.0 * dt).max(0.05), log: false },
+            ParameterKind::CommandDelay => {
+                Self { lo: 0.0, hi: (spec.default * 3.0).max(8.0 * dt).max(0.05), log: false }
+            }
             ParameterKind::Bias => Self { lo: spec.default - 0.05, hi: spec.default + 0.05, log: false },
             _ if spec.default > 0.0 => Self { lo: spec.default / 4.0, hi: spec.default * 4.0, log: true },
             ParameterKind::Armature => Self { lo: 0.0, hi: 0.5, log: false },
@@ -51,7 +53,11 @@ impl Range {
 
     pub fn unit(&self, value: f64) -> f64 {
         let value = value.clamp(self.lo, self.hi);
-        if self.log { (value / self.lo).ln() / (self.hi / self.lo).ln() } else { (value - self.lo) / (self.hi - self.lo) }
+        if self.log {
+            (value / self.lo).ln() / (self.hi / self.lo).ln()
+        } else {
+            (value - self.lo) / (self.hi - self.lo)
+        }
     }
 }
 
@@ -106,7 +112,9 @@ pub struct Basis(pub Vec<Vec<f64>>);
 impl Basis {
     /// One step size per member.
     pub fn diagonal(steps: &[f64]) -> Self {
-        Self((0..steps.len()).map(|i| (0..steps.len()).map(|j| if i == j { steps[i] } else { 0.0 }).collect()).collect())
+        Self(
+            (0..steps.len()).map(|i| (0..steps.len()).map(|j| if i == j { steps[i] } else { 0.0 }).collect()).collect(),
+        )
     }
 
     fn point(&self, start: &[f64], z: &[f64]) -> Vec<f64> {
@@ -158,16 +166,26 @@ impl Search<'_> {
         }
         let dim = members.len();
         let origin: Vec<f64> = members.iter().map(|&m| u[m]).collect();
-        let params = CmaesParams { popsize: popsize as i32, seed: self.seed.wrapping_add(history.len() as u64 * 97), ..CmaesParams::default() };
+        let params = CmaesParams {
+            popsize: popsize as i32,
+            seed: self.seed.wrapping_add(history.len() as u64 * 97),
+            ..CmaesParams::default()
+        };
         // The unit box is far inside these bounds whatever the basis: points beyond it clamp.
         let bound = 1e4;
-        let mut cma = Cmaes::new(Fitness::bounded(dim, 1, &vec![-bound; dim], &vec![bound; dim]), &vec![0.0; dim], &vec![1.0; dim], &params);
+        let mut cma = Cmaes::new(
+            Fitness::bounded(dim, 1, &vec![-bound; dim], &vec![bound; dim]),
+            &vec![0.0; dim],
+            &vec![1.0; dim],
+            &params,
+        );
         let start: f64 = costs(self.rig, self.logs, &[self.set(u)])[0];
         let mut best = (start, origin.clone());
         let mut candidates = 1;
         for _ in 0..generations {
             let zs = cma.ask();
-            let population: Vec<Vec<f64>> = zs.iter().map(|z| basis.point(&origin, z).into_iter().map(|v| v.clamp(0.0, 1.0)).collect()).collect();
+            let population: Vec<Vec<f64>> =
+                zs.iter().map(|z| basis.point(&origin, z).into_iter().map(|v| v.clamp(0.0, 1.0)).collect()).collect();
             let sets: Vec<Parameters> = population
                 .iter()
                 .map(|x| {

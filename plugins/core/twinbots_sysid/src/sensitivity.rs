@@ -56,7 +56,13 @@ const STEP_AT_ZERO: f64 = 0.01;
 /// into `specs`): Hessian 2·JᵀJ and slope 2·Jᵀr, per unit of each parameter, in `members`'
 /// order. Each parameter is stepped up by [`RELATIVE_STEP`] of its value; a delay by a tenth of
 /// a physics step, a bias by 1 mrad (mm). Also returns the replays it took.
-pub fn gauss_newton(rig: &Rig, logs: &[PreparedLog], at: &Parameters, specs: &[ParameterSpec], members: &[usize]) -> (Curvature, usize) {
+pub fn gauss_newton(
+    rig: &Rig,
+    logs: &[PreparedLog],
+    at: &Parameters,
+    specs: &[ParameterSpec],
+    members: &[usize],
+) -> (Curvature, usize) {
     let d = members.len();
     let steps: Vec<f64> = members
         .iter()
@@ -95,7 +101,8 @@ pub fn gauss_newton(rig: &Rig, logs: &[PreparedLog], at: &Parameters, specs: &[P
             .collect();
         let r0 = &signals[0];
         value += r0.iter().map(|r| r * r).sum::<f64>();
-        let columns: Vec<Vec<f64>> = (0..d).map(|p| signals[p + 1].iter().zip(r0).map(|(a, b)| (a - b) / steps[p]).collect()).collect();
+        let columns: Vec<Vec<f64>> =
+            (0..d).map(|p| signals[p + 1].iter().zip(r0).map(|(a, b)| (a - b) / steps[p]).collect()).collect();
         for p in 0..d {
             jtr[p] += columns[p].iter().zip(r0).map(|(j, r)| j * r).sum::<f64>();
             for q in p..d {
@@ -115,7 +122,11 @@ pub fn gauss_newton(rig: &Rig, logs: &[PreparedLog], at: &Parameters, specs: &[P
 /// The inverse of a small symmetric matrix by Gauss–Jordan elimination; `None` if singular.
 fn invert(m: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
     let d = m.len();
-    let mut a: Vec<Vec<f64>> = m.iter().enumerate().map(|(i, row)| row.iter().copied().chain((0..d).map(|j| if i == j { 1.0 } else { 0.0 })).collect()).collect();
+    let mut a: Vec<Vec<f64>> = m
+        .iter()
+        .enumerate()
+        .map(|(i, row)| row.iter().copied().chain((0..d).map(|j| if i == j { 1.0 } else { 0.0 })).collect())
+        .collect();
     for col in 0..d {
         let pivot = (col..d).max_by(|&x, &y| a[x][col].abs().total_cmp(&a[y][col].abs()))?;
         if a[pivot][col].abs() < 1e-300 {

@@ -64,12 +64,20 @@ const NOISE_ROUNDS: usize = 3;
 /// Measures every one of `specs`' spreads at `fitted` from the error's Gauss–Newton curvature
 /// over all of them (correlations across joints included), widened by the replay's numerical
 /// noise. `samples` is the count the χ² sums over.
-pub fn spreads(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[ParameterSpec], samples: usize) -> Uncertainty {
+pub fn spreads(
+    rig: &Rig,
+    logs: &[PreparedLog],
+    fitted: &Parameters,
+    specs: &[ParameterSpec],
+    samples: usize,
+) -> Uncertainty {
     let all: Vec<usize> = (0..specs.len()).collect();
     let (c, mut replays) = gauss_newton(rig, logs, fitted, specs, &all);
     let n = samples as f64;
     let d = specs.len();
-    let covariance = c.inverse().map(|inv| inv.iter().map(|row| row.iter().map(|v| 2.0 * v / n).collect::<Vec<f64>>()).collect::<Vec<_>>());
+    let covariance = c
+        .inverse()
+        .map(|inv| inv.iter().map(|row| row.iter().map(|v| 2.0 * v / n).collect::<Vec<f64>>()).collect::<Vec<_>>());
     // The noise may grow with how far apart the replays' parameters are (a pendulum that falls
     // over amplifies any change), so it is measured again as far out as the spreads it widens,
     // until it stops growing there.
@@ -118,7 +126,16 @@ pub fn spreads(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[Pa
 /// `scale` statistical spreads away (`factor`: the covariance's Cholesky factor, drawn with a
 /// fixed seed), of the error's departure from its quadratic model `c`. Also returns the replays.
 #[allow(clippy::too_many_arguments)]
-fn replay_noise(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[ParameterSpec], c: &Curvature, factor: &[Vec<f64>], n: f64, scale: f64) -> (f64, usize) {
+fn replay_noise(
+    rig: &Rig,
+    logs: &[PreparedLog],
+    fitted: &Parameters,
+    specs: &[ParameterSpec],
+    c: &Curvature,
+    factor: &[Vec<f64>],
+    n: f64,
+    scale: f64,
+) -> (f64, usize) {
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_0f_0015e);
@@ -127,7 +144,9 @@ fn replay_noise(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[P
         .map(|_| {
             let z: Vec<f64> = (0..d).map(|_| StandardNormal.sample(&mut rng)).collect();
             // A unit draw in every direction at once is √d spreads out: scaled to one.
-            (0..d).map(|p| factor[p].iter().zip(&z).map(|(l, z)| l * z).sum::<f64>() / (d as f64).sqrt() * scale).collect()
+            (0..d)
+                .map(|p| factor[p].iter().zip(&z).map(|(l, z)| l * z).sum::<f64>() / (d as f64).sqrt() * scale)
+                .collect()
         })
         .collect();
     let value = |i: usize| fitted.get(&specs[i].name).unwrap_or(specs[i].default);
@@ -160,7 +179,15 @@ fn replay_noise(rig: &Rig, logs: &[PreparedLog], fitted: &Parameters, specs: &[P
 /// positive definite, one step per parameter (k conditional spreads, or `fallback`). Each
 /// parameter's step is kept within [`min`, `max`] of the unit box.
 #[allow(clippy::too_many_arguments)]
-pub fn whitened(curvature: &Curvature, members: &[usize], ranges: &[Range], u: &[f64], samples: usize, k: f64, limits: (f64, f64, f64)) -> Basis {
+pub fn whitened(
+    curvature: &Curvature,
+    members: &[usize],
+    ranges: &[Range],
+    u: &[f64],
+    samples: usize,
+    k: f64,
+    limits: (f64, f64, f64),
+) -> Basis {
     let (min, max, fallback) = limits;
     let n = samples as f64;
     let d = members.len();
@@ -169,7 +196,9 @@ pub fn whitened(curvature: &Curvature, members: &[usize], ranges: &[Range], u: &
     let per_unit: Vec<f64> = members.iter().map(|&i| 1.0 / ranges[i].unit_spread(ranges[i].value(u[i]), 1.0)).collect();
     let scaled = Curvature {
         value: curvature.value,
-        hessian: (0..d).map(|p| (0..d).map(|q| curvature.hessian[p][q] * per_unit[p] * per_unit[q]).collect()).collect(),
+        hessian: (0..d)
+            .map(|p| (0..d).map(|q| curvature.hessian[p][q] * per_unit[p] * per_unit[q]).collect())
+            .collect(),
         slope: (0..d).map(|p| curvature.slope[p] * per_unit[p]).collect(),
         probe: curvature.probe.clone(),
     };
@@ -178,12 +207,19 @@ pub fn whitened(curvature: &Curvature, members: &[usize], ranges: &[Range], u: &
     // How far the minimum lies, in statistical spreads: the Newton step −H⁻¹·slope measured in
     // H (slopeᵀH⁻¹slope). The search's first steps reach that far.
     let distance2 = inverse.as_ref().map_or(0.0, |inv| {
-        let quad: f64 = scaled.slope.iter().enumerate().map(|(p, gp)| gp * inv[p].iter().zip(&scaled.slope).map(|(v, gq)| v * gq).sum::<f64>()).sum();
+        let quad: f64 = scaled
+            .slope
+            .iter()
+            .enumerate()
+            .map(|(p, gp)| gp * inv[p].iter().zip(&scaled.slope).map(|(v, gq)| v * gq).sum::<f64>())
+            .sum();
         if quad.is_finite() && quad > 0.0 { n / 2.0 * quad } else { 0.0 }
     });
     let k = k.max(distance2.sqrt() / (d.max(1) as f64).sqrt());
     let factor = inverse
-        .map(|inv| inv.iter().map(|row| row.iter().map(|v| k * k * 2.0 / n * v).collect::<Vec<f64>>()).collect::<Vec<_>>())
+        .map(|inv| {
+            inv.iter().map(|row| row.iter().map(|v| k * k * 2.0 / n * v).collect::<Vec<f64>>()).collect::<Vec<_>>()
+        })
         .and_then(|cov| cholesky(&cov));
     let factor = factor.unwrap_or_else(|| {
         let step = |p: usize| if h[p][p] > 0.0 { k * (2.0 / (n * h[p][p])).sqrt() } else { fallback };
@@ -234,10 +270,17 @@ mod tests {
         // Two parameters that trade off (correlated curvature): the basis' rows, mapped through
         // the curvature, are orthogonal with equal lengths (before the step limits apply).
         let range = Range { lo: 0.0, hi: 1.0, log: false };
-        let c = Curvature { value: 0.0, hessian: vec![vec![2.0, 1.8], vec![1.8, 2.0]], slope: vec![0.0, 0.0], probe: vec![0.01; 2] };
+        let c = Curvature {
+            value: 0.0,
+            hessian: vec![vec![2.0, 1.8], vec![1.8, 2.0]],
+            slope: vec![0.0, 0.0],
+            probe: vec![0.01; 2],
+        };
         let Basis(b) = whitened(&c, &[0, 1], &[range, range], &[0.5, 0.5], 1_000_000, 1.0, (0.0, 1.0, 0.1));
         // Columns of B are the search's axes: Bᵀ H B ∝ I.
-        let m = |i: usize, j: usize| -> f64 { (0..2).map(|p| (0..2).map(|q| b[p][i] * c.hessian[p][q] * b[q][j]).sum::<f64>()).sum() };
+        let m = |i: usize, j: usize| -> f64 {
+            (0..2).map(|p| (0..2).map(|q| b[p][i] * c.hessian[p][q] * b[q][j]).sum::<f64>()).sum()
+        };
         assert!(m(0, 1).abs() < 1e-9 * m(0, 0), "{b:?}");
         assert!((m(0, 0) / m(1, 1) - 1.0).abs() < 1e-9, "{b:?}");
     }

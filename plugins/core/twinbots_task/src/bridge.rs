@@ -41,7 +41,9 @@ impl<T> Inbox<T> {
             match self.channel.try_recv() {
                 Ok(message) => break Ok(message),
                 Err(TryRecvError::Disconnected) => break Err(RecvError),
-                Err(TryRecvError::Empty) if self.last_wait < POLL && started.elapsed() < POLL => std::thread::yield_now(),
+                Err(TryRecvError::Empty) if self.last_wait < POLL && started.elapsed() < POLL => {
+                    std::thread::yield_now()
+                }
                 Err(TryRecvError::Empty) => break self.channel.recv(),
             }
         };
@@ -53,12 +55,19 @@ impl<T> Inbox<T> {
 /// Trainer → app.
 #[derive(Clone, Debug)]
 pub enum Request {
-    Reset { seed: Option<u64> },
-    Step { actions: Vec<f32> },
+    Reset {
+        seed: Option<u64>,
+    },
+    Step {
+        actions: Vec<f32>,
+    },
     /// The envs' running episodes, for a checkpoint.
     State,
     /// New episodes from given streams (a replay's step).
-    Begin { starts: Vec<(usize, StreamState)>, clock: Option<u64> },
+    Begin {
+        starts: Vec<(usize, StreamState)>,
+        clock: Option<u64>,
+    },
 }
 
 /// App → trainer; an `Err` is a request the app refused (e.g. wrong action count).
@@ -88,9 +97,7 @@ impl Plugin for BridgePlugin {
     fn build(&self, app: &mut App) {
         app.add_systems(
             First,
-            receive_requests
-                .run_if(resource_exists::<BridgeEndpoint>)
-                .run_if(twinbots_sim::physics::sim_started),
+            receive_requests.run_if(resource_exists::<BridgeEndpoint>).run_if(twinbots_sim::physics::sim_started),
         )
         .add_systems(PostUpdate, send_step_results.run_if(resource_exists::<BridgeEndpoint>))
         .init_resource::<SimulationTime>();

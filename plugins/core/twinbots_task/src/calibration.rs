@@ -62,7 +62,11 @@ pub fn read_calibration(path: &Path, catalogue: &[ParameterSpec], robot: &str) -
 
 /// [`read_calibration`] and the file's `[spread]`: every name a parameter the file sets, every
 /// value finite and ≥ 0.
-pub fn read_calibration_with_spread(path: &Path, catalogue: &[ParameterSpec], robot: &str) -> anyhow::Result<(Parameters, Parameters)> {
+pub fn read_calibration_with_spread(
+    path: &Path,
+    catalogue: &[ParameterSpec],
+    robot: &str,
+) -> anyhow::Result<(Parameters, Parameters)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read calibration {}", path.display()))?;
     let in_file = || format!("calibration {}", path.display());
     let table = toml_table(&text).with_context(in_file)?;
@@ -75,7 +79,11 @@ pub fn read_calibration_with_spread(path: &Path, catalogue: &[ParameterSpec], ro
             "calibration {}: [spread] names '{name}', which its [parameters] do not set",
             path.display()
         );
-        anyhow::ensure!(sigma.is_finite() && *sigma >= 0.0, "calibration {}: [spread] '{name}' = {sigma}: must be finite and ≥ 0", path.display());
+        anyhow::ensure!(
+            sigma.is_finite() && *sigma >= 0.0,
+            "calibration {}: [spread] '{name}' = {sigma}: must be finite and ≥ 0",
+            path.display()
+        );
     }
     Ok((params, spread))
 }
@@ -118,7 +126,9 @@ mod tests {
     #[test]
     fn dotted_and_quoted_names_read_the_same() {
         let a = parse_parameters("[parameters]\nelbow.damping = 2\ncommand_delay = 0.012\n").unwrap();
-        let b = parse_parameters("[parameters]\n\"elbow.damping\" = 2.0\n\"command_delay\" = 1.2e-2\n[fit]\nnote = 'x'\n").unwrap();
+        let b =
+            parse_parameters("[parameters]\n\"elbow.damping\" = 2.0\n\"command_delay\" = 1.2e-2\n[fit]\nnote = 'x'\n")
+                .unwrap();
         assert_eq!(a, b);
         assert_eq!(a.get("elbow.damping"), Some(2.0));
         let err = parse_parameters("[parameters]\nelbow.damping = 'high'\n").unwrap_err().to_string();

@@ -6,10 +6,10 @@ use twinbots_sim::Arena;
 
 use twinbots_api::{EnvState, Space, StepResult, StreamState, TaskSpec, VecEnv};
 
-use crate::task::{Action, ActiveTask, episode, observations};
 use crate::replay::{begin_episodes, env_state};
 use crate::task::record::record_actions;
 use crate::task::reset;
+use crate::task::{Action, ActiveTask, episode, observations};
 
 /// Arena entities in env order (by `Arena::index`), found once the world is built.
 #[derive(Resource, Clone, Debug, Default)]
@@ -17,11 +17,8 @@ pub struct ArenaOrder(pub Vec<Entity>);
 
 /// Finds the arenas and records their order; call after start-up.
 pub fn index_arenas(world: &mut World) -> Vec<Entity> {
-    let mut arenas: Vec<(usize, Entity)> = world
-        .query::<(Entity, &Arena)>()
-        .iter(world)
-        .map(|(e, a)| (a.index, e))
-        .collect();
+    let mut arenas: Vec<(usize, Entity)> =
+        world.query::<(Entity, &Arena)>().iter(world).map(|(e, a)| (a.index, e)).collect();
     arenas.sort();
     let order: Vec<Entity> = arenas.into_iter().map(|(_, e)| e).collect();
     world.insert_resource(ArenaOrder(order.clone()));
@@ -63,10 +60,7 @@ pub fn write_actions(world: &mut World, arenas: &[Entity], actions: &[f32]) -> a
 
 /// What the last control step produced, for all arenas.
 pub fn collect_step(world: &World, arenas: &[Entity]) -> StepResult {
-    let mut out = StepResult {
-        obs: observations(world, arenas),
-        ..default()
-    };
+    let mut out = StepResult { obs: observations(world, arenas), ..default() };
     for &arena in arenas {
         let e = episode(world, arena);
         out.rewards.push(e.reward);

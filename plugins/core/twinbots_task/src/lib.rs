@@ -14,13 +14,14 @@ pub mod replay;
 pub mod robot;
 pub mod task;
 
-pub use twinbots_api as api;
-pub use twinbots_api::{
-    DesignPattern, EnvState, EpisodeSummary, GoalChange, GoalSpec, Info, Measure, SingleEnv, SolvedCriterion, Space, StepResult, StreamState,
-    TaskSpec, VecEnv, spaces,
-};
 pub use env::AppVecEnv;
 pub use robot::{AlgoDefaults, AppRequest, Registry, RobotDescription, TaskDescription, TrainingDefaults};
 pub use task::{
-    Action, ActiveTask, Episode, ObservationTerm, RewardTerm, StartEvent, TaskDefinition, TaskPlugin, TaskTerms, TaskTermsPlugin, TerminationTerm,
+    Action, ActiveTask, Episode, ObservationTerm, RewardTerm, StartEvent, TaskDefinition, TaskPlugin, TaskTerms,
+    TaskTermsPlugin, TerminationTerm,
+};
+pub use twinbots_api as api;
+pub use twinbots_api::{
+    DesignPattern, EnvState, EpisodeSummary, GoalChange, GoalSpec, Info, Measure, SingleEnv, SolvedCriterion, Space,
+    StepResult, StreamState, TaskSpec, VecEnv, spaces,
 };

@@ -23,7 +23,9 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 use twinbots_sim::parameters::apply_to_joint;
-use twinbots_sim::{Arena, InArena, SupervisorAccess, Joint, JointDynamics, Motor, ParameterKind, Parameters, PositionSensor, SimSet};
+use twinbots_sim::{
+    Arena, InArena, Joint, JointDynamics, Motor, ParameterKind, Parameters, PositionSensor, SimSet, SupervisorAccess,
+};
 
 use crate::task::{Action, ActiveTask, EnvReset, ResetSet, Resetting};
 

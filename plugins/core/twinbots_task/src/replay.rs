@@ -26,13 +26,19 @@ pub fn env_state(world: &World, arenas: &[Entity]) -> Option<EnvState> {
 
 /// Starts new episodes in `starts` (arena position, stream), with the clock set to `clock`
 /// first if given; returns every arena's observation.
-pub fn begin_episodes(world: &mut World, arenas: &[Entity], starts: &[(usize, StreamState)], clock: Option<u64>) -> anyhow::Result<Vec<f32>> {
+pub fn begin_episodes(
+    world: &mut World,
+    arenas: &[Entity],
+    starts: &[(usize, StreamState)],
+    clock: Option<u64>,
+) -> anyhow::Result<Vec<f32>> {
     if let Some(clock) = clock {
         world.resource_mut::<SimClock>().control_steps = clock;
     }
     let mut chosen = Vec::with_capacity(starts.len());
     for (index, stream) in starts {
-        let &arena = arenas.get(*index).ok_or_else(|| anyhow::anyhow!("no env {index} (there are {})", arenas.len()))?;
+        let &arena =
+            arenas.get(*index).ok_or_else(|| anyhow::anyhow!("no env {index} (there are {})", arenas.len()))?;
         let rng = stream.to_rng()?;
         world.get_mut::<Arena>(arena).ok_or_else(|| anyhow::anyhow!("env {index} is not an arena"))?.rng = rng;
         chosen.push(arena);

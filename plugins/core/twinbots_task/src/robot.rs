@@ -90,7 +90,8 @@ impl AlgoDefaults {
 
     /// The robot's hyperparameters for the algorithm: the keys of its `[<algo>]` table.
     pub fn keys(&self) -> anyhow::Result<toml::Table> {
-        toml::from_str(self.hyperparams).map_err(|e| anyhow::anyhow!("[{}] hyperparameters do not read: {}", self.algo, e.message()))
+        toml::from_str(self.hyperparams)
+            .map_err(|e| anyhow::anyhow!("[{}] hyperparameters do not read: {}", self.algo, e.message()))
     }
 
     /// The algorithm's config `T` with this robot's hyperparameters over `T::default()`; an
@@ -231,7 +232,10 @@ impl RobotDescription {
         let training = task.training.ok_or_else(|| {
             anyhow::anyhow!(
                 "{}'s task '{}' runs a model of its task '{}' and is not trained itself; tasks that train: {}",
-                self.name, task.name, self.main_task().name, trainable()
+                self.name,
+                task.name,
+                self.main_task().name,
+                trainable()
             )
         })?;
         Ok((task, training()))
@@ -244,10 +248,9 @@ impl RobotDescription {
     /// The named task (`None`: the main one); an unknown name lists the known ones.
     pub fn find_task(&self, name: Option<&str>) -> anyhow::Result<&TaskDescription> {
         let Some(name) = name else { return Ok(self.main_task()) };
-        self.tasks
-            .iter()
-            .find(|t| t.name == name)
-            .ok_or_else(|| anyhow::anyhow!("{} has no task '{name}'; its tasks: {}", self.name, self.task_names().join(", ")))
+        self.tasks.iter().find(|t| t.name == name).ok_or_else(|| {
+            anyhow::anyhow!("{} has no task '{name}'; its tasks: {}", self.name, self.task_names().join(", "))
+        })
     }
 
     /// Every design pattern some task of the robot supports.
@@ -304,7 +307,11 @@ pub struct Registry {
 impl Registry {
     /// Adds a robot; a name already taken is an error.
     pub fn register(&mut self, robot: RobotDescription) -> anyhow::Result<()> {
-        anyhow::ensure!(self.robots.iter().all(|r| r.name != robot.name), "a robot named '{}' is already registered", robot.name);
+        anyhow::ensure!(
+            self.robots.iter().all(|r| r.name != robot.name),
+            "a robot named '{}' is already registered",
+            robot.name
+        );
         anyhow::ensure!(!robot.tasks.is_empty(), "robot '{}' has no task", robot.name);
         self.robots.push(robot);
         Ok(())

@@ -12,7 +12,10 @@ use std::path::Path;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_task::robot::{self, AlgoDefaults, AppRequest, JointExcitation, RigDescription, RobotDescription, TaskDescription, TrainingDefaults};
+use twinbots_task::robot::{
+    self, AlgoDefaults, AppRequest, JointExcitation, RigDescription, RobotDescription, TaskDescription,
+    TrainingDefaults,
+};
 use twinbots_task::task::{ResetSet, Resetting, TaskSet, spawn_arenas};
 use twinbots_task::{
     Action, DesignPattern, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskSpec,
@@ -23,7 +26,10 @@ mod radio;
 pub mod server;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
-use twinbots_sim::{Arena, ArenaConfig, Framing, Handled, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions, SpawnedRobot, Supervisor, spawn_robot};
+use twinbots_sim::{
+    Arena, ArenaConfig, Framing, Handled, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions,
+    SpawnedRobot, Supervisor, spawn_robot,
+};
 
 /// The robot's URDF, compiled in so the twin works from any directory.
 pub const URDF: &str = include_str!("../../../../assets/robots/cartpole/cartpole.urdf");
@@ -83,7 +89,8 @@ pub fn balance_task(initial_tilt: f32) -> TaskDefinition<CartPoleState> {
                 // outside, a reading is a fault (a RobotServer refuses it).
                 ObservationTerm::scalar("cart_x", |s: &CartPoleState| s.x).plausible(-5.0, 5.0),
                 ObservationTerm::scalar("cart_velocity", |s: &CartPoleState| s.v).plausible(-20.0, 20.0),
-                ObservationTerm::scalar("pole_angle", |s: &CartPoleState| s.angle).plausible(-std::f32::consts::PI, std::f32::consts::PI),
+                ObservationTerm::scalar("pole_angle", |s: &CartPoleState| s.angle)
+                    .plausible(-std::f32::consts::PI, std::f32::consts::PI),
                 ObservationTerm::scalar("pole_rate", |s: &CartPoleState| s.rate).plausible(-100.0, 100.0),
             ],
             rewards: vec![RewardTerm::new("alive", 1.0, |_| 1.0).bounded(1.0, 1.0)],
@@ -131,13 +138,24 @@ pub fn robot() -> RobotDescription {
     RobotDescription {
         name: "cartpole",
         description: "cart-pole twin (deepbots replica): 4 velocity-driven wheels, passive pole; Discrete(2), 32 ms step",
-        tasks: vec![TaskDescription { name: "balance", description: "keep the pole up (deepbots' CartPole)", spec: task_spec, server: true, training: None }],
+        tasks: vec![TaskDescription {
+            name: "balance",
+            description: "keep the pole up (deepbots' CartPole)",
+            spec: task_spec,
+            server: true,
+            training: None,
+        }],
         patterns: vec![DesignPattern::Supervised, DesignPattern::Radio],
         framing: Framing::default(),
         // RL Zoo's CartPole-v1 settings (short rollouts, many epochs, linear learning-rate decay).
-        defaults: TrainingDefaults { algos: vec![AlgoDefaults { hyperparams: PPO_HYPERPARAMS, ..AlgoDefaults::new("ppo") }], ..default() },
+        defaults: TrainingDefaults {
+            algos: vec![AlgoDefaults { hyperparams: PPO_HYPERPARAMS, ..AlgoDefaults::new("ppo") }],
+            ..default()
+        },
         settings: sim_settings,
-        build: |request| robot::headless_app(sim_settings(), request, CartPolePlugin { pattern: request.pattern, ..default() }),
+        build: |request| {
+            robot::headless_app(sim_settings(), request, CartPolePlugin { pattern: request.pattern, ..default() })
+        },
         rig: Some(rig()),
         feedback: Some(feedback),
         cell: None,
@@ -170,10 +188,21 @@ pub fn rig() -> RigDescription {
     }
 }
 
-fn spawn_rig(commands: &mut Commands, arena_entity: Entity, arena: &mut Arena, joint_positions: &[(String, f32)]) -> SpawnedRobot {
+fn spawn_rig(
+    commands: &mut Commands,
+    arena_entity: Entity,
+    arena: &mut Arena,
+    joint_positions: &[(String, f32)],
+) -> SpawnedRobot {
     arena.add_ground(1.0);
     let base = Pose::from_translation(Vec3::new(0.0, 0.0, CART_HEIGHT));
-    spawn_robot(commands, arena_entity, arena, &model(), SpawnOptions { base, joint_positions: joint_positions.to_vec(), ..default() })
+    spawn_robot(
+        commands,
+        arena_entity,
+        arena,
+        &model(),
+        SpawnOptions { base, joint_positions: joint_positions.to_vec(), ..default() },
+    )
 }
 
 /// Everything needed to train or run the cart-pole headless (design pattern 1).
@@ -228,7 +257,10 @@ impl Plugin for CartPolePlugin {
         match self.pattern {
             DesignPattern::Supervised => {
                 app.add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_supervised.in_set(TaskSet::Read)))
-                    .add_systems(twinbots_task::task::EnvReset, (place_pole.in_set(ResetSet::Place), read_supervised.in_set(ResetSet::Read)));
+                    .add_systems(
+                        twinbots_task::task::EnvReset,
+                        (place_pole.in_set(ResetSet::Place), read_supervised.in_set(ResetSet::Read)),
+                    );
             }
             DesignPattern::Radio => {
                 app.add_systems(twinbots_task::task::EnvReset, place_pole.in_set(ResetSet::Place));
@@ -258,7 +290,8 @@ pub(crate) fn spawn_cartpoles(
             &model.0,
             SpawnOptions { base: Pose::from_translation(Vec3::new(0.0, 0.0, CART_HEIGHT)), ..default() },
         );
-        let part = |name: &str, found: Option<Entity>| found.unwrap_or_else(|| panic!("cart-pole URDF has no '{name}'"));
+        let part =
+            |name: &str, found: Option<Entity>| found.unwrap_or_else(|| panic!("cart-pole URDF has no '{name}'"));
         let parts = CartPoleParts {
             cart: part("cart", robot.link("cart")),
             pole_link: part("pole", robot.link("pole")),
@@ -296,9 +329,14 @@ fn apply_action(arenas: Query<(&CartPoleParts, &Action)>, mut motors: Query<&mut
 
 /// Pattern 1: the cart's x and velocity and the pole's rate from the Supervisor, the angle
 /// from the hinge's position sensor.
-fn read_supervised(supervisor: Supervisor, sensors: Query<&PositionSensor>, mut arenas: Query<(&CartPoleParts, &mut CartPoleState)>) {
+fn read_supervised(
+    supervisor: Supervisor,
+    sensors: Query<&PositionSensor>,
+    mut arenas: Query<(&CartPoleParts, &mut CartPoleState)>,
+) {
     for (parts, mut state) in &mut arenas {
-        let (Some(cart), Some(pole)) = (supervisor.link_state(parts.cart), supervisor.link_state(parts.pole_link)) else {
+        let (Some(cart), Some(pole)) = (supervisor.link_state(parts.cart), supervisor.link_state(parts.pole_link))
+        else {
             continue;
         };
         state.x = cart.pose.translation.x;

@@ -11,13 +11,13 @@
 use std::path::Path;
 
 use bevy::prelude::*;
-use twinbots_task::Action;
-use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet};
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::parse_urdf;
 use twinbots_sim::{
     Arena, Emitter, InArena, Motor, Mount, PositionSensor, Receiver, SimSet, SpawnOptions, Supervisor, spawn_robot,
 };
+use twinbots_task::Action;
+use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet};
 
 use crate::{CartPoleParts, CartPoleState, drive_wheels};
 
@@ -47,11 +47,13 @@ pub(crate) fn equip(commands: &mut Commands, arena_entity: Entity, arena: &mut A
     let slave_receiver = commands.spawn((Receiver::new(ACTIONS_CHANNEL), on(parts.cart))).id();
     let model = parse_urdf(SUPERVISOR_ROBOT, Path::new("supervisor.urdf"), Path::new("."))
         .expect("the supervisor robot's URDF is valid");
-    let pc = spawn_robot(commands, arena_entity, arena, &model, SpawnOptions {
-        base: Pose::from_translation(Vec3::new(0.0, 1.0, 0.5)),
-        fixed_base: true,
-        ..default()
-    });
+    let pc = spawn_robot(
+        commands,
+        arena_entity,
+        arena,
+        &model,
+        SpawnOptions { base: Pose::from_translation(Vec3::new(0.0, 1.0, 0.5)), fixed_base: true, ..default() },
+    );
     let pc = pc.link("world").expect("the supervisor robot has its link");
     let supervisor_emitter = commands.spawn((Emitter::new(ACTIONS_CHANNEL), on(pc))).id();
     let supervisor_receiver = commands.spawn((Receiver::new(READINGS_CHANNEL), on(pc))).id();
@@ -130,7 +132,8 @@ fn supervisor_reads(
                 }
             }
         }
-        let (Some(cart), Some(pole)) = (supervisor.link_state(parts.cart), supervisor.link_state(parts.pole_link)) else {
+        let (Some(cart), Some(pole)) = (supervisor.link_state(parts.cart), supervisor.link_state(parts.pole_link))
+        else {
             continue;
         };
         // Right after a reset no readings have arrived yet: the supervisor looks for itself.

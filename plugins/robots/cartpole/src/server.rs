@@ -7,9 +7,9 @@
 //! drawn tilt.
 
 use bevy::prelude::*;
-use twinbots_task::task::TaskSet;
 use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerRobotPlugin};
 use twinbots_sim::{JointState, Motor, MotorCommand, Operator, PositionSensor, SimSettings};
+use twinbots_task::task::TaskSet;
 
 use crate::{CartPoleParts, CartPoleState, WHEEL_SPEED};
 
@@ -71,7 +71,10 @@ fn home(mut robots: Query<(&CartPoleParts, &CartPoleState, &Controller, &mut AtH
 
 /// The lab operator: holds the pole upright while the robot homes, and lets go at the drawn
 /// tilt when the episode starts.
-fn operate(mut operator: Operator, mut robots: Query<(Entity, &CartPoleParts, &CartPoleState, &Controller, &mut PreviousAngle)>) {
+fn operate(
+    mut operator: Operator,
+    mut robots: Query<(Entity, &CartPoleParts, &CartPoleState, &Controller, &mut PreviousAngle)>,
+) {
     for (arena, parts, state, controller, mut previous) in &mut robots {
         let angle = match controller.phase() {
             Phase::Homing => 0.0,

@@ -9,17 +9,19 @@ use std::path::Path;
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_task::robot::{AlgoDefaults, JointExcitation, RigDescription, RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_sim::rapier::math::Pose;
+use twinbots_sim::urdf::{RobotModel, parse_urdf};
+use twinbots_sim::{
+    Arena, ArenaConfig, DistanceSensor, Framing, InArena, Motor, MotorCommand, Mount, PositionSensor, SimSet,
+    SimSettings, SpawnOptions, SpawnedRobot, Supervisor, spawn_robot,
+};
+use twinbots_task::robot::{
+    AlgoDefaults, JointExcitation, RigDescription, RobotDescription, TaskDescription, TrainingDefaults, headless_app,
+};
 use twinbots_task::task::{EnvReset, ResetSet, TaskSet, spawn_arenas};
 use twinbots_task::{
     Action, DesignPattern, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskSpec,
     TaskTerms, TaskTermsPlugin, TerminationTerm,
-};
-use twinbots_sim::rapier::math::Pose;
-use twinbots_sim::urdf::{RobotModel, parse_urdf};
-use twinbots_sim::{
-    Arena, ArenaConfig, DistanceSensor, Framing, InArena, Motor, MotorCommand, Mount, PositionSensor, SimSet, SimSettings,
-    SpawnOptions, SpawnedRobot, Supervisor, spawn_robot,
 };
 
 pub const URDF: &str = include_str!("../../../../assets/robots/pioneer3at/pioneer3at.urdf");
@@ -76,14 +78,16 @@ pub fn balance_task() -> TaskDefinition<PioneerState> {
                 // Plausible: far beyond the episode's ±5 m and 0.3 rad and the base's top speed.
                 ObservationTerm::scalar("base_x", |s: &PioneerState| s.x).plausible(-50.0, 50.0),
                 ObservationTerm::scalar("base_velocity", |s: &PioneerState| s.vx).plausible(-10.0, 10.0),
-                ObservationTerm::scalar("pole_angle", |s: &PioneerState| s.angle).plausible(-std::f32::consts::PI, std::f32::consts::PI),
+                ObservationTerm::scalar("pole_angle", |s: &PioneerState| s.angle)
+                    .plausible(-std::f32::consts::PI, std::f32::consts::PI),
                 ObservationTerm::scalar("pole_rate", |s: &PioneerState| s.rate).plausible(-100.0, 100.0),
             ],
             rewards: vec![
                 RewardTerm::new("alive", 1.0, |_| 1.0).bounded(1.0, 1.0),
                 // Both end the episode long before their bounds (0.3 rad, 5 m): the bounds only
                 // give the reward a declared range.
-                RewardTerm::new("pole_angle", -2.0, |s: &PioneerState| s.angle.abs()).bounded(0.0, std::f32::consts::PI),
+                RewardTerm::new("pole_angle", -2.0, |s: &PioneerState| s.angle.abs())
+                    .bounded(0.0, std::f32::consts::PI),
                 RewardTerm::new("distance", -0.1, |s: &PioneerState| s.x.abs()).bounded(0.0, 2.0 * MAX_X),
             ],
             terminations: vec![
@@ -130,12 +134,21 @@ pub fn robot() -> RobotDescription {
     RobotDescription {
         name: "pioneer3at",
         description: "Pioneer 3-AT skid-steer base, 16 sonars, inverted pendulum; Box([-6.4],[6.4]) wheel speed, 64 ms step",
-        tasks: vec![TaskDescription { name: "balance", description: "balance the pendulum on the driving base", spec: task_spec, server: false, training: None }],
+        tasks: vec![TaskDescription {
+            name: "balance",
+            description: "balance the pendulum on the driving base",
+            spec: task_spec,
+            server: false,
+            training: None,
+        }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),
         // SB3's defaults with observation normalisation (a continuous-control task).
         defaults: TrainingDefaults {
-            algos: vec![AlgoDefaults { hyperparams: "normalize_observations = true\nn_steps = 512", ..AlgoDefaults::new("ppo") }],
+            algos: vec![AlgoDefaults {
+                hyperparams: "normalize_observations = true\nn_steps = 512",
+                ..AlgoDefaults::new("ppo")
+            }],
             ..default()
         },
         settings: sim_settings,
@@ -172,10 +185,21 @@ pub fn rig() -> RigDescription {
     }
 }
 
-fn spawn_rig(commands: &mut Commands, arena_entity: Entity, arena: &mut Arena, joint_positions: &[(String, f32)]) -> SpawnedRobot {
+fn spawn_rig(
+    commands: &mut Commands,
+    arena_entity: Entity,
+    arena: &mut Arena,
+    joint_positions: &[(String, f32)],
+) -> SpawnedRobot {
     arena.add_ground(1.0);
     let base = Pose::from_translation(Vec3::new(0.0, 0.0, AXLE_HEIGHT));
-    spawn_robot(commands, arena_entity, arena, &model(), SpawnOptions { base, joint_positions: joint_positions.to_vec(), ..default() })
+    spawn_robot(
+        commands,
+        arena_entity,
+        arena,
+        &model(),
+        SpawnOptions { base, joint_positions: joint_positions.to_vec(), ..default() },
+    )
 }
 
 /// A headless app of the pendulum task (design pattern 1).
@@ -218,7 +242,13 @@ pub fn sonar_offset(i: usize) -> Pose {
 }
 
 /// Spawns one Pioneer with its sonar ring into an arena; returns its parts.
-pub fn spawn_pioneer(commands: &mut Commands, arena_entity: Entity, arena: &mut Arena, model: &RobotModel, base: Pose) -> PioneerParts {
+pub fn spawn_pioneer(
+    commands: &mut Commands,
+    arena_entity: Entity,
+    arena: &mut Arena,
+    model: &RobotModel,
+    base: Pose,
+) -> PioneerParts {
     let robot = spawn_robot(commands, arena_entity, arena, model, SpawnOptions { base, ..default() });
     let get = |found: Option<Entity>, name: &str| found.unwrap_or_else(|| panic!("Pioneer URDF has no '{name}'"));
     let base_link = get(robot.link("base_link"), "base_link");
@@ -238,7 +268,12 @@ pub fn spawn_pioneer(commands: &mut Commands, arena_entity: Entity, arena: &mut 
     }
 }
 
-fn spawn_pioneers(mut commands: Commands, model: Res<PioneerModel>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
+fn spawn_pioneers(
+    mut commands: Commands,
+    model: Res<PioneerModel>,
+    config: Res<ArenaConfig>,
+    settings: Res<SimSettings>,
+) {
     spawn_arenas(&mut commands, &config, &settings, |commands, arena_entity, arena| {
         arena.add_ground(1.0);
         let base = Pose::from_translation(Vec3::new(0.0, 0.0, AXLE_HEIGHT));
@@ -272,9 +307,14 @@ fn apply_action(mut arenas: Query<(&PioneerParts, &Action, &mut PioneerState)>, 
 
 /// The base's x and velocity and the pole's rate from the Supervisor, the angle from the
 /// pendulum's position sensor.
-fn read_supervised(supervisor: Supervisor, sensors: Query<&PositionSensor>, mut arenas: Query<(&PioneerParts, &mut PioneerState)>) {
+fn read_supervised(
+    supervisor: Supervisor,
+    sensors: Query<&PositionSensor>,
+    mut arenas: Query<(&PioneerParts, &mut PioneerState)>,
+) {
     for (parts, mut state) in &mut arenas {
-        let (Some(base), Some(pole)) = (supervisor.link_state(parts.base), supervisor.link_state(parts.pole_link)) else {
+        let (Some(base), Some(pole)) = (supervisor.link_state(parts.base), supervisor.link_state(parts.pole_link))
+        else {
             continue;
         };
         state.x = base.pose.translation.x;

@@ -93,7 +93,8 @@ impl ArmState {
 
     /// Whether the arm is at the joint angles `pose` (within homing's tolerance) and still.
     pub fn is_at(&self, pose: &[f32; 6]) -> bool {
-        self.q.iter().zip(pose).all(|(q, p)| (q - p).abs() < HOME_TOLERANCE) && self.qd.iter().all(|v| v.abs() < HOME_SPEED)
+        self.q.iter().zip(pose).all(|(q, p)| (q - p).abs() < HOME_TOLERANCE)
+            && self.qd.iter().all(|v| v.abs() < HOME_SPEED)
     }
 
     /// Whether any joint is at one of its stops (±2π, the elbow ±π).
@@ -124,7 +125,9 @@ pub struct SpeedSlider(pub f32);
 
 /// Joint speed commands for an action in [−1, 1]⁵ (wrist 3 at rest).
 pub fn joint_speeds(action: &[f32]) -> [f32; 6] {
-    std::array::from_fn(|i| if i < ACTION_DIM { action.get(i).copied().unwrap_or(0.0).clamp(-1.0, 1.0) * ACTION_SPEED } else { 0.0 })
+    std::array::from_fn(|i| {
+        if i < ACTION_DIM { action.get(i).copied().unwrap_or(0.0).clamp(-1.0, 1.0) * ACTION_SPEED } else { 0.0 }
+    })
 }
 
 /// Drives the arm's joints at these speeds.

@@ -7,7 +7,9 @@ use std::path::Path;
 use bevy::prelude::*;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
-use twinbots_sim::{Arena, ContactSensor, Handled, InArena, Motor, MotorCommand, Mount, SpawnOptions, VacuumGripper, spawn_robot};
+use twinbots_sim::{
+    Arena, ContactSensor, Handled, InArena, Motor, MotorCommand, Mount, SpawnOptions, VacuumGripper, spawn_robot,
+};
 
 use crate::kinematics::JOINTS;
 use crate::layout::CellLayout;
@@ -86,7 +88,14 @@ pub struct CellParts {
 
 /// Builds the cell of `layout` into `arena`, the arm at `start` (joint angles), and returns its
 /// parts.
-pub fn spawn_cell(commands: &mut Commands, arena_entity: Entity, arena: &mut Arena, models: &CellModels, layout: &CellLayout, start: [f32; 6]) -> CellParts {
+pub fn spawn_cell(
+    commands: &mut Commands,
+    arena_entity: Entity,
+    arena: &mut Arena,
+    models: &CellModels,
+    layout: &CellLayout,
+    start: [f32; 6],
+) -> CellParts {
     let base = layout.base_pose();
     arena.add_ground(layout.floor.friction);
     let table = &layout.table;
@@ -97,13 +106,31 @@ pub fn spawn_cell(commands: &mut Commands, arena_entity: Entity, arena: &mut Are
     }
     for fixture in [&layout.pick, &layout.place] {
         let pose = layout.fixture_pose(fixture);
-        spawn_robot(commands, arena_entity, arena, &models.fixture, SpawnOptions { base: pose, fixed_base: true, environment: true, ..default() });
+        spawn_robot(
+            commands,
+            arena_entity,
+            arena,
+            &models.fixture,
+            SpawnOptions { base: pose, fixed_base: true, environment: true, ..default() },
+        );
     }
     let part_pose = base * Pose::from_translation(part_seat(layout.fixtures().pick));
-    let part = spawn_robot(commands, arena_entity, arena, &models.part, SpawnOptions { base: part_pose, environment: true, friction: 0.8, ..default() });
+    let part = spawn_robot(
+        commands,
+        arena_entity,
+        arena,
+        &models.part,
+        SpawnOptions { base: part_pose, environment: true, friction: 0.8, ..default() },
+    );
 
     let joint_positions = JOINTS.iter().zip(start).map(|(name, q)| (name.to_string(), q)).collect();
-    let robot = spawn_robot(commands, arena_entity, arena, &models.robot, SpawnOptions { base, fixed_base: true, joint_positions, ..default() });
+    let robot = spawn_robot(
+        commands,
+        arena_entity,
+        arena,
+        &models.robot,
+        SpawnOptions { base, fixed_base: true, joint_positions, ..default() },
+    );
     let get = |found: Option<Entity>, name: &str| found.unwrap_or_else(|| panic!("UR5e URDF has no '{name}'"));
     let joints = JOINTS.map(|name| get(robot.joint(name), name));
     for &joint in &joints {

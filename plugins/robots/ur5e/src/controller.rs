@@ -73,7 +73,9 @@ pub fn reachable(target: Vec3) -> bool {
         if arm.at_joint_limit() {
             return false;
         }
-        if arm.distance_to(target) < crate::arm::REACH_TOLERANCE && crate::kinematics::tilt(&arm.tcp) < crate::arm::TILT_TOLERANCE {
+        if arm.distance_to(target) < crate::arm::REACH_TOLERANCE
+            && crate::kinematics::tilt(&arm.tcp) < crate::arm::TILT_TOLERANCE
+        {
             return true;
         }
         let speeds = crate::arm::joint_speeds(&resolved_rate(&arm, target));

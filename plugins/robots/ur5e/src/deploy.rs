@@ -10,8 +10,8 @@ use twinbots_task::TaskTerms;
 use crate::arm::{self, ACTION_DIM, ActionHistory, ArmState};
 use crate::kinematics::{self, JOINT_RANGES, JOINTS, MAX_JOINT_SPEED};
 use crate::layout::CellLayout;
-use twinbots_sim::rapier::math::Pose;
 use crate::state::CellState;
+use twinbots_sim::rapier::math::Pose;
 
 /// The robot's joints as a controller reports them, base to wrist 3, with the sign that turns
 /// a reported angle into the twin's: the twin is built on UR's own DH table, so every sign is +1.
@@ -122,7 +122,11 @@ impl Keepout {
         layout
             .obstacles
             .iter()
-            .map(|o| Keepout { centre: (base * Pose::from_translation(Vec3::from_array(o.centre))).translation.as_dvec3(), half: Vec3::from_array(o.size).as_dvec3() / 2.0, yaw })
+            .map(|o| Keepout {
+                centre: (base * Pose::from_translation(Vec3::from_array(o.centre))).translation.as_dvec3(),
+                half: Vec3::from_array(o.size).as_dvec3() / 2.0,
+                yaw,
+            })
             .collect()
     }
 }
@@ -182,7 +186,14 @@ impl Shadow {
             let step = self.max_acceleration * period;
             let limited = limited.clamp(previous[j] - step, previous[j] + step);
             if limited != out[j] {
-                notes.push(format!("joint {}: {:.3} rad/s clipped to {:.3} (speed ≤ {:.3}, acceleration ≤ {:.0} rad/s²)", j + 1, out[j], limited, self.max_speed, self.max_acceleration));
+                notes.push(format!(
+                    "joint {}: {:.3} rad/s clipped to {:.3} (speed ≤ {:.3}, acceleration ≤ {:.0} rad/s²)",
+                    j + 1,
+                    out[j],
+                    limited,
+                    self.max_speed,
+                    self.max_acceleration
+                ));
                 out[j] = limited;
                 clipped = true;
             }
@@ -191,7 +202,12 @@ impl Shadow {
         for j in 0..6 {
             let range = JOINT_RANGES[j] as f64 - self.range_margin;
             if ahead[j].abs() > range && ahead[j].abs() > q[j].abs() {
-                notes.push(format!("joint {}: {:.3} rad in {:.2} s is past its range ±{range:.3}", j + 1, ahead[j], self.lookahead));
+                notes.push(format!(
+                    "joint {}: {:.3} rad in {:.2} s is past its range ±{range:.3}",
+                    j + 1,
+                    ahead[j],
+                    self.lookahead
+                ));
                 return Verdict { command: [0.0; 6], clipped, refused: true, notes };
             }
         }
@@ -204,7 +220,10 @@ impl Shadow {
             && gap < self.keepout_clearance
             && self.closest_keepout(q).is_none_or(|now| gap < now.2)
         {
-            notes.push(format!("{what} {gap:.3} m from obstacle[{obstacle}] in {:.2} s (clearance {:.3} m)", self.lookahead, self.keepout_clearance));
+            notes.push(format!(
+                "{what} {gap:.3} m from obstacle[{obstacle}] in {:.2} s (clearance {:.3} m)",
+                self.lookahead, self.keepout_clearance
+            ));
             return Verdict { command: [0.0; 6], clipped, refused: true, notes };
         }
         Verdict { command: out, clipped, refused: false, notes }
@@ -272,7 +291,14 @@ pub fn skeleton(q: &[f64; 6]) -> Vec<(SkeletonPoint, DVec3)> {
 pub fn lowest_point(q: &[f64; 6]) -> (&'static str, f64) {
     let f = kinematics::frames(&q.map(|v| v as f32));
     let tool = kinematics::tool_face(f[6]).w_axis.z;
-    let points = [("elbow", f[2].w_axis.z), ("wrist 1", f[3].w_axis.z), ("wrist 2", f[4].w_axis.z), ("wrist 3", f[5].w_axis.z), ("flange", f[6].w_axis.z), ("tool", tool)];
+    let points = [
+        ("elbow", f[2].w_axis.z),
+        ("wrist 1", f[3].w_axis.z),
+        ("wrist 2", f[4].w_axis.z),
+        ("wrist 3", f[5].w_axis.z),
+        ("flange", f[6].w_axis.z),
+        ("tool", tool),
+    ];
     points.into_iter().fold(("", f64::INFINITY), |low, p| if p.1 < low.1 { p } else { low })
 }
 
@@ -331,7 +357,11 @@ mod tests {
         let layout = CellLayout::parse(&text, "column.toml").unwrap();
         let keepouts = Keepout::of_cell(&layout);
         assert_eq!(keepouts.len(), 1);
-        assert!(keepouts[0].distance(tool) < 1e-6, "the tool at the turned pose is inside the column: {:?}", keepouts[0]);
+        assert!(
+            keepouts[0].distance(tool) < 1e-6,
+            "the tool at the turned pose is inside the column: {:?}",
+            keepouts[0]
+        );
         let shadow = Shadow { keepouts, ..Shadow::default() };
         // At home the arm is clear; a turn towards the column, from just outside the clearance,
         // is refused; a turn away from it is not.
@@ -346,8 +376,13 @@ mod tests {
         assert!(!shadow.check(&home, &[0.1, 0.0, 0.0, 0.0, 0.0, 0.0], &[0.0; 6], 0.04).refused);
         // A turned robot sees its obstacles turned back: the same column, the base turned 90°,
         // keeps the same distance from the same joint angles when the pan turns with it.
-        let turned_layout = CellLayout::parse(&text.replace("yaw = 0.0", "yaw = 90.0").replace(
-            &format!("centre = [{}, {}", tool.x, tool.y), &format!("centre = [{}, {}", -tool.y, tool.x)), "turned.toml").unwrap();
+        let turned_layout = CellLayout::parse(
+            &text
+                .replace("yaw = 0.0", "yaw = 90.0")
+                .replace(&format!("centre = [{}, {}", tool.x, tool.y), &format!("centre = [{}, {}", -tool.y, tool.x)),
+            "turned.toml",
+        )
+        .unwrap();
         let k = Keepout::of_cell(&turned_layout)[0];
         assert!(k.distance(tool) < 1e-5, "{k:?}");
     }

@@ -25,7 +25,8 @@ fn offsets() -> &'static Offsets {
     static OFFSETS: OnceLock<Offsets> = OnceLock::new();
     OFFSETS.get_or_init(|| {
         let terms = TaskTerms { observations: crate::reach::observations(), ..Default::default() };
-        let at = |name: &str| terms.observation_offset(name).unwrap_or_else(|| panic!("the reach task observes no {name}"));
+        let at =
+            |name: &str| terms.observation_offset(name).unwrap_or_else(|| panic!("the reach task observes no {name}"));
         Offsets {
             joint_positions: at("joint_positions"),
             joint_velocities: at("joint_velocities"),
@@ -41,7 +42,9 @@ const TARGET_TERMS: [&str; 4] = ["distance", "precision", "arrival", "protective
 
 fn target_terms() -> &'static [RewardTerm<CellState>] {
     static TERMS: OnceLock<Vec<RewardTerm<CellState>>> = OnceLock::new();
-    TERMS.get_or_init(|| crate::reach::reach_task().terms.rewards.into_iter().filter(|t| TARGET_TERMS.contains(&t.name)).collect())
+    TERMS.get_or_init(|| {
+        crate::reach::reach_task().terms.rewards.into_iter().filter(|t| TARGET_TERMS.contains(&t.name)).collect()
+    })
 }
 
 fn point(values: &[f32]) -> Vec3 {
@@ -71,7 +74,10 @@ fn change(_obs: &[f32], next_obs: &[f32], ended_by: Option<&str>, from: &[f32], 
     let joints = |at: usize| -> [f32; 6] { std::array::from_fn(|i| next_obs[at + i]) };
     // The kinematics once for both goals: it is most of a relabelling's cost.
     let o = offsets();
-    let mut state = CellState { arm: ArmState::from_joints(joints(o.joint_positions), joints(o.joint_velocities)), ..Default::default() };
+    let mut state = CellState {
+        arm: ArmState::from_joints(joints(o.joint_positions), joints(o.joint_velocities)),
+        ..Default::default()
+    };
     if ended_by == Some(crate::reach::STOP_TERM) {
         state.safety.stop = Some(StopCause::Recorded);
     }
@@ -101,7 +107,11 @@ mod tests {
     fn goal_reward(next_obs: &[f32], goal: &[f32]) -> f32 {
         let joints = |at: usize| -> [f32; 6] { std::array::from_fn(|i| next_obs[at + i]) };
         let o = offsets();
-        let state = CellState { arm: ArmState::from_joints(joints(o.joint_positions), joints(o.joint_velocities)), target: point(goal), ..Default::default() };
+        let state = CellState {
+            arm: ArmState::from_joints(joints(o.joint_positions), joints(o.joint_velocities)),
+            target: point(goal),
+            ..Default::default()
+        };
         target_terms().iter().map(|t| t.weighted(&state)).sum()
     }
 
@@ -110,7 +120,12 @@ mod tests {
         let spec = reach_with_goal().spec();
         assert!(spec.goal.is_some(), "the task's spec is its only source, goal included");
         let o = offsets();
-        for (name, at) in [("joint_positions[0]", o.joint_positions), ("joint_velocities[0]", o.joint_velocities), ("tcp_position[0]", o.tcp_position), ("target_offset[0]", o.target_offset)] {
+        for (name, at) in [
+            ("joint_positions[0]", o.joint_positions),
+            ("joint_velocities[0]", o.joint_velocities),
+            ("tcp_position[0]", o.tcp_position),
+            ("target_offset[0]", o.target_offset),
+        ] {
             assert_eq!(spec.observation_names[at], name);
         }
     }
@@ -139,11 +154,17 @@ mod tests {
         assert!(!change.ends_at_from);
         let down = crate::kinematics::tilt(&arm.tcp) < crate::arm::TILT_TOLERANCE;
         assert!((here - if down { 10.0 } else { 0.0 }).abs() < 1e-3, "{here} (pointing down: {down})");
-        assert_eq!(change.ends_at_to, down, "arrival at the TCP itself (at rest) ends the reach iff the tool points down");
+        assert_eq!(
+            change.ends_at_to, down,
+            "arrival at the TCP itself (at rest) ends the reach iff the tool points down"
+        );
         // A step the protective stop ended (its record says so): its penalty (a multiple of
         // the pose cost where the stop tripped) follows the goal, and nothing arrives.
         let stopped = (goal.change)(&obs, &obs, Some(crate::reach::STOP_TERM), &target.to_array(), &tcp.to_array());
         assert!(!stopped.ends_at_to && !stopped.ends_at_from);
-        assert!(stopped.reward > change.reward + 1.0, "the stop's penalty did not shrink with the distance: {stopped:?} vs {change:?}");
+        assert!(
+            stopped.reward > change.reward + 1.0,
+            "the stop's penalty did not shrink with the distance: {stopped:?} vs {change:?}"
+        );
     }
 }

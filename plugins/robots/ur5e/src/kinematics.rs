@@ -129,7 +129,9 @@ mod tests {
         let mut out = [DMat4::IDENTITY; 7];
         for i in 0..6 {
             let row = &DH[i];
-            let t = DMat4::from_rotation_z(q[i] as f64) * DMat4::from_translation(DVec3::new(row.a, 0.0, row.d)) * DMat4::from_rotation_x(row.alpha);
+            let t = DMat4::from_rotation_z(q[i] as f64)
+                * DMat4::from_translation(DVec3::new(row.a, 0.0, row.d))
+                * DMat4::from_rotation_x(row.alpha);
             out[i + 1] = out[i] * t;
         }
         out

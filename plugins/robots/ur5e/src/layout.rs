@@ -19,8 +19,9 @@ pub const FIXTURE_HALF: f32 = 0.06;
 /// The robot's base: a cylinder of this radius (m) must stand on the table top.
 pub const BASE_RADIUS: f32 = 0.075;
 
-static DEFAULT_LAYOUT: LazyLock<CellLayout> =
-    LazyLock::new(|| CellLayout::parse(DEFAULT, DEFAULT_PATH).unwrap_or_else(|e| panic!("the built-in cell layout: {e}")));
+static DEFAULT_LAYOUT: LazyLock<CellLayout> = LazyLock::new(|| {
+    CellLayout::parse(DEFAULT, DEFAULT_PATH).unwrap_or_else(|e| panic!("the built-in cell layout: {e}"))
+});
 
 /// A cell layout file. Positions in the cell frame: x, y on the floor plan, z up, floor at 0 (m).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -155,11 +156,20 @@ impl CellLayout {
     /// plates on the table top, the fixtures apart.
     pub fn check(&self) -> Result<(), String> {
         let t = &self.table;
-        let finite = [t.centre[0], t.centre[1], t.size[0], t.size[1], t.height, self.robot.position[0], self.robot.position[1], self.robot.yaw]
-            .into_iter()
-            .chain(self.pick.position)
-            .chain(self.place.position)
-            .chain(self.obstacles.iter().flat_map(|o| o.centre.into_iter().chain(o.size)));
+        let finite = [
+            t.centre[0],
+            t.centre[1],
+            t.size[0],
+            t.size[1],
+            t.height,
+            self.robot.position[0],
+            self.robot.position[1],
+            self.robot.yaw,
+        ]
+        .into_iter()
+        .chain(self.pick.position)
+        .chain(self.place.position)
+        .chain(self.obstacles.iter().flat_map(|o| o.centre.into_iter().chain(o.size)));
         if finite.into_iter().any(|v| !v.is_finite()) {
             return Err("every number must be finite".into());
         }
@@ -181,20 +191,32 @@ impl CellLayout {
             t.centre[1] - t.size[1] / 2.0,
             t.centre[1] + t.size[1] / 2.0
         );
-        let on_table = |p: [f32; 2], half: [f32; 2]| (0..2).all(|i| (p[i] - t.centre[i]).abs() + half[i] <= t.size[i] / 2.0 + 1e-6);
+        let on_table = |p: [f32; 2], half: [f32; 2]| {
+            (0..2).all(|i| (p[i] - t.centre[i]).abs() + half[i] <= t.size[i] / 2.0 + 1e-6)
+        };
         if !on_table(self.robot.position, [BASE_RADIUS; 2]) {
-            return Err(format!("robot.position = {:?}: the base ({BASE_RADIUS} m radius) leaves the table top ({bounds})", self.robot.position));
+            return Err(format!(
+                "robot.position = {:?}: the base ({BASE_RADIUS} m radius) leaves the table top ({bounds})",
+                self.robot.position
+            ));
         }
         let yaw = self.robot.yaw.to_radians();
         let plate = FIXTURE_HALF * (yaw.cos().abs() + yaw.sin().abs());
         for (key, f) in [("pick", &self.pick), ("place", &self.place)] {
             if !on_table(f.position, [plate; 2]) {
-                return Err(format!("{key}.position = {:?}: the fixture's 12 cm plate leaves the table top ({bounds})", f.position));
+                return Err(format!(
+                    "{key}.position = {:?}: the fixture's 12 cm plate leaves the table top ({bounds})",
+                    f.position
+                ));
             }
         }
         let apart = Vec2::from(self.pick.position).distance(Vec2::from(self.place.position));
         if apart < 2.0 * FIXTURE_HALF {
-            return Err(format!("place.position = {:?}: its plate overlaps the pick fixture's ({apart:.3} m apart, at least {} needed)", self.place.position, 2.0 * FIXTURE_HALF));
+            return Err(format!(
+                "place.position = {:?}: its plate overlaps the pick fixture's ({apart:.3} m apart, at least {} needed)",
+                self.place.position,
+                2.0 * FIXTURE_HALF
+            ));
         }
         for (i, o) in self.obstacles.iter().enumerate() {
             if o.size.iter().any(|&s| s <= 0.0) {
@@ -247,13 +269,29 @@ mod tests {
     #[test]
     fn bad_layouts_name_the_file_and_the_entry() {
         for (from, to, expected) in [
-            ("position = [-0.45, 0.20]", "position = [-0.98, 0.20]", "pick.position = [-0.98, 0.2]: the fixture's 12 cm plate leaves the table top (the table top spans x -1.000…0.300 m"),
-            ("position = [-0.45, -0.35]", "position = [-0.45, 0.25]", "place.position = [-0.45, 0.25]: its plate overlaps the pick fixture's"),
-            ("position = [0.0, 0.0]", "position = [0.3, 0.0]", "robot.position = [0.3, 0.0]: the base (0.075 m radius) leaves the table top"),
+            (
+                "position = [-0.45, 0.20]",
+                "position = [-0.98, 0.20]",
+                "pick.position = [-0.98, 0.2]: the fixture's 12 cm plate leaves the table top (the table top spans x -1.000…0.300 m",
+            ),
+            (
+                "position = [-0.45, -0.35]",
+                "position = [-0.45, 0.25]",
+                "place.position = [-0.45, 0.25]: its plate overlaps the pick fixture's",
+            ),
+            (
+                "position = [0.0, 0.0]",
+                "position = [0.3, 0.0]",
+                "robot.position = [0.3, 0.0]: the base (0.075 m radius) leaves the table top",
+            ),
             ("height = 0.75", "height = -1", "table.height = -1: must be positive"),
             ("size = [1.3, 1.2]", "size = [1.3, 0]", "table.size = [1.3, 0.0]"),
             ("[floor]", "[flor]", "unknown field `flor`"),
-            ("# [[obstacle]]\n# centre = [-0.1, 0.45, 0.95]   # m, cell frame\n# size = [0.1, 0.1, 0.4]", "[[obstacle]]\ncentre = [0, 1, 1]\nsize = [0.1, -0.1, 0.4]", "obstacle[0].size"),
+            (
+                "# [[obstacle]]\n# centre = [-0.1, 0.45, 0.95]   # m, cell frame\n# size = [0.1, 0.1, 0.4]",
+                "[[obstacle]]\ncentre = [0, 1, 1]\nsize = [0.1, -0.1, 0.4]",
+                "obstacle[0].size",
+            ),
         ] {
             assert!(DEFAULT.contains(from), "{from}");
             let err = CellLayout::parse(&DEFAULT.replacen(from, to, 1), "cell.toml").unwrap_err();

@@ -38,12 +38,15 @@ pub mod target_marker;
 
 use bevy::math::Vec3;
 use bevy::prelude::*;
-use twinbots_task::robot::{AlgoDefaults, AppRequest, RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_sim::{
+    ArenaConfig, Framing, JointState, Motor, PhysicsSubstep, PositionSensor, SimSet, SimSettings, SubstepSet,
+    Supervisor,
+};
+use twinbots_task::robot::{
+    AlgoDefaults, AppRequest, RobotDescription, TaskDescription, TrainingDefaults, headless_app,
+};
 use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
 use twinbots_task::{Action, DesignPattern, TaskSpec, TaskTermsPlugin};
-use twinbots_sim::{
-    ArenaConfig, Framing, JointState, Motor, PhysicsSubstep, PositionSensor, SimSet, SimSettings, SubstepSet, Supervisor,
-};
 
 use crate::cell::{CellModels, CellParts};
 use crate::layout::CellLayouts;
@@ -118,7 +121,13 @@ fn pick_place_learned_training() -> TrainingDefaults {
     TrainingDefaults {
         algo: "sac",
         eval_episodes: 200,
-        algos: vec![AlgoDefaults { algo: "sac", arenas: 4, timesteps: 1_000_000, eval_every: 5, hyperparams: PICK_PLACE_SAC_HYPERPARAMS }],
+        algos: vec![AlgoDefaults {
+            algo: "sac",
+            arenas: 4,
+            timesteps: 1_000_000,
+            eval_every: 5,
+            hyperparams: PICK_PLACE_SAC_HYPERPARAMS,
+        }],
     }
 }
 
@@ -137,7 +146,13 @@ pub fn robot() -> RobotDescription {
         name: "ur5e",
         description: "UR5e digital twin in an assembly cell (table, 2 fixtures, part, vacuum gripper); reach: Box([-1,1]^5) joint speeds, 40 ms step",
         tasks: vec![
-            TaskDescription { name: "reach", description: "tool to a target over the table, pointing down, at rest within 1 cm", spec: task_spec, server: true, training: None },
+            TaskDescription {
+                name: "reach",
+                description: "tool to a target over the table, pointing down, at rest within 1 cm",
+                spec: task_spec,
+                server: true,
+                training: None,
+            },
             TaskDescription {
                 name: "pick-place",
                 description: "the part from fixture A to fixture B: a cell program of waypoints driven by the reach policy",
@@ -163,9 +178,21 @@ pub fn robot() -> RobotDescription {
                 // The stochastic policy's training episodes lag its deterministic success far
                 // behind (exploration noise spoils a 1 cm rest): judge the criterion on 200
                 // evaluation episodes every 20 updates (≈ 41 k steps), as SB3's EvalCallback does.
-                AlgoDefaults { algo: "ppo", arenas: 8, timesteps: 3_000_000, eval_every: 20, hyperparams: PPO_HYPERPARAMS },
+                AlgoDefaults {
+                    algo: "ppo",
+                    arenas: 8,
+                    timesteps: 3_000_000,
+                    eval_every: 20,
+                    hyperparams: PPO_HYPERPARAMS,
+                },
                 // SAC: 4 arenas, a row every 1000 steps, evaluated every 5 rows (5 k steps).
-                AlgoDefaults { algo: "sac", arenas: 4, timesteps: 200_000, eval_every: 5, hyperparams: SAC_HYPERPARAMS },
+                AlgoDefaults {
+                    algo: "sac",
+                    arenas: 4,
+                    timesteps: 200_000,
+                    eval_every: 5,
+                    hyperparams: SAC_HYPERPARAMS,
+                },
             ],
         },
         settings: sim_settings,
@@ -221,39 +248,64 @@ impl Plugin for Ur5ePlugin {
             .add_systems(Update, metrics::count_events.after(read_arm).in_set(TaskSet::Read));
         if self.task == Ur5eTask::PickPlaceLearned {
             // The policy moves the tool and switches the suction (no cell program).
-            app.add_systems(Update, (pick_place_learned::apply_action, pick_place::apply_suction).chain().in_set(SimSet::Actuate));
+            app.add_systems(
+                Update,
+                (pick_place_learned::apply_action, pick_place::apply_suction).chain().in_set(SimSet::Actuate),
+            );
         } else {
             app.add_systems(Update, apply_action.in_set(SimSet::Actuate));
         }
         if self.task == Ur5eTask::Reach {
-            app.add_systems(Update, (reach::report.in_set(TaskSet::Report), target_marker::place_target_marker.in_set(TaskSet::Read)))
-                .add_systems(PostStartup, target_marker::spawn_target_markers);
+            app.add_systems(
+                Update,
+                (reach::report.in_set(TaskSet::Report), target_marker::place_target_marker.in_set(TaskSet::Read)),
+            )
+            .add_systems(PostStartup, target_marker::spawn_target_markers);
         }
         if self.pattern == DesignPattern::Server {
             server::build(app);
             return;
         }
         // Starts put in place by the Supervisor.
-        app.add_systems(EnvReset, ((reset_meter, unlock_stop, place_arm).in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
+        app.add_systems(
+            EnvReset,
+            ((reset_meter, unlock_stop, place_arm).in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)),
+        );
         match self.task {
             Ur5eTask::Reach => {
                 app.add_systems(EnvReset, target_marker::place_target_marker.in_set(ResetSet::Place));
             }
             Ur5eTask::PickPlace => {
-                app.add_systems(Update, (pick_place::apply_suction.in_set(SimSet::Actuate), pick_place::report.in_set(TaskSet::Report)))
-                    .add_systems(Update, pick_place::run_program.after(read_arm).in_set(TaskSet::Read))
-                    .add_systems(EnvReset, pick_place::place_part.in_set(ResetSet::Place));
+                app.add_systems(
+                    Update,
+                    (pick_place::apply_suction.in_set(SimSet::Actuate), pick_place::report.in_set(TaskSet::Report)),
+                )
+                .add_systems(Update, pick_place::run_program.after(read_arm).in_set(TaskSet::Read))
+                .add_systems(EnvReset, pick_place::place_part.in_set(ResetSet::Place));
             }
             Ur5eTask::PickPlaceLearned => {
-                let read_part = || (pick_place_learned::read_part, pick_place_learned::read_vacuum).chain().after(read_arm);
-                app.add_systems(Update, (read_part().in_set(TaskSet::Read), pick_place_learned::report.in_set(TaskSet::Report)))
-                    .add_systems(EnvReset, (pick_place::place_part.in_set(ResetSet::Place), read_part().in_set(ResetSet::Read)));
+                let read_part =
+                    || (pick_place_learned::read_part, pick_place_learned::read_vacuum).chain().after(read_arm);
+                app.add_systems(
+                    Update,
+                    (read_part().in_set(TaskSet::Read), pick_place_learned::report.in_set(TaskSet::Report)),
+                )
+                .add_systems(
+                    EnvReset,
+                    (pick_place::place_part.in_set(ResetSet::Place), read_part().in_set(ResetSet::Read)),
+                );
             }
         }
     }
 }
 
-fn spawn_cells(mut commands: Commands, models: Res<CellModels>, layouts: Res<CellLayouts>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
+fn spawn_cells(
+    mut commands: Commands,
+    models: Res<CellModels>,
+    layouts: Res<CellLayouts>,
+    config: Res<ArenaConfig>,
+    settings: Res<SimSettings>,
+) {
     spawn_arenas(&mut commands, &config, &settings, |commands, arena_entity, arena| {
         let layout = layouts.of_arena(arena.index);
         let parts = cell::spawn_cell(commands, arena_entity, arena, &models, layout, kinematics::HOME);
@@ -264,7 +316,10 @@ fn spawn_cells(mut commands: Commands, models: Res<CellModels>, layouts: Res<Cel
 
 /// The policy's action becomes joint speeds, unless the arm is in a protective stop (then it
 /// holds, braked, whatever it is told) or the cell program moves it straight itself.
-fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState, Option<&arm::SpeedSlider>)>, mut motors: Query<&mut Motor>) {
+fn apply_action(
+    mut arenas: Query<(&CellParts, &Action, &mut CellState, Option<&arm::SpeedSlider>)>,
+    mut motors: Query<&mut Motor>,
+) {
     for (parts, action, mut state, slider) in &mut arenas {
         if !action.0.is_empty() && !state.safety.stopped() {
             // The pick-and-place program's straight moves are the controller's (MoveL).

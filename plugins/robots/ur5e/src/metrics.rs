@@ -49,7 +49,11 @@ impl TwinMeter {
 }
 
 /// Adds Σ|τ·ω|·dt of the last physics step (runs every physics step).
-pub fn meter_energy(settings: Res<SimSettings>, joints: Query<&JointState>, mut arenas: Query<(&CellParts, &mut TwinMeter)>) {
+pub fn meter_energy(
+    settings: Res<SimSettings>,
+    joints: Query<&JointState>,
+    mut arenas: Query<(&CellParts, &mut TwinMeter)>,
+) {
     for (parts, mut meter) in &mut arenas {
         let power: f32 = joints.iter_many(parts.joints).map(|s| (s.effort * s.velocity).abs()).sum();
         meter.energy += power * settings.dt;

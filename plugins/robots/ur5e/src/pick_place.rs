@@ -15,17 +15,17 @@
 use bevy::prelude::*;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use twinbots_task::task::Resetting;
-use twinbots_task::{Episode, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{SimSettings, Supervisor, VacuumGripper};
+use twinbots_task::task::Resetting;
+use twinbots_task::{Episode, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
 
 use crate::arm::{ACTION_DIM, ActionHistory};
 use crate::cell::{CellParts, POCKET_PLAY, part_seat};
 use crate::metrics::TwinMeter;
+pub use crate::program::{ALIGN_HEIGHT, CLEARANCE, DROP_HEIGHT, GRIP_GAP, Program, SUCTION_STEPS, Stage, waypoint};
 use crate::reach::{motion_costs, observations, sample_start};
 use crate::state::CellState;
-pub use crate::program::{ALIGN_HEIGHT, CLEARANCE, DROP_HEIGHT, GRIP_GAP, Program, SUCTION_STEPS, Stage, waypoint};
 
 pub const EPISODE_STEPS: u32 = 400;
 /// A placed part's centre lies within the pocket's play of its centre along each side of the

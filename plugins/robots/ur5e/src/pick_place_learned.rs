@@ -22,7 +22,10 @@ use bevy::prelude::*;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use twinbots_sim::{Motor, SimSettings, Supervisor, VacuumGripper};
-use twinbots_task::{Action, Episode, GoalChange, GoalSpec, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
+use twinbots_task::{
+    Action, Episode, GoalChange, GoalSpec, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent,
+    TaskDefinition, TaskTerms, TerminationTerm,
+};
 
 use crate::arm::{self, ActionHistory, SpeedSlider};
 use crate::cell::{CellParts, PART_HEIGHT, PART_RADIUS, part_seat};
@@ -108,17 +111,37 @@ fn flag(on: bool) -> f32 {
 fn observations() -> Vec<ObservationTerm<CellState>> {
     let plausible = 5.0;
     vec![
-        ObservationTerm::new("joint_positions", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.q)).bounded(-JOINT_RANGE, JOINT_RANGE),
-        ObservationTerm::new("tcp_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.tcp.translation.to_array())).plausible(-plausible, plausible),
-        ObservationTerm::new("tcp_velocity", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.tcp_velocity.to_array())).plausible(-plausible, plausible),
-        ObservationTerm::new("part_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.part.position.to_array())).plausible(-plausible, plausible),
-        ObservationTerm::new("part_offset", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.part.position - s.arm.tcp.translation).to_array()))
-            .plausible(-plausible, plausible),
+        ObservationTerm::new("joint_positions", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.q))
+            .bounded(-JOINT_RANGE, JOINT_RANGE),
+        ObservationTerm::new("tcp_position", 3, |s: &CellState, out: &mut Vec<f32>| {
+            out.extend(s.arm.tcp.translation.to_array())
+        })
+        .plausible(-plausible, plausible),
+        ObservationTerm::new("tcp_velocity", 3, |s: &CellState, out: &mut Vec<f32>| {
+            out.extend(s.arm.tcp_velocity.to_array())
+        })
+        .plausible(-plausible, plausible),
+        ObservationTerm::new("part_position", 3, |s: &CellState, out: &mut Vec<f32>| {
+            out.extend(s.part.position.to_array())
+        })
+        .plausible(-plausible, plausible),
+        ObservationTerm::new("part_offset", 3, |s: &CellState, out: &mut Vec<f32>| {
+            out.extend((s.part.position - s.arm.tcp.translation).to_array())
+        })
+        .plausible(-plausible, plausible),
         // A part knocked off the table falls; 20 m/s bounds any fall in the cell.
-        ObservationTerm::new("part_velocity", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.part.velocity.to_array())).plausible(-20.0, 20.0),
-        ObservationTerm::new("suction", 1, |s: &CellState, out: &mut Vec<f32>| out.push(flag(s.suction))).bounded(0.0, 1.0),
-        ObservationTerm::new("holding", 1, |s: &CellState, out: &mut Vec<f32>| out.push(flag(s.part.held))).bounded(0.0, 1.0),
-        ObservationTerm::new("goal_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.part_goal.to_array())).plausible(-plausible, plausible),
+        ObservationTerm::new("part_velocity", 3, |s: &CellState, out: &mut Vec<f32>| {
+            out.extend(s.part.velocity.to_array())
+        })
+        .plausible(-20.0, 20.0),
+        ObservationTerm::new("suction", 1, |s: &CellState, out: &mut Vec<f32>| out.push(flag(s.suction)))
+            .bounded(0.0, 1.0),
+        ObservationTerm::new("holding", 1, |s: &CellState, out: &mut Vec<f32>| out.push(flag(s.part.held)))
+            .bounded(0.0, 1.0),
+        ObservationTerm::new("goal_position", 3, |s: &CellState, out: &mut Vec<f32>| {
+            out.extend(s.part_goal.to_array())
+        })
+        .plausible(-plausible, plausible),
     ]
 }
 
@@ -133,12 +156,16 @@ pub fn pick_place_learned_task() -> TaskDefinition<CellState> {
         terms: TaskTerms {
             observations: observations(),
             rewards: vec![
-                RewardTerm::new("goal_missed", -1.0, |s: &CellState| flag(!Judged::of(s).meets(s.part_goal))).bounded(0.0, 1.0),
+                RewardTerm::new("goal_missed", -1.0, |s: &CellState| flag(!Judged::of(s).meets(s.part_goal)))
+                    .bounded(0.0, 1.0),
                 RewardTerm::new(STOP_TERM, -STOP_PENALTY, |s: &CellState| flag(s.safety.stopped())).bounded(0.0, 1.0),
                 // Where the cup is against the part's top (m): it leads exploration to the part,
                 // without which no goal is ever met (the cup cannot push the part; it must seize
                 // it). It does not depend on the goal, so hindsight relabelling keeps it.
-                RewardTerm::new("approach", -APPROACH_WEIGHT, |s: &CellState| approach(s.arm.tcp.translation, s.part.position)).bounded(0.0, 3.0),
+                RewardTerm::new("approach", -APPROACH_WEIGHT, |s: &CellState| {
+                    approach(s.arm.tcp.translation, s.part.position)
+                })
+                .bounded(0.0, 3.0),
             ],
             terminations: vec![
                 TerminationTerm::goal("goal_met", |s: &CellState| Judged::of(s).meets(s.part_goal)),
@@ -156,7 +183,10 @@ pub fn pick_place_learned_task() -> TaskDefinition<CellState> {
 /// A point of [`PART_AREA`] whose part stands clear of every fixture.
 fn sample_on_table(rng: &mut impl Rng, s: &CellState) -> Vec2 {
     loop {
-        let p = Vec2::new(rng.random_range(PART_AREA[0][0]..=PART_AREA[0][1]), rng.random_range(PART_AREA[1][0]..=PART_AREA[1][1]));
+        let p = Vec2::new(
+            rng.random_range(PART_AREA[0][0]..=PART_AREA[0][1]),
+            rng.random_range(PART_AREA[1][0]..=PART_AREA[1][1]),
+        );
         let clear = |fixture: Vec3| (p - fixture.truncate()).abs().max_element() > FIXTURE_CLEARANCE;
         if clear(s.fixtures.pick) && clear(s.fixtures.place) {
             return p;
@@ -193,7 +223,10 @@ pub fn within_planes(tcp: Vec3, v: Vec3) -> Vec3 {
 
 /// The policy's action: the tool's velocity through the controller's resolved-rate law, and
 /// the suction's output — unless the arm is in a protective stop (it holds, braked).
-pub fn apply_action(mut arenas: Query<(&CellParts, &Action, &mut CellState, Option<&SpeedSlider>)>, mut motors: Query<&mut Motor>) {
+pub fn apply_action(
+    mut arenas: Query<(&CellParts, &Action, &mut CellState, Option<&SpeedSlider>)>,
+    mut motors: Query<&mut Motor>,
+) {
     for (parts, action, mut state, slider) in &mut arenas {
         if action.0.is_empty() || state.safety.stopped() {
             continue;
@@ -292,7 +325,9 @@ fn offsets() -> &'static Offsets {
     static OFFSETS: OnceLock<Offsets> = OnceLock::new();
     OFFSETS.get_or_init(|| {
         let terms = TaskTerms { observations: observations(), ..Default::default() };
-        let at = |name: &str| terms.observation_offset(name).unwrap_or_else(|| panic!("the learned pick-and-place observes no {name}"));
+        let at = |name: &str| {
+            terms.observation_offset(name).unwrap_or_else(|| panic!("the learned pick-and-place observes no {name}"))
+        };
         Offsets {
             tcp_position: at("tcp_position"),
             part_position: at("part_position"),
@@ -329,7 +364,11 @@ fn substitute(obs: &mut [f32], goal: &[f32]) {
 fn change(_obs: &[f32], next_obs: &[f32], ended_by: Option<&str>, from: &[f32], to: &[f32]) -> GoalChange {
     let o = offsets();
     let judged = Judged {
-        part: PartReading { position: point(&next_obs[o.part_position..]), velocity: point(&next_obs[o.part_velocity..]), held: next_obs[o.holding] > 0.5 },
+        part: PartReading {
+            position: point(&next_obs[o.part_position..]),
+            velocity: point(&next_obs[o.part_velocity..]),
+            held: next_obs[o.holding] > 0.5,
+        },
         suction: next_obs[o.suction] > 0.5,
         stopped: ended_by == Some(STOP_TERM),
     };
@@ -364,9 +403,16 @@ mod tests {
             let start = crate::pick_place::part_start(&s);
             assert!(start.z.abs() < 1e-6, "the part stands on the table: {start}");
             for p in [start.truncate(), s.part_goal.truncate()] {
-                assert!((PART_AREA[0][0]..=PART_AREA[0][1]).contains(&p.x) && (PART_AREA[1][0]..=PART_AREA[1][1]).contains(&p.y), "{p}");
+                assert!(
+                    (PART_AREA[0][0]..=PART_AREA[0][1]).contains(&p.x)
+                        && (PART_AREA[1][0]..=PART_AREA[1][1]).contains(&p.y),
+                    "{p}"
+                );
                 for fixture in [s.fixtures.pick, s.fixtures.place] {
-                    assert!((p - fixture.truncate()).abs().max_element() > FIXTURE_HALF + PART_RADIUS, "{p} on the fixture at {fixture}");
+                    assert!(
+                        (p - fixture.truncate()).abs().max_element() > FIXTURE_HALF + PART_RADIUS,
+                        "{p} on the fixture at {fixture}"
+                    );
                 }
             }
             in_the_air += usize::from(in_air(s.part_goal));
@@ -380,15 +426,29 @@ mod tests {
         let on_table = Vec3::new(-0.45, 0.0, PART_REST_Z);
         let in_the_air = on_table + Vec3::Z * 0.1;
         let part = |position: Vec3, held: bool| PartReading { position, velocity: Vec3::ZERO, held };
-        assert!(Judged { part: part(on_table + Vec3::X * 0.015, false), suction: false, stopped: false }.meets(on_table));
-        assert!(!Judged { part: part(on_table + Vec3::X * 0.025, false), suction: false, stopped: false }.meets(on_table), "2 cm");
+        assert!(
+            Judged { part: part(on_table + Vec3::X * 0.015, false), suction: false, stopped: false }.meets(on_table)
+        );
+        assert!(
+            !Judged { part: part(on_table + Vec3::X * 0.025, false), suction: false, stopped: false }.meets(on_table),
+            "2 cm"
+        );
         assert!(!Judged { part: part(on_table, true), suction: true, stopped: false }.meets(on_table), "still held");
-        assert!(!Judged { part: part(on_table, false), suction: true, stopped: false }.meets(on_table), "still sucking");
+        assert!(
+            !Judged { part: part(on_table, false), suction: true, stopped: false }.meets(on_table),
+            "still sucking"
+        );
         let moving = PartReading { velocity: Vec3::X * 0.2, ..part(on_table, false) };
         assert!(!Judged { part: moving, suction: false, stopped: false }.meets(on_table), "rolling");
         assert!(Judged { part: part(in_the_air, true), suction: true, stopped: false }.meets(in_the_air));
-        assert!(!Judged { part: part(in_the_air, false), suction: false, stopped: false }.meets(in_the_air), "let go in the air");
-        assert!(!Judged { part: part(in_the_air, true), suction: true, stopped: true }.meets(in_the_air), "in a protective stop");
+        assert!(
+            !Judged { part: part(in_the_air, false), suction: false, stopped: false }.meets(in_the_air),
+            "let go in the air"
+        );
+        assert!(
+            !Judged { part: part(in_the_air, true), suction: true, stopped: true }.meets(in_the_air),
+            "in a protective stop"
+        );
     }
 
     #[test]
@@ -401,9 +461,21 @@ mod tests {
         assert_eq!(at("goal_position[0]"), offsets().goal_position);
         let arm = ArmState::from_joints(HOME, [0.0; 6]);
         for (part, suction, goal_at) in [
-            (PartReading { position: Vec3::new(-0.4, 0.0, PART_REST_Z), velocity: Vec3::ZERO, held: false }, false, Vec3::new(-0.4, 0.01, PART_REST_Z)),
-            (PartReading { position: Vec3::new(-0.4, 0.0, 0.1), velocity: Vec3::Z * 0.3, held: true }, true, Vec3::new(-0.5, 0.0, 0.1)),
-            (PartReading { position: Vec3::new(-0.4, 0.0, 0.1), velocity: Vec3::Z * 0.3, held: true }, true, Vec3::new(-0.4, 0.0, 0.11)),
+            (
+                PartReading { position: Vec3::new(-0.4, 0.0, PART_REST_Z), velocity: Vec3::ZERO, held: false },
+                false,
+                Vec3::new(-0.4, 0.01, PART_REST_Z),
+            ),
+            (
+                PartReading { position: Vec3::new(-0.4, 0.0, 0.1), velocity: Vec3::Z * 0.3, held: true },
+                true,
+                Vec3::new(-0.5, 0.0, 0.1),
+            ),
+            (
+                PartReading { position: Vec3::new(-0.4, 0.0, 0.1), velocity: Vec3::Z * 0.3, held: true },
+                true,
+                Vec3::new(-0.4, 0.0, 0.11),
+            ),
         ] {
             let s = CellState { arm: arm.clone(), ..state_with(part, suction, goal_at) };
             let mut obs = Vec::new();

@@ -198,7 +198,10 @@ mod tests {
         assert!((program.grip_offset - off.with_z(0.0)).length() < 1e-6, "{}", program.grip_offset);
         // The moves that carry and place the part are shifted across by as much; the pick's not.
         for stage in [Stage::Transfer, Stage::Align, Stage::Lower, Stage::Release] {
-            assert!((program.waypoint(stage) - (waypoint(stage, &Fixtures::default()) + off.with_z(0.0))).length() < 1e-6, "{stage:?}");
+            assert!(
+                (program.waypoint(stage) - (waypoint(stage, &Fixtures::default()) + off.with_z(0.0))).length() < 1e-6,
+                "{stage:?}"
+            );
         }
         assert_eq!(program.waypoint(Stage::Lift), waypoint(Stage::Lift, &Fixtures::default()));
         assert_eq!(program.waypoint(Stage::Retract), waypoint(Stage::Retract, &Fixtures::default()));

@@ -5,8 +5,11 @@
 
 use bevy::prelude::*;
 use rand::Rng;
-use twinbots_task::{Episode, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
 use twinbots_sim::SimSettings;
+use twinbots_task::{
+    Episode, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskTerms,
+    TerminationTerm,
+};
 
 use crate::arm::{ACTION_DIM, ActionHistory};
 use crate::cell::{PART_HEIGHT, POCKET_FLOOR};
@@ -54,20 +57,28 @@ pub fn sample_start(rng: &mut impl Rng) -> [f32; 6] {
 /// needs it).
 pub fn observations() -> Vec<ObservationTerm<CellState>> {
     vec![
-        ObservationTerm::new("joint_positions", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.q)).bounded(-JOINT_RANGE, JOINT_RANGE),
+        ObservationTerm::new("joint_positions", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.q))
+            .bounded(-JOINT_RANGE, JOINT_RANGE),
         // Plausible (a RobotServer refuses readings outside): four times the joints' rated
         // 180°/s; the cell's 5 m around the base for the TCP and the target (reach: 0.85 m).
-        ObservationTerm::new("joint_velocities", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.qd)).plausible(-4.0 * std::f32::consts::PI, 4.0 * std::f32::consts::PI),
-        ObservationTerm::new("tcp_position", 3, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.tcp.translation.to_array())).plausible(-5.0, 5.0),
-        ObservationTerm::new("target_offset", 3, |s: &CellState, out: &mut Vec<f32>| out.extend((s.target - s.arm.tcp.translation).to_array()))
-            .plausible(-5.0, 5.0),
+        ObservationTerm::new("joint_velocities", 6, |s: &CellState, out: &mut Vec<f32>| out.extend(s.arm.qd))
+            .plausible(-4.0 * std::f32::consts::PI, 4.0 * std::f32::consts::PI),
+        ObservationTerm::new("tcp_position", 3, |s: &CellState, out: &mut Vec<f32>| {
+            out.extend(s.arm.tcp.translation.to_array())
+        })
+        .plausible(-5.0, 5.0),
+        ObservationTerm::new("target_offset", 3, |s: &CellState, out: &mut Vec<f32>| {
+            out.extend((s.target - s.arm.tcp.translation).to_array())
+        })
+        .plausible(-5.0, 5.0),
         // A unit vector: f32 rounding of the rotation can put a component 1e-7 past ±1, which
         // a RobotServer would refuse as implausible.
         ObservationTerm::new("tool_axis", 3, |s: &CellState, out: &mut Vec<f32>| {
             out.extend((s.arm.tcp.rotation * Vec3::Z).to_array().map(|c| c.clamp(-1.0, 1.0)))
         })
         .bounded(-1.0, 1.0),
-        ObservationTerm::new("last_action", ACTION_DIM, |s: &CellState, out: &mut Vec<f32>| out.extend(s.actions.last)).bounded(-1.0, 1.0),
+        ObservationTerm::new("last_action", ACTION_DIM, |s: &CellState, out: &mut Vec<f32>| out.extend(s.actions.last))
+            .bounded(-1.0, 1.0),
     ]
 }
 
@@ -146,11 +157,16 @@ pub fn motion_costs() -> Vec<RewardTerm<CellState>> {
 /// a penalty of [`STOP_PENALTY_STEPS`] × the pose cost where it tripped, and [`STOP_FORFEIT`].
 pub fn reach_task() -> TaskDefinition<CellState> {
     let mut rewards = motion_costs();
-    rewards.push(RewardTerm::new("arrival", ARRIVAL_BONUS, |s: &CellState| f32::from(u8::from(s.arrived()))).bounded(0.0, 1.0));
+    rewards.push(
+        RewardTerm::new("arrival", ARRIVAL_BONUS, |s: &CellState| f32::from(u8::from(s.arrived()))).bounded(0.0, 1.0),
+    );
     let stop_penalty = |s: &CellState| if s.safety.stopped() { pose_cost(s) } else { 0.0 };
     let max_pose_cost = DISTANCE_WEIGHT * MAX_DISTANCE + PRECISION_WEIGHT + TILT_WEIGHT * MAX_TILT;
     rewards.push(RewardTerm::new("protective_stop", -STOP_PENALTY_STEPS, stop_penalty).bounded(0.0, max_pose_cost));
-    rewards.push(RewardTerm::new("stop_forfeit", -STOP_FORFEIT, |s: &CellState| f32::from(u8::from(s.safety.stopped()))).bounded(0.0, 1.0));
+    rewards.push(
+        RewardTerm::new("stop_forfeit", -STOP_FORFEIT, |s: &CellState| f32::from(u8::from(s.safety.stopped())))
+            .bounded(0.0, 1.0),
+    );
     TaskDefinition {
         name: "ur5e".into(),
         terms: TaskTerms {

@@ -62,7 +62,12 @@ pub fn rig() -> RigDescription {
     }
 }
 
-fn spawn_arm(commands: &mut Commands, arena_entity: Entity, arena: &mut Arena, start: &[(String, f32)]) -> SpawnedRobot {
+fn spawn_arm(
+    commands: &mut Commands,
+    arena_entity: Entity,
+    arena: &mut Arena,
+    start: &[(String, f32)],
+) -> SpawnedRobot {
     let joint_positions = JOINTS
         .iter()
         .zip(HOME)

@@ -148,7 +148,10 @@ mod tests {
         let (mut safety, motor) = (Safety::default(), wrist());
         assert_eq!(safety.check(3, 1.49 * motor.max_velocity, 0.0, &motor, DT), None);
         let mut safety = Safety::default();
-        assert!(matches!(safety.check(3, -1.51 * motor.max_velocity, 0.0, &motor, DT), Some(StopCause::Speed { joint: 3, .. })));
+        assert!(matches!(
+            safety.check(3, -1.51 * motor.max_velocity, 0.0, &motor, DT),
+            Some(StopCause::Speed { joint: 3, .. })
+        ));
     }
 
     #[test]

@@ -62,7 +62,8 @@ fn operate(mut operator: Operator, robots: Query<(Entity, &CellParts, &CellState
         }
         let seat = parts.base * Pose::from_translation(part_seat(state.fixtures.pick));
         let out_of_place = operator.object_pose(arena, parts.part).is_none_or(|p| {
-            (p.translation - seat.translation).length() > PART_OUT_OF_PLACE || p.rotation.angle_between(seat.rotation) > 0.05
+            (p.translation - seat.translation).length() > PART_OUT_OF_PLACE
+                || p.rotation.angle_between(seat.rotation) > 0.05
         });
         if out_of_place {
             operator.place_object(arena, parts.part, seat);

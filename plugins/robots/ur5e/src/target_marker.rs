@@ -34,7 +34,11 @@ pub struct TargetMarker {
 pub fn spawn_target_markers(mut commands: Commands, arenas: Query<Entity, (With<CellParts>, Without<TargetMarker>)>) {
     let visual = |shape| Visual { geometry: Geometry { origin: Pose::IDENTITY, shape }, rgba: GREEN };
     for arena in &arenas {
-        let mut marker = |name: &str, shape| commands.spawn((Marker { name: name.into(), visual: visual(shape), pose: Pose::IDENTITY }, InArena(arena))).id();
+        let mut marker = |name: &str, shape| {
+            commands
+                .spawn((Marker { name: name.into(), visual: visual(shape), pose: Pose::IDENTITY }, InArena(arena)))
+                .id()
+        };
         let ball = marker("target", Shape::Sphere { radius: BALL_RADIUS });
         let stand = marker("target_stand", Shape::Cylinder { radius: STAND_RADIUS, length: STAND_LENGTH });
         commands.entity(arena).insert(TargetMarker { ball, stand });

@@ -2,13 +2,13 @@
 //! `StopTrainingOnRewardThreshold` as its stop criterion).
 
 use super::{Callback, Flow, SolvedBy};
-use twinbots_api::env::VecEnv;
-use crate::evaluation::{EvalResult, evaluate_against, evaluate_policy};
 use crate::agent::Agent;
-use crate::stats::UpdateStats;
+use crate::evaluation::{EvalResult, evaluate_against, evaluate_policy};
 use crate::run_dir::RunDir;
-use twinbots_api::SolvedCriterion;
+use crate::stats::UpdateStats;
 use crate::tensorboard::EventWriter;
+use twinbots_api::SolvedCriterion;
+use twinbots_api::env::VecEnv;
 
 /// Builds a fresh env to evaluate on, its streams seeded with the given seed.
 pub type EnvFactory = Box<dyn FnMut(u64) -> anyhow::Result<Box<dyn VecEnv>> + Send>;
@@ -43,7 +43,17 @@ impl EvalCallback {
         episodes: usize,
         seed: u64,
     ) -> Self {
-        Self { task: task.to_string(), make_env: Box::new(make_env), every, episodes, seed, log: None, events: None, stop_when: None, last: None }
+        Self {
+            task: task.to_string(),
+            make_env: Box::new(make_env),
+            every,
+            episodes,
+            seed,
+            log: None,
+            events: None,
+            stop_when: None,
+            last: None,
+        }
     }
 
     /// Appends every evaluation to `run`'s `evaluations.csv`.

@@ -7,10 +7,10 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::{Callback, Flow};
-use crate::plot::{self, CurvePoint, EvaluationPoint};
 use crate::agent::Agent;
-use crate::stats::UpdateStats;
+use crate::plot::{self, CurvePoint, EvaluationPoint};
 use crate::run_dir::{LEARNING_CURVE, RunDir};
+use crate::stats::UpdateStats;
 use twinbots_api::SolvedCriterion;
 
 /// Appends every update's row to the run's `progress.csv` (SB3's CSV logger).
@@ -92,7 +92,11 @@ pub fn draw_learning_curve(run: &RunDir, title: &str, solved: Option<SolvedCrite
     let evaluations: Vec<EvaluationPoint> = run
         .read_evaluations()?
         .iter()
-        .map(|e| EvaluationPoint { timesteps: e.timesteps, mean_score: e.mean_score, success_rate: e.success_rate.unwrap_or(f32::NAN) })
+        .map(|e| EvaluationPoint {
+            timesteps: e.timesteps,
+            mean_score: e.mean_score,
+            success_rate: e.success_rate.unwrap_or(f32::NAN),
+        })
         .collect();
     plot::learning_curve(&run.file(LEARNING_CURVE), title, &curve, &evaluations, solved)
 }
@@ -136,7 +140,9 @@ impl ProgressBarCallback {
 
     pub fn bar(total: u64) -> anyhow::Result<Self> {
         let bar = ProgressBar::new(total);
-        bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps {msg}")?.progress_chars("=> "));
+        bar.set_style(
+            ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps {msg}")?.progress_chars("=> "),
+        );
         Ok(Self { display: Display::Bar(bar), total })
     }
 
@@ -147,7 +153,8 @@ impl ProgressBarCallback {
 
 /// An update's figures in a few words: what the bar shows beside it, and the core of a line.
 fn progress_message(s: &UpdateStats) -> String {
-    let success = if s.success_rate.is_finite() { format!(", success {:.0} %", 100.0 * s.success_rate) } else { String::new() };
+    let success =
+        if s.success_rate.is_finite() { format!(", success {:.0} %", 100.0 * s.success_rate) } else { String::new() };
     format!("{:.0} steps/s, mean reward {:.1}{success} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes)
 }
 

@@ -20,12 +20,14 @@ mod logging;
 mod tensorboard;
 
 pub use eval::{EvalCallback, evaluation_seed};
-pub use logging::{CheckpointCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, draw_learning_curve};
+pub use logging::{
+    CheckpointCallback, LearningCurveCallback, ProgressBarCallback, ProgressCsvCallback, draw_learning_curve,
+};
 pub use tensorboard::{TensorBoardCallback, evaluation_scalars, training_scalars};
 
 use crate::agent::Agent;
-pub use crate::stats::{Flow, SolvedBy, TrainingEnd};
 use crate::stats::UpdateStats;
+pub use crate::stats::{Flow, SolvedBy, TrainingEnd};
 use twinbots_api::SolvedCriterion;
 
 /// Hears training as it goes. Only `on_update` is required; a closure
@@ -115,7 +117,11 @@ impl StopTrainingOnSolved {
 
 impl Callback for StopTrainingOnSolved {
     fn on_update(&mut self, _stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
-        Ok(if model.history().is_solved(&self.criterion) { Flow::Solved(SolvedBy::TrainingEpisodes) } else { Flow::Continue })
+        Ok(if model.history().is_solved(&self.criterion) {
+            Flow::Solved(SolvedBy::TrainingEpisodes)
+        } else {
+            Flow::Continue
+        })
     }
 }
 

@@ -4,8 +4,8 @@
 use std::time::Instant;
 
 use super::{Callback, Flow};
-use crate::evaluation::EvalResult;
 use crate::agent::Agent;
+use crate::evaluation::EvalResult;
 use crate::stats::UpdateStats;
 use crate::tensorboard::EventWriter;
 

@@ -45,17 +45,30 @@ pub struct Adam {
 impl Adam {
     pub fn new(vars: Vec<Var>, config: AdamConfig) -> Self {
         let zeros = |v: &Var| vec![0.0; v.elem_count()];
-        Self { first: vars.iter().map(zeros).collect(), second: vars.iter().map(zeros).collect(), vars, steps: 0, config }
+        Self {
+            first: vars.iter().map(zeros).collect(),
+            second: vars.iter().map(zeros).collect(),
+            vars,
+            steps: 0,
+            config,
+        }
     }
 
     /// The same optimiser state (moments, step count, settings) for a copy of its variables,
     /// e.g. a snapshot of the network, so both continue alike.
     pub fn for_copies(&self, vars: Vec<Var>) -> Result<Self> {
-        let same_shapes = vars.len() == self.vars.len() && vars.iter().zip(&self.vars).all(|(a, b)| a.shape() == b.shape());
+        let same_shapes =
+            vars.len() == self.vars.len() && vars.iter().zip(&self.vars).all(|(a, b)| a.shape() == b.shape());
         if !same_shapes {
             candle_core::bail!("Adam::for_copies: the variables differ in number or shape from the optimiser's");
         }
-        Ok(Self { vars, first: self.first.clone(), second: self.second.clone(), steps: self.steps, config: self.config })
+        Ok(Self {
+            vars,
+            first: self.first.clone(),
+            second: self.second.clone(),
+            steps: self.steps,
+            config: self.config,
+        })
     }
 
     /// The moments (first, second; per variable, flat) and the number of steps taken: what a
@@ -66,7 +79,9 @@ impl Adam {
 
     /// Puts back moments taken by [`Adam::moments`]; an error if they do not fit the variables.
     pub fn restore_moments(&mut self, first: Vec<Vec<f32>>, second: Vec<Vec<f32>>, steps: u64) -> Result<()> {
-        let fits = |m: &[Vec<f32>]| m.len() == self.vars.len() && m.iter().zip(&self.vars).all(|(m, v)| m.len() == v.elem_count());
+        let fits = |m: &[Vec<f32>]| {
+            m.len() == self.vars.len() && m.iter().zip(&self.vars).all(|(m, v)| m.len() == v.elem_count())
+        };
         if !fits(&first) || !fits(&second) {
             candle_core::bail!("the optimiser's saved moments do not fit the network's variables");
         }
@@ -95,7 +110,9 @@ impl Adam {
     /// [`Adam::step`] along `gradients`, flat, one per variable in the optimiser's order
     /// (none: the variable is left alone).
     pub fn step_flat(&mut self, gradients: Vec<Option<Vec<f32>>>, max_grad_norm: Option<f32>) -> Result<GradientStep> {
-        if gradients.len() != self.vars.len() || gradients.iter().zip(&self.vars).any(|(g, v)| g.as_ref().is_some_and(|g| g.len() != v.elem_count())) {
+        if gradients.len() != self.vars.len()
+            || gradients.iter().zip(&self.vars).any(|(g, v)| g.as_ref().is_some_and(|g| g.len() != v.elem_count()))
+        {
             candle_core::bail!("Adam::step_flat: the gradients do not fit the optimiser's variables");
         }
         let squared: f64 = gradients.iter().flatten().flatten().map(|&g| (g as f64) * (g as f64)).sum();
@@ -159,7 +176,11 @@ mod tests {
 
     fn quadratic_loss(vars: &[Var]) -> Tensor {
         let targets = [3.0f64, -1.5];
-        let terms: Vec<Tensor> = vars.iter().zip(targets).map(|(v, t)| (v.as_tensor() - t).unwrap().sqr().unwrap().sum_all().unwrap()).collect();
+        let terms: Vec<Tensor> = vars
+            .iter()
+            .zip(targets)
+            .map(|(v, t)| (v.as_tensor() - t).unwrap().sqr().unwrap().sum_all().unwrap())
+            .collect();
         (&terms[0] + (&terms[1] * 10.0).unwrap()).unwrap()
     }
 
@@ -184,7 +205,8 @@ mod tests {
             reference.step(&quadratic_loss(&theirs).backward().unwrap()).unwrap();
         }
         for (a, b) in ours.iter().zip(&theirs) {
-            let diff = (a.as_tensor() - b.as_tensor()).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+            let diff =
+                (a.as_tensor() - b.as_tensor()).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
             // f32 rounding in a different order; a missing bias correction would differ by ~lr.
             assert!(diff < 1e-4, "{diff}");
         }

@@ -35,7 +35,11 @@ impl Patches {
     }
 
     fn fits(&self) -> bool {
-        self.kernel >= 1 && self.stride >= 1 && self.height >= self.kernel && self.width >= self.kernel && self.channels >= 1
+        self.kernel >= 1
+            && self.stride >= 1
+            && self.height >= self.kernel
+            && self.width >= self.kernel
+            && self.channels >= 1
     }
 }
 
@@ -92,7 +96,13 @@ impl CustomOp1 for Unfold {
         let data = slice(storage, layout, "unfold")?;
         let image_len = p.height * p.width * p.channels;
         if data.len() % image_len != 0 {
-            candle_core::bail!("unfold: {} values are not whole {}×{}×{} images", data.len(), p.height, p.width, p.channels);
+            candle_core::bail!(
+                "unfold: {} values are not whole {}×{}×{} images",
+                data.len(),
+                p.height,
+                p.width,
+                p.channels
+            );
         }
         let batch = data.len() / image_len;
         let (out_h, out_w) = p.output();
@@ -198,7 +208,16 @@ mod tests {
 
     fn numbers(shape: &[usize], scale: f64, dev: &Device) -> Tensor {
         let n: usize = shape.iter().product();
-        Tensor::arange(0u32, n as u32, dev).unwrap().to_dtype(DType::F32).unwrap().affine(scale, -0.3).unwrap().sin().unwrap().reshape(shape).unwrap()
+        Tensor::arange(0u32, n as u32, dev)
+            .unwrap()
+            .to_dtype(DType::F32)
+            .unwrap()
+            .affine(scale, -0.3)
+            .unwrap()
+            .sin()
+            .unwrap()
+            .reshape(shape)
+            .unwrap()
     }
 
     #[test]
@@ -211,11 +230,17 @@ mod tests {
         // 4 output channels; our weight is [out, ky, kx, c], candle's kernel [out, c, ky, kx].
         let w = Var::from_tensor(&numbers(&[4, 3, 3, 3], 0.11, &dev)).unwrap();
 
-        let ours = unfold(x.as_tensor(), p).unwrap().matmul(&w.as_tensor().reshape((4, 27)).unwrap().t().unwrap()).unwrap().reshape((2, out_h, out_w, 4)).unwrap();
+        let ours = unfold(x.as_tensor(), p)
+            .unwrap()
+            .matmul(&w.as_tensor().reshape((4, 27)).unwrap().t().unwrap())
+            .unwrap()
+            .reshape((2, out_h, out_w, 4))
+            .unwrap();
         let nchw = x.as_tensor().permute((0, 3, 1, 2)).unwrap().contiguous().unwrap();
         let kernel = w.as_tensor().permute((0, 3, 1, 2)).unwrap().contiguous().unwrap();
         let theirs = nchw.conv2d(&kernel, 0, 2, 1, 1).unwrap().permute((0, 2, 3, 1)).unwrap();
-        let diff = |a: &Tensor, b: &Tensor| (a - b).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+        let diff =
+            |a: &Tensor, b: &Tensor| (a - b).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
         assert!(diff(&ours, &theirs) < 1e-5, "forward differs by {}", diff(&ours, &theirs));
 
         let weights = numbers(&[2, out_h, out_w, 4], 0.53, &dev);
@@ -244,7 +269,8 @@ mod tests {
             let grad = |v: &Var| g.get(v.as_tensor()).unwrap().clone();
             (y, grad(&conv.dense.weight), grad(&conv.dense.bias))
         };
-        let diff = |a: &Tensor, b: &Tensor| (a - b).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+        let diff =
+            |a: &Tensor, b: &Tensor| (a - b).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
         let (y, gw, gb) = run(false);
         let (yc, gwc, gbc) = run(true);
         assert!(diff(&y, &yc) < 1e-5 && diff(&gw, &gwc) < 1e-4 && diff(&gb, &gbc) < 1e-4);

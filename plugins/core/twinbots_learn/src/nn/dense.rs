@@ -15,9 +15,8 @@ impl Dense {
     /// the seed fixes the network.
     pub(crate) fn new(inputs: usize, outputs: usize, gain: f64, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
         let bound = (1.0 / inputs as f64).sqrt();
-        let mut uniform = |n: usize| -> Vec<f32> {
-            (0..n).map(|_| (rng.random_range(-bound..bound) * gain) as f32).collect()
-        };
+        let mut uniform =
+            |n: usize| -> Vec<f32> { (0..n).map(|_| (rng.random_range(-bound..bound) * gain) as f32).collect() };
         Ok(Self {
             weight: Var::from_tensor(&Tensor::from_vec(uniform(inputs * outputs), (outputs, inputs), dev)?)?,
             bias: Var::from_tensor(&Tensor::from_vec(uniform(outputs), outputs, dev)?)?,

@@ -10,9 +10,9 @@ use serde::{Deserialize, Serialize};
 use twinbots_api::Space;
 
 use super::Dense;
-use crate::policy_net::{ConvEncoder, ConvHead, ConvLayer, InputEncoding};
 use super::conv::{Conv2d, Patches, RELU_GAIN};
 use super::keypoints::KeypointCnn;
+use crate::policy_net::{ConvEncoder, ConvHead, ConvLayer, InputEncoding};
 
 /// The learner's `policy` setting.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -41,7 +41,14 @@ pub struct NatureCnn {
 }
 
 impl NatureCnn {
-    fn new(height: usize, width: usize, channels: usize, features: usize, rng: &mut ChaCha8Rng, dev: &Device) -> Result<Self> {
+    fn new(
+        height: usize,
+        width: usize,
+        channels: usize,
+        features: usize,
+        rng: &mut ChaCha8Rng,
+        dev: &Device,
+    ) -> Result<Self> {
         let mut convs = Vec::new();
         let (mut h, mut w, mut c) = (height, width, channels);
         for (filters, kernel, stride) in [(32, 8, 4), (64, 4, 2), (64, 3, 1)] {
@@ -100,7 +107,14 @@ pub enum Encoder {
 impl Encoder {
     /// The encoder `kind` asks for on `space`; a CNN on anything but a large enough image is
     /// an error naming the setting (`<algo>.policy`).
-    pub fn new(kind: PolicyKind, space: &Space, features: usize, algo: &str, rng: &mut ChaCha8Rng, dev: &Device) -> anyhow::Result<Self> {
+    pub fn new(
+        kind: PolicyKind,
+        space: &Space,
+        features: usize,
+        algo: &str,
+        rng: &mut ChaCha8Rng,
+        dev: &Device,
+    ) -> anyhow::Result<Self> {
         let (image, state) = (space.image_shape(), space.state_dim());
         Ok(match (kind, image) {
             (PolicyKind::Mlp, Some(_)) => Encoder::ScaledImage { dim: space.dim(), state },
@@ -119,7 +133,9 @@ impl Encoder {
             }
             (PolicyKind::Cnn | PolicyKind::Keypoints, None) => {
                 let name = if kind == PolicyKind::Cnn { "cnn" } else { "keypoints" };
-                anyhow::bail!("{algo}.policy = \"{name}\": the observation {space} is not an image (use pixel observations, [pixels])")
+                anyhow::bail!(
+                    "{algo}.policy = \"{name}\": the observation {space} is not an image (use pixel observations, [pixels])"
+                )
             }
         })
     }
@@ -157,9 +173,14 @@ impl Encoder {
             Encoder::Flat { .. } => InputEncoding::Flat,
             Encoder::ScaledImage { state: 0, .. } => InputEncoding::Scaled { scale: 1.0 / 255.0 },
             Encoder::ScaledImage { .. } => {
-                return Err(candle_core::Error::Msg("an MLP policy on an image and state values cannot be exported to ONNX yet: use policy = \"cnn\"".into()));
+                return Err(candle_core::Error::Msg(
+                    "an MLP policy on an image and state values cannot be exported to ONNX yet: use policy = \"cnn\""
+                        .into(),
+                ));
             }
-            Encoder::Keypoints { net, state } => InputEncoding::Cnn(conv_encoder(&net.convs, ConvHead::Keypoints, *state, prefix)?),
+            Encoder::Keypoints { net, state } => {
+                InputEncoding::Cnn(conv_encoder(&net.convs, ConvHead::Keypoints, *state, prefix)?)
+            }
             Encoder::Cnn { cnn, state } => {
                 let fc = cnn.fc.values(&format!("{prefix}features.{}", cnn.convs.len()))?;
                 InputEncoding::Cnn(conv_encoder(&cnn.convs, ConvHead::Dense(fc), *state, prefix)?)
@@ -177,7 +198,9 @@ impl Encoder {
         layers
             .into_iter()
             .enumerate()
-            .flat_map(|(i, l)| [(format!("features.{i}.weight"), l.weight.clone()), (format!("features.{i}.bias"), l.bias.clone())])
+            .flat_map(|(i, l)| {
+                [(format!("features.{i}.weight"), l.weight.clone()), (format!("features.{i}.bias"), l.bias.clone())]
+            })
             .collect()
     }
 
@@ -188,7 +211,11 @@ impl Encoder {
             Encoder::ScaledImage { dim, state } => Encoder::ScaledImage { dim: *dim, state: *state },
             Encoder::Cnn { cnn, state } => Encoder::Cnn {
                 cnn: NatureCnn {
-                    convs: cnn.convs.iter().map(|c| Ok(Conv2d { patches: c.patches, dense: c.dense.deep_copy()? })).collect::<Result<_>>()?,
+                    convs: cnn
+                        .convs
+                        .iter()
+                        .map(|c| Ok(Conv2d { patches: c.patches, dense: c.dense.deep_copy()? }))
+                        .collect::<Result<_>>()?,
                     fc: cnn.fc.deep_copy()?,
                 },
                 state: *state,
@@ -222,10 +249,26 @@ fn conv_encoder(convs: &[Conv2d], head: ConvHead, state: usize, prefix: &str) ->
         .enumerate()
         .map(|(i, c)| {
             let d = c.dense.values(&format!("{prefix}features.{i}"))?;
-            Ok(ConvLayer { name: d.name, kernel: c.patches.kernel, stride: c.patches.stride, in_channels: c.patches.channels, filters: d.outputs, weight: d.weight, bias: d.bias })
+            Ok(ConvLayer {
+                name: d.name,
+                kernel: c.patches.kernel,
+                stride: c.patches.stride,
+                in_channels: c.patches.channels,
+                filters: d.outputs,
+                weight: d.weight,
+                bias: d.bias,
+            })
         })
         .collect::<Result<Vec<_>>>()?;
-    Ok(ConvEncoder { height: first.height, width: first.width, channels: first.channels, scale: 1.0 / 255.0, convs, head, state })
+    Ok(ConvEncoder {
+        height: first.height,
+        width: first.width,
+        channels: first.channels,
+        scale: 1.0 / 255.0,
+        convs,
+        head,
+        state,
+    })
 }
 
 /// An error naming `<algo>.policy = "<name>"` unless an `h × w` image is large enough for
@@ -260,9 +303,15 @@ mod tests {
         let small = Space::Image { height: 32, width: 64, channels: 3 };
         let e = Encoder::new(PolicyKind::Cnn, &small, 512, "ppo", &mut rng, &dev).err().unwrap().to_string();
         assert!(e.starts_with("ppo.policy = \"cnn\": NatureCNN needs images of at least 36×36"), "{e}");
-        let e = Encoder::new(PolicyKind::Cnn, &Space::uniform_box(4, -1.0, 1.0), 512, "sac", &mut rng, &dev).err().unwrap().to_string();
+        let e = Encoder::new(PolicyKind::Cnn, &Space::uniform_box(4, -1.0, 1.0), 512, "sac", &mut rng, &dev)
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.starts_with("sac.policy = \"cnn\": the observation Box(4) is not an image"), "{e}");
-        assert!(matches!(Encoder::new(PolicyKind::Mlp, &small, 512, "ppo", &mut rng, &dev).unwrap(), Encoder::ScaledImage { dim: 6144, state: 0 }));
+        assert!(matches!(
+            Encoder::new(PolicyKind::Mlp, &small, 512, "ppo", &mut rng, &dev).unwrap(),
+            Encoder::ScaledImage { dim: 6144, state: 0 }
+        ));
     }
 
     #[test]
@@ -271,22 +320,38 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let space = Space::ImageAndState { height: 40, width: 40, channels: 3, low: vec![-1.0; 2], high: vec![1.0; 2] };
         let encoder = Encoder::new(PolicyKind::Keypoints, &space, 512, "sac", &mut rng, &dev).unwrap();
-        assert_eq!((encoder.dim(), encoder.named_vars().len()), (64 + 2, 6), "32 keypoints and the state; 3 convolutions");
+        assert_eq!(
+            (encoder.dim(), encoder.named_vars().len()),
+            (64 + 2, 6),
+            "32 keypoints and the state; 3 convolutions"
+        );
         let mut row = vec![7.0f32; 40 * 40 * 3];
         row.extend([0.25, -0.5]);
-        let out = encoder.forward(&Tensor::from_vec(row, (1, space.dim()), &dev).unwrap()).unwrap().to_vec2::<f32>().unwrap();
+        let out =
+            encoder.forward(&Tensor::from_vec(row, (1, space.dim()), &dev).unwrap()).unwrap().to_vec2::<f32>().unwrap();
         assert_eq!(out[0][64..], [0.25, -0.5]);
         assert!(out[0][..64].iter().all(|v| (-1.0..=1.0).contains(v)));
         let copy = encoder.deep_copy().unwrap();
-        assert_eq!(copy.named_vars()[0].1.as_tensor().to_vec2::<f32>().unwrap(), encoder.named_vars()[0].1.as_tensor().to_vec2::<f32>().unwrap());
+        assert_eq!(
+            copy.named_vars()[0].1.as_tensor().to_vec2::<f32>().unwrap(),
+            encoder.named_vars()[0].1.as_tensor().to_vec2::<f32>().unwrap()
+        );
         let first = copy.named_vars()[0].1.clone();
         first.set(&first.as_tensor().zeros_like().unwrap()).unwrap();
-        assert!(encoder.named_vars()[0].1.as_tensor().abs().unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap() > 0.0, "the copy shares nothing");
+        assert!(
+            encoder.named_vars()[0].1.as_tensor().abs().unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap() > 0.0,
+            "the copy shares nothing"
+        );
 
-        let InputEncoding::Cnn(exported) = encoder.export("pi.").unwrap() else { panic!("keypoints export as convolutions") };
+        let InputEncoding::Cnn(exported) = encoder.export("pi.").unwrap() else {
+            panic!("keypoints export as convolutions")
+        };
         assert_eq!((exported.head, exported.convs.len(), exported.state), (ConvHead::Keypoints, 3, 2));
         assert_eq!(exported.convs[2].name, "pi.features.2");
-        let e = Encoder::new(PolicyKind::Keypoints, &Space::uniform_box(4, -1.0, 1.0), 512, "ppo", &mut rng, &dev).err().unwrap().to_string();
+        let e = Encoder::new(PolicyKind::Keypoints, &Space::uniform_box(4, -1.0, 1.0), 512, "ppo", &mut rng, &dev)
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.starts_with("ppo.policy = \"keypoints\": the observation Box(4) is not an image"), "{e}");
         let small = Space::Image { height: 30, width: 64, channels: 3 };
         let e = Encoder::new(PolicyKind::Keypoints, &small, 512, "ppo", &mut rng, &dev).err().unwrap().to_string();
@@ -307,13 +372,18 @@ mod tests {
         assert_eq!(encoder.dim(), 18);
         let out = encoder.forward(&obs).unwrap().to_vec2::<f32>().unwrap();
         let Encoder::Cnn { cnn, .. } = &encoder else { panic!("a CNN for an image and state") };
-        let features = cnn.forward(&obs.narrow(1, 0, image).unwrap().contiguous().unwrap()).unwrap().to_vec2::<f32>().unwrap();
+        let features =
+            cnn.forward(&obs.narrow(1, 0, image).unwrap().contiguous().unwrap()).unwrap().to_vec2::<f32>().unwrap();
         assert_eq!(out[1][..16], features[1][..], "the image's features first");
         assert_eq!(out[1][16..], [0.25, -0.5], "then the state as it is");
 
         let mlp = Encoder::new(PolicyKind::Mlp, &space, 16, "ppo", &mut rng, &dev).unwrap();
         let out = mlp.forward(&obs).unwrap().to_vec2::<f32>().unwrap();
-        assert_eq!((mlp.dim(), out[0][255], out[0][image..].to_vec()), (image + 2, 1.0, vec![0.25, -0.5]), "pixels scaled, the state not");
+        assert_eq!(
+            (mlp.dim(), out[0][255], out[0][image..].to_vec()),
+            (image + 2, 1.0, vec![0.25, -0.5]),
+            "pixels scaled, the state not"
+        );
         let e = mlp.export("").err().unwrap().to_string();
         assert!(e.contains("cannot be exported to ONNX yet: use policy = \"cnn\""), "{e}");
     }

@@ -21,8 +21,19 @@ pub const HALF_LOG_2PI: f32 = 0.918_938_5;
 /// with its `transposed` flag, as its transpose row-major (`k × m`, `n × k`). On the calling
 /// thread: the products of a small network are too short to share.
 #[allow(clippy::too_many_arguments)]
-pub fn matmul(dst: &mut [f32], (m, n, k): (usize, usize, usize), a: &[f32], a_transposed: bool, b: &[f32], b_transposed: bool, accumulate: bool) {
-    assert!(dst.len() == m * n && a.len() == m * k && b.len() == k * n, "matmul: the slices do not fit {m}×{k} times {k}×{n}");
+pub fn matmul(
+    dst: &mut [f32],
+    (m, n, k): (usize, usize, usize),
+    a: &[f32],
+    a_transposed: bool,
+    b: &[f32],
+    b_transposed: bool,
+    accumulate: bool,
+) {
+    assert!(
+        dst.len() == m * n && a.len() == m * k && b.len() == k * n,
+        "matmul: the slices do not fit {m}×{k} times {k}×{n}"
+    );
     if m == 0 || n == 0 {
         return;
     }
@@ -39,11 +50,24 @@ pub fn matmul(dst: &mut [f32], (m, n, k): (usize, usize, usize), a: &[f32], a_tr
     // i·a_rs + j·a_cs < m·k, B's likewise < k·n, dst's (i, j) at i·n + j < m·n.
     unsafe {
         gemm::gemm(
-            m, n, k,
-            dst.as_mut_ptr(), 1, n as isize, accumulate,
-            a.as_ptr(), a_cs, a_rs,
-            b.as_ptr(), b_cs, b_rs,
-            1.0, 1.0, false, false, false,
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            n as isize,
+            accumulate,
+            a.as_ptr(),
+            a_cs,
+            a_rs,
+            b.as_ptr(),
+            b_cs,
+            b_rs,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
             gemm::Parallelism::None,
         );
     }
@@ -123,7 +147,12 @@ impl SliceMlp {
             .iter()
             .map(|l| {
                 let (outputs, inputs) = l.weight.as_tensor().dims2()?;
-                Ok(LayerValues { weight: l.weight.as_tensor().flatten_all()?.to_vec1()?, bias: l.bias.as_tensor().to_vec1()?, inputs, outputs })
+                Ok(LayerValues {
+                    weight: l.weight.as_tensor().flatten_all()?.to_vec1()?,
+                    bias: l.bias.as_tensor().to_vec1()?,
+                    inputs,
+                    outputs,
+                })
             })
             .collect::<Result<_>>()?;
         Ok(Self { layers, hidden, activate_last })
@@ -198,7 +227,8 @@ mod tests {
         let at = |i: usize, j: usize| a[i * k + j];
         let bt = |i: usize, j: usize| b[i * n + j];
         let expected: Vec<f32> = (0..m * n).map(|x| (0..k).map(|p| at(x / n, p) * bt(p, x % n)).sum()).collect();
-        let transpose = |v: &[f32], r: usize, c: usize| -> Vec<f32> { (0..r * c).map(|x| v[(x % r) * c + x / r]).collect() };
+        let transpose =
+            |v: &[f32], r: usize, c: usize| -> Vec<f32> { (0..r * c).map(|x| v[(x % r) * c + x / r]).collect() };
         for (a_t, b_t) in [(false, false), (true, false), (false, true), (true, true)] {
             let a_in = if a_t { transpose(&a, m, k) } else { a.clone() };
             let b_in = if b_t { transpose(&b, k, n) } else { b.clone() };

@@ -36,7 +36,11 @@ impl KeypointCnn {
 
     /// A copy sharing no variable with this one.
     pub fn deep_copy(&self) -> Result<Self> {
-        let convs = self.convs.iter().map(|c| Ok(Conv2d { patches: c.patches, dense: c.dense.deep_copy()? })).collect::<Result<_>>()?;
+        let convs = self
+            .convs
+            .iter()
+            .map(|c| Ok(Conv2d { patches: c.patches, dense: c.dense.deep_copy()? }))
+            .collect::<Result<_>>()?;
         Ok(Self { convs })
     }
 
@@ -148,7 +152,12 @@ mod tests {
         assert_eq!(net.dim(), 64);
         // A 6×6 white square on black, once left-top and once right-bottom.
         let image = |x0: usize, y0: usize| -> Vec<f32> {
-            (0..64 * 64 * 3).map(|i| { let (y, x) = (i / 192, i / 3 % 64); if (x0..x0 + 6).contains(&x) && (y0..y0 + 6).contains(&y) { 255.0 } else { 0.0 } }).collect()
+            (0..64 * 64 * 3)
+                .map(|i| {
+                    let (y, x) = (i / 192, i / 3 % 64);
+                    if (x0..x0 + 6).contains(&x) && (y0..y0 + 6).contains(&y) { 255.0 } else { 0.0 }
+                })
+                .collect()
         };
         let obs = Tensor::from_vec([image(4, 6), image(52, 50)].concat(), (2, 64 * 64 * 3), &dev).unwrap();
         let points = net.forward(&obs).unwrap().to_vec2::<f32>().unwrap();
@@ -181,9 +190,12 @@ mod tests {
         let attention = candle_nn::ops::softmax(&flat, candle_core::D::Minus1).unwrap();
         let grid = Tensor::from_vec(grid(h, w), (h * w, 2), &dev).unwrap();
         let theirs = attention.broadcast_matmul(&grid).unwrap().reshape((2, 2 * k)).unwrap();
-        let diff = |a: &Tensor, b: &Tensor| (a - b).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+        let diff =
+            |a: &Tensor, b: &Tensor| (a - b).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
         assert!(diff(&ours, &theirs) < 1e-5, "values differ by {}", diff(&ours, &theirs));
-        let gradient = |y: &Tensor| (y * &weights).unwrap().sum_all().unwrap().backward().unwrap().get(maps.as_tensor()).unwrap().clone();
+        let gradient = |y: &Tensor| {
+            (y * &weights).unwrap().sum_all().unwrap().backward().unwrap().get(maps.as_tensor()).unwrap().clone()
+        };
         assert!(diff(&gradient(&ours), &gradient(&theirs)) < 1e-5, "gradients differ");
     }
 

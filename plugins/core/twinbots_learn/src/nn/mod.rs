@@ -8,8 +8,8 @@ mod adam;
 mod conv;
 mod dense;
 mod encoder;
-mod keypoints;
 pub mod fused_mlp;
+mod keypoints;
 mod relu;
 mod tanh;
 

@@ -47,7 +47,13 @@ impl CustomOp2 for ReluGrad {
         "relu-grad"
     }
 
-    fn cpu_fwd(&self, grad: &CpuStorage, grad_layout: &Layout, x: &CpuStorage, x_layout: &Layout) -> Result<(CpuStorage, Shape)> {
+    fn cpu_fwd(
+        &self,
+        grad: &CpuStorage,
+        grad_layout: &Layout,
+        x: &CpuStorage,
+        x_layout: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
         let (grad, x) = (floats(grad, grad_layout, self.name())?, floats(x, x_layout, self.name())?);
         if grad.len() != x.len() {
             candle_core::bail!("relu-grad: {} gradients for {} inputs", grad.len(), x.len());
@@ -69,7 +75,9 @@ mod tests {
         let weights = Tensor::new(&[[1.0f32, -2.0, 3.0, 0.5], [2.0, 1.5, -1.0, 4.0]], &Device::Cpu).unwrap();
         let ours = relu(x.as_tensor()).unwrap();
         let theirs = x.as_tensor().relu().unwrap();
-        let bits = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let bits = |t: &Tensor| {
+            t.flatten_all().unwrap().to_vec1::<f32>().unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        };
         assert_eq!(bits(&ours), bits(&theirs));
         let grad = |y: Tensor| {
             let g = (y * &weights).unwrap().sum_all().unwrap().backward().unwrap();

@@ -90,7 +90,17 @@ mod tests {
     #[test]
     fn the_op_matches_candles_tanh_and_its_gradient() {
         let dev = Device::Cpu;
-        let x = Var::from_tensor(&Tensor::arange(-40i64, 40, &dev).unwrap().to_dtype(candle_core::DType::F32).unwrap().affine(0.1, 0.0).unwrap().reshape((8, 10)).unwrap()).unwrap();
+        let x = Var::from_tensor(
+            &Tensor::arange(-40i64, 40, &dev)
+                .unwrap()
+                .to_dtype(candle_core::DType::F32)
+                .unwrap()
+                .affine(0.1, 0.0)
+                .unwrap()
+                .reshape((8, 10))
+                .unwrap(),
+        )
+        .unwrap();
         // A transposed (strided) input goes through the same op.
         let ours = tanh(&x.as_tensor().t().unwrap()).unwrap();
         let theirs = x.as_tensor().t().unwrap().tanh().unwrap();
@@ -98,7 +108,9 @@ mod tests {
         assert!(diff < 2e-7, "{diff}");
 
         let weights = Tensor::arange(0f32, 80.0, &dev).unwrap().reshape((10, 8)).unwrap();
-        let grad = |y: Tensor| (y * &weights).unwrap().sum_all().unwrap().backward().unwrap().get(x.as_tensor()).unwrap().clone();
+        let grad = |y: Tensor| {
+            (y * &weights).unwrap().sum_all().unwrap().backward().unwrap().get(x.as_tensor()).unwrap().clone()
+        };
         let diff = (grad(ours) - grad(theirs)).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
         assert!(diff < 1e-4, "gradients differ by {diff}");
     }

@@ -33,7 +33,13 @@ pub fn to_env(space: &Space, unit: &[f32]) -> Vec<f32> {
 /// Stores the step from `obs` with the (unit) `actions` that gave `out` as transitions
 /// (s, a, r, s', done): a finished episode's s' is its last observation, and a truncated one is
 /// not done, so its value bootstraps. Each episode that ended is handed to `ended`.
-pub fn store_step(buffer: Option<&mut ReplayBuffer>, obs: &[f32], actions: &[f32], out: &StepResult, mut ended: impl FnMut(&EpisodeSummary)) {
+pub fn store_step(
+    buffer: Option<&mut ReplayBuffer>,
+    obs: &[f32],
+    actions: &[f32],
+    out: &StepResult,
+    mut ended: impl FnMut(&EpisodeSummary),
+) {
     let n_envs = out.rewards.len();
     let obs_dim = obs.len() / n_envs.max(1);
     let mut next_obs = out.obs.clone();
@@ -86,8 +92,14 @@ pub(crate) struct Parts<'a> {
 /// observations kept as bytes, as they came); returns the lanes of the buffer it has.
 pub(crate) fn replay_buffer<M: OffPolicy>(model: &mut M, lanes: usize) -> usize {
     if model.parts().buffer.is_none() {
-        let ring = ReplayBuffer::new(model.schedule().buffer_size, lanes, model.observation_space().dim(), model.action_space().dim());
-        let ring = if matches!(model.observation_space(), Space::Image { .. }) { ring.with_byte_observations() } else { ring };
+        let ring = ReplayBuffer::new(
+            model.schedule().buffer_size,
+            lanes,
+            model.observation_space().dim(),
+            model.action_space().dim(),
+        );
+        let ring =
+            if matches!(model.observation_space(), Space::Image { .. }) { ring.with_byte_observations() } else { ring };
         *model.parts().buffer = Some(ring);
     }
     model.parts().buffer.as_ref().map_or(lanes, |b| b.n_envs)
@@ -95,7 +107,12 @@ pub(crate) fn replay_buffer<M: OffPolicy>(model: &mut M, lanes: usize) -> usize 
 
 /// Trains `model` for `total_timesteps` more env steps (summed over envs), calling `callback`
 /// after every row, and says why it stopped: SAC's and TD3's `learn`.
-pub(crate) fn learn<M: OffPolicy>(model: &mut M, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+pub(crate) fn learn<M: OffPolicy>(
+    model: &mut M,
+    env: &mut dyn VecEnv,
+    total_timesteps: u64,
+    callback: &mut dyn Callback,
+) -> anyhow::Result<TrainingEnd> {
     model.check_spaces(env.observation_space(), env.action_space())?;
     let n_envs = env.num_envs();
     let schedule = model.schedule();
@@ -195,7 +212,14 @@ pub(crate) struct Row {
 
 impl Default for Row {
     fn default() -> Self {
-        Self { sums: Vec::new(), counts: Vec::new(), applied: 0, skipped: 0, transitions: 0, started: std::time::Instant::now() }
+        Self {
+            sums: Vec::new(),
+            counts: Vec::new(),
+            applied: 0,
+            skipped: 0,
+            transitions: 0,
+            started: std::time::Instant::now(),
+        }
     }
 }
 
@@ -239,7 +263,10 @@ impl Row {
         let parts = model.parts();
         *parts.updates += 1;
         if self.skipped > 0 {
-            eprintln!("row {}: {} gradient step(s) skipped: a loss or gradient was not finite", *parts.updates, self.skipped);
+            eprintln!(
+                "row {}: {} gradient step(s) skipped: a loss or gradient was not finite",
+                *parts.updates, self.skipped
+            );
         }
         Ok(UpdateStats {
             train: figures(names, &logged),

@@ -106,7 +106,10 @@ impl<M: OffPolicy + Send> ServedLearner for ServedOffPolicy<M> {
 
     fn record(&mut self, robot: u64, step: &RobotStep) -> anyhow::Result<()> {
         let episode = self.episodes.get_mut(&robot).ok_or_else(|| anyhow::anyhow!("robot {robot} is not known"))?;
-        let (obs, action) = episode.pending.take().ok_or_else(|| anyhow::anyhow!("robot {robot} has no action awaiting its outcome"))?;
+        let (obs, action) = episode
+            .pending
+            .take()
+            .ok_or_else(|| anyhow::anyhow!("robot {robot} has no action awaiting its outcome"))?;
         episode.score += step.reward;
         episode.steps.push(Transition {
             obs,
@@ -118,7 +121,12 @@ impl<M: OffPolicy + Send> ServedLearner for ServedOffPolicy<M> {
         });
         if step.ended() {
             let finished = std::mem::take(episode);
-            let summary = EpisodeSummary { score: finished.score, length: finished.steps.len() as u32, success: step.success, ..Default::default() };
+            let summary = EpisodeSummary {
+                score: finished.score,
+                length: finished.steps.len() as u32,
+                success: step.success,
+                ..Default::default()
+            };
             self.store(finished.steps);
             let parts = self.model.parts();
             *parts.episodes += 1;
@@ -141,7 +149,8 @@ impl<M: OffPolicy + Send> ServedLearner for ServedOffPolicy<M> {
         let iterations = |t: u64| t / self.robots;
         let first_training = schedule.learning_starts.div_ceil(self.robots).max(1);
         let from = iterations(before).max(first_training - 1);
-        let trains = if iterations(now) > from { crossed(from, iterations(now), schedule.train_freq as u64) } else { 0 };
+        let trains =
+            if iterations(now) > from { crossed(from, iterations(now), schedule.train_freq as u64) } else { 0 };
         self.row.train(&mut self.model, trains as usize * schedule.gradient_steps)?;
         if crossed(iterations(before), iterations(now), schedule.log_interval as u64) == 0 {
             return Ok(None);

@@ -46,7 +46,17 @@ impl RolloutBuffer {
     }
 
     pub fn clear(&mut self) {
-        for v in [&mut self.obs, &mut self.actions, &mut self.log_probs, &mut self.rewards, &mut self.values, &mut self.advantages, &mut self.returns, &mut self.features, &mut self.value_features] {
+        for v in [
+            &mut self.obs,
+            &mut self.actions,
+            &mut self.log_probs,
+            &mut self.rewards,
+            &mut self.values,
+            &mut self.advantages,
+            &mut self.returns,
+            &mut self.features,
+            &mut self.value_features,
+        ] {
             v.clear();
         }
         self.dones.clear();

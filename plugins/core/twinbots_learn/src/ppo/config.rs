@@ -125,8 +125,18 @@ impl PpoConfig {
         let hidden = format!("{:?}", self.hidden);
         let sizes_ok = (1..=16).contains(&self.hidden.len()) && self.hidden.iter().all(|&n| (1..=4096).contains(&n));
         check("hidden", hidden, sizes_ok, "1 to 16 layer sizes, each in 1..=4096")?;
-        check("features_dim", self.features_dim, (1..=4096).contains(&self.features_dim), "a whole number in 1..=4096")?;
-        check("log_std_init", self.log_std_init, self.log_std_init.is_finite() && self.log_std_init.abs() <= 20.0, "a finite number in [-20, 20]")
+        check(
+            "features_dim",
+            self.features_dim,
+            (1..=4096).contains(&self.features_dim),
+            "a whole number in 1..=4096",
+        )?;
+        check(
+            "log_std_init",
+            self.log_std_init,
+            self.log_std_init.is_finite() && self.log_std_init.abs() <= 20.0,
+            "a finite number in [-20, 20]",
+        )
     }
 }
 

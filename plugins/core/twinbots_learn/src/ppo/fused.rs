@@ -3,8 +3,8 @@
 //! autograd (a test checks both agree), at the cost of its arithmetic. Camera policies (a CNN
 //! encoder, image observations) keep candle's path.
 
-use super::policy::{ActorCritic, Head};
 use super::part::{Part, PartGradient};
+use super::policy::{ActorCritic, Head};
 use super::{PpoConfig, RolloutBuffer};
 use crate::nn::Encoder;
 use crate::nn::fused_mlp::{Activation, HALF_LOG_2PI, SliceMlp};
@@ -17,7 +17,12 @@ pub(super) fn applies(policy: &ActorCritic) -> bool {
 /// `part`'s share of its minibatch's loss L = L_clip − c_ent H + c_V L_V (each term summed
 /// over the part and divided by the minibatch's size), and its gradient for every variable in
 /// `named_vars` order.
-pub(super) fn part_gradient(policy: &ActorCritic, c: &PpoConfig, buffer: &RolloutBuffer, part: &Part) -> anyhow::Result<PartGradient> {
+pub(super) fn part_gradient(
+    policy: &ActorCritic,
+    c: &PpoConfig,
+    buffer: &RolloutBuffer,
+    part: &Part,
+) -> anyhow::Result<PartGradient> {
     let b = part.samples.len();
     let per_sample = 1.0 / part.of.max(1) as f32;
     let gather = |src: &[f32], width: usize| -> Vec<f32> {
@@ -60,7 +65,8 @@ pub(super) fn part_gradient(policy: &ActorCritic, c: &PpoConfig, buffer: &Rollou
         d_value.push(c.vf_coef * 2.0 * error * per_sample);
     }
 
-    let mut gradients: Vec<Option<Vec<f32>>> = pi.backward(&pi_out, d_pi_out, true, false).into_flat().map(Some).collect();
+    let mut gradients: Vec<Option<Vec<f32>>> =
+        pi.backward(&pi_out, d_pi_out, true, false).into_flat().map(Some).collect();
     gradients.extend(vf.backward(&vf_out, d_value, true, false).into_flat().map(Some));
     if let Some(d_log_std) = d_log_std {
         gradients.push(Some(d_log_std));
@@ -88,11 +94,21 @@ impl Inference {
         if !applies(policy) {
             return Ok(None);
         }
-        Ok(Some(Self { pi: SliceMlp::read(&policy.pi.layers, Activation::Tanh, false)?, vf: SliceMlp::read(&policy.vf.layers, Activation::Tanh, false)?, log_std: policy.log_std_values()? }))
+        Ok(Some(Self {
+            pi: SliceMlp::read(&policy.pi.layers, Activation::Tanh, false)?,
+            vf: SliceMlp::read(&policy.vf.layers, Activation::Tanh, false)?,
+            log_std: policy.log_std_values()?,
+        }))
     }
 
     /// [`ActorCritic::act`] on `obs` (rows of normalised observations), sampling with `rng`.
-    pub(super) fn act(&self, head: &Head, obs: &[f32], rows: usize, rng: &mut rand_chacha::ChaCha8Rng) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    pub(super) fn act(
+        &self,
+        head: &Head,
+        obs: &[f32],
+        rows: usize,
+        rng: &mut rand_chacha::ChaCha8Rng,
+    ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
         let out = self.pi.forward(obs.to_vec(), rows);
         let values = self.vf.forward(obs.to_vec(), rows);
         let (actions, log_probs) = super::policy::sample(head, out.output(), &self.log_std, false, rng);
@@ -205,7 +221,14 @@ mod tests {
     /// A rollout of a fresh policy, a few updates in (so the ratios differ from one and some
     /// clip), and the fused and candle gradients of one minibatch of it.
     fn both_gradients(env: &mut dyn VecEnv) -> (PartGradient, PartGradient) {
-        let config = PpoConfig { n_steps: 64, batch_size: 64, n_epochs: 4, learning_rate: 3e-3, ent_coef: 0.01, ..PpoConfig::default() };
+        let config = PpoConfig {
+            n_steps: 64,
+            batch_size: 64,
+            n_epochs: 4,
+            learning_rate: 3e-3,
+            ent_coef: 0.01,
+            ..PpoConfig::default()
+        };
         let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 5).unwrap();
         let mut obs = model.observe(&env.reset(Some(5)).unwrap());
         let mut buffer = RolloutBuffer::new(env.num_envs(), env.observation_space().dim(), env.action_space().dim());
@@ -228,7 +251,10 @@ mod tests {
         close(ours.entropy, theirs.entropy, "entropy");
         assert_eq!(ours.log_ratio.len(), theirs.log_ratio.len());
         ours.log_ratio.iter().zip(&theirs.log_ratio).for_each(|(a, b)| close(*a, *b, "log ratio"));
-        assert!(theirs.log_ratio.iter().any(|l| l.abs() > 0.2), "no sample clips: the test would not reach the clipped branch");
+        assert!(
+            theirs.log_ratio.iter().any(|l| l.abs() > 0.2),
+            "no sample clips: the test would not reach the clipped branch"
+        );
         assert_eq!(ours.gradients.len(), theirs.gradients.len());
         for (i, (a, b)) in ours.gradients.iter().zip(&theirs.gradients).enumerate() {
             let (a, b) = (a.as_ref().unwrap(), b.as_ref().unwrap());

@@ -11,8 +11,8 @@ mod config;
 mod fused;
 mod model_file;
 mod part;
-mod reward_scale;
 pub(crate) mod policy;
+mod reward_scale;
 mod rollout;
 mod served;
 mod update;
@@ -23,22 +23,22 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-pub use buffer::RolloutBuffer;
-pub use config::{MAX_ROLLOUT, PpoConfig};
 pub use crate::model_io::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
 pub use crate::stats::{TrainingTimes, UpdateStats};
+pub use buffer::RolloutBuffer;
+pub use config::{MAX_ROLLOUT, PpoConfig};
 pub use policy::{ActorCritic, Head};
 pub use reward_scale::RewardScale;
 pub use rollout::PolicyStep;
 
 use crate::callbacks::Callback;
-use crate::learner::{Algorithm, config_from};
 use crate::history::EpisodeHistory;
-use crate::stats::TrainingEnd;
-use twinbots_api::env::VecEnv;
+use crate::learner::{Algorithm, config_from};
 use crate::nn::Adam;
 use crate::normalize::RunningMeanStd;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
+use crate::stats::TrainingEnd;
+use twinbots_api::env::VecEnv;
 use twinbots_api::env_state::EnvState;
 use twinbots_api::spaces::Space;
 use twinbots_api::{EpisodeSummary, SolvedCriterion};
@@ -69,7 +69,8 @@ pub const ALGORITHM: Algorithm = Algorithm {
         Ok(toml::Table::try_from(&config)?)
     },
     new: |config, spec, seed| {
-        let model = Ppo::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?;
+        let model =
+            Ppo::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?;
         anyhow::ensure!(
             !model.config.freeze_features || !fused::applies(&model.policy),
             "ppo.freeze_features = true: there is no image encoder to freeze (observations {}, policy {:?}); it applies to camera images with policy cnn or keypoints",
@@ -79,7 +80,8 @@ pub const ALGORITHM: Algorithm = Algorithm {
         if let Some(path) = &model.config.features_from {
             // A fresh model only: a saved one has its own weights (and needs the file no more).
             for encoder in [Some(&model.policy.encoder), model.policy.value_encoder.as_ref()].into_iter().flatten() {
-                crate::model_io::set_encoder_from_file(encoder, path).map_err(|e| anyhow::anyhow!("ppo.features_from = {e:#}"))?;
+                crate::model_io::set_encoder_from_file(encoder, path)
+                    .map_err(|e| anyhow::anyhow!("ppo.features_from = {e:#}"))?;
             }
         }
         Ok(Box::new(model))
@@ -131,7 +133,8 @@ impl Ppo {
         crate::tuning::for_small_networks();
         let obs_dim = observation_space.dim();
         let encoder = (config.policy, config.features_dim, config.share_features_extractor);
-        let policy = ActorCritic::new(&observation_space, &action_space, encoder, &config.hidden, config.log_std_init, seed)?;
+        let policy =
+            ActorCritic::new(&observation_space, &action_space, encoder, &config.hidden, config.log_std_init, seed)?;
         crate::nn::check_normalization(&observation_space, config.normalize_observations, NAME)?;
         let obs_rms = config.normalize_observations.then(|| RunningMeanStd::new(obs_dim));
         let reward_scale = config.normalize_rewards.then(RewardScale::default);
@@ -224,11 +227,19 @@ impl Ppo {
     /// after each update, and says why it stopped. A linear learning rate decays over the
     /// whole budget, `timesteps` so far included, so a resumed run follows the schedule of an
     /// uninterrupted one.
-    pub fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+    pub fn learn(
+        &mut self,
+        env: &mut dyn VecEnv,
+        total_timesteps: u64,
+        callback: &mut dyn Callback,
+    ) -> anyhow::Result<TrainingEnd> {
         anyhow::ensure!(
             env.observation_space().dim() == self.observation_space.dim() && env.action_space() == &self.action_space,
             "the env's spaces ({} obs, {} actions) differ from the model's ({} obs, {} actions)",
-            env.observation_space().dim(), env.action_space(), self.observation_space.dim(), self.action_space
+            env.observation_space().dim(),
+            env.action_space(),
+            self.observation_space.dim(),
+            self.action_space
         );
         let end = self.timesteps + total_timesteps;
         let mut buffer = RolloutBuffer::new(env.num_envs(), self.observation_space.dim(), self.action_space.dim());
@@ -306,13 +317,26 @@ impl crate::agent::Agent for Ppo {
         Ppo::predict(self, obs, deterministic)
     }
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
-        let layers = self.policy.pi.layers.iter().enumerate().map(|(i, l)| l.values(&format!("pi.{i}"))).collect::<candle_core::Result<_>>()?;
+        let layers = self
+            .policy
+            .pi
+            .layers
+            .iter()
+            .enumerate()
+            .map(|(i, l)| l.values(&format!("pi.{i}")))
+            .collect::<candle_core::Result<_>>()?;
         let head = match &self.action_space {
             Space::Discrete { .. } => PolicyHead::ArgMax,
             Space::Box { .. } => PolicyHead::ClipToBox,
             other => anyhow::bail!("{other} actions cannot be exported"),
         };
-        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), encoding: self.policy.encoder.export("")?, layers, hidden: Activation::Tanh, head })
+        Ok(PolicyNet {
+            obs_rms: self.obs_rms.clone(),
+            encoding: self.policy.encoder.export("")?,
+            layers,
+            hidden: Activation::Tanh,
+            head,
+        })
     }
     fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
         Ppo::save(self, dir)
@@ -342,13 +366,22 @@ impl crate::agent::Agent for Ppo {
 }
 
 impl crate::learner::Learner for Ppo {
-    fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+    fn learn(
+        &mut self,
+        env: &mut dyn VecEnv,
+        total_timesteps: u64,
+        callback: &mut dyn Callback,
+    ) -> anyhow::Result<TrainingEnd> {
         Ppo::learn(self, env, total_timesteps, callback)
     }
     fn times(&self) -> TrainingTimes {
         self.times
     }
-    fn serve(self: Box<Self>, robots: usize, total_timesteps: u64) -> anyhow::Result<Box<dyn crate::learner::ServedLearner>> {
+    fn serve(
+        self: Box<Self>,
+        robots: usize,
+        total_timesteps: u64,
+    ) -> anyhow::Result<Box<dyn crate::learner::ServedLearner>> {
         Ok(Box::new(served::ServedPpo::new(*self, robots, total_timesteps)))
     }
 }

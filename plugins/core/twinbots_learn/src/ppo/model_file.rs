@@ -46,7 +46,14 @@ impl Ppo {
         model_io::save_tensors(&moments, &dir.join(OPTIMIZER_FILE))?;
         model_io::save_env_state(dir, self.env_state.as_ref())?;
         let meta = Metadata {
-            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates, self.env_state.is_some()),
+            header: ModelHeader::of(
+                self,
+                FORMAT,
+                self.obs_rms.as_ref(),
+                self.seed,
+                self.updates,
+                self.env_state.is_some(),
+            ),
             hyperparameters: self.config.clone(),
             action_stream: Some(StreamState::of(&self.rng)),
             reward_scale: self.reward_scale.clone(),
@@ -63,11 +70,13 @@ impl Ppo {
         let h = meta.header;
         h.check(&path)?;
         let saved_env_state = h.env_state;
-        let mut model = Ppo::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed).map_err(|e| file_error(&path, e))?;
+        let mut model = Ppo::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed)
+            .map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
         let tensors: HashMap<String, Tensor> = model_io::load_tensors(&weights)?;
         model.policy.set_weights(&tensors).map_err(|e| file_error(&weights, e))?;
-        (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) = (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
+        (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) =
+            (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
         if let Some(scale) = &meta.reward_scale {
             scale.check_finite().map_err(|e| file_error(&path, e))?;
         }
@@ -81,7 +90,13 @@ impl Ppo {
         let optimizer = dir.join(OPTIMIZER_FILE);
         if optimizer.is_file() {
             let moments = model_io::load_tensors(&optimizer)?;
-            model_io::restore_moments(&mut model.optimizer, &model.policy.named_vars(), &moments, meta.optimizer_steps, &optimizer)?;
+            model_io::restore_moments(
+                &mut model.optimizer,
+                &model.policy.named_vars(),
+                &moments,
+                meta.optimizer_steps,
+                &optimizer,
+            )?;
         }
         model.env_state = model_io::load_env_state(dir, saved_env_state)?;
         Ok(model)

@@ -118,7 +118,9 @@ impl ActorCritic {
     /// cloning one would train both copies).
     pub fn deep_copy(&self) -> Result<Self> {
         let copy = |v: &Var| Var::from_tensor(&v.as_tensor().copy()?);
-        let mlp = |m: &Mlp| -> Result<Mlp> { Ok(Mlp { layers: m.layers.iter().map(Dense::deep_copy).collect::<Result<_>>()? }) };
+        let mlp = |m: &Mlp| -> Result<Mlp> {
+            Ok(Mlp { layers: m.layers.iter().map(Dense::deep_copy).collect::<Result<_>>()? })
+        };
         let head = match &self.head {
             Head::Categorical { n } => Head::Categorical { n: *n },
             Head::Gaussian { dim, log_std } => Head::Gaussian { dim: *dim, log_std: copy(log_std)? },
@@ -163,13 +165,24 @@ impl ActorCritic {
 
     /// Samples (or, deterministic, takes the mode of) one action per row of `obs`.
     /// Returns flat actions, their log-probabilities, and the values.
-    pub fn act(&self, obs: &Tensor, deterministic: bool, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+    pub fn act(
+        &self,
+        obs: &Tensor,
+        deterministic: bool,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
         let (features, value_features) = self.features(obs)?;
         self.act_from(&features, value_features.as_ref(), deterministic, rng)
     }
 
     /// [`Self::act`] from the encoders' features ([`Self::features`]).
-    pub fn act_from(&self, features: &Tensor, value_features: Option<&Tensor>, deterministic: bool, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+    pub fn act_from(
+        &self,
+        features: &Tensor,
+        value_features: Option<&Tensor>,
+        deterministic: bool,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
         let out = self.pi.forward(features)?.flatten_all()?.to_vec1::<f32>()?;
         let value = self.value_from(features, value_features)?.to_vec1::<f32>()?;
         let (actions, log_probs) = sample(&self.head, &out, &self.log_std_values()?, deterministic, rng);
@@ -197,7 +210,12 @@ impl ActorCritic {
 
     /// [`Self::evaluate`] from the encoders' features (the value's own, or else the policy's):
     /// no gradient reaches the encoders.
-    pub fn evaluate_features(&self, features: &Tensor, value_features: Option<&Tensor>, actions: &Tensor) -> Result<Evaluation> {
+    pub fn evaluate_features(
+        &self,
+        features: &Tensor,
+        value_features: Option<&Tensor>,
+        actions: &Tensor,
+    ) -> Result<Evaluation> {
         let out = self.pi.forward(features)?;
         let value = self.value_from(features, value_features)?;
         let (log_prob, entropy) = match &self.head {
@@ -231,7 +249,13 @@ pub(super) fn log_sum_exp(logits: &[f32]) -> f32 {
 /// One action per row of the policy network's output `out` (logits, or the Gaussian's means
 /// with `log_std`, empty for a categorical head), sampled or, deterministic, the mode; and its
 /// log-probability.
-pub(super) fn sample(head: &Head, out: &[f32], log_std: &[f32], deterministic: bool, rng: &mut ChaCha8Rng) -> (Vec<f32>, Vec<f32>) {
+pub(super) fn sample(
+    head: &Head,
+    out: &[f32],
+    log_std: &[f32],
+    deterministic: bool,
+    rng: &mut ChaCha8Rng,
+) -> (Vec<f32>, Vec<f32>) {
     match head {
         Head::Gaussian { dim, .. } => {
             let mut actions = Vec::with_capacity(out.len());
@@ -259,10 +283,12 @@ pub(super) fn sample(head: &Head, out: &[f32], log_std: &[f32], deterministic: b
                 } else {
                     let u: f32 = rng.random();
                     let mut acc = 0.0;
-                    (0..n).find(|&i| {
-                        acc += log_p(i).exp();
-                        u < acc
-                    }).unwrap_or(n - 1)
+                    (0..n)
+                        .find(|&i| {
+                            acc += log_p(i).exp();
+                            u < acc
+                        })
+                        .unwrap_or(n - 1)
                 };
                 actions.push(a as f32);
                 log_probs.push(log_p(a));

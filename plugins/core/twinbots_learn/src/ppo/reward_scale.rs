@@ -64,8 +64,13 @@ impl RewardScale {
 
     /// An error unless the statistics are finite.
     pub fn check_finite(&self) -> anyhow::Result<()> {
-        self.return_rms.check_finite().map_err(|_| anyhow::anyhow!("the reward statistics are not finite: the model is unusable"))?;
-        anyhow::ensure!(self.returns.iter().all(|r| r.is_finite()), "the running returns are not finite: the model is unusable");
+        self.return_rms
+            .check_finite()
+            .map_err(|_| anyhow::anyhow!("the reward statistics are not finite: the model is unusable"))?;
+        anyhow::ensure!(
+            self.returns.iter().all(|r| r.is_finite()),
+            "the running returns are not finite: the model is unusable"
+        );
         Ok(())
     }
 }
@@ -121,7 +126,8 @@ mod tests {
         let scale = model.reward_scale.clone().unwrap();
         let std = scale.return_rms.var[0].sqrt();
         assert!(std > 10.0, "the returns' spread {std}");
-        let stored: Vec<f32> = buffer.rewards.iter().zip(&buffer.dones).filter(|(_, d)| !**d).map(|(r, _)| *r).collect();
+        let stored: Vec<f32> =
+            buffer.rewards.iter().zip(&buffer.dones).filter(|(_, d)| !**d).map(|(r, _)| *r).collect();
         assert!(stored.iter().all(|&r| r <= 0.0));
         let late = &stored[stored.len() - 256..];
         let late_mean = late.iter().map(|r| r.abs()).sum::<f32>() / late.len() as f32;

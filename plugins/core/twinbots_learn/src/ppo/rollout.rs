@@ -68,12 +68,15 @@ impl Ppo {
     fn policy_step_with(&mut self, obs: Vec<f32>, inference: Option<&Inference>) -> anyhow::Result<PolicyStep> {
         let (mut features, mut value_features) = (Vec::new(), Vec::new());
         let (actions, log_probs, values) = match inference {
-            Some(inference) => inference.act(&self.policy.head, &obs, obs.len() / self.observation_space.dim(), &mut self.rng),
+            Some(inference) => {
+                inference.act(&self.policy.head, &obs, obs.len() / self.observation_space.dim(), &mut self.rng)
+            }
             None => {
                 let (f, v) = self.policy.features(&self.batch(&obs)?)?;
                 if self.config.freeze_features {
                     features = f.flatten_all()?.to_vec1::<f32>()?;
-                    value_features = v.as_ref().map(|v| v.flatten_all()?.to_vec1::<f32>()).transpose()?.unwrap_or_default();
+                    value_features =
+                        v.as_ref().map(|v| v.flatten_all()?.to_vec1::<f32>()).transpose()?.unwrap_or_default();
                 }
                 self.policy.act_from(&f, v.as_ref(), false, &mut self.rng)?
             }
@@ -98,9 +101,17 @@ impl Ppo {
 
     /// The reward a step stores (already scaled): a truncated episode did not end in the MDP, so its last
     /// reward is bootstrapped with γ V(final observation), as SB3 does. `final_obs` is raw.
-    pub fn bootstrapped_reward(&self, reward: f32, terminated: bool, truncated: bool, final_obs: Option<&[f32]>) -> anyhow::Result<f32> {
+    pub fn bootstrapped_reward(
+        &self,
+        reward: f32,
+        terminated: bool,
+        truncated: bool,
+        final_obs: Option<&[f32]>,
+    ) -> anyhow::Result<f32> {
         match final_obs {
-            Some(last) if truncated && !terminated => Ok(reward + self.config.gamma * self.values(&self.normalize(last))?[0]),
+            Some(last) if truncated && !terminated => {
+                Ok(reward + self.config.gamma * self.values(&self.normalize(last))?[0])
+            }
             _ => Ok(reward),
         }
     }
@@ -118,7 +129,12 @@ impl Ppo {
 
     /// Fills `buffer` (cleared first) with `n_steps` steps of every env of `env`, starting
     /// from `obs` (normalised) and leaving there the observations to continue from.
-    pub fn collect_rollout(&mut self, env: &mut dyn VecEnv, obs: &mut Vec<f32>, buffer: &mut RolloutBuffer) -> anyhow::Result<()> {
+    pub fn collect_rollout(
+        &mut self,
+        env: &mut dyn VecEnv,
+        obs: &mut Vec<f32>,
+        buffer: &mut RolloutBuffer,
+    ) -> anyhow::Result<()> {
         let n_envs = env.num_envs();
         buffer.clear();
         // The policy is the same for the whole rollout: its numbers are read once.
@@ -136,7 +152,12 @@ impl Ppo {
             let mut rewards = Vec::with_capacity(n_envs);
             for e in 0..n_envs {
                 let (terminated, truncated) = (outcome.terminated[e], outcome.truncated[e]);
-                rewards.push(self.bootstrapped_reward(scaled[e], terminated, truncated, outcome.final_obs[e].as_deref())?);
+                rewards.push(self.bootstrapped_reward(
+                    scaled[e],
+                    terminated,
+                    truncated,
+                    outcome.final_obs[e].as_deref(),
+                )?);
                 if let Some(episode) = &outcome.episodes[e] {
                     self.record_episode(episode);
                 }

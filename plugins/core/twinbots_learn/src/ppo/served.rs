@@ -55,8 +55,15 @@ impl ServedLearner for ServedPpo {
 
     fn join(&mut self, robot: u64) {
         let (obs, act) = (self.ppo.observation_space.dim(), self.ppo.action_space.dim());
-        let trajectory =
-            Trajectory { buffer: RolloutBuffer::new(1, obs, act), pending: None, episode_begin: 0, score: 0.0, length: 0, discounted_return: 0.0, gone: false };
+        let trajectory = Trajectory {
+            buffer: RolloutBuffer::new(1, obs, act),
+            pending: None,
+            episode_begin: 0,
+            score: 0.0,
+            length: 0,
+            discounted_return: 0.0,
+            gone: false,
+        };
         self.trajectories.insert(robot, trajectory);
     }
 
@@ -99,16 +106,20 @@ impl ServedLearner for ServedPpo {
     fn record(&mut self, robot: u64, step: &RobotStep) -> anyhow::Result<()> {
         let traj = self.trajectories.get_mut(&robot).ok_or_else(|| anyhow::anyhow!("robot {robot} is not known"))?;
         let reward = match &mut self.ppo.reward_scale {
-            Some(scale) => scale.scale_one(&mut traj.discounted_return, step.reward, step.ended(), self.ppo.config.gamma),
+            Some(scale) => {
+                scale.scale_one(&mut traj.discounted_return, step.reward, step.ended(), self.ppo.config.gamma)
+            }
             None => step.reward,
         };
         let stored_reward = self.ppo.bootstrapped_reward(reward, step.terminated, step.truncated, Some(step.obs))?;
-        let pending = traj.pending.take().ok_or_else(|| anyhow::anyhow!("robot {robot} has no action awaiting its outcome"))?;
+        let pending =
+            traj.pending.take().ok_or_else(|| anyhow::anyhow!("robot {robot} has no action awaiting its outcome"))?;
         traj.buffer.push(&pending, &[stored_reward], &[step.ended()]);
         traj.score += step.reward;
         traj.length += 1;
         if step.ended() {
-            let summary = EpisodeSummary { score: traj.score, length: traj.length, success: step.success, ..Default::default() };
+            let summary =
+                EpisodeSummary { score: traj.score, length: traj.length, success: step.success, ..Default::default() };
             traj.episode_begin = traj.buffer.len();
             traj.score = 0.0;
             traj.length = 0;

@@ -9,8 +9,8 @@ use rand::seq::SliceRandom;
 
 use super::part::{Part, PartGradient};
 use super::{ActorCritic, Ppo, PpoConfig, RolloutBuffer, TRAIN_FIGURES, UpdateStats};
-use crate::stats::figures;
 use crate::nn::{Adam, AdamConfig};
+use crate::stats::figures;
 use twinbots_api::spaces::Space;
 
 /// The loss of one minibatch and what an update reports about it.
@@ -62,10 +62,16 @@ impl Ppo {
     fn optimize(&mut self, buffer: &RolloutBuffer) -> anyhow::Result<UpdateStats> {
         let c = self.config.clone();
         let mut indices: Vec<usize> = (0..buffer.len()).collect();
-        let (mut pg_sum, mut v_sum, mut ent_sum, mut kl_sum, mut clip_sum, mut batches) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let (mut pg_sum, mut v_sum, mut ent_sum, mut kl_sum, mut clip_sum, mut batches) =
+            (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         let mut skipped = 0;
-        let frozen = if c.freeze_features && !super::fused::applies(&self.policy) { Some(FrozenFeatures::of(&self.policy, buffer)?) } else { None };
-        let (policy, action_space, rng, optimizer) = (&self.policy, &self.action_space, &mut self.rng, &mut self.optimizer);
+        let frozen = if c.freeze_features && !super::fused::applies(&self.policy) {
+            Some(FrozenFeatures::of(&self.policy, buffer)?)
+        } else {
+            None
+        };
+        let (policy, action_space, rng, optimizer) =
+            (&self.policy, &self.action_space, &mut self.rng, &mut self.optimizer);
         let work = |part: Part| part_gradient(policy, &c, action_space, buffer, frozen.as_ref(), &part);
         crate::threads::with_helper(&work, |helper| -> anyhow::Result<()> {
             'epochs: for _ in 0..c.n_epochs {
@@ -75,7 +81,13 @@ impl Ppo {
                     let done: Vec<PartGradient> = done.into_iter().collect::<anyhow::Result<_>>()?;
                     // A non-finite loss or gradient (e.g. from a poisoned reward) changes nothing and
                     // is counted: one bad sample must not end a run's learning silently.
-                    if !optimizer.step_flat(crate::nn::sum_gradients(done.iter().map(|p| p.gradients.as_slice())), Some(c.max_grad_norm))?.applied {
+                    if !optimizer
+                        .step_flat(
+                            crate::nn::sum_gradients(done.iter().map(|p| p.gradients.as_slice())),
+                            Some(c.max_grad_norm),
+                        )?
+                        .applied
+                    {
                         skipped += 1;
                         continue;
                     }
@@ -90,7 +102,8 @@ impl Ppo {
                     let n = log_ratio.len().max(1) as f32;
                     // approx KL (Schulman's k3 estimator): E[(r - 1) - log r]
                     let approx_kl = log_ratio.iter().map(|&l| l.exp() - 1.0 - l).sum::<f32>() / n;
-                    let clipped = log_ratio.iter().filter(|&&l| (l.exp() - 1.0).abs() > c.clip_range).count() as f32 / n;
+                    let clipped =
+                        log_ratio.iter().filter(|&&l| (l.exp() - 1.0).abs() > c.clip_range).count() as f32 / n;
                     kl_sum += approx_kl;
                     clip_sum += clipped;
                     batches += 1.0;
@@ -108,7 +121,10 @@ impl Ppo {
         let batches = if batches == 0.0 { f32::NAN } else { batches };
         Ok(UpdateStats {
             // In the order of `TRAIN_FIGURES`.
-            train: figures(TRAIN_FIGURES, &[pg_sum / batches, v_sum / batches, ent_sum / batches, kl_sum / batches, clip_sum / batches]),
+            train: figures(
+                TRAIN_FIGURES,
+                &[pg_sum / batches, v_sum / batches, ent_sum / batches, kl_sum / batches, clip_sum / batches],
+            ),
             skipped_steps: skipped,
             applied_steps,
             ..Default::default()
@@ -144,7 +160,14 @@ impl PartGradient {
 
 /// `part`'s loss terms and gradient: over slices for an MLP on flat observations
 /// (`fused`), through candle's graph for the rest (from `frozen` encoders' features if given).
-fn part_gradient(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buffer: &RolloutBuffer, frozen: Option<&FrozenFeatures>, part: &Part) -> anyhow::Result<PartGradient> {
+fn part_gradient(
+    policy: &ActorCritic,
+    c: &PpoConfig,
+    action_space: &Space,
+    buffer: &RolloutBuffer,
+    frozen: Option<&FrozenFeatures>,
+    part: &Part,
+) -> anyhow::Result<PartGradient> {
     if super::fused::applies(policy) {
         super::fused::part_gradient(policy, c, buffer, part)
     } else {
@@ -193,7 +216,10 @@ impl<'a> FrozenFeatures<'a> {
 fn parts(buffer: &RolloutBuffer, chunk: &[usize], normalize_advantage: bool) -> Vec<Part> {
     let advantages = normalized_advantages(buffer, chunk, normalize_advantage);
     let of = chunk.len();
-    crate::threads::halves(of).into_iter().map(|r| Part { samples: chunk[r.clone()].to_vec(), advantages: advantages[r].to_vec(), of }).collect()
+    crate::threads::halves(of)
+        .into_iter()
+        .map(|r| Part { samples: chunk[r.clone()].to_vec(), advantages: advantages[r].to_vec(), of })
+        .collect()
 }
 
 /// The advantages of `chunk`, normalised to mean 0 and std 1 over it (SB3's per-minibatch
@@ -211,7 +237,14 @@ fn normalized_advantages(buffer: &RolloutBuffer, chunk: &[usize], normalize: boo
 
 /// `part`'s share of its minibatch's PPO loss under `policy`: each term summed over the part and
 /// divided by the minibatch's size, so the parts' losses add up to the minibatch's means.
-pub(super) fn part_loss(policy: &ActorCritic, c: &PpoConfig, action_space: &Space, buffer: &RolloutBuffer, frozen: Option<&FrozenFeatures>, part: &Part) -> anyhow::Result<MinibatchLoss> {
+pub(super) fn part_loss(
+    policy: &ActorCritic,
+    c: &PpoConfig,
+    action_space: &Space,
+    buffer: &RolloutBuffer,
+    frozen: Option<&FrozenFeatures>,
+    part: &Part,
+) -> anyhow::Result<MinibatchLoss> {
     let dev = Device::Cpu;
     let b = part.samples.len();
     let (obs_dim, act_dim) = (buffer.obs_dim, buffer.act_dim);
@@ -219,11 +252,8 @@ pub(super) fn part_loss(policy: &ActorCritic, c: &PpoConfig, action_space: &Spac
         part.samples.iter().flat_map(|&i| src[i * width..(i + 1) * width].iter().copied()).collect()
     };
     let actions = Tensor::from_vec(gather(&buffer.actions, act_dim), (b, act_dim), &dev)?;
-    let actions = if act_dim == 1 && matches!(action_space, Space::Discrete { .. }) {
-        actions.squeeze(1)?
-    } else {
-        actions
-    };
+    let actions =
+        if act_dim == 1 && matches!(action_space, Space::Discrete { .. }) { actions.squeeze(1)? } else { actions };
     let old_log_prob = Tensor::from_vec(gather(&buffer.log_probs, 1), b, &dev)?;
     let returns = Tensor::from_vec(gather(&buffer.returns, 1), b, &dev)?;
     let adv = Tensor::from_vec(part.advantages.clone(), b, &dev)?;
@@ -232,7 +262,11 @@ pub(super) fn part_loss(policy: &ActorCritic, c: &PpoConfig, action_space: &Spac
     let eval = match frozen {
         Some(f) => {
             let features = Tensor::from_vec(gather(&f.policy, f.dim), (b, f.dim), &dev)?;
-            let value = f.value.as_ref().map(|v| Tensor::from_vec(gather(v, f.value_dim), (b, f.value_dim), &dev)).transpose()?;
+            let value = f
+                .value
+                .as_ref()
+                .map(|v| Tensor::from_vec(gather(v, f.value_dim), (b, f.value_dim), &dev))
+                .transpose()?;
             policy.evaluate_features(&features, value.as_ref(), &actions)?
         }
         None => {
@@ -308,14 +342,22 @@ mod tests {
             let env = env.as_mut();
             let config = PpoConfig { n_steps: 64, batch_size: 128, n_epochs: 3, ..PpoConfig::default() };
             let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 11).unwrap();
-            model.learn(env, 4 * 64 * 3, &mut |_: &UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue)).unwrap();
-            model.policy.named_vars().iter().map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap()).collect()
+            model
+                .learn(env, 4 * 64 * 3, &mut |_: &UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue))
+                .unwrap();
+            model
+                .policy
+                .named_vars()
+                .iter()
+                .map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap())
+                .collect()
         })
     }
 
     #[test]
     fn one_thread_or_two_train_the_same_bits() {
-        let envs: [fn() -> Box<dyn VecEnv>; 2] = [|| Box::new(ClassicCartPole::new(4)), || Box::new(ClassicPendulum::new(4))];
+        let envs: [fn() -> Box<dyn VecEnv>; 2] =
+            [|| Box::new(ClassicCartPole::new(4)), || Box::new(ClassicPendulum::new(4))];
         for make in envs {
             let one = weights_after_training_on(1, make);
             let two = weights_after_training_on(2, make);

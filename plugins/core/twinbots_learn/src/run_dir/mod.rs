@@ -29,8 +29,8 @@ use serde::de::DeserializeOwned;
 pub use summary::{EvaluationSummary, Summary, TimeBreakdown};
 pub use table::{Row, Table};
 
-use crate::evaluation::EvalResult;
 use crate::agent::{Agent, LoadAgent};
+use crate::evaluation::EvalResult;
 use crate::model_io::{METADATA_FILE, ModelError, WEIGHTS_FILE, write_atomic};
 use crate::stats::UpdateStats;
 
@@ -88,7 +88,8 @@ impl RunDir {
     /// Writes the run's settings into `config.toml`.
     pub fn write_config<T: Serialize>(&self, config: &T) -> anyhow::Result<()> {
         let path = self.file(CONFIG);
-        write_atomic(&path, toml::to_string_pretty(config)?.as_bytes()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        write_atomic(&path, toml::to_string_pretty(config)?.as_bytes())
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     }
 
     /// The settings the run was made with; a misspelt key is an error naming it and its line
@@ -151,16 +152,25 @@ impl RunDir {
 
     /// [`Self::load_newest_checkpoint`] with the loader `load` (an algorithm's, from
     /// `crate::algos`).
-    pub fn newest_checkpoint_with<M>(&self, load: impl Fn(&Path) -> Result<M, ModelError>) -> anyhow::Result<(PathBuf, M)> {
+    pub fn newest_checkpoint_with<M>(
+        &self,
+        load: impl Fn(&Path) -> Result<M, ModelError>,
+    ) -> anyhow::Result<(PathBuf, M)> {
         let checkpoints = self.checkpoints();
         anyhow::ensure!(!checkpoints.is_empty(), "{}: no checkpoint to resume from", self.path.display());
         for dir in checkpoints.iter().rev() {
             match load(dir) {
                 Ok(model) => return Ok((dir.clone(), model)),
-                Err(e) => eprintln!("warning: checkpoint {} is unusable ({e}); trying the one before it", dir.display()),
+                Err(e) => {
+                    eprintln!("warning: checkpoint {} is unusable ({e}); trying the one before it", dir.display())
+                }
             }
         }
-        anyhow::bail!("{}: none of its {} checkpoints loads (see the warnings above)", self.path.display(), checkpoints.len())
+        anyhow::bail!(
+            "{}: none of its {} checkpoints loads (see the warnings above)",
+            self.path.display(),
+            checkpoints.len()
+        )
     }
 
     /// Its final model, else its newest checkpoint that loads (with the loader `load`, an
@@ -191,7 +201,11 @@ impl RunDir {
     /// Appends a row given by column name (the common columns and an algorithm's figures
     /// `train`, e.g. `ppo::TRAIN_FIGURES`; the rest count as missing), for updates made outside
     /// twinbots (the RLlib path). An unknown name is an error.
-    pub fn append_progress_columns(&self, columns: &std::collections::HashMap<String, f64>, train: &[&str]) -> anyhow::Result<()> {
+    pub fn append_progress_columns(
+        &self,
+        columns: &std::collections::HashMap<String, f64>,
+        train: &[&str],
+    ) -> anyhow::Result<()> {
         let known = progress_columns(train);
         if let Some(unknown) = columns.keys().find(|name| !known.contains(name)) {
             anyhow::bail!("progress.csv has no column '{unknown}'; its columns: {}", known.join(", "));
@@ -214,7 +228,9 @@ impl RunDir {
         anyhow::ensure!(
             table.header.is_empty() || table.header == ours,
             "{}: its columns ({}) are not the ones this build writes ({})",
-            self.file(PROGRESS).display(), table.header.join(","), ours.join(",")
+            self.file(PROGRESS).display(),
+            table.header.join(","),
+            ours.join(",")
         );
         Ok(())
     }
@@ -222,14 +238,17 @@ impl RunDir {
     /// Appends an evaluation at `timesteps` to `evaluations.csv`.
     pub fn append_evaluation(&self, timesteps: u64, result: &EvalResult) -> anyhow::Result<()> {
         let success = result.success_rate.map_or(String::new(), |x| x.to_string());
-        append_row(&self.file(EVALUATIONS), &[
-            ("timesteps", timesteps.to_string()),
-            ("episodes", result.episodes.to_string()),
-            ("mean_score", result.mean_score.to_string()),
-            ("std_score", result.std_score.to_string()),
-            ("mean_length", result.mean_length.to_string()),
-            ("success_rate", success),
-        ])
+        append_row(
+            &self.file(EVALUATIONS),
+            &[
+                ("timesteps", timesteps.to_string()),
+                ("episodes", result.episodes.to_string()),
+                ("mean_score", result.mean_score.to_string()),
+                ("std_score", result.std_score.to_string()),
+                ("mean_length", result.mean_length.to_string()),
+                ("success_rate", success),
+            ],
+        )
     }
 
     /// Every row of `evaluations.csv`, read by column name.
@@ -282,7 +301,8 @@ impl RunDir {
 }
 
 /// `progress.csv`'s columns around the algorithm's own figures (which come between).
-const LEADING: [&str; 7] = ["update", "timesteps", "episodes", "mean_reward", "min_reward", "max_reward", "mean_length"];
+const LEADING: [&str; 7] =
+    ["update", "timesteps", "episodes", "mean_reward", "min_reward", "max_reward", "mean_length"];
 const TRAILING: [&str; 4] = ["learning_rate", "steps_per_s", "success_rate", "skipped_steps"];
 
 /// The header of `progress.csv` for an algorithm whose figures are `train`.
@@ -306,7 +326,12 @@ fn progress_cells(s: &UpdateStats) -> Vec<(String, String)> {
     .map(|(value, name)| (name.to_string(), value))
     .collect();
     cells.extend(s.train.iter().map(|(name, value)| (name.clone(), value.to_string())));
-    let trailing = [s.learning_rate.to_string(), s.steps_per_s.to_string(), s.success_rate.to_string(), s.skipped_steps.to_string()];
+    let trailing = [
+        s.learning_rate.to_string(),
+        s.steps_per_s.to_string(),
+        s.success_rate.to_string(),
+        s.skipped_steps.to_string(),
+    ];
     cells.extend(TRAILING.iter().zip(trailing).map(|(name, value)| (name.to_string(), value)));
     cells
 }
@@ -373,7 +398,13 @@ mod tests {
     fn progress_rows_read_back_by_name_and_truncate_to_a_checkpoint() {
         let run = temp_run("progress");
         for update in 1..=4 {
-            let stats = UpdateStats { update, timesteps: 64 * update as u64, mean_reward: update as f32, success_rate: f32::NAN, ..Default::default() };
+            let stats = UpdateStats {
+                update,
+                timesteps: 64 * update as u64,
+                mean_reward: update as f32,
+                success_rate: f32::NAN,
+                ..Default::default()
+            };
             run.append_progress(&stats).unwrap();
         }
         // A crash in the middle of a row.

@@ -2,9 +2,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::stats::TrainingEnd;
-use crate::evaluation::EvalResult;
 use crate::agent::Agent;
+use crate::evaluation::EvalResult;
+use crate::stats::TrainingEnd;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
@@ -80,7 +80,14 @@ pub struct EvaluationSummary {
 
 impl Summary {
     /// The summary of a run of `robot` under `pattern` that left `model` and ended as `end`.
-    pub fn new(robot: &str, pattern: u8, model: &dyn Agent, end: &TrainingEnd, wall_clock_s: f64, evaluation: Option<&EvalResult>) -> Self {
+    pub fn new(
+        robot: &str,
+        pattern: u8,
+        model: &dyn Agent,
+        end: &TrainingEnd,
+        wall_clock_s: f64,
+        evaluation: Option<&EvalResult>,
+    ) -> Self {
         let mean = model.history().mean_score();
         let solved_at = match end {
             TrainingEnd::Solved { timesteps, by } => Some((*timesteps, by.to_string())),

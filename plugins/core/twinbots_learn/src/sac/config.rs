@@ -78,7 +78,9 @@ impl SacConfig {
     /// range`).
     pub fn validate(&self) -> anyhow::Result<()> {
         let positive = |key: &str, v: f64| check(key, v, v.is_finite() && v > 0.0, "a finite number > 0");
-        let count = |key: &str, v: usize, max: usize| check(key, v, (1..=max).contains(&v), &format!("a whole number in 1..={max}"));
+        let count = |key: &str, v: usize, max: usize| {
+            check(key, v, (1..=max).contains(&v), &format!("a whole number in 1..={max}"))
+        };
         positive("learning_rate", self.learning_rate)?;
         count("buffer_size", self.buffer_size, 1 << 26)?;
         count("batch_size", self.batch_size, 1 << 16)?;
@@ -95,7 +97,12 @@ impl SacConfig {
         let hidden = format!("{:?}", self.hidden);
         let sizes_ok = (1..=16).contains(&self.hidden.len()) && self.hidden.iter().all(|&n| (1..=4096).contains(&n));
         check("hidden", hidden, sizes_ok, "1 to 16 layer sizes, each in 1..=4096")?;
-        check("features_dim", self.features_dim, (1..=4096).contains(&self.features_dim), "a whole number in 1..=4096")?;
+        check(
+            "features_dim",
+            self.features_dim,
+            (1..=4096).contains(&self.features_dim),
+            "a whole number in 1..=4096",
+        )?;
         count("log_interval", self.log_interval, 1 << 24)?;
         check("her_goals", self.her_goals, self.her_goals <= 16, "a whole number in 0..=16")
     }

@@ -3,8 +3,8 @@
 //! written out (tests check both agree), at the cost of their arithmetic. Camera policies keep
 //! the graph.
 
-use super::networks::{Actor, LOG_STD_MAX, LOG_STD_MIN, ReluMlp, TwinCritic};
 use super::Sac;
+use super::networks::{Actor, LOG_STD_MAX, LOG_STD_MIN, ReluMlp, TwinCritic};
 use crate::nn::fused_mlp::{Activation, Activations, HALF_LOG_2PI, SliceMlp};
 use crate::nn::{Dense, Encoder};
 use crate::replay_buffer::Batch;
@@ -84,7 +84,12 @@ impl ActorSample {
         let act_dim = eps.len() / rows.max(1);
         let mut actions = Vec::with_capacity(eps.len());
         let mut log_pi = Vec::with_capacity(rows);
-        for ((mu, raw), eps) in mu_pass.output().chunks_exact(act_dim).zip(log_std_pass.output().chunks_exact(act_dim)).zip(eps.chunks_exact(act_dim)) {
+        for ((mu, raw), eps) in mu_pass
+            .output()
+            .chunks_exact(act_dim)
+            .zip(log_std_pass.output().chunks_exact(act_dim))
+            .zip(eps.chunks_exact(act_dim))
+        {
             // log π = Σ log N(u; μ, σ) − log(1 − tanh²u), the latter as 2 (log 2 − u − softplus(−2u))
             let mut lp = 0.0;
             for k in 0..act_dim {
@@ -134,7 +139,10 @@ fn softplus(x: f32) -> f32 {
 /// Rows of [observation, action].
 fn joined(obs: &[f32], actions: &[f32], rows: usize) -> Vec<f32> {
     let (o, a) = (obs.len() / rows.max(1), actions.len() / rows.max(1));
-    obs.chunks_exact(o.max(1)).zip(actions.chunks_exact(a.max(1))).flat_map(|(o, a)| o.iter().chain(a).copied()).collect()
+    obs.chunks_exact(o.max(1))
+        .zip(actions.chunks_exact(a.max(1)))
+        .flat_map(|(o, a)| o.iter().chain(a).copied())
+        .collect()
 }
 
 /// The numbers of every network a gradient step's first phase reads.
@@ -173,13 +181,27 @@ pub(super) fn critic_part(nets: &StepNets, part: &Part, alpha: f32, gamma: f32) 
         d_q1.push(e1 * per_sample);
         d_q2.push(e2 * per_sample);
     }
-    let gradients = nets.critic.q1.backward(&q1, d_q1, true, false).into_flat().chain(nets.critic.q2.backward(&q2, d_q2, true, false).into_flat()).map(Some).collect();
+    let gradients = nets
+        .critic
+        .q1
+        .backward(&q1, d_q1, true, false)
+        .into_flat()
+        .chain(nets.critic.q2.backward(&q2, d_q2, true, false).into_flat())
+        .map(Some)
+        .collect();
     (sample, LossGradient { loss, gradients })
 }
 
 /// A part's share of the actor's loss E[α log π(a|s) − min Q(s, a)] over its `sample` (taken
 /// from `obs`) through the critics `critic` (as they are after their step), and its gradient.
-pub(super) fn actor_part(actor: &ActorNets, critic: &CriticNets, obs: &[f32], sample: ActorSample, alpha: f32, of: usize) -> ActorGradient {
+pub(super) fn actor_part(
+    actor: &ActorNets,
+    critic: &CriticNets,
+    obs: &[f32],
+    sample: ActorSample,
+    alpha: f32,
+    of: usize,
+) -> ActorGradient {
     let b = sample.log_pi.len();
     let act_dim = sample.act_dim;
     let input = joined(obs, &sample.actions, b);
@@ -190,7 +212,15 @@ pub(super) fn actor_part(actor: &ActorNets, critic: &CriticNets, obs: &[f32], sa
         let (a, c) = (q1.output()[i], q2.output()[i]);
         loss += (alpha * sample.log_pi[i] - a.min(c)) * per_sample;
         // −min(Q₁, Q₂): the gradient goes to the smaller, half to each when they are equal.
-        let share = |mine: f32, other: f32| if mine < other { 1.0 } else if mine == other { 0.5 } else { 0.0 };
+        let share = |mine: f32, other: f32| {
+            if mine < other {
+                1.0
+            } else if mine == other {
+                0.5
+            } else {
+                0.0
+            }
+        };
         d_q1.push(-per_sample * share(a, c));
         d_q2.push(-per_sample * share(c, a));
     }
@@ -237,7 +267,10 @@ pub(super) fn parts(batch: Batch, eps: Vec<f32>, eps_next: Vec<f32>) -> Vec<Part
 
 /// The parts' losses added and gradients summed in order.
 pub(super) fn sum(parts: Vec<LossGradient>) -> LossGradient {
-    LossGradient { loss: parts.iter().map(|p| p.loss).sum(), gradients: crate::nn::sum_gradients(parts.iter().map(|p| p.gradients.as_slice())) }
+    LossGradient {
+        loss: parts.iter().map(|p| p.loss).sum(),
+        gradients: crate::nn::sum_gradients(parts.iter().map(|p| p.gradients.as_slice())),
+    }
 }
 
 #[cfg(test)]
@@ -267,9 +300,16 @@ mod tests {
     /// replay buffer, and the noise of a step.
     fn trained_model_and_batch() -> (Sac, Batch, Vec<f32>, Vec<f32>) {
         let mut env = ClassicPendulum::new(2);
-        let config = SacConfig { hidden: vec![16, 16], learning_starts: 64, batch_size: 96, learning_rate: 3e-3, ..SacConfig::default() };
+        let config = SacConfig {
+            hidden: vec![16, 16],
+            learning_starts: 64,
+            batch_size: 96,
+            learning_rate: 3e-3,
+            ..SacConfig::default()
+        };
         let mut sac = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 4).unwrap();
-        sac.learn(&mut env, 400, &mut |_: &crate::UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue)).unwrap();
+        sac.learn(&mut env, 400, &mut |_: &crate::UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue))
+            .unwrap();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         let batch = sac.buffer.as_ref().unwrap().sample(96, &mut rng, None);
         let (eps, eps_next) = (sac.noise(96), sac.noise(96));
@@ -281,10 +321,17 @@ mod tests {
         let weights = |threads: usize| {
             rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
                 let mut env = ClassicPendulum::new(2);
-                let config = SacConfig { hidden: vec![16, 16], learning_starts: 64, batch_size: 96, ..SacConfig::default() };
+                let config =
+                    SacConfig { hidden: vec![16, 16], learning_starts: 64, batch_size: 96, ..SacConfig::default() };
                 let mut sac = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 6).unwrap();
-                sac.learn(&mut env, 300, &mut |_: &crate::UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue)).unwrap();
-                let vars = sac.actor.named_vars().into_iter().chain(sac.critic.named_vars("critic")).chain(sac.critic_target.named_vars("target"));
+                sac.learn(&mut env, 300, &mut |_: &crate::UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue))
+                    .unwrap();
+                let vars = sac
+                    .actor
+                    .named_vars()
+                    .into_iter()
+                    .chain(sac.critic.named_vars("critic"))
+                    .chain(sac.critic_target.named_vars("target"));
                 vars.map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect::<Vec<_>>()
             })
         };
@@ -296,12 +343,20 @@ mod tests {
         let (sac, batch, _, eps_next) = trained_model_and_batch();
         let alpha = sac.ent_coef().unwrap();
         assert!((alpha - 1.0).abs() > 0.01, "α never moved: the test would not weigh the entropy term");
-        let nets = StepNets { actor: ActorNets::read(&sac.actor).unwrap(), critic: CriticNets::read(&sac.critic).unwrap(), target: CriticNets::read(&sac.critic_target).unwrap() };
+        let nets = StepNets {
+            actor: ActorNets::read(&sac.actor).unwrap(),
+            critic: CriticNets::read(&sac.critic).unwrap(),
+            target: CriticNets::read(&sac.critic_target).unwrap(),
+        };
         let (theirs, _) = sac.critic_gradient_graph(&batch, &eps_next, alpha).unwrap();
         // In one part, and in the two halves a step computes side by side.
-        let whole = Part { of: batch.rewards.len(), batch: batch.clone(), eps: eps_next.clone(), eps_next: eps_next.clone() };
+        let whole =
+            Part { of: batch.rewards.len(), batch: batch.clone(), eps: eps_next.clone(), eps_next: eps_next.clone() };
         agree(&critic_part(&nets, &whole, alpha, sac.config.gamma).1, &theirs, "critic");
-        let halves = parts(batch, eps_next.clone(), eps_next).iter().map(|p| critic_part(&nets, p, alpha, sac.config.gamma).1).collect::<Vec<_>>();
+        let halves = parts(batch, eps_next.clone(), eps_next)
+            .iter()
+            .map(|p| critic_part(&nets, p, alpha, sac.config.gamma).1)
+            .collect::<Vec<_>>();
         assert_eq!(halves.len(), 2);
         agree(&sum(halves), &theirs, "critic in halves");
     }

@@ -25,22 +25,22 @@ pub use config::SacConfig;
 pub use networks::{Actor, ReluMlp, TwinCritic, polyak_update};
 
 use crate::agent::{Agent, LoadAgent};
-use crate::learner::{Algorithm, Learner, ServedLearner, config_from};
-use crate::nn::Encoder;
-use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use crate::callbacks::Callback;
-use crate::off_policy::served::ServedOffPolicy;
-use crate::off_policy::OffPolicy;
 use crate::history::EpisodeHistory;
-use crate::stats::TrainingEnd;
-use twinbots_api::env::VecEnv;
+use crate::learner::{Algorithm, Learner, ServedLearner, config_from};
+use crate::model_io::ModelError;
+use crate::nn::Encoder;
 use crate::nn::{Adam, AdamConfig};
 use crate::normalize::RunningMeanStd;
-use crate::model_io::ModelError;
+use crate::off_policy::OffPolicy;
+use crate::off_policy::served::ServedOffPolicy;
+use crate::policy_net::{Activation, PolicyHead, PolicyNet};
+use crate::stats::TrainingEnd;
 use crate::stats::{TrainingTimes, UpdateStats};
+use twinbots_api::GoalSpec;
+use twinbots_api::env::VecEnv;
 use twinbots_api::env_state::EnvState;
 use twinbots_api::spaces::Space;
-use twinbots_api::GoalSpec;
 
 /// The name `--algo` and the settings' `[sac]` table use, and the one its models are saved
 /// under (`model.json`'s `algorithm`).
@@ -62,7 +62,8 @@ pub const ALGORITHM: Algorithm = Algorithm {
         Ok(toml::Table::try_from(&config)?)
     },
     new: |config, spec, seed| {
-        let sac = Sac::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?;
+        let sac =
+            Sac::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?;
         Ok(Box::new(sac.with_goal(spec.goal.clone())?))
     },
     load: |dir| Ok(Box::new(Sac::load(dir)?)),
@@ -155,12 +156,16 @@ impl Sac {
             (MAX_BUFFER_BYTES / (obs_dim as f64 * 2.0 * value_bytes)) as u64
         );
         let mut init = ChaCha8Rng::seed_from_u64(seed);
-        let encoder = |rng: &mut ChaCha8Rng| Encoder::new(config.policy, &observation_space, config.features_dim, NAME, rng, &Device::Cpu);
+        let encoder = |rng: &mut ChaCha8Rng| {
+            Encoder::new(config.policy, &observation_space, config.features_dim, NAME, rng, &Device::Cpu)
+        };
         let actor = Actor::new(encoder(&mut init)?, act_dim, &config.hidden, &mut init)?;
         let critic = TwinCritic::new(encoder(&mut init)?, act_dim, &config.hidden, &mut init)?;
         let critic_target = critic.deep_copy()?;
         let log_ent_coef = Var::from_tensor(&Tensor::new(&[config.ent_coef_init.ln()], &Device::Cpu)?)?;
-        let adam = |vars: Vec<Var>| Adam::new(vars, AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() });
+        let adam = |vars: Vec<Var>| {
+            Adam::new(vars, AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() })
+        };
         let vars = |named: Vec<(String, Var)>| named.into_iter().map(|(_, v)| v).collect::<Vec<_>>();
         Ok(Self {
             actor_optimizer: adam(vars(actor.named_vars())),
@@ -203,7 +208,11 @@ impl Sac {
     /// Rows of raw observations, normalised, as a tensor for the networks.
     fn batch(&self, obs: &[f32]) -> anyhow::Result<Tensor> {
         let dim = self.observation_space.dim();
-        Ok(Tensor::from_vec(crate::normalize::normalized(self.obs_rms.as_ref(), obs), (obs.len() / dim, dim), &Device::Cpu)?)
+        Ok(Tensor::from_vec(
+            crate::normalize::normalized(self.obs_rms.as_ref(), obs),
+            (obs.len() / dim, dim),
+            &Device::Cpu,
+        )?)
     }
 
     /// Standard normal noise for `rows` actions, from the agent's own stream.
@@ -215,7 +224,6 @@ impl Sac {
     fn to_env(&self, unit: &[f32]) -> Vec<f32> {
         crate::off_policy::to_env(&self.action_space, unit)
     }
-
 
     /// The action for each raw observation row: tanh(μ) when `deterministic`, else a sample.
     pub fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
@@ -254,7 +262,12 @@ impl Sac {
 
     /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback` after
     /// every row, and says why it stopped.
-    pub fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+    pub fn learn(
+        &mut self,
+        env: &mut dyn VecEnv,
+        total_timesteps: u64,
+        callback: &mut dyn Callback,
+    ) -> anyhow::Result<TrainingEnd> {
         crate::off_policy::learn(self, env, total_timesteps, callback)
     }
 }
@@ -289,7 +302,13 @@ impl Agent for Sac {
     }
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
         let encoding = self.actor.encoder.export("actor.")?;
-        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), encoding, layers: self.actor.mode_layers()?, hidden: Activation::Relu, head: PolicyHead::TanhToBox })
+        Ok(PolicyNet {
+            obs_rms: self.obs_rms.clone(),
+            encoding,
+            layers: self.actor.mode_layers()?,
+            hidden: Activation::Relu,
+            head: PolicyHead::TanhToBox,
+        })
     }
     fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
         Sac::save(self, dir)
@@ -309,7 +328,12 @@ impl Agent for Sac {
 }
 
 impl Learner for Sac {
-    fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+    fn learn(
+        &mut self,
+        env: &mut dyn VecEnv,
+        total_timesteps: u64,
+        callback: &mut dyn Callback,
+    ) -> anyhow::Result<TrainingEnd> {
         Sac::learn(self, env, total_timesteps, callback)
     }
     fn times(&self) -> TrainingTimes {
@@ -335,7 +359,9 @@ impl OffPolicy for Sac {
         Sac::explore(self, obs)
     }
     fn train_steps(&mut self, n: usize, each: &mut dyn FnMut(Option<Vec<f32>>)) -> anyhow::Result<()> {
-        self.run_gradient_steps(n, &mut |losses| each(losses.map(|l| vec![l.actor_loss, l.critic_loss, l.ent_coef, l.ent_coef_loss, l.entropy])))
+        self.run_gradient_steps(n, &mut |losses| {
+            each(losses.map(|l| vec![l.actor_loss, l.critic_loss, l.ent_coef, l.ent_coef_loss, l.entropy]))
+        })
     }
     /// α is the one in force now, as `learn` logs it.
     fn end_row(&mut self, figures: Vec<f32>) -> anyhow::Result<Vec<f32>> {
@@ -343,7 +369,14 @@ impl OffPolicy for Sac {
             anyhow::bail!("SAC has {} figures, not {}", TRAIN_FIGURES.len(), figures.len())
         };
         let ent_coef = self.ent_coef()?;
-        self.last_losses = SacLosses { actor_loss, critic_loss, ent_coef, ent_coef_loss, entropy, gradient_steps: self.gradient_steps };
+        self.last_losses = SacLosses {
+            actor_loss,
+            critic_loss,
+            ent_coef,
+            ent_coef_loss,
+            entropy,
+            gradient_steps: self.gradient_steps,
+        };
         Ok(vec![actor_loss, critic_loss, ent_coef, ent_coef_loss, entropy])
     }
 }

@@ -11,10 +11,10 @@ use candle_core::{Device, Tensor, Var};
 use serde::{Deserialize, Serialize};
 
 use super::{ReplayBuffer, Sac, SacConfig};
-use crate::replay_buffer::Rows;
 use crate::model_header::ModelHeader;
 use crate::model_io::{self, METADATA_FILE, ModelError, WEIGHTS_FILE, file_error};
 use crate::nn::Adam;
+use crate::replay_buffer::Rows;
 use twinbots_api::env_state::StreamState;
 
 const FORMAT: u32 = 1;
@@ -77,12 +77,22 @@ impl Sac {
         model_io::save_tensors(&model_io::var_tensors(&self.weights()), &dir.join(WEIGHTS_FILE))?;
         let [actor, critic, ent] = self.optimized_vars();
         let adams = [&self.actor_optimizer, &self.critic_optimizer, &self.ent_optimizer];
-        let steps = model_io::save_optimizers(vec![(actor.0, actor.1, adams[0]), (critic.0, critic.1, adams[1]), (ent.0, ent.1, adams[2])], dir)?;
+        let steps = model_io::save_optimizers(
+            vec![(actor.0, actor.1, adams[0]), (critic.0, critic.1, adams[1]), (ent.0, ent.1, adams[2])],
+            dir,
+        )?;
         let optimizer_steps = [steps[0], steps[1], steps[2]];
         let replay_buffer = save_replay(self.buffer.as_ref(), dir)?;
         model_io::save_env_state(dir, self.env_state.as_ref())?;
         let meta = Metadata {
-            header: ModelHeader::of(self, FORMAT, self.obs_rms.as_ref(), self.seed, self.updates, self.env_state.is_some()),
+            header: ModelHeader::of(
+                self,
+                FORMAT,
+                self.obs_rms.as_ref(),
+                self.seed,
+                self.updates,
+                self.env_state.is_some(),
+            ),
             hyperparameters: self.config.clone(),
             gradient_steps: self.gradient_steps,
             iterations: self.iterations,
@@ -103,15 +113,22 @@ impl Sac {
         let h = meta.header;
         h.check(&path)?;
         let saved_env_state = h.env_state;
-        let mut model = Sac::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed).map_err(|e| file_error(&path, e))?;
+        let mut model = Sac::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed)
+            .map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
-        model_io::set_vars(&model.weights(), &model_io::load_tensors(&weights)?).map_err(|e| file_error(&weights, e))?;
-        (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) = (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
+        model_io::set_vars(&model.weights(), &model_io::load_tensors(&weights)?)
+            .map_err(|e| file_error(&weights, e))?;
+        (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) =
+            (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
         (model.gradient_steps, model.iterations) = (meta.gradient_steps, meta.iterations);
         model.rng = meta.sampling_stream.to_rng().map_err(|e| file_error(&path, e))?;
         let [actor, critic, ent] = model.optimized_vars();
         let [a, c, e] = model.optimizers();
-        model_io::restore_optimizers(vec![(actor.0, actor.1, a), (critic.0, critic.1, c), (ent.0, ent.1, e)], &meta.optimizer_steps, dir)?;
+        model_io::restore_optimizers(
+            vec![(actor.0, actor.1, a), (critic.0, critic.1, c), (ent.0, ent.1, e)],
+            &meta.optimizer_steps,
+            dir,
+        )?;
         model.buffer = load_replay(meta.replay_buffer, dir, model.observation_space.dim(), model.action_space.dim())?;
         model.env_state = model_io::load_env_state(dir, saved_env_state)?;
         Ok(model)
@@ -134,27 +151,41 @@ pub(crate) fn save_replay(buffer: Option<&ReplayBuffer>, dir: &Path) -> Result<O
 }
 
 /// The replay buffer [`save_replay`] saved into `dir` at `ring`, checked against it.
-pub(crate) fn load_replay(ring: Option<BufferRing>, dir: &Path, obs_dim: usize, act_dim: usize) -> Result<Option<ReplayBuffer>, ModelError> {
+pub(crate) fn load_replay(
+    ring: Option<BufferRing>,
+    dir: &Path,
+    obs_dim: usize,
+    act_dim: usize,
+) -> Result<Option<ReplayBuffer>, ModelError> {
     let Some(ring) = ring else { return Ok(None) };
     let mut buffer = ReplayBuffer::new(ring.capacity, ring.n_envs, obs_dim, act_dim);
     let file = dir.join(REPLAY_BUFFER_FILE);
     load_buffer(&mut buffer, &file)?;
     let len = if ring.full { ring.capacity } else { ring.pos };
-    let fits = buffer.capacity == ring.capacity && ring.pos < ring.capacity.max(1) && buffer.rewards.len() == len && ring.episode_steps.len() == ring.n_envs;
+    let fits = buffer.capacity == ring.capacity
+        && ring.pos < ring.capacity.max(1)
+        && buffer.rewards.len() == len
+        && ring.episode_steps.len() == ring.n_envs;
     if !fits {
         return Err(file_error(&file, "the replay buffer does not match its ring position in model.json"));
     }
     if buffer.ended_by.iter().any(|&code| code as usize > ring.terminations.len()) {
-        return Err(file_error(&file, "the replay buffer's ended_by codes name more termination terms than model.json lists"));
+        return Err(file_error(
+            &file,
+            "the replay buffer's ended_by codes name more termination terms than model.json lists",
+        ));
     }
-    (buffer.pos, buffer.full, buffer.episode_steps, buffer.terminations) = (ring.pos, ring.full, ring.episode_steps, ring.terminations);
+    (buffer.pos, buffer.full, buffer.episode_steps, buffer.terminations) =
+        (ring.pos, ring.full, ring.episode_steps, ring.terminations);
     Ok(Some(buffer))
 }
 
 fn save_buffer(buffer: &ReplayBuffer, path: &Path) -> Result<(), ModelError> {
     let dev = Device::Cpu;
     let len = buffer.len();
-    let t = |data: &[f32], width: usize| Tensor::from_vec(data.to_vec(), (len, width), &dev).map_err(|e| file_error(path, e));
+    let t = |data: &[f32], width: usize| {
+        Tensor::from_vec(data.to_vec(), (len, width), &dev).map_err(|e| file_error(path, e))
+    };
     // Rows as they are kept: f32, or u8 for camera images.
     let rows = |rows: &Rows| match rows {
         Rows::Floats(v) => t(v, buffer.obs_dim),
@@ -186,7 +217,9 @@ fn load_buffer(buffer: &mut ReplayBuffer, path: &Path) -> Result<(), ModelError>
     let rows = |name: &str| -> Result<Rows, ModelError> {
         let tensor = get(name)?;
         if tensor.dtype() == candle_core::DType::U8 {
-            return Ok(Rows::Bytes(tensor.flatten_all().and_then(|t| t.to_vec1::<u8>()).map_err(|e| file_error(path, e))?));
+            return Ok(Rows::Bytes(
+                tensor.flatten_all().and_then(|t| t.to_vec1::<u8>()).map_err(|e| file_error(path, e))?,
+            ));
         }
         Ok(Rows::Floats(floats(name)?))
     };
@@ -201,7 +234,10 @@ fn load_buffer(buffer: &mut ReplayBuffer, path: &Path) -> Result<(), ModelError>
         Some(t) => t.to_vec1::<u8>().map_err(|e| file_error(path, e))?,
         None => vec![0; n],
     };
-    let same_kind = matches!((&buffer.obs, &buffer.next_obs), (Rows::Floats(_), Rows::Floats(_)) | (Rows::Bytes(_), Rows::Bytes(_)));
+    let same_kind = matches!(
+        (&buffer.obs, &buffer.next_obs),
+        (Rows::Floats(_), Rows::Floats(_)) | (Rows::Bytes(_), Rows::Bytes(_))
+    );
     let consistent = same_kind
         && buffer.obs.len() == n * buffer.obs_dim
         && buffer.next_obs.len() == n * buffer.obs_dim

@@ -92,13 +92,20 @@ impl Actor {
 
     /// The layers of the deterministic action tanh(μ(s)): the body, then μ.
     pub fn mode_layers(&self) -> Result<Vec<crate::policy_net::DenseLayer>> {
-        let mut layers = self.body.layers.iter().enumerate().map(|(i, l)| l.values(&format!("actor.body.{i}"))).collect::<Result<Vec<_>>>()?;
+        let mut layers = self
+            .body
+            .layers
+            .iter()
+            .enumerate()
+            .map(|(i, l)| l.values(&format!("actor.body.{i}")))
+            .collect::<Result<Vec<_>>>()?;
         layers.push(self.mu.values("actor.mu")?);
         Ok(layers)
     }
 
     pub fn named_vars(&self) -> Vec<(String, Var)> {
-        let mut out: Vec<(String, Var)> = self.encoder.named_vars().into_iter().map(|(n, v)| (format!("actor.{n}"), v)).collect();
+        let mut out: Vec<(String, Var)> =
+            self.encoder.named_vars().into_iter().map(|(n, v)| (format!("actor.{n}"), v)).collect();
         self.body.named_vars("actor.body", &mut out);
         for (name, l) in [("actor.mu", &self.mu), ("actor.log_std", &self.log_std)] {
             out.push((format!("{name}.weight"), l.weight.clone()));
@@ -151,7 +158,8 @@ impl TwinCritic {
     }
 
     pub fn named_vars(&self, prefix: &str) -> Vec<(String, Var)> {
-        let mut out: Vec<(String, Var)> = self.encoder.named_vars().into_iter().map(|(n, v)| (format!("{prefix}.{n}"), v)).collect();
+        let mut out: Vec<(String, Var)> =
+            self.encoder.named_vars().into_iter().map(|(n, v)| (format!("{prefix}.{n}"), v)).collect();
         self.q1.named_vars(&format!("{prefix}.q1"), &mut out);
         self.q2.named_vars(&format!("{prefix}.q2"), &mut out);
         out
@@ -160,7 +168,10 @@ impl TwinCritic {
     /// A copy sharing no variables (the target network starts as the critic).
     pub fn deep_copy(&self) -> Result<Self> {
         let copy = |m: &ReluMlp| -> Result<ReluMlp> {
-            Ok(ReluMlp { layers: m.layers.iter().map(Dense::deep_copy).collect::<Result<_>>()?, relu_last: m.relu_last })
+            Ok(ReluMlp {
+                layers: m.layers.iter().map(Dense::deep_copy).collect::<Result<_>>()?,
+                relu_last: m.relu_last,
+            })
         };
         Ok(Self { encoder: self.encoder.deep_copy()?, q1: copy(&self.q1)?, q2: copy(&self.q2)? })
     }
@@ -179,7 +190,6 @@ pub fn polyak_update(target: &[(String, Var)], source: &[(String, Var)], tau: f3
     Ok(())
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -194,7 +204,8 @@ mod tests {
         let (a, log_prob) = actor.sample(&obs, &eps).unwrap();
         let (mu, log_std) = actor.heads(&obs).unwrap();
         let (a, log_prob) = (a.to_vec2::<f32>().unwrap(), log_prob.to_vec1::<f32>().unwrap());
-        let (mu, log_std, eps) = (mu.to_vec2::<f32>().unwrap(), log_std.to_vec2::<f32>().unwrap(), eps.to_vec2::<f32>().unwrap());
+        let (mu, log_std, eps) =
+            (mu.to_vec2::<f32>().unwrap(), log_std.to_vec2::<f32>().unwrap(), eps.to_vec2::<f32>().unwrap());
         for r in 0..2 {
             let mut expected = 0.0f64;
             for k in 0..2 {

@@ -41,7 +41,12 @@ impl Sac {
         Ok(Minibatch { draws, eps, eps_next, alpha: self.ent_coef()? })
     }
 
-    fn run_gradient_steps_on(&mut self, buffer: &ReplayBuffer, n: usize, each: &mut dyn FnMut(Option<SacLosses>)) -> anyhow::Result<()> {
+    fn run_gradient_steps_on(
+        &mut self,
+        buffer: &ReplayBuffer,
+        n: usize,
+        each: &mut dyn FnMut(Option<SacLosses>),
+    ) -> anyhow::Result<()> {
         if buffer.is_empty() {
             (0..n).for_each(|_| each(None));
             return Ok(());
@@ -73,7 +78,9 @@ impl Sac {
                 let (sample, gradient) = fused::critic_part(&nets, &part, alpha, gamma);
                 Answer::Critic(sample, gradient, part.batch.obs)
             }
-            Job::Actor { nets, critic, obs, sample, alpha, of } => Answer::Actor(fused::actor_part(&nets.actor, &critic, &obs, sample, alpha, of)),
+            Job::Actor { nets, critic, obs, sample, alpha, of } => {
+                Answer::Actor(fused::actor_part(&nets.actor, &critic, &obs, sample, alpha, of))
+            }
         };
         crate::threads::with_helper(&work, |helper| {
             for _ in 0..n {
@@ -85,16 +92,34 @@ impl Sac {
     }
 
     /// One step over slices, the minibatch's second half on `helper`.
-    fn step_over_slices(&mut self, helper: Option<&Helper<Job, Answer>>, work: &impl Fn(Job) -> Answer, Minibatch { draws, eps, eps_next, alpha }: Minibatch) -> anyhow::Result<Option<SacLosses>> {
+    fn step_over_slices(
+        &mut self,
+        helper: Option<&Helper<Job, Answer>>,
+        work: &impl Fn(Job) -> Answer,
+        Minibatch { draws, eps, eps_next, alpha }: Minibatch,
+    ) -> anyhow::Result<Option<SacLosses>> {
         let b = draws.len();
-        let nets = Arc::new(StepNets { actor: ActorNets::read(&self.actor)?, critic: CriticNets::read(&self.critic)?, target: CriticNets::read(&self.critic_target)? });
+        let nets = Arc::new(StepNets {
+            actor: ActorNets::read(&self.actor)?,
+            critic: CriticNets::read(&self.critic)?,
+            target: CriticNets::read(&self.critic_target)?,
+        });
         let jobs = crate::threads::halves(b)
             .iter()
-            .map(|r| Job::Critic { nets: nets.clone(), draws: fused::rows_of(&draws, b, r), eps: fused::rows_of(&eps, b, r), eps_next: fused::rows_of(&eps_next, b, r), alpha, of: b })
+            .map(|r| Job::Critic {
+                nets: nets.clone(),
+                draws: fused::rows_of(&draws, b, r),
+                eps: fused::rows_of(&eps, b, r),
+                eps_next: fused::rows_of(&eps_next, b, r),
+                alpha,
+                of: b,
+            })
             .collect();
         let (mut samples, mut critic) = (Vec::new(), Vec::new());
         for answer in crate::threads::share(helper, work, jobs)? {
-            let Answer::Critic(sample, gradient, obs) = answer else { anyhow::bail!("a critic job answered as the actor's") };
+            let Answer::Critic(sample, gradient, obs) = answer else {
+                anyhow::bail!("a critic job answered as the actor's")
+            };
             samples.push((sample, obs));
             critic.push(gradient);
         }
@@ -104,7 +129,17 @@ impl Sac {
         applied &= self.critic_optimizer.step_flat(std::mem::take(&mut critic.gradients), None)?.applied;
 
         let critic_now = Arc::new(CriticNets::read(&self.critic)?);
-        let jobs = samples.into_iter().map(|(sample, obs)| Job::Actor { nets: nets.clone(), critic: critic_now.clone(), obs, sample, alpha, of: b }).collect();
+        let jobs = samples
+            .into_iter()
+            .map(|(sample, obs)| Job::Actor {
+                nets: nets.clone(),
+                critic: critic_now.clone(),
+                obs,
+                sample,
+                alpha,
+                of: b,
+            })
+            .collect();
         let (mut actor, mut entropy) = (Vec::new(), 0.0);
         for answer in crate::threads::share(helper, work, jobs)? {
             let Answer::Actor(part) = answer else { anyhow::bail!("an actor job answered as the critics'") };
@@ -116,7 +151,13 @@ impl Sac {
     }
 
     /// The step through candle's graph (camera policies).
-    fn gradient_step_graph(&mut self, batch: Batch, eps: Vec<f32>, eps_next: Vec<f32>, alpha: f32) -> anyhow::Result<Option<SacLosses>> {
+    fn gradient_step_graph(
+        &mut self,
+        batch: Batch,
+        eps: Vec<f32>,
+        eps_next: Vec<f32>,
+        alpha: f32,
+    ) -> anyhow::Result<Option<SacLosses>> {
         let (actions, log_pi) = self.actor_samples_graph(&batch.obs, &eps)?;
         let (mut applied, ent_coef_loss) = self.step_ent_coef(&log_pi.to_vec1::<f32>()?)?;
         let (critic, features) = self.critic_gradient_graph(&batch, &eps_next, alpha)?;
@@ -139,11 +180,21 @@ impl Sac {
     }
 
     /// The actor's step, the targets' Polyak update and the step's figures.
-    fn finish_step(&mut self, critic_loss: f32, actor: ActorGradient, (mut applied, ent_coef_loss): (bool, f32), alpha: f32) -> anyhow::Result<Option<SacLosses>> {
+    fn finish_step(
+        &mut self,
+        critic_loss: f32,
+        actor: ActorGradient,
+        (mut applied, ent_coef_loss): (bool, f32),
+        alpha: f32,
+    ) -> anyhow::Result<Option<SacLosses>> {
         applied &= self.actor_optimizer.step_flat(actor.loss.gradients, None)?.applied;
         self.gradient_steps += 1;
         if self.gradient_steps % self.config.target_update_interval as u64 == 0 {
-            polyak_update(&self.critic_target.named_vars("target"), &self.critic.named_vars("critic"), self.config.tau)?;
+            polyak_update(
+                &self.critic_target.named_vars("target"),
+                &self.critic.named_vars("critic"),
+                self.config.tau,
+            )?;
         }
         if !applied {
             return Ok(None);
@@ -160,26 +211,42 @@ impl Sac {
 
     /// The critics' loss ½ Σᵢ MSE(Qᵢ, y) (SB3's) and gradient through candle's graph, and the
     /// critics' features of the observations (detached).
-    pub(super) fn critic_gradient_graph(&self, batch: &Batch, eps_next: &[f32], alpha: f32) -> anyhow::Result<(LossGradient, Tensor)> {
+    pub(super) fn critic_gradient_graph(
+        &self,
+        batch: &Batch,
+        eps_next: &[f32],
+        alpha: f32,
+    ) -> anyhow::Result<(LossGradient, Tensor)> {
         let (b, dev) = (batch.rewards.len(), Device::Cpu);
         let rows = |v: &[f32], width: usize| Tensor::from_vec(v.to_vec(), (b, width), &dev);
-        let (obs, next_obs) = (rows(&batch.obs, self.observation_space.dim())?, rows(&batch.next_obs, self.observation_space.dim())?);
+        let (obs, next_obs) =
+            (rows(&batch.obs, self.observation_space.dim())?, rows(&batch.next_obs, self.observation_space.dim())?);
         let actions = rows(&batch.actions, self.act_dim())?;
         let rewards = Tensor::from_vec(batch.rewards.clone(), b, &dev)?;
         let not_done = (Tensor::from_vec(batch.dones.clone(), b, &dev)?.neg()? + 1.0)?;
         let (next_actions, next_log_pi) = self.actor.sample(&next_obs, &rows(eps_next, self.act_dim())?)?;
-        let next_q = (self.critic_target.min_q(&next_obs, &next_actions.detach())? - (next_log_pi.detach() * alpha as f64)?)?;
+        let next_q =
+            (self.critic_target.min_q(&next_obs, &next_actions.detach())? - (next_log_pi.detach() * alpha as f64)?)?;
         let target = (rewards + (not_done * next_q)? * self.config.gamma as f64)?.detach();
         let features = self.critic.encoder.forward(&obs)?;
         let (q1, q2) = self.critic.q_of(&features, &actions)?;
         let loss = ((((&q1 - &target)?.sqr()?.mean_all()? + (&q2 - &target)?.sqr()?.mean_all()?)?) * 0.5)?;
         let vars: Vec<_> = self.critic.named_vars("critic").into_iter().map(|(_, v)| v).collect();
-        Ok((LossGradient { loss: loss.to_scalar()?, gradients: flat_gradients(&vars, &loss.backward()?)? }, features.detach()))
+        Ok((
+            LossGradient { loss: loss.to_scalar()?, gradients: flat_gradients(&vars, &loss.backward()?)? },
+            features.detach(),
+        ))
     }
 
     /// The actor's loss and gradient through candle's graph, over its samples `actions` with
     /// their `log_pi`, read by the critics from their `features` of the observations.
-    pub(super) fn actor_gradient_graph(&self, actions: &Tensor, log_pi: &Tensor, features: &Tensor, alpha: f32) -> anyhow::Result<ActorGradient> {
+    pub(super) fn actor_gradient_graph(
+        &self,
+        actions: &Tensor,
+        log_pi: &Tensor,
+        features: &Tensor,
+        alpha: f32,
+    ) -> anyhow::Result<ActorGradient> {
         let q_pi = self.critic.min_q_of(features, actions)?;
         let loss = ((log_pi * alpha as f64)? - q_pi)?.mean_all()?;
         let vars: Vec<_> = self.actor.named_vars().into_iter().map(|(_, v)| v).collect();

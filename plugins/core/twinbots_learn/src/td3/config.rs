@@ -66,7 +66,9 @@ impl Td3Config {
     pub fn validate(&self) -> anyhow::Result<()> {
         let positive = |key: &str, v: f64| check(key, v, v.is_finite() && v > 0.0, "a finite number > 0");
         let non_negative = |key: &str, v: f64| check(key, v, v.is_finite() && v >= 0.0, "a finite number ≥ 0");
-        let count = |key: &str, v: usize, max: usize| check(key, v, (1..=max).contains(&v), &format!("a whole number in 1..={max}"));
+        let count = |key: &str, v: usize, max: usize| {
+            check(key, v, (1..=max).contains(&v), &format!("a whole number in 1..={max}"))
+        };
         positive("learning_rate", self.learning_rate)?;
         count("buffer_size", self.buffer_size, 1 << 26)?;
         count("batch_size", self.batch_size, 1 << 16)?;

@@ -20,13 +20,13 @@ pub use config::Td3Config;
 
 use crate::agent::{Agent, LoadAgent};
 use crate::callbacks::Callback;
-use crate::off_policy::served::ServedOffPolicy;
-use crate::off_policy::OffPolicy;
 use crate::history::EpisodeHistory;
 use crate::learner::{Algorithm, Learner, ServedLearner, config_from};
 use crate::model_io::ModelError;
 use crate::nn::{Adam, AdamConfig, Dense};
 use crate::normalize::RunningMeanStd;
+use crate::off_policy::OffPolicy;
+use crate::off_policy::served::ServedOffPolicy;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use crate::sac::{ReluMlp, ReplayBuffer, TwinCritic, polyak_update};
 use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats};
@@ -50,7 +50,14 @@ pub const ALGORITHM: Algorithm = Algorithm {
         config.validate()?;
         Ok(toml::Table::try_from(&config)?)
     },
-    new: |config, spec, seed| Ok(Box::new(Td3::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?)),
+    new: |config, spec, seed| {
+        Ok(Box::new(Td3::new(
+            config_from(config, NAME)?,
+            spec.observation_space.clone(),
+            spec.action_space.clone(),
+            seed,
+        )?))
+    },
     load: |dir| Ok(Box::new(Td3::load(dir)?)),
 };
 
@@ -100,7 +107,11 @@ pub struct Td3 {
 /// A copy of `mlp` sharing no variables (a target network starts as its network).
 fn deep_copy(mlp: &ReluMlp) -> candle_core::Result<ReluMlp> {
     let copy = |v: &Var| Var::from_tensor(&v.as_tensor().copy()?);
-    let layers = mlp.layers.iter().map(|l| Ok(Dense { weight: copy(&l.weight)?, bias: copy(&l.bias)? })).collect::<candle_core::Result<_>>()?;
+    let layers = mlp
+        .layers
+        .iter()
+        .map(|l| Ok(Dense { weight: copy(&l.weight)?, bias: copy(&l.bias)? }))
+        .collect::<candle_core::Result<_>>()?;
     Ok(ReluMlp { layers, relu_last: mlp.relu_last })
 }
 
@@ -123,11 +134,15 @@ impl Td3 {
         );
         let (obs_dim, act_dim) = (observation_space.dim(), low.len());
         let mut init = ChaCha8Rng::seed_from_u64(seed);
-        let sizes: Vec<usize> = std::iter::once(obs_dim).chain(config.hidden.iter().copied()).chain(std::iter::once(act_dim)).collect();
+        let sizes: Vec<usize> =
+            std::iter::once(obs_dim).chain(config.hidden.iter().copied()).chain(std::iter::once(act_dim)).collect();
         let actor = ReluMlp::new(&sizes, false, &mut init, &Device::Cpu)?;
         let critic = TwinCritic::new(crate::nn::Encoder::Flat { dim: obs_dim }, act_dim, &config.hidden, &mut init)?;
         let adam = |vars: Vec<(String, Var)>| {
-            Adam::new(vars.into_iter().map(|(_, v)| v).collect(), AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() })
+            Adam::new(
+                vars.into_iter().map(|(_, v)| v).collect(),
+                AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() },
+            )
         };
         Ok(Self {
             actor_optimizer: adam(named(&actor, "actor")),
@@ -162,19 +177,27 @@ impl Td3 {
     /// Rows of raw observations, normalised, as a tensor for the networks.
     fn batch(&self, obs: &[f32]) -> anyhow::Result<Tensor> {
         let dim = self.observation_space.dim();
-        Ok(Tensor::from_vec(crate::normalize::normalized(self.obs_rms.as_ref(), obs), (obs.len() / dim, dim), &Device::Cpu)?)
+        Ok(Tensor::from_vec(
+            crate::normalize::normalized(self.obs_rms.as_ref(), obs),
+            (obs.len() / dim, dim),
+            &Device::Cpu,
+        )?)
     }
 
     /// Gaussian noise of standard deviation `std`, clipped to ± `clip`, for `n` actions.
     fn noise(&mut self, n: usize, std: f32, clip: f32) -> Vec<f32> {
-        (0..n).map(|_| { let e: f32 = StandardNormal.sample(&mut self.rng); (e * std).clamp(-clip, clip) }).collect()
+        (0..n)
+            .map(|_| {
+                let e: f32 = StandardNormal.sample(&mut self.rng);
+                (e * std).clamp(-clip, clip)
+            })
+            .collect()
     }
 
     /// [-1, 1] → the action space's bounds.
     fn to_env(&self, unit: &[f32]) -> Vec<f32> {
         crate::off_policy::to_env(&self.action_space, unit)
     }
-
 
     /// μ(s) in [−1, 1] for each raw observation row.
     fn unit_actions(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
@@ -225,7 +248,9 @@ impl Td3 {
 
         // Target policy smoothing: ã = clip(μ'(s') + clip(ε, −c, c), −1, 1), ε ~ N(0, σ̃).
         let smoothing = self.noise(b * act_dim, self.config.target_policy_noise, self.config.target_noise_clip);
-        let next_actions = (self.actor_target.forward(&next_obs)?.tanh()? + Tensor::from_vec(smoothing, (b, act_dim), &dev)?)?.clamp(-1f32, 1f32)?;
+        let next_actions = (self.actor_target.forward(&next_obs)?.tanh()?
+            + Tensor::from_vec(smoothing, (b, act_dim), &dev)?)?
+        .clamp(-1f32, 1f32)?;
         // Critics: y = r + γ (1 − done) min(Q'₁, Q'₂)(s', ã); loss Σᵢ MSE(Qᵢ(s, a), y), as SB3.
         let next_q = self.critic_target.min_q(&next_obs, &next_actions)?;
         let target = (rewards + (not_done * next_q)? * self.config.gamma as f64)?.detach();
@@ -241,18 +266,31 @@ impl Td3 {
             let loss = q_pi.mean_all()?.neg()?;
             actor_loss = loss.to_scalar::<f32>()?;
             applied &= self.actor_optimizer.step(&loss.backward()?, None)?.applied;
-            polyak_update(&self.critic_target.named_vars("target"), &self.critic.named_vars("critic"), self.config.tau)?;
+            polyak_update(
+                &self.critic_target.named_vars("target"),
+                &self.critic.named_vars("critic"),
+                self.config.tau,
+            )?;
             polyak_update(&named(&self.actor_target, "actor_target"), &named(&self.actor, "actor"), self.config.tau)?;
         }
         if !applied {
             return Ok(None);
         }
-        Ok(Some(Td3Losses { actor_loss, critic_loss: critic_loss.to_scalar::<f32>()?, gradient_steps: self.gradient_steps }))
+        Ok(Some(Td3Losses {
+            actor_loss,
+            critic_loss: critic_loss.to_scalar::<f32>()?,
+            gradient_steps: self.gradient_steps,
+        }))
     }
 
     /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback` after
     /// every row, and says why it stopped.
-    pub fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+    pub fn learn(
+        &mut self,
+        env: &mut dyn VecEnv,
+        total_timesteps: u64,
+        callback: &mut dyn Callback,
+    ) -> anyhow::Result<TrainingEnd> {
         crate::off_policy::learn(self, env, total_timesteps, callback)
     }
 }
@@ -286,8 +324,20 @@ impl Agent for Td3 {
         Td3::predict(self, obs, deterministic)
     }
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
-        let layers = self.actor.layers.iter().enumerate().map(|(i, l)| l.values(&format!("actor.{i}"))).collect::<candle_core::Result<_>>()?;
-        Ok(PolicyNet { obs_rms: self.obs_rms.clone(), encoding: crate::policy_net::InputEncoding::Flat, layers, hidden: Activation::Relu, head: PolicyHead::TanhToBox })
+        let layers = self
+            .actor
+            .layers
+            .iter()
+            .enumerate()
+            .map(|(i, l)| l.values(&format!("actor.{i}")))
+            .collect::<candle_core::Result<_>>()?;
+        Ok(PolicyNet {
+            obs_rms: self.obs_rms.clone(),
+            encoding: crate::policy_net::InputEncoding::Flat,
+            layers,
+            hidden: Activation::Relu,
+            head: PolicyHead::TanhToBox,
+        })
     }
     fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
         Td3::save(self, dir)
@@ -304,7 +354,12 @@ impl Agent for Td3 {
 }
 
 impl Learner for Td3 {
-    fn learn(&mut self, env: &mut dyn VecEnv, total_timesteps: u64, callback: &mut dyn Callback) -> anyhow::Result<TrainingEnd> {
+    fn learn(
+        &mut self,
+        env: &mut dyn VecEnv,
+        total_timesteps: u64,
+        callback: &mut dyn Callback,
+    ) -> anyhow::Result<TrainingEnd> {
         Td3::learn(self, env, total_timesteps, callback)
     }
     fn times(&self) -> TrainingTimes {

@@ -7,8 +7,8 @@ use std::collections::HashMap;
 
 use bevy::prelude::*;
 
-use super::mount::{Mount, SamplingPeriod};
 use super::due::samples_now;
+use super::mount::{Mount, SamplingPeriod};
 use crate::arena::{Arena, InArena};
 use crate::physics::SimClock;
 use crate::rapier::prelude::*;
@@ -78,7 +78,9 @@ pub(crate) fn sample_contact_sensors(
             for pair in world.contact_pairs_with(own).filter(|p| p.has_any_active_contact()) {
                 let other = if pair.collider1 == own { pair.collider2 } else { pair.collider1 };
                 let touched = match world.colliders.get(other).and_then(|c| c.parent()) {
-                    Some(other_body) => owners.get(&(in_arena.0, other_body)).map_or(Touched::Fixed, |&e| Touched::Link(e)),
+                    Some(other_body) => {
+                        owners.get(&(in_arena.0, other_body)).map_or(Touched::Fixed, |&e| Touched::Link(e))
+                    }
                     None => Touched::Fixed,
                 };
                 if !contacts.contains(&touched) {

@@ -3,8 +3,8 @@
 
 use bevy::prelude::*;
 
-use super::mount::{Mount, SamplingPeriod, gaussian};
 use super::due::samples_now;
+use super::mount::{Mount, SamplingPeriod, gaussian};
 use crate::arena::{Arena, InArena};
 use crate::physics::SimClock;
 use crate::rapier::prelude::*;
@@ -31,11 +31,7 @@ impl DistanceSensor {
     /// A sensor with a Webots lookup table (rows sorted by distance, at least two).
     pub fn with_lookup(lookup: Vec<[f32; 3]>) -> Self {
         let max = lookup.last().map_or(0.0, |r| r[0]);
-        Self {
-            value: lookup.last().map_or(0.0, |r| r[1]),
-            distance: max,
-            lookup,
-        }
+        Self { value: lookup.last().map_or(0.0, |r| r[1]), distance: max, lookup }
     }
 
     pub fn max_range(&self) -> f32 {

@@ -67,7 +67,10 @@ pub fn set_armature(world: &mut PhysicsWorld, joint: &Joint, dynamics: &mut Join
         let axis = frame.rotation * Vec3::X;
         let rotor = Mat3::from_cols(axis * axis.x, axis * axis.y, axis * axis.z) * delta;
         let inertia = props.reconstruct_inertia_matrix() + rotor;
-        body.set_additional_mass_properties(MassProperties::with_inertia_matrix(props.local_com, props.mass(), inertia), true);
+        body.set_additional_mass_properties(
+            MassProperties::with_inertia_matrix(props.local_com, props.mass(), inertia),
+            true,
+        );
     } else {
         // A linear axis's armature is reflected mass.
         let mut p = props;
@@ -83,7 +86,10 @@ pub fn set_armature(world: &mut PhysicsWorld, joint: &Joint, dynamics: &mut Join
 /// As forces, not impulses: rapier spreads a force over its solver substeps as it spreads the
 /// motor's work, so the motor's solved effort (read from its last substep) includes them; an
 /// impulse would land in the first substep only, and the effort would all but miss it.
-pub(crate) fn apply_joint_dynamics(mut arenas: Query<&mut Arena>, joints: Query<(&Joint, &JointState, &JointDynamics, &InArena)>) {
+pub(crate) fn apply_joint_dynamics(
+    mut arenas: Query<&mut Arena>,
+    joints: Query<(&Joint, &JointState, &JointDynamics, &InArena)>,
+) {
     // Forces persist in rapier until reset: clear last step's on every body a joint acts on.
     for (joint, _, _, in_arena) in &joints {
         if let Ok(mut arena) = arenas.get_mut(in_arena.0) {
@@ -109,7 +115,13 @@ pub(crate) fn apply_joint_dynamics(mut arenas: Query<&mut Arena>, joints: Query<
 
 /// Adds a torque (force) between the joint's two bodies along its axis, for this physics step.
 fn add_joint_force(world: &mut PhysicsWorld, joint: &Joint, effort: f32) {
-    act_between(world, joint, effort, |body, torque| body.add_torque(torque, true), |body, force, at| body.add_force_at_point(force, at, true));
+    act_between(
+        world,
+        joint,
+        effort,
+        |body, torque| body.add_torque(torque, true),
+        |body, force, at| body.add_force_at_point(force, at, true),
+    );
 }
 
 #[cfg(test)]

@@ -5,8 +5,8 @@
 use bevy::math::{EulerRot, Vec3};
 use bevy::prelude::*;
 
-use super::mount::{Mount, MountState, SamplingPeriod, gaussian};
 use super::due::{samples_now, world_changed, world_restored};
+use super::mount::{Mount, MountState, SamplingPeriod, gaussian};
 use crate::arena::{Arena, InArena};
 use crate::physics::{SimClock, SimSettings};
 use crate::robot::Link;

@@ -80,8 +80,7 @@ impl Joint {
             Some((axis, angle, vel))
         } else {
             let offset = (f2.translation - f1.translation).dot(axis);
-            let vel = (b2.velocity_at_point(f2.translation) - b1.velocity_at_point(f2.translation))
-                .dot(axis);
+            let vel = (b2.velocity_at_point(f2.translation) - b1.velocity_at_point(f2.translation)).dot(axis);
             Some((axis, offset, vel))
         }
     }
@@ -91,12 +90,7 @@ impl JointState {
     /// A state measured from scratch (no turn history): used at spawn and after resets.
     pub fn measured(joint: &Joint, world: &PhysicsWorld) -> Self {
         let (_, pos, vel) = joint.measure(world).unwrap_or_default();
-        Self {
-            position: pos,
-            velocity: vel,
-            effort: 0.0,
-            wrapped: pos,
-        }
+        Self { position: pos, velocity: vel, effort: 0.0, wrapped: pos }
     }
 
     /// Advances the state over a physics step of `dt`. The speed is the position's change over

@@ -25,8 +25,8 @@ pub use contact_sensor::{ContactSensor, Touched};
 pub use distance_sensor::DistanceSensor;
 pub use dynamics::{FRICTION_SMOOTHING, JointDynamics, set_armature};
 pub use inertial::{Accelerometer, Gps, Gyro, InertialUnit, TouchSensor};
-pub use joint::{Joint, JointState};
 pub(crate) use joint::stop_window;
+pub use joint::{Joint, JointState};
 pub use motor::{Motor, MotorCommand};
 pub use mount::{Mount, MountState, SamplingPeriod, gaussian};
 pub use position_sensor::PositionSensor;
@@ -39,11 +39,16 @@ pub struct DevicesPlugin;
 
 impl Plugin for DevicesPlugin {
     fn build(&self, app: &mut App) {
-        app.add_systems(Update, sample_devices().in_set(SimSet::Sense))
-            .add_systems(
+        app.add_systems(Update, sample_devices().in_set(SimSet::Sense)).add_systems(
             PhysicsSubstep,
             (
-                (vacuum_gripper::operate_vacuum_grippers, motor::drive_motors, dynamics::apply_joint_dynamics, joint::place_stops).in_set(SubstepSet::Actuate),
+                (
+                    vacuum_gripper::operate_vacuum_grippers,
+                    motor::drive_motors,
+                    dynamics::apply_joint_dynamics,
+                    joint::place_stops,
+                )
+                    .in_set(SubstepSet::Actuate),
                 // The motor's effort reading needs the joint's new position (a torque is cut at a stop).
                 (joint::measure_joints, motor::measure_motor_efforts).chain().in_set(SubstepSet::Measure),
             ),

@@ -194,7 +194,9 @@ impl Motor {
         let v = v.clamp(-self.max_velocity, self.max_velocity);
         let brake = self.position_gain.min(1.0 / dt);
         Some(match limits {
-            Some([lo, hi]) => v.clamp(((lo - state.position) * brake).min(0.0), ((hi - state.position) * brake).max(0.0)),
+            Some([lo, hi]) => {
+                v.clamp(((lo - state.position) * brake).min(0.0), ((hi - state.position) * brake).max(0.0))
+            }
             None => v,
         })
     }
@@ -224,7 +226,9 @@ pub(crate) fn drive_motors(
         let target = motor.target_velocity(state, joint.limits, settings.dt);
         // The reference a holding motor keeps.
         let reference = match target {
-            Some(v) if motor.holds_position => Some(motor.advance_reference(state.position, v, settings.dt, joint.limits)),
+            Some(v) if motor.holds_position => {
+                Some(motor.advance_reference(state.position, v, settings.dt, joint.limits))
+            }
             _ => {
                 motor.forget_reference();
                 None
@@ -281,10 +285,7 @@ fn spring_rate(world: &PhysicsWorld, dt: f32) -> f32 {
 /// gravity: it reads m·g·l).
 fn solved_effort(joint: &Joint, world: &PhysicsWorld, dt: f32) -> f32 {
     let substeps = world.integration_parameters.num_solver_iterations.max(1) as f32;
-    world
-        .impulse_joints
-        .get(joint.handle)
-        .map_or(0.0, |j| j.data.motors[joint.axis() as usize].impulse * substeps / dt)
+    world.impulse_joints.get(joint.handle).map_or(0.0, |j| j.data.motors[joint.axis() as usize].impulse * substeps / dt)
 }
 
 /// Writes what each motor applied over the physics step into its joint's state, after the
@@ -303,9 +304,13 @@ pub(crate) fn measure_motor_efforts(
 
 /// Applies an effort between the joint's two bodies for one step, as equal and opposite impulses.
 pub(crate) fn apply_effort(world: &mut PhysicsWorld, joint: &Joint, effort: f32, dt: f32) {
-    act_between(world, joint, effort * dt, |body, torque| body.apply_torque_impulse(torque, true), |body, force, at| {
-        body.apply_impulse_at_point(force, at, true)
-    });
+    act_between(
+        world,
+        joint,
+        effort * dt,
+        |body, torque| body.apply_torque_impulse(torque, true),
+        |body, force, at| body.apply_impulse_at_point(force, at, true),
+    );
 }
 
 /// Acts along the joint's axis on its child (+`amount`) and its parent (−`amount`): `turn`

@@ -59,9 +59,5 @@ impl Mount {
 
 /// Gaussian noise with standard deviation `std` (0: none).
 pub fn gaussian(rng: &mut impl Rng, std: f32) -> f32 {
-    if std > 0.0 {
-        std * rng.sample::<f32, _>(StandardNormal)
-    } else {
-        0.0
-    }
+    if std > 0.0 { std * rng.sample::<f32, _>(StandardNormal) } else { 0.0 }
 }

@@ -3,9 +3,9 @@
 
 use bevy::prelude::*;
 
+use super::due::samples_now;
 use super::joint::JointState;
 use super::mount::gaussian;
-use super::due::samples_now;
 use crate::arena::{Arena, InArena};
 
 /// The latest reading of a joint's position sensor (rad or m).

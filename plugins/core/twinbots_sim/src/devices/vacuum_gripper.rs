@@ -76,7 +76,12 @@ pub(crate) fn operate_vacuum_grippers(
 /// The nearest loose object (a dynamic body in the environment group) whose surface lies in
 /// the cylinder of the cup's radius and stroke in front of the cup face, and the point of its
 /// surface nearest the face's centre.
-fn object_in_reach(world: &PhysicsWorld, cup: Pose, own_body: RigidBodyHandle, gripper: &VacuumGripper) -> Option<(RigidBodyHandle, Vec3)> {
+fn object_in_reach(
+    world: &PhysicsWorld,
+    cup: Pose,
+    own_body: RigidBodyHandle,
+    gripper: &VacuumGripper,
+) -> Option<(RigidBodyHandle, Vec3)> {
     let axis = cup.rotation * Vec3::X;
     // The reach cylinder; rapier's cylinders run along their local Y.
     let centre = cup.translation + axis * (gripper.stroke / 2.0);
@@ -105,7 +110,12 @@ fn drawn_in(cup: Pose, surface: Vec3) -> Pose {
 
 /// A rigid joint between the cup's body and the object, at their relative pose once the
 /// object is moved by `draw_in` (world frame): against the cup face.
-fn hold(world: &mut PhysicsWorld, cup_body: RigidBodyHandle, object: RigidBodyHandle, draw_in: Pose) -> ImpulseJointHandle {
+fn hold(
+    world: &mut PhysicsWorld,
+    cup_body: RigidBodyHandle,
+    object: RigidBodyHandle,
+    draw_in: Pose,
+) -> ImpulseJointHandle {
     let relative = match (world.bodies.get(cup_body), world.bodies.get(object)) {
         (Some(a), Some(b)) => a.position().inv_mul(&(draw_in * *b.position())),
         _ => Pose::IDENTITY,

@@ -14,24 +14,13 @@ pub enum UrdfError {
     },
     /// The text is not well-formed XML.
     #[error("{file}:{line}:{column}: malformed XML: {message}")]
-    Xml {
-        file: PathBuf,
-        line: u32,
-        column: u32,
-        message: String,
-    },
+    Xml { file: PathBuf, line: u32, column: u32, message: String },
     /// Well-formed XML that does not follow the URDF schema (urdf-rs' message).
     #[error("{file}: not a valid URDF document: {message}")]
     Schema { file: PathBuf, message: String },
     /// A URDF element whose content is inconsistent or unsupported.
     #[error("{file}:{line}: <{element} name=\"{name}\">: {problem}")]
-    Element {
-        file: PathBuf,
-        line: u32,
-        element: &'static str,
-        name: String,
-        problem: String,
-    },
+    Element { file: PathBuf, line: u32, element: &'static str, name: String, problem: String },
 }
 
 impl UrdfError {

@@ -14,10 +14,7 @@ use crate::rapier::math::Pose;
 /// Reads and checks a URDF file; meshes are looked up relative to its folder.
 pub fn load_urdf(path: impl AsRef<Path>) -> Result<RobotModel, UrdfError> {
     let path = path.as_ref();
-    let text = std::fs::read_to_string(path).map_err(|source| UrdfError::Io {
-        file: path.to_path_buf(),
-        source,
-    })?;
+    let text = std::fs::read_to_string(path).map_err(|source| UrdfError::Io { file: path.to_path_buf(), source })?;
     let base = path.parent().unwrap_or(Path::new("."));
     parse_urdf(&text, path, base)
 }
@@ -26,32 +23,19 @@ pub fn load_urdf(path: impl AsRef<Path>) -> Result<RobotModel, UrdfError> {
 pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel, UrdfError> {
     let doc = roxmltree::Document::parse(text).map_err(|e| {
         let pos = e.pos();
-        UrdfError::Xml {
-            file: file.to_path_buf(),
-            line: pos.row,
-            column: pos.col,
-            message: e.to_string(),
-        }
+        UrdfError::Xml { file: file.to_path_buf(), line: pos.row, column: pos.col, message: e.to_string() }
     })?;
     check_numbers(&doc, file)?;
     let lines = ElementLines::index(&doc);
-    let robot = urdf_rs::read_from_string(&with_zero_inertias(text, &doc)).map_err(|e| UrdfError::Schema {
-        file: file.to_path_buf(),
-        message: e.to_string(),
-    })?;
+    let robot = urdf_rs::read_from_string(&with_zero_inertias(text, &doc))
+        .map_err(|e| UrdfError::Schema { file: file.to_path_buf(), message: e.to_string() })?;
     let materials = robot
         .materials
         .iter()
         .filter_map(|m| m.color.as_ref().map(|c| (m.name.clone(), c.rgba.0.map(|x| x as f32))))
         .collect();
-    Checker {
-        file,
-        mesh_dir,
-        package_path: super::mesh::package_path_from_env(),
-        lines: &lines,
-        materials,
-    }
-    .build(&robot)
+    Checker { file, mesh_dir, package_path: super::mesh::package_path_from_env(), lines: &lines, materials }
+        .build(&robot)
 }
 
 /// `text` with an all-zero `<inertia/>` in every `<inertial>` that has none (urdf-rs requires
@@ -82,14 +66,44 @@ fn solid_of(shapes: &[Geometry], mass: f32) -> Inertial {
         total += shape.mass_properties(1.0).transform_by(&(g.origin * local));
     }
     total.set_mass(mass, true);
-    Inertial { origin: Pose::from_translation(total.local_com), mass, inertia: total.reconstruct_inertia_matrix(), from_geometry: true }
+    Inertial {
+        origin: Pose::from_translation(total.local_com),
+        mass,
+        inertia: total.reconstruct_inertia_matrix(),
+        from_geometry: true,
+    }
 }
 
 /// Attributes that hold numbers (one or several, space-separated) in the URDF schema.
 const NUMBER_ATTRIBUTES: &[&str] = &[
-    "xyz", "rpy", "size", "radius", "length", "value", "ixx", "ixy", "ixz", "iyy", "iyz", "izz", "effort", "velocity", "lower",
-    "upper", "damping", "friction", "scale", "rgba", "multiplier", "offset", "rising", "falling", "k_position", "k_velocity",
-    "soft_lower_limit", "soft_upper_limit",
+    "xyz",
+    "rpy",
+    "size",
+    "radius",
+    "length",
+    "value",
+    "ixx",
+    "ixy",
+    "ixz",
+    "iyy",
+    "iyz",
+    "izz",
+    "effort",
+    "velocity",
+    "lower",
+    "upper",
+    "damping",
+    "friction",
+    "scale",
+    "rgba",
+    "multiplier",
+    "offset",
+    "rising",
+    "falling",
+    "k_position",
+    "k_velocity",
+    "soft_lower_limit",
+    "soft_upper_limit",
 ];
 
 /// No physical quantity of a robot cell is this large in SI units; beyond it f32 physics loses
@@ -108,7 +122,9 @@ fn check_numbers(doc: &roxmltree::Document, file: &Path) -> Result<(), UrdfError
                 .filter_map(|token| token.parse::<f64>().ok())
                 .find(|x| !x.is_finite() || x.abs() > LARGEST_NUMBER);
             let Some(bad) = bad else { continue };
-            let owner = node.ancestors().find(|a| a.has_tag_name("link") || a.has_tag_name("joint") || a.has_tag_name("material"));
+            let owner = node
+                .ancestors()
+                .find(|a| a.has_tag_name("link") || a.has_tag_name("joint") || a.has_tag_name("material"));
             let (element, name) = match owner {
                 Some(o) if o.has_tag_name("link") => ("link", o.attribute("name").unwrap_or_default()),
                 Some(o) if o.has_tag_name("joint") => ("joint", o.attribute("name").unwrap_or_default()),
@@ -161,11 +177,7 @@ impl ElementLines {
                 _ => {}
             }
         }
-        Self {
-            links,
-            joints,
-            joints_with_limit,
-        }
+        Self { links, joints, joints_with_limit }
     }
 }
 
@@ -223,10 +235,7 @@ impl Checker<'_> {
                 let first: &JointModel = &joints[first];
                 return Err(self.joint_error(
                     &joint.name,
-                    format!(
-                        "link '{}' has two parents: joint '{}' already moves it",
-                        joint.child.link, first.name
-                    ),
+                    format!("link '{}' has two parents: joint '{}' already moves it", joint.child.link, first.name),
                 ));
             }
             parent_of[model.child] = Some(joints.len());
@@ -235,12 +244,7 @@ impl Checker<'_> {
         self.check_tree(&links, &joints, &parent_of)?;
         let root = parent_of.iter().position(Option::is_none).unwrap_or(0);
         self.check_masses(&links, &joints, root)?;
-        Ok(RobotModel {
-            name: robot.name.clone(),
-            links,
-            joints,
-            root,
-        })
+        Ok(RobotModel { name: robot.name.clone(), links, joints, root })
     }
 
     /// Exactly one root, and following parents from any link ends there (no loop).
@@ -279,23 +283,13 @@ impl Checker<'_> {
     }
 
     /// A link a joint moves must carry mass, itself or through links fixed to it.
-    fn check_masses(
-        &self,
-        links: &[LinkModel],
-        joints: &[JointModel],
-        root: usize,
-    ) -> Result<(), UrdfError> {
+    fn check_masses(&self, links: &[LinkModel], joints: &[JointModel], root: usize) -> Result<(), UrdfError> {
         for joint in joints.iter().filter(|j| j.kind.is_movable()) {
             let mut stack = vec![joint.child];
             let mut mass = 0.0;
             while let Some(l) = stack.pop() {
                 mass += links[l].inertial.map_or(0.0, |i| i.mass);
-                stack.extend(
-                    joints
-                        .iter()
-                        .filter(|c| c.parent == l && c.kind == JointKind::Fixed)
-                        .map(|c| c.child),
-                );
+                stack.extend(joints.iter().filter(|c| c.parent == l && c.kind == JointKind::Fixed).map(|c| c.child));
             }
             if mass <= 0.0 {
                 return Err(self.link_error(
@@ -319,9 +313,15 @@ impl Checker<'_> {
         }
         let i = &inertial.inertia;
         let inertia = Mat3::from_cols_array(&[
-            i.ixx as f32, i.ixy as f32, i.ixz as f32,
-            i.ixy as f32, i.iyy as f32, i.iyz as f32,
-            i.ixz as f32, i.iyz as f32, i.izz as f32,
+            i.ixx as f32,
+            i.ixy as f32,
+            i.ixz as f32,
+            i.ixy as f32,
+            i.iyy as f32,
+            i.iyz as f32,
+            i.ixz as f32,
+            i.iyz as f32,
+            i.izz as f32,
         ]);
         let diag = [i.ixx, i.iyy, i.izz];
         if diag.iter().any(|d| !d.is_finite() || *d < 0.0)
@@ -365,18 +365,10 @@ impl Checker<'_> {
                     },
                     None => [0.6, 0.6, 0.6, 1.0],
                 };
-                Ok(Visual {
-                    geometry: self.geometry(&link.name, &v.origin, &v.geometry)?,
-                    rgba,
-                })
+                Ok(Visual { geometry: self.geometry(&link.name, &v.origin, &v.geometry)?, rgba })
             })
             .collect::<Result<_, _>>()?;
-        Ok(LinkModel {
-            name: link.name.clone(),
-            inertial,
-            collisions,
-            visuals,
-        })
+        Ok(LinkModel { name: link.name.clone(), inertial, collisions, visuals })
     }
 
     fn geometry(
@@ -404,9 +396,7 @@ impl Checker<'_> {
                 radius: positive("cylinder radius", *radius)?,
                 length: positive("cylinder length", *length)?,
             },
-            urdf_rs::Geometry::Sphere { radius } => Shape::Sphere {
-                radius: positive("sphere radius", *radius)?,
-            },
+            urdf_rs::Geometry::Sphere { radius } => Shape::Sphere { radius: positive("sphere radius", *radius)? },
             urdf_rs::Geometry::Capsule { .. } => {
                 return Err(self.link_error(link, "capsule geometry is not supported"));
             }
@@ -415,15 +405,14 @@ impl Checker<'_> {
                 Shape::Mesh(Arc::new(self.mesh(link, filename, scale)?))
             }
         };
-        Ok(Geometry {
-            origin: pose(origin),
-            shape,
-        })
+        Ok(Geometry { origin: pose(origin), shape })
     }
 
     fn mesh(&self, link: &str, filename: &str, scale: Vec3) -> Result<TriangleMesh, UrdfError> {
-        let path = super::mesh::resolve(filename, self.mesh_dir, &self.package_path).map_err(|e| self.link_error(link, e))?;
-        let (vertices, triangles) = super::mesh::read(&path).map_err(|e| self.link_error(link, format!("mesh '{filename}': {e}")))?;
+        let path =
+            super::mesh::resolve(filename, self.mesh_dir, &self.package_path).map_err(|e| self.link_error(link, e))?;
+        let (vertices, triangles) =
+            super::mesh::read(&path).map_err(|e| self.link_error(link, format!("mesh '{filename}': {e}")))?;
         let vertices: Vec<Vec3> = vertices.into_iter().map(|v| v * scale).collect();
         // Collisions use the mesh's convex hull, so a flat or tiny mesh cannot be simulated.
         let has_volume = crate::rapier::parry::shape::SharedShape::convex_hull(&vertices)
@@ -437,11 +426,7 @@ impl Checker<'_> {
         Ok(TriangleMesh { vertices, triangles })
     }
 
-    fn joint(
-        &self,
-        joint: &urdf_rs::Joint,
-        index: &HashMap<String, usize>,
-    ) -> Result<JointModel, UrdfError> {
+    fn joint(&self, joint: &urdf_rs::Joint, index: &HashMap<String, usize>) -> Result<JointModel, UrdfError> {
         let name = &joint.name;
         let kind = match &joint.joint_type {
             urdf_rs::JointType::Revolute => JointKind::Revolute,
@@ -453,17 +438,15 @@ impl Checker<'_> {
             }
         };
         let find = |role: &str, link: &str| {
-            index.get(link).copied().ok_or_else(|| {
-                self.joint_error(name, format!("<{role} link=\"{link}\">: unknown link"))
-            })
+            index
+                .get(link)
+                .copied()
+                .ok_or_else(|| self.joint_error(name, format!("<{role} link=\"{link}\">: unknown link")))
         };
         let parent = find("parent", &joint.parent.link)?;
         let child = find("child", &joint.child.link)?;
         if parent == child {
-            return Err(self.joint_error(
-                name,
-                format!("joins link '{}' to itself (a loop)", joint.child.link),
-            ));
+            return Err(self.joint_error(name, format!("joins link '{}' to itself (a loop)", joint.child.link)));
         }
         let axis = vec3(&joint.axis.xyz);
         if kind.is_movable() && !(axis.length() > 1e-9) {
@@ -473,20 +456,15 @@ impl Checker<'_> {
         let has_limit = self.lines.joints_with_limit.iter().any(|j| j == name);
         let bounded = matches!(kind, JointKind::Revolute | JointKind::Prismatic);
         if bounded && !has_limit {
-            return Err(self.joint_error(
-                name,
-                "revolute and prismatic joints need <limit lower upper effort velocity>",
-            ));
+            return Err(
+                self.joint_error(name, "revolute and prismatic joints need <limit lower upper effort velocity>")
+            );
         }
         let (lower, upper) = (limit.lower as f32, limit.upper as f32);
         if bounded && !(lower <= upper) {
             return Err(self.joint_error(name, format!("<limit> lower {lower} > upper {upper}")));
         }
-        let (effort, velocity) = if has_limit {
-            (limit.effort as f32, limit.velocity as f32)
-        } else {
-            (0.0, 0.0)
-        };
+        let (effort, velocity) = if has_limit { (limit.effort as f32, limit.velocity as f32) } else { (0.0, 0.0) };
         if !(effort >= 0.0 && velocity >= 0.0) {
             return Err(self.joint_error(name, "<limit> effort and velocity must be non-negative"));
         }
@@ -497,11 +475,7 @@ impl Checker<'_> {
             child,
             origin: pose(&joint.origin),
             axis: axis.normalize_or(Vec3::X),
-            limits: JointLimits {
-                position: bounded.then_some([lower, upper]),
-                effort,
-                velocity,
-            },
+            limits: JointLimits { position: bounded.then_some([lower, upper]), effort, velocity },
             damping: joint.dynamics.as_ref().map_or(0.0, |d| d.damping as f32),
             friction: joint.dynamics.as_ref().map_or(0.0, |d| d.friction as f32),
         })

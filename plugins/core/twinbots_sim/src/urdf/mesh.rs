@@ -43,7 +43,8 @@ fn obj(bytes: &[u8]) -> Result<Triangles, String> {
     // Materials (.mtl) colour visuals in other viewers; the geometry is all a twin takes, so
     // they are not opened.
     let no_materials = |_: &Path| Err(tobj::LoadError::OpenFileFailed);
-    let (models, _) = tobj::load_obj_buf(&mut std::io::Cursor::new(bytes), &options, no_materials).map_err(|e| format!("not a valid OBJ: {e}"))?;
+    let (models, _) = tobj::load_obj_buf(&mut std::io::Cursor::new(bytes), &options, no_materials)
+        .map_err(|e| format!("not a valid OBJ: {e}"))?;
     let (mut vertices, mut triangles) = (Vec::new(), Vec::new());
     for model in models {
         let base = vertices.len() as u32;
@@ -59,8 +60,13 @@ fn gltf(bytes: &[u8], path: &Path) -> Result<Triangles, String> {
     let buffers: Vec<Vec<u8>> = file
         .buffers()
         .map(|b| match b.source() {
-            gltf::buffer::Source::Bin => file.blob.clone().ok_or_else(|| format!("buffer {} is the binary chunk, which the file lacks", b.index())),
-            gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => data_uri(uri).map_err(|e| format!("buffer {}: {e}", b.index())),
+            gltf::buffer::Source::Bin => file
+                .blob
+                .clone()
+                .ok_or_else(|| format!("buffer {} is the binary chunk, which the file lacks", b.index())),
+            gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
+                data_uri(uri).map_err(|e| format!("buffer {}: {e}", b.index()))
+            }
             gltf::buffer::Source::Uri(uri) => {
                 let p = dir.join(uri);
                 std::fs::read(&p).map_err(|e| format!("buffer {} ({}): {e}", b.index(), p.display()))
@@ -102,7 +108,9 @@ fn gltf_mesh(mesh: &gltf::Mesh, pose: Mat4, buffers: &[Vec<u8>], out: &mut Trian
             continue;
         }
         let reader = primitive.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
-        let positions = reader.read_positions().ok_or_else(|| format!("mesh {} has a primitive without positions", mesh.index()))?;
+        let positions = reader
+            .read_positions()
+            .ok_or_else(|| format!("mesh {} has a primitive without positions", mesh.index()))?;
         let base = out.0.len() as u32;
         out.0.extend(positions.map(|p| pose.transform_point3(Vec3::from_array(p))));
         let count = out.0.len() as u32 - base;
@@ -134,11 +142,14 @@ pub fn resolve(filename: &str, urdf_dir: &Path, package_path: &[PathBuf]) -> Res
     }
     let Some(rest) = filename.strip_prefix("package://") else {
         if let Some((scheme, _)) = filename.split_once("://") {
-            return Err(format!("mesh '{filename}': unknown URI scheme '{scheme}://' (package:// and file:// are read)"));
+            return Err(format!(
+                "mesh '{filename}': unknown URI scheme '{scheme}://' (package:// and file:// are read)"
+            ));
         }
         return Ok(urdf_dir.join(filename));
     };
-    let (package, inner) = rest.split_once('/').ok_or_else(|| format!("mesh '{filename}': package:// needs a package and a path"))?;
+    let (package, inner) =
+        rest.split_once('/').ok_or_else(|| format!("mesh '{filename}': package:// needs a package and a path"))?;
     let mut tried = Vec::new();
     let candidates = package_path
         .iter()
@@ -151,7 +162,10 @@ pub fn resolve(filename: &str, urdf_dir: &Path, package_path: &[PathBuf]) -> Res
         }
         tried.push(candidate.display().to_string());
     }
-    Err(format!("mesh '{filename}' not found; looked at {} (TWINBOTS_PACKAGE_PATH and ROS_PACKAGE_PATH add places)", tried.join(", ")))
+    Err(format!(
+        "mesh '{filename}' not found; looked at {} (TWINBOTS_PACKAGE_PATH and ROS_PACKAGE_PATH add places)",
+        tried.join(", ")
+    ))
 }
 
 /// The package search path from the environment: `TWINBOTS_PACKAGE_PATH`, then
@@ -187,8 +201,14 @@ mod tests {
         std::fs::create_dir_all(root.join("src/cell_description/meshes")).unwrap();
         std::fs::write(root.join("src/cell_description/meshes/b.obj"), "x").unwrap();
         let path = [share.clone()];
-        assert_eq!(resolve("package://arm_description/meshes/a.stl", &own, &path).unwrap(), share.join("arm_description/meshes/a.stl"));
-        assert_eq!(resolve("package://cell_description/meshes/b.obj", &own, &[]).unwrap(), root.join("src/cell_description/meshes/b.obj"));
+        assert_eq!(
+            resolve("package://arm_description/meshes/a.stl", &own, &path).unwrap(),
+            share.join("arm_description/meshes/a.stl")
+        );
+        assert_eq!(
+            resolve("package://cell_description/meshes/b.obj", &own, &[]).unwrap(),
+            root.join("src/cell_description/meshes/b.obj")
+        );
         let e = resolve("package://arm_description/meshes/a.stl", &own, &[]).unwrap_err();
         assert!(e.contains("not found; looked at") && e.contains("TWINBOTS_PACKAGE_PATH"), "{e}");
         let e = resolve("http://example.com/a.stl", &own, &path).unwrap_err();
@@ -211,7 +231,11 @@ mod tests {
         assert!(read(&other).unwrap_err().contains("not a mesh format twinbots reads"));
         // A tetrahedron in a .gltf with an inline buffer, its node lifted 2 m.
         use base64::Engine;
-        let mut bin: Vec<u8> = [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]].iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+        let mut bin: Vec<u8> = [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+            .iter()
+            .flatten()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
         bin.extend([0u16, 1, 2, 0, 1, 3, 0, 2, 3, 1, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
         let data = base64::engine::general_purpose::STANDARD.encode(&bin);
         let json = format!(

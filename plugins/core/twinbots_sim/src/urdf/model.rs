@@ -74,9 +74,10 @@ impl Shape {
         use crate::rapier::parry::shape::SharedShape;
         Some(match self {
             Shape::Box { half_extents: h } => (SharedShape::cuboid(h.x, h.y, h.z), Pose::IDENTITY),
-            Shape::Cylinder { radius, length } => {
-                (SharedShape::cylinder(length / 2.0, *radius), Pose::from_rotation(bevy::math::Quat::from_rotation_x(std::f32::consts::FRAC_PI_2)))
-            }
+            Shape::Cylinder { radius, length } => (
+                SharedShape::cylinder(length / 2.0, *radius),
+                Pose::from_rotation(bevy::math::Quat::from_rotation_x(std::f32::consts::FRAC_PI_2)),
+            ),
             Shape::Sphere { radius } => (SharedShape::ball(*radius), Pose::IDENTITY),
             Shape::Mesh(mesh) => (SharedShape::convex_hull(&mesh.vertices)?, Pose::IDENTITY),
         })
@@ -147,7 +148,9 @@ impl JointModel {
         let motion = match self.kind {
             JointKind::Fixed => Pose::IDENTITY,
             JointKind::Prismatic => Pose::from_translation(self.axis * q),
-            JointKind::Revolute | JointKind::Continuous => Pose::from_rotation(bevy::math::Quat::from_axis_angle(self.axis, q)),
+            JointKind::Revolute | JointKind::Continuous => {
+                Pose::from_rotation(bevy::math::Quat::from_axis_angle(self.axis, q))
+            }
         };
         self.origin * motion
     }

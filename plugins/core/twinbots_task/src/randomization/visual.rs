@@ -102,15 +102,34 @@ impl VisualRandomization {
             Ok(())
         };
         let plus_minus = |k: &str, v: f32, max: f32, unit: &str| {
-            anyhow::ensure!(v.is_finite() && (0.0..max).contains(&v), "{} = {v}: must be a finite ± {unit} in [0, {max})", key(k));
+            anyhow::ensure!(
+                v.is_finite() && (0.0..max).contains(&v),
+                "{} = {v}: must be a finite ± {unit} in [0, {max})",
+                key(k)
+            );
             Ok(())
         };
         for s in &self.surfaces {
-            anyhow::ensure!(SURFACE_GROUPS.contains(&s.as_str()), "{}: unknown surface '{s}'; surfaces: {}", key("surfaces"), SURFACE_GROUPS.join(", "));
+            anyhow::ensure!(
+                SURFACE_GROUPS.contains(&s.as_str()),
+                "{}: unknown surface '{s}'; surfaces: {}",
+                key("surfaces"),
+                SURFACE_GROUPS.join(", ")
+            );
         }
-        anyhow::ensure!(!self.textures.is_empty(), "{}: name at least one of {}", key("textures"), TEXTURE_KINDS.join(", "));
+        anyhow::ensure!(
+            !self.textures.is_empty(),
+            "{}: name at least one of {}",
+            key("textures"),
+            TEXTURE_KINDS.join(", ")
+        );
         for t in &self.textures {
-            anyhow::ensure!(TEXTURE_KINDS.contains(&t.as_str()), "{}: unknown texture '{t}'; textures: {}", key("textures"), TEXTURE_KINDS.join(", "));
+            anyhow::ensure!(
+                TEXTURE_KINDS.contains(&t.as_str()),
+                "{}: unknown texture '{t}'; textures: {}",
+                key("textures"),
+                TEXTURE_KINDS.join(", ")
+            );
         }
         let wants_images = self.textures.iter().any(|t| t == "image");
         anyhow::ensure!(
@@ -121,9 +140,11 @@ impl VisualRandomization {
             self.images.len()
         );
         for (i, path) in self.images.iter().enumerate() {
-            let bytes = std::fs::read(path).map_err(|e| anyhow::anyhow!("{}[{i}] = '{}': {e}", key("images"), path.display()))?;
-            image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
-                .map_err(|e| anyhow::anyhow!("{}[{i}] = '{}': not a PNG image this can read: {e}", key("images"), path.display()))?;
+            let bytes = std::fs::read(path)
+                .map_err(|e| anyhow::anyhow!("{}[{i}] = '{}': {e}", key("images"), path.display()))?;
+            image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| {
+                anyhow::anyhow!("{}[{i}] = '{}': not a PNG image this can read: {e}", key("images"), path.display())
+            })?;
         }
         range("texture_size", self.texture_size, 1e-3, 100.0)?;
         range("saturation", self.saturation, 0.0, 1.0)?;
@@ -150,7 +171,11 @@ impl VisualRandomization {
         // Any field of view must stay inside (0°, 180°): a jitter of 90° or more could leave it.
         plus_minus("field_of_view", self.field_of_view, 90.0, "degrees")?;
         let [lo, hi] = self.distractors;
-        anyhow::ensure!(lo <= hi && hi <= 100, "{} = [{lo}, {hi}]: must be ordered and at most 100", key("distractors"));
+        anyhow::ensure!(
+            lo <= hi && hi <= 100,
+            "{} = [{lo}, {hi}]: must be ordered and at most 100",
+            key("distractors")
+        );
         range("distractor_size", self.distractor_size, 1e-3, 1.0)?;
         Ok(())
     }
@@ -289,7 +314,8 @@ fn drawn_over<'a>(
     arena: &Arena,
     links: impl Iterator<Item = (Entity, &'a Link, &'a Visuals, &'a InArena)>,
 ) -> (Vec<(String, usize)>, Vec<(Vec3, Vec3)>) {
-    let own: Vec<(Entity, &Link, &Visuals)> = links.filter(|(_, _, _, a)| a.0 == entity).map(|(e, l, v, _)| (e, l, v)).collect();
+    let own: Vec<(Entity, &Link, &Visuals)> =
+        links.filter(|(_, _, _, a)| a.0 == entity).map(|(e, l, v, _)| (e, l, v)).collect();
     let names = Look::link_names(own.iter().map(|(e, l, _)| (*e, l.name.as_str())));
     let counts: std::collections::HashMap<Entity, usize> = own.iter().map(|(e, _, v)| (*e, v.0.len())).collect();
     let mut own: Vec<(String, usize)> = names.into_iter().map(|(e, name)| (name, counts[&e])).collect();

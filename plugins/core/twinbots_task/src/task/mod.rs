@@ -14,7 +14,9 @@ use bevy::ecs::schedule::ScheduleLabel;
 use bevy::prelude::*;
 use twinbots_sim::{Arena, ArenaConfig, SimSet, SimSettings, Supervisor};
 
-pub use twinbots_api::{DesignPattern, EpisodeSummary, GoalChange, GoalSpec, Measure, SolvedCriterion, Space, TaskSpec};
+pub use twinbots_api::{
+    DesignPattern, EpisodeSummary, GoalChange, GoalSpec, Measure, SolvedCriterion, Space, TaskSpec,
+};
 
 pub mod record;
 pub mod terms;
@@ -138,7 +140,15 @@ impl Plugin for TaskPlugin {
             .add_schedule(Schedule::new(EnvReset))
             .configure_sets(
                 EnvReset,
-                (ResetSet::Restore, ResetSet::Start, ResetSet::Place, ResetSet::Sense, ResetSet::Read, ResetSet::Observe).chain(),
+                (
+                    ResetSet::Restore,
+                    ResetSet::Start,
+                    ResetSet::Place,
+                    ResetSet::Sense,
+                    ResetSet::Read,
+                    ResetSet::Observe,
+                )
+                    .chain(),
             )
             .add_systems(
                 EnvReset,
@@ -212,7 +222,10 @@ impl<S: Component<Mutability = Mutable>> Plugin for TaskTermsPlugin<S> {
             }
             app.insert_resource(RewardTermNames(spec.reward_terms.clone()))
                 .add_systems(Update, evaluate_terms::<S>.in_set(TaskSet::Evaluate))
-                .add_systems(EnvReset, (start_episodes::<S>.in_set(ResetSet::Start), observe_terms::<S>.in_set(ResetSet::Observe)));
+                .add_systems(
+                    EnvReset,
+                    (start_episodes::<S>.in_set(ResetSet::Start), observe_terms::<S>.in_set(ResetSet::Observe)),
+                );
         }
         app.insert_resource(ActiveTask(spec)).insert_resource(Terms(task.terms));
     }
@@ -237,7 +250,10 @@ fn evaluate_terms<S: Component>(terms: Res<Terms<S>>, mut arenas: Query<(&S, &mu
     }
 }
 
-fn start_episodes<S: Component<Mutability = Mutable>>(terms: Res<Terms<S>>, mut arenas: Query<(&mut S, &mut Arena), With<Resetting>>) {
+fn start_episodes<S: Component<Mutability = Mutable>>(
+    terms: Res<Terms<S>>,
+    mut arenas: Query<(&mut S, &mut Arena), With<Resetting>>,
+) {
     for (mut state, mut arena) in &mut arenas {
         terms.0.start(&mut state, &mut arena.rng);
     }

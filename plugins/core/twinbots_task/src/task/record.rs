@@ -24,4 +24,3 @@ pub fn record_actions(world: &mut World, arena: Entity, actions: &[f32]) {
         record.actions.extend_from_slice(actions);
     }
 }
-

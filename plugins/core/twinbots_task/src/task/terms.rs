@@ -120,7 +120,13 @@ pub struct TaskTerms<S> {
 
 impl<S> Default for TaskTerms<S> {
     fn default() -> Self {
-        Self { observations: Vec::new(), rewards: Vec::new(), terminations: Vec::new(), time_limit: None, start_events: Vec::new() }
+        Self {
+            observations: Vec::new(),
+            rewards: Vec::new(),
+            terminations: Vec::new(),
+            time_limit: None,
+            start_events: Vec::new(),
+        }
     }
 }
 
@@ -174,7 +180,9 @@ impl<S> TaskTerms<S> {
     pub fn observation_names(&self) -> Vec<String> {
         self.observations
             .iter()
-            .flat_map(|t| (0..t.size).map(move |i| if t.size == 1 { t.name.to_string() } else { format!("{}[{i}]", t.name) }))
+            .flat_map(|t| {
+                (0..t.size).map(move |i| if t.size == 1 { t.name.to_string() } else { format!("{}[{i}]", t.name) })
+            })
             .collect()
     }
 
@@ -269,12 +277,21 @@ mod tests {
         TaskTerms {
             observations: vec![
                 ObservationTerm::scalar("x", |s: &Cart| s.x).plausible(-5.0, 5.0),
-                ObservationTerm::new("angle_twice", 2, |s: &Cart, out: &mut Vec<f32>| out.extend([s.angle, s.angle])).bounded(-1.0, 1.0),
+                ObservationTerm::new("angle_twice", 2, |s: &Cart, out: &mut Vec<f32>| out.extend([s.angle, s.angle]))
+                    .bounded(-1.0, 1.0),
             ],
-            rewards: vec![RewardTerm::new("alive", 1.0, |_| 1.0), RewardTerm::new("angle", -2.0, |s: &Cart| s.angle.abs())],
-            terminations: vec![TerminationTerm::new("fallen", |s: &Cart| s.angle.abs() > 0.5), TerminationTerm::goal("home", |s: &Cart| s.x == 0.0)],
+            rewards: vec![
+                RewardTerm::new("alive", 1.0, |_| 1.0),
+                RewardTerm::new("angle", -2.0, |s: &Cart| s.angle.abs()),
+            ],
+            terminations: vec![
+                TerminationTerm::new("fallen", |s: &Cart| s.angle.abs() > 0.5),
+                TerminationTerm::goal("home", |s: &Cart| s.x == 0.0),
+            ],
             time_limit: Some(3),
-            start_events: vec![StartEvent::new("tilt", |s: &mut Cart, rng: &mut ChaCha8Rng| s.tilt = rand::Rng::random_range(rng, -0.1..0.1))],
+            start_events: vec![StartEvent::new("tilt", |s: &mut Cart, rng: &mut ChaCha8Rng| {
+                s.tilt = rand::Rng::random_range(rng, -0.1..0.1)
+            })],
         }
     }
 
@@ -286,8 +303,15 @@ mod tests {
         assert_eq!(obs, vec![0.3, 0.2, 0.2]);
         assert_eq!(t.observation_dim(), 3);
         assert_eq!(t.observation_names(), vec!["x", "angle_twice[0]", "angle_twice[1]"]);
-        assert_eq!(t.observation_space(), Space::Box { low: vec![f32::NEG_INFINITY, -1.0, -1.0], high: vec![f32::INFINITY, 1.0, 1.0] });
-        assert_eq!(t.observation_plausible(), Space::Box { low: vec![-5.0, -1.0, -1.0], high: vec![5.0, 1.0, 1.0] }, "declared, else the bounds");
+        assert_eq!(
+            t.observation_space(),
+            Space::Box { low: vec![f32::NEG_INFINITY, -1.0, -1.0], high: vec![f32::INFINITY, 1.0, 1.0] }
+        );
+        assert_eq!(
+            t.observation_plausible(),
+            Space::Box { low: vec![-5.0, -1.0, -1.0], high: vec![5.0, 1.0, 1.0] },
+            "declared, else the bounds"
+        );
     }
 
     #[test]
@@ -326,7 +350,11 @@ mod tests {
         let home = t.evaluate(&Cart { x: 0.0, angle: 0.0, tilt: 0.0 }, 0, &mut sums);
         assert_eq!((home.terminated, home.success), (true, Some(true)));
         let third = t.evaluate(&Cart { x: 0.3, angle: 0.0, tilt: 0.0 }, 2, &mut sums);
-        assert_eq!((third.terminated, third.truncated, third.success), (false, true, Some(false)), "the third step hits the limit of 3");
+        assert_eq!(
+            (third.terminated, third.truncated, third.success),
+            (false, true, Some(false)),
+            "the third step hits the limit of 3"
+        );
         let second = t.evaluate(&Cart { x: 0.3, angle: 0.0, tilt: 0.0 }, 1, &mut sums);
         assert!(!second.truncated);
     }
