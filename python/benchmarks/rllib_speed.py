@@ -32,7 +32,8 @@ def sampling_rate(env_runners: int, steps: int) -> float:
     group = algo.env_runner_group
     group.foreach_env_runner(lambda r: len(r.sample(num_timesteps=256)), local_env_runner=False)  # warm-up
     start = time.perf_counter()
-    counts = group.foreach_env_runner(lambda r: sum(len(e) for e in r.sample(num_timesteps=steps)), local_env_runner=False)
+    counts = group.foreach_env_runner(lambda r: sum(len(e) for e in r.sample(num_timesteps=steps)),
+                                      local_env_runner=False)
     elapsed = time.perf_counter() - start
     algo.stop()
     return sum(counts) / elapsed
@@ -43,7 +44,8 @@ def main() -> None:
     p.add_argument("--sample-steps", type=int, default=8192)
     p.add_argument("--skip-training", action="store_true")
     a = p.parse_args()
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR, runtime_env=RUNNER_ENV)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
+             runtime_env=RUNNER_ENV)
     for runners in (1, 2):
         rate = sampling_rate(runners, a.sample_steps // runners)
         print(f"sampling, {runners} env runner(s) × {8 // runners} arenas: {rate:.0f} env steps/s", flush=True)
@@ -54,11 +56,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         run = train(TrainArgs("cartpole", env_runners=2, envs_per_runner=4, timesteps=2_000_000, out=f"{tmp}/rllib"))
         s = json.loads((run / "rllib_summary.json").read_text())
-        print(f"RLlib PPO (2 env runners × 4 arenas): {s['ended']} after {s['timesteps']} steps, {s['wall_clock_s']:.1f} s", flush=True)
+        print(f"RLlib PPO (2 env runners × 4 arenas): {s['ended']} after {s['timesteps']} steps, "
+              f"{s['wall_clock_s']:.1f} s", flush=True)
 
         binary = os.environ.get("TWINBOTS_BIN", str(Path(__file__).resolve().parents[2] / "target/release/twinbots"))
         start = time.perf_counter()
-        out = subprocess.run([binary, "train", "cartpole", "--out", f"{tmp}/twinbots"], capture_output=True, text=True, check=True)
+        out = subprocess.run([binary, "train", "cartpole", "--out", f"{tmp}/twinbots"],
+                             capture_output=True, text=True, check=True)
         wall = time.perf_counter() - start
         solved = re.search(r"solved \(.*\) after (\d+) steps in ([\d.]+) s", out.stdout + out.stderr)
         steps = solved.group(1) if solved else "?"

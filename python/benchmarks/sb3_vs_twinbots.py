@@ -49,14 +49,16 @@ def twinbots(binary: str, seed: int, timesteps: int) -> dict:
     with tempfile.TemporaryDirectory() as out:
         run = Path(out) / "run"
         start = time.perf_counter()
-        done = subprocess.run([binary, "train", "cartpole", "--seed", str(seed), "--timesteps", str(timesteps), "--out", str(run)],
+        done = subprocess.run([binary, "train", "cartpole", "--seed", str(seed), "--timesteps", str(timesteps),
+                               "--out", str(run)],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         wall = time.perf_counter() - start
         if done.returncode != 0:
             raise SystemExit(f"twinbots train failed:\n{done.stdout}")
         summary = json.loads((run / "summary.json").read_text())
-    return {"solved": summary["solved"], "steps": summary["solved_at_timesteps"] or summary["timesteps"], "wall_s": wall,
-            "training_s": summary["wall_clock_s_this_session"], "mean_last_100": summary["mean_reward_last_100"]}
+    return {"solved": summary["solved"], "steps": summary["solved_at_timesteps"] or summary["timesteps"],
+            "wall_s": wall, "training_s": summary["wall_clock_s_this_session"],
+            "mean_last_100": summary["mean_reward_last_100"]}
 
 
 def main():
@@ -71,12 +73,14 @@ def main():
 
     print(f"twinbots train cartpole (seed {args.seed}) ...", flush=True)
     ours = twinbots(binary, args.seed, args.timesteps)
-    print(f"Stable-Baselines3 PPO on twinbots.sb3.make_vec_env('cartpole', n_envs=8) (seed {args.seed}) ...", flush=True)
+    print(f"Stable-Baselines3 PPO on twinbots.sb3.make_vec_env('cartpole', n_envs=8) (seed {args.seed}) ...",
+          flush=True)
     theirs = sb3(args.seed, args.timesteps)
 
     def line(name, r):
         state = "solved" if r["solved"] else "NOT solved"
-        return f"{name:<24} {state:<10} {r['steps']:>9} steps {r['wall_s']:>8.1f} s wall   last-100 mean {r['mean_last_100']:.1f}"
+        return (f"{name:<24} {state:<10} {r['steps']:>9} steps {r['wall_s']:>8.1f} s wall   "
+                f"last-100 mean {r['mean_last_100']:.1f}")
 
     print(line("twinbots train", ours) + f"   (training {ours['training_s']:.1f} s of it)")
     print(line("SB3 PPO via twinbots.sb3", theirs) + f"   (torch threads {theirs['threads']})")

@@ -83,12 +83,14 @@ def mujoco_steps_per_second(num_envs: int, steps: int) -> float | None:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=2000, help="vectorised steps per side at 8 envs (fewer at more envs)")
+    parser.add_argument("--steps", type=int, default=2000,
+                        help="vectorised steps per side at 8 envs (fewer at more envs)")
     parser.add_argument("--envs", type=int, nargs="+", default=[1, 8, 64])
     parser.add_argument("--block", type=int, default=20, help="vectorised steps per turn")
     args = parser.parse_args()
 
-    print(f"{'envs':>5} {'Rust loop':>12} {'Python VectorEnv':>17} {'overhead':>9} {'block pairs (quartiles)':>24} {'MuJoCo InvPendulum-v5':>22}")
+    print(f"{'envs':>5} {'Rust loop':>12} {'Python VectorEnv':>17} {'overhead':>9} "
+          f"{'block pairs (quartiles)':>24} {'MuJoCo InvPendulum-v5':>22}")
     for n in args.envs:
         steps = max(20 * args.block, args.steps // max(1, n // 8))  # about the same wall time per row
         rng = np.random.default_rng(0)
@@ -97,7 +99,8 @@ def main():
         mujoco = mujoco_steps_per_second(n, steps)
         mj = f"{mujoco:>22,.0f}" if mujoco else f"{'-':>22}"
         q1, q2, q3 = statistics.quantiles(overheads, n=4)
-        print(f"{n:>5} {rust:>12,.0f} {python:>17,.0f} {100.0 * (1.0 - python / rust):>8.1f}% {f'{q1:.1f} / {q2:.1f} / {q3:.1f}%':>24} {mj}")
+        quartiles = f"{q1:.1f} / {q2:.1f} / {q3:.1f}%"
+        print(f"{n:>5} {rust:>12,.0f} {python:>17,.0f} {100.0 * (1.0 - python / rust):>8.1f}% {quartiles:>24} {mj}")
 
 
 if __name__ == "__main__":

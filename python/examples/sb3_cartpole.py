@@ -34,7 +34,8 @@ class StopWhenSolved(BaseCallback):
                 self.scores.append(info["episode"]["r"])
                 self.episodes += 1
                 if self.episodes % 50 == 0:
-                    print(f"{self.num_timesteps:>9} steps, {self.episodes:>5} episodes: last-100 mean {np.mean(self.scores):7.1f}", flush=True)
+                    print(f"{self.num_timesteps:>9} steps, {self.episodes:>5} episodes: "
+                          f"last-100 mean {np.mean(self.scores):7.1f}", flush=True)
         return not (len(self.scores) == 100 and np.mean(self.scores) > SOLVED)
 
 

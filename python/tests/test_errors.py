@@ -1,8 +1,8 @@
 """Mistakes come back as Python exceptions that say what is wrong, never a crash."""
 
+import gymnasium as gym
 import numpy as np
 import pytest
-import gymnasium as gym
 
 import twinbots
 

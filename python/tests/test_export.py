@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 import twinbots
-
 from test_policy import cli
 
 ort = pytest.importorskip("onnxruntime")
@@ -99,8 +98,10 @@ def keypoints_run(tmp_path_factory):
     base = tmp_path_factory.mktemp("export")
     config = base / "keypoints.toml"
     config.write_text("timesteps = 128\narenas = 2\neval_episodes = 2\n"
-                      "[pixels]\ncamera = \"iso\"\nwidth = 48\nheight = 40\nstate = [\"joint_positions\", \"tcp_position\"]\n"
-                      "[ppo]\npolicy = \"keypoints\"\nshare_features_extractor = false\nnormalize_observations = false\n"
+                      "[pixels]\ncamera = \"iso\"\nwidth = 48\nheight = 40\n"
+                      "state = [\"joint_positions\", \"tcp_position\"]\n"
+                      "[ppo]\npolicy = \"keypoints\"\nshare_features_extractor = false\n"
+                      "normalize_observations = false\n"
                       "n_steps = 64\nbatch_size = 64\n")
     return train(base / "ur5e-keypoints", "ur5e", "--config", str(config))
 

@@ -98,7 +98,8 @@ def test_log_written_by_the_mcap_packages_replays_and_identifies(tmp_path):
         # only, so the JSON channel goes through the mcap writer underneath it.
         raw = writer._writer
         command_schema = raw.register_schema(name="twinbots/JointCommand", encoding="jsonschema", data=b"{}")
-        commands = raw.register_channel(topic="/twinbots/joint_commands", message_encoding="json", schema_id=command_schema)
+        commands = raw.register_channel(topic="/twinbots/joint_commands", message_encoding="json",
+                                        schema_id=command_schema)
         writer.add_metadata("twinbots", {"robot": "ur5e", "source": "mcap-ros2-support test"})
         for seq, line in enumerate(rows[1:]):
             cells = line.split(",")
@@ -109,7 +110,10 @@ def test_log_written_by_the_mcap_packages_replays_and_identifies(tmp_path):
                     "/joint_states",
                     schema,
                     {
-                        "header": {"stamp": {"sec": start + int(t), "nanosec": int(round((t - int(t)) * 1e9))}, "frame_id": ""},
+                        "header": {
+                            "stamp": {"sec": start + int(t), "nanosec": int(round((t - int(t)) * 1e9))},
+                            "frame_id": "",
+                        },
                         "name": UR5E_JOINTS,
                         "position": [float(cells[col[f"{j}.position"]]) for j in UR5E_JOINTS],
                         "velocity": [float(cells[col[f"{j}.velocity"]]) for j in UR5E_JOINTS],
@@ -125,7 +129,8 @@ def test_log_written_by_the_mcap_packages_replays_and_identifies(tmp_path):
                     "mode": ["velocity"] * 6,
                     "value": [float(cells[col[f"{j}.command"]]) for j in UR5E_JOINTS],
                 }
-                raw.add_message(channel_id=commands, log_time=ns, publish_time=ns, sequence=seq, data=json.dumps(message).encode())
+                raw.add_message(channel_id=commands, log_time=ns, publish_time=ns, sequence=seq,
+                                data=json.dumps(message).encode())
         writer.finish()
 
     replay = run("replay", "ur5e", str(log), "--out", str(tmp_path / "replay"))
@@ -133,7 +138,8 @@ def test_log_written_by_the_mcap_packages_replays_and_identifies(tmp_path):
     out = tmp_path / "cal"
     run("identify", "ur5e", str(log), "--params", "command_delay", "--generations", "6", "--out", str(out))
     text = (out / "calibration.toml").read_text()
-    delay = next(float(line.split("=")[1].split("#")[0]) for line in text.splitlines() if line.startswith('"command_delay"'))
+    delay = next(float(line.split("=")[1].split("#")[0])
+                 for line in text.splitlines() if line.startswith('"command_delay"'))
     assert delay == pytest.approx(0.012, abs=0.004)
 
 

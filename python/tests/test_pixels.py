@@ -79,12 +79,15 @@ def test_more_cameras_lie_side_by_side_along_the_width():
         ({"obs": "state", "pixels": {"frames": 2}}, "pass obs='pixels'"),
         ({"obs": "pixels", "pixels": {"width": 0}}, "pixels.width = 0"),
         ({"obs": "pixels", "pixels": {"frames": 9}}, "pixels.frames = 9"),
-        ({"obs": "pixels", "pixels": {"camera": "ceiling"}}, "pixels.camera = \"ceiling\": must be one of side, front, iso, top"),
-        ({"obs": "pixels", "pixels": {"more_cameras": ["front", "front"]}}, "pixels.more_cameras: \"front\" is named twice"),
+        ({"obs": "pixels", "pixels": {"camera": "ceiling"}},
+         "pixels.camera = \"ceiling\": must be one of side, front, iso, top"),
+        ({"obs": "pixels", "pixels": {"more_cameras": ["front", "front"]}},
+         "pixels.more_cameras: \"front\" is named twice"),
         ({"obs": "pixels", "pixels": {"colour": 3}}, "unknown field `colour`"),
         ({"obs": "pixels", "pixels": {"fov": 180}}, "pixels.fov = 180: must be in (0, 180) degrees"),
         ({"obs": "pixels", "pixels": {"fov": -5.0}}, "pixels.fov = -5: must be in (0, 180) degrees"),
-        ({"obs": "pixels", "pixels": {"state": ["wrist"]}}, "pixels.state: the task cartpole observes no 'wrist'; its terms: "),
+        ({"obs": "pixels", "pixels": {"state": ["wrist"]}},
+         "pixels.state: the task cartpole observes no 'wrist'; its terms: "),
     ],
 )
 def test_bad_pixel_settings_name_the_key(kwargs, message):
@@ -141,7 +144,7 @@ def test_an_image_and_the_arms_own_state_are_a_dict_observation_sb3s_multi_input
     # One env through a whole (100-step) reach: the ended episode's last observation is a dict too.
     env = _pixel_envs("ur5e", make=twinbots.make, seed=1, pixels=pixels)
     obs, _ = env.reset(seed=1)
-    for t in range(100):
+    for _ in range(100):
         obs, _, terminated, truncated, _ = env.step(np.zeros(5, np.float32))
         assert obs["image"].shape == (40, 40, 3) and obs["state"].shape == (12,)
         if terminated or truncated:

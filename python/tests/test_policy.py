@@ -25,7 +25,8 @@ def run_dir(tmp_path_factory):
     if exe is None:
         pytest.skip("no twinbots CLI (set TWINBOTS_BIN) to train a model with")
     out = tmp_path_factory.mktemp("run") / "cartpole"
-    subprocess.run([exe, "train", "cartpole", "--timesteps", "4096", "--arenas", "4", "--seed", "11", "--out", str(out)],
+    subprocess.run([exe, "train", "cartpole", "--timesteps", "4096", "--arenas", "4", "--seed", "11",
+                    "--out", str(out)],
                    check=True, capture_output=True)
     return out
 
@@ -76,9 +77,11 @@ def test_a_sac_run_loads_and_a_damaged_newest_checkpoint_is_passed_over_as_eval_
     if exe is None:
         pytest.skip("no twinbots CLI (set TWINBOTS_BIN) to train a model with")
     config = tmp_path / "sac.toml"
-    config.write_text("eval_episodes = 2\ncheckpoint_every = 1\n[sac]\nlearning_starts = 100\nlog_interval = 100\nbatch_size = 32\n")
+    config.write_text("eval_episodes = 2\ncheckpoint_every = 1\n"
+                      "[sac]\nlearning_starts = 100\nlog_interval = 100\nbatch_size = 32\n")
     run = tmp_path / "run"
-    subprocess.run([exe, "train", "ur5e", "--algo", "sac", "--timesteps", "300", "--arenas", "1", "--config", str(config), "--out", str(run)],
+    subprocess.run([exe, "train", "ur5e", "--algo", "sac", "--timesteps", "300", "--arenas", "1",
+                    "--config", str(config), "--out", str(run)],
                    check=True, capture_output=True)
     checkpoints = sorted((run / "checkpoints").iterdir())
     assert len(checkpoints) >= 2, checkpoints

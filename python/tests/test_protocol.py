@@ -67,7 +67,8 @@ def tls_server(tmp_path):
 
 
 def robot_hello(token):
-    spaces = json.loads(subprocess.run([twinbots_bin(), "robots", "--json"], capture_output=True, check=True, text=True).stdout)
+    robots = subprocess.run([twinbots_bin(), "robots", "--json"], capture_output=True, check=True, text=True)
+    spaces = json.loads(robots.stdout)
     task = next(r for r in spaces["robots"] if r["name"] == "cartpole")["tasks"][0]
     return {"type": "hello", "version": 2, "robot": "cartpole", "observation_space": task["observation_space"],
             "action_space": task["action_space"], "token": token}
@@ -80,26 +81,32 @@ def test_an_openssl_client_talks_to_a_tls_server(tls_server):
         send(sock, robot_hello("s3cret"))
         welcome = receive(sock)
         assert welcome["type"] == "welcome" and welcome["version"] == 2, welcome
-        assert welcome["task"]["observation_plausible"]["Box"]["high"] == [5.0, 20.0, pytest.approx(3.14159265, rel=1e-6), 100.0]
+        high = welcome["task"]["observation_plausible"]["Box"]["high"]
+        assert high == [5.0, 20.0, pytest.approx(3.14159265, rel=1e-6), 100.0]
         assert welcome["task"]["control_period_s"] == 0.032, welcome["task"]
         send(sock, {"type": "start", "obs": [0.0, 0.0, 0.01, 0.0]})
         action = receive(sock)
         assert action["type"] == "action" and action["action"][0] in (0.0, 1.0), action
         # A faulty reading: refused, named, and the connection goes on.
-        send(sock, {"type": "step", "obs": [0.0, 0.0, 1e6, 0.0], "reward": 1.0, "terminated": False, "truncated": False})
+        send(sock, {"type": "step", "obs": [0.0, 0.0, 1e6, 0.0], "reward": 1.0,
+                    "terminated": False, "truncated": False})
         refused = receive(sock)
-        assert refused["type"] == "error" and refused["code"] == "observation_out_of_range" and not refused["fatal"], refused
+        assert (refused["type"] == "error" and refused["code"] == "observation_out_of_range"
+                and not refused["fatal"]), refused
         assert "pole_angle" in refused["message"]
-        send(sock, {"type": "step", "obs": [0.0, 0.0, 0.02, 0.0], "reward": 1.0, "terminated": False, "truncated": False})
+        send(sock, {"type": "step", "obs": [0.0, 0.0, 0.02, 0.0], "reward": 1.0,
+                    "terminated": False, "truncated": False})
         assert receive(sock)["type"] == "action"
         # `ended_by` names one of the task's termination terms, and only on a terminal step.
         terms = welcome["task"]["termination_terms"]
         assert "pole_fallen" in terms, welcome["task"]
-        send(sock, {"type": "step", "obs": [0.0, 0.0, 0.3, 0.0], "reward": 1.0, "terminated": True, "truncated": False, "ended_by": "tipped_over"})
+        send(sock, {"type": "step", "obs": [0.0, 0.0, 0.3, 0.0], "reward": 1.0,
+                    "terminated": True, "truncated": False, "ended_by": "tipped_over"})
         refused = receive(sock)
         assert refused["type"] == "error" and refused["code"] == "unknown_termination" and not refused["fatal"], refused
         assert "pole_fallen" in refused["message"], refused
-        send(sock, {"type": "step", "obs": [0.0, 0.0, 0.3, 0.0], "reward": 1.0, "terminated": True, "truncated": False, "ended_by": "pole_fallen"})
+        send(sock, {"type": "step", "obs": [0.0, 0.0, 0.3, 0.0], "reward": 1.0,
+                    "terminated": True, "truncated": False, "ended_by": "pole_fallen"})
         assert receive(sock)["type"] == "ack"
         send(sock, {"type": "bye"})
 

@@ -4,9 +4,9 @@ import os
 import warnings
 
 import gymnasium as gym
-from gymnasium.utils.env_checker import check_env as gymnasium_check_env
 import numpy as np
 import pytest
+from gymnasium.utils.env_checker import check_env as gymnasium_check_env
 
 import twinbots
 

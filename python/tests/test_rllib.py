@@ -62,6 +62,7 @@ def test_two_env_runners_sample_the_twin_and_the_mean_return_rises(local_ray, tm
         # Handover: the RLlib policy saved as a twinbots model acts like RLlib's module.
         import numpy as np
         import torch
+
         import twinbots
 
         run = tmp_path / "handover"
@@ -81,9 +82,10 @@ def test_two_env_runners_sample_the_twin_and_the_mean_return_rises(local_ray, tm
 def test_the_command_writes_a_run_that_twinbots_eval_reads(tmp_path):
     run = tmp_path / "run"
     # Starts (and stops) its own local Ray: the fixture's is not running in this test.
-    assert rllib_main(["train", "cartpole", "--env-runners", "2", "--envs-per-runner", "4", "--timesteps", "3000", "--out", str(run)]) == 0
-    for name in ("config.toml", "progress.csv", "learning_curve.png", "model/model.json", "model/model.safetensors", "rllib_checkpoint",
-                 "rllib_summary.json", "eval.json", "summary.json"):
+    assert rllib_main(["train", "cartpole", "--env-runners", "2", "--envs-per-runner", "4", "--timesteps", "3000",
+                       "--out", str(run)]) == 0
+    for name in ("config.toml", "progress.csv", "learning_curve.png", "model/model.json", "model/model.safetensors",
+                 "rllib_checkpoint", "rllib_summary.json", "eval.json", "summary.json"):
         assert (run / name).exists(), name
     # Ended as every twinbots run ends (`twinbots::run::finish`): the final model evaluated.
     evaluation = json.loads((run / "eval.json").read_text())
@@ -102,7 +104,8 @@ def test_the_command_writes_a_run_that_twinbots_eval_reads(tmp_path):
 
 def test_a_run_resumes_from_its_checkpoint_with_its_rows_cut_back_to_it(tmp_path):
     run = tmp_path / "run"
-    train = ["train", "cartpole", "--env-runners", "1", "--envs-per-runner", "4", "--checkpoint-every", "2", "--out", str(run)]
+    train = ["train", "cartpole", "--env-runners", "1", "--envs-per-runner", "4", "--checkpoint-every", "2",
+             "--out", str(run)]
     assert rllib_main(train + ["--timesteps", "2000"]) == 0
     state = json.loads((run / "rllib_checkpoint" / "twinbots_state.json").read_text())
     before = (run / "progress.csv").read_text().splitlines()

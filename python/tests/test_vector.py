@@ -134,8 +134,10 @@ def test_infos_match_gymnasiums_own_layout():
     from twinbots._infos import episode_info, vector_infos
 
     ended = [
-        (1, np.ones(3, np.float32), {"score": 2.5, "length": 7, "success": True, "metrics": {"energy": 1.0}, "rewards": {"alive": 2.5}}),
-        (3, np.zeros(3, np.float32), {"score": -1.0, "length": 9, "success": False, "metrics": {}, "rewards": {"alive": -1.0}}),
+        (1, np.ones(3, np.float32),
+         {"score": 2.5, "length": 7, "success": True, "metrics": {"energy": 1.0}, "rewards": {"alive": 2.5}}),
+        (3, np.zeros(3, np.float32),
+         {"score": -1.0, "length": 9, "success": False, "metrics": {}, "rewards": {"alive": -1.0}}),
     ]
     envs = twinbots.make_vec("cartpole", num_envs=4, seed=0)
     expected = {}

@@ -9,7 +9,7 @@
 from __future__ import annotations
 
 from . import _native
-from ._config import Config
+from ._config import Config  # noqa: F401 (re-exported: twinbots.Config, the type of every config=)
 from .env import TwinbotsEnv
 from .policy import Policy, load_policy
 from .registration import env_ids, register_all

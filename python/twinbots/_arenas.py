@@ -49,7 +49,8 @@ def open_arenas(robot: str, count: int, seed: int | None, task: str | None, patt
     calibration = None if calibration is None else os.fspath(calibration)
     log = None if log is None else os.fspath(log)
     pixel_keys = pixels_text(obs, pixels)
-    arenas = _native.Arenas(robot, int(count), initial_seed(seed), task, pattern, config_text(config), calibration, log, pixel_keys)
+    arenas = _native.Arenas(robot, int(count), initial_seed(seed), task, pattern, config_text(config), calibration, log,
+                            pixel_keys)
     if render_mode == "rgb_array":
         arenas.enable_rendering(**rendering)
     return arenas

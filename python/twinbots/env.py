@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 import gymnasium as gym
+import numpy as np
 
 from ._arenas import open_arenas
 from ._config import Config
 from ._infos import episode_info
-from ._thread import get_ident, on_owner_thread
 from ._spaces import ActionCheck, obs_row, to_space
+from ._thread import get_ident, on_owner_thread
 
 
 class TwinbotsEnv(gym.Env):
@@ -38,8 +38,8 @@ class TwinbotsEnv(gym.Env):
         pixels: dict | None = None,
     ):
         self.arenas = open_arenas(
-            robot, 1, seed, task, pattern, config, render_mode, calibration=calibration, log=log, obs=obs, pixels=pixels,
-            width=width, height=height, camera=camera,
+            robot, 1, seed, task, pattern, config, render_mode, calibration=calibration, log=log, obs=obs,
+            pixels=pixels, width=width, height=height, camera=camera,
         )
         self._owner = get_ident()
         self.task = self.arenas.task

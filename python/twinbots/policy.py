@@ -33,7 +33,8 @@ class Policy:
             x = np.asarray(obs, dtype=np.float32)
             k = len(self.observation_space.shape)
             if x.ndim not in (k, k + 1) or x.shape[x.ndim - k:] != self.observation_space.shape:
-                raise ValueError(f"observations have shape {x.shape}, expected {self.observation_space.shape} or (batch, *that)")
+                raise ValueError(f"observations have shape {x.shape}, "
+                                 f"expected {self.observation_space.shape} or (batch, *that)")
             single = x.ndim == k
             batch = x.reshape(1 if single else x.shape[0], -1)
         actions = self._model.predict(np.ascontiguousarray(batch), deterministic)

@@ -9,7 +9,8 @@
 from __future__ import annotations
 
 import time
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
@@ -17,8 +18,8 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 from ._arenas import open_arenas
 from ._config import Config
 from ._infos import episode_info
-from ._thread import get_ident, on_owner_thread
 from ._spaces import ActionCheck, to_space
+from ._thread import get_ident, on_owner_thread
 
 
 class TwinbotsSB3VecEnv(VecEnv):

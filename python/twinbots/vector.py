@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 import gymnasium as gym
+import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
@@ -13,8 +13,8 @@ from gymnasium.vector.utils import batch_space
 from ._arenas import open_arenas
 from ._config import Config
 from ._infos import vector_infos
-from ._thread import get_ident, on_owner_thread
 from ._spaces import ActionCheck, set_obs_row, to_space
+from ._thread import get_ident, on_owner_thread
 
 
 def _autoreset_mode(mode) -> AutoresetMode:
@@ -65,8 +65,10 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
     ):
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
         if self.autoreset_mode == AutoresetMode.DISABLED:
-            raise ValueError("autoreset_mode DISABLED is not supported: the arenas reset themselves (SAME_STEP or NEXT_STEP)")
-        self.arenas = open_arenas(robot, num_envs, seed, task, pattern, config, render_mode, calibration=calibration, log=log, obs=obs, pixels=pixels)
+            raise ValueError("autoreset_mode DISABLED is not supported: "
+                             "the arenas reset themselves (SAME_STEP or NEXT_STEP)")
+        self.arenas = open_arenas(robot, num_envs, seed, task, pattern, config, render_mode, calibration=calibration,
+                                  log=log, obs=obs, pixels=pixels)
         self._owner = get_ident()
         self.num_envs = int(num_envs)
         self.task = self.arenas.task
@@ -131,5 +133,6 @@ class TwinbotsVectorEnv(gym.vector.VectorEnv):
         return self.arenas.render_all()
 
     def close_extras(self, **kwargs):
-        if hasattr(self, "arenas") and get_ident() == self._owner:  # not when __init__ failed (close() runs from __del__)
+        # Not when __init__ failed (close() runs from __del__).
+        if hasattr(self, "arenas") and get_ident() == self._owner:
             self.arenas.close()

@@ -14,11 +14,14 @@ def main(argv: list[str] | None = None) -> int:
     commands = parser.add_subparsers(dest="command", required=True)
     t = commands.add_parser("train", help="train a robot's task with RLlib's PPO")
     t.add_argument("robot", nargs="?", help="the robot to train (not with --resume)")
-    t.add_argument("--resume", default=None, metavar="RUN", help="continue this run from its checkpoint (its own settings)")
+    t.add_argument("--resume", default=None, metavar="RUN",
+                   help="continue this run from its checkpoint (its own settings)")
     t.add_argument("--task", default=None, help="one of the robot's tasks (default: its main task)")
     t.add_argument("--env-runners", type=int, default=2, help="env runner processes (default 2)")
-    t.add_argument("--envs-per-runner", type=int, default=None, help="arenas per runner (default: the robot's arenas / runners)")
-    t.add_argument("--address", default=None, help="a Ray cluster to join: 'auto' or ray://host:port (default: start a local Ray)")
+    t.add_argument("--envs-per-runner", type=int, default=None,
+                   help="arenas per runner (default: the robot's arenas / runners)")
+    t.add_argument("--address", default=None,
+                   help="a Ray cluster to join: 'auto' or ray://host:port (default: start a local Ray)")
     t.add_argument("--timesteps", type=int, default=None, help="env steps budget (default: the robot's)")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--out", default=None, help="run directory (default runs/rllib-<robot>-<time>)")
@@ -33,7 +36,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if a.robot is None:
             raise ValueError("give a robot to train, or --resume RUN")
-        train(TrainArgs(a.robot, a.task, a.env_runners, a.envs_per_runner, a.address, a.timesteps, a.seed, a.out, a.checkpoint_every, a.ray_logs))
+        train(TrainArgs(a.robot, a.task, a.env_runners, a.envs_per_runner, a.address, a.timesteps, a.seed, a.out,
+                        a.checkpoint_every, a.ray_logs))
     except (ValueError, RuntimeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -39,7 +39,8 @@ def _runner_callbacks():
                 metrics_logger.log_value(("twinbots", "episode_lengths"), float(length), reduce="item_series")
                 info = chunk.get_infos(-1) or {}
                 if "is_success" in info:
-                    metrics_logger.log_value(("twinbots", "episode_successes"), float(info["is_success"]), reduce="item_series")
+                    metrics_logger.log_value(("twinbots", "episode_successes"), float(info["is_success"]),
+                                             reduce="item_series")
             metrics_logger.log_value(("twinbots", f"runner_{env_runner.worker_index}_steps"), steps, reduce="sum")
 
     return TwinbotsMetrics

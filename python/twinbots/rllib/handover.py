@@ -49,7 +49,8 @@ def _observation_statistics(algo):
     return None
 
 
-def save_model(algo, run_dir: str | os.PathLike, robot: str, task: str | None = None, seed: int = 0, timesteps: int = 0, episodes: int = 0) -> None:
+def save_model(algo, run_dir: str | os.PathLike, robot: str, task: str | None = None, seed: int = 0, timesteps: int = 0,
+               episodes: int = 0) -> None:
     """Writes `algo`'s current policy into `run_dir/model/` in twinbots' model format."""
     module = algo.learner_group._learner.module["default_policy"] if algo.learner_group.is_local else algo.get_module()
     hidden_layers = len(_native.training_defaults(robot)["ppo"]["hidden"])

@@ -85,7 +85,8 @@ class EpisodeWindow:
         return out
 
     def state(self) -> dict:
-        return {"returns": list(self.returns), "lengths": list(self.lengths), "successes": list(self.successes), "count": self.count}
+        return {"returns": list(self.returns), "lengths": list(self.lengths), "successes": list(self.successes),
+                "count": self.count}
 
     def restore(self, state: dict) -> None:
         self.returns.extend(state["returns"])
@@ -102,7 +103,8 @@ class EpisodeWindow:
         return len(recent) >= solved["window"] and sum(recent) / len(recent) > solved["threshold"]
 
 
-def progress_row(result: dict, iteration: int, seconds: float, episodes: EpisodeWindow, timesteps: int | None = None) -> dict:
+def progress_row(result: dict, iteration: int, seconds: float, episodes: EpisodeWindow,
+                 timesteps: int | None = None) -> dict:
     """One `progress.csv` row from an RLlib result and the episode window (missing figures are
     left out: NaN). `timesteps`: the run's count (default: RLlib's lifetime count)."""
     runners = result.get("env_runners", {})
@@ -135,7 +137,8 @@ def start_ray(address: str | None, env_runners: int, ray_logs: bool) -> bool:
         return False
     quiet = {} if ray_logs else {"log_to_driver": False, "logging_level": logging.ERROR}
     if address is None:
-        ray.init(num_cpus=max(os.cpu_count() or 1, env_runners), include_dashboard=False, runtime_env=RUNNER_ENV, **quiet)
+        ray.init(num_cpus=max(os.cpu_count() or 1, env_runners), include_dashboard=False, runtime_env=RUNNER_ENV,
+                 **quiet)
     else:
         ray.init(address=address, runtime_env=RUNNER_ENV, **quiet)
     return True
@@ -152,7 +155,7 @@ class Progress:
     episodes: dict | None = None
 
     @staticmethod
-    def read(checkpoint: Path) -> "Progress":
+    def read(checkpoint: Path) -> Progress:
         return Progress(**json.loads((checkpoint / STATE).read_text()))
 
 
@@ -209,7 +212,8 @@ def _run(args: TrainArgs, run: Path, config, checkpoint: Path | None) -> Path:
             progress.per_runner = {int(k): v for k, v in progress.per_runner.items()}
             # The rows logged after the checkpoint are redone.
             _native.truncate_progress(os.fspath(run), progress.timesteps)
-            print(f"resuming {run} from {checkpoint} ({progress.timesteps} steps, iteration {progress.iteration})", flush=True)
+            print(f"resuming {run} from {checkpoint} ({progress.timesteps} steps, iteration {progress.iteration})",
+                  flush=True)
         started = time.time() - progress.wall_s
         row, ended, saved = {}, "budget spent", progress.iteration
         while progress.timesteps < args.timesteps:
@@ -271,7 +275,8 @@ def save_checkpoint(algo, run: Path, args: TrainArgs, progress: Progress, episod
     final, new, old = (run / (RLLIB_CHECKPOINT + suffix) for suffix in ("", ".new", ".old"))
     shutil.rmtree(new, ignore_errors=True)
     algo.save_to_path(os.fspath(new.resolve()))
-    state = vars(progress) | {"per_runner": {str(k): v for k, v in progress.per_runner.items()}, "episodes": episodes.state()}
+    state = vars(progress) | {"per_runner": {str(k): v for k, v in progress.per_runner.items()},
+                              "episodes": episodes.state()}
     (new / STATE).write_text(json.dumps(state))
     if final.exists():
         shutil.rmtree(old, ignore_errors=True)
