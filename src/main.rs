@@ -1,11 +1,10 @@
-//! `twinbots`: train, look at and benchmark robot twins. Each command is a file of `cli/` with
-//! its own arguments (cargo's `commands/`).
+//! `twinbots`: train, look at and benchmark robot twins. Each command is a file of `commands/`
+//! with its own arguments and `exec` (cargo's `commands/`); what commands share lives in the
+//! application crates (`plugins/app`), never in another command.
 
-mod cli;
+mod commands;
 
 use clap::{Parser, Subcommand};
-// The commands find robots as `crate::registry`.
-use twinbots::registry;
 
 #[derive(Parser)]
 #[command(name = "twinbots", version, about = "Robot learning with digital twins")]
@@ -17,62 +16,62 @@ struct Args {
 #[derive(Subcommand)]
 enum Command {
     /// List the learning algorithms (`--algo` and the settings' `[<algo>]` tables name them).
-    Algos(cli::algos::Args),
+    Algos(commands::algos::Args),
     /// List the registered robots.
-    Robots(cli::robots::Args),
+    Robots(commands::robots::Args),
     /// Train a robot's task headless, with PPO or another algorithm of `twinbots algos`.
-    Train(cli::train::Args),
+    Train(commands::train::Args),
     /// Run the RobotServer (design pattern 3): hosts the policy and learner, reached over TCP.
-    Serve(cli::serve::Args),
+    Serve(commands::serve::Args),
     /// Run simulated robots (design pattern 3: no Supervisor, self-homing) against a
     /// RobotServer, or on an exported policy each robot runs itself.
-    Robot(cli::robot::Args),
+    Robot(commands::robot::Args),
     /// Write a run's trained policy as an ONNX graph (observation normalisation folded in),
     /// with its robot, task, spaces and control period as metadata.
-    Export(cli::export::Args),
+    Export(commands::export::Args),
     /// Replay a trained model and report its episode scores (writes eval.json).
-    Eval(cli::eval::Args),
+    Eval(commands::eval::Args),
     /// Teach a pixel run's policy by a teacher that sees the state (DAgger): the robot's
     /// classical controller, a state run or an ONNX policy.
-    Distill(cli::distill::Args),
+    Distill(commands::distill::Args),
     /// Open a window on the twin: arena 0 in real time (Space pause, N step, R reset, Esc quit,
     /// drag to orbit, scroll to zoom).
-    View(cli::view::Args),
+    View(commands::view::Args),
     /// Render PNG frames of the digital twin off-screen (no window).
-    Capture(cli::capture::Args),
+    Capture(commands::capture::Args),
     /// Measure performance.
-    Bench(cli::bench::Args),
+    Bench(commands::bench::Args),
     /// Figures over seeds: runs' steps to solve, wall clock and final evaluation as median,
     /// quartiles and interquartile mean, and their learning curves as a band (PNG).
-    Compare(cli::compare::Args),
+    Compare(commands::compare::Args),
     /// Check a robot description: its link/joint tree with masses, limits and motors, what
     /// will not simulate well, a stand in the physics, and a picture (`--png`).
-    Urdf(cli::urdf::Args),
+    Urdf(commands::urdf::Args),
     /// Run a policy test suite on a robot's twin: step-response kicks, impulse disturbances and
     /// payloads for each controller (classical, trained run, ONNX); per-run time series, figures
     /// (survival, settling time, overshoot, steady-state error), summary, plots and report.
-    Study(cli::study::Args),
+    Study(commands::study::Args),
     /// Record a stand-in robot: the twin with hidden true physics (a truth file), driven
     /// through an excitation program, logging what a controller measures (MCAP or CSV).
-    Record(cli::record::Args),
+    Record(commands::record::Args),
     /// Replay a robot log on the twin and report how far it strays, per joint.
-    Replay(cli::replay::Args),
+    Replay(commands::replay::Args),
     /// Calibrate the twin to robot logs (system identification with CMA-ES).
-    Identify(cli::identify::Args),
+    Identify(commands::identify::Args),
     /// Run a deploy bundle's policy on a robot (RTDE), the twin checking every command first;
     /// `--dry-run` drives only the twin.
-    Deploy(cli::deploy::Args),
+    Deploy(commands::deploy::Args),
     /// Follow a robot live with its twin (RTDE): divergence per joint, alarms, robot and twin
     /// logged side by side.
-    Monitor(cli::monitor::Args),
+    Monitor(commands::monitor::Args),
     /// A UR controller stand-in: serves RTDE on 127.0.0.1:30004, backed by the UR5e twin
     /// (optionally a truth twin) running the shipped control program every 2 ms.
     #[command(name = "ur-sim")]
-    UrSim(cli::ur_sim::Args),
+    UrSim(commands::ur_sim::Args),
     /// The twin as a ROS 2 robot on DDS (no ROS install): publishes /joint_states and /tf,
     /// obeys ros2_control's forward command and joint trajectory topics.
     #[cfg(feature = "ros2")]
-    Ros2(cli::ros2::Args),
+    Ros2(commands::ros2::Args),
 }
 
 fn main() {
@@ -87,27 +86,27 @@ fn main() {
 
 fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
-        Command::Algos(args) => cli::algos::exec(args),
-        Command::Robots(args) => cli::robots::exec(args),
-        Command::Train(args) => cli::train::exec(args),
-        Command::Serve(args) => cli::serve::exec(args),
-        Command::Robot(args) => cli::robot::exec(args),
-        Command::Export(args) => cli::export::exec(args),
-        Command::Eval(args) => cli::eval::exec(args),
-        Command::View(args) => cli::view::exec(args),
-        Command::Capture(args) => cli::capture::exec(args),
-        Command::Bench(args) => cli::bench::exec(args),
-        Command::Compare(args) => cli::compare::exec(args),
-        Command::Urdf(args) => cli::urdf::exec(args),
-        Command::Study(args) => cli::study::exec(args),
-        Command::Distill(args) => cli::distill::exec(args),
-        Command::Record(args) => cli::record::exec(args),
-        Command::Replay(args) => cli::replay::exec(args),
-        Command::Identify(args) => cli::identify::exec(args),
-        Command::UrSim(args) => cli::ur_sim::exec(args),
-        Command::Deploy(args) => cli::deploy::exec(args),
-        Command::Monitor(args) => cli::monitor::exec(args),
+        Command::Algos(args) => commands::algos::exec(args),
+        Command::Robots(args) => commands::robots::exec(args),
+        Command::Train(args) => commands::train::exec(args),
+        Command::Serve(args) => commands::serve::exec(args),
+        Command::Robot(args) => commands::robot::exec(args),
+        Command::Export(args) => commands::export::exec(args),
+        Command::Eval(args) => commands::eval::exec(args),
+        Command::View(args) => commands::view::exec(args),
+        Command::Capture(args) => commands::capture::exec(args),
+        Command::Bench(args) => commands::bench::exec(args),
+        Command::Compare(args) => commands::compare::exec(args),
+        Command::Urdf(args) => commands::urdf::exec(args),
+        Command::Study(args) => commands::study::exec(args),
+        Command::Distill(args) => commands::distill::exec(args),
+        Command::Record(args) => commands::record::exec(args),
+        Command::Replay(args) => commands::replay::exec(args),
+        Command::Identify(args) => commands::identify::exec(args),
+        Command::UrSim(args) => commands::ur_sim::exec(args),
+        Command::Deploy(args) => commands::deploy::exec(args),
+        Command::Monitor(args) => commands::monitor::exec(args),
         #[cfg(feature = "ros2")]
-        Command::Ros2(args) => cli::ros2::exec(args),
+        Command::Ros2(args) => commands::ros2::exec(args),
     }
 }

@@ -5,9 +5,9 @@ use numpy::ndarray::ArrayD;
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArray4};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
-use twinbots::settings::CalibrationSetting;
 use twinbots_api::{DesignPattern, Space, StepResult, TaskSpec, VecEnv};
 use twinbots_render::{PixelSettings, Renderer, View};
+use twinbots_run::settings::CalibrationSetting;
 use twinbots_task::randomization::{Randomization, RandomizationPlugin};
 use twinbots_task::{AppVecEnv, RobotDescription};
 
@@ -85,7 +85,7 @@ impl Arenas {
         log: Option<std::path::PathBuf>,
         pixels: Option<&str>,
     ) -> PyResult<Self> {
-        let entry = twinbots::registry::find(robot).map_err(value_error)?;
+        let entry = twinbots_run::registry::find(robot).map_err(value_error)?;
         if num_envs == 0 {
             return Err(value_error(anyhow::anyhow!("num_envs must be at least 1")));
         }
@@ -99,7 +99,7 @@ impl Arenas {
         };
         let randomization = config.map(Randomization::from_config).transpose().map_err(value_error)?;
         let twin =
-            twinbots::twin::Twin::of_files(&entry, calibration.as_deref(), log.as_deref()).map_err(value_error)?;
+            twinbots_run::twin::Twin::of_files(&entry, calibration.as_deref(), log.as_deref()).map_err(value_error)?;
         if let Some(r) = &randomization {
             CalibrationSetting::check_randomization(twin.calibration.as_ref(), r).map_err(value_error)?;
         }
@@ -221,7 +221,7 @@ impl Arenas {
     /// Closes the arenas; with a `log`, arena 0's running episode is written first (an error
     /// writing it is raised, after closing).
     fn close(&mut self) -> PyResult<()> {
-        let logged = self.env.as_mut().map(|env| twinbots::robot_log::finish_log(env.app_mut().world_mut()));
+        let logged = self.env.as_mut().map(|env| twinbots_run::robot_log::finish_log(env.app_mut().world_mut()));
         self.env = None;
         self.frames = None;
         logged.transpose().map(|_| ()).map_err(runtime_error)

@@ -33,7 +33,7 @@ impl RustLoop {
         actions: PyReadonlyArray2<'_, f32>,
         seed: u64,
     ) -> PyResult<Self> {
-        let entry = twinbots::registry::find(robot).map_err(value_error)?;
+        let entry = twinbots_run::registry::find(robot).map_err(value_error)?;
         let rows: Vec<Vec<f32>> = actions.as_array().rows().into_iter().map(|r| r.to_vec()).collect();
         if rows.is_empty() {
             return Err(value_error(anyhow::anyhow!("need at least one action row")));

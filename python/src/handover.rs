@@ -9,11 +9,11 @@ use std::path::PathBuf;
 use numpy::{PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use twinbots::settings::{ConfigFile, TrainSettings};
 use twinbots_api::Measure;
 use twinbots_learn::callbacks::draw_learning_curve;
 use twinbots_learn::normalize::RunningMeanStd;
 use twinbots_learn::{Ppo, PpoConfig, RunDir, SolvedBy, TrainingEnd, ppo};
+use twinbots_run::settings::{ConfigFile, TrainSettings};
 
 use crate::convert::{runtime_error, space_dict, value_error};
 
@@ -23,7 +23,7 @@ use crate::convert::{runtime_error, space_dict, value_error};
 #[pyfunction]
 #[pyo3(signature = (robot, task=None))]
 pub fn training_defaults<'py>(py: Python<'py>, robot: &str, task: Option<&str>) -> PyResult<Bound<'py, PyDict>> {
-    let entry = twinbots::registry::find(robot).map_err(value_error)?;
+    let entry = twinbots_run::registry::find(robot).map_err(value_error)?;
     let spec = (entry.find_task(task).map_err(value_error)?.spec)();
     let d = PyDict::new(py);
     d.set_item("action_space", space_dict(py, &spec.action_space)?)?;
@@ -48,10 +48,10 @@ pub fn training_defaults<'py>(py: Python<'py>, robot: &str, task: Option<&str>) 
 
 /// Creates `run_dir` with the `config.toml` of a pattern-1 run of `robot`: its training
 /// defaults with `seed`, `arenas` (= env runners × envs per runner) and `timesteps`, resolved and
-/// validated as `twinbots train` does (`twinbots::settings`).
+/// validated as `twinbots train` does (`twinbots_run::settings`).
 #[pyfunction]
 pub fn create_run(run_dir: PathBuf, robot: &str, seed: u64, arenas: usize, timesteps: u64) -> PyResult<()> {
-    let entry = twinbots::registry::find(robot).map_err(value_error)?;
+    let entry = twinbots_run::registry::find(robot).map_err(value_error)?;
     let run = RunDir::new(&run_dir);
     if run.holds_run() {
         return Err(value_error(anyhow::anyhow!("{} already holds a run", run_dir.display())));
@@ -95,11 +95,11 @@ pub fn truncate_progress(run_dir: PathBuf, timesteps: u64) -> PyResult<()> {
 /// criterion, as `twinbots train` does.
 #[pyfunction]
 pub fn draw_curve(run_dir: PathBuf, robot: &str, title: &str) -> PyResult<()> {
-    let entry = twinbots::registry::find(robot).map_err(value_error)?;
+    let entry = twinbots_run::registry::find(robot).map_err(value_error)?;
     draw_learning_curve(&RunDir::new(run_dir), title, entry.task().solved).map_err(runtime_error)
 }
 
-/// Ends the run in `run_dir` as every twinbots run ends (`twinbots::run::finish`): its model
+/// Ends the run in `run_dir` as every twinbots run ends (`twinbots_run::run::finish`): its model
 /// (`model/`) evaluated in-process into `eval.json` and summed up in `summary.json`; `solved`:
 /// whether training stopped on the task's criterion, `wall_s` its wall-clock seconds. Returns
 /// the evaluation's one-line description.
@@ -107,7 +107,7 @@ pub fn draw_curve(run_dir: PathBuf, robot: &str, title: &str) -> PyResult<()> {
 pub fn finish_run(py: Python<'_>, run_dir: PathBuf, solved: bool, wall_s: f64) -> PyResult<String> {
     let run = RunDir::new(&run_dir);
     let settings = TrainSettings::of_run(&run).map_err(value_error)?;
-    let entry = twinbots::registry::find(&settings.robot).map_err(value_error)?;
+    let entry = twinbots_run::registry::find(&settings.robot).map_err(value_error)?;
     py.detach(|| {
         let model = twinbots_learn::algos::load_run(&run)?;
         let timesteps = model.timesteps();
@@ -116,7 +116,7 @@ pub fn finish_run(py: Python<'_>, run_dir: PathBuf, solved: bool, wall_s: f64) -
         } else {
             TrainingEnd::BudgetSpent { timesteps }
         };
-        let (evaluation, _) = twinbots::run::finish(&settings, &run, &entry, model.as_ref(), &end, wall_s, None)?;
+        let (evaluation, _) = twinbots_run::run::finish(&settings, &run, &entry, model.as_ref(), &end, wall_s, None)?;
         Ok(evaluation.describe())
     })
     .map_err(runtime_error)
@@ -141,7 +141,7 @@ pub fn save_model(
     obs_var: Option<Vec<f64>>,
     obs_count: Option<f64>,
 ) -> PyResult<()> {
-    let entry = twinbots::registry::find(robot).map_err(value_error)?;
+    let entry = twinbots_run::registry::find(robot).map_err(value_error)?;
     let spec = (entry.find_task(task).map_err(value_error)?.spec)();
     let mut config: PpoConfig = entry.defaults.of(ppo::NAME).config().map_err(runtime_error)?;
     config.normalize_observations = obs_mean.is_some();

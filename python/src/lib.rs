@@ -37,5 +37,5 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
 /// Every built-in robot: a list of dicts (name, description, tasks, patterns).
 #[pyfunction]
 fn robots(py: Python<'_>) -> PyResult<Vec<Bound<'_, pyo3::types::PyDict>>> {
-    twinbots::registry::robots().iter().map(|r| convert::robot_dict(py, r)).collect()
+    twinbots_run::registry::robots().iter().map(|r| convert::robot_dict(py, r)).collect()
 }

@@ -10,7 +10,7 @@ use twinbots_learn::{Flow, Ppo, PpoConfig};
 use twinbots_sim::SimSettings;
 use twinbots_task::{AppVecEnv, bridge, env};
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -76,7 +76,7 @@ fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64, rt_priority: Optio
     let dir = bundle
         .ok_or_else(|| anyhow::anyhow!("bench rtde needs --bundle DIR (`twinbots export <ur5e run> --bundle DIR`)"))?;
     anyhow::ensure!(seconds > 0.0 && seconds.is_finite(), "--seconds must be positive");
-    let bundle = twinbots::bundle::Bundle::read(dir)?;
+    let bundle = twinbots_ops::bundle::Bundle::read(dir)?;
     bundle.check("ur5e", &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
     let scheduling =
         rt_priority.map_or("default scheduling".to_string(), |p| format!("SCHED_FIFO {p}, the stand-in {}", p - 1));
@@ -84,7 +84,7 @@ fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64, rt_priority: Optio
         "bench rtde: a UR stand-in at 500 Hz on loopback, every report answered by {} ({seconds} s, {scheduling})",
         dir.display()
     );
-    let show = |r: &twinbots::deploy::latency::LatencyReport| {
+    let show = |r: &twinbots_ops::deploy::latency::LatencyReport| {
         println!(
             "  {:6.1} s: {} commands, report in -> command out p50 {:.0} us, p99 {:.0} us, max {:.0} us; {} later than 2 ms, {} reports missed, stand-in missed {} cycles",
             r.seconds,
@@ -97,7 +97,7 @@ fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64, rt_priority: Optio
             r.standin_missed_cycles
         )
     };
-    let report = twinbots::deploy::latency::measure(&bundle, seconds, rt_priority, show)?;
+    let report = twinbots_ops::deploy::latency::measure(&bundle, seconds, rt_priority, show)?;
     show(&report);
     Ok(())
 }
@@ -306,8 +306,11 @@ pub fn print_capture(robot: &str, sizes: &[(u32, u32)], frames: usize) -> anyhow
         let mut env = AppVecEnv::new(entry.app(None, 1, 0, DesignPattern::Supervised)?);
         env.reset(Some(0))?;
         let dir = std::env::temp_dir().join(format!("twinbots-bench-capture-{}", std::process::id()));
-        let mut recorder =
-            crate::cli::capture::Recorder::new((w, h), crate::cli::capture::camera(&entry, "side")?, &dir)?;
+        let mut recorder = twinbots_render::recorder::Recorder::new(
+            (w, h),
+            twinbots_render::recorder::camera(&entry.framing, "side")?,
+            &dir,
+        )?;
         recorder.frame(&mut env, 0)?; // warm-up: pipelines compile
         let mut spent = 0.0;
         for i in 1..=frames {

@@ -9,8 +9,8 @@ use twinbots_api::Measure;
 use twinbots_learn::RunDir;
 use twinbots_learn::seeds::{Spread, band};
 
-use crate::registry;
-use twinbots::settings::TrainSettings;
+use twinbots_run::registry;
+use twinbots_run::settings::TrainSettings;
 
 /// The command's arguments.
 #[derive(clap::Args)]

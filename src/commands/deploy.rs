@@ -4,15 +4,15 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use twinbots::bundle::Bundle;
-use twinbots::deploy::arm::{Arm, RtdeArm, TwinArm};
-use twinbots::deploy::{DeployOptions, deploy};
-use twinbots::ur_sim::UrSimOptions;
+use twinbots_ops::bundle::Bundle;
+use twinbots_ops::deploy::arm::{Arm, RtdeArm, TwinArm};
+use twinbots_ops::deploy::{DeployOptions, deploy};
+use twinbots_ops::ur_sim::UrSimOptions;
 use twinbots_rtde::RtdeClient;
 use twinbots_sysid::Rig;
 use twinbots_task::calibration::read_calibration;
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -62,7 +62,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let bundle = Bundle::read(&args.bundle)?;
     bundle.check(&args.robot, &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
     if let Some(p) = args.rt_priority {
-        twinbots::realtime::set_rt_priority(p)?;
+        twinbots_ops::realtime::set_rt_priority(p)?;
     }
     let patience = Duration::from_secs_f64(args.patience_ms / 1e3);
     let options = DeployOptions {
@@ -122,7 +122,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         report.refused
     );
     if let Some(out) = &args.out {
-        crate::cli::replay::write_json(out, &report)?;
+        twinbots_api::files::write_json(out, &report)?;
         println!("wrote {}", out.display());
     }
     Ok(())

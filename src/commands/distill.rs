@@ -3,9 +3,9 @@
 
 use std::path::PathBuf;
 
-use twinbots::distill::{DistillOptions, Tune, distill};
+use twinbots_study::distill::{DistillOptions, Tune, distill};
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -39,7 +39,7 @@ pub struct Args {
 
 /// `twinbots distill`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let settings = twinbots::settings::TrainSettings::of_run(&twinbots_learn::RunDir::new(&args.run))?;
+    let settings = twinbots_run::settings::TrainSettings::of_run(&twinbots_learn::RunDir::new(&args.run))?;
     let entry = registry::find(&settings.robot)?;
     let options = DistillOptions {
         teacher: args.teacher,

@@ -6,11 +6,11 @@ use twinbots_api::VecEnv;
 use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
 use twinbots_task::AppVecEnv;
 
-use crate::registry;
-use twinbots::robot_log::finish_log;
-use twinbots::run::{evaluation_app, evaluation_env};
-use twinbots::settings::{CalibrationSetting, TrainSettings};
-use twinbots::twin::Twin;
+use twinbots_run::registry;
+use twinbots_run::robot_log::finish_log;
+use twinbots_run::run::{evaluation_app, evaluation_env};
+use twinbots_run::settings::{CalibrationSetting, TrainSettings};
+use twinbots_run::twin::Twin;
 use twinbots_task::randomization::Randomization;
 use twinbots_task::randomization::visual::VisualRandomizationPlugin;
 
@@ -65,7 +65,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         record_episode(
             &args.run,
             dir,
-            crate::cli::capture::parse_size(&args.size)?,
+            twinbots_render::recorder::parse_size(&args.size)?,
             &args.camera,
             args.task.as_deref(),
         )?;
@@ -187,12 +187,15 @@ pub fn record_episode(
     camera: &str,
     task: Option<&str>,
 ) -> anyhow::Result<()> {
-    let mut recorder: Option<crate::cli::capture::Recorder> = None;
+    let mut recorder: Option<twinbots_render::recorder::Recorder> = None;
     one_episode(run, task, None, None, |env, settings, step| {
         if recorder.is_none() {
             let entry = registry::find(&settings.robot)?;
-            recorder =
-                Some(crate::cli::capture::Recorder::new(size, crate::cli::capture::camera(&entry, camera)?, dir)?);
+            recorder = Some(twinbots_render::recorder::Recorder::new(
+                size,
+                twinbots_render::recorder::camera(&entry.framing, camera)?,
+                dir,
+            )?);
         }
         recorder.as_mut().expect("made above").frame(env, step).map(|_| ())
     })?;

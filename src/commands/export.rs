@@ -8,8 +8,8 @@ use twinbots_learn::RunDir;
 use twinbots_onnx::PolicyMetadata;
 use twinbots_sim::SimSettings;
 
-use crate::registry;
-use twinbots::settings::TrainSettings;
+use twinbots_run::registry;
+use twinbots_run::settings::TrainSettings;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -37,7 +37,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 }
 
 /// Writes the run's deploy bundle to `dir`.
-pub fn export_bundle(run: &Path, dir: &Path) -> anyhow::Result<twinbots::bundle::Manifest> {
+pub fn export_bundle(run: &Path, dir: &Path) -> anyhow::Result<twinbots_ops::bundle::Manifest> {
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
     let model = twinbots_learn::algos::load_run(&run_dir)?;
@@ -57,14 +57,14 @@ pub fn export_bundle(run: &Path, dir: &Path) -> anyhow::Result<twinbots::bundle:
         )
     });
     let named = |text: &Option<String>, file: &str| text.as_ref().map(|_| file.to_string());
-    let manifest = twinbots::bundle::manifest_for(
+    let manifest = twinbots_ops::bundle::manifest_for(
         &settings.robot,
         &metadata,
-        named(&calibration, twinbots::bundle::CALIBRATION),
-        named(&cell, twinbots::bundle::CELL),
+        named(&calibration, twinbots_ops::bundle::CALIBRATION),
+        named(&cell, twinbots_ops::bundle::CELL),
     )?;
     let bytes = twinbots_onnx::policy_bytes(model.as_ref(), &metadata)?;
-    twinbots::bundle::write(dir, &manifest, &bytes, calibration.as_deref(), cell.as_deref())?;
+    twinbots_ops::bundle::write(dir, &manifest, &bytes, calibration.as_deref(), cell.as_deref())?;
     println!(
         "{}: {} bundle ({} joints, action x {} rad/s, every {} s{}) to {}",
         manifest.robot,

@@ -12,8 +12,8 @@ use twinbots_sysid::identify::{Fit, FitOptions, position_rmse};
 use twinbots_sysid::{PreparedLog, Rig, identify, prepare, run};
 use twinbots_task::calibration::calibration_text;
 
-use crate::cli::replay::{load, write_json};
-use crate::registry;
+use twinbots_api::files::write_json;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -63,7 +63,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let Some(out) = args.out.clone() else { anyhow::bail!("--out DIR is required: where calibration.toml goes") };
     anyhow::ensure!(args.generations > 0, "--generations must be at least 1");
     // Everything is read and checked before anything is written.
-    let base = load(&rig, args.calibration.as_deref())?;
+    let base = rig.read_calibration(args.calibration.as_deref())?;
     let params = parameter_names(&rig, args.params.as_deref())?;
     let logs = prepare_all(&rig, &args.logs)?;
     let validation = prepare_all(&rig, &args.validate)?;
@@ -238,5 +238,5 @@ fn write_calibration(
         meta.insert("not_identifiable".into(), toml::Value::Table(not));
     }
     let text = calibration_text(&fit.values(), &rig.catalogue, &meta);
-    twinbots_learn::model_io::write_atomic(path, text.as_bytes()).with_context(|| path.display().to_string())
+    twinbots_api::files::write_atomic(path, text.as_bytes()).with_context(|| path.display().to_string())
 }

@@ -1,4 +1,4 @@
-//! The subcommands.
+//! The subcommands, one file each: its `Args` and its `exec`.
 
 pub mod algos;
 pub mod bench;
@@ -9,7 +9,6 @@ pub mod distill;
 pub mod eval;
 pub mod export;
 pub mod identify;
-pub mod learner;
 pub mod monitor;
 pub mod record;
 pub mod replay;

@@ -5,12 +5,12 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use twinbots::monitor::{Monitor, MonitorOptions, Report};
-use twinbots::settings::CalibrationSetting;
+use twinbots_ops::monitor::{Monitor, MonitorOptions, Report};
 use twinbots_render::{Renderer, View};
 use twinbots_rtde::{DataPackage, RtdeClient};
+use twinbots_run::settings::CalibrationSetting;
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -68,7 +68,7 @@ pub struct Args {
 enum Source {
     Rtde(RtdeClient),
     #[cfg(feature = "ros2")]
-    Ros2(twinbots::monitor::ros2::Ros2Source),
+    Ros2(twinbots_ops::monitor::ros2::Ros2Source),
 }
 
 impl Source {
@@ -93,7 +93,7 @@ impl Source {
             None => domain_from_env()?,
         };
         let name = format!("twinbots_monitor_{}", std::process::id());
-        Ok(Source::Ros2(twinbots::monitor::ros2::Ros2Source::open(domain, &name, patience)?))
+        Ok(Source::Ros2(twinbots_ops::monitor::ros2::Ros2Source::open(domain, &name, patience)?))
     }
 
     #[cfg(not(feature = "ros2"))]
@@ -118,7 +118,7 @@ impl Source {
             },
             #[cfg(feature = "ros2")]
             Source::Ros2(source) => {
-                use twinbots::monitor::ros2::Next;
+                use twinbots_ops::monitor::ros2::Next;
                 loop {
                     match source.next()? {
                         Next::Report(r) => return Ok(Ok(r)),
@@ -147,8 +147,8 @@ impl TwinFrames {
     fn new(args: &Args, entry: &registry::RobotEntry) -> anyhow::Result<Option<Self>> {
         let Some(every) = args.frames_every else { return Ok(None) };
         anyhow::ensure!(every > 0.0 && every.is_finite(), "--frames-every must be positive, not {every}");
-        let (w, h) = crate::cli::capture::parse_size(&args.size)?;
-        let view: View = crate::cli::capture::camera(entry, &args.camera)?;
+        let (w, h) = twinbots_render::recorder::parse_size(&args.size)?;
+        let view: View = twinbots_render::recorder::camera(&entry.framing, &args.camera)?;
         let mut renderer = Renderer::new(w, h)?;
         renderer.set_view(view);
         let dir = args.out.join("frames");
@@ -244,7 +244,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let account = monitor.report();
     twinbots_log::write(&monitor.robot_log, &args.out.join("robot.mcap"))?;
     twinbots_log::write(&monitor.twin_log, &args.out.join("twin.mcap"))?;
-    crate::cli::replay::write_json(&args.out.join("monitor.json"), account)?;
+    twinbots_api::files::write_json(&args.out.join("monitor.json"), account)?;
     let alarms: Vec<f64> = account.alarms.iter().map(|a| a.time).collect();
     twinbots_sysid::plot::divergence_png(
         &args.out.join("divergence.png"),

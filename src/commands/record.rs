@@ -4,12 +4,10 @@
 
 use std::path::PathBuf;
 
-use twinbots_sim::Parameters;
 use twinbots_sysid::excitation::Excitation;
 use twinbots_sysid::{Recording, Rig, SensorNoise, record};
-use twinbots_task::calibration::read_calibration;
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -47,10 +45,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let rig = Rig::of(&registry::find(&args.robot)?)?;
     // Before recording: a path no log can be written to.
     twinbots_log::Format::of(&args.out)?;
-    let truth = match &args.truth {
-        Some(path) => read_calibration(path, &rig.catalogue, rig.robot)?,
-        None => Parameters::default(),
-    };
+    let truth = rig.read_calibration(args.truth.as_deref())?;
     let noise = SensorNoise { position: args.position_noise, velocity: args.velocity_noise, effort: args.effort_noise };
     anyhow::ensure!(
         [noise.position, noise.velocity, noise.effort].iter().all(|n| n.is_finite() && *n >= 0.0),

@@ -3,14 +3,12 @@
 //! the twin's trajectory as a log beside it.
 
 use anyhow::Context;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use twinbots_sim::Parameters;
 use twinbots_sysid::replay::twin_log;
 use twinbots_sysid::{Rig, compare, prepare, run};
-use twinbots_task::calibration::read_calibration;
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -33,7 +31,7 @@ pub struct Args {
 /// `twinbots replay`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let rig = Rig::of(&registry::find(&args.robot)?)?;
-    let calibration = load(&rig, args.calibration.as_deref())?;
+    let calibration = rig.read_calibration(args.calibration.as_deref())?;
     anyhow::ensure!(args.threshold > 0.0, "--threshold must be positive");
     let log = twinbots_log::read(&args.log)?;
     let name = args.log.display().to_string();
@@ -51,18 +49,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     twinbots_sysid::plot::replay_png(&out.join("replay.png"), &rig, &prepared, &[(label, &twin, bias.clone())])?;
     let calibration_name = args.calibration.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
     twinbots_log::write(&twin_log(&rig, &prepared, &twin, &bias, &calibration_name), &out.join("twin.mcap"))?;
-    write_json(&out.join("replay.json"), &report)?;
+    twinbots_api::files::write_json(&out.join("replay.json"), &report)?;
     println!("wrote {}/replay.png, twin.mcap, replay.json", out.display());
     Ok(())
-}
-
-/// A calibration file's parameters, checked against the robot (none without a file).
-pub fn load(rig: &Rig, path: Option<&Path>) -> anyhow::Result<Parameters> {
-    path.map_or(Ok(Parameters::default()), |p| read_calibration(p, &rig.catalogue, rig.robot))
-}
-
-/// Writes JSON atomically.
-pub fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
-    twinbots_learn::model_io::write_atomic(path, serde_json::to_string_pretty(value)?.as_bytes())
-        .with_context(|| path.display().to_string())
 }

@@ -4,7 +4,7 @@
 
 use twinbots_link::protocol::TaskInterface;
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]

@@ -5,12 +5,12 @@ use std::sync::atomic::AtomicBool;
 
 use std::path::PathBuf;
 
-use twinbots::ros2::{Payload, Ros2Twin, ServeOptions, TwinOptions, serve};
-use twinbots::settings::CalibrationSetting;
+use twinbots_ops::ros2::{Payload, Ros2Twin, ServeOptions, TwinOptions, serve};
 use twinbots_ros2::node::{TRAJECTORY_TOPIC, domain_from_env, parse_domain};
 use twinbots_ros2::{Interface, Ros2Node};
+use twinbots_run::settings::CalibrationSetting;
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -58,7 +58,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         CalibrationSetting::read_optional(&entry, args.truth.as_deref())?.map(|c| c.parameters()).unwrap_or_default();
     let step = match args.step_ms {
         Some(ms) => Some(ms / 1e3),
-        None => (entry.name == "ur5e").then_some(twinbots::ur_sim::CYCLE),
+        None => (entry.name == "ur5e").then_some(twinbots_ops::ur_sim::CYCLE),
     };
     let payload = args.payload.map(|mass| Payload {
         mass,

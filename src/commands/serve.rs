@@ -6,16 +6,14 @@
 
 use std::io::Write;
 use std::net::SocketAddr;
-use std::path::Path;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use twinbots_api::DesignPattern;
-use twinbots_learn::{Learner, RunDir};
 use twinbots_link::tls::ServerTls;
-use twinbots_server::server::{RobotServer, ServerLimits, ServerSettings};
-
-use crate::registry;
-use twinbots::settings::{CalibrationSetting, ConfigFile, TrainSettings};
+use twinbots_link::token;
+use twinbots_run::registry;
+use twinbots_run::run::{Hosting, Run, default_run_dir};
+use twinbots_run::settings::{CalibrationSetting, ConfigFile, TrainSettings};
+use twinbots_server::server::ServerLimits;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -33,7 +31,7 @@ pub struct Args {
     pub max_robots: usize,
     /// A shared secret every robot's hello must carry (default: $TWINBOTS_TOKEN, else none).
     /// An empty one is refused: it is an unset variable, not a choice of no authentication.
-    #[arg(long, value_parser = non_empty_token)]
+    #[arg(long, value_parser = token::non_empty)]
     pub token: Option<String>,
     /// Seconds a new connection has to send its whole hello.
     #[arg(long, default_value_t = 10.0)]
@@ -46,7 +44,7 @@ pub struct Args {
     #[arg(long)]
     pub robots: Option<usize>,
     /// The algorithm it trains (see `twinbots algos`); default: the robot's.
-    #[arg(long, value_parser = super::learner::parse_algo)]
+    #[arg(long, value_parser = twinbots_run::learner::parse_algo)]
     pub algo: Option<String>,
     #[arg(long)]
     pub timesteps: Option<u64>,
@@ -116,15 +114,17 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     };
     let limits = ServerLimits {
         max_robots,
-        token: token.or_else(token_from_env),
+        token: token.or_else(token::from_env),
         handshake_timeout: seconds("--handshake-timeout", handshake_timeout)?,
         read_timeout: seconds("--read-timeout", read_timeout)?,
         tls,
         ..Default::default()
     };
+    anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
     check_exposure(listen, &limits, insecure)?;
+    let hosting = Hosting { listen, limits };
     if let Some(run) = resume {
-        return self::resume(&run, listen, limits);
+        return self::resume(&run, hosting);
     }
     let robot = robot.unwrap_or_default();
     let entry = registry::find(&robot)?;
@@ -148,18 +148,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             TrainSettings::resolve(&entry, file, flags)?
         }
     };
-    let out = out.unwrap_or_else(|| twinbots::run::default_run_dir(&format!("{robot}-server")));
-    serve(settings, listen, limits, &out)
+    let out = out.unwrap_or_else(|| default_run_dir(&format!("{robot}-server")));
+    serve(settings, hosting, &out)
 }
-
-/// Test-only: set to make the learner panic in its first update, so tests can show that a
-/// failing learner ends `serve` with an error instead of leaving it hanging (no settings that
-/// pass validation make an update fail).
-pub const PANIC_IN_UPDATE_ENV: &str = "TWINBOTS_TEST_PANIC_IN_UPDATE";
-
-/// The shared secret from the environment, for `serve` and `robot` when no --token is given
-/// (keeps it out of the process list).
-pub const TOKEN_ENV: &str = "TWINBOTS_TOKEN";
 
 /// Beyond loopback a server needs TLS and a token, unless `--insecure` says the network is
 /// trusted (then a warning names what travels in clear).
@@ -189,20 +180,6 @@ fn check_exposure(listen: SocketAddr, limits: &ServerLimits, insecure: bool) -> 
     Ok(())
 }
 
-/// `--token`'s value: refused when empty (`--token "$UNSET"` would otherwise switch the
-/// authentication off, silently).
-pub fn non_empty_token(value: &str) -> Result<String, String> {
-    if value.is_empty() {
-        return Err("an empty token is refused (an unset variable?); leave --token out for no token".into());
-    }
-    Ok(value.to_string())
-}
-
-/// An empty $TWINBOTS_TOKEN counts as unset.
-pub fn token_from_env() -> Option<String> {
-    std::env::var(TOKEN_ENV).ok().filter(|t| !t.is_empty())
-}
-
 /// Ends the process (exit 1) once standard input closes, i.e. when the process that started
 /// this server and holds the other end dies, however it dies (even SIGKILL).
 pub fn exit_when_stdin_closes() {
@@ -222,91 +199,35 @@ pub fn seconds(flag: &str, value: f64) -> anyhow::Result<Duration> {
     Ok(Duration::from_secs_f64(value))
 }
 
-/// Runs a server until training ends. `settings.arenas` is the number of robots the learner's
-/// batches are sized for (PPO's rollout is n_steps × robots). The server trains with the same callbacks as
-/// `train` (periodic evaluation runs the policy in-process, under pattern 1), and evaluates the
-/// final model in-process into `eval.json` as `train` does. A failure anywhere in the server
-/// (learner error, panic in a server thread) returns the error: `main` exits 1 with it.
-pub fn serve(settings: TrainSettings, listen: SocketAddr, limits: ServerLimits, out: &Path) -> anyhow::Result<()> {
-    let entry = registry::find(&settings.robot)?;
-    let spec = entry.task();
-    anyhow::ensure!(entry.supports(None, DesignPattern::Server)?, "{} has no design-pattern-3 robot", entry.name);
-    anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
-    // Any algorithm whose `serves` is true (`settings.validate` refuses the others).
-    let model = super::learner::new(&settings, &spec)?;
-    let run_dir = twinbots::run::create(&settings, out)?;
-    host(settings, run_dir, model, listen, limits)
+/// Hosts a fresh run of `settings` into `out` until training ends ([`Run::host`]).
+fn serve(settings: TrainSettings, hosting: Hosting, out: &std::path::Path) -> anyhow::Result<()> {
+    Run::create(settings, out)?.host(hosting, announce)
 }
 
 /// Continues the server run in `run` from its newest checkpoint that loads, to its budget. The
 /// robots' episodes start afresh (they are other processes: their state is theirs), so unlike
 /// an in-process run's this resume is not bit-identical to an uninterrupted run.
-pub fn resume(run: &Path, listen: SocketAddr, limits: ServerLimits) -> anyhow::Result<()> {
-    let run_dir = RunDir::new(run);
-    let settings = TrainSettings::of_run(&run_dir)?;
+fn resume(run: &std::path::Path, hosting: Hosting) -> anyhow::Result<()> {
+    let settings = TrainSettings::of_run(&twinbots_learn::RunDir::new(run))?;
     anyhow::ensure!(
-        settings.design_pattern()? == DesignPattern::Server,
+        settings.design_pattern()? == twinbots_api::DesignPattern::Server,
         "{}: not a RobotServer run (resume it with `twinbots train --resume`)",
         run.display()
     );
-    anyhow::ensure!(limits.max_robots >= 1, "--max-robots must be at least 1");
-    let spec = registry::find(&settings.robot)?.task();
-    let (checkpoint, model) = super::learner::resume(&run_dir, &settings, &spec)?;
-    run_dir.check_progress_columns(model.train_figures())?;
-    model.check_spaces(&spec.observation_space, &spec.action_space)?;
+    let (run_, checkpoint) = Run::resume(run)?;
     eprintln!(
         "resuming {} from {} ({} steps, {} episodes)",
         run.display(),
         checkpoint.display(),
-        model.timesteps(),
-        model.episodes()
+        run_.learner.timesteps(),
+        run_.learner.episodes()
     );
-    run_dir.truncate_after(model.timesteps())?;
-    host(settings, run_dir, model, listen, limits)
+    run_.host(hosting, announce)
 }
 
-/// Hosts `model` and its learner until training ends, into `run_dir`.
-fn host(
-    settings: TrainSettings,
-    run_dir: RunDir,
-    model: Box<dyn Learner>,
-    listen: SocketAddr,
-    limits: ServerLimits,
-) -> anyhow::Result<()> {
-    let entry = registry::find(&settings.robot)?;
-    let spec = entry.task();
-    let out = run_dir.path().to_path_buf();
-    let title = format!(
-        "{} — {} through the RobotServer (pattern 3), seed {}",
-        settings.robot,
-        model.algorithm(),
-        settings.seed
-    );
-    let mut callbacks = twinbots::run::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
-    let tally = twinbots_learn::callbacks::GradientStepTally::default();
-    callbacks.push(tally.clone());
-    if std::env::var_os(PANIC_IN_UPDATE_ENV).is_some() {
-        callbacks = callbacks.with(
-            |_: &twinbots_learn::UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<twinbots_learn::Flow> {
-                panic!("{PANIC_IN_UPDATE_ENV} is set: the learner panics in its update")
-            },
-        );
-    }
-    let mut server_settings = ServerSettings::new(&settings.robot, &spec, settings.arenas.max(1), settings.timesteps);
-    server_settings.limits = limits;
-    server_settings.task = server_settings.task.with_control_period(entry.control_period_s());
-    let started = Instant::now();
-    let server = RobotServer::start(listen, model, server_settings, Box::new(callbacks))?;
-    println!("listening on {}", server.addr);
+/// The server's first line of output, which `train --pattern 3` and scripts wait for.
+fn announce(addr: SocketAddr) -> anyhow::Result<()> {
+    println!("listening on {addr}");
     std::io::stdout().flush()?;
-    let (model, end) = server.wait()?;
-    tally.check()?;
-    let wall = started.elapsed().as_secs_f64();
-    // The final model, evaluated in-process (pattern 1 runs the same policy) as `train` does.
-    twinbots::run::finish(&settings, &run_dir, &entry, model.as_ref(), &end, wall, None)?;
-    println!("{end} in {wall:.1} s, mean of last 100 episodes {:.1}", model.history().mean_score());
-    println!("run directory: {}", out.display());
-    // Give connected robots a moment to read their `done` before the process exits.
-    std::thread::sleep(Duration::from_millis(200));
     Ok(())
 }

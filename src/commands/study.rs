@@ -3,9 +3,9 @@
 
 use std::path::PathBuf;
 
-use twinbots::study::{cell, report, run_suite};
+use twinbots_study::{cell, report, run_suite};
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]

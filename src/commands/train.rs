@@ -1,28 +1,20 @@
-//! `twinbots train <robot>`: PPO (or `--algo sac`) on N arenas, headless, into a run directory.
-//!
-//! As DESIGN.md's data flow: the learner runs on its own thread and steps the app through the
-//! crossbeam bridge; the Bevy app runs on the main thread. The run directory
-//! (`twinbots_learn::run_dir`) holds `config.toml` (the resolved settings), `progress.csv` (one row
-//! per update), `evaluations.csv`, `checkpoints/` (atomic, every `checkpoint_every` updates),
-//! `learning_curve.png`, `model/` (the final model), `eval.json` and `summary.json`, written by
-//! the run's callbacks (`TrainSettings::callbacks`) and, at the end, here. Training stops at
-//! `timesteps` or when the task's solved criterion holds; `--resume` continues from the last
-//! checkpoint with its counters.
+//! `twinbots train <robot>`: PPO (or another algorithm of `twinbots algos`) on N arenas,
+//! headless, into a run directory (`twinbots_run::run::Run`: what it holds, how it resumes).
+//! Training stops at `timesteps` or when the task's solved criterion holds; `--resume`
+//! continues from the last checkpoint with its counters. Under design pattern 3 the learner
+//! is a `twinbots serve` process of its own and the robots run here.
 
 use anyhow::Context;
 use std::path::Path;
-use std::time::Instant;
 
 use twinbots_api::DesignPattern;
-use twinbots_learn::run_dir::TimeBreakdown;
-use twinbots_learn::{RunDir, TrainingEnd};
-use twinbots_task::randomization::RandomizationPlugin;
-use twinbots_task::{bridge, env};
-
-use crate::cli::learner;
-use crate::registry;
-use twinbots::settings::{CalibrationSetting, ConfigFile, TrainSettings};
-use twinbots_learn::Learner;
+use twinbots_learn::RunDir;
+use twinbots_ops::fleet;
+use twinbots_run::learner;
+use twinbots_run::registry;
+use twinbots_run::run::{Run, default_run_dir};
+use twinbots_run::settings::{CalibrationSetting, ConfigFile, TrainSettings, read_cell};
+use twinbots_run::twin::Twin;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -118,7 +110,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         None => Default::default(),
     };
     let calibration = calibration.map(|path| CalibrationSetting::read(&entry, &path)).transpose()?;
-    let cell = cell.map(|path| twinbots::settings::read_cell(&entry, &path)).transpose()?;
+    let cell = cell.map(|path| read_cell(&entry, &path)).transpose()?;
     let flags = ConfigFile {
         task,
         timesteps,
@@ -136,8 +128,43 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         print!("{}", toml::to_string_pretty(&settings)?);
         return Ok(());
     }
-    let out = out.unwrap_or_else(|| twinbots::run::default_run_dir(&robot));
-    train(settings, &out, view)
+    let out = out.unwrap_or_else(|| default_run_dir(&robot));
+    if settings.design_pattern()? == DesignPattern::Server {
+        registry::find(&settings.robot)?.check_supports(settings.task.as_deref(), DesignPattern::Server)?;
+        return train_through_server(settings, &out, false);
+    }
+    Run::create(settings, &out)?.train(view)
+}
+
+/// Continues the run in `run_dir` from its newest checkpoint.
+fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
+    let settings = TrainSettings::of_run(&RunDir::new(run_dir))?;
+    if settings.design_pattern()? == DesignPattern::Server {
+        return train_through_server(settings, run_dir, true);
+    }
+    let (run, checkpoint) = Run::resume(run_dir)?;
+    println!(
+        "resuming {} from {} ({} steps, {} episodes)",
+        run_dir.display(),
+        checkpoint.display(),
+        run.learner.timesteps(),
+        run.learner.episodes()
+    );
+    run.train(view)
+}
+
+/// Trains the run in `run_dir` for `more` steps beyond its model ([`Run::extend`]).
+fn extend(run_dir: &Path, more: u64, view: bool) -> anyhow::Result<()> {
+    let (run, source) = Run::extend(run_dir, more)?;
+    println!(
+        "training {} for {more} more steps from {} ({} steps, {} episodes) to {}",
+        run_dir.display(),
+        source.display(),
+        run.learner.timesteps(),
+        run.learner.episodes(),
+        run.settings.timesteps
+    );
+    run.train(view)
 }
 
 /// Pattern 3: starts `twinbots serve` as its own process and runs the robots here; `resume`:
@@ -176,8 +203,8 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
     };
     println!("RobotServer (pid {}) listening on {addr}", server.id());
     // The robots run the run's twin.
-    let twin = twinbots::twin::Twin { calibration: settings.calibration.clone(), log: None };
-    let result = crate::cli::robot::against_server(
+    let twin = Twin { calibration: settings.calibration.clone(), log: None };
+    let result = fleet::against_server(
         &settings.robot,
         addr,
         settings.arenas,
@@ -197,183 +224,4 @@ fn train_through_server(settings: TrainSettings, out: &Path, resume: bool) -> an
     result?;
     anyhow::ensure!(status.success(), "the server exited with {status}");
     Ok(())
-}
-
-/// A fresh run into `out`. Everything that can be checked before it runs is (the pattern the
-/// robot supports, the learner for its task), so an error leaves no run directory behind.
-pub fn train(settings: TrainSettings, out: &Path, view: bool) -> anyhow::Result<()> {
-    let entry = registry::find(&settings.robot)?;
-    let pattern = settings.design_pattern()?;
-    entry.check_supports(settings.task.as_deref(), pattern)?;
-    if pattern == DesignPattern::Server {
-        return train_through_server(settings, out, false);
-    }
-    anyhow::ensure!(settings.arenas > 0, "arenas must be at least 1");
-    let learner = learner::new(&settings, &settings.task(&entry)?)?;
-    let run_dir = twinbots::run::create(&settings, out)?;
-    run(settings, run_dir, learner, false, view)
-}
-
-/// Continues the run in `run_dir` from its newest checkpoint.
-pub fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
-    let run_dir = RunDir::new(run_dir);
-    let settings = TrainSettings::of_run(&run_dir)?;
-    if settings.design_pattern()? == DesignPattern::Server {
-        return train_through_server(settings, run_dir.path(), true);
-    }
-    let spec = settings.task(&registry::find(&settings.robot)?)?;
-    let (checkpoint, model) = learner::resume(&run_dir, &settings, &spec)?;
-    run_dir.check_progress_columns(model.train_figures())?;
-    println!(
-        "resuming {} from {} ({} steps, {} episodes)",
-        run_dir.path().display(),
-        checkpoint.display(),
-        model.timesteps(),
-        model.episodes()
-    );
-    run(settings, run_dir, model, true, view)
-}
-
-/// Trains the run in `run_dir` for `more` steps beyond its model (its final one, else its
-/// newest checkpoint); its `config.toml` records the new budget before anything runs. After a
-/// final model the envs start fresh episodes (a checkpoint's are replayed, as `--resume`
-/// does); the run's stop criteria still apply (a solved run stops at its next check).
-pub fn extend(run_dir: &Path, more: u64, view: bool) -> anyhow::Result<()> {
-    anyhow::ensure!(more >= 1, "--timesteps {more}: must be at least 1 more step");
-    let run_dir = RunDir::new(run_dir);
-    let mut settings = TrainSettings::of_run(&run_dir)?;
-    anyhow::ensure!(
-        settings.design_pattern()? != DesignPattern::Server,
-        "{}: more training of a pattern-3 run is not supported yet; `train --resume` without --timesteps finishes one",
-        run_dir.path().display()
-    );
-    let spec = settings.task(&registry::find(&settings.robot)?)?;
-    let (source, model) = learner::trained(&run_dir, &settings, &spec)?;
-    run_dir.check_progress_columns(model.train_figures())?;
-    settings.timesteps = model.timesteps() + more;
-    settings.validate()?;
-    run_dir.write_config(&settings)?;
-    println!(
-        "training {} for {more} more steps from {} ({} steps, {} episodes) to {}",
-        run_dir.path().display(),
-        source.display(),
-        model.timesteps(),
-        model.episodes(),
-        settings.timesteps
-    );
-    run(settings, run_dir, model, true, view)
-}
-
-/// Trains `learner` (made for the run, or `resumed` from it) in `run_dir`.
-fn run(
-    settings: TrainSettings,
-    run_dir: RunDir,
-    mut learner: Box<dyn Learner>,
-    resumed: bool,
-    view: bool,
-) -> anyhow::Result<()> {
-    let entry = registry::find(&settings.robot)?;
-    let pattern = settings.design_pattern()?;
-    anyhow::ensure!(
-        pattern != DesignPattern::Server,
-        "design pattern 3 has no in-process env: use `twinbots serve` and `twinbots robot`"
-    );
-    let mut app = entry.app(settings.task.as_deref(), settings.arenas, settings.seed, pattern)?;
-    settings.calibrate(&mut app);
-    settings.observe(&mut app, &entry, settings.arenas)?;
-    app.add_plugins(bridge::BridgePlugin);
-    settings.randomization.validate()?;
-    if !settings.randomization.is_off() {
-        app.add_plugins(RandomizationPlugin(settings.randomization.clone()));
-    }
-    let (_, spec) = env::start(&mut app)?;
-    let mut channel_env = bridge::connect(app.world_mut())?;
-    learner.check_spaces(&spec.observation_space, &spec.action_space)?;
-    let title = format!(
-        "{} — {}, pattern {}, {} arenas, seed {}",
-        settings.robot,
-        learner.algorithm(),
-        settings.pattern,
-        settings.arenas,
-        settings.seed
-    );
-    let mut callbacks = twinbots::run::callbacks(&settings, &run_dir, &entry, title, spec.solved)?;
-    let tally = twinbots_learn::callbacks::GradientStepTally::default();
-    callbacks.push(tally.clone());
-    if resumed {
-        // Everything checked: the rows logged after the checkpoint are redone.
-        run_dir.truncate_after(learner.timesteps())?;
-    }
-    let remaining = settings.timesteps.saturating_sub(learner.timesteps());
-
-    // The learner's thread: the algorithm and its callbacks (logs, evaluations, checkpoints).
-    let trainer = std::thread::spawn(move || -> anyhow::Result<(Box<dyn Learner>, TrainingEnd, f64)> {
-        let started = Instant::now();
-        let end = learner.learn(&mut channel_env, remaining, &mut callbacks)?;
-        Ok((learner, end, started.elapsed().as_secs_f64()))
-    });
-
-    // The app's thread (this one): frames until the learner hangs up.
-    let mut simulation_s = None;
-    let sim = if view {
-        // The window drives the app in time slices; closing the window stops training.
-        let arena = app.world().resource::<env::ArenaOrder>().0[0];
-        let source = crate::cli::view::TrainingView {
-            app,
-            arena,
-            frames: 0,
-            updates: 0,
-            started: Instant::now(),
-            last_slice_end: None,
-        };
-        let shown = twinbots_render::viewer::run(
-            Box::new(source),
-            &format!("twinbots — training {}", settings.robot),
-            entry.framing,
-        );
-        Ok(shown)
-    } else {
-        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| bridge::run_until_closed(&mut app)));
-        simulation_s = app.world().get_resource::<bridge::SimulationTime>().map(|t| t.seconds);
-        drop(app); // closes the bridge, so a learner still waiting gets an error rather than a hang
-        r.map(Ok)
-    };
-    let learned = trainer.join().map_err(|p| anyhow::anyhow!("the trainer thread panicked: {}", panic_message(&p)))?;
-    match sim {
-        Err(p) => anyhow::bail!("the simulation panicked: {}", panic_message(&p)),
-        Ok(Err(e)) => return Err(e),
-        Ok(Ok(())) => {}
-    }
-    let (learner, end, wall) = learned?;
-    tally.check()?;
-    let times = learner.times();
-    let model: &dyn twinbots_learn::Agent = learner.as_ref();
-    let time = simulation_s.map(|sim| TimeBreakdown::new(&times, sim, wall));
-    let (evaluation, summary) = twinbots::run::finish(&settings, &run_dir, &entry, model, &end, wall, time)?;
-    match end {
-        TrainingEnd::Solved { timesteps, by } => {
-            println!(
-                "solved ({by}) after {timesteps} steps in {wall:.1} s (mean of last 100 episodes {:.1})",
-                model.history().mean_score()
-            )
-        }
-        _ => println!(
-            "not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}",
-            model.timesteps(),
-            model.history().mean_score()
-        ),
-    }
-    if let Some(time) = &summary.time_breakdown {
-        println!("time: {}", time.describe());
-    }
-    println!("evaluation of the final model, {}", evaluation.describe());
-    println!("run directory: {}", run_dir.path().display());
-    Ok(())
-}
-
-fn panic_message(p: &Box<dyn std::any::Any + Send>) -> String {
-    p.downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| p.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "unknown panic".into())
 }

@@ -4,11 +4,9 @@
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
-use twinbots::ur_sim::{UrSim, UrSimOptions, controller_info};
+use twinbots_ops::ur_sim::{UrSim, UrSimOptions, controller_info};
 use twinbots_rtde::server::RtdeServer;
-use twinbots_sim::Parameters;
 use twinbots_sysid::{Rig, SensorNoise};
-use twinbots_task::calibration::read_calibration;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -48,10 +46,7 @@ pub struct Args {
 /// `twinbots ur-sim`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let rig = Rig::of(&ur5e::robot())?;
-    let truth = match &args.truth {
-        Some(path) => read_calibration(path, &rig.catalogue, rig.robot)?,
-        None => Parameters::default(),
-    };
+    let truth = rig.read_calibration(args.truth.as_deref())?;
     let ur = SensorNoise::default();
     let default = |v: f64| if args.truth.is_some() { v } else { 0.0 };
     let noise = SensorNoise {
@@ -75,7 +70,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         server.local_addr()
     );
     if let Some(p) = args.rt_priority {
-        twinbots::realtime::set_rt_priority(p)?;
+        twinbots_ops::realtime::set_rt_priority(p)?;
     }
     let stop = AtomicBool::new(false);
     let missed = sim.serve(&server, args.seconds, &stop, 5.0);

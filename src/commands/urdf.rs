@@ -3,9 +3,9 @@
 use std::path::PathBuf;
 
 use bevy::math::Vec3;
-use twinbots::urdf_check::check;
 use twinbots_render::renderer::{Renderer, View};
 use twinbots_sim::rapier::prelude::Pose;
+use twinbots_sim::urdf::check::check;
 use twinbots_sim::urdf::{RobotModel, Shape};
 
 /// The command's arguments.

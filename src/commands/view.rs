@@ -1,7 +1,7 @@
 //! `twinbots view <robot>`: the visual mode, playing arena 0 in real time with a trained model
 //! or zero actions. `train --view` shows arena 0 of a training run (see `TrainingView`).
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use bevy::prelude::*;
 use twinbots_api::{DesignPattern, VecEnv};
@@ -9,7 +9,7 @@ use twinbots_learn::RunDir;
 use twinbots_render::viewer::{self, RealTime, ViewSource};
 use twinbots_task::AppVecEnv;
 
-use crate::registry;
+use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -91,12 +91,12 @@ pub fn view(
 ) -> anyhow::Result<()> {
     let entry = registry::find(robot)?;
     let loaded = model.map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
-    let task = twinbots::settings::TrainSettings::task_for(task, model)?;
+    let task = twinbots_run::settings::TrainSettings::task_for(task, model)?;
     let mut app = entry.app(task.as_deref(), 1, seed, DesignPattern::Supervised)?;
     // As `capture`: the file's twin, read and checked before any window opens.
-    twinbots::twin::Twin::of_files(&entry, calibration, None)?.configure(&mut app, &entry)?;
+    twinbots_run::twin::Twin::of_files(&entry, calibration, None)?.configure(&mut app, &entry)?;
     if let Some(run) = model {
-        twinbots::settings::TrainSettings::observe_as_run(run, &mut app, &entry, 1)?;
+        twinbots_run::settings::TrainSettings::observe_as_run(run, &mut app, &entry, 1)?;
     }
     let model = loaded;
     let mut env = AppVecEnv::new(app);
@@ -107,60 +107,4 @@ pub fn view(
     let dt = env.app().world().resource::<twinbots_sim::SimSettings>().control_dt();
     let player = Player { env, model, obs, clock: RealTime::new(dt), steps: 0, episodes: 0, score: 0.0, seed };
     viewer::run(Box::new(player), &format!("twinbots — {robot}"), entry.framing)
-}
-
-/// `train --view`: the bridged training app, advanced in time slices between frames so that
-/// every arena keeps training as fast as the window allows; arena 0 is shown.
-pub struct TrainingView {
-    pub app: App,
-    pub arena: Entity,
-    pub frames: u64,
-    pub updates: u64,
-    pub started: Instant,
-    /// When the last slice ended: the gap until the next is what drawing a frame cost.
-    pub last_slice_end: Option<Instant>,
-}
-
-impl ViewSource for TrainingView {
-    fn advance(&mut self, budget: Duration, paused: bool, single_step: bool) -> bool {
-        self.frames += 1;
-        // Train at least 3× as long as a frame takes to draw: ≥ 75 % of the time trains,
-        // whether frames come from a GPU (fast) or a software renderer (slow).
-        let drawing = self.last_slice_end.map_or(Duration::ZERO, |t| t.elapsed());
-        let until = Instant::now() + budget.max(drawing * 3);
-        let result = self.slice(until, paused, single_step);
-        self.last_slice_end = Some(Instant::now());
-        result
-    }
-    fn reset(&mut self) {}
-    fn sim_world(&mut self) -> &mut World {
-        self.app.world_mut()
-    }
-    fn arena(&self) -> Entity {
-        self.arena
-    }
-    fn status(&self) -> String {
-        let secs = self.started.elapsed().as_secs_f64();
-        format!("training — {} frames shown, {:.0} app updates/s", self.frames, self.updates as f64 / secs)
-    }
-}
-
-impl TrainingView {
-    fn slice(&mut self, until: Instant, paused: bool, single_step: bool) -> bool {
-        loop {
-            if paused && !single_step {
-                return true;
-            }
-            self.app.update();
-            self.updates += 1;
-            let closed =
-                self.app.world().get_resource::<twinbots_task::bridge::BridgeEndpoint>().is_none_or(|e| e.closed);
-            if closed {
-                return false;
-            }
-            if paused || Instant::now() >= until {
-                return true;
-            }
-        }
-    }
 }

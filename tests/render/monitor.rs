@@ -1,6 +1,6 @@
 //! `monitor --frames-every`: the twin that follows a robot is drawn where it stands.
 
-use twinbots::monitor::{Monitor, MonitorOptions, Report};
+use twinbots_ops::monitor::{Monitor, MonitorOptions, Report};
 use twinbots_render::View;
 
 /// The UR5e twin standing at `q`, as the monitor builds it from a robot's first report.
@@ -15,7 +15,7 @@ fn the_monitors_twin_is_rendered_where_the_robot_stands() {
     let Some(mut renderer) = crate::renderer("the_monitors_twin_is_rendered_where_the_robot_stands", w, h) else {
         return;
     };
-    let entry = twinbots::registry::find("ur5e").unwrap();
+    let entry = twinbots_run::registry::find("ur5e").unwrap();
     renderer.set_view(View::framed(&entry.framing, "iso").unwrap());
     let mut frame = |q: [f64; 6]| {
         let mut monitor = monitor_at(q);

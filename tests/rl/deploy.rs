@@ -7,10 +7,10 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use twinbots::bundle::Bundle;
-use twinbots::deploy::arm::{Arm, Measured, RtdeArm, TwinArm};
-use twinbots::deploy::{DeployOptions, deploy, deploy_policy};
-use twinbots::ur_sim::UrSimOptions;
+use twinbots_ops::bundle::Bundle;
+use twinbots_ops::deploy::arm::{Arm, Measured, RtdeArm, TwinArm};
+use twinbots_ops::deploy::{DeployOptions, deploy, deploy_policy};
+use twinbots_ops::ur_sim::UrSimOptions;
 use twinbots_rtde::RtdeClient;
 use ur5e::deploy::lowest_point;
 
@@ -40,7 +40,7 @@ fn deploy_reaches_through_rtde_as_in_the_dry_run() {
     let through_rtde = deploy(&mut arm, &bundle, &options, |_| {}).unwrap();
     let mut twin = TwinArm::new(&UrSimOptions::default(), None).unwrap();
     let dry = deploy(&mut twin, &bundle, &options, |_| {}).unwrap();
-    let successes = |r: &twinbots::deploy::DeployReport| r.episodes.iter().filter(|e| e.success).count();
+    let successes = |r: &twinbots_ops::deploy::DeployReport| r.episodes.iter().filter(|e| e.success).count();
     assert!(successes(&through_rtde) >= 7, "{:#?}", through_rtde.episodes);
     assert!(successes(&dry) >= 7, "{:#?}", dry.episodes);
     assert!(successes(&through_rtde).abs_diff(successes(&dry)) <= 1);
@@ -238,7 +238,7 @@ fn a_bundle_carries_its_cell_and_the_shadow_keeps_the_arm_off_its_obstacles() {
     .unwrap();
     let bundle = Bundle::read(&dir).unwrap();
     assert_eq!(bundle.cell.obstacles.len(), 1);
-    let shadow = twinbots::deploy::shadow_of(&bundle);
+    let shadow = twinbots_ops::deploy::shadow_of(&bundle);
     assert_eq!(shadow.keepouts.len(), 1);
 
     // Pan at full speed, every step: into the column.

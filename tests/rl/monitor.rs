@@ -1,9 +1,9 @@
 //! The monitor: a twin that follows the robot notices a load it does not know within a second
 //! of motion, and stays quiet beside a robot it matches.
 
-use twinbots::monitor::{Monitor, MonitorOptions, Report};
-use twinbots::ur_sim::program::{COUNTER, MODE, MODE_SPEEDJ, TARGET};
-use twinbots::ur_sim::{CYCLE, UrSim, UrSimOptions};
+use twinbots_ops::monitor::{Monitor, MonitorOptions, Report};
+use twinbots_ops::ur_sim::program::{COUNTER, MODE, MODE_SPEEDJ, TARGET};
+use twinbots_ops::ur_sim::{CYCLE, UrSim, UrSimOptions};
 use twinbots_rtde::Value;
 use twinbots_rtde::server::{InputState, OutputState};
 

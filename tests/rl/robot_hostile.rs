@@ -37,7 +37,7 @@ fn send(stream: &mut TcpStream, message: &ServerMessage) {
 
 /// What a cart-pole server's welcome says, as JSON (to be edited by a test).
 fn welcome() -> serde_json::Value {
-    let spec = twinbots::registry::find("cartpole").unwrap().task();
+    let spec = twinbots_run::registry::find("cartpole").unwrap().task();
     serde_json::to_value(ServerMessage::Welcome {
         version: VERSION,
         robot_id: 7,

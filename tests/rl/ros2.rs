@@ -6,10 +6,10 @@
 use std::collections::HashMap;
 
 use bevy::math::{DMat4, DQuat, DVec3};
-use twinbots::registry;
-use twinbots::ros2::Ros2Twin;
+use twinbots_ops::ros2::Ros2Twin;
 use twinbots_ros2::messages::{Duration, Time};
 use twinbots_ros2::{Command, Interface, JointTrajectory, JointTrajectoryPoint, TFMessage};
+use twinbots_run::registry;
 
 fn ur5e() -> Ros2Twin {
     Ros2Twin::new(&registry::find("ur5e").unwrap(), &Default::default()).unwrap()
@@ -166,5 +166,5 @@ fn a_payload_hangs_on_the_flange_as_ur_sims_does() {
     let rig = |name| twinbots_sysid::Rig::of(&registry::find(name).unwrap()).unwrap();
     // The UR5e's last moving link is wrist_3_link; tool0 is fixed to it (then the gripper and
     // its tcp beyond): the flange is tool0, ur-sim's FLANGE.
-    assert_eq!(twinbots::ros2::flange_link(&rig("ur5e")).unwrap(), twinbots::ur_sim::FLANGE);
+    assert_eq!(twinbots_ops::ros2::flange_link(&rig("ur5e")).unwrap(), twinbots_ops::ur_sim::FLANGE);
 }

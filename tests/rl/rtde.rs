@@ -8,8 +8,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use twinbots::ur_sim::program::{ACCELERATION, COUNTER, MODE, MODE_SPEEDJ, MODE_STOP, ProgramState, STATE, TARGET};
-use twinbots::ur_sim::{UrSim, UrSimOptions, controller_info};
+use twinbots_ops::ur_sim::program::{ACCELERATION, COUNTER, MODE, MODE_SPEEDJ, MODE_STOP, ProgramState, STATE, TARGET};
+use twinbots_ops::ur_sim::{UrSim, UrSimOptions, controller_info};
 use twinbots_rtde::server::{InputState, RtdeServer};
 use twinbots_rtde::{RtdeClient, RtdeError, Value};
 

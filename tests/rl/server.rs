@@ -298,7 +298,7 @@ fn serve_and_robot_as_two_processes_train_a_round_trip() {
     assert!(model.timesteps >= 2048 && model.episodes > 0);
     let losses = crate::train_cli::event_scalars(&out).into_iter().filter(|(_, tag, _)| tag == "train/loss").count();
     assert_eq!(losses, rows, "the server logs TensorBoard scalars as train does");
-    // It ends as `train` does (`twinbots::run::finish`): the final model evaluated in-process.
+    // It ends as `train` does (`twinbots_run::run::finish`): the final model evaluated in-process.
     let evaluation: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).unwrap()).unwrap();
     assert!(evaluation["episodes"].as_u64().is_some_and(|n| n >= 1), "{evaluation}");

@@ -343,12 +343,11 @@ fn zero_arenas_are_a_clear_error_not_a_spin() {
 }
 
 #[test]
-fn serve_exits_non_zero_when_its_learner_panics_and_logs_refusals_with_the_peer() {
-    let out = temp("learner-panic");
+fn serve_logs_refusals_with_the_peer() {
+    let out = temp("refusal-log");
     let mut server = twinbots()
-        .args(["serve", "cartpole", "--listen", "127.0.0.1:0", "--robots", "1", "--timesteps", "100000", "--out"])
+        .args(["serve", "cartpole", "--listen", "127.0.0.1:0", "--robots", "1", "--timesteps", "64", "--out"])
         .arg(&out)
-        .env(twinbots_cli_panic_env(), "1")
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -356,33 +355,55 @@ fn serve_exits_non_zero_when_its_learner_panics_and_logs_refusals_with_the_peer(
     let mut line = String::new();
     let mut stdout = std::io::BufReader::new(server.stdout.take().unwrap());
     std::io::BufRead::read_line(&mut stdout, &mut line).unwrap();
+    std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
     let addr: SocketAddr = line.trim().strip_prefix("listening on ").unwrap().parse().unwrap();
-    // A refused client first: its address is in the server's log.
+    let mut stderr_pipe = server.stderr.take().unwrap();
     let mut refused = Robot::connect(addr);
     let peer = refused.writer.local_addr().unwrap();
     assert_eq!(code(&refused.raw(&frame(br#"{"type":"hello","version":1}"#))).0, ErrorCode::UnsupportedVersion);
-    // Then robots that train until the first update panics.
     let robots = twinbots().args(["robot", "cartpole", "--server", &addr.to_string()]).output().unwrap();
-    assert!(!robots.status.success(), "the robots hear that the learner failed");
-    let t = Instant::now();
-    let status = loop {
-        if let Some(status) = server.try_wait().unwrap() {
-            break status;
-        }
-        assert!(t.elapsed() < Duration::from_secs(30), "serve hangs after its learner panicked");
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    assert!(robots.status.success(), "{}", String::from_utf8_lossy(&robots.stderr));
+    assert!(server.wait().unwrap().success());
     let mut stderr = String::new();
-    server.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
-    assert_eq!(status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("error: training failed: the learner panicked"), "{stderr}");
+    stderr_pipe.read_to_string(&mut stderr).unwrap();
     assert!(stderr.contains(&format!("refused {peer}")), "{stderr}");
     std::fs::remove_dir_all(&out).ok();
 }
 
-fn twinbots_cli_panic_env() -> &'static str {
-    // The binary's test hook (src/cli/serve.rs: PANIC_IN_UPDATE_ENV).
-    "TWINBOTS_TEST_PANIC_IN_UPDATE"
+/// A hosted run whose learner panics in its first update ends with that error instead of
+/// hanging, and its robots hear that training failed (a callback that panics stands for a
+/// learner that does: no settings that pass validation make an update fail).
+#[test]
+fn a_hosted_run_ends_with_an_error_when_its_learner_panics() {
+    use twinbots_run::run::{Hosting, Run};
+    use twinbots_run::settings::{ConfigFile, TrainSettings};
+    let out = temp("learner-panic");
+    let entry = twinbots_run::registry::find("cartpole").unwrap();
+    let flags = ConfigFile { arenas: Some(1), timesteps: Some(100_000), pattern: Some(3), ..Default::default() };
+    let settings = TrainSettings::resolve(&entry, ConfigFile::default(), flags).unwrap();
+    let mut run = Run::create(settings, &out).unwrap();
+    run.extra_callbacks.push(|_: &UpdateStats, _: &dyn twinbots_learn::Agent| -> anyhow::Result<Flow> {
+        panic!("the learner panics in its update")
+    });
+    let (tx, rx) = std::sync::mpsc::channel();
+    let hosting = Hosting { listen: "127.0.0.1:0".parse().unwrap(), limits: ServerLimits::default() };
+    let host = std::thread::spawn(move || {
+        run.host(hosting, |addr| {
+            tx.send(addr).unwrap();
+            Ok(())
+        })
+    });
+    let addr: SocketAddr = rx.recv_timeout(Duration::from_secs(60)).unwrap();
+    let robots = twinbots().args(["robot", "cartpole", "--server", &addr.to_string()]).output().unwrap();
+    assert!(!robots.status.success(), "the robots hear that the learner failed");
+    let t = Instant::now();
+    while !host.is_finished() {
+        assert!(t.elapsed() < Duration::from_secs(60), "the hosted run hangs after its learner panicked");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let error = host.join().unwrap().unwrap_err();
+    assert!(format!("{error:#}").contains("training failed: the learner panicked"), "{error:#}");
+    std::fs::remove_dir_all(&out).ok();
 }
 
 #[test]

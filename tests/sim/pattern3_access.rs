@@ -6,9 +6,9 @@
 //! it builds): every system of every schedule asked for its data access.
 
 use bevy::prelude::*;
-use twinbots::registry;
 use twinbots_api::DesignPattern;
 use twinbots_link::audit::pattern_3_violations as violations;
+use twinbots_run::registry;
 use twinbots_sim::{Arena, Handled, Operator, SupervisorAccess, SupervisorPlugin};
 
 /// Every built-in robot task that runs under pattern 3, as a built app (start-up done).

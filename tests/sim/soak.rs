@@ -16,8 +16,8 @@
 use bevy::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use twinbots::registry;
 use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_run::registry;
 use twinbots_sim::{Arena, InArena, Joint, JointState, Motor, PhysicsSubstep, SimSettings, SubstepSet};
 use twinbots_task::AppVecEnv;
 use ur5e::safety::{OVERSPEED_TIME, PEAK_SPEED_MARGIN, SPEED_MARGIN};

@@ -233,7 +233,7 @@ fn the_urdf_check_lists_the_tree_stands_the_robot_and_flags_what_will_not_simula
 </robot>"#,
     )
     .unwrap();
-    let report = twinbots::urdf_check::check(&path, 0.5, &[]).unwrap();
+    let report = twinbots_sim::urdf::check::check(&path, 0.5, &[]).unwrap();
     assert_eq!(report.tree.len(), 3, "{:?}", report.tree);
     assert!(
         report.tree[1].contains("stuck (Revolute, range [0.000, 0.000], motor: effort 5 velocity 0) -> arm"),
@@ -247,14 +247,14 @@ fn the_urdf_check_lists_the_tree_stands_the_robot_and_flags_what_will_not_simula
     assert_eq!(report.warnings.len(), 3, "{warnings}");
     assert!((report.seconds - 0.5).abs() < 1e-9 && report.fastest.0.is_finite());
     // The project's own arm stands without a warning.
-    let ur5e = twinbots::urdf_check::check(
+    let ur5e = twinbots_sim::urdf::check::check(
         std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/robots/ur5e/ur5e.urdf")),
         0.5,
         &[],
     )
     .unwrap();
     assert!(ur5e.warnings.is_empty(), "{:?}", ur5e.warnings);
-    let e = twinbots::urdf_check::check(&path, 0.5, &["elbow".into()]).err().unwrap().to_string();
+    let e = twinbots_sim::urdf::check::check(&path, 0.5, &["elbow".into()]).err().unwrap().to_string();
     assert!(e.contains("--decompose: robot 'flagged' has no link 'elbow' (its links: base, arm)"), "{e}");
 }
 

@@ -1,7 +1,7 @@
 //! What the camera reach's policy sees: the first observation images of a few arenas, scaled
 //! up and tiled into one PNG.
 //!
-//! `cargo run --release --example camera_reach_view -- [CAMERA] [FOV] [SIZE] [OUT.png]`
+//! `cargo run --release -p twinbots_tools --bin camera_reach_view -- [CAMERA] [FOV] [SIZE] [OUT.png]`
 //! (docs/figures/ur5e-camera-reach-view.png: `iso 30 64`)
 
 use twinbots_api::{DesignPattern, VecEnv};

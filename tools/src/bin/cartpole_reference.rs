@@ -2,7 +2,7 @@
 //! 16 solver iterations) instead of the twin's training timing: what `tests/sim/accuracy.rs`
 //! bounds step by step, checked on the learned policy's score.
 //!
-//! `cargo run --release --example cartpole_reference <run-dir> [episodes]`
+//! `cargo run --release -p twinbots_tools --bin cartpole_reference <run-dir> [episodes]`
 
 use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_learn::Ppo;

@@ -31,7 +31,7 @@
 //! (brightness, contrast and saturation ±40 %, each channel ±10 %), as RAD (Laskin et al. 2020)
 //! augments pixel observations; the held-out images are read as rendered.
 //!
-//! `cargo run --release --example pixel_probe -- --robot ur5e --images 24000 --epochs 10 --fov 30
+//! `cargo run --release -p twinbots_tools --bin pixel_probe -- --robot ur5e --images 24000 --epochs 10 --fov 30
 //! --size 96 --looks assets/looks/textures-and-lights.toml --annealed --jitter --save encoder.safetensors`
 //! (`--help` lists every option with its default).
 

@@ -7,7 +7,7 @@
 //! the way there falls or is flat to within the replay's numerical noise. `ROUNDS` > 1 restarts
 //! the search from its last fit (new curvature, new CMA-ES state) that many times.
 //!
-//! `cargo run --release --example sysid_truth_probe -- [GENERATIONS] [ROUNDS]`
+//! `cargo run --release -p twinbots_tools --bin sysid_truth_probe -- [GENERATIONS] [ROUNDS]`
 
 use anyhow::Context;
 use twinbots_sim::Parameters;

@@ -2,7 +2,7 @@
 //! seed (`[randomization.visual]` at its defaults with 2–4 distractors, or a run
 //! configuration's table), tiled into one PNG (docs/figures/ur5e-visual-randomization.png).
 //!
-//! `cargo run --release --example visual_looks -- [robot] [looks] [out.png] [config.toml]`
+//! `cargo run --release -p twinbots_tools --bin visual_looks -- [robot] [looks] [out.png] [config.toml]`
 
 use anyhow::Context;
 use twinbots_api::{DesignPattern, VecEnv};
@@ -26,7 +26,7 @@ fn main() -> anyhow::Result<()> {
             ..Default::default()
         },
     };
-    let entry = twinbots::registry::find(robot)?;
+    let entry = twinbots_run::registry::find(robot)?;
     let view = View::framed(&entry.framing, "iso").context("the iso camera")?;
     let mut renderer = Renderer::new(TILE.0, TILE.1)?;
     renderer.set_view(view);

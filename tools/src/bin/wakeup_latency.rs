@@ -3,7 +3,7 @@
 //! nothing of twinbots running: what it sees is the kernel's and the hypervisor's, the floor
 //! under `bench rtde`'s "no missed cycle". Run it under `chrt -f 50` for real-time priority.
 //!
-//! `cargo run --release --example wakeup_latency -- [SECONDS]`
+//! `cargo run --release -p twinbots_tools --bin wakeup_latency -- [SECONDS]`
 
 use std::time::{Duration, Instant};
 

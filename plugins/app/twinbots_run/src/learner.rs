@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use twinbots_api::TaskSpec;
 use twinbots_learn::{Learner, RunDir, algos};
 
-use twinbots::settings::TrainSettings;
+use crate::settings::TrainSettings;
 
 /// A new learner for the task `spec` (whose goal, if any, an algorithm with HER relabels with).
 pub fn new(settings: &TrainSettings, spec: &TaskSpec) -> anyhow::Result<Box<dyn Learner>> {

@@ -9,9 +9,9 @@ use twinbots_onnx::OnnxPolicy;
 use twinbots_task::robot::Feedback;
 use twinbots_task::{AppVecEnv, DesignPattern};
 
-use crate::registry::RobotEntry;
-use crate::run::evaluation_app;
-use crate::settings::TrainSettings;
+use twinbots_run::registry::RobotEntry;
+use twinbots_run::run::evaluation_app;
+use twinbots_run::settings::TrainSettings;
 
 /// A controller named in a study.
 pub enum Controller {

@@ -29,13 +29,10 @@ use twinbots_render::pixels::TaskObservation;
 use twinbots_task::AppVecEnv;
 use twinbots_task::randomization::RandomizationPlugin;
 
-use crate::registry::RobotEntry;
-use crate::settings::TrainSettings;
-use crate::study::controller::NamedController;
+use crate::controller::NamedController;
+use twinbots_run::registry::RobotEntry;
+use twinbots_run::settings::TrainSettings;
 
-/// Where the rounds' seeds start (from the run's seed): apart from its training, periodic and
-/// final evaluations'.
-const ROUND_SEED_OFFSET: u64 = 3_000_003;
 /// Answers per gradient step.
 const BATCH: usize = 256;
 
@@ -118,7 +115,7 @@ pub fn distill(
     // The teacher's spaces against the task's own (as it observes the state).
     teacher.env(entry, settings.task.as_deref(), 1, 0, |_| Ok(()))?;
 
-    let mut app = crate::run::evaluation_app(
+    let mut app = twinbots_run::run::evaluation_app(
         entry,
         None,
         settings.arenas,
@@ -161,7 +158,7 @@ pub fn distill(
             &learner,
             &teacher,
             options.steps,
-            settings.seed.wrapping_add(ROUND_SEED_OFFSET + round as u64),
+            settings.seed.wrapping_add(twinbots_api::seeds::DISTILL_ROUND + round as u64),
             &mut answers,
         )?;
         let cross_entropy = learner.fit(&ppo, &answers, options.epochs, &mut rng)?;
@@ -247,7 +244,7 @@ fn write_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {
             r.round, r.episodes, r.mean_score, r.disagreement, r.answers, r.cross_entropy, r.seconds
         );
     }
-    twinbots_learn::ppo::write_atomic(path, text.as_bytes()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    twinbots_api::files::write_atomic(path, text.as_bytes()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 /// The teacher's answers: what the student kept of each observation, and the teacher's action.

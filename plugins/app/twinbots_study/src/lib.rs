@@ -6,6 +6,7 @@
 
 pub mod cell;
 pub mod controller;
+pub mod distill;
 pub mod metrics;
 pub mod report;
 pub mod suite;
@@ -20,7 +21,7 @@ use twinbots_sim::{Arena, InArena, Link, Push, SimSettings, SupervisorAccess, ad
 use self::controller::{NamedController, open_all, reset_alike};
 use self::metrics::Response;
 use self::suite::{NamedTest, Suite, Test};
-use crate::registry::RobotEntry;
+use twinbots_run::registry::RobotEntry;
 
 /// One run's record: its test, what happened and its figures.
 #[derive(Clone, Debug, Serialize)]

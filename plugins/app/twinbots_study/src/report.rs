@@ -4,7 +4,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use twinbots_learn::model_io::write_atomic;
+use twinbots_api::files::write_atomic;
 
 use super::{RunRecord, StudyResult};
 

@@ -7,8 +7,10 @@
 pub mod env;
 pub mod env_state;
 pub mod episode;
+pub mod files;
 pub mod goal;
-pub mod replay;
+pub mod restore;
+pub mod seeds;
 pub mod spaces;
 pub mod task;
 
@@ -16,6 +18,6 @@ pub use env::{Info, SingleEnv, StepResult, Transition, VecEnv};
 pub use env_state::{EnvState, RunningEpisode, StreamState};
 pub use episode::{EpisodeSummary, Measure, SolvedCriterion};
 pub use goal::{GoalChange, GoalSpec};
-pub use replay::replay;
+pub use restore::restore;
 pub use spaces::Space;
 pub use task::{DesignPattern, TaskSpec};

@@ -1,23 +1,24 @@
-//! Episode replay: the state of a vectorised env, kept as the starts and actions of its running
-//! episodes, so a checkpoint can put the envs back exactly where they were.
+//! Restoring a vectorised env's state: kept as the starts and actions of its running episodes,
+//! so a checkpoint can put the envs back exactly where they were. (Replaying a *robot log* on
+//! the twin is `twinbots_sysid`'s, not this.)
 //!
 //! An arena's episode is a function of its random stream when it was reset and the actions it
 //! got since (physics, devices, noise and randomization all draw from that stream; the device
 //! schedule from the control-step clock). So instead of serialising the physics world and every
 //! device, a checkpoint keeps, per arena, the stream state at its episode's reset and the
-//! actions since ([`EnvState`]), and [`replay`] resets each arena from that stream and steps the
+//! actions since ([`EnvState`]), and [`restore`] resets each arena from that stream and steps the
 //! actions again. A resumed run then continues bit for bit as the uninterrupted one would.
 //!
-//! Arenas' episodes started at different steps. The replay starts with the clock where the
+//! Arenas' episodes started at different steps. The restore starts with the clock where the
 //! oldest running episode began, and starts each younger episode when its turn comes; until
 //! then that arena steps with a neutral action, and what it does is thrown away by its reset.
 
 use crate::env::VecEnv;
 use crate::env_state::{EnvState, StreamState};
 
-/// Puts `env` back in `state` by replaying its running episodes; returns the observations the
+/// Puts `env` back in `state` by stepping its running episodes again; returns the observations the
 /// envs are at (raw). `env` must be a fresh env of the same robot, task and arena count.
-pub fn replay(env: &mut dyn VecEnv, state: &EnvState) -> anyhow::Result<Vec<f32>> {
+pub fn restore(env: &mut dyn VecEnv, state: &EnvState) -> anyhow::Result<Vec<f32>> {
     let n = env.num_envs();
     let dim = env.action_space().dim();
     anyhow::ensure!(

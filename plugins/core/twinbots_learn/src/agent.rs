@@ -64,3 +64,26 @@ pub trait Agent {
 pub trait LoadAgent: Agent + Sized {
     fn load(dir: &Path) -> Result<Self, ModelError>;
 }
+
+/// The [`Agent`] accessors every learner writes alike, over its fields of the same names
+/// (`observation_space`, `action_space`, `timesteps`, `episodes`, `history`): written once here.
+macro_rules! spaces_and_counters {
+    () => {
+        fn observation_space(&self) -> &twinbots_api::Space {
+            &self.observation_space
+        }
+        fn action_space(&self) -> &twinbots_api::Space {
+            &self.action_space
+        }
+        fn timesteps(&self) -> u64 {
+            self.timesteps
+        }
+        fn episodes(&self) -> u64 {
+            self.episodes
+        }
+        fn history(&self) -> &$crate::history::EpisodeHistory {
+            &self.history
+        }
+    };
+}
+pub(crate) use spaces_and_counters;

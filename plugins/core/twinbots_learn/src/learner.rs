@@ -15,12 +15,13 @@ use crate::model_io::ModelError;
 use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats};
 
 pub trait Learner: Agent + Send {
-    /// Trains on `env` for `total_timesteps` more steps (summed over envs) or until a callback
-    /// stops it; schedules run over the whole budget, earlier sessions included.
+    /// Trains on `env` for `more_steps` env steps beyond its `timesteps` (summed over envs), or
+    /// until a callback stops it (SB3's `learn(total_timesteps, reset_num_timesteps=False)`);
+    /// schedules run over the whole budget, earlier training included.
     fn learn(
         &mut self,
         env: &mut dyn VecEnv,
-        total_timesteps: u64,
+        more_steps: u64,
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd>;
     /// Where its training time went, since it was made or loaded.
@@ -32,11 +33,11 @@ pub trait Learner: Agent + Send {
         Ok(())
     }
     /// This model, learning from robots' steps as a RobotServer receives them, with batches
-    /// (a rollout, a training iteration) sized for `robots` robots, until `total_timesteps`
-    /// (the model's `timesteps`, earlier sessions included). Only algorithms whose line in
-    /// `ALGOS` says `serves` can.
-    fn serve(self: Box<Self>, robots: usize, total_timesteps: u64) -> anyhow::Result<Box<dyn ServedLearner>> {
-        let _ = (robots, total_timesteps);
+    /// (a rollout, a training iteration) sized for `robots` robots, until its `timesteps`
+    /// (earlier training included) reach `budget` — an absolute count, unlike `learn`'s. Only
+    /// algorithms whose line in `ALGOS` says `serves` can.
+    fn serve(self: Box<Self>, robots: usize, budget: u64) -> anyhow::Result<Box<dyn ServedLearner>> {
+        let _ = (robots, budget);
         anyhow::bail!("{} cannot learn from a RobotServer", self.algorithm())
     }
 }

@@ -26,18 +26,7 @@ pub fn file_error(path: &Path, e: impl std::fmt::Display) -> ModelError {
     ModelError::File { path: path.to_path_buf(), message: e.to_string() }
 }
 
-/// Writes `bytes` to `path` through a temporary file and a rename, so a crash never leaves a
-/// half-written file under the final name.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let tmp = path.with_extension("tmp");
-    {
-        use std::io::Write;
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-    }
-    std::fs::rename(&tmp, path)
-}
+pub use twinbots_api::files::write_atomic;
 
 /// The largest magnitude a saved weight may have. Trained networks here stay within ±100;
 /// beyond this a file is damaged (3e38 once loaded, and every later update was skipped).
@@ -72,9 +61,8 @@ pub fn set_vars(named: &[(String, Var)], tensors: &HashMap<String, Tensor>) -> a
 
 /// Writes tensors as safetensors to `path` through a temporary file and a rename.
 pub fn save_tensors(tensors: &HashMap<String, Tensor>, path: &Path) -> Result<(), ModelError> {
-    let tmp = path.with_extension("tmp");
-    candle_core::safetensors::save(tensors, &tmp).map_err(|e| file_error(&tmp, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| file_error(path, e))
+    twinbots_api::files::write_through(path, |tmp| Ok(candle_core::safetensors::save(tensors, tmp)?))
+        .map_err(|e| file_error(path, e))
 }
 
 pub fn load_tensors(path: &Path) -> Result<HashMap<String, Tensor>, ModelError> {

@@ -49,15 +49,13 @@ pub fn png(
         // The font is compiled in; failing to parse it is a build defect the tests catch.
         let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
     });
-    let tmp = path.with_extension("tmp.png");
-    {
-        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+    twinbots_api::files::write_through(path, |tmp| {
+        let root = BitMapBackend::new(tmp, size).into_drawing_area();
         root.fill(&WHITE)?;
         draw(&root)?;
         root.present().map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
-    }
-    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(())
+        Ok(())
+    })
 }
 
 /// The series' legend, boxed, at `position`.

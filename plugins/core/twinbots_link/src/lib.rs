@@ -17,3 +17,4 @@ pub mod policy_link;
 pub mod protocol;
 pub mod robot;
 pub mod tls;
+pub mod token;

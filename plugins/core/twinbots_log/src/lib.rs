@@ -35,13 +35,6 @@ impl Format {
             ),
         }
     }
-
-    fn extension(self) -> &'static str {
-        match self {
-            Self::Mcap => "mcap",
-            Self::Csv => "csv",
-        }
-    }
 }
 
 /// Reads a log, MCAP or CSV by its extension (`.mcap`, `.csv`); errors name the file.
@@ -66,10 +59,7 @@ pub fn write(log: &RobotLog, path: &Path) -> anyhow::Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
     }
-    let tmp = path.with_extension(format!("{}.tmp", format.extension()));
-    std::fs::write(&tmp, bytes).map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
-    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(())
+    twinbots_api::files::write_atomic(path, &bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 #[cfg(test)]

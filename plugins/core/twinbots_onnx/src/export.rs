@@ -32,8 +32,8 @@ use prost::Message;
 use tract_onnx::pb;
 use tract_onnx::pb::tensor_proto::DataType;
 use twinbots_api::Space;
+use twinbots_api::files::write_atomic;
 use twinbots_learn::Agent;
-use twinbots_learn::model_io::write_atomic;
 use twinbots_learn::nn::Patches;
 use twinbots_learn::normalize::CLIP;
 use twinbots_learn::policy_net::{

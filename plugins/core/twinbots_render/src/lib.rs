@@ -6,6 +6,7 @@ pub mod batch;
 pub mod cameras;
 pub mod coords;
 pub mod pixels;
+pub mod recorder;
 pub mod renderer;
 pub mod scene;
 pub mod shading;

@@ -183,3 +183,64 @@ impl RealTime {
         n
     }
 }
+
+/// `train --view`: the bridged training app, advanced in time slices between frames so that
+/// every arena keeps training as fast as the window allows; arena 0 is shown.
+pub struct TrainingView {
+    app: App,
+    arena: Entity,
+    frames: u64,
+    updates: u64,
+    started: Instant,
+    /// When the last slice ended: the gap until the next is what drawing a frame cost.
+    last_slice_end: Option<Instant>,
+}
+
+impl ViewSource for TrainingView {
+    fn advance(&mut self, budget: Duration, paused: bool, single_step: bool) -> bool {
+        self.frames += 1;
+        // Train at least 3× as long as a frame takes to draw: ≥ 75 % of the time trains,
+        // whether frames come from a GPU (fast) or a software renderer (slow).
+        let drawing = self.last_slice_end.map_or(Duration::ZERO, |t| t.elapsed());
+        let until = Instant::now() + budget.max(drawing * 3);
+        let result = self.slice(until, paused, single_step);
+        self.last_slice_end = Some(Instant::now());
+        result
+    }
+    fn reset(&mut self) {}
+    fn sim_world(&mut self) -> &mut World {
+        self.app.world_mut()
+    }
+    fn arena(&self) -> Entity {
+        self.arena
+    }
+    fn status(&self) -> String {
+        let secs = self.started.elapsed().as_secs_f64();
+        format!("training — {} frames shown, {:.0} app updates/s", self.frames, self.updates as f64 / secs)
+    }
+}
+
+impl TrainingView {
+    /// The training `app`, showing `arena`.
+    pub fn new(app: App, arena: Entity) -> Self {
+        Self { app, arena, frames: 0, updates: 0, started: Instant::now(), last_slice_end: None }
+    }
+
+    fn slice(&mut self, until: Instant, paused: bool, single_step: bool) -> bool {
+        loop {
+            if paused && !single_step {
+                return true;
+            }
+            self.app.update();
+            self.updates += 1;
+            let closed =
+                self.app.world().get_resource::<twinbots_task::bridge::BridgeEndpoint>().is_none_or(|e| e.closed);
+            if closed {
+                return false;
+            }
+            if paused || Instant::now() >= until {
+                return true;
+            }
+        }
+    }
+}

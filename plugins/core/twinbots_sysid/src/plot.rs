@@ -26,15 +26,13 @@ fn write_png(
     draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
     register_font();
-    let tmp = path.with_extension("tmp.png");
-    {
-        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+    twinbots_api::files::write_through(path, |tmp| {
+        let root = BitMapBackend::new(tmp, size).into_drawing_area();
         root.fill(&WHITE)?;
         draw(&root)?;
         root.present().map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
-    }
-    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(())
+        Ok(())
+    })
 }
 
 /// One row per joint: the logged position and each labelled twin's against time (left), and

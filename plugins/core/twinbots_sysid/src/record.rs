@@ -65,7 +65,7 @@ pub fn record(rig: &Rig, truth: &Parameters, recording: &Recording) -> anyhow::R
     let program = program(rig, recording.excitation, recording.seconds, recording.seed);
     let trajectory = run(rig, &[], &program, std::slice::from_ref(&params)).pop().expect("one arena, one trajectory");
     let bias = rig.biases(&params);
-    let mut rng = ChaCha8Rng::seed_from_u64(recording.seed ^ 0x5e75_0a15);
+    let mut rng = ChaCha8Rng::seed_from_u64(recording.seed ^ twinbots_api::seeds::RECORDING_NOISE);
     let noise = recording.noise;
     let mut n =
         |std: f64| if std > 0.0 { Normal::new(0.0, std).expect("a positive std").sample(&mut rng) } else { 0.0 };

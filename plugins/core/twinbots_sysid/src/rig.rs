@@ -47,6 +47,14 @@ impl Rig {
         Ok(Self { robot: robot.name, description, model, settings, nominal, catalogue, joints, actuated, ancestors })
     }
 
+    /// A calibration file's parameters (`twinbots identify`'s `calibration.toml`), checked
+    /// against this robot's catalogue; none without a file.
+    pub fn read_calibration(&self, path: Option<&std::path::Path>) -> anyhow::Result<Parameters> {
+        path.map_or(Ok(Parameters::default()), |p| {
+            twinbots_task::calibration::read_calibration(p, &self.catalogue, self.robot)
+        })
+    }
+
     /// The nominal parameters with `overrides` over them, checked against the catalogue.
     pub fn parameters(&self, overrides: &Parameters) -> anyhow::Result<Parameters> {
         overrides.check(&self.catalogue, self.robot).map_err(anyhow::Error::msg)?;

@@ -15,7 +15,7 @@ use twinbots_sim::rapier::prelude::Pose;
 use twinbots_sysid::{Rig, Stand};
 
 use self::trajectory::Following;
-use crate::registry::RobotEntry;
+use twinbots_run::registry::RobotEntry;
 
 /// The frame the robot's root link stands in.
 pub const WORLD_FRAME: &str = "world";

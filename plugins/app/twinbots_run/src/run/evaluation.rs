@@ -1,9 +1,6 @@
-//! One training run, whoever drives the learner (`twinbots train`, `twinbots serve`, and through
-//! the extension Python): its run directory made with the settings (`config.toml`), the
-//! callbacks it trains with, and its end — the final model saved, evaluated in-process into
-//! `eval.json` and summed up in `summary.json`.
-
-use std::path::{Path, PathBuf};
+//! What every run trains with and ends with, whoever drives its learner: its callbacks, the
+//! evaluation envs (periodic, final, `twinbots eval`), and its end — the final model saved,
+//! evaluated in-process into `eval.json` and summed up in `summary.json`.
 
 use twinbots_api::{SolvedCriterion, VecEnv};
 use twinbots_learn::callbacks::{
@@ -16,20 +13,6 @@ use twinbots_task::AppVecEnv;
 
 use crate::registry::RobotEntry;
 use crate::settings::TrainSettings;
-
-/// Makes the run directory `out` for `settings` (`config.toml` written); a directory that
-/// already holds a run is refused.
-pub fn create(settings: &TrainSettings, out: &Path) -> anyhow::Result<RunDir> {
-    let run = RunDir::new(out);
-    anyhow::ensure!(
-        !run.holds_run(),
-        "{} already holds a run (resume it with --resume, or choose another --out)",
-        out.display()
-    );
-    run.create()?;
-    run.write_config(settings)?;
-    Ok(run)
-}
 
 /// The end of a run: saves the final `model`, evaluates it in-process on the run's final
 /// evaluation seed (a pattern-3 model under pattern 1: the same policy) into `eval.json`, and
@@ -136,10 +119,4 @@ pub fn evaluation_app(
     twinbots_task::calibration::calibrate(&mut app, calibration);
     settings.observe(&mut app, entry, arenas)?;
     Ok(app)
-}
-
-/// Default run directory: `runs/<robot>-<unix seconds>`.
-pub fn default_run_dir(robot: &str) -> PathBuf {
-    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
-    PathBuf::from("runs").join(format!("{robot}-{secs}"))
 }

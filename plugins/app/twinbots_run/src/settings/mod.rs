@@ -11,64 +11,15 @@ use twinbots_learn::RunDir;
 use twinbots_learn::algos;
 use twinbots_learn::learner::{Algorithm, config_from};
 use twinbots_render::PixelSettings;
-use twinbots_task::randomization::{FitSpread, Randomization};
+use twinbots_task::randomization::Randomization;
 
 use crate::registry::RobotEntry;
 
-/// Evaluation arenas are seeded away from the training seed, so they never replay training's
-/// episodes (primes, far apart: no run's seed range reaches them).
-pub const PERIODIC_EVAL_SEED_OFFSET: u64 = 1_000_003;
-pub const FINAL_EVAL_SEED_OFFSET: u64 = 2_000_003;
+mod calibration;
+pub use calibration::CalibrationSetting;
 
 /// The plain settings, as a config file names them (the algorithms' tables come on top).
 const KEYS: &str = "task, timesteps, arenas, seed, pattern, checkpoint_every, eval_every, eval_episodes, algo, [randomization], [calibration], [pixels], [cell]";
-
-/// The twin's calibration (`twinbots identify`'s file), recorded in full in the run's
-/// `config.toml`: the run does not depend on the file afterwards.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CalibrationSetting {
-    /// The file it was read from.
-    pub file: String,
-    /// Its `[parameters]`, over the robot's nominal ones.
-    pub parameters: BTreeMap<String, f64>,
-    /// Its `[spread]`: each fitted value's standard deviation, which
-    /// `randomization.calibration_spread` draws with (none in a hand-written file).
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub spread: BTreeMap<String, f64>,
-}
-
-impl CalibrationSetting {
-    /// Reads a calibration file, checked against the robot's parameters.
-    pub fn read(entry: &RobotEntry, path: &Path) -> anyhow::Result<Self> {
-        let rig = twinbots_sysid::Rig::of(entry)?;
-        let (params, spread) =
-            twinbots_task::calibration::read_calibration_with_spread(path, &rig.catalogue, rig.robot)?;
-        Ok(Self { file: path.display().to_string(), parameters: params.0, spread: spread.0 })
-    }
-
-    /// [`CalibrationSetting::read`] of the file, if one is given.
-    pub fn read_optional(entry: &RobotEntry, path: Option<&Path>) -> anyhow::Result<Option<Self>> {
-        path.map(|path| Self::read(entry, path)).transpose()
-    }
-
-    /// The parameters as the resource apps take.
-    pub fn parameters(&self) -> twinbots_sim::Parameters {
-        twinbots_sim::Parameters(self.parameters.clone())
-    }
-
-    /// Puts the calibration over the twin's nominal parameters in `app`, before its start-up
-    /// applies them, and its spread where randomization can draw with it.
-    pub fn configure(&self, app: &mut bevy::prelude::App) {
-        twinbots_task::calibration::calibrate(app, &self.parameters());
-        app.insert_resource(FitSpread(twinbots_sim::Parameters(self.spread.clone())));
-    }
-
-    /// `randomization`'s check that a spread it draws with is there.
-    pub fn check_randomization(calibration: Option<&Self>, randomization: &Randomization) -> anyhow::Result<()> {
-        randomization.check_spread(calibration.is_some_and(|c| !c.spread.is_empty()))
-    }
-}
 
 /// Everything a run is made of; written to `config.toml`, read by `--config` and `--resume`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -335,12 +286,12 @@ impl TrainSettings {
 
     /// The seed of the periodic evaluations (the same each time, so they compare).
     pub fn periodic_eval_seed(&self) -> u64 {
-        self.seed.wrapping_add(PERIODIC_EVAL_SEED_OFFSET)
+        self.seed.wrapping_add(twinbots_api::seeds::PERIODIC_EVALUATION)
     }
 
     /// The seed of the final model's evaluation (`eval.json`, `twinbots eval`).
     pub fn final_eval_seed(&self) -> u64 {
-        self.seed.wrapping_add(FINAL_EVAL_SEED_OFFSET)
+        self.seed.wrapping_add(twinbots_api::seeds::FINAL_EVALUATION)
     }
 
     /// The run's algorithm.
@@ -441,180 +392,4 @@ impl TrainSettings {
 }
 
 #[cfg(test)]
-mod tests {
-    use rand::{Rng, SeedableRng};
-    use twinbots_learn::SacConfig;
-
-    use super::*;
-
-    #[test]
-    fn sac_settings_resolve_from_the_robots_sac_defaults_key_by_key_and_refuse_what_sac_cannot_do() {
-        let ur5e = crate::registry::find("ur5e").unwrap();
-        let file: ConfigFile = toml::from_str("algo = \"sac\"\n[sac]\nbatch_size = 128\n").unwrap();
-        let s = TrainSettings::resolve(&ur5e, file, ConfigFile::default()).unwrap();
-        let defaults = ur5e.defaults.of("sac");
-        assert_eq!(
-            (s.algo.as_str(), s.arenas, s.timesteps, s.eval_every),
-            ("sac", defaults.arenas, defaults.timesteps, defaults.eval_every)
-        );
-        let tuned: SacConfig = defaults.config().unwrap();
-        assert_eq!(
-            s.config_of::<SacConfig>("sac").unwrap(),
-            SacConfig { batch_size: 128, ..tuned },
-            "a [sac] key replaced more than itself"
-        );
-        let flags = ConfigFile { algo: Some("ppo".into()), ..Default::default() };
-        let file: ConfigFile = toml::from_str("algo = \"sac\"\n").unwrap();
-        assert_eq!(TrainSettings::resolve(&ur5e, file, flags).unwrap().algo, "ppo", "the flag did not win");
-
-        let sac = || ConfigFile { algo: Some("sac".into()), ..Default::default() };
-        let cartpole = crate::registry::find("cartpole").unwrap();
-        let err = TrainSettings::resolve(&cartpole, sac(), ConfigFile::default()).unwrap_err().to_string();
-        assert!(err.contains("algo = sac") && err.contains("Box"), "{err}");
-        let pattern3 = ConfigFile { pattern: Some(3), ..Default::default() };
-        // The RobotServer trains SAC too (its line of the table says it `serves`).
-        assert_eq!(TrainSettings::resolve(&ur5e, sac(), pattern3).unwrap().algo, "sac");
-        let file: ConfigFile = toml::from_str("[sac]\ntau = 2.0\n").unwrap();
-        let err = TrainSettings::resolve(&ur5e, file, sac()).unwrap_err().to_string();
-        assert!(err.starts_with("sac.tau = 2"), "{err}");
-    }
-
-    /// Every key a config file may hold, with the kind of value it takes.
-    const KEYS: &[&str] = &[
-        "task",
-        "timesteps",
-        "arenas",
-        "seed",
-        "pattern",
-        "checkpoint_every",
-        "eval_every",
-        "eval_episodes",
-        "ppo.learning_rate",
-        "ppo.linear_lr",
-        "ppo.n_steps",
-        "ppo.batch_size",
-        "ppo.n_epochs",
-        "ppo.gamma",
-        "ppo.gae_lambda",
-        "ppo.clip_range",
-        "ppo.ent_coef",
-        "ppo.vf_coef",
-        "ppo.max_grad_norm",
-        "ppo.target_kl",
-        "ppo.normalize_advantage",
-        "ppo.normalize_observations",
-        "ppo.hidden",
-        "ppo.log_std_init",
-        "ppo.no_such_key",
-        "algo",
-        "sac.learning_rate",
-        "sac.buffer_size",
-        "sac.learning_starts",
-        "sac.batch_size",
-        "sac.tau",
-        "sac.gamma",
-        "sac.train_freq",
-        "sac.gradient_steps",
-        "sac.learn_ent_coef",
-        "sac.ent_coef_init",
-        "sac.target_entropy",
-        "sac.target_update_interval",
-        "sac.hidden",
-        "sac.normalize_observations",
-        "sac.log_interval",
-        "sac.her_goals",
-        "sac.typo",
-        "randomization.start_window",
-        "randomization.action_probability",
-        "randomization.mass_scale",
-        "randomization.friction",
-        "randomization.motor_strength",
-        "randomization.sensor_noise",
-        "randomization.action_latency",
-        "randomization.typo",
-        "randomization.visual.lights",
-        "randomization.visual.light_intensity",
-        "randomization.visual.field_of_view",
-        "randomization.visual.ambient",
-        "randomization.visual.textures",
-        "randomization.visual.typo",
-    ];
-    const VALUES: &[&str] = &[
-        "0",
-        "1",
-        "-1",
-        "2",
-        "3",
-        "64",
-        "4096",
-        "4097",
-        "18446744073709551615",
-        "-9223372036854775808",
-        "0.5",
-        "1e-300",
-        "1e300",
-        "1e39",
-        "nan",
-        "inf",
-        "-inf",
-        "true",
-        "\"x\"",
-        "[]",
-        "[0]",
-        "[64, 64]",
-        "[1.0, 0.5]",
-        "[0.5, 1.0]",
-        "[0, inf]",
-        "[nan, 1]",
-        "[1, 2, 3]",
-        "[100000000, 1]",
-        "{}",
-        "\"sac\"",
-        "\"ppo\"",
-        "\"balance\"",
-    ];
-
-    /// Random config files made of real keys and hostile values: every one resolves to valid
-    /// settings or to an error naming a key, and none panics.
-    #[test]
-    fn no_config_file_panics_and_every_refusal_names_its_key() {
-        let entry = crate::registry::find("cartpole").unwrap();
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
-        let (mut accepted, mut refused) = (0, 0);
-        for _ in 0..20_000 {
-            let mut tables: std::collections::BTreeMap<&str, Vec<String>> = Default::default();
-            for _ in 0..rng.random_range(1..4) {
-                let key = KEYS[rng.random_range(0..KEYS.len())];
-                let value = VALUES[rng.random_range(0..VALUES.len())];
-                let (table, name) = key.split_once('.').unwrap_or(("", key));
-                tables.entry(table).or_default().push(format!("{name} = {value}"));
-            }
-            let mut text = String::new();
-            for (table, lines) in &tables {
-                if !table.is_empty() {
-                    text += &format!("[{table}]\n");
-                }
-                for line in lines {
-                    text += line;
-                    text.push('\n');
-                }
-            }
-            let outcome =
-                ConfigFile::parse(&text).and_then(|file| TrainSettings::resolve(&entry, file, ConfigFile::default()));
-            match outcome {
-                Ok(settings) => {
-                    settings.validate().unwrap();
-                    accepted += 1;
-                }
-                Err(e) => {
-                    let message = format!("{e:#}");
-                    let named = KEYS.iter().any(|k| message.contains(k.rsplit('.').next().unwrap()))
-                        || message.contains("duplicate key");
-                    assert!(named, "{text:?} was refused without naming a key: {message}");
-                    refused += 1;
-                }
-            }
-        }
-        assert!(accepted > 800 && refused > 1000, "{accepted} accepted, {refused} refused: the values are not a mix");
-    }
-}
+mod tests;

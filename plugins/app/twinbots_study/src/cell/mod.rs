@@ -25,7 +25,7 @@ use ur5e::pick_place::{Stage, waypoint};
 use self::plan::{CellStudy, Combination, Failure};
 use super::controller::{NamedController, open_all, reset_alike};
 use super::{Payload, add_payloads};
-use crate::registry::RobotEntry;
+use twinbots_run::registry::RobotEntry;
 
 /// The program's phases, in order, as the breakdown names them.
 pub const PHASES: [(Stage, &str); 9] = [

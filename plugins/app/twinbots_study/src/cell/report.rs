@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use bevy::math::Vec3;
-use twinbots_learn::model_io::write_atomic;
+use twinbots_api::files::write_atomic;
 use ur5e::cell::{PART_HEIGHT, POCKET_FLOOR};
 use ur5e::layout::CellLayout;
 use ur5e::pick_place::CLEARANCE;

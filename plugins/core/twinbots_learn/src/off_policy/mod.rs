@@ -1,8 +1,10 @@
-//! What the off-policy learners (SAC, TD3) share around their replay buffer: actions in
-//! [−1, 1] scaled to the action box, a vectorised step stored as transitions, the training
-//! loop ([`learn`]) and learning from robots ([`served`]), through the [`OffPolicy`] face each
-//! of them shows.
+//! The off-policy learners' base (SAC, TD3; SB3's `OffPolicyAlgorithm`): their critics
+//! ([`networks`]), their replay buffer on disk ([`replay_file`]), actions in [−1, 1] scaled to
+//! the action box, a vectorised step stored as transitions, the training loop ([`learn`]) and
+//! learning from robots ([`served`]), through the [`OffPolicy`] face each of them shows.
 
+pub mod networks;
+pub(crate) mod replay_file;
 pub(crate) mod served;
 
 use std::time::Instant;
@@ -105,12 +107,12 @@ pub(crate) fn replay_buffer<M: OffPolicy>(model: &mut M, lanes: usize) -> usize 
     model.parts().buffer.as_ref().map_or(lanes, |b| b.n_envs)
 }
 
-/// Trains `model` for `total_timesteps` more env steps (summed over envs), calling `callback`
+/// Trains `model` for `more_steps` more env steps (summed over envs), calling `callback`
 /// after every row, and says why it stopped: SAC's and TD3's `learn`.
 pub(crate) fn learn<M: OffPolicy>(
     model: &mut M,
     env: &mut dyn VecEnv,
-    total_timesteps: u64,
+    more_steps: u64,
     callback: &mut dyn Callback,
 ) -> anyhow::Result<TrainingEnd> {
     model.check_spaces(env.observation_space(), env.action_space())?;
@@ -119,10 +121,10 @@ pub(crate) fn learn<M: OffPolicy>(
     let lanes = replay_buffer(model, n_envs);
     anyhow::ensure!(lanes == n_envs, "the replay buffer was filled by {lanes} envs, this env has {n_envs}");
     let parts = model.parts();
-    let end = *parts.timesteps + total_timesteps;
+    let end = *parts.timesteps + more_steps;
     // A model that learnt before continues its envs' episodes (replayed); a new one starts.
     let mut obs = match parts.env_state.take() {
-        Some(state) => twinbots_api::replay(env, &state)?,
+        Some(state) => twinbots_api::restore(env, &state)?,
         None => {
             let first = env.reset(Some(parts.seed.wrapping_add(*parts.timesteps)))?;
             if let Some(rms) = parts.obs_rms {

@@ -8,7 +8,7 @@ use crate::nn::PolicyKind;
 #[serde(deny_unknown_fields, default)]
 pub struct PpoConfig {
     pub learning_rate: f64,
-    /// Anneal the learning rate linearly to 0 over `total_timesteps` (SB3: constant).
+    /// Anneal the learning rate linearly to 0 over the run's whole budget of steps (SB3: constant).
     pub linear_lr: bool,
     /// Steps per env per update.
     pub n_steps: usize,

@@ -89,10 +89,6 @@ pub const ALGORITHM: Algorithm = Algorithm {
     load: |dir| Ok(Box::new(Ppo::load(dir)?)),
 };
 
-/// The action-sampling and minibatch stream is the seed mixed with this, so it differs from
-/// the stream that initialised the network's weights (seeded with the seed itself).
-const ACTION_STREAM_SALT: u64 = 0x5eed_0f_a11;
-
 /// A PPO agent: the policy, its optimiser state and the counters that make a run resumable.
 pub struct Ppo {
     pub config: PpoConfig,
@@ -152,7 +148,7 @@ impl Ppo {
             updates: 0,
             history: EpisodeHistory::default(),
             optimizer,
-            rng: ChaCha8Rng::seed_from_u64(seed ^ ACTION_STREAM_SALT),
+            rng: ChaCha8Rng::seed_from_u64(seed ^ twinbots_api::seeds::PPO_ACTIONS),
             env_state: None,
             times: TrainingTimes::default(),
         })
@@ -223,14 +219,14 @@ impl Ppo {
         self.history.mean_score()
     }
 
-    /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback`
+    /// Trains for `more_steps` more env steps (summed over envs), calling `callback`
     /// after each update, and says why it stopped. A linear learning rate decays over the
     /// whole budget, `timesteps` so far included, so a resumed run follows the schedule of an
     /// uninterrupted one.
     pub fn learn(
         &mut self,
         env: &mut dyn VecEnv,
-        total_timesteps: u64,
+        more_steps: u64,
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd> {
         anyhow::ensure!(
@@ -241,13 +237,13 @@ impl Ppo {
             self.observation_space.dim(),
             self.action_space
         );
-        let end = self.timesteps + total_timesteps;
+        let end = self.timesteps + more_steps;
         let mut buffer = RolloutBuffer::new(env.num_envs(), self.observation_space.dim(), self.action_space.dim());
         // A model that learnt before continues its envs' episodes (replayed: their observations
         // are already in the statistics); a new one starts them.
         let mut obs = match self.env_state.take() {
             Some(state) => {
-                let raw = twinbots_api::replay(env, &state)?;
+                let raw = twinbots_api::restore(env, &state)?;
                 self.normalize(&raw)
             }
             None => {
@@ -295,21 +291,7 @@ impl crate::agent::Agent for Ppo {
     fn train_figures(&self) -> &'static [&'static str] {
         TRAIN_FIGURES
     }
-    fn observation_space(&self) -> &Space {
-        &self.observation_space
-    }
-    fn action_space(&self) -> &Space {
-        &self.action_space
-    }
-    fn timesteps(&self) -> u64 {
-        self.timesteps
-    }
-    fn episodes(&self) -> u64 {
-        self.episodes
-    }
-    fn history(&self) -> &EpisodeHistory {
-        &self.history
-    }
+    crate::agent::spaces_and_counters!();
     fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         Ppo::predict_deterministic(self, obs)
     }
@@ -369,20 +351,16 @@ impl crate::learner::Learner for Ppo {
     fn learn(
         &mut self,
         env: &mut dyn VecEnv,
-        total_timesteps: u64,
+        more_steps: u64,
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd> {
-        Ppo::learn(self, env, total_timesteps, callback)
+        Ppo::learn(self, env, more_steps, callback)
     }
     fn times(&self) -> TrainingTimes {
         self.times
     }
-    fn serve(
-        self: Box<Self>,
-        robots: usize,
-        total_timesteps: u64,
-    ) -> anyhow::Result<Box<dyn crate::learner::ServedLearner>> {
-        Ok(Box::new(served::ServedPpo::new(*self, robots, total_timesteps)))
+    fn serve(self: Box<Self>, robots: usize, budget: u64) -> anyhow::Result<Box<dyn crate::learner::ServedLearner>> {
+        Ok(Box::new(served::ServedPpo::new(*self, robots, budget)))
     }
 }
 

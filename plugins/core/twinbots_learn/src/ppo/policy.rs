@@ -15,11 +15,6 @@ use twinbots_api::spaces::Space;
 use crate::nn::fused_mlp::HALF_LOG_2PI;
 use crate::nn::{Dense, Encoder, PolicyKind};
 
-/// The CNN's weight stream is the seed mixed with this.
-const ENCODER_STREAM_SALT: u64 = 0xc0_5e_ed;
-/// The value's own CNN (unshared features) draws from the seed mixed with this.
-const VALUE_ENCODER_STREAM_SALT: u64 = 0x7a_1e_ed;
-
 /// Hidden layers with tanh, then a linear output.
 pub struct Mlp {
     pub layers: Vec<Dense>,
@@ -86,11 +81,12 @@ impl ActorCritic {
         let dev = Device::Cpu;
         let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
         // The CNN draws its weights from a stream of its own, so an MLP policy keeps its old ones.
-        let mut encoder_rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed ^ ENCODER_STREAM_SALT);
+        let mut encoder_rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed ^ twinbots_api::seeds::PPO_ENCODER);
         let encoder = Encoder::new(policy, observation_space, features_dim, super::NAME, &mut encoder_rng, &dev)?;
         let value_encoder = match &encoder {
             Encoder::Cnn { .. } | Encoder::Keypoints { .. } if !shared => {
-                let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed ^ VALUE_ENCODER_STREAM_SALT);
+                let mut rng =
+                    <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed ^ twinbots_api::seeds::PPO_VALUE_ENCODER);
                 Some(Encoder::new(policy, observation_space, features_dim, super::NAME, &mut rng, &dev)?)
             }
             _ => None,

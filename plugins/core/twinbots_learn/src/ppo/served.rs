@@ -35,16 +35,16 @@ pub(crate) struct ServedPpo {
     /// Transitions per update, summed over robots.
     rollout: usize,
     /// The learning rate's schedule runs to this many steps.
-    total_timesteps: u64,
+    budget: u64,
     trajectories: HashMap<u64, Trajectory>,
     /// When collecting the next update's rollout began.
     collecting_since: Instant,
 }
 
 impl ServedPpo {
-    pub fn new(ppo: Ppo, robots: usize, total_timesteps: u64) -> Self {
+    pub fn new(ppo: Ppo, robots: usize, budget: u64) -> Self {
         let rollout = ppo.config.n_steps.saturating_mul(robots.max(1));
-        Self { ppo, rollout, total_timesteps, trajectories: HashMap::new(), collecting_since: Instant::now() }
+        Self { ppo, rollout, budget, trajectories: HashMap::new(), collecting_since: Instant::now() }
     }
 }
 
@@ -150,7 +150,7 @@ impl ServedLearner for ServedPpo {
             traj.episode_begin = 0;
         }
         self.trajectories.retain(|_, t| !t.gone);
-        self.ppo.update_learning_rate(self.total_timesteps);
+        self.ppo.update_learning_rate(self.budget);
         // Counted once learned from: a robot's unfinished episode may still be dropped.
         self.ppo.timesteps += batch.len() as u64;
         let stats = self.ppo.train(&batch, self.collecting_since)?;

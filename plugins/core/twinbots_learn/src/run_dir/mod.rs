@@ -286,7 +286,7 @@ impl RunDir {
     /// Writes `value` as pretty JSON into the run's file `name` (`eval.json`, `summary.json`…).
     pub fn write_json<T: Serialize>(&self, name: &str, value: &T) -> anyhow::Result<()> {
         let path = self.file(name);
-        write_atomic(&path, &serde_json::to_vec_pretty(value)?).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        twinbots_api::files::write_json(&path, value)
     }
 
     pub fn write_summary(&self, summary: &Summary) -> anyhow::Result<()> {

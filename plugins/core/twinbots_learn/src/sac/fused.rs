@@ -4,9 +4,10 @@
 //! the graph.
 
 use super::Sac;
-use super::networks::{Actor, LOG_STD_MAX, LOG_STD_MIN, ReluMlp, TwinCritic};
+use super::networks::{Actor, LOG_STD_MAX, LOG_STD_MIN};
 use crate::nn::fused_mlp::{Activation, Activations, HALF_LOG_2PI, SliceMlp};
 use crate::nn::{Dense, Encoder};
+use crate::off_policy::networks::{ReluMlp, TwinCritic};
 use crate::replay_buffer::Batch;
 
 /// A loss's value and its gradient for every variable of one optimiser, flat, in its order.

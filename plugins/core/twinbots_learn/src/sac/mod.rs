@@ -11,7 +11,7 @@
 
 mod config;
 mod fused;
-pub(crate) mod model_file;
+mod model_file;
 mod networks;
 mod update;
 
@@ -20,9 +20,10 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
+pub use crate::off_policy::networks::{ReluMlp, TwinCritic, polyak_update};
 pub use crate::replay_buffer::{Batch, ReplayBuffer};
 pub use config::SacConfig;
-pub use networks::{Actor, ReluMlp, TwinCritic, polyak_update};
+pub use networks::Actor;
 
 use crate::agent::{Agent, LoadAgent};
 use crate::callbacks::Callback;
@@ -68,9 +69,6 @@ pub const ALGORITHM: Algorithm = Algorithm {
     },
     load: |dir| Ok(Box::new(Sac::load(dir)?)),
 };
-
-/// The sampling stream is the seed mixed with this (the weights come from the seed itself).
-const SAMPLING_STREAM_SALT: u64 = 0x5ac_5eed;
 
 /// What the last row's gradient steps did (SB3's `train/` figures for SAC).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -188,7 +186,7 @@ impl Sac {
             history: EpisodeHistory::default(),
             buffer: None,
             goal: None,
-            rng: ChaCha8Rng::seed_from_u64(seed ^ SAMPLING_STREAM_SALT),
+            rng: ChaCha8Rng::seed_from_u64(seed ^ twinbots_api::seeds::SAC_SAMPLING),
             env_state: None,
             last_losses: SacLosses::default(),
             times: TrainingTimes::default(),
@@ -260,15 +258,15 @@ impl Sac {
         Ok(self.log_ent_coef.as_tensor().exp()?.to_vec1::<f32>()?[0])
     }
 
-    /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback` after
+    /// Trains for `more_steps` more env steps (summed over envs), calling `callback` after
     /// every row, and says why it stopped.
     pub fn learn(
         &mut self,
         env: &mut dyn VecEnv,
-        total_timesteps: u64,
+        more_steps: u64,
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd> {
-        crate::off_policy::learn(self, env, total_timesteps, callback)
+        crate::off_policy::learn(self, env, more_steps, callback)
     }
 }
 
@@ -279,21 +277,7 @@ impl Agent for Sac {
     fn train_figures(&self) -> &'static [&'static str] {
         TRAIN_FIGURES
     }
-    fn observation_space(&self) -> &Space {
-        &self.observation_space
-    }
-    fn action_space(&self) -> &Space {
-        &self.action_space
-    }
-    fn timesteps(&self) -> u64 {
-        self.timesteps
-    }
-    fn episodes(&self) -> u64 {
-        self.episodes
-    }
-    fn history(&self) -> &EpisodeHistory {
-        &self.history
-    }
+    crate::agent::spaces_and_counters!();
     fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         Sac::predict_deterministic(self, obs)
     }
@@ -331,10 +315,10 @@ impl Learner for Sac {
     fn learn(
         &mut self,
         env: &mut dyn VecEnv,
-        total_timesteps: u64,
+        more_steps: u64,
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd> {
-        Sac::learn(self, env, total_timesteps, callback)
+        Sac::learn(self, env, more_steps, callback)
     }
     fn times(&self) -> TrainingTimes {
         self.times

@@ -10,9 +10,9 @@ use std::sync::Arc;
 use candle_core::{Device, Tensor};
 
 use super::fused::{self, ActorGradient, ActorNets, ActorSample, CriticNets, LossGradient, Part, StepNets};
-use super::networks::polyak_update;
 use super::{Sac, SacLosses};
 use crate::nn::flat_gradients;
+use crate::off_policy::networks::polyak_update;
 use crate::replay_buffer::{Batch, Draw, ReplayBuffer};
 use crate::threads::Helper;
 use twinbots_api::GoalSpec;

@@ -26,9 +26,10 @@ use crate::model_io::ModelError;
 use crate::nn::{Adam, AdamConfig, Dense};
 use crate::normalize::RunningMeanStd;
 use crate::off_policy::OffPolicy;
+use crate::off_policy::networks::{ReluMlp, TwinCritic, polyak_update};
 use crate::off_policy::served::ServedOffPolicy;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
-use crate::sac::{ReluMlp, ReplayBuffer, TwinCritic, polyak_update};
+use crate::replay_buffer::ReplayBuffer;
 use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats};
 
 /// The name `--algo` and the settings' `[td3]` table use, and the one its models are saved
@@ -60,9 +61,6 @@ pub const ALGORITHM: Algorithm = Algorithm {
     },
     load: |dir| Ok(Box::new(Td3::load(dir)?)),
 };
-
-/// The noise stream is the seed mixed with this (the weights come from the seed itself).
-const NOISE_STREAM_SALT: u64 = 0x7d3_5eed;
 
 /// What the last row's gradient steps did (SB3's `train/` figures for TD3).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -160,7 +158,7 @@ impl Td3 {
             iterations: 0,
             history: EpisodeHistory::default(),
             buffer: None,
-            rng: ChaCha8Rng::seed_from_u64(seed ^ NOISE_STREAM_SALT),
+            rng: ChaCha8Rng::seed_from_u64(seed ^ twinbots_api::seeds::TD3_NOISE),
             env_state: None,
             last_losses: Td3Losses::default(),
             times: TrainingTimes::default(),
@@ -283,15 +281,15 @@ impl Td3 {
         }))
     }
 
-    /// Trains for `total_timesteps` more env steps (summed over envs), calling `callback` after
+    /// Trains for `more_steps` more env steps (summed over envs), calling `callback` after
     /// every row, and says why it stopped.
     pub fn learn(
         &mut self,
         env: &mut dyn VecEnv,
-        total_timesteps: u64,
+        more_steps: u64,
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd> {
-        crate::off_policy::learn(self, env, total_timesteps, callback)
+        crate::off_policy::learn(self, env, more_steps, callback)
     }
 }
 
@@ -302,21 +300,7 @@ impl Agent for Td3 {
     fn train_figures(&self) -> &'static [&'static str] {
         TRAIN_FIGURES
     }
-    fn observation_space(&self) -> &Space {
-        &self.observation_space
-    }
-    fn action_space(&self) -> &Space {
-        &self.action_space
-    }
-    fn timesteps(&self) -> u64 {
-        self.timesteps
-    }
-    fn episodes(&self) -> u64 {
-        self.episodes
-    }
-    fn history(&self) -> &EpisodeHistory {
-        &self.history
-    }
+    crate::agent::spaces_and_counters!();
     fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         Td3::predict_deterministic(self, obs)
     }
@@ -357,10 +341,10 @@ impl Learner for Td3 {
     fn learn(
         &mut self,
         env: &mut dyn VecEnv,
-        total_timesteps: u64,
+        more_steps: u64,
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd> {
-        Td3::learn(self, env, total_timesteps, callback)
+        Td3::learn(self, env, more_steps, callback)
     }
     fn times(&self) -> TrainingTimes {
         self.times

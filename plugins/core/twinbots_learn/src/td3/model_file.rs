@@ -13,7 +13,7 @@ use super::{Td3, Td3Config, named};
 use crate::model_header::ModelHeader;
 use crate::model_io::set_vars;
 use crate::model_io::{self, METADATA_FILE, ModelError, WEIGHTS_FILE, file_error};
-use crate::sac::model_file::{BufferRing, load_replay, save_replay};
+use crate::off_policy::replay_file::{BufferRing, load_replay, save_replay};
 
 const FORMAT: u32 = 1;
 

@@ -3,11 +3,11 @@
 //! link/joint tree listed with masses, inertias, limits and actuators, and what will not
 //! simulate well flagged.
 
-use bevy::prelude::*;
-use twinbots_sim::urdf::{JointKind, RobotModel, load_urdf};
-use twinbots_sim::{
+use super::{JointKind, RobotModel, load_urdf};
+use crate::{
     Arena, JointState, Motor, MotorCommand, PhysicsSubstep, SimPlugin, SimSettings, SpawnOptions, spawn_robot,
 };
+use bevy::prelude::*;
 
 /// What the check found.
 pub struct UrdfReport {

@@ -1,5 +1,6 @@
 //! URDF → robot description ([`RobotModel`]); [`crate::spawn`] turns that into bodies and entities.
 
+pub mod check;
 mod error;
 mod load;
 pub mod mesh;

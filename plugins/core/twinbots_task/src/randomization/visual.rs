@@ -272,9 +272,6 @@ pub struct LookStream {
     rng: ChaCha8Rng,
 }
 
-/// Names the look stream among an arena's streams.
-const LOOK_SALT: u64 = 0x6c6f_6f6b; // "look"
-
 pub struct VisualRandomizationPlugin(pub VisualRandomization);
 
 impl Plugin for VisualRandomizationPlugin {
@@ -297,7 +294,8 @@ fn draw_looks(
         let look = match stream {
             Some(mut s) if s.reseeds == arena.reseeds() => config.draw(&mut s.rng, &own, &statics),
             _ => {
-                let mut fresh = LookStream { reseeds: arena.reseeds(), rng: arena.side_stream(LOOK_SALT) };
+                let mut fresh =
+                    LookStream { reseeds: arena.reseeds(), rng: arena.side_stream(twinbots_api::seeds::LOOKS) };
                 let look = config.draw(&mut fresh.rng, &own, &statics);
                 commands.entity(entity).insert(fresh);
                 look
