@@ -40,12 +40,12 @@ impl Policy {
 
     #[getter]
     fn observation_space<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        space_dict(py, &self.model.observation_space())
+        space_dict(py, self.model.observation_space())
     }
 
     #[getter]
     fn action_space<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        space_dict(py, &self.model.action_space())
+        space_dict(py, self.model.action_space())
     }
 
     /// Actions for a batch of observations `(batch, obs_dim)` (float32), as `(batch,

@@ -403,7 +403,7 @@ impl CameraSetup {
     /// One control step (a reset every 10th with new looks), then its frames, timed.
     fn step(&mut self) -> anyhow::Result<()> {
         self.steps += 1;
-        if self.randomized && self.steps % 10 == 0 {
+        if self.randomized && self.steps.is_multiple_of(10) {
             self.env.reset(None)?;
         } else {
             self.env.step(&self.zero)?;

@@ -64,7 +64,8 @@ pub struct Args {
     pub out: PathBuf,
 }
 
-/// Where the robot's reports come from.
+/// Where the robot's reports come from (one per run: its size does not matter).
+#[allow(clippy::large_enum_variant)]
 enum Source {
     Rtde(RtdeClient),
     #[cfg(feature = "ros2")]

@@ -16,7 +16,7 @@ fn ppo_reaches_475_on_classic_cartpole_within_150k_steps() {
             if s.episodes >= 20 {
                 best = best.max(s.mean_reward);
             }
-            if s.update % 50 == 0 {
+            if s.update.is_multiple_of(50) {
                 history.push((s.timesteps, s.mean_reward));
             }
             Ok(if best >= 475.0 { Flow::Stop } else { Flow::Continue })

@@ -30,7 +30,7 @@ struct Figures {
 /// (an action for `start` and for a step that does not end the episode, an ack for one that
 /// does), and every step must be learned from exactly once.
 fn load(robots: usize, steps: usize) -> Figures {
-    assert!(steps % EPISODE == 0 && steps % N_STEPS == 0, "whole episodes and rollouts");
+    assert!(steps.is_multiple_of(EPISODE) && steps.is_multiple_of(N_STEPS), "whole episodes and rollouts");
     let spec = cartpole::task_spec();
     // A light update (one epoch): this measures the server, not PPO.
     let config = PpoConfig { n_steps: N_STEPS, batch_size: N_STEPS * robots, n_epochs: 1, ..PpoConfig::zoo_cartpole() };

@@ -172,7 +172,7 @@ fn bad_suites_and_controllers_are_clear_errors() {
         std::fs::write(&file, text).unwrap();
         let mut all: Vec<&std::ffi::OsStr> =
             vec!["cartpole".as_ref(), file.as_os_str(), "--out".as_ref(), dir.join("out").into_os_string().leak()];
-        all.extend(args.iter().map(|a| std::ffi::OsStr::new(a)));
+        all.extend(args.iter().map(std::ffi::OsStr::new));
         let stderr = failed(study(&all));
         assert!(stderr.contains(expected), "{name}: {stderr}");
         assert!(

@@ -82,8 +82,8 @@ fn train_through_proxy(dir: &Path, tls: bool) -> Vec<u8> {
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     assert!(String::from_utf8_lossy(&output.stdout).contains("robots done"));
     assert!(server.wait().unwrap().success());
-    let captured = wire.lock().unwrap().clone();
-    captured
+
+    wire.lock().unwrap().clone()
 }
 
 #[test]

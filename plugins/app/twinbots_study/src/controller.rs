@@ -109,7 +109,7 @@ impl NamedController {
     /// The actions for rows of observations (`dim` values each).
     pub fn act(&self, obs: &[f32], dim: usize) -> anyhow::Result<Vec<f32>> {
         match &self.controller {
-            Controller::Classic(feedback) => Ok(obs.chunks(dim).flat_map(|row| feedback(row)).collect()),
+            Controller::Classic(feedback) => Ok(obs.chunks(dim).flat_map(feedback).collect()),
             Controller::Run { model, .. } => model.predict_deterministic(obs),
             Controller::Onnx(policy) => policy.act(obs),
         }

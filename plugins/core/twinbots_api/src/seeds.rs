@@ -25,7 +25,7 @@ pub const FINAL_EVALUATION: u64 = 2_000_003;
 pub const DISTILL_ROUND: u64 = 3_000_003;
 
 /// PPO's action-sampling and minibatch stream.
-pub const PPO_ACTIONS: u64 = 0x5eed_0f_a11;
+pub const PPO_ACTIONS: u64 = 0x0005_eed0_fa11;
 /// PPO's CNN weights.
 pub const PPO_ENCODER: u64 = 0xc0_5e_ed;
 /// The weights of PPO's value's own CNN (features not shared with the policy).
@@ -39,6 +39,9 @@ pub const LOOKS: u64 = 0x6c6f_6f6b;
 /// A recording's sensor noise.
 pub const RECORDING_NOISE: u64 = 0x5e75_0a15;
 
+// The offsets keep their order: each stream's seeds start past the one before.
+const _: () = assert!(PERIODIC_EVALUATION < FINAL_EVALUATION && FINAL_EVALUATION < DISTILL_ROUND);
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -49,6 +52,5 @@ mod tests {
         for (i, a) in salts.iter().enumerate() {
             assert!(salts[i + 1..].iter().all(|b| a != b), "salt {a:#x} is used twice");
         }
-        assert!(PERIODIC_EVALUATION < FINAL_EVALUATION && FINAL_EVALUATION < DISTILL_ROUND);
     }
 }

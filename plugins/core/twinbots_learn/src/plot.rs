@@ -111,7 +111,7 @@ pub fn learning_curve(
             .filter(|e| e.mean_score.is_finite() && !e.success_rate.is_finite())
             .map(|e| (e.timesteps as f64, e.mean_score as f64))
             .collect();
-        let mut chart = ChartBuilder::on(&root)
+        let mut chart = ChartBuilder::on(root)
             .caption(title, ("sans-serif", 22))
             .margin(12)
             .x_label_area_size(40)
@@ -199,7 +199,7 @@ pub fn seed_band(
         let ys = runs.iter().flatten().map(|p| p.1).chain(threshold);
         let (y_min, y_max) = ys.fold((0.0f64, 1.0f64), |(lo, hi), y| (lo.min(y), hi.max(y)));
         let pad = (y_max - y_min).max(1e-3) * 0.05;
-        let mut chart = ChartBuilder::on(&root)
+        let mut chart = ChartBuilder::on(root)
             .caption(title, ("sans-serif", 22))
             .margin(12)
             .x_label_area_size(40)

@@ -82,6 +82,7 @@ const SPLIT_FROM: usize = 64;
 /// [`SPLIT_FROM`] rows on in two halves whose losses and gradients add up to the minibatch's
 /// (the second for a [`Helper`]). A rule of the minibatch's size, never of the machine: a seed
 /// gives the same bits on one core as on many (one core does both halves in turn).
+#[allow(clippy::single_range_in_vec_init)] // a list of ranges that holds one or two
 pub fn halves(len: usize) -> Vec<std::ops::Range<usize>> {
     if len < SPLIT_FROM { vec![0..len] } else { vec![0..len / 2, len / 2..len] }
 }

@@ -60,7 +60,9 @@ pub enum RobotMessage {
     Bye,
 }
 
-/// Server → robot.
+/// Server → robot. (The welcome is larger than the rest; one is sent per connection, so it is
+/// not boxed.)
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum ServerMessage {

@@ -50,7 +50,7 @@ impl OnnxPolicy {
     pub fn act(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         let n = self.metadata.observation_space.dim();
         anyhow::ensure!(
-            n > 0 && !obs.is_empty() && obs.len() % n == 0,
+            n > 0 && !obs.is_empty() && obs.len().is_multiple_of(n),
             "observations come in rows of {n} values, got {} values",
             obs.len()
         );

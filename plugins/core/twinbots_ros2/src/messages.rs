@@ -192,7 +192,7 @@ mod tests {
 
     #[test]
     fn times_round_trip_to_the_nanosecond() {
-        for s in [0.0, 1.5, 1_764_000_000.123_456_789, -0.25] {
+        for s in [0.0, 1.5, 1_764_000_000.123_456_7, -0.25] {
             let t = Time::from_seconds(s);
             assert!(t.nanosec < 1_000_000_000);
             assert!((t.seconds() - s).abs() < 1e-6, "{s} -> {t:?}");

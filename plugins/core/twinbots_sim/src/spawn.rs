@@ -139,7 +139,7 @@ pub fn spawn_robot(
         let body = bodies[&owner[l]];
         let link = &model.links[l];
         for geometry in &link.collisions {
-            let decompose = options.decompose.iter().any(|n| *n == link.name);
+            let decompose = options.decompose.contains(&link.name);
             let collider = collider(&geometry.shape, offset[l] * geometry.origin, decompose)
                 .friction(options.friction)
                 .density(0.0)

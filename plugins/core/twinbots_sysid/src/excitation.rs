@@ -71,7 +71,7 @@ impl Signal {
                 }
                 Self { sines, sweep: None }
             }
-            Excitation::Chirp => Self { sines: Vec::new(), sweep: Some(channel % 2 == 0) },
+            Excitation::Chirp => Self { sines: Vec::new(), sweep: Some(channel.is_multiple_of(2)) },
         }
     }
 

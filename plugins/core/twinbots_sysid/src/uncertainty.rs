@@ -138,7 +138,7 @@ fn replay_noise(
 ) -> (f64, usize) {
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_0f_0015e);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x05ee_d0f0_015e);
     let d = specs.len();
     let steps: Vec<Vec<f64>> = (0..NOISE_PROBES)
         .map(|_| {

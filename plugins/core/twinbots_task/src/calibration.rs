@@ -97,7 +97,7 @@ pub fn calibrate(app: &mut bevy::prelude::App, params: &Parameters) {
     let world = app.world_mut();
     match world.get_resource_mut::<Parameters>() {
         Some(mut current) => current.extend(params),
-        None => _ = world.insert_resource(params.clone()),
+        None => world.insert_resource(params.clone()),
     }
 }
 

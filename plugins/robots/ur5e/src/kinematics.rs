@@ -78,7 +78,7 @@ pub fn frames(q: &[f32; 6]) -> [DMat4; 7] {
     let mut out = [DMat4::IDENTITY; 7];
     for i in 0..6 {
         // Affine products: a 4×4 product's bottom row only adds exact zeros.
-        frame = frame * dh_transform(&DH[i], alphas[i], q[i] as f64);
+        frame *= dh_transform(&DH[i], alphas[i], q[i] as f64);
         out[i + 1] = DMat4::from(frame);
     }
     out

@@ -262,7 +262,7 @@ impl<'a> Deployment<'a> {
             episode,
             success,
             steps,
-            cycle_time_s: success.then(|| steps as f64 * self.period),
+            cycle_time_s: success.then_some(steps as f64 * self.period),
             final_error_mm: 1000.0 * self.controller.error() as f64,
             energy_j: self.energy - energy_before,
             clipped,

@@ -53,6 +53,8 @@ impl Ros2Source {
     }
 
     /// The next joint state with the command in force when it arrived, a note, or silence.
+    /// (Not an iterator: it waits, and it fails.)
+    #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> anyhow::Result<Next> {
         let wait = if self.started { self.patience } else { FIRST_STATE_WAIT };
         let since = Instant::now();

@@ -88,7 +88,7 @@ pub fn evaluation_seed(seed: u64, index: u64) -> u64 {
 
 impl Callback for EvalCallback {
     fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
-        if self.every == 0 || stats.update % self.every != 0 {
+        if self.every == 0 || !stats.update.is_multiple_of(self.every) {
             return Ok(Flow::Continue);
         }
         let seed = evaluation_seed(self.seed, (stats.update / self.every) as u64);

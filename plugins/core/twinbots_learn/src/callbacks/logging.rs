@@ -50,7 +50,7 @@ impl CheckpointCallback {
 
 impl Callback for CheckpointCallback {
     fn on_update(&mut self, stats: &UpdateStats, model: &dyn Agent) -> anyhow::Result<Flow> {
-        if stats.update % self.every == 0 {
+        if stats.update.is_multiple_of(self.every) {
             self.run.save_checkpoint(model)?;
         }
         Ok(Flow::Continue)
@@ -103,7 +103,7 @@ pub fn draw_learning_curve(run: &RunDir, title: &str, solved: Option<SolvedCrite
 
 impl Callback for LearningCurveCallback {
     fn on_update(&mut self, stats: &UpdateStats, _model: &dyn Agent) -> anyhow::Result<Flow> {
-        if stats.update % self.every == 0 {
+        if stats.update.is_multiple_of(self.every) {
             self.draw()?;
         }
         Ok(Flow::Continue)

@@ -87,7 +87,7 @@ impl RolloutBuffer {
     /// are none for every sample.
     pub fn cached_width(&self, cached: &[f32]) -> usize {
         match self.len() {
-            n if n > 0 && !cached.is_empty() && cached.len() % n == 0 => cached.len() / n,
+            n if n > 0 && !cached.is_empty() && cached.len().is_multiple_of(n) => cached.len() / n,
             _ => 0,
         }
     }

@@ -73,7 +73,7 @@ impl Ppo {
         let (policy, action_space, rng, optimizer) =
             (&self.policy, &self.action_space, &mut self.rng, &mut self.optimizer);
         let work = |part: Part| part_gradient(policy, &c, action_space, buffer, frozen.as_ref(), &part);
-        crate::threads::with_helper(&work, |helper| -> anyhow::Result<()> {
+        crate::threads::with_helper(work, |helper| -> anyhow::Result<()> {
             'epochs: for _ in 0..c.n_epochs {
                 indices.shuffle(rng);
                 for chunk in indices.chunks(c.batch_size) {

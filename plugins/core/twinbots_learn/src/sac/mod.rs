@@ -65,7 +65,7 @@ pub const ALGORITHM: Algorithm = Algorithm {
     new: |config, spec, seed| {
         let sac =
             Sac::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?;
-        Ok(Box::new(sac.with_goal(spec.goal.clone())?))
+        Ok(Box::new(sac.with_goal(spec.goal)?))
     },
     load: |dir| Ok(Box::new(Sac::load(dir)?)),
 };

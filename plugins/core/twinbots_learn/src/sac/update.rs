@@ -82,7 +82,7 @@ impl Sac {
                 Answer::Actor(fused::actor_part(&nets.actor, &critic, &obs, sample, alpha, of))
             }
         };
-        crate::threads::with_helper(&work, |helper| {
+        crate::threads::with_helper(work, |helper| {
             for _ in 0..n {
                 let minibatch = self.next_minibatch(buffer, goal.as_ref())?;
                 each(self.step_over_slices(helper, &work, minibatch)?);
@@ -189,7 +189,7 @@ impl Sac {
     ) -> anyhow::Result<Option<SacLosses>> {
         applied &= self.actor_optimizer.step_flat(actor.loss.gradients, None)?.applied;
         self.gradient_steps += 1;
-        if self.gradient_steps % self.config.target_update_interval as u64 == 0 {
+        if self.gradient_steps.is_multiple_of(self.config.target_update_interval as u64) {
             polyak_update(
                 &self.critic_target.named_vars("target"),
                 &self.critic.named_vars("critic"),

@@ -259,7 +259,7 @@ impl Td3 {
 
         // Delayed: the actor ascends Q₁(s, μ(s)), then the targets follow by Polyak.
         let mut actor_loss = f32::NAN;
-        if self.gradient_steps % self.config.policy_delay as u64 == 0 {
+        if self.gradient_steps.is_multiple_of(self.config.policy_delay as u64) {
             let (q_pi, _) = self.critic.q(&obs, &self.actor.forward(&obs)?.tanh()?)?;
             let loss = q_pi.mean_all()?.neg()?;
             actor_loss = loss.to_scalar::<f32>()?;

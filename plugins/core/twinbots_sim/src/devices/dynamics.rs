@@ -94,11 +94,11 @@ pub(crate) fn apply_joint_dynamics(
     for (joint, _, _, in_arena) in &joints {
         if let Ok(mut arena) = arenas.get_mut(in_arena.0) {
             for handle in [joint.child_body, joint.parent_body] {
-                if let Some(body) = arena.world.bodies.get_mut(handle) {
-                    if body.user_force() != Vec3::ZERO || body.user_torque() != Vec3::ZERO {
-                        body.reset_forces(false);
-                        body.reset_torques(false);
-                    }
+                if let Some(body) = arena.world.bodies.get_mut(handle)
+                    && (body.user_force() != Vec3::ZERO || body.user_torque() != Vec3::ZERO)
+                {
+                    body.reset_forces(false);
+                    body.reset_torques(false);
                 }
             }
         }

@@ -68,7 +68,7 @@ fn sample_each<T: Component<Mutability = bevy::ecs::component::Mutable>>(
     for (mut sensor, mount, in_arena, period) in sensors.iter_mut() {
         let Ok(mut arena) = arenas.get_mut(in_arena.0) else { continue };
         let due = samples_now(&arena, period, step);
-        if !due && !(always && world_changed(&arena)) {
+        if !(due || always && world_changed(&arena)) {
             continue;
         }
         let Some(state) = mount.state(links, &arena.world) else { continue };

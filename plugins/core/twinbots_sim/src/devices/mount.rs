@@ -30,7 +30,7 @@ impl Default for SamplingPeriod {
 impl SamplingPeriod {
     /// Whether a device with this period samples on control step `step`.
     pub fn due(period: Option<&SamplingPeriod>, step: u64) -> bool {
-        period.is_none_or(|p| p.0 <= 1 || step % p.0 as u64 == 0)
+        period.is_none_or(|p| p.0 <= 1 || step.is_multiple_of(p.0 as u64))
     }
 }
 

@@ -47,7 +47,8 @@ fn with_zero_inertias(text: &str, doc: &roxmltree::Document) -> String {
     let mut at: Vec<usize> = doc
         .descendants()
         .filter(|n| n.has_tag_name("inertial") && !n.children().any(|c| c.has_tag_name("inertia")))
-        .filter_map(|n| text[n.range()].ends_with(CLOSE).then(|| n.range().end - CLOSE.len()))
+        .filter(|&n| text[n.range()].ends_with(CLOSE))
+        .map(|n| n.range().end - CLOSE.len())
         .collect();
     let mut out = text.to_string();
     at.sort_unstable();
@@ -401,7 +402,7 @@ impl Checker<'_> {
                 return Err(self.link_error(link, "capsule geometry is not supported"));
             }
             urdf_rs::Geometry::Mesh { filename, scale } => {
-                let scale = scale.as_ref().map_or(Vec3::ONE, |s| vec3(s));
+                let scale = scale.as_ref().map_or(Vec3::ONE, vec3);
                 Shape::Mesh(Arc::new(self.mesh(link, filename, scale)?))
             }
         };

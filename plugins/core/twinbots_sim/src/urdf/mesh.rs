@@ -173,7 +173,7 @@ pub fn resolve(filename: &str, urdf_dir: &Path, package_path: &[PathBuf]) -> Res
 pub fn package_path_from_env() -> Vec<PathBuf> {
     ["TWINBOTS_PACKAGE_PATH", "ROS_PACKAGE_PATH"]
         .iter()
-        .filter_map(|v| std::env::var_os(v))
+        .filter_map(std::env::var_os)
         .flat_map(|v| std::env::split_paths(&v).collect::<Vec<_>>())
         .filter(|p| !p.as_os_str().is_empty())
         .collect()

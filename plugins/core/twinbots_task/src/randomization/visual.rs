@@ -133,7 +133,7 @@ impl VisualRandomization {
         }
         let wants_images = self.textures.iter().any(|t| t == "image");
         anyhow::ensure!(
-            wants_images == !self.images.is_empty(),
+            wants_images != self.images.is_empty(),
             "{}: the `image` texture and image files go together (textures has {}image, images lists {} files)",
             key("images"),
             if wants_images { "" } else { "no " },
