@@ -162,7 +162,7 @@ pub fn save_model(
         .collect::<anyhow::Result<HashMap<_, _>>>()
         .map_err(runtime_error)?;
     model.policy.set_weights(&tensors).map_err(value_error)?;
-    model.obs_rms = match (obs_mean, obs_var) {
+    model.state.obs_rms = match (obs_mean, obs_var) {
         (Some(mean), Some(var)) => {
             let dim = spec.observation_space.dim();
             if mean.len() != dim || var.len() != dim {
@@ -177,7 +177,7 @@ pub fn save_model(
         (None, None) => None,
         _ => return Err(value_error(anyhow::anyhow!("give both obs_mean and obs_var, or neither"))),
     };
-    model.timesteps = timesteps;
-    model.episodes = episodes;
+    model.state.timesteps = timesteps;
+    model.state.episodes = episodes;
     RunDir::new(run_dir).save_model(&model).map_err(runtime_error)
 }

@@ -191,8 +191,8 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
     model
         .learn(&mut env, 4 * 128 * 4, &mut |_: &UpdateStats, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue))
         .unwrap();
-    assert_eq!(model.updates, 4);
-    assert!(model.episodes > 0, "episodes of at most 50 steps ended in 2048 steps");
+    assert_eq!(model.state.updates, 4);
+    assert!(model.state.episodes > 0, "episodes of at most 50 steps ended in 2048 steps");
 
     // Evaluated by the project's evaluation: score, success rate, and the score divided among
     // the reward terms.

@@ -21,8 +21,8 @@ fn load_of_save_predicts_exactly_as_the_original() {
     let mut loaded = Ppo::load(&dir).unwrap();
     let obs = env.reset(Some(9)).unwrap();
     assert_eq!(model.predict(&obs, true).unwrap(), loaded.predict(&obs, true).unwrap());
-    assert_eq!(loaded.timesteps, model.timesteps);
-    assert_eq!(loaded.obs_rms, model.obs_rms, "normalisation travels with the model");
+    assert_eq!(loaded.state.timesteps, model.state.timesteps);
+    assert_eq!(loaded.state.obs_rms, model.state.obs_rms, "normalisation travels with the model");
     // Stochastic predictions match too once both streams start from the same point.
     let a = Ppo::load(&dir).unwrap().predict(&obs, false).unwrap();
     let b = Ppo::load(&dir).unwrap().predict(&obs, false).unwrap();
@@ -44,8 +44,8 @@ fn a_snapshot_predicts_as_the_original_and_does_not_train_with_it() {
         "same weights, same stream"
     );
     assert_eq!(
-        (snapshot.timesteps, snapshot.updates, &snapshot.obs_rms),
-        (model.timesteps, model.updates, &model.obs_rms)
+        (snapshot.state.timesteps, snapshot.state.updates, &snapshot.state.obs_rms),
+        (model.state.timesteps, model.state.updates, &model.state.obs_rms)
     );
     let weights = |m: &Ppo| -> Vec<Vec<f32>> {
         m.policy.named_vars().iter().map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap()).collect()

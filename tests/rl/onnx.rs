@@ -97,7 +97,7 @@ fn a_continuous_policy_gives_the_same_clipped_actions() {
 fn a_normalised_observation_policy_folds_its_statistics_in() {
     let config = PpoConfig { n_steps: 128, normalize_observations: true, ..Default::default() };
     let model = trained(&mut ClassicPendulum::new(4), config, 2048);
-    let rms = model.obs_rms.as_ref().expect("a normalising model");
+    let rms = model.state.obs_rms.as_ref().expect("a normalising model");
     assert!(rms.mean.iter().any(|m| m.abs() > 0.05), "statistics moved from their start: {:?}", rms.mean);
     let obs = observations(3, 4.0, 3);
     let (onnx, own) = both(&model, &obs);
@@ -116,7 +116,7 @@ fn a_sac_policy_gives_the_same_squashed_and_rescaled_actions() {
     let action_space = Space::Box { low: vec![-1.0, -2.0, 0.0], high: vec![1.0, 0.5, 3.0] };
     let config = SacConfig { hidden: vec![32, 32], normalize_observations: true, ..Default::default() };
     let mut model = Sac::new(config, Space::uniform_box(6, -5.0, 5.0), action_space.clone(), 11).unwrap();
-    model.obs_rms = Some(RunningMeanStd {
+    model.state.obs_rms = Some(RunningMeanStd {
         mean: vec![0.5, -1.0, 0.0, 2.0, 0.1, -0.3],
         var: vec![4.0, 0.25, 1.0, 9.0, 0.01, 2.0],
         count: 1e4,

@@ -122,7 +122,7 @@ fn learns_the_lit_half_and_loads(config: PpoConfig, name: &str) -> Ppo {
     let mut env = LitHalf::new(4);
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 2).unwrap();
     let best = learn_until(&mut model, &mut env, 20_000, 20, 7.5);
-    assert!(best >= 7.5, "{name}: mean score {best} of 8 after {} steps", model.timesteps);
+    assert!(best >= 7.5, "{name}: mean score {best} of 8 after {} steps", model.state.timesteps);
 
     let dir = std::env::temp_dir().join(format!("twinbots-{name}-{}", std::process::id()));
     model.save(&dir).unwrap();
@@ -267,7 +267,7 @@ fn sac_with_cnns_learns_where_the_lit_column_is() {
     );
     let best = learn_until(&mut model, &mut env, 6_000, 50, 3.0);
     // Acting at random scores about 4 × 1/3.
-    assert!(best >= 3.0, "mean score {best} of 4 after {} steps", model.timesteps);
+    assert!(best >= 3.0, "mean score {best} of 4 after {} steps", model.state.timesteps);
     // The replay buffer keeps the images as bytes, and a checkpoint keeps them so.
     let buffer = model.buffer.as_ref().unwrap();
     assert!(matches!(buffer.obs, twinbots_learn::replay_buffer::Rows::Bytes(_)));
@@ -379,7 +379,7 @@ fn frozen_image_encoders_keep_their_weights_while_the_mlps_learn() {
     };
     let before = weights(&model);
     let best = learn_until(&mut model, &mut env, 20_000, 20, 7.5);
-    assert!(best >= 7.5, "mean score {best} of 8 after {} steps", model.timesteps);
+    assert!(best >= 7.5, "mean score {best} of 8 after {} steps", model.state.timesteps);
     let frozen = |name: &str| name.starts_with("features.") || name.starts_with("vf_features.");
     assert_eq!(before.iter().filter(|(n, _)| frozen(n)).count(), 16, "both NatureCNNs' variables");
     for ((name, was), (_, now)) in before.iter().zip(&weights(&model)) {

@@ -23,7 +23,7 @@ fn ppo_reaches_475_on_classic_cartpole_within_150k_steps() {
         })
         .unwrap();
     assert!(best >= 475.0, "best mean reward {best}; history {history:?}");
-    assert!(model.timesteps <= 150_000 + 256);
+    assert!(model.state.timesteps <= 150_000 + 256);
 }
 
 /// The mean score of `episodes` episodes of uniformly random torques.
@@ -59,7 +59,7 @@ fn ppo_with_gaussian_policy_improves_pendulum_well_beyond_random() {
     // Seed 3: with observations normalised at collection (SB3's VecNormalize, which keeps an
     // update's first ratio at 1) PPO learns the swing-up more slowly mid-run than when the
     // buffer was normalised at update time, and seed 2 stalled at −670 within 150k steps
-    // (seeds 3–6 ended between −183 and −305, as before the change). See docs/architecture.md.
+    // (seeds 3–6 ended between −183 and −305, as before the change). See docs/design/learners.md, "PPO".
     let mut model = Ppo::new(config, env.observation_space().clone(), env.action_space().clone(), 3).unwrap();
     let mut curve = Vec::new();
     model

@@ -159,7 +159,7 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
     }
     assert!(out.contains("(256 steps"), "{out}");
     let model = twinbots_learn::Ppo::load(run.join("model")).unwrap();
-    assert_eq!(model.timesteps, 1280);
+    assert_eq!(model.state.timesteps, 1280);
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -220,10 +220,10 @@ fn a_killed_pattern_3_run_resumes_through_its_server_and_its_server_does_not_out
     assert!(progress.windows(2).all(|w| w[1].timesteps > w[0].timesteps));
     let model = twinbots_learn::Ppo::load(run.join("model")).unwrap();
     assert!(
-        model.timesteps >= 4096 && model.updates as usize == updates.len(),
+        model.state.timesteps >= 4096 && model.state.updates as usize == updates.len(),
         "{} steps, {} updates",
-        model.timesteps,
-        model.updates
+        model.state.timesteps,
+        model.state.updates
     );
     std::fs::remove_dir_all(&dir).ok();
 }

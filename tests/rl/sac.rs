@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use twinbots_api::VecEnv;
 use twinbots_learn::classic::ClassicPendulum;
-use twinbots_learn::{Agent, Flow, Sac, SacConfig, UpdateStats};
+use twinbots_learn::{Agent, Flow, Learner, Sac, SacConfig, UpdateStats};
 
 /// SB3's SAC defaults but for 64-unit layers (256 cost 16× the arithmetic: a gradient step took
 /// ~50 ms on the 2-core CI machine), on the analytic Pendulum-v1 (SB3 reaches about −150 in
@@ -30,9 +30,9 @@ fn sac_reaches_minus_200_on_pendulum_within_20k_steps() {
             Ok(Flow::Continue)
         })
         .unwrap();
-    assert_eq!(model.timesteps, 20_000);
+    assert_eq!(model.state.timesteps, 20_000);
     // The last 10 training episodes (the window holds the last 100: judge the recent ones).
-    let recent: Vec<f32> = model.history.recent_scores.iter().rev().take(10).copied().collect();
+    let recent: Vec<f32> = model.state.history.recent_scores.iter().rev().take(10).copied().collect();
     let mean = recent.iter().sum::<f32>() / recent.len() as f32;
     assert!(mean >= -200.0, "mean of the last 10 episodes {mean}; rows {rows:?}");
 }
@@ -62,9 +62,9 @@ fn a_saved_sac_model_loads_as_it_was_and_learns_on_alike() {
     let _ = std::fs::remove_dir_all(&dir);
     model.save(&dir).unwrap();
     let mut loaded = Sac::load(&dir).unwrap();
-    assert_eq!(loaded.timesteps, 600);
+    assert_eq!(loaded.state.timesteps, 600);
     assert_eq!(loaded.buffer, model.buffer, "the replay buffer did not come back");
-    assert_eq!(loaded.history, model.history);
+    assert_eq!(loaded.state.history, model.state.history);
     let obs = [0.3f32, -0.9, 1.5, 1.0, 0.0, -4.0];
     assert_eq!(loaded.predict_deterministic(&obs).unwrap(), model.predict_deterministic(&obs).unwrap());
     assert_eq!(

@@ -180,16 +180,20 @@ fn sac_with_her_served_to_ur5e_robots_stores_whole_episodes_with_their_ending_te
     let sac = Sac::load(&dir).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
     let buffer = sac.buffer.as_ref().expect("the served model keeps its replay buffer");
-    assert_eq!((buffer.n_envs, buffer.len() as u64), (1, sac.timesteps), "one lane, every step learnt from stored");
+    assert_eq!(
+        (buffer.n_envs, buffer.len() as u64),
+        (1, sac.state.timesteps),
+        "one lane, every step learnt from stored"
+    );
     assert!(
-        sac.timesteps >= 1600 && sac.gradient_steps > 0,
+        sac.state.timesteps >= 1600 && sac.gradient_steps > 0,
         "{} steps, {} gradient steps",
-        sac.timesteps,
+        sac.state.timesteps,
         sac.gradient_steps
     );
     // Whole episodes: each ends where its `remaining` count reaches 0, one after another.
     let ends = buffer.remaining.iter().filter(|&&r| r == 0).count() as u64;
-    assert_eq!(ends, sac.episodes, "an episode's steps are stored together");
+    assert_eq!(ends, sac.state.episodes, "an episode's steps are stored together");
     for i in 1..buffer.len() {
         let (before, now) = (buffer.remaining[i - 1], buffer.remaining[i]);
         assert!(before == 0 || before == now + 1, "step {i}: remaining {before} then {now}");

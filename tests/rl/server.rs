@@ -295,7 +295,7 @@ fn serve_and_robot_as_two_processes_train_a_round_trip() {
     let rows = std::fs::read_to_string(out.join("progress.csv")).unwrap().lines().count() - 1;
     assert_eq!(rows, 2048 / 64, "one update per 32 steps × 2 robots");
     let model = Ppo::load(out.join("model")).unwrap();
-    assert!(model.timesteps >= 2048 && model.episodes > 0);
+    assert!(model.state.timesteps >= 2048 && model.state.episodes > 0);
     let losses = crate::train_cli::event_scalars(&out).into_iter().filter(|(_, tag, _)| tag == "train/loss").count();
     assert_eq!(losses, rows, "the server logs TensorBoard scalars as train does");
     // It ends as `train` does (`twinbots_run::run::finish`): the final model evaluated in-process.

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use twinbots_api::VecEnv;
 use twinbots_learn::classic::ClassicPendulum;
-use twinbots_learn::{Agent, Flow, Td3, Td3Config, UpdateStats};
+use twinbots_learn::{Agent, Flow, Learner, Td3, Td3Config, UpdateStats};
 
 /// RL Zoo's TD3 settings for Pendulum-v1 (γ 0.98, exploration noise 0.1, learning rate 1e-3)
 /// with 64-unit layers (400-300 would cost ~30 ms a gradient step on 2 cores) and 500 random
@@ -36,8 +36,8 @@ fn td3_reaches_minus_200_on_pendulum_within_20k_steps() {
             Ok(Flow::Continue)
         })
         .unwrap();
-    assert_eq!(model.timesteps, 20_000);
-    let recent: Vec<f32> = model.history.recent_scores.iter().rev().take(10).copied().collect();
+    assert_eq!(model.state.timesteps, 20_000);
+    let recent: Vec<f32> = model.state.history.recent_scores.iter().rev().take(10).copied().collect();
     let mean = recent.iter().sum::<f32>() / recent.len() as f32;
     assert!(mean >= -200.0, "mean of the last 10 episodes {mean}; rows {rows:?}");
 }

@@ -40,7 +40,7 @@ fn short_training_run_writes_its_run_directory() {
     let wall = summary["wall_clock_s_this_session"].as_f64().unwrap();
     assert!((parts.iter().sum::<f64>() - wall).abs() < 0.01 * wall + 1e-3, "{time} vs wall {wall}");
     let model = twinbots_learn::Ppo::load(out.join("model")).unwrap();
-    assert_eq!(model.timesteps, 1024);
+    assert_eq!(model.state.timesteps, 1024);
     // TensorBoard: a point of every training scalar per update, at the update's timesteps.
     let scalars = event_scalars(&out);
     let steps = |tag: &str| -> Vec<u64> { scalars.iter().filter(|(_, t, _)| t == tag).map(|(s, _, _)| *s).collect() };
@@ -107,8 +107,8 @@ fn a_run_killed_with_sigkill_resumes_from_its_last_checkpoint() {
     assert!(steps.windows(2).all(|w| w[1] == w[0] + 64), "{steps:?}");
     assert!(updates.iter().enumerate().all(|(i, &u)| u == i as u64 + 1), "{updates:?}");
     let model = twinbots_learn::Ppo::load(out.join("model")).unwrap();
-    assert_eq!((model.timesteps, model.updates), (6400, 100));
-    assert!(model.episodes > 0);
+    assert_eq!((model.state.timesteps, model.state.updates), (6400, 100));
+    assert!(model.state.episodes > 0);
     std::fs::remove_dir_all(&out).ok();
 }
 

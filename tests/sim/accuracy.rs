@@ -86,7 +86,7 @@ fn the_cartpole_training_timing_tracks_a_fine_step_reference() {
 
 /// Over 40 control steps (2.56 s) of random wheel speeds, the base within 2 cm and the pendulum
 /// within 0.06 rad of the reference. Every cheaper timing measured did worse or no better
-/// (docs/architecture.md), so the Pioneer keeps its 8 × 8 ms steps of 4 iterations.
+/// (docs/design/simulation.md, "Physics timing"), so the Pioneer keeps its 8 × 8 ms steps of 4 iterations.
 const PIONEER_BOUND: [f32; 4] = [0.02, f32::INFINITY, 0.06, f32::INFINITY];
 
 #[test]

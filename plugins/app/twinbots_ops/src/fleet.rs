@@ -20,7 +20,7 @@ use twinbots_task::Episode;
 
 /// Robot `k` of a run, in an app of its own: one world per robot, as each real robot has its
 /// own controller, so robot code cannot name another robot's devices or arena — they are in
-/// another world (docs/architecture.md, "The design patterns"). Its arena is index `k`, with
+/// another world (docs/design/patterns.md). Its arena is index `k`, with
 /// arena `k`'s random stream, as if all ran in one app. It gets its actions from `source` (a
 /// [`ServerAddress`] or an [`OnBoardPolicy`]), is configured by `configure`, and is checked by
 /// the pattern-3 audit against `plumbing` ([`run_plumbing`]); robot 0's run is the one `twin`

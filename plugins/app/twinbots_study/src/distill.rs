@@ -184,7 +184,7 @@ pub fn distill(
     }
     // The episodes the student's training left running are not these rounds': a `train
     // --resume` of the taught run starts its envs afresh.
-    ppo.env_state = None;
+    ppo.state.env_state = None;
     out_run.save_model(&ppo)?;
     out_run
         .write_json("distill.json", &serde_json::json!({ "student": student, "options": options, "rounds": rounds }))?;
@@ -275,7 +275,7 @@ fn roll_out(
     answers: &mut Answers,
 ) -> anyhow::Result<(Vec<EpisodeSummary>, f64)> {
     let n = env.num_envs();
-    let dim = ppo.observation_space.dim();
+    let dim = ppo.state.observation_space.dim();
     let mut obs = env.reset(Some(seed))?;
     let (mut ended, mut gap, mut compared) = (Vec::new(), 0.0, 0usize);
     // Deterministic actions draw nothing from it.
@@ -302,7 +302,7 @@ fn roll_out(
             told.len(),
             actions.len()
         );
-        (gap, compared) = match ppo.action_space {
+        (gap, compared) = match ppo.state.action_space {
             Space::Discrete { .. } => {
                 (gap + told.iter().zip(&actions).filter(|(t, a)| t != a).count() as f64, compared + n)
             }
@@ -319,7 +319,7 @@ fn roll_out(
         ended.extend(step.episodes.into_iter().flatten());
         obs = step.obs;
     }
-    let disagreement = match ppo.action_space {
+    let disagreement = match ppo.state.action_space {
         Space::Discrete { .. } => gap / compared.max(1) as f64,
         _ => (gap / compared.max(1) as f64).sqrt(),
     };
@@ -395,7 +395,8 @@ impl<'a> Learner<'a> {
                 let x = Tensor::from_vec(x, (chunk.len(), k), &Device::Cpu)?;
                 let y = Tensor::from_vec(y, (chunk.len(), a), &Device::Cpu)?;
                 // A categorical head takes one action index a row.
-                let y = if matches!(ppo.action_space, Space::Discrete { .. }) { y.squeeze(D::Minus1)? } else { y };
+                let y =
+                    if matches!(ppo.state.action_space, Space::Discrete { .. }) { y.squeeze(D::Minus1)? } else { y };
                 let loss = ppo
                     .policy
                     .evaluate_features(&self.features(&x)?, None, &y.to_dtype(DType::F32)?)?

@@ -8,6 +8,7 @@ use std::path::Path;
 use twinbots_api::spaces::Space;
 
 pub use crate::history::{EpisodeHistory, WINDOW};
+use crate::learner_state::LearnerState;
 use crate::model_io::ModelError;
 use crate::policy_net::PolicyNet;
 use crate::stats::UpdateStats;
@@ -17,14 +18,26 @@ pub trait Agent {
     /// The `algorithm` of its `model.json` (`"PPO"`): its entry's `saved_as` in
     /// [`crate::algos::ALGOS`].
     fn algorithm(&self) -> &'static str;
-    fn observation_space(&self) -> &Space;
-    fn action_space(&self) -> &Space;
+    /// What it keeps as every learner does: spaces, counters, history.
+    fn state(&self) -> &LearnerState;
+    fn observation_space(&self) -> &Space {
+        &self.state().observation_space
+    }
+    fn action_space(&self) -> &Space {
+        &self.state().action_space
+    }
     /// Env steps learnt from (summed over envs).
-    fn timesteps(&self) -> u64;
+    fn timesteps(&self) -> u64 {
+        self.state().timesteps
+    }
     /// Training episodes finished.
-    fn episodes(&self) -> u64;
+    fn episodes(&self) -> u64 {
+        self.state().episodes
+    }
     /// The last 100 finished training episodes.
-    fn history(&self) -> &EpisodeHistory;
+    fn history(&self) -> &EpisodeHistory {
+        &self.state().history
+    }
     /// The policy's most likely action for each raw observation row.
     fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>>;
     /// The action for each raw observation row: the most likely one when `deterministic`,
@@ -65,25 +78,28 @@ pub trait LoadAgent: Agent + Sized {
     fn load(dir: &Path) -> Result<Self, ModelError>;
 }
 
-/// The [`Agent`] accessors every learner writes alike, over its fields of the same names
-/// (`observation_space`, `action_space`, `timesteps`, `episodes`, `history`): written once here.
-macro_rules! spaces_and_counters {
-    () => {
-        fn observation_space(&self) -> &twinbots_api::Space {
-            &self.observation_space
+/// The [`Agent`] methods a learner `$ty` writes as every learner does: its `SAVED_AS` name and
+/// `TRAIN_FIGURES`, its `state` field, and its own `predict`, `predict_deterministic` and `save`.
+macro_rules! agent_basics {
+    ($ty:ident) => {
+        fn algorithm(&self) -> &'static str {
+            SAVED_AS
         }
-        fn action_space(&self) -> &twinbots_api::Space {
-            &self.action_space
+        fn train_figures(&self) -> &'static [&'static str] {
+            TRAIN_FIGURES
         }
-        fn timesteps(&self) -> u64 {
-            self.timesteps
+        fn state(&self) -> &$crate::learner_state::LearnerState {
+            &self.state
         }
-        fn episodes(&self) -> u64 {
-            self.episodes
+        fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+            $ty::predict_deterministic(self, obs)
         }
-        fn history(&self) -> &$crate::history::EpisodeHistory {
-            &self.history
+        fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
+            $ty::predict(self, obs, deterministic)
+        }
+        fn save(&self, dir: &std::path::Path) -> Result<(), $crate::model_io::ModelError> {
+            $ty::save(self, dir)
         }
     };
 }
-pub(crate) use spaces_and_counters;
+pub(crate) use agent_basics;

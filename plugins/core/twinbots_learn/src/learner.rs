@@ -25,7 +25,9 @@ pub trait Learner: Agent + Send {
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd>;
     /// Where its training time went, since it was made or loaded.
-    fn times(&self) -> TrainingTimes;
+    fn times(&self) -> TrainingTimes {
+        self.state().times
+    }
     /// The task's goal (achieved and desired parts, and its reward), for algorithms that
     /// relabel experience with it (HER); the others need none.
     fn set_goal(&mut self, goal: Option<GoalSpec>) -> anyhow::Result<()> {

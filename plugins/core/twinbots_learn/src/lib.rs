@@ -13,6 +13,7 @@ pub mod classic;
 pub mod evaluation;
 pub mod history;
 pub mod learner;
+pub mod learner_state;
 pub mod model_header;
 pub mod model_io;
 pub mod nn;

@@ -4,7 +4,6 @@ use std::path::Path;
 
 use twinbots_api::spaces::Space;
 
-use crate::agent::Agent;
 use crate::history::EpisodeHistory;
 use crate::model_io::{ModelError, file_error};
 use crate::normalize::RunningMeanStd;
@@ -30,30 +29,6 @@ pub struct ModelHeader {
 }
 
 impl ModelHeader {
-    pub fn of(
-        agent: &dyn Agent,
-        format: u32,
-        obs_rms: Option<&RunningMeanStd>,
-        seed: u64,
-        updates: u64,
-        env_state: bool,
-    ) -> Self {
-        Self {
-            format,
-            twinbots_version: env!("CARGO_PKG_VERSION").into(),
-            algorithm: agent.algorithm().into(),
-            observation_space: agent.observation_space().clone(),
-            action_space: agent.action_space().clone(),
-            obs_rms: obs_rms.cloned(),
-            seed,
-            timesteps: agent.timesteps(),
-            episodes: agent.episodes(),
-            updates,
-            env_state,
-            history: agent.history().clone(),
-        }
-    }
-
     /// An error unless the observation statistics are finite.
     pub fn check(&self, path: &Path) -> Result<(), ModelError> {
         match &self.obs_rms {

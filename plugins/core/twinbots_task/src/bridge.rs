@@ -1,4 +1,4 @@
-//! The channel bridge (docs/architecture.md, "Training: threads and the bridge"): the learner
+//! The channel bridge (docs/design/training.md, "Training: threads and the bridge"): the learner
 //! runs on its own thread with a [`ChannelVecEnv`]; the Bevy app runs on the main thread with
 //! [`BridgePlugin`], which each control step waits for the actions of all arenas, lets the step
 //! run, and sends back what it produced. Either side ending (returning, panicking, dropping its

@@ -1,6 +1,6 @@
 //! Neural-network pieces the learners share, built on candle where candle's general-purpose
 //! versions cost too much for the small networks of RL policies (measured on a 2-core VM, see
-//! docs/architecture.md): a tanh activation that vectorises, a ReLU whose gradient is one
+//! docs/design/learners.md): a tanh activation that vectorises, a ReLU whose gradient is one
 //! pass, Adam over plain slices, and
 //! convolutions as patches times a matrix for the CNNs that read camera images.
 

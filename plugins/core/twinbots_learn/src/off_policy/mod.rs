@@ -298,18 +298,41 @@ macro_rules! schedule_and_parts {
         }
         fn parts(&mut self) -> $crate::off_policy::Parts<'_> {
             $crate::off_policy::Parts {
-                seed: self.seed,
-                timesteps: &mut self.timesteps,
+                seed: self.state.seed,
+                timesteps: &mut self.state.timesteps,
                 iterations: &mut self.iterations,
-                episodes: &mut self.episodes,
-                updates: &mut self.updates,
-                history: &mut self.history,
+                episodes: &mut self.state.episodes,
+                updates: &mut self.state.updates,
+                history: &mut self.state.history,
                 buffer: &mut self.buffer,
-                obs_rms: &mut self.obs_rms,
-                times: &mut self.times,
-                env_state: &mut self.env_state,
+                obs_rms: &mut self.state.obs_rms,
+                times: &mut self.state.times,
+                env_state: &mut self.state.env_state,
             }
         }
     };
 }
 pub(crate) use schedule_and_parts;
+
+/// The [`Learner`] methods SAC and TD3 share: `learn` is [`learn`], and served, each is a
+/// [`served::ServedOffPolicy`] (it learns to no fixed budget, so it takes none).
+macro_rules! learn_and_serve {
+    () => {
+        fn learn(
+            &mut self,
+            env: &mut dyn twinbots_api::VecEnv,
+            more_steps: u64,
+            callback: &mut dyn $crate::callbacks::Callback,
+        ) -> anyhow::Result<$crate::stats::TrainingEnd> {
+            $crate::off_policy::learn(self, env, more_steps, callback)
+        }
+        fn serve(
+            self: Box<Self>,
+            robots: usize,
+            _budget: u64,
+        ) -> anyhow::Result<Box<dyn $crate::learner::ServedLearner>> {
+            Ok(Box::new($crate::off_policy::served::ServedOffPolicy::new(*self, robots)?))
+        }
+    };
+}
+pub(crate) use learn_and_serve;

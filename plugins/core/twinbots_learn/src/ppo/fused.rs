@@ -240,7 +240,7 @@ mod tests {
         let advantages: Vec<f32> = samples.iter().map(|&i| buffer.advantages[i] * 0.7).collect();
         let part = Part { samples, advantages, of: 100 };
         let fused = part_gradient(&model.policy, &model.config, &buffer, &part).unwrap();
-        let loss = part_loss(&model.policy, &model.config, &model.action_space, &buffer, None, &part).unwrap();
+        let loss = part_loss(&model.policy, &model.config, &model.state.action_space, &buffer, None, &part).unwrap();
         (fused, PartGradient::of(&model.policy, loss).unwrap())
     }
 

@@ -32,14 +32,13 @@ pub use reward_scale::RewardScale;
 pub use rollout::PolicyStep;
 
 use crate::callbacks::Callback;
-use crate::history::EpisodeHistory;
 use crate::learner::{Algorithm, config_from};
+use crate::learner_state::LearnerState;
 use crate::nn::Adam;
 use crate::normalize::RunningMeanStd;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use crate::stats::TrainingEnd;
 use twinbots_api::env::VecEnv;
-use twinbots_api::env_state::EnvState;
 use twinbots_api::spaces::Space;
 use twinbots_api::{EpisodeSummary, SolvedCriterion};
 
@@ -92,34 +91,23 @@ pub const ALGORITHM: Algorithm = Algorithm {
 /// A PPO agent: the policy, its optimiser state and the counters that make a run resumable.
 pub struct Ppo {
     pub config: PpoConfig,
-    pub observation_space: Space,
-    pub action_space: Space,
+    /// Spaces, normaliser, seed, counters, last episodes, env state and times, as every
+    /// learner keeps them.
+    pub state: LearnerState,
     pub policy: ActorCritic,
-    pub obs_rms: Option<RunningMeanStd>,
     /// With `normalize_rewards`: how rewards are scaled before they are stored.
     pub reward_scale: Option<RewardScale>,
-    pub seed: u64,
-    pub timesteps: u64,
-    pub episodes: u64,
-    pub updates: u64,
-    /// The last 100 finished training episodes.
-    pub history: EpisodeHistory,
     optimizer: Adam,
     rng: ChaCha8Rng,
-    /// Where the envs of `learn` stood after the last update, as their running episodes: a
-    /// checkpoint keeps it, so a resumed `learn` replays them and goes on as if never stopped.
-    pub env_state: Option<EnvState>,
-    /// Where this process's training time went (not saved with the model).
-    pub times: TrainingTimes,
 }
 
 impl std::fmt::Debug for Ppo {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Ppo")
-            .field("observation_space", &self.observation_space)
-            .field("action_space", &self.action_space)
-            .field("timesteps", &self.timesteps)
-            .field("episodes", &self.episodes)
+            .field("observation_space", &self.state.observation_space)
+            .field("action_space", &self.state.action_space)
+            .field("timesteps", &self.state.timesteps)
+            .field("episodes", &self.state.episodes)
             .finish_non_exhaustive()
     }
 }
@@ -136,21 +124,12 @@ impl Ppo {
         let reward_scale = config.normalize_rewards.then(RewardScale::default);
         let optimizer = update::adam(&policy, config.learning_rate);
         Ok(Self {
+            state: LearnerState::new(observation_space, action_space, obs_rms, seed),
             config,
-            observation_space,
-            action_space,
             policy,
-            obs_rms,
             reward_scale,
-            seed,
-            timesteps: 0,
-            episodes: 0,
-            updates: 0,
-            history: EpisodeHistory::default(),
             optimizer,
             rng: ChaCha8Rng::seed_from_u64(seed ^ twinbots_api::seeds::PPO_ACTIONS),
-            env_state: None,
-            times: TrainingTimes::default(),
         })
     }
 
@@ -160,21 +139,12 @@ impl Ppo {
         let policy = self.policy.deep_copy()?;
         let optimizer = self.optimizer.for_copies(policy.named_vars().into_iter().map(|(_, v)| v).collect())?;
         Ok(Self {
+            state: self.state.clone(),
             config: self.config.clone(),
-            observation_space: self.observation_space.clone(),
-            action_space: self.action_space.clone(),
             policy,
-            obs_rms: self.obs_rms.clone(),
             reward_scale: self.reward_scale.clone(),
-            seed: self.seed,
-            timesteps: self.timesteps,
-            episodes: self.episodes,
-            updates: self.updates,
-            history: self.history.clone(),
             optimizer,
             rng: self.rng.clone(),
-            env_state: self.env_state.clone(),
-            times: self.times,
         })
     }
 
@@ -195,28 +165,28 @@ impl Ppo {
 
     /// Counts a finished episode into the statistics.
     pub fn record_episode(&mut self, episode: &EpisodeSummary) {
-        self.episodes += 1;
-        self.history.record(episode);
+        self.state.episodes += 1;
+        self.state.history.record(episode);
     }
 
     /// The mean of each figure over the last 100 finished episodes that reported it.
     pub fn recent_metric_means(&self) -> BTreeMap<String, f32> {
-        self.history.metric_means()
+        self.state.history.metric_means()
     }
 
     /// Success rate of the last 100 finished episodes that reported success, if any did.
     pub fn recent_success_rate(&self) -> Option<f32> {
-        self.history.success_rate()
+        self.state.history.success_rate()
     }
 
     /// Whether the recent episodes meet `criterion`.
     pub fn is_solved(&self, criterion: &SolvedCriterion) -> bool {
-        self.history.is_solved(criterion)
+        self.state.history.is_solved(criterion)
     }
 
     /// Mean score of the last 100 finished episodes.
     pub fn mean_recent_score(&self) -> f32 {
-        self.history.mean_score()
+        self.state.history.mean_score()
     }
 
     /// Trains for `more_steps` more env steps (summed over envs), calling `callback`
@@ -230,30 +200,32 @@ impl Ppo {
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd> {
         anyhow::ensure!(
-            env.observation_space().dim() == self.observation_space.dim() && env.action_space() == &self.action_space,
+            env.observation_space().dim() == self.state.observation_space.dim()
+                && env.action_space() == &self.state.action_space,
             "the env's spaces ({} obs, {} actions) differ from the model's ({} obs, {} actions)",
             env.observation_space().dim(),
             env.action_space(),
-            self.observation_space.dim(),
-            self.action_space
+            self.state.observation_space.dim(),
+            self.state.action_space
         );
-        let end = self.timesteps + more_steps;
-        let mut buffer = RolloutBuffer::new(env.num_envs(), self.observation_space.dim(), self.action_space.dim());
+        let end = self.state.timesteps + more_steps;
+        let mut buffer =
+            RolloutBuffer::new(env.num_envs(), self.state.observation_space.dim(), self.state.action_space.dim());
         // A model that learnt before continues its envs' episodes (replayed: their observations
         // are already in the statistics); a new one starts them.
-        let mut obs = match self.env_state.take() {
+        let mut obs = match self.state.env_state.take() {
             Some(state) => {
                 let raw = twinbots_api::restore(env, &state)?;
                 self.normalize(&raw)
             }
             None => {
-                let first = env.reset(Some(self.seed.wrapping_add(self.timesteps)))?;
+                let first = env.reset(Some(self.state.seed.wrapping_add(self.state.timesteps)))?;
                 self.observe(&first)
             }
         };
         callback.on_training_start(self)?;
         let mut ended = None;
-        while ended.is_none() && self.timesteps < end {
+        while ended.is_none() && self.state.timesteps < end {
             let started = Instant::now();
             self.update_learning_rate(end);
 
@@ -262,8 +234,8 @@ impl Ppo {
             // Where the envs stand for a checkpoint after this update (the update leaves them
             // alone): env time, not update time.
             let recording_started = Instant::now();
-            self.env_state = env.state()?;
-            self.times.env_s += recording_started.elapsed().as_secs_f64();
+            self.state.env_state = env.state()?;
+            self.state.times.env_s += recording_started.elapsed().as_secs_f64();
 
             // 2. Advantages by GAE, bootstrapped from V(s_T).
             let update_started = Instant::now();
@@ -273,31 +245,19 @@ impl Ppo {
             // 3. Optimise the clipped surrogate for n_epochs over shuffled minibatches.
             let stats = self.train(&buffer, started)?;
             let callbacks_started = Instant::now();
-            self.times.update_s += (callbacks_started - update_started).as_secs_f64();
+            self.state.times.update_s += (callbacks_started - update_started).as_secs_f64();
 
-            ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.timesteps);
-            self.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
+            ended = TrainingEnd::after(callback.on_update(&stats, self)?, self.state.timesteps);
+            self.state.times.callbacks_s += callbacks_started.elapsed().as_secs_f64();
         }
         callback.on_training_end(self)?;
-        self.env_state = None;
-        Ok(ended.unwrap_or(TrainingEnd::BudgetSpent { timesteps: self.timesteps }))
+        self.state.env_state = None;
+        Ok(ended.unwrap_or(TrainingEnd::BudgetSpent { timesteps: self.state.timesteps }))
     }
 }
 
 impl crate::agent::Agent for Ppo {
-    fn algorithm(&self) -> &'static str {
-        SAVED_AS
-    }
-    fn train_figures(&self) -> &'static [&'static str] {
-        TRAIN_FIGURES
-    }
-    crate::agent::spaces_and_counters!();
-    fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        Ppo::predict_deterministic(self, obs)
-    }
-    fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
-        Ppo::predict(self, obs, deterministic)
-    }
+    crate::agent::agent_basics!(Ppo);
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
         let layers = self
             .policy
@@ -307,21 +267,18 @@ impl crate::agent::Agent for Ppo {
             .enumerate()
             .map(|(i, l)| l.values(&format!("pi.{i}")))
             .collect::<candle_core::Result<_>>()?;
-        let head = match &self.action_space {
+        let head = match &self.state.action_space {
             Space::Discrete { .. } => PolicyHead::ArgMax,
             Space::Box { .. } => PolicyHead::ClipToBox,
             other => anyhow::bail!("{other} actions cannot be exported"),
         };
         Ok(PolicyNet {
-            obs_rms: self.obs_rms.clone(),
+            obs_rms: self.state.obs_rms.clone(),
             encoding: self.policy.encoder.export("")?,
             layers,
             hidden: Activation::Tanh,
             head,
         })
-    }
-    fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
-        Ppo::save(self, dir)
     }
 
     /// SB3's PPO tags: the loss L_clip − c_ent·H + c_V·L_V (here averaged over the update's
@@ -355,9 +312,6 @@ impl crate::learner::Learner for Ppo {
         callback: &mut dyn Callback,
     ) -> anyhow::Result<TrainingEnd> {
         Ppo::learn(self, env, more_steps, callback)
-    }
-    fn times(&self) -> TrainingTimes {
-        self.times
     }
     fn serve(self: Box<Self>, robots: usize, budget: u64) -> anyhow::Result<Box<dyn crate::learner::ServedLearner>> {
         Ok(Box::new(served::ServedPpo::new(*self, robots, budget)))

@@ -44,16 +44,9 @@ impl Ppo {
         let mut moments = HashMap::new();
         let optimizer_steps = model_io::moment_tensors(&self.optimizer, &named, &mut moments, dir)?;
         model_io::save_tensors(&moments, &dir.join(OPTIMIZER_FILE))?;
-        model_io::save_env_state(dir, self.env_state.as_ref())?;
+        model_io::save_env_state(dir, self.state.env_state.as_ref())?;
         let meta = Metadata {
-            header: ModelHeader::of(
-                self,
-                FORMAT,
-                self.obs_rms.as_ref(),
-                self.seed,
-                self.updates,
-                self.env_state.is_some(),
-            ),
+            header: self.state.header(super::SAVED_AS, FORMAT),
             hyperparameters: self.config.clone(),
             action_stream: Some(StreamState::of(&self.rng)),
             reward_scale: self.reward_scale.clone(),
@@ -70,13 +63,12 @@ impl Ppo {
         let h = meta.header;
         h.check(&path)?;
         let saved_env_state = h.env_state;
-        let mut model = Ppo::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed)
+        let mut model = Ppo::new(meta.hyperparameters, h.observation_space.clone(), h.action_space.clone(), h.seed)
             .map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
         let tensors: HashMap<String, Tensor> = model_io::load_tensors(&weights)?;
         model.policy.set_weights(&tensors).map_err(|e| file_error(&weights, e))?;
-        (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) =
-            (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
+        model.state.take_saved(h);
         if let Some(scale) = &meta.reward_scale {
             scale.check_finite().map_err(|e| file_error(&path, e))?;
         }
@@ -98,7 +90,7 @@ impl Ppo {
                 &optimizer,
             )?;
         }
-        model.env_state = model_io::load_env_state(dir, saved_env_state)?;
+        model.state.env_state = model_io::load_env_state(dir, saved_env_state)?;
         Ok(model)
     }
 }

@@ -38,7 +38,7 @@ impl Ppo {
     /// normalises), then normalised with the statistics now in force. This is the only place
     /// the statistics move, once per observation, as SB3's VecNormalize does in `step`/`reset`.
     pub fn observe(&mut self, raw: &[f32]) -> Vec<f32> {
-        match &mut self.obs_rms {
+        match &mut self.state.obs_rms {
             Some(rms) => {
                 rms.update(raw);
                 rms.normalize(raw)
@@ -50,12 +50,12 @@ impl Ppo {
     /// Observations normalised with the current statistics, which they do not change (a
     /// finished episode's last observation, inference).
     pub fn normalize(&self, raw: &[f32]) -> Vec<f32> {
-        crate::normalize::normalized(self.obs_rms.as_ref(), raw)
+        crate::normalize::normalized(self.state.obs_rms.as_ref(), raw)
     }
 
     /// Rows of normalised observations as a tensor for the networks.
     pub(super) fn batch(&self, obs: &[f32]) -> anyhow::Result<Tensor> {
-        let dim = self.observation_space.dim();
+        let dim = self.state.observation_space.dim();
         Ok(Tensor::from_vec(obs.to_vec(), (obs.len() / dim, dim), &Device::Cpu)?)
     }
 
@@ -69,7 +69,7 @@ impl Ppo {
         let (mut features, mut value_features) = (Vec::new(), Vec::new());
         let (actions, log_probs, values) = match inference {
             Some(inference) => {
-                inference.act(&self.policy.head, &obs, obs.len() / self.observation_space.dim(), &mut self.rng)
+                inference.act(&self.policy.head, &obs, obs.len() / self.state.observation_space.dim(), &mut self.rng)
             }
             None => {
                 let (f, v) = self.policy.features(&self.batch(&obs)?)?;
@@ -118,7 +118,7 @@ impl Ppo {
 
     /// Boxes are clipped before they reach the env.
     pub fn clip_to_space(&self, mut actions: Vec<f32>) -> Vec<f32> {
-        if let Space::Box { low, high } = &self.action_space {
+        if let Space::Box { low, high } = &self.state.action_space {
             for (i, a) in actions.iter_mut().enumerate() {
                 let k = i % low.len();
                 *a = a.clamp(low[k], high[k]);
@@ -145,8 +145,8 @@ impl Ppo {
             let env_started = Instant::now();
             let outcome = env.step(&step.env_actions)?;
             let env_done = Instant::now();
-            self.times.inference_s += (env_started - inference_started).as_secs_f64();
-            self.times.env_s += (env_done - env_started).as_secs_f64();
+            self.state.times.inference_s += (env_started - inference_started).as_secs_f64();
+            self.state.times.env_s += (env_done - env_started).as_secs_f64();
             let dones: Vec<bool> = (0..n_envs).map(|e| outcome.terminated[e] || outcome.truncated[e]).collect();
             let scaled = self.scale_rewards(&outcome.rewards, &dones);
             let mut rewards = Vec::with_capacity(n_envs);
@@ -164,9 +164,9 @@ impl Ppo {
             }
             buffer.push(&step, &rewards, &dones);
             *obs = self.observe(&outcome.obs);
-            self.timesteps += n_envs as u64;
+            self.state.timesteps += n_envs as u64;
             // Bootstrap values of truncated episodes and normalising are inference too.
-            self.times.inference_s += env_done.elapsed().as_secs_f64();
+            self.state.times.inference_s += env_done.elapsed().as_secs_f64();
         }
         Ok(())
     }

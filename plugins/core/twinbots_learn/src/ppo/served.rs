@@ -54,7 +54,7 @@ impl ServedLearner for ServedPpo {
     }
 
     fn join(&mut self, robot: u64) {
-        let (obs, act) = (self.ppo.observation_space.dim(), self.ppo.action_space.dim());
+        let (obs, act) = (self.ppo.state.observation_space.dim(), self.ppo.state.action_space.dim());
         let trajectory = Trajectory {
             buffer: RolloutBuffer::new(1, obs, act),
             pending: None,
@@ -136,7 +136,8 @@ impl ServedLearner for ServedPpo {
             return Ok(None);
         }
         let (gamma, lambda) = (self.ppo.config.gamma, self.ppo.config.gae_lambda);
-        let mut batch = RolloutBuffer::new(1, self.ppo.observation_space.dim(), self.ppo.action_space.dim());
+        let mut batch =
+            RolloutBuffer::new(1, self.ppo.state.observation_space.dim(), self.ppo.state.action_space.dim());
         for traj in self.trajectories.values_mut().filter(|t| !t.buffer.is_empty()) {
             // GAE bootstrapped from V(the observation awaiting its outcome); a segment that
             // ends with its episode needs no bootstrap (its last step is done).
@@ -152,7 +153,7 @@ impl ServedLearner for ServedPpo {
         self.trajectories.retain(|_, t| !t.gone);
         self.ppo.update_learning_rate(self.budget);
         // Counted once learned from: a robot's unfinished episode may still be dropped.
-        self.ppo.timesteps += batch.len() as u64;
+        self.ppo.state.timesteps += batch.len() as u64;
         let stats = self.ppo.train(&batch, self.collecting_since)?;
         self.collecting_since = Instant::now();
         Ok(Some(stats))

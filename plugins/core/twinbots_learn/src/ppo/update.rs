@@ -30,7 +30,7 @@ impl Ppo {
     /// function of total timesteps so that a resumed run continues where it was.
     pub fn update_learning_rate(&mut self, end_timesteps: u64) {
         if self.config.linear_lr {
-            let progress = self.timesteps as f64 / end_timesteps.max(1) as f64;
+            let progress = self.state.timesteps as f64 / end_timesteps.max(1) as f64;
             self.optimizer.set_learning_rate(self.config.learning_rate * (1.0 - progress).clamp(0.0, 1.0));
         }
     }
@@ -38,12 +38,12 @@ impl Ppo {
     /// One PPO update on `buffer`, whose advantages are computed. `collecting_since` is when
     /// collecting it began: the update's row reports the samples per second since then.
     pub fn train(&mut self, buffer: &RolloutBuffer, collecting_since: Instant) -> anyhow::Result<UpdateStats> {
-        self.updates += 1;
+        self.state.updates += 1;
         let losses = self.optimize(buffer)?;
         if losses.skipped_steps > 0 {
             eprintln!(
                 "update {}: {} gradient step(s) skipped: the loss or a gradient was not finite (NaN or infinity)",
-                self.updates, losses.skipped_steps
+                self.state.updates, losses.skipped_steps
             );
         }
         Ok(UpdateStats {
@@ -52,7 +52,7 @@ impl Ppo {
             skipped_steps: losses.skipped_steps,
             applied_steps: losses.applied_steps,
             train: losses.train,
-            ..self.history.row(self.updates, self.timesteps, self.episodes)
+            ..self.state.history.row(self.state.updates, self.state.timesteps, self.state.episodes)
         })
     }
 
@@ -71,7 +71,7 @@ impl Ppo {
             None
         };
         let (policy, action_space, rng, optimizer) =
-            (&self.policy, &self.action_space, &mut self.rng, &mut self.optimizer);
+            (&self.policy, &self.state.action_space, &mut self.rng, &mut self.optimizer);
         let work = |part: Part| part_gradient(policy, &c, action_space, buffer, frozen.as_ref(), &part);
         crate::threads::with_helper(work, |helper| -> anyhow::Result<()> {
             'epochs: for _ in 0..c.n_epochs {
@@ -137,8 +137,8 @@ impl Ppo {
     pub(super) fn log_ratios(&self, buffer: &RolloutBuffer, chunk: &[usize]) -> anyhow::Result<(Vec<f32>, Vec<f32>)> {
         let advantages = normalized_advantages(buffer, chunk, self.config.normalize_advantage);
         let whole = Part { samples: chunk.to_vec(), advantages, of: chunk.len() };
-        let update = part_gradient(&self.policy, &self.config, &self.action_space, buffer, None, &whole)?;
-        let graph = part_loss(&self.policy, &self.config, &self.action_space, buffer, None, &whole)?;
+        let update = part_gradient(&self.policy, &self.config, &self.state.action_space, buffer, None, &whole)?;
+        let graph = part_loss(&self.policy, &self.config, &self.state.action_space, buffer, None, &whole)?;
         Ok((update.log_ratio, graph.log_ratio.to_vec1()?))
     }
 }

@@ -278,6 +278,7 @@ pub(super) fn sum(parts: Vec<LossGradient>) -> LossGradient {
 mod tests {
     use super::*;
     use crate::classic::ClassicPendulum;
+    use crate::learner::Learner;
     use crate::sac::SacConfig;
     use candle_core::{Device, Tensor};
     use rand::SeedableRng;
@@ -373,7 +374,8 @@ mod tests {
         let theirs_log_pi: Vec<f32> = log_pi.to_vec1().unwrap();
         sample.log_pi.iter().zip(&theirs_log_pi).for_each(|(a, b)| close(*a, *b, "log π"));
         let ours = actor_part(&nets, &CriticNets::read(&sac.critic).unwrap(), &batch.obs, sample, alpha, b);
-        let features = Tensor::from_vec(batch.obs.clone(), (b, sac.observation_space.dim()), &Device::Cpu).unwrap();
+        let features =
+            Tensor::from_vec(batch.obs.clone(), (b, sac.state.observation_space.dim()), &Device::Cpu).unwrap();
         let theirs = sac.actor_gradient_graph(&actions, &log_pi, &features, alpha).unwrap();
         agree(&ours.loss, &theirs.loss, "actor");
         close(ours.entropy, theirs.entropy, "entropy");

@@ -26,21 +26,16 @@ pub use config::SacConfig;
 pub use networks::Actor;
 
 use crate::agent::{Agent, LoadAgent};
-use crate::callbacks::Callback;
-use crate::history::EpisodeHistory;
-use crate::learner::{Algorithm, Learner, ServedLearner, config_from};
+use crate::learner::{Algorithm, Learner, config_from};
+use crate::learner_state::LearnerState;
 use crate::model_io::ModelError;
 use crate::nn::Encoder;
 use crate::nn::{Adam, AdamConfig};
 use crate::normalize::RunningMeanStd;
 use crate::off_policy::OffPolicy;
-use crate::off_policy::served::ServedOffPolicy;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
-use crate::stats::TrainingEnd;
-use crate::stats::{TrainingTimes, UpdateStats};
+use crate::stats::UpdateStats;
 use twinbots_api::GoalSpec;
-use twinbots_api::env::VecEnv;
-use twinbots_api::env_state::EnvState;
 use twinbots_api::spaces::Space;
 
 /// The name `--algo` and the settings' `[sac]` table use, and the one its models are saved
@@ -91,24 +86,18 @@ const MAX_BUFFER_BYTES: f64 = 16.0 * GIB;
 /// and the counters that make a run resumable.
 pub struct Sac {
     pub config: SacConfig,
-    pub observation_space: Space,
-    pub action_space: Space,
+    /// Spaces, normaliser, seed, counters, last episodes, env state and times, as every
+    /// learner keeps them.
+    pub state: LearnerState,
     pub actor: Actor,
     pub critic: TwinCritic,
     pub critic_target: TwinCritic,
     /// log α (learnt when `learn_ent_coef`).
     pub log_ent_coef: Var,
-    pub obs_rms: Option<RunningMeanStd>,
-    pub seed: u64,
-    pub timesteps: u64,
-    pub episodes: u64,
-    /// Rows written (the callbacks' updates).
-    pub updates: u64,
     /// Gradient steps taken.
     pub gradient_steps: u64,
     /// Iterations of `learn` (steps of each env).
     pub iterations: u64,
-    pub history: EpisodeHistory,
     pub buffer: Option<ReplayBuffer>,
     /// Relabels goals (HER) when the config asks for it; not saved: the caller gives it again.
     pub goal: Option<GoalSpec>,
@@ -116,18 +105,15 @@ pub struct Sac {
     critic_optimizer: Adam,
     ent_optimizer: Adam,
     rng: ChaCha8Rng,
-    /// Where the envs stood at the last row (see `Ppo::env_state`).
-    pub env_state: Option<EnvState>,
     pub last_losses: SacLosses,
-    pub times: TrainingTimes,
 }
 
 impl std::fmt::Debug for Sac {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Sac")
-            .field("observation_space", &self.observation_space)
-            .field("action_space", &self.action_space)
-            .field("timesteps", &self.timesteps)
+            .field("observation_space", &self.state.observation_space)
+            .field("action_space", &self.state.action_space)
+            .field("timesteps", &self.state.timesteps)
             .finish_non_exhaustive()
     }
 }
@@ -166,30 +152,26 @@ impl Sac {
         };
         let vars = |named: Vec<(String, Var)>| named.into_iter().map(|(_, v)| v).collect::<Vec<_>>();
         Ok(Self {
+            state: LearnerState::new(
+                observation_space,
+                action_space,
+                config.normalize_observations.then(|| RunningMeanStd::new(obs_dim)),
+                seed,
+            ),
             actor_optimizer: adam(vars(actor.named_vars())),
             critic_optimizer: adam(vars(critic.named_vars("critic"))),
             ent_optimizer: adam(vec![log_ent_coef.clone()]),
-            obs_rms: config.normalize_observations.then(|| RunningMeanStd::new(obs_dim)),
             config,
-            observation_space,
-            action_space,
             actor,
             critic,
             critic_target,
             log_ent_coef,
-            seed,
-            timesteps: 0,
-            episodes: 0,
-            updates: 0,
             gradient_steps: 0,
             iterations: 0,
-            history: EpisodeHistory::default(),
             buffer: None,
             goal: None,
             rng: ChaCha8Rng::seed_from_u64(seed ^ twinbots_api::seeds::SAC_SAMPLING),
-            env_state: None,
             last_losses: SacLosses::default(),
-            times: TrainingTimes::default(),
         })
     }
 
@@ -200,17 +182,7 @@ impl Sac {
     }
 
     fn act_dim(&self) -> usize {
-        self.action_space.dim()
-    }
-
-    /// Rows of raw observations, normalised, as a tensor for the networks.
-    fn batch(&self, obs: &[f32]) -> anyhow::Result<Tensor> {
-        let dim = self.observation_space.dim();
-        Ok(Tensor::from_vec(
-            crate::normalize::normalized(self.obs_rms.as_ref(), obs),
-            (obs.len() / dim, dim),
-            &Device::Cpu,
-        )?)
+        self.state.action_space.dim()
     }
 
     /// Standard normal noise for `rows` actions, from the agent's own stream.
@@ -220,7 +192,7 @@ impl Sac {
 
     /// [-1, 1] → the action space's bounds.
     fn to_env(&self, unit: &[f32]) -> Vec<f32> {
-        crate::off_policy::to_env(&self.action_space, unit)
+        crate::off_policy::to_env(&self.state.action_space, unit)
     }
 
     /// The action for each raw observation row: tanh(μ) when `deterministic`, else a sample.
@@ -228,7 +200,7 @@ impl Sac {
         if deterministic {
             return self.predict_deterministic(obs);
         }
-        let x = self.batch(obs)?;
+        let x = self.state.batch(obs)?;
         let rows = x.dim(0)?;
         let eps = Tensor::from_vec(self.noise(rows), (rows, self.act_dim()), &Device::Cpu)?;
         let (a, _) = self.actor.sample(&x, &eps)?;
@@ -237,18 +209,18 @@ impl Sac {
 
     /// tanh(μ(s)) for each raw observation row, in the action space's bounds.
     pub fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        let a = self.actor.mode(&self.batch(obs)?)?;
+        let a = self.actor.mode(&self.state.batch(obs)?)?;
         Ok(self.to_env(&a.flatten_all()?.to_vec1::<f32>()?))
     }
 
     /// Actions in [−1, 1] for each raw observation row: uniform random until learning starts,
     /// then samples of the actor.
     fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        let rows = obs.len() / self.observation_space.dim().max(1);
-        if self.timesteps < self.config.learning_starts {
+        let rows = obs.len() / self.state.observation_space.dim().max(1);
+        if self.state.timesteps < self.config.learning_starts {
             return Ok((0..rows * self.act_dim()).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect());
         }
-        let x = self.batch(obs)?;
+        let x = self.state.batch(obs)?;
         let eps = Tensor::from_vec(self.noise(rows), (rows, self.act_dim()), &Device::Cpu)?;
         Ok(self.actor.sample(&x, &eps)?.0.flatten_all()?.to_vec1::<f32>()?)
     }
@@ -257,45 +229,19 @@ impl Sac {
     pub fn ent_coef(&self) -> anyhow::Result<f32> {
         Ok(self.log_ent_coef.as_tensor().exp()?.to_vec1::<f32>()?[0])
     }
-
-    /// Trains for `more_steps` more env steps (summed over envs), calling `callback` after
-    /// every row, and says why it stopped.
-    pub fn learn(
-        &mut self,
-        env: &mut dyn VecEnv,
-        more_steps: u64,
-        callback: &mut dyn Callback,
-    ) -> anyhow::Result<TrainingEnd> {
-        crate::off_policy::learn(self, env, more_steps, callback)
-    }
 }
 
 impl Agent for Sac {
-    fn algorithm(&self) -> &'static str {
-        SAVED_AS
-    }
-    fn train_figures(&self) -> &'static [&'static str] {
-        TRAIN_FIGURES
-    }
-    crate::agent::spaces_and_counters!();
-    fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        Sac::predict_deterministic(self, obs)
-    }
-    fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
-        Sac::predict(self, obs, deterministic)
-    }
+    crate::agent::agent_basics!(Sac);
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
         let encoding = self.actor.encoder.export("actor.")?;
         Ok(PolicyNet {
-            obs_rms: self.obs_rms.clone(),
+            obs_rms: self.state.obs_rms.clone(),
             encoding,
             layers: self.actor.mode_layers()?,
             hidden: Activation::Relu,
             head: PolicyHead::TanhToBox,
         })
-    }
-    fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
-        Sac::save(self, dir)
     }
     /// SB3's SAC tags.
     fn train_scalars(&self, _stats: &UpdateStats) -> Vec<(String, f32)> {
@@ -312,20 +258,7 @@ impl Agent for Sac {
 }
 
 impl Learner for Sac {
-    fn learn(
-        &mut self,
-        env: &mut dyn VecEnv,
-        more_steps: u64,
-        callback: &mut dyn Callback,
-    ) -> anyhow::Result<TrainingEnd> {
-        Sac::learn(self, env, more_steps, callback)
-    }
-    fn times(&self) -> TrainingTimes {
-        self.times
-    }
-    fn serve(self: Box<Self>, robots: usize, _total_timesteps: u64) -> anyhow::Result<Box<dyn ServedLearner>> {
-        Ok(Box::new(ServedOffPolicy::new(*self, robots)?))
-    }
+    crate::off_policy::learn_and_serve!();
     fn set_goal(&mut self, goal: Option<GoalSpec>) -> anyhow::Result<()> {
         anyhow::ensure!(
             self.config.her_goals == 0 || goal.is_some(),

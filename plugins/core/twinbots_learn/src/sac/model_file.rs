@@ -67,16 +67,9 @@ impl Sac {
         )?;
         let optimizer_steps = [steps[0], steps[1], steps[2]];
         let replay_buffer = save_replay(self.buffer.as_ref(), dir)?;
-        model_io::save_env_state(dir, self.env_state.as_ref())?;
+        model_io::save_env_state(dir, self.state.env_state.as_ref())?;
         let meta = Metadata {
-            header: ModelHeader::of(
-                self,
-                FORMAT,
-                self.obs_rms.as_ref(),
-                self.seed,
-                self.updates,
-                self.env_state.is_some(),
-            ),
+            header: self.state.header(super::SAVED_AS, FORMAT),
             hyperparameters: self.config.clone(),
             gradient_steps: self.gradient_steps,
             iterations: self.iterations,
@@ -97,13 +90,12 @@ impl Sac {
         let h = meta.header;
         h.check(&path)?;
         let saved_env_state = h.env_state;
-        let mut model = Sac::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed)
+        let mut model = Sac::new(meta.hyperparameters, h.observation_space.clone(), h.action_space.clone(), h.seed)
             .map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
         model_io::set_vars(&model.weights(), &model_io::load_tensors(&weights)?)
             .map_err(|e| file_error(&weights, e))?;
-        (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) =
-            (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
+        model.state.take_saved(h);
         (model.gradient_steps, model.iterations) = (meta.gradient_steps, meta.iterations);
         model.rng = meta.sampling_stream.to_rng().map_err(|e| file_error(&path, e))?;
         let [actor, critic, ent] = model.optimized_vars();
@@ -113,8 +105,9 @@ impl Sac {
             &meta.optimizer_steps,
             dir,
         )?;
-        model.buffer = load_replay(meta.replay_buffer, dir, model.observation_space.dim(), model.action_space.dim())?;
-        model.env_state = model_io::load_env_state(dir, saved_env_state)?;
+        model.buffer =
+            load_replay(meta.replay_buffer, dir, model.state.observation_space.dim(), model.state.action_space.dim())?;
+        model.state.env_state = model_io::load_env_state(dir, saved_env_state)?;
         Ok(model)
     }
 }

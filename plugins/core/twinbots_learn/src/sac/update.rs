@@ -53,7 +53,7 @@ impl Sac {
         }
         let goal = self.goal.filter(|_| self.config.her_goals > 0);
         // The observation statistics hold still over the steps: only the env's steps move them.
-        let obs_rms = self.obs_rms.clone();
+        let obs_rms = self.state.obs_rms.clone();
         // Rows relabelled (HER) and normalised with the statistics in force.
         let assemble = |draws: &[Draw]| {
             let mut batch = buffer.assemble(draws, goal.as_ref());
@@ -219,8 +219,10 @@ impl Sac {
     ) -> anyhow::Result<(LossGradient, Tensor)> {
         let (b, dev) = (batch.rewards.len(), Device::Cpu);
         let rows = |v: &[f32], width: usize| Tensor::from_vec(v.to_vec(), (b, width), &dev);
-        let (obs, next_obs) =
-            (rows(&batch.obs, self.observation_space.dim())?, rows(&batch.next_obs, self.observation_space.dim())?);
+        let (obs, next_obs) = (
+            rows(&batch.obs, self.state.observation_space.dim())?,
+            rows(&batch.next_obs, self.state.observation_space.dim())?,
+        );
         let actions = rows(&batch.actions, self.act_dim())?;
         let rewards = Tensor::from_vec(batch.rewards.clone(), b, &dev)?;
         let not_done = (Tensor::from_vec(batch.dones.clone(), b, &dev)?.neg()? + 1.0)?;
@@ -287,7 +289,7 @@ impl Sac {
     pub(super) fn actor_samples_graph(&self, obs: &[f32], eps: &[f32]) -> anyhow::Result<(Tensor, Tensor)> {
         let (dev, act_dim) = (Device::Cpu, self.act_dim());
         let rows = eps.len() / act_dim.max(1);
-        let obs = Tensor::from_vec(obs.to_vec(), (rows, self.observation_space.dim()), &dev)?;
+        let obs = Tensor::from_vec(obs.to_vec(), (rows, self.state.observation_space.dim()), &dev)?;
         Ok(self.actor.sample(&obs, &Tensor::from_vec(eps.to_vec(), (rows, act_dim), &dev)?)?)
     }
 }

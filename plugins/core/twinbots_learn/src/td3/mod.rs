@@ -12,25 +12,21 @@ use candle_core::{Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
-use twinbots_api::env::VecEnv;
-use twinbots_api::env_state::EnvState;
 use twinbots_api::spaces::Space;
 
 pub use config::Td3Config;
 
 use crate::agent::{Agent, LoadAgent};
-use crate::callbacks::Callback;
-use crate::history::EpisodeHistory;
-use crate::learner::{Algorithm, Learner, ServedLearner, config_from};
+use crate::learner::{Algorithm, Learner, config_from};
+use crate::learner_state::LearnerState;
 use crate::model_io::ModelError;
 use crate::nn::{Adam, AdamConfig, Dense};
 use crate::normalize::RunningMeanStd;
 use crate::off_policy::OffPolicy;
 use crate::off_policy::networks::{ReluMlp, TwinCritic, polyak_update};
-use crate::off_policy::served::ServedOffPolicy;
 use crate::policy_net::{Activation, PolicyHead, PolicyNet};
 use crate::replay_buffer::ReplayBuffer;
-use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats};
+use crate::stats::UpdateStats;
 
 /// The name `--algo` and the settings' `[td3]` table use, and the one its models are saved
 /// under (`model.json`'s `algorithm`).
@@ -74,32 +70,23 @@ pub struct Td3Losses {
 /// and the counters that make a run resumable.
 pub struct Td3 {
     pub config: Td3Config,
-    pub observation_space: Space,
-    pub action_space: Space,
+    /// Spaces, normaliser, seed, counters, last episodes, env state and times, as every
+    /// learner keeps them.
+    pub state: LearnerState,
     /// μ(s) = tanh(actor(s)), in [−1, 1] per action.
     pub actor: ReluMlp,
     pub actor_target: ReluMlp,
     pub critic: TwinCritic,
     pub critic_target: TwinCritic,
-    pub obs_rms: Option<RunningMeanStd>,
-    pub seed: u64,
-    pub timesteps: u64,
-    pub episodes: u64,
-    /// Rows written (the callbacks' updates).
-    pub updates: u64,
     /// Critic updates taken.
     pub gradient_steps: u64,
     /// Iterations of `learn` (steps of each env).
     pub iterations: u64,
-    pub history: EpisodeHistory,
     pub buffer: Option<ReplayBuffer>,
     actor_optimizer: Adam,
     critic_optimizer: Adam,
     rng: ChaCha8Rng,
-    /// Where the envs stood at the last row (see `Ppo::env_state`).
-    pub env_state: Option<EnvState>,
     pub last_losses: Td3Losses,
-    pub times: TrainingTimes,
 }
 
 /// A copy of `mlp` sharing no variables (a target network starts as its network).
@@ -143,43 +130,29 @@ impl Td3 {
             )
         };
         Ok(Self {
+            state: LearnerState::new(
+                observation_space,
+                action_space,
+                config.normalize_observations.then(|| RunningMeanStd::new(obs_dim)),
+                seed,
+            ),
             actor_optimizer: adam(named(&actor, "actor")),
             critic_optimizer: adam(critic.named_vars("critic")),
             actor_target: deep_copy(&actor)?,
             critic_target: critic.deep_copy()?,
             actor,
             critic,
-            obs_rms: config.normalize_observations.then(|| RunningMeanStd::new(obs_dim)),
-            seed,
-            timesteps: 0,
-            episodes: 0,
-            updates: 0,
             gradient_steps: 0,
             iterations: 0,
-            history: EpisodeHistory::default(),
             buffer: None,
             rng: ChaCha8Rng::seed_from_u64(seed ^ twinbots_api::seeds::TD3_NOISE),
-            env_state: None,
             last_losses: Td3Losses::default(),
-            times: TrainingTimes::default(),
             config,
-            observation_space,
-            action_space,
         })
     }
 
     fn act_dim(&self) -> usize {
-        self.action_space.dim()
-    }
-
-    /// Rows of raw observations, normalised, as a tensor for the networks.
-    fn batch(&self, obs: &[f32]) -> anyhow::Result<Tensor> {
-        let dim = self.observation_space.dim();
-        Ok(Tensor::from_vec(
-            crate::normalize::normalized(self.obs_rms.as_ref(), obs),
-            (obs.len() / dim, dim),
-            &Device::Cpu,
-        )?)
+        self.state.action_space.dim()
     }
 
     /// Gaussian noise of standard deviation `std`, clipped to ± `clip`, for `n` actions.
@@ -194,19 +167,19 @@ impl Td3 {
 
     /// [-1, 1] → the action space's bounds.
     fn to_env(&self, unit: &[f32]) -> Vec<f32> {
-        crate::off_policy::to_env(&self.action_space, unit)
+        crate::off_policy::to_env(&self.state.action_space, unit)
     }
 
     /// μ(s) in [−1, 1] for each raw observation row.
     fn unit_actions(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        Ok(self.actor.forward(&self.batch(obs)?)?.tanh()?.flatten_all()?.to_vec1::<f32>()?)
+        Ok(self.actor.forward(&self.state.batch(obs)?)?.tanh()?.flatten_all()?.to_vec1::<f32>()?)
     }
 
     /// Actions in [−1, 1] for each raw observation row: uniform random until learning starts,
     /// then μ(s) + exploration noise.
     fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        if self.timesteps < self.config.learning_starts {
-            let n = obs.len() / self.observation_space.dim().max(1) * self.act_dim();
+        if self.state.timesteps < self.config.learning_starts {
+            let n = obs.len() / self.state.observation_space.dim().max(1) * self.act_dim();
             return Ok((0..n).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect());
         }
         let mut unit = self.unit_actions(obs)?;
@@ -239,7 +212,7 @@ impl Td3 {
         }
         let batch = buffer.sample(self.config.batch_size, &mut self.rng, None);
         let (b, act_dim, dev) = (batch.rewards.len(), self.act_dim(), Device::Cpu);
-        let (obs, next_obs) = (self.batch(&batch.obs)?, self.batch(&batch.next_obs)?);
+        let (obs, next_obs) = (self.state.batch(&batch.obs)?, self.state.batch(&batch.next_obs)?);
         let actions = Tensor::from_vec(batch.actions, (b, act_dim), &dev)?;
         let rewards = Tensor::from_vec(batch.rewards, b, &dev)?;
         let not_done = (Tensor::from_vec(batch.dones, b, &dev)?.neg()? + 1.0)?;
@@ -280,33 +253,10 @@ impl Td3 {
             gradient_steps: self.gradient_steps,
         }))
     }
-
-    /// Trains for `more_steps` more env steps (summed over envs), calling `callback` after
-    /// every row, and says why it stopped.
-    pub fn learn(
-        &mut self,
-        env: &mut dyn VecEnv,
-        more_steps: u64,
-        callback: &mut dyn Callback,
-    ) -> anyhow::Result<TrainingEnd> {
-        crate::off_policy::learn(self, env, more_steps, callback)
-    }
 }
 
 impl Agent for Td3 {
-    fn algorithm(&self) -> &'static str {
-        SAVED_AS
-    }
-    fn train_figures(&self) -> &'static [&'static str] {
-        TRAIN_FIGURES
-    }
-    crate::agent::spaces_and_counters!();
-    fn predict_deterministic(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        Td3::predict_deterministic(self, obs)
-    }
-    fn predict(&mut self, obs: &[f32], deterministic: bool) -> anyhow::Result<Vec<f32>> {
-        Td3::predict(self, obs, deterministic)
-    }
+    crate::agent::agent_basics!(Td3);
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
         let layers = self
             .actor
@@ -316,15 +266,12 @@ impl Agent for Td3 {
             .map(|(i, l)| l.values(&format!("actor.{i}")))
             .collect::<candle_core::Result<_>>()?;
         Ok(PolicyNet {
-            obs_rms: self.obs_rms.clone(),
+            obs_rms: self.state.obs_rms.clone(),
             encoding: crate::policy_net::InputEncoding::Flat,
             layers,
             hidden: Activation::Relu,
             head: PolicyHead::TanhToBox,
         })
-    }
-    fn save(&self, dir: &std::path::Path) -> Result<(), ModelError> {
-        Td3::save(self, dir)
     }
     /// SB3's TD3 tags.
     fn train_scalars(&self, _stats: &UpdateStats) -> Vec<(String, f32)> {
@@ -338,20 +285,7 @@ impl Agent for Td3 {
 }
 
 impl Learner for Td3 {
-    fn learn(
-        &mut self,
-        env: &mut dyn VecEnv,
-        more_steps: u64,
-        callback: &mut dyn Callback,
-    ) -> anyhow::Result<TrainingEnd> {
-        Td3::learn(self, env, more_steps, callback)
-    }
-    fn times(&self) -> TrainingTimes {
-        self.times
-    }
-    fn serve(self: Box<Self>, robots: usize, _total_timesteps: u64) -> anyhow::Result<Box<dyn ServedLearner>> {
-        Ok(Box::new(ServedOffPolicy::new(*self, robots)?))
-    }
+    crate::off_policy::learn_and_serve!();
 }
 
 impl OffPolicy for Td3 {

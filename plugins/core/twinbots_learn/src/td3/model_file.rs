@@ -55,16 +55,9 @@ impl Td3 {
         )?;
         let optimizer_steps = [steps[0], steps[1]];
         let replay_buffer = save_replay(self.buffer.as_ref(), dir)?;
-        model_io::save_env_state(dir, self.env_state.as_ref())?;
+        model_io::save_env_state(dir, self.state.env_state.as_ref())?;
         let meta = Metadata {
-            header: ModelHeader::of(
-                self,
-                FORMAT,
-                self.obs_rms.as_ref(),
-                self.seed,
-                self.updates,
-                self.env_state.is_some(),
-            ),
+            header: self.state.header(super::SAVED_AS, FORMAT),
             hyperparameters: self.config.clone(),
             gradient_steps: self.gradient_steps,
             iterations: self.iterations,
@@ -83,20 +76,20 @@ impl Td3 {
         let h = meta.header;
         h.check(&path)?;
         let saved_env_state = h.env_state;
-        let mut model = Td3::new(meta.hyperparameters, h.observation_space, h.action_space, h.seed)
+        let mut model = Td3::new(meta.hyperparameters, h.observation_space.clone(), h.action_space.clone(), h.seed)
             .map_err(|e| file_error(&path, e))?;
         let weights = dir.join(WEIGHTS_FILE);
         set_vars(&model.weights(), &model_io::load_tensors(&weights)?).map_err(|e| file_error(&weights, e))?;
-        (model.obs_rms, model.timesteps, model.episodes, model.updates, model.history) =
-            (h.obs_rms, h.timesteps, h.episodes, h.updates, h.history);
+        model.state.take_saved(h);
         (model.gradient_steps, model.iterations) = (meta.gradient_steps, meta.iterations);
         model.rng = meta.noise_stream.to_rng().map_err(|e| file_error(&path, e))?;
         let [actor, critic] = model.optimized_vars();
         let parts =
             vec![(actor.0, actor.1, &mut model.actor_optimizer), (critic.0, critic.1, &mut model.critic_optimizer)];
         model_io::restore_optimizers(parts, &meta.optimizer_steps, dir)?;
-        model.buffer = load_replay(meta.replay_buffer, dir, model.observation_space.dim(), model.action_space.dim())?;
-        model.env_state = model_io::load_env_state(dir, saved_env_state)?;
+        model.buffer =
+            load_replay(meta.replay_buffer, dir, model.state.observation_space.dim(), model.state.action_space.dim())?;
+        model.state.env_state = model_io::load_env_state(dir, saved_env_state)?;
         Ok(model)
     }
 }
