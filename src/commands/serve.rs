@@ -2,7 +2,7 @@
 //! policy and the learner, trains on whatever robots connect, and writes a run directory like
 //! `train` does. Its first line of output is `listening on <address>`.
 //!
-//! Robots connect to it with `twinbots robot <robot> --server <address>` (`cli::robot`).
+//! Robots connect to it with `twinbots robot <robot> --server <address>` (`commands::robot`).
 
 use std::io::Write;
 use std::net::SocketAddr;
