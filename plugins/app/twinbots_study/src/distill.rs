@@ -128,7 +128,7 @@ pub fn distill(
     }
     let mut env = AppVecEnv::new(app);
     ppo.check_spaces(env.observation_space(), env.action_space())?;
-    let mut learner = Learner::new(&ppo, options)?;
+    let mut fit = StudentFit::new(&ppo, options)?;
     let out_run = RunDir::new(out);
     anyhow::ensure!(
         !out_run.holds_run() && !out_run.file(twinbots_learn::run_dir::CONFIG).exists(),
@@ -155,13 +155,13 @@ pub fn distill(
         let (episodes, disagreement) = roll_out(
             &mut env,
             &ppo,
-            &learner,
+            &fit,
             &teacher,
             options.steps,
             settings.seed.wrapping_add(twinbots_api::seeds::DISTILL_ROUND + round as u64),
             &mut answers,
         )?;
-        let cross_entropy = learner.fit(&ppo, &answers, options.epochs, &mut rng)?;
+        let cross_entropy = fit.fit(&ppo, &answers, options.epochs, &mut rng)?;
         let mean = |values: &[f64]| {
             if values.is_empty() { f64::NAN } else { values.iter().sum::<f64>() / values.len() as f64 }
         };
@@ -268,7 +268,7 @@ impl Answers {
 fn roll_out(
     env: &mut AppVecEnv,
     ppo: &Ppo,
-    learner: &Learner,
+    fit: &StudentFit,
     teacher: &NamedController,
     steps: usize,
     seed: u64,
@@ -282,8 +282,8 @@ fn roll_out(
     let mut unused = ChaCha8Rng::seed_from_u64(0);
     for _ in 0..steps {
         let x = Tensor::from_vec(ppo.normalize(&obs), (n, dim), &Device::Cpu)?;
-        let kept = learner.kept(&x)?;
-        let (actions, _, _) = ppo.policy.act_from(&learner.features(&kept)?, None, true, &mut unused)?;
+        let kept = fit.kept(&x)?;
+        let (actions, _, _) = ppo.policy.act_from(&fit.features(&kept)?, None, true, &mut unused)?;
         let actions = ppo.clip_to_space(actions);
         let mut state = Vec::new();
         for &arena in env.arenas() {
@@ -327,7 +327,7 @@ fn roll_out(
 }
 
 /// The student's fitting: its CNN split at the dense layer, and the optimisers.
-struct Learner<'a> {
+struct StudentFit<'a> {
     cnn: &'a NatureCnn,
     /// The state values after the image (`pixels.state`).
     state: usize,
@@ -336,7 +336,7 @@ struct Learner<'a> {
     dense: Adam,
 }
 
-impl<'a> Learner<'a> {
+impl<'a> StudentFit<'a> {
     fn new(ppo: &'a Ppo, options: &DistillOptions) -> anyhow::Result<Self> {
         let Encoder::Cnn { cnn, state } = &ppo.policy.encoder else {
             anyhow::bail!("the student's policy must be \"cnn\" (NatureCNN) on the image");
