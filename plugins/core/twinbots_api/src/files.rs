@@ -5,13 +5,15 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// The temporary path `path` is written through: `<name>.tmp` beside it, keeping the final
-/// extension readable (`plot.png` → `plot.png.tmp`, so a writer that picks its format by
-/// extension can be told it).
+/// The temporary path `path` is written through, beside it: `tmp` before its extension
+/// (`plot.png` → `plot.tmp.png`), so that files of one stem (`model.json`,
+/// `model.safetensors`) never share one, and a writer that picks its format by the extension
+/// still finds it last.
 pub fn temporary(path: &Path) -> PathBuf {
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(".tmp");
-    path.with_file_name(name)
+    match path.extension() {
+        Some(extension) => path.with_extension(format!("tmp.{}", extension.to_string_lossy())),
+        None => path.with_extension("tmp"),
+    }
 }
 
 /// Writes `bytes` to `path` atomically, synced to disk before the rename.
@@ -31,13 +33,10 @@ pub fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<
     write_atomic(path, text.as_bytes()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
-/// Has `write` make the file at the temporary path it is given (a writer that wants a path of
-/// its own: an image encoder, safetensors), then moves it to `path`; errors name the file. The
-/// temporary path keeps `path`'s extension last (`plot.tmp.png`) for writers that choose their
-/// format by it.
+/// Has `write` make the file at the [`temporary`] path it is given (a writer that wants a path of
+/// its own: an image encoder, safetensors), then moves it to `path`; errors name the file.
 pub fn write_through(path: &Path, write: impl FnOnce(&Path) -> anyhow::Result<()>) -> anyhow::Result<()> {
-    let extension = path.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = path.with_extension(if extension.is_empty() { "tmp".to_string() } else { format!("tmp.{extension}") });
+    let tmp = temporary(path);
     write(&tmp).inspect_err(|_| {
         let _ = std::fs::remove_file(&tmp);
     })?;
