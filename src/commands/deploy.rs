@@ -10,7 +10,7 @@ use twinbots_ops::deploy::{DeployOptions, deploy};
 use twinbots_ops::ur_sim::UrSimOptions;
 use twinbots_rtde::RtdeClient;
 use twinbots_sysid::Rig;
-use twinbots_task::calibration::read_calibration;
+use twinbots_task::calibration::Calibration;
 
 use twinbots_run::registry;
 
@@ -75,7 +75,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         let start = args.rtde.as_deref().map(|address| robot_joints(address, patience)).transpose()?;
         let rig = Rig::of(&entry)?;
         let truth = match &bundle.manifest.calibration {
-            Some(file) => read_calibration(&bundle.dir.join(file), &rig.catalogue, rig.robot)?,
+            Some(file) => Calibration::read(&bundle.dir.join(file), &rig.catalogue, rig.robot)?.parameters,
             None => Default::default(),
         };
         Box::new(TwinArm::new(&UrSimOptions { truth, ..Default::default() }, start)?)

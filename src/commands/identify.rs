@@ -7,10 +7,9 @@
 use anyhow::Context;
 use std::path::{Path, PathBuf};
 
-use twinbots_sim::Parameters;
-use twinbots_sysid::identify::{Fit, FitOptions, position_rmse};
-use twinbots_sysid::{PreparedLog, Rig, identify, prepare, run};
-use twinbots_task::calibration::calibration_text;
+use twinbots_sysid::identify::{Fit, FitOptions};
+use twinbots_sysid::report::{calibration_of, validate};
+use twinbots_sysid::{PreparedLog, Rig, identify, prepare};
 
 use twinbots_api::files::write_json;
 use twinbots_run::registry;
@@ -84,12 +83,11 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             g.best_so_far
         );
     })?;
-    let mut calibrated = base.clone();
-    calibrated.extend(&fit.values());
+    let calibration = calibration_of(&fit, &base, None);
     let nominal = rig.parameters(&base)?;
-    let calibrated = rig.parameters(&calibrated)?;
+    let calibrated = rig.parameters(&calibration.parameters)?;
     std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
-    let validation_report = validate(&rig, &validation, &nominal, &calibrated, &out)?;
+    let validation_report = validate(&rig, &validation, &nominal, &calibrated, &out.join("validation.png"))?;
     print!("{}", fit_table(&fit));
     if let Some(v) = &validation_report {
         println!(
@@ -99,7 +97,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             v.change * 100.0
         );
     }
-    write_calibration(&out.join("calibration.toml"), &rig, &fit, &args.logs, validation_report.as_ref())?;
+    calibration_of(&fit, &base, validation_report.as_ref()).write(&out.join("calibration.toml"), &rig.catalogue)?;
     write_json(&out.join("fit.json"), &serde_json::json!({ "fit": fit, "validation": validation_report }))?;
     twinbots_sysid::plot::convergence_png(
         &out.join("convergence.png"),
@@ -148,41 +146,6 @@ fn prepare_all(rig: &Rig, paths: &[PathBuf]) -> anyhow::Result<Vec<PreparedLog>>
         .collect()
 }
 
-/// Held-out logs before and after.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct Validation {
-    pub logs: Vec<String>,
-    pub nominal: f64,
-    pub calibrated: f64,
-    /// (calibrated − nominal) / nominal.
-    pub change: f64,
-}
-
-fn validate(
-    rig: &Rig,
-    logs: &[PreparedLog],
-    nominal: &Parameters,
-    calibrated: &Parameters,
-    out: &Path,
-) -> anyhow::Result<Option<Validation>> {
-    let Some(first) = logs.first() else { return Ok(None) };
-    let before = position_rmse(rig, logs, nominal, 0.05);
-    let after = position_rmse(rig, logs, calibrated, 0.05);
-    let twins = run(rig, &first.start_positions(rig, nominal), &first.program, &[nominal.clone(), calibrated.clone()]);
-    twinbots_sysid::plot::replay_png(
-        &out.join("validation.png"),
-        rig,
-        first,
-        &[("twin (nominal)", &twins[0], rig.biases(nominal)), ("twin (calibrated)", &twins[1], rig.biases(calibrated))],
-    )?;
-    Ok(Some(Validation {
-        logs: logs.iter().map(|l| l.name.clone()).collect(),
-        nominal: before,
-        calibrated: after,
-        change: (after - before) / before.max(1e-12),
-    }))
-}
-
 fn fit_table(fit: &Fit) -> String {
     let mut out = format!(
         "tracking error (χ² per step): nominal {:.4}, calibrated {:.4}; the replay's numerical noise ±{:.0} in χ² over {} samples\n{:<32} {:>12} {:>12} {:>12}  {}\n",
@@ -203,40 +166,4 @@ fn fit_table(fit: &Fit) -> String {
         }
     }
     out
-}
-
-fn write_calibration(
-    path: &Path,
-    rig: &Rig,
-    fit: &Fit,
-    logs: &[PathBuf],
-    validation: Option<&Validation>,
-) -> anyhow::Result<()> {
-    let mut meta = toml::Table::new();
-    let mut about = toml::Table::new();
-    about.insert("robot".into(), rig.robot.into());
-    about.insert("twinbots".into(), env!("CARGO_PKG_VERSION").into());
-    about.insert("logs".into(), toml::Value::Array(logs.iter().map(|l| l.display().to_string().into()).collect()));
-    about.insert("tracking_error_nominal".into(), fit.cost_nominal.into());
-    about.insert("tracking_error_calibrated".into(), fit.cost_fitted.into());
-    about.insert("replay_noise".into(), fit.replay_noise.into());
-    about.insert("candidates".into(), (fit.candidates as i64).into());
-    about.insert("seconds".into(), fit.seconds.into());
-    if let Some(v) = validation {
-        about.insert("validation_position_rmse_nominal".into(), v.nominal.into());
-        about.insert("validation_position_rmse_calibrated".into(), v.calibrated.into());
-    }
-    meta.insert("fit".into(), toml::Value::Table(about));
-    let spread: toml::Table = fit.parameters.iter().map(|p| (p.name.clone(), p.spread.into())).collect();
-    meta.insert("spread".into(), toml::Value::Table(spread));
-    let not: toml::Table = fit
-        .parameters
-        .iter()
-        .filter_map(|p| p.not_identifiable.as_ref().map(|w| (p.name.clone(), w.clone().into())))
-        .collect();
-    if !not.is_empty() {
-        meta.insert("not_identifiable".into(), toml::Value::Table(not));
-    }
-    let text = calibration_text(&fit.values(), &rig.catalogue, &meta);
-    twinbots_api::files::write_atomic(path, text.as_bytes()).with_context(|| path.display().to_string())
 }

@@ -103,7 +103,7 @@ fn record_replay_identify_write_their_files() {
     assert!(ok, "{err}");
     assert!(out.contains("command_delay"), "{out}");
     let text = std::fs::read_to_string(cal.join("calibration.toml")).unwrap();
-    let params = twinbots_task::calibration::parse_parameters(&text).unwrap();
+    let params = twinbots_task::calibration::Calibration::parse(&text).unwrap().parameters;
     let delay = params.get("command_delay").unwrap();
     assert!((delay - 0.012).abs() < 0.004, "fitted delay {delay}\n{text}");
     assert!(cal.join("convergence.png").is_file());

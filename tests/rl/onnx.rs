@@ -10,7 +10,7 @@ use twinbots_api::{Space, VecEnv};
 use twinbots_learn::classic::{ClassicCartPole, ClassicPendulum};
 use twinbots_learn::nn::PolicyKind;
 use twinbots_learn::normalize::RunningMeanStd;
-use twinbots_learn::{Agent, Flow, Ppo, PpoConfig, Sac, SacConfig};
+use twinbots_learn::{Agent, Flow, OffPolicyConfig, Ppo, PpoConfig, Sac, SacConfig};
 use twinbots_onnx::{OnnxPolicy, PolicyMetadata};
 
 const OBSERVATIONS: usize = 1000;
@@ -165,7 +165,12 @@ fn policies_on_camera_images_export_their_cnn() {
     let spread = own.iter().map(|a| a.abs()).fold(0.0f32, f32::max);
     assert!(spread > 0.5, "the actions vary, so the comparison means something: {spread}");
 
-    let config = SacConfig { hidden: vec![32], features_dim: 24, buffer_size: 1000, ..Default::default() };
+    let config = SacConfig {
+        off_policy: OffPolicyConfig { buffer_size: 1000, ..Default::default() },
+        hidden: vec![32],
+        features_dim: 24,
+        ..Default::default()
+    };
     let model = Sac::new(config, image.clone(), action_space.clone(), 13).unwrap();
     let (onnx, own) = both(&model, &obs);
     let delta = largest_difference(&onnx, &own);
@@ -176,7 +181,12 @@ fn policies_on_camera_images_export_their_cnn() {
     let with_state =
         Space::ImageAndState { height: 40, width: 44, channels: 6, low: vec![-300.0; 5], high: vec![300.0; 5] };
     let obs = images(&with_state, rows, 7);
-    let config = SacConfig { hidden: vec![32], features_dim: 24, buffer_size: 1000, ..Default::default() };
+    let config = SacConfig {
+        off_policy: OffPolicyConfig { buffer_size: 1000, ..Default::default() },
+        hidden: vec![32],
+        features_dim: 24,
+        ..Default::default()
+    };
     let model = Sac::new(config, with_state.clone(), action_space, 14).unwrap();
     let (onnx, own) = both(&model, &obs);
     let delta = largest_difference(&onnx, &own);
@@ -218,7 +228,12 @@ fn keypoint_policies_export_their_spatial_softmax() {
 
     let image = Space::Image { height: 48, width: 40, channels: 3 };
     let obs = images(&image, rows, 9);
-    let config = SacConfig { policy: PolicyKind::Keypoints, hidden: vec![32], buffer_size: 1000, ..Default::default() };
+    let config = SacConfig {
+        off_policy: OffPolicyConfig { buffer_size: 1000, ..Default::default() },
+        policy: PolicyKind::Keypoints,
+        hidden: vec![32],
+        ..Default::default()
+    };
     let model = Sac::new(config, image, action_space, 16).unwrap();
     scale_vars(model.actor.named_vars(), "features.2.weight", 30.0);
     let (onnx, own) = both(&model, &obs);

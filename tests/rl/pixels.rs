@@ -5,7 +5,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use twinbots_api::{EpisodeSummary, Space, StepResult, VecEnv};
 use twinbots_learn::nn::PolicyKind;
-use twinbots_learn::{Flow, Learner, Ppo, PpoConfig, UpdateStats};
+use twinbots_learn::{Flow, Learner, OffPolicyConfig, Ppo, PpoConfig, UpdateStats};
 
 /// Each step shows a 36×36 grey image whose left or right half is lit; choosing the lit half
 /// (action 0 left, 1 right) earns 1. Episodes of 8 steps. Nothing but the pixels tells which.
@@ -248,13 +248,16 @@ fn sac_with_cnns_learns_where_the_lit_column_is() {
         score: 0.0,
     };
     let config = SacConfig {
+        off_policy: OffPolicyConfig {
+            batch_size: 32,
+            learning_starts: 200,
+            buffer_size: 10_000,
+            learning_rate: 1e-3,
+            ..Default::default()
+        },
         policy: PolicyKind::Cnn,
         features_dim: 32,
         hidden: vec![64],
-        batch_size: 32,
-        learning_starts: 200,
-        buffer_size: 10_000,
-        learning_rate: 1e-3,
         log_interval: 200,
         ..SacConfig::default()
     };

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use twinbots_api::VecEnv;
 use twinbots_learn::classic::ClassicPendulum;
-use twinbots_learn::{Agent, Flow, Learner, Sac, SacConfig, UpdateStats};
+use twinbots_learn::{Agent, Flow, Learner, OffPolicyConfig, Sac, SacConfig, UpdateStats};
 
 /// SB3's SAC defaults but for 64-unit layers (256 cost 16× the arithmetic: a gradient step took
 /// ~50 ms on the 2-core CI machine), on the analytic Pendulum-v1 (SB3 reaches about −150 in
@@ -40,9 +40,8 @@ fn sac_reaches_minus_200_on_pendulum_within_20k_steps() {
 fn small_pendulum_model(steps: u64) -> (Sac, ClassicPendulum) {
     let mut env = ClassicPendulum::new(2);
     let config = SacConfig {
+        off_policy: OffPolicyConfig { learning_starts: 100, batch_size: 32, ..Default::default() },
         hidden: vec![16, 16],
-        learning_starts: 100,
-        batch_size: 32,
         log_interval: 100,
         ..SacConfig::default()
     };

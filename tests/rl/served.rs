@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use twinbots_api::{TaskSpec, VecEnv};
 use twinbots_learn::classic::ClassicPendulum;
-use twinbots_learn::{Agent, Flow, Learner, Sac, SacConfig, Td3, Td3Config, UpdateStats, algos};
+use twinbots_learn::{Agent, Flow, Learner, OffPolicyConfig, Sac, SacConfig, Td3, Td3Config, UpdateStats, algos};
 use twinbots_link::protocol::{RobotMessage, ServerMessage, VERSION};
 use twinbots_server::server::{RobotServer, ServerSettings};
 
@@ -103,7 +103,11 @@ fn serve_pendulum(model: Box<dyn Learner>, steps: u64) -> (f32, Vec<(u64, f32, u
 #[test]
 fn sac_served_to_two_robots_reaches_minus_200_on_pendulum_within_20k_steps() {
     let spec = pendulum_task();
-    let config = SacConfig { hidden: vec![64, 64], gradient_steps: 2, ..SacConfig::default() };
+    let config = SacConfig {
+        off_policy: OffPolicyConfig { gradient_steps: 2, ..Default::default() },
+        hidden: vec![64, 64],
+        ..SacConfig::default()
+    };
     let model = Sac::new(config, spec.observation_space, spec.action_space, 0).unwrap();
     let (mean, rows) = serve_pendulum(Box::new(model), 20_000);
     assert!(mean >= -200.0, "mean of the last 10 episodes {mean}; rows {rows:?}");
@@ -117,9 +121,8 @@ fn sac_served_to_two_robots_reaches_minus_200_on_pendulum_within_20k_steps() {
 fn td3_is_served_and_learns_from_every_step() {
     let spec = pendulum_task();
     let config = Td3Config {
+        off_policy: OffPolicyConfig { learning_starts: 200, batch_size: 32, ..Td3Config::default().off_policy },
         hidden: vec![16, 16],
-        learning_starts: 200,
-        batch_size: 32,
         log_interval: 100,
         ..Td3Config::default()
     };
@@ -155,7 +158,9 @@ fn sac_with_her_served_to_ur5e_robots_stores_whole_episodes_with_their_ending_te
     // 800 steps of random exploration, then 800 learning: with 400 and 400, 1 to 8 of a run's 9
     // to 13 episodes tripped the stop (eight runs), and one run in the full suite none (robots
     // over TCP take turns as they come, so runs differ).
-    let config = SacConfig { learning_starts: 800, ..ur5e::robot().defaults.of("sac").config().unwrap() };
+    let tuned: SacConfig = ur5e::robot().defaults.of("sac").config().unwrap();
+    let config =
+        SacConfig { off_policy: OffPolicyConfig { learning_starts: 800, ..tuned.off_policy.clone() }, ..tuned };
     assert!(config.her_goals > 0);
     let model = Sac::new(config, spec.observation_space.clone(), spec.action_space.clone(), 0)
         .unwrap()

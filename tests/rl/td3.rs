@@ -5,14 +5,18 @@ use std::time::Instant;
 
 use twinbots_api::VecEnv;
 use twinbots_learn::classic::ClassicPendulum;
-use twinbots_learn::{Agent, Flow, Learner, Td3, Td3Config, UpdateStats};
+use twinbots_learn::{Agent, Flow, Learner, OffPolicyConfig, Td3, Td3Config, UpdateStats};
 
 /// RL Zoo's TD3 settings for Pendulum-v1 (γ 0.98, exploration noise 0.1, learning rate 1e-3)
 /// with 64-unit layers (400-300 would cost ~30 ms a gradient step on 2 cores) and 500 random
 /// steps first, on the analytic Pendulum-v1. Seed 0 ends at about −139; seeds 1 and 2 at −146
 /// and −210 (measured 2026-11-24): the last 10 training episodes vary by tens with the seed.
 fn pendulum_config() -> Td3Config {
-    Td3Config { hidden: vec![64, 64], gamma: 0.98, learning_starts: 500, ..Td3Config::default() }
+    Td3Config {
+        off_policy: OffPolicyConfig { gamma: 0.98, learning_starts: 500, ..Td3Config::default().off_policy },
+        hidden: vec![64, 64],
+        ..Td3Config::default()
+    }
 }
 
 #[test]
@@ -46,9 +50,8 @@ fn td3_reaches_minus_200_on_pendulum_within_20k_steps() {
 fn a_saved_td3_model_loads_through_the_algorithm_table_and_learns_on_alike() {
     let mut env = ClassicPendulum::new(2);
     let config = Td3Config {
+        off_policy: OffPolicyConfig { learning_starts: 100, batch_size: 32, ..Td3Config::default().off_policy },
         hidden: vec![16, 16],
-        learning_starts: 100,
-        batch_size: 32,
         log_interval: 100,
         ..Td3Config::default()
     };

@@ -120,10 +120,40 @@ pub struct Algorithm {
     pub load: fn(dir: &Path) -> Result<Box<dyn Learner>, ModelError>,
 }
 
+/// An algorithm's hyperparameters, as its settings table holds them.
+pub trait LearnerConfig: Serialize + DeserializeOwned + Default {
+    /// The first setting outside its range, as an error naming `<name>.<key>`.
+    fn check(&self) -> anyhow::Result<()>;
+}
+
+/// [`Algorithm::config`] of an algorithm whose settings need no check beyond their own.
+pub fn checked_table<T: LearnerConfig>(keys: &toml::Table, table: &str) -> anyhow::Result<toml::Table> {
+    let config: T = config_from(keys, table)?;
+    config.check()?;
+    Ok(toml::Table::try_from(&config)?)
+}
+
+/// [`Algorithm::load`] of a learner that loads as itself.
+pub fn load_learner<L: crate::agent::LoadAgent + Learner + 'static>(
+    dir: &Path,
+) -> Result<Box<dyn Learner>, ModelError> {
+    Ok(Box::new(L::load(dir)?))
+}
+
 /// `T` (an algorithm's config) with `keys` over `T::default()`; a key that does not belong to
 /// `T` or whose value does not fit is an error naming `<table>.<key>`.
 pub fn config_from<T: Serialize + DeserializeOwned + Default>(keys: &toml::Table, table: &str) -> anyhow::Result<T> {
     let base = toml::Table::try_from(T::default())?;
+    // Every key a table may hold, `None`s included (TOML leaves those out); serde's own check
+    // cannot be used where a config flattens another's keys into its table.
+    let known = match serde_json::to_value(T::default())? {
+        serde_json::Value::Object(fields) => fields.into_iter().map(|(key, _)| key).collect::<Vec<_>>(),
+        _ => Vec::new(),
+    };
+    if let Some((key, value)) = keys.iter().find(|(key, _)| !known.contains(key)) {
+        let expected = known.iter().map(|k| format!("`{k}`")).collect::<Vec<_>>().join(", ");
+        anyhow::bail!("{table}.{key} = {value}: unknown field `{key}`, expected one of {expected}");
+    }
     // Key by key first, so an error names the key (serde's message for a wrong type does not).
     for (key, value) in keys {
         let mut one = base.clone();

@@ -11,6 +11,7 @@ pub mod identify;
 pub mod plot;
 pub mod record;
 pub mod replay;
+pub mod report;
 pub mod rig;
 pub mod search;
 pub mod sensitivity;

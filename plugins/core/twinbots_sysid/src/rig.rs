@@ -50,9 +50,7 @@ impl Rig {
     /// A calibration file's parameters (`twinbots identify`'s `calibration.toml`), checked
     /// against this robot's catalogue; none without a file.
     pub fn read_calibration(&self, path: Option<&std::path::Path>) -> anyhow::Result<Parameters> {
-        path.map_or(Ok(Parameters::default()), |p| {
-            twinbots_task::calibration::read_calibration(p, &self.catalogue, self.robot)
-        })
+        Ok(twinbots_task::calibration::Calibration::read_optional(path, &self.catalogue, self.robot)?.parameters)
     }
 
     /// The nominal parameters with `overrides` over them, checked against the catalogue.

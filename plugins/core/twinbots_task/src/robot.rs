@@ -197,7 +197,9 @@ impl RigDescription {
 
 /// Parses a robot's built-in nominal parameters (a calibration file's `[parameters]`).
 pub fn nominal_parameters(text: &str) -> Parameters {
-    crate::calibration::parse_parameters(text).expect("a robot's nominal parameters read (checked by the tests)")
+    crate::calibration::Calibration::parse(text)
+        .map(|c| c.parameters)
+        .expect("a robot's nominal parameters read (checked by the tests)")
 }
 
 impl RobotDescription {

@@ -27,9 +27,12 @@ impl CalibrationSetting {
     /// Reads a calibration file, checked against the robot's parameters.
     pub fn read(entry: &RobotEntry, path: &Path) -> anyhow::Result<Self> {
         let rig = twinbots_sysid::Rig::of(entry)?;
-        let (params, spread) =
-            twinbots_task::calibration::read_calibration_with_spread(path, &rig.catalogue, rig.robot)?;
-        Ok(Self { file: path.display().to_string(), parameters: params.0, spread: spread.0 })
+        let calibration = twinbots_task::calibration::Calibration::read(path, &rig.catalogue, rig.robot)?;
+        Ok(Self {
+            file: path.display().to_string(),
+            parameters: calibration.parameters.0,
+            spread: calibration.spread.0,
+        })
     }
 
     /// [`CalibrationSetting::read`] of the file, if one is given.

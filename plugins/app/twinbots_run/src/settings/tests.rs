@@ -1,7 +1,7 @@
 //! The settings' resolution and checks.
 
 use rand::{Rng, SeedableRng};
-use twinbots_learn::SacConfig;
+use twinbots_learn::{OffPolicyConfig, SacConfig};
 
 use super::*;
 
@@ -18,7 +18,7 @@ fn sac_settings_resolve_from_the_robots_sac_defaults_key_by_key_and_refuse_what_
     let tuned: SacConfig = defaults.config().unwrap();
     assert_eq!(
         s.config_of::<SacConfig>("sac").unwrap(),
-        SacConfig { batch_size: 128, ..tuned },
+        SacConfig { off_policy: OffPolicyConfig { batch_size: 128, ..tuned.off_policy.clone() }, ..tuned },
         "a [sac] key replaced more than itself"
     );
     let flags = ConfigFile { algo: Some("ppo".into()), ..Default::default() };

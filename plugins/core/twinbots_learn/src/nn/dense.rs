@@ -56,3 +56,8 @@ impl Dense {
         })
     }
 }
+
+/// The numbers of a stack of layers, named `<prefix>.<i>` (for export).
+pub fn layer_values(layers: &[Dense], prefix: &str) -> Result<Vec<crate::policy_net::DenseLayer>> {
+    layers.iter().enumerate().map(|(i, l)| l.values(&format!("{prefix}.{i}"))).collect()
+}

@@ -15,7 +15,7 @@ mod tanh;
 
 pub use adam::{Adam, AdamConfig, GradientStep, flat_gradients, sum_gradients};
 pub use conv::{Conv2d, Patches, unfold};
-pub use dense::Dense;
+pub use dense::{Dense, layer_values};
 pub use encoder::{CNN_MIN_SIZE, Encoder, NatureCnn, PolicyKind, check_normalization};
 pub use keypoints::KeypointCnn;
 pub use relu::relu;

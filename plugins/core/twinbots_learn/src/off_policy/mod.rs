@@ -3,6 +3,7 @@
 //! the action box, a vectorised step stored as transitions, the training loop ([`learn`]) and
 //! learning from robots ([`served`]), through the [`OffPolicy`] face each of them shows.
 
+pub mod config;
 pub mod networks;
 pub(crate) mod replay_file;
 pub(crate) mod served;
@@ -16,7 +17,9 @@ use twinbots_api::{EpisodeSummary, Space, StepResult};
 use crate::callbacks::Callback;
 use crate::history::EpisodeHistory;
 use crate::learner::Learner;
+use crate::learner_state::LearnerState;
 use crate::normalize::RunningMeanStd;
+use crate::policy_net::{Activation, DenseLayer, InputEncoding, PolicyHead, PolicyNet};
 use crate::replay_buffer::ReplayBuffer;
 use crate::stats::{TrainingEnd, TrainingTimes, UpdateStats, figures};
 
@@ -30,6 +33,23 @@ pub fn to_env(space: &Space, unit: &[f32]) -> Vec<f32> {
             low[k] + (u.clamp(-1.0, 1.0) + 1.0) * 0.5 * (high[k] - low[k])
         })
         .collect()
+}
+
+/// The exported actor of an off-policy learner: ReLU layers, tanh squashed to the action box.
+pub(crate) fn actor_net(state: &LearnerState, encoding: InputEncoding, layers: Vec<DenseLayer>) -> PolicyNet {
+    PolicyNet {
+        obs_rms: state.obs_rms.clone(),
+        encoding,
+        layers,
+        hidden: Activation::Relu,
+        head: PolicyHead::TanhToBox,
+    }
+}
+
+/// SB3's `train/` tags: each of the row's figures under its name, then `train/n_updates`.
+pub(crate) fn train_scalars(names: &[&str], figures: &[f32], gradient_steps: u64) -> Vec<(String, f32)> {
+    let named = names.iter().zip(figures).map(|(name, &value)| (format!("train/{name}"), value));
+    named.chain(std::iter::once(("train/n_updates".to_string(), gradient_steps as f32))).collect()
 }
 
 /// Stores the step from `obs` with the (unit) `actions` that gave `out` as transitions
@@ -286,12 +306,12 @@ impl Row {
 macro_rules! schedule_and_parts {
     () => {
         fn schedule(&self) -> $crate::off_policy::Schedule {
-            let c = &self.config;
+            let c = &self.config.off_policy;
             $crate::off_policy::Schedule {
                 learning_starts: c.learning_starts,
                 train_freq: c.train_freq,
                 gradient_steps: c.gradient_steps,
-                log_interval: c.log_interval,
+                log_interval: self.config.log_interval,
                 buffer_size: c.buffer_size,
                 learning_rate: c.learning_rate,
             }

@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::config_checks::Checks;
 use crate::nn::PolicyKind;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -103,35 +104,23 @@ impl PpoConfig {
     /// A clear error naming the first setting outside its range (`ppo.<key> = value: allowed
     /// range`), so that nonsense never reaches the learner.
     pub fn validate(&self) -> anyhow::Result<()> {
-        let positive = |key: &str, v: f64| check(key, v, v.is_finite() && v > 0.0, "a finite number > 0");
-        let non_negative = |key: &str, v: f64| check(key, v, v.is_finite() && v >= 0.0, "a finite number ≥ 0");
-        let at_least_one = |key: &str, v: usize| check(key, v, v >= 1, "a whole number ≥ 1");
-        positive("learning_rate", self.learning_rate)?;
-        at_least_one("n_steps", self.n_steps)?;
-        at_least_one("batch_size", self.batch_size)?;
-        at_least_one("n_epochs", self.n_epochs)?;
-        // Upper bounds keep a typo from asking for memory or time no machine has.
-        check("n_steps", self.n_steps, self.n_steps <= MAX_ROLLOUT, "at most 16777216")?;
-        check("n_epochs", self.n_epochs, self.n_epochs <= 10_000, "at most 10000")?;
-        check("gamma", self.gamma, self.gamma > 0.0 && self.gamma <= 1.0, "in (0, 1]")?;
-        check("gae_lambda", self.gae_lambda, (0.0..=1.0).contains(&self.gae_lambda), "in [0, 1]")?;
-        positive("clip_range", self.clip_range as f64)?;
-        non_negative("ent_coef", self.ent_coef as f64)?;
-        non_negative("vf_coef", self.vf_coef as f64)?;
-        positive("max_grad_norm", self.max_grad_norm as f64)?;
+        let checks = Checks(super::NAME);
+        checks.positive("learning_rate", self.learning_rate)?;
+        checks.count("n_steps", self.n_steps, MAX_ROLLOUT)?;
+        checks.check("batch_size", self.batch_size, self.batch_size >= 1, "a whole number ≥ 1")?;
+        checks.count("n_epochs", self.n_epochs, 10_000)?;
+        checks.fraction("gamma", self.gamma)?;
+        checks.check("gae_lambda", self.gae_lambda, (0.0..=1.0).contains(&self.gae_lambda), "in [0, 1]")?;
+        checks.positive("clip_range", self.clip_range as f64)?;
+        checks.non_negative("ent_coef", self.ent_coef as f64)?;
+        checks.non_negative("vf_coef", self.vf_coef as f64)?;
+        checks.positive("max_grad_norm", self.max_grad_norm as f64)?;
         if let Some(kl) = self.target_kl {
-            positive("target_kl", kl as f64)?;
+            checks.positive("target_kl", kl as f64)?;
         }
-        let hidden = format!("{:?}", self.hidden);
-        let sizes_ok = (1..=16).contains(&self.hidden.len()) && self.hidden.iter().all(|&n| (1..=4096).contains(&n));
-        check("hidden", hidden, sizes_ok, "1 to 16 layer sizes, each in 1..=4096")?;
-        check(
-            "features_dim",
-            self.features_dim,
-            (1..=4096).contains(&self.features_dim),
-            "a whole number in 1..=4096",
-        )?;
-        check(
+        checks.hidden(&self.hidden)?;
+        checks.count("features_dim", self.features_dim, 4096)?;
+        checks.check(
             "log_std_init",
             self.log_std_init,
             self.log_std_init.is_finite() && self.log_std_init.abs() <= 20.0,
@@ -143,9 +132,10 @@ impl PpoConfig {
 /// The most samples a rollout may hold (n_steps × envs).
 pub const MAX_ROLLOUT: usize = 1 << 24;
 
-fn check(key: &str, value: impl std::fmt::Display, ok: bool, allowed: &str) -> anyhow::Result<()> {
-    anyhow::ensure!(ok, "ppo.{key} = {value}: must be {allowed}");
-    Ok(())
+impl crate::learner::LearnerConfig for PpoConfig {
+    fn check(&self) -> anyhow::Result<()> {
+        self.validate()
+    }
 }
 
 #[cfg(test)]

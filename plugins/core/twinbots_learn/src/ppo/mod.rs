@@ -32,7 +32,7 @@ pub use reward_scale::RewardScale;
 pub use rollout::PolicyStep;
 
 use crate::callbacks::Callback;
-use crate::learner::{Algorithm, config_from};
+use crate::learner::{Algorithm, config_from, load_learner};
 use crate::learner_state::LearnerState;
 use crate::nn::Adam;
 use crate::normalize::RunningMeanStd;
@@ -85,7 +85,7 @@ pub const ALGORITHM: Algorithm = Algorithm {
         }
         Ok(Box::new(model))
     },
-    load: |dir| Ok(Box::new(Ppo::load(dir)?)),
+    load: load_learner::<Ppo>,
 };
 
 /// A PPO agent: the policy, its optimiser state and the counters that make a run resumable.
@@ -115,6 +115,7 @@ impl std::fmt::Debug for Ppo {
 impl Ppo {
     pub fn new(config: PpoConfig, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
         crate::tuning::for_small_networks();
+        config.validate()?;
         let obs_dim = observation_space.dim();
         let encoder = (config.policy, config.features_dim, config.share_features_extractor);
         let policy =
@@ -259,14 +260,7 @@ impl Ppo {
 impl crate::agent::Agent for Ppo {
     crate::agent::agent_basics!(Ppo);
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
-        let layers = self
-            .policy
-            .pi
-            .layers
-            .iter()
-            .enumerate()
-            .map(|(i, l)| l.values(&format!("pi.{i}")))
-            .collect::<candle_core::Result<_>>()?;
+        let layers = crate::nn::layer_values(&self.policy.pi.layers, "pi")?;
         let head = match &self.state.action_space {
             Space::Discrete { .. } => PolicyHead::ArgMax,
             Space::Box { .. } => PolicyHead::ClipToBox,

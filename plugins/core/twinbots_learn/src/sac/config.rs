@@ -3,25 +3,19 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::config_checks::Checks;
 use crate::nn::PolicyKind;
+use crate::off_policy::config::OffPolicyConfig;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+// Unknown keys are refused by `config_from` (serde's `deny_unknown_fields` does not work with
+// `flatten`).
+#[serde(default)]
 pub struct SacConfig {
-    /// Adam's learning rate for the actor, the critics and the entropy coefficient.
-    pub learning_rate: f64,
-    /// Transitions the replay buffer holds (the oldest are overwritten).
-    pub buffer_size: usize,
-    /// Env steps (summed over envs) of uniformly random actions before learning starts.
-    pub learning_starts: u64,
-    pub batch_size: usize,
-    /// Polyak coefficient of the target critics: θ' ← τ θ + (1 − τ) θ'.
-    pub tau: f32,
-    pub gamma: f32,
-    /// Train after every this many steps of each env…
-    pub train_freq: usize,
-    /// …with this many gradient steps.
-    pub gradient_steps: usize,
+    /// The learning rate (of the actor, the critics and the entropy coefficient), the replay
+    /// buffer, the batch, τ, γ and the training frequency.
+    #[serde(flatten)]
+    pub off_policy: OffPolicyConfig,
     /// Learn the entropy coefficient α towards the target entropy (SB3's `ent_coef = "auto"`);
     /// false keeps it at `ent_coef_init`.
     pub learn_ent_coef: bool,
@@ -51,14 +45,7 @@ pub struct SacConfig {
 impl Default for SacConfig {
     fn default() -> Self {
         Self {
-            learning_rate: 3e-4,
-            buffer_size: 1_000_000,
-            learning_starts: 100,
-            batch_size: 256,
-            tau: 0.005,
-            gamma: 0.99,
-            train_freq: 1,
-            gradient_steps: 1,
+            off_policy: OffPolicyConfig::default(),
             learn_ent_coef: true,
             ent_coef_init: 1.0,
             target_entropy: None,
@@ -77,40 +64,24 @@ impl SacConfig {
     /// A clear error naming the first setting outside its range (`sac.<key> = value: allowed
     /// range`).
     pub fn validate(&self) -> anyhow::Result<()> {
-        let positive = |key: &str, v: f64| check(key, v, v.is_finite() && v > 0.0, "a finite number > 0");
-        let count = |key: &str, v: usize, max: usize| {
-            check(key, v, (1..=max).contains(&v), &format!("a whole number in 1..={max}"))
-        };
-        positive("learning_rate", self.learning_rate)?;
-        count("buffer_size", self.buffer_size, 1 << 26)?;
-        count("batch_size", self.batch_size, 1 << 16)?;
-        check("learning_starts", self.learning_starts, self.learning_starts <= 1 << 40, "at most 2^40")?;
-        check("tau", self.tau, self.tau > 0.0 && self.tau <= 1.0, "in (0, 1]")?;
-        check("gamma", self.gamma, self.gamma > 0.0 && self.gamma <= 1.0, "in (0, 1]")?;
-        count("train_freq", self.train_freq, 1 << 20)?;
-        count("gradient_steps", self.gradient_steps, 10_000)?;
-        positive("ent_coef_init", self.ent_coef_init as f64)?;
+        let checks = Checks(super::NAME);
+        self.off_policy.validate(&checks)?;
+        checks.positive("ent_coef_init", self.ent_coef_init as f64)?;
         if let Some(h) = self.target_entropy {
-            check("target_entropy", h, h.is_finite() && h.abs() <= 1e6, "a finite number in [-1e6, 1e6]")?;
+            checks.check("target_entropy", h, h.is_finite() && h.abs() <= 1e6, "a finite number in [-1e6, 1e6]")?;
         }
-        count("target_update_interval", self.target_update_interval, 1 << 20)?;
-        let hidden = format!("{:?}", self.hidden);
-        let sizes_ok = (1..=16).contains(&self.hidden.len()) && self.hidden.iter().all(|&n| (1..=4096).contains(&n));
-        check("hidden", hidden, sizes_ok, "1 to 16 layer sizes, each in 1..=4096")?;
-        check(
-            "features_dim",
-            self.features_dim,
-            (1..=4096).contains(&self.features_dim),
-            "a whole number in 1..=4096",
-        )?;
-        count("log_interval", self.log_interval, 1 << 24)?;
-        check("her_goals", self.her_goals, self.her_goals <= 16, "a whole number in 0..=16")
+        checks.count("target_update_interval", self.target_update_interval, 1 << 20)?;
+        checks.hidden(&self.hidden)?;
+        checks.count("features_dim", self.features_dim, 4096)?;
+        checks.count("log_interval", self.log_interval, 1 << 24)?;
+        checks.check("her_goals", self.her_goals, self.her_goals <= 16, "a whole number in 0..=16")
     }
 }
 
-fn check(key: &str, value: impl std::fmt::Display, ok: bool, allowed: &str) -> anyhow::Result<()> {
-    anyhow::ensure!(ok, "sac.{key} = {value}: must be {allowed}");
-    Ok(())
+impl crate::learner::LearnerConfig for SacConfig {
+    fn check(&self) -> anyhow::Result<()> {
+        self.validate()
+    }
 }
 
 #[cfg(test)]
@@ -121,12 +92,39 @@ mod tests {
     fn defaults_are_valid_and_nonsense_is_named() {
         SacConfig::default().validate().unwrap();
         let cases: Vec<(SacConfig, &str)> = vec![
-            (SacConfig { learning_rate: f64::NAN, ..Default::default() }, "sac.learning_rate = NaN"),
-            (SacConfig { tau: 0.0, ..Default::default() }, "sac.tau = 0"),
-            (SacConfig { gamma: 1.5, ..Default::default() }, "sac.gamma = 1.5"),
-            (SacConfig { batch_size: 0, ..Default::default() }, "sac.batch_size = 0"),
-            (SacConfig { buffer_size: 0, ..Default::default() }, "sac.buffer_size = 0"),
-            (SacConfig { gradient_steps: 0, ..Default::default() }, "sac.gradient_steps = 0"),
+            (
+                SacConfig {
+                    off_policy: OffPolicyConfig { learning_rate: f64::NAN, ..Default::default() },
+                    ..Default::default()
+                },
+                "sac.learning_rate = NaN",
+            ),
+            (
+                SacConfig { off_policy: OffPolicyConfig { tau: 0.0, ..Default::default() }, ..Default::default() },
+                "sac.tau = 0",
+            ),
+            (
+                SacConfig { off_policy: OffPolicyConfig { gamma: 1.5, ..Default::default() }, ..Default::default() },
+                "sac.gamma = 1.5",
+            ),
+            (
+                SacConfig { off_policy: OffPolicyConfig { batch_size: 0, ..Default::default() }, ..Default::default() },
+                "sac.batch_size = 0",
+            ),
+            (
+                SacConfig {
+                    off_policy: OffPolicyConfig { buffer_size: 0, ..Default::default() },
+                    ..Default::default()
+                },
+                "sac.buffer_size = 0",
+            ),
+            (
+                SacConfig {
+                    off_policy: OffPolicyConfig { gradient_steps: 0, ..Default::default() },
+                    ..Default::default()
+                },
+                "sac.gradient_steps = 0",
+            ),
             (SacConfig { ent_coef_init: -1.0, ..Default::default() }, "sac.ent_coef_init = -1"),
             (SacConfig { hidden: vec![], ..Default::default() }, "sac.hidden = []"),
             (SacConfig { her_goals: 100, ..Default::default() }, "sac.her_goals = 100"),

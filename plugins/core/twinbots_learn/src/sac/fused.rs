@@ -279,6 +279,7 @@ mod tests {
     use super::*;
     use crate::classic::ClassicPendulum;
     use crate::learner::Learner;
+    use crate::off_policy::config::OffPolicyConfig;
     use crate::sac::SacConfig;
     use candle_core::{Device, Tensor};
     use rand::SeedableRng;
@@ -303,10 +304,13 @@ mod tests {
     fn trained_model_and_batch() -> (Sac, Batch, Vec<f32>, Vec<f32>) {
         let mut env = ClassicPendulum::new(2);
         let config = SacConfig {
+            off_policy: OffPolicyConfig {
+                learning_starts: 64,
+                batch_size: 96,
+                learning_rate: 3e-3,
+                ..Default::default()
+            },
             hidden: vec![16, 16],
-            learning_starts: 64,
-            batch_size: 96,
-            learning_rate: 3e-3,
             ..SacConfig::default()
         };
         let mut sac = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 4).unwrap();
@@ -323,8 +327,11 @@ mod tests {
         let weights = |threads: usize| {
             rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
                 let mut env = ClassicPendulum::new(2);
-                let config =
-                    SacConfig { hidden: vec![16, 16], learning_starts: 64, batch_size: 96, ..SacConfig::default() };
+                let config = SacConfig {
+                    off_policy: OffPolicyConfig { learning_starts: 64, batch_size: 96, ..Default::default() },
+                    hidden: vec![16, 16],
+                    ..SacConfig::default()
+                };
                 let mut sac = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 6).unwrap();
                 sac.learn(&mut env, 300, &mut |_: &crate::UpdateStats, _: &dyn crate::Agent| Ok(crate::Flow::Continue))
                     .unwrap();
@@ -354,10 +361,10 @@ mod tests {
         // In one part, and in the two halves a step computes side by side.
         let whole =
             Part { of: batch.rewards.len(), batch: batch.clone(), eps: eps_next.clone(), eps_next: eps_next.clone() };
-        agree(&critic_part(&nets, &whole, alpha, sac.config.gamma).1, &theirs, "critic");
+        agree(&critic_part(&nets, &whole, alpha, sac.config.off_policy.gamma).1, &theirs, "critic");
         let halves = parts(batch, eps_next.clone(), eps_next)
             .iter()
-            .map(|p| critic_part(&nets, p, alpha, sac.config.gamma).1)
+            .map(|p| critic_part(&nets, p, alpha, sac.config.off_policy.gamma).1)
             .collect::<Vec<_>>();
         assert_eq!(halves.len(), 2);
         agree(&sum(halves), &theirs, "critic in halves");

@@ -26,14 +26,14 @@ pub use config::SacConfig;
 pub use networks::Actor;
 
 use crate::agent::{Agent, LoadAgent};
-use crate::learner::{Algorithm, Learner, config_from};
+use crate::learner::{Algorithm, Learner, checked_table, config_from, load_learner};
 use crate::learner_state::LearnerState;
 use crate::model_io::ModelError;
 use crate::nn::Encoder;
 use crate::nn::{Adam, AdamConfig};
 use crate::normalize::RunningMeanStd;
 use crate::off_policy::OffPolicy;
-use crate::policy_net::{Activation, PolicyHead, PolicyNet};
+use crate::policy_net::PolicyNet;
 use crate::stats::UpdateStats;
 use twinbots_api::GoalSpec;
 use twinbots_api::spaces::Space;
@@ -52,17 +52,13 @@ pub const ALGORITHM: Algorithm = Algorithm {
     summary: "Soft Actor-Critic: off-policy, continuous actions, with HER for goal-conditioned tasks; every design pattern",
     continuous_only: true,
     serves: true,
-    config: |keys, _arenas| {
-        let config: SacConfig = config_from(keys, NAME)?;
-        config.validate()?;
-        Ok(toml::Table::try_from(&config)?)
-    },
+    config: |keys, _arenas| checked_table::<SacConfig>(keys, NAME),
     new: |config, spec, seed| {
         let sac =
             Sac::new(config_from(config, NAME)?, spec.observation_space.clone(), spec.action_space.clone(), seed)?;
         Ok(Box::new(sac.with_goal(spec.goal)?))
     },
-    load: |dir| Ok(Box::new(Sac::load(dir)?)),
+    load: load_learner::<Sac>,
 };
 
 /// What the last row's gradient steps did (SB3's `train/` figures for SAC).
@@ -121,6 +117,7 @@ impl std::fmt::Debug for Sac {
 impl Sac {
     pub fn new(config: SacConfig, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
         crate::tuning::for_small_networks();
+        config.validate()?;
         let Space::Box { low, .. } = &action_space else {
             anyhow::bail!("SAC needs continuous (Box) actions, not {action_space}: use PPO")
         };
@@ -128,13 +125,13 @@ impl Sac {
         crate::nn::check_normalization(&observation_space, config.normalize_observations, NAME)?;
         // The ring keeps observation and next observation: bytes for camera images, else f32.
         let value_bytes = if matches!(observation_space, Space::Image { .. }) { 1.0 } else { 4.0 };
-        let buffer_bytes = config.buffer_size as f64 * obs_dim as f64 * 2.0 * value_bytes;
+        let buffer_bytes = config.off_policy.buffer_size as f64 * obs_dim as f64 * 2.0 * value_bytes;
         anyhow::ensure!(
             buffer_bytes <= MAX_BUFFER_BYTES,
             "sac.buffer_size = {}: {} transitions of {observation_space} observations take {:.0} GiB; at most {:.0} GiB: \
              use buffer_size = {} or less",
-            config.buffer_size,
-            config.buffer_size,
+            config.off_policy.buffer_size,
+            config.off_policy.buffer_size,
             buffer_bytes / GIB,
             MAX_BUFFER_BYTES / GIB,
             (MAX_BUFFER_BYTES / (obs_dim as f64 * 2.0 * value_bytes)) as u64
@@ -148,7 +145,10 @@ impl Sac {
         let critic_target = critic.deep_copy()?;
         let log_ent_coef = Var::from_tensor(&Tensor::new(&[config.ent_coef_init.ln()], &Device::Cpu)?)?;
         let adam = |vars: Vec<Var>| {
-            Adam::new(vars, AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() })
+            Adam::new(
+                vars,
+                AdamConfig { learning_rate: config.off_policy.learning_rate, eps: 1e-8, ..AdamConfig::default() },
+            )
         };
         let vars = |named: Vec<(String, Var)>| named.into_iter().map(|(_, v)| v).collect::<Vec<_>>();
         Ok(Self {
@@ -217,7 +217,7 @@ impl Sac {
     /// then samples of the actor.
     fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
         let rows = obs.len() / self.state.observation_space.dim().max(1);
-        if self.state.timesteps < self.config.learning_starts {
+        if self.state.timesteps < self.config.off_policy.learning_starts {
             return Ok((0..rows * self.act_dim()).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect());
         }
         let x = self.state.batch(obs)?;
@@ -235,25 +235,13 @@ impl Agent for Sac {
     crate::agent::agent_basics!(Sac);
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
         let encoding = self.actor.encoder.export("actor.")?;
-        Ok(PolicyNet {
-            obs_rms: self.state.obs_rms.clone(),
-            encoding,
-            layers: self.actor.mode_layers()?,
-            hidden: Activation::Relu,
-            head: PolicyHead::TanhToBox,
-        })
+        Ok(crate::off_policy::actor_net(&self.state, encoding, self.actor.mode_layers()?))
     }
     /// SB3's SAC tags.
     fn train_scalars(&self, _stats: &UpdateStats) -> Vec<(String, f32)> {
         let l = &self.last_losses;
-        vec![
-            ("train/actor_loss".into(), l.actor_loss),
-            ("train/critic_loss".into(), l.critic_loss),
-            ("train/ent_coef".into(), l.ent_coef),
-            ("train/ent_coef_loss".into(), l.ent_coef_loss),
-            ("train/entropy".into(), l.entropy),
-            ("train/n_updates".into(), l.gradient_steps as f32),
-        ]
+        let figures = [l.actor_loss, l.critic_loss, l.ent_coef, l.ent_coef_loss, l.entropy];
+        crate::off_policy::train_scalars(TRAIN_FIGURES, &figures, l.gradient_steps)
     }
 }
 

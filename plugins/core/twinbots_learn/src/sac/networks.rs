@@ -61,13 +61,7 @@ impl Actor {
 
     /// The layers of the deterministic action tanh(μ(s)): the body, then μ.
     pub fn mode_layers(&self) -> Result<Vec<crate::policy_net::DenseLayer>> {
-        let mut layers = self
-            .body
-            .layers
-            .iter()
-            .enumerate()
-            .map(|(i, l)| l.values(&format!("actor.body.{i}")))
-            .collect::<Result<Vec<_>>>()?;
+        let mut layers = crate::nn::layer_values(&self.body.layers, "actor.body")?;
         layers.push(self.mu.values("actor.mu")?);
         Ok(layers)
     }

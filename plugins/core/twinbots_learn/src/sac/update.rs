@@ -35,7 +35,7 @@ impl Sac {
 
     /// A step's minibatch, its noise and α, drawn in this order.
     fn next_minibatch(&mut self, buffer: &ReplayBuffer, goal: Option<&GoalSpec>) -> anyhow::Result<Minibatch> {
-        let draws = buffer.draw(self.config.batch_size, &mut self.rng, goal.map(|_| self.config.her_goals));
+        let draws = buffer.draw(self.config.off_policy.batch_size, &mut self.rng, goal.map(|_| self.config.her_goals));
         let b = draws.len();
         let (eps, eps_next) = (self.noise(b), self.noise(b));
         Ok(Minibatch { draws, eps, eps_next, alpha: self.ent_coef()? })
@@ -71,7 +71,7 @@ impl Sac {
         // Over slices, each half of a minibatch on its own thread (`threads::halves`): its rows
         // assembled, the actor's samples and the critics' gradient; then, after the critics'
         // step, the actor's gradient.
-        let gamma = self.config.gamma;
+        let gamma = self.config.off_policy.gamma;
         let work = |job: Job| match job {
             Job::Critic { nets, draws, eps, eps_next, alpha, of } => {
                 let part = Part { batch: assemble(&draws), eps, eps_next, of };
@@ -193,7 +193,7 @@ impl Sac {
             polyak_update(
                 &self.critic_target.named_vars("target"),
                 &self.critic.named_vars("critic"),
-                self.config.tau,
+                self.config.off_policy.tau,
             )?;
         }
         if !applied {
@@ -229,7 +229,7 @@ impl Sac {
         let (next_actions, next_log_pi) = self.actor.sample(&next_obs, &rows(eps_next, self.act_dim())?)?;
         let next_q =
             (self.critic_target.min_q(&next_obs, &next_actions.detach())? - (next_log_pi.detach() * alpha as f64)?)?;
-        let target = (rewards + (not_done * next_q)? * self.config.gamma as f64)?.detach();
+        let target = (rewards + (not_done * next_q)? * self.config.off_policy.gamma as f64)?.detach();
         let features = self.critic.encoder.forward(&obs)?;
         let (q1, q2) = self.critic.q_of(&features, &actions)?;
         let loss = ((((&q1 - &target)?.sqr()?.mean_all()? + (&q2 - &target)?.sqr()?.mean_all()?)?) * 0.5)?;

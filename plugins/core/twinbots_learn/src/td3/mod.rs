@@ -17,14 +17,14 @@ use twinbots_api::spaces::Space;
 pub use config::Td3Config;
 
 use crate::agent::{Agent, LoadAgent};
-use crate::learner::{Algorithm, Learner, config_from};
+use crate::learner::{Algorithm, Learner, checked_table, config_from, load_learner};
 use crate::learner_state::LearnerState;
 use crate::model_io::ModelError;
 use crate::nn::{Adam, AdamConfig, Dense};
 use crate::normalize::RunningMeanStd;
 use crate::off_policy::OffPolicy;
 use crate::off_policy::networks::{ReluMlp, TwinCritic, polyak_update};
-use crate::policy_net::{Activation, PolicyHead, PolicyNet};
+use crate::policy_net::PolicyNet;
 use crate::replay_buffer::ReplayBuffer;
 use crate::stats::UpdateStats;
 
@@ -42,11 +42,7 @@ pub const ALGORITHM: Algorithm = Algorithm {
     summary: "Twin Delayed DDPG: off-policy, deterministic policy, continuous actions; every design pattern",
     continuous_only: true,
     serves: true,
-    config: |keys, _arenas| {
-        let config: Td3Config = config_from(keys, NAME)?;
-        config.validate()?;
-        Ok(toml::Table::try_from(&config)?)
-    },
+    config: |keys, _arenas| checked_table::<Td3Config>(keys, NAME),
     new: |config, spec, seed| {
         Ok(Box::new(Td3::new(
             config_from(config, NAME)?,
@@ -55,7 +51,7 @@ pub const ALGORITHM: Algorithm = Algorithm {
             seed,
         )?))
     },
-    load: |dir| Ok(Box::new(Td3::load(dir)?)),
+    load: load_learner::<Td3>,
 };
 
 /// What the last row's gradient steps did (SB3's `train/` figures for TD3).
@@ -126,7 +122,7 @@ impl Td3 {
         let adam = |vars: Vec<(String, Var)>| {
             Adam::new(
                 vars.into_iter().map(|(_, v)| v).collect(),
-                AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() },
+                AdamConfig { learning_rate: config.off_policy.learning_rate, eps: 1e-8, ..AdamConfig::default() },
             )
         };
         Ok(Self {
@@ -178,7 +174,7 @@ impl Td3 {
     /// Actions in [−1, 1] for each raw observation row: uniform random until learning starts,
     /// then μ(s) + exploration noise.
     fn explore(&mut self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        if self.state.timesteps < self.config.learning_starts {
+        if self.state.timesteps < self.config.off_policy.learning_starts {
             let n = obs.len() / self.state.observation_space.dim().max(1) * self.act_dim();
             return Ok((0..n).map(|_| self.rng.random_range(-1.0f32..=1.0)).collect());
         }
@@ -210,7 +206,7 @@ impl Td3 {
         if buffer.is_empty() {
             return Ok(None);
         }
-        let batch = buffer.sample(self.config.batch_size, &mut self.rng, None);
+        let batch = buffer.sample(self.config.off_policy.batch_size, &mut self.rng, None);
         let (b, act_dim, dev) = (batch.rewards.len(), self.act_dim(), Device::Cpu);
         let (obs, next_obs) = (self.state.batch(&batch.obs)?, self.state.batch(&batch.next_obs)?);
         let actions = Tensor::from_vec(batch.actions, (b, act_dim), &dev)?;
@@ -224,7 +220,7 @@ impl Td3 {
         .clamp(-1f32, 1f32)?;
         // Critics: y = r + γ (1 − done) min(Q'₁, Q'₂)(s', ã); loss Σᵢ MSE(Qᵢ(s, a), y), as SB3.
         let next_q = self.critic_target.min_q(&next_obs, &next_actions)?;
-        let target = (rewards + (not_done * next_q)? * self.config.gamma as f64)?.detach();
+        let target = (rewards + (not_done * next_q)? * self.config.off_policy.gamma as f64)?.detach();
         let (q1, q2) = self.critic.q(&obs, &actions)?;
         let critic_loss = ((&q1 - &target)?.sqr()?.mean_all()? + (&q2 - &target)?.sqr()?.mean_all()?)?;
         let mut applied = self.critic_optimizer.step(&critic_loss.backward()?, None)?.applied;
@@ -240,9 +236,13 @@ impl Td3 {
             polyak_update(
                 &self.critic_target.named_vars("target"),
                 &self.critic.named_vars("critic"),
-                self.config.tau,
+                self.config.off_policy.tau,
             )?;
-            polyak_update(&named(&self.actor_target, "actor_target"), &named(&self.actor, "actor"), self.config.tau)?;
+            polyak_update(
+                &named(&self.actor_target, "actor_target"),
+                &named(&self.actor, "actor"),
+                self.config.off_policy.tau,
+            )?;
         }
         if !applied {
             return Ok(None);
@@ -258,29 +258,13 @@ impl Td3 {
 impl Agent for Td3 {
     crate::agent::agent_basics!(Td3);
     fn policy_net(&self) -> anyhow::Result<PolicyNet> {
-        let layers = self
-            .actor
-            .layers
-            .iter()
-            .enumerate()
-            .map(|(i, l)| l.values(&format!("actor.{i}")))
-            .collect::<candle_core::Result<_>>()?;
-        Ok(PolicyNet {
-            obs_rms: self.state.obs_rms.clone(),
-            encoding: crate::policy_net::InputEncoding::Flat,
-            layers,
-            hidden: Activation::Relu,
-            head: PolicyHead::TanhToBox,
-        })
+        let layers = crate::nn::layer_values(&self.actor.layers, "actor")?;
+        Ok(crate::off_policy::actor_net(&self.state, crate::policy_net::InputEncoding::Flat, layers))
     }
     /// SB3's TD3 tags.
     fn train_scalars(&self, _stats: &UpdateStats) -> Vec<(String, f32)> {
         let l = &self.last_losses;
-        vec![
-            ("train/actor_loss".into(), l.actor_loss),
-            ("train/critic_loss".into(), l.critic_loss),
-            ("train/n_updates".into(), l.gradient_steps as f32),
-        ]
+        crate::off_policy::train_scalars(TRAIN_FIGURES, &[l.actor_loss, l.critic_loss], l.gradient_steps)
     }
 }
 
