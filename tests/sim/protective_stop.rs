@@ -90,7 +90,7 @@ fn under_pattern_3_a_protective_stop_ends_the_episode_and_the_arm_brakes_to_rest
         assert!(world.resource::<RobotRunState>().stop.is_none(), "{:?}", world.resource::<RobotRunState>().stop);
         let (controller, state, episode) = world.query::<(&Controller, &CellState, &Episode)>().single(world).unwrap();
         let (phase, stop, speeds) = (controller.phase(), state.safety.stop, state.arm.qd);
-        if let Some(summary) = &episode.finished {
+        if let Some(summary) = episode.finished() {
             assert_ended_by_a_stop(summary);
             assert_wrist_overspeed(stop.expect("the episode ends the step the stop trips, still stopped"));
             assert_eq!(phase, Phase::Homing, "after the stop the robot brakes and homes");
@@ -168,7 +168,7 @@ fn a_drive_pushing_beyond_its_rated_torque_makes_a_protective_stop() {
         app.update();
         let world = app.world_mut();
         let (state, episode) = world.query::<(&CellState, &Episode)>().single(world).unwrap();
-        if let Some(summary) = &episode.finished {
+        if let Some(summary) = episode.finished() {
             assert_ended_by_a_stop(summary);
             match state.safety.stop.expect("still stopped the step the episode ends") {
                 StopCause::Effort { joint, ratio } => {

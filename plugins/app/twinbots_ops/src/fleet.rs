@@ -233,7 +233,7 @@ pub fn with_policy(
                 anyhow::bail!("robots stopped: {e}");
             }
             let left = episodes - finished.len();
-            finished.extend(ended.iter(app.world()).filter_map(|e| e.finished.clone()).take(left));
+            finished.extend(ended.iter(app.world()).filter_map(|e| e.finished().cloned()).take(left));
         }
     }
     let result = EvalResult::of_episodes(task, &finished);

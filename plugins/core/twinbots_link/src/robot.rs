@@ -26,7 +26,7 @@ use bevy::prelude::*;
 use rand_chacha::ChaCha8Rng;
 use twinbots_sim::{Arena, SimSet};
 use twinbots_task::task::{TaskSet, Terms, configure_task_sets};
-use twinbots_task::{Action, ActiveTask, Episode};
+use twinbots_task::{Action, ActiveTask, EndedEpisode, Episode};
 
 use crate::checks::{MAX_SERVER_TEXT, truncated};
 use crate::client::{Communicator, CommunicatorError, Identity};
@@ -348,17 +348,17 @@ fn exchange<S: Component>(
             Phase::Homing => continue,
             Phase::Starting => {
                 e.begin();
-                (e.terminated, e.truncated) = (false, false);
+                (e.step.terminated, e.step.truncated) = (false, false);
                 terms.0.observe(state, &mut e.observation);
                 RobotMessage::Start { obs: e.observation.clone() }
             }
             Phase::Running => {
                 terms.0.observe(state, &mut e.observation);
-                let outcome = terms.0.evaluate(state, e.length, &mut e.reward_sums);
-                (e.reward, e.terminated, e.truncated, e.ended_by) =
+                let outcome = terms.0.evaluate(state, e.running.length, &mut e.running.reward_sums);
+                (e.step.reward, e.step.terminated, e.step.truncated, e.step.ended_by) =
                     (outcome.reward, outcome.terminated, outcome.truncated, outcome.ended_by);
                 if outcome.success.is_some() {
-                    e.success = outcome.success;
+                    e.running.success = outcome.success;
                 }
                 controller.evaluated = true;
                 RobotMessage::Step {
@@ -383,20 +383,19 @@ fn exchange<S: Component>(
 }
 
 /// Counts each evaluated step into its episode, after the task's reports; an episode that ended
-/// is summed up into `Episode::finished` (for that step only, as the in-process patterns'
+/// is summed up into `Episode::ended` (for that step only, as the in-process patterns'
 /// auto-reset does) and the robot is between episodes.
 fn tally_steps(spec: Res<ActiveTask>, mut robots: Query<(&mut Controller, &mut Episode)>) {
     for (mut controller, mut e) in &mut robots {
-        e.final_observation = None;
-        e.finished = None;
+        e.ended = None;
         if !std::mem::take(&mut controller.evaluated) {
             continue;
         }
         e.tally();
-        if e.terminated || e.truncated {
-            e.final_observation = Some(e.observation.clone());
-            e.finished = Some(e.summary(&spec.reward_terms));
-            (e.terminated, e.truncated) = (false, false);
+        if e.done() {
+            let summary = e.running.summary(&spec.reward_terms);
+            e.ended = Some(EndedEpisode { final_observation: e.observation.clone(), summary });
+            (e.step.terminated, e.step.truncated) = (false, false);
         }
     }
 }

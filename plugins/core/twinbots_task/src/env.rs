@@ -63,12 +63,12 @@ pub fn collect_step(world: &World, arenas: &[Entity]) -> StepResult {
     let mut out = StepResult { obs: observations(world, arenas), ..default() };
     for &arena in arenas {
         let e = episode(world, arena);
-        out.rewards.push(e.reward);
-        out.terminated.push(e.terminated);
-        out.truncated.push(e.truncated);
-        out.final_obs.push(e.final_observation.clone());
-        out.episodes.push(e.finished.clone());
-        out.ended_by.push(e.ended_by.map(String::from));
+        out.rewards.push(e.step.reward);
+        out.terminated.push(e.step.terminated);
+        out.truncated.push(e.step.truncated);
+        out.final_obs.push(e.ended.as_ref().map(|x| x.final_observation.clone()));
+        out.episodes.push(e.finished().cloned());
+        out.ended_by.push(e.step.ended_by.map(String::from));
     }
     out
 }

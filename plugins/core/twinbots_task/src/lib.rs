@@ -17,8 +17,8 @@ pub mod task;
 pub use env::AppVecEnv;
 pub use robot::{AlgoDefaults, AppRequest, Registry, RobotDescription, TaskDescription, TrainingDefaults};
 pub use task::{
-    Action, ActiveTask, Episode, ObservationTerm, RewardTerm, StartEvent, TaskDefinition, TaskPlugin, TaskTerms,
-    TaskTermsPlugin, TerminationTerm,
+    Action, ActiveTask, EndedEpisode, Episode, EpisodeFigures, ObservationTerm, RewardTerm, StartEvent, TaskDefinition,
+    TaskPlugin, TaskTerms, TaskTermsPlugin, TerminationTerm,
 };
 pub use twinbots_api as api;
 pub use twinbots_api::{

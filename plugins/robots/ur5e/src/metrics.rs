@@ -37,7 +37,7 @@ impl TwinMeter {
 
     /// Writes the episode's figures into its log; `cycle_time` only for a successful one.
     pub fn report(&self, episode: &mut Episode, cycle_time: Option<f32>) {
-        let m = &mut episode.metrics;
+        let m = &mut episode.running.metrics;
         m.insert("energy_j".into(), self.energy);
         m.insert("joint_limit_events".into(), self.joint_limit_events as f32);
         m.insert("collision_events".into(), self.collision_events as f32);

@@ -189,20 +189,21 @@ pub fn report(
     mut arenas: Query<(&CellParts, &CellState, &TwinMeter, &mut Episode)>,
 ) {
     for (parts, state, meter, mut e) in &mut arenas {
-        if e.terminated || e.truncated {
+        if e.done() {
             let placement = Placement::of(&supervisor, parts, state);
             let placed = state.program.stage == Stage::Done && placement.as_ref().is_some_and(Placement::placed);
             if let Some(p) = placement.filter(|_| state.program.stage == Stage::Done) {
                 // How well a finished program put the part down: what a failed place is told by.
-                e.metrics.insert("place_offset_mm".into(), 1e3 * p.off_centre.length());
-                e.metrics.insert("part_tilt_rad".into(), p.tilt);
+                e.running.metrics.insert("place_offset_mm".into(), 1e3 * p.off_centre.length());
+                e.running.metrics.insert("part_tilt_rad".into(), p.tilt);
             }
             let outcome = Outcome::of(state.program.stage, state.safety.stopped(), state.program.holding, placed);
-            e.success = Some(outcome == Outcome::Placed);
+            e.running.success = Some(outcome == Outcome::Placed);
             for o in Outcome::ALL {
-                e.metrics.insert(format!("outcome_{}", o.name()), f32::from(u8::from(o == outcome)));
+                e.running.metrics.insert(format!("outcome_{}", o.name()), f32::from(u8::from(o == outcome)));
             }
-            let cycle_time = (outcome == Outcome::Placed).then(|| (e.length + 1) as f32 * settings.control_dt());
+            let cycle_time =
+                (outcome == Outcome::Placed).then(|| (e.running.length + 1) as f32 * settings.control_dt());
             meter.report(&mut e, cycle_time);
         }
     }

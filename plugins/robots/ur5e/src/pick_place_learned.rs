@@ -264,11 +264,14 @@ pub fn read_vacuum(grippers: Query<&VacuumGripper>, mut arenas: Query<(&CellPart
 /// goal was in the air, the cycle time of a success, the meter's.
 pub fn report(settings: Res<SimSettings>, mut arenas: Query<(&CellState, &TwinMeter, &mut Episode)>) {
     for (state, meter, mut e) in &mut arenas {
-        if e.terminated || e.truncated {
-            e.metrics.insert("final_distance_mm".into(), 1e3 * (state.part.position - state.part_goal).length());
-            e.metrics.insert("goal_in_air".into(), flag(in_air(state.part_goal)));
-            e.metrics.insert("part_lifted".into(), flag(state.part.position.z > PART_REST_Z + 0.01));
-            let cycle_time = (e.success == Some(true)).then(|| (e.length + 1) as f32 * settings.control_dt());
+        if e.done() {
+            e.running
+                .metrics
+                .insert("final_distance_mm".into(), 1e3 * (state.part.position - state.part_goal).length());
+            e.running.metrics.insert("goal_in_air".into(), flag(in_air(state.part_goal)));
+            e.running.metrics.insert("part_lifted".into(), flag(state.part.position.z > PART_REST_Z + 0.01));
+            let cycle_time =
+                (e.running.success == Some(true)).then(|| (e.running.length + 1) as f32 * settings.control_dt());
             meter.report(&mut e, cycle_time);
         }
     }

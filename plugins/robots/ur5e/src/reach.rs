@@ -205,9 +205,10 @@ fn new_reach(s: &mut CellState, rng: &mut rand_chacha::ChaCha8Rng) {
 /// succeeded, and the twin meter's.
 pub fn report(settings: Res<SimSettings>, mut arenas: Query<(&CellState, &TwinMeter, &mut Episode)>) {
     for (state, meter, mut e) in &mut arenas {
-        if e.terminated || e.truncated {
-            let cycle_time = (e.success == Some(true)).then(|| (e.length + 1) as f32 * settings.control_dt());
-            e.metrics.insert("final_error_mm".into(), 1000.0 * state.arm.distance_to(state.target));
+        if e.done() {
+            let cycle_time =
+                (e.running.success == Some(true)).then(|| (e.running.length + 1) as f32 * settings.control_dt());
+            e.running.metrics.insert("final_error_mm".into(), 1000.0 * state.arm.distance_to(state.target));
             meter.report(&mut e, cycle_time);
         }
     }

@@ -31,47 +31,66 @@ pub struct ActiveTask(pub TaskSpec);
 #[derive(Component, Clone, Debug, Default, PartialEq)]
 pub struct Action(pub Vec<f32>);
 
-/// What the last control step produced in an arena.
+/// What the last control step produced in an arena: the observation, the step's outcome, the
+/// running episode's figures, and the episode that ended on this step, if one did.
 #[derive(Component, Clone, Debug, Default, PartialEq)]
 pub struct Episode {
+    /// The observation after the last step (after an auto-reset: the next episode's first).
     pub observation: Vec<f32>,
-    pub reward: f32,
-    pub terminated: bool,
-    pub truncated: bool,
-    /// The termination term that ended the episode this step, if one did.
-    pub ended_by: Option<&'static str>,
-    /// Steps and summed reward of the running episode.
+    /// The last step's reward and whether (and by which term) it ended the episode.
+    pub step: StepOutcome,
+    /// The running episode's figures.
+    pub running: EpisodeFigures,
+    /// Set on the step an episode ended and the arena was auto-reset.
+    pub ended: Option<EndedEpisode>,
+}
+
+/// The running episode's figures, as the task's terms report them; they go into its summary
+/// when it ends.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct EpisodeFigures {
+    /// Steps and summed reward so far.
     pub length: u32,
     pub score: f32,
-    /// Set on the step an episode ended and the arena was auto-reset: its last observation
-    /// (for bootstrapping truncated episodes) and its summary.
-    pub final_observation: Option<Vec<f32>>,
-    pub finished: Option<EpisodeSummary>,
-    /// The running episode's success and figures, as the task's terms report them; they go
-    /// into its summary when it ends.
     pub success: Option<bool>,
     pub metrics: BTreeMap<String, f32>,
-    /// The running episode's sum of each reward term, in the terms' order.
+    /// The sum of each reward term, in the terms' order.
     pub reward_sums: Vec<f32>,
+}
+
+/// An episode that ended on the last step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EndedEpisode {
+    /// Its last observation (for bootstrapping a truncated episode's value).
+    pub final_observation: Vec<f32>,
+    pub summary: EpisodeSummary,
 }
 
 impl Episode {
     /// Starts the count of a new episode (its observation is the caller's).
     pub fn begin(&mut self) {
-        self.length = 0;
-        self.score = 0.0;
-        self.success = None;
-        self.metrics.clear();
-        self.reward_sums.clear();
+        self.running = EpisodeFigures::default();
     }
 
     /// Counts the step just evaluated into the running episode.
     pub fn tally(&mut self) {
-        self.length += 1;
-        self.score += self.reward;
+        self.running.length += 1;
+        self.running.score += self.step.reward;
     }
 
-    /// The summary of the episode that just ended; the running figures are taken.
+    /// Whether the last step ended the episode.
+    pub fn done(&self) -> bool {
+        self.step.terminated || self.step.truncated
+    }
+
+    /// The summary of the episode that just ended, if one did.
+    pub fn finished(&self) -> Option<&EpisodeSummary> {
+        self.ended.as_ref().map(|e| &e.summary)
+    }
+}
+
+impl EpisodeFigures {
+    /// The summary of the episode these figures count; they are taken.
     pub fn summary(&mut self, reward_terms: &[String]) -> EpisodeSummary {
         EpisodeSummary {
             score: self.score,
@@ -239,13 +258,9 @@ fn evaluate_terms<S: Component>(terms: Res<Terms<S>>, mut arenas: Query<(&S, &mu
     for (state, mut episode) in &mut arenas {
         let e = &mut *episode;
         terms.0.observe(state, &mut e.observation);
-        let outcome = terms.0.evaluate(state, e.length, &mut e.reward_sums);
-        e.reward = outcome.reward;
-        e.terminated = outcome.terminated;
-        e.truncated = outcome.truncated;
-        e.ended_by = outcome.ended_by;
-        if outcome.success.is_some() {
-            e.success = outcome.success;
+        e.step = terms.0.evaluate(state, e.running.length, &mut e.running.reward_sums);
+        if e.step.success.is_some() {
+            e.running.success = e.step.success;
         }
     }
 }
@@ -268,8 +283,7 @@ fn observe_terms<S: Component>(terms: Res<Terms<S>>, mut arenas: Query<(&S, &mut
 fn tally_episodes(mut episodes: Query<&mut Episode>) {
     for mut e in &mut episodes {
         e.tally();
-        e.final_observation = None;
-        e.finished = None;
+        e.ended = None;
     }
 }
 
@@ -293,9 +307,9 @@ fn auto_reset(world: &mut World) {
     let mut finished = Vec::new();
     let mut episodes = world.query::<(Entity, &mut Episode)>();
     for (arena, mut e) in episodes.iter_mut(world) {
-        if e.terminated || e.truncated {
-            e.final_observation = Some(e.observation.clone());
-            e.finished = Some(e.summary(&names));
+        if e.done() {
+            let summary = e.running.summary(&names);
+            e.ended = Some(EndedEpisode { final_observation: e.observation.clone(), summary });
             finished.push(arena);
         }
     }
