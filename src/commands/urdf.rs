@@ -1,10 +1,12 @@
-//! `twinbots urdf FILE [--png OUT] [--seconds S]`: checks a robot description (docs/urdf.md).
+//! `twinbots urdf FILE [--png OUT] [--seconds S]`: checks a robot description (docs/urdf.md);
+//! `--tool LINK --fk q1,…,qn` prints the tool link's pose in the base link's frame instead.
 
 use std::path::PathBuf;
 
 use bevy::math::Vec3;
 use twinbots_render::renderer::{Renderer, View};
 use twinbots_sim::rapier::prelude::Pose;
+use twinbots_sim::urdf::chain::Chain;
 use twinbots_sim::urdf::check::check;
 use twinbots_sim::urdf::{RobotModel, Shape};
 
@@ -24,10 +26,30 @@ pub struct Args {
     /// in one hull, comma-separated (a concave nest or bin).
     #[arg(long, value_delimiter = ',')]
     pub decompose: Vec<String>,
+    /// The chain's base link (default: the root link).
+    #[arg(long)]
+    pub base: Option<String>,
+    /// The chain's tool link: with it, the command prints the chain from the base to it.
+    #[arg(long)]
+    pub tool: Option<String>,
+    /// Joint positions of the chain's movable joints, in chain order (rad or m), separated by
+    /// commas: prints the tool link's pose in the base link's frame as `x y z qx qy qz qw` (m, a
+    /// unit quaternion), in double precision, and nothing else. Repeat it for more configurations
+    /// (a line each).
+    #[arg(long, requires = "tool", allow_hyphen_values = true)]
+    pub fk: Vec<String>,
 }
 
 /// `twinbots urdf`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    if let Some(tool) = &args.tool {
+        let chain = Chain::from_file(&args.file, args.base.as_deref(), tool)?;
+        if !args.fk.is_empty() {
+            return print_poses(&chain, &args.fk);
+        }
+        let joints: Vec<&str> = chain.movable().map(|j| j.name.as_str()).collect();
+        println!("chain {} -> {}: {} movable joints: {}", chain.base, chain.tool, joints.len(), joints.join(", "));
+    }
     let mut report = check(&args.file, args.seconds, &args.decompose)?;
     let m = &report.model;
     let mass: f32 = m.links.iter().filter_map(|l| l.inertial.map(|i| i.mass)).sum();
@@ -68,6 +90,32 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             .map_err(|e| anyhow::anyhow!("{}: {e}", png.display()))?;
         println!("wrote {}", png.display());
     }
+    Ok(())
+}
+
+/// `--fk`: a pose line per configuration, every number as Rust prints an f64 (shortest exact).
+fn print_poses(chain: &Chain, configurations: &[String]) -> anyhow::Result<()> {
+    let mut out = String::new();
+    for (k, text) in configurations.iter().enumerate() {
+        let q = text
+            .split(',')
+            .map(|v| v.trim().parse::<f64>().ok().filter(|v| v.is_finite()))
+            .collect::<Option<Vec<f64>>>()
+            .ok_or_else(|| anyhow::anyhow!("--fk #{}: '{text}' is not a list of finite numbers", k + 1))?;
+        anyhow::ensure!(
+            q.len() == chain.dof(),
+            "--fk #{}: {} positions for the {} movable joints from '{}' to '{}'",
+            k + 1,
+            q.len(),
+            chain.dof(),
+            chain.base,
+            chain.tool
+        );
+        let pose = chain.forward(&q);
+        let (t, r) = (pose.translation, pose.rotation);
+        out += &format!("{:?} {:?} {:?} {:?} {:?} {:?} {:?}\n", t.x, t.y, t.z, r.x, r.y, r.z, r.w);
+    }
+    print!("{out}");
     Ok(())
 }
 

@@ -19,16 +19,32 @@ pub fn load_urdf(path: impl AsRef<Path>) -> Result<RobotModel, UrdfError> {
     parse_urdf(&text, path, base)
 }
 
-/// Checks URDF text. `file` names it in errors; `mesh_dir` is where relative mesh paths start.
-pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel, UrdfError> {
+/// The XML of URDF text, its numbers checked; errors name the file, line and column.
+fn parse_xml<'t>(text: &'t str, file: &Path) -> Result<roxmltree::Document<'t>, UrdfError> {
     let doc = roxmltree::Document::parse(text).map_err(|e| {
         let pos = e.pos();
         UrdfError::Xml { file: file.to_path_buf(), line: pos.row, column: pos.col, message: e.to_string() }
     })?;
     check_numbers(&doc, file)?;
+    Ok(doc)
+}
+
+fn read_robot(text: &str, doc: &roxmltree::Document, file: &Path) -> Result<urdf_rs::Robot, UrdfError> {
+    urdf_rs::read_from_string(&with_zero_inertias(text, doc))
+        .map_err(|e| UrdfError::Schema { file: file.to_path_buf(), message: e.to_string() })
+}
+
+/// URDF text as `urdf-rs` reads it, in double precision, its XML and numbers checked as
+/// [`parse_urdf`] checks them (meshes not read): what [`super::chain`] computes kinematics from.
+pub fn parse_urdf_exact(text: &str, file: &Path) -> Result<urdf_rs::Robot, UrdfError> {
+    read_robot(text, &parse_xml(text, file)?, file)
+}
+
+/// Checks URDF text. `file` names it in errors; `mesh_dir` is where relative mesh paths start.
+pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel, UrdfError> {
+    let doc = parse_xml(text, file)?;
     let lines = ElementLines::index(&doc);
-    let robot = urdf_rs::read_from_string(&with_zero_inertias(text, &doc))
-        .map_err(|e| UrdfError::Schema { file: file.to_path_buf(), message: e.to_string() })?;
+    let robot = read_robot(text, &doc, file)?;
     let materials = robot
         .materials
         .iter()

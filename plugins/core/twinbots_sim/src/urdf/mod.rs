@@ -1,5 +1,6 @@
 //! URDF → robot description ([`RobotModel`]); [`crate::spawn`] turns that into bodies and entities.
 
+pub mod chain;
 pub mod check;
 mod error;
 mod load;
@@ -7,5 +8,5 @@ pub mod mesh;
 mod model;
 
 pub use error::UrdfError;
-pub use load::{load_urdf, parse_urdf};
+pub use load::{load_urdf, parse_urdf, parse_urdf_exact};
 pub use model::*;
