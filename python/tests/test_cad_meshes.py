@@ -109,3 +109,31 @@ def test_bad_meshes_name_the_file_and_the_link(tmp_path, arm, expected):
     done = check(urdf)
     assert done.returncode != 0
     assert str(urdf) in done.stderr and '<link name="arm_link">' in done.stderr and expected in done.stderr, done.stderr
+
+
+def test_a_vendors_collada_visuals_load_and_render(tmp_path):
+    """The UR10 as `example-robot-data` ships it: Collada visuals, STL collisions, found through
+    `package://example-robot-data/...` and ROS_PACKAGE_PATH."""
+    import sysconfig  # noqa: PLC0415
+    from pathlib import Path  # noqa: PLC0415
+
+    share = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share"
+    urdf = share / "example-robot-data" / "robots" / "ur_description" / "urdf" / "ur10_robot.urdf"
+    if not urdf.is_file():
+        pytest.skip("example-robot-data is not installed")
+    png = tmp_path / "ur10.png"
+    done = check(urdf, "--png", str(png), env={"ROS_PACKAGE_PATH": str(share)})
+    require_adapter = os.environ.get("TWINBOTS_REQUIRE_ADAPTER", "0") not in ("", "0")
+    if done.returncode != 0 and "adapter" in done.stderr and not require_adapter:
+        pytest.skip(f"no graphics adapter here: {done.stderr}")
+    assert done.returncode == 0, done.stderr
+    assert "(6 movable, 6 with motors)" in done.stdout, done.stdout
+    assert "3 visual" in done.stdout or "1 visual" in done.stdout, done.stdout
+    import numpy as np  # noqa: PLC0415
+    from PIL import Image  # noqa: PLC0415
+
+    pixels = np.asarray(Image.open(png).convert("RGB")).reshape(-1, 3).astype(int)
+    grey = (pixels[:, 0] == pixels[:, 1]) & (pixels[:, 1] == pixels[:, 2])
+    # At its zero pose the UR10 lies stretched out at its shoulder's height, its far links low
+    # over the floor: 1.6 % of the picture (2026-12-06); an arm without its visuals leaves none.
+    assert grey.mean() > 0.01, f"the arm fills {grey.mean():.1%} of the picture"

@@ -67,6 +67,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let logs = prepare_all(&rig, &args.logs)?;
     let validation = prepare_all(&rig, &args.validate)?;
     let options = FitOptions { params, popsize: args.popsize, generations: args.generations, seed: args.seed };
+    // Where the files go is made before the fit, so an unwritable --out fails at once.
+    std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
     println!(
         "{}: fitting {} parameters to {} log(s), {:.1} s in all",
         rig.robot,
@@ -83,10 +85,13 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             g.best_so_far
         );
     })?;
+    if let Some(why) = &fit.no_better {
+        print!("{}", fit_table(&fit));
+        anyhow::bail!("{why}: nothing written (more --generations, other --params or longer logs may do better)");
+    }
     let calibration = calibration_of(&fit, &base, None);
     let nominal = rig.parameters(&base)?;
     let calibrated = rig.parameters(&calibration.parameters)?;
-    std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
     let validation_report = validate(&rig, &validation, &nominal, &calibrated, &out.join("validation.png"))?;
     print!("{}", fit_table(&fit));
     if let Some(v) = &validation_report {
@@ -94,6 +99,15 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             "held-out position RMSE: nominal {:.6}, calibrated {:.6} ({:+.1} %)",
             v.nominal,
             v.calibrated,
+            v.change * 100.0
+        );
+    }
+    if let Some(v) = validation_report.as_ref().filter(|v| v.calibrated > v.nominal) {
+        write_json(&out.join("fit.json"), &serde_json::json!({ "fit": fit, "validation": v }))?;
+        anyhow::bail!(
+            "the fit tracks the held-out logs worse than the twin as it runs (position RMSE {:.6} against {:.6}, {:+.1} %): calibration.toml not written (fit.json and validation.png say how it went)",
+            v.calibrated,
+            v.nominal,
             v.change * 100.0
         );
     }

@@ -16,8 +16,18 @@ fn recover(
     seconds: f64,
     generations: usize,
 ) -> (Rig, Parameters, twinbots_sysid::Fit, f64, f64) {
+    recover_truth(robot, perturbed_truth, seconds, generations)
+}
+
+/// [`recover`] from the hidden truth `truth` makes of the rig.
+fn recover_truth(
+    robot: &twinbots_task::RobotDescription,
+    truth: impl Fn(&Rig) -> Parameters,
+    seconds: f64,
+    generations: usize,
+) -> (Rig, Parameters, twinbots_sysid::Fit, f64, f64) {
     let rig = Rig::of(robot).unwrap();
-    let truth = perturbed_truth(&rig);
+    let truth = truth(&rig);
     let fit_log = record(&rig, &truth, &recording(Excitation::Multisine, seconds, 1)).unwrap();
     let held_out = record(&rig, &truth, &recording(Excitation::Chirp, seconds / 2.0, 2)).unwrap();
     let fit_log = prepare(&rig, &fit_log, "fit").unwrap();
@@ -25,8 +35,8 @@ fn recover(
     let params = rig.description.fit.iter().map(|s| s.to_string()).collect();
     let options = FitOptions { params, popsize: 0, generations, seed: 3 };
     let fit = identify(&rig, std::slice::from_ref(&fit_log), &Parameters::default(), &options, |_| {}).unwrap();
-    let mut calibrated = rig.nominal.clone();
-    calibrated.extend(&fit.values());
+    let calibrated =
+        rig.parameters(&twinbots_sysid::report::calibration_of(&fit, &Parameters::default(), None).parameters).unwrap();
     let before = position_rmse(&rig, std::slice::from_ref(&held_out), &rig.nominal, 0.05);
     let after = position_rmse(&rig, std::slice::from_ref(&held_out), &calibrated, 0.05);
     eprintln!(
@@ -66,6 +76,37 @@ fn ur5e_calibration_finds_the_delay_and_cuts_held_out_error() {
     }
     assert!(fit.parameters.iter().all(|p| p.spread.is_finite() || p.not_identifiable.is_some()));
 }
+
+/// Hidden truths the search was never tuned on: five drawn at random from the prior's ranges
+/// (`random_truth`, seeds 1–5). Whatever each fit recovers, it never leaves the twin tracking the
+/// fitting logs or a held-out log worse than the twin it started as, and it recovers most of the
+/// parameters the logs can tell.
+#[test]
+fn random_truths_are_recovered_and_the_twin_is_never_made_worse() {
+    let mut recovered = Vec::new();
+    for seed in 1..=5 {
+        let (_, truth, fit, before, after) =
+            recover_truth(&ur5e::robot(), |rig| twinbots_sysid::random_truth(rig, seed), 20.0, 30);
+        let within = |p: &twinbots_sysid::identify::Fitted| (p.value / truth.get(&p.name).unwrap() - 1.0).abs() < 0.15;
+        let share = fit.parameters.iter().filter(|p| within(p)).count() as f64 / fit.parameters.len() as f64;
+        eprintln!("truth {seed}: {:.0} % within 15 %, held-out RMSE {before:.6} -> {after:.6}", share * 100.0);
+        recovered.push(share);
+        match &fit.no_better {
+            Some(why) => eprintln!("truth {seed}: {why}"),
+            None => {
+                assert!(fit.cost_fitted < fit.cost_nominal, "truth {seed}: the fit tracks the fitting log worse");
+                assert!(after <= before, "truth {seed}: held-out position RMSE {before} -> {after}");
+            }
+        }
+    }
+    recovered.sort_by(f64::total_cmp);
+    assert!(recovered[2] >= MEDIAN_RECOVERED, "median share within 15 %: {:?}", recovered);
+}
+
+/// The floor of the median share of parameters within 15 % of their truth over the five random
+/// truths. Measured 2026-12-06: 74 % (14 of 19) for four truths, 68 % for one, median 74 %; the
+/// search's start (the prior, 2^u from each truth) has about a fifth within 15 % by chance.
+const MEDIAN_RECOVERED: f64 = 0.6;
 
 #[test]
 fn wheeled_robots_record_replay_and_identify() {

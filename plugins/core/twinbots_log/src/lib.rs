@@ -11,6 +11,7 @@ pub mod cdr;
 pub mod csv_file;
 pub mod log;
 pub mod mcap_file;
+pub mod rtde_csv;
 
 pub use log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog, ToolSample};
 
@@ -24,8 +25,12 @@ pub enum Format {
 }
 
 impl Format {
-    /// The format of `path` (`.mcap` or `.csv`, any case), or an error naming the file.
+    /// The format of `path` (`.mcap`, `.csv` or `.csv.gz`, any case), or an error naming the file.
     pub fn of(path: &Path) -> anyhow::Result<Self> {
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("").to_ascii_lowercase();
+        if name.ends_with(".csv.gz") {
+            return Ok(Self::Csv);
+        }
         match path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase().as_str() {
             "mcap" => Ok(Self::Mcap),
             "csv" => Ok(Self::Csv),
@@ -37,20 +42,53 @@ impl Format {
     }
 }
 
-/// Reads a log, MCAP or CSV by its extension (`.mcap`, `.csv`); errors name the file.
+/// Reads a log, MCAP or CSV by its extension (`.mcap`, `.csv`, `.csv.gz`); a CSV whose header
+/// is RTDE output names is a UR recording ([`rtde_csv`], without efforts: see [`read_with`]).
+/// Errors name the file.
 pub fn read(path: &Path) -> anyhow::Result<RobotLog> {
+    read_with(path, &rtde_csv::Efforts::None)
+}
+
+/// The most bytes a CSV log may hold once decompressed.
+pub const MAX_CSV_BYTES: u64 = 1 << 30;
+
+/// [`read`], a UR recording's efforts taken as `efforts` says.
+pub fn read_with(path: &Path, efforts: &rtde_csv::Efforts) -> anyhow::Result<RobotLog> {
     let log = match Format::of(path)? {
         Format::Mcap => mcap_file::read(path),
-        Format::Csv => csv_file::read(path),
+        Format::Csv => csv_text(path).and_then(|text| {
+            let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
+            if rtde_csv::is_rtde_header(first) { rtde_csv::from_str(&text, efforts) } else { csv_file::from_str(&text) }
+        }),
     };
     let log = log.map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
     log.validate().map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
     Ok(log)
 }
 
+/// A CSV file's text, gunzipped when its name ends in `.gz`, refused past [`MAX_CSV_BYTES`].
+fn csv_text(path: &Path) -> anyhow::Result<String> {
+    use std::io::Read;
+    let file = std::fs::File::open(path)?;
+    let gz = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("gz"));
+    let reader: Box<dyn Read> = if gz { Box::new(flate2::read::GzDecoder::new(file)) } else { Box::new(file) };
+    let mut bytes = Vec::new();
+    reader
+        .take(MAX_CSV_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", if gz { "not a whole gzip stream" } else { "unreadable" }))?;
+    anyhow::ensure!(bytes.len() as u64 <= MAX_CSV_BYTES, "more than {} MB of text", MAX_CSV_BYTES >> 20);
+    String::from_utf8(bytes).map_err(|e| anyhow::anyhow!("not UTF-8 text: {e}"))
+}
+
 /// Writes a log, MCAP or CSV by its extension, atomically (a temporary file renamed).
 pub fn write(log: &RobotLog, path: &Path) -> anyhow::Result<()> {
     log.validate().map_err(|e| anyhow::anyhow!("refusing to write {}: {e:#}", path.display()))?;
+    anyhow::ensure!(
+        !path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("gz")),
+        "{}: logs are written as .mcap or plain .csv (gzip is read, not written)",
+        path.display()
+    );
     let format = Format::of(path)?;
     let bytes = match format {
         Format::Mcap => mcap_file::to_bytes(log)?,

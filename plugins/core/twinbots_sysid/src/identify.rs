@@ -48,8 +48,15 @@ pub struct Fit {
     pub robot: String,
     pub logs: Vec<String>,
     pub parameters: Vec<Fitted>,
+    /// χ² per step of the twin as it runs (the robot's nominal parameters with the given
+    /// calibration over them), of where the search started (the prior with the calibration over
+    /// it), and of the fit.
     pub cost_nominal: f64,
+    pub cost_start: f64,
     pub cost_fitted: f64,
+    /// Why the fit is no improvement, when it tracks the logs no better than the twin as it runs
+    /// or the search's start: then it must not be written.
+    pub no_better: Option<String>,
     pub history: Vec<Generation>,
     pub candidates: usize,
     pub replays: usize,
@@ -131,10 +138,15 @@ pub fn identify(
     anyhow::ensure!(!logs.is_empty(), "no logs to fit");
     let specs = parameter_specs(rig, &options.params)?;
     // The twin as it runs (what "nominal" compares against), and where the search starts: the
-    // robot's prior over it, then the given calibration's values.
+    // twin with the robot's prior for each fitted parameter the given calibration does not set.
+    // The parameters not fitted stay as the twin has them: the fit is scored with the values
+    // its calibration file will run with.
     let twin = rig.parameters(base)?;
-    let mut start = rig.description.prior_parameters();
-    start.extend(base);
+    let prior = rig.description.prior_parameters();
+    let mut start = twin.clone();
+    for spec in specs.iter().filter(|s| base.get(&s.name).is_none()) {
+        start.0.insert(spec.name.clone(), rig.value(&prior, &spec.name));
+    }
     let base = rig.parameters(&start)?;
     let ranges: Vec<Range> = specs
         .iter()
@@ -142,94 +154,41 @@ pub fn identify(
         .collect();
     let search = Search { rig, logs, specs: &specs, ranges: &ranges, base: &base, seed: options.seed };
     let started = Instant::now();
-    let mut u: Vec<f64> = specs.iter().zip(&ranges).map(|(s, r)| r.unit(rig.value(&base, &s.name))).collect();
     let cost_nominal = costs(rig, logs, std::slice::from_ref(&twin))[0];
-    let (global, joints): (Vec<Block>, Vec<Block>) = blocks(rig, &specs).into_iter().partition(|b| b.joint.is_none());
-    // The parameters of no joint (the delay), and all of them.
-    let global: Vec<usize> = global.iter().flat_map(|b| b.members.clone()).collect();
-    let all: Vec<usize> = (0..specs.len()).collect();
-    let mut history = Vec::new();
-    let mut candidates = 1;
-    // CMA-ES's own default, 4 + ⌊3 ln n⌋ over the joints' parameters (12 for the UR5e's 18).
-    let joint_count = joints.iter().map(|b| b.members.len()).sum::<usize>().max(1);
-    let popsize =
-        if options.popsize > 0 { options.popsize } else { 4 + (3.0 * (joint_count as f64).ln()).floor() as usize };
+    let cost_start = if twin == base { cost_nominal } else { costs(rig, logs, std::slice::from_ref(&base))[0] };
     let samples: usize = logs.iter().map(|l| l.reference.len()).sum();
-    // A search along the delay (or a bias) may stop once its generation spreads less than a
-    // half of what the delay must be known to; the joints' parameters once under 2e-3 of the
-    // unit box (their spread is checked after, against their resolution).
-    let settled: Vec<f64> = specs
-        .iter()
-        .zip(&ranges)
-        .map(|(spec, range)| match spec.kind {
-            ParameterKind::CommandDelay | ParameterKind::Bias => {
-                let value = rig.value(&base, &spec.name);
-                range.unit_spread(value, resolution(spec, value, rig.dt()) / 2.0)
-            }
-            _ => 2e-3,
-        })
-        .collect();
-    let mut extra = 0;
-    // The last search's spread per parameter (unit box): 0 where it was not searched.
-    let mut unsettled = vec![0.0; specs.len()];
-    let g = options.generations;
-    // 1. The delay alone, the rest nominal: it moves every joint, and it is 1-D.
-    candidates += search
-        .evolve(
-            &mut u,
-            &global,
-            &Basis::diagonal(&vec![0.1; global.len()]),
-            &settled,
-            (g / 2).max(10),
-            6,
-            &mut history,
-            &mut progress,
-        )
-        .0;
-    // 2. Every parameter in one search scored by the total error: a joint's parameters reach
-    //    the other joints' errors too (the arm's dynamics share their efforts), and the delay
-    //    every joint's. The error is near a sum of squares of residuals that move smoothly with
-    //    the parameters, so its Gauss–Newton curvature (`sensitivity`, n + 1 replays) shows how
-    //    they trade off, within and across joints, and where a quadratic model puts the
-    //    minimum: the search starts there when that is better (the first step of least squares,
-    //    as MuJoCo's sysid takes many), in coordinates whitened by that curvature
-    //    (`uncertainty::whitened`), so it need not learn over many generations what the
-    //    curvature already says.
-    if g > 0 {
-        let (curvature, probes) = gauss_newton(rig, logs, &search.set(&u), &specs, &all);
-        extra += probes;
-        let mut at = curvature;
-        if let Some(step) = at.newton_step() {
-            // The full step, and half of it where the error is less quadratic than the model.
-            let tries: Vec<Vec<f64>> = [1.0, 0.5]
-                .iter()
-                .map(|f| all.iter().map(|&i| ranges[i].unit(ranges[i].value(u[i]) + f * step[i])).collect())
-                .collect();
-            let sets: Vec<Parameters> = tries.iter().map(|t| search.set(t)).collect();
-            let scores = costs(rig, logs, &sets);
-            extra += sets.len();
-            // Against the error where the curvature was measured (its own replay's).
-            if let Some(best) =
-                (0..scores.len()).filter(|&k| scores[k] < at.value).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))
-            {
-                u = tries[best].clone();
-                // Whitened where the search starts.
-                let (moved, probes) = gauss_newton(rig, logs, &search.set(&u), &specs, &all);
-                extra += probes;
-                at = moved;
-            }
+    let plan = Plan::of(rig, &specs, &ranges, &base, options);
+    let mut history = Vec::new();
+    // From the prior (with the given calibration over it); where that strands the search worse
+    // than the twin as it runs, again from the twin as it runs.
+    let from = |params: &Parameters| -> Vec<f64> {
+        specs.iter().zip(&ranges).map(|(s, r)| r.unit(rig.value(params, &s.name))).collect()
+    };
+    let mut searched = plan.search(&search, from(&base), samples, &mut history, &mut progress);
+    let mut starts = 1;
+    if searched.cost >= cost_nominal && twin != base {
+        let again = plan.search(&search, from(&twin), samples, &mut history, &mut progress);
+        starts += 1;
+        let candidates = searched.candidates + again.candidates;
+        if again.cost < searched.cost {
+            searched = again;
         }
-        let basis = whitened(&at, &all, &ranges, &u, samples, 10.0, (1e-4, 0.1, 0.1));
-        let (n, spread) = search.evolve(&mut u, &all, &basis, &settled, g, popsize, &mut history, &mut progress);
-        candidates += n;
-        unsettled = spread;
+        searched.candidates = candidates;
     }
-    candidates += extra;
+    let (u, unsettled) = (searched.u, searched.unsettled);
+    // The twin's replay, and the start's where it is another.
+    let candidates = searched.candidates + 1 + usize::from(twin != base);
     let fitted = search.set(&u);
-    let best = costs(rig, logs, std::slice::from_ref(&fitted))[0];
-    candidates += 1;
+    let best = searched.cost;
+    // The search is judged against where it started and the twin as it runs, on the same logs:
+    // a fit that tracks them worse than either is never returned as an improvement.
+    let no_better = (best >= cost_nominal.min(cost_start)).then(|| {
+        format!(
+            "the search ({starts} start(s)) ended at χ² per step {best:.4}, no better than the twin as it runs ({cost_nominal:.4}) or its start ({cost_start:.4})"
+        )
+    });
     let seconds_fit = started.elapsed().as_secs_f64();
-    let replays = 1 + candidates;
+    let replays = candidates;
     let uncertainty = spreads(rig, logs, &fitted, &specs, samples);
     let (replay_noise, widen) = (uncertainty.replay_noise, uncertainty.widen());
     // A twin that follows the logs to their noise scores about one per compared signal and
@@ -291,7 +250,9 @@ pub fn identify(
         logs: logs.iter().map(|l| l.name.clone()).collect(),
         parameters,
         cost_nominal,
+        cost_start,
         cost_fitted: best,
+        no_better,
         history,
         candidates,
         replays: replays + uncertainty.replays,
@@ -300,4 +261,115 @@ pub fn identify(
         seconds_per_replay: seconds_fit / replays as f64,
         samples,
     })
+}
+
+/// How the search runs: which parameters go first, its population and when it has settled.
+struct Plan {
+    /// The parameters of no joint (the delay), and all of them.
+    global: Vec<usize>,
+    all: Vec<usize>,
+    popsize: usize,
+    /// Per parameter, the unit-box spread under which a generation has settled.
+    settled: Vec<f64>,
+    generations: usize,
+}
+
+/// Where one search ended.
+struct Searched {
+    u: Vec<f64>,
+    /// Its total error (χ² per step) there.
+    cost: f64,
+    /// Replays it took.
+    candidates: usize,
+    /// The last generation's spread per parameter (unit box): 0 where it was not searched.
+    unsettled: Vec<f64>,
+}
+
+impl Plan {
+    fn of(rig: &Rig, specs: &[ParameterSpec], ranges: &[Range], base: &Parameters, options: &FitOptions) -> Self {
+        let (global, joints): (Vec<Block>, Vec<Block>) =
+            blocks(rig, specs).into_iter().partition(|b| b.joint.is_none());
+        // CMA-ES's own default, 4 + ⌊3 ln n⌋ over the joints' parameters (12 for the UR5e's 18).
+        let joint_count = joints.iter().map(|b| b.members.len()).sum::<usize>().max(1);
+        let popsize =
+            if options.popsize > 0 { options.popsize } else { 4 + (3.0 * (joint_count as f64).ln()).floor() as usize };
+        // A search along the delay (or a bias) may stop once its generation spreads less than a
+        // half of what the delay must be known to; the joints' parameters once under 2e-3 of the
+        // unit box (their spread is checked after, against their resolution).
+        let settled = specs
+            .iter()
+            .zip(ranges)
+            .map(|(spec, range)| match spec.kind {
+                ParameterKind::CommandDelay | ParameterKind::Bias => {
+                    let value = rig.value(base, &spec.name);
+                    range.unit_spread(value, resolution(spec, value, rig.dt()) / 2.0)
+                }
+                _ => 2e-3,
+            })
+            .collect();
+        Self {
+            global: global.iter().flat_map(|b| b.members.clone()).collect(),
+            all: (0..specs.len()).collect(),
+            popsize,
+            settled,
+            generations: options.generations,
+        }
+    }
+
+    /// One search from the unit-box point `u`.
+    fn search(
+        &self,
+        search: &Search,
+        mut u: Vec<f64>,
+        samples: usize,
+        history: &mut Vec<Generation>,
+        progress: &mut dyn FnMut(&Generation),
+    ) -> Searched {
+        let (rig, logs, specs, ranges) = (search.rig, search.logs, search.specs, search.ranges);
+        let (all, g) = (&self.all, self.generations);
+        let mut unsettled = vec![0.0; specs.len()];
+        // 1. The delay alone, the rest nominal: it moves every joint, and it is 1-D.
+        let basis = Basis::diagonal(&vec![0.1; self.global.len()]);
+        let mut candidates =
+            search.evolve(&mut u, &self.global, &basis, &self.settled, (g / 2).max(10), 6, history, progress).0;
+        // 2. Every parameter in one search scored by the total error: a joint's parameters reach
+        //    the other joints' errors too (the arm's dynamics share their efforts), and the delay
+        //    every joint's. The error is near a sum of squares of residuals that move smoothly
+        //    with the parameters, so its Gauss–Newton curvature (`sensitivity`, n + 1 replays)
+        //    shows how they trade off, within and across joints, and where a quadratic model puts
+        //    the minimum: the search starts there when that is better (the first step of least
+        //    squares, as MuJoCo's sysid takes many), in coordinates whitened by that curvature
+        //    (`uncertainty::whitened`), so it need not learn over many generations what the
+        //    curvature already says.
+        if g > 0 {
+            let (mut at, probes) = gauss_newton(rig, logs, &search.set(&u), specs, all);
+            candidates += probes;
+            if let Some(step) = at.newton_step() {
+                // The full step, and half of it where the error is less quadratic than the model.
+                let tries: Vec<Vec<f64>> = [1.0, 0.5]
+                    .iter()
+                    .map(|f| all.iter().map(|&i| ranges[i].unit(ranges[i].value(u[i]) + f * step[i])).collect())
+                    .collect();
+                let sets: Vec<Parameters> = tries.iter().map(|t| search.set(t)).collect();
+                let scores = costs(rig, logs, &sets);
+                candidates += sets.len();
+                // Against the error where the curvature was measured (its own replay's).
+                if let Some(best) =
+                    (0..scores.len()).filter(|&k| scores[k] < at.value).min_by(|&a, &b| scores[a].total_cmp(&scores[b]))
+                {
+                    u = tries[best].clone();
+                    // Whitened where the search starts.
+                    let (moved, probes) = gauss_newton(rig, logs, &search.set(&u), specs, all);
+                    candidates += probes;
+                    at = moved;
+                }
+            }
+            let basis = whitened(&at, all, ranges, &u, samples, 10.0, (1e-4, 0.1, 0.1));
+            let (n, spread) = search.evolve(&mut u, all, &basis, &self.settled, g, self.popsize, history, progress);
+            candidates += n;
+            unsettled = spread;
+        }
+        let cost = costs(rig, logs, std::slice::from_ref(&search.set(&u)))[0];
+        Searched { u, cost, candidates: candidates + 1, unsettled }
+    }
 }

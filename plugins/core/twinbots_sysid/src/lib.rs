@@ -19,6 +19,6 @@ pub mod uncertainty;
 
 pub use excitation::Excitation;
 pub use identify::{Fit, FitOptions, identify};
-pub use record::{Recording, SensorNoise, perturbed_truth, record};
+pub use record::{Recording, SensorNoise, perturbed_truth, random_truth, record};
 pub use replay::{PreparedLog, ReplayReport, compare, prepare};
 pub use rig::{Rig, Stand, run};

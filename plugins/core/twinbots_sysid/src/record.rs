@@ -27,6 +27,24 @@ pub fn perturbed_truth(rig: &Rig) -> Parameters {
     truth
 }
 
+/// A hidden truth drawn at random (seeded) from the prior's ranges: each positive fitted
+/// parameter the prior's value times 2^u, u uniform in [−1, 1] (well inside the search's range,
+/// a quarter to four times the start), the others as the prior has them, and the command delay
+/// uniform in [4, 20] ms. What a recovery test is judged on when it must not be tuned to one truth.
+pub fn random_truth(rig: &Rig, seed: u64) -> Parameters {
+    use rand::Rng;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let prior = rig.description.prior_parameters();
+    let mut truth = Parameters::default();
+    for name in rig.description.fit {
+        let start = rig.value(&prior, name);
+        let value = if start > 0.0 { start * 2f64.powf(rng.random_range(-1.0..=1.0)) } else { start };
+        truth.0.insert(name.to_string(), value);
+    }
+    truth.0.insert("command_delay".into(), rng.random_range(0.004..=0.020));
+    truth
+}
+
 /// Standard deviations of the measurement noise.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorNoise {

@@ -1,6 +1,8 @@
-//! Mesh files as CAD tools export them: STL (binary or ASCII), Wavefront OBJ and glTF 2.0
-//! (`.glb`, or `.gltf` with its buffers beside it or inline), read into one triangle list in
-//! the file's own units and axes (no Y-up conversion: a URDF's mesh is in its link's frame).
+//! Mesh files as CAD tools export them: STL (binary or ASCII), Wavefront OBJ, glTF 2.0
+//! (`.glb`, or `.gltf` with its buffers beside it or inline) and Collada (`.dae`, see
+//! [`super::collada`]), read into one triangle list in the file's own units and axes (no Y-up
+//! conversion: a URDF's mesh is in its link's frame; Collada's own `<unit>` and `<up_axis>`
+//! excepted, which the file declares). A file over [`MAX_BYTES`] or [`MAX_TRIANGLES`] is refused.
 //! Where a URDF's `package://` and relative mesh paths lead is [`resolve`].
 
 use std::path::{Path, PathBuf};
@@ -8,7 +10,13 @@ use std::path::{Path, PathBuf};
 use bevy::math::{Mat4, Vec3};
 
 /// The mesh formats read, by file extension.
-pub const FORMATS: &str = "STL (.stl), OBJ (.obj), glTF (.glb, .gltf)";
+pub const FORMATS: &str = "STL (.stl), OBJ (.obj), glTF (.glb, .gltf), Collada (.dae)";
+
+/// The largest mesh file read (bytes): a robot's link meshes are kilobytes to a few megabytes.
+pub const MAX_BYTES: u64 = 256 << 20;
+
+/// The most triangles one mesh file may hold.
+pub const MAX_TRIANGLES: usize = 5_000_000;
 
 /// A mesh file's triangles: vertices and index triples.
 pub type Triangles = (Vec<Vec3>, Vec<[u32; 3]>);
@@ -16,20 +24,44 @@ pub type Triangles = (Vec<Vec3>, Vec<[u32; 3]>);
 /// Reads the triangles of the mesh file at `path`, by its extension.
 pub fn read(path: &Path) -> Result<Triangles, String> {
     let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
-    let bytes = std::fs::read(path).map_err(|e| format!("not found at {}: {e}", path.display()))?;
+    let bytes = read_bounded(path)?;
     let (vertices, triangles) = match extension.as_str() {
         "stl" => stl(&bytes),
         "obj" => obj(&bytes),
         "glb" | "gltf" => gltf(&bytes, path),
+        "dae" => std::str::from_utf8(&bytes)
+            .map_err(|e| format!("not UTF-8 text: {e}"))
+            .and_then(super::collada::read)
+            .map_err(|e| format!("{}: {e}", path.display())),
         _ => Err(format!("{}: not a mesh format twinbots reads ({FORMATS})", path.display())),
     }?;
     if triangles.is_empty() {
         return Err(format!("{} holds no triangles", path.display()));
     }
+    if triangles.len() > MAX_TRIANGLES {
+        return Err(format!(
+            "{}: {} triangles, more than the {MAX_TRIANGLES} a mesh may have",
+            path.display(),
+            triangles.len()
+        ));
+    }
     if let Some(t) = triangles.iter().find(|t| t.iter().any(|&i| i as usize >= vertices.len())) {
         return Err(format!("{}: triangle {t:?} names a vertex beyond its {}", path.display(), vertices.len()));
     }
     Ok((vertices, triangles))
+}
+
+/// The file's bytes, refused past [`MAX_BYTES`] (read no further, so a device that never ends
+/// cannot exhaust the memory).
+fn read_bounded(path: &Path) -> Result<Vec<u8>, String> {
+    use std::io::Read;
+    let file = std::fs::File::open(path).map_err(|e| format!("not found at {}: {e}", path.display()))?;
+    let mut bytes = Vec::new();
+    file.take(MAX_BYTES + 1).read_to_end(&mut bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+    if bytes.len() as u64 > MAX_BYTES {
+        return Err(format!("{}: larger than the {} MB a mesh file may be", path.display(), MAX_BYTES >> 20));
+    }
+    Ok(bytes)
 }
 
 fn stl(bytes: &[u8]) -> Result<Triangles, String> {

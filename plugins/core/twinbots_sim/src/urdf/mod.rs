@@ -2,6 +2,7 @@
 
 pub mod chain;
 pub mod check;
+mod collada;
 mod error;
 mod load;
 pub mod mesh;
