@@ -389,3 +389,41 @@ fn outputs_that_cannot_be_written_are_named_in_the_error() {
         assert!(err.contains(out) && err.contains("Not a directory"), "{args:?}: {err}");
     }
 }
+
+/// A fit no better than the twin as it runs is refused: one generation from the prior cannot
+/// reach the nominal twin that recorded the log, and nothing but the --out folder is left.
+#[test]
+fn a_fit_that_would_make_the_twin_worse_is_not_written() {
+    let dir = scratch("no-better");
+    let log = dir.join("nominal.mcap");
+    write_raw(&ur5e_log(1.0), &log);
+    let out = dir.join("cal");
+    let (ok, stdout, err) =
+        twinbots(&["identify", "ur5e", log.to_str().unwrap(), "--generations", "1", "--out", out.to_str().unwrap()]);
+    assert!(!ok, "{stdout}");
+    assert!(err.contains("no better than the twin as it runs") && err.contains("nothing written"), "{err}");
+    assert!(stdout.contains("tracking error (χ² per step)"), "the fit's table is printed: {stdout}");
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0, "something was written into {}", out.display());
+}
+
+/// A UR recording as UR's RTDE recorder writes it (space-delimited, gzip) replays through the
+/// UR5e twin; a truncated gzip is an error naming the file.
+#[test]
+fn a_ur_rtde_recording_replays_and_a_truncated_one_is_named() {
+    let dir = scratch("rtde-csv");
+    let real =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/ur5-real/Movement_No10_Standstill_WDist.csv.gz");
+    if !real.is_file() {
+        eprintln!("skipped: {} is not there", real.display());
+        return;
+    }
+    let (ok, stdout, err) =
+        twinbots(&["replay", "ur5e", real.to_str().unwrap(), "--out", dir.join("r").to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("s replayed; position RMSE over joints"), "{stdout}");
+    let bytes = std::fs::read(&real).unwrap();
+    let cut = dir.join("cut.csv.gz");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let (ok, _, err) = twinbots(&["replay", "ur5e", cut.to_str().unwrap(), "--out", dir.join("c").to_str().unwrap()]);
+    assert!(!ok && err.contains("cut.csv.gz") && err.contains("gzip"), "{err}");
+}

@@ -55,6 +55,21 @@ pub struct ParameterSpec {
     pub unit: &'static str,
 }
 
+impl ParameterSpec {
+    /// The values it may take, in its unit: wide enough for any robot arm or vehicle, narrow
+    /// enough that a typo (1e10, a sign) is caught before it reaches the physics.
+    pub fn plausible(&self) -> (f64, f64) {
+        match self.kind {
+            ParameterKind::Damping | ParameterKind::Friction => (0.0, 1e4),
+            ParameterKind::Armature => (0.0, 1e3),
+            ParameterKind::Gain => (0.01, 100.0),
+            ParameterKind::Bias if self.unit == "m" => (-1.0, 1.0),
+            ParameterKind::Bias => (-std::f64::consts::PI, std::f64::consts::PI),
+            ParameterKind::CommandDelay => (0.0, 1.0),
+        }
+    }
+}
+
 /// Parameter values by name (a calibration's `[parameters]` table), as a resource: applied to
 /// every arena's joints at start-up.
 #[derive(Resource, Clone, Debug, Default, PartialEq)]
@@ -70,8 +85,9 @@ impl Parameters {
         self.0.extend(other.0.iter().map(|(k, v)| (k.clone(), *v)));
     }
 
-    /// Every name a parameter of `catalogue` and every value finite; the error names the first
-    /// unknown one and lists the known names.
+    /// Every name a parameter of `catalogue` and every value finite and within its kind's
+    /// [`ParameterKind::plausible`] range; the error names the first unknown one and lists the
+    /// known names, or names the value out of range.
     pub fn check(&self, catalogue: &[ParameterSpec], robot: &str) -> Result<(), String> {
         for (name, value) in &self.0 {
             if !catalogue.iter().any(|p| &p.name == name) {
@@ -80,6 +96,14 @@ impl Parameters {
             }
             if !value.is_finite() {
                 return Err(format!("parameter '{name}' is {value}"));
+            }
+            let spec = catalogue.iter().find(|p| &p.name == name).expect("checked above");
+            let (lo, hi) = spec.plausible();
+            if !(lo..=hi).contains(value) {
+                return Err(format!(
+                    "parameter '{name}' = {value} {}: outside [{lo}, {hi}], what it may be",
+                    spec.unit
+                ));
             }
         }
         Ok(())
@@ -177,5 +201,34 @@ pub(crate) fn apply_parameters(
     }
     for mut arena in &mut arenas {
         arena.mark_initial();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn values_out_of_their_kinds_range_are_named() {
+        let spec = |name: &str, kind, unit| ParameterSpec { name: name.into(), kind, joint: None, default: 0.0, unit };
+        let catalogue = [
+            spec("elbow.damping", ParameterKind::Damping, "N*m*s/rad"),
+            spec("elbow.bias", ParameterKind::Bias, "rad"),
+            spec("command_delay", ParameterKind::CommandDelay, "s"),
+        ];
+        let check = |name: &str, value: f64| Parameters([(name.to_string(), value)].into()).check(&catalogue, "arm");
+        check("elbow.damping", 2.5).unwrap();
+        check("elbow.bias", -0.01).unwrap();
+        for (name, value, expected) in [
+            ("elbow.damping", -1.0, "parameter 'elbow.damping' = -1 N*m*s/rad: outside [0, 10000]"),
+            ("elbow.damping", 1e10, "parameter 'elbow.damping' = 10000000000 N*m*s/rad: outside"),
+            ("elbow.bias", 7.0, "parameter 'elbow.bias' = 7 rad: outside"),
+            ("command_delay", 5.0, "parameter 'command_delay' = 5 s: outside [0, 1]"),
+            ("elbow.damping", 1e300, "parameter 'elbow.damping' = 1000000"),
+            ("elbow.damping", f64::NAN, "parameter 'elbow.damping' is NaN"),
+        ] {
+            let err = check(name, value).unwrap_err();
+            assert!(err.starts_with(expected), "{err:?} does not start with {expected:?}");
+        }
     }
 }

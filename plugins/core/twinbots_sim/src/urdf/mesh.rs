@@ -258,9 +258,12 @@ mod tests {
         let empty = dir.join("e.obj");
         std::fs::write(&empty, "# nothing\n").unwrap();
         assert!(read(&empty).unwrap_err().contains("no triangles"));
-        let other = dir.join("m.dae");
-        std::fs::write(&other, "<COLLADA/>").unwrap();
+        let other = dir.join("m.3ds");
+        std::fs::write(&other, "3ds").unwrap();
         assert!(read(&other).unwrap_err().contains("not a mesh format twinbots reads"));
+        let collada = dir.join("m.dae");
+        std::fs::write(&collada, "<COLLADA/>").unwrap();
+        assert!(read(&collada).unwrap_err().contains("holds no triangles"));
         // A tetrahedron in a .gltf with an inline buffer, its node lifted 2 m.
         use base64::Engine;
         let mut bin: Vec<u8> = [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
