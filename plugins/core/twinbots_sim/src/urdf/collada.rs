@@ -14,7 +14,8 @@ use std::collections::HashMap;
 use bevy::math::{Mat4, Quat, Vec3};
 use roxmltree::{Document, Node};
 
-use super::mesh::Triangles;
+/// Vertices and index triples (as `mesh::Triangles`).
+type Triangles = (Vec<Vec3>, Vec<[u32; 3]>);
 
 /// Reads the triangles of a Collada document, in metres, Z up.
 pub fn read(text: &str) -> Result<Triangles, String> {
