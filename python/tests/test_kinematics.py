@@ -101,3 +101,37 @@ def test_a_tool_that_is_not_below_the_base_and_a_wrong_count_are_named():
     assert out.returncode != 0 and "'shoulder_link' is not a descendant of the base link 'forearm_link'" in out.stderr
     out = run("--tool", "tool0", "--fk=0,0")
     assert out.returncode != 0 and "2 positions for the 6 movable joints" in out.stderr, out.stderr
+
+
+@pytest.mark.parametrize("urdf", ["panda_description/urdf/panda.urdf", "ur_description/urdf/ur10_robot.urdf"])
+def test_efforts_at_rest_equal_pinocchios_gravity_torques(urdf):
+    """`twinbots urdf` stands the arm, its drives holding 0; where each joint came to rest, the
+    effort its drive reads equals the gravity torque Pinocchio's RNEA gives there, within 4 % of
+    it (a joint that carries little: within 4 % of the largest)."""
+    path = ROBOTS / urdf
+    if not path.is_file():
+        pytest.skip(f"example-robot-data has no {urdf}")
+    share = ROBOTS.parent.parent
+    out = subprocess.run([twinbots_bin(), "urdf", str(path), "--seconds", "4"], capture_output=True, text=True,
+                         env={**os.environ, "ROS_PACKAGE_PATH": str(share)}, timeout=300)
+    assert out.returncode == 0, out.stderr
+    holding = {}
+    for line in out.stdout.splitlines():
+        words = line.split()
+        if words[:1] == ["holding"]:
+            holding[words[1]] = (float(words[3].rstrip(":")), float(words[5]))
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    q = pin.neutral(model)
+    for name, (position, _) in holding.items():
+        q[model.joints[model.getJointId(name)].idx_q] = position
+    tau = pin.rnea(model, data, q, np.zeros(model.nv), np.zeros(model.nv))
+    theirs = {name: tau[model.joints[model.getJointId(name)].idx_v] for name in holding}
+    largest = max(abs(t) for t in theirs.values())
+    assert largest > 1, theirs
+    for name, (_, effort) in holding.items():
+        # twinbots reads the drive's effort with the opposite sign to Pinocchio's joint torque.
+        diff = abs(abs(effort) - abs(theirs[name]))
+        bound = 0.04 * max(abs(theirs[name]), 0.1 * largest)
+        print(f"{name}: effort {effort:.4f}, Pinocchio {theirs[name]:.4f}")
+        assert diff <= bound, f"{name}: effort {effort} vs Pinocchio's {theirs[name]}"

@@ -71,6 +71,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         if report.fastest.1.is_empty() { "(none)" } else { &report.fastest.1 },
         report.fastest.0
     );
+    for (joint, position, effort) in &report.holding {
+        println!("  holding {joint} at {position:.5}: effort {effort:.4}");
+    }
     if report.warnings.is_empty() {
         println!("no warnings");
     }

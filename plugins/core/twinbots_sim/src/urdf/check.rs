@@ -19,6 +19,9 @@ pub struct UrdfReport {
     /// The fastest any joint moved while the robot stood, its base welded and its drives
     /// holding (rad/s or m/s), and which joint.
     pub fastest: (f32, String),
+    /// Each motorized joint at the end of the stand, in the model's joint order: its name,
+    /// position (rad or m) and the effort its drive exerted holding it (N·m or N).
+    pub holding: Vec<(String, f32, f32)>,
     pub seconds: f64,
     /// The app it stood in and its arena (for a picture).
     pub app: App,
@@ -26,7 +29,8 @@ pub struct UrdfReport {
 }
 
 /// Reads `path`, lists and flags it, and stands it in an arena for `seconds`: base welded,
-/// every drive holding its joint at 0 (a robot switched on at its zero pose); the collision
+/// every drive holding its joint at 0 (a robot switched on at its zero pose; see
+/// [`holding_target`] for a joint whose range excludes 0); the collision
 /// meshes of the links in `decompose` split into convex parts.
 pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyhow::Result<UrdfReport> {
     anyhow::ensure!(
@@ -59,9 +63,10 @@ pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyh
     };
     world.flush();
     world.entity_mut(arena).insert(a);
-    for &joint in spawned.joints.values() {
+    for (name, &joint) in &spawned.joints {
+        let target = model.joint(name).map_or(0.0, |j| holding_target(j.limits.position));
         if let Some(mut motor) = world.get_mut::<Motor>(joint) {
-            motor.command = MotorCommand::Position(0.0);
+            motor.command = MotorCommand::Position(target);
         }
     }
     app.update();
@@ -90,7 +95,31 @@ pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyh
             fastest.1, fastest.0
         ));
     }
-    Ok(UrdfReport { model, tree, warnings, fastest, seconds: steps as f64 * settings.dt_seconds(), app, arena })
+    let holding = model
+        .joints
+        .iter()
+        .filter_map(|j| {
+            let entity = *spawned.joints.get(&j.name)?;
+            app.world().get::<Motor>(entity)?;
+            let s = app.world().get::<JointState>(entity)?;
+            Some((j.name.clone(), s.position, s.effort))
+        })
+        .collect();
+    let seconds = steps as f64 * settings.dt_seconds();
+    Ok(UrdfReport { model, tree, warnings, fastest, holding, seconds, app, arena })
+}
+
+/// Where a drive holds its joint while the robot stands: 0, or where 0 is outside the joint's
+/// range or within 5 % of the range from a limit (the Panda's fourth and sixth joints), the
+/// nearest point 5 % inside it, so no joint leans on its limit.
+fn holding_target(range: Option<[f32; 2]>) -> f32 {
+    match range {
+        Some([lo, hi]) if hi > lo => {
+            let margin = 0.05 * (hi - lo);
+            0.0f32.clamp(lo + margin, hi - margin)
+        }
+        _ => 0.0,
+    }
 }
 
 fn tree(model: &RobotModel) -> Vec<String> {
