@@ -60,7 +60,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
     anyhow::ensure!(!args.logs.is_empty(), "no logs to fit: give one or more LOG files (or --list-params)");
     let Some(out) = args.out.clone() else { anyhow::bail!("--out DIR is required: where calibration.toml goes") };
-    anyhow::ensure!(args.generations > 0, "--generations must be at least 1");
+    anyhow::ensure!((1..=10_000).contains(&args.generations), "--generations must be from 1 to 10000");
+    anyhow::ensure!(args.popsize <= 1000, "--popsize must be at most 1000 (0: CMA-ES's own)");
     // Everything is read and checked before anything is written.
     let base = rig.read_calibration(args.calibration.as_deref())?;
     let params = parameter_names(&rig, args.params.as_deref())?;

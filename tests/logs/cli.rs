@@ -223,6 +223,36 @@ fn bad_logs_and_parameters_are_clear_errors_and_write_nothing() {
     ]);
     assert!(!ok && err.contains("truth.toml") && err.contains("unknown parameter 'elbow_joint.stiffnes'"), "{err}");
     assert!(!dir.join("never.mcap").exists());
+
+    // Sizes a user can type are bounded, and values are checked against their kind's range.
+    let never = dir.join("never.mcap");
+    let (ok, _, err) = twinbots(&["record", "ur5e", "--seconds", "1e7", "--out", never.to_str().unwrap()]);
+    assert!(!ok && err.contains("--seconds must be positive and at most 3600"), "{err}");
+    let (ok, _, err) = twinbots(&[
+        "identify",
+        "ur5e",
+        log.to_str().unwrap(),
+        "--popsize",
+        "100000000",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("--popsize must be at most 1000"), "{err}");
+    for (value, expected) in [("1e300", "= 1e300 N*m*s/rad: outside [0, 10000]"), ("-2.0", "= -2 N*m*s/rad: outside")] {
+        std::fs::write(&truth, format!("[parameters]\nelbow_joint.damping = {value}\n")).unwrap();
+        let (ok, _, err) = twinbots(&[
+            "replay",
+            "ur5e",
+            log.to_str().unwrap(),
+            "--calibration",
+            truth.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(!ok && err.contains("truth.toml") && err.contains(expected), "{err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    assert!(!never.exists() && !out.exists());
 }
 
 #[test]

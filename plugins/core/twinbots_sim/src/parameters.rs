@@ -100,10 +100,9 @@ impl Parameters {
             let spec = catalogue.iter().find(|p| &p.name == name).expect("checked above");
             let (lo, hi) = spec.plausible();
             if !(lo..=hi).contains(value) {
-                return Err(format!(
-                    "parameter '{name}' = {value} {}: outside [{lo}, {hi}], what it may be",
-                    spec.unit
-                ));
+                // 1e300 as such, not as three hundred digits.
+                let shown = if value.abs() >= 1e6 { format!("{value:e}") } else { value.to_string() };
+                return Err(format!("parameter '{name}' = {shown} {}: outside [{lo}, {hi}]", spec.unit));
             }
         }
         Ok(())
@@ -221,10 +220,10 @@ mod tests {
         check("elbow.bias", -0.01).unwrap();
         for (name, value, expected) in [
             ("elbow.damping", -1.0, "parameter 'elbow.damping' = -1 N*m*s/rad: outside [0, 10000]"),
-            ("elbow.damping", 1e10, "parameter 'elbow.damping' = 10000000000 N*m*s/rad: outside"),
+            ("elbow.damping", 1e10, "parameter 'elbow.damping' = 1e10 N*m*s/rad: outside"),
             ("elbow.bias", 7.0, "parameter 'elbow.bias' = 7 rad: outside"),
             ("command_delay", 5.0, "parameter 'command_delay' = 5 s: outside [0, 1]"),
-            ("elbow.damping", 1e300, "parameter 'elbow.damping' = 1000000"),
+            ("elbow.damping", 1e300, "parameter 'elbow.damping' = 1e300 N*m*s/rad: outside [0, 10000]"),
             ("elbow.damping", f64::NAN, "parameter 'elbow.damping' is NaN"),
         ] {
             let err = check(name, value).unwrap_err();

@@ -45,6 +45,9 @@ pub fn random_truth(rig: &Rig, seed: u64) -> Parameters {
     truth
 }
 
+/// The longest recording (s): an hour of a robot's log, about 450,000 joint states at 125 Hz.
+pub const MAX_SECONDS: f64 = 3600.0;
+
 /// Standard deviations of the measurement noise.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorNoise {
@@ -75,8 +78,8 @@ pub struct Recording {
 /// Records the rig run with `truth` (over its nominal parameters): a log of every physics step.
 pub fn record(rig: &Rig, truth: &Parameters, recording: &Recording) -> anyhow::Result<RobotLog> {
     anyhow::ensure!(
-        recording.seconds > 0.0 && recording.seconds.is_finite(),
-        "--seconds must be positive, not {}",
+        recording.seconds > 0.0 && recording.seconds <= MAX_SECONDS,
+        "--seconds must be positive and at most {MAX_SECONDS} (an hour), not {}",
         recording.seconds
     );
     let params = rig.parameters(truth)?;
