@@ -7,6 +7,7 @@
 use anyhow::Context;
 use std::path::{Path, PathBuf};
 
+use twinbots_log::rtde_csv::Efforts;
 use twinbots_sysid::identify::{Fit, FitOptions};
 use twinbots_sysid::report::{calibration_of, validate};
 use twinbots_sysid::{PreparedLog, Rig, identify, prepare};
@@ -38,6 +39,10 @@ pub struct Args {
     /// Where to write calibration.toml, fit.json, convergence.png and validation.png.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Where a UR recording's efforts come from (docs/logs.md): `none`, `target_moment` (the
+    /// controller's model torque) or `current:K0,…,K5` (actual currents × torque constants).
+    #[arg(long, default_value = "none", value_parser = twinbots_log::rtde_csv::Efforts::parse)]
+    pub efforts: twinbots_log::rtde_csv::Efforts,
     /// CMA-ES generations of the joints' search (the delay's take a third to a half of it).
     #[arg(long, default_value_t = 16)]
     pub generations: usize,
@@ -65,8 +70,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     // Everything is read and checked before anything is written.
     let base = rig.read_calibration(args.calibration.as_deref())?;
     let params = parameter_names(&rig, args.params.as_deref())?;
-    let logs = prepare_all(&rig, &args.logs)?;
-    let validation = prepare_all(&rig, &args.validate)?;
+    let logs = prepare_all(&rig, &args.logs, &args.efforts)?;
+    let validation = prepare_all(&rig, &args.validate, &args.efforts)?;
     let options = FitOptions { params, popsize: args.popsize, generations: args.generations, seed: args.seed };
     // Where the files go is made before the fit, so an unwritable --out fails at once.
     std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
@@ -150,11 +155,11 @@ fn parameter_names(rig: &Rig, arg: Option<&str>) -> anyhow::Result<Vec<String>> 
     Ok(names)
 }
 
-fn prepare_all(rig: &Rig, paths: &[PathBuf]) -> anyhow::Result<Vec<PreparedLog>> {
+fn prepare_all(rig: &Rig, paths: &[PathBuf], efforts: &Efforts) -> anyhow::Result<Vec<PreparedLog>> {
     paths
         .iter()
         .map(|path| {
-            let log = twinbots_log::read(path)?;
+            let log = twinbots_log::read_with(path, efforts)?;
             let name = path.display().to_string();
             prepare(rig, &log, &name).map_err(|e| anyhow::anyhow!("{name}: {e:#}"))
         })

@@ -26,6 +26,10 @@ pub struct Args {
     /// Where to write replay.png, twin.mcap and replay.json; default: `<log>.replay/` beside it.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Where a UR recording's efforts come from (docs/logs.md): `none`, `target_moment` (the
+    /// controller's model torque) or `current:K0,…,K5` (actual currents × torque constants).
+    #[arg(long, default_value = "none", value_parser = twinbots_log::rtde_csv::Efforts::parse)]
+    pub efforts: twinbots_log::rtde_csv::Efforts,
 }
 
 /// `twinbots replay`.
@@ -33,7 +37,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let rig = Rig::of(&registry::find(&args.robot)?)?;
     let calibration = rig.read_calibration(args.calibration.as_deref())?;
     anyhow::ensure!(args.threshold > 0.0, "--threshold must be positive");
-    let log = twinbots_log::read(&args.log)?;
+    let log = twinbots_log::read_with(&args.log, &args.efforts)?;
     let name = args.log.display().to_string();
     let prepared = prepare(&rig, &log, &name).map_err(|e| anyhow::anyhow!("{name}: {e:#}"))?;
     let params = rig.parameters(&calibration)?;

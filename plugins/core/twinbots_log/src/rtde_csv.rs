@@ -29,6 +29,31 @@ pub enum Efforts {
     Current([f64; 6]),
 }
 
+impl Efforts {
+    /// `--efforts` as the commands take it: `none`, `target_moment`, or `current:K0,…,K5` (each
+    /// joint's torque constant, N·m/A).
+    pub fn parse(text: &str) -> anyhow::Result<Self> {
+        match text {
+            "none" => Ok(Self::None),
+            "target_moment" => Ok(Self::TargetMoment),
+            _ => {
+                let Some(list) = text.strip_prefix("current:") else {
+                    anyhow::bail!("--efforts '{text}': none, target_moment or current:K0,…,K5 (N*m/A per joint)")
+                };
+                let k: Vec<f64> = list
+                    .split(',')
+                    .map(|v| v.trim().parse::<f64>().ok().filter(|k| k.is_finite() && *k > 0.0))
+                    .collect::<Option<_>>()
+                    .ok_or_else(|| anyhow::anyhow!("--efforts '{text}': six positive torque constants"))?;
+                let k: [f64; 6] = k
+                    .try_into()
+                    .map_err(|_| anyhow::anyhow!("--efforts '{text}': six torque constants, one a joint"))?;
+                Ok(Self::Current(k))
+            }
+        }
+    }
+}
+
 /// Whether `first_line` is the header of an RTDE recording (it names `timestamp` and `actual_q_0`).
 pub fn is_rtde_header(first_line: &str) -> bool {
     let names: Vec<&str> = split(first_line).collect();
@@ -164,6 +189,16 @@ mod tests {
         // Commas as ur_rtde writes them read the same.
         let commas = text.replace(' ', ",");
         assert_eq!(from_str(&commas, &Efforts::Current([2.0; 6])).unwrap(), log);
+    }
+
+    #[test]
+    fn the_efforts_option_reads_and_refuses() {
+        assert_eq!(Efforts::parse("none").unwrap(), Efforts::None);
+        assert_eq!(Efforts::parse("target_moment").unwrap(), Efforts::TargetMoment);
+        assert_eq!(Efforts::parse("current:1,2,3,4,5,6").unwrap(), Efforts::Current([1.0, 2.0, 3.0, 4.0, 5.0, 6.0]));
+        for bad in ["moment", "current:1,2", "current:1,2,3,4,5,-6", "current:1,2,3,4,5,x"] {
+            assert!(Efforts::parse(bad).unwrap_err().to_string().starts_with(&format!("--efforts '{bad}'")), "{bad}");
+        }
     }
 
     #[test]
