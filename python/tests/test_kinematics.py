@@ -130,8 +130,7 @@ def test_efforts_at_rest_equal_pinocchios_gravity_torques(urdf):
     largest = max(abs(t) for t in theirs.values())
     assert largest > 1, theirs
     for name, (_, effort) in holding.items():
-        # twinbots reads the drive's effort with the opposite sign to Pinocchio's joint torque.
-        diff = abs(abs(effort) - abs(theirs[name]))
+        diff = abs(effort - theirs[name])
         bound = 0.04 * max(abs(theirs[name]), 0.1 * largest)
         print(f"{name}: effort {effort:.4f}, Pinocchio {theirs[name]:.4f}")
         assert diff <= bound, f"{name}: effort {effort} vs Pinocchio's {theirs[name]}"

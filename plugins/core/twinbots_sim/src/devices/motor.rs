@@ -285,7 +285,12 @@ fn spring_rate(world: &PhysicsWorld, dt: f32) -> f32 {
 /// gravity: it reads m·g·l).
 fn solved_effort(joint: &Joint, world: &PhysicsWorld, dt: f32) -> f32 {
     let substeps = world.integration_parameters.num_solver_iterations.max(1) as f32;
-    world.impulse_joints.get(joint.handle).map_or(0.0, |j| j.data.motors[joint.axis() as usize].impulse * substeps / dt)
+    // Rapier's motor impulse acts on the parent along the axis; the effort is what the drive
+    // exerts on the child (as a torque command's, and as Pinocchio's and a UR's joint torques).
+    world
+        .impulse_joints
+        .get(joint.handle)
+        .map_or(0.0, |j| -j.data.motors[joint.axis() as usize].impulse * substeps / dt)
 }
 
 /// Writes what each motor applied over the physics step into its joint's state, after the
