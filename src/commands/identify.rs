@@ -95,11 +95,12 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         print!("{}", fit_table(&fit));
         anyhow::bail!("{why}: nothing written (more --generations, other --params or longer logs may do better)");
     }
-    let calibration = calibration_of(&fit, &base, None);
+    let mut calibration = calibration_of(&fit, &base);
     let nominal = rig.parameters(&base)?;
     let calibrated = rig.parameters(&calibration.parameters)?;
     let validation_report = validate(&rig, &validation, &nominal, &calibrated, &out.join("validation.png"))?;
     print!("{}", fit_table(&fit));
+    write_json(&out.join("fit.json"), &serde_json::json!({ "fit": fit, "validation": validation_report }))?;
     if let Some(v) = &validation_report {
         println!(
             "held-out position RMSE: nominal {:.6}, calibrated {:.6} ({:+.1} %)",
@@ -107,18 +108,16 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             v.calibrated,
             v.change * 100.0
         );
-    }
-    if let Some(v) = validation_report.as_ref().filter(|v| v.calibrated > v.nominal) {
-        write_json(&out.join("fit.json"), &serde_json::json!({ "fit": fit, "validation": v }))?;
-        anyhow::bail!(
+        anyhow::ensure!(
+            v.calibrated <= v.nominal,
             "the fit tracks the held-out logs worse than the twin as it runs (position RMSE {:.6} against {:.6}, {:+.1} %): calibration.toml not written (fit.json and validation.png say how it went)",
             v.calibrated,
             v.nominal,
             v.change * 100.0
         );
+        v.note(&mut calibration);
     }
-    calibration_of(&fit, &base, validation_report.as_ref()).write(&out.join("calibration.toml"), &rig.catalogue)?;
-    write_json(&out.join("fit.json"), &serde_json::json!({ "fit": fit, "validation": validation_report }))?;
+    calibration.write(&out.join("calibration.toml"), &rig.catalogue)?;
     twinbots_sysid::plot::convergence_png(
         &out.join("convergence.png"),
         &format!("{}: calibration", rig.robot),

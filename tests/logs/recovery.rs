@@ -36,7 +36,7 @@ fn recover_truth(
     let options = FitOptions { params, popsize: 0, generations, seed: 3 };
     let fit = identify(&rig, std::slice::from_ref(&fit_log), &Parameters::default(), &options, |_| {}).unwrap();
     let calibrated =
-        rig.parameters(&twinbots_sysid::report::calibration_of(&fit, &Parameters::default(), None).parameters).unwrap();
+        rig.parameters(&twinbots_sysid::report::calibration_of(&fit, &Parameters::default()).parameters).unwrap();
     let before = position_rmse(&rig, std::slice::from_ref(&held_out), &rig.nominal, 0.05);
     let after = position_rmse(&rig, std::slice::from_ref(&held_out), &calibrated, 0.05);
     eprintln!(

@@ -95,11 +95,6 @@ pub fn to_string(log: &RobotLog) -> String {
     out
 }
 
-/// Reads a CSV log from a file.
-pub fn read(path: &std::path::Path) -> anyhow::Result<RobotLog> {
-    from_str(&std::fs::read_to_string(path)?)
-}
-
 /// Parses CSV text; errors name the line.
 pub fn from_str(text: &str) -> anyhow::Result<RobotLog> {
     let mut meta = BTreeMap::new();

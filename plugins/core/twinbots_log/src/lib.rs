@@ -66,11 +66,16 @@ pub fn read_with(path: &Path, efforts: &rtde_csv::Efforts) -> anyhow::Result<Rob
     Ok(log)
 }
 
+/// Whether `path` names a gzip file (`.gz`, any case).
+fn gzipped(path: &Path) -> bool {
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("gz"))
+}
+
 /// A CSV file's text, gunzipped when its name ends in `.gz`, refused past [`MAX_CSV_BYTES`].
 fn csv_text(path: &Path) -> anyhow::Result<String> {
     use std::io::Read;
     let file = std::fs::File::open(path)?;
-    let gz = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("gz"));
+    let gz = gzipped(path);
     let reader: Box<dyn Read> = if gz { Box::new(flate2::read::GzDecoder::new(file)) } else { Box::new(file) };
     let mut bytes = Vec::new();
     reader
@@ -85,7 +90,7 @@ fn csv_text(path: &Path) -> anyhow::Result<String> {
 pub fn write(log: &RobotLog, path: &Path) -> anyhow::Result<()> {
     log.validate().map_err(|e| anyhow::anyhow!("refusing to write {}: {e:#}", path.display()))?;
     anyhow::ensure!(
-        !path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("gz")),
+        !gzipped(path),
         "{}: logs are written as .mcap or plain .csv (gzip is read, not written)",
         path.display()
     );

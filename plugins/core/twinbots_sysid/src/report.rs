@@ -48,9 +48,20 @@ pub fn validate(
     }))
 }
 
+impl Validation {
+    /// Records the held-out errors in a calibration's `[fit]`.
+    pub fn note(&self, calibration: &mut Calibration) {
+        if let Some(fit) = calibration.fit.as_mut() {
+            fit.validation_position_rmse_nominal = Some(self.nominal);
+            fit.validation_position_rmse_calibrated = Some(self.calibrated);
+        }
+    }
+}
+
 /// The calibration file `fit` makes: the fitted values over `base` (the calibration it started
-/// from), their spreads and flags, and how the fit went.
-pub fn calibration_of(fit: &Fit, base: &Parameters, validation: Option<&Validation>) -> Calibration {
+/// from), their spreads and flags, and how the fit went ([`Validation::note`] adds the held-out
+/// errors).
+pub fn calibration_of(fit: &Fit, base: &Parameters) -> Calibration {
     let mut parameters = base.clone();
     parameters.extend(&fit.values());
     Calibration {
@@ -70,8 +81,8 @@ pub fn calibration_of(fit: &Fit, base: &Parameters, validation: Option<&Validati
             replay_noise: fit.replay_noise,
             candidates: fit.candidates as u64,
             seconds: fit.seconds,
-            validation_position_rmse_nominal: validation.map(|v| v.nominal),
-            validation_position_rmse_calibrated: validation.map(|v| v.calibrated),
+            validation_position_rmse_nominal: None,
+            validation_position_rmse_calibrated: None,
         }),
     }
 }

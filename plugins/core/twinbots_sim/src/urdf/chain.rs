@@ -139,19 +139,21 @@ impl Chain {
 
     /// Resolved-rate control: the joint speeds whose tool twist is closest to `twist` (vx, vy,
     /// vz, ωx, ωy, ωz in the base frame), by damped least squares (`damping` in the units of
-    /// the twist; 0: the pseudo-inverse where the Jacobian has full rank).
+    /// the twist; 0: the pseudo-inverse), as the UR5e's own controller solves it.
     pub fn joint_speeds(&self, q: &[f64], twist: [f64; 6], damping: f64) -> Vec<f64> {
+        use crate::rapier::na::{DMatrix, DVector};
         let columns = self.jacobian(q);
+        let j = DMatrix::from_fn(6, columns.len(), |r, c| columns[c][r]);
+        let twist = DVector::from_row_slice(&twist);
         // q̇ = Jᵀ (J Jᵀ + λ² I)⁻¹ twist: a 6 × 6 solve whatever the joint count.
-        let mut a = [[0.0; 6]; 6];
-        for (r, row) in a.iter_mut().enumerate() {
-            for (c, v) in row.iter_mut().enumerate() {
-                *v = columns.iter().map(|col| col[r] * col[c]).sum::<f64>()
-                    + if r == c { damping * damping } else { 0.0 };
-            }
-        }
-        let y = solve6(a, twist);
-        columns.iter().map(|col| (0..6).map(|r| col[r] * y[r]).sum()).collect()
+        let damped = (damping > 0.0)
+            .then(|| (&j * j.transpose() + DMatrix::identity(6, 6) * (damping * damping)).cholesky())
+            .flatten();
+        let speeds = match damped {
+            Some(c) => j.transpose() * c.solve(&twist),
+            None => j.pseudo_inverse(1e-12).expect("a non-negative tolerance") * twist,
+        };
+        speeds.iter().copied().collect()
     }
 
     /// Each movable joint's axis and origin in the base frame at `q`, and the tool's frame.
@@ -209,35 +211,6 @@ fn chain_joint(joint: &urdf_rs::Joint) -> anyhow::Result<ChainJoint> {
     })
 }
 
-/// Solves `a · x = b` for a symmetric positive (semi)definite 6 × 6 `a` by Gaussian elimination
-/// with partial pivoting; a singular direction gets 0.
-fn solve6(mut a: [[f64; 6]; 6], mut b: [f64; 6]) -> [f64; 6] {
-    for col in 0..6 {
-        let pivot = (col..6).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs())).unwrap_or(col);
-        a.swap(col, pivot);
-        b.swap(col, pivot);
-        if a[col][col].abs() < 1e-14 {
-            continue;
-        }
-        for row in col + 1..6 {
-            let f = a[row][col] / a[col][col];
-            for k in col..6 {
-                a[row][k] -= f * a[col][k];
-            }
-            b[row] -= f * b[col];
-        }
-    }
-    let mut x = [0.0; 6];
-    for row in (0..6).rev() {
-        if a[row][row].abs() < 1e-14 {
-            continue;
-        }
-        let rest: f64 = (row + 1..6).map(|k| a[row][k] * x[k]).sum();
-        x[row] = (b[row] - rest) / a[row][row];
-    }
-    x
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -282,8 +255,12 @@ mod tests {
             assert!((v - DVec3::new(column[0], column[1], column[2])).length() < 1e-8, "column {i}: {v:?}");
         }
         // The resolved-rate step reproduces a twist the chain can make.
-        let speeds = chain.joint_speeds(&q, [columns[0][0], columns[0][1], columns[0][2], 0.0, 0.0, 1.0], 0.0);
+        let twist = [columns[0][0], columns[0][1], columns[0][2], 0.0, 0.0, 1.0];
+        let speeds = chain.joint_speeds(&q, twist, 0.0);
         assert!((speeds[0] - 1.0).abs() < 1e-9 && speeds[1].abs() < 1e-9, "{speeds:?}");
+        // Damped, the same within the damping's pull towards zero.
+        let damped = chain.joint_speeds(&q, twist, 1e-4);
+        assert!((damped[0] - 1.0).abs() < 1e-6 && damped[1].abs() < 1e-6, "{damped:?}");
     }
 
     #[test]
