@@ -50,7 +50,20 @@ def configurations(model, joints, count, rng):
     return rng.uniform(lo, hi, size=(count, len(joints)))
 
 
-def pinocchio_pose(model, data, joints, q, base, tool):
+def arm(urdf, base, tool, dof):
+    """The URDF's path, Pinocchio's model and data of it, and the chain's joints (skips where
+    `example-robot-data` lacks the arm)."""
+    path = ROBOTS / urdf
+    if not path.is_file():
+        pytest.skip(f"example-robot-data has no {urdf}")
+    model = pin.buildModelFromUrdf(str(path))
+    joints = chain_joints(model, base, tool)
+    assert len(joints) == dof, [model.names[j] for j in joints]
+    return path, model, model.createData(), joints
+
+
+def full_configuration(model, joints, q):
+    """Pinocchio's configuration vector with `joints` at `q`, the rest neutral."""
     full = pin.neutral(model)
     for j, value in zip(joints, q, strict=True):
         joint = model.joints[j]
@@ -58,19 +71,18 @@ def pinocchio_pose(model, data, joints, q, base, tool):
             full[joint.idx_q : joint.idx_q + 2] = np.cos(value), np.sin(value)
         else:
             full[joint.idx_q] = value
+    return full
+
+
+def pinocchio_pose(model, data, joints, q, base, tool):
+    full = full_configuration(model, joints, q)
     pin.framesForwardKinematics(model, data, full)
     return data.oMf[model.getFrameId(base)].actInv(data.oMf[model.getFrameId(tool)])
 
 
 @pytest.mark.parametrize(("urdf", "base", "tool", "dof"), ARMS, ids=[a[0].split("/")[-1] for a in ARMS])
 def test_forward_kinematics_equal_pinocchios(urdf, base, tool, dof):
-    path = ROBOTS / urdf
-    if not path.is_file():
-        pytest.skip(f"example-robot-data has no {urdf}")
-    model = pin.buildModelFromUrdf(str(path))
-    data = model.createData()
-    joints = chain_joints(model, base, tool)
-    assert len(joints) == dof, [model.names[j] for j in joints]
+    path, model, data, joints = arm(urdf, base, tool, dof)
     qs = configurations(model, joints, 1000, np.random.default_rng(0))
     args = [f"--fk={','.join(repr(float(v)) for v in q)}" for q in qs]
     out = subprocess.run(
@@ -100,7 +112,7 @@ def test_a_tool_that_is_not_below_the_base_and_a_wrong_count_are_named():
     out = run("--base", "forearm_link", "--tool", "shoulder_link", "--fk=0")
     assert out.returncode != 0 and "'shoulder_link' is not a descendant of the base link 'forearm_link'" in out.stderr
     out = run("--tool", "tool0", "--fk=0,0")
-    assert out.returncode != 0 and "2 positions for the 6 movable joints" in out.stderr, out.stderr
+    assert out.returncode != 0 and "2 values for the 6 movable joints" in out.stderr, out.stderr
 
 
 @pytest.mark.parametrize("urdf", ["panda_description/urdf/panda.urdf", "ur_description/urdf/ur10_robot.urdf"])
@@ -134,3 +146,35 @@ def test_efforts_at_rest_equal_pinocchios_gravity_torques(urdf):
         bound = 0.04 * max(abs(theirs[name]), 0.1 * largest)
         print(f"{name}: effort {effort:.4f}, Pinocchio {theirs[name]:.4f}")
         assert diff <= bound, f"{name}: effort {effort} vs Pinocchio's {theirs[name]}"
+
+
+@pytest.mark.parametrize(("urdf", "base", "tool", "dof"), ARMS, ids=[a[0].split("/")[-1] for a in ARMS])
+def test_inverse_dynamics_equal_pinocchios(urdf, base, tool, dof):
+    """`twinbots urdf FILE --tool T --id 'q;qd;qdd'` prints the efforts of the chain's joints
+    (recursive Newton–Euler from the URDF's inertials, the links below the tool carried as a load);
+    at 200 random states (positions within the limits, speeds and accelerations within ±2) they
+    equal Pinocchio's `rnea` within 1e-9 (relative to the largest effort)."""
+    path, model, data, joints = arm(urdf, base, tool, dof)
+    rng = np.random.default_rng(11)
+    qs = configurations(model, joints, 200, rng)
+    qds, qdds = rng.uniform(-2, 2, size=qs.shape), rng.uniform(-2, 2, size=qs.shape)
+
+    def listed(v):
+        return ",".join(repr(float(x)) for x in v)
+
+    args = [f"--id={listed(q)};{listed(qd)};{listed(qdd)}" for q, qd, qdd in zip(qs, qds, qdds, strict=True)]
+    out = subprocess.run([twinbots_bin(), "urdf", str(path), "--base", base, "--tool", tool, *args],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    rows = [list(map(float, line.split())) for line in out.stdout.splitlines()]
+    assert len(rows) == len(qs)
+    worst = 0.0
+    for q, qd, qdd, ours in zip(qs, qds, qdds, rows, strict=True):
+        full_q, full_v, full_a = full_configuration(model, joints, q), np.zeros(model.nv), np.zeros(model.nv)
+        for k, j in enumerate(joints):
+            full_v[model.joints[j].idx_v], full_a[model.joints[j].idx_v] = qd[k], qdd[k]
+        tau = pin.rnea(model, data, full_q, full_v, full_a)
+        theirs = np.array([tau[model.joints[j].idx_v] for j in joints])
+        worst = max(worst, np.max(np.abs(np.array(ours) - theirs)) / max(1.0, np.max(np.abs(theirs))))
+    print(f"{urdf}: worst relative difference {worst:.2e}")
+    assert worst < 1e-9, f"efforts off by {worst:.3e} (relative)"

@@ -8,6 +8,9 @@ use anyhow::Context;
 use std::path::{Path, PathBuf};
 
 use twinbots_log::rtde_csv::Efforts;
+use twinbots_sim::urdf::dynamics::Dynamics;
+use twinbots_sim::urdf::robot_file::RobotFile;
+use twinbots_sysid::effort_model::{ArmCalibration, EffortModel, Shadow, read_motions, rmse};
 use twinbots_sysid::identify::{Fit, FitOptions};
 use twinbots_sysid::report::{calibration_of, validate};
 use twinbots_sysid::{PreparedLog, Rig, identify, prepare};
@@ -18,7 +21,8 @@ use twinbots_run::registry;
 /// The command's arguments.
 #[derive(clap::Args)]
 pub struct Args {
-    /// The robot (`twinbots robots` lists them).
+    /// The robot (`twinbots robots` lists them), or a robot file (`*.toml`: its effort model is
+    /// fitted to the logs' efforts, docs/logs.md).
     pub robot: String,
     /// Logs to fit (`.mcap` or `.csv`).
     pub logs: Vec<PathBuf>,
@@ -43,6 +47,10 @@ pub struct Args {
     /// controller's model torque) or `current:K0,…,K5` (actual currents × torque constants).
     #[arg(long, default_value = "none", value_parser = twinbots_log::rtde_csv::Efforts::parse)]
     pub efforts: twinbots_log::rtde_csv::Efforts,
+    /// A robot file's shadow: its thresholds are this many times what the residuals reached on
+    /// the (undisturbed) fitted logs.
+    #[arg(long, default_value_t = 1.5)]
+    pub margin: f64,
     /// CMA-ES generations of the joints' search (the delay's take a third to a half of it).
     #[arg(long, default_value_t = 16)]
     pub generations: usize,
@@ -56,6 +64,9 @@ pub struct Args {
 
 /// `twinbots identify`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    if RobotFile::is_path(&args.robot) {
+        return exec_arm(args);
+    }
     let rig = Rig::of(&registry::find(&args.robot)?)?;
     if args.list_params {
         for p in &rig.catalogue {
@@ -135,6 +146,92 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `identify ROBOT.toml`: the arm's effort model by least squares on the logs' efforts (the
+/// fitted logs undisturbed: the shadow's thresholds are learned from them), judged against the
+/// vendor's description on them and on the held-out logs; nothing is written if it is worse.
+fn exec_arm(args: Args) -> anyhow::Result<()> {
+    let robot = RobotFile::read(Path::new(&args.robot))?;
+    let dynamics = Dynamics::of(&robot.chain);
+    anyhow::ensure!(!args.logs.is_empty(), "no logs to fit: give one or more LOG files");
+    let Some(out) = args.out.clone() else { anyhow::bail!("--out DIR is required: where calibration.toml goes") };
+    anyhow::ensure!(
+        args.efforts != Efforts::None,
+        "--efforts: a robot file's calibration fits efforts (current:K0,…,K5 or target_moment)"
+    );
+    anyhow::ensure!(args.margin.is_finite() && args.margin >= 1.0, "--margin must be at least 1");
+    let started = std::time::Instant::now();
+    let fitting = read_motions(&robot, &args.logs, &args.efforts)?;
+    let held_out = read_motions(&robot, &args.validate, &args.efforts)?;
+    std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
+    let samples: usize = fitting.iter().map(|m| m.time.len()).sum();
+    println!("{}: fitting the effort model to {} log(s), {samples} samples", robot.name, fitting.len());
+    let model = EffortModel::fit(&dynamics, &fitting)?;
+    let nominal = EffortModel::nominal(&dynamics);
+    let mut rows = Vec::new();
+    let mut worse = Vec::new();
+    println!("effort RMSE (N*m), nominal -> calibrated, per joint:");
+    for (held, motion) in fitting.iter().map(|m| (false, m)).chain(held_out.iter().map(|m| (true, m))) {
+        let before = rmse(&motion.effort, &nominal.efforts(&dynamics, motion));
+        let after = rmse(&motion.effort, &model.efforts(&dynamics, motion));
+        let cells: Vec<String> = before
+            .iter()
+            .zip(&after)
+            .map(|(b, a)| format!("{b:.2}->{a:.2} ({:+.0} %)", (a / b - 1.0) * 100.0))
+            .collect();
+        println!("  {} {}: {}", if held { "held out" } else { "fitted  " }, motion.name, cells.join("  "));
+        if after.iter().sum::<f64>() > before.iter().sum::<f64>() {
+            worse.push(motion.name.clone());
+        }
+        rows.push(serde_json::json!({ "log": motion.name, "held_out": held, "rmse_nominal": before, "rmse_calibrated": after }));
+    }
+    write_json(
+        &out.join("fit.json"),
+        &serde_json::json!({ "robot": robot.name, "joints": joint_names(&robot), "samples": samples, "logs": rows, "model": model }),
+    )?;
+    anyhow::ensure!(
+        worse.is_empty(),
+        "the fit predicts the efforts of {} worse than the robot's description: calibration.toml not written (fit.json says how it went)",
+        worse.join(", ")
+    );
+    let shadow = Shadow::learn(&model, &dynamics, &fitting, args.margin);
+    let shown = held_out.first().unwrap_or(&fitting[0]);
+    let time: Vec<f64> = shown.time.iter().map(|t| t - shown.time[0]).collect();
+    twinbots_sysid::plot::efforts_png(
+        &out.join("efforts.png"),
+        &format!(
+            "{}: efforts, {} ({})",
+            robot.name,
+            shown.name,
+            if held_out.is_empty() { "fitted" } else { "held out" }
+        ),
+        &joint_names(&robot),
+        &time,
+        &[
+            ("measured", &shown.effort),
+            ("twin (nominal)", &nominal.efforts(&dynamics, shown)),
+            ("twin (calibrated)", &model.efforts(&dynamics, shown)),
+        ],
+    )?;
+    let calibration = ArmCalibration {
+        robot: robot.name.clone(),
+        efforts: args.efforts.to_string(),
+        logs: fitting.iter().map(|m| m.name.clone()).collect(),
+        model,
+        shadow,
+    };
+    calibration.write(&out.join("calibration.toml"))?;
+    println!(
+        "{:.1} s; wrote {}/calibration.toml, fit.json and efforts.png",
+        started.elapsed().as_secs_f64(),
+        out.display()
+    );
+    Ok(())
+}
+
+fn joint_names(robot: &RobotFile) -> Vec<String> {
+    robot.chain.movable().map(|j| j.name.clone()).collect()
+}
+
 fn seconds(rig: &Rig, logs: &[PreparedLog]) -> f64 {
     logs.iter().map(|l| l.reference.len() as f64 * rig.dt()).sum()
 }
@@ -158,7 +255,8 @@ fn prepare_all(rig: &Rig, paths: &[PathBuf], efforts: &Efforts) -> anyhow::Resul
     paths
         .iter()
         .map(|path| {
-            let log = twinbots_log::read_with(path, efforts)?;
+            let mapping = twinbots_log::Mapping { efforts: efforts.clone(), controller_joints: rig.joints.clone() };
+            let log = twinbots_log::read_mapped(path, &mapping)?;
             let name = path.display().to_string();
             prepare(rig, &log, &name).map_err(|e| anyhow::anyhow!("{name}: {e:#}"))
         })

@@ -220,11 +220,34 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
     println!("monitor: following {label} from t = {:.3} s (the twin settles 0.5 s before it compares)", first.time);
     let mut next_line = first.time + 1.0;
+    // Every way the run ends writes what was followed: the controller going, Ctrl-C or
+    // SIGTERM, --seconds, and a report that cannot be followed (then the error, after writing).
+    twinbots_ops::stop_signal::install();
+    let mut failure: Option<anyhow::Error> = None;
+    let mut last_time = first.time;
     let ended = loop {
-        let r = match source.next()? {
-            Ok(r) => r,
-            Err(e) => break Some(e),
+        if let Some(signal) = twinbots_ops::stop_signal::requested() {
+            break Some(format!("stopped by {signal}"));
+        }
+        let r = match source.next() {
+            Ok(Ok(r)) => r,
+            Ok(Err(e)) => break Some(e),
+            Err(e) => {
+                let text = format!("{e:#}");
+                failure = Some(e);
+                break Some(text);
+            }
         };
+        if !(r.time > last_time) {
+            let e = anyhow::anyhow!(
+                "the controller's clock read {} s after {last_time} s: it stood still, ran back or is not a number",
+                r.time
+            );
+            let text = e.to_string();
+            failure = Some(e);
+            break Some(text);
+        }
+        last_time = r.time;
         for alarm in monitor.observe(&r) {
             println!("[{:9.3} s] ALARM {}: {}", alarm.time, alarm.kind, alarm.message);
         }
@@ -240,7 +263,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         }
     };
     if let Some(e) = &ended {
-        println!("monitor: the controller went ({e}); writing what was followed");
+        println!("monitor: ended ({e}); writing what was followed");
     }
     let account = monitor.report();
     twinbots_log::write(&monitor.robot_log, &args.out.join("robot.mcap"))?;
@@ -266,7 +289,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         account.worst_effort_rmse.iter().cloned().fold(0.0, f64::max),
         args.out.display()
     );
-    Ok(())
+    match failure {
+        Some(e) => Err(e.context(format!("what was followed is written to {}", args.out.display()))),
+        None => Ok(()),
+    }
 }
 
 /// The running account: a line a second.

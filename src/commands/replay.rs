@@ -1,9 +1,15 @@
 //! `twinbots replay <robot> LOG`: the twin starts in the logged state, takes the logged commands
 //! at the logged times, and is compared with the log per joint; writes a PNG of twin vs log and
-//! the twin's trajectory as a log beside it.
+//! the twin's trajectory as a log beside it. With a robot file (`*.toml`) as the robot: the
+//! twin's efforts along the logged motion against the logged ones, and the shadow's flags where
+//! they part (docs/logs.md).
 
 use anyhow::Context;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use twinbots_sim::urdf::dynamics::Dynamics;
+use twinbots_sim::urdf::robot_file::RobotFile;
+use twinbots_sysid::effort_model::{ArmCalibration, EffortModel, Motion, residuals, rmse};
 
 use twinbots_sysid::replay::twin_log;
 use twinbots_sysid::{Rig, compare, prepare, run};
@@ -13,7 +19,7 @@ use twinbots_run::registry;
 /// The command's arguments.
 #[derive(clap::Args)]
 pub struct Args {
-    /// The robot (`twinbots robots` lists them).
+    /// The robot (`twinbots robots` lists them), or a robot file (`*.toml`).
     pub robot: String,
     /// The robot's log (`.mcap` or `.csv`, see docs/logs.md).
     pub log: PathBuf,
@@ -34,10 +40,14 @@ pub struct Args {
 
 /// `twinbots replay`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    if RobotFile::is_path(&args.robot) {
+        return exec_arm(args);
+    }
     let rig = Rig::of(&registry::find(&args.robot)?)?;
     let calibration = rig.read_calibration(args.calibration.as_deref())?;
     anyhow::ensure!(args.threshold > 0.0, "--threshold must be positive");
-    let log = twinbots_log::read_with(&args.log, &args.efforts)?;
+    let mapping = twinbots_log::Mapping { efforts: args.efforts.clone(), controller_joints: rig.joints.clone() };
+    let log = twinbots_log::read_mapped(&args.log, &mapping)?;
     let name = args.log.display().to_string();
     let prepared = prepare(&rig, &log, &name).map_err(|e| anyhow::anyhow!("{name}: {e:#}"))?;
     let params = rig.parameters(&calibration)?;
@@ -55,5 +65,100 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     twinbots_log::write(&twin_log(&rig, &prepared, &twin, &bias, &calibration_name), &out.join("twin.mcap"))?;
     twinbots_api::files::write_json(&out.join("replay.json"), &report)?;
     println!("wrote {}/replay.png, twin.mcap, replay.json", out.display());
+    Ok(())
+}
+
+/// `replay ROBOT.toml LOG`: the efforts the twin predicts along the logged motion (the robot's
+/// description as it stands, and calibrated with `--calibration`) against the logged ones, per
+/// joint; with a calibration, the shadow's residuals, thresholds and flagged intervals.
+fn exec_arm(args: Args) -> anyhow::Result<()> {
+    let robot = RobotFile::read(Path::new(&args.robot))?;
+    let dynamics = Dynamics::of(&robot.chain);
+    let calibration = args.calibration.as_deref().map(|p| ArmCalibration::read(p, &robot, &dynamics)).transpose()?;
+    if let (Some(c), Some(path)) = (&calibration, &args.calibration) {
+        anyhow::ensure!(
+            c.efforts == args.efforts.to_string(),
+            "{}: fitted to efforts read as '{}', but --efforts is '{}': read the log as it was calibrated",
+            path.display(),
+            c.efforts,
+            args.efforts
+        );
+    }
+    let name = args.log.display().to_string();
+    let mapping = twinbots_log::Mapping { efforts: args.efforts.clone(), controller_joints: robot.joints.clone() };
+    let log = twinbots_log::read_mapped(&args.log, &mapping)?;
+    let motion = Motion::of_log(&robot, &log, &name)?;
+    let joints: Vec<String> = robot.chain.movable().map(|j| j.name.clone()).collect();
+    let nominal = EffortModel::nominal(&dynamics);
+    let rmse_nominal = rmse(&motion.effort, &nominal.efforts(&dynamics, &motion));
+    let model = calibration.as_ref().map_or(&nominal, |c| &c.model);
+    let predicted = model.efforts(&dynamics, &motion);
+    let rmse_calibrated = calibration.as_ref().map(|_| rmse(&motion.effort, &predicted));
+    println!("{name}: {:.1} s, effort RMSE per joint (N*m)", motion.time.last().unwrap_or(&0.0) - motion.time[0]);
+    for (j, joint) in joints.iter().enumerate() {
+        match &rmse_calibrated {
+            Some(c) => println!(
+                "  {joint:<24} nominal {:>8.3}  calibrated {:>8.3} ({:+.0} %)",
+                rmse_nominal[j],
+                c[j],
+                (c[j] / rmse_nominal[j] - 1.0) * 100.0
+            ),
+            None => println!("  {joint:<24} nominal {:>8.3}", rmse_nominal[j]),
+        }
+    }
+    let residual = residuals(model, &dynamics, &motion);
+    let (thresholds, flags) = match &calibration {
+        Some(c) => (Some(c.shadow.thresholds(&motion)), c.shadow.flags(&motion, &residual)),
+        None => {
+            println!("no --calibration: no shadow thresholds, nothing flagged");
+            (None, Vec::new())
+        }
+    };
+    for f in &flags {
+        let which: Vec<&str> = f.joints.iter().map(|&j| joints[j].as_str()).collect();
+        println!("flagged {:.2}-{:.2} s: {} ({:.2} x the threshold)", f.start, f.end, which.join(", "), f.peak);
+    }
+    if calibration.is_some() {
+        println!("{} flagged interval(s)", flags.len());
+    }
+    let out = args.out.unwrap_or_else(|| PathBuf::from(format!("{}.replay", args.log.display())));
+    std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
+    let time: Vec<f64> = motion.time.iter().map(|t| t - motion.time[0]).collect();
+    let spans: Vec<(f64, f64)> = flags.iter().map(|f| (f.start, f.end)).collect();
+    twinbots_sysid::plot::shadow_png(
+        &out.join("replay.png"),
+        &format!("{}: the shadow on {name}", robot.name),
+        &joints,
+        &time,
+        &residual,
+        thresholds.as_deref(),
+        &spans,
+    )?;
+    let mut lines: Vec<(&str, &[Vec<f64>])> = vec![("measured", &motion.effort)];
+    let nominal_efforts = nominal.efforts(&dynamics, &motion);
+    lines.push(("twin (nominal)", &nominal_efforts));
+    if calibration.is_some() {
+        lines.push(("twin (calibrated)", &predicted));
+    }
+    twinbots_sysid::plot::efforts_png(
+        &out.join("efforts.png"),
+        &format!("{}: efforts, {name}", robot.name),
+        &joints,
+        &time,
+        &lines,
+    )?;
+    let report = serde_json::json!({
+        "robot": robot.name,
+        "log": name,
+        "joints": joints,
+        "rmse_nominal": rmse_nominal,
+        "rmse_calibrated": rmse_calibrated,
+        "flagged": flags.iter().map(|f| serde_json::json!({
+            "start": f.start, "end": f.end, "peak": f.peak,
+            "joints": f.joints.iter().map(|&j| joints[j].clone()).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+    });
+    twinbots_api::files::write_json(&out.join("replay.json"), &report)?;
+    println!("wrote {}/replay.png, efforts.png, replay.json", out.display());
     Ok(())
 }

@@ -43,6 +43,10 @@ pub struct Args {
     /// TLS: the name the server's certificate must bear (default: the --server IP address).
     #[arg(long, requires = "tls_ca")]
     pub tls_name: Option<String>,
+    /// Send the token to a server beyond this machine without TLS (a trusted network only: the
+    /// token and every observation travel in clear).
+    #[arg(long)]
+    pub insecure: bool,
     /// With --policy: episodes to run before reporting their figures.
     #[arg(long, default_value_t = 10, conflicts_with = "server")]
     pub episodes: usize,
@@ -62,6 +66,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         (Some(server), _) => {
             anyhow::ensure!(args.patience >= 1, "--patience {}: must be at least 1 second", args.patience);
             let token = args.token.or_else(twinbots_link::token::from_env);
+            check_exposure(server, token.is_some(), args.tls_ca.is_some(), args.insecure)?;
             let tls = match &args.tls_ca {
                 Some(ca) => Some(ServerTlsLink {
                     tls: ClientTls::from_ca_file(ca)?,
@@ -86,4 +91,18 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         }
         (None, None) => unreachable!("clap requires --server or --policy"),
     }
+}
+
+/// A token goes beyond this machine only inside TLS, unless `--insecure` says the network is
+/// trusted (as `serve` asks of a server listening beyond loopback).
+fn check_exposure(server: std::net::SocketAddr, token: bool, tls: bool, insecure: bool) -> anyhow::Result<()> {
+    if !token || tls || server.ip().is_loopback() {
+        return Ok(());
+    }
+    anyhow::ensure!(
+        insecure,
+        "--server {server} is beyond this machine: its token would travel in clear; give --tls-ca (docs/protocol.md), or --insecure on a trusted network"
+    );
+    eprintln!("warning: --insecure: sending the token to {server} without TLS; anyone on the path can read it");
+    Ok(())
 }

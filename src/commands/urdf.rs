@@ -8,6 +8,7 @@ use twinbots_render::renderer::{Renderer, View};
 use twinbots_sim::rapier::prelude::Pose;
 use twinbots_sim::urdf::chain::Chain;
 use twinbots_sim::urdf::check::check;
+use twinbots_sim::urdf::dynamics::{Dynamics, GRAVITY};
 use twinbots_sim::urdf::{RobotModel, Shape};
 
 /// The command's arguments.
@@ -38,6 +39,12 @@ pub struct Args {
     /// (a line each).
     #[arg(long, requires = "tool", allow_hyphen_values = true)]
     pub fk: Vec<String>,
+    /// Inverse dynamics of the chain: `q1,…,qn;qd1,…;qdd1,…` (positions, speeds, accelerations of
+    /// its movable joints): prints the joint efforts (N·m or N) that move it so under gravity
+    /// (9.81 m/s² down the base's z), with the URDF's inertials, and nothing else. Repeat it for
+    /// more states (a line each).
+    #[arg(long = "id", requires = "tool", allow_hyphen_values = true)]
+    pub inverse_dynamics: Vec<String>,
 }
 
 /// `twinbots urdf`.
@@ -46,6 +53,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         let chain = Chain::from_file(&args.file, args.base.as_deref(), tool)?;
         if !args.fk.is_empty() {
             return print_poses(&chain, &args.fk);
+        }
+        if !args.inverse_dynamics.is_empty() {
+            return print_efforts(&chain, &args.inverse_dynamics);
         }
         let joints: Vec<&str> = chain.movable().map(|j| j.name.as_str()).collect();
         println!("chain {} -> {}: {} movable joints: {}", chain.base, chain.tool, joints.len(), joints.join(", "));
@@ -100,26 +110,48 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 fn print_poses(chain: &Chain, configurations: &[String]) -> anyhow::Result<()> {
     let mut out = String::new();
     for (k, text) in configurations.iter().enumerate() {
-        let q = text
-            .split(',')
-            .map(|v| v.trim().parse::<f64>().ok().filter(|v| v.is_finite()))
-            .collect::<Option<Vec<f64>>>()
-            .ok_or_else(|| anyhow::anyhow!("--fk #{}: '{text}' is not a list of finite numbers", k + 1))?;
-        anyhow::ensure!(
-            q.len() == chain.dof(),
-            "--fk #{}: {} positions for the {} movable joints from '{}' to '{}'",
-            k + 1,
-            q.len(),
-            chain.dof(),
-            chain.base,
-            chain.tool
-        );
+        let q = joint_values(chain, text, &format!("--fk #{}", k + 1))?;
         let pose = chain.forward(&q);
         let (t, r) = (pose.translation, pose.rotation);
         out += &format!("{:?} {:?} {:?} {:?} {:?} {:?} {:?}\n", t.x, t.y, t.z, r.x, r.y, r.z, r.w);
     }
     print!("{out}");
     Ok(())
+}
+
+/// `--id`: the efforts per state, every number as Rust prints an f64.
+fn print_efforts(chain: &Chain, states: &[String]) -> anyhow::Result<()> {
+    let dynamics = Dynamics::of(chain);
+    let mut out = String::new();
+    for (k, text) in states.iter().enumerate() {
+        let what = format!("--id #{}", k + 1);
+        let parts: Vec<&str> = text.split(';').collect();
+        anyhow::ensure!(parts.len() == 3, "{what}: '{text}' is not 'q…;qd…;qdd…'");
+        let v: Vec<Vec<f64>> = parts.iter().map(|p| joint_values(chain, p, &what)).collect::<anyhow::Result<_>>()?;
+        let tau = dynamics.inverse(&v[0], &v[1], &v[2], GRAVITY);
+        out += &tau.iter().map(|t| format!("{t:?}")).collect::<Vec<_>>().join(" ");
+        out.push('\n');
+    }
+    print!("{out}");
+    Ok(())
+}
+
+/// One finite value per movable joint of `chain`, from a comma-separated list.
+fn joint_values(chain: &Chain, text: &str, what: &str) -> anyhow::Result<Vec<f64>> {
+    let values = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>().ok().filter(|v| v.is_finite()))
+        .collect::<Option<Vec<f64>>>()
+        .ok_or_else(|| anyhow::anyhow!("{what}: '{text}' is not a list of finite numbers"))?;
+    anyhow::ensure!(
+        values.len() == chain.dof(),
+        "{what}: {} values for the {} movable joints from '{}' to '{}'",
+        values.len(),
+        chain.dof(),
+        chain.base,
+        chain.tool
+    );
+    Ok(values)
 }
 
 /// The centre and largest side of the box around the robot's visuals (and link frames) at

@@ -90,32 +90,6 @@ fn the_shadow_keeps_a_reckless_policy_off_the_table_and_inside_the_stops() {
     assert!(lowest < 0.1 && elbow > 2.5, "the policies did drive towards the limits: lowest {lowest}, elbow {elbow}");
 }
 
-/// An arm whose reports arrive `lag` late, recording what it was told.
-struct LateArm {
-    twin: TwinArm,
-    lag: Duration,
-    told: Vec<&'static str>,
-}
-
-impl Arm for LateArm {
-    fn read(&mut self) -> anyhow::Result<Measured> {
-        let mut m = self.twin.read()?;
-        m.received = Instant::now() - self.lag;
-        Ok(m)
-    }
-    fn command(&mut self, speeds: &[f64; 6]) -> anyhow::Result<()> {
-        self.told.push("command");
-        self.twin.command(speeds)
-    }
-    fn stop(&mut self) -> anyhow::Result<()> {
-        self.told.push("stop");
-        self.twin.stop()
-    }
-    fn describe(&self) -> String {
-        "a late arm".into()
-    }
-}
-
 #[test]
 fn deploy_refuses_mismatched_bundles_and_stops_a_late_or_silent_robot() {
     let dir = bundle("deploy-bad");
@@ -164,9 +138,11 @@ fn deploy_refuses_mismatched_bundles_and_stops_a_late_or_silent_robot() {
     // Reports that come 30 ms late: the first command misses its 20 ms deadline, the robot is
     // told to stop, and the error says why.
     let bundle = Bundle::read(&dir).unwrap();
-    let mut late = LateArm {
+    let mut late = TamperedArm {
         twin: TwinArm::new(&UrSimOptions::default(), None).unwrap(),
-        lag: Duration::from_millis(30),
+        reads: 0,
+        from: 0,
+        tamper: |m, _| m.received = Instant::now() - Duration::from_millis(30),
         told: Vec::new(),
     };
     let err = deploy(&mut late, &bundle, &DeployOptions::default(), |_| {}).unwrap_err().to_string();
@@ -257,4 +233,66 @@ fn a_bundle_carries_its_cell_and_the_shadow_keeps_the_arm_off_its_obstacles() {
     std::fs::remove_file(dir.join("cell.toml")).unwrap();
     let err = Bundle::read(&dir).err().expect("a bundle without its cell file").to_string();
     assert!(err.contains("cell.toml"), "{err}");
+}
+
+/// An arm whose reports, from the `from`-th on, are altered by `tamper`; it records what it was told.
+struct TamperedArm {
+    twin: TwinArm,
+    reads: usize,
+    from: usize,
+    tamper: fn(&mut Measured, usize),
+    told: Vec<&'static str>,
+}
+
+impl Arm for TamperedArm {
+    fn read(&mut self) -> anyhow::Result<Measured> {
+        let mut m = self.twin.read()?;
+        self.reads += 1;
+        if self.reads >= self.from {
+            (self.tamper)(&mut m, self.reads - self.from);
+        }
+        Ok(m)
+    }
+    fn command(&mut self, speeds: &[f64; 6]) -> anyhow::Result<()> {
+        self.told.push("command");
+        self.twin.command(speeds)
+    }
+    fn stop(&mut self) -> anyhow::Result<()> {
+        self.told.push("stop");
+        self.twin.stop()
+    }
+    fn describe(&self) -> String {
+        "a tampered arm".into()
+    }
+}
+
+/// A controller clock that stands still, runs back or is NaN, a joint reported beyond its range
+/// and a control program in a protective stop each end the deployment at once: the robot told
+/// to stop, the cause named (a frozen clock hung `deploy` for 619 s, homing on).
+#[test]
+fn a_frozen_clock_a_joint_out_of_range_or_a_stopped_program_stops_the_robot() {
+    let dir = bundle("deploy-fail-safe");
+    let bundle = Bundle::read(&dir).unwrap();
+    let cases: [(fn(&mut Measured, usize), &str); 5] = [
+        (|m, _| m.time = 100.0, "stood still or ran back"),
+        (|m, k| m.time = 100.0 - k as f64, "stood still or ran back"),
+        (|m, _| m.time = f64::NAN, "reported time NaN"),
+        (|m, _| m.q[2] = 4.0, "elbow_joint at 4.000 rad, beyond its range"),
+        (|m, _| m.program = 4, "protective stop"),
+    ];
+    for (tamper, expected) in cases {
+        let mut arm = TamperedArm {
+            twin: TwinArm::new(&UrSimOptions::default(), None).unwrap(),
+            reads: 0,
+            from: 50,
+            tamper,
+            told: Vec::new(),
+        };
+        let began = Instant::now();
+        let err = deploy(&mut arm, &bundle, &patient(3), |_| {}).unwrap_err().to_string();
+        assert!(err.contains(expected) && err.contains("told to stop"), "{expected}: {err}");
+        assert_eq!(arm.told.last(), Some(&"stop"), "{expected}");
+        assert!(arm.reads < 60, "{expected}: {} reads before it stopped", arm.reads);
+        assert!(began.elapsed() < Duration::from_secs(5), "{expected}: {:?}", began.elapsed());
+    }
 }

@@ -84,3 +84,45 @@ fn the_monitor_stays_quiet_beside_a_matching_robot() {
     let (alarms, worst) = follow(&UrSimOptions::default(), 20.0, Some(37));
     assert!(alarms.is_empty(), "{alarms:?} (worst effort RMSE {worst} N*m)");
 }
+
+/// `monitor` without `--seconds` ends on SIGTERM (as on Ctrl-C) and writes what it followed
+/// first; before, a run ended that way wrote nothing.
+#[test]
+fn the_monitor_writes_what_it_followed_when_terminated() {
+    use std::io::BufRead;
+    let standin = crate::rtde::Standin::start(0.1);
+    let out = std::env::temp_dir().join(format!("twinbots-monitor-sigterm-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let mut child = crate::delivery::twinbots()
+        .args(["monitor", "ur5e", "--rtde", &standin.address(), "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let (lines, said) = std::sync::mpsc::channel();
+    let stdout = child.stdout.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stdout).lines().map_while(Result::ok) {
+            let _ = lines.send(line);
+        }
+    });
+    // Wait for it to follow, then a second of reports.
+    loop {
+        let line = said.recv_timeout(std::time::Duration::from_secs(120)).expect("monitor never started following");
+        if line.contains("following") {
+            break;
+        }
+    }
+    std::thread::sleep(std::time::Duration::from_secs(1));
+    // SAFETY: a signal to our own child, by its pid.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+    let status = child.wait().unwrap();
+    reader.join().unwrap();
+    let printed: Vec<String> = said.try_iter().collect();
+    assert!(status.success(), "{status:?}: {printed:?}");
+    assert!(printed.iter().any(|l| l.contains("stopped by SIGTERM")), "{printed:?}");
+    for file in ["robot.mcap", "twin.mcap", "monitor.json", "divergence.png"] {
+        assert!(out.join(file).is_file(), "no {file}: {printed:?}");
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}

@@ -174,3 +174,17 @@ fn an_empty_token_is_refused_as_a_value() {
         assert!(stderr.contains("an empty token is refused"), "{stderr}");
     }
 }
+
+/// A token is not sent in clear beyond this machine: without TLS the robot refuses, naming
+/// `--tls-ca` and `--insecure`, before it connects (192.0.2.1 is TEST-NET-1: nothing answers).
+#[test]
+fn a_token_is_not_sent_in_clear_beyond_loopback() {
+    let output =
+        twinbots().args(["robot", "cartpole", "--server", "192.0.2.1:7878", "--token", "secret"]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "sent the token in clear");
+    assert!(
+        stderr.contains("travel in clear") && stderr.contains("--tls-ca") && stderr.contains("--insecure"),
+        "{stderr}"
+    );
+}

@@ -11,4 +11,5 @@ pub mod pacer;
 pub mod realtime;
 #[cfg(feature = "ros2")]
 pub mod ros2;
+pub mod stop_signal;
 pub mod ur_sim;

@@ -55,6 +55,69 @@ float64 w
 "
 );
 
+/// `std_msgs/msg/Float64MultiArray`: what `ros2_controllers`' forward command controllers take
+/// (`/forward_position_controller/commands`, …), a value per joint of the controller's own list.
+pub const FLOAT64_MULTI_ARRAY_SCHEMA: &str = "std_msgs/MultiArrayLayout layout
+float64[] data
+================================================================================
+MSG: std_msgs/MultiArrayLayout
+std_msgs/MultiArrayDimension[] dim
+uint32 data_offset
+================================================================================
+MSG: std_msgs/MultiArrayDimension
+string label
+uint32 size
+uint32 stride
+";
+
+/// `trajectory_msgs/msg/JointTrajectory`: what joint trajectory controllers take.
+pub const JOINT_TRAJECTORY_SCHEMA: &str = concat!(
+    "std_msgs/Header header
+string[] joint_names
+JointTrajectoryPoint[] points
+",
+    header_schema!(),
+    "================================================================================
+MSG: trajectory_msgs/JointTrajectoryPoint
+float64[] positions
+float64[] velocities
+float64[] accelerations
+float64[] effort
+builtin_interfaces/Duration time_from_start
+================================================================================
+MSG: builtin_interfaces/Duration
+int32 sec
+uint32 nanosec
+"
+);
+
+/// A decoded Float64MultiArray (the layout's dimensions as label, size, stride).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Float64MultiArrayMsg {
+    pub dim: Vec<(String, u32, u32)>,
+    pub data_offset: u32,
+    pub data: Vec<f64>,
+}
+
+/// One point of a JointTrajectory (`time_from_start` in s).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TrajectoryPoint {
+    pub positions: Vec<f64>,
+    pub velocities: Vec<f64>,
+    pub accelerations: Vec<f64>,
+    pub effort: Vec<f64>,
+    pub time_from_start: f64,
+}
+
+/// A decoded JointTrajectory.
+#[derive(Clone, Debug, PartialEq)]
+pub struct JointTrajectoryMsg {
+    pub stamp: f64,
+    pub frame_id: String,
+    pub joint_names: Vec<String>,
+    pub points: Vec<TrajectoryPoint>,
+}
+
 /// A decoded JointState (times as seconds).
 #[derive(Clone, Debug, PartialEq)]
 pub struct JointStateMsg {
@@ -109,11 +172,14 @@ impl Writer {
         self.u32(v.len() as u32);
         v.iter().for_each(|&x| self.f64(x));
     }
-    fn header(&mut self, stamp: f64, frame_id: &str) {
-        let sec = stamp.floor();
-        let nanosec = ((stamp - sec) * 1e9).round().min(999_999_999.0);
+    fn time(&mut self, t: f64) {
+        let sec = t.floor();
+        let nanosec = ((t - sec) * 1e9).round().min(999_999_999.0);
         self.i32(sec as i32);
         self.u32(nanosec as u32);
+    }
+    fn header(&mut self, stamp: f64, frame_id: &str) {
+        self.time(stamp);
         self.string(frame_id);
     }
 }
@@ -178,10 +244,76 @@ impl<'a> Reader<'a> {
         let n = self.count()?;
         (0..n).map(|_| self.f64()).collect()
     }
-    fn header(&mut self) -> anyhow::Result<(f64, String)> {
+    fn time(&mut self) -> anyhow::Result<f64> {
         let sec = self.i32()?;
         let nanosec = self.u32()?;
-        Ok((sec as f64 + nanosec as f64 * 1e-9, self.string()?))
+        Ok(sec as f64 + nanosec as f64 * 1e-9)
+    }
+    fn header(&mut self) -> anyhow::Result<(f64, String)> {
+        let stamp = self.time()?;
+        Ok((stamp, self.string()?))
+    }
+    fn strings(&mut self) -> anyhow::Result<Vec<String>> {
+        let n = self.count()?;
+        (0..n).map(|_| self.string()).collect()
+    }
+}
+
+impl Float64MultiArrayMsg {
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = Writer::new();
+        w.u32(self.dim.len() as u32);
+        for (label, size, stride) in &self.dim {
+            w.string(label);
+            w.u32(*size);
+            w.u32(*stride);
+        }
+        w.u32(self.data_offset);
+        w.f64s(&self.data);
+        w.buf
+    }
+
+    pub fn decode(buf: &[u8]) -> anyhow::Result<Self> {
+        let mut r = Reader::new(buf)?;
+        let n = r.count()?;
+        let dim = (0..n).map(|_| Ok((r.string()?, r.u32()?, r.u32()?))).collect::<anyhow::Result<_>>()?;
+        Ok(Self { dim, data_offset: r.u32()?, data: r.f64s()? })
+    }
+}
+
+impl JointTrajectoryMsg {
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = Writer::new();
+        w.header(self.stamp, &self.frame_id);
+        w.u32(self.joint_names.len() as u32);
+        self.joint_names.iter().for_each(|n| w.string(n));
+        w.u32(self.points.len() as u32);
+        for p in &self.points {
+            for v in [&p.positions, &p.velocities, &p.accelerations, &p.effort] {
+                w.f64s(v);
+            }
+            w.time(p.time_from_start);
+        }
+        w.buf
+    }
+
+    pub fn decode(buf: &[u8]) -> anyhow::Result<Self> {
+        let mut r = Reader::new(buf)?;
+        let (stamp, frame_id) = r.header()?;
+        let joint_names = r.strings()?;
+        let n = r.count()?;
+        let points = (0..n)
+            .map(|_| {
+                Ok(TrajectoryPoint {
+                    positions: r.f64s()?,
+                    velocities: r.f64s()?,
+                    accelerations: r.f64s()?,
+                    effort: r.f64s()?,
+                    time_from_start: r.time()?,
+                })
+            })
+            .collect::<anyhow::Result<_>>()?;
+        Ok(Self { stamp, frame_id, joint_names, points })
     }
 }
 
@@ -247,6 +379,24 @@ mod tests {
         // Each double starts at a multiple of 8 from the header's end.
         let first_position = bytes.windows(8).position(|w| w == 0.5f64.to_le_bytes()).unwrap();
         assert_eq!((first_position - 4) % 8, 0);
+    }
+
+    #[test]
+    fn command_messages_round_trip() {
+        let array = Float64MultiArrayMsg { dim: vec![("joints".into(), 2, 2)], data_offset: 0, data: vec![0.5, -1.5] };
+        assert_eq!(Float64MultiArrayMsg::decode(&array.encode()).unwrap(), array);
+        let trajectory = JointTrajectoryMsg {
+            stamp: 3.5,
+            frame_id: String::new(),
+            joint_names: vec!["a".into(), "b".into()],
+            points: vec![
+                TrajectoryPoint { positions: vec![0.1, 0.2], time_from_start: 0.008, ..Default::default() },
+                TrajectoryPoint { velocities: vec![1.0, 2.0], time_from_start: 1.25, ..Default::default() },
+            ],
+        };
+        assert_eq!(JointTrajectoryMsg::decode(&trajectory.encode()).unwrap(), trajectory);
+        let bytes = trajectory.encode();
+        assert!(JointTrajectoryMsg::decode(&bytes[..bytes.len() - 3]).is_err());
     }
 
     #[test]

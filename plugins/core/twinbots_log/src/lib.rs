@@ -54,8 +54,23 @@ pub const MAX_CSV_BYTES: u64 = 1 << 30;
 
 /// [`read`], a UR recording's efforts taken as `efforts` says.
 pub fn read_with(path: &Path, efforts: &rtde_csv::Efforts) -> anyhow::Result<RobotLog> {
+    read_mapped(path, &Mapping { efforts: efforts.clone(), controller_joints: Vec::new() })
+}
+
+/// How a recording maps onto the robot: where a UR recording's efforts come from, and the
+/// robot's controller order of its joints, which commands that name no joints follow (a ROS 2
+/// forward controller's, [`mcap_file::from_bytes_mapped`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Mapping {
+    pub efforts: rtde_csv::Efforts,
+    pub controller_joints: Vec<String>,
+}
+
+/// [`read`] with a [`Mapping`].
+pub fn read_mapped(path: &Path, mapping: &Mapping) -> anyhow::Result<RobotLog> {
+    let efforts = &mapping.efforts;
     let log = match Format::of(path)? {
-        Format::Mcap => mcap_file::read(path),
+        Format::Mcap => mcap_file::read(path, &mapping.controller_joints),
         Format::Csv => csv_text(path).and_then(|text| {
             let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
             if rtde_csv::is_rtde_header(first) { rtde_csv::from_str(&text, efforts) } else { csv_file::from_str(&text) }
@@ -142,6 +157,93 @@ mod tests {
         assert_eq!(back.commands, log.commands);
         assert_eq!(back.tool, log.tool);
         assert_eq!(back.meta.robot, "arm");
+    }
+
+    /// A rosbag2 recording of a UR's ROS 2 driver: `/joint_states` in the driver's (alphabetical)
+    /// order, the forward velocity controller's `Float64MultiArray` and a trajectory controller's
+    /// `JointTrajectory`, written with the mcap crate as rosbag2 writes them.
+    fn ros2_bag(array_topic: &str, array_len: usize) -> Vec<u8> {
+        use crate::cdr::{
+            FLOAT64_MULTI_ARRAY_SCHEMA, Float64MultiArrayMsg, JOINT_STATE_SCHEMA, JOINT_TRAJECTORY_SCHEMA,
+            JointStateMsg, JointTrajectoryMsg, TrajectoryPoint,
+        };
+        use mcap::records::MessageHeader;
+        let mut w = mcap::WriteOptions::new()
+            .compression(None)
+            .profile("ros2")
+            .create(std::io::Cursor::new(Vec::new()))
+            .unwrap();
+        let none = std::collections::BTreeMap::new();
+        let schema =
+            |w: &mut mcap::Writer<_>, name: &str, text: &str| w.add_schema(name, "ros2msg", text.as_bytes()).unwrap();
+        let s = schema(&mut w, "sensor_msgs/msg/JointState", JOINT_STATE_SCHEMA);
+        let states = w.add_channel(s, "/joint_states", "cdr", &none).unwrap();
+        let s = schema(&mut w, "std_msgs/msg/Float64MultiArray", FLOAT64_MULTI_ARRAY_SCHEMA);
+        let array = w.add_channel(s, array_topic, "cdr", &none).unwrap();
+        let s = schema(&mut w, "trajectory_msgs/msg/JointTrajectory", JOINT_TRAJECTORY_SCHEMA);
+        let trajectory =
+            w.add_channel(s, "/scaled_joint_trajectory_controller/joint_trajectory", "cdr", &none).unwrap();
+        let write = |w: &mut mcap::Writer<_>, channel_id: u16, seq: u32, t: f64, data: Vec<u8>| {
+            let time = (t * 1e9) as u64;
+            w.write_to_known_channel(
+                &MessageHeader { channel_id, sequence: seq, log_time: time, publish_time: time },
+                &data,
+            )
+            .unwrap();
+        };
+        for k in 0..20u32 {
+            let t = 100.0 + k as f64 * 0.002;
+            let state = JointStateMsg {
+                stamp: t,
+                frame_id: String::new(),
+                name: vec!["elbow_joint".into(), "shoulder_pan_joint".into()],
+                position: vec![k as f64 * 0.01, 0.5],
+                velocity: vec![0.0, 0.0],
+                effort: vec![],
+            };
+            write(&mut w, states, k + 1, t, state.encode());
+            let command = Float64MultiArrayMsg { dim: vec![], data_offset: 0, data: vec![0.25; array_len] };
+            write(&mut w, array, k + 1, t + 0.001, command.encode());
+        }
+        let points = vec![
+            TrajectoryPoint { positions: vec![0.5, 0.1], time_from_start: 0.01, ..Default::default() },
+            TrajectoryPoint { positions: vec![0.6, 0.2], time_from_start: 0.02, ..Default::default() },
+        ];
+        let goal = JointTrajectoryMsg {
+            stamp: 100.005,
+            frame_id: String::new(),
+            joint_names: vec!["shoulder_pan_joint".into(), "elbow_joint".into()],
+            points,
+        };
+        write(&mut w, trajectory, 1, 100.005, goal.encode());
+        w.finish().unwrap();
+        w.into_inner().into_inner()
+    }
+
+    #[test]
+    fn a_ros2_bag_gives_its_controllers_commands_in_the_robots_order() {
+        let order: Vec<String> = vec!["shoulder_pan_joint".into(), "elbow_joint".into()];
+        let log = mcap_file::from_bytes_mapped(&ros2_bag("/forward_velocity_controller/commands", 2), &order).unwrap();
+        assert_eq!(log.joints, vec!["elbow_joint".to_string(), "shoulder_pan_joint".into()]);
+        let speeds: Vec<_> = log.commands.iter().filter(|c| c.modes[0] == CommandMode::Velocity).collect();
+        assert_eq!(speeds.len(), 20);
+        assert_eq!((speeds[0].joints.clone(), speeds[0].values.clone()), (order.clone(), vec![0.25, 0.25]));
+        assert!((speeds[0].time - 100.001).abs() < 1e-9, "{}", speeds[0].time);
+        let targets: Vec<_> = log.commands.iter().filter(|c| c.modes[0] == CommandMode::Position).collect();
+        assert_eq!(targets.len(), 2);
+        assert!((targets[1].time - 100.025).abs() < 1e-9 && targets[1].values == vec![0.6, 0.2], "{:?}", targets[1]);
+        assert!(log.commands.windows(2).all(|w| w[0].time <= w[1].time));
+        log.validate().unwrap();
+
+        let err = mcap_file::from_bytes(&ros2_bag("/forward_velocity_controller/commands", 2)).unwrap_err().to_string();
+        assert!(err.contains("/forward_velocity_controller/commands") && err.contains("name no joints"), "{err}");
+        let err = mcap_file::from_bytes_mapped(&ros2_bag("/forward_velocity_controller/commands", 3), &order)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("message 1: 3 values for the controller's 2 joints"), "{err}");
+        let err =
+            mcap_file::from_bytes_mapped(&ros2_bag("/my_controller/commands", 2), &order).unwrap_err().to_string();
+        assert!(err.contains("/my_controller/commands") && err.contains("does not say their interface"), "{err}");
     }
 
     #[test]

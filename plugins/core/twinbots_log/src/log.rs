@@ -4,6 +4,16 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+/// The longest a log's joint states may be apart (s): a clock that jumps (by 10⁶ s, say) is a
+/// damaged log, not a pause to replay.
+pub const MAX_GAP: f64 = 60.0;
+/// The largest joint position a log may hold (rad or m): a thousand and more turns is a damaged value.
+pub const MAX_POSITION: f64 = 1e4;
+/// The largest joint speed (rad/s or m/s).
+pub const MAX_VELOCITY: f64 = 1e4;
+/// The largest effort or command (N·m or N).
+pub const MAX_EFFORT: f64 = 1e7;
+
 /// What the log says about itself (MCAP metadata record `twinbots`; CSV `#` header lines).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LogMeta {
@@ -118,6 +128,12 @@ impl RobotLog {
             let at = || format!("joint state {i} (t = {} s)", s.time);
             anyhow::ensure!(s.time.is_finite(), "{}: time is not a finite number", at());
             anyhow::ensure!(s.time > last, "{}: times are not increasing (previous {last} s)", at());
+            anyhow::ensure!(
+                i == 0 || s.time - last <= MAX_GAP,
+                "{}: {:.3} s after the sample before (previous {last} s): a log's samples are at most {MAX_GAP} s apart",
+                at(),
+                s.time - last
+            );
             last = s.time;
             anyhow::ensure!(s.position.len() == n, "{}: {} positions for {n} joints", at(), s.position.len());
             anyhow::ensure!(s.velocity.len() == n, "{}: {} velocities for {n} joints", at(), s.velocity.len());
@@ -127,9 +143,21 @@ impl RobotLog {
                 at(),
                 s.effort.len()
             );
-            for (what, values) in [("position", &s.position), ("velocity", &s.velocity), ("effort", &s.effort)] {
+            for (what, values, bound) in [
+                ("position", &s.position, MAX_POSITION),
+                ("velocity", &s.velocity, MAX_VELOCITY),
+                ("effort", &s.effort, MAX_EFFORT),
+            ] {
                 if let Some(j) = values.iter().position(|v| !v.is_finite()) {
                     anyhow::bail!("{}: {what} of '{}' is {}", at(), self.joints[j], values[j]);
+                }
+                if let Some(j) = values.iter().position(|v| v.abs() > bound) {
+                    anyhow::bail!(
+                        "{}: {what} of '{}' is {:e}, beyond ±{bound:e} (rad or m and their rates, N·m or N)",
+                        at(),
+                        self.joints[j],
+                        values[j]
+                    );
                 }
             }
         }
@@ -155,6 +183,11 @@ impl RobotLog {
                     self.joints.join(", ")
                 );
                 anyhow::ensure!(v.is_finite(), "{}: the command to '{j}' is {v}", at());
+                anyhow::ensure!(
+                    v.abs() <= MAX_EFFORT,
+                    "{}: the command to '{j}' is {v:e}, beyond ±{MAX_EFFORT:e}",
+                    at()
+                );
             }
         }
         for (i, t) in self.tool.iter().enumerate() {
@@ -182,5 +215,39 @@ impl RobotLog {
             self.joints.join(", ")
         );
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn log(samples: &[(f64, f64)]) -> RobotLog {
+        RobotLog {
+            meta: LogMeta::default(),
+            joints: vec!["j".into()],
+            states: samples
+                .iter()
+                .map(|&(time, q)| JointSample { time, position: vec![q], velocity: vec![0.0], effort: Vec::new() })
+                .collect(),
+            commands: Vec::new(),
+            tool: Vec::new(),
+        }
+    }
+
+    /// A clock that jumps and values no joint reaches are refused, naming the sample, before
+    /// anything is sized from them (a replay allocated 18 GB for a 10⁶ s jump, and spun on 1e300 rad).
+    #[test]
+    fn a_jumping_clock_and_wild_values_are_named() {
+        log(&[(0.0, 0.0), (0.008, 0.1), (60.008, 0.2)]).validate().unwrap();
+        let cases = [
+            (log(&[(0.0, 0.0), (0.008, 0.1), (1e6, 0.2)]), "joint state 2 (t = 1000000 s): 999999.992 s after"),
+            (log(&[(0.0, 0.0), (0.008, 1e300)]), "joint state 1 (t = 0.008 s): position of 'j' is 1e300, beyond"),
+            (log(&[(0.0, 1e15), (0.008, 0.0)]), "joint state 0 (t = 0 s): position of 'j' is 1e15, beyond"),
+        ];
+        for (log, expected) in cases {
+            let err = log.validate().unwrap_err().to_string();
+            assert!(err.starts_with(expected), "{err:?} does not start with {expected:?}");
+        }
     }
 }

@@ -10,7 +10,9 @@ use std::io::Cursor;
 use mcap::records::{MessageHeader, Metadata, Record};
 use serde::{Deserialize, Serialize};
 
-use crate::cdr::{JOINT_STATE_SCHEMA, JointStateMsg, POSE_STAMPED_SCHEMA, PoseStampedMsg};
+use crate::cdr::{
+    Float64MultiArrayMsg, JOINT_STATE_SCHEMA, JointStateMsg, JointTrajectoryMsg, POSE_STAMPED_SCHEMA, PoseStampedMsg,
+};
 use crate::log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog, ToolSample, UNITS};
 
 pub const JOINT_STATES_TOPIC: &str = "/joint_states";
@@ -92,9 +94,9 @@ pub fn to_bytes(log: &RobotLog) -> anyhow::Result<Vec<u8>> {
 }
 
 /// Reads an MCAP log from a file.
-pub fn read(path: &std::path::Path) -> anyhow::Result<RobotLog> {
+pub fn read(path: &std::path::Path, controller_joints: &[String]) -> anyhow::Result<RobotLog> {
     let bytes = std::fs::read(path)?;
-    from_bytes(&bytes)
+    from_bytes_mapped(&bytes, controller_joints)
 }
 
 fn mcap_error(e: mcap::McapError) -> anyhow::Error {
@@ -109,8 +111,20 @@ fn mcap_error(e: mcap::McapError) -> anyhow::Error {
 
 /// Parses MCAP bytes: joint states from `/joint_states`, commands and tool poses if present,
 /// the `twinbots` metadata if present. Times are the header stamps (the log time where a stamp
-/// is zero).
+/// is zero). Commands without joint names (a forward controller's) are refused: see
+/// [`from_bytes_mapped`].
 pub fn from_bytes(bytes: &[u8]) -> anyhow::Result<RobotLog> {
+    from_bytes_mapped(bytes, &[])
+}
+
+/// [`from_bytes`], also reading the commands a ROS 2 driver's controllers took, as rosbag2
+/// records them: `std_msgs/msg/Float64MultiArray` on a forward command controller's
+/// `…/commands` topic (its interface read from the topic's name: `position`, `velocity` or
+/// `effort`, as `forward_position_controller` …; a value per joint in `controller_joints`, the
+/// controller's order, which the message does not carry), and
+/// `trajectory_msgs/msg/JointTrajectory` on any topic (each point a position target at the
+/// header's stamp plus its `time_from_start`, or a speed where it has no positions).
+pub fn from_bytes_mapped(bytes: &[u8], controller_joints: &[String]) -> anyhow::Result<RobotLog> {
     let mut log = RobotLog::default();
     // A truncated file has no footer; the message stream would stop quietly at the cut.
     mcap::read::footer(bytes).map_err(|_| {
@@ -157,11 +171,87 @@ pub fn from_bytes(bytes: &[u8]) -> anyhow::Result<RobotLog> {
                     orientation: msg.orientation,
                 });
             }
-            _ => {}
+            topic => match message.channel.schema.as_ref().map(|s| s.name.as_str()) {
+                Some(FLOAT64_MULTI_ARRAY) => {
+                    let Some(mode) = forward_mode(topic)? else { continue };
+                    check_encoding(&message.channel.message_encoding, "cdr", topic)?;
+                    anyhow::ensure!(
+                        !controller_joints.is_empty(),
+                        "{topic}: a forward controller's commands name no joints; their order is the robot's controller order (a robot file's `joints`, or a built-in robot)"
+                    );
+                    let msg = Float64MultiArrayMsg::decode(&message.data)
+                        .map_err(|e| anyhow::anyhow!("{topic} message {i}: {e}"))?;
+                    anyhow::ensure!(
+                        msg.data.len() == controller_joints.len(),
+                        "{topic} message {i}: {} values for the controller's {} joints ({})",
+                        msg.data.len(),
+                        controller_joints.len(),
+                        controller_joints.join(", ")
+                    );
+                    log.commands.push(CommandSample {
+                        time: message.log_time as f64 * 1e-9,
+                        joints: controller_joints.to_vec(),
+                        modes: vec![mode; msg.data.len()],
+                        values: msg.data,
+                    });
+                }
+                Some(JOINT_TRAJECTORY) => {
+                    check_encoding(&message.channel.message_encoding, "cdr", topic)?;
+                    let msg = JointTrajectoryMsg::decode(&message.data)
+                        .map_err(|e| anyhow::anyhow!("{topic} message {i}: {e}"))?;
+                    let start = when(msg.stamp);
+                    let n = msg.joint_names.len();
+                    for (k, point) in msg.points.into_iter().enumerate() {
+                        let (mode, values) = if !point.positions.is_empty() {
+                            (CommandMode::Position, point.positions)
+                        } else if !point.velocities.is_empty() {
+                            (CommandMode::Velocity, point.velocities)
+                        } else {
+                            continue;
+                        };
+                        anyhow::ensure!(
+                            values.len() == n,
+                            "{topic} message {i}, point {k}: {} values for {n} joint names",
+                            values.len()
+                        );
+                        log.commands.push(CommandSample {
+                            time: start + point.time_from_start,
+                            joints: msg.joint_names.clone(),
+                            modes: vec![mode; n],
+                            values,
+                        });
+                    }
+                }
+                _ => {}
+            },
         }
     }
+    // Trajectories may overlap: the commands in time order.
+    log.commands.sort_by(|a, b| a.time.total_cmp(&b.time));
     anyhow::ensure!(!log.states.is_empty(), "no {JOINT_STATES_TOPIC} messages (sensor_msgs/msg/JointState, CDR)");
     Ok(log)
+}
+
+const FLOAT64_MULTI_ARRAY: &str = "std_msgs/msg/Float64MultiArray";
+const JOINT_TRAJECTORY: &str = "trajectory_msgs/msg/JointTrajectory";
+
+/// A forward command controller's interface, from its commands topic's name; none for a topic
+/// that is not `…/commands`.
+fn forward_mode(topic: &str) -> anyhow::Result<Option<CommandMode>> {
+    if !topic.ends_with("/commands") {
+        return Ok(None);
+    }
+    let lower = topic.to_ascii_lowercase();
+    let mode =
+        [("position", CommandMode::Position), ("velocity", CommandMode::Velocity), ("effort", CommandMode::Torque)]
+            .into_iter()
+            .find(|(word, _)| lower.contains(word))
+            .map(|(_, mode)| mode);
+    mode.map(Some).ok_or_else(|| {
+        anyhow::anyhow!(
+            "{topic}: a forward controller's commands, but its name does not say their interface (position, velocity or effort, as forward_position_controller/commands)"
+        )
+    })
 }
 
 fn check_encoding(found: &str, expected: &str, topic: &str) -> anyhow::Result<()> {

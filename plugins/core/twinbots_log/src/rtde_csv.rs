@@ -54,6 +54,19 @@ impl Efforts {
     }
 }
 
+impl std::fmt::Display for Efforts {
+    /// As [`Efforts::parse`] reads it.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::None => write!(f, "none"),
+            Self::TargetMoment => write!(f, "target_moment"),
+            Self::Current(k) => {
+                write!(f, "current:{}", k.iter().map(|v| format!("{v:?}")).collect::<Vec<_>>().join(","))
+            }
+        }
+    }
+}
+
 /// Whether `first_line` is the header of an RTDE recording (it names `timestamp` and `actual_q_0`).
 pub fn is_rtde_header(first_line: &str) -> bool {
     let names: Vec<&str> = split(first_line).collect();

@@ -6,6 +6,7 @@
 //! with many candidate parameter sets side by side, to [`identify`] (calibrate) the twin with
 //! CMA-ES. Logs are `twinbots_log`'s; figures are PNG ([`plot`]).
 
+pub mod effort_model;
 pub mod excitation;
 pub mod identify;
 pub mod plot;

@@ -19,6 +19,22 @@ fn register_font() {
     });
 }
 
+/// The series' labels in a box at the chart's corner.
+fn legend<'a, DB, CT>(chart: &mut ChartContext<'a, DB, CT>, font: u32) -> anyhow::Result<()>
+where
+    DB: DrawingBackend + 'a,
+    DB::ErrorType: 'static,
+    CT: plotters::coord::CoordTranslate,
+{
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", font))
+        .draw()?;
+    Ok(())
+}
+
 /// Writes a PNG through `draw`, atomically.
 fn write_png(
     path: &Path,
@@ -102,12 +118,7 @@ pub fn replay_png(
                         .label(*label)
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
                 }
-                chart
-                    .configure_series_labels()
-                    .background_style(WHITE.mix(0.8))
-                    .border_style(BLACK)
-                    .label_font(("sans-serif", 11))
-                    .draw()?;
+                legend(&mut chart, 11)?;
             }
         }
         Ok(())
@@ -152,12 +163,7 @@ pub fn convergence_png(path: &Path, title: &str, history: &[Generation], nominal
             .draw_series(LineSeries::new([(0.0, nominal), (x_max, nominal)], RED.mix(0.7)))?
             .label("nominal twin")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 13))
-            .draw()?;
+        legend(&mut chart, 13)?;
         Ok(())
     })
 }
@@ -211,4 +217,100 @@ pub fn divergence_png(
         }
         Ok(())
     })
+}
+
+/// One row per joint: each labelled series of efforts against time (the first, the measured, in
+/// black).
+pub fn efforts_png(
+    path: &Path,
+    title: &str,
+    joints: &[String],
+    time: &[f64],
+    series: &[(&str, &[Vec<f64>])],
+) -> anyhow::Result<()> {
+    let colours = [BLACK, RED, BLUE, GREEN];
+    write_png(path, (1400, 200 * joints.len() as u32 + 40), |root| {
+        let root = root.titled(title, ("sans-serif", 20))?;
+        let t_max = time.last().copied().unwrap_or(1.0).max(1e-3);
+        for (j, area) in root.split_evenly((joints.len(), 1)).iter().enumerate() {
+            let values = series.iter().flat_map(|(_, s)| s.iter().map(move |v| v[j]));
+            let (lo, hi) = bounds(values);
+            let mut chart = ChartBuilder::on(area)
+                .margin(6)
+                .x_label_area_size(24)
+                .y_label_area_size(70)
+                .caption(format!("{} (N·m)", joints[j]), ("sans-serif", 14))
+                .build_cartesian_2d(0.0..t_max, lo..hi)?;
+            chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
+            for ((label, s), colour) in series.iter().zip(colours.iter().cycle()) {
+                let colour = *colour;
+                let width = if colour == BLACK { 2 } else { 1 };
+                chart
+                    .draw_series(LineSeries::new(
+                        time.iter().zip(s.iter()).map(|(t, v)| (*t, v[j])),
+                        colour.stroke_width(width),
+                    ))?
+                    .label(*label)
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(width)));
+            }
+            legend(&mut chart, 11)?;
+        }
+        Ok(())
+    })
+}
+
+/// One row per joint: the residual (measured − model) against time, its threshold either side,
+/// and the flagged intervals shaded.
+pub fn shadow_png(
+    path: &Path,
+    title: &str,
+    joints: &[String],
+    time: &[f64],
+    residuals: &[Vec<f64>],
+    thresholds: Option<&[Vec<f64>]>,
+    flagged: &[(f64, f64)],
+) -> anyhow::Result<()> {
+    write_png(path, (1400, 170 * joints.len() as u32 + 40), |root| {
+        let root = root.titled(title, ("sans-serif", 20))?;
+        let t_max = time.last().copied().unwrap_or(1.0).max(1e-3);
+        for (j, area) in root.split_evenly((joints.len(), 1)).iter().enumerate() {
+            let limit = |k: usize| thresholds.map_or(0.0, |t| t[k][j]);
+            let values = residuals.iter().enumerate().flat_map(|(k, r)| [r[j], limit(k), -limit(k)]);
+            let (lo, hi) = bounds(values);
+            let mut chart = ChartBuilder::on(area)
+                .margin(6)
+                .x_label_area_size(24)
+                .y_label_area_size(70)
+                .caption(format!("{}: measured − twin (N·m)", joints[j]), ("sans-serif", 14))
+                .build_cartesian_2d(0.0..t_max, lo..hi)?;
+            chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
+            chart.draw_series(
+                flagged.iter().map(|(a, b)| Rectangle::new([(*a, lo), (b.max(a + 0.02), hi)], RED.mix(0.25).filled())),
+            )?;
+            if thresholds.is_some() {
+                for sign in [1.0, -1.0] {
+                    chart.draw_series(LineSeries::new(
+                        time.iter().enumerate().map(|(k, t)| (*t, sign * limit(k))),
+                        BLUE.stroke_width(1),
+                    ))?;
+                }
+            }
+            chart.draw_series(LineSeries::new(
+                time.iter().zip(residuals).map(|(t, r)| (*t, r[j])),
+                BLACK.stroke_width(1),
+            ))?;
+        }
+        Ok(())
+    })
+}
+
+/// The range of `values`, padded; (-1, 1) when there are none.
+fn bounds(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) =
+        values.filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
+    if !lo.is_finite() {
+        return (-1.0, 1.0);
+    }
+    let pad = ((hi - lo) * 0.05).max(1e-6);
+    (lo - pad, hi + pad)
 }

@@ -25,6 +25,9 @@ pub struct PreparedLog {
     pub scale: Vec<[f64; 3]>,
 }
 
+/// The longest log a replay or a calibration takes (s): an hour, as `record --seconds`.
+pub const MAX_REPLAY_SECONDS: f64 = 3600.0;
+
 /// Checks a log against the rig and makes it ready to replay; errors say what does not fit.
 pub fn prepare(rig: &Rig, log: &RobotLog, name: &str) -> anyhow::Result<PreparedLog> {
     log.validate()?;
@@ -33,6 +36,12 @@ pub fn prepare(rig: &Rig, log: &RobotLog, name: &str) -> anyhow::Result<Prepared
         rig.joints.iter().map(|j| log.joint_index(j).expect("checked: every joint is logged")).collect();
     let dt = rig.dt();
     let t0 = log.states[0].time;
+    // The replay steps the physics over the whole span and keeps every step's reference.
+    anyhow::ensure!(
+        log.duration() <= MAX_REPLAY_SECONDS,
+        "the log lasts {:.0} s: a replay takes at most {MAX_REPLAY_SECONDS} s (cut it into parts)",
+        log.duration()
+    );
     let steps = ((log.duration() / dt) + 1e-6).floor() as usize;
     anyhow::ensure!(steps >= 10, "the log lasts {:.3} s, under 10 physics steps of {dt} s", log.duration());
     let mut changes = vec![Vec::new(); steps];

@@ -94,6 +94,10 @@ pub fn controller_of(bundle: &Bundle) -> ReachController {
 /// A policy: raw observation in, action out.
 pub type PolicyFn<'a> = &'a dyn Fn(&[f32]) -> anyhow::Result<Vec<f32>>;
 
+/// The program's states that mean it no longer moves the arm (`ur_sim::program::ProgramState`).
+const WATCHDOG_STOP: i32 = crate::ur_sim::program::ProgramState::WatchdogStop as i32;
+const PROTECTIVE_STOP: i32 = crate::ur_sim::program::ProgramState::ProtectiveStop as i32;
+
 /// Runs `options.episodes` episodes of the bundle's policy on `arm`; `progress` sees each as it
 /// ends. On any error the robot is told to stop first.
 pub fn deploy(
@@ -139,6 +143,8 @@ struct Deployment<'a> {
     period: f64,
     deadline: Duration,
     homing_limit: f64,
+    /// Each joint's range (± rad, the controller's order): a report beyond it stops the robot.
+    ranges: Vec<(String, f64)>,
     /// The last command sent (for the shadow's acceleration limit).
     last: [f64; 6],
     /// When the next control step is due (controller time).
@@ -159,6 +165,7 @@ impl<'a> Deployment<'a> {
             period: bundle.manifest.control_period_s,
             deadline: options.deadline,
             homing_limit: options.homing_limit,
+            ranges: bundle.manifest.joints.iter().map(|j| (j.name.clone(), j.range_rad)).collect(),
             last: [0.0; 6],
             next_step: None,
             latencies: Vec::new(),
@@ -170,12 +177,43 @@ impl<'a> Deployment<'a> {
     /// Reads reports until the next control step is due; returns the one it is due at.
     fn wait_step(&mut self, arm: &mut dyn Arm) -> anyhow::Result<Measured> {
         loop {
+            if let Some(signal) = crate::stop_signal::requested() {
+                anyhow::bail!("stopped by {signal}; the robot was told to stop");
+            }
             let m = arm.read()?;
             anyhow::ensure!(
                 m.q.iter().chain(&m.qd).all(|v| v.is_finite()),
                 "the robot reported joints {:?}, speeds {:?}",
                 m.q,
                 m.qd
+            );
+            // The controller's clock advances every cycle: one that stands still, runs back or
+            // is not a number is a controller that is not controlling.
+            anyhow::ensure!(m.time.is_finite(), "the robot reported time {}; the robot was told to stop", m.time);
+            if let Some(p) = &self.previous {
+                anyhow::ensure!(
+                    m.time > p.time,
+                    "the robot's clock {} after {} s: it stood still or ran back; the robot was told to stop",
+                    if m.time == p.time { format!("read {} s again", m.time) } else { format!("read {} s", m.time) },
+                    p.time
+                );
+            }
+            if let Some((k, (name, range))) =
+                self.ranges.iter().enumerate().find(|(k, (_, range))| m.q.get(*k).is_some_and(|q| q.abs() > *range))
+            {
+                anyhow::bail!(
+                    "the robot reported {name} at {:.3} rad, beyond its range ±{range:.3}; the robot was told to stop",
+                    m.q[k]
+                );
+            }
+            anyhow::ensure!(
+                ![WATCHDOG_STOP, PROTECTIVE_STOP].contains(&m.program) && m.program >= 0,
+                "the robot's control program {}; the robot was told to stop",
+                match m.program {
+                    WATCHDOG_STOP => "stopped on its watchdog (commands came too late)".to_string(),
+                    PROTECTIVE_STOP => "is in a protective stop (a joint left its range)".to_string(),
+                    other => format!("reports no state it knows ({other}): is it running?"),
+                }
             );
             if let Some(p) = &self.previous {
                 let dt = (m.time - p.time).max(0.0);

@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use bevy::math::{DQuat, DVec3, EulerRot};
+use bevy::math::{DMat3, DQuat, DVec3, EulerRot};
 
 use super::UrdfError;
 
@@ -23,6 +23,10 @@ pub struct ChainJoint {
     /// The URDF's `velocity` and `effort` limits (0: not given).
     pub max_speed: f64,
     pub max_effort: f64,
+    /// The child link's `<inertial>` and, joined to it, those of the links hanging from it off
+    /// the chain (a gripper's fingers, the links below the tool), their joints at 0: they move
+    /// with it.
+    pub child_inertia: LinkInertia,
 }
 
 /// How a joint moves its child, along or about its unit axis (in the joint frame).
@@ -56,6 +60,80 @@ impl Frame {
             translation: self.translation + self.rotation * child.translation,
         }
     }
+}
+
+/// A body's inertial parameters (Pinocchio's `Inertia::toDynamicParameters`): m, m·cx, m·cy,
+/// m·cz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz (about the link frame's origin).
+pub const PARAMS_PER_BODY: usize = 10;
+
+/// A link's mass, centre of mass and inertia about it (the URDF's `<inertial>`), in the link's
+/// frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LinkInertia {
+    pub mass: f64,
+    pub com: DVec3,
+    /// About the centre of mass, axes of the link frame.
+    pub inertia: DMat3,
+}
+
+impl LinkInertia {
+    pub const ZERO: LinkInertia = LinkInertia { mass: 0.0, com: DVec3::ZERO, inertia: DMat3::ZERO };
+
+    /// The URDF's `<inertial>`: its `origin` places the centre of mass and turns the inertia's axes.
+    pub fn of_urdf(inertial: &urdf_rs::Inertial) -> Self {
+        let origin = Frame::from_xyz_rpy(inertial.origin.xyz.0, inertial.origin.rpy.0);
+        let i = &inertial.inertia;
+        let principal = DMat3::from_cols_array(&[i.ixx, i.ixy, i.ixz, i.ixy, i.iyy, i.iyz, i.ixz, i.iyz, i.izz]);
+        let r = DMat3::from_quat(origin.rotation);
+        Self { mass: inertial.mass.value, com: origin.translation, inertia: r * principal * r.transpose() }
+    }
+
+    /// The ten parameters about the frame's origin (Pinocchio's order).
+    pub fn parameters(&self) -> [f64; PARAMS_PER_BODY] {
+        let (m, c) = (self.mass, self.com);
+        let origin = self.inertia + m * (DMat3::from_diagonal(DVec3::splat(c.dot(c))) - outer(c, c));
+        let h = m * c;
+        [
+            m,
+            h.x,
+            h.y,
+            h.z,
+            origin.x_axis.x,
+            origin.y_axis.x,
+            origin.y_axis.y,
+            origin.z_axis.x,
+            origin.z_axis.y,
+            origin.z_axis.z,
+        ]
+    }
+
+    /// This inertia seen from a frame in which the link's frame sits at `at`.
+    pub(crate) fn moved(&self, at: &Frame) -> LinkInertia {
+        let r = DMat3::from_quat(at.rotation);
+        LinkInertia {
+            mass: self.mass,
+            com: at.translation + at.rotation * self.com,
+            inertia: r * self.inertia * r.transpose(),
+        }
+    }
+
+    /// Two rigidly joined links as one (the sum about their common centre of mass).
+    pub(crate) fn plus(&self, other: &LinkInertia) -> LinkInertia {
+        let mass = self.mass + other.mass;
+        if mass <= 0.0 {
+            return LinkInertia::ZERO;
+        }
+        let com = (self.com * self.mass + other.com * other.mass) / mass;
+        let shifted = |l: &LinkInertia| {
+            let d = l.com - com;
+            l.inertia + l.mass * (DMat3::from_diagonal(DVec3::splat(d.dot(d))) - outer(d, d))
+        };
+        LinkInertia { mass, com, inertia: shifted(self) + shifted(other) }
+    }
+}
+
+fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
 /// The joints from a base link to a tool link, in order from the base.
@@ -96,10 +174,15 @@ impl Chain {
                 anyhow::bail!("the tool link '{tool}' is not a descendant of the base link '{base}'")
             };
             anyhow::ensure!(joints.len() <= robot.joints.len(), "the joints from '{tool}' up form a loop");
-            joints.push(chain_joint(joint)?);
+            joints.push(chain_joint(joint, LinkInertia::ZERO)?);
             link = joint.parent.link.clone();
         }
         joints.reverse();
+        for k in 0..joints.len() {
+            let child = &robot.joints.iter().find(|j| j.name == joints[k].name).expect("read from it").child.link;
+            let next = joints.get(k + 1).map(|j| j.name.clone());
+            joints[k].child_inertia = attached(robot, child, next.as_deref(), &Frame::IDENTITY, 0);
+        }
         Ok(Chain { base, tool: tool.to_string(), joints })
     }
 
@@ -183,7 +266,24 @@ impl Chain {
     }
 }
 
-fn chain_joint(joint: &urdf_rs::Joint) -> anyhow::Result<ChainJoint> {
+/// `link`'s inertia (its frame at `at`) with those of every link below it but through the joint
+/// `except` (the chain's next), all joints at 0: in `at`'s parent frame.
+fn attached(robot: &urdf_rs::Robot, link: &str, except: Option<&str>, at: &Frame, depth: usize) -> LinkInertia {
+    let own =
+        robot.links.iter().find(|l| l.name == link).map_or(LinkInertia::ZERO, |l| LinkInertia::of_urdf(&l.inertial));
+    let mut sum = own.moved(at);
+    // A tree has no more levels than joints; a loop ends here.
+    if depth > robot.joints.len() {
+        return sum;
+    }
+    for joint in robot.joints.iter().filter(|j| j.parent.link == link && Some(j.name.as_str()) != except) {
+        let child = at.then(&Frame::from_xyz_rpy(joint.origin.xyz.0, joint.origin.rpy.0));
+        sum = sum.plus(&attached(robot, &joint.child.link, None, &child, depth + 1));
+    }
+    sum
+}
+
+fn chain_joint(joint: &urdf_rs::Joint, child_inertia: LinkInertia) -> anyhow::Result<ChainJoint> {
     let axis = DVec3::from_array(joint.axis.xyz.0);
     let unit = || {
         let n = axis.length();
@@ -208,6 +308,7 @@ fn chain_joint(joint: &urdf_rs::Joint) -> anyhow::Result<ChainJoint> {
         limits: limited.then_some((l.lower, l.upper)),
         max_speed: l.velocity,
         max_effort: l.effort,
+        child_inertia,
     })
 }
 

@@ -3,10 +3,12 @@
 pub mod chain;
 pub mod check;
 mod collada;
+pub mod dynamics;
 mod error;
 mod load;
 pub mod mesh;
 mod model;
+pub mod robot_file;
 
 pub use error::UrdfError;
 pub use load::{load_urdf, parse_urdf, parse_urdf_exact};
