@@ -41,6 +41,10 @@ pub struct Args {
     /// Run the controller's loop on SCHED_FIFO at this priority (1-99; root or CAP_SYS_NICE).
     #[arg(long)]
     pub rt_priority: Option<i32>,
+    /// Listen beyond loopback: RTDE has no authentication, and whoever reaches the port moves
+    /// the (simulated) arm through the program's registers. Prints a warning.
+    #[arg(long)]
+    pub insecure: bool,
 }
 
 /// `twinbots ur-sim`.
@@ -61,6 +65,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     if let Some(s) = args.seconds {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
+    check_exposure(&args.listen, args.insecure)?;
     let options = UrSimOptions { truth, noise, seed: args.seed, watchdog: args.watchdog, payload: args.payload };
     let mut sim = UrSim::new(&options)?;
     let server = RtdeServer::bind(&args.listen, controller_info())?;
@@ -75,5 +80,21 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let stop = AtomicBool::new(false);
     let missed = sim.serve(&server, args.seconds, &stop, 5.0);
     println!("ur-sim: {:.1} s served, {missed} missed cycle(s)", sim.time());
+    Ok(())
+}
+
+/// Beyond loopback only with `--insecure`: RTDE takes `speedj` through registers from anyone.
+fn check_exposure(listen: &str, insecure: bool) -> anyhow::Result<()> {
+    use std::net::ToSocketAddrs;
+    let addresses: Vec<std::net::SocketAddr> =
+        listen.to_socket_addrs().map_err(|e| anyhow::anyhow!("--listen {listen}: {e}"))?.collect();
+    if addresses.iter().all(|a| a.ip().is_loopback()) {
+        return Ok(());
+    }
+    anyhow::ensure!(
+        insecure,
+        "--listen {listen} reaches beyond this machine, and RTDE has no authentication: whoever reaches the port commands the arm; give --insecure on a trusted network"
+    );
+    eprintln!("warning: --insecure: serving RTDE on {listen}; anyone who reaches it can move the arm");
     Ok(())
 }

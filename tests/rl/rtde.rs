@@ -227,6 +227,24 @@ fn rtde_client_gives_up_on_a_silent_or_refusing_controller() {
         }
     };
     assert!(matches!(err, RtdeError::Closed | RtdeError::Timeout(_) | RtdeError::Io(_)), "{err}");
+    // One that answers nothing but text messages, many a millisecond: the client gives up at its
+    // timeout (it looped for ever, keeping every message).
+    let (chatty, _) = fake_server(|mut stream| {
+        let mut request = [0u8; 5];
+        let _ = stream.read_exact(&mut request);
+        let text = twinbots_rtde::package::TextMessage {
+            level: twinbots_rtde::package::MessageLevel::Info,
+            message: "hello".into(),
+            source: "chatty".into(),
+        };
+        let bytes = twinbots_rtde::package::Package::new(b'M', text.encode()).encode().unwrap();
+        let began = Instant::now();
+        while began.elapsed() < Duration::from_secs(5) && stream.write_all(&bytes).is_ok() {}
+    });
+    let began = Instant::now();
+    let err = RtdeClient::connect(&chatty.to_string(), Duration::from_millis(500)).err().unwrap();
+    assert!(matches!(err, RtdeError::Timeout(_)), "{err}");
+    assert!(began.elapsed() < Duration::from_secs(2), "{:?}", began.elapsed());
     // A wrong recipe name and a malformed address are caught before any traffic.
     assert!(matches!(RtdeClient::connect("robot:port", PATIENCE), Err(RtdeError::Address(_))));
 }
@@ -254,4 +272,41 @@ fn ur_sim_program_runs_without_a_network() {
     assert_eq!(a, b);
     // 5 rad/s² reaches 0.5 rad/s in 0.1 s (50 cycles); after 250 it holds.
     assert!((target_qd[1] + 0.5).abs() < 1e-9, "{target_qd:?}");
+}
+
+/// The stand-in bounds its clients: one past the limit is closed at once, a client silent
+/// before starting its stream is closed after the idle limit, a streaming one may just listen;
+/// `ur-sim` listens beyond loopback only with `--insecure`.
+#[test]
+fn the_standin_caps_its_clients_and_closes_silent_ones() {
+    use twinbots_rtde::server::Limits;
+    let limits = Limits { max_clients: 2, idle: Duration::from_millis(400) };
+    let server = RtdeServer::bind_with("127.0.0.1:0", controller_info(), limits).unwrap();
+    let address = server.local_addr();
+    // The stand-in never speaks first: a read that ends (0 bytes) is the connection closed.
+    let closed_within = |stream: &mut TcpStream, within: Duration| {
+        stream.set_read_timeout(Some(within)).unwrap();
+        stream.read(&mut [0u8; 1]).is_ok_and(|n| n == 0)
+    };
+    let mut first = TcpStream::connect(address).unwrap();
+    let _second = TcpStream::connect(address).unwrap();
+    std::thread::sleep(Duration::from_millis(100));
+    let mut third = TcpStream::connect(address).unwrap();
+    assert!(closed_within(&mut third, Duration::from_secs(2)), "a third client was served");
+    // The first said nothing: closed after the idle limit, and its place is free again.
+    let began = Instant::now();
+    assert!(closed_within(&mut first, Duration::from_secs(5)), "a silent client stayed");
+    assert!(began.elapsed() < Duration::from_secs(3), "{:?}", began.elapsed());
+    std::thread::sleep(Duration::from_millis(100));
+    let mut client = RtdeClient::connect(&address.to_string(), PATIENCE).unwrap();
+    client.setup_outputs(&["timestamp"], 125.0).unwrap();
+    client.start().unwrap();
+    let events = server.take_events().join("\n");
+    assert!(events.contains("refused (2 clients connected already)"), "{events}");
+    assert!(events.contains("silent for 0.4 s before starting its stream"), "{events}");
+
+    let output =
+        crate::delivery::twinbots().args(["ur-sim", "--listen", "0.0.0.0:0", "--seconds", "1"]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("--insecure"), "{stderr}");
 }

@@ -58,7 +58,12 @@ pub struct RtdeClient {
     address: String,
     output: Option<OutputRecipe>,
     messages: Vec<TextMessage>,
+    /// How long any wait may take: a reply, a data package.
+    timeout: Duration,
 }
+
+/// Text messages kept between two [`RtdeClient::take_messages`]; older ones give way.
+pub const MAX_MESSAGES: usize = 1000;
 
 impl RtdeClient {
     /// Connects to `HOST[:PORT]` and negotiates protocol version 2; every later wait gives up
@@ -83,7 +88,7 @@ impl RtdeClient {
         stream.set_nodelay(true)?;
         stream.set_read_timeout(Some(timeout))?;
         stream.set_write_timeout(Some(timeout))?;
-        let mut client = Self { stream, address: address.to_string(), output: None, messages: Vec::new() };
+        let mut client = Self { stream, address: address.to_string(), output: None, messages: Vec::new(), timeout };
         let reply = client.request(kind::REQUEST_PROTOCOL_VERSION, PROTOCOL_VERSION.to_be_bytes().to_vec())?;
         if accepted(&reply, "protocol version")? {
             Ok(client)
@@ -146,11 +151,15 @@ impl RtdeClient {
         if self.output.is_none() {
             return Err(RtdeError::Usage("receive before an output recipe".into()));
         }
+        // Bounded in time as one read is: a peer that sends only other packages (text
+        // messages) must not hold the client for ever.
+        let began = std::time::Instant::now();
         let package = loop {
             let package = self.read()?;
             if package.kind == kind::DATA_PACKAGE {
                 break package;
             }
+            self.give_up_after(began, "a data package")?;
         };
         let recipe = self.output.as_ref().expect("checked above");
         let (&id, rest) =
@@ -199,11 +208,13 @@ impl RtdeClient {
 
     fn request(&mut self, kind: u8, payload: Vec<u8>) -> Result<Vec<u8>, RtdeError> {
         self.write(kind, payload)?;
+        let began = std::time::Instant::now();
         loop {
             let package = self.read()?;
             if package.kind == kind {
                 return Ok(package.payload);
             }
+            self.give_up_after(began, "a reply")?;
             // Data packages still in flight (a pause's reply follows them) and text messages
             // (read() keeps them) are not the answer.
         }
@@ -221,9 +232,23 @@ impl RtdeClient {
     fn read(&mut self) -> Result<Package, RtdeError> {
         let package = Package::read(&mut self.stream)?;
         if package.kind == kind::TEXT_MESSAGE {
+            if self.messages.len() >= MAX_MESSAGES {
+                self.messages.drain(..MAX_MESSAGES / 10);
+            }
             self.messages.push(TextMessage::decode(&package.payload)?);
         }
         Ok(package)
+    }
+
+    /// An error once `what` has been awaited past the timeout since `began`.
+    fn give_up_after(&self, began: std::time::Instant, what: &str) -> Result<(), RtdeError> {
+        if began.elapsed() > self.timeout {
+            return Err(RtdeError::Timeout(format!(
+                "{what} (only other packages came for {:.1} s)",
+                self.timeout.as_secs_f64()
+            )));
+        }
+        Ok(())
     }
 
     fn recipe_types(&self, what: &str, names: &[&str], reply: &RecipeReply) -> Result<Vec<DataType>, RtdeError> {

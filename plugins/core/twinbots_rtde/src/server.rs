@@ -95,8 +95,29 @@ pub struct ControllerInfo {
     pub source: String,
 }
 
+/// What the stand-in allows its clients.
+#[derive(Clone, Copy, Debug)]
+pub struct Limits {
+    /// Clients at once; one more is closed at once (a UR controller serves a handful).
+    pub max_clients: usize,
+    /// How long a client that has not started its stream may stay silent.
+    pub idle: Duration,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self { max_clients: 16, idle: Duration::from_secs(30) }
+    }
+}
+
+/// Events kept between two [`RtdeServer::take_events`]; older ones give way.
+pub const MAX_EVENTS: usize = 1000;
+
 struct Shared {
     info: ControllerInfo,
+    limits: Limits,
+    /// Sessions accepted and not yet closed.
+    active: std::sync::atomic::AtomicUsize,
     inputs: Mutex<InputState>,
     sessions: Mutex<Vec<SessionHandle>>,
     events: Mutex<Vec<String>>,
@@ -121,12 +142,19 @@ pub struct RtdeServer {
 impl RtdeServer {
     /// Listens on `address` (e.g. `127.0.0.1:30004`; port 0 picks a free one).
     pub fn bind(address: &str, info: ControllerInfo) -> Result<Self, RtdeError> {
+        Self::bind_with(address, info, Limits::default())
+    }
+
+    /// [`RtdeServer::bind`] with other [`Limits`].
+    pub fn bind_with(address: &str, info: ControllerInfo, limits: Limits) -> Result<Self, RtdeError> {
         let listener =
             TcpListener::bind(address).map_err(|source| RtdeError::Connect { address: address.to_string(), source })?;
         let local = listener.local_addr()?;
         listener.set_nonblocking(true)?;
         let shared = Arc::new(Shared {
             info,
+            limits,
+            active: std::sync::atomic::AtomicUsize::new(0),
             inputs: Mutex::new(InputState::new()),
             sessions: Mutex::new(Vec::new()),
             events: Mutex::new(Vec::new()),
@@ -197,6 +225,16 @@ impl Drop for RtdeServer {
     }
 }
 
+/// Keeps an event, the oldest giving way past [`MAX_EVENTS`] (a hostile client must not grow
+/// the list without bound).
+fn push_event(shared: &Shared, event: String) {
+    let mut events = lock(&shared.events);
+    if events.len() >= MAX_EVENTS {
+        events.drain(..MAX_EVENTS / 10);
+    }
+    events.push(event);
+}
+
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
@@ -205,10 +243,22 @@ fn accept_loop(listener: TcpListener, shared: Arc<Shared>) {
     while !shared.stop.load(Ordering::SeqCst) {
         match listener.accept() {
             Ok((stream, peer)) => {
-                let shared = shared.clone();
-                let _ = std::thread::Builder::new()
+                if shared.active.load(Ordering::SeqCst) >= shared.limits.max_clients {
+                    push_event(
+                        &shared,
+                        format!("{peer}: refused ({} clients connected already)", shared.limits.max_clients),
+                    );
+                    let _ = stream.shutdown(Shutdown::Both);
+                    continue;
+                }
+                shared.active.fetch_add(1, Ordering::SeqCst);
+                let session_shared = shared.clone();
+                let spawned = std::thread::Builder::new()
                     .name(format!("rtde-{peer}"))
-                    .spawn(move || Session::run(stream, peer, shared));
+                    .spawn(move || Session::run(stream, peer, session_shared));
+                if spawned.is_err() {
+                    shared.active.fetch_sub(1, Ordering::SeqCst);
+                }
             }
             // Nothing to accept (or a failed accept): look again shortly, so `stop` is seen.
             Err(_) => std::thread::sleep(Duration::from_millis(5)),
@@ -243,11 +293,14 @@ impl Session {
         let _ = stream.set_nodelay(true);
         // A client that stops reading must not stall the controller's streamers for long.
         let _ = stream.set_write_timeout(Some(Duration::from_secs(1)));
-        let Ok(writer) = stream.try_clone() else { return };
+        let Ok(writer) = stream.try_clone() else {
+            shared.active.fetch_sub(1, Ordering::SeqCst);
+            return;
+        };
         let id = shared.next_session.fetch_add(1, Ordering::SeqCst);
         let writer = Arc::new(Mutex::new(writer));
         lock(&shared.sessions).push(SessionHandle { id, writer: writer.clone(), stream: None });
-        lock(&shared.events).push(format!("{peer}: connected"));
+        push_event(&shared, format!("{peer}: connected"));
         let mut session = Session {
             id,
             peer,
@@ -260,9 +313,18 @@ impl Session {
             streamer: None,
         };
         let mut reader = stream;
+        // Until it starts its stream a client must speak within the idle limit; a started one
+        // may only listen.
+        let idle = session.shared.limits.idle;
+        let mut listening = false;
+        let _ = reader.set_read_timeout(Some(idle));
         let end = loop {
             if session.shared.stop.load(Ordering::SeqCst) {
                 break "the controller stopped".to_string();
+            }
+            if session.streamer.is_some() != listening {
+                listening = session.streamer.is_some();
+                let _ = reader.set_read_timeout(if listening { None } else { Some(idle) });
             }
             match Package::read(&mut reader) {
                 Ok(package) => {
@@ -271,6 +333,9 @@ impl Session {
                     }
                 }
                 Err(RtdeError::Closed) => break "disconnected".into(),
+                Err(RtdeError::Timeout(_)) => {
+                    break format!("silent for {:.1} s before starting its stream", idle.as_secs_f64());
+                }
                 Err(e @ (RtdeError::Malformed(_) | RtdeError::Truncated(_))) => {
                     session.error(&format!("{e}; closing the connection"));
                     break e.to_string();
@@ -484,12 +549,13 @@ impl Session {
     }
 
     fn event(&self, what: String) {
-        lock(&self.shared.events).push(format!("{}: {what}", self.peer));
+        push_event(&self.shared, format!("{}: {what}", self.peer));
     }
 
     /// Ends the session: its inputs are free again, its streamer stops.
     fn close(mut self, why: &str) {
         self.event(format!("closed ({why})"));
+        self.shared.active.fetch_sub(1, Ordering::SeqCst);
         lock(&self.shared.sessions).retain(|s| s.id != self.id);
         let mut state = lock(&self.shared.inputs);
         for owner in state.owners.iter_mut().filter(|o| **o == self.id) {
