@@ -137,6 +137,11 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
     let incomplete = &checkpoints[1];
     std::fs::remove_file(incomplete.join("env_state.json")).unwrap();
     std::fs::remove_dir_all(run.join("model")).unwrap();
+    // Without their checksums (as checkpoints saved before they were kept): what the loader's
+    // own checks find (the checksums' test is below).
+    for checkpoint in &checkpoints[1..] {
+        std::fs::remove_file(checkpoint.join("checksums.json")).unwrap();
+    }
 
     // `eval` of a run without a final model takes its newest checkpoint that loads.
     let output = twinbots().args(["eval"]).arg(&run).args(["--episodes", "1"]).output().unwrap();
@@ -160,6 +165,39 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
     assert!(out.contains("(256 steps"), "{out}");
     let model = twinbots_learn::Ppo::load(run.join("model")).unwrap();
     assert_eq!(model.state.timesteps, 1280);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A checkpoint's checksums catch what its values cannot: a flipped bit that leaves a weight
+/// finite and small, and a missing optimizer file (which resumed with a fresh optimizer).
+#[test]
+fn a_checkpoint_not_as_saved_is_passed_over() {
+    let dir = temp_dir("resume-checksums");
+    let run = dir.join("run");
+    let output = twinbots()
+        .args(["train", "cartpole", "--timesteps", "1280", "--arenas", "2", "--checkpoint-every", "4", "--out"])
+        .arg(&run)
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let mut checkpoints: Vec<PathBuf> =
+        std::fs::read_dir(run.join("checkpoints")).unwrap().map(|e| e.unwrap().path()).collect();
+    checkpoints.sort();
+    let flipped = &checkpoints[4];
+    let mut weights = std::fs::read(flipped.join("model.safetensors")).unwrap();
+    let n = weights.len();
+    weights[n - 4] ^= 1; // the lowest mantissa bit of the last weight
+    std::fs::write(flipped.join("model.safetensors"), weights).unwrap();
+    let no_optimizer = &checkpoints[3];
+    std::fs::remove_file(no_optimizer.join("optimizer.safetensors")).unwrap();
+    let output = twinbots().args(["train", "--resume"]).arg(&run).output().unwrap();
+    let (out, err) = (String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(output.status.success(), "{err}");
+    assert!(err.contains(&format!("checkpoint {} is unusable", flipped.display())), "{err}");
+    assert!(err.contains("its model.safetensors is not as saved"), "{err}");
+    assert!(err.contains(&format!("checkpoint {} is unusable", no_optimizer.display())), "{err}");
+    assert!(err.contains("its optimizer.safetensors is missing"), "{err}");
+    assert!(out.contains("(768 steps"), "{out}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -119,12 +119,13 @@ impl RunDir {
         let partial = self.file(CHECKPOINTS).join(format!("{name}.partial"));
         let _ = std::fs::remove_dir_all(&partial);
         model.save(&partial)?;
+        write_checksums(&partial)?;
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::rename(&partial, &dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
         Ok(dir)
     }
 
-    /// The newest complete checkpoint, if any.
+    /// The newest complete checkpoint, if any (its checksums are checked on loading).
     pub fn latest_checkpoint(&self) -> Option<PathBuf> {
         self.checkpoints().pop()
     }
@@ -159,7 +160,7 @@ impl RunDir {
         let checkpoints = self.checkpoints();
         anyhow::ensure!(!checkpoints.is_empty(), "{}: no checkpoint to resume from", self.path.display());
         for dir in checkpoints.iter().rev() {
-            match load(dir) {
+            match verify_checksums(dir).and_then(|()| load(dir).map_err(anyhow::Error::from)) {
                 Ok(model) => return Ok((dir.clone(), model)),
                 Err(e) => {
                     eprintln!("warning: checkpoint {} is unusable ({e}); trying the one before it", dir.display())
@@ -433,4 +434,57 @@ mod tests {
         assert_eq!(run.read_progress().unwrap()[0].update, 1);
         std::fs::remove_dir_all(run.path()).ok();
     }
+}
+
+/// Every checkpoint's list of its files with their sizes and CRC-32C, checked before it is
+/// resumed from: a flipped byte or a missing file (the optimizer's) makes it unusable, not
+/// silently different.
+pub const CHECKSUMS_FILE: &str = "checksums.json";
+
+const CRC32C: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+
+/// Each file's size and CRC-32C, by name.
+type Checksums = std::collections::BTreeMap<String, (u64, u32)>;
+
+fn checksums_of(dir: &Path) -> anyhow::Result<Checksums> {
+    let mut sums = Checksums::new();
+    let entries = std::fs::read_dir(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
+    for entry in entries {
+        let path = entry?.path();
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or_default().to_string();
+        if name == CHECKSUMS_FILE || !path.is_file() {
+            continue;
+        }
+        let bytes = std::fs::read(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        sums.insert(name, (bytes.len() as u64, CRC32C.checksum(&bytes)));
+    }
+    Ok(sums)
+}
+
+fn write_checksums(dir: &Path) -> anyhow::Result<()> {
+    twinbots_api::files::write_json(&dir.join(CHECKSUMS_FILE), &checksums_of(dir)?)
+}
+
+/// Checks a checkpoint against its checksums (one saved before checksums were kept has none:
+/// it loads as it is).
+fn verify_checksums(dir: &Path) -> anyhow::Result<()> {
+    let path = dir.join(CHECKSUMS_FILE);
+    if !path.exists() {
+        return Ok(());
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let expected: Checksums = serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let found = checksums_of(dir)?;
+    for (name, (bytes, crc)) in &expected {
+        match found.get(name) {
+            None => anyhow::bail!("its {name} is missing"),
+            Some((b, c)) if b != bytes || c != crc => {
+                anyhow::bail!(
+                    "its {name} is not as saved ({b} bytes, CRC-32C {c:08x}; saved: {bytes} bytes, {crc:08x})"
+                )
+            }
+            Some(_) => {}
+        }
+    }
+    Ok(())
 }
