@@ -252,6 +252,12 @@ mod tests {
         let err = mcap_file::from_bytes(&bytes[..bytes.len() / 2]).unwrap_err().to_string();
         assert!(err.contains("truncated"), "{err}");
         assert!(mcap_file::from_bytes(b"not an mcap at all, just text").is_err());
+        // One bit flipped in a joint position (inside a chunk): the chunk's CRC names it.
+        let mut flipped = bytes.clone();
+        let at = flipped.windows(8).position(|w| w == 0.5f64.to_le_bytes()).expect("a position of 0.5");
+        flipped[at] ^= 1;
+        let err = mcap_file::from_bytes(&flipped).unwrap_err().to_string();
+        assert!(err.contains("CRC-32"), "{err}");
 
         let mut log = sample_log();
         log.states[3].time = log.states[1].time;

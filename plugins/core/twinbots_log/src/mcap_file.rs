@@ -105,6 +105,9 @@ fn mcap_error(e: mcap::McapError) -> anyhow::Error {
             "its chunks are compressed with {c}; this build reads uncompressed MCAP only: convert it first (`mcap convert --compression none IN OUT`, or `ros2 bag convert` with compression off)"
         ),
         mcap::McapError::BadMagic => anyhow::anyhow!("not an MCAP file (bad magic bytes)"),
+        mcap::McapError::BadChunkCrc { saved, calculated } => anyhow::anyhow!(
+            "damaged MCAP: a chunk's CRC-32 is {calculated:08x}, saved as {saved:08x} (the file changed after it was written)"
+        ),
         e => anyhow::anyhow!("damaged MCAP ({e}); a truncated recording can be recovered with `mcap recover`"),
     }
 }
@@ -137,7 +140,9 @@ pub fn from_bytes_mapped(bytes: &[u8], controller_joints: &[String]) -> anyhow::
             log.meta = meta_from(m.metadata)?;
         }
     }
-    for (i, message) in mcap::MessageStream::new(bytes).map_err(mcap_error)?.enumerate() {
+    // Each chunk's CRC-32 is checked: a flipped bit is an error, not a different number.
+    let stream = mcap::MessageStream::new_with_options(bytes, mcap::read::Options::ValidateChunkCrcs.into());
+    for (i, message) in stream.map_err(mcap_error)?.enumerate() {
         let message = message.map_err(mcap_error)?;
         let when = |stamp: f64| if stamp == 0.0 { message.log_time as f64 * 1e-9 } else { stamp };
         match message.channel.topic.as_str() {
