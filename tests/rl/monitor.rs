@@ -35,9 +35,15 @@ fn program(t: f64) -> [f64; 6] {
 }
 
 /// Runs the robot (`robot`'s options) for `seconds` under the program with the monitor on the
-/// nominal twin, which never sees every `skip`-th report (a busy link); returns the alarms'
-/// times and kinds and the worst windowed effort RMSE (N·m).
-fn follow(robot: &UrSimOptions, seconds: f64, skip: Option<usize>) -> (Vec<(f64, String)>, f64) {
+/// nominal twin, which never sees every `skip`-th report (a busy link) and sees each report as
+/// `tamper` leaves it; returns the alarms' times, kinds and messages and the worst windowed
+/// effort RMSE (N·m).
+fn follow_tampered(
+    robot: &UrSimOptions,
+    seconds: f64,
+    skip: Option<usize>,
+    tamper: fn(&mut Report),
+) -> (Vec<(f64, String, String)>, f64) {
     let mut sim = UrSim::new(robot).unwrap();
     let mut inputs = InputState::new();
     inputs.set(MODE, Value::Int32(MODE_SPEEDJ));
@@ -54,12 +60,18 @@ fn follow(robot: &UrSimOptions, seconds: f64, skip: Option<usize>) -> (Vec<(f64,
         if skip.is_some_and(|n| k % n == n - 1) {
             continue;
         }
-        for a in monitor.observe(&report_of(&out)) {
-            alarms.push((a.time, a.kind.clone()));
+        let mut report = report_of(&out);
+        tamper(&mut report);
+        for a in monitor.observe(&report) {
+            alarms.push((a.time, a.kind.clone(), a.message.clone()));
         }
     }
     let worst = monitor.report().worst_effort_rmse.iter().cloned().fold(0.0, f64::max);
     (alarms, worst)
+}
+
+fn follow(robot: &UrSimOptions, seconds: f64, skip: Option<usize>) -> (Vec<(f64, String, String)>, f64) {
+    follow_tampered(robot, seconds, skip, |_| {})
 }
 
 #[test]
@@ -67,7 +79,7 @@ fn the_monitor_notices_an_unmodelled_payload_within_a_second_of_motion() {
     let (alarms, worst) = follow(&UrSimOptions { payload: Some(1.0), ..Default::default() }, 4.0, None);
     let first = alarms
         .iter()
-        .find(|(_, k)| k == "divergence")
+        .find(|(_, k, _)| k == "divergence")
         .unwrap_or_else(|| panic!("no divergence alarm: {alarms:?}, worst effort RMSE {worst}"));
     // The first motion starts at 0.5 s.
     assert!(first.0 < 1.5, "the alarm came at {} s", first.0);
@@ -83,6 +95,25 @@ fn the_monitor_stays_quiet_beside_a_matching_robot() {
     // each gap and stays quiet.
     let (alarms, worst) = follow(&UrSimOptions::default(), 20.0, Some(37));
     assert!(alarms.is_empty(), "{alarms:?} (worst effort RMSE {worst} N*m)");
+}
+
+/// Joints alarm independently: with the shoulder's alarm standing (its effort reads 5 N·m over
+/// the twin's from 0.5 s), the base reported 1 rad off from 2.5 s raises an alarm of its own
+/// (before, one standing alarm hid every later divergence).
+#[test]
+fn a_standing_alarm_on_one_joint_hides_no_other() {
+    let (alarms, _) = follow_tampered(&UrSimOptions::default(), 4.0, None, |r| {
+        if r.time >= 0.5 {
+            r.effort[1] += 5.0;
+        }
+        if r.time >= 2.5 {
+            r.q[0] += 1.0;
+        }
+    });
+    let early: Vec<_> = alarms.iter().filter(|(t, _, _)| *t < 2.5).collect();
+    assert!(early.len() == 1 && early[0].2.starts_with("shoulder_lift_joint"), "{alarms:?}");
+    let base = alarms.iter().find(|(t, k, m)| *t >= 2.5 && k == "divergence" && m.starts_with("shoulder_pan_joint"));
+    assert!(base.is_some_and(|(t, _, _)| *t < 3.0), "no alarm for the base: {alarms:?}");
 }
 
 /// `monitor` without `--seconds` ends on SIGTERM (as on Ctrl-C) and writes what it followed

@@ -146,7 +146,9 @@ pub struct Monitor {
     last_command: [f64; 6],
     errors: Window,
     report: MonitorReport,
-    divergence_alarm: bool,
+    /// Per joint: its divergence alarm stands (raised, not yet back under half its threshold).
+    /// Joints alarm independently: one that stays diverged hides no other.
+    divergence_alarm: [bool; 6],
     predicted_alarm: bool,
     rest_cycles: usize,
     /// Cycles left before comparisons count (after the twin was put in place).
@@ -207,7 +209,7 @@ impl Monitor {
                 motions: Vec::new(),
                 anchors: 0,
             },
-            divergence_alarm: false,
+            divergence_alarm: [false; 6],
             predicted_alarm: false,
             rest_cycles: 0,
             warm_up: WARM_UP_CYCLES,
@@ -258,29 +260,27 @@ impl Monitor {
                 self.report.worst_error[j] = self.report.worst_error[j].max(error[j].abs());
             }
         }
-        // The joint furthest past its threshold, in units of it.
-        let (worst, ratio) = (0..6)
-            .map(|j| {
-                (j, (rmse[j] / self.options.position_threshold).max(effort_rmse[j] / self.options.effort_threshold))
-            })
-            .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
-        if !self.divergence_alarm && ratio > 1.0 {
-            self.divergence_alarm = true;
-            raised.push(Alarm {
-                time: r.time,
-                kind: "divergence".into(),
-                message: format!(
-                    "{} diverged over the last {:.1} s: position RMSE {:.2} mrad (threshold {:.2}), effort RMSE {:.2} N*m (threshold {:.2})",
-                    JOINTS[worst],
-                    self.options.window,
-                    rmse[worst] * 1e3,
-                    self.options.position_threshold * 1e3,
-                    effort_rmse[worst],
-                    self.options.effort_threshold
-                ),
-            });
-        } else if self.divergence_alarm && ratio < 0.5 {
-            self.divergence_alarm = false;
+        // Each joint against its thresholds, in units of them.
+        for j in 0..6 {
+            let ratio = (rmse[j] / self.options.position_threshold).max(effort_rmse[j] / self.options.effort_threshold);
+            if !self.divergence_alarm[j] && ratio > 1.0 {
+                self.divergence_alarm[j] = true;
+                raised.push(Alarm {
+                    time: r.time,
+                    kind: "divergence".into(),
+                    message: format!(
+                        "{} diverged over the last {:.1} s: position RMSE {:.2} mrad (threshold {:.2}), effort RMSE {:.2} N*m (threshold {:.2})",
+                        JOINTS[j],
+                        self.options.window,
+                        rmse[j] * 1e3,
+                        self.options.position_threshold * 1e3,
+                        effort_rmse[j],
+                        self.options.effort_threshold
+                    ),
+                });
+            } else if self.divergence_alarm[j] && ratio < 0.5 {
+                self.divergence_alarm[j] = false;
+            }
         }
 
         // What the command would do next, by the twin's kinematics.
