@@ -288,3 +288,19 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A push beyond any cell (1e30 N on a 0.2 kg pole, which the solver dropped: the run reported
+/// "survived") is refused, naming the key; a run whose observations leave the plausible ends
+/// as not survived ("physics_blew_up", `twinbots_study::BLOWN_UP`).
+#[test]
+fn a_push_the_physics_cannot_take_is_refused() {
+    let dir = temp("blow-up");
+    std::fs::create_dir_all(&dir).unwrap();
+    let suite = "robot = \"cartpole\"\nduration = 4.0\nsignal = \"pole_angle\"\nsetpoint = 0.0\nsettle_band = 0.05\nwindow = 1.0\nseeds = [0]\ncontrollers = [\"classic\"]\n[push]\nlink = \"pole_tip\"\ndirection = [1.0, 0.0, 0.0]\n[step_response]\nforces = [1e30]\nat = 1.0\ncontrol_steps = 2\n";
+    let file = dir.join("blow-up.toml");
+    std::fs::write(&file, suite).unwrap();
+    let out = dir.join("out");
+    let stderr = failed(study(&["cartpole".as_ref(), file.as_os_str(), "--out".as_ref(), out.as_os_str()]));
+    assert!(stderr.contains("blow-up.toml") && stderr.contains("step_response.forces contains 1e30 N"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -181,6 +181,16 @@ fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedControlle
         }
         let out = env.step(&actions)?;
         for i in 0..plan.len() {
+            // A world whose numbers left the plausible (a push the physics could not take)
+            // ends its run as a fall would: it did not survive, whatever the task says.
+            if live[i] && out.obs[i * dim..(i + 1) * dim].iter().any(|v| !v.is_finite() || v.abs() > BLOWN_UP) {
+                live[i] = false;
+                let end = (k + 1) as f64 * control_dt;
+                records[i].survived = false;
+                records[i].ended_s = Some(end);
+                records[i].ended_by = Some("physics_blew_up".into());
+                continue;
+            }
             if !live[i] || !(out.terminated[i] || out.truncated[i]) {
                 continue;
             }
@@ -212,6 +222,9 @@ fn run_controller(entry: &RobotEntry, suite: &Suite, controller: &NamedControlle
     }
     Ok(records)
 }
+
+/// An observation beyond this (or not a number) is a world the physics lost.
+pub const BLOWN_UP: f32 = 1e6;
 
 /// A run's last row: its final state, no action after it, no push.
 fn last_row(time: f64, obs: &[f32], actions_dim: usize) -> Vec<f64> {

@@ -6,6 +6,8 @@ use std::path::Path;
 
 use serde::Deserialize;
 
+/// The largest push a suite may ask for (N).
+pub const MAX_FORCE: f64 = 1e6;
 /// The suite file.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -164,15 +166,21 @@ impl Suite {
             Some(v) => Err(format!("{key} contains {v}")),
             None => Ok(()),
         };
+        // A push past a meganewton is beyond any cell, and beyond what the physics takes (at
+        // 1e30 N its solver dropped the push and the run "survived").
+        let forces = |key: &str, values: &[f64]| match values.iter().find(|v| v.abs() > MAX_FORCE) {
+            Some(v) => Err(format!("{key} contains {v:e} N: a push is at most {MAX_FORCE:e} N")),
+            None => finite(key, values),
+        };
         if let Some(s) = &self.step_response {
-            finite("step_response.forces", &s.forces)?;
+            forces("step_response.forces", &s.forces)?;
             within("step_response.at", s.at)?;
             if s.control_steps == 0 {
                 return Err("step_response.control_steps = 0: a kick lasts at least one control step".into());
             }
         }
         if let Some(i) = &self.impulse {
-            finite("impulse.forces", &i.forces)?;
+            forces("impulse.forces", &i.forces)?;
             finite("impulse.at", &i.at)?;
             for &at in &i.at {
                 within("impulse.at", at)?;

@@ -383,59 +383,6 @@ fn append_row(path: &Path, cells: &[(&str, String)]) -> anyhow::Result<()> {
     file.write_all(text.as_bytes()).map_err(io)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn temp_run(name: &str) -> RunDir {
-        let path = std::env::temp_dir().join(format!("twinbots-run-dir-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&path);
-        let run = RunDir::new(path);
-        run.create().unwrap();
-        run
-    }
-
-    #[test]
-    fn progress_rows_read_back_by_name_and_truncate_to_a_checkpoint() {
-        let run = temp_run("progress");
-        for update in 1..=4 {
-            let stats = UpdateStats {
-                update,
-                timesteps: 64 * update as u64,
-                mean_reward: update as f32,
-                success_rate: f32::NAN,
-                ..Default::default()
-            };
-            run.append_progress(&stats).unwrap();
-        }
-        // A crash in the middle of a row.
-        std::fs::OpenOptions::new().append(true).open(run.file(PROGRESS)).unwrap().write_all(b"5,320,1").unwrap();
-        let rows = run.read_progress().unwrap();
-        assert_eq!(rows.iter().map(|s| s.timesteps).collect::<Vec<_>>(), [64, 128, 192, 256]);
-        assert_eq!(rows[2].mean_reward, 3.0);
-        assert!(rows[0].success_rate.is_nan());
-        run.check_progress_columns(&[]).unwrap();
-
-        run.truncate_after(128).unwrap();
-        let rows = run.read_progress().unwrap();
-        assert_eq!(rows.iter().map(|s| s.update).collect::<Vec<_>>(), [1, 2]);
-        let text = std::fs::read_to_string(run.file(PROGRESS)).unwrap();
-        assert!(text.starts_with("update,timesteps,episodes,mean_reward,") && text.ends_with("\n"), "{text}");
-        std::fs::remove_dir_all(run.path()).ok();
-    }
-
-    #[test]
-    fn a_progress_file_with_other_columns_is_refused() {
-        let run = temp_run("columns");
-        std::fs::write(run.file(PROGRESS), "timesteps,update\n64,1\n").unwrap();
-        let err = run.check_progress_columns(&[]).unwrap_err().to_string();
-        assert!(err.contains("timesteps,update"), "{err}");
-        // It still reads, by name.
-        assert_eq!(run.read_progress().unwrap()[0].update, 1);
-        std::fs::remove_dir_all(run.path()).ok();
-    }
-}
-
 /// Every checkpoint's list of its files with their sizes and CRC-32C, checked before it is
 /// resumed from: a flipped byte or a missing file (the optimizer's) makes it unusable, not
 /// silently different.
@@ -487,4 +434,57 @@ fn verify_checksums(dir: &Path) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp_run(name: &str) -> RunDir {
+        let path = std::env::temp_dir().join(format!("twinbots-run-dir-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&path);
+        let run = RunDir::new(path);
+        run.create().unwrap();
+        run
+    }
+
+    #[test]
+    fn progress_rows_read_back_by_name_and_truncate_to_a_checkpoint() {
+        let run = temp_run("progress");
+        for update in 1..=4 {
+            let stats = UpdateStats {
+                update,
+                timesteps: 64 * update as u64,
+                mean_reward: update as f32,
+                success_rate: f32::NAN,
+                ..Default::default()
+            };
+            run.append_progress(&stats).unwrap();
+        }
+        // A crash in the middle of a row.
+        std::fs::OpenOptions::new().append(true).open(run.file(PROGRESS)).unwrap().write_all(b"5,320,1").unwrap();
+        let rows = run.read_progress().unwrap();
+        assert_eq!(rows.iter().map(|s| s.timesteps).collect::<Vec<_>>(), [64, 128, 192, 256]);
+        assert_eq!(rows[2].mean_reward, 3.0);
+        assert!(rows[0].success_rate.is_nan());
+        run.check_progress_columns(&[]).unwrap();
+
+        run.truncate_after(128).unwrap();
+        let rows = run.read_progress().unwrap();
+        assert_eq!(rows.iter().map(|s| s.update).collect::<Vec<_>>(), [1, 2]);
+        let text = std::fs::read_to_string(run.file(PROGRESS)).unwrap();
+        assert!(text.starts_with("update,timesteps,episodes,mean_reward,") && text.ends_with("\n"), "{text}");
+        std::fs::remove_dir_all(run.path()).ok();
+    }
+
+    #[test]
+    fn a_progress_file_with_other_columns_is_refused() {
+        let run = temp_run("columns");
+        std::fs::write(run.file(PROGRESS), "timesteps,update\n64,1\n").unwrap();
+        let err = run.check_progress_columns(&[]).unwrap_err().to_string();
+        assert!(err.contains("timesteps,update"), "{err}");
+        // It still reads, by name.
+        assert_eq!(run.read_progress().unwrap()[0].update, 1);
+        std::fs::remove_dir_all(run.path()).ok();
+    }
 }
