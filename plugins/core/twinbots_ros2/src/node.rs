@@ -117,10 +117,41 @@ fn create(what: &str, e: &dyn std::fmt::Debug) -> Ros2Error {
     Ros2Error::Create(format!("{what}: {e:?}"))
 }
 
-/// A node on domain `domain` named `/<name>`.
+/// How far DDS discovery reaches: this machine only unless `ROS_AUTOMATIC_DISCOVERY_RANGE`
+/// (ROS 2's own variable, Iron and later) says `SUBNET` or `SYSTEM_DEFAULT`. ROS 2 itself
+/// defaults to the subnet; the twin does not, since any peer it discovers can command it.
+pub fn localhost_only_from_env() -> Result<bool, Ros2Error> {
+    match std::env::var("ROS_AUTOMATIC_DISCOVERY_RANGE") {
+        Err(_) => Ok(true),
+        Ok(s) => discovery_range(&s),
+    }
+}
+
+/// A discovery range's value: whether it keeps discovery on this machine.
+pub fn discovery_range(s: &str) -> Result<bool, Ros2Error> {
+    match s.trim() {
+        "" | "LOCALHOST" => Ok(true),
+        "SUBNET" | "SYSTEM_DEFAULT" => Ok(false),
+        other => Err(Ros2Error::Domain(format!(
+            "ROS_AUTOMATIC_DISCOVERY_RANGE: '{other}' is not LOCALHOST (the default here), SUBNET or SYSTEM_DEFAULT"
+        ))),
+    }
+}
+
+/// A node on domain `domain` named `/<name>`; discovery on loopback only unless the
+/// environment asks for more ([`localhost_only_from_env`]).
 fn open_node(domain: u16, name: &str) -> Result<Node, Ros2Error> {
-    let context = Context::with_options(ContextOptions::new().domain_id(domain))
-        .map_err(|e| create("the DDS participant", &e))?;
+    let context = if localhost_only_from_env()? {
+        use ros2_client::dds::rustdds::DomainParticipantBuilder;
+        let participant = DomainParticipantBuilder::new(domain)
+            .with_only_networks([std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)])
+            .build()
+            .map_err(|e| create("the DDS participant", &e))?;
+        Context::from_domain_participant(participant)
+    } else {
+        Context::with_options(ContextOptions::new().domain_id(domain))
+    }
+    .map_err(|e| create("the DDS participant", &e))?;
     let node_name = NodeName::new("/", name).map_err(|e| create(&format!("node name '{name}'"), &e))?;
     context.new_node(node_name, NodeOptions::new().enable_rosout(false)).map_err(|e| create("the node", &e))
 }
@@ -234,6 +265,16 @@ fn drain<M: 'static + serde::de::DeserializeOwned, T>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn discovery_stays_on_this_machine_unless_asked() {
+        assert!(discovery_range("LOCALHOST").unwrap());
+        assert!(discovery_range("").unwrap());
+        assert!(!discovery_range("SUBNET").unwrap());
+        assert!(!discovery_range("SYSTEM_DEFAULT").unwrap());
+        let e = discovery_range("everywhere").unwrap_err().to_string();
+        assert!(e.contains("ROS_AUTOMATIC_DISCOVERY_RANGE") && e.contains("'everywhere'"), "{e}");
+    }
 
     #[test]
     fn domain_ids_are_rcls() {
