@@ -29,16 +29,19 @@ fn cartpole_ppo_solves_within_300k_steps() {
     assert!(at <= 300_000, "solved only after {at} steps: {summary}");
 }
 
-/// 100 k steps of the Pioneer's 291 k to solve: seeds 1–5 reach a mean episode reward of
-/// 13.8–21.2 over the last 100 episodes (mean 16.6); the first rows, before learning, hold 9.4.
+/// 150 k steps of the Pioneer's 291 k to solve: seeds 0–5 reach a mean episode reward of
+/// 17.3–204.3 over the last 100 episodes (seed 0: 29.0), and the same run that never learns
+/// (`[ppo] learning_rate = 1e-12`, seed 0) 8.96 (2026-12-06, 7199e30). The threshold sits midway
+/// between the two: 4 above a learner that stopped, 4 below the worst seed. (At 100 k steps the
+/// seeds' worst was 13.8 against 9.0: too thin a margin to mean much.)
 #[test]
-fn pioneer_ppo_learns_within_100k_steps() {
-    let (summary, _) = trained("pioneer", &["pioneer3at", "--timesteps", "100000"]);
+fn pioneer_ppo_learns_within_150k_steps() {
+    let (summary, _) = trained("pioneer", &["pioneer3at", "--timesteps", "150000"]);
     let mean = summary["mean_reward_last_100"].as_f64().unwrap();
     assert!(mean >= PIONEER_THRESHOLD, "mean reward of the last 100 episodes {mean} < {PIONEER_THRESHOLD}: {summary}");
 }
 
-const PIONEER_THRESHOLD: f64 = 11.0;
+const PIONEER_THRESHOLD: f64 = 13.0;
 
 /// 10 k steps of SAC + HER (of the 50–95 k it solves in): seeds 0–5 score −18.2 to −36.5 in the
 /// final evaluation (200 reaches; seed 0 −31.0), and −18.3 to −29.3 with candle's graph for
