@@ -4,7 +4,7 @@
 use std::io::{BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::process::{Command, Stdio};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use twinbots_learn::{Flow, Ppo, PpoConfig};
 use twinbots_link::frame::{read_message, write_message};
@@ -318,8 +318,15 @@ fn a_robot_reconnects_with_backoff_when_its_server_goes_away() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    // Let it train a little, then take the server away and bring another up on the same port.
-    std::thread::sleep(Duration::from_millis(1500));
+    // Let it train a little (until the first server has logged an update: the robot is
+    // connected and stepping, however busy the machine), then take the server away and bring
+    // another up on the same port.
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let rows = || std::fs::read_to_string(out1.join("progress.csv")).map_or(0, |t| t.lines().count());
+    while rows() < 2 {
+        assert!(Instant::now() < deadline, "the first server never logged an update");
+        std::thread::sleep(Duration::from_millis(20));
+    }
     first.kill().unwrap();
     first.wait().unwrap();
     std::thread::sleep(Duration::from_millis(300));
