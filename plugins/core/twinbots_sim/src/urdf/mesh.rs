@@ -56,6 +56,11 @@ pub fn read(path: &Path) -> Result<Triangles, String> {
 fn read_bounded(path: &Path) -> Result<Vec<u8>, String> {
     use std::io::Read;
     let file = std::fs::File::open(path).map_err(|e| format!("not found at {}: {e}", path.display()))?;
+    // A device or a pipe is not a mesh (`/dev/zero` never ends, a FIFO may never answer).
+    let kind = file.metadata().map_err(|e| format!("{}: {e}", path.display()))?;
+    if !kind.is_file() {
+        return Err(format!("{}: not a regular file", path.display()));
+    }
     let mut bytes = Vec::new();
     file.take(MAX_BYTES + 1).read_to_end(&mut bytes).map_err(|e| format!("{}: {e}", path.display()))?;
     if bytes.len() as u64 > MAX_BYTES {
@@ -79,9 +84,13 @@ fn obj(bytes: &[u8]) -> Result<Triangles, String> {
         .map_err(|e| format!("not a valid OBJ: {e}"))?;
     let (mut vertices, mut triangles) = (Vec::new(), Vec::new());
     for model in models {
-        let base = vertices.len() as u32;
+        let base = vertices.len();
         vertices.extend(model.mesh.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])));
-        triangles.extend(model.mesh.indices.chunks_exact(3).map(|t| [base + t[0], base + t[1], base + t[2]]));
+        for t in model.mesh.indices.chunks_exact(3) {
+            triangles.push(
+                offset_triangle(base, vertices.len() - base, t).map_err(|e| format!("object '{}': {e}", model.name))?,
+            );
+        }
     }
     Ok((vertices, triangles))
 }
@@ -100,8 +109,15 @@ fn gltf(bytes: &[u8], path: &Path) -> Result<Triangles, String> {
                 data_uri(uri).map_err(|e| format!("buffer {}: {e}", b.index()))
             }
             gltf::buffer::Source::Uri(uri) => {
-                let p = dir.join(uri);
-                std::fs::read(&p).map_err(|e| format!("buffer {} ({}): {e}", b.index(), p.display()))
+                // A buffer lies beside its glTF file: no scheme, no absolute path, no way up.
+                let relative = Path::new(uri);
+                if uri.contains("://")
+                    || relative.is_absolute()
+                    || relative.components().any(|c| c == std::path::Component::ParentDir)
+                {
+                    return Err(format!("buffer {}: '{uri}' is not a path beside the glTF file", b.index()));
+                }
+                read_bounded(&dir.join(relative)).map_err(|e| format!("buffer {}: {e}", b.index()))
             }
         })
         .collect::<Result<_, _>>()?;
@@ -143,16 +159,32 @@ fn gltf_mesh(mesh: &gltf::Mesh, pose: Mat4, buffers: &[Vec<u8>], out: &mut Trian
         let positions = reader
             .read_positions()
             .ok_or_else(|| format!("mesh {} has a primitive without positions", mesh.index()))?;
-        let base = out.0.len() as u32;
+        let base = out.0.len();
         out.0.extend(positions.map(|p| pose.transform_point3(Vec3::from_array(p))));
-        let count = out.0.len() as u32 - base;
+        let count = out.0.len() - base;
         let indices: Vec<u32> = match reader.read_indices() {
             Some(i) => i.into_u32().collect(),
-            None => (0..count).collect(),
+            None => (0..count as u32).collect(),
         };
-        out.1.extend(indices.chunks_exact(3).map(|t| [base + t[0], base + t[1], base + t[2]]));
+        for t in indices.chunks_exact(3) {
+            out.1.push(offset_triangle(base, count, t).map_err(|e| format!("mesh {}: {e}", mesh.index()))?);
+        }
     }
     Ok(())
+}
+
+/// A part's triangle `t` (indices into its `count` vertices) in the whole mesh's numbering, its
+/// vertices starting at `base`: an index beyond the part is an error, never an index that
+/// wraps round into another part's vertices.
+fn offset_triangle(base: usize, count: usize, t: &[u32]) -> Result<[u32; 3], String> {
+    let mut out = [0u32; 3];
+    for (o, &i) in out.iter_mut().zip(t) {
+        if i as usize >= count {
+            return Err(format!("a triangle names vertex {i} of {count}"));
+        }
+        *o = u32::try_from(base + i as usize).map_err(|_| "more vertices than 32-bit indices reach".to_string())?;
+    }
+    Ok(out)
 }
 
 /// A `data:...;base64,` URI's bytes.
@@ -182,6 +214,13 @@ pub fn resolve(filename: &str, urdf_dir: &Path, package_path: &[PathBuf]) -> Res
     };
     let (package, inner) =
         rest.split_once('/').ok_or_else(|| format!("mesh '{filename}': package:// needs a package and a path"))?;
+    // A package path stays inside its package.
+    let inner_path = Path::new(inner);
+    if inner_path.is_absolute() || inner_path.components().any(|c| c == std::path::Component::ParentDir) {
+        return Err(format!(
+            "mesh '{filename}': a package:// path may not leave its package ('..' or an absolute path)"
+        ));
+    }
     let mut tried = Vec::new();
     let candidates = package_path
         .iter()
@@ -243,6 +282,12 @@ mod tests {
         );
         let e = resolve("package://arm_description/meshes/a.stl", &own, &[]).unwrap_err();
         assert!(e.contains("not found; looked at") && e.contains("TWINBOTS_PACKAGE_PATH"), "{e}");
+        let e = resolve("package://arm_description/../../../etc/passwd", &own, &path).unwrap_err();
+        assert!(e.contains("may not leave its package"), "{e}");
+        let e = read(Path::new("/dev/zero.stl")).unwrap_err();
+        assert!(e.contains("not found"), "{e}");
+        let e = read_bounded(Path::new("/dev/zero")).unwrap_err();
+        assert!(e.contains("not a regular file"), "{e}");
         let e = resolve("http://example.com/a.stl", &own, &path).unwrap_err();
         assert!(e.contains("unknown URI scheme 'http://'"), "{e}");
         assert_eq!(resolve("meshes/c.stl", &own, &path).unwrap(), own.join("meshes/c.stl"));
@@ -289,5 +334,37 @@ mod tests {
         let bad = dir.join("b.glb");
         std::fs::write(&bad, "glTF not really").unwrap();
         assert!(read(&bad).unwrap_err().contains("not a valid glTF"));
+        // A buffer outside the glTF's folder, and an index past the part's vertices (it wrapped
+        // round a u32 into garbage triangles before).
+        std::fs::write(dir.join("buffer.bin"), &bin).unwrap();
+        for (uri, expected) in [("../buffer.bin", "not a path beside"), ("/etc/passwd", "not a path beside")] {
+            let escaping = dir.join("escaping.gltf");
+            std::fs::write(&escaping, json_of(&format!("{{\"byteLength\":72,\"uri\":\"{uri}\"}}"))).unwrap();
+            let e = read(&escaping).unwrap_err();
+            assert!(e.contains(expected), "{uri}: {e}");
+        }
+        let mut wrapping = bin.clone();
+        wrapping[48..50].copy_from_slice(&9u16.to_le_bytes());
+        let wild = dir.join("wild.gltf");
+        let data = base64::engine::general_purpose::STANDARD.encode(&wrapping);
+        std::fs::write(
+            &wild,
+            json_of(&format!("{{\"byteLength\":72,\"uri\":\"data:application/octet-stream;base64,{data}\"}}")),
+        )
+        .unwrap();
+        let e = read(&wild).unwrap_err();
+        assert!(e.contains("names vertex 9 of 4"), "{e}");
+    }
+
+    /// The tetrahedron's glTF with `buffer` as its one buffer.
+    fn json_of(buffer: &str) -> String {
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+            "buffers":[{buffer}],
+            "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":48}},{{"buffer":0,"byteOffset":48,"byteLength":24}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[0,0,0],"max":[1,1,1]}},
+                         {{"bufferView":1,"componentType":5123,"count":12,"type":"SCALAR"}}]}}"#
+        )
     }
 }
