@@ -19,6 +19,9 @@ type Triangles = (Vec<Vec3>, Vec<[u32; 3]>);
 
 /// Reads the triangles of a Collada document, in metres, Z up.
 pub fn read(text: &str) -> Result<Triangles, String> {
+    if let Some(line) = super::load::too_deep(text) {
+        return Err(format!("line {line}: elements nest deeper than {} levels", super::load::MAX_XML_DEPTH));
+    }
     let doc = Document::parse(text).map_err(|e| format!("not valid XML: {e}"))?;
     let root = doc.root_element();
     if root.tag_name().name() != "COLLADA" {
