@@ -150,6 +150,18 @@ fn bad_suites_and_controllers_are_clear_errors() {
         ),
         ("key", shipped.replace("window = 1.0", "windw = 1.0"), vec![], "unknown field `windw`"),
         (
+            "seeds",
+            shipped.replace("seeds = [0]", &format!("seeds = {:?}", (0..20_000).collect::<Vec<u64>>())),
+            vec![],
+            "10 tests × 20000 seeds = 200000 runs a controller: at most 1024",
+        ),
+        (
+            "duration",
+            shipped.replace("duration = 10.0", "duration = 1e7"),
+            vec![],
+            "duration = 10000000 s: a run lasts at most 600 s",
+        ),
+        (
             "at",
             shipped.replace("at = [2.0, 4.0]", "at = [2.0, 40.0]"),
             vec![],

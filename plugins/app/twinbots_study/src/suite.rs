@@ -8,6 +8,10 @@ use serde::Deserialize;
 
 /// The largest push a suite may ask for (N).
 pub const MAX_FORCE: f64 = 1e6;
+/// The most runs of one controller (tests × seeds), each an arena stepping beside the others.
+pub const MAX_RUNS: usize = 1024;
+/// The longest a run may last (s).
+pub const MAX_DURATION: f64 = 600.0;
 /// The suite file.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -146,6 +150,20 @@ impl Suite {
         }
         if self.seeds.is_empty() {
             return Err("seeds = []: give at least one".into());
+        }
+        if self.duration > MAX_DURATION {
+            return Err(format!("duration = {} s: a run lasts at most {MAX_DURATION} s", self.duration));
+        }
+        // Every run of a controller steps side by side, an arena each.
+        let tests = self.step_response.as_ref().map_or(0, |s| s.forces.len())
+            + self.impulse.as_ref().map_or(0, |i| i.forces.len() * i.at.len())
+            + self.payload.as_ref().map_or(0, |p| p.mass.len());
+        let runs = tests.saturating_mul(self.seeds.len());
+        if runs > MAX_RUNS {
+            return Err(format!(
+                "{tests} tests × {} seeds = {runs} runs a controller: at most {MAX_RUNS} (they step side by side)",
+                self.seeds.len()
+            ));
         }
         if self.controllers.is_empty() {
             return Err("controllers = []: give at least one (classic, a run directory or an .onnx file)".into());
