@@ -2,4 +2,5 @@
 //! its errors on bad input.
 
 mod cli;
+mod fuzz;
 mod recovery;

@@ -76,6 +76,11 @@ impl<'input> Reader<'_, 'input> {
         if depth > MAX_DEPTH {
             return Err(format!("nodes nested deeper than {MAX_DEPTH} (a loop of <instance_node>?)"));
         }
+        // Instances multiply: nodes that each instance another twice, 64 deep, would ask for
+        // 2⁶⁴ copies. The cap is checked as they are made.
+        if out.1.len() > super::mesh::MAX_TRIANGLES {
+            return Err(format!("more than {} triangles once its instances are placed", super::mesh::MAX_TRIANGLES));
+        }
         let mut pose = parent;
         for t in node.children().filter(Node::is_element) {
             let name = t.tag_name().name();

@@ -21,6 +21,11 @@ pub const MAX_TRIANGLES: usize = 5_000_000;
 /// A mesh file's triangles: vertices and index triples.
 pub type Triangles = (Vec<Vec3>, Vec<[u32; 3]>);
 
+/// The triangles of Collada text (as [`read`] reads a `.dae` file; for checking the reader).
+pub fn parse_collada(text: &str) -> Result<Triangles, String> {
+    super::collada::read(text)
+}
+
 /// Reads the triangles of the mesh file at `path`, by its extension.
 pub fn read(path: &Path) -> Result<Triangles, String> {
     let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();

@@ -52,8 +52,13 @@ impl RobotFile {
 
     /// Reads and checks the robot file at `path`.
     pub fn read(path: &Path) -> anyhow::Result<RobotFile> {
+        let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Self::parse(&text, path)
+    }
+
+    /// Checks `text` as the robot file at `path` (its URDF is found relative to `path`).
+    pub fn parse(text: &str, path: &Path) -> anyhow::Result<RobotFile> {
         let at = |e: anyhow::Error| anyhow::anyhow!("{}: {e:#}", path.display());
-        let text = std::fs::read_to_string(path).map_err(|e| at(e.into()))?;
         let written: Written =
             toml::from_str(&text).map_err(|e| at(anyhow::anyhow!("{}", e.to_string().trim_end())))?;
         let urdf = path.parent().unwrap_or(Path::new(".")).join(&written.urdf);
