@@ -59,8 +59,7 @@ impl RobotFile {
     /// Checks `text` as the robot file at `path` (its URDF is found relative to `path`).
     pub fn parse(text: &str, path: &Path) -> anyhow::Result<RobotFile> {
         let at = |e: anyhow::Error| anyhow::anyhow!("{}: {e:#}", path.display());
-        let written: Written =
-            toml::from_str(&text).map_err(|e| at(anyhow::anyhow!("{}", e.to_string().trim_end())))?;
+        let written: Written = toml::from_str(text).map_err(|e| at(anyhow::anyhow!("{}", e.to_string().trim_end())))?;
         let urdf = path.parent().unwrap_or(Path::new(".")).join(&written.urdf);
         let chain = Chain::from_file(&urdf, written.base.as_deref(), &written.tool)
             .map_err(|e| at(anyhow::anyhow!("key 'urdf' ({}), 'base', 'tool': {e:#}", written.urdf.display())))?;
