@@ -121,9 +121,9 @@ fn a_killed_and_resumed_sac_run_ends_byte_for_byte_as_an_uninterrupted_one() {
     killed_and_resumed_run_matches_an_uninterrupted_one("resume-exact-sac", &["pioneer3at"], config);
 }
 
-#[test]
-fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_used() {
-    let dir = temp_dir("resume-damaged");
+/// A 1,280-step cart-pole run in `dir/run`, checkpointed every 4th of its 20 updates: the run
+/// and its five checkpoints, oldest first.
+fn five_checkpoints(dir: &Path) -> (PathBuf, Vec<PathBuf>) {
     let run = dir.join("run");
     let output = twinbots()
         .args(["train", "cartpole", "--timesteps", "1280", "--arenas", "2", "--checkpoint-every", "4", "--out"])
@@ -134,6 +134,13 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
     let mut checkpoints: Vec<PathBuf> =
         std::fs::read_dir(run.join("checkpoints")).unwrap().map(|e| e.unwrap().path()).collect();
     checkpoints.sort();
+    (run, checkpoints)
+}
+
+#[test]
+fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_used() {
+    let dir = temp_dir("resume-damaged");
+    let (run, checkpoints) = five_checkpoints(&dir);
     assert_eq!(checkpoints.len(), 5, "every 4th of 20 updates");
     // The newest: its metadata cut short. The one before: a weight turned NaN (0xffffffff).
     let newest = &checkpoints[4];
@@ -190,16 +197,7 @@ fn a_damaged_or_non_finite_newest_checkpoint_is_reported_and_the_one_before_it_u
 #[test]
 fn a_checkpoint_not_as_saved_is_passed_over() {
     let dir = temp_dir("resume-checksums");
-    let run = dir.join("run");
-    let output = twinbots()
-        .args(["train", "cartpole", "--timesteps", "1280", "--arenas", "2", "--checkpoint-every", "4", "--out"])
-        .arg(&run)
-        .output()
-        .unwrap();
-    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
-    let mut checkpoints: Vec<PathBuf> =
-        std::fs::read_dir(run.join("checkpoints")).unwrap().map(|e| e.unwrap().path()).collect();
-    checkpoints.sort();
+    let (run, checkpoints) = five_checkpoints(&dir);
     let flipped = &checkpoints[4];
     let mut weights = std::fs::read(flipped.join("model.safetensors")).unwrap();
     let n = weights.len();

@@ -18,9 +18,10 @@ use roxmltree::{Document, Node};
 type Triangles = (Vec<Vec3>, Vec<[u32; 3]>);
 
 /// Reads the triangles of a Collada document, in metres, Z up.
-pub fn read(text: &str) -> Result<Triangles, String> {
-    if let Some(line) = super::load::too_deep(text) {
-        return Err(format!("line {line}: elements nest deeper than {} levels", super::load::MAX_XML_DEPTH));
+/// `max_triangles` bounds the instances placed (checked as they are, not after).
+pub fn read(text: &str, max_triangles: usize) -> Result<Triangles, String> {
+    if let Some(line) = super::xml_depth::too_deep(text) {
+        return Err(format!("line {line}: elements nest deeper than {} levels", super::xml_depth::MAX_XML_DEPTH));
     }
     let doc = Document::parse(text).map_err(|e| format!("not valid XML: {e}"))?;
     let root = doc.root_element();
@@ -46,7 +47,7 @@ pub fn read(text: &str) -> Result<Triangles, String> {
         other => return Err(format!("<up_axis>{other}</up_axis>: not X_UP, Y_UP or Z_UP")),
     };
     let to_link = Mat4::from_rotation_translation(turn, Vec3::ZERO) * Mat4::from_scale(Vec3::splat(meter));
-    let reader = Reader { ids: &ids };
+    let reader = Reader { ids: &ids, max_triangles };
     let mut out: Triangles = (Vec::new(), Vec::new());
     match visual_scene(root, &ids) {
         Some(scene) => {
@@ -66,6 +67,7 @@ pub fn read(text: &str) -> Result<Triangles, String> {
 
 struct Reader<'a, 'input> {
     ids: &'a HashMap<&'input str, Node<'input, 'input>>,
+    max_triangles: usize,
 }
 
 /// Nodes nest at most this deep (a file that nests deeper is refused, not recursed into).
@@ -78,8 +80,8 @@ impl<'input> Reader<'_, 'input> {
         }
         // Instances multiply: nodes that each instance another twice, 64 deep, would ask for
         // 2⁶⁴ copies. The cap is checked as they are made.
-        if out.1.len() > super::mesh::MAX_TRIANGLES {
-            return Err(format!("more than {} triangles once its instances are placed", super::mesh::MAX_TRIANGLES));
+        if out.1.len() > self.max_triangles {
+            return Err(format!("more than {} triangles once its instances are placed", self.max_triangles));
         }
         let mut pose = parent;
         for t in node.children().filter(Node::is_element) {
@@ -302,7 +304,7 @@ mod tests {
 
     #[test]
     fn units_up_axis_nodes_and_polygons_are_applied() {
-        let (vertices, triangles) = read(SQUARE).unwrap();
+        let (vertices, triangles) = read(SQUARE, 5_000_000).unwrap();
         assert_eq!((vertices.len(), triangles.len()), (8, 4), "two instances of a quad fanned into two triangles");
         // Y up turned to Z up, centimetres to metres: the translated copy's corners at z = 1 m.
         let lifted: Vec<Vec3> = vertices[..4].to_vec();
@@ -315,13 +317,16 @@ mod tests {
     #[test]
     fn broken_references_and_numbers_are_named() {
         let bad_index = SQUARE.replace("<p>0 0 1 0 2 0 3 0</p>", "<p>0 0 1 0 2 0 9 0</p>");
-        assert!(read(&bad_index).unwrap_err().contains("names position 9 of 4"));
+        assert!(read(&bad_index, 5_000_000).unwrap_err().contains("names position 9 of 4"));
         let bad_number = SQUARE.replace("100 0 100 0", "100 0 nan 0");
-        assert!(read(&bad_number).unwrap_err().contains("'nan' is not a finite number"));
+        assert!(read(&bad_number, 5_000_000).unwrap_err().contains("'nan' is not a finite number"));
         let missing = SQUARE.replace("url=\"#part\"", "url=\"#gone\"");
-        assert!(read(&missing).unwrap_err().contains("'#gone'"));
+        assert!(read(&missing, 5_000_000).unwrap_err().contains("'#gone'"));
         let looping = SQUARE.replace("<instance_geometry url=\"#sq\"/>", "<instance_node url=\"#part\"/>");
-        assert!(read(&looping).unwrap_err().contains("nested deeper"));
-        assert!(read("<robot/>").unwrap_err().contains("not a Collada document"));
+        assert!(read(&looping, 5_000_000).unwrap_err().contains("nested deeper"));
+        assert!(read("<robot/>", 5_000_000).unwrap_err().contains("not a Collada document"));
+        // Instances are counted as they are placed: the second of the square's two is refused
+        // under a cap of 1 (nodes that each instance another twice would ask for 2^64 copies).
+        assert!(read(SQUARE, 1).unwrap_err().contains("more than 1 triangles once its instances are placed"));
     }
 }

@@ -23,7 +23,7 @@ pub type Triangles = (Vec<Vec3>, Vec<[u32; 3]>);
 
 /// The triangles of Collada text (as [`read`] reads a `.dae` file; for checking the reader).
 pub fn parse_collada(text: &str) -> Result<Triangles, String> {
-    super::collada::read(text)
+    super::collada::read(text, MAX_TRIANGLES)
 }
 
 /// Reads the triangles of the mesh file at `path`, by its extension.
@@ -36,7 +36,7 @@ pub fn read(path: &Path) -> Result<Triangles, String> {
         "glb" | "gltf" => gltf(&bytes, path),
         "dae" => std::str::from_utf8(&bytes)
             .map_err(|e| format!("not UTF-8 text: {e}"))
-            .and_then(super::collada::read)
+            .and_then(|text| super::collada::read(text, MAX_TRIANGLES))
             .map_err(|e| format!("{}: {e}", path.display())),
         _ => Err(format!("{}: not a mesh format twinbots reads ({FORMATS})", path.display())),
     }?;

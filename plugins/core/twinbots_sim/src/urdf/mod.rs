@@ -9,6 +9,7 @@ mod load;
 pub mod mesh;
 mod model;
 pub mod robot_file;
+mod xml_depth;
 
 pub use error::UrdfError;
 pub use load::{load_urdf, parse_urdf, parse_urdf_exact};
