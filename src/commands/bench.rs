@@ -67,8 +67,9 @@ pub enum BenchKind {
     /// `--arenas 16`) with a 64x64 camera each, rendered together; plain and with visual
     /// randomization.
     Cameras,
-    /// RTDE at 500 Hz on loopback: report in → command out, p50 and p99, and missed cycles
-    /// (--bundle DIR answers every report; --seconds S).
+    /// RTDE at 500 Hz on loopback: report in → command out, p50, p99, p99.9 and max, the
+    /// longest time between commands (an error if 20 ms or more: a UR stops then), missed
+    /// cycles (--bundle DIR answers every report; --seconds S).
     Rtde,
 }
 
@@ -86,12 +87,15 @@ fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64, rt_priority: Optio
     );
     let show = |r: &twinbots_ops::deploy::latency::LatencyReport| {
         println!(
-            "  {:6.1} s: {} commands, report in -> command out p50 {:.0} us, p99 {:.0} us, max {:.0} us; {} later than 2 ms, {} reports missed, stand-in missed {} cycles",
+            "  {:6.1} s: {} commands, report in -> command out p50 {:.0} us, p99 {:.0} us, p99.9 {:.0} us, max {:.0} us; longest between commands {:.1} ms ({} of 20 ms or more); {} later than 2 ms, {} reports missed, stand-in missed {} cycles",
             r.seconds,
             r.commands,
             r.p50_us,
             r.p99_us,
+            r.p999_us,
             r.max_us,
+            r.longest_gap_ms,
+            r.stopping_gaps,
             r.late_commands,
             r.missed_reports,
             r.standin_missed_cycles
@@ -99,6 +103,13 @@ fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64, rt_priority: Optio
     };
     let report = twinbots_ops::deploy::latency::measure(&bundle, seconds, rt_priority, show)?;
     show(&report);
+    // What a robot needs: never 20 ms without a command (a UR stops the arm then).
+    anyhow::ensure!(
+        report.stopping_gaps == 0,
+        "{} gap(s) of 20 ms or more between commands (longest {:.1} ms): a UR would have stopped the arm",
+        report.stopping_gaps,
+        report.longest_gap_ms
+    );
     Ok(())
 }
 

@@ -17,6 +17,9 @@ use super::{controller_of, shadow_of};
 use crate::bundle::Bundle;
 use crate::ur_sim::{CYCLE, UrSim, UrSimOptions, controller_info};
 
+/// A UR controller stops the arm when no command came for this long (ms).
+pub const STOP_GAP_MS: f64 = 20.0;
+
 #[derive(Clone, Debug, Serialize)]
 pub struct LatencyReport {
     pub seconds: f64,
@@ -24,7 +27,13 @@ pub struct LatencyReport {
     /// Report in → command out (µs).
     pub p50_us: f64,
     pub p99_us: f64,
+    pub p999_us: f64,
     pub max_us: f64,
+    /// The longest between two commands sent (ms, wall clock): a UR controller stops the arm
+    /// when none came for [`STOP_GAP_MS`] (ur_rtde's and ur_robot_driver's receive timeout).
+    pub longest_gap_ms: f64,
+    /// Gaps between commands of [`STOP_GAP_MS`] or more.
+    pub stopping_gaps: usize,
     /// Commands later than one controller cycle (2 ms) after their report.
     pub late_commands: usize,
     /// Reports the client never saw (gaps in the controller's timestamps).
@@ -70,6 +79,8 @@ pub fn measure(
         let mut rng = ChaCha8Rng::seed_from_u64(0);
         controller.new_reach(&mut rng);
         let mut latencies = Vec::new();
+        let mut gaps: Vec<f64> = Vec::new();
+        let mut last_sent: Option<std::time::Instant> = None;
         let (mut missed, mut last, mut previous_time) = (0u64, [0.0; 6], None::<f64>);
         let mut start = None;
         let mut next_progress = 10.0;
@@ -95,14 +106,18 @@ pub fn measure(
             };
             last = if verdict.refused { [0.0; 6] } else { verdict.command };
             latencies.push(m.received.elapsed().as_secs_f64() * 1e6);
+            let sent = std::time::Instant::now();
+            if let Some(before) = last_sent.replace(sent) {
+                gaps.push((sent - before).as_secs_f64() * 1e3);
+            }
             let elapsed = m.time - t0;
             if elapsed >= next_progress {
                 next_progress += 10.0;
-                progress(&summary(&latencies, elapsed, missed, 0));
+                progress(&summary(&latencies, &gaps, elapsed, missed, 0));
             }
             if elapsed >= seconds {
                 arm.stop()?;
-                return Ok(summary(&latencies, elapsed, missed, 0));
+                return Ok(summary(&latencies, &gaps, elapsed, missed, 0));
             }
         }
     })();
@@ -111,14 +126,20 @@ pub fn measure(
     result.map(|r: LatencyReport| LatencyReport { standin_missed_cycles: standin_missed, ..r })
 }
 
-fn summary(latencies: &[f64], seconds: f64, missed: u64, standin: u64) -> LatencyReport {
+fn summary(latencies: &[f64], gaps: &[f64], seconds: f64, missed: u64, standin: u64) -> LatencyReport {
     let (p50_us, p99_us, max_us) = super::percentiles(latencies);
+    let mut sorted = latencies.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let p999_us = sorted.get(((sorted.len().max(1) - 1) as f64 * 0.999).round() as usize).copied().unwrap_or(0.0);
     LatencyReport {
         seconds,
         commands: latencies.len(),
         p50_us,
         p99_us,
+        p999_us,
         max_us,
+        longest_gap_ms: gaps.iter().copied().fold(0.0, f64::max),
+        stopping_gaps: gaps.iter().filter(|&&g| g >= STOP_GAP_MS).count(),
         late_commands: latencies.iter().filter(|&&l| l > CYCLE * 1e6).count(),
         missed_reports: missed,
         standin_missed_cycles: standin,
