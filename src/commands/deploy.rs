@@ -89,6 +89,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         arm.describe(),
         args.episodes
     );
+    // Ctrl-C and SIGTERM end the deployment at the next report, the robot told to stop first.
+    twinbots_ops::stop_signal::install();
     let mut successes = 0;
     let report = deploy(arm.as_mut(), &bundle, &options, |e| {
         successes += usize::from(e.success);

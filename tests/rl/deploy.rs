@@ -296,3 +296,34 @@ fn a_frozen_clock_a_joint_out_of_range_or_a_stopped_program_stops_the_robot() {
         assert!(began.elapsed() < Duration::from_secs(5), "{expected}: {:?}", began.elapsed());
     }
 }
+
+/// SIGTERM (as Ctrl-C) on `deploy` through RTDE: it tells the robot to stop (its program goes
+/// idle, not to the watchdog's stop a killed client leaves), names the signal and fails.
+#[test]
+fn a_terminated_deployment_stops_the_robot_first() {
+    use std::io::BufRead;
+    use twinbots_ops::ur_sim::program::{ProgramState, STATE};
+    let dir = bundle("deploy-sigterm");
+    let standin = Standin::start(0.1);
+    let mut child = twinbots()
+        .args(["deploy", "ur5e", "--rtde", &standin.address(), "--episodes", "1000", "--bundle"])
+        .arg(&dir)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut lines = stdout.lines().map_while(Result::ok);
+    assert!(lines.any(|l| l.starts_with("deploying")), "deploy never started");
+    std::thread::sleep(Duration::from_millis(500));
+    // SAFETY: a signal to our own child, by its pid.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+    let output = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("stopped by SIGTERM"), "{stderr}");
+    let mut client = RtdeClient::connect(&standin.address(), Duration::from_secs(2)).unwrap();
+    client.setup_outputs(&[STATE], 125.0).unwrap();
+    client.start().unwrap();
+    let state = client.receive().unwrap().get(STATE).and_then(twinbots_rtde::Value::as_i64).unwrap();
+    assert_eq!(state, ProgramState::Idle as i64, "the program was not told to stop");
+}
