@@ -106,15 +106,36 @@ impl Dynamics {
 
     /// [`Dynamics::inverse`] with other inertial parameters (`PARAMS_PER_BODY` a body).
     pub fn inverse_with(&self, parameters: &[f64], q: &[f64], qd: &[f64], qdd: &[f64], gravity: DVec3) -> Vec<f64> {
+        assert_eq!(parameters.len(), self.dof() * PARAMS_PER_BODY, "{PARAMS_PER_BODY} parameters a body");
+        self.backward(parameters, &self.forward(q, qd, qdd, gravity))
+    }
+
+    /// The regressor at `q`, `qd`, `qdd`: efforts = regressor · parameters, row-major
+    /// (`dof` rows of `dof · PARAMS_PER_BODY`). Inverse dynamics is linear in the parameters,
+    /// so each column is the efforts with that one parameter at 1 and the rest at 0; the
+    /// bodies' motion, which the parameters do not change, is found once for all of them.
+    pub fn regressor(&self, q: &[f64], qd: &[f64], qdd: &[f64], gravity: DVec3) -> Vec<f64> {
+        let (n, cols) = (self.dof(), self.dof() * PARAMS_PER_BODY);
+        let motion = self.forward(q, qd, qdd, gravity);
+        let mut out = vec![0.0; n * cols];
+        let mut unit = vec![0.0; cols];
+        for c in 0..cols {
+            unit[c] = 1.0;
+            for (row, t) in self.backward(&unit, &motion).into_iter().enumerate() {
+                out[row * cols + c] = t;
+            }
+            unit[c] = 0.0;
+        }
+        out
+    }
+
+    /// The forward pass: each body's rotation from its parent's frame, its origin there, and
+    /// its angular velocity, angular acceleration and origin's linear acceleration in its own
+    /// frame (gravity as the base accelerating upwards).
+    fn forward(&self, q: &[f64], qd: &[f64], qdd: &[f64], gravity: DVec3) -> Vec<BodyMotion> {
         let n = self.dof();
         assert!(q.len() == n && qd.len() == n && qdd.len() == n, "{n} joints: q, qd, qdd of that length");
-        assert_eq!(parameters.len(), n * PARAMS_PER_BODY, "{PARAMS_PER_BODY} parameters a body");
-        // Forward: each body's rotation from its parent's frame, its origin there, and its
-        // angular velocity, angular acceleration and origin's linear acceleration in its own
-        // frame (gravity as the base accelerating upwards).
-        let mut rotation = Vec::with_capacity(n);
-        let mut offset = Vec::with_capacity(n);
-        let mut motion = Vec::with_capacity(n);
+        let mut out = Vec::with_capacity(n);
         let (mut w, mut dw, mut a) = (DVec3::ZERO, DVec3::ZERO, -gravity);
         for (k, body) in self.bodies.iter().enumerate() {
             let (turn, slide, axis) = match body.motion {
@@ -122,11 +143,11 @@ impl Dynamics {
                 Motion::Prismatic(axis) => (DQuat::IDENTITY, axis * q[k], axis),
                 Motion::Fixed => unreachable!("bodies move"),
             };
-            let r = DMat3::from_quat(body.origin.rotation * turn);
-            let p = body.origin.translation + body.origin.rotation * slide;
-            let back = r.transpose();
+            let rotation = DMat3::from_quat(body.origin.rotation * turn);
+            let offset = body.origin.translation + body.origin.rotation * slide;
+            let back = rotation.transpose();
             // The parent's frame's motion at this body's origin, in this body's frame.
-            let a_here = back * (a + dw.cross(p) + w.cross(w.cross(p)));
+            let a_here = back * (a + dw.cross(offset) + w.cross(w.cross(offset)));
             let (w_in, dw_in) = (back * w, back * dw);
             match body.motion {
                 Motion::Revolute(_) => {
@@ -140,20 +161,24 @@ impl Dynamics {
                     a = a_here + axis * qdd[k] + 2.0 * w_in.cross(axis * qd[k]);
                 }
             }
-            rotation.push(r);
-            offset.push(p);
-            motion.push((w, dw, a));
+            out.push(BodyMotion { rotation, offset, w, dw, a });
         }
-        // Backward: the force and moment each body's joint transmits, in the body's frame.
+        out
+    }
+
+    /// The backward pass with `parameters`: the force and moment each body's joint transmits,
+    /// in the body's frame, projected on its axis.
+    fn backward(&self, parameters: &[f64], motion: &[BodyMotion]) -> Vec<f64> {
+        let n = self.dof();
         let mut tau = vec![0.0; n];
         let (mut f, mut m) = (DVec3::ZERO, DVec3::ZERO);
         for k in (0..n).rev() {
             let body = Inertial::of(&parameters[k * PARAMS_PER_BODY..(k + 1) * PARAMS_PER_BODY]);
-            let (w, dw, a) = motion[k];
+            let BodyMotion { w, dw, a, .. } = motion[k];
             let own_f = body.m * a + dw.cross(body.h) + w.cross(w.cross(body.h));
             let own_m = body.i * dw + w.cross(body.i * w) + body.h.cross(a);
             if k + 1 < n {
-                let (r, p) = (rotation[k + 1], offset[k + 1]);
+                let (r, p) = (motion[k + 1].rotation, motion[k + 1].offset);
                 let child_f = r * f;
                 m = own_m + r * m + p.cross(child_f);
                 f = own_f + child_f;
@@ -169,23 +194,18 @@ impl Dynamics {
         }
         tau
     }
+}
 
-    /// The regressor at `q`, `qd`, `qdd`: efforts = regressor · parameters, row-major
-    /// (`dof` rows of `dof · PARAMS_PER_BODY`). Inverse dynamics is linear in the parameters,
-    /// so each column is the efforts with that one parameter at 1 and the rest at 0.
-    pub fn regressor(&self, q: &[f64], qd: &[f64], qdd: &[f64], gravity: DVec3) -> Vec<f64> {
-        let (n, cols) = (self.dof(), self.dof() * PARAMS_PER_BODY);
-        let mut out = vec![0.0; n * cols];
-        let mut unit = vec![0.0; cols];
-        for c in 0..cols {
-            unit[c] = 1.0;
-            for (row, t) in self.inverse_with(&unit, q, qd, qdd, gravity).into_iter().enumerate() {
-                out[row * cols + c] = t;
-            }
-            unit[c] = 0.0;
-        }
-        out
-    }
+/// One body's place and motion at a state, from the forward pass.
+#[derive(Clone, Copy)]
+struct BodyMotion {
+    /// From its parent body's frame.
+    rotation: DMat3,
+    /// Its origin in its parent body's frame.
+    offset: DVec3,
+    w: DVec3,
+    dw: DVec3,
+    a: DVec3,
 }
 
 #[cfg(test)]
