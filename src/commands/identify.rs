@@ -170,9 +170,16 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     let mut worse = Vec::new();
     println!("effort RMSE (N*m), nominal -> calibrated, per joint:");
+    // The log the plot shows: the first held out, else the first fitted.
+    let shown = held_out.first().unwrap_or(&fitting[0]);
+    let mut shown_efforts = None;
     for (held, motion) in fitting.iter().map(|m| (false, m)).chain(held_out.iter().map(|m| (true, m))) {
-        let before = rmse(&motion.effort, &nominal.efforts(&dynamics, motion));
-        let after = rmse(&motion.effort, &model.efforts(&dynamics, motion));
+        let (nominal_efforts, model_efforts) = (nominal.efforts(&dynamics, motion), model.efforts(&dynamics, motion));
+        let before = rmse(&motion.effort, &nominal_efforts);
+        let after = rmse(&motion.effort, &model_efforts);
+        if std::ptr::eq(motion, shown) {
+            shown_efforts = Some((nominal_efforts, model_efforts));
+        }
         let cells: Vec<String> = before
             .iter()
             .zip(&after)
@@ -194,7 +201,7 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
         worse.join(", ")
     );
     let shadow = Shadow::learn(&model, &dynamics, &fitting, args.margin);
-    let shown = held_out.first().unwrap_or(&fitting[0]);
+    let (shown_nominal, shown_model) = shown_efforts.expect("the shown log is among those compared");
     let time: Vec<f64> = shown.time.iter().map(|t| t - shown.time[0]).collect();
     twinbots_sysid::plot::efforts_png(
         &out.join("efforts.png"),
@@ -206,11 +213,7 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
         ),
         &joint_names(&robot),
         &time,
-        &[
-            ("measured", &shown.effort),
-            ("twin (nominal)", &nominal.efforts(&dynamics, shown)),
-            ("twin (calibrated)", &model.efforts(&dynamics, shown)),
-        ],
+        &[("measured", &shown.effort), ("twin (nominal)", &shown_nominal), ("twin (calibrated)", &shown_model)],
     )?;
     let calibration = ArmCalibration {
         robot: robot.name.clone(),

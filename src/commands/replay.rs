@@ -89,11 +89,10 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
     let log = twinbots_log::read_mapped(&args.log, &mapping)?;
     let motion = Motion::of_log(&robot, &log, &name)?;
     let joints: Vec<String> = robot.chain.movable().map(|j| j.name.clone()).collect();
-    let nominal = EffortModel::nominal(&dynamics);
-    let rmse_nominal = rmse(&motion.effort, &nominal.efforts(&dynamics, &motion));
-    let model = calibration.as_ref().map_or(&nominal, |c| &c.model);
-    let predicted = model.efforts(&dynamics, &motion);
-    let rmse_calibrated = calibration.as_ref().map(|_| rmse(&motion.effort, &predicted));
+    let nominal = EffortModel::nominal(&dynamics).efforts(&dynamics, &motion);
+    let calibrated = calibration.as_ref().map(|c| c.model.efforts(&dynamics, &motion));
+    let rmse_nominal = rmse(&motion.effort, &nominal);
+    let rmse_calibrated = calibrated.as_ref().map(|c| rmse(&motion.effort, c));
     println!("{name}: {:.1} s, effort RMSE per joint (N*m)", motion.time.last().unwrap_or(&0.0) - motion.time[0]);
     for (j, joint) in joints.iter().enumerate() {
         match &rmse_calibrated {
@@ -106,7 +105,7 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
             None => println!("  {joint:<24} nominal {:>8.3}", rmse_nominal[j]),
         }
     }
-    let residual = residuals(model, &dynamics, &motion);
+    let residual = residuals(&motion.effort, calibrated.as_ref().unwrap_or(&nominal));
     let (thresholds, flags) = match &calibration {
         Some(c) => (Some(c.shadow.thresholds(&motion)), c.shadow.flags(&motion, &residual)),
         None => {
@@ -134,11 +133,9 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
         thresholds.as_deref(),
         &spans,
     )?;
-    let mut lines: Vec<(&str, &[Vec<f64>])> = vec![("measured", &motion.effort)];
-    let nominal_efforts = nominal.efforts(&dynamics, &motion);
-    lines.push(("twin (nominal)", &nominal_efforts));
-    if calibration.is_some() {
-        lines.push(("twin (calibrated)", &predicted));
+    let mut lines: Vec<(&str, &[Vec<f64>])> = vec![("measured", &motion.effort), ("twin (nominal)", &nominal)];
+    if let Some(c) = &calibrated {
+        lines.push(("twin (calibrated)", c));
     }
     twinbots_sysid::plot::efforts_png(
         &out.join("efforts.png"),

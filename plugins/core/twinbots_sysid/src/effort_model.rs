@@ -321,11 +321,11 @@ fn settled(len: usize) -> std::ops::Range<usize> {
     RESIDUAL_WINDOW.min(len)..len.saturating_sub(RESIDUAL_WINDOW)
 }
 
-/// The residuals (measured − model) along `motion`, averaged over [`RESIDUAL_WINDOW`].
-pub fn residuals(model: &EffortModel, dynamics: &Dynamics, motion: &Motion) -> Vec<Vec<f64>> {
-    let predicted = model.efforts(dynamics, motion);
+/// The residuals (measured − predicted, a model's [`EffortModel::efforts`] along the motion),
+/// averaged over [`RESIDUAL_WINDOW`].
+pub fn residuals(measured: &[Vec<f64>], predicted: &[Vec<f64>]) -> Vec<Vec<f64>> {
     let raw: Vec<Vec<f64>> =
-        motion.effort.iter().zip(&predicted).map(|(m, p)| m.iter().zip(p).map(|(a, b)| a - b).collect()).collect();
+        measured.iter().zip(predicted).map(|(m, p)| m.iter().zip(p).map(|(a, b)| a - b).collect()).collect();
     moving_average(&raw, RESIDUAL_WINDOW)
 }
 
@@ -337,7 +337,11 @@ impl Shadow {
             .iter()
             .flat_map(|m| {
                 let inner = settled(m.time.len());
-                residuals(model, dynamics, m).into_iter().zip(m.acceleration()).take(inner.end).skip(inner.start)
+                residuals(&m.effort, &model.efforts(dynamics, m))
+                    .into_iter()
+                    .zip(m.acceleration())
+                    .take(inner.end)
+                    .skip(inner.start)
             })
             .collect();
         // The quietest tenth of the samples (or all those under QUIET_ACCELERATION, if more):
@@ -488,13 +492,13 @@ mod tests {
         // nothing without it.
         let another = Motion::of_log(&robot, &log_of(&robot, &dynamics, &truth, 20.0, 2.6), "another").unwrap();
         let shadow = Shadow::learn(&fitted, &dynamics, &[fitting, another], 1.5);
-        let quiet = shadow.flags(&held_out, &residuals(&fitted, &dynamics, &held_out));
+        let quiet = shadow.flags(&held_out, &residuals(&held_out.effort, &fitted.efforts(&dynamics, &held_out)));
         assert!(quiet.is_empty(), "{quiet:?}");
         let mut pushed = held_out.clone();
         for k in 500..560 {
             pushed.effort[k][1] += 30.0;
         }
-        let flags = shadow.flags(&pushed, &residuals(&fitted, &dynamics, &pushed));
+        let flags = shadow.flags(&pushed, &residuals(&pushed.effort, &fitted.efforts(&dynamics, &pushed)));
         assert_eq!(flags.len(), 1, "{flags:?}");
         assert!(flags[0].joints.contains(&1) && (3.9..4.1).contains(&flags[0].start), "{flags:?}");
     }
