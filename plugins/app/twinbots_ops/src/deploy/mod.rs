@@ -174,6 +174,45 @@ impl<'a> Deployment<'a> {
         }
     }
 
+    /// What a report must show for the deployment to go on: finite joints, a clock that moved
+    /// on (one that stands still, runs back or is not a number is a controller that is not
+    /// controlling), joints within their ranges, a control program that runs.
+    fn check(&self, m: &Measured) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            m.q.iter().chain(&m.qd).all(|v| v.is_finite()),
+            "the robot reported joints {:?}, speeds {:?}",
+            m.q,
+            m.qd
+        );
+        anyhow::ensure!(m.time.is_finite(), "the robot reported time {}; the robot was told to stop", m.time);
+        if let Some(p) = &self.previous {
+            anyhow::ensure!(
+                m.time > p.time,
+                "the robot's clock {} after {} s: it stood still or ran back; the robot was told to stop",
+                if m.time == p.time { format!("read {} s again", m.time) } else { format!("read {} s", m.time) },
+                p.time
+            );
+        }
+        if let Some((k, (name, range))) =
+            self.ranges.iter().enumerate().find(|(k, (_, range))| m.q.get(*k).is_some_and(|q| q.abs() > *range))
+        {
+            anyhow::bail!(
+                "the robot reported {name} at {:.3} rad, beyond its range ±{range:.3}; the robot was told to stop",
+                m.q[k]
+            );
+        }
+        anyhow::ensure!(
+            ![WATCHDOG_STOP, PROTECTIVE_STOP].contains(&m.program) && m.program >= 0,
+            "the robot's control program {}; the robot was told to stop",
+            match m.program {
+                WATCHDOG_STOP => "stopped on its watchdog (commands came too late)".to_string(),
+                PROTECTIVE_STOP => "is in a protective stop (a joint left its range)".to_string(),
+                other => format!("reports no state it knows ({other}): is it running?"),
+            }
+        );
+        Ok(())
+    }
+
     /// Reads reports until the next control step is due; returns the one it is due at.
     fn wait_step(&mut self, arm: &mut dyn Arm) -> anyhow::Result<Measured> {
         loop {
@@ -181,40 +220,7 @@ impl<'a> Deployment<'a> {
                 anyhow::bail!("stopped by {signal}; the robot was told to stop");
             }
             let m = arm.read()?;
-            anyhow::ensure!(
-                m.q.iter().chain(&m.qd).all(|v| v.is_finite()),
-                "the robot reported joints {:?}, speeds {:?}",
-                m.q,
-                m.qd
-            );
-            // The controller's clock advances every cycle: one that stands still, runs back or
-            // is not a number is a controller that is not controlling.
-            anyhow::ensure!(m.time.is_finite(), "the robot reported time {}; the robot was told to stop", m.time);
-            if let Some(p) = &self.previous {
-                anyhow::ensure!(
-                    m.time > p.time,
-                    "the robot's clock {} after {} s: it stood still or ran back; the robot was told to stop",
-                    if m.time == p.time { format!("read {} s again", m.time) } else { format!("read {} s", m.time) },
-                    p.time
-                );
-            }
-            if let Some((k, (name, range))) =
-                self.ranges.iter().enumerate().find(|(k, (_, range))| m.q.get(*k).is_some_and(|q| q.abs() > *range))
-            {
-                anyhow::bail!(
-                    "the robot reported {name} at {:.3} rad, beyond its range ±{range:.3}; the robot was told to stop",
-                    m.q[k]
-                );
-            }
-            anyhow::ensure!(
-                ![WATCHDOG_STOP, PROTECTIVE_STOP].contains(&m.program) && m.program >= 0,
-                "the robot's control program {}; the robot was told to stop",
-                match m.program {
-                    WATCHDOG_STOP => "stopped on its watchdog (commands came too late)".to_string(),
-                    PROTECTIVE_STOP => "is in a protective stop (a joint left its range)".to_string(),
-                    other => format!("reports no state it knows ({other}): is it running?"),
-                }
-            );
+            self.check(&m)?;
             if let Some(p) = &self.previous {
                 let dt = (m.time - p.time).max(0.0);
                 self.energy += dt * m.effort.iter().zip(&m.qd).map(|(e, v)| (e * v).abs()).sum::<f64>();
