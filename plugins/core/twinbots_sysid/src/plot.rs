@@ -19,6 +19,31 @@ fn register_font() {
     });
 }
 
+/// One panel of a figure: `caption` over time (s) along `x` and `y` up, with its grid drawn
+/// (`y_labels` pixels for the y axis' numbers).
+fn time_chart<'a, 'b>(
+    area: &'a DrawingArea<BitMapBackend<'b>, plotters::coord::Shift>,
+    caption: &str,
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+    y_labels: u32,
+) -> anyhow::Result<
+    ChartContext<
+        'a,
+        BitMapBackend<'b>,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+> {
+    let mut chart = ChartBuilder::on(area)
+        .margin(6)
+        .x_label_area_size(24)
+        .y_label_area_size(y_labels)
+        .caption(caption, ("sans-serif", 14))
+        .build_cartesian_2d(x, y)?;
+    chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
+    Ok(chart)
+}
+
 /// The series' labels in a box at the chart's corner.
 fn legend<'a, DB, CT>(chart: &mut ChartContext<'a, DB, CT>, font: u32) -> anyhow::Result<()>
 where
@@ -90,17 +115,8 @@ pub fn replay_png(
                 (&right, format!("{}: twin − log", rig.joints[j]), errors, false),
             ];
             for (area, caption, series, with_log) in panels.iter_mut() {
-                let all = series.iter().flatten().map(|p| p.1);
-                let (lo, hi) = all.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
-                let (lo, hi) = if lo.is_finite() { (lo, hi) } else { (-1.0, 1.0) };
-                let pad = ((hi - lo) * 0.05).max(1e-6);
-                let mut chart = ChartBuilder::on(*area)
-                    .margin(6)
-                    .x_label_area_size(24)
-                    .y_label_area_size(70)
-                    .caption(caption.as_str(), ("sans-serif", 14))
-                    .build_cartesian_2d(0.0..t_max, (lo - pad)..(hi + pad))?;
-                chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
+                let (lo, hi) = bounds(series.iter().flatten().map(|p| p.1));
+                let mut chart = time_chart(area, caption, 0.0..t_max, lo..hi, 70)?;
                 let mut lines = series.iter();
                 if *with_log {
                     chart
@@ -202,13 +218,7 @@ pub fn divergence_png(
                     series.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.1), b.max(p.1)));
                 let (lo, hi) = if lo.is_finite() { (lo.min(-1e-3), hi.max(1e-3)) } else { (-1.0, 1.0) };
                 let pad = (hi - lo) * 0.05;
-                let mut chart = ChartBuilder::on(area)
-                    .margin(6)
-                    .x_label_area_size(24)
-                    .y_label_area_size(60)
-                    .caption(caption.as_str(), ("sans-serif", 14))
-                    .build_cartesian_2d(t0..t_max, (lo - pad)..(hi + pad))?;
-                chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
+                let mut chart = time_chart(area, &caption, t0..t_max, (lo - pad)..(hi + pad), 60)?;
                 chart.draw_series(LineSeries::new(series, BLUE.stroke_width(1)))?;
                 for &a in alarms {
                     chart.draw_series(LineSeries::new(vec![(a, lo - pad), (a, hi + pad)], RED.stroke_width(1)))?;
@@ -235,13 +245,7 @@ pub fn efforts_png(
         for (j, area) in root.split_evenly((joints.len(), 1)).iter().enumerate() {
             let values = series.iter().flat_map(|(_, s)| s.iter().map(move |v| v[j]));
             let (lo, hi) = bounds(values);
-            let mut chart = ChartBuilder::on(area)
-                .margin(6)
-                .x_label_area_size(24)
-                .y_label_area_size(70)
-                .caption(format!("{} (N·m)", joints[j]), ("sans-serif", 14))
-                .build_cartesian_2d(0.0..t_max, lo..hi)?;
-            chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
+            let mut chart = time_chart(area, &format!("{} (N·m)", joints[j]), 0.0..t_max, lo..hi, 70)?;
             for ((label, s), colour) in series.iter().zip(colours.iter().cycle()) {
                 let colour = *colour;
                 let width = if colour == BLACK { 2 } else { 1 };
@@ -277,13 +281,7 @@ pub fn shadow_png(
             let limit = |k: usize| thresholds.map_or(0.0, |t| t[k][j]);
             let values = residuals.iter().enumerate().flat_map(|(k, r)| [r[j], limit(k), -limit(k)]);
             let (lo, hi) = bounds(values);
-            let mut chart = ChartBuilder::on(area)
-                .margin(6)
-                .x_label_area_size(24)
-                .y_label_area_size(70)
-                .caption(format!("{}: measured − twin (N·m)", joints[j]), ("sans-serif", 14))
-                .build_cartesian_2d(0.0..t_max, lo..hi)?;
-            chart.configure_mesh().x_desc("s").label_style(("sans-serif", 11)).draw()?;
+            let mut chart = time_chart(area, &format!("{}: measured − twin (N·m)", joints[j]), 0.0..t_max, lo..hi, 70)?;
             chart.draw_series(
                 flagged.iter().map(|(a, b)| Rectangle::new([(*a, lo), (b.max(a + 0.02), hi)], RED.mix(0.25).filled())),
             )?;
