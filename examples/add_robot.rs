@@ -125,7 +125,7 @@ fn swing_arm() -> RobotDescription {
         tasks: vec![TaskDescription {
             name: "swing-up",
             description: "swing up and balance",
-            spec: || swing_up().spec(),
+            spec: std::sync::Arc::new(|| swing_up().spec()),
             server: false,
             training: None,
         }],
@@ -138,8 +138,8 @@ fn swing_arm() -> RobotDescription {
             }],
             ..Default::default()
         },
-        settings: swing_arm_timing,
-        build: |request| headless_app(swing_arm_timing(), request, SwingArmPlugin),
+        settings: std::sync::Arc::new(swing_arm_timing),
+        build: std::sync::Arc::new(|request| headless_app(swing_arm_timing(), request, SwingArmPlugin)),
         rig: None,
         feedback: None,
         cell: None,

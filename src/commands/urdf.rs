@@ -1,4 +1,5 @@
-//! `twinbots urdf FILE [--png OUT] [--seconds S]`: checks a robot description (docs/urdf.md);
+//! `twinbots urdf FILE [--png OUT] [--seconds S]`: checks a robot description (docs/urdf.md), a
+//! URDF or a robot file (`*.toml`: its URDF standing at home, its chain);
 //! `--tool LINK --fk q1,…,qn` prints the tool link's pose in the base link's frame instead.
 
 use std::path::PathBuf;
@@ -7,15 +8,17 @@ use bevy::math::Vec3;
 use twinbots_render::renderer::{Renderer, View};
 use twinbots_sim::rapier::prelude::Pose;
 use twinbots_sim::urdf::chain::Chain;
-use twinbots_sim::urdf::check::check;
+use twinbots_sim::urdf::check::{check, check_model};
 use twinbots_sim::urdf::dynamics::{Dynamics, GRAVITY};
+use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_sim::urdf::{RobotModel, Shape};
 
 /// The command's arguments.
 #[derive(clap::Args)]
 pub struct Args {
-    /// The URDF file (meshes: STL, OBJ, glTF; package:// through TWINBOTS_PACKAGE_PATH and
-    /// ROS_PACKAGE_PATH).
+    /// The URDF file (meshes: STL, OBJ, glTF, Collada; package:// through TWINBOTS_PACKAGE_PATH
+    /// and ROS_PACKAGE_PATH), or a robot file (`*.toml`): its URDF at its home pose, and its
+    /// base and tool unless --base and --tool say otherwise.
     pub file: PathBuf,
     /// Render the robot, standing, to this PNG.
     #[arg(long)]
@@ -48,9 +51,23 @@ pub struct Args {
 }
 
 /// `twinbots urdf`.
-pub fn exec(args: Args) -> anyhow::Result<()> {
+pub fn exec(mut args: Args) -> anyhow::Result<()> {
+    let robot_file =
+        RobotFile::is_path(&args.file.to_string_lossy()).then(|| RobotFile::read(&args.file)).transpose()?;
+    if let Some(file) = &robot_file {
+        args.base = args.base.take().or_else(|| Some(file.chain.base.clone()));
+        args.tool = args.tool.take().or_else(|| Some(file.chain.tool.clone()));
+    }
     if let Some(tool) = &args.tool {
-        let chain = Chain::from_file(&args.file, args.base.as_deref(), tool)?;
+        let chain = match &robot_file {
+            Some(file)
+                if file.chain.base == *args.base.as_ref().unwrap_or(&String::new()) && file.chain.tool == *tool =>
+            {
+                file.chain.clone()
+            }
+            Some(file) => Chain::from_file(&file.urdf, args.base.as_deref(), tool)?,
+            None => Chain::from_file(&args.file, args.base.as_deref(), tool)?,
+        };
         if !args.fk.is_empty() {
             return print_poses(&chain, &args.fk);
         }
@@ -60,7 +77,15 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         let joints: Vec<&str> = chain.movable().map(|j| j.name.as_str()).collect();
         println!("chain {} -> {}: {} movable joints: {}", chain.base, chain.tool, joints.len(), joints.join(", "));
     }
-    let mut report = check(&args.file, args.seconds, &args.decompose)?;
+    let mut report = match &robot_file {
+        Some(file) => {
+            let home: Vec<(String, f32)> =
+                file.joints.iter().cloned().zip(file.home.iter().map(|&q| q as f32)).collect();
+            println!("home: {}", home.iter().map(|(j, q)| format!("{j} {q}")).collect::<Vec<_>>().join(", "));
+            check_model(file.model()?, args.seconds, &args.decompose, &home, twinbots_arm::sim_settings(file))?
+        }
+        None => check(&args.file, args.seconds, &args.decompose)?,
+    };
     let m = &report.model;
     let mass: f32 = m.links.iter().filter_map(|l| l.inertial.map(|i| i.mass)).sum();
     let movable = m.joints.iter().filter(|j| j.kind.is_movable()).count();

@@ -144,7 +144,7 @@ fn turntable() -> RobotDescription {
         tasks: vec![TaskDescription {
             name: "turn",
             description: "turn to a target angle",
-            spec: || turn_task().spec(),
+            spec: std::sync::Arc::new(|| turn_task().spec()),
             server: true,
             training: None,
         }],
@@ -158,8 +158,10 @@ fn turntable() -> RobotDescription {
             }],
             ..Default::default()
         },
-        settings: turntable_timing,
-        build: |request| headless_app(turntable_timing(), request, TurntablePlugin(request.pattern)),
+        settings: std::sync::Arc::new(turntable_timing),
+        build: std::sync::Arc::new(|request| {
+            headless_app(turntable_timing(), request, TurntablePlugin(request.pattern))
+        }),
         rig: None,
         feedback: None,
         cell: None,

@@ -13,6 +13,7 @@ mod pixels;
 mod ppo;
 mod randomization;
 mod resume;
+mod robot_file_arm;
 mod robot_hostile;
 #[cfg(feature = "ros2")]
 mod ros2;

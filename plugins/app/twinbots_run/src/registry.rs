@@ -1,5 +1,5 @@
 //! The robots this build knows: each robot plugin crate under `plugins/` describes itself
-//! (`robot()`); registering it is one line here.
+//! (`robot()`); registering it is one line here. A robot file is read where it is named.
 
 use twinbots_task::Registry;
 pub use twinbots_task::RobotDescription as RobotEntry;
@@ -18,7 +18,11 @@ pub fn robots() -> Vec<RobotEntry> {
     builtin().robots().to_vec()
 }
 
-/// Looks a robot up by name; the error lists the known ones.
+/// Looks a robot up: a built-in name, or the path of a robot file (`*.toml`: any serial arm,
+/// `twinbots_arm`); an unknown name lists the known ones.
 pub fn find(name: &str) -> anyhow::Result<RobotEntry> {
+    if twinbots_sim::urdf::robot_file::RobotFile::is_path(name) {
+        return twinbots_arm::robot(std::path::Path::new(name));
+    }
     builtin().find(name).cloned()
 }

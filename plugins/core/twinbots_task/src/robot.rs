@@ -3,6 +3,8 @@
 //! how cameras frame it) and how to build an app of it. Every front (the CLI, the RobotServer's
 //! handshake, evaluation) reads that description from a [`Registry`]; none keeps its own copy.
 
+use std::sync::Arc;
+
 use bevy::prelude::*;
 use twinbots_sim::urdf::RobotModel;
 use twinbots_sim::{Arena, ArenaConfig, Framing, OperatorAccess, Parameters, SimPlugin, SimSettings, SpawnedRobot};
@@ -20,21 +22,35 @@ pub struct AppRequest<'a> {
 
 /// Builds a headless app for a request the description allows. Under design pattern 3 it is a
 /// robot process (no Supervisor): the caller inserts the server's address
-/// (`twinbots_link::robot::ServerAddress`) before start-up.
-pub type BuildApp = fn(&AppRequest) -> App;
+/// (`twinbots_link::robot::ServerAddress`) before start-up. A closure, so that a robot read from
+/// a file (`twinbots_arm`) builds from what it read.
+pub type BuildApp = Arc<dyn Fn(&AppRequest) -> App + Send + Sync>;
+/// A task's spaces and solved criterion, built from its terms (a closure, as [`BuildApp`]).
+pub type SpecFn = Arc<dyn Fn() -> TaskSpec + Send + Sync>;
+/// A robot's timing (a closure, as [`BuildApp`]).
+pub type SettingsFn = Arc<dyn Fn() -> SimSettings + Send + Sync>;
 
 /// A task of a robot's cell.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone)]
 pub struct TaskDescription {
     pub name: &'static str,
     pub description: &'static str,
     /// Its spaces and solved criterion, built from its terms.
-    pub spec: fn() -> TaskSpec,
+    pub spec: SpecFn,
     /// Whether design pattern 3 runs this task (a robot process that homes itself).
     pub server: bool,
     /// A task with spaces of its own, which `train --task` learns with these defaults; `None`:
     /// the main task is learnt with the robot's defaults, any other task runs its model.
     pub training: Option<fn() -> TrainingDefaults>,
+}
+
+impl std::fmt::Debug for TaskDescription {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TaskDescription")
+            .field("name", &self.name)
+            .field("server", &self.server)
+            .finish_non_exhaustive()
+    }
 }
 
 /// How `train` trains the robot unless told otherwise, as RL Zoo's hyperparameter files do:
@@ -104,7 +120,7 @@ impl AlgoDefaults {
 }
 
 /// A robot as its plugin describes it.
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct RobotDescription {
     pub name: &'static str,
     pub description: &'static str,
@@ -117,7 +133,7 @@ pub struct RobotDescription {
     pub framing: Framing,
     pub defaults: TrainingDefaults,
     /// The twin's timing: its physics step and control step (`build` runs the app with them).
-    pub settings: fn() -> SimSettings,
+    pub settings: SettingsFn,
     pub build: BuildApp,
     /// The robot on a test stand, for robot logs: recording, replay and calibration (`None`:
     /// the robot does not support them).
@@ -127,6 +143,16 @@ pub struct RobotDescription {
     pub feedback: Option<Feedback>,
     /// How the robot's cell is laid out by a file (`None`: its cell is code only).
     pub cell: Option<CellDescription>,
+}
+
+impl std::fmt::Debug for RobotDescription {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RobotDescription")
+            .field("name", &self.name)
+            .field("tasks", &self.tasks)
+            .field("patterns", &self.patterns)
+            .finish_non_exhaustive()
+    }
 }
 
 /// A robot whose cell is data: its default layout file and how an app takes another.

@@ -10,6 +10,8 @@
 
 use std::path::Path;
 
+use std::sync::Arc;
+
 use bevy::prelude::*;
 use rand::Rng;
 use twinbots_task::robot::{
@@ -141,7 +143,7 @@ pub fn robot() -> RobotDescription {
         tasks: vec![TaskDescription {
             name: "balance",
             description: "keep the pole up (deepbots' CartPole)",
-            spec: task_spec,
+            spec: Arc::new(task_spec),
             server: true,
             training: None,
         }],
@@ -152,10 +154,10 @@ pub fn robot() -> RobotDescription {
             algos: vec![AlgoDefaults { hyperparams: PPO_HYPERPARAMS, ..AlgoDefaults::new("ppo") }],
             ..default()
         },
-        settings: sim_settings,
-        build: |request| {
+        settings: Arc::new(sim_settings),
+        build: Arc::new(|request| {
             robot::headless_app(sim_settings(), request, CartPolePlugin { pattern: request.pattern, ..default() })
-        },
+        }),
         rig: Some(rig()),
         feedback: Some(feedback),
         cell: None,

@@ -7,6 +7,8 @@
 
 use std::path::Path;
 
+use std::sync::Arc;
+
 use bevy::prelude::*;
 use rand::Rng;
 use twinbots_sim::rapier::math::Pose;
@@ -137,7 +139,7 @@ pub fn robot() -> RobotDescription {
         tasks: vec![TaskDescription {
             name: "balance",
             description: "balance the pendulum on the driving base",
-            spec: task_spec,
+            spec: Arc::new(task_spec),
             server: false,
             training: None,
         }],
@@ -151,8 +153,8 @@ pub fn robot() -> RobotDescription {
             }],
             ..default()
         },
-        settings: sim_settings,
-        build: |request| headless_app(sim_settings(), request, Pioneer3atPlugin),
+        settings: Arc::new(sim_settings),
+        build: Arc::new(|request| headless_app(sim_settings(), request, Pioneer3atPlugin)),
         rig: Some(rig()),
         feedback: Some(feedback),
         cell: None,

@@ -36,6 +36,8 @@ pub mod server;
 pub mod state;
 pub mod target_marker;
 
+use std::sync::Arc;
+
 use bevy::math::Vec3;
 use bevy::prelude::*;
 use twinbots_sim::{
@@ -149,21 +151,21 @@ pub fn robot() -> RobotDescription {
             TaskDescription {
                 name: "reach",
                 description: "tool to a target over the table, pointing down, at rest within 1 cm",
-                spec: task_spec,
+                spec: Arc::new(task_spec),
                 server: true,
                 training: None,
             },
             TaskDescription {
                 name: "pick-place",
                 description: "the part from fixture A to fixture B: a cell program of waypoints driven by the reach policy",
-                spec: pick_place_spec,
+                spec: Arc::new(pick_place_spec),
                 server: false,
                 training: None,
             },
             TaskDescription {
                 name: "pick-place-learned",
                 description: "the part to a goal on the table or in the air, the policy moving the tool and switching the suction (SAC + HER)",
-                spec: || pick_place_learned::pick_place_learned_task().spec(),
+                spec: Arc::new(|| pick_place_learned::pick_place_learned_task().spec()),
                 server: false,
                 training: Some(pick_place_learned_training),
             },
@@ -195,15 +197,15 @@ pub fn robot() -> RobotDescription {
                 },
             ],
         },
-        settings: sim_settings,
-        build: |request| {
+        settings: Arc::new(sim_settings),
+        build: Arc::new(|request| {
             let task = match request.task {
                 "pick-place" => Ur5eTask::PickPlace,
                 "pick-place-learned" => Ur5eTask::PickPlaceLearned,
                 _ => Ur5eTask::Reach,
             };
             headless_app(sim_settings(), request, Ur5ePlugin { task, pattern: request.pattern })
-        },
+        }),
         rig: Some(rig::rig()),
         feedback: Some(controller::act),
         cell: Some(twinbots_task::robot::CellDescription { default: layout::DEFAULT, install: layout::install }),

@@ -125,9 +125,11 @@ pub fn create(settings: &TrainSettings, out: &Path) -> anyhow::Result<RunDir> {
     Ok(run)
 }
 
-/// Default run directory: `runs/<robot>-<unix seconds>`.
+/// Default run directory: `runs/<robot>-<unix seconds>` (a robot file by its name, `panda` for
+/// `assets/robots/panda.toml`).
 pub fn default_run_dir(robot: &str) -> PathBuf {
     let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    let robot = Path::new(robot).file_stem().map_or(robot.into(), |s| s.to_string_lossy());
     PathBuf::from("runs").join(format!("{robot}-{secs}"))
 }
 

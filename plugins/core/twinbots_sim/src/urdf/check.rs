@@ -33,18 +33,29 @@ pub struct UrdfReport {
 /// [`holding_target`] for a joint whose range excludes 0); the collision
 /// meshes of the links in `decompose` split into convex parts.
 pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyhow::Result<UrdfReport> {
+    check_model(load_urdf(path)?, seconds, decompose, &[], SimSettings::default())
+}
+
+/// [`check`] of a model already read, standing with the joints of `pose` held where it puts
+/// them (a robot file's home) and the others as [`check`] holds them, in physics of `settings`
+/// (a robot file's twin's).
+pub fn check_model(
+    model: RobotModel,
+    seconds: f64,
+    decompose: &[String],
+    pose: &[(String, f32)],
+    settings: SimSettings,
+) -> anyhow::Result<UrdfReport> {
     anyhow::ensure!(
         seconds >= 0.0 && seconds.is_finite() && seconds <= 600.0,
         "--seconds must be from 0 to 600, not {seconds}"
     );
-    let model = load_urdf(path)?;
     if let Some(unknown) = decompose.iter().find(|n| model.link_index(n).is_none()) {
         let links: Vec<&str> = model.links.iter().map(|l| l.name.as_str()).collect();
         anyhow::bail!("--decompose: robot '{}' has no link '{unknown}' (its links: {})", model.name, links.join(", "));
     }
     let tree = tree(&model);
     let mut warnings = flags(&model);
-    let settings = SimSettings::default();
     let mut app = App::new();
     // A tool, not a robot: it stands the robot and draws the true world (`--png`).
     app.add_plugins(MinimalPlugins).add_plugins(SimPlugin { settings, supervisor: true });
@@ -58,15 +69,23 @@ pub fn check(path: &std::path::Path, seconds: f64, decompose: &[String]) -> anyh
             arena,
             &mut a,
             &model,
-            SpawnOptions { fixed_base: true, decompose: decompose.to_vec(), ..Default::default() },
+            SpawnOptions {
+                fixed_base: true,
+                decompose: decompose.to_vec(),
+                joint_positions: pose.to_vec(),
+                ..Default::default()
+            },
         )
     };
     world.flush();
     world.entity_mut(arena).insert(a);
     for (name, &joint) in &spawned.joints {
-        let target = model.joint(name).map_or(0.0, |j| holding_target(j.limits.position));
+        let posed = pose.iter().find(|(n, _)| n == name).map(|&(_, q)| q);
+        let target = posed.unwrap_or_else(|| model.joint(name).map_or(0.0, |j| holding_target(j.limits.position)));
         if let Some(mut motor) = world.get_mut::<Motor>(joint) {
             motor.command = MotorCommand::Position(target);
+            // A robot file's arm stands as its tasks drive it: servos holding position.
+            motor.holds_position = !pose.is_empty();
         }
     }
     app.update();

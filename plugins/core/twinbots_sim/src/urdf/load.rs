@@ -8,6 +8,7 @@ use std::sync::Arc;
 use bevy::math::{EulerRot, Mat3, Quat, Vec3};
 
 use super::error::UrdfError;
+use super::mesh::NamedPackages;
 use super::model::*;
 use super::xml_depth::{MAX_XML_DEPTH, too_deep};
 use crate::rapier::math::Pose;
@@ -51,6 +52,23 @@ pub fn parse_urdf_exact(text: &str, file: &Path) -> Result<urdf_rs::Robot, UrdfE
 
 /// Checks URDF text. `file` names it in errors; `mesh_dir` is where relative mesh paths start.
 pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel, UrdfError> {
+    parse_urdf_in(text, file, mesh_dir, &[])
+}
+
+/// Reads and checks a URDF file as [`load_urdf`], `package://` meshes found first in the
+/// packages a robot file names ([`super::mesh::resolve_in`]).
+pub fn load_urdf_in(path: &Path, packages: &NamedPackages) -> Result<RobotModel, UrdfError> {
+    let text = std::fs::read_to_string(path).map_err(|source| UrdfError::Io { file: path.to_path_buf(), source })?;
+    parse_urdf_in(&text, path, path.parent().unwrap_or(Path::new(".")), packages)
+}
+
+/// [`parse_urdf`] with a robot file's named packages.
+pub fn parse_urdf_in(
+    text: &str,
+    file: &Path,
+    mesh_dir: &Path,
+    packages: &NamedPackages,
+) -> Result<RobotModel, UrdfError> {
     let doc = parse_xml(text, file)?;
     let lines = ElementLines::index(&doc);
     let robot = read_robot(text, &doc, file)?;
@@ -59,7 +77,7 @@ pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel
         .iter()
         .filter_map(|m| m.color.as_ref().map(|c| (m.name.clone(), c.rgba.0.map(|x| x as f32))))
         .collect();
-    Checker { file, mesh_dir, package_path: super::mesh::package_path_from_env(), lines: &lines, materials }
+    Checker { file, mesh_dir, packages, package_path: super::mesh::package_path_from_env(), lines: &lines, materials }
         .build(&robot)
 }
 
@@ -210,7 +228,9 @@ impl ElementLines {
 struct Checker<'a> {
     file: &'a Path,
     mesh_dir: &'a Path,
-    /// Where `package://` meshes are looked for first ([`super::mesh::resolve`]).
+    /// Packages a robot file names, looked in before `package_path`.
+    packages: &'a NamedPackages,
+    /// Where `package://` meshes are looked for ([`super::mesh::resolve`]).
     package_path: Vec<PathBuf>,
     lines: &'a ElementLines,
     /// Colours of the robot's top-level `<material>`s, which visuals may name.
@@ -435,8 +455,8 @@ impl Checker<'_> {
     }
 
     fn mesh(&self, link: &str, filename: &str, scale: Vec3) -> Result<TriangleMesh, UrdfError> {
-        let path =
-            super::mesh::resolve(filename, self.mesh_dir, &self.package_path).map_err(|e| self.link_error(link, e))?;
+        let path = super::mesh::resolve_in(filename, self.mesh_dir, self.packages, &self.package_path)
+            .map_err(|e| self.link_error(link, e))?;
         let (vertices, triangles) =
             super::mesh::read(&path).map_err(|e| self.link_error(link, format!("mesh '{filename}': {e}")))?;
         let vertices: Vec<Vec3> = vertices.into_iter().map(|v| v * scale).collect();

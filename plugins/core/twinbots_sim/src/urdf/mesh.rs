@@ -244,6 +244,36 @@ pub fn resolve(filename: &str, urdf_dir: &Path, package_path: &[PathBuf]) -> Res
     ))
 }
 
+/// Packages a robot file names (`[packages]`: a package's name and its folder).
+pub type NamedPackages = [(String, PathBuf)];
+
+/// [`resolve`], with `package://NAME/REST` found first as `FOLDER/REST` for a package of
+/// `named` (a robot file's `[packages]`); a path there that is not a file is an error naming it.
+pub fn resolve_in(
+    filename: &str,
+    urdf_dir: &Path,
+    named: &NamedPackages,
+    package_path: &[PathBuf],
+) -> Result<PathBuf, String> {
+    if let Some((package, inner)) = filename.strip_prefix("package://").and_then(|rest| rest.split_once('/'))
+        && let Some((_, folder)) = named.iter().find(|(name, _)| name == package)
+    {
+        let inner_path = Path::new(inner);
+        if inner_path.is_absolute() || inner_path.components().any(|c| c == std::path::Component::ParentDir) {
+            return Err(format!(
+                "mesh '{filename}': a package:// path may not leave its package ('..' or an absolute path)"
+            ));
+        }
+        let candidate = folder.join(inner);
+        return if candidate.is_file() {
+            Ok(candidate)
+        } else {
+            Err(format!("'{filename}' not found: no file {} (package '{package}' of [packages])", candidate.display()))
+        };
+    }
+    resolve(filename, urdf_dir, package_path)
+}
+
 /// The package search path from the environment: `TWINBOTS_PACKAGE_PATH`, then
 /// `ROS_PACKAGE_PATH`, each a `:`-separated list of folders.
 pub fn package_path_from_env() -> Vec<PathBuf> {

@@ -12,5 +12,5 @@ pub mod robot_file;
 mod xml_depth;
 
 pub use error::UrdfError;
-pub use load::{load_urdf, parse_urdf, parse_urdf_exact};
+pub use load::{load_urdf, load_urdf_in, parse_urdf, parse_urdf_exact, parse_urdf_in};
 pub use model::*;

@@ -1,25 +1,43 @@
-//! A robot file (`*.toml`): an arm as data. It names the URDF (relative to the file), the chain
-//! from a base link to a tool link, the controlled joints in the controller's order and how the
-//! controller drives them. `assets/robots/ur5.toml` is one; docs/urdf.md lists the keys. Errors
-//! name the file and the key.
+//! A robot file (`*.toml`): an arm as data. It names the URDF (relative to the file, or
+//! `package://` through its `[packages]`), the chain from a base link to a tool link, the
+//! controlled joints in the controller's order, how the controller drives them, the home pose
+//! and the speed limits the twin's tasks keep to. `assets/robots/ur5.toml` is one; docs/urdf.md
+//! lists the keys. Errors name the file and the key.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
 use super::chain::Chain;
+use super::mesh::{package_path_from_env, resolve_in};
+use super::{RobotModel, load_urdf_in};
 
 /// The file as written.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Written {
-    urdf: PathBuf,
+    urdf: String,
     base: Option<String>,
     tool: String,
     joints: Vec<String>,
     control_period: f64,
     command: Command,
+    home: Option<Vec<f64>>,
+    speed_limits: Option<Vec<f64>>,
+    safety_factor: Option<f64>,
+    policy_period: Option<f64>,
+    #[serde(default)]
+    packages: BTreeMap<String, PathBuf>,
 }
+
+/// The fraction of the vendor's speed limits a task drives the joints at, unless the file says
+/// `safety_factor`: half, as the UR5e's tasks drive its joints at half their rated 180°/s.
+pub const DEFAULT_SAFETY_FACTOR: f64 = 0.5;
+/// How often a trained policy acts unless the file says `policy_period` (s): the UR5e's 40 ms.
+pub const DEFAULT_POLICY_PERIOD: f64 = 0.04;
+/// The twin's physics step (s) for a robot file's arm: the UR5e's, whose accuracy is tested.
+pub const PHYSICS_STEP: f64 = 0.004;
 
 /// What the controller sends its joints each period.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
@@ -42,6 +60,17 @@ pub struct RobotFile {
     /// Seconds between commands.
     pub control_period: f64,
     pub command: Command,
+    /// Where the arm rests between tasks (rad or m), the controller's order.
+    pub home: Vec<f64>,
+    /// Each controlled joint's top speed in the twin's tasks (rad/s or m/s), the controller's
+    /// order: the file's `speed_limits` or the URDF's `velocity`, times the safety factor.
+    pub speed_limits: Vec<f64>,
+    /// Each controlled joint's range (rad or m), the controller's order; ±2π for a continuous joint.
+    pub ranges: Vec<(f64, f64)>,
+    /// Seconds between a trained policy's actions: a multiple of [`PHYSICS_STEP`].
+    pub policy_period: f64,
+    /// The file's `[packages]`: a package's name and its folder (relative paths made the file's).
+    pub packages: Vec<(String, PathBuf)>,
 }
 
 impl RobotFile {
@@ -60,9 +89,25 @@ impl RobotFile {
     pub fn parse(text: &str, path: &Path) -> anyhow::Result<RobotFile> {
         let at = |e: anyhow::Error| anyhow::anyhow!("{}: {e:#}", path.display());
         let written: Written = toml::from_str(text).map_err(|e| at(anyhow::anyhow!("{}", e.to_string().trim_end())))?;
-        let urdf = path.parent().unwrap_or(Path::new(".")).join(&written.urdf);
+        let folder = path.parent().unwrap_or(Path::new("."));
+        let packages: Vec<(String, PathBuf)> =
+            written.packages.iter().map(|(name, dir)| (name.clone(), folder.join(dir))).collect();
+        for (name, dir) in &packages {
+            anyhow::ensure!(
+                dir.is_dir(),
+                "{}: key 'packages.{name}': {} is not a folder",
+                path.display(),
+                dir.display()
+            );
+        }
+        let urdf = if written.urdf.starts_with("package://") {
+            resolve_in(&written.urdf, folder, &packages, &package_path_from_env())
+                .map_err(|e| at(anyhow::anyhow!("key 'urdf': {e}")))?
+        } else {
+            folder.join(&written.urdf)
+        };
         let chain = Chain::from_file(&urdf, written.base.as_deref(), &written.tool)
-            .map_err(|e| at(anyhow::anyhow!("key 'urdf' ({}), 'base', 'tool': {e:#}", written.urdf.display())))?;
+            .map_err(|e| at(anyhow::anyhow!("key 'urdf' ({}), 'base', 'tool': {e:#}", written.urdf)))?;
         let movable: Vec<&str> = chain.movable().map(|j| j.name.as_str()).collect();
         for (k, joint) in written.joints.iter().enumerate() {
             anyhow::ensure!(
@@ -92,6 +137,69 @@ impl RobotFile {
             written.control_period
         );
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let joint = |name: &str| chain.movable().find(|j| j.name == name).expect("checked above");
+        let ranges: Vec<(f64, f64)> = written
+            .joints
+            .iter()
+            .map(|name| joint(name).limits.unwrap_or((-std::f64::consts::TAU, std::f64::consts::TAU)))
+            .collect();
+        let n = written.joints.len();
+        let home = match written.home {
+            Some(home) => {
+                anyhow::ensure!(
+                    home.len() == n,
+                    "{}: key 'home': {} positions for {n} joints",
+                    path.display(),
+                    home.len()
+                );
+                for ((value, (lo, hi)), joint) in home.iter().zip(&ranges).zip(&written.joints) {
+                    anyhow::ensure!(
+                        value.is_finite() && (*lo..=*hi).contains(value),
+                        "{}: key 'home': {value} for '{joint}' is outside its range [{lo}, {hi}]",
+                        path.display()
+                    );
+                }
+                home
+            }
+            // The zero pose, or the middle of a joint's range where zero is outside it.
+            None => {
+                ranges.iter().map(|&(lo, hi)| if (lo..=hi).contains(&0.0) { 0.0 } else { (lo + hi) / 2.0 }).collect()
+            }
+        };
+        let safety = written.safety_factor.unwrap_or(DEFAULT_SAFETY_FACTOR);
+        anyhow::ensure!(
+            safety.is_finite() && safety > 0.0 && safety <= 1.0,
+            "{}: key 'safety_factor': {safety} is not in (0, 1]",
+            path.display()
+        );
+        let vendor: Vec<f64> = match written.speed_limits {
+            Some(limits) => {
+                anyhow::ensure!(
+                    limits.len() == n,
+                    "{}: key 'speed_limits': {} limits for {n} joints",
+                    path.display(),
+                    limits.len()
+                );
+                limits
+            }
+            None => written.joints.iter().map(|name| joint(name).max_speed).collect(),
+        };
+        for (limit, joint) in vendor.iter().zip(&written.joints) {
+            anyhow::ensure!(
+                limit.is_finite() && *limit > 0.0 && *limit <= 100.0,
+                "{}: key 'speed_limits': '{joint}' has no speed limit in (0, 100] in the file or the URDF's <limit velocity> ({limit})",
+                path.display()
+            );
+        }
+        let policy_period = written.policy_period.unwrap_or(DEFAULT_POLICY_PERIOD);
+        let steps = policy_period / PHYSICS_STEP;
+        anyhow::ensure!(
+            policy_period.is_finite()
+                && (PHYSICS_STEP..=1.0).contains(&policy_period)
+                && (steps - steps.round()).abs() < 1e-6,
+            "{}: key 'policy_period': {policy_period} s is not a multiple of the physics step ({PHYSICS_STEP} s) up to 1 s",
+            path.display()
+        );
         Ok(RobotFile {
             path: path.to_path_buf(),
             name,
@@ -100,7 +208,24 @@ impl RobotFile {
             joints: written.joints,
             control_period: written.control_period,
             command: written.command,
+            home,
+            speed_limits: vendor.iter().map(|v| v * safety).collect(),
+            ranges,
+            policy_period,
+            packages,
         })
+    }
+
+    /// The URDF with its meshes, for the simulator: `package://` through the file's
+    /// `[packages]`, then `TWINBOTS_PACKAGE_PATH` and `ROS_PACKAGE_PATH`.
+    pub fn model(&self) -> anyhow::Result<RobotModel> {
+        load_urdf_in(&self.urdf, &self.packages)
+            .map_err(|e| anyhow::anyhow!("{}: key 'urdf': {e}", self.path.display()))
+    }
+
+    /// The chain's joint positions (chain order) of controller-order positions `q`.
+    pub fn chain_order(&self, q: &[f64]) -> Vec<f64> {
+        self.controller_index().iter().map(|&k| q[k]).collect()
     }
 
     /// Where each of the chain's movable joints is in the controller's order.
@@ -128,6 +253,10 @@ mod tests {
         let robot = RobotFile::read(&ur5).unwrap();
         assert_eq!((robot.name.as_str(), robot.chain.dof(), robot.control_period), ("ur5", 6, 0.008));
         assert_eq!(robot.controller_index(), vec![0, 1, 2, 3, 4, 5]);
+        // Defaults: home at zero, half the URDF's 3.15 and 3.2 rad/s, the UR5e's 40 ms policy step.
+        assert_eq!(robot.home, vec![0.0; 6]);
+        assert_eq!(robot.speed_limits, [3.15, 3.15, 3.15, 3.2, 3.2, 3.2].map(|v| 0.5 * v).to_vec());
+        assert_eq!(robot.policy_period, DEFAULT_POLICY_PERIOD);
 
         let dir = std::env::temp_dir().join(format!("twinbots-robot-file-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
@@ -147,6 +276,20 @@ mod tests {
             ("short.toml", format!("{head}joints = [\"elbow_joint\"]\n"), "key 'joints': 1 joints, but the chain"),
             ("tool.toml", format!("{}{joints}", head.replace("tool0", "world")), "not a descendant of the base link"),
             ("period.toml", format!("{}{joints}", head.replace("0.008", "0")), "key 'control_period'"),
+            (
+                "home.toml",
+                format!("{head}{joints}home = [0, 0, 9, 0, 0, 0]\n"),
+                "key 'home': 9 for 'elbow_joint' is outside",
+            ),
+            ("home_len.toml", format!("{head}{joints}home = [0]\n"), "key 'home': 1 positions for 6 joints"),
+            (
+                "speeds.toml",
+                format!("{head}{joints}speed_limits = [1, 1, 0, 1, 1, 1]\n"),
+                "'elbow_joint' has no speed limit",
+            ),
+            ("safety.toml", format!("{head}{joints}safety_factor = 0\n"), "key 'safety_factor'"),
+            ("policy.toml", format!("{head}{joints}policy_period = 0.005\n"), "key 'policy_period'"),
+            ("packages.toml", format!("{head}{joints}[packages]\nur = \"no/such/folder\"\n"), "key 'packages.ur'"),
         ];
         for (name, text, expected) in cases {
             let path = write(&dir, name, &text);

@@ -1,0 +1,238 @@
+//! Any serial arm from a robot file (`*.toml`: a URDF plus the keys of
+//! `twinbots_sim::urdf::robot_file`), with no Rust of its own: the arm welded to the floor of an
+//! empty cell, its joints under speed-commanded servos that hold position (a UR's `speedj`, a
+//! Franka's joint velocity interface), and a goal-conditioned reach ([`reach`]) that trains
+//! with SAC + HER or PPO. `twinbots train path/to/arm.toml` reaches it through [`robot`].
+//!
+//! The controller knows only its encoders and the chain's kinematics (the tool from the
+//! URDF in double precision); a joint driven within 1 cm or 0.01 rad of a stop trips the
+//! protective stop, which ends the episode as a failure.
+
+pub mod arm;
+pub mod reach;
+
+use std::sync::Arc;
+
+use bevy::math::Vec3;
+use bevy::prelude::*;
+use twinbots_sim::urdf::robot_file::{PHYSICS_STEP, RobotFile};
+use twinbots_sim::{
+    ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions,
+    Supervisor, spawn_robot,
+};
+use twinbots_task::robot::{AlgoDefaults, RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
+use twinbots_task::{Action, DesignPattern, Episode, TaskTermsPlugin};
+
+pub use crate::arm::Arm;
+use crate::reach::ReachState;
+
+/// SAC + HER settings of the reach: the UR5e reach's (RL Zoo's FetchReach settings with
+/// observation normalisation and 8 gradient steps per step of the 4 arenas).
+pub const SAC_HYPERPARAMS: &str = "learning_rate = 1e-3
+gamma = 0.95
+tau = 0.05
+hidden = [64, 64]
+her_goals = 4
+normalize_observations = true
+learning_starts = 1000
+gradient_steps = 8
+log_interval = 250";
+
+/// PPO settings: the UR5e reach's.
+pub const PPO_HYPERPARAMS: &str = "normalize_observations = true
+n_steps = 256
+batch_size = 256
+hidden = [128, 128]
+log_std_init = -1.0";
+
+/// The twin's timing: 4 ms physics steps of 8 solver iterations (the UR5e's, whose accuracy the
+/// sim tests hold), as many per control step as the file's `policy_period` takes.
+pub fn sim_settings(file: &RobotFile) -> SimSettings {
+    let substeps = (file.policy_period / PHYSICS_STEP).round() as u32;
+    SimSettings { dt: PHYSICS_STEP as f32, substeps, solver_iterations: 8, ..default() }
+}
+
+/// The description of the arm in the robot file at `path`: what `twinbots_run::registry::find`
+/// returns for a ROBOT argument ending in `.toml`. Its name is the file's path as given (a run
+/// records it, and `eval`/`export` find the arm again by it).
+pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
+    let file = RobotFile::read(path)?;
+    let arm = Arc::new(Arm::of(file)?);
+    // A description's names are static (a built-in robot's are literals); a process reads
+    // one robot file per command, so the few bytes live as long as it.
+    let name: &'static str = Box::leak(path.display().to_string().into_boxed_str());
+    let description: &'static str = Box::leak(
+        format!(
+            "{}-joint arm from {} (tool '{}'); reach: Box([-1,1]^{}) joint speeds, {} ms step",
+            arm.dof(),
+            arm.file.urdf.display(),
+            arm.file.chain.tool,
+            arm.dof(),
+            (arm.file.policy_period * 1000.0).round()
+        )
+        .into_boxed_str(),
+    );
+    let reach = arm.base.translation.z + arm.reach();
+    let settings = sim_settings(&arm.file);
+    let spec_arm = arm.clone();
+    let build_arm = arm.clone();
+    Ok(RobotDescription {
+        name,
+        description,
+        tasks: vec![TaskDescription {
+            name: "reach",
+            description: "tool link to a target around home, at rest within 1 cm (position only)",
+            spec: Arc::new(move || reach::reach_task(&spec_arm).spec()),
+            server: false,
+            training: None,
+        }],
+        patterns: vec![DesignPattern::Supervised],
+        // Cameras 1.6 reaches away, looking at 0.4 of the arm's height.
+        framing: Framing { target: Vec3::new(0.0, 0.0, 0.4 * reach), distance: 1.6 * reach.max(0.3), facing: 0.0 },
+        defaults: TrainingDefaults {
+            algo: "sac",
+            eval_episodes: 200,
+            algos: vec![
+                AlgoDefaults {
+                    algo: "sac",
+                    arenas: 4,
+                    timesteps: 200_000,
+                    eval_every: 5,
+                    hyperparams: SAC_HYPERPARAMS,
+                },
+                AlgoDefaults {
+                    algo: "ppo",
+                    arenas: 8,
+                    timesteps: 3_000_000,
+                    eval_every: 20,
+                    hyperparams: PPO_HYPERPARAMS,
+                },
+            ],
+        },
+        settings: Arc::new(move || settings),
+        build: Arc::new(move |request| {
+            headless_app(settings, request, ArmPlugin { arm: build_arm.clone(), pattern: request.pattern })
+        }),
+        rig: None,
+        feedback: None,
+        cell: None,
+    })
+}
+
+/// The arm's cell and reach task.
+pub struct ArmPlugin {
+    pub arm: Arc<Arm>,
+    pub pattern: DesignPattern,
+}
+
+/// The arm's joints in the controller's order (one per arena).
+#[derive(Component, Clone, Debug)]
+pub struct ArmJoints(pub Vec<Entity>);
+
+impl Plugin for ArmPlugin {
+    fn build(&self, app: &mut App) {
+        app.insert_resource((*self.arm).clone())
+            .add_plugins(TaskTermsPlugin::new(reach::reach_task(&self.arm), self.pattern))
+            .add_systems(Startup, spawn_cells)
+            .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)))
+            .add_systems(Update, report.in_set(TaskSet::Report))
+            .add_systems(EnvReset, (place_arm.in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
+    }
+}
+
+fn spawn_cells(mut commands: Commands, arm: Res<Arm>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
+    let home = arm.home();
+    spawn_arenas(&mut commands, &config, &settings, |commands, arena_entity, arena| {
+        arena.add_ground(0.8);
+        let joint_positions = arm.file.joints.iter().cloned().zip(home.iter().copied()).collect();
+        let robot = spawn_robot(
+            commands,
+            arena_entity,
+            arena,
+            &arm.model,
+            SpawnOptions { fixed_base: true, joint_positions, ..default() },
+        );
+        let joints: Vec<Entity> = arm
+            .file
+            .joints
+            .iter()
+            .map(|name| robot.joint(name).expect("the robot file's joints are the URDF's"))
+            .collect();
+        for &joint in &joints {
+            commands.entity(joint).entry::<Motor>().and_modify(|mut m| {
+                m.holds_position = true;
+                m.command = MotorCommand::Velocity(0.0);
+                m.initial_command = MotorCommand::Velocity(0.0);
+            });
+        }
+        (ArmJoints(joints), ReachState { start_pose: home.clone(), ..default() })
+    });
+}
+
+/// The policy's action becomes joint speeds (each joint's task speed limit at full scale),
+/// unless the arm is in a protective stop: then it holds.
+fn apply_action(
+    arm: Res<Arm>,
+    mut arenas: Query<(&ArmJoints, &Action, &mut ReachState)>,
+    mut motors: Query<&mut Motor>,
+) {
+    for (joints, action, mut state) in &mut arenas {
+        if action.0.is_empty() {
+            continue;
+        }
+        let stopped = state.stopped;
+        for (k, &joint) in joints.0.iter().enumerate() {
+            let a = action.0.get(k).copied().unwrap_or(0.0).clamp(-1.0, 1.0);
+            let speed = if stopped { 0.0 } else { a * arm.file.speed_limits[k] as f32 };
+            if let Ok(mut m) = motors.get_mut(joint) {
+                m.command = MotorCommand::Velocity(speed);
+            }
+        }
+        state.push_action(&action.0);
+    }
+}
+
+/// The joints from their position sensors and encoders, the tool through the controller's own
+/// kinematics, and the protective stop (latched until the reset).
+fn read_arm(
+    arm: Res<Arm>,
+    sensors: Query<(&PositionSensor, &JointState)>,
+    mut arenas: Query<(&ArmJoints, &mut ReachState)>,
+) {
+    for (joints, mut state) in &mut arenas {
+        let (q, qd): (Vec<f32>, Vec<f32>) =
+            joints.0.iter().map(|&j| sensors.get(j).map_or((0.0, 0.0), |(p, s)| (p.value, s.velocity))).unzip();
+        let (tool, velocity) = arm.tool_motion(&q, &qd);
+        state.tool = tool.as_vec3();
+        state.tool_velocity = velocity.as_vec3();
+        state.stopped |= arm.at_limit(&q);
+        state.q = q;
+        state.qd = qd;
+    }
+}
+
+/// Reset: the Supervisor puts the arm at the drawn start, its stop unlocked.
+fn place_arm(mut supervisor: Supervisor, mut arenas: Query<(&ArmJoints, &mut ReachState), With<Resetting>>) {
+    for (joints, mut state) in &mut arenas {
+        for (&joint, &q) in joints.0.iter().zip(&state.start_pose) {
+            supervisor.set_joint_position(joint, q);
+        }
+        state.stopped = false;
+    }
+}
+
+/// The figures of a reach that ended: its final error and, if it arrived, its cycle time.
+fn report(settings: Res<SimSettings>, mut arenas: Query<(&ReachState, &mut Episode)>) {
+    for (state, mut e) in &mut arenas {
+        if e.done() {
+            e.running.metrics.insert("final_error_mm".into(), 1000.0 * state.distance());
+            if e.running.success == Some(true) {
+                let cycle_time = (e.running.length + 1) as f32 * settings.control_dt();
+                e.running.metrics.insert("cycle_time_s".into(), cycle_time);
+            }
+            let stops = f32::from(u8::from(state.stopped));
+            e.running.metrics.insert("protective_stops".into(), stops);
+        }
+    }
+}

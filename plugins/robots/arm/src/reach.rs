@@ -1,0 +1,217 @@
+//! Reach for any arm: move the tool link to a target and come to rest there within 1 cm, a
+//! goal-conditioned task (Gymnasium-Robotics' FetchReach: the position only, as a 5-DoF arm
+//! cannot take every orientation). The same terms as the UR5e's reach less its tilt: motion
+//! costs, an arrival bonus that ends the episode, a protective stop at a joint's limit that ends
+//! it as a failure.
+//!
+//! The observation starts with the tool (3), target − tool (3) and the tool's velocity (3), so
+//! the goal interface reads them at fixed places whatever the arm's joint count; then the
+//! joints' positions, speeds and the last action (one per joint each).
+
+use std::sync::Arc;
+
+use bevy::prelude::*;
+use twinbots_task::{
+    GoalChange, GoalSpec, ObservationTerm, RewardTerm, SolvedCriterion, Space, StartEvent, TaskDefinition, TaskTerms,
+    TerminationTerm,
+};
+
+use crate::arm::{Arm, START_SPREAD};
+
+/// The name of the termination term a protective stop ends an episode with.
+pub const STOP_TERM: &str = "protective_stop";
+/// Control steps before a reach is given up.
+pub const EPISODE_STEPS: u32 = 100;
+/// A reach succeeds when the tool is this close to the target (m)…
+pub const REACH_TOLERANCE: f32 = 0.01;
+/// …and has come to rest: slower than this (m/s).
+pub const SETTLED_SPEED: f32 = 0.05;
+/// The bonus for arriving (which ends the reach).
+pub const ARRIVAL_BONUS: f32 = 10.0;
+/// A protective stop's penalty in steps of the pose cost where it tripped, and the bonus it
+/// forfeits: the UR5e reach's (see its `STOP_PENALTY_STEPS`).
+pub const STOP_PENALTY_STEPS: f32 = 64.0;
+const DISTANCE_WEIGHT: f32 = 1.0;
+const PRECISION_WEIGHT: f32 = 0.1;
+/// Distances beyond this (m) are no reach: the range a RobotServer checks rewards against.
+const MAX_DISTANCE: f32 = 5.0;
+
+/// What the arm's controller knows at a step (one per arena): its joints from the encoders,
+/// the tool from its own kinematics, the target, the actions, whether its safety system
+/// stopped it, and the start the next episode drew.
+#[derive(Component, Clone, Debug, Default)]
+pub struct ReachState {
+    pub q: Vec<f32>,
+    pub qd: Vec<f32>,
+    /// The tool link's position and velocity in the base frame.
+    pub tool: Vec3,
+    pub tool_velocity: Vec3,
+    pub target: Vec3,
+    pub last_action: Vec<f32>,
+    pub previous_action: Vec<f32>,
+    pub stopped: bool,
+    pub start_pose: Vec<f32>,
+}
+
+impl ReachState {
+    pub fn distance(&self) -> f32 {
+        (self.target - self.tool).length()
+    }
+
+    /// Close and at rest, not stopped.
+    pub fn arrived(&self) -> bool {
+        !self.stopped && arrived_at(self.tool, self.tool_velocity, self.target)
+    }
+
+    /// Records the action the arm was given (the policy observes the last).
+    pub fn push_action(&mut self, action: &[f32]) {
+        self.previous_action = std::mem::take(&mut self.last_action);
+        self.last_action = action.iter().map(|a| a.clamp(-1.0, 1.0)).collect();
+        self.previous_action.resize(self.last_action.len(), 0.0);
+    }
+}
+
+fn arrived_at(tool: Vec3, velocity: Vec3, target: Vec3) -> bool {
+    (target - tool).length() < REACH_TOLERANCE && velocity.length() < SETTLED_SPEED
+}
+
+fn precision(distance: f32) -> f32 {
+    1.0 - (-(distance / 0.02).powi(2)).exp()
+}
+
+/// The cost of one step with the tool `distance` from the target.
+fn pose_cost(distance: f32) -> f32 {
+    DISTANCE_WEIGHT * distance.min(MAX_DISTANCE) + PRECISION_WEIGHT * precision(distance)
+}
+
+/// The reward terms that depend on the target, as one number (what hindsight relabelling
+/// recomputes for another goal): distance, precision, arrival, the stop's penalty.
+fn target_reward(distance: f32, arrived: bool, stopped: bool) -> f32 {
+    let mut r = -pose_cost(distance) + if arrived { ARRIVAL_BONUS } else { 0.0 };
+    if stopped {
+        r -= STOP_PENALTY_STEPS * pose_cost(distance);
+    }
+    r
+}
+
+/// The reach task of `arm`.
+pub fn reach_task(arm: &Arm) -> TaskDefinition<ReachState> {
+    let n = arm.dof();
+    let (lo, hi) = arm.file.ranges.iter().fold((0.0f64, 0.0f64), |(l, h), &(a, b)| (l.min(a), h.max(b)));
+    let top_speed = arm.file.speed_limits.iter().fold(0.0f64, |m, &s| m.max(s)) as f32;
+    let max_pose_cost = pose_cost(MAX_DISTANCE);
+    TaskDefinition {
+        name: arm.file.name.clone(),
+        terms: TaskTerms {
+            observations: vec![
+                // Plausible: 5 m around the base (an arm's reach is under 2 m).
+                ObservationTerm::new("tool_position", 3, |s: &ReachState, out: &mut Vec<f32>| {
+                    out.extend(s.tool.to_array())
+                })
+                .plausible(-5.0, 5.0),
+                ObservationTerm::new("target_offset", 3, |s: &ReachState, out: &mut Vec<f32>| {
+                    out.extend((s.target - s.tool).to_array())
+                })
+                .plausible(-10.0, 10.0),
+                ObservationTerm::new("tool_velocity", 3, |s: &ReachState, out: &mut Vec<f32>| {
+                    out.extend(s.tool_velocity.to_array())
+                })
+                .plausible(-20.0, 20.0),
+                ObservationTerm::new("joint_positions", n, |s: &ReachState, out: &mut Vec<f32>| out.extend(&s.q))
+                    .bounded(lo as f32 - 0.1, hi as f32 + 0.1),
+                // Four times the fastest joint's task speed: what a working encoder can report.
+                ObservationTerm::new("joint_velocities", n, |s: &ReachState, out: &mut Vec<f32>| out.extend(&s.qd))
+                    .plausible(-4.0 * top_speed, 4.0 * top_speed),
+                ObservationTerm::new("last_action", n, move |s: &ReachState, out: &mut Vec<f32>| {
+                    out.extend((0..n).map(|k| s.last_action.get(k).copied().unwrap_or(0.0)))
+                })
+                .bounded(-1.0, 1.0),
+            ],
+            rewards: vec![
+                RewardTerm::new("distance", -DISTANCE_WEIGHT, |s: &ReachState| s.distance().min(MAX_DISTANCE))
+                    .bounded(0.0, MAX_DISTANCE),
+                RewardTerm::new("precision", -PRECISION_WEIGHT, |s: &ReachState| precision(s.distance()))
+                    .bounded(0.0, 1.0),
+                RewardTerm::new("effort", -0.01, |s: &ReachState| s.last_action.iter().map(|a| a * a).sum())
+                    .bounded(0.0, n as f32),
+                RewardTerm::new("action_rate", -0.02, |s: &ReachState| {
+                    s.last_action.iter().zip(&s.previous_action).map(|(a, b)| (a - b).powi(2)).sum()
+                })
+                .bounded(0.0, 4.0 * n as f32),
+                RewardTerm::new("arrival", ARRIVAL_BONUS, |s: &ReachState| f32::from(u8::from(s.arrived())))
+                    .bounded(0.0, 1.0),
+                RewardTerm::new(
+                    STOP_TERM,
+                    -STOP_PENALTY_STEPS,
+                    |s: &ReachState| {
+                        if s.stopped { pose_cost(s.distance()) } else { 0.0 }
+                    },
+                )
+                .bounded(0.0, max_pose_cost),
+            ],
+            terminations: vec![
+                TerminationTerm::goal("arrived", |s: &ReachState| s.arrived()),
+                TerminationTerm::new(STOP_TERM, |s: &ReachState| s.stopped),
+            ],
+            time_limit: Some(EPISODE_STEPS),
+            start_events: vec![new_reach(arm)],
+        },
+        action_space: Space::uniform_box(n, -1.0, 1.0),
+        // The UR5e reach's margin over the 95 % a twin must reach.
+        solved: Some(SolvedCriterion::success_rate(200, 0.98)),
+        goal: Some(reach_goal()),
+    }
+}
+
+/// Start event: a new target and a start near home.
+fn new_reach(arm: &Arm) -> StartEvent<ReachState> {
+    let arm = Arc::new(arm.clone());
+    StartEvent::new("new_reach", move |s: &mut ReachState, rng| {
+        s.target = arm.sample_target(rng);
+        s.start_pose = arm.sample_around_home(rng, START_SPREAD);
+        s.last_action.clear();
+        s.previous_action.clear();
+        s.stopped = false;
+    })
+}
+
+fn point(values: &[f32]) -> Vec3 {
+    Vec3::new(values[0], values[1], values[2])
+}
+
+/// Where the tool, target offset and tool velocity are in the observation.
+const TOOL: usize = 0;
+const OFFSET: usize = 3;
+const VELOCITY: usize = 6;
+
+fn achieved(obs: &[f32]) -> Vec<f32> {
+    obs[TOOL..TOOL + 3].to_vec()
+}
+
+fn desired(obs: &[f32]) -> Vec<f32> {
+    (point(&obs[TOOL..]) + point(&obs[OFFSET..])).to_array().to_vec()
+}
+
+fn substitute(obs: &mut [f32], goal: &[f32]) {
+    let offset = point(goal) - point(&obs[TOOL..]);
+    obs[OFFSET..OFFSET + 3].copy_from_slice(&offset.to_array());
+}
+
+/// The target terms under each goal, and arrival at each; a step the protective stop ended
+/// keeps its stop (its penalty follows the goal) and arrives nowhere.
+fn change(_obs: &[f32], next_obs: &[f32], ended_by: Option<&str>, from: &[f32], to: &[f32]) -> GoalChange {
+    let (tool, velocity) = (point(&next_obs[TOOL..]), point(&next_obs[VELOCITY..]));
+    let stopped = ended_by == Some(STOP_TERM);
+    let terms = |goal: &[f32]| {
+        let target = point(goal);
+        let arrived = !stopped && arrived_at(tool, velocity, target);
+        (target_reward((target - tool).length(), arrived, stopped), arrived)
+    };
+    let ((before, ends_at_from), (after, ends_at_to)) = (terms(from), terms(to));
+    GoalChange { reward: after - before, ends_at_from, ends_at_to }
+}
+
+/// The reach's goal interface: the goal achieved is the tool's position, the goal desired the target.
+pub fn reach_goal() -> GoalSpec {
+    GoalSpec { dim: 3, achieved, desired, substitute, change }
+}

@@ -1,0 +1,82 @@
+"""Arms from robot files alone (`assets/robots/*.toml`: a vendor's URDF from `example-robot-data`
+plus a few keys, no Rust): the twin standing at home reads the gravity torques Pinocchio computes
+for the pose it holds (within 4 % of the largest, the UR5e twin's bound), and `train`, `eval` and
+`export` take a robot file as they take a built-in robot."""
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sysconfig
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pin = pytest.importorskip("pinocchio")
+
+REPO = Path(__file__).resolve().parents[2]
+SHARE = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share"
+ROBOTS = SHARE / "example-robot-data" / "robots"
+
+# robot file, its URDF inside example-robot-data
+ARMS = [
+    ("panda", "panda_description/urdf/panda.urdf"),
+    ("ur10", "ur_description/urdf/ur10_robot.urdf"),
+]
+
+HOLDING = re.compile(r"^\s*holding (\S+) at (\S+): effort (\S+)$")
+
+
+def twinbots_bin():
+    binary = os.environ.get("TWINBOTS_BIN") or shutil.which("twinbots")
+    if not binary:
+        pytest.skip("no twinbots CLI (set TWINBOTS_BIN)")
+    return binary
+
+
+def run(*args, timeout=300):
+    """The CLI with `package://example-robot-data/…` found through ROS_PACKAGE_PATH, as a user
+    who installed the package would set it."""
+    env = dict(os.environ, ROS_PACKAGE_PATH=str(SHARE))
+    done = subprocess.run([twinbots_bin(), *args], capture_output=True, text=True, timeout=timeout, env=env, cwd=REPO)
+    assert done.returncode == 0, done.stderr + done.stdout
+    return done.stdout
+
+
+@pytest.mark.parametrize("name,urdf", ARMS)
+def test_efforts_at_rest_equal_pinocchios_gravity_torques(name, urdf):
+    if not (ROBOTS / urdf).is_file():
+        pytest.skip(f"example-robot-data has no {urdf}")
+    out = run("urdf", f"assets/robots/{name}.toml", "--seconds", "3")
+    held = {m[1]: (float(m[2]), float(m[3])) for m in map(HOLDING.match, out.splitlines()) if m}
+    model = pin.buildModelFromUrdf(str(ROBOTS / urdf))
+    data = model.createData()
+    q = pin.neutral(model)
+    for joint, (position, _) in held.items():
+        q[model.joints[model.getJointId(joint)].idx_q] = position
+    gravity = pin.computeGeneralizedGravity(model, data, q)
+    arm = [j for j in model.names[1:] if "finger" not in j]
+    expected = np.array([gravity[model.joints[model.getJointId(j)].idx_v] for j in arm])
+    measured = np.array([held[j][1] for j in arm])
+    # Within 4 % of the joint's own torque, or of a tenth of the largest for a joint that carries
+    # little (as test_kinematics.py judges a bare URDF standing at zero).
+    bound = 0.04 * np.maximum(np.abs(expected), 0.1 * np.max(np.abs(expected)))
+    print(dict(zip(arm, zip(measured.round(4), expected.round(4)))))
+    assert np.all(np.abs(measured - expected) <= bound), f"{name}: {measured.round(4)} against {expected.round(4)}"
+
+
+def test_a_robot_file_trains_evaluates_and_exports(tmp_path):
+    if not (ROBOTS / ARMS[0][1]).is_file():
+        pytest.skip("example-robot-data has no Panda")
+    run_dir = tmp_path / "panda"
+    out = run("train", "assets/robots/panda.toml", "--timesteps", "1500", "--out", str(run_dir))
+    assert "evaluation of the final model, reach" in out, out
+    figures = json.loads((run_dir / "eval.json").read_text())
+    assert 0.0 <= figures["success_rate"] <= 1.0, figures
+    assert "final_error_mm" in json.dumps(figures), figures
+    run("eval", str(run_dir), "--episodes", "4")
+    onnx = tmp_path / "panda.onnx"
+    run("export", str(run_dir), "--onnx", str(onnx))
+    assert onnx.stat().st_size > 1000

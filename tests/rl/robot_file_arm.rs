@@ -1,0 +1,153 @@
+//! An arm from a robot file alone (a URDF and a few keys, no Rust): its twin follows the
+//! controller's own kinematics, a resolved-rate controller on the reach task's observation
+//! arrives, a joint driven into its stop trips the protective stop, and the goal interface
+//! recomputes the task's own reward.
+
+use std::path::{Path, PathBuf};
+
+use twinbots_api::{DesignPattern, VecEnv};
+use twinbots_arm::reach::{ReachState, STOP_TERM};
+use twinbots_sim::rapier::na::{DMatrix, DVector};
+use twinbots_sim::urdf::robot_file::RobotFile;
+use twinbots_sim::{InArena, Link, physics_in};
+use twinbots_task::AppVecEnv;
+
+/// A three-joint arm of boxes: a base turning about z, a shoulder and an elbow about y, a tool
+/// link 0.3 m past the elbow.
+const URDF: &str = r#"<robot name="arm3">
+  <link name="base"><inertial><origin xyz="0 0 0.05"/><mass value="5"/><inertia ixx="0.02" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.02"/></inertial>
+    <collision><origin xyz="0 0 0.05"/><geometry><cylinder radius="0.08" length="0.1"/></geometry></collision></link>
+  <joint name="turn" type="revolute"><parent link="base"/><child link="column"/><origin xyz="0 0 0.1"/><axis xyz="0 0 1"/>
+    <limit lower="-2.5" upper="2.5" effort="60" velocity="2"/></joint>
+  <link name="column"><inertial><origin xyz="0 0 0.05"/><mass value="2"/><inertia ixx="0.005" ixy="0" ixz="0" iyy="0.005" iyz="0" izz="0.005"/></inertial>
+    <collision><origin xyz="0 0 0.05"/><geometry><box size="0.08 0.08 0.1"/></geometry></collision></link>
+  <joint name="shoulder" type="revolute"><parent link="column"/><child link="upper"/><origin xyz="0 0 0.1"/><axis xyz="0 1 0"/>
+    <limit lower="-2" upper="2" effort="60" velocity="2"/></joint>
+  <link name="upper"><inertial><origin xyz="0 0 0.2"/><mass value="1.5"/><inertia ixx="0.02" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.001"/></inertial>
+    <collision><origin xyz="0 0 0.2"/><geometry><box size="0.05 0.05 0.4"/></geometry></collision></link>
+  <joint name="elbow" type="revolute"><parent link="upper"/><child link="fore"/><origin xyz="0 0 0.4"/><axis xyz="0 1 0"/>
+    <limit lower="-2.5" upper="2.5" effort="40" velocity="2"/></joint>
+  <link name="fore"><inertial><origin xyz="0 0 0.15"/><mass value="1"/><inertia ixx="0.008" ixy="0" ixz="0" iyy="0.008" iyz="0" izz="0.001"/></inertial>
+    <collision><origin xyz="0 0 0.15"/><geometry><box size="0.04 0.04 0.3"/></geometry></collision></link>
+  <joint name="flange" type="fixed"><parent link="fore"/><child link="tool"/><origin xyz="0 0 0.3"/></joint>
+  <link name="tool"/>
+</robot>"#;
+
+const ROBOT_FILE: &str = r#"urdf = "arm3.urdf"
+base = "base"
+tool = "tool"
+joints = ["turn", "shoulder", "elbow"]
+control_period = 0.008
+command = "speed"
+home = [0.0, 0.5, 1.0]
+"#;
+
+/// The arm's robot file in a folder of its own.
+fn robot_file(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("twinbots-arm-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("arm3.urdf"), URDF).unwrap();
+    std::fs::write(dir.join("arm3.toml"), ROBOT_FILE).unwrap();
+    dir.join("arm3.toml")
+}
+
+fn env(path: &Path, arenas: usize) -> AppVecEnv {
+    let robot = twinbots_arm::robot(path).unwrap();
+    AppVecEnv::new(robot.app(None, arenas, 7, DesignPattern::Supervised).unwrap())
+}
+
+/// Joint speeds (as actions) that move the tool towards the target by damped least squares on
+/// the position rows of the chain's Jacobian.
+fn resolved_rate(file: &RobotFile, obs: &[f32]) -> Vec<f32> {
+    let n = file.joints.len();
+    let q: Vec<f64> = obs[9..9 + n].iter().map(|&v| v as f64).collect();
+    let columns = file.chain.jacobian(&file.chain_order(&q));
+    let j = DMatrix::from_fn(3, n, |r, c| columns[c][r]);
+    let error = DVector::from_iterator(3, obs[3..6].iter().map(|&v| v as f64));
+    let velocity = error * 4.0;
+    let damped = (&j * j.transpose() + DMatrix::identity(3, 3) * 1e-4).cholesky().unwrap();
+    let speeds = j.transpose() * damped.solve(&velocity);
+    (0..n).map(|k| (speeds[k] / file.speed_limits[k]).clamp(-1.0, 1.0) as f32).collect()
+}
+
+#[test]
+fn a_robot_file_arm_follows_its_kinematics_and_a_resolved_rate_controller_reaches() {
+    let path = robot_file("reach");
+    let file = RobotFile::read(&path).unwrap();
+    let mut env = env(&path, 2);
+    let mut obs = env.reset(Some(3)).unwrap();
+    let dim = obs.len() / 2;
+    assert_eq!(dim, 9 + 3 * 3, "tool, offset, tool velocity, then 3 values per joint");
+    let (mut arrived, mut ended) = (0, 0);
+    let mut worst_tool_error = 0.0f32;
+    for _ in 0..800 {
+        let actions: Vec<f32> = obs.chunks(dim).flat_map(|o| resolved_rate(&file, o)).collect();
+        let step = env.step(&actions).unwrap();
+        for (i, summary) in step.episodes.iter().enumerate() {
+            if let Some(summary) = summary {
+                ended += 1;
+                arrived += usize::from(summary.success == Some(true));
+                assert_ne!(step.way_ended(i).as_deref(), Some(STOP_TERM), "the controller stays inside the ranges");
+            }
+        }
+        obs = step.obs;
+        // The twin's tool link where the controller's kinematics put it.
+        let world = env.app().world();
+        let links = world.iter_entities().filter_map(|e| Some((e.get::<Link>()?, e.get::<InArena>()?)));
+        for (link, in_arena) in links {
+            if link.name != "tool" {
+                continue;
+            }
+            let physics = physics_in(world, in_arena.0).unwrap();
+            let simulated = (*physics.bodies[link.body].position() * link.offset).translation;
+            let state = world.get::<ReachState>(in_arena.0).unwrap();
+            worst_tool_error = worst_tool_error.max((simulated - state.tool).length());
+        }
+    }
+    assert!(worst_tool_error < 0.003, "the twin's tool is {worst_tool_error} m from the controller's kinematics");
+    assert!(ended >= 10 && arrived as f32 >= 0.9 * ended as f32, "{arrived} of {ended} reaches arrived");
+}
+
+#[test]
+fn a_joint_driven_into_its_stop_ends_the_reach_in_a_protective_stop() {
+    let mut env = env(&robot_file("stop"), 1);
+    env.reset(Some(1)).unwrap();
+    let mut ended_by = None;
+    for step in 0..100 {
+        let result = env.step(&[0.0, 0.0, 1.0]).unwrap();
+        if result.episodes[0].is_some() {
+            ended_by = result.way_ended(0);
+            // The elbow's 1.5 rad to its stop at 1 rad/s (half of 2): about 38 steps of 40 ms.
+            assert!((30..60).contains(&step), "ended at step {step}");
+            break;
+        }
+    }
+    assert_eq!(ended_by.as_deref(), Some(STOP_TERM));
+}
+
+#[test]
+fn hindsight_goals_are_rewarded_as_the_task_rewards_them() {
+    let path = robot_file("goal");
+    let mut env = env(&path, 1);
+    let spec = twinbots_arm::robot(&path).unwrap().task();
+    let goal = spec.goal.unwrap();
+    let obs = env.reset(Some(5)).unwrap();
+    let step = env.step(&[0.3, -0.2, 0.1]).unwrap();
+    let next = step.obs.clone();
+    // The step's own goal: the change to itself is nothing.
+    let desired = (goal.desired)(&next);
+    let same = (goal.change)(&obs, &next, None, &desired, &desired);
+    assert_eq!(same.reward, 0.0);
+    // The goal where the tool is now: the distance terms vanish and, were the tool at rest, it
+    // would arrive.
+    let achieved = (goal.achieved)(&next);
+    let change = (goal.change)(&obs, &next, None, &desired, &achieved);
+    let distance =
+        ((desired[0] - achieved[0]).powi(2) + (desired[1] - achieved[1]).powi(2) + (desired[2] - achieved[2]).powi(2))
+            .sqrt();
+    let expected_gain = distance + 0.1 * (1.0 - (-(distance / 0.02).powi(2)).exp());
+    let speed = (next[6] * next[6] + next[7] * next[7] + next[8] * next[8]).sqrt();
+    let bonus = if speed < 0.05 { 10.0 } else { 0.0 };
+    assert!((change.reward - expected_gain - bonus).abs() < 1e-4, "{change:?}, distance {distance}");
+    assert_eq!(change.ends_at_to, speed < 0.05);
+}
