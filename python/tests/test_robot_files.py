@@ -24,6 +24,7 @@ ROBOTS = SHARE / "example-robot-data" / "robots"
 ARMS = [
     ("panda", "panda_description/urdf/panda.urdf"),
     ("ur10", "ur_description/urdf/ur10_robot.urdf"),
+    ("xarm7", "xarm_description/urdf/xarm7.urdf"),
 ]
 
 HOLDING = re.compile(r"^\s*holding (\S+) at (\S+): effort (\S+)$")

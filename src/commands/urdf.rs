@@ -77,12 +77,15 @@ pub fn exec(mut args: Args) -> anyhow::Result<()> {
         let joints: Vec<&str> = chain.movable().map(|j| j.name.as_str()).collect();
         println!("chain {} -> {}: {} movable joints: {}", chain.base, chain.tool, joints.len(), joints.join(", "));
     }
+    // The pose it stands in: a robot file's home, a bare URDF's zero.
+    let stand: Vec<(String, f32)> = robot_file
+        .as_ref()
+        .map(|file| file.joints.iter().cloned().zip(file.home.iter().map(|&q| q as f32)).collect())
+        .unwrap_or_default();
     let mut report = match &robot_file {
         Some(file) => {
-            let home: Vec<(String, f32)> =
-                file.joints.iter().cloned().zip(file.home.iter().map(|&q| q as f32)).collect();
-            println!("home: {}", home.iter().map(|(j, q)| format!("{j} {q}")).collect::<Vec<_>>().join(", "));
-            check_model(file.model()?, args.seconds, &args.decompose, &home, twinbots_arm::sim_settings(file))?
+            println!("home: {}", stand.iter().map(|(j, q)| format!("{j} {q}")).collect::<Vec<_>>().join(", "));
+            check_model(file.model()?, args.seconds, &args.decompose, &stand, twinbots_arm::sim_settings(file))?
         }
         None => check(&args.file, args.seconds, &args.decompose)?,
     };
@@ -118,7 +121,7 @@ pub fn exec(mut args: Args) -> anyhow::Result<()> {
     if let Some(png) = &args.png {
         let (width, height) = (800, 600);
         let mut renderer = Renderer::new(width, height)?;
-        let (target, size) = extent(&report.model);
+        let (target, size) = extent(&report.model, &stand);
         // Far enough for the robot to fill about two thirds of the 45° view.
         let eye = target + Vec3::new(0.5, -1.3, 0.6).normalize() * size.max(0.2) * 1.7;
         renderer.set_view(View::looking_at(eye, target, 45f32.to_radians()));
@@ -181,8 +184,8 @@ fn joint_values(chain: &Chain, text: &str, what: &str) -> anyhow::Result<Vec<f64
 
 /// The centre and largest side of the box around the robot's visuals (and link frames) at
 /// the zero pose.
-fn extent(model: &RobotModel) -> (Vec3, f32) {
-    let pose = model.link_poses(Pose::IDENTITY, |_| 0.0);
+fn extent(model: &RobotModel, stand: &[(String, f32)]) -> (Vec3, f32) {
+    let pose = model.link_poses(Pose::IDENTITY, |j| stand.iter().find(|(n, _)| *n == j.name).map_or(0.0, |&(_, q)| q));
     let mut points: Vec<Vec3> = pose.iter().map(|p| p.translation).collect();
     for (l, link) in model.links.iter().enumerate() {
         for v in &link.visuals {

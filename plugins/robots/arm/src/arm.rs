@@ -10,7 +10,7 @@ use twinbots_sim::urdf::RobotModel;
 use twinbots_sim::urdf::robot_file::RobotFile;
 
 /// A joint this close to a stop (rad or m) counts as at its limit: the protective stop.
-pub const LIMIT_MARGIN: f64 = 0.01;
+pub use twinbots_sim::urdf::robot_file::STOP_MARGIN as LIMIT_MARGIN;
 /// Reach targets are the tool's position at joint positions this far (rad or m) either side
 /// of home, each joint drawn on its own within its range: reachable by construction, and
 /// around where the arm works.

@@ -87,6 +87,7 @@ pub fn set_armature(world: &mut PhysicsWorld, joint: &Joint, dynamics: &mut Join
 /// motor's work, so the motor's solved effort (read from its last substep) includes them; an
 /// impulse would land in the first substep only, and the effort would all but miss it.
 pub(crate) fn apply_joint_dynamics(
+    settings: Res<crate::SimSettings>,
     mut arenas: Query<&mut Arena>,
     joints: Query<(&Joint, &JointState, &JointDynamics, &InArena)>,
 ) {
@@ -108,9 +109,39 @@ pub(crate) fn apply_joint_dynamics(
             continue;
         }
         if let Ok(mut arena) = arenas.get_mut(in_arena.0) {
-            add_joint_force(&mut arena.world, joint, dynamics.torque(state.velocity));
+            let torque = dynamics.torque(state.velocity);
+            let limit = stopping_effort(&arena.world, joint, state.velocity, settings.dt);
+            add_joint_force(&mut arena.world, joint, torque.clamp(-limit, limit));
         }
     }
+}
+
+/// The most damping and friction may exert in one explicit step: what stops the joint's child
+/// body alone (its inertia about the joint's axis, or its mass along a sliding one) from speed
+/// `v` within `dt`. A light link under a vendor's damping (the xArm7's last link: 1.3e-4 kg·m²
+/// under 2 N·m·s/rad, 60 times what a 4 ms step stops) would otherwise swing the sign of its
+/// speed every step and grow: the clamp keeps the explicit step from overshooting, and binds
+/// only where it would have. The child alone is the least inertia the joint moves, so the
+/// clamp never allows an overshoot.
+fn stopping_effort(world: &PhysicsWorld, joint: &Joint, v: f32, dt: f32) -> f32 {
+    let Some(body) = world.bodies.get(joint.child_body) else { return f32::INFINITY };
+    let props = body.mass_properties().local_mprops;
+    let inertia = if joint.kind.is_rotational() {
+        let Some((axis, _, _)) = joint.measure(world) else { return f32::INFINITY };
+        let Some(anchor) =
+            world.impulse_joints.get(joint.handle).map(|j| (*body.position() * j.data.local_frame2).translation)
+        else {
+            return f32::INFINITY;
+        };
+        let rotation = body.position().rotation;
+        let local_axis = rotation.inverse() * axis;
+        let about_com = local_axis.dot(props.reconstruct_inertia_matrix() * local_axis);
+        let arm = body.center_of_mass() - anchor;
+        about_com + props.mass() * (arm - axis * arm.dot(axis)).length_squared()
+    } else {
+        props.mass()
+    };
+    inertia * v.abs() / dt
 }
 
 /// Adds a torque (force) between the joint's two bodies along its axis, for this physics step.

@@ -36,6 +36,12 @@ struct Written {
 pub const DEFAULT_SAFETY_FACTOR: f64 = 0.5;
 /// How often a trained policy acts unless the file says `policy_period` (s): the UR5e's 40 ms.
 pub const DEFAULT_POLICY_PERIOD: f64 = 0.04;
+/// A joint this close to either end of its range (rad or m) is at its stop: the twin's
+/// protective stop trips there, so a home pose keeps clear of it.
+pub const STOP_MARGIN: f64 = 0.01;
+/// Where home is when the file does not say: 0, unless that is within this much (rad or m) of
+/// a stop; then the middle of the range.
+const DEFAULT_HOME_CLEARANCE: f64 = 0.1;
 /// The twin's physics step (s) for a robot file's arm: the UR5e's, whose accuracy is tested.
 pub const PHYSICS_STEP: f64 = 0.004;
 
@@ -154,17 +160,21 @@ impl RobotFile {
                 );
                 for ((value, (lo, hi)), joint) in home.iter().zip(&ranges).zip(&written.joints) {
                     anyhow::ensure!(
-                        value.is_finite() && (*lo..=*hi).contains(value),
-                        "{}: key 'home': {value} for '{joint}' is outside its range [{lo}, {hi}]",
+                        value.is_finite() && (lo + STOP_MARGIN..=hi - STOP_MARGIN).contains(value),
+                        "{}: key 'home': {value} for '{joint}' is outside its range [{lo}, {hi}] less the stops' {STOP_MARGIN}",
                         path.display()
                     );
                 }
                 home
             }
-            // The zero pose, or the middle of a joint's range where zero is outside it.
-            None => {
-                ranges.iter().map(|&(lo, hi)| if (lo..=hi).contains(&0.0) { 0.0 } else { (lo + hi) / 2.0 }).collect()
-            }
+            // The zero pose, or the middle of a joint's range where zero is at or near a stop.
+            None => ranges
+                .iter()
+                .map(|&(lo, hi)| {
+                    let clear = (lo + DEFAULT_HOME_CLEARANCE..=hi - DEFAULT_HOME_CLEARANCE).contains(&0.0);
+                    if clear { 0.0 } else { (lo + hi) / 2.0 }
+                })
+                .collect(),
         };
         let safety = written.safety_factor.unwrap_or(DEFAULT_SAFETY_FACTOR);
         anyhow::ensure!(
