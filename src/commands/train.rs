@@ -12,7 +12,7 @@ use twinbots_learn::RunDir;
 use twinbots_ops::fleet;
 use twinbots_run::learner;
 use twinbots_run::registry;
-use twinbots_run::run::{Run, default_run_dir};
+use twinbots_run::run::{Run, Watch, default_run_dir};
 use twinbots_run::settings::{CalibrationSetting, ConfigFile, TrainSettings, read_cell};
 use twinbots_run::twin::Twin;
 
@@ -55,6 +55,14 @@ pub struct Args {
     /// Show arena 0 in a window while training (the other arenas train at full speed).
     #[arg(long)]
     pub view: bool,
+    /// Serve a live view of every arena over Foxglove's WebSocket protocol (open
+    /// ws://127.0.0.1:8765 in Foxglove or Lichtblick; docs/live.md), on ADDR if given.
+    #[arg(long, num_args = 0..=1, default_missing_value = twinbots_live::DEFAULT_ADDR, value_name = "ADDR")]
+    pub live: Option<std::net::SocketAddr>,
+    /// With --live on an address beyond loopback: serve it although the protocol has no
+    /// authentication.
+    #[arg(long, requires = "live")]
+    pub insecure: bool,
     /// Train on the twin calibrated by this file (`twinbots identify`'s calibration.toml);
     /// the run's config.toml records its parameters.
     #[arg(long)]
@@ -88,19 +96,22 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         out,
         checkpoint_every,
         view,
+        live,
+        insecure,
         calibration,
         cell,
         resume,
         print_config,
     } = args;
+    let watch = Watch { window: view, live: live.map(|addr| start_live(addr, insecure)).transpose()? };
     if let Some(run) = resume {
         if print_config {
             print!("{}", toml::to_string_pretty(&TrainSettings::of_run(&RunDir::new(run))?)?);
             return Ok(());
         }
         return match timesteps {
-            Some(more) => extend(&run, more, view),
-            None => self::resume(&run, view),
+            Some(more) => extend(&run, more, watch),
+            None => self::resume(&run, watch),
         };
     }
     let robot = robot.unwrap_or_default();
@@ -133,11 +144,18 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         registry::find(&settings.robot)?.check_supports(settings.task.as_deref(), DesignPattern::Server)?;
         return train_through_server(settings, &out, false);
     }
-    Run::create(settings, &out)?.train(view)
+    Run::create(settings, &out)?.train(watch)
+}
+
+/// Starts the live view and says where it is.
+fn start_live(addr: std::net::SocketAddr, insecure: bool) -> anyhow::Result<std::sync::Arc<twinbots_live::LiveServer>> {
+    let server = twinbots_live::LiveServer::start(addr, insecure)?;
+    println!("live view on ws://{}:{} (Foxglove or Lichtblick: open connection)", addr.ip(), server.port());
+    Ok(server)
 }
 
 /// Continues the run in `run_dir` from its newest checkpoint.
-fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
+fn resume(run_dir: &Path, watch: Watch) -> anyhow::Result<()> {
     let settings = TrainSettings::of_run(&RunDir::new(run_dir))?;
     if settings.design_pattern()? == DesignPattern::Server {
         return train_through_server(settings, run_dir, true);
@@ -150,11 +168,11 @@ fn resume(run_dir: &Path, view: bool) -> anyhow::Result<()> {
         run.learner.timesteps(),
         run.learner.episodes()
     );
-    run.train(view)
+    run.train(watch)
 }
 
 /// Trains the run in `run_dir` for `more` steps beyond its model ([`Run::extend`]).
-fn extend(run_dir: &Path, more: u64, view: bool) -> anyhow::Result<()> {
+fn extend(run_dir: &Path, more: u64, watch: Watch) -> anyhow::Result<()> {
     let (run, source) = Run::extend(run_dir, more)?;
     println!(
         "training {} for {more} more steps from {} ({} steps, {} episodes) to {}",
@@ -164,7 +182,7 @@ fn extend(run_dir: &Path, more: u64, view: bool) -> anyhow::Result<()> {
         run.learner.episodes(),
         run.settings.timesteps
     );
-    run.train(view)
+    run.train(watch)
 }
 
 /// Pattern 3: starts `twinbots serve` as its own process and runs the robots here; `resume`:

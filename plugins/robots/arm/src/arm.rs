@@ -11,6 +11,10 @@ use twinbots_sim::urdf::robot_file::RobotFile;
 
 /// A joint this close to a stop (rad or m) counts as at its limit: the protective stop.
 pub use twinbots_sim::urdf::robot_file::STOP_MARGIN as LIMIT_MARGIN;
+/// How far inside each end of a joint's range the soft limit is (rad or m): the reach's
+/// `joint_limits` cost grows past it, before the protective stop (Isaac Lab's
+/// `joint_pos_limits` with soft limits).
+pub const SOFT_LIMIT_ZONE: f64 = 0.2;
 /// Reach targets are the tool's position at joint positions this far (rad or m) either side
 /// of home, each joint drawn on its own within its range: reachable by construction, and
 /// around where the arm works.
@@ -83,6 +87,18 @@ impl Arm {
         q.iter()
             .zip(&self.file.ranges)
             .any(|(&q, &(lo, hi))| (q as f64) <= lo + LIMIT_MARGIN || (q as f64) >= hi - LIMIT_MARGIN)
+    }
+
+    /// How far the joints are past their soft limits ([`SOFT_LIMIT_ZONE`] inside each end of their
+    /// ranges), summed (rad or m).
+    pub fn limit_depth(&self, q: &[f32]) -> f32 {
+        q.iter()
+            .zip(&self.file.ranges)
+            .map(|(&q, &(lo, hi))| {
+                let q = q as f64;
+                ((lo + SOFT_LIMIT_ZONE - q).max(0.0) + (q - (hi - SOFT_LIMIT_ZONE)).max(0.0)) as f32
+            })
+            .sum()
     }
 
     /// Joint positions near home, inside the ranges by more than the stop's margin.

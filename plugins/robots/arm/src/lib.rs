@@ -15,6 +15,7 @@ use std::sync::Arc;
 
 use bevy::math::Vec3;
 use bevy::prelude::*;
+use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerRobotPlugin};
 use twinbots_sim::urdf::robot_file::{PHYSICS_STEP, RobotFile};
 use twinbots_sim::{
     ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions,
@@ -84,7 +85,7 @@ pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
             name: "reach",
             description: "tool link to a target around home, at rest within 1 cm (position only)",
             spec: Arc::new(move || reach::reach_task(&spec_arm).spec()),
-            server: false,
+            server: true,
             training: None,
         }],
         patterns: vec![DesignPattern::Supervised],
@@ -112,7 +113,7 @@ pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
         },
         settings: Arc::new(move || settings),
         build: Arc::new(move |request| {
-            headless_app(settings, request, ArmPlugin { arm: build_arm.clone(), pattern: request.pattern })
+            headless_app(settings, request, ArmPlugin { arm: build_arm.clone(), pattern: request.pattern, kind: name })
         }),
         rig: None,
         feedback: None,
@@ -124,6 +125,8 @@ pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
 pub struct ArmPlugin {
     pub arm: Arc<Arm>,
     pub pattern: DesignPattern,
+    /// The robot's name as the registry knows it (what a pattern-3 robot announces).
+    pub kind: &'static str,
 }
 
 /// The arm's joints in the controller's order (one per arena).
@@ -136,8 +139,52 @@ impl Plugin for ArmPlugin {
             .add_plugins(TaskTermsPlugin::new(reach::reach_task(&self.arm), self.pattern))
             .add_systems(Startup, spawn_cells)
             .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)))
-            .add_systems(Update, report.in_set(TaskSet::Report))
-            .add_systems(EnvReset, (place_arm.in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
+            .add_systems(Update, report.in_set(TaskSet::Report));
+        if self.pattern == DesignPattern::Server {
+            // Design pattern 3: no Supervisor; the arm homes with its own motors.
+            app.add_plugins(ServerRobotPlugin::<ReachState>::new(self.kind))
+                .add_systems(Update, home.in_set(RobotCycleSet::Home));
+        } else {
+            app.add_systems(EnvReset, (place_arm.in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
+        }
+    }
+}
+
+/// Homing speed's gain (1/s): speed = gain × distance to the start, within each joint's task speed.
+const HOMING_GAIN: f32 = 10.0;
+/// Homed: every joint this close to the drawn start (rad or m)…
+const HOME_TOLERANCE: f32 = 0.01;
+/// …and this slow (rad/s or m/s).
+const HOME_SPEED: f32 = 0.02;
+
+/// Pattern 3: the arm drives itself to the drawn start (near home) with its own motors and says
+/// when it is there; an arm in a protective stop first brakes to rest, then the stop is
+/// unlocked (as an operator does) and it homes out of the stop's margin.
+fn home(
+    arm: Res<Arm>,
+    mut robots: Query<(&ArmJoints, &mut ReachState, &Controller, &mut AtHome)>,
+    mut motors: Query<&mut Motor>,
+) {
+    for (joints, mut state, controller, mut at_home) in &mut robots {
+        if controller.phase() != Phase::Homing || state.q.len() != joints.0.len() {
+            continue;
+        }
+        let still = state.qd.iter().all(|v| v.abs() < HOME_SPEED);
+        if state.stopped {
+            if !still {
+                continue;
+            }
+            state.stopped = false;
+        }
+        let start = state.start_pose.clone();
+        at_home.0 = still && state.q.iter().zip(&start).all(|(q, s)| (q - s).abs() < HOME_TOLERANCE);
+        for (k, &joint) in joints.0.iter().enumerate() {
+            let limit = arm.file.speed_limits[k] as f32;
+            let speed = if at_home.0 { 0.0 } else { (HOMING_GAIN * (start[k] - state.q[k])).clamp(-limit, limit) };
+            if let Ok(mut m) = motors.get_mut(joint) {
+                m.command = MotorCommand::Velocity(speed);
+            }
+        }
     }
 }
 
@@ -206,7 +253,10 @@ fn read_arm(
         let (tool, velocity) = arm.tool_motion(&q, &qd);
         state.tool = tool.as_vec3();
         state.tool_velocity = velocity.as_vec3();
-        state.stopped |= arm.at_limit(&q);
+        state.limit_depth = arm.limit_depth(&q);
+        let at_limit = arm.at_limit(&q);
+        state.stopped |= at_limit && !state.at_limit;
+        state.at_limit = at_limit;
         state.q = q;
         state.qd = qd;
     }

@@ -2,7 +2,7 @@
 //! goal-conditioned task (Gymnasium-Robotics' FetchReach: the position only, as a 5-DoF arm
 //! cannot take every orientation). The same terms as the UR5e's reach less its tilt: motion
 //! costs, an arrival bonus that ends the episode, a protective stop at a joint's limit that ends
-//! it as a failure.
+//! it as a failure and forfeits the bonus.
 //!
 //! The observation starts with the tool (3), target − tool (3) and the tool's velocity (3), so
 //! the goal interface reads them at fixed places whatever the arm's joint count; then the
@@ -29,9 +29,15 @@ pub const SETTLED_SPEED: f32 = 0.05;
 /// The bonus for arriving (which ends the reach).
 pub const ARRIVAL_BONUS: f32 = 10.0;
 /// A protective stop's penalty in steps of the pose cost where it tripped, and the bonus it
-/// forfeits: the UR5e reach's (see its `STOP_PENALTY_STEPS`).
+/// forfeits: the UR5e reach's (see its `STOP_PENALTY_STEPS` and `STOP_FORFEIT`). Without the
+/// forfeit a stop near the target costs almost nothing, and hindsight goals (where the tool
+/// was) make it cheaper still: the xArm7 learnt to end 90 % of its reaches in a stop 3 cm from
+/// the target (SAC + HER, 90,000 steps).
 pub const STOP_PENALTY_STEPS: f32 = 64.0;
+pub const STOP_FORFEIT: f32 = ARRIVAL_BONUS;
 const DISTANCE_WEIGHT: f32 = 1.0;
+/// Cost per rad (or m) past the soft limits, per step.
+const JOINT_LIMIT_WEIGHT: f32 = 5.0;
 const PRECISION_WEIGHT: f32 = 0.1;
 /// Distances beyond this (m) are no reach: the range a RobotServer checks rewards against.
 const MAX_DISTANCE: f32 = 5.0;
@@ -50,6 +56,11 @@ pub struct ReachState {
     pub last_action: Vec<f32>,
     pub previous_action: Vec<f32>,
     pub stopped: bool,
+    /// How far the joints are past their soft limits, summed (rad or m).
+    pub limit_depth: f32,
+    /// Whether a joint was within the stop's margin at the last reading: the stop trips as a
+    /// joint enters the margin, so an arm stopped there can be unlocked and home out of it.
+    pub at_limit: bool,
     pub start_pose: Vec<f32>,
 }
 
@@ -138,6 +149,11 @@ pub fn reach_task(arm: &Arm) -> TaskDefinition<ReachState> {
                     s.last_action.iter().zip(&s.previous_action).map(|(a, b)| (a - b).powi(2)).sum()
                 })
                 .bounded(0.0, 4.0 * n as f32),
+                // A joint's approach to its stop costs before the stop does: SAC otherwise drives
+                // a joint that barely moves the tool (the xArm7's wrist pitch) into its stop at
+                // full speed (measured: 90 % of its reaches ended so at 90,000 steps).
+                RewardTerm::new("joint_limits", -JOINT_LIMIT_WEIGHT, |s: &ReachState| s.limit_depth)
+                    .bounded(0.0, n as f32 * crate::arm::SOFT_LIMIT_ZONE as f32),
                 RewardTerm::new("arrival", ARRIVAL_BONUS, |s: &ReachState| f32::from(u8::from(s.arrived())))
                     .bounded(0.0, 1.0),
                 RewardTerm::new(

@@ -11,13 +11,15 @@ use twinbots_render::viewer::TrainingView;
 use twinbots_task::randomization::RandomizationPlugin;
 use twinbots_task::{bridge, env};
 
-use super::{Run, finish, panic_message};
+use super::{Run, Watch, finish, panic_message};
 
 impl Run {
     /// Trains the run on its arenas in this process until its budget or its solved criterion,
-    /// then ends it ([`finish`]) and prints how it went. With `view`, a window shows arena 0
-    /// while the other arenas train at full speed (closing it stops training).
-    pub fn train(mut self, view: bool) -> anyhow::Result<()> {
+    /// then ends it ([`finish`]) and prints how it went. With `watch.window`, a window shows
+    /// arena 0 while the other arenas train at full speed (closing it stops training); with
+    /// `watch.live`, every arena is published to the live view.
+    pub fn train(mut self, watch: Watch) -> anyhow::Result<()> {
+        let view = watch.window;
         let pattern = self.settings.design_pattern()?;
         anyhow::ensure!(
             pattern != DesignPattern::Server,
@@ -28,6 +30,9 @@ impl Run {
         settings.calibrate(&mut app);
         settings.observe(&mut app, entry, settings.arenas)?;
         app.add_plugins(bridge::BridgePlugin);
+        if let Some(live) = watch.live {
+            app.add_plugins(twinbots_live::LivePlugin(live));
+        }
         settings.randomization.validate()?;
         if !settings.randomization.is_off() {
             app.add_plugins(RandomizationPlugin(settings.randomization.clone()));

@@ -125,6 +125,13 @@ pub fn create(settings: &TrainSettings, out: &Path) -> anyhow::Result<RunDir> {
     Ok(run)
 }
 
+/// Who watches a run train: a window on arena 0, and/or the live view of every arena.
+#[derive(Default)]
+pub struct Watch {
+    pub window: bool,
+    pub live: Option<std::sync::Arc<twinbots_live::LiveServer>>,
+}
+
 /// Default run directory: `runs/<robot>-<unix seconds>` (a robot file by its name, `panda` for
 /// `assets/robots/panda.toml`).
 pub fn default_run_dir(robot: &str) -> PathBuf {
