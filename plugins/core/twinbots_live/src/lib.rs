@@ -10,11 +10,11 @@
 //!   meshes as triangle lists), locked to its frame; sent when a viewer subscribes;
 //! - `/arena_<k>/joint_states` (`sensor_msgs/JointState` as JSON): every control step, each
 //!   movable joint's position, velocity and effort;
+//! - `/episodes` (JSON): each episode as it ends, with its arena, score, length, success and
+//!   figures.
 //!
 //! Messages are stamped with the simulated time (control steps × the control period), so one
 //! control step apart on every channel.
-//! - `/episodes` (JSON): each episode as it ends, with its arena, score, length, success and
-//!   figures.
 //!
 //! Bounded: nothing is encoded while no viewer subscribes to a channel, and the server queues at
 //! most [`BACKLOG`] messages per viewer, dropping the oldest: a slow viewer misses messages,
@@ -225,17 +225,14 @@ fn transforms(world: &mut World, arenas: &[(usize, Entity)], stamp: Timestamp) -
     if world.get_resource::<SupervisorAccess>().is_none() {
         return FrameTransforms { transforms: out };
     }
-    let links: Vec<(String, Entity, Link)> = world
-        .query::<(&Link, &InArena)>()
-        .iter(world)
-        .map(|(link, in_arena)| (link.name.clone(), in_arena.0, link.clone()))
-        .collect();
+    let links: Vec<(Entity, Link)> =
+        world.query::<(&Link, &InArena)>().iter(world).map(|(link, in_arena)| (in_arena.0, link.clone())).collect();
     for &(index, arena) in arenas {
         let Some(physics) = physics_in(world, arena) else { continue };
-        for (name, _, link) in links.iter().filter(|(_, a, _)| *a == arena) {
+        for (_, link) in links.iter().filter(|(a, _)| *a == arena) {
             if let Some(body) = physics.bodies.get(link.body) {
                 let pose = *body.position() * link.offset;
-                out.push(frame(format!("arena_{index}"), format!("arena_{index}/{name}"), &pose, stamp));
+                out.push(frame(format!("arena_{index}"), format!("arena_{index}/{}", link.name), &pose, stamp));
             }
         }
     }

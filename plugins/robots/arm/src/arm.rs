@@ -32,8 +32,9 @@ pub struct Arm {
     pub model: RobotModel,
     /// The base link's pose in the arena (the root link stands at the origin, welded).
     pub base: Pose,
-    /// Where the controller's joint k is in the chain's movable joints.
-    chain_index: Vec<usize>,
+    /// For each of the chain's movable joints, its place in the controller's order (the robot
+    /// file's mapping, computed once).
+    controller_index: Vec<usize>,
 }
 
 impl Arm {
@@ -47,9 +48,8 @@ impl Arm {
             .link_index(&file.chain.base)
             .ok_or_else(|| anyhow::anyhow!("{}: the URDF has no link '{}'", file.path.display(), file.chain.base))?;
         let base = root_poses[base_link];
-        let movable: Vec<&str> = file.chain.movable().map(|j| j.name.as_str()).collect();
-        let chain_index = file.joints.iter().map(|n| movable.iter().position(|m| m == n).expect("checked")).collect();
-        Ok(Self { file, model, base, chain_index })
+        let controller_index = file.controller_index();
+        Ok(Self { file, model, base, controller_index })
     }
 
     pub fn dof(&self) -> usize {
@@ -58,11 +58,7 @@ impl Arm {
 
     /// Chain-order positions of controller-order `q`.
     fn chain_q(&self, q: &[f32]) -> Vec<f64> {
-        let mut out = vec![0.0; q.len()];
-        for (k, &c) in self.chain_index.iter().enumerate() {
-            out[c] = q[k] as f64;
-        }
-        out
+        self.controller_index.iter().map(|&k| q[k] as f64).collect()
     }
 
     /// The tool link's position in the base frame at controller-order joint positions `q`.
@@ -72,14 +68,13 @@ impl Arm {
 
     /// The tool's position and linear velocity (J·q̇) in the base frame.
     pub fn tool_motion(&self, q: &[f32], qd: &[f32]) -> (DVec3, DVec3) {
-        let chain_q = self.chain_q(q);
-        let columns = self.file.chain.jacobian(&chain_q);
-        let mut velocity = DVec3::ZERO;
-        for (k, &c) in self.chain_index.iter().enumerate() {
-            let col = columns[c];
-            velocity += DVec3::new(col[0], col[1], col[2]) * qd[k] as f64;
-        }
-        (self.file.chain.forward(&chain_q).translation, velocity)
+        let (tool, columns) = self.file.chain.forward_and_jacobian(&self.chain_q(q));
+        let velocity = columns
+            .iter()
+            .zip(&self.controller_index)
+            .map(|(col, &k)| DVec3::new(col[0], col[1], col[2]) * qd[k] as f64)
+            .sum();
+        (tool.translation, velocity)
     }
 
     /// Whether any joint is within [`LIMIT_MARGIN`] of a stop.

@@ -5,7 +5,7 @@
 //! with SAC + HER or PPO. `twinbots train path/to/arm.toml` reaches it through [`robot`].
 //!
 //! The controller knows only its encoders and the chain's kinematics (the tool from the
-//! URDF in double precision); a joint driven within 1 cm or 0.01 rad of a stop trips the
+//! URDF in double precision); a joint entering the last 0.01 (rad or m) of its range trips the
 //! protective stop, which ends the episode as a failure.
 
 pub mod arm;

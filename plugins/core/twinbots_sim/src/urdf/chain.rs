@@ -207,8 +207,14 @@ impl Chain {
     /// (vx, vy, vz, ωx, ωy, ωz), one column per movable joint (as Pinocchio's
     /// `LOCAL_WORLD_ALIGNED` frame Jacobian).
     pub fn jacobian(&self, q: &[f64]) -> Vec<[f64; 6]> {
+        self.forward_and_jacobian(q).1
+    }
+
+    /// [`Chain::forward`] and [`Chain::jacobian`] at `q` from one pass along the chain.
+    pub fn forward_and_jacobian(&self, q: &[f64]) -> (Frame, Vec<[f64; 6]>) {
         let (axes, tool) = self.frames(q);
-        axes.iter()
+        let columns = axes
+            .iter()
             .map(|(motion, at)| match *motion {
                 Motion::Revolute(axis) => {
                     let linear = axis.cross(tool.translation - *at);
@@ -217,7 +223,8 @@ impl Chain {
                 Motion::Prismatic(axis) => [axis.x, axis.y, axis.z, 0.0, 0.0, 0.0],
                 Motion::Fixed => unreachable!("only movable joints have columns"),
             })
-            .collect()
+            .collect();
+        (tool, columns)
     }
 
     /// Resolved-rate control: the joint speeds whose tool twist is closest to `twist` (vx, vy,
