@@ -128,6 +128,7 @@ fn swing_arm() -> RobotDescription {
             spec: std::sync::Arc::new(|| swing_up().spec()),
             server: false,
             training: None,
+            scripted: None,
         }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),

@@ -31,6 +31,9 @@ enum Command {
     Export(commands::export::Args),
     /// Replay a trained model and report its episode scores (writes eval.json).
     Eval(commands::eval::Args),
+    /// Write demonstrations as a LeRobot dataset (v3.0): a scripted or classical controller, a
+    /// trained run or an ONNX policy driving the twin for N episodes.
+    Demos(commands::demos::Args),
     /// Teach a pixel run's policy by a teacher that sees the state (DAgger): the robot's
     /// classical controller, a state run or an ONNX policy.
     Distill(commands::distill::Args),
@@ -100,6 +103,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Urdf(args) => commands::urdf::exec(args),
         Command::Study(args) => commands::study::exec(args),
         Command::Distill(args) => commands::distill::exec(args),
+        Command::Demos(args) => commands::demos::exec(args),
         Command::Record(args) => commands::record::exec(args),
         Command::Replay(args) => commands::replay::exec(args),
         Command::Identify(args) => commands::identify::exec(args),

@@ -4,6 +4,7 @@ pub mod algos;
 pub mod bench;
 pub mod capture;
 pub mod compare;
+pub mod demos;
 pub mod deploy;
 pub mod distill;
 pub mod eval;

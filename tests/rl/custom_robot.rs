@@ -147,6 +147,7 @@ fn turntable() -> RobotDescription {
             spec: std::sync::Arc::new(|| turn_task().spec()),
             server: true,
             training: None,
+            scripted: None,
         }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),

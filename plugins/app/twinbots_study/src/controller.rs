@@ -33,10 +33,14 @@ impl NamedController {
     /// Opens `spec`: `classic`, a run directory or an `.onnx` file (relative to `base`), for
     /// `entry`'s main task. Errors say which and why.
     pub fn open(spec: &str, base: &Path, entry: &RobotEntry) -> anyhow::Result<Self> {
+        Self::open_for(spec, base, entry, None)
+    }
+
+    /// [`NamedController::open`] for the named task (`None`: the main one): `classic` is that
+    /// task's scripted controller where it has one.
+    pub fn open_for(spec: &str, base: &Path, entry: &RobotEntry, task: Option<&str>) -> anyhow::Result<Self> {
         if spec == "classic" {
-            let feedback = entry
-                .feedback
-                .ok_or_else(|| anyhow::anyhow!("controller 'classic': {} has no classical controller", entry.name))?;
+            let feedback = entry.classic(task).map_err(|e| anyhow::anyhow!("controller 'classic': {e}"))?;
             return Ok(Self { label: spec.into(), spec: spec.into(), controller: Controller::Classic(feedback) });
         }
         let path = base.join(spec);

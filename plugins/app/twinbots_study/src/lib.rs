@@ -6,6 +6,7 @@
 
 pub mod cell;
 pub mod controller;
+pub mod demos;
 pub mod distill;
 pub mod metrics;
 pub mod report;

@@ -42,6 +42,10 @@ pub struct TaskDescription {
     /// A task with spaces of its own, which `train --task` learns with these defaults; `None`:
     /// the main task is learnt with the robot's defaults, any other task runs its model.
     pub training: Option<fn() -> TrainingDefaults>,
+    /// A scripted controller of this task (its observation in, its action out), what
+    /// `classic` names for it; the main task's is the robot's [`RobotDescription::feedback`]
+    /// unless given here.
+    pub scripted: Option<Feedback>,
 }
 
 impl std::fmt::Debug for TaskDescription {
@@ -267,6 +271,16 @@ impl RobotDescription {
             )
         })?;
         Ok((task, training()))
+    }
+
+    /// The named task's (`None`: the main one's) classical or scripted controller: its own
+    /// [`TaskDescription::scripted`], else the robot's feedback for its main task.
+    pub fn classic(&self, task: Option<&str>) -> anyhow::Result<Feedback> {
+        let found = self.find_task(task)?;
+        let main = found.name == self.main_task().name;
+        found.scripted.or(if main { self.feedback } else { None }).ok_or_else(|| {
+            anyhow::anyhow!("{}'s task '{}' has no classical or scripted controller", self.name, found.name)
+        })
     }
 
     pub fn task_names(&self) -> Vec<&'static str> {

@@ -87,6 +87,7 @@ pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
             spec: Arc::new(move || reach::reach_task(&spec_arm).spec()),
             server: true,
             training: None,
+            scripted: None,
         }],
         patterns: vec![DesignPattern::Supervised],
         // Cameras 1.6 reaches away, looking at 0.4 of the arm's height.

@@ -146,6 +146,7 @@ pub fn robot() -> RobotDescription {
             spec: Arc::new(task_spec),
             server: true,
             training: None,
+            scripted: None,
         }],
         patterns: vec![DesignPattern::Supervised, DesignPattern::Radio],
         framing: Framing::default(),

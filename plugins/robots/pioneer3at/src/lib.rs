@@ -142,6 +142,7 @@ pub fn robot() -> RobotDescription {
             spec: Arc::new(task_spec),
             server: false,
             training: None,
+            scripted: None,
         }],
         patterns: vec![DesignPattern::Supervised],
         framing: Framing::default(),

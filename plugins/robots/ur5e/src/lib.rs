@@ -154,6 +154,7 @@ pub fn robot() -> RobotDescription {
                 spec: Arc::new(task_spec),
                 server: true,
                 training: None,
+                scripted: None,
             },
             TaskDescription {
                 name: "pick-place",
@@ -161,6 +162,7 @@ pub fn robot() -> RobotDescription {
                 spec: Arc::new(pick_place_spec),
                 server: false,
                 training: None,
+                scripted: None,
             },
             TaskDescription {
                 name: "pick-place-learned",
@@ -168,6 +170,7 @@ pub fn robot() -> RobotDescription {
                 spec: Arc::new(|| pick_place_learned::pick_place_learned_task().spec()),
                 server: false,
                 training: Some(pick_place_learned_training),
+                scripted: Some(pick_place_learned::scripted),
             },
         ],
         patterns: vec![DesignPattern::Supervised],

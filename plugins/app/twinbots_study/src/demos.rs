@@ -1,0 +1,162 @@
+//! Demonstrations (`twinbots demos`, docs/demos.md): a controller — the task's scripted or
+//! classical one, a trained run, an ONNX policy — drives the twin for N episodes, and every
+//! control step becomes a frame of a LeRobot dataset (`twinbots_dataset`).
+//!
+//! Episode `j` starts from seed `seed + j` in whichever arena it runs (arenas start alike from
+//! a seed, [`reset_alike`]), so a dataset is the same frame for frame whatever the arena count,
+//! and the `seed` column says how to replay any of its episodes.
+
+use std::path::Path;
+use std::time::Instant;
+
+use twinbots_api::{Space, VecEnv};
+use twinbots_dataset::{DatasetSpec, DatasetWriter, Episode, Frame};
+
+use crate::controller::{NamedController, reset_alike};
+use twinbots_run::registry::RobotEntry;
+
+/// What `twinbots demos` is asked for.
+#[derive(Clone, Debug)]
+pub struct DemoOptions {
+    /// `classic`, a run directory or an `.onnx` file.
+    pub controller: String,
+    /// The task (`None`: the main one; a run's own task for a run).
+    pub task: Option<String>,
+    pub episodes: usize,
+    /// Episodes run side by side.
+    pub arenas: usize,
+    /// Episode `j` starts from `seed + j`.
+    pub seed: u64,
+    /// Keep only episodes that met the task's goal (drawing further seeds until there are
+    /// `episodes` of them).
+    pub successes_only: bool,
+}
+
+/// What was written.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DemoSummary {
+    pub episodes: usize,
+    pub frames: usize,
+    /// Episodes run (more than `episodes` where only successes were kept).
+    pub episodes_run: usize,
+    pub successes: usize,
+    /// Frames recorded a second of wall-clock time, the dataset's writing included.
+    pub frames_per_second: f64,
+}
+
+/// Progress after every batch of arenas: episodes kept, episodes run, frames a second so far.
+pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, f64);
+
+/// Runs the episodes and writes them as a LeRobot dataset at `out` (a new directory).
+pub fn record_demos(
+    entry: &RobotEntry,
+    options: &DemoOptions,
+    out: &Path,
+    progress: Progress,
+) -> anyhow::Result<DemoSummary> {
+    anyhow::ensure!(options.episodes > 0, "--episodes must be at least 1");
+    anyhow::ensure!(options.arenas > 0, "--arenas must be at least 1");
+    let started = Instant::now();
+    let controller = NamedController::open_for(&options.controller, Path::new("."), entry, options.task.as_deref())?;
+    // A run drives the task it was trained on unless told another.
+    let task = match (&options.task, &controller.controller) {
+        (Some(t), _) => Some(t.clone()),
+        (None, crate::controller::Controller::Run { settings, .. }) => Some(settings.task_name(entry)?.to_string()),
+        (None, _) => None,
+    };
+    let description = entry.find_task(task.as_deref())?;
+    let arenas = options.arenas.min(options.episodes);
+    let mut env = controller.env(entry, task.as_deref(), arenas, options.seed, |_| Ok(()))?;
+    let spec = env.task().clone();
+    // Discrete choices are recorded as twinbots carries them: their index as a float.
+    let bounds = match env.action_space() {
+        Space::Box { low, high } => Some((low.clone(), high.clone())),
+        _ => None,
+    };
+    anyhow::ensure!(
+        matches!(env.observation_space(), Space::Box { .. }),
+        "{}'s task '{}' observes images: demos write state observations only (camera streams are not written yet)",
+        entry.name,
+        description.name
+    );
+    let (obs_dim, act_dim) = (env.observation_space().dim(), env.action_space().dim());
+    let mut writer = DatasetWriter::new(
+        out,
+        DatasetSpec {
+            robot: entry.name.to_string(),
+            fps: frames_per_second(entry.control_period_s()),
+            state_names: spec.observation_names.clone(),
+            action_names: (0..act_dim).map(|j| format!("action_{j}")).collect(),
+        },
+    )?;
+    let (mut run, mut successes, mut frames) = (0usize, 0usize, 0usize);
+    while writer.episodes() < options.episodes {
+        // The next batch: one episode per arena, seeds in order.
+        let wanted = if options.successes_only { arenas } else { arenas.min(options.episodes - writer.episodes()) };
+        let seeds: Vec<u64> = (0..arenas as u64).map(|i| options.seed + (run as u64) + i).collect();
+        let mut obs = reset_alike(&mut env, &seeds)?;
+        let mut episodes: Vec<Option<Vec<Frame>>> = (0..wanted).map(|_| Some(Vec::new())).collect();
+        let mut ended: Vec<Option<(Vec<Frame>, bool)>> = vec![None; wanted];
+        while ended.iter().any(Option::is_none) {
+            let mut actions = controller.act(&obs, obs_dim)?;
+            if let Some((low, high)) = &bounds {
+                for (j, a) in actions.iter_mut().enumerate() {
+                    *a = a.clamp(low[j % act_dim], high[j % act_dim]);
+                }
+            }
+            let step = env.step(&actions)?;
+            for i in 0..wanted {
+                let Some(frames) = episodes[i].as_mut() else { continue };
+                let done = step.terminated[i] || step.truncated[i];
+                let success = done && step.episodes[i].as_ref().and_then(|e| e.success) == Some(true);
+                frames.push(Frame {
+                    state: obs[i * obs_dim..(i + 1) * obs_dim].to_vec(),
+                    action: actions[i * act_dim..(i + 1) * act_dim].to_vec(),
+                    reward: step.rewards[i],
+                    done,
+                    success,
+                });
+                if done {
+                    ended[i] = Some((episodes[i].take().expect("a running episode"), success));
+                }
+            }
+            obs = step.obs;
+        }
+        for (i, episode) in ended.into_iter().enumerate() {
+            let (episode, success) = episode.expect("every episode of the batch ended");
+            run += 1;
+            successes += usize::from(success);
+            if writer.episodes() < options.episodes && (success || !options.successes_only) {
+                frames += episode.len();
+                writer.add(Episode { task: description.description.to_string(), seed: seeds[i], frames: episode })?;
+            }
+        }
+        progress(writer.episodes(), run, frames as f64 / started.elapsed().as_secs_f64());
+    }
+    let written = writer.finish()?;
+    Ok(DemoSummary {
+        episodes: written.episodes,
+        frames: written.frames,
+        episodes_run: run,
+        successes,
+        frames_per_second: written.frames as f64 / started.elapsed().as_secs_f64(),
+    })
+}
+
+/// The control rate as LeRobot's `fps`, to a ten-thousandth of a hertz: a period stored as
+/// `f32` is off by up to 6e-8 of itself (0.032 s → 31.2499985 Hz), which this rounds away
+/// (0.04 s → 25, 0.032 s → 31.25).
+fn frames_per_second(period_s: f64) -> f64 {
+    (1e4 / period_s).round() / 1e4
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_period_that_makes_a_whole_rate_gives_it() {
+        assert_eq!(frames_per_second(f64::from(0.04f32)), 25.0);
+        assert_eq!(frames_per_second(f64::from(0.032f32)), 31.25);
+    }
+}
