@@ -126,7 +126,9 @@ def progress_row(result: dict, iteration: int, seconds: float, episodes: Episode
 def runner_steps(result: dict) -> dict[int, int]:
     """Env steps sampled by each env runner in this iteration, by runner index."""
     custom = result.get("env_runners", {}).get("twinbots", {})
-    return {int(k.split("_")[1]): int(v) for k, v in custom.items() if k.startswith("runner_") and k.endswith("_steps")}
+    # A runner that sampled nothing this iteration (lost with its node, restarting) reports NaN.
+    return {int(k.split("_")[1]): int(v) for k, v in custom.items()
+            if k.startswith("runner_") and k.endswith("_steps") and math.isfinite(v)}
 
 
 def start_ray(address: str | None, env_runners: int, ray_logs: bool) -> bool:
