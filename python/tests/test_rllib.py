@@ -79,6 +79,69 @@ def test_two_env_runners_sample_the_twin_and_the_mean_return_rises(local_ray, tm
         algo.stop()
 
 
+def test_runners_on_a_second_node_train_on_when_that_node_is_lost():
+    """RLlib on a two-node Ray cluster on this machine (`ray.cluster_utils.Cluster`: each node
+    its own raylet and object store): the env runners are pinned to the worker node by a
+    custom resource, step the twin there and train the cart-pole past a threshold; then that
+    node is removed mid-run and a new one joins, and RLlib restarts both runners on it and
+    trains on (docs/rllib.md, a cluster)."""
+    from ray.cluster_utils import Cluster
+
+    store = 100 * 2**20
+    cluster = Cluster(
+        initialize_head=True, head_node_args={"num_cpus": 1, "object_store_memory": store, "include_dashboard": False}
+    )
+    algo = None
+    try:
+        first = cluster.add_node(num_cpus=2, resources={"twinbots_runners": 2}, object_store_memory=store)
+        cluster.wait_for_nodes()
+        ray.init(address=cluster.address, runtime_env=RUNNER_ENV, log_to_driver=False, logging_level=logging.ERROR)
+        config = ppo_config("cartpole", env_runners=2, envs_per_runner=4, seed=0)
+        config.env_runners(custom_resources_per_env_runner={"twinbots_runners": 1})
+        config.fault_tolerance(restart_failed_env_runners=True)
+        algo = config.build_algo()
+
+        def runner_nodes():
+            where = algo.env_runner_group.foreach_env_runner(
+                lambda _: ray.get_runtime_context().get_node_id(), local_env_runner=False
+            )
+            return sorted(where)
+
+        assert first.node_id != cluster.head_node.node_id
+        assert runner_nodes() == [first.node_id] * 2
+        episodes, returns = EpisodeWindow(100), []
+        for i in range(150):
+            result = algo.train()
+            episodes.add(result)
+            returns.append(progress_row(result, i + 1, 1.0, episodes).get("mean_reward", 0.0))
+            if returns[-1] > 45:
+                break
+        # A random policy lasts ~22 steps; the window trails the policy.
+        assert returns[0] < 30 and returns[-1] > 45, returns
+
+        cluster.remove_node(first)
+        second = cluster.add_node(num_cpus=2, resources={"twinbots_runners": 2}, object_store_memory=store)
+        steps_after, count_before = {}, episodes.count
+        for _ in range(60):
+            result = algo.train()
+            episodes.add(result)
+            for runner, n in runner_steps(result).items():
+                steps_after[runner] = steps_after.get(runner, 0) + n
+        # Both runners came back, on the new node, and sampled there; training went on.
+        assert algo.env_runner_group.num_healthy_remote_workers() == 2
+        assert algo.env_runner_group.num_remote_worker_restarts() >= 2
+        assert runner_nodes() == [second.node_id] * 2
+        assert set(steps_after) == {1, 2} and min(steps_after.values()) > 2000, steps_after
+        # Not asserted (docs/rllib.md): after a restart late in the run, few episodes end
+        # (6 in 60 iterations, against about 4 an iteration before); after one early, as many.
+        print(f"episodes before the loss {count_before}, after {episodes.count}")
+    finally:
+        if algo is not None:
+            algo.stop()
+        ray.shutdown()
+        cluster.shutdown()
+
+
 def test_the_command_writes_a_run_that_twinbots_eval_reads(tmp_path):
     run = tmp_path / "run"
     # Starts (and stops) its own local Ray: the fixture's is not running in this test.
