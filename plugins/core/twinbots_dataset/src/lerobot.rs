@@ -384,3 +384,74 @@ fn write_json(path: &Path, value: &Value) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(value)?;
     std::fs::write(path, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
+
+#[cfg(test)]
+mod tests {
+    use parquet::file::reader::{FileReader, SerializedFileReader};
+    use parquet::record::Field;
+
+    use super::*;
+
+    fn spec() -> DatasetSpec {
+        DatasetSpec {
+            robot: "arm".into(),
+            fps: 25.0,
+            state_names: vec!["q".into(), "v".into()],
+            action_names: vec!["u".into()],
+        }
+    }
+
+    fn episode(seed: u64, frames: usize) -> Episode {
+        let frame = |k: usize| Frame {
+            state: vec![k as f32, -(k as f32)],
+            action: vec![0.5],
+            reward: -1.0,
+            done: k + 1 == frames,
+            success: k + 1 == frames && seed == 3,
+        };
+        Episode { task: "reach".into(), seed, frames: (0..frames).map(frame).collect() }
+    }
+
+    #[test]
+    fn the_data_file_holds_every_frame_with_its_episode_and_index() {
+        let root = std::env::temp_dir().join(format!("twinbots-lerobot-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let out = root.join("dataset");
+        std::fs::create_dir_all(&root).unwrap();
+        let mut writer = DatasetWriter::new(&out, spec()).unwrap();
+        writer.add(episode(3, 2)).unwrap();
+        writer.add(episode(4, 3)).unwrap();
+        assert!(writer.add(Episode { task: "reach".into(), seed: 5, frames: vec![] }).is_err());
+        let wrong =
+            Episode { frames: vec![Frame { state: vec![1.0], ..episode(5, 1).frames[0].clone() }], ..episode(5, 1) };
+        assert!(writer.add(wrong).unwrap_err().to_string().contains("1 state and 1 action values, not 2 and 1"));
+        assert_eq!(writer.finish().unwrap(), Written { episodes: 2, frames: 5, data_files: 1 });
+        // Nothing left beside it but the dataset; writing again is refused.
+        let names: Vec<_> = std::fs::read_dir(&root).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("dataset")]);
+        assert!(DatasetWriter::new(&out, spec()).is_err());
+
+        let file = std::fs::File::open(out.join("data/chunk-000/file-000.parquet")).unwrap();
+        let reader = SerializedFileReader::new(file).unwrap();
+        let rows: Vec<Vec<(String, Field)>> = reader
+            .get_row_iter(None)
+            .unwrap()
+            .map(|r| r.unwrap().get_column_iter().map(|(k, v)| (k.clone(), v.clone())).collect())
+            .collect();
+        assert_eq!(rows.len(), 5);
+        let get = |row: usize, key: &str| rows[row].iter().find(|(k, _)| k == key).unwrap().1.clone();
+        // Frame 1 of episode 1: index 3, seed 4, state [1, -1], at 0.04 s.
+        assert_eq!(get(3, "index"), Field::Long(3));
+        assert_eq!(get(3, "episode_index"), Field::Long(1));
+        assert_eq!(get(3, "frame_index"), Field::Long(1));
+        assert_eq!(get(3, "seed"), Field::Long(4));
+        assert_eq!(get(3, "timestamp"), Field::Float(0.04));
+        let Field::ListInternal(state) = get(3, "observation.state") else { panic!("a list") };
+        assert_eq!(state.elements(), &[Field::Float(1.0), Field::Float(-1.0)]);
+        assert_eq!((get(1, "next.done"), get(1, "next.success")), (Field::Bool(true), Field::Bool(true)));
+        assert_eq!((get(4, "next.done"), get(4, "next.success")), (Field::Bool(true), Field::Bool(false)));
+        let info: Value = serde_json::from_str(&std::fs::read_to_string(out.join("meta/info.json")).unwrap()).unwrap();
+        assert_eq!((info["total_frames"].as_u64(), info["fps"].as_u64()), (Some(5), Some(25)));
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+}
