@@ -81,3 +81,13 @@ def test_a_robot_file_trains_evaluates_and_exports(tmp_path):
     onnx = tmp_path / "panda.onnx"
     run("export", str(run_dir), "--onnx", str(onnx))
     assert onnx.stat().st_size > 1000
+
+
+def test_a_listing_read_only_in_part_ends_quietly():
+    """`twinbots robots --json | head`: a reader that closes the pipe before the listing is
+    written ends it with status 0 and no panic (Rust's standard output would panic on EPIPE)."""
+    for args in (["robots"], ["robots", "--json"]):
+        process = subprocess.Popen([twinbots_bin(), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        process.stdout.close()
+        _, stderr = process.communicate(timeout=60)
+        assert process.returncode == 0 and b"panicked" not in stderr, (args, stderr)

@@ -17,29 +17,38 @@ pub struct Args {
 
 /// `twinbots robots`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    if args.json {
-        print_json()
-    } else {
-        print();
-        Ok(())
+    emit(&if args.json { listing_json()? } else { listing() })
+}
+
+/// Writes `text` to standard output; a reader that stopped early (`twinbots robots | head`)
+/// ends the listing quietly, as it does for other Unix tools.
+fn emit(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
     }
 }
 
-pub fn print() {
+fn listing() -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
     for robot in registry::robots() {
-        println!("{:<12} {}", robot.name, robot.description);
-        println!("{:<12} control step {:.0} ms", "", robot.control_period_s() * 1e3);
+        let _ = writeln!(out, "{:<12} {}", robot.name, robot.description);
+        let _ = writeln!(out, "{:<12} control step {:.0} ms", "", robot.control_period_s() * 1e3);
         let patterns: Vec<String> = robot.all_patterns().iter().map(|p| p.number().to_string()).collect();
-        println!("{:<12} task: {}; design patterns: {}", "", robot.main_task().name, patterns.join(", "));
+        let _ = writeln!(out, "{:<12} task: {}; design patterns: {}", "", robot.main_task().name, patterns.join(", "));
         for task in &robot.tasks[1..] {
-            println!("{:<12} also --task {}: {}", "", task.name, task.description);
+            let _ = writeln!(out, "{:<12} also --task {}: {}", "", task.name, task.description);
         }
     }
+    out
 }
 
 /// One JSON document: `{"protocol_version": 2, "robots": [{name, description,
 /// design_patterns, tasks: [TaskInterface…]}]}`.
-pub fn print_json() -> anyhow::Result<()> {
+fn listing_json() -> anyhow::Result<String> {
     let robots: Vec<serde_json::Value> = registry::robots()
         .iter()
         .map(|robot| {
@@ -57,6 +66,5 @@ pub fn print_json() -> anyhow::Result<()> {
         })
         .collect();
     let document = serde_json::json!({ "protocol_version": twinbots_link::protocol::VERSION, "robots": robots });
-    println!("{}", serde_json::to_string_pretty(&document)?);
-    Ok(())
+    Ok(serde_json::to_string_pretty(&document)? + "\n")
 }
