@@ -3,13 +3,12 @@
 //! without any other crate knowing it.
 
 use std::path::Path;
-use std::time::Duration;
 
 use bevy::prelude::*;
 use rand::Rng;
 use twinbots_api::*;
 use twinbots_learn::*;
-use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerAddress, ServerRobotPlugin};
+use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerRobotPlugin};
 use twinbots_server::server::{RobotServer, ServerSettings};
 use twinbots_sim::urdf::parse_urdf;
 use twinbots_sim::{
@@ -230,12 +229,7 @@ fn a_robot_defined_in_a_test_file_is_registered_trained_evaluated_and_served() {
         Ok(Flow::Continue)
     };
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(count)).unwrap();
-    let mut app = robot.app(None, 2, 3, DesignPattern::Server).unwrap();
-    app.insert_resource(ServerAddress { addr: server.addr, patience: Duration::from_secs(5) });
-    app.finish();
-    app.cleanup();
-    app.update();
-    assert!(!app.world().contains_resource::<twinbots_sim::SupervisorAccess>(), "pattern 3 has no Supervisor");
+    let mut app = crate::server::robots_against(robot, server.addr);
     let run = crate::server::run_robots_until_done(&mut app, 20_000);
     assert!(run.episodes > 0);
     let (served, _) = server.wait().unwrap();

@@ -154,9 +154,7 @@ fn hindsight_goals_are_rewarded_as_the_task_rewards_them() {
 
 #[test]
 fn a_robot_file_arm_is_served_under_design_pattern_3_and_homes_itself() {
-    use std::time::Duration;
     use twinbots_learn::{Flow, Ppo};
-    use twinbots_link::robot::ServerAddress;
     use twinbots_server::server::{RobotServer, ServerSettings};
 
     let path = robot_file("served");
@@ -174,12 +172,7 @@ fn a_robot_file_arm_is_served_under_design_pattern_3_and_homes_itself() {
     let settings = ServerSettings::new(robot.name, &spec, 2, 512);
     let count = |_: &_, _: &dyn twinbots_learn::Agent| Ok(Flow::Continue);
     let server = RobotServer::start("127.0.0.1:0".parse().unwrap(), learner, settings, Box::new(count)).unwrap();
-    let mut app = robot.app(None, 2, 3, DesignPattern::Server).unwrap();
-    app.insert_resource(ServerAddress { addr: server.addr, patience: Duration::from_secs(5) });
-    app.finish();
-    app.cleanup();
-    app.update();
-    assert!(!app.world().contains_resource::<twinbots_sim::SupervisorAccess>(), "pattern 3 has no Supervisor");
+    let mut app = crate::server::robots_against(&robot, server.addr);
     let run = crate::server::run_robots_until_done(&mut app, 20_000);
     assert!(run.episodes > 0);
     let (served, _) = server.wait().unwrap();

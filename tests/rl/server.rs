@@ -37,6 +37,18 @@ pub fn server_with(
     RobotServer::start("127.0.0.1:0".parse().unwrap(), model, settings, callbacks).unwrap()
 }
 
+/// Two arenas of `robot` as a robot process of design pattern 3 (seed 3), pointed at the server
+/// at `addr` and started up: no Supervisor in it.
+pub fn robots_against(robot: &twinbots_task::robot::RobotDescription, addr: SocketAddr) -> bevy::prelude::App {
+    let mut app = robot.app(None, 2, 3, twinbots_api::DesignPattern::Server).unwrap();
+    app.insert_resource(twinbots_link::robot::ServerAddress { addr, patience: Duration::from_secs(5) });
+    app.finish();
+    app.cleanup();
+    app.update();
+    assert!(!app.world().contains_resource::<twinbots_sim::SupervisorAccess>(), "pattern 3 has no Supervisor");
+    app
+}
+
 /// Steps a pattern-3 app (its robots against a server) until its robots stop, at most
 /// `max_updates` times, and asserts they stopped because the server said training is done.
 pub fn run_robots_until_done(app: &mut bevy::prelude::App, max_updates: usize) -> twinbots_link::robot::RobotRunState {

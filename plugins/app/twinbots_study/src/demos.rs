@@ -95,8 +95,9 @@ pub fn record_demos(
         let wanted = if options.successes_only { arenas } else { arenas.min(options.episodes - writer.episodes()) };
         let seeds: Vec<u64> = (0..arenas as u64).map(|i| options.seed + (run as u64) + i).collect();
         let mut obs = reset_alike(&mut env, &seeds)?;
-        let mut episodes: Vec<Option<Vec<Frame>>> = (0..wanted).map(|_| Some(Vec::new())).collect();
-        let mut ended: Vec<Option<(Vec<Frame>, bool)>> = vec![None; wanted];
+        // Each kept arena's frames, and once its episode has ended whether it succeeded.
+        let mut episodes: Vec<Vec<Frame>> = vec![Vec::new(); wanted];
+        let mut ended: Vec<Option<bool>> = vec![None; wanted];
         while ended.iter().any(Option::is_none) {
             let mut actions = controller.act(&obs, obs_dim)?;
             if let Some((low, high)) = &bounds {
@@ -106,10 +107,12 @@ pub fn record_demos(
             }
             let step = env.step(&actions)?;
             for i in 0..wanted {
-                let Some(frames) = episodes[i].as_mut() else { continue };
+                if ended[i].is_some() {
+                    continue;
+                }
                 let done = step.terminated[i] || step.truncated[i];
                 let success = done && step.episodes[i].as_ref().and_then(|e| e.success) == Some(true);
-                frames.push(Frame {
+                episodes[i].push(Frame {
                     state: obs[i * obs_dim..(i + 1) * obs_dim].to_vec(),
                     action: actions[i * act_dim..(i + 1) * act_dim].to_vec(),
                     reward: step.rewards[i],
@@ -117,13 +120,13 @@ pub fn record_demos(
                     success,
                 });
                 if done {
-                    ended[i] = Some((episodes[i].take().expect("a running episode"), success));
+                    ended[i] = Some(success);
                 }
             }
             obs = step.obs;
         }
-        for (i, episode) in ended.into_iter().enumerate() {
-            let (episode, success) = episode.expect("every episode of the batch ended");
+        for (i, (episode, success)) in episodes.into_iter().zip(ended).enumerate() {
+            let success = success.expect("every episode of the batch ended");
             run += 1;
             successes += usize::from(success);
             if writer.episodes() < options.episodes && (success || !options.successes_only) {

@@ -19,6 +19,8 @@ use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
+use twinbots_api::files::write_json;
+
 use crate::stats::FeatureStats;
 use crate::table::{Column, Table};
 
@@ -280,12 +282,14 @@ impl DatasetWriter {
         t.push("data/file_index", Column::I64(data_file_of.iter().map(|d| d.1 as i64).collect()));
         t.push("dataset_from_index", Column::I64(first_index[..n].iter().map(|&i| i as i64).collect()));
         t.push("dataset_to_index", Column::I64(first_index[1..].iter().map(|&i| i as i64).collect()));
-        for (f, (feature, _)) in stats[0].iter().enumerate() {
-            let keys = stats[0][f].1.entries().into_iter().map(|(k, _)| k).collect::<Vec<_>>();
-            for (s, key) in keys.iter().enumerate() {
-                let values: Vec<Vec<f64>> = stats.iter().map(|episode| episode[f].1.entries()[s].1.clone()).collect();
-                let column = match *key {
-                    "min" | "max" if stats[0][f].1.boolean => {
+        for (f, (feature, first)) in stats[0].iter().enumerate() {
+            // Each episode's entries of this feature, once; then one column per statistic.
+            let mut entries: Vec<_> = stats.iter().map(|episode| episode[f].1.entries().into_iter()).collect();
+            for (key, _) in first.entries() {
+                let values: Vec<Vec<f64>> =
+                    entries.iter_mut().map(|e| e.next().expect("every episode has each statistic").1).collect();
+                let column = match key {
+                    "min" | "max" if first.boolean => {
                         Column::BoolLists(values.iter().map(|v| v.iter().map(|&x| x > 0.5).collect()).collect())
                     }
                     _ => Column::F64Lists(values),
@@ -377,12 +381,6 @@ fn staging_dir(out: &Path) -> PathBuf {
 fn create_parent(path: &Path) -> anyhow::Result<()> {
     let dir = path.parent().expect("a file in the dataset");
     std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))
-}
-
-fn write_json(path: &Path, value: &Value) -> anyhow::Result<()> {
-    create_parent(path)?;
-    let text = serde_json::to_string_pretty(value)?;
-    std::fs::write(path, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 #[cfg(test)]
