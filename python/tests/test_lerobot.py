@@ -81,16 +81,16 @@ def test_lerobot_loads_the_dataset_and_iterates_a_batch(pick_place):
     assert succeeded >= 9, f"{succeeded} of 12 scripted episodes met the goal"
 
 
-def test_every_frame_passes_lerobots_own_recording_checks(pick_place, tmp_path):
-    """The frames recorded again through LeRobot's writer (`add_frame` validates each frame's
-    features, dtypes and shapes; `save_episode` the episode) give the same data, the same
-    per-episode statistics keys and the same info."""
+@pytest.fixture(scope="module")
+def lerobot_copy(pick_place, tmp_path_factory):
+    """The frames of `pick_place` recorded again through LeRobot's own writer."""
+    again = tmp_path_factory.mktemp("lerobot") / "again"
     ours = LeRobotDataset("twinbots/ur5e-pick-place", root=pick_place)
     features = {k: v for k, v in ours.meta.features.items() if k not in INDEX_COLUMNS}
     theirs = LeRobotDataset.create(
         "twinbots/again",
         fps=ours.fps,
-        root=tmp_path / "again",
+        root=again,
         robot_type=ours.meta.robot_type,
         features=features,
         use_videos=False,
@@ -104,7 +104,14 @@ def test_every_frame_passes_lerobots_own_recording_checks(pick_place, tmp_path):
             theirs.add_frame({**frame, "task": episode["tasks"][0]})
         theirs.save_episode()
     theirs.finalize()
-    again = tmp_path / "again"
+    return again
+
+
+def test_every_frame_passes_lerobots_own_recording_checks(pick_place, lerobot_copy):
+    """The frames recorded again through LeRobot's writer (`add_frame` validates each frame's
+    features, dtypes and shapes; `save_episode` the episode) give the same data, the same
+    per-episode statistics keys and the same info."""
+    again = lerobot_copy
     ours_info = json.loads((pick_place / "meta/info.json").read_text())
     their_info = json.loads((again / "meta/info.json").read_text())
     assert ours_info == their_info
@@ -139,6 +146,38 @@ def test_every_frame_passes_lerobots_own_recording_checks(pick_place, tmp_path):
         for key, want in [("std", values.std(axis=0)), ("q01", np.quantile(values, 0.01, axis=0))]:
             np.testing.assert_allclose(ours_stats[feature][key], want, rtol=1e-9, atol=1e-9, err_msg=f"{feature}/{key}")
         np.testing.assert_allclose(ours_stats[feature]["std"], stats["std"], rtol=1e-2, atol=1e-4, err_msg=feature)
+
+
+def test_behaviour_cloning_reads_a_dataset_lerobot_wrote_as_its_own(pick_place, lerobot_copy, tmp_path):
+    """`train --demos` (behaviour cloning) learns from any LeRobot dataset: from the copy
+    LeRobot's writer made it clones the model it clones from twinbots' dataset, bit for bit, and
+    the run evaluates it on the twin."""
+    config = tmp_path / "bc.toml"
+    config.write_text("eval_episodes = 8\n")
+    runs = []
+    for name, data in [("ours", pick_place), ("theirs", lerobot_copy)]:
+        out = tmp_path / name
+        done = subprocess.run(
+            [twinbots_bin(), "train", "ur5e", "--task", "pick-place-learned", "--demos", str(data),
+             "--timesteps", "25600", "--config", str(config), "--out", str(out)],
+            capture_output=True, text=True, timeout=600, cwd=REPO,
+        )
+        assert done.returncode == 0, done.stderr
+        runs.append(out)
+    ours, theirs = (run / "model/model.safetensors" for run in runs)
+    assert ours.read_bytes() == theirs.read_bytes()
+    model = json.loads((runs[1] / "model/model.json").read_text())
+    assert model["algorithm"] == "BC" and model["hyperparameters"]["demos"] == str(lerobot_copy.resolve())
+    assert model["demonstration_frames"] == json.loads((pick_place / "meta/info.json").read_text())["total_frames"]
+    evaluation = json.loads((runs[1] / "eval.json").read_text())
+    assert evaluation["episodes"] == 8 and 0.0 <= evaluation["success_rate"] <= 1.0
+    # A dataset of other widths is refused before training, naming the dataset and the feature.
+    done = subprocess.run(
+        [twinbots_bin(), "train", "cartpole", "--demos", str(lerobot_copy), "--out", str(tmp_path / "wrong")],
+        capture_output=True, text=True, timeout=600, cwd=REPO,
+    )
+    assert done.returncode != 0 and "observation.state" in done.stderr and str(lerobot_copy.resolve()) in done.stderr
+    assert "panicked" not in done.stderr
 
 
 def test_a_dataset_is_the_same_whatever_the_arena_count(pick_place, tmp_path):

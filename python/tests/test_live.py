@@ -116,3 +116,28 @@ def test_a_foxglove_client_watches_cartpole_train(tmp_path):
     assert b"arena_0/pole" in received["/scene"][0][1]
     # Both malformed requests answered with a status (error level 2), none ended the session.
     assert len([s for s in statuses if s.get("level") == 2]) >= 2, statuses
+
+
+def test_a_foxglove_client_watches_an_evaluation(tmp_path):
+    """`eval --live`: the evaluation's arenas and the episodes as they end."""
+    binary = twinbots_bin()
+    run = tmp_path / "run"
+    subprocess.run(
+        [binary, "train", "cartpole", "--timesteps", "2048", "--out", str(run)],
+        capture_output=True, check=True, cwd=REPO,
+    )
+    command = [binary, "eval", str(run), "--episodes", "1000000", "--live", "127.0.0.1:0"]
+    evaluation = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    try:
+        first = evaluation.stdout.readline()
+        assert first.startswith("live view on ws://127.0.0.1:"), first + evaluation.stderr.read()
+        port = int(first.split(":")[2].split()[0])
+        channels, received, _ = asyncio.run(watch(port, ["/arena_0/joint_states", "/episodes"], 3.0))
+        assert evaluation.poll() is None, "the evaluation stopped while watched"
+    finally:
+        evaluation.kill()
+        evaluation.wait()
+    assert channels["/episodes"]["schemaName"] == "twinbots/Episode"
+    assert len(received["/arena_0/joint_states"]) >= 100, len(received["/arena_0/joint_states"])
+    episodes = [json.loads(payload) for _, payload in received["/episodes"]]
+    assert episodes and all(e["length"] >= 1 for e in episodes), episodes[:3]

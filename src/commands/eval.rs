@@ -1,14 +1,16 @@
 //! `twinbots eval <run-dir>`: replays a trained model on its robot and reports episode scores.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use twinbots_api::VecEnv;
 use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
 use twinbots_task::AppVecEnv;
 
+use twinbots_live::LiveServer;
 use twinbots_run::registry;
 use twinbots_run::robot_log::finish_log;
-use twinbots_run::run::{evaluation_app, evaluation_env};
+use twinbots_run::run::{evaluation_app, start_live};
 use twinbots_run::settings::{CalibrationSetting, TrainSettings};
 use twinbots_run::twin::Twin;
 use twinbots_task::randomization::Randomization;
@@ -48,14 +50,24 @@ pub struct Args {
     /// lights held out from training, docs/pixels.md). Written to `eval-<task>-in-<file stem>.json`.
     #[arg(long)]
     pub looks: Option<std::path::PathBuf>,
+    /// Serve a live view of every evaluation arena over Foxglove's WebSocket protocol (open
+    /// ws://127.0.0.1:8765 in Foxglove or Lichtblick; docs/live.md), on ADDR if given.
+    #[arg(long, num_args = 0..=1, default_missing_value = twinbots_live::DEFAULT_ADDR, value_name = "ADDR")]
+    pub live: Option<std::net::SocketAddr>,
+    /// With --live on an address beyond loopback: serve it although the protocol has no
+    /// authentication.
+    #[arg(long, requires = "live")]
+    pub insecure: bool,
 }
 
 /// `twinbots eval`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    let live = args.live.map(|addr| start_live(addr, args.insecure)).transpose()?;
     let on = Evaluated {
         task: args.task.as_deref(),
         calibration: args.calibration.as_deref(),
         looks: args.looks.as_deref(),
+        live: live.as_ref(),
     };
     eval_run(&args.run, args.episodes, args.arenas, on)?;
     if let Some(path) = &args.log {
@@ -74,12 +86,14 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 }
 
 /// What a run is evaluated on besides its own: another task of its cell, another twin (a
-/// calibration file), looks drawn from a file's `[randomization.visual]`.
+/// calibration file), looks drawn from a file's `[randomization.visual]`; and who watches.
 #[derive(Clone, Copy, Default)]
 pub struct Evaluated<'a> {
     pub task: Option<&'a str>,
     pub calibration: Option<&'a Path>,
     pub looks: Option<&'a Path>,
+    /// The live view every arena is published to.
+    pub live: Option<&'a Arc<LiveServer>>,
 }
 
 /// Loads the run's final model (or its newest checkpoint), evaluates it on the run's task or
@@ -87,7 +101,7 @@ pub struct Evaluated<'a> {
 /// `eval-<task>.json`, `eval-<task>-on-<twin>.json`, `eval-<task>-in-<looks>.json`) into the
 /// run directory.
 pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, on: Evaluated) -> anyhow::Result<EvalResult> {
-    let Evaluated { task, calibration, looks } = on;
+    let Evaluated { task, calibration, looks, live } = on;
     anyhow::ensure!(episodes > 0, "--episodes must be at least 1");
     let run_dir = RunDir::new(run);
     let settings = TrainSettings::of_run(&run_dir)?;
@@ -100,16 +114,16 @@ pub fn eval_run(run: &Path, episodes: usize, arenas: Option<usize>, on: Evaluate
     let other_twin = calibration.map(|p| p.file_stem().unwrap_or_default().to_string_lossy().to_string());
     let calibration = evaluated_calibration(&entry, &settings, calibration)?;
     let params = calibration.as_ref().map(CalibrationSetting::parameters).unwrap_or_default();
-    let mut env = match looks {
-        None => evaluation_env(&entry, Some(name), arenas, episodes, seed, &settings, &params)?,
-        Some(file) => {
-            let mut app = evaluation_app(&entry, Some(name), arenas.clamp(1, episodes), seed, &settings, &params)?;
-            app.add_plugins(VisualRandomizationPlugin(
-                Randomization::looks_of(file).map_err(|e| anyhow::anyhow!("--looks {e}"))?,
-            ));
-            AppVecEnv::new(app)
-        }
-    };
+    let mut app = evaluation_app(&entry, Some(name), arenas.clamp(1, episodes), seed, &settings, &params)?;
+    if let Some(file) = looks {
+        app.add_plugins(VisualRandomizationPlugin(
+            Randomization::looks_of(file).map_err(|e| anyhow::anyhow!("--looks {e}"))?,
+        ));
+    }
+    if let Some(server) = live {
+        app.add_plugins(twinbots_live::LivePlugin(server.clone()));
+    }
+    let mut env = AppVecEnv::new(app);
     let result = evaluate_policy(name, model.as_ref(), &mut env, episodes, seed)?;
     println!("{}: {}", settings.robot, result.describe());
     let stem = |p: &Path| p.file_stem().unwrap_or_default().to_string_lossy().to_string();

@@ -12,7 +12,7 @@ use twinbots_learn::RunDir;
 use twinbots_ops::fleet;
 use twinbots_run::learner;
 use twinbots_run::registry;
-use twinbots_run::run::{Run, Watch, default_run_dir};
+use twinbots_run::run::{Run, Watch, default_run_dir, start_live};
 use twinbots_run::settings::{CalibrationSetting, ConfigFile, TrainSettings, read_cell};
 use twinbots_run::twin::Twin;
 
@@ -42,6 +42,10 @@ pub struct Args {
     /// The learner, by name (`twinbots algos` lists them); default: the robot's (ppo).
     #[arg(long, value_parser = learner::parse_algo)]
     pub algo: Option<String>,
+    /// Behaviour cloning from these demonstrations: a LeRobot dataset whose observation and
+    /// action features match the robot's (`twinbots demos` writes one); implies `--algo bc`.
+    #[arg(long, value_name = "DIR")]
+    pub demos: Option<std::path::PathBuf>,
     /// A TOML file with settings (timesteps, arenas, seed, checkpoint_every, eval_every,
     /// eval_episodes, algo, [ppo] / [sac] hyperparameters); flags override it.
     #[arg(long)]
@@ -74,7 +78,7 @@ pub struct Args {
     /// Continue the run in this directory from its newest checkpoint. With --timesteps N:
     /// train N steps more than its model has (a run that ended continues from its final model;
     /// SB3's `learn(N, reset_num_timesteps=False)`).
-    #[arg(long, conflicts_with_all = ["robot", "task", "arenas", "seed", "pattern", "config", "out", "algo", "calibration", "cell"])]
+    #[arg(long, conflicts_with_all = ["robot", "task", "arenas", "seed", "pattern", "config", "out", "algo", "demos", "calibration", "cell"])]
     pub resume: Option<std::path::PathBuf>,
     /// Print the settings the run would use (the robot's defaults ← the config file ← the
     /// flags, key by key) as TOML, and exit without training.
@@ -92,6 +96,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         seed,
         pattern,
         algo,
+        demos,
         config,
         out,
         checkpoint_every,
@@ -122,6 +127,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     };
     let calibration = calibration.map(|path| CalibrationSetting::read(&entry, &path)).transpose()?;
     let cell = cell.map(|path| read_cell(&entry, &path)).transpose()?;
+    let (algo, hyperparams) = match demos {
+        Some(dir) => demos_flag(&dir, algo)?,
+        None => (algo, Default::default()),
+    };
     let flags = ConfigFile {
         task,
         timesteps,
@@ -132,6 +141,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         algo,
         calibration,
         cell,
+        hyperparams,
         ..Default::default()
     };
     let settings = TrainSettings::resolve(&entry, file, flags)?;
@@ -147,11 +157,19 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     Run::create(settings, &out)?.train(watch)
 }
 
-/// Starts the live view and says where it is.
-fn start_live(addr: std::net::SocketAddr, insecure: bool) -> anyhow::Result<std::sync::Arc<twinbots_live::LiveServer>> {
-    let server = twinbots_live::LiveServer::start(addr, insecure)?;
-    println!("live view on ws://{}:{} (Foxglove or Lichtblick: open connection)", addr.ip(), server.port());
-    Ok(server)
+/// `--demos DIR` as settings: `algo = "bc"` and `[bc] demos`, the dataset's absolute path (so
+/// the run resumes from anywhere).
+fn demos_flag(
+    dir: &Path,
+    algo: Option<String>,
+) -> anyhow::Result<(Option<String>, std::collections::BTreeMap<String, toml::Value>)> {
+    let bc = twinbots_learn::bc::NAME;
+    if let Some(other) = algo.as_deref().filter(|a| *a != bc) {
+        anyhow::bail!("--demos is behaviour cloning's dataset: it goes with --algo {bc}, not --algo {other}");
+    }
+    let dir = std::fs::canonicalize(dir).with_context(|| format!("--demos {}", dir.display()))?;
+    let table = toml::Table::from_iter([("demos".to_string(), toml::Value::String(dir.display().to_string()))]);
+    Ok((Some(bc.to_string()), [(bc.to_string(), toml::Value::Table(table))].into()))
 }
 
 /// Continues the run in `run_dir` from its newest checkpoint.

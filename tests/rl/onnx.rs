@@ -1,6 +1,7 @@
 //! The exported ONNX graph acts as the model does: run by tract on 1,000 random observations,
 //! its actions equal the model's own deterministic ones (to 1e-5; discrete choices identical)
-//! for a discrete, a continuous and a normalised-observation PPO policy, and a SAC policy; and
+//! for a discrete, a continuous and a normalised-observation PPO policy, a SAC policy and cloned
+//! (BC) policies of both kinds; and
 //! PPO and SAC policies on camera images (NatureCNN and keypoints) to 1e-4. Bad files are clear
 //! errors.
 
@@ -10,7 +11,7 @@ use twinbots_api::{Space, VecEnv};
 use twinbots_learn::classic::{ClassicCartPole, ClassicPendulum};
 use twinbots_learn::nn::PolicyKind;
 use twinbots_learn::normalize::RunningMeanStd;
-use twinbots_learn::{Agent, Flow, OffPolicyConfig, Ppo, PpoConfig, Sac, SacConfig};
+use twinbots_learn::{Agent, Bc, BcConfig, Flow, OffPolicyConfig, Ppo, PpoConfig, Sac, SacConfig};
 use twinbots_onnx::{OnnxPolicy, PolicyMetadata};
 
 const OBSERVATIONS: usize = 1000;
@@ -135,6 +136,35 @@ fn a_sac_policy_gives_the_same_squashed_and_rescaled_actions() {
     let Space::Box { low, high } = &action_space else { unreachable!() };
     let near_bounds = own.iter().enumerate().filter(|(i, a)| (**a - low[i % 3]).min(high[i % 3] - **a) < 0.01).count();
     assert!(near_bounds > OBSERVATIONS / 10, "only {near_bounds} actions lie near the bounds");
+}
+
+#[test]
+fn cloned_policies_export_their_squashed_and_arg_max_heads() {
+    // Continuous: the demonstrations' statistics folded in, a head made 20 times larger so that
+    // many actions lie near the box's bounds. Discrete: the arg max of the logits.
+    let action_space = Space::Box { low: vec![-1.0, -2.0, 0.0], high: vec![1.0, 0.5, 3.0] };
+    let config = BcConfig { hidden: vec![32, 32], ..Default::default() };
+    let mut model = Bc::new(config.clone(), Space::uniform_box(6, -5.0, 5.0), action_space.clone(), 13).unwrap();
+    model.state.obs_rms = Some(RunningMeanStd {
+        mean: vec![0.5, -1.0, 0.0, 2.0, 0.1, -0.3],
+        var: vec![4.0, 0.25, 1.0, 9.0, 0.01, 2.0],
+        count: 1e4,
+    });
+    let last = &model.policy.layers.last().unwrap().weight;
+    last.set(&last.as_tensor().affine(20.0, 0.0).unwrap()).unwrap();
+    let obs = observations(6, 3.0, 5);
+    let (onnx, own) = both(&model, &obs);
+    let delta = largest_difference(&onnx, &own);
+    eprintln!("BC: max |Δ| {delta:e} over {OBSERVATIONS} observations");
+    assert!(delta <= 1e-5, "max |Δ| {delta}");
+    assert!(onnx.chunks(3).all(|a| action_space.contains(a)), "every action lies in the box");
+
+    let cartpole = ClassicCartPole::new(1);
+    let model = Bc::new(config, cartpole.observation_space().clone(), Space::Discrete { n: 3 }, 14).unwrap();
+    let (onnx, own) = both(&model, &observations(4, 2.0, 6));
+    assert_eq!(onnx, own);
+    let choices: std::collections::BTreeSet<u32> = own.iter().map(|&a| a as u32).collect();
+    assert!(choices.len() >= 2, "more than one choice occurs, so the comparison means something: {choices:?}");
 }
 
 /// Rows of camera images: 0–255 values, some regions bright, as the env hands them over.

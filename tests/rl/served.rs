@@ -138,12 +138,39 @@ fn td3_is_served_and_learns_from_every_step() {
 #[test]
 fn every_algorithm_the_table_says_serves_can_be_served() {
     let spec = pendulum_task();
+    // Behaviour cloning is made from demonstrations: two frames of the pendulum's.
+    let demos = std::env::temp_dir().join(format!("twinbots-served-demos-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&demos);
+    let names = |n: usize| (0..n).map(|i| i.to_string()).collect::<Vec<_>>();
+    let dataset = twinbots_dataset::DatasetSpec {
+        robot: "pendulum".into(),
+        fps: 20.0,
+        state_names: names(3),
+        action_names: names(1),
+    };
+    let mut writer = twinbots_dataset::DatasetWriter::new(&demos, dataset).unwrap();
+    let frame = |done| twinbots_dataset::Frame {
+        state: vec![1.0, 0.0, 0.5],
+        action: vec![-1.0],
+        reward: -0.1,
+        done,
+        success: false,
+    };
+    writer
+        .add(twinbots_dataset::Episode { task: "swing-up".into(), seed: 0, frames: vec![frame(false), frame(true)] })
+        .unwrap();
+    writer.finish().unwrap();
     for algorithm in algos::ALGOS {
-        let config = (algorithm.config)(&toml::Table::new(), 1).unwrap();
+        let mut keys = toml::Table::new();
+        if algorithm.name == twinbots_learn::bc::NAME {
+            keys.insert("demos".into(), demos.display().to_string().into());
+        }
+        let config = (algorithm.config)(&keys, 1).unwrap();
         let model = (algorithm.new)(&config, &spec, 0).unwrap();
         let served = model.serve(2, 1000);
         assert_eq!(served.is_ok(), algorithm.serves, "{}: {:?}", algorithm.name, served.err());
     }
+    std::fs::remove_dir_all(&demos).unwrap();
 }
 
 /// The UR5e's reach served with SAC and HER (the robot's own SAC settings) to two simulated

@@ -11,6 +11,7 @@
 //! | PPO's CNN weights, its value's own CNN | `s ^ PPO_ENCODER`, `s ^ PPO_VALUE_ENCODER` |
 //! | SAC's action sampling | `s ^ SAC_SAMPLING` |
 //! | TD3's exploration and target noise | `s ^ TD3_NOISE` |
+//! | behaviour cloning's minibatches | `s ^ BC_SAMPLING` |
 //! | an arena's looks (visual randomization), apart from its physics | arena seed `^ LOOKS` |
 //! | a recording's sensor noise (`twinbots record`) | recording seed `^ RECORDING_NOISE` |
 //!
@@ -34,6 +35,8 @@ pub const PPO_VALUE_ENCODER: u64 = 0x7a_1e_ed;
 pub const SAC_SAMPLING: u64 = 0x5ac_5eed;
 /// TD3's noise stream.
 pub const TD3_NOISE: u64 = 0x7d3_5eed;
+/// Behaviour cloning's minibatch stream.
+pub const BC_SAMPLING: u64 = 0xbc_5eed;
 /// An arena's looks under visual randomization ("look").
 pub const LOOKS: u64 = 0x6c6f_6f6b;
 /// A recording's sensor noise.
@@ -48,7 +51,8 @@ mod tests {
 
     #[test]
     fn no_two_streams_share_a_salt_or_an_offset() {
-        let salts = [PPO_ACTIONS, PPO_ENCODER, PPO_VALUE_ENCODER, SAC_SAMPLING, TD3_NOISE, LOOKS, RECORDING_NOISE];
+        let salts =
+            [PPO_ACTIONS, PPO_ENCODER, PPO_VALUE_ENCODER, SAC_SAMPLING, TD3_NOISE, BC_SAMPLING, LOOKS, RECORDING_NOISE];
         for (i, a) in salts.iter().enumerate() {
             assert!(salts[i + 1..].iter().all(|b| a != b), "salt {a:#x} is used twice");
         }

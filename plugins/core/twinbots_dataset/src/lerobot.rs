@@ -450,6 +450,20 @@ mod tests {
         assert_eq!((get(4, "next.done"), get(4, "next.success")), (Field::Bool(true), Field::Bool(false)));
         let info: Value = serde_json::from_str(&std::fs::read_to_string(out.join("meta/info.json")).unwrap()).unwrap();
         assert_eq!((info["total_frames"].as_u64(), info["fps"].as_u64()), (Some(5), Some(25)));
+
+        // The reader gives back every frame's state and action, in order.
+        let demos = crate::read_demonstrations(&out, "observation.state", "action").unwrap();
+        assert_eq!((demos.frames(), demos.episodes, demos.state_dim, demos.action_dim), (5, 2, 2, 1));
+        assert_eq!(demos.states, vec![0.0, -0.0, 1.0, -1.0, 0.0, -0.0, 1.0, -1.0, 2.0, -2.0]);
+        assert_eq!(demos.actions, vec![0.5; 5]);
+        assert_eq!(demos.robot.as_deref(), Some("arm"));
+        // A one-value feature read as a scalar column; a feature it lacks is named.
+        assert_eq!(
+            crate::read_demonstrations(&out, "observation.state", "next.reward").unwrap().actions,
+            vec![-1.0; 5]
+        );
+        let err = crate::read_demonstrations(&out, "observation.images.top", "action").unwrap_err().to_string();
+        assert!(err.contains("meta/info.json") && err.contains("no feature \"observation.images.top\""), "{err}");
         std::fs::remove_dir_all(&root).unwrap();
     }
 }

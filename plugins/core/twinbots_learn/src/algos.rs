@@ -9,7 +9,8 @@ use crate::learner::{Algorithm, Learner};
 use crate::model_io::{METADATA_FILE, ModelError, file_error};
 use crate::run_dir::RunDir;
 
-pub const ALGOS: &[Algorithm] = &[crate::ppo::ALGORITHM, crate::sac::ALGORITHM, crate::td3::ALGORITHM];
+pub const ALGOS: &[Algorithm] =
+    &[crate::ppo::ALGORITHM, crate::sac::ALGORITHM, crate::td3::ALGORITHM, crate::bc::ALGORITHM];
 
 /// The algorithm named `name` (lower case, as `--algo` takes it); an unknown name is an error
 /// listing the known ones.

@@ -1,13 +1,14 @@
 //! twinbots_learn: the learners of twinbots, on candle. No Bevy: they see an env only through
 //! `twinbots_api::VecEnv`.
 //!
-//! [`ppo`] and [`sac`] (both [`agent::Agent`]s) on the [`nn`] pieces, with their [`callbacks`]
+//! [`ppo`], [`sac`], [`td3`] and [`bc`] (behaviour cloning; all [`agent::Agent`]s) on the [`nn`] pieces, with their [`callbacks`]
 //! and [`evaluation`], the [`run_dir`] a training run leaves behind with its [`tensorboard`]
 //! event files and [`plot`]s, [`classic`] control envs for testing the algorithms, and the
 //! process's [`threads`].
 
 pub mod agent;
 pub mod algos;
+pub mod bc;
 pub mod callbacks;
 pub mod classic;
 pub mod config_checks;
@@ -36,6 +37,7 @@ pub mod tuning;
 
 pub use agent::{Agent, LoadAgent};
 pub use algos::{ALGOS, load_agent};
+pub use bc::{Bc, BcConfig};
 pub use callbacks::{Callback, CallbackList};
 pub use evaluation::{EvalResult, evaluate_against, evaluate_policy};
 pub use history::EpisodeHistory;

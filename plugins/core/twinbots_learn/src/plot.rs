@@ -183,6 +183,64 @@ pub fn learning_curve(
     })
 }
 
+/// Draws the training loss against timesteps into `path`, written atomically: the curve of a
+/// learner that finishes no training episodes (behaviour cloning), with periodic evaluations'
+/// success rates (or mean scores, for tasks without success) on a second axis.
+pub fn loss_curve(
+    path: &Path,
+    title: &str,
+    losses: &[(u64, f32)],
+    evaluations: &[EvaluationPoint],
+) -> anyhow::Result<()> {
+    let losses: Vec<(f64, f64)> =
+        losses.iter().filter(|(_, l)| l.is_finite()).map(|&(t, l)| (t as f64, l as f64)).collect();
+    let successes = evaluations.iter().all(|e| e.success_rate.is_finite());
+    let evaluated: Vec<(f64, f64)> = evaluations
+        .iter()
+        .map(|e| (e.timesteps as f64, if successes { e.success_rate } else { e.mean_score } as f64))
+        .filter(|p| p.1.is_finite())
+        .collect();
+    write_png(path, |root| {
+        let x_max = losses.iter().chain(&evaluated).map(|p| p.0).fold(1.0, f64::max);
+        let y_max = losses.iter().map(|p| p.1).fold(1e-6, f64::max) * 1.05;
+        let (e_min, e_max) = match successes {
+            true => (0.0, 1.02),
+            false => evaluated.iter().fold((0.0f64, 1.0f64), |(lo, hi), p| (lo.min(p.1), hi.max(p.1))),
+        };
+        let mut chart = ChartBuilder::on(root)
+            .caption(title, ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .right_y_label_area_size(if evaluated.is_empty() { 0 } else { 60 })
+            .build_cartesian_2d(0f64..x_max, 0f64..y_max)?
+            .set_secondary_coord(0f64..x_max, e_min..e_max);
+        chart
+            .configure_mesh()
+            .x_desc("timesteps (demonstration frames learnt from)")
+            .x_label_formatter(&steps_label)
+            .y_desc("training loss")
+            .label_style(("sans-serif", 14))
+            .draw()?;
+        chart
+            .draw_series(LineSeries::new(losses.iter().copied(), BLUE.stroke_width(2)))?
+            .label("loss")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        if !evaluated.is_empty() {
+            let what = if successes { "evaluation success rate" } else { "evaluation mean score" };
+            chart.configure_secondary_axes().y_desc(what).label_style(("sans-serif", 14)).draw()?;
+            let green = RGBColor(0, 140, 60);
+            chart.draw_secondary_series(LineSeries::new(evaluated.clone(), green.mix(0.6)))?;
+            chart
+                .draw_secondary_series(evaluated.iter().map(move |&p| Circle::new(p, 4, green.filled())))?
+                .label(format!("{what} (deterministic)"))
+                .legend(move |(x, y)| Circle::new((x + 10, y), 4, green.filled()));
+        }
+        draw_legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
+        Ok(())
+    })
+}
+
 /// Draws the median of several runs' curves and the band between their quartiles
 /// ([`crate::seeds::band`] rows: x, q1, median, q3) into `path`, written atomically, each run's
 /// own curve faint behind them, with the solved threshold when there is one.

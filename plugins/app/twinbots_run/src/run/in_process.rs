@@ -98,6 +98,7 @@ impl Run {
                     model.history().mean_score()
                 )
             }
+            _ if model.episodes() == 0 => println!("trained: {} steps in {wall:.1} s", model.timesteps()),
             _ => println!(
                 "not solved: {} steps in {wall:.1} s, mean of last 100 episodes {:.1}",
                 model.timesteps(),

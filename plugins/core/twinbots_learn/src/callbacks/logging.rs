@@ -78,8 +78,8 @@ impl LearningCurveCallback {
 
 /// Draws `run`'s learning curve from its `progress.csv` and `evaluations.csv`.
 pub fn draw_learning_curve(run: &RunDir, title: &str, solved: Option<SolvedCriterion>) -> anyhow::Result<()> {
-    let curve: Vec<CurvePoint> = run
-        .read_progress()?
+    let progress = run.read_progress()?;
+    let curve: Vec<CurvePoint> = progress
         .iter()
         .map(|s| CurvePoint {
             timesteps: s.timesteps,
@@ -98,6 +98,11 @@ pub fn draw_learning_curve(run: &RunDir, title: &str, solved: Option<SolvedCrite
             success_rate: e.success_rate.unwrap_or(f32::NAN),
         })
         .collect();
+    // A learner that steps no env (behaviour cloning) has no episodes to draw: its loss instead.
+    if progress.iter().all(|s| s.episodes == 0) && progress.iter().any(|s| s.train("loss").is_finite()) {
+        let losses: Vec<(u64, f32)> = progress.iter().map(|s| (s.timesteps, s.train("loss"))).collect();
+        return plot::loss_curve(&run.file(LEARNING_CURVE), title, &losses, &evaluations);
+    }
     plot::learning_curve(&run.file(LEARNING_CURVE), title, &curve, &evaluations, solved)
 }
 
@@ -155,6 +160,11 @@ impl ProgressBarCallback {
 fn progress_message(s: &UpdateStats) -> String {
     let success =
         if s.success_rate.is_finite() { format!(", success {:.0} %", 100.0 * s.success_rate) } else { String::new() };
+    if s.episodes == 0 && !s.train.is_empty() {
+        // A learner that steps no env (behaviour cloning): its own figures say how it goes.
+        let figures: Vec<String> = s.train.iter().map(|(name, value)| format!("{name} {value:.4}")).collect();
+        return format!("{:.0} steps/s, {}", s.steps_per_s, figures.join(", "));
+    }
     format!("{:.0} steps/s, mean reward {:.1}{success} ({} episodes)", s.steps_per_s, s.mean_reward, s.episodes)
 }
 
