@@ -537,21 +537,3 @@ fn pose(p: &urdf_rs::Pose) -> Pose {
     let [roll, pitch, yaw] = p.rpy.0.map(|a| a as f32);
     Pose::from_parts(vec3(&p.xyz), Quat::from_euler(EulerRot::ZYX, yaw, pitch, roll))
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Elements nested 20,000 deep overflowed the parsers' stacks (the process aborted): the
-    /// depth is checked first, and the error names the file and the line.
-    #[test]
-    fn xml_nested_too_deep_is_an_error_not_a_crash() {
-        let deep = format!(
-            "<robot name=\"deep\">\n{}{}<link name=\"a\"/></robot>",
-            "<x>".repeat(20_000),
-            "</x>".repeat(20_000)
-        );
-        let err = parse_urdf_exact(&deep, Path::new("deep.urdf")).unwrap_err().to_string();
-        assert!(err.starts_with("deep.urdf:2:1: malformed XML: elements nest deeper than 256 levels"), "{err}");
-    }
-}

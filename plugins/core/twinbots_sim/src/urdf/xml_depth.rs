@@ -62,4 +62,18 @@ mod tests {
         assert_eq!(too_deep(&format!("{}{}", "<a>".repeat(256), "</a>".repeat(256))), None);
         assert_eq!(too_deep(&"<a>".repeat(257)), Some(1));
     }
+
+    /// Elements nested 20,000 deep overflowed the parsers' stacks (the process aborted): the
+    /// depth is checked first, and the error names the file and the line.
+    #[test]
+    fn xml_nested_too_deep_is_an_error_not_a_crash() {
+        let deep = format!(
+            "<robot name=\"deep\">\n{}{}<link name=\"a\"/></robot>",
+            "<x>".repeat(20_000),
+            "</x>".repeat(20_000)
+        );
+        let err =
+            super::super::load::parse_urdf_exact(&deep, std::path::Path::new("deep.urdf")).unwrap_err().to_string();
+        assert!(err.starts_with("deep.urdf:2:1: malformed XML: elements nest deeper than 256 levels"), "{err}");
+    }
 }
