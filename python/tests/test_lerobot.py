@@ -171,6 +171,15 @@ def test_behaviour_cloning_reads_a_dataset_lerobot_wrote_as_its_own(pick_place, 
     assert model["demonstration_frames"] == json.loads((pick_place / "meta/info.json").read_text())["total_frames"]
     evaluation = json.loads((runs[1] / "eval.json").read_text())
     assert evaluation["episodes"] == 8 and 0.0 <= evaluation["success_rate"] <= 1.0
+    # Python's load_policy takes it as any other model: actions in the box for the dataset's states.
+    import twinbots
+
+    policy = twinbots.load_policy(runs[1])
+    frames = pq.read_table(lerobot_copy / "data/chunk-000/file-000.parquet")
+    states = np.asarray(frames["observation.state"].to_pylist())
+    actions, _ = policy.predict(states.astype(np.float32))
+    assert policy.algorithm == "BC" and actions.shape == (len(states), 4)
+    assert np.all(np.abs(actions) <= 1.0)
     # A dataset of other widths is refused before training, naming the dataset and the feature.
     done = subprocess.run(
         [twinbots_bin(), "train", "cartpole", "--demos", str(lerobot_copy), "--out", str(tmp_path / "wrong")],
