@@ -116,6 +116,16 @@ def test_a_foxglove_client_watches_cartpole_train(tmp_path):
     assert b"arena_0/pole" in received["/scene"][0][1]
     # Both malformed requests answered with a status (error level 2), none ended the session.
     assert len([s for s in statuses if s.get("level") == 2]) >= 2, statuses
+    # The layout that ships for Foxglove and Lichtblick names topics the live view serves.
+    layout = json.loads((REPO / "assets/foxglove/twinbots.json").read_text())
+    named = set()
+    for config in layout["configById"].values():
+        named.update(config.get("topics", {}))
+        named.update([config["topicPath"]] if "topicPath" in config else [])
+        named.update(path["value"].split(".")[0] for path in config.get("paths", []))
+    assert named and named <= set(channels), named - set(channels)
+    panels = json.dumps(layout["layout"])
+    assert all(panel in panels for panel in layout["configById"]), "a configured panel is not in the layout"
 
 
 def test_a_foxglove_client_watches_an_evaluation(tmp_path):
