@@ -245,3 +245,42 @@ fn compare_gives_the_median_and_quartiles_over_seeds() {
     assert!(!output.status.success() && err.contains(&out.display().to_string()), "{err}");
     std::fs::remove_dir_all(&out).ok();
 }
+
+/// Behaviour cloning from the command line: `demos` writes the cart-pole's classical episodes,
+/// `train --demos` clones them, and a run extended with `--resume … --timesteps` ends with the
+/// model and evaluation of one run of the whole budget, bit for bit (the minibatch stream and
+/// Adam's moments go with the model; the dataset is read again from its path).
+#[test]
+fn a_cloned_run_extended_later_is_the_run_made_at_once() {
+    let root = std::env::temp_dir().join(format!("twinbots-bc-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    let demos = root.join("demos");
+    let run = |args: &[&str]| {
+        let output = twinbots().args(args).output().unwrap();
+        assert!(output.status.success(), "{args:?}: {}", String::from_utf8_lossy(&output.stderr));
+        String::from_utf8_lossy(&output.stdout).to_string()
+    };
+    run(&["demos", "cartpole", "--episodes", "3", "--out", demos.to_str().unwrap()]);
+    let train = |out: &str, steps: &str| {
+        let out = root.join(out);
+        let config = root.join("eval.toml");
+        std::fs::write(&config, "eval_episodes = 2\n").unwrap();
+        let (demos, config) = (demos.to_str().unwrap(), config.to_str().unwrap());
+        let args = ["train", "cartpole", "--demos", demos, "--timesteps", steps, "--config", config, "--out"];
+        run(&[&args[..], &[out.to_str().unwrap()]].concat());
+        out
+    };
+    let whole = train("whole", "51200");
+    let half = train("half", "25600");
+    let stdout = run(&["train", "--resume", half.to_str().unwrap(), "--timesteps", "25600"]);
+    assert!(stdout.contains("trained: 51200 steps"), "{stdout}");
+    let bytes = |dir: &std::path::Path, file: &str| std::fs::read(dir.join(file)).unwrap();
+    assert_eq!(bytes(&whole, "model/model.safetensors"), bytes(&half, "model/model.safetensors"));
+    assert_eq!(bytes(&whole, "eval.json"), bytes(&half, "eval.json"));
+    // Its loss is its learning curve: a row every 100 gradient steps of 256 frames.
+    let progress = std::fs::read_to_string(half.join("progress.csv")).unwrap();
+    assert!(progress.lines().next().unwrap().contains(",loss,"), "{progress}");
+    assert_eq!(progress.lines().count(), 1 + 2, "{progress}");
+    std::fs::remove_dir_all(&root).unwrap();
+}
