@@ -284,3 +284,21 @@ fn a_cloned_run_extended_later_is_the_run_made_at_once() {
     assert_eq!(progress.lines().count(), 1 + 2, "{progress}");
     std::fs::remove_dir_all(&root).unwrap();
 }
+
+/// The benchmarks that need neither a GPU nor a robot bundle run and print their tables.
+#[test]
+fn the_benchmarks_run() {
+    for (args, said) in [
+        (&["bench", "physics", "--arenas", "1,2", "--steps", "20"][..], "arena steps/s"),
+        (&["bench", "rl", "--arenas", "2", "--steps", "20"][..], "PPO update of 2048 samples"),
+        (&["bench", "server", "--arenas", "1", "--steps", "20"][..], "round trip"),
+    ] {
+        let output = twinbots().args(args).output().unwrap();
+        let stdout = String::from_utf8_lossy(&output.stdout);
+        assert!(
+            output.status.success() && stdout.contains(said),
+            "{args:?}: {stdout}{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+}

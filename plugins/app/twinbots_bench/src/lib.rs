@@ -165,14 +165,13 @@ fn direct_vs_bridge(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<
 
 pub fn print_rl(robot: &str, arenas: usize, steps: usize) -> anyhow::Result<()> {
     registry::find(robot)?;
-    // SB3's defaults: 2048 samples, 10 epochs of minibatches of 64. The rollout alone (0 epochs)
-    // is subtracted to leave the update.
+    // SB3's defaults: 2048 samples, 10 epochs of minibatches of 64. The same rollout with one
+    // epoch tells an epoch's cost (a config needs one epoch at least), and so the rollout's.
     let full = time_learn(PpoConfig::default(), 2048)?;
-    let rollout = time_learn(PpoConfig { n_epochs: 0, ..Default::default() }, 2048)?;
-    println!(
-        "PPO update of 2048 samples (10 epochs × 32 minibatches of 64, MLP 64-64): {:.0} ms",
-        (full - rollout) * 1e3
-    );
+    let one_epoch = time_learn(PpoConfig { n_epochs: 1, ..Default::default() }, 2048)?;
+    let epoch = ((full - one_epoch) / 9.0).max(0.0);
+    let rollout = one_epoch - epoch;
+    println!("PPO update of 2048 samples (10 epochs × 32 minibatches of 64, MLP 64-64): {:.0} ms", 10.0 * epoch * 1e3);
     println!("PPO rollout of 2048 CartPole-v1 steps with policy inference: {:.0} ms", rollout * 1e3);
     let (direct, bridged) = direct_vs_bridge(robot, arenas, steps)?;
     println!(
