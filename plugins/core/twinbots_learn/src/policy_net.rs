@@ -24,6 +24,12 @@ pub enum PolicyHead {
     TanhToBox,
 }
 
+/// The index of the largest logit, the last of equal ones: a discrete policy's deterministic
+/// choice, as [`PolicyHead::ArgMax`] exports it.
+pub fn arg_max(logits: &[f32]) -> usize {
+    (0..logits.len()).max_by(|&i, &j| logits[i].total_cmp(&logits[j])).unwrap_or(0)
+}
+
 /// A dense layer `y = x Wᵀ + b`, with the name its model file gives it (`pi.0`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DenseLayer {

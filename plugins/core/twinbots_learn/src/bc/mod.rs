@@ -47,6 +47,8 @@ pub const TRAIN_FIGURES: &[&str] = &["loss"];
 /// never changed there (a constant goal height) would otherwise scale the first change the
 /// policy meets by 1/√1e-8.
 const MIN_STD: f64 = 1e-3;
+/// The policy's name in `model.safetensors` and the exported graph (`policy.0.weight`).
+const POLICY: &str = "policy";
 
 /// Behaviour cloning's line in [`crate::algos::ALGOS`].
 pub const ALGORITHM: Algorithm = Algorithm {
@@ -111,10 +113,8 @@ impl Bc {
         let sizes: Vec<usize> =
             std::iter::once(obs_dim).chain(config.hidden.iter().copied()).chain(std::iter::once(outputs)).collect();
         let policy = ReluMlp::new(&sizes, false, &mut init, &Device::Cpu)?;
-        let mut vars = Vec::new();
-        policy.named_vars("policy", &mut vars);
         let optimizer = Adam::new(
-            vars.into_iter().map(|(_, v)| v).collect(),
+            policy.vars(POLICY).into_iter().map(|(_, v)| v).collect(),
             AdamConfig { learning_rate: config.learning_rate, eps: 1e-8, ..AdamConfig::default() },
         );
         Ok(Self {
@@ -147,26 +147,26 @@ impl Bc {
     fn read_demos(&mut self) -> anyhow::Result<()> {
         let c = &self.config;
         let data = twinbots_dataset::read_demonstrations(Path::new(&c.demos), &c.observation_key, &c.action_key)?;
-        let demos = self.targets(&data)?;
-        if let Some(frames) = self.learnt_frames {
+        let targets = self.targets(&data)?;
+        let frames = data.frames();
+        if let Some(learnt) = self.learnt_frames {
             anyhow::ensure!(
-                frames == demos.frames,
-                "{}: {} frames, but the model learnt from {frames}: the dataset changed since",
-                c.demos,
-                demos.frames
+                learnt == frames,
+                "{}: {frames} frames, but the model learnt from {learnt}: the dataset changed since",
+                c.demos
             );
         }
         if self.state.timesteps == 0 {
             self.state.obs_rms = self.config.normalize_observations.then(|| statistics(&data));
         }
-        self.learnt_frames = Some(demos.frames);
-        self.demos = Some(demos);
+        self.learnt_frames = Some(frames);
+        self.demos = Some(Demos { states: data.states, targets, frames });
         Ok(())
     }
 
     /// The demonstrations' actions as the policy's targets; an error names the dataset, the
     /// feature and the frame that does not fit the robot's spaces.
-    fn targets(&self, data: &Demonstrations) -> anyhow::Result<Demos> {
+    fn targets(&self, data: &Demonstrations) -> anyhow::Result<Vec<f32>> {
         let root = data.root.display();
         let obs_dim = self.state.observation_space.dim();
         anyhow::ensure!(
@@ -176,7 +176,7 @@ impl Bc {
             data.state_dim
         );
         let targets = match &self.state.action_space {
-            Space::Box { low, high } => {
+            Space::Box { low, .. } => {
                 anyhow::ensure!(
                     data.action_dim == low.len(),
                     "{root}: {:?} has {} values a frame, the robot's actions {}",
@@ -186,12 +186,7 @@ impl Bc {
                 );
                 // Into [−1, 1] as the policy's tanh gives it; an action beyond the box is what
                 // the robot would have clipped it to.
-                (data.actions.iter().enumerate())
-                    .map(|(i, &a)| {
-                        let k = i % low.len();
-                        (2.0 * (a - low[k]) / (high[k] - low[k]) - 1.0).clamp(-1.0, 1.0)
-                    })
-                    .collect()
+                crate::off_policy::to_unit(&self.state.action_space, &data.actions)
             }
             Space::Discrete { n } => {
                 anyhow::ensure!(
@@ -210,7 +205,7 @@ impl Bc {
             }
             other => anyhow::bail!("BC learns Box or Discrete actions, not {other}"),
         };
-        Ok(Demos { states: data.states.clone(), targets, frames: data.frames() })
+        Ok(targets)
     }
 
     /// The network's output for raw observation rows.
@@ -224,7 +219,7 @@ impl Bc {
         match &self.state.action_space {
             Space::Discrete { n } => {
                 let logits = out.flatten_all()?.to_vec1::<f32>()?;
-                Ok(logits.chunks(*n).map(|row| arg_max(row) as f32).collect())
+                Ok(logits.chunks(*n).map(|row| crate::policy_net::arg_max(row) as f32).collect())
             }
             space => Ok(crate::off_policy::to_env(space, &out.tanh()?.flatten_all()?.to_vec1::<f32>()?)),
         }
@@ -262,9 +257,7 @@ impl Bc {
     }
 
     fn weights(&self) -> Vec<(String, Var)> {
-        let mut vars = Vec::new();
-        self.policy.named_vars("policy", &mut vars);
-        vars
+        self.policy.vars(POLICY)
     }
 
     /// Fits the policy for `more_steps` demonstration frames (batch size × gradient steps), a
@@ -292,10 +285,8 @@ impl Bc {
             if !due && self.state.timesteps < target {
                 continue;
             }
-            self.last_loss = losses.iter().sum::<f32>() / losses.len().max(1) as f32;
-            if losses.is_empty() {
-                self.last_loss = f32::NAN;
-            }
+            self.last_loss =
+                if losses.is_empty() { f32::NAN } else { losses.iter().sum::<f32>() / losses.len() as f32 };
             self.state.updates += 1;
             let s = &self.state;
             let stats = UpdateStats {
@@ -316,11 +307,6 @@ impl Bc {
         }
         Ok(TrainingEnd::BudgetSpent { timesteps: self.state.timesteps })
     }
-}
-
-/// The index of the largest value (the last of equal ones, as the exported arg max).
-fn arg_max(row: &[f32]) -> usize {
-    (0..row.len()).fold(0, |best, i| if row[i] >= row[best] { i } else { best })
 }
 
 /// The demonstrations' observation statistics: exact mean and variance over every frame, the
@@ -344,7 +330,7 @@ impl Agent for Bc {
         Ok(PolicyNet {
             obs_rms: self.state.obs_rms.clone(),
             encoding: InputEncoding::Flat,
-            layers: crate::nn::layer_values(&self.policy.layers, "policy")?,
+            layers: crate::nn::layer_values(&self.policy.layers, POLICY)?,
             hidden: Activation::Relu,
             head: match self.state.action_space {
                 Space::Discrete { .. } => PolicyHead::ArgMax,

@@ -10,7 +10,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 use twinbots_api::env_state::StreamState;
 
-use super::{Bc, BcConfig};
+use super::{Bc, BcConfig, POLICY};
 use crate::model_dir::{SavedModel, load_model, save_model, saved_model_basics};
 use crate::model_io::{self, METADATA_FILE, ModelError, file_error};
 
@@ -38,7 +38,7 @@ impl Bc {
     /// Saves into the directory `dir` (created if needed).
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), ModelError> {
         save_model(self, dir.as_ref(), |dir| {
-            let steps = model_io::save_optimizers(vec![("policy", self.weights(), &self.optimizer)], dir)?;
+            let steps = model_io::save_optimizers(vec![(POLICY, self.weights(), &self.optimizer)], dir)?;
             Ok(Own {
                 gradient_steps: self.gradient_steps,
                 sampling_stream: StreamState::of(&self.rng),
@@ -56,7 +56,7 @@ impl Bc {
         model.rng = own.sampling_stream.to_rng().map_err(|e| file_error(&dir.join(METADATA_FILE), e))?;
         model.learnt_frames = own.demonstration_frames;
         let weights = model.weights();
-        model_io::restore_optimizers(vec![("policy", weights, &mut model.optimizer)], &own.optimizer_steps, dir)?;
+        model_io::restore_optimizers(vec![(POLICY, weights, &mut model.optimizer)], &own.optimizer_steps, dir)?;
         Ok(model)
     }
 }

@@ -35,6 +35,19 @@ pub fn to_env(space: &Space, unit: &[f32]) -> Vec<f32> {
         .collect()
 }
 
+/// The action space's bounds → [−1, 1], clipped there: [`to_env`]'s inverse, for actions a
+/// demonstrator took.
+pub fn to_unit(space: &Space, env: &[f32]) -> Vec<f32> {
+    let Space::Box { low, high } = space else { return env.to_vec() };
+    env.iter()
+        .enumerate()
+        .map(|(i, a)| {
+            let k = i % low.len();
+            (2.0 * (a - low[k]) / (high[k] - low[k]) - 1.0).clamp(-1.0, 1.0)
+        })
+        .collect()
+}
+
 /// The exported actor of an off-policy learner: ReLU layers, tanh squashed to the action box.
 pub(crate) fn actor_net(state: &LearnerState, encoding: InputEncoding, layers: Vec<DenseLayer>) -> PolicyNet {
     PolicyNet {

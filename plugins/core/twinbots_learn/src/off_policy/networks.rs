@@ -37,6 +37,13 @@ impl ReluMlp {
             out.push((format!("{prefix}.{i}.bias"), l.bias.clone()));
         }
     }
+
+    /// Its variables, named `<prefix>.<i>.weight` and `<prefix>.<i>.bias`.
+    pub(crate) fn vars(&self, prefix: &str) -> Vec<(String, Var)> {
+        let mut out = Vec::new();
+        self.named_vars(prefix, &mut out);
+        out
+    }
 }
 
 /// Q₁(s, a) and Q₂(s, a): two independent MLPs (clipped double Q).

@@ -275,7 +275,7 @@ pub(super) fn sample(
                 let log_sum = log_sum_exp(logits);
                 let log_p = |i: usize| logits[i] - log_sum;
                 let a = if deterministic {
-                    (0..n).max_by(|&i, &j| logits[i].total_cmp(&logits[j])).unwrap_or(0)
+                    crate::policy_net::arg_max(logits)
                 } else {
                     let u: f32 = rng.random();
                     let mut acc = 0.0;

@@ -96,12 +96,6 @@ fn deep_copy(mlp: &ReluMlp) -> candle_core::Result<ReluMlp> {
     Ok(ReluMlp { layers, relu_last: mlp.relu_last })
 }
 
-fn named(mlp: &ReluMlp, prefix: &str) -> Vec<(String, Var)> {
-    let mut out = Vec::new();
-    mlp.named_vars(prefix, &mut out);
-    out
-}
-
 impl Td3 {
     pub fn new(config: Td3Config, observation_space: Space, action_space: Space, seed: u64) -> anyhow::Result<Self> {
         crate::tuning::for_small_networks();
@@ -132,7 +126,7 @@ impl Td3 {
                 config.normalize_observations.then(|| RunningMeanStd::new(obs_dim)),
                 seed,
             ),
-            actor_optimizer: adam(named(&actor, "actor")),
+            actor_optimizer: adam(actor.vars("actor")),
             critic_optimizer: adam(critic.named_vars("critic")),
             actor_target: deep_copy(&actor)?,
             critic_target: critic.deep_copy()?,
@@ -239,8 +233,8 @@ impl Td3 {
                 self.config.off_policy.tau,
             )?;
             polyak_update(
-                &named(&self.actor_target, "actor_target"),
-                &named(&self.actor, "actor"),
+                &self.actor_target.vars("actor_target"),
+                &self.actor.vars("actor"),
                 self.config.off_policy.tau,
             )?;
         }

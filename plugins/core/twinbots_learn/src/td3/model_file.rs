@@ -9,7 +9,7 @@ use candle_core::Var;
 use serde::{Deserialize, Serialize};
 use twinbots_api::env_state::StreamState;
 
-use super::{Td3, Td3Config, named};
+use super::{Td3, Td3Config};
 use crate::model_dir::{SavedModel, load_model, save_model, saved_model_basics};
 use crate::model_io::{self, METADATA_FILE, ModelError, file_error};
 use crate::off_policy::replay_file::{BufferRing, load_replay, save_replay};
@@ -29,8 +29,8 @@ impl SavedModel for Td3 {
     saved_model_basics!(Td3, Td3Config);
     const FORMAT: u32 = 1;
     fn weights(&self) -> Vec<(String, Var)> {
-        let mut all = named(&self.actor, "actor");
-        all.extend(named(&self.actor_target, "actor_target"));
+        let mut all = self.actor.vars("actor");
+        all.extend(self.actor_target.vars("actor_target"));
         all.extend(self.critic.named_vars("critic"));
         all.extend(self.critic_target.named_vars("target"));
         all
@@ -39,7 +39,7 @@ impl SavedModel for Td3 {
 
 impl Td3 {
     fn optimized_vars(&self) -> [(&'static str, Vec<(String, Var)>); 2] {
-        [("actor", named(&self.actor, "actor")), ("critic", self.critic.named_vars("critic"))]
+        [("actor", self.actor.vars("actor")), ("critic", self.critic.named_vars("critic"))]
     }
 
     /// Saves into the directory `dir` (created if needed).
