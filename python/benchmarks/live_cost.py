@@ -2,7 +2,10 @@
 seed 0: the same steps every time) with `--live` and a client subscribed to every channel of
 arena 0 and the transforms, against the same run with no live view, taking turns.
 
-    python benchmarks/live_cost.py [--rounds 3] [--robot cartpole]
+    python benchmarks/live_cost.py [--rounds 3] [--robot cartpole] [--every-step]
+
+By default the live view is paced (a frame per control period of wall time); `--every-step`
+serves every control step (`train --live-every-step`).
 
 Prints each run's training wall clock (`summary.json`'s `wall_clock_s_this_session`) and the
 medians. The client is the protocol-spec client of `tests/test_live.py` in a thread of its own."""
@@ -55,12 +58,12 @@ async def subscribe_all(port: int, stop: threading.Event, counts: dict) -> None:
                 counts["messages"] = counts.get("messages", 0) + 1
 
 
-def run(robot: str, live: bool) -> tuple[float, int]:
+def run(robot: str, live: bool, every_step: bool = False) -> tuple[float, int]:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
         command = [binary(), "train", robot, "--out", str(out)]
         if live:
-            command += ["--live", "127.0.0.1:0"]
+            command += ["--live", "127.0.0.1:0"] + (["--live-every-step"] if every_step else [])
         train = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
         stop, counts, client = threading.Event(), {}, None
         if live:
@@ -79,11 +82,12 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--robot", default="cartpole")
+    parser.add_argument("--every-step", action="store_true", help="serve every control step")
     args = parser.parse_args()
     without, with_client = [], []
     for k in range(args.rounds):
         for live in [False, True] if k % 2 == 0 else [True, False]:
-            wall, messages = run(args.robot, live)
+            wall, messages = run(args.robot, live, args.every_step)
             (with_client if live else without).append(wall)
             print(
                 f"round {k}: {'with a client' if live else 'no live view'}: {wall:.2f} s"

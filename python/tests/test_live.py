@@ -1,10 +1,13 @@
-"""The live view (`train --live`), watched by a client written from Foxglove's WebSocket protocol
-specification (foxglove/ws-protocol, `foxglove.sdk.v1`) with nothing but `websockets`: it
-reads the server's channel advertisements, subscribes, and decodes the binary message frames
-(opcode 1, subscription id, log time, payload). While cart-pole trains, arena 0's joint states
-arrive every control step (their stamps, the simulated time, one control period apart), the
-transforms name every link of the arenas, the scene arrives on subscribing, and a malformed
-request gets a status reply while the server keeps serving."""
+"""The live view (`train`, `eval`, `view`, `monitor --live`), watched by a client written from
+Foxglove's WebSocket protocol specification (foxglove/ws-protocol, `foxglove.sdk.v1`) with
+nothing but `websockets`: it reads the server's channel advertisements, subscribes, and decodes
+the binary message frames (opcode 1, subscription id, log time, payload). While cart-pole trains
+with `--live-every-step`, arena 0's joint states arrive every control step (their stamps, the
+simulated time, one control period apart); by default they arrive at the control rate of wall
+time however fast the twin runs; the transforms name every link of the arenas, the scene
+arrives on subscribing, and a malformed request gets a status reply while the server keeps
+serving. Under `monitor`, the robot's and the twin's joint states, the residuals and the
+alarms."""
 
 import asyncio
 import json
@@ -78,6 +81,7 @@ def test_a_foxglove_client_watches_cartpole_train(tmp_path):
         "cartpole",
         "--live",
         "127.0.0.1:0",
+        "--live-every-step",
         "--timesteps",
         "5000000",
         "--out",
@@ -128,26 +132,174 @@ def test_a_foxglove_client_watches_cartpole_train(tmp_path):
     assert all(panel in panels for panel in layout["configById"]), "a configured panel is not in the layout"
 
 
-def test_a_foxglove_client_watches_an_evaluation(tmp_path):
-    """`eval --live`: the evaluation's arenas and the episodes as they end."""
+def start(command):
+    """Starts a twinbots command with `--live 127.0.0.1:0`; returns it and the live view's port."""
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    for _ in range(5):
+        line = process.stdout.readline()
+        if line.startswith("live view on ws://127.0.0.1:"):
+            return process, int(line.split(":")[2].split()[0])
+    process.kill()
+    pytest.fail(f"no live view line: {line}{process.stderr.read()}")
+
+
+def rate(received, seconds):
+    """Messages a second, and the stamps (s) of JSON messages with a header."""
+    states = [json.loads(payload) for _, payload in received]
+    stamps = [s["header"]["stamp"]["sec"] + 1e-9 * s["header"]["stamp"]["nsec"] for s in states]
+    return len(states) / seconds, stamps
+
+
+def test_a_foxglove_client_watches_an_evaluation_at_the_control_rate(tmp_path):
+    """`eval --live`, paced (the default): the evaluation runs far faster than real time, the
+    viewer sees arena 0 at the twin's control rate of wall time, and the episodes as they end."""
     binary = twinbots_bin()
     run = tmp_path / "run"
     subprocess.run(
         [binary, "train", "cartpole", "--timesteps", "2048", "--out", str(run)],
-        capture_output=True, check=True, cwd=REPO,
+        capture_output=True,
+        check=True,
+        cwd=REPO,
     )
     command = [binary, "eval", str(run), "--episodes", "1000000", "--live", "127.0.0.1:0"]
-    evaluation = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    evaluation, port = start(command)
     try:
-        first = evaluation.stdout.readline()
-        assert first.startswith("live view on ws://127.0.0.1:"), first + evaluation.stderr.read()
-        port = int(first.split(":")[2].split()[0])
-        channels, received, _ = asyncio.run(watch(port, ["/arena_0/joint_states", "/episodes"], 3.0))
+        seconds = 4.0
+        channels, received, _ = asyncio.run(watch(port, ["/arena_0/joint_states", "/episodes"], seconds))
         assert evaluation.poll() is None, "the evaluation stopped while watched"
     finally:
         evaluation.kill()
         evaluation.wait()
     assert channels["/episodes"]["schemaName"] == "twinbots/Episode"
-    assert len(received["/arena_0/joint_states"]) >= 100, len(received["/arena_0/joint_states"])
+    per_second, stamps = rate(received["/arena_0/joint_states"], seconds)
+    control_rate = 1 / 0.032
+    assert 0.6 * control_rate <= per_second <= 1.1 * control_rate, (per_second, control_rate)
+    # Far more simulated time passed than wall time: the twin was not slowed to the view.
+    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    assert stamps[-1] - stamps[0] > 3 * seconds, stamps[-1] - stamps[0]
     episodes = [json.loads(payload) for _, payload in received["/episodes"]]
     assert episodes and all(e["length"] >= 1 for e in episodes), episodes[:3]
+
+
+def test_a_foxglove_client_watches_view_without_a_window(tmp_path):
+    """`view --live --no-window`: the twin played in real time on a machine without a screen."""
+    command = [twinbots_bin(), "view", "cartpole", "--live", "127.0.0.1:0", "--no-window", "--seconds", "30"]
+    view, port = start(command)
+    try:
+        seconds = 3.0
+        _, received, _ = asyncio.run(watch(port, ["/arena_0/joint_states", "/tf"], seconds))
+        assert view.poll() is None, "view stopped while watched"
+    finally:
+        view.kill()
+        view.wait()
+    per_second, stamps = rate(received["/arena_0/joint_states"], seconds)
+    # Real time: simulated time keeps pace with the wall, one control step a message.
+    assert 0.6 / 0.032 <= per_second <= 1.1 / 0.032, per_second
+    assert abs((stamps[-1] - stamps[0]) - (len(stamps) - 1) * 0.032) < 0.2 * len(stamps) * 0.032, stamps
+    assert b"arena_0/pole" in received["/tf"][-1][1]
+
+
+def test_a_foxglove_client_watches_monitor_follow_a_robot(tmp_path):
+    """`monitor --live` following `ur-sim` with a payload its twin does not know: the robot's
+    joint states (as the controller reports them) and its ghost, the twin's, the residuals with
+    the effort alarm standing, and the alarms channel."""
+    binary = twinbots_bin()
+    ur_sim = subprocess.Popen(
+        [binary, "ur-sim", "--listen", "127.0.0.1:0", "--seconds", "60", "--payload", "3"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        line = ur_sim.stdout.readline()
+        assert "serving RTDE on 127.0.0.1:" in line, line
+        address = line.split("serving RTDE on ")[1].split()[0]
+        command = [
+            binary,
+            "monitor",
+            "ur5e",
+            "--rtde",
+            address,
+            "--seconds",
+            "20",
+            "--out",
+            str(tmp_path / "m"),
+            "--live",
+            "127.0.0.1:0",
+        ]
+        monitor, port = start(command)
+        try:
+            topics = ["/robot/joint_states", "/twin/joint_states", "/residuals", "/alarms", "/tf", "/scene"]
+            channels, received, _ = asyncio.run(watch(port, topics, 4.0))
+            assert monitor.poll() is None, "monitor stopped while watched"
+        finally:
+            monitor.kill()
+            monitor.wait()
+    finally:
+        ur_sim.kill()
+        ur_sim.wait()
+    assert channels["/alarms"]["schemaName"] == "twinbots/Alarm"
+    robot = [json.loads(p) for _, p in received["/robot/joint_states"]]
+    twin = [json.loads(p) for _, p in received["/twin/joint_states"]]
+    assert len(robot) >= 40 and len(twin) >= 40, (len(robot), len(twin))
+    assert robot[-1]["name"][0] == "shoulder_pan_joint" and len(robot[-1]["effort"]) == 6
+    # Stamped with the controller's clock, which runs in real time.
+    stamps = [s["header"]["stamp"]["sec"] + 1e-9 * s["header"]["stamp"]["nsec"] for s in robot]
+    assert 2.0 < stamps[-1] - stamps[0] < 5.0, stamps[-1] - stamps[0]
+    residuals = [json.loads(p) for _, p in received["/residuals"]]
+    assert residuals and len(residuals[-1]["position_error_mrad"]) == 6
+    # The payload the twin does not know: the elbow holds it with effort the twin does not spend.
+    elbow = residuals[-1]["name"].index("elbow_joint")
+    assert residuals[-1]["effort_rmse"][elbow] > 1.5 and residuals[-1]["alarms_standing"][elbow], residuals[-1]
+    # The robot as a ghost beside the twin: both sets of frames move, both in the scene.
+    tf = received["/tf"][-1][1]
+    assert b"robot/wrist_3_link" in tf and b"twin/wrist_3_link" in tf, tf[:300]
+    scene = b"".join(p for _, p in received["/scene"])
+    assert b"robot/" in scene and b"twin/" in scene
+
+
+def test_a_foxglove_client_sees_what_a_pixel_task_observes(tmp_path):
+    """Training on pixels (`[pixels]`, off-screen rendering): each arena's observed image as a
+    `foxglove.CompressedImage`, a PNG of the task's size."""
+    config = tmp_path / "pixels.toml"
+    config.write_text('[pixels]\ncamera = "iso"\nwidth = 48\nheight = 40\n')
+    command = [twinbots_bin(), "train", "cartpole", "--config", str(config), "--timesteps", "1000000"]
+    command += ["--out", str(tmp_path / "run"), "--live", "127.0.0.1:0"]
+    train, port = start(command)
+    try:
+        channels, received, _ = asyncio.run(watch(port, ["/arena_0/image", "/arena_1/image"], 4.0))
+        assert train.poll() is None, "training stopped while watched"
+    finally:
+        train.kill()
+        train.wait()
+    assert channels["/arena_0/image"]["schemaName"] == "foxglove.CompressedImage"
+    assert received["/arena_0/image"] and received["/arena_1/image"]
+    payload = received["/arena_0/image"][-1][1]
+    png = payload.find(b"\x89PNG\r\n\x1a\n")
+    # Field 3 (format), length-delimited: "png".
+    assert png >= 0 and b"\x1a\x03png" in payload, payload[:40]
+    assert struct.unpack(">II", payload[png + 16 : png + 24]) == (48, 40)
+
+
+def test_a_foxglove_client_watches_a_dry_run_deployment(tmp_path):
+    """`deploy --dry-run --live`: the bundle's policy on the twin that stands in for the robot,
+    in real time: the robot's ghost and joint states at the control rate, episodes as they end."""
+    binary = twinbots_bin()
+    run, bundle = tmp_path / "run", tmp_path / "bundle"
+    subprocess.run([binary, "train", "ur5e", "--timesteps", "1024", "--out", str(run)], capture_output=True, check=True)
+    subprocess.run([binary, "export", str(run), "--bundle", str(bundle)], capture_output=True, check=True)
+    command = [binary, "deploy", "ur5e", "--bundle", str(bundle), "--dry-run", "--episodes", "3"]
+    deployment, port = start(command + ["--live", "127.0.0.1:0"])
+    try:
+        seconds = 6.0
+        _, received, _ = asyncio.run(watch(port, ["/robot/joint_states", "/episodes", "/tf"], seconds))
+    finally:
+        deployment.kill()
+        deployment.wait()
+    per_second, stamps = rate(received["/robot/joint_states"], seconds)
+    # Real time at the UR5e's 0.04 s control period: the controller's clock keeps the wall's pace.
+    assert 0.6 / 0.04 <= per_second <= 1.1 / 0.04, per_second
+    assert 0.7 * seconds < stamps[-1] - stamps[0] < 1.1 * seconds, stamps[-1] - stamps[0]
+    assert b"robot/wrist_3_link" in received["/tf"][-1][1]
+    episodes = [json.loads(payload) for _, payload in received["/episodes"]]
+    assert episodes and episodes[0]["episode"] == 0 and "final_error_mm" in episodes[0], episodes

@@ -7,11 +7,13 @@ use std::time::Duration;
 use twinbots_ops::bundle::Bundle;
 use twinbots_ops::deploy::arm::{Arm, RtdeArm, TwinArm};
 use twinbots_ops::deploy::{DeployOptions, deploy};
+use twinbots_ops::live::{RobotView, WatchedArm};
 use twinbots_ops::ur_sim::UrSimOptions;
 use twinbots_rtde::RtdeClient;
 use twinbots_sysid::Rig;
 use twinbots_task::calibration::Calibration;
 
+use twinbots_run::live::LiveArgs;
 use twinbots_run::registry;
 
 /// The command's arguments.
@@ -48,6 +50,10 @@ pub struct Args {
     /// ur_rtde's rt_priority: the scheduler never holds a command back behind other work.
     #[arg(long)]
     pub rt_priority: Option<i32>,
+    // The live view: the robot as a ghost at its reported joints (`robot/…`), its joint
+    // states, and each episode as it ends.
+    #[command(flatten)]
+    pub live: LiveArgs,
 }
 
 /// `twinbots deploy`.
@@ -82,6 +88,14 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     } else {
         Box::new(RtdeArm::connect(args.rtde.as_deref().expect("clap requires --rtde without --dry-run"), patience)?)
     };
+    let live = args.live.start()?;
+    if let Some(server) = &live {
+        let first = arm.read()?;
+        let view = RobotView::new(server.clone(), &first.q)?;
+        // A dry run's twin in real time, as the robot would move: it is there to be watched.
+        let watched = WatchedArm::new(arm, view);
+        arm = Box::new(if args.dry_run { watched.real_time() } else { watched });
+    }
     println!(
         "deploying {} ({} steps of training) on {}: {} episodes",
         bundle.dir.display(),
@@ -94,6 +108,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let mut successes = 0;
     let report = deploy(arm.as_mut(), &bundle, &options, |e| {
         successes += usize::from(e.success);
+        if let (Some(server), Ok(value)) = (&live, serde_json::to_value(e)) {
+            server.publish_json("/episodes", twinbots_live::EPISODE, &value);
+        }
         let outcome =
             e.cycle_time_s.map_or(format!("missed after {} steps", e.steps), |t| format!("arrived in {t:.2} s"));
         println!(

@@ -8,9 +8,10 @@ use twinbots_learn::{EvalResult, RunDir, evaluate_policy};
 use twinbots_task::AppVecEnv;
 
 use twinbots_live::LiveServer;
+use twinbots_run::live::LiveArgs;
 use twinbots_run::registry;
 use twinbots_run::robot_log::finish_log;
-use twinbots_run::run::{evaluation_app, start_live};
+use twinbots_run::run::evaluation_app;
 use twinbots_run::settings::{CalibrationSetting, TrainSettings};
 use twinbots_run::twin::Twin;
 use twinbots_task::randomization::Randomization;
@@ -50,19 +51,13 @@ pub struct Args {
     /// lights held out from training, docs/pixels.md). Written to `eval-<task>-in-<file stem>.json`.
     #[arg(long)]
     pub looks: Option<std::path::PathBuf>,
-    /// Serve a live view of every evaluation arena over Foxglove's WebSocket protocol (open
-    /// ws://127.0.0.1:8765 in Foxglove or Lichtblick; docs/live.md), on ADDR if given.
-    #[arg(long, num_args = 0..=1, default_missing_value = twinbots_live::DEFAULT_ADDR, value_name = "ADDR")]
-    pub live: Option<std::net::SocketAddr>,
-    /// With --live on an address beyond loopback: serve it although the protocol has no
-    /// authentication.
-    #[arg(long, requires = "live")]
-    pub insecure: bool,
+    #[command(flatten)]
+    pub live: LiveArgs,
 }
 
 /// `twinbots eval`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let live = args.live.map(|addr| start_live(addr, args.insecure)).transpose()?;
+    let live = args.live.start()?;
     let on = Evaluated {
         task: args.task.as_deref(),
         calibration: args.calibration.as_deref(),

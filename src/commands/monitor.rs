@@ -5,9 +5,11 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
+use twinbots_ops::live::RobotView;
 use twinbots_ops::monitor::{Monitor, MonitorOptions, Report};
 use twinbots_render::{Renderer, View};
 use twinbots_rtde::{DataPackage, RtdeClient};
+use twinbots_run::live::LiveArgs;
 use twinbots_run::settings::CalibrationSetting;
 
 use twinbots_run::registry;
@@ -62,6 +64,10 @@ pub struct Args {
     /// Where to write robot.mcap, twin.mcap, monitor.json, divergence.png (and frames/).
     #[arg(long)]
     pub out: PathBuf,
+    // The live view: the twin (`twin/…`), the robot as a ghost at its reported joints
+    // (`robot/…`), both joint states, the residuals and the alarms.
+    #[command(flatten)]
+    pub live: LiveArgs,
 }
 
 /// Where the robot's reports come from (one per run: its size does not matter).
@@ -212,9 +218,14 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         },
     };
     let mut frames = TwinFrames::new(&args, &entry)?;
+    let live = args.live.start()?;
     let mut source = Source::open(&args, Duration::from_secs_f64(args.patience_ms / 1e3))?;
     let first = source.next()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
+    let mut view = live.map(|server| RobotView::new(server, &first.q)).transpose()?;
+    if let Some(view) = &view {
+        Monitor::advertise_live(view)?;
+    }
     if let Some(f) = frames.as_mut() {
         f.offer(&mut monitor, first.time, first.time)?;
     }
@@ -248,8 +259,12 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             break Some(text);
         }
         last_time = r.time;
-        for alarm in monitor.observe(&r) {
+        let alarms = monitor.observe(&r);
+        for alarm in &alarms {
             println!("[{:9.3} s] ALARM {}: {}", alarm.time, alarm.kind, alarm.message);
+        }
+        if let Some(view) = view.as_mut() {
+            monitor.publish_live(view, &r, &alarms);
         }
         if let Some(f) = frames.as_mut() {
             f.offer(&mut monitor, r.time, first.time)?;

@@ -11,8 +11,9 @@ use twinbots_api::DesignPattern;
 use twinbots_learn::RunDir;
 use twinbots_ops::fleet;
 use twinbots_run::learner;
+use twinbots_run::live::LiveArgs;
 use twinbots_run::registry;
-use twinbots_run::run::{Run, Watch, default_run_dir, start_live};
+use twinbots_run::run::{Run, Watch, default_run_dir};
 use twinbots_run::settings::{CalibrationSetting, ConfigFile, TrainSettings, read_cell};
 use twinbots_run::twin::Twin;
 
@@ -59,14 +60,8 @@ pub struct Args {
     /// Show arena 0 in a window while training (the other arenas train at full speed).
     #[arg(long)]
     pub view: bool,
-    /// Serve a live view of every arena over Foxglove's WebSocket protocol (open
-    /// ws://127.0.0.1:8765 in Foxglove or Lichtblick; docs/live.md), on ADDR if given.
-    #[arg(long, num_args = 0..=1, default_missing_value = twinbots_live::DEFAULT_ADDR, value_name = "ADDR")]
-    pub live: Option<std::net::SocketAddr>,
-    /// With --live on an address beyond loopback: serve it although the protocol has no
-    /// authentication.
-    #[arg(long, requires = "live")]
-    pub insecure: bool,
+    #[command(flatten)]
+    pub live: LiveArgs,
     /// Train on the twin calibrated by this file (`twinbots identify`'s calibration.toml);
     /// the run's config.toml records its parameters.
     #[arg(long)]
@@ -102,13 +97,12 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         checkpoint_every,
         view,
         live,
-        insecure,
         calibration,
         cell,
         resume,
         print_config,
     } = args;
-    let watch = Watch { window: view, live: live.map(|addr| start_live(addr, insecure)).transpose()? };
+    let watch = Watch { window: view, live: live.start()? };
     if let Some(run) = resume {
         if print_config {
             print!("{}", toml::to_string_pretty(&TrainSettings::of_run(&RunDir::new(run))?)?);

@@ -1,5 +1,6 @@
 //! `twinbots view <robot>`: the visual mode, playing arena 0 in real time with a trained model
-//! or zero actions. `train --view` shows arena 0 of a training run (see `TrainingView`).
+//! or zero actions, in a window and/or the live view (`--live`; `--no-window` for a machine
+//! without a screen). `train --view` shows arena 0 of a training run (see `TrainingView`).
 
 use std::time::Duration;
 
@@ -9,6 +10,7 @@ use twinbots_learn::RunDir;
 use twinbots_render::viewer::{self, RealTime, ViewSource};
 use twinbots_task::AppVecEnv;
 
+use twinbots_run::live::LiveArgs;
 use twinbots_run::registry;
 
 /// The command's arguments.
@@ -26,11 +28,33 @@ pub struct Args {
     /// Show the twin calibrated by this file (`twinbots identify`'s calibration.toml).
     #[arg(long)]
     pub calibration: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub live: LiveArgs,
+    /// Play without a window (with --live: a headless machine's view), until Ctrl-C or
+    /// --seconds.
+    #[arg(long, requires = "live")]
+    pub no_window: bool,
+    /// Without a window: stop after this many seconds.
+    #[arg(long, requires = "no_window")]
+    pub seconds: Option<f64>,
 }
 
 /// `twinbots view`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    view(&args.robot, args.model.as_deref(), args.seed, args.task.as_deref(), args.calibration.as_deref())
+    if let Some(s) = args.seconds {
+        anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
+    }
+    let live = args.live.start()?;
+    let mut app = view_app(&args)?;
+    if let Some(server) = live {
+        app.add_plugins(twinbots_live::LivePlugin(server));
+    }
+    let player = Player::new(app, &args)?;
+    if args.no_window {
+        return play(player, args.seconds);
+    }
+    let entry = registry::find(&args.robot)?;
+    viewer::run(Box::new(player), &format!("twinbots — {}", args.robot), entry.framing)
 }
 
 /// Plays one arena in real time.
@@ -82,29 +106,52 @@ impl ViewSource for Player {
     }
 }
 
-pub fn view(
-    robot: &str,
-    model: Option<&std::path::Path>,
-    seed: u64,
-    task: Option<&str>,
-    calibration: Option<&std::path::Path>,
-) -> anyhow::Result<()> {
-    let entry = registry::find(robot)?;
-    let loaded = model.map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
-    let task = twinbots_run::settings::TrainSettings::task_for(task, model)?;
-    let mut app = entry.app(task.as_deref(), 1, seed, DesignPattern::Supervised)?;
-    // As `capture`: the file's twin, read and checked before any window opens.
-    twinbots_run::twin::Twin::of_files(&entry, calibration, None)?.configure(&mut app, &entry)?;
+/// The robot's app for arena 0, with the run's observation and the file's twin, checked
+/// before any window opens (as `capture`).
+fn view_app(args: &Args) -> anyhow::Result<App> {
+    let entry = registry::find(&args.robot)?;
+    let model = args.model.as_deref();
+    let task = twinbots_run::settings::TrainSettings::task_for(args.task.as_deref(), model)?;
+    let mut app = entry.app(task.as_deref(), 1, args.seed, DesignPattern::Supervised)?;
+    twinbots_run::twin::Twin::of_files(&entry, args.calibration.as_deref(), None)?.configure(&mut app, &entry)?;
     if let Some(run) = model {
         twinbots_run::settings::TrainSettings::observe_as_run(run, &mut app, &entry, 1)?;
     }
-    let model = loaded;
-    let mut env = AppVecEnv::new(app);
-    if let Some(m) = &model {
-        m.check_spaces(env.observation_space(), env.action_space())?;
+    Ok(app)
+}
+
+impl Player {
+    fn new(app: App, args: &Args) -> anyhow::Result<Self> {
+        let model = args.model.as_deref().map(|run| twinbots_learn::algos::load_run(&RunDir::new(run))).transpose()?;
+        let mut env = AppVecEnv::new(app);
+        if let Some(m) = &model {
+            m.check_spaces(env.observation_space(), env.action_space())?;
+        }
+        let obs = env.reset(Some(args.seed))?;
+        let dt = env.app().world().resource::<twinbots_sim::SimSettings>().control_dt();
+        Ok(Player { env, model, obs, clock: RealTime::new(dt), steps: 0, episodes: 0, score: 0.0, seed: args.seed })
     }
-    let obs = env.reset(Some(seed))?;
-    let dt = env.app().world().resource::<twinbots_sim::SimSettings>().control_dt();
-    let player = Player { env, model, obs, clock: RealTime::new(dt), steps: 0, episodes: 0, score: 0.0, seed };
-    viewer::run(Box::new(player), &format!("twinbots — {robot}"), entry.framing)
+}
+
+/// Plays in real time without a window, a line a second, until Ctrl-C, SIGTERM or `seconds`.
+fn play(mut player: Player, seconds: Option<f64>) -> anyhow::Result<()> {
+    twinbots_ops::stop_signal::install();
+    let started = std::time::Instant::now();
+    let mut next_line = 1.0;
+    loop {
+        if let Some(signal) = twinbots_ops::stop_signal::requested() {
+            println!("view: stopped by {signal}");
+            return Ok(());
+        }
+        let elapsed = started.elapsed().as_secs_f64();
+        if seconds.is_some_and(|s| elapsed >= s) {
+            return Ok(());
+        }
+        anyhow::ensure!(player.advance(Duration::ZERO, false, false), "the twin stopped: {}", player.status());
+        if elapsed >= next_line {
+            next_line += 1.0;
+            println!("view: {}", player.status());
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
 }

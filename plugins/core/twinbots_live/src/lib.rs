@@ -1,42 +1,50 @@
 //! A live view of a running twin over Foxglove's WebSocket protocol (`foxglove.sdk.v1`, the
 //! ws-protocol's `foxglove.websocket.v1` under its current name, through Foxglove's own SDK):
 //! open `ws://127.0.0.1:8765` in Foxglove or Lichtblick and the cell moves as it trains
-//! (`train --live`). Channels:
+//! (`train --live`), is evaluated, viewed, monitored or deployed. Channels, for each published
+//! world's arenas (`arena_<k>` under [`Place::Grid`], a name such as `twin` or `robot` under
+//! [`Place::Named`]):
 //!
-//! - `/tf` (`foxglove.FrameTransforms`, protobuf): every control step, `world` → `arena_<k>` (the
-//!   arenas laid out on a grid, [`ARENA_SPACING`] apart) and `arena_<k>` → `arena_<k>/<link>` for
-//!   every link;
+//! - `/tf` (`foxglove.FrameTransforms`, protobuf): `world` → `<arena>` (arenas laid out on a
+//!   grid, [`ARENA_SPACING`] apart) and `<arena>` → `<arena>/<link>` for every link;
 //! - `/scene` (`foxglove.SceneUpdate`, protobuf): each link's visuals (boxes, cylinders, spheres,
 //!   meshes as triangle lists), locked to its frame; sent when a viewer subscribes;
-//! - `/arena_<k>/joint_states` (`sensor_msgs/JointState` as JSON): every control step, each
-//!   movable joint's position, velocity and effort;
+//! - `/<arena>/joint_states` (`sensor_msgs/JointState` as JSON): each movable joint's position,
+//!   velocity and effort;
+//! - `/<arena>/image` (`foxglove.CompressedImage`, PNG): what a pixel task observed, and
+//!   `/<arena>/camera_<i>/image` for each camera device that has an image;
 //! - `/episodes` (JSON): each episode as it ends, with its arena, score, length, success and
-//!   figures.
+//!   figures;
+//! - whatever a command adds through a [`LiveFrame`] (`monitor`: `/robot/joint_states`,
+//!   `/residuals`, `/alarms`).
 //!
-//! Messages are stamped with the simulated time (control steps × the control period), so one
-//! control step apart on every channel.
+//! Messages are stamped with the twin's time (control steps × the control period, or the
+//! controller's clock).
 //!
-//! Bounded: nothing is encoded while no viewer subscribes to a channel, and the server queues at
-//! most [`BACKLOG`] messages per viewer, dropping the oldest: a slow viewer misses messages,
-//! the twin never waits for it.
+//! Paced and bounded: by default the streams go out at most once per control period of wall
+//! time ([`Pace::RealTime`]), so a viewer watches a twin that trains 1,000 times faster than
+//! real time at the twin's own control rate, and the run does not pay for encoding what no
+//! screen could show ([`Pace::EveryStep`] sends every control step). Nothing is encoded while no
+//! viewer subscribes to a channel, and the server queues at most [`BACKLOG`] messages per
+//! viewer, dropping the oldest: a slow viewer misses messages, the twin never waits for it.
 
+mod frame;
+mod scene;
+
+use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use bevy::prelude::*;
-use foxglove::messages::{
-    Color, CubePrimitive, CylinderPrimitive, FrameTransform, FrameTransforms, Point3, Pose as FgPose, Quaternion,
-    SceneEntity, SceneUpdate, SpherePrimitive, Timestamp, TriangleListPrimitive, Vector3,
-};
+use foxglove::messages::{CompressedImage, FrameTransforms, SceneUpdate};
 use foxglove::websocket::{ChannelView, Client, ServerListener};
 use foxglove::{Channel, ChannelBuilder, Context, RawChannel, Schema, WebSocketServer, WebSocketServerHandle};
-use twinbots_sim::rapier::math::Pose;
-use twinbots_sim::urdf::Shape;
-use twinbots_sim::{
-    Arena, InArena, Joint, JointState, Link, SimClock, SimSettings, SupervisorAccess, Visuals, physics_in,
-};
+use twinbots_sim::{Arena, SimClock, SimSettings};
 use twinbots_task::Episode;
+
+pub use frame::{LiveFrame, Place};
 
 /// Where the live view listens unless told otherwise: Foxglove's default connection.
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
@@ -47,20 +55,50 @@ pub const BACKLOG: usize = 1024;
 /// A mesh visual with more triangles than this is sent as its convex hull.
 pub const MAX_SCENE_TRIANGLES: usize = 20_000;
 
-/// `sensor_msgs/JointState` as JSON: the schema Foxglove shows its fields by.
-const JOINT_STATE_SCHEMA: &str = r#"{"title":"sensor_msgs/JointState","type":"object","properties":{"header":{"type":"object","properties":{"stamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"frame_id":{"type":"string"}}},"name":{"type":"array","items":{"type":"string"}},"position":{"type":"array","items":{"type":"number"}},"velocity":{"type":"array","items":{"type":"number"}},"effort":{"type":"array","items":{"type":"number"}}}}"#;
-const EPISODE_SCHEMA: &str = r#"{"title":"twinbots/Episode","type":"object","properties":{"arena":{"type":"integer"},"score":{"type":"number"},"length":{"type":"integer"},"success":{"type":["boolean","null"]},"metrics":{"type":"object"}}}"#;
+/// A JSON channel's schema: its name and its JSON Schema, which Foxglove shows the fields by.
+#[derive(Clone, Copy, Debug)]
+pub struct JsonSchema {
+    pub name: &'static str,
+    pub schema: &'static str,
+}
 
-/// The live view's server and its channels; what [`LivePlugin`] publishes to.
+/// `sensor_msgs/JointState`.
+pub const JOINT_STATE: JsonSchema = JsonSchema {
+    name: "sensor_msgs/JointState",
+    schema: r#"{"title":"sensor_msgs/JointState","type":"object","properties":{"header":{"type":"object","properties":{"stamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"frame_id":{"type":"string"}}},"name":{"type":"array","items":{"type":"string"}},"position":{"type":"array","items":{"type":"number"}},"velocity":{"type":"array","items":{"type":"number"}},"effort":{"type":"array","items":{"type":"number"}}}}"#,
+};
+/// An episode as it ended.
+pub const EPISODE: JsonSchema = JsonSchema {
+    name: "twinbots/Episode",
+    schema: r#"{"title":"twinbots/Episode","type":"object","properties":{"arena":{"type":"integer"},"score":{"type":"number"},"length":{"type":"integer"},"success":{"type":["boolean","null"]},"metrics":{"type":"object"}}}"#,
+};
+
+/// How often a live view's streams go out.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Pace {
+    /// At most once per control period of wall time: the twin at its own control rate,
+    /// however fast it runs (the default).
+    #[default]
+    RealTime,
+    /// Every control step, however fast: a training run's every step, at a cost to it
+    /// (docs/benchmarks.md).
+    EveryStep,
+}
+
+/// The live view's server and its channels; what [`LivePlugin`] and a [`LiveFrame`] publish to.
 pub struct LiveServer {
     handle: WebSocketServerHandle,
     context: Arc<Context>,
     tf: Channel<FrameTransforms>,
     scene: Channel<SceneUpdate>,
-    episodes: Arc<RawChannel>,
-    /// `/arena_<k>/joint_states`, made for each arena the first time it publishes.
-    joint_states: std::sync::Mutex<Vec<Arc<RawChannel>>>,
+    /// The JSON channels by topic, made the first time something is published on them.
+    json: Mutex<HashMap<String, Arc<RawChannel>>>,
+    /// The image channels by topic, made as the JSON channels are.
+    images: Mutex<HashMap<String, Arc<Channel<CompressedImage>>>>,
     scene_due: Arc<AtomicBool>,
+    pace: Pace,
+    /// When the next frame is due (wall clock) under [`Pace::RealTime`].
+    next_frame: Mutex<Option<Instant>>,
 }
 
 /// Asks for the scene again whenever a viewer subscribes to it (a late viewer sees the cell).
@@ -78,7 +116,7 @@ impl LiveServer {
     /// Starts the server on `addr`. An address beyond loopback is refused unless `insecure`:
     /// the protocol has no authentication, and anyone who can reach it sees the cell (as the
     /// RobotServer refuses to listen beyond loopback without TLS and a token).
-    pub fn start(addr: SocketAddr, insecure: bool) -> anyhow::Result<Arc<LiveServer>> {
+    pub fn start(addr: SocketAddr, insecure: bool, pace: Pace) -> anyhow::Result<Arc<LiveServer>> {
         anyhow::ensure!(
             addr.ip().is_loopback() || insecure,
             "--live {addr}: the live view has no authentication; beyond loopback it needs --insecure"
@@ -95,16 +133,20 @@ impl LiveServer {
             .map_err(|e| anyhow::anyhow!("--live {addr}: {e}"))?;
         let tf = ChannelBuilder::new("/tf").context(&context).build::<FrameTransforms>();
         let scene = ChannelBuilder::new("/scene").context(&context).build::<SceneUpdate>();
-        let episodes = json_channel(&context, "/episodes", "twinbots/Episode", EPISODE_SCHEMA)?;
-        Ok(Arc::new(LiveServer {
+        let server = LiveServer {
             handle,
             context,
             tf,
             scene,
-            episodes,
-            joint_states: std::sync::Mutex::new(Vec::new()),
+            json: Mutex::new(HashMap::new()),
+            images: Mutex::new(HashMap::new()),
             scene_due,
-        }))
+            pace,
+            next_frame: Mutex::new(None),
+        };
+        // Advertised from the start, so a viewer can subscribe before the first episode ends.
+        server.advertise("/episodes", EPISODE)?;
+        Ok(Arc::new(server))
     }
 
     /// The port it listens on (the one asked for, or the one given for port 0).
@@ -117,26 +159,78 @@ impl LiveServer {
         self.handle.client_count()
     }
 
-    fn joint_state_channel(&self, arena: usize) -> anyhow::Result<Arc<RawChannel>> {
-        let mut channels = self.joint_states.lock().map_err(|_| anyhow::anyhow!("live view poisoned"))?;
-        while channels.len() <= arena {
-            let topic = format!("/arena_{}/joint_states", channels.len());
-            channels.push(json_channel(&self.context, &topic, "sensor_msgs/JointState", JOINT_STATE_SCHEMA)?);
+    /// A frame of the streams at the twin's time `seconds`, its control period `period`
+    /// seconds: `None` while no viewer is connected, or (under [`Pace::RealTime`]) until a
+    /// control period of wall time has passed since the last frame.
+    pub fn frame(&self, seconds: f64, period: f64) -> Option<LiveFrame<'_>> {
+        if self.viewers() == 0 || !self.due(period) {
+            return None;
         }
-        Ok(channels[arena].clone())
+        let scene = self.scene.has_sinks() && self.scene_due.swap(false, Ordering::Relaxed);
+        Some(LiveFrame::new(self, seconds, scene))
+    }
+
+    /// Whether a frame is due now; under [`Pace::RealTime`] the next is then a period later
+    /// (a late frame shortens the next wait, never sends two at once).
+    fn due(&self, period: f64) -> bool {
+        if self.pace == Pace::EveryStep {
+            return true;
+        }
+        let Ok(mut next) = self.next_frame.lock() else { return false };
+        let now = Instant::now();
+        if next.is_some_and(|n| now < n) {
+            return false;
+        }
+        let period = Duration::try_from_secs_f64(period).unwrap_or(Duration::ZERO);
+        *next = Some(match *next {
+            Some(n) if now < n + period => n + period,
+            _ => now + period,
+        });
+        true
+    }
+
+    /// Advertises the JSON channel `topic` now, so that a viewer can subscribe to it before
+    /// its first message (an alarm that has not been raised yet).
+    pub fn advertise(&self, topic: &str, schema: JsonSchema) -> anyhow::Result<()> {
+        self.json_channel(topic, schema).map(|_| ())
+    }
+
+    /// Publishes `value` on the JSON channel `topic` (made on first use, with `schema`), if a
+    /// viewer subscribes to it. Not paced: for what happens rarely (an episode's end, an alarm).
+    pub fn publish_json(&self, topic: &str, schema: JsonSchema, value: &serde_json::Value) {
+        if let Ok(channel) = self.json_channel(topic, schema)
+            && channel.has_sinks()
+        {
+            channel.log(value.to_string().as_bytes());
+        }
+    }
+
+    fn json_channel(&self, topic: &str, schema: JsonSchema) -> anyhow::Result<Arc<RawChannel>> {
+        let mut channels = self.json.lock().map_err(|_| anyhow::anyhow!("live view poisoned"))?;
+        if let Some(channel) = channels.get(topic) {
+            return Ok(channel.clone());
+        }
+        let channel = ChannelBuilder::new(topic)
+            .context(&self.context)
+            .schema(Schema::new(schema.name, "jsonschema", schema.schema.as_bytes().to_vec()))
+            .message_encoding("json")
+            .build_raw()
+            .map_err(|e| anyhow::anyhow!("live view channel {topic}: {e}"))?;
+        channels.insert(topic.to_string(), channel.clone());
+        Ok(channel)
+    }
+
+    fn image_channel(&self, topic: &str) -> Option<Arc<Channel<CompressedImage>>> {
+        let mut channels = self.images.lock().ok()?;
+        let channel = channels
+            .entry(topic.to_string())
+            .or_insert_with(|| Arc::new(ChannelBuilder::new(topic).context(&self.context).build::<CompressedImage>()));
+        Some(channel.clone())
     }
 }
 
-fn json_channel(context: &Arc<Context>, topic: &str, name: &str, schema: &str) -> anyhow::Result<Arc<RawChannel>> {
-    ChannelBuilder::new(topic)
-        .context(context)
-        .schema(Schema::new(name, "jsonschema", schema.as_bytes().to_vec()))
-        .message_encoding("json")
-        .build_raw()
-        .map_err(|e| anyhow::anyhow!("live view channel {topic}: {e}"))
-}
-
-/// Publishes the app's arenas to a [`LiveServer`] after every control step.
+/// Publishes the app's arenas to a [`LiveServer`] after every control step (paced as the
+/// server is), and every episode as it ends.
 pub struct LivePlugin(pub Arc<LiveServer>);
 
 #[derive(Resource, Clone)]
@@ -148,179 +242,28 @@ impl Plugin for LivePlugin {
     }
 }
 
-/// The arenas in index order, each with its index.
-fn arenas(world: &mut World) -> Vec<(usize, Entity)> {
-    let mut arenas: Vec<(usize, Entity)> =
-        world.query::<(Entity, &Arena)>().iter(world).map(|(e, a)| (a.index, e)).collect();
-    arenas.sort_unstable();
-    arenas
-}
-
 fn publish(world: &mut World) {
     let Some(live) = world.get_resource::<Live>().map(|l| l.0.clone()) else { return };
     if live.viewers() == 0 {
         return;
     }
-    let arenas = arenas(world);
-    // Simulated time: consecutive messages of a channel are one control step apart, and a
-    // viewer sees the twin's own clock (the SDK stamps each message's log time by the wall).
-    let seconds = world.get_resource::<SimClock>().map_or(0, |c| c.control_steps) as f64
-        * world.get_resource::<SimSettings>().map_or(0.0, |s| s.control_seconds());
-    let stamp = Timestamp::new(seconds.trunc() as u32, ((seconds.fract() * 1e9).round() as u32).min(999_999_999));
-    if live.tf.has_sinks() {
-        live.tf.log(&transforms(world, &arenas, stamp));
+    let period = world.get_resource::<SimSettings>().map_or(0.0, |s| s.control_seconds());
+    let seconds = world.get_resource::<SimClock>().map_or(0, |c| c.control_steps) as f64 * period;
+    if let Some(mut frame) = live.frame(seconds, period) {
+        frame.world(world, Place::Grid);
+        frame.send();
     }
-    if live.scene.has_sinks() && live.scene_due.swap(false, Ordering::Relaxed) {
-        live.scene.log(&scene(world, &arenas, stamp));
-    }
-    for (index, arena) in &arenas {
-        let Ok(channel) = live.joint_state_channel(*index) else { continue };
-        if channel.has_sinks() {
-            channel.log(joint_states(world, *arena, stamp).to_string().as_bytes());
-        }
-    }
-    if live.episodes.has_sinks() {
-        for (index, arena) in &arenas {
-            if let Some(ended) = world.get::<Episode>(*arena).and_then(|e| e.ended.as_ref()) {
-                let s = &ended.summary;
-                let message = serde_json::json!({
-                    "arena": index, "score": s.score, "length": s.length, "success": s.success, "metrics": s.metrics,
-                });
-                live.episodes.log(message.to_string().as_bytes());
-            }
-        }
-    }
-}
-
-/// Where arena `index` sits in the view.
-fn arena_origin(index: usize) -> Vector3 {
-    let columns = 4;
-    Vector3 { x: (index % columns) as f64 * ARENA_SPACING, y: (index / columns) as f64 * ARENA_SPACING, z: 0.0 }
-}
-
-fn frame(parent: String, child: String, pose: &Pose, stamp: Timestamp) -> FrameTransform {
-    let (t, r) = (pose.translation, pose.rotation);
-    FrameTransform {
-        timestamp: Some(stamp),
-        parent_frame_id: parent,
-        child_frame_id: child,
-        translation: Some(Vector3 { x: t.x as f64, y: t.y as f64, z: t.z as f64 }),
-        rotation: Some(Quaternion { x: r.x as f64, y: r.y as f64, z: r.z as f64, w: r.w as f64 }),
-    }
-}
-
-/// Every arena's frame in the world and every link's in its arena, from the physics (the
-/// Supervisor's view: an app without it, a pattern-3 robot, shows its joints only).
-fn transforms(world: &mut World, arenas: &[(usize, Entity)], stamp: Timestamp) -> FrameTransforms {
-    let mut out = Vec::new();
-    for &(index, _) in arenas {
-        out.push(FrameTransform {
-            timestamp: Some(stamp),
-            parent_frame_id: "world".into(),
-            child_frame_id: format!("arena_{index}"),
-            translation: Some(arena_origin(index)),
-            rotation: Some(Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 }),
-        });
-    }
-    if world.get_resource::<SupervisorAccess>().is_none() {
-        return FrameTransforms { transforms: out };
-    }
-    let links: Vec<(Entity, Link)> =
-        world.query::<(&Link, &InArena)>().iter(world).map(|(link, in_arena)| (in_arena.0, link.clone())).collect();
-    for &(index, arena) in arenas {
-        let Some(physics) = physics_in(world, arena) else { continue };
-        for (_, link) in links.iter().filter(|(a, _)| *a == arena) {
-            if let Some(body) = physics.bodies.get(link.body) {
-                let pose = *body.position() * link.offset;
-                out.push(frame(format!("arena_{index}"), format!("arena_{index}/{}", link.name), &pose, stamp));
-            }
-        }
-    }
-    FrameTransforms { transforms: out }
-}
-
-fn joint_states(world: &mut World, arena: Entity, stamp: Timestamp) -> serde_json::Value {
-    let mut joints: Vec<(String, f32, f32, f32)> = world
-        .query::<(&Joint, &JointState, &InArena)>()
+    let ended: Vec<serde_json::Value> = world
+        .query::<(&Arena, &Episode)>()
         .iter(world)
-        .filter(|(_, _, a)| a.0 == arena)
-        .map(|(j, s, _)| (j.name.clone(), s.position, s.velocity, s.effort))
+        .filter_map(|(arena, episode)| {
+            let s = &episode.ended.as_ref()?.summary;
+            Some(serde_json::json!({
+                "arena": arena.index, "score": s.score, "length": s.length, "success": s.success, "metrics": s.metrics,
+            }))
+        })
         .collect();
-    joints.sort_by(|a, b| a.0.cmp(&b.0));
-    serde_json::json!({
-        "header": {"stamp": {"sec": stamp.sec(), "nsec": stamp.nsec()}, "frame_id": ""},
-        "name": joints.iter().map(|j| j.0.clone()).collect::<Vec<_>>(),
-        "position": joints.iter().map(|j| j.1).collect::<Vec<_>>(),
-        "velocity": joints.iter().map(|j| j.2).collect::<Vec<_>>(),
-        "effort": joints.iter().map(|j| j.3).collect::<Vec<_>>(),
-    })
-}
-
-fn fg_pose(pose: &Pose) -> FgPose {
-    let (t, r) = (pose.translation, pose.rotation);
-    FgPose {
-        position: Some(Vector3 { x: t.x as f64, y: t.y as f64, z: t.z as f64 }),
-        orientation: Some(Quaternion { x: r.x as f64, y: r.y as f64, z: r.z as f64, w: r.w as f64 }),
+    for message in &ended {
+        live.publish_json("/episodes", EPISODE, message);
     }
-}
-
-/// Every link's visuals, in its own frame (locked to it, so `/tf` moves them).
-fn scene(world: &mut World, arenas: &[(usize, Entity)], stamp: Timestamp) -> SceneUpdate {
-    let index_of = |arena: Entity| arenas.iter().find(|(_, a)| *a == arena).map(|(i, _)| *i);
-    let mut entities = Vec::new();
-    for (link, visuals, in_arena) in world.query::<(&Link, &Visuals, &InArena)>().iter(world) {
-        let Some(index) = index_of(in_arena.0) else { continue };
-        let frame_id = format!("arena_{index}/{}", link.name);
-        let mut entity = SceneEntity {
-            timestamp: Some(stamp),
-            frame_id: frame_id.clone(),
-            id: frame_id,
-            frame_locked: true,
-            ..Default::default()
-        };
-        for visual in &visuals.0 {
-            let [r, g, b, a] = visual.rgba.map(f64::from);
-            let color = Some(Color { r, g, b, a });
-            let pose = Some(fg_pose(&visual.geometry.origin));
-            match &visual.geometry.shape {
-                Shape::Box { half_extents: h } => entity.cubes.push(CubePrimitive {
-                    pose,
-                    size: Some(Vector3 { x: 2.0 * h.x as f64, y: 2.0 * h.y as f64, z: 2.0 * h.z as f64 }),
-                    color,
-                }),
-                Shape::Cylinder { radius, length } => entity.cylinders.push(CylinderPrimitive {
-                    pose,
-                    size: Some(Vector3 { x: 2.0 * *radius as f64, y: 2.0 * *radius as f64, z: *length as f64 }),
-                    bottom_scale: 1.0,
-                    top_scale: 1.0,
-                    color,
-                }),
-                Shape::Sphere { radius } => {
-                    let d = 2.0 * *radius as f64;
-                    entity.spheres.push(SpherePrimitive { pose, size: Some(Vector3 { x: d, y: d, z: d }), color })
-                }
-                Shape::Mesh(mesh) => {
-                    let points = mesh_points(&mesh.vertices, &mesh.triangles);
-                    entity.triangles.push(TriangleListPrimitive { pose, points, color, ..Default::default() });
-                }
-            }
-        }
-        entities.push(entity);
-    }
-    SceneUpdate { deletions: Vec::new(), entities }
-}
-
-/// A mesh's triangles as a flat point list (three per triangle); one over
-/// [`MAX_SCENE_TRIANGLES`] as its convex hull's.
-fn mesh_points(vertices: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Point3> {
-    let point = |v: Vec3| Point3 { x: v.x as f64, y: v.y as f64, z: v.z as f64 };
-    if triangles.len() <= MAX_SCENE_TRIANGLES {
-        return triangles.iter().flat_map(|t| t.map(|i| point(vertices[i as usize]))).collect();
-    }
-    let points: Vec<_> = vertices.iter().map(|v| twinbots_sim::rapier::math::Vector::new(v.x, v.y, v.z)).collect();
-    let (hull, faces) = twinbots_sim::rapier::parry::transformation::convex_hull(&points);
-    faces
-        .iter()
-        .flat_map(|f| f.map(|i| point(Vec3::new(hull[i as usize].x, hull[i as usize].y, hull[i as usize].z))))
-        .collect()
 }

@@ -12,12 +12,14 @@
 use std::collections::VecDeque;
 
 use serde::Serialize;
+use twinbots_live::{JsonSchema, Place};
 use twinbots_log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog};
 use twinbots_sim::{MotorCommand, Parameters};
 use twinbots_sysid::Stand;
 use ur5e::deploy::Shadow;
 use ur5e::kinematics::JOINTS;
 
+use crate::live::{ALARM, RobotJoints, RobotView};
 use crate::ur_sim::{CYCLE, controller_stand};
 
 #[cfg(feature = "ros2")]
@@ -88,6 +90,12 @@ pub struct Report {
     pub command: [f64; 6],
     pub effort: [f64; 6],
 }
+
+/// `/residuals` of the live view (see [`Monitor::publish_live`]).
+pub const RESIDUALS: JsonSchema = JsonSchema {
+    name: "twinbots/Residuals",
+    schema: r#"{"title":"twinbots/Residuals","type":"object","properties":{"time":{"type":"number"},"name":{"type":"array","items":{"type":"string"}},"position_error_mrad":{"type":"array","items":{"type":"number"}},"effort_error":{"type":"array","items":{"type":"number"}},"position_rmse_mrad":{"type":"array","items":{"type":"number"}},"effort_rmse":{"type":"array","items":{"type":"number"}},"alarms_standing":{"type":"array","items":{"type":"boolean"}}}}"#,
+};
 
 /// Something the monitor raises.
 #[derive(Clone, Debug, Serialize)]
@@ -347,6 +355,44 @@ impl Monitor {
     /// The twin's world and its arena (to render it).
     pub fn twin_scene(&mut self) -> (&mut bevy::prelude::World, bevy::prelude::Entity) {
         self.stand.scene(0)
+    }
+
+    /// Advertises the live view's channels of [`Monitor::publish_live`] before anything is
+    /// published on them, so that a viewer can be listening when the first alarm is raised.
+    pub fn advertise_live(view: &RobotView) -> anyhow::Result<()> {
+        let server = view.server();
+        server.advertise("/alarms", ALARM)?;
+        server.advertise("/residuals", RESIDUALS)?;
+        server.advertise("/twin/joint_states", twinbots_live::JOINT_STATE)
+    }
+
+    /// The live view's frame for report `r`, when one is due: the robot's ghost and joint
+    /// states, the twin (`twin/…`, `/twin/joint_states`) and the residuals (`/residuals`: the
+    /// robot less the twin now, and their RMSE over the window, per joint); `alarms` as raised.
+    pub fn publish_live(&mut self, view: &mut RobotView, r: &Report, alarms: &[Alarm]) {
+        for alarm in alarms {
+            if let Ok(value) = serde_json::to_value(alarm) {
+                view.server().publish_json("/alarms", ALARM, &value);
+            }
+        }
+        let (rmse, effort_rmse) = (self.rmse(), self.effort_rmse());
+        let twin = self.twin_log.states.last().cloned();
+        let robot = RobotJoints { time: r.time, q: &r.q, qd: &r.qd, effort: &r.effort };
+        view.publish(robot, |frame| {
+            let (world, _) = self.stand.scene(0);
+            frame.world(world, Place::Named { name: "twin" });
+            let Some(twin) = twin else { return };
+            let residuals = serde_json::json!({
+                "time": r.time,
+                "name": JOINTS,
+                "position_error_mrad": (0..6).map(|j| 1e3 * (r.q[j] - twin.position[j])).collect::<Vec<_>>(),
+                "effort_error": (0..6).map(|j| r.effort[j] - twin.effort[j]).collect::<Vec<_>>(),
+                "position_rmse_mrad": rmse.map(|e| 1e3 * e),
+                "effort_rmse": effort_rmse,
+                "alarms_standing": self.divergence_alarm,
+            });
+            frame.json("/residuals", RESIDUALS, &residuals);
+        });
     }
 
     /// The account so far.

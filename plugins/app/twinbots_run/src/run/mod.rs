@@ -132,16 +132,6 @@ pub struct Watch {
     pub live: Option<std::sync::Arc<twinbots_live::LiveServer>>,
 }
 
-/// Starts the live view on `addr` (beyond loopback only with `insecure`) and says where it is.
-pub fn start_live(
-    addr: std::net::SocketAddr,
-    insecure: bool,
-) -> anyhow::Result<std::sync::Arc<twinbots_live::LiveServer>> {
-    let server = twinbots_live::LiveServer::start(addr, insecure)?;
-    println!("live view on ws://{}:{} (Foxglove or Lichtblick: open connection)", addr.ip(), server.port());
-    Ok(server)
-}
-
 /// Default run directory: `runs/<robot>-<unix seconds>` (a robot file by its name, `panda` for
 /// `assets/robots/panda.toml`).
 pub fn default_run_dir(robot: &str) -> PathBuf {

@@ -27,3 +27,13 @@ impl CameraSensor {
         self.image.get(i..i + 3).map(|p| [p[0], p[1], p[2]])
     }
 }
+
+/// The latest image a pixel task observed of its arena (every camera's, side by side along
+/// the width), on the arena's entity: what a viewer of the run is shown. The observation itself
+/// is the task's; this is a copy, RGB8, row-major from the top-left.
+#[derive(Component, Clone, Debug, Default, PartialEq)]
+pub struct ObservedImage {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
+}
