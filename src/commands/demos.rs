@@ -34,6 +34,14 @@ pub struct Args {
     /// `--episodes` of them.
     #[arg(long)]
     pub successes_only: bool,
+    /// Also record each frame as these cameras of the robot's framing see it (side, front,
+    /// iso, top; comma-separated): image features `observation.images.<camera>`, rendered
+    /// off-screen (a Vulkan adapter; lavapipe will do).
+    #[arg(long, value_delimiter = ',')]
+    pub cameras: Vec<String>,
+    /// The camera images' size (WxH).
+    #[arg(long, default_value = "96x96", requires = "cameras")]
+    pub size: String,
 }
 
 /// `twinbots demos`.
@@ -46,6 +54,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         arenas: args.arenas,
         seed: args.seed,
         successes_only: args.successes_only,
+        cameras: args.cameras,
+        image_size: twinbots_render::recorder::parse_size(&args.size)?,
     };
     let mut report = |kept: usize, run: usize, rate: f64| {
         eprintln!("{kept}/{} episodes ({run} run), {rate:.0} frames/s", options.episodes);

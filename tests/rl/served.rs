@@ -147,6 +147,7 @@ fn every_algorithm_the_table_says_serves_can_be_served() {
         fps: 20.0,
         state_names: names(3),
         action_names: names(1),
+        cameras: Vec::new(),
     };
     let mut writer = twinbots_dataset::DatasetWriter::new(&demos, dataset).unwrap();
     let frame = |done| twinbots_dataset::Frame {
@@ -155,6 +156,7 @@ fn every_algorithm_the_table_says_serves_can_be_served() {
         reward: -0.1,
         done,
         success: false,
+        images: Vec::new(),
     };
     writer
         .add(twinbots_dataset::Episode { task: "swing-up".into(), seed: 0, frames: vec![frame(false), frame(true)] })

@@ -2,6 +2,10 @@
 //! classical one, a trained run, an ONNX policy — drives the twin for N episodes, and every
 //! control step becomes a frame of a LeRobot dataset (`twinbots_dataset`).
 //!
+//! With cameras (`--cameras side,iso`), every frame also holds each camera's image of the
+//! state it observed, rendered off-screen (every arena in one frame, as pixel observations
+//! are) and written as the dataset's image features.
+//!
 //! Episode `j` starts from seed `seed + j` in whichever arena it runs (arenas start alike from
 //! a seed, [`reset_alike`]), so a dataset is the same frame for frame whatever the arena count,
 //! and the `seed` column says how to replay any of its episodes.
@@ -9,8 +13,11 @@
 use std::path::Path;
 use std::time::Instant;
 
+use bevy::prelude::Entity;
 use twinbots_api::{Space, VecEnv};
-use twinbots_dataset::{DatasetSpec, DatasetWriter, Episode, Frame};
+use twinbots_dataset::{CameraSpec, DatasetSpec, DatasetWriter, Episode, Frame};
+use twinbots_render::{Renderer, View};
+use twinbots_task::AppVecEnv;
 
 use crate::controller::{NamedController, reset_alike};
 use twinbots_run::registry::RobotEntry;
@@ -30,6 +37,10 @@ pub struct DemoOptions {
     /// Keep only episodes that met the task's goal (drawing further seeds until there are
     /// `episodes` of them).
     pub successes_only: bool,
+    /// The robot's framed cameras whose images every frame holds (none: state only).
+    pub cameras: Vec<String>,
+    /// The images' width and height (pixels).
+    pub image_size: (u32, u32),
 }
 
 /// What was written.
@@ -80,6 +91,7 @@ pub fn record_demos(
         description.name
     );
     let (obs_dim, act_dim) = (env.observation_space().dim(), env.action_space().dim());
+    let mut cameras = Cameras::new(entry, &options.cameras, options.image_size, arenas)?;
     let mut writer = DatasetWriter::new(
         out,
         DatasetSpec {
@@ -87,6 +99,7 @@ pub fn record_demos(
             fps: frames_per_second(entry.control_period_s()),
             state_names: spec.observation_names.clone(),
             action_names: (0..act_dim).map(|j| format!("action_{j}")).collect(),
+            cameras: cameras.specs(),
         },
     )?;
     let (mut run, mut successes, mut frames) = (0usize, 0usize, 0usize);
@@ -95,6 +108,7 @@ pub fn record_demos(
         let wanted = if options.successes_only { arenas } else { arenas.min(options.episodes - writer.episodes()) };
         let seeds: Vec<u64> = (0..arenas as u64).map(|i| options.seed + (run as u64) + i).collect();
         let mut obs = reset_alike(&mut env, &seeds)?;
+        let mut images = cameras.shoot(&mut env)?;
         // Each kept arena's frames, and once its episode has ended whether it succeeded.
         let mut episodes: Vec<Vec<Frame>> = vec![Vec::new(); wanted];
         let mut ended: Vec<Option<bool>> = vec![None; wanted];
@@ -118,12 +132,14 @@ pub fn record_demos(
                     reward: step.rewards[i],
                     done,
                     success,
+                    images: std::mem::take(&mut images[i]),
                 });
                 if done {
                     ended[i] = Some(success);
                 }
             }
             obs = step.obs;
+            images = cameras.shoot(&mut env)?;
         }
         for (i, (episode, success)) in episodes.into_iter().zip(ended).enumerate() {
             let success = success.expect("every episode of the batch ended");
@@ -144,6 +160,63 @@ pub fn record_demos(
         successes,
         frames_per_second: written.frames as f64 / started.elapsed().as_secs_f64(),
     })
+}
+
+/// The cameras a dataset's frames are seen through, and the renderer that shoots them.
+struct Cameras {
+    renderer: Option<Renderer>,
+    /// Name and view of each camera, in the dataset's order.
+    views: Vec<(String, View)>,
+    size: (u32, u32),
+}
+
+impl Cameras {
+    /// `names` of the robot's framed cameras, `size` pixels, for `arenas` side by side; no
+    /// renderer is made (nor a graphics adapter needed) without cameras.
+    fn new(entry: &RobotEntry, names: &[String], size: (u32, u32), arenas: usize) -> anyhow::Result<Self> {
+        let views = names
+            .iter()
+            .map(|name| {
+                let view = View::framed(&entry.framing, name).ok_or_else(|| {
+                    anyhow::anyhow!("--cameras {name}: {} has no such camera (its cameras: {})", entry.name, {
+                        twinbots_sim::Framing::CAMERAS.join(", ")
+                    })
+                })?;
+                Ok((name.clone(), view))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let renderer = match views.is_empty() {
+            true => None,
+            false => Some(Renderer::tiled(size.0, size.1, arenas)?),
+        };
+        Ok(Self { renderer, views, size })
+    }
+
+    fn specs(&self) -> Vec<CameraSpec> {
+        let (width, height) = self.size;
+        self.views.iter().map(|(name, _)| CameraSpec { name: name.clone(), width, height }).collect()
+    }
+
+    /// Each arena's image through each camera now, as PNGs (per arena, in camera order).
+    fn shoot(&mut self, env: &mut AppVecEnv) -> anyhow::Result<Vec<Vec<Vec<u8>>>> {
+        let arenas: Vec<Entity> = env.arenas().to_vec();
+        let Some(renderer) = self.renderer.as_mut() else { return Ok(vec![Vec::new(); arenas.len()]) };
+        let shots: Vec<(Entity, View)> =
+            self.views.iter().flat_map(|(_, view)| arenas.iter().map(move |&a| (a, *view))).collect();
+        let rgb = renderer.render_shots(env.app_mut().world_mut(), &shots)?;
+        let mut out = vec![Vec::with_capacity(self.views.len()); arenas.len()];
+        for (k, image) in rgb.iter().enumerate() {
+            out[k % arenas.len()].push(png(image, self.size)?);
+        }
+        Ok(out)
+    }
+}
+
+fn png(rgb: &[u8], (width, height): (u32, u32)) -> anyhow::Result<Vec<u8>> {
+    use image::ImageEncoder;
+    let mut out = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut out).write_image(rgb, width, height, image::ExtendedColorType::Rgb8)?;
+    Ok(out)
 }
 
 /// The control rate as LeRobot's `fps`, to a ten-thousandth of a hertz: a period stored as

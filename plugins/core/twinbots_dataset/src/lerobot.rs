@@ -12,6 +12,9 @@
 //! data/chunk-000/file-000.parquet                 one row per frame (files of ≤ 100 MB)
 //! ```
 //!
+//! Camera streams are image features (`observation.images.<camera>`, dtype `image`): each
+//! frame's PNG in the data file, as LeRobot stores images when it records without video.
+//!
 //! The dataset is made in a directory beside `out` and renamed to it when whole: a killed
 //! writer leaves no dataset, never half of one.
 
@@ -29,6 +32,7 @@ pub const CODEBASE_VERSION: &str = "v3.0";
 /// LeRobot's defaults: files per chunk folder, and a data file's size before the next begins.
 pub const CHUNKS_SIZE: usize = 1000;
 pub const DATA_FILE_SIZE_MB: usize = 100;
+const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
 const DATA_PATH: &str = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet";
 
 /// What every frame of a dataset holds, beyond LeRobot's own indices.
@@ -41,6 +45,23 @@ pub struct DatasetSpec {
     /// What each value of `observation.state` and of `action` is.
     pub state_names: Vec<String>,
     pub action_names: Vec<String>,
+    /// The cameras whose images every frame holds, in [`Frame::images`]' order.
+    pub cameras: Vec<CameraSpec>,
+}
+
+/// A camera stream: `observation.images.<name>`, RGB images of `width` × `height`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraSpec {
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl CameraSpec {
+    /// Its feature's key.
+    pub fn key(&self) -> String {
+        format!("observation.images.{}", self.name)
+    }
 }
 
 /// One control step: what was observed, what was done, and what followed.
@@ -55,6 +76,9 @@ pub struct Frame {
     /// Whether it ended meeting its goal (`next.success`; true on a successful episode's last
     /// frame only).
     pub success: bool,
+    /// Each camera's image of the observed state (PNG, RGB8 of the camera's size), in the
+    /// spec's camera order.
+    pub images: Vec<Vec<u8>>,
 }
 
 /// One episode: its task's text, the seed it started from, its frames.
@@ -101,6 +125,13 @@ impl DatasetWriter {
                 self.spec.state_names.len(),
                 self.spec.action_names.len()
             );
+            anyhow::ensure!(
+                f.images.len() == self.spec.cameras.len() && f.images.iter().all(|png| png.starts_with(PNG_SIGNATURE)),
+                "episode {}, frame {k}: {} images, not {} PNGs",
+                self.episodes.len(),
+                f.images.len(),
+                self.spec.cameras.len()
+            );
         }
         self.episodes.push(episode);
         Ok(())
@@ -129,16 +160,19 @@ impl DatasetWriter {
         let frames: usize = self.episodes.iter().map(|e| e.frames.len()).sum();
         // Whole episodes per data file, a new file once the next would pass the size.
         let row_bytes = 4 * (self.spec.state_names.len() + self.spec.action_names.len()) + 4 * 2 + 8 * 5 + 2;
-        let rows_per_file = (DATA_FILE_SIZE_MB << 20) / row_bytes;
+        let episode_bytes = |episode: &Episode| {
+            episode.frames.iter().map(|f| row_bytes + f.images.iter().map(Vec::len).sum::<usize>()).sum::<usize>()
+        };
         let mut files: Vec<Vec<usize>> = vec![Vec::new()];
-        let mut rows_in_file = 0;
+        let mut bytes_in_file = 0;
         for (e, episode) in self.episodes.iter().enumerate() {
-            if rows_in_file > 0 && rows_in_file + episode.frames.len() > rows_per_file {
+            let bytes = episode_bytes(episode);
+            if bytes_in_file > 0 && bytes_in_file + bytes > DATA_FILE_SIZE_MB << 20 {
                 files.push(Vec::new());
-                rows_in_file = 0;
+                bytes_in_file = 0;
             }
             files.last_mut().expect("one file at least").push(e);
-            rows_in_file += episode.frames.len();
+            bytes_in_file += bytes;
         }
         let mut first_index = vec![0usize; self.episodes.len() + 1];
         for (e, episode) in self.episodes.iter().enumerate() {
@@ -155,8 +189,9 @@ impl DatasetWriter {
                 data_file_of[e] = (chunk, file);
             }
         }
-        let episode_stats: Vec<Vec<(String, FeatureStats)>> =
-            (0..self.episodes.len()).map(|e| feature_stats(&self.data_table(&[e], &first_index, &tasks))).collect();
+        let episode_stats: Vec<Vec<(String, FeatureStats)>> = (0..self.episodes.len())
+            .map(|e| feature_stats(&self.data_table(&[e], &first_index, &tasks)))
+            .collect::<anyhow::Result<_>>()?;
         let path = root.join(chunk_file("meta/episodes", 0, 0));
         create_parent(&path)?;
         self.episodes_table(&first_index, &data_file_of, &episode_stats)
@@ -165,7 +200,7 @@ impl DatasetWriter {
         let path = root.join("meta/tasks.parquet");
         tasks_table(&tasks).write(&path).map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
         let all: Vec<usize> = (0..self.episodes.len()).collect();
-        let stats: serde_json::Map<String, Value> = feature_stats(&self.data_table(&all, &first_index, &tasks))
+        let stats: serde_json::Map<String, Value> = feature_stats(&self.data_table(&all, &first_index, &tasks))?
             .into_iter()
             .map(|(k, s)| (k, s.to_json()))
             .collect();
@@ -197,6 +232,12 @@ impl DatasetWriter {
             "action".into(),
             json!({"dtype": "float32", "shape": [self.spec.action_names.len()], "names": self.spec.action_names}),
         );
+        for camera in &self.spec.cameras {
+            f.insert(
+                camera.key(),
+                json!({"dtype": "image", "shape": [camera.height, camera.width, 3], "names": ["height", "width", "channels"]}),
+            );
+        }
         f.insert("next.reward".into(), scalar("float32"));
         f.insert("next.done".into(), scalar("bool"));
         f.insert("next.success".into(), scalar("bool"));
@@ -254,6 +295,11 @@ impl DatasetWriter {
         let mut t = Table::default();
         t.push("observation.state", Column::F32Rows { width: sw, values: state });
         t.push("action", Column::F32Rows { width: aw, values: action });
+        for (c, camera) in self.spec.cameras.iter().enumerate() {
+            let frames = members.iter().flat_map(|&e| self.episodes[e].frames.iter().enumerate());
+            let (png, paths) = frames.map(|(k, f)| (f.images[c].clone(), format!("frame-{k:06}.png"))).unzip();
+            t.push(camera.key(), Column::Images { png, paths });
+        }
         t.push("next.reward", Column::F32(reward));
         t.push("next.done", Column::Bool(done));
         t.push("next.success", Column::Bool(success));
@@ -289,6 +335,7 @@ impl DatasetWriter {
                 let values: Vec<Vec<f64>> =
                     entries.iter_mut().map(|e| e.next().expect("every episode has each statistic").1).collect();
                 let column = match key {
+                    _ if first.image => Column::F64Channels(values),
                     "min" | "max" if first.boolean => {
                         Column::BoolLists(values.iter().map(|v| v.iter().map(|&x| x > 0.5).collect()).collect())
                     }
@@ -321,6 +368,7 @@ fn huggingface_features(table: &Table) -> Value {
                 Column::I64(_) => value("int64"),
                 Column::Bool(_) => value("bool"),
                 Column::Str(_) => value("string"),
+                Column::Images { .. } => json!({"_type": "Image"}),
                 _ => return None,
             };
             Some((name.clone(), feature))
@@ -329,11 +377,23 @@ fn huggingface_features(table: &Table) -> Value {
     json!({"info": {"features": features}})
 }
 
-/// Every numeric column's statistics (booleans as 0 and 1), by column name.
-fn feature_stats(table: &Table) -> Vec<(String, FeatureStats)> {
+/// Every numeric column's statistics (booleans as 0 and 1; images per channel), by column name.
+fn feature_stats(table: &Table) -> anyhow::Result<Vec<(String, FeatureStats)>> {
     let mut out = Vec::new();
     for (name, column) in &table.columns {
         let (values, width): (Vec<f64>, usize) = match column {
+            Column::Images { png, .. } => {
+                let decoded = png
+                    .iter()
+                    .map(|bytes| {
+                        image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
+                            .map(|i| i.into_rgb8().into_raw())
+                    })
+                    .collect::<Result<Vec<_>, _>>()
+                    .map_err(|e| anyhow::anyhow!("{name}: an image that is no PNG: {e}"))?;
+                out.push((name.clone(), FeatureStats::of_images(decoded.iter().map(Vec::as_slice))));
+                continue;
+            }
             Column::F32Rows { width, values } => (values.iter().map(|&v| f64::from(v)).collect(), *width),
             Column::F32(v) => (v.iter().map(|&v| f64::from(v)).collect(), 1),
             Column::I64(v) => (v.iter().map(|&v| v as f64).collect(), 1),
@@ -344,7 +404,7 @@ fn feature_stats(table: &Table) -> Vec<(String, FeatureStats)> {
         stats.boolean = matches!(column, Column::Bool(_));
         out.push((name.clone(), stats));
     }
-    out
+    Ok(out)
 }
 
 /// `meta/tasks.parquet` as pandas writes a frame indexed by the tasks' texts (LeRobot reads it
@@ -396,6 +456,7 @@ mod tests {
             fps: 25.0,
             state_names: vec!["q".into(), "v".into()],
             action_names: vec!["u".into()],
+            cameras: Vec::new(),
         }
     }
 
@@ -406,6 +467,7 @@ mod tests {
             reward: -1.0,
             done: k + 1 == frames,
             success: k + 1 == frames && seed == 3,
+            images: Vec::new(),
         };
         Episode { task: "reach".into(), seed, frames: (0..frames).map(frame).collect() }
     }
@@ -464,6 +526,73 @@ mod tests {
         );
         let err = crate::read_demonstrations(&out, "observation.images.top", "action").unwrap_err().to_string();
         assert!(err.contains("meta/info.json") && err.contains("no feature \"observation.images.top\""), "{err}");
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    fn png(rgb: &[u8], width: u32, height: u32) -> Vec<u8> {
+        use image::ImageEncoder;
+        let mut out = Vec::new();
+        image::codecs::png::PngEncoder::new(&mut out)
+            .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
+            .unwrap();
+        out
+    }
+
+    #[test]
+    fn camera_streams_are_image_features_with_per_channel_statistics() {
+        let root = std::env::temp_dir().join(format!("twinbots-lerobot-images-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let out = root.join("dataset");
+        std::fs::create_dir_all(&root).unwrap();
+        let spec = DatasetSpec { cameras: vec![CameraSpec { name: "side".into(), width: 2, height: 1 }], ..spec() };
+        let mut writer = DatasetWriter::new(&out, spec).unwrap();
+        // Red 0 then 255 in frame 0, 51 and 102 in frame 1; green 255, blue 0 throughout.
+        let images = [png(&[0, 255, 0, 255, 255, 0], 2, 1), png(&[51, 255, 0, 102, 255, 0], 2, 1)];
+        let mut episode = episode(3, 2);
+        for (f, image) in episode.frames.iter_mut().zip(&images) {
+            f.images = vec![image.clone()];
+        }
+        let mut bad = episode.clone();
+        bad.frames[1].images = vec![b"not a png".to_vec()];
+        assert!(writer.add(bad).unwrap_err().to_string().contains("frame 1: 1 images, not 1 PNGs"));
+        writer.add(episode).unwrap();
+        writer.finish().unwrap();
+
+        let info: Value = serde_json::from_str(&std::fs::read_to_string(out.join("meta/info.json")).unwrap()).unwrap();
+        let feature = &info["features"]["observation.images.side"];
+        assert_eq!((feature["dtype"].as_str(), &feature["shape"]), (Some("image"), &json!([1, 2, 3])));
+        let stats: Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("meta/stats.json")).unwrap()).unwrap();
+        let side = &stats["observation.images.side"];
+        assert_eq!(
+            (&side["min"], &side["max"], &side["count"]),
+            (&json!([[[0.0]], [[1.0]], [[0.0]]]), &json!([[[1.0]], [[1.0]], [[0.0]]]), &json!([2]))
+        );
+        assert!((side["mean"][0][0][0].as_f64().unwrap() - 0.4).abs() < 1e-12, "{side}");
+
+        // The data file: each frame's PNG as it was given, named as LeRobot names its frames.
+        let file = std::fs::File::open(out.join("data/chunk-000/file-000.parquet")).unwrap();
+        let reader = SerializedFileReader::new(file).unwrap();
+        let rows: Vec<_> = reader.get_row_iter(None).unwrap().map(|r| r.unwrap()).collect();
+        let side = |row: usize| {
+            let (_, field) = rows[row].get_column_iter().find(|(k, _)| *k == "observation.images.side").unwrap();
+            let Field::Group(group) = field else { panic!("a struct: {field:?}") };
+            let fields: Vec<_> = group.get_column_iter().map(|(k, v)| (k.clone(), v.clone())).collect();
+            fields
+        };
+        let Field::Bytes(bytes) = &side(1)[0].1 else { panic!("bytes") };
+        assert_eq!(bytes.data(), &images[1][..]);
+        assert_eq!(side(1)[1], ("path".to_string(), Field::Str("frame-000001.png".into())));
+        // The episodes' statistics of an image: per channel, as (3, 1, 1) lists.
+        let file = std::fs::File::open(out.join("meta/episodes/chunk-000/file-000.parquet")).unwrap();
+        let reader = SerializedFileReader::new(file).unwrap();
+        let row = reader.get_row_iter(None).unwrap().next().unwrap().unwrap();
+        let (_, max) = row.get_column_iter().find(|(k, _)| *k == "stats/observation.images.side/max").unwrap();
+        // (Parquet's field display writes 0.0 as 0E0.)
+        assert_eq!(format!("{max}"), "[[[1.0]], [[1.0]], [[0E0]]]");
+        // Behaviour cloning reads the state and action beside the images.
+        let demos = crate::read_demonstrations(&out, "observation.state", "action").unwrap();
+        assert_eq!(demos.frames(), 2);
         std::fs::remove_dir_all(&root).unwrap();
     }
 }

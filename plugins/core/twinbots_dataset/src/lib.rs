@@ -9,5 +9,5 @@ pub mod reader;
 pub mod stats;
 pub mod table;
 
-pub use lerobot::{DatasetSpec, DatasetWriter, Episode, Frame, Written};
+pub use lerobot::{CameraSpec, DatasetSpec, DatasetWriter, Episode, Frame, Written};
 pub use reader::{Demonstrations, read_demonstrations};

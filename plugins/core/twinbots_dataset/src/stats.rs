@@ -20,6 +20,9 @@ pub struct FeatureStats {
     pub quantiles: Vec<Vec<f64>>,
     /// Of a boolean feature (0 and 1): its minimum and maximum are booleans, as NumPy's.
     pub boolean: bool,
+    /// Of an image feature: one value per channel, each as LeRobot keeps an image's (a
+    /// `(3, 1, 1)` array of values in [0, 1]).
+    pub image: bool,
 }
 
 impl FeatureStats {
@@ -34,6 +37,7 @@ impl FeatureStats {
             count: rows as u64,
             quantiles: vec![Vec::with_capacity(width); QUANTILES.len()],
             boolean: false,
+            image: false,
         };
         let mut column = Vec::with_capacity(rows);
         for j in 0..width {
@@ -65,12 +69,68 @@ impl FeatureStats {
         out
     }
 
+    /// Of RGB8 images (each `pixels` × 3 bytes), per channel in [0, 1] as LeRobot gives an
+    /// image's: every pixel of every image counted (LeRobot samples and downsizes the frames of
+    /// each episode); `count` the images. Exact: a channel's values are 256 levels, so its
+    /// quantiles come from their counts.
+    pub fn of_images<'a>(images: impl IntoIterator<Item = &'a [u8]>) -> Self {
+        let mut levels = [[0u64; 256]; 3];
+        let mut count = 0u64;
+        for rgb in images {
+            count += 1;
+            for pixel in rgb.chunks_exact(3) {
+                for c in 0..3 {
+                    levels[c][pixel[c] as usize] += 1;
+                }
+            }
+        }
+        let mut out = Self {
+            min: Vec::new(),
+            max: Vec::new(),
+            mean: Vec::new(),
+            std: Vec::new(),
+            count,
+            quantiles: vec![Vec::new(); QUANTILES.len()],
+            boolean: false,
+            image: true,
+        };
+        for counts in &levels {
+            let n: u64 = counts.iter().sum();
+            let value = |level: usize| level as f64 / 255.0;
+            let mean = counts.iter().enumerate().map(|(l, &k)| k as f64 * value(l)).sum::<f64>() / n.max(1) as f64;
+            let var = counts.iter().enumerate().map(|(l, &k)| k as f64 * (value(l) - mean).powi(2)).sum::<f64>()
+                / n.max(1) as f64;
+            // The k-th smallest value (0-based).
+            let ranked = |k: u64| {
+                let mut seen = 0;
+                for (l, &c) in counts.iter().enumerate() {
+                    seen += c;
+                    if seen > k {
+                        return value(l);
+                    }
+                }
+                value(255)
+            };
+            out.min.push(ranked(0));
+            out.max.push(ranked(n.saturating_sub(1)));
+            out.mean.push(mean);
+            out.std.push(var.sqrt());
+            for (k, (q, _)) in QUANTILES.iter().enumerate() {
+                let at = q * n.saturating_sub(1) as f64;
+                let (low, high) = (ranked(at.floor() as u64), ranked(at.ceil() as u64));
+                out.quantiles[k].push(low + (high - low) * (at - at.floor()));
+            }
+        }
+        out
+    }
+
     /// As `meta/stats.json` holds one feature's.
     pub fn to_json(&self) -> Value {
         let mut map = Map::new();
         for (key, values) in self.entries() {
             let value = match key {
                 "min" | "max" if self.boolean => json!(values.iter().map(|&v| v > 0.5).collect::<Vec<_>>()),
+                _ if self.image => json!(values.iter().map(|&v| [[v]]).collect::<Vec<_>>()),
                 _ => json!(values),
             };
             map.insert(key.into(), value);
@@ -90,6 +150,23 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn image_statistics_are_numpys_per_channel_in_0_1() {
+        // Two images of two pixels: red 0, 255, 51, 102; green all 255; blue 0, 0, 0, 255.
+        let a = [0u8, 255, 0, 255, 255, 0];
+        let b = [51u8, 255, 0, 102, 255, 255];
+        let s = FeatureStats::of_images([&a[..], &b[..]]);
+        assert_eq!(s.count, 2);
+        let red = [0.0, 1.0, 0.2, 0.4];
+        let mean = red.iter().sum::<f64>() / 4.0;
+        let std = (red.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / 4.0).sqrt();
+        assert!((s.mean[0] - mean).abs() < 1e-12 && (s.std[0] - std).abs() < 1e-12, "{s:?}");
+        assert_eq!((s.min[0], s.max[0], s.min[1], s.max[1]), (0.0, 1.0, 1.0, 1.0));
+        // np.quantile([0, 0.2, 0.4, 1], 0.5) = 0.3; np.quantile([0, 0, 0, 1], 0.99) = 0.97.
+        assert!((s.quantiles[2][0] - 0.3).abs() < 1e-12 && (s.quantiles[4][2] - 0.97).abs() < 1e-12, "{s:?}");
+        assert_eq!(s.to_json()["mean"][1], json!([[1.0]]));
+    }
 
     #[test]
     fn statistics_are_numpys_per_dimension() {

@@ -26,6 +26,15 @@ pub enum Column {
         values: Vec<f32>,
     },
     F64Lists(Vec<Vec<f64>>),
+    /// Rows of per-channel values, each row as NumPy's `(channels, 1, 1)` array becomes Arrow's
+    /// `list<list<list<double>>>` (LeRobot's image statistics per episode).
+    F64Channels(Vec<Vec<f64>>),
+    /// Encoded images (PNG), one per row: Hugging Face `datasets`' `Image()` feature, Arrow's
+    /// `struct<bytes: binary, path: string>`, the path a name for the file it would have been.
+    Images {
+        png: Vec<Vec<u8>>,
+        paths: Vec<String>,
+    },
     BoolLists(Vec<Vec<bool>>),
     I64Lists(Vec<Vec<i64>>),
     StrLists(Vec<Vec<String>>),
@@ -41,6 +50,8 @@ impl Column {
             Column::Str(v) => v.len(),
             Column::F32Rows { width, values } => values.len() / (*width).max(1),
             Column::F64Lists(v) => v.len(),
+            Column::F64Channels(v) => v.len(),
+            Column::Images { png, .. } => png.len(),
             Column::BoolLists(v) => v.len(),
             Column::I64Lists(v) => v.len(),
             Column::StrLists(v) => v.len(),
@@ -54,8 +65,7 @@ impl Column {
                 .with_logical_type(logical)
                 .build()
         };
-        let list = |physical: PhysicalType, logical: Option<LogicalType>| -> parquet::errors::Result<Type> {
-            let element = leaf("element", physical, logical)?;
+        let list_of = |name: &str, element: Type| -> parquet::errors::Result<Type> {
             let repeated = Type::group_type_builder("list")
                 .with_repetition(Repetition::REPEATED)
                 .with_fields(vec![Arc::new(element)])
@@ -66,6 +76,9 @@ impl Column {
                 .with_fields(vec![Arc::new(repeated)])
                 .build()
         };
+        let list = |physical: PhysicalType, logical: Option<LogicalType>| -> parquet::errors::Result<Type> {
+            list_of(name, leaf("element", physical, logical)?)
+        };
         match self {
             Column::F32(_) => leaf(name, PhysicalType::FLOAT, None),
             Column::I64(_) => leaf(name, PhysicalType::INT64, None),
@@ -73,6 +86,17 @@ impl Column {
             Column::Str(_) => leaf(name, PhysicalType::BYTE_ARRAY, Some(LogicalType::String)),
             Column::F32Rows { .. } => list(PhysicalType::FLOAT, None),
             Column::F64Lists(_) => list(PhysicalType::DOUBLE, None),
+            Column::F64Channels(_) => {
+                let inner = list_of("element", leaf("element", PhysicalType::DOUBLE, None)?)?;
+                list_of(name, list_of("element", inner)?)
+            }
+            Column::Images { .. } => Type::group_type_builder(name)
+                .with_repetition(Repetition::OPTIONAL)
+                .with_fields(vec![
+                    Arc::new(leaf("bytes", PhysicalType::BYTE_ARRAY, None)?),
+                    Arc::new(leaf("path", PhysicalType::BYTE_ARRAY, Some(LogicalType::String))?),
+                ])
+                .build(),
             Column::BoolLists(_) => list(PhysicalType::BOOLEAN, None),
             Column::I64Lists(_) => list(PhysicalType::INT64, None),
             Column::StrLists(_) => list(PhysicalType::BYTE_ARRAY, Some(LogicalType::String)),
@@ -131,7 +155,20 @@ impl Table {
         let mut writer = SerializedFileWriter::new(file, schema, Arc::new(properties))?;
         let mut group = writer.next_row_group()?;
         for (_, column) in &self.columns {
-            let mut out = group.next_column()?.ok_or_else(|| anyhow::anyhow!("the schema has fewer columns"))?;
+            if let Column::Images { png, paths } = column {
+                // The struct and its field both present: definition level 2, in two leaf columns.
+                let present = vec![2i16; png.len()];
+                let mut out = next_column(&mut group)?;
+                let bytes: Vec<ByteArray> = png.iter().map(|b| ByteArray::from(b.clone())).collect();
+                out.typed::<ByteArrayType>().write_batch(&bytes, Some(&present), None)?;
+                out.close()?;
+                let mut out = next_column(&mut group)?;
+                let paths: Vec<ByteArray> = paths.iter().map(|p| ByteArray::from(p.as_str())).collect();
+                out.typed::<ByteArrayType>().write_batch(&paths, Some(&present), None)?;
+                out.close()?;
+                continue;
+            }
+            let mut out = next_column(&mut group)?;
             let present = vec![1i16; column.rows()];
             match column {
                 Column::F32(v) => {
@@ -155,6 +192,24 @@ impl Table {
                     let (def, rep) = list_levels(v.iter().map(Vec::len));
                     out.typed::<DoubleType>().write_batch(&v.concat(), Some(&def), Some(&rep))?;
                 }
+                Column::F64Channels(v) => {
+                    // Three nested lists, the inner two of one element: a value starts a new
+                    // element of the outer list (repetition 1) but the row's first (0); every
+                    // level present (definition 7: three lists, three repeated groups, the value).
+                    let (mut def, mut rep) = (Vec::new(), Vec::new());
+                    for row in v {
+                        if row.is_empty() {
+                            def.push(1);
+                            rep.push(0);
+                        }
+                        for k in 0..row.len() {
+                            def.push(7);
+                            rep.push(i16::from(k > 0));
+                        }
+                    }
+                    out.typed::<DoubleType>().write_batch(&v.concat(), Some(&def), Some(&rep))?;
+                }
+                Column::Images { .. } => unreachable!("written above"),
                 Column::BoolLists(v) => {
                     let (def, rep) = list_levels(v.iter().map(Vec::len));
                     out.typed::<BoolType>().write_batch(&v.concat(), Some(&def), Some(&rep))?;
@@ -175,4 +230,10 @@ impl Table {
         writer.close()?;
         Ok(())
     }
+}
+
+fn next_column<'a, W: std::io::Write + Send>(
+    group: &'a mut parquet::file::writer::SerializedRowGroupWriter<'_, W>,
+) -> anyhow::Result<parquet::file::writer::SerializedColumnWriter<'a>> {
+    group.next_column()?.ok_or_else(|| anyhow::anyhow!("the schema has fewer columns"))
 }

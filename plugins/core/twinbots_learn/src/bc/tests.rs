@@ -20,6 +20,7 @@ fn cartpole_demos(root: &Path, episodes: u64) -> std::path::PathBuf {
         fps: 50.0,
         state_names: names(&["x", "x_dot", "theta", "theta_dot"]),
         action_names: names(&["push"]),
+        cameras: Vec::new(),
     };
     let mut writer = DatasetWriter::new(&out, spec).unwrap();
     let mut env = ClassicCartPole::new(1);
@@ -30,7 +31,14 @@ fn cartpole_demos(root: &Path, episodes: u64) -> std::path::PathBuf {
             let action = scripted(&obs);
             let step = env.step(&[action]).unwrap();
             let done = step.terminated[0] || step.truncated[0];
-            frames.push(Frame { state: obs.clone(), action: vec![action], reward: 1.0, done, success: false });
+            frames.push(Frame {
+                state: obs.clone(),
+                action: vec![action],
+                reward: 1.0,
+                done,
+                success: false,
+                images: Vec::new(),
+            });
             obs = step.obs;
             if done {
                 break;
