@@ -121,7 +121,13 @@ def test_a_foxglove_client_watches_cartpole_train(tmp_path):
     # Both malformed requests answered with a status (error level 2), none ended the session.
     assert len([s for s in statuses if s.get("level") == 2]) >= 2, statuses
     # The layout that ships for Foxglove and Lichtblick names topics the live view serves.
-    layout = json.loads((REPO / "assets/foxglove/twinbots.json").read_text())
+    check_layout("twinbots.json", channels)
+
+
+def check_layout(name, channels):
+    """The layout `assets/foxglove/<name>` names only topics among `channels`, and places every
+    panel it configures."""
+    layout = json.loads((REPO / "assets/foxglove" / name).read_text())
     named = set()
     for config in layout["configById"].values():
         named.update(config.get("topics", {}))
@@ -239,6 +245,7 @@ def test_a_foxglove_client_watches_monitor_follow_a_robot(tmp_path):
         ur_sim.kill()
         ur_sim.wait()
     assert channels["/alarms"]["schemaName"] == "twinbots/Alarm"
+    check_layout("twinbots-monitor.json", channels)
     robot = [json.loads(p) for _, p in received["/robot/joint_states"]]
     twin = [json.loads(p) for _, p in received["/twin/joint_states"]]
     assert len(robot) >= 40 and len(twin) >= 40, (len(robot), len(twin))
