@@ -15,6 +15,7 @@ import os
 import shutil
 import struct
 import subprocess
+import sysconfig
 from pathlib import Path
 
 import pytest
@@ -57,7 +58,7 @@ async def watch(port, topics, seconds):
         while loop.time() < end:
             try:
                 frame = await asyncio.wait_for(ws.recv(), end - loop.time())
-            except asyncio.TimeoutError:
+            except (asyncio.TimeoutError, websockets.ConnectionClosed):
                 break
             if isinstance(frame, str):
                 message = json.loads(frame)
@@ -138,9 +139,9 @@ def check_layout(name, channels):
     assert all(panel in panels for panel in layout["configById"]), "a configured panel is not in the layout"
 
 
-def start(command):
+def start(command, env=None):
     """Starts a twinbots command with `--live 127.0.0.1:0`; returns it and the live view's port."""
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=env)
     for _ in range(5):
         line = process.stdout.readline()
         if line.startswith("live view on ws://127.0.0.1:"):
@@ -310,3 +311,46 @@ def test_a_foxglove_client_watches_a_dry_run_deployment(tmp_path):
     assert b"robot/wrist_3_link" in received["/tf"][-1][1]
     episodes = [json.loads(payload) for _, payload in received["/episodes"]]
     assert episodes and episodes[0]["episode"] == 0 and "final_error_mm" in episodes[0], episodes
+
+
+DATA = REPO.parent / "shared" / "data" / "ur5-real"
+
+
+def test_a_foxglove_client_watches_monitor_follow_a_recording(tmp_path):
+    """`monitor ur5.toml --replay` on the real UR5's standstill run with pushes, at twice real
+    time: the arm's ghost and recorded joint states, the shadow's residuals and thresholds, and
+    an alarm for each of the five pushes as it is judged."""
+    if not DATA.is_dir():
+        pytest.skip(f"{DATA} is not there")
+    # The ghost is the arm's twin, with the meshes of example-robot-data (the base venv's).
+    share = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share"
+    if not (share / "example-robot-data").is_dir():
+        pytest.skip("example-robot-data is not installed")
+    binary = twinbots_bin()
+    robot, efforts = str(REPO / "assets/robots/ur5.toml"), "current:10,10,10,10,10,10"
+    fit = ["Movement_No4_Acc", "Movement_No5_Acc_slow_no_disturbance", "Movement_No6_Acc_slow_Verify_Model"]
+    subprocess.run(
+        [binary, "identify", robot, *[str(DATA / f"{r}.csv.gz") for r in fit], "--efforts", efforts]
+        + ["--out", str(tmp_path / "cal")],
+        capture_output=True,
+        check=True,
+    )
+    command = [binary, "monitor", robot, "--replay", str(DATA / "Movement_No10_Standstill_WDist.csv.gz")]
+    command += ["--calibration", str(tmp_path / "cal/calibration.toml"), "--efforts", efforts, "--speed", "2"]
+    env = dict(os.environ, ROS_PACKAGE_PATH=str(share))
+    monitor, port = start(command + ["--out", str(tmp_path / "m"), "--live", "127.0.0.1:0"], env=env)
+    try:
+        topics = ["/robot/joint_states", "/shadow", "/alarms", "/tf"]
+        channels, received, _ = asyncio.run(watch(port, topics, 12.0))
+        monitor.wait(30)
+    finally:
+        monitor.kill()
+    assert channels["/shadow"]["schemaName"] == "twinbots/Shadow"
+    alarms = [json.loads(p) for _, p in received["/alarms"]]
+    assert len(alarms) == 5 and all(a["kind"] == "effort" for a in alarms), alarms
+    shadow = [json.loads(p) for _, p in received["/shadow"]]
+    assert len(shadow) > 50 and len(shadow[-1]["residual"]) == len(shadow[-1]["threshold"]) == 6
+    assert len(received["/robot/joint_states"]) > 50
+    assert b"robot/" in received["/tf"][-1][1]
+    followed = json.loads((tmp_path / "m/monitor.json").read_text())
+    assert [round(f["start"], 2) for f in followed["flagged"]] == [round(a["time"], 2) for a in alarms]

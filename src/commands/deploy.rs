@@ -90,8 +90,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     };
     let live = args.live.start()?;
     if let Some(server) = &live {
-        let first = arm.read()?;
-        let view = RobotView::new(server.clone(), &first.q)?;
+        let joints: Vec<String> = ur5e::kinematics::JOINTS.iter().map(|j| j.to_string()).collect();
+        let view = RobotView::new(server.clone(), &entry, &joints)?;
         // A dry run's twin in real time, as the robot would move: it is there to be watched.
         let watched = WatchedArm::new(arm, view);
         arm = Box::new(if args.dry_run { watched.real_time() } else { watched });

@@ -1,24 +1,30 @@
 //! `twinbots monitor ur5e (--rtde HOST[:PORT] | --ros2) [--calibration FILE] [--cell FILE]
 //! [--seconds S] [--frames-every S] --out DIR`: the twin follows the robot live and says where they part
-//! (docs/monitor.md).
+//! (docs/monitor.md). `twinbots monitor ROBOT.toml --replay LOG --calibration FILE --out DIR`: a
+//! recording played back as the arm would stream it, its efforts judged by the calibrated shadow
+//! as they arrive.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use twinbots_ops::live::RobotView;
+use twinbots_ops::live::{ALARM, RobotJoints, RobotView};
+use twinbots_ops::monitor::recording::{SHADOW, follow};
 use twinbots_ops::monitor::{Monitor, MonitorOptions, Report};
 use twinbots_render::{Renderer, View};
 use twinbots_rtde::{DataPackage, RtdeClient};
 use twinbots_run::live::LiveArgs;
 use twinbots_run::settings::CalibrationSetting;
+use twinbots_sim::urdf::dynamics::Dynamics;
+use twinbots_sim::urdf::robot_file::RobotFile;
+use twinbots_sysid::effort_model::{ArmCalibration, Motion};
 
 use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
-#[command(group = clap::ArgGroup::new("source").required(true).args(["rtde", "ros2"]))]
+#[command(group = clap::ArgGroup::new("source").required(true).args(["rtde", "ros2", "replay"]))]
 pub struct Args {
-    /// The robot (only ur5e has a controller link).
+    /// The robot: ur5e (RTDE, ROS 2), or a robot file (`*.toml`) with --replay.
     pub robot: String,
     /// The robot's controller: RTDE at HOST[:PORT] (port 30004 by default).
     #[arg(long)]
@@ -30,6 +36,17 @@ pub struct Args {
     /// The DDS domain (with --ros2).
     #[arg(long, requires = "ros2")]
     pub domain: Option<String>,
+    /// A recording of the arm instead (a UR CSV or an MCAP log, docs/logs.md), played back as
+    /// the arm would stream it and judged by the shadow of --calibration (`identify`'s).
+    #[arg(long)]
+    pub replay: Option<PathBuf>,
+    /// With --replay: where the recording's efforts come from (`target_moment` or
+    /// `current:K0,…,K5`), as it was calibrated.
+    #[arg(long, default_value = "none", value_parser = twinbots_log::rtde_csv::Efforts::parse, requires = "replay")]
+    pub efforts: twinbots_log::rtde_csv::Efforts,
+    /// With --replay: how many times real time it plays (0: as fast as it goes).
+    #[arg(long, default_value_t = 1.0, requires = "replay")]
+    pub speed: f64,
     /// Run the twin calibrated by this file (`twinbots identify`'s calibration.toml).
     #[arg(long)]
     pub calibration: Option<PathBuf>,
@@ -188,6 +205,9 @@ impl TwinFrames {
 
 /// `twinbots monitor`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    if let Some(log) = &args.replay {
+        return exec_replay(&args, log);
+    }
     let entry = registry::find(&args.robot)?;
     anyhow::ensure!(
         args.robot == "ur5e",
@@ -222,7 +242,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let mut source = Source::open(&args, Duration::from_secs_f64(args.patience_ms / 1e3))?;
     let first = source.next()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
-    let mut view = live.map(|server| RobotView::new(server, &first.q)).transpose()?;
+    let joints: Vec<String> = ur5e::kinematics::JOINTS.iter().map(|j| j.to_string()).collect();
+    let mut view = live.map(|server| RobotView::new(server, &entry, &joints)).transpose()?;
     if let Some(view) = &view {
         Monitor::advertise_live(view)?;
     }
@@ -342,4 +363,106 @@ fn report(p: &DataPackage) -> anyhow::Result<Report> {
         command: six("target_qd")?,
         effort: six("target_moment")?,
     })
+}
+
+/// `monitor ROBOT.toml --replay LOG`: the recording through the calibrated shadow, sample by
+/// sample at `--speed`; alarms as flags begin; `monitor.json` (the flags, as `replay.json`'s) and
+/// `shadow.png` (residuals, thresholds, flags) in `--out`.
+fn exec_replay(args: &Args, log: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        RobotFile::is_path(&args.robot),
+        "monitor --replay judges a recording by the effort shadow of a robot file's arm (`identify` calibrates it): '{}' is no robot file (*.toml)",
+        args.robot
+    );
+    let robot = RobotFile::read(Path::new(&args.robot))?;
+    let dynamics = Dynamics::of(&robot.chain);
+    let path = args.calibration.as_deref().ok_or_else(|| {
+        anyhow::anyhow!("monitor --replay needs --calibration (`identify`'s calibration.toml): the shadow's thresholds are learnt there")
+    })?;
+    let calibration = ArmCalibration::read(path, &robot, &dynamics)?;
+    anyhow::ensure!(
+        calibration.efforts == args.efforts.to_string(),
+        "{}: fitted to efforts read as '{}', but --efforts is '{}': read the recording as it was calibrated",
+        path.display(),
+        calibration.efforts,
+        args.efforts
+    );
+    let name = log.display().to_string();
+    let mapping = twinbots_log::Mapping { efforts: args.efforts.clone(), controller_joints: robot.joints.clone() };
+    let motion = Motion::of_log(&robot, &twinbots_log::read_mapped(log, &mapping)?, &name)?;
+    let joints: Vec<String> = robot.chain.movable().map(|j| j.name.clone()).collect();
+    std::fs::create_dir_all(&args.out).map_err(|e| anyhow::anyhow!("{}: {e}", args.out.display()))?;
+    let mut view = match args.live.start()? {
+        Some(server) => {
+            server.advertise("/alarms", ALARM)?;
+            server.advertise("/shadow", SHADOW)?;
+            Some(RobotView::new(server, &registry::find(&args.robot)?, &joints)?)
+        }
+        None => None,
+    };
+    twinbots_ops::stop_signal::install();
+    println!(
+        "monitor: following {name} ({:.1} s) through the shadow of {}",
+        motion.time.last().unwrap_or(&0.0) - motion.time[0],
+        path.display()
+    );
+    let (report, trace) = follow(
+        &robot.name,
+        &joints,
+        &dynamics,
+        &calibration,
+        &motion,
+        args.speed,
+        |sample, judged| {
+            let began = judged.and_then(|j| j.began.as_ref().map(|f| (j, f)));
+            if let Some((j, flag)) = began {
+                let which: Vec<&str> = flag.joints.iter().map(|&k| joints[k].as_str()).collect();
+                let message = format!(
+                    "{}: the effort parts from the twin's by {:.2} x its threshold (a push or a collision?)",
+                    which.join(", "),
+                    flag.peak
+                );
+                println!("[{:9.3} s] ALARM effort: {message}", j.time);
+                if let Some(view) = &view {
+                    view.server().publish_json(
+                        "/alarms",
+                        ALARM,
+                        &serde_json::json!({"time": j.time, "kind": "effort", "message": message}),
+                    );
+                }
+            }
+            if let Some(view) = view.as_mut() {
+                let robot = RobotJoints { time: sample.time, q: &sample.q, qd: &sample.qd, effort: &sample.effort };
+                view.publish(robot, |frame| {
+                if let Some(j) = judged {
+                    let value = serde_json::json!({"time": j.time, "name": joints, "residual": j.residual, "threshold": j.threshold});
+                    frame.json("/shadow", SHADOW, &value);
+                }
+            });
+            }
+        },
+    )?;
+    twinbots_api::files::write_json(&args.out.join("monitor.json"), &report)?;
+    let spans: Vec<(f64, f64)> = report.flagged.iter().map(|f| (f.start, f.end)).collect();
+    twinbots_sysid::plot::shadow_png(
+        &args.out.join("shadow.png"),
+        &format!("{}: the shadow following {name}", robot.name),
+        &joints,
+        &trace.time,
+        &trace.residual,
+        Some(&trace.threshold),
+        &spans,
+    )?;
+    if let Some(e) = &report.ended {
+        println!("monitor: ended ({e}); writing what was followed");
+    }
+    println!(
+        "monitor: {:.1} s, {} samples ({} judged), {} flagged interval(s); wrote {}/monitor.json, shadow.png",
+        report.seconds,
+        report.samples,
+        report.judged,
+        report.flagged.len(),
+        args.out.display()
+    );
+    Ok(())
 }

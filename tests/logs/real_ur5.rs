@@ -32,7 +32,7 @@ fn a_ur_rtde_recording_replays_and_a_truncated_one_is_named() {
 /// recordings in well under a second and predicts the three held out better on every joint (the
 /// shoulder and elbow by 40 % or more) than the vendor's description; `replay` with the
 /// calibration flags each of the five pushes of the standstill run and nothing in the undisturbed
-/// held-out runs.
+/// held-out runs; `monitor --replay` flags the same as the recording streams in.
 #[test]
 fn a_real_ur5_calibrates_predicts_held_out_efforts_and_its_shadow_flags_the_pushes() {
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/ur5-real");
@@ -106,6 +106,38 @@ fn a_real_ur5_calibrates_predicts_held_out_efforts_and_its_shadow_flags_the_push
         assert!(flags.iter().any(|(a, b)| (a - 0.05..=b + 0.05).contains(&push)), "the push at {push} s: {flags:?}");
     }
     assert_eq!(flags.len(), 5, "{flags:?}");
+    // `monitor --replay` judges the samples as they stream in and flags what `replay` flags on
+    // the whole recording, bit for bit.
+    let out = dir.join("monitor");
+    let (ok, stdout, err) = twinbots(&[
+        "monitor",
+        &robot,
+        "--replay",
+        &run("Movement_No10_Standstill_WDist"),
+        "--calibration",
+        &calibration,
+        "--efforts",
+        efforts,
+        "--speed",
+        "0",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(stdout.matches("ALARM effort").count(), 5, "{stdout}");
+    let followed: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("monitor.json")).unwrap()).unwrap();
+    let replayed: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("Movement_No10_Standstill_WDist").join("replay.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(followed["flagged"], replayed["flagged"]);
+    assert!(out.join("shadow.png").is_file());
+    // A built-in robot has no effort shadow to follow a recording with; the calibration is needed.
+    let (ok, _, err) = twinbots(&["monitor", "ur5e", "--replay", &run("Movement_No2"), "--out", out.to_str().unwrap()]);
+    assert!(!ok && err.contains("no robot file"), "{err}");
+    let (ok, _, err) = twinbots(&["monitor", &robot, "--replay", &run("Movement_No2"), "--out", out.to_str().unwrap()]);
+    assert!(!ok && err.contains("needs --calibration"), "{err}");
     // Read another way than it was calibrated, a log is refused, naming the calibration.
     let (ok, _, err) = twinbots(&[
         "replay",

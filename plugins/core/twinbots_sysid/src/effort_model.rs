@@ -124,17 +124,20 @@ impl Motion {
         );
         anyhow::ensure!(log.states.len() > 2 * RESIDUAL_WINDOW, "{name}: {} samples, too few", log.states.len());
         let pick = |v: &Vec<f64>| columns.iter().map(|&c| v[c]).collect::<Vec<f64>>();
-        let time: Vec<f64> = log.states.iter().map(|s| s.time).collect();
-        let qd: Vec<Vec<f64>> = log.states.iter().map(|s| pick(&s.velocity)).collect();
+        Ok(Motion::new(
+            name,
+            log.states.iter().map(|s| s.time).collect(),
+            log.states.iter().map(|s| pick(&s.position)).collect(),
+            log.states.iter().map(|s| pick(&s.velocity)).collect(),
+            log.states.iter().map(|s| pick(&s.effort)).collect(),
+        ))
+    }
+
+    /// Samples' motion and efforts (the chain's joint order), the accelerations differentiated
+    /// from the speeds and averaged over [`ACCELERATION_WINDOW`].
+    pub fn new(name: &str, time: Vec<f64>, q: Vec<Vec<f64>>, qd: Vec<Vec<f64>>, effort: Vec<Vec<f64>>) -> Motion {
         let raw = differentiate(&time, &qd);
-        Ok(Motion {
-            name: name.to_string(),
-            q: log.states.iter().map(|s| pick(&s.position)).collect(),
-            qdd: moving_average(&raw, ACCELERATION_WINDOW),
-            qd,
-            effort: log.states.iter().map(|s| pick(&s.effort)).collect(),
-            time,
-        })
+        Motion { name: name.to_string(), q, qdd: moving_average(&raw, ACCELERATION_WINDOW), qd, effort, time }
     }
 
     /// The largest joint acceleration at each sample, averaged as the residuals are.
@@ -316,6 +319,41 @@ pub struct Flag {
     pub peak: f64,
 }
 
+/// Flags as samples are judged one after another: a sample over its threshold on some joint
+/// extends the last flag if it ended at most [`MERGE_GAP`] before, or begins one.
+#[derive(Clone, Debug, Default)]
+pub struct Flags {
+    pub list: Vec<Flag>,
+}
+
+impl Flags {
+    /// Judges the sample at `t` (s from the recording's start); returns the flag it began.
+    pub fn judge(&mut self, t: f64, residual: &[f64], limit: &[f64]) -> Option<&Flag> {
+        let over: Vec<usize> = (0..residual.len()).filter(|&j| residual[j].abs() > limit[j]).collect();
+        if over.is_empty() {
+            return None;
+        }
+        let peak = over.iter().map(|&j| residual[j].abs() / limit[j]).fold(0.0, f64::max);
+        match self.list.last_mut() {
+            Some(last) if t - last.end <= MERGE_GAP => {
+                last.end = t;
+                last.peak = last.peak.max(peak);
+                for j in over {
+                    if !last.joints.contains(&j) {
+                        last.joints.push(j);
+                    }
+                }
+                last.joints.sort_unstable();
+                None
+            }
+            _ => {
+                self.list.push(Flag { start: t, end: t, joints: over, peak });
+                self.list.last()
+            }
+        }
+    }
+}
+
 /// The samples away from a recording's ends, where the differences and averages are whole.
 fn settled(len: usize) -> std::ops::Range<usize> {
     RESIDUAL_WINDOW.min(len)..len.saturating_sub(RESIDUAL_WINDOW)
@@ -379,33 +417,14 @@ impl Shadow {
     /// Where `residuals` exceed the thresholds along `motion`, as intervals.
     pub fn flags(&self, motion: &Motion, residuals: &[Vec<f64>]) -> Vec<Flag> {
         let t0 = motion.time[0];
-        let mut flags: Vec<Flag> = Vec::new();
+        let mut flags = Flags::default();
         let inner = settled(motion.time.len());
         for (k, (r, limit)) in residuals.iter().zip(self.thresholds(motion)).enumerate() {
-            if !inner.contains(&k) {
-                continue;
-            }
-            let over: Vec<usize> = (0..r.len()).filter(|&j| r[j].abs() > limit[j]).collect();
-            if over.is_empty() {
-                continue;
-            }
-            let t = motion.time[k] - t0;
-            let peak = over.iter().map(|&j| r[j].abs() / limit[j]).fold(0.0, f64::max);
-            match flags.last_mut() {
-                Some(last) if t - last.end <= MERGE_GAP => {
-                    last.end = t;
-                    last.peak = last.peak.max(peak);
-                    for j in over {
-                        if !last.joints.contains(&j) {
-                            last.joints.push(j);
-                        }
-                    }
-                    last.joints.sort_unstable();
-                }
-                _ => flags.push(Flag { start: t, end: t, joints: over, peak }),
+            if inner.contains(&k) {
+                flags.judge(motion.time[k] - t0, r, &limit);
             }
         }
-        flags
+        flags.list
     }
 
     /// Checks thresholds read from a file against the arm.

@@ -16,6 +16,7 @@ pub mod report;
 pub mod rig;
 pub mod search;
 pub mod sensitivity;
+pub mod shadow_stream;
 pub mod uncertainty;
 
 pub use excitation::Excitation;

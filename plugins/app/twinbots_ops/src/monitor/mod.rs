@@ -22,6 +22,7 @@ use ur5e::kinematics::JOINTS;
 use crate::live::{ALARM, RobotJoints, RobotView};
 use crate::ur_sim::{CYCLE, controller_stand};
 
+pub mod recording;
 #[cfg(feature = "ros2")]
 pub mod ros2;
 
