@@ -86,7 +86,13 @@ def test_lerobot_loads_the_dataset_and_iterates_a_batch(pick_place):
 def lerobot_copy(pick_place, tmp_path_factory):
     """The frames of `pick_place` recorded again through LeRobot's own writer."""
     again = tmp_path_factory.mktemp("lerobot") / "again"
-    ours = LeRobotDataset("twinbots/ur5e-pick-place", root=pick_place)
+    record_again(LeRobotDataset("twinbots/ur5e-pick-place", root=pick_place), again)
+    return again
+
+
+def record_again(ours, again):
+    """Every frame of the dataset `ours` recorded again through LeRobot's own writer at `again`
+    (images as the (H, W, 3) uint8 arrays a camera gives)."""
     features = {k: v for k, v in ours.meta.features.items() if k not in INDEX_COLUMNS}
     theirs = LeRobotDataset.create(
         "twinbots/again",
@@ -101,11 +107,15 @@ def lerobot_copy(pick_place, tmp_path_factory):
         episode = ours.meta.episodes[e]
         for i in range(episode["dataset_from_index"], episode["dataset_to_index"]):
             row = rows[i]
-            frame = {k: np.asarray(row[k], dtype=np.dtype(f["dtype"])).reshape(f["shape"]) for k, f in features.items()}
+            frame = {}
+            for k, f in features.items():
+                if f["dtype"] == "image":
+                    frame[k] = np.asarray(row[k].convert("RGB"))
+                else:
+                    frame[k] = np.asarray(row[k], dtype=np.dtype(f["dtype"])).reshape(f["shape"])
             theirs.add_frame({**frame, "task": episode["tasks"][0]})
         theirs.save_episode()
     theirs.finalize()
-    return again
 
 
 def test_every_frame_passes_lerobots_own_recording_checks(pick_place, lerobot_copy):
@@ -246,26 +256,8 @@ def test_camera_streams_are_images_lerobot_loads_and_writes_alike(with_cameras, 
     for column in state_only.column_names:
         assert with_images[column].to_pylist() == state_only[column].to_pylist(), column
 
-    features = {k: v for k, v in ours.meta.features.items() if k not in INDEX_COLUMNS}
     again = tmp_path / "again"
-    theirs = LeRobotDataset.create(
-        "twinbots/again", fps=ours.fps, root=again, robot_type=ours.meta.robot_type, features=features,
-        use_videos=False,
-    )
-    rows = ours.hf_dataset.with_format(None)
-    for e in range(ours.num_episodes):
-        episode = ours.meta.episodes[e]
-        for i in range(episode["dataset_from_index"], episode["dataset_to_index"]):
-            row = rows[i]
-            frame = {}
-            for k, f in features.items():
-                if f["dtype"] == "image":
-                    frame[k] = np.asarray(row[k].convert("RGB"))
-                else:
-                    frame[k] = np.asarray(row[k], dtype=np.dtype(f["dtype"])).reshape(f["shape"])
-            theirs.add_frame({**frame, "task": episode["tasks"][0]})
-        theirs.save_episode()
-    theirs.finalize()
+    record_again(ours, again)
     info = [json.loads((root / "meta/info.json").read_text()) for root in (with_cameras, again)]
     assert info[0] == info[1]
     a, b = pq.read_table(with_cameras / data), pq.read_table(again / data)
