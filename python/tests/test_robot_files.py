@@ -91,3 +91,25 @@ def test_a_listing_read_only_in_part_ends_quietly():
         process.stdout.close()
         _, stderr = process.communicate(timeout=60)
         assert process.returncode == 0 and b"panicked" not in stderr, (args, stderr)
+
+
+DATA = REPO.parent / "shared" / "data" / "ur5-real"
+
+
+@pytest.mark.parametrize(
+    "recording, bound_mrad",
+    [("Movement_No1", 2.0), ("Movement_No2", 2.0), ("Movement_No3_Acc", 3.0)],
+)
+def test_the_ur5_twin_follows_the_real_arms_targets(tmp_path, recording, bound_mrad):
+    """`replay assets/robots/ur5.toml RUN --servo`: the UR5 (CB) twin from its robot file, under
+    its position servo at the CB's 125 Hz, on the recorded `target_q` of the real UR5 (the
+    recordings of ../shared/data/ur5-real): its joints within 2 mrad RMS of the measured ones on
+    No1 and No2, within 3 mrad on the fast No3, whose elbow moves at 3.2 rad/s, past the 3.15 rad/s
+    its URDF rates the twin's drive for."""
+    if not DATA.is_dir():
+        pytest.skip(f"{DATA} is not there")
+    log = DATA / f"{recording}.csv.gz"
+    out = tmp_path / "replay"
+    run("replay", "assets/robots/ur5.toml", str(log), "--servo", "--efforts", "target_moment", "--out", str(out))
+    rmse = json.loads((out / "replay.json").read_text())["servo_position_rmse_rad"]
+    assert len(rmse) == 6 and max(rmse) <= bound_mrad * 1e-3, rmse

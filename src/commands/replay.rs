@@ -32,6 +32,11 @@ pub struct Args {
     /// Where to write replay.png, twin.mcap and replay.json; default: `<log>.replay/` beside it.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// With a robot file: also run the arm's twin under its position servo along the log's
+    /// position targets (`target_q`) and compare its joints with the measured ones (the
+    /// twin's physics: the URDF's meshes must be found).
+    #[arg(long)]
+    pub servo: bool,
     /// Where a UR recording's efforts come from (docs/logs.md): `none`, `target_moment` (the
     /// controller's model torque) or `current:K0,…,K5` (actual currents × torque constants).
     #[arg(long, default_value = "none", value_parser = twinbots_log::rtde_csv::Efforts::parse)]
@@ -43,6 +48,11 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     if RobotFile::is_path(&args.robot) {
         return exec_arm(args);
     }
+    anyhow::ensure!(
+        !args.servo,
+        "--servo runs a robot file's arm under its position servo; '{}' replays its own way",
+        args.robot
+    );
     let rig = Rig::of(&registry::find(&args.robot)?)?;
     let calibration = rig.read_calibration(args.calibration.as_deref())?;
     anyhow::ensure!(args.threshold > 0.0, "--threshold must be positive");
@@ -105,6 +115,13 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
             None => println!("  {joint:<24} nominal {:>8.3}", rmse_nominal[j]),
         }
     }
+    let servo = args.servo.then(|| servo_rmse(&robot, &log, &name)).transpose()?;
+    if let Some(rmse) = &servo {
+        println!("{name}: the twin's position servo on the logged targets, position RMSE per joint (mrad)");
+        for (joint, e) in robot.joints.iter().zip(rmse) {
+            println!("  {joint:<24} {:>8.3}", 1e3 * e);
+        }
+    }
     let residual = residuals(&motion.effort, calibrated.as_ref().unwrap_or(&nominal));
     let (thresholds, flags) = match &calibration {
         Some(c) => (Some(c.shadow.thresholds(&motion)), c.shadow.flags(&motion, &residual)),
@@ -150,6 +167,7 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
         "joints": joints,
         "rmse_nominal": rmse_nominal,
         "rmse_calibrated": rmse_calibrated,
+        "servo_position_rmse_rad": servo,
         "flagged": flags.iter().map(|f| serde_json::json!({
             "start": f.start, "end": f.end, "peak": f.peak,
             "joints": f.joints.iter().map(|&j| joints[j].clone()).collect::<Vec<_>>(),
@@ -158,4 +176,40 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
     twinbots_api::files::write_json(&out.join("replay.json"), &report)?;
     println!("wrote {}/replay.png, efforts.png, replay.json", out.display());
     Ok(())
+}
+
+/// The arm's twin under its position servo along the log's position targets
+/// (`twinbots_arm::servo`), from the log's first measured pose: each controlled joint's RMSE
+/// (rad) against the measured positions. `None` for a log whose commands are not positions.
+fn servo_rmse(robot: &RobotFile, log: &twinbots_log::RobotLog, name: &str) -> anyhow::Result<Vec<f64>> {
+    use twinbots_log::CommandMode;
+    let positions = |c: &twinbots_log::CommandSample| c.modes.iter().all(|m| *m == CommandMode::Position);
+    anyhow::ensure!(
+        !log.commands.is_empty() && log.commands.iter().all(positions),
+        "{name}: --servo follows position targets, and the log's commands are not all positions"
+    );
+    anyhow::ensure!(
+        log.commands.len() == log.states.len()
+            && log.commands.iter().zip(&log.states).all(|(c, s)| (c.time - s.time).abs() < 1e-9),
+        "{name}: the position targets are not one per measured sample, at its time"
+    );
+    let column = |joints: &[String], joint: &str| {
+        joints.iter().position(|j| j == joint).ok_or_else(|| anyhow::anyhow!("{name}: no joint '{joint}'"))
+    };
+    let state_columns: Vec<usize> =
+        robot.joints.iter().map(|j| column(&log.joints, j)).collect::<anyhow::Result<_>>()?;
+    let pick = |values: &[f64], columns: &[usize]| columns.iter().map(|&c| values[c]).collect::<Vec<f64>>();
+    let targets: Vec<Vec<f64>> = log
+        .commands
+        .iter()
+        .map(|c| {
+            let columns: Vec<usize> =
+                robot.joints.iter().map(|j| column(&c.joints, j)).collect::<anyhow::Result<_>>()?;
+            Ok(pick(&c.values, &columns))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let measured: Vec<Vec<f64>> = log.states.iter().map(|s| pick(&s.position, &state_columns)).collect();
+    let times: Vec<f64> = log.states.iter().map(|s| s.time).collect();
+    let twin = twinbots_arm::servo::follow_targets(robot, &measured[0], &times, &targets)?;
+    Ok(rmse(&measured, &twin))
 }

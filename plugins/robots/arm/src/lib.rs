@@ -10,6 +10,7 @@
 
 pub mod arm;
 pub mod reach;
+pub mod servo;
 
 use std::sync::Arc;
 
