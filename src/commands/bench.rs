@@ -1,7 +1,7 @@
 //! `twinbots bench <what>`: throughput and latency figures (docs/benchmarks.md), measured by
 //! `twinbots_bench`.
 
-use twinbots_bench::{print_cameras, print_capture, print_physics, print_rl, print_rtde, print_server};
+use twinbots_bench::{print_cameras, print_capture, print_live, print_physics, print_rl, print_rtde, print_server};
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -26,6 +26,12 @@ pub struct Args {
     /// `bench rtde`: seconds of controller time to measure.
     #[arg(long, default_value_t = 10.0)]
     pub seconds: f64,
+    /// `bench live`: runs of each kind (without and with a viewer, taking turns).
+    #[arg(long, default_value_t = 3)]
+    pub rounds: usize,
+    /// `bench live`: the live view sends every control step (`--live-every-step`).
+    #[arg(long)]
+    pub every_step: bool,
 }
 
 /// `twinbots bench`.
@@ -40,6 +46,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         }
         BenchKind::Rl => print_rl(&args.robot, args.arenas.first().copied().unwrap_or(8), steps),
         BenchKind::Rtde => print_rtde(args.bundle.as_deref(), args.seconds, args.rt_priority),
+        BenchKind::Live => print_live(&args.robot, args.rounds, args.every_step),
     }
 }
 
@@ -62,4 +69,7 @@ pub enum BenchKind {
     /// longest time between commands (an error if 20 ms or more: a UR stops then), missed
     /// cycles (--bundle DIR answers every report; --seconds S).
     Rtde,
+    /// What a connected live viewer costs training: `train ROBOT` with and without a viewer
+    /// written from Foxglove's protocol (--rounds each, medians).
+    Live,
 }

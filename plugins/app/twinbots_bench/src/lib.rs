@@ -1,9 +1,12 @@
 //! The measurements of `twinbots bench`: physics steps per second and the schedule's cost per
 //! step, the learner's update and the bridge, the RobotServer's round trip, off-screen capture
-//! and camera sensors, and RTDE latency against the UR stand-in. Each `print_*` prints a table
+//! and camera sensors, RTDE latency against the UR stand-in, and what a live viewer costs
+//! training ([`print_live`]). Each `print_*` prints a table
 //! (docs/benchmarks.md keeps the figures); the command only picks one. Arenas step side by side
 //! on the worker pool (see `twinbots_learn::threads`); `RAYON_NUM_THREADS=1` measures them on
 //! one thread.
+
+mod live;
 
 use std::time::Instant;
 
@@ -14,6 +17,8 @@ use twinbots_sim::SimSettings;
 use twinbots_task::{AppVecEnv, bridge, env};
 
 use twinbots_run::registry;
+
+pub use live::print_live;
 
 pub fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64, rt_priority: Option<i32>) -> anyhow::Result<()> {
     let dir = bundle
