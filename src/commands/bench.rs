@@ -14,7 +14,8 @@ pub struct Args {
     /// Arena counts to measure, comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = vec![1, 16, 64])]
     pub arenas: Vec<usize>,
-    /// Control steps per measurement (2000; `bench cameras`: 40).
+    /// Control steps per measurement (2000; `bench cameras`: 40; `bench live`: the training
+    /// run's timesteps, its default if not given).
     #[arg(long)]
     pub steps: Option<usize>,
     /// `bench rtde`: the deploy bundle whose policy answers every report.
@@ -46,7 +47,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         }
         BenchKind::Rl => print_rl(&args.robot, args.arenas.first().copied().unwrap_or(8), steps),
         BenchKind::Rtde => print_rtde(args.bundle.as_deref(), args.seconds, args.rt_priority),
-        BenchKind::Live => print_live(&args.robot, args.rounds, args.every_step),
+        BenchKind::Live => print_live(&args.robot, args.rounds, args.every_step, args.steps),
     }
 }
 

@@ -292,6 +292,7 @@ fn the_benchmarks_run() {
         (&["bench", "physics", "--arenas", "1,2", "--steps", "20"][..], "arena steps/s"),
         (&["bench", "rl", "--arenas", "2", "--steps", "20"][..], "PPO update of 2048 samples"),
         (&["bench", "server", "--arenas", "1", "--steps", "20"][..], "round trip"),
+        (&["bench", "live", "--rounds", "1", "--steps", "30000", "--every-step"][..], "with a viewer"),
     ] {
         let output = twinbots().args(args).output().unwrap();
         let stdout = String::from_utf8_lossy(&output.stdout);
@@ -300,5 +301,11 @@ fn the_benchmarks_run() {
             "{args:?}: {stdout}{}",
             String::from_utf8_lossy(&output.stderr)
         );
+        if args[1] == "live" {
+            // The viewer did watch: some of the run's messages reached it.
+            let received =
+                stdout.split("s, ").nth(1).and_then(|r| r.split(' ').next()).and_then(|n| n.parse::<u64>().ok());
+            assert!(received.is_some_and(|n| n > 100), "{stdout}");
+        }
     }
 }

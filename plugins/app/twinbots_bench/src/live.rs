@@ -21,14 +21,17 @@ struct Timed {
     messages: u64,
 }
 
-/// Trains `robot` in a scratch directory, with a live view watched by a viewer if `watched`
-/// (every control step with `every_step`).
-fn train(robot: &str, watched: bool, every_step: bool) -> anyhow::Result<Timed> {
+/// Trains `robot` in a scratch directory (its default timesteps unless given), with a live
+/// view watched by a viewer if `watched` (every control step with `every_step`).
+fn train(robot: &str, watched: bool, every_step: bool, timesteps: Option<usize>) -> anyhow::Result<Timed> {
     let dir = std::env::temp_dir().join(format!("twinbots-bench-live-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let out = dir.join("run");
     let mut command = Command::new(std::env::current_exe()?);
     command.args(["train", robot, "--out"]).arg(&out).stdout(Stdio::piped()).stderr(Stdio::null());
+    if let Some(n) = timesteps {
+        command.args(["--timesteps", &n.to_string()]);
+    }
     if watched {
         command.args(["--live", "127.0.0.1:0"]);
         if every_step {
@@ -124,8 +127,9 @@ fn median(values: &mut [f64]) -> f64 {
     values[values.len() / 2]
 }
 
-/// Prints each run and the medians of `rounds` rounds (the order alternating).
-pub fn print_live(robot: &str, rounds: usize, every_step: bool) -> anyhow::Result<()> {
+/// Prints each run and the medians of `rounds` rounds (the order alternating); `timesteps`
+/// shortens the runs (a check that it works, not a figure).
+pub fn print_live(robot: &str, rounds: usize, every_step: bool, timesteps: Option<usize>) -> anyhow::Result<()> {
     anyhow::ensure!(rounds > 0, "--rounds must be at least 1");
     let (mut without, mut with) = (Vec::new(), Vec::new());
     let pace = if every_step { "every control step" } else { "paced" };
@@ -133,7 +137,7 @@ pub fn print_live(robot: &str, rounds: usize, every_step: bool) -> anyhow::Resul
     for round in 0..rounds {
         let order = if round % 2 == 0 { [false, true] } else { [true, false] };
         for watched in order {
-            let timed = train(robot, watched, every_step)?;
+            let timed = train(robot, watched, every_step, timesteps)?;
             if watched {
                 println!(
                     "round {round}: with a viewer    {:7.2} s, {} messages received",
