@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use twinbots_sim::urdf::dynamics::Dynamics;
 use twinbots_sim::urdf::robot_file::RobotFile;
-use twinbots_sysid::effort_model::{ArmCalibration, EffortModel, Motion, residuals, rmse};
+use twinbots_sysid::effort_model::{ArmCalibration, EffortModel, FlagReport, Motion, residuals, rmse};
 
 use twinbots_sysid::replay::twin_log;
 use twinbots_sysid::{Rig, compare, prepare, run};
@@ -130,9 +130,9 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
             (None, Vec::new())
         }
     };
-    for f in &flags {
-        let which: Vec<&str> = f.joints.iter().map(|&j| joints[j].as_str()).collect();
-        println!("flagged {:.2}-{:.2} s: {} ({:.2} x the threshold)", f.start, f.end, which.join(", "), f.peak);
+    let flagged: Vec<FlagReport> = flags.iter().map(|f| FlagReport::of(f, &joints)).collect();
+    for f in &flagged {
+        println!("flagged {:.2}-{:.2} s: {} ({:.2} x the threshold)", f.start, f.end, f.joints.join(", "), f.peak);
     }
     if calibration.is_some() {
         println!("{} flagged interval(s)", flags.len());
@@ -168,10 +168,7 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
         "rmse_nominal": rmse_nominal,
         "rmse_calibrated": rmse_calibrated,
         "servo_position_rmse_rad": servo,
-        "flagged": flags.iter().map(|f| serde_json::json!({
-            "start": f.start, "end": f.end, "peak": f.peak,
-            "joints": f.joints.iter().map(|&j| joints[j].clone()).collect::<Vec<_>>(),
-        })).collect::<Vec<_>>(),
+        "flagged": flagged,
     });
     twinbots_api::files::write_json(&out.join("replay.json"), &report)?;
     println!("wrote {}/replay.png, efforts.png, replay.json", out.display());
@@ -180,7 +177,7 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
 
 /// The arm's twin under its position servo along the log's position targets
 /// (`twinbots_arm::servo`), from the log's first measured pose: each controlled joint's RMSE
-/// (rad) against the measured positions. `None` for a log whose commands are not positions.
+/// (rad) against the measured positions. A log whose commands are not positions is an error.
 fn servo_rmse(robot: &RobotFile, log: &twinbots_log::RobotLog, name: &str) -> anyhow::Result<Vec<f64>> {
     use twinbots_log::CommandMode;
     let positions = |c: &twinbots_log::CommandSample| c.modes.iter().all(|m| *m == CommandMode::Position);

@@ -45,7 +45,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
     let live = args.live.start()?;
-    let mut app = view_app(&args)?;
+    let (entry, mut app) = view_app(&args)?;
     if let Some(server) = live {
         app.add_plugins(twinbots_live::LivePlugin(server));
     }
@@ -53,7 +53,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     if args.no_window {
         return play(player, args.seconds);
     }
-    let entry = registry::find(&args.robot)?;
     viewer::run(Box::new(player), &format!("twinbots — {}", args.robot), entry.framing)
 }
 
@@ -106,9 +105,9 @@ impl ViewSource for Player {
     }
 }
 
-/// The robot's app for arena 0, with the run's observation and the file's twin, checked
+/// The robot and its app for arena 0, with the run's observation and the file's twin, checked
 /// before any window opens (as `capture`).
-fn view_app(args: &Args) -> anyhow::Result<App> {
+fn view_app(args: &Args) -> anyhow::Result<(registry::RobotEntry, App)> {
     let entry = registry::find(&args.robot)?;
     let model = args.model.as_deref();
     let task = twinbots_run::settings::TrainSettings::task_for(args.task.as_deref(), model)?;
@@ -117,7 +116,7 @@ fn view_app(args: &Args) -> anyhow::Result<App> {
     if let Some(run) = model {
         twinbots_run::settings::TrainSettings::observe_as_run(run, &mut app, &entry, 1)?;
     }
-    Ok(app)
+    Ok((entry, app))
 }
 
 impl Player {

@@ -14,6 +14,7 @@ use std::time::Duration;
 
 use tungstenite::Message;
 use tungstenite::client::IntoClientRequest;
+use twinbots_ops::deploy::percentiles;
 
 /// One run of `train`: its training wall clock (`summary.json`) and the messages the viewer got.
 struct Timed {
@@ -122,11 +123,6 @@ fn watch(port: u16, stop: &AtomicBool, messages: &AtomicU64) -> anyhow::Result<(
     Ok(())
 }
 
-fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    values[values.len() / 2]
-}
-
 /// Prints each run and the medians of `rounds` rounds (the order alternating); `timesteps`
 /// shortens the runs (a check that it works, not a figure).
 pub fn print_live(robot: &str, rounds: usize, every_step: bool, timesteps: Option<usize>) -> anyhow::Result<()> {
@@ -150,7 +146,7 @@ pub fn print_live(robot: &str, rounds: usize, every_step: bool, timesteps: Optio
             }
         }
     }
-    let (a, b) = (median(&mut without), median(&mut with));
+    let (a, b) = (percentiles(&without).0, percentiles(&with).0);
     println!("median: no live view {a:.2} s, with a viewer {b:.2} s ({:+.1} %)", 100.0 * (b - a) / a);
     Ok(())
 }

@@ -110,10 +110,7 @@ impl<'a> LiveFrame<'a> {
     }
 
     fn joint_states(&self, world: &mut World, name: &str, arena: Entity) {
-        let Ok(channel) = self.server.json_channel(&format!("/{name}/joint_states"), JOINT_STATE) else { return };
-        if !channel.has_sinks() {
-            return;
-        }
+        let Some(channel) = self.joint_state_channel(name) else { return };
         let mut joints: Vec<(String, f64, f64, f64)> = world
             .query::<(&Joint, &JointState, &InArena)>()
             .iter(world)
@@ -127,11 +124,15 @@ impl<'a> LiveFrame<'a> {
     /// Publishes a joint state that is no world's (a robot's, as its controller reported it)
     /// on `/<name>/joint_states`, joints in the order given.
     pub fn joint_state(&self, name: &str, joints: &[(String, f64, f64, f64)]) {
-        if let Ok(channel) = self.server.json_channel(&format!("/{name}/joint_states"), JOINT_STATE)
-            && channel.has_sinks()
-        {
+        if let Some(channel) = self.joint_state_channel(name) {
             channel.log(joint_state_json(self.stamp, joints).to_string().as_bytes());
         }
+    }
+
+    /// `/<name>/joint_states`, if a viewer subscribes to it.
+    fn joint_state_channel(&self, name: &str) -> Option<std::sync::Arc<foxglove::RawChannel>> {
+        let channel = self.server.json_channel(&format!("/{name}/joint_states"), JOINT_STATE).ok()?;
+        channel.has_sinks().then_some(channel)
     }
 
     /// Publishes `value` on a JSON channel with this frame (paced as the frame is).

@@ -41,7 +41,7 @@ use bevy::prelude::*;
 use foxglove::messages::{CompressedImage, FrameTransforms, SceneUpdate};
 use foxglove::websocket::{ChannelView, Client, ServerListener};
 use foxglove::{Channel, ChannelBuilder, Context, RawChannel, Schema, WebSocketServer, WebSocketServerHandle};
-use twinbots_sim::{Arena, SimClock, SimSettings};
+use twinbots_sim::{Arena, KeepObservedImages, SimClock, SimSettings};
 use twinbots_task::Episode;
 
 pub use frame::{LiveFrame, Place};
@@ -238,7 +238,7 @@ struct Live(Arc<LiveServer>);
 
 impl Plugin for LivePlugin {
     fn build(&self, app: &mut App) {
-        app.insert_resource(Live(self.0.clone())).add_systems(Last, publish);
+        app.insert_resource(Live(self.0.clone())).insert_resource(KeepObservedImages).add_systems(Last, publish);
     }
 }
 

@@ -22,7 +22,7 @@ use bevy::ecs::query::QueryFilter;
 use bevy::prelude::*;
 use serde::{Deserialize, Serialize};
 use twinbots_api::{Space, TaskSpec};
-use twinbots_sim::{Arena, Framing, ObservedImage, SimSet};
+use twinbots_sim::{Arena, Framing, KeepObservedImages, ObservedImage, SimSet};
 use twinbots_task::task::{ActiveTask, EnvReset, Episode, ResetSet, Resetting, TaskSet};
 
 use crate::{Renderer, View};
@@ -275,9 +275,12 @@ fn observe(world: &mut World, arenas: Vec<Entity>, fresh: bool) {
     let images = side_by_side(shot_images, arenas.len(), 3 * camera.width);
     let frames = camera.frames;
     let width = (camera.width * camera.views.len()) as u32;
+    let keep = world.contains_resource::<KeepObservedImages>();
     for (arena, image) in arenas.into_iter().zip(images) {
-        let height = (image.len() / (3 * width as usize).max(1)) as u32;
-        world.entity_mut(arena).insert(ObservedImage { width, height, rgb: image.clone() });
+        if keep {
+            let height = (image.len() / (3 * width as usize).max(1)) as u32;
+            world.entity_mut(arena).insert(ObservedImage { width, height, rgb: image.clone() });
+        }
         let stack = camera.stacks.entry(arena).or_default();
         if fresh || stack.is_empty() {
             stack.clear();

@@ -23,8 +23,8 @@ pub use bevy_rapier3d::rapier;
 pub use arena::{Arena, ArenaConfig, InArena, physics_in, physics_in_mut};
 pub use devices::{
     Accelerometer, BROADCAST, CameraSensor, ContactSensor, DevicesPlugin, DistanceSensor, Emitter, Gps, Gyro,
-    InertialUnit, Joint, JointDynamics, JointState, Motor, MotorCommand, Mount, ObservedImage, Packet, PositionSensor,
-    RadioPlugin, Receiver, SamplingPeriod, TouchSensor, Touched, VacuumGripper,
+    InertialUnit, Joint, JointDynamics, JointState, KeepObservedImages, Motor, MotorCommand, Mount, ObservedImage,
+    Packet, PositionSensor, RadioPlugin, Receiver, SamplingPeriod, TouchSensor, Touched, VacuumGripper,
 };
 pub use disturbance::{Push, add_link_mass};
 pub use framing::Framing;

@@ -319,6 +319,28 @@ pub struct Flag {
     pub peak: f64,
 }
 
+/// A flag as `replay.json` and `monitor.json` give it: its joints by name.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FlagReport {
+    /// Seconds from the recording's start.
+    pub start: f64,
+    pub end: f64,
+    pub peak: f64,
+    pub joints: Vec<String>,
+}
+
+impl FlagReport {
+    /// `flag` with its joints named from `joints` (the chain's order).
+    pub fn of(flag: &Flag, joints: &[String]) -> Self {
+        Self {
+            start: flag.start,
+            end: flag.end,
+            peak: flag.peak,
+            joints: flag.joints.iter().map(|&j| joints[j].clone()).collect(),
+        }
+    }
+}
+
 /// Flags as samples are judged one after another: a sample over its threshold on some joint
 /// extends the last flag if it ended at most [`MERGE_GAP`] before, or begins one.
 #[derive(Clone, Debug, Default)]

@@ -7,29 +7,8 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 use twinbots_sim::urdf::dynamics::Dynamics;
-use twinbots_sysid::effort_model::{ArmCalibration, Flag, Motion};
+use twinbots_sysid::effort_model::{ArmCalibration, FlagReport, Motion};
 use twinbots_sysid::shadow_stream::{Judged, Sample, ShadowStream};
-
-/// A flagged interval as `monitor.json` and `replay.json` give it.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct FlagReport {
-    /// Seconds from the recording's start.
-    pub start: f64,
-    pub end: f64,
-    pub peak: f64,
-    pub joints: Vec<String>,
-}
-
-impl FlagReport {
-    pub fn of(flag: &Flag, joints: &[String]) -> Self {
-        Self {
-            start: flag.start,
-            end: flag.end,
-            peak: flag.peak,
-            joints: flag.joints.iter().map(|&j| joints[j].clone()).collect(),
-        }
-    }
-}
 
 /// What following a recording found (`monitor.json`).
 #[derive(Clone, Debug, Serialize)]

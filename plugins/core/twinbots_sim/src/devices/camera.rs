@@ -30,10 +30,16 @@ impl CameraSensor {
 
 /// The latest image a pixel task observed of its arena (every camera's, side by side along
 /// the width), on the arena's entity: what a viewer of the run is shown. The observation itself
-/// is the task's; this is a copy, RGB8, row-major from the top-left.
+/// is the task's; this is a copy, RGB8, row-major from the top-left, kept only in an app that
+/// asks for it ([`KeepObservedImages`]).
 #[derive(Component, Clone, Debug, Default, PartialEq)]
 pub struct ObservedImage {
     pub width: u32,
     pub height: u32,
     pub rgb: Vec<u8>,
 }
+
+/// Present in an app whose pixel observations should also be kept as [`ObservedImage`]s (one
+/// with a live view): without it no copy is made.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct KeepObservedImages;

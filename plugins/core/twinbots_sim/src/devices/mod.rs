@@ -20,7 +20,7 @@ mod radio;
 mod sampling;
 mod vacuum_gripper;
 
-pub use camera::{CameraSensor, ObservedImage};
+pub use camera::{CameraSensor, KeepObservedImages, ObservedImage};
 pub use contact_sensor::{ContactSensor, Touched};
 pub use distance_sensor::DistanceSensor;
 pub use dynamics::{FRICTION_SMOOTHING, JointDynamics, set_armature};
