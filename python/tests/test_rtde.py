@@ -1,10 +1,13 @@
 """`twinbots ur-sim`, the UR controller stand-in, read and driven by clients that are not
 twinbots': the `ur-rtde` package (SDU Robotics' C++ library) reads it as it reads a UR, and a
 client written here from UR's RTDE guide and docs/rtde.md (Python's struct and socket) drives
-the shipped control program's registers. ur_rtde always connects to port 30004."""
+the shipped control program's registers. ur_rtde always connects to port 30004, so each stand-in
+listens on a loopback address of its own (127.x.y.z: Linux routes all of 127/8 to the loopback
+device), and two test runs on one machine do not collide."""
 
 import math
 import os
+import random
 import shutil
 import socket
 import struct
@@ -26,17 +29,32 @@ def twinbots_bin():
     return binary
 
 
-@pytest.fixture
-def ur_sim():
-    with socket.socket() as probe:
-        if probe.connect_ex(("127.0.0.1", 30004)) == 0:
-            pytest.fail("port 30004 is taken: ur_rtde needs it for the stand-in")
+def start_ur_sim(host):
+    """`ur-sim` on host:30004, or None when that address's port is taken."""
     process = subprocess.Popen(
-        [twinbots_bin(), "ur-sim", "--listen", "127.0.0.1:30004", "--seconds", "120"],
+        [twinbots_bin(), "ur-sim", "--listen", f"{host}:30004", "--seconds", "120"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     line = process.stdout.readline()
-    assert "serving RTDE on 127.0.0.1:30004" in line, line
-    yield process
+    if f"serving RTDE on {host}:30004" in line:
+        return process
+    process.kill()
+    process.wait()
+    assert "in use" in line.lower(), line
+    return None
+
+
+@pytest.fixture
+def ur_sim():
+    """The stand-in's address: a random loopback one whose port 30004 is free."""
+    draw = random.Random(os.getpid() ^ time.monotonic_ns())
+    for _ in range(20):
+        host = f"127.{draw.randrange(1, 255)}.{draw.randrange(0, 256)}.{draw.randrange(1, 255)}"
+        process = start_ur_sim(host)
+        if process is not None:
+            break
+    else:
+        pytest.fail("port 30004 was taken on 20 loopback addresses")
+    yield host
     process.kill()
     process.wait()
 
@@ -45,8 +63,8 @@ class GuideClient:
     """RTDE protocol version 2 as the guide writes it: a header of uint16 size (whole package)
     and uint8 type, big-endian payloads."""
 
-    def __init__(self, port=30004):
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+    def __init__(self, host, port=30004):
+        self.sock = socket.create_connection((host, port), timeout=5)
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
     def send(self, kind, payload=b""):
@@ -74,7 +92,7 @@ class GuideClient:
 
 
 def test_ur_rtde_reads_the_standin(ur_sim):
-    r = rtde_receive.RTDEReceiveInterface("127.0.0.1")
+    r = rtde_receive.RTDEReceiveInterface(ur_sim)
     try:
         assert r.isConnected()
         w0, t0 = time.monotonic(), r.getTimestamp()
@@ -99,7 +117,7 @@ def test_ur_rtde_reads_the_standin(ur_sim):
 
 
 def test_a_guide_client_drives_speedj_and_ur_rtde_sees_it(ur_sim):
-    c = GuideClient()
+    c = GuideClient(ur_sim)
     assert c.request("V", struct.pack(">H", 2)) == b"\x01"
     major, minor, _, _ = struct.unpack(">IIII", c.request("v"))
     assert (major, minor) == (5, 11)
@@ -121,7 +139,7 @@ def test_a_guide_client_drives_speedj_and_ur_rtde_sees_it(ur_sim):
         (_, state) = struct.unpack(">Bi", c.receive("U"))
         return state
 
-    r = rtde_receive.RTDEReceiveInterface("127.0.0.1")
+    r = rtde_receive.RTDEReceiveInterface(ur_sim)
     try:
         q0 = r.getActualQ()[0]
         counter = 0

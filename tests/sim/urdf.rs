@@ -350,3 +350,63 @@ fn a_decomposed_concave_mesh_lets_a_part_into_its_notch_where_its_hull_would_not
     assert!((hull - 0.55).abs() < 0.03, "on the hull's lid: {hull}");
     assert!((parts - 0.15).abs() < 0.03, "on the notch's floor: {parts}");
 }
+
+#[test]
+fn a_dense_mesh_gets_a_sound_hull_of_256_vertices_and_too_large_a_one_is_not_split() {
+    let dir = std::env::temp_dir().join(format!("twinbots-decompose-cap-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // A binary STL of a sphere in rows × rows quads of two triangles: just over the cap.
+    let rows = ((twinbots_sim::spawn::MAX_DECOMPOSED_TRIANGLES as f64 / 2.0).sqrt() as usize) + 1;
+    let n = 2 * rows * rows;
+    let point = |i: usize, j: usize| {
+        let (theta, phi) =
+            (std::f32::consts::PI * i as f32 / rows as f32, std::f32::consts::TAU * j as f32 / rows as f32);
+        [theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()]
+    };
+    let mut stl = vec![0u8; 80];
+    stl.extend((n as u32).to_le_bytes());
+    for i in 0..rows {
+        for j in 0..rows {
+            let (a, b, c, d) = (point(i, j), point(i + 1, j), point(i + 1, j + 1), point(i, j + 1));
+            for triangle in [[a, b, c], [a, c, d]] {
+                stl.extend([0f32; 3].iter().chain(triangle.iter().flatten()).flat_map(|x| x.to_le_bytes()));
+                stl.extend([0, 0]);
+            }
+        }
+    }
+    std::fs::write(dir.join("ball.stl"), stl).unwrap();
+    let model = parse_urdf(
+        r#"<robot name="ball"><link name="plate"><inertial><mass value="5"/></inertial>
+             <collision><geometry><mesh filename="ball.stl"/></geometry></collision></link></robot>"#,
+        &dir.join("ball.urdf"),
+        &dir,
+    )
+    .unwrap();
+    let check = |decompose: &[String]| {
+        twinbots_sim::urdf::check::check_model(model.clone(), 0.0, decompose, &[], SimSettings::default())
+    };
+    let e = check(&["plate".into()]).err().unwrap().to_string();
+    assert!(
+        e.contains(&format!(
+            "--decompose: link 'plate' has a collision mesh of {n} triangles, more than the {} a split",
+            twinbots_sim::spawn::MAX_DECOMPOSED_TRIANGLES
+        )),
+        "{e}"
+    );
+    // As its convex hull (no split asked) the same mesh stands, its hull cut to 256 vertices and
+    // sound: parry's own hull of these 100,000 points merges its faces away to no volume at all.
+    assert!(check(&[]).is_ok());
+    let twinbots_sim::urdf::Shape::Mesh(mesh) = &model.links[0].collisions[0].shape else { panic!() };
+    let hull = mesh.hull.as_convex_polyhedron().unwrap();
+    assert_eq!(hull.points().len(), twinbots_sim::urdf::MAX_HULL_VERTICES);
+    let volume = mesh.hull.mass_properties(1.0).mass();
+    let sphere = 4.0 / 3.0 * std::f32::consts::PI;
+    assert!(volume > 0.97 * sphere && volume < sphere, "{volume} against the sphere's {sphere}");
+    // A hull of fewer vertices than the cap is the mesh's own.
+    let cube: Vec<bevy::math::Vec3> =
+        (0..8).map(|k| bevy::math::Vec3::new((k & 1) as f32, (k >> 1 & 1) as f32, (k >> 2) as f32)).collect();
+    let whole = twinbots_sim::urdf::collision_hull(&cube, 8).unwrap();
+    assert_eq!(whole.as_convex_polyhedron().unwrap().points().len(), 8);
+    assert!((whole.mass_properties(1.0).mass() - 1.0).abs() < 1e-5);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -220,7 +220,7 @@ fn mutated_urdfs_load_or_name_their_file_and_never_panic() {
                     hostile_loaded.push(input);
                 } else {
                     // What loads must build and step: no panic, no number lost.
-                    match std::panic::catch_unwind(|| stands(&model)) {
+                    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| stands(&model))) {
                         Ok(true) => spawned += 1,
                         Ok(false) => unstable.push(input),
                         Err(_) => panics.push(input),

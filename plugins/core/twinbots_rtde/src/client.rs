@@ -70,7 +70,7 @@ impl RtdeClient {
     /// after `timeout`.
     pub fn connect(address: &str, timeout: Duration) -> Result<Self, RtdeError> {
         let (host, port) = parse_address(address)?;
-        let connect_error = |source| RtdeError::Connect { address: address.to_string(), source };
+        let connect_error = |error| RtdeError::Connect { address: address.to_string(), error };
         let candidates = (host.as_str(), port).to_socket_addrs().map_err(connect_error)?;
         let mut last = None;
         let mut stream = None;

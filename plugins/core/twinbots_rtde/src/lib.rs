@@ -31,8 +31,11 @@ pub const MAX_FREQUENCY: f64 = 500.0;
 /// What can go wrong on an RTDE link, named.
 #[derive(Debug, thiserror::Error)]
 pub enum RtdeError {
-    #[error("RTDE: cannot connect to {address}: {source}")]
-    Connect { address: String, source: std::io::Error },
+    // The I/O error is in the message, not the error's source, so a printed chain names it once.
+    #[error("RTDE: cannot connect to {address}: {error}")]
+    Connect { address: String, error: std::io::Error },
+    #[error("RTDE: cannot listen on {address}: {error}")]
+    Listen { address: String, error: std::io::Error },
     #[error("RTDE: bad address '{0}': expected HOST[:PORT]")]
     Address(String),
     #[error("RTDE: {0}")]

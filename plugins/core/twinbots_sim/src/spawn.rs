@@ -224,11 +224,26 @@ fn body_mass(model: &RobotModel, owner: &[usize], offset: &[Pose], body: usize) 
     total
 }
 
+/// The most triangles a collision mesh split into convex parts may have: the split's time
+/// grows with them (see docs/robot-files.md for the measurement), so a larger mesh is refused
+/// with its link named rather than left to run for minutes.
+pub const MAX_DECOMPOSED_TRIANGLES: usize = 200_000;
+
+/// How a collision mesh is split into convex parts (V-HACD): parry's voxel resolution (64, so
+/// at most 64³ voxels whatever the mesh), at most 32 parts (V-HACD 4's default is 64 and
+/// parry's 1,024; every part is a shape the narrow phase tests each step).
+pub fn decomposition_parameters() -> crate::rapier::parry::transformation::vhacd::VHACDParameters {
+    crate::rapier::parry::transformation::vhacd::VHACDParameters { max_convex_hulls: 32, ..Default::default() }
+}
+
 /// A rapier collider for a URDF shape placed at `pose` in its body; a mesh as its convex
-/// hull, or split into convex parts (`decompose`).
+/// hull, or split into convex parts (`decompose`; the caller has kept the mesh within
+/// [`MAX_DECOMPOSED_TRIANGLES`]).
 fn collider(shape: &Shape, pose: Pose, decompose: bool) -> ColliderBuilder {
     if let (true, Shape::Mesh(mesh)) = (decompose, shape) {
-        return ColliderBuilder::convex_decomposition(&mesh.vertices, &mesh.triangles).position(pose);
+        let parameters = decomposition_parameters();
+        return ColliderBuilder::convex_decomposition_with_params(&mesh.vertices, &mesh.triangles, &parameters)
+            .position(pose);
     }
     let (shape, local) = shape.parry().expect("the URDF loader rejects meshes without a convex hull");
     ColliderBuilder::new(shape).position(pose * local)

@@ -151,7 +151,7 @@ impl RtdeServer {
     /// [`RtdeServer::bind`] with other [`Limits`].
     pub fn bind_with(address: &str, info: ControllerInfo, limits: Limits) -> Result<Self, RtdeError> {
         let listener =
-            TcpListener::bind(address).map_err(|source| RtdeError::Connect { address: address.to_string(), source })?;
+            TcpListener::bind(address).map_err(|error| RtdeError::Listen { address: address.to_string(), error })?;
         let local = listener.local_addr()?;
         listener.set_nonblocking(true)?;
         let shared = Arc::new(Shared {

@@ -54,6 +54,20 @@ pub fn check_model(
         let links: Vec<&str> = model.links.iter().map(|l| l.name.as_str()).collect();
         anyhow::bail!("--decompose: robot '{}' has no link '{unknown}' (its links: {})", model.name, links.join(", "));
     }
+    for link in model.links.iter().filter(|l| decompose.contains(&l.name)) {
+        for geometry in &link.collisions {
+            if let crate::urdf::Shape::Mesh(mesh) = &geometry.shape {
+                anyhow::ensure!(
+                    mesh.triangles.len() <= crate::spawn::MAX_DECOMPOSED_TRIANGLES,
+                    "--decompose: link '{}' has a collision mesh of {} triangles, more than the {} a split into \
+                     convex parts takes; give the link a simpler collision mesh",
+                    link.name,
+                    mesh.triangles.len(),
+                    crate::spawn::MAX_DECOMPOSED_TRIANGLES
+                );
+            }
+        }
+    }
     let tree = tree(&model);
     let mut warnings = flags(&model);
     let mut app = App::new();

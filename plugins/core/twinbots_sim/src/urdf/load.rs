@@ -461,15 +461,15 @@ impl Checker<'_> {
             super::mesh::read(&path).map_err(|e| self.link_error(link, format!("mesh '{filename}': {e}")))?;
         let vertices: Vec<Vec3> = vertices.into_iter().map(|v| v * scale).collect();
         // Collisions use the mesh's convex hull, so a flat or tiny mesh cannot be simulated.
-        let has_volume = crate::rapier::parry::shape::SharedShape::convex_hull(&vertices)
-            .is_some_and(|hull| hull.mass_properties(1.0).mass() > 1e-12);
-        if !has_volume {
+        let hull = super::model::collision_hull(&vertices, super::model::MAX_HULL_VERTICES)
+            .filter(|hull| hull.mass_properties(1.0).mass() > 1e-12);
+        let Some(hull) = hull else {
             return Err(self.link_error(
                 link,
                 format!("mesh file '{}' is degenerate (flat, or fewer than 4 distinct points)", path.display()),
             ));
-        }
-        Ok(TriangleMesh { vertices, triangles })
+        };
+        Ok(TriangleMesh { vertices, triangles, hull })
     }
 
     fn joint(&self, joint: &urdf_rs::Joint, index: &HashMap<String, usize>) -> Result<JointModel, UrdfError> {

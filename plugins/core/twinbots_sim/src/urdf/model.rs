@@ -79,7 +79,7 @@ impl Shape {
                 Pose::from_rotation(bevy::math::Quat::from_rotation_x(std::f32::consts::FRAC_PI_2)),
             ),
             Shape::Sphere { radius } => (SharedShape::ball(*radius), Pose::IDENTITY),
-            Shape::Mesh(mesh) => (SharedShape::convex_hull(&mesh.vertices)?, Pose::IDENTITY),
+            Shape::Mesh(mesh) => (mesh.hull.clone(), Pose::IDENTITY),
         })
     }
 }
@@ -89,6 +89,48 @@ impl Shape {
 pub struct TriangleMesh {
     pub vertices: Vec<Vec3>,
     pub triangles: Vec<[u32; 3]>,
+    /// Its collision shape: the convex hull, of at most [`MAX_HULL_VERTICES`] vertices
+    /// ([`collision_hull`]), made once when the mesh is read (a robot file's `hull_vertices`
+    /// may make it again with fewer or more).
+    pub hull: crate::rapier::parry::shape::SharedShape,
+}
+
+/// The most vertices a mesh's collision hull keeps unless a robot file says `hull_vertices`. A
+/// CAD export's hull can have thousands (the SO-101's links 441–4,843), and a contact test walks
+/// every vertex of a hull: a hull of more is replaced by the hull of its extreme points in this
+/// many directions. PhysX (and so Isaac Lab) caps a hull at 255 vertices, Isaac Lab's importer
+/// at 64 by default; the collision meshes vendors ship for simulation (the Panda's 18–152, the
+/// UR10's 122–243) stay whole.
+pub const MAX_HULL_VERTICES: usize = 256;
+
+/// The convex hull of `points` as a collision shape, `None` for a flat or empty set. A hull of
+/// more than `max_vertices` vertices is replaced by the hull of its vertices that are farthest
+/// along `max_vertices` directions spread evenly over the sphere (a Fibonacci lattice), about
+/// the vertices' mean: inscribed in the full hull, every vertex one of its. Besides the contact
+/// cost, it keeps parry's polyhedron sound: for hulls of tens of thousands of faces, parry's
+/// merge of coplanar faces loses faces (a finely tessellated sphere's hull came out with no
+/// volume), which a hull of a few hundred vertices does not meet.
+pub fn collision_hull(points: &[Vec3], max_vertices: usize) -> Option<crate::rapier::parry::shape::SharedShape> {
+    use crate::rapier::parry::shape::SharedShape;
+    let (vertices, _) = crate::rapier::parry::transformation::try_convex_hull(points).ok()?;
+    if vertices.len() <= max_vertices {
+        return SharedShape::convex_hull(&vertices);
+    }
+    let centre = vertices.iter().copied().sum::<Vec3>() / vertices.len() as f32;
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    let mut kept: Vec<usize> = (0..max_vertices)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f32 + 0.5) / max_vertices as f32;
+            let (r, angle) = ((1.0 - z * z).sqrt(), golden * i as f32);
+            let direction = Vec3::new(r * angle.cos(), r * angle.sin(), z);
+            let reach = |k: usize| (vertices[k] - centre).dot(direction);
+            // The first of equals, so the choice does not depend on the float order of a tie.
+            (0..vertices.len()).fold(0, |best, k| if reach(k) > reach(best) { k } else { best })
+        })
+        .collect();
+    kept.sort_unstable();
+    kept.dedup();
+    SharedShape::convex_hull(&kept.iter().map(|&k| vertices[k]).collect::<Vec<_>>())
 }
 
 /// The kinds of joint the simulator supports.

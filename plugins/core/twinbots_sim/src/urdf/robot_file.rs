@@ -27,6 +27,7 @@ struct Written {
     speed_limits: Option<Vec<f64>>,
     safety_factor: Option<f64>,
     policy_period: Option<f64>,
+    hull_vertices: Option<usize>,
     #[serde(default)]
     packages: BTreeMap<String, PathBuf>,
 }
@@ -42,6 +43,8 @@ pub const STOP_MARGIN: f64 = 0.01;
 /// Where home is when the file does not say: 0, unless that is within this much (rad or m) of
 /// a stop; then the middle of the range.
 const DEFAULT_HOME_CLEARANCE: f64 = 0.1;
+/// The range of `hull_vertices`: fewer than 8 is hardly a hull, more than 4,096 no robot needs.
+pub const HULL_VERTICES: std::ops::RangeInclusive<usize> = 8..=4096;
 /// The twin's physics step (s) for a robot file's arm: the UR5e's, whose accuracy is tested.
 pub const PHYSICS_STEP: f64 = 0.004;
 
@@ -77,6 +80,9 @@ pub struct RobotFile {
     pub policy_period: f64,
     /// The file's `[packages]`: a package's name and its folder (relative paths made the file's).
     pub packages: Vec<(String, PathBuf)>,
+    /// The most vertices a link's collision hull keeps (`hull_vertices`; see
+    /// [`super::MAX_HULL_VERTICES`], the default).
+    pub hull_vertices: usize,
 }
 
 impl RobotFile {
@@ -210,6 +216,14 @@ impl RobotFile {
             "{}: key 'policy_period': {policy_period} s is not a multiple of the physics step ({PHYSICS_STEP} s) up to 1 s",
             path.display()
         );
+        let hull_vertices = written.hull_vertices.unwrap_or(super::MAX_HULL_VERTICES);
+        anyhow::ensure!(
+            HULL_VERTICES.contains(&hull_vertices),
+            "{}: key 'hull_vertices': {hull_vertices} is not from {} to {}",
+            path.display(),
+            HULL_VERTICES.start(),
+            HULL_VERTICES.end()
+        );
         Ok(RobotFile {
             path: path.to_path_buf(),
             name,
@@ -223,14 +237,33 @@ impl RobotFile {
             ranges,
             policy_period,
             packages,
+            hull_vertices,
         })
     }
 
     /// The URDF with its meshes, for the simulator: `package://` through the file's
     /// `[packages]`, then `TWINBOTS_PACKAGE_PATH` and `ROS_PACKAGE_PATH`.
     pub fn model(&self) -> anyhow::Result<RobotModel> {
-        load_urdf_in(&self.urdf, &self.packages)
-            .map_err(|e| anyhow::anyhow!("{}: key 'urdf': {e}", self.path.display()))
+        let mut model = load_urdf_in(&self.urdf, &self.packages)
+            .map_err(|e| anyhow::anyhow!("{}: key 'urdf': {e}", self.path.display()))?;
+        if self.hull_vertices != super::MAX_HULL_VERTICES {
+            for link in &mut model.links {
+                for geometry in &mut link.collisions {
+                    if let super::Shape::Mesh(mesh) = &mut geometry.shape {
+                        let hull = super::collision_hull(&mesh.vertices, self.hull_vertices).ok_or_else(|| {
+                            anyhow::anyhow!(
+                                "{}: key 'hull_vertices': link '{}': a hull of {} vertices is flat",
+                                self.path.display(),
+                                link.name,
+                                self.hull_vertices
+                            )
+                        })?;
+                        *mesh = std::sync::Arc::new(super::TriangleMesh { hull, ..(**mesh).clone() });
+                    }
+                }
+            }
+        }
+        Ok(model)
     }
 
     /// The chain's joint positions (chain order) of controller-order positions `q`.
@@ -299,6 +332,7 @@ mod tests {
             ),
             ("safety.toml", format!("{head}{joints}safety_factor = 0\n"), "key 'safety_factor'"),
             ("policy.toml", format!("{head}{joints}policy_period = 0.005\n"), "key 'policy_period'"),
+            ("hull.toml", format!("{head}{joints}hull_vertices = 3\n"), "key 'hull_vertices': 3 is not from 8 to 4096"),
             ("packages.toml", format!("{head}{joints}[packages]\nur = \"no/such/folder\"\n"), "key 'packages.ur'"),
         ];
         for (name, text, expected) in cases {
