@@ -8,6 +8,8 @@
 //! of 286,720; at 100 σ the run is the same as without the clipping: 286,720 steps, 98 %.) Implausible readings are refused before
 //! they get here (`twinbots_link::checks`): this is the second line.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -74,6 +76,122 @@ impl RunningMeanStd {
     }
 }
 
+/// Robots a value's statistics are judged among: with fewer, every robot's readings count.
+pub const JUDGED_FROM: usize = 3;
+/// Readings a robot has sent before it is judged (its own statistics settle first).
+pub const JUDGED_AFTER: f64 = 100.0;
+/// How far a robot's statistics of a value may stray from the robots' median before its
+/// readings of that value stop counting: its standard deviation within this many times the
+/// median one, its mean within this many median standard deviations of the median mean.
+pub const CONSENSUS_FACTOR: f64 = 5.0;
+
+/// The observation statistics of a run whose observations come from several robots (the
+/// RobotServer, design pattern 3): each robot's readings kept apart, and per value the run's
+/// statistics are those of the robots that agree with the rest. A robot whose readings of a
+/// value stray from the others' (a sensor that reports wild values that are still plausible:
+/// a pole rate of ±100 rad/s where the others see ±2) stops counting for that value, all its
+/// readings of it, for as long as it strays; its other values still count. With fewer than
+/// [`JUDGED_FROM`] robots past [`JUDGED_AFTER`] readings, nobody is judged. Robots that agree,
+/// folded together, are SB3's statistics of their readings (Chan's parallel combination).
+#[derive(Clone, Debug)]
+pub struct RobotStatistics {
+    /// Per value, what the run knew before these robots (a resumed model's statistics), and
+    /// the robots that have left, folded in as they left (as far as they agreed then).
+    settled: Vec<Moments>,
+    robots: BTreeMap<u64, RunningMeanStd>,
+}
+
+/// Mean and variance of one value over `count` samples.
+#[derive(Clone, Copy, Debug)]
+struct Moments {
+    mean: f64,
+    var: f64,
+    count: f64,
+}
+
+impl Moments {
+    fn of(rms: &RunningMeanStd, k: usize) -> Self {
+        Self { mean: rms.mean[k], var: rms.var[k], count: rms.count }
+    }
+
+    /// Folds `other` in (Chan et al.'s combination, as [`RunningMeanStd::update`] folds a batch).
+    fn fold(&mut self, other: Moments) {
+        let total = self.count + other.count;
+        let delta = other.mean - self.mean;
+        self.mean += delta * other.count / total;
+        self.var = (self.var * self.count + other.var * other.count + delta * delta * self.count * other.count / total)
+            / total;
+        self.count = total;
+    }
+}
+
+impl RobotStatistics {
+    /// Starting from the model's statistics (a new model's, or a resumed one's).
+    pub fn new(model: &RunningMeanStd) -> Self {
+        Self { settled: (0..model.mean.len()).map(|k| Moments::of(model, k)).collect(), robots: BTreeMap::new() }
+    }
+
+    /// Folds `raw` (rows of one robot's observations) into that robot's statistics.
+    pub fn observe(&mut self, robot: u64, raw: &[f32]) {
+        let dim = self.settled.len();
+        self.robots.entry(robot).or_insert_with(|| RunningMeanStd::new(dim)).update(raw);
+    }
+
+    /// A robot left: what it sent stays, as far as it agreed with the others.
+    pub fn leave(&mut self, robot: u64) {
+        let kept = self.agreeing();
+        if let Some(gone) = self.robots.remove(&robot) {
+            for (k, settled) in self.settled.iter_mut().enumerate() {
+                if kept[k].contains(&robot) {
+                    settled.fold(Moments::of(&gone, k));
+                }
+            }
+        }
+    }
+
+    /// The robots (by id) whose statistics count, for each value.
+    fn agreeing(&self) -> Vec<Vec<u64>> {
+        let judged: Vec<&RunningMeanStd> = self.robots.values().filter(|rms| rms.count >= JUDGED_AFTER).collect();
+        (0..self.settled.len())
+            .map(|k| {
+                if judged.len() < JUDGED_FROM {
+                    return self.robots.keys().copied().collect();
+                }
+                let median_var = median(judged.iter().map(|r| r.var[k]).collect());
+                let median_mean = median(judged.iter().map(|r| r.mean[k]).collect());
+                let reach = CONSENSUS_FACTOR * (median_var + 1e-8).sqrt();
+                self.robots
+                    .iter()
+                    .filter(|(_, r)| r.var[k].sqrt() <= reach && (r.mean[k] - median_mean).abs() <= reach)
+                    .map(|(id, _)| *id)
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// The run's statistics: per value, the settled ones with the agreeing robots' folded in
+    /// (the count is the largest of the values').
+    pub fn consensus(&self) -> RunningMeanStd {
+        let dim = self.settled.len();
+        let mut out = RunningMeanStd { mean: vec![0.0; dim], var: vec![0.0; dim], count: 0.0 };
+        for (k, ids) in self.agreeing().iter().enumerate() {
+            let mut value = self.settled[k];
+            for id in ids {
+                value.fold(Moments::of(&self.robots[id], k));
+            }
+            (out.mean[k], out.var[k]) = (value.mean, value.var);
+            out.count = out.count.max(value.count);
+        }
+        out
+    }
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    if n % 2 == 1 { values[n / 2] } else { (values[n / 2 - 1] + values[n / 2]) / 2.0 }
+}
+
 /// `raw` normalised with `rms` if the model normalises, else as it is: what every learner feeds
 /// its networks.
 pub fn normalized(rms: Option<&RunningMeanStd>, raw: &[f32]) -> Vec<f32> {
@@ -109,5 +227,51 @@ mod tests {
         let mean = m + (5.0 - m) / (n + 1.0);
         let var = (v * n + (5.0 - m).powi(2) * n / (n + 1.0)) / (n + 1.0);
         assert!((exact.mean[0] - mean).abs() < 1e-12 && (exact.var[0] - var).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_robot_whose_readings_stray_from_the_others_stops_counting() {
+        // Two values: the first as a working pole-rate sensor reads it (±1.5 about 0.2), the
+        // second ±0.3. Robot 3's first value is wild but plausible (±90); its second is fine.
+        let honest = |robot: u64, t: usize| {
+            [0.2 + 1.5 * ((t as f32) * 0.37 + robot as f32).sin(), 0.3 * (t as f32 * 0.11).cos()]
+        };
+        let wild = |t: usize| [if t % 2 == 0 { 90.0 } else { -90.0 }, 0.3 * (t as f32 * 0.11).cos()];
+        let mut statistics = RobotStatistics::new(&RunningMeanStd::new(2));
+        let (mut everyone, mut agreeing) = (RunningMeanStd::new(2), RunningMeanStd::new(1));
+        for t in 0..500 {
+            for robot in 0..4u64 {
+                let reading = if robot == 3 { wild(t) } else { honest(robot, t) };
+                statistics.observe(robot, &reading);
+                everyone.update(&reading);
+                if robot != 3 {
+                    agreeing.update(&reading[..1]);
+                }
+            }
+        }
+        let consensus = statistics.consensus();
+        // Pooled, the wild robot sets the first value's variance (≈ 2,000 against ≈ 1.1).
+        assert!(everyone.var[0] > 1000.0, "{everyone:?}");
+        assert!((consensus.mean[0] - agreeing.mean[0]).abs() < 1e-6, "{consensus:?} {agreeing:?}");
+        assert!((consensus.var[0] - agreeing.var[0]).abs() < 1e-6, "{consensus:?} {agreeing:?}");
+        // Its second value agrees with the others', so all four count there.
+        assert!(
+            (consensus.mean[1] - everyone.mean[1]).abs() < 1e-6 && (consensus.var[1] - everyone.var[1]).abs() < 1e-6
+        );
+        // A robot that leaves leaves what it sent as far as it agreed.
+        statistics.leave(3);
+        statistics.leave(0);
+        let after = statistics.consensus();
+        assert!((after.var[0] - agreeing.var[0]).abs() < 1e-6 && (after.var[1] - everyone.var[1]).abs() < 1e-6);
+        // Two robots are not judged: one cannot tell which strays.
+        let mut two = RobotStatistics::new(&RunningMeanStd::new(2));
+        let mut pooled = RunningMeanStd::new(2);
+        for t in 0..500 {
+            for (robot, reading) in [(0, honest(0, t)), (1, wild(t))] {
+                two.observe(robot, &reading);
+                pooled.update(&reading);
+            }
+        }
+        assert!((two.consensus().var[0] - pooled.var[0]).abs() < 1e-6 * pooled.var[0]);
     }
 }

@@ -13,6 +13,7 @@ use twinbots_api::EpisodeSummary;
 use super::{OffPolicy, Row};
 use crate::agent::Agent;
 use crate::learner::{Learner, RobotStep, ServedLearner};
+use crate::normalize::RobotStatistics;
 use crate::stats::UpdateStats;
 
 /// One step of a robot's running episode.
@@ -42,6 +43,9 @@ pub(crate) struct ServedOffPolicy<M: OffPolicy> {
     /// Transitions stored since learning was last looked at.
     unseen: u64,
     row: Row,
+    /// Each robot's observation statistics, when the model normalises: the model's are the
+    /// robots' consensus ([`RobotStatistics`]).
+    statistics: Option<RobotStatistics>,
 }
 
 impl<M: OffPolicy> ServedOffPolicy<M> {
@@ -51,7 +55,15 @@ impl<M: OffPolicy> ServedOffPolicy<M> {
             lanes == 1,
             "this model's replay buffer was filled by {lanes} envs stepped together; a RobotServer continues only a model it trained (or a new one)"
         );
-        Ok(Self { model, robots: robots.max(1) as u64, episodes: HashMap::new(), unseen: 0, row: Row::default() })
+        let statistics = model.parts().obs_rms.as_ref().map(RobotStatistics::new);
+        Ok(Self {
+            model,
+            robots: robots.max(1) as u64,
+            episodes: HashMap::new(),
+            unseen: 0,
+            row: Row::default(),
+            statistics,
+        })
     }
 
     /// Stores a finished episode's transitions, in order, and counts them.
@@ -84,6 +96,9 @@ impl<M: OffPolicy + Send> ServedLearner for ServedOffPolicy<M> {
 
     fn leave(&mut self, robot: u64) {
         self.episodes.remove(&robot);
+        if let Some(statistics) = &mut self.statistics {
+            statistics.leave(robot);
+        }
     }
 
     fn awaits_outcome(&self, robot: u64) -> Option<bool> {
@@ -91,10 +106,11 @@ impl<M: OffPolicy + Send> ServedLearner for ServedOffPolicy<M> {
     }
 
     /// The observation counts into the normalisation statistics first, as `learn` counts each
-    /// observation it acts on.
+    /// observation it acts on: into its robot's, and the model's are the robots' consensus.
     fn act(&mut self, robot: u64, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        if let Some(rms) = self.model.parts().obs_rms.as_mut() {
-            rms.update(obs);
+        if let (Some(statistics), Some(rms)) = (&mut self.statistics, self.model.parts().obs_rms.as_mut()) {
+            statistics.observe(robot, obs);
+            *rms = statistics.consensus();
         }
         let unit = self.model.explore(obs)?;
         let action = super::to_env(self.model.action_space(), &unit);

@@ -13,6 +13,7 @@ use twinbots_api::EpisodeSummary;
 use super::{PolicyStep, Ppo, RolloutBuffer};
 use crate::agent::Agent;
 use crate::learner::{Learner, RobotStep, ServedLearner};
+use crate::normalize::RobotStatistics;
 use crate::stats::UpdateStats;
 
 /// One robot's experience since the last update.
@@ -39,12 +40,16 @@ pub(crate) struct ServedPpo {
     trajectories: HashMap<u64, Trajectory>,
     /// When collecting the next update's rollout began.
     collecting_since: Instant,
+    /// Each robot's observation statistics, when the model normalises: the model's are the
+    /// robots' consensus ([`RobotStatistics`]).
+    statistics: Option<RobotStatistics>,
 }
 
 impl ServedPpo {
     pub fn new(ppo: Ppo, robots: usize, budget: u64) -> Self {
         let rollout = ppo.config.n_steps.saturating_mul(robots.max(1));
-        Self { ppo, rollout, budget, trajectories: HashMap::new(), collecting_since: Instant::now() }
+        let statistics = ppo.state.obs_rms.as_ref().map(RobotStatistics::new);
+        Self { ppo, rollout, budget, trajectories: HashMap::new(), collecting_since: Instant::now(), statistics }
     }
 }
 
@@ -80,6 +85,9 @@ impl ServedLearner for ServedPpo {
     /// A robot that ends its shift between updates loses nothing it completed.
     fn leave(&mut self, robot: u64) {
         self.drop_episode(robot);
+        if let Some(statistics) = &mut self.statistics {
+            statistics.leave(robot);
+        }
         match self.trajectories.get_mut(&robot) {
             Some(t) if !t.buffer.is_empty() => t.gone = true,
             _ => {
@@ -93,7 +101,14 @@ impl ServedLearner for ServedPpo {
     }
 
     fn act(&mut self, robot: u64, raw_obs: &[f32]) -> anyhow::Result<Vec<f32>> {
-        let obs = self.ppo.observe(raw_obs);
+        let obs = match (&mut self.statistics, &mut self.ppo.state.obs_rms) {
+            (Some(statistics), Some(rms)) => {
+                statistics.observe(robot, raw_obs);
+                *rms = statistics.consensus();
+                rms.normalize(raw_obs)
+            }
+            _ => self.ppo.observe(raw_obs),
+        };
         let step = self.ppo.policy_step(obs)?;
         let action = step.env_actions.clone();
         if let Some(traj) = self.trajectories.get_mut(&robot) {
