@@ -87,6 +87,9 @@ fn a_robot_file_arm_follows_its_kinematics_and_a_resolved_rate_controller_reache
             if let Some(summary) = summary {
                 ended += 1;
                 arrived += usize::from(summary.success == Some(true));
+                // Every reach spends energy moving the arm, metered every physics step.
+                let energy = summary.metrics["energy_j"];
+                assert!(energy.is_finite() && energy > 0.0, "energy {energy} J");
                 assert_ne!(step.way_ended(i).as_deref(), Some(STOP_TERM), "the controller stays inside the ranges");
             }
         }

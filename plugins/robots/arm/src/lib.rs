@@ -19,8 +19,8 @@ use bevy::prelude::*;
 use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerRobotPlugin};
 use twinbots_sim::urdf::robot_file::{PHYSICS_STEP, RobotFile};
 use twinbots_sim::{
-    ArenaConfig, Framing, JointState, Motor, MotorCommand, PositionSensor, SimSet, SimSettings, SpawnOptions,
-    Supervisor, spawn_robot,
+    ArenaConfig, Framing, JointState, Motor, MotorCommand, PhysicsSubstep, PositionSensor, SimSet, SimSettings,
+    SpawnOptions, SubstepSet, Supervisor, spawn_robot,
 };
 use twinbots_task::robot::{AlgoDefaults, RobotDescription, TaskDescription, TrainingDefaults, headless_app};
 use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
@@ -141,11 +141,12 @@ impl Plugin for ArmPlugin {
             .add_plugins(TaskTermsPlugin::new(reach::reach_task(&self.arm), self.pattern))
             .add_systems(Startup, spawn_cells)
             .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)))
-            .add_systems(Update, report.in_set(TaskSet::Report));
+            .add_systems(Update, report.in_set(TaskSet::Report))
+            .add_systems(PhysicsSubstep, meter_energy.in_set(SubstepSet::Record));
         if self.pattern == DesignPattern::Server {
             // Design pattern 3: no Supervisor; the arm homes with its own motors.
             app.add_plugins(ServerRobotPlugin::<ReachState>::new(self.kind))
-                .add_systems(Update, home.in_set(RobotCycleSet::Home));
+                .add_systems(Update, (home.in_set(RobotCycleSet::Home), reset_energy.in_set(RobotCycleSet::Operate)));
         } else {
             app.add_systems(EnvReset, (place_arm.in_set(ResetSet::Place), read_arm.in_set(ResetSet::Read)));
         }
@@ -264,17 +265,42 @@ fn read_arm(
     }
 }
 
-/// Reset: the Supervisor puts the arm at the drawn start, its stop unlocked.
+/// Reset: the Supervisor puts the arm at the drawn start, its stop unlocked, the episode's
+/// energy from nothing.
 fn place_arm(mut supervisor: Supervisor, mut arenas: Query<(&ArmJoints, &mut ReachState), With<Resetting>>) {
     for (joints, mut state) in &mut arenas {
         for (&joint, &q) in joints.0.iter().zip(&state.start_pose) {
             supervisor.set_joint_position(joint, q);
         }
         state.stopped = false;
+        state.energy = 0.0;
     }
 }
 
-/// The figures of a reach that ended: its final error and, if it arrived, its cycle time.
+/// Pattern 3: an episode's energy counts from its start, not from the homing before it.
+fn reset_energy(mut robots: Query<(&Controller, &mut ReachState)>) {
+    for (controller, mut state) in &mut robots {
+        if controller.phase() == Phase::Starting {
+            state.energy = 0.0;
+        }
+    }
+}
+
+/// Adds the energy the motors delivered in the last physics step, Σ|τ·ω|·dt over the arm's
+/// joints (their torque feedback and encoder speeds), as the UR5e's twin meters it.
+fn meter_energy(
+    settings: Res<SimSettings>,
+    joints: Query<&JointState>,
+    mut arenas: Query<(&ArmJoints, &mut ReachState)>,
+) {
+    for (arm_joints, mut state) in &mut arenas {
+        let power: f32 = joints.iter_many(&arm_joints.0).map(|s| (s.effort * s.velocity).abs()).sum();
+        state.energy += power * settings.dt;
+    }
+}
+
+/// The figures of a reach that ended: its final error, its stop, the energy its motors spent
+/// and, if it arrived, its cycle time.
 fn report(settings: Res<SimSettings>, mut arenas: Query<(&ReachState, &mut Episode)>) {
     for (state, mut e) in &mut arenas {
         if e.done() {
@@ -285,6 +311,7 @@ fn report(settings: Res<SimSettings>, mut arenas: Query<(&ReachState, &mut Episo
             }
             let stops = f32::from(u8::from(state.stopped));
             e.running.metrics.insert("protective_stops".into(), stops);
+            e.running.metrics.insert("energy_j".into(), state.energy);
         }
     }
 }

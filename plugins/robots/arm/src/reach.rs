@@ -59,6 +59,8 @@ pub struct ReachState {
     /// joint enters the margin, so an arm stopped there can be unlocked and home out of it.
     pub at_limit: bool,
     pub start_pose: Vec<f32>,
+    /// The energy the joint motors delivered this episode (J): ∫ Σ|τ·ω| dt.
+    pub energy: f32,
 }
 
 impl ReachState {
