@@ -77,6 +77,17 @@ enum Command {
     Ros2(commands::ros2::Args),
 }
 
+/// A report piped into `head` ends as Unix tools end when the reader leaves: killed by SIGPIPE,
+/// silently. Rust ignores SIGPIPE, so the next `println!` would panic on the closed pipe. Only
+/// for the commands that print reports: the servers keep it ignored (their sockets are written
+/// with `MSG_NOSIGNAL` anyway), so a run is never killed by a pipe.
+fn end_quietly_when_the_reader_leaves() {
+    // SAFETY: restores the default disposition of one signal before any other thread writes.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn main() {
     // Before any other thread starts: the pools for arenas and candle, sized for this machine.
     twinbots_learn::threads::configure();
@@ -88,6 +99,12 @@ fn main() {
 }
 
 fn run(args: Args) -> anyhow::Result<()> {
+    if matches!(
+        args.command,
+        Command::Algos(_) | Command::Robots(_) | Command::Bench(_) | Command::Compare(_) | Command::Urdf(_)
+    ) {
+        end_quietly_when_the_reader_leaves();
+    }
     match args.command {
         Command::Algos(args) => commands::algos::exec(args),
         Command::Robots(args) => commands::robots::exec(args),

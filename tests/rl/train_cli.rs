@@ -309,3 +309,23 @@ fn the_benchmarks_run() {
         }
     }
 }
+
+#[test]
+fn a_report_piped_into_a_reader_that_leaves_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    // The reader closes its end at once (as `head` does once it has its lines): the report's
+    // next write finds the pipe closed.
+    for args in [&["robots"][..], &["algos"][..]] {
+        let mut child = twinbots()
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!stderr.contains("panicked") && !stderr.contains("Broken pipe"), "{args:?}: {stderr}");
+        assert!(out.status.success() || out.status.signal() == Some(libc::SIGPIPE), "{args:?}: {:?}", out.status);
+    }
+}
