@@ -129,6 +129,31 @@ fn a_joint_driven_into_its_stop_ends_the_reach_in_a_protective_stop() {
 }
 
 #[test]
+fn a_forearm_knocked_beyond_the_elbows_speed_limit_trips_the_safety_systems_stop() {
+    let mut env = env(&robot_file("knock"), 1);
+    env.reset(Some(2)).unwrap();
+    let world = env.app_mut().world_mut();
+    let fore = world
+        .query::<(bevy::prelude::Entity, &Link)>()
+        .iter(world)
+        .find(|(_, link)| link.name == "fore")
+        .map(|(entity, _)| entity)
+        .unwrap();
+    // A blow across the forearm's tip for one 4 ms physics step: 8 N·s whips the elbow far past
+    // its 2 rad/s at once, long before it could travel the 1.5 rad to its range's end.
+    let blow =
+        twinbots_sim::Push::lasting(bevy::math::Vec3::X * 2000.0, bevy::math::Vec3::new(0.0, 0.0, 0.3), 0.004, 0.004);
+    world.entity_mut(fore).insert(blow);
+    let step = env.step(&[0.0, 0.0, 0.0]).unwrap();
+    assert!(step.episodes[0].is_some(), "the stop ends the reach the step it trips");
+    assert_eq!(step.way_ended(0).as_deref(), Some(STOP_TERM));
+    // The reset unlocked it, filters and all.
+    let world = env.app_mut().world_mut();
+    let state = world.query::<&ReachState>().single(world).unwrap();
+    assert_eq!(state.safety, twinbots_task::safety::Safety::default());
+}
+
+#[test]
 fn hindsight_goals_are_rewarded_as_the_task_rewards_them() {
     let path = robot_file("goal");
     let mut env = env(&path, 1);

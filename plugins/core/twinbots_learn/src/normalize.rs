@@ -236,7 +236,7 @@ mod tests {
         let honest = |robot: u64, t: usize| {
             [0.2 + 1.5 * ((t as f32) * 0.37 + robot as f32).sin(), 0.3 * (t as f32 * 0.11).cos()]
         };
-        let wild = |t: usize| [if t % 2 == 0 { 90.0 } else { -90.0 }, 0.3 * (t as f32 * 0.11).cos()];
+        let wild = |t: usize| [if t.is_multiple_of(2) { 90.0 } else { -90.0 }, 0.3 * (t as f32 * 0.11).cos()];
         let mut statistics = RobotStatistics::new(&RunningMeanStd::new(2));
         let (mut everyone, mut agreeing) = (RunningMeanStd::new(2), RunningMeanStd::new(1));
         for t in 0..500 {

@@ -12,6 +12,7 @@ pub mod env;
 pub mod randomization;
 pub mod replay;
 pub mod robot;
+pub mod safety;
 pub mod task;
 
 pub use env::AppVecEnv;

@@ -5,8 +5,9 @@
 //! with SAC + HER or PPO. `twinbots train path/to/arm.toml` reaches it through [`robot`].
 //!
 //! The controller knows only its encoders and the chain's kinematics (the tool from the
-//! URDF in double precision); a joint entering the last 0.01 (rad or m) of its range trips the
-//! protective stop, which ends the episode as a failure.
+//! URDF in double precision). Its protective stop, which ends the episode as a failure, trips as
+//! a joint enters the last 0.01 (rad or m) of its range, or (its safety system, the UR5e's) as a
+//! joint runs beyond its URDF velocity or effort limit.
 
 pub mod arm;
 pub mod reach;
@@ -142,7 +143,7 @@ impl Plugin for ArmPlugin {
             .add_systems(Startup, spawn_cells)
             .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)))
             .add_systems(Update, report.in_set(TaskSet::Report))
-            .add_systems(PhysicsSubstep, meter_energy.in_set(SubstepSet::Record));
+            .add_systems(PhysicsSubstep, (meter_energy, watch_limits).in_set(SubstepSet::Record));
         if self.pattern == DesignPattern::Server {
             // Design pattern 3: no Supervisor; the arm homes with its own motors.
             app.add_plugins(ServerRobotPlugin::<ReachState>::new(self.kind))
@@ -178,6 +179,7 @@ fn home(
                 continue;
             }
             state.stopped = false;
+            state.safety.unlock();
         }
         let start = state.start_pose.clone();
         at_home.0 = still && state.q.iter().zip(&start).all(|(q, s)| (q - s).abs() < HOME_TOLERANCE);
@@ -273,6 +275,7 @@ fn place_arm(mut supervisor: Supervisor, mut arenas: Query<(&ArmJoints, &mut Rea
             supervisor.set_joint_position(joint, q);
         }
         state.stopped = false;
+        state.safety.unlock();
         state.energy = 0.0;
     }
 }
@@ -282,6 +285,22 @@ fn reset_energy(mut robots: Query<(&Controller, &mut ReachState)>) {
     for (controller, mut state) in &mut robots {
         if controller.phase() == Phase::Starting {
             state.energy = 0.0;
+        }
+    }
+}
+
+/// The controller's safety system, every physics step once the joints are measured: a joint
+/// beyond its URDF velocity or effort limit stops the arm, which holds where it is.
+fn watch_limits(
+    settings: Res<SimSettings>,
+    mut readings: Query<(&JointState, &mut Motor)>,
+    mut arenas: Query<(&ArmJoints, &mut ReachState)>,
+) {
+    for (joints, mut state) in &mut arenas {
+        if !state.stopped {
+            let state = &mut *state;
+            state.stopped =
+                twinbots_task::safety::watch(&mut state.safety, &joints.0, &mut readings, settings.dt).is_some();
         }
     }
 }

@@ -52,7 +52,12 @@ pub struct ReachState {
     pub target: Vec3,
     pub last_action: Vec<f32>,
     pub previous_action: Vec<f32>,
+    /// The protective stop, latched until it is unlocked: a joint entering the last
+    /// [`crate::arm::LIMIT_MARGIN`] of its range, or the safety system's (`safety`).
     pub stopped: bool,
+    /// The controller's safety system: a joint beyond its URDF velocity or effort limit
+    /// ([`twinbots_task::safety`], as the UR5e's) stops the arm.
+    pub safety: twinbots_task::safety::Safety,
     /// How far the joints are past their soft limits, summed (rad or m).
     pub limit_depth: f32,
     /// Whether a joint was within the stop's margin at the last reading: the stop trips as a

@@ -31,7 +31,8 @@ pub mod program;
 mod protective_stop;
 pub mod reach;
 pub mod rig;
-pub mod safety;
+/// The controller's safety system, shared with every arm: [`twinbots_task::safety`].
+pub use twinbots_task::safety;
 pub mod server;
 pub mod state;
 pub mod target_marker;

@@ -1,5 +1,5 @@
-//! The controller's protective stop, as a UR's safety system makes one: from what the
-//! controller knows of its joints every physics step (encoder speed, the motor's torque
+//! The controller's protective stop, as a UR's safety system makes one (the UR5e's and every
+//! robot-file arm's): from what the controller knows of its joints every physics step (encoder speed, the motor's torque
 //! feedback) it detects a joint beyond its URDF velocity or effort limit, then stops the arm:
 //! every joint is braked to a standstill and held, and the arm takes no more motion commands
 //! until the stop is unlocked. The episode ends the control step the stop trips; braking to
@@ -23,7 +23,8 @@
 //! have a tolerance and a filter time: a joint stops the arm at once above 1.5× its limit, or
 //! above 1.1× for 20 ms (5 steps).
 
-use twinbots_sim::Motor;
+use bevy::prelude::*;
+use twinbots_sim::{JointState, Motor, MotorCommand};
 
 /// How far over its velocity limit (a fraction of it) a joint may run for a moment: the
 /// drives' own overshoot stays within it (see the module's doc). UR's safety system has a
@@ -54,7 +55,7 @@ pub const MAX_BRAKING_STEPS: u32 = 50;
 /// What tripped a protective stop.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum StopCause {
-    /// Joint `joint` (base to wrist) ran at `ratio` × its velocity limit: over
+    /// Joint `joint` (base to tool, the controller's order) ran at `ratio` × its velocity limit: over
     /// [`PEAK_SPEED_MARGIN`], or over [`SPEED_MARGIN`] for [`OVERSPEED_TIME`].
     Speed { joint: usize, ratio: f32 },
     /// Joint `joint`'s motor exerted `ratio` × its effort limit.
@@ -67,7 +68,8 @@ pub enum StopCause {
 /// The safety system's state: how long each joint has overspeeded, and the stop, once made.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Safety {
-    overspeed_for: [f32; 6],
+    /// Per joint (the controller's order), how long it has run over [`SPEED_MARGIN`].
+    overspeed_for: Vec<f32>,
     /// The stop, until it is unlocked (a reset, or a pattern-3 robot before it homes).
     pub stop: Option<StopCause>,
     /// Control steps since the stop.
@@ -85,6 +87,9 @@ impl Safety {
     pub fn check(&mut self, joint: usize, velocity: f32, effort: f32, motor: &Motor, dt: f32) -> Option<StopCause> {
         let speed = velocity.abs() / motor.max_velocity;
         let effort = effort.abs() / motor.max_effort;
+        if self.overspeed_for.len() <= joint {
+            self.overspeed_for.resize(joint + 1, 0.0);
+        }
         let over = &mut self.overspeed_for[joint];
         *over = if speed > 1.0 + SPEED_MARGIN { *over + dt } else { 0.0 };
         // Half a step's slack: the sum of n steps' dt is n·dt only within rounding.
@@ -98,7 +103,7 @@ impl Safety {
     }
 
     /// Whether the stop has run its course: the arm braked to rest, or braking took too long.
-    pub fn stop_ended(&self, qd: &[f32; 6]) -> bool {
+    pub fn stop_ended(&self, qd: &[f32]) -> bool {
         self.stopped() && (qd.iter().all(|v| v.abs() < REST_SPEED) || self.braking_steps >= MAX_BRAKING_STEPS)
     }
 
@@ -106,6 +111,32 @@ impl Safety {
     pub fn unlock(&mut self) {
         *self = Self::default();
     }
+}
+
+/// The safety system at work on one arm after a physics step of `dt`: checks its joints (the
+/// controller's order) and, on a violation, stops the arm (`safety.stop`) and every joint holds
+/// where it is (zero speed; the servo brakes within its torque limit). Returns the cause.
+pub fn watch(
+    safety: &mut Safety,
+    joints: &[Entity],
+    readings: &mut Query<(&JointState, &mut Motor)>,
+    dt: f32,
+) -> Option<StopCause> {
+    let cause = joints.iter().enumerate().fold(None, |cause, (i, &joint)| {
+        let found = readings.get(joint).ok().and_then(|(s, m)| safety.check(i, s.velocity, s.effort, m, dt));
+        cause.or(found)
+    })?;
+    safety.stop = Some(cause);
+    for &joint in joints {
+        if let Ok((_, mut motor)) = readings.get_mut(joint) {
+            // Held where it is now, not where the servo was heading (its reference leads a
+            // moving joint): an arm stopped on its way into the table would otherwise keep
+            // pressing on it.
+            motor.forget_reference();
+            motor.command = MotorCommand::Velocity(0.0);
+        }
+    }
+    Some(cause)
 }
 
 #[cfg(test)]
