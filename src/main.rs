@@ -99,10 +99,8 @@ fn main() {
 }
 
 fn run(args: Args) -> anyhow::Result<()> {
-    if matches!(
-        args.command,
-        Command::Algos(_) | Command::Robots(_) | Command::Bench(_) | Command::Compare(_) | Command::Urdf(_)
-    ) {
+    // `robots` writes its listing in one piece and ends with status 0 on a closed pipe itself.
+    if matches!(args.command, Command::Algos(_) | Command::Bench(_) | Command::Compare(_) | Command::Urdf(_)) {
         end_quietly_when_the_reader_leaves();
     }
     match args.command {
