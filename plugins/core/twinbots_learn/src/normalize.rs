@@ -46,11 +46,9 @@ impl RunningMeanStd {
                 batch.iter().skip(k).step_by(dim).map(|&x| if robust { (x as f64).clamp(lo, hi) } else { x as f64 });
             let mean = xs.clone().sum::<f64>() / n;
             let var = xs.map(|x| (x - mean).powi(2)).sum::<f64>() / n;
-            let delta = mean - self.mean[k];
-            let total = self.count + n;
-            self.mean[k] += delta * n / total;
-            let m2 = self.var[k] * self.count + var * n + delta * delta * self.count * n / total;
-            self.var[k] = m2 / total;
+            let mut value = Moments::of(self, k);
+            value.fold(Moments { mean, var, count: n });
+            (self.mean[k], self.var[k]) = (value.mean, value.var);
         }
         self.count += n;
     }
@@ -139,45 +137,47 @@ impl RobotStatistics {
 
     /// A robot left: what it sent stays, as far as it agreed with the others.
     pub fn leave(&mut self, robot: u64) {
-        let kept = self.agreeing();
+        let bounds = self.bounds();
         if let Some(gone) = self.robots.remove(&robot) {
             for (k, settled) in self.settled.iter_mut().enumerate() {
-                if kept[k].contains(&robot) {
+                if agrees(&gone, k, bounds[k]) {
                     settled.fold(Moments::of(&gone, k));
                 }
             }
         }
     }
 
-    /// The robots (by id) whose statistics count, for each value.
-    fn agreeing(&self) -> Vec<Vec<u64>> {
+    /// Per value, the robots' median mean and how far from it (and how large a standard
+    /// deviation) a robot's statistics may be and still count; `None` where nobody is judged.
+    fn bounds(&self) -> Vec<Option<(f64, f64)>> {
         let judged: Vec<&RunningMeanStd> = self.robots.values().filter(|rms| rms.count >= JUDGED_AFTER).collect();
+        if judged.len() < JUDGED_FROM {
+            return vec![None; self.settled.len()];
+        }
+        let mut values = Vec::with_capacity(judged.len());
         (0..self.settled.len())
             .map(|k| {
-                if judged.len() < JUDGED_FROM {
-                    return self.robots.keys().copied().collect();
-                }
-                let median_var = median(judged.iter().map(|r| r.var[k]).collect());
-                let median_mean = median(judged.iter().map(|r| r.mean[k]).collect());
-                let reach = CONSENSUS_FACTOR * (median_var + 1e-8).sqrt();
-                self.robots
-                    .iter()
-                    .filter(|(_, r)| r.var[k].sqrt() <= reach && (r.mean[k] - median_mean).abs() <= reach)
-                    .map(|(id, _)| *id)
-                    .collect()
+                values.clear();
+                values.extend(judged.iter().map(|r| r.var[k]));
+                let median_var = median(&mut values);
+                values.clear();
+                values.extend(judged.iter().map(|r| r.mean[k]));
+                let median_mean = median(&mut values);
+                Some((median_mean, CONSENSUS_FACTOR * (median_var + 1e-8).sqrt()))
             })
             .collect()
     }
 
     /// The run's statistics: per value, the settled ones with the agreeing robots' folded in
-    /// (the count is the largest of the values').
+    /// (the count is the largest of the values'). Runs on every observation a robot sends, so
+    /// it judges in place: no list of who agrees, medians by selection rather than sorting.
     pub fn consensus(&self) -> RunningMeanStd {
         let dim = self.settled.len();
         let mut out = RunningMeanStd { mean: vec![0.0; dim], var: vec![0.0; dim], count: 0.0 };
-        for (k, ids) in self.agreeing().iter().enumerate() {
+        for (k, bound) in self.bounds().into_iter().enumerate() {
             let mut value = self.settled[k];
-            for id in ids {
-                value.fold(Moments::of(&self.robots[id], k));
+            for robot in self.robots.values().filter(|r| agrees(r, k, bound)) {
+                value.fold(Moments::of(robot, k));
             }
             (out.mean[k], out.var[k]) = (value.mean, value.var);
             out.count = out.count.max(value.count);
@@ -186,10 +186,23 @@ impl RobotStatistics {
     }
 }
 
-fn median(mut values: Vec<f64>) -> f64 {
-    values.sort_by(f64::total_cmp);
+/// Whether `robot`'s statistics of value `k` lie within `bound` (as `RobotStatistics::bounds` gives it).
+fn agrees(robot: &RunningMeanStd, k: usize, bound: Option<(f64, f64)>) -> bool {
+    bound
+        .is_none_or(|(median_mean, reach)| robot.var[k].sqrt() <= reach && (robot.mean[k] - median_mean).abs() <= reach)
+}
+
+/// The median of `values` (the mean of the middle two for an even count), reordering them.
+fn median(values: &mut [f64]) -> f64 {
     let n = values.len();
-    if n % 2 == 1 { values[n / 2] } else { (values[n / 2 - 1] + values[n / 2]) / 2.0 }
+    let (lower, middle, _) = values.select_nth_unstable_by(n / 2, f64::total_cmp);
+    let middle = *middle;
+    if n % 2 == 1 {
+        middle
+    } else {
+        let below = lower.iter().copied().max_by(f64::total_cmp).expect("an even count of at least 2");
+        (below + middle) / 2.0
+    }
 }
 
 /// `raw` normalised with `rms` if the model normalises, else as it is: what every learner feeds

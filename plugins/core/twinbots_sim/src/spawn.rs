@@ -225,14 +225,14 @@ fn body_mass(model: &RobotModel, owner: &[usize], offset: &[Pose], body: usize) 
 }
 
 /// The most triangles a collision mesh split into convex parts may have: the split's time
-/// grows with them (see docs/robot-files.md for the measurement), so a larger mesh is refused
+/// grows with them (docs/urdf.md has the measurement), so a larger mesh is refused
 /// with its link named rather than left to run for minutes.
 pub const MAX_DECOMPOSED_TRIANGLES: usize = 200_000;
 
 /// How a collision mesh is split into convex parts (V-HACD): parry's voxel resolution (64, so
 /// at most 64³ voxels whatever the mesh), at most 32 parts (V-HACD 4's default is 64 and
 /// parry's 1,024; every part is a shape the narrow phase tests each step).
-pub fn decomposition_parameters() -> crate::rapier::parry::transformation::vhacd::VHACDParameters {
+fn decomposition_parameters() -> crate::rapier::parry::transformation::vhacd::VHACDParameters {
     crate::rapier::parry::transformation::vhacd::VHACDParameters { max_convex_hulls: 32, ..Default::default() }
 }
 

@@ -52,22 +52,24 @@ pub fn parse_urdf_exact(text: &str, file: &Path) -> Result<urdf_rs::Robot, UrdfE
 
 /// Checks URDF text. `file` names it in errors; `mesh_dir` is where relative mesh paths start.
 pub fn parse_urdf(text: &str, file: &Path, mesh_dir: &Path) -> Result<RobotModel, UrdfError> {
-    parse_urdf_in(text, file, mesh_dir, &[])
+    parse_urdf_in(text, file, mesh_dir, &[], super::model::MAX_HULL_VERTICES)
 }
 
 /// Reads and checks a URDF file as [`load_urdf`], `package://` meshes found first in the
-/// packages a robot file names ([`super::mesh::resolve_in`]).
-pub fn load_urdf_in(path: &Path, packages: &NamedPackages) -> Result<RobotModel, UrdfError> {
+/// packages a robot file names ([`super::mesh::resolve_in`]), collision hulls of at most
+/// `max_hull_vertices` vertices (its `hull_vertices`).
+pub fn load_urdf_in(path: &Path, packages: &NamedPackages, max_hull_vertices: usize) -> Result<RobotModel, UrdfError> {
     let text = std::fs::read_to_string(path).map_err(|source| UrdfError::Io { file: path.to_path_buf(), source })?;
-    parse_urdf_in(&text, path, path.parent().unwrap_or(Path::new(".")), packages)
+    parse_urdf_in(&text, path, path.parent().unwrap_or(Path::new(".")), packages, max_hull_vertices)
 }
 
-/// [`parse_urdf`] with a robot file's named packages.
+/// [`parse_urdf`] with a robot file's named packages and hull size.
 pub fn parse_urdf_in(
     text: &str,
     file: &Path,
     mesh_dir: &Path,
     packages: &NamedPackages,
+    max_hull_vertices: usize,
 ) -> Result<RobotModel, UrdfError> {
     let doc = parse_xml(text, file)?;
     let lines = ElementLines::index(&doc);
@@ -77,8 +79,8 @@ pub fn parse_urdf_in(
         .iter()
         .filter_map(|m| m.color.as_ref().map(|c| (m.name.clone(), c.rgba.0.map(|x| x as f32))))
         .collect();
-    Checker { file, mesh_dir, packages, package_path: super::mesh::package_path_from_env(), lines: &lines, materials }
-        .build(&robot)
+    let package_path = super::mesh::package_path_from_env();
+    Checker { file, mesh_dir, packages, package_path, lines: &lines, materials, max_hull_vertices }.build(&robot)
 }
 
 /// `text` with an all-zero `<inertia/>` in every `<inertial>` that has none (urdf-rs requires
@@ -235,6 +237,8 @@ struct Checker<'a> {
     lines: &'a ElementLines,
     /// Colours of the robot's top-level `<material>`s, which visuals may name.
     materials: HashMap<String, [f32; 4]>,
+    /// The most vertices a collision hull keeps ([`super::model::collision_hull`]).
+    max_hull_vertices: usize,
 }
 
 impl Checker<'_> {
@@ -461,7 +465,7 @@ impl Checker<'_> {
             super::mesh::read(&path).map_err(|e| self.link_error(link, format!("mesh '{filename}': {e}")))?;
         let vertices: Vec<Vec3> = vertices.into_iter().map(|v| v * scale).collect();
         // Collisions use the mesh's convex hull, so a flat or tiny mesh cannot be simulated.
-        let hull = super::model::collision_hull(&vertices, super::model::MAX_HULL_VERTICES)
+        let hull = super::model::collision_hull(&vertices, self.max_hull_vertices)
             .filter(|hull| hull.mass_properties(1.0).mass() > 1e-12);
         let Some(hull) = hull else {
             return Err(self.link_error(

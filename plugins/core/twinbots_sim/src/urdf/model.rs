@@ -89,9 +89,9 @@ impl Shape {
 pub struct TriangleMesh {
     pub vertices: Vec<Vec3>,
     pub triangles: Vec<[u32; 3]>,
-    /// Its collision shape: the convex hull, of at most [`MAX_HULL_VERTICES`] vertices
-    /// ([`collision_hull`]), made once when the mesh is read (a robot file's `hull_vertices`
-    /// may make it again with fewer or more).
+    /// Its collision shape: the convex hull, of at most [`MAX_HULL_VERTICES`] vertices or a
+    /// robot file's `hull_vertices` ([`collision_hull`]), made once when the mesh is read; the
+    /// inertia a link takes from its collision geometry is this hull's too.
     pub hull: crate::rapier::parry::shape::SharedShape,
 }
 

@@ -242,28 +242,11 @@ impl RobotFile {
     }
 
     /// The URDF with its meshes, for the simulator: `package://` through the file's
-    /// `[packages]`, then `TWINBOTS_PACKAGE_PATH` and `ROS_PACKAGE_PATH`.
+    /// `[packages]`, then `TWINBOTS_PACKAGE_PATH` and `ROS_PACKAGE_PATH`; collision hulls of at
+    /// most `hull_vertices` vertices.
     pub fn model(&self) -> anyhow::Result<RobotModel> {
-        let mut model = load_urdf_in(&self.urdf, &self.packages)
-            .map_err(|e| anyhow::anyhow!("{}: key 'urdf': {e}", self.path.display()))?;
-        if self.hull_vertices != super::MAX_HULL_VERTICES {
-            for link in &mut model.links {
-                for geometry in &mut link.collisions {
-                    if let super::Shape::Mesh(mesh) = &mut geometry.shape {
-                        let hull = super::collision_hull(&mesh.vertices, self.hull_vertices).ok_or_else(|| {
-                            anyhow::anyhow!(
-                                "{}: key 'hull_vertices': link '{}': a hull of {} vertices is flat",
-                                self.path.display(),
-                                link.name,
-                                self.hull_vertices
-                            )
-                        })?;
-                        *mesh = std::sync::Arc::new(super::TriangleMesh { hull, ..(**mesh).clone() });
-                    }
-                }
-            }
-        }
-        Ok(model)
+        load_urdf_in(&self.urdf, &self.packages, self.hull_vertices)
+            .map_err(|e| anyhow::anyhow!("{}: key 'urdf': {e}", self.path.display()))
     }
 
     /// The chain's joint positions (chain order) of controller-order positions `q`.
