@@ -32,9 +32,10 @@ def twinbots_bin():
     return binary
 
 
-async def watch(port, topics, seconds):
+async def watch(port, topics, seconds, enough=None):
     """Subscribes to `topics` and returns, per topic, the (log time, payload) of every message
-    received within `seconds`, and the status messages the server sent."""
+    received within `seconds` (or until `enough(received, statuses)` holds), and the status
+    messages the server sent."""
     url = f"ws://127.0.0.1:{port}"
     async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"], max_size=1 << 28) as ws:
         assert ws.subprotocol == "foxglove.sdk.v1"
@@ -55,7 +56,7 @@ async def watch(port, topics, seconds):
         await ws.send("{not json")
         received = {t: [] for t in topics}
         end = loop.time() + seconds
-        while loop.time() < end:
+        while loop.time() < end and not (enough and enough(received, statuses)):
             try:
                 frame = await asyncio.wait_for(ws.recv(), end - loop.time())
             except (asyncio.TimeoutError, websockets.ConnectionClosed):
@@ -94,7 +95,14 @@ def test_a_foxglove_client_watches_cartpole_train(tmp_path):
         assert first.startswith("live view on ws://127.0.0.1:"), first + train.stderr.read()
         port = int(first.split(":")[2].split()[0])
         topics = ["/arena_0/joint_states", "/tf", "/scene"]
-        channels, received, statuses = asyncio.run(watch(port, topics, 4.0))
+
+        # Until what the test judges has arrived, however slow the machine (a run that has
+        # just started may not step for a while), or 60 s.
+        def enough(received, statuses):
+            errors = [s for s in statuses if s.get("level") == 2]
+            return len(received["/arena_0/joint_states"]) >= 100 and received["/scene"] and len(errors) >= 2
+
+        channels, received, statuses = asyncio.run(watch(port, topics, 60.0, enough))
         assert train.poll() is None, "training stopped while watched"
     finally:
         train.kill()
