@@ -11,8 +11,8 @@ use twinbots_sim::urdf::dynamics::Dynamics;
 use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_sysid::effort_model::{ArmCalibration, EffortModel, FlagReport, Motion, residuals, rmse};
 
-use twinbots_sysid::replay::twin_log;
-use twinbots_sysid::{Rig, compare, prepare, run};
+use twinbots_sysid::Rig;
+use twinbots_sysid::replay::{replay_stream, twin_meta};
 
 use twinbots_run::registry;
 
@@ -57,23 +57,33 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let calibration = rig.read_calibration(args.calibration.as_deref())?;
     anyhow::ensure!(args.threshold > 0.0, "--threshold must be positive");
     let mapping = twinbots_log::Mapping { efforts: args.efforts.clone(), controller_joints: rig.joints.clone() };
-    let log = twinbots_log::read_mapped(&args.log, &mapping)?;
-    let name = args.log.display().to_string();
-    let prepared = prepare(&rig, &log, &name).map_err(|e| anyhow::anyhow!("{name}: {e:#}"))?;
+    // The log is read as the twin replays it: memory does not grow with its length.
+    let mut log = twinbots_log::open(&args.log, &mapping)?;
     let params = rig.parameters(&calibration)?;
-    let bias = rig.biases(&params);
-    let twin = run(&rig, &prepared.start_positions(&rig, &params), &prepared.program, std::slice::from_ref(&params))
-        .pop()
-        .expect("one arena");
-    let report = compare(&rig, &prepared, &twin, &bias, args.threshold);
-    print!("{}", report.table());
     let out = args.out.unwrap_or_else(|| PathBuf::from(format!("{}.replay", args.log.display())));
-    std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
     let label = if args.calibration.is_some() { "twin (calibrated)" } else { "twin (nominal)" };
-    twinbots_sysid::plot::replay_png(&out.join("replay.png"), &rig, &prepared, &[(label, &twin, bias.clone())])?;
     let calibration_name = args.calibration.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
-    twinbots_log::write(&twin_log(&rig, &prepared, &twin, &bias, &calibration_name), &out.join("twin.mcap"))?;
-    twinbots_api::files::write_json(&out.join("replay.json"), &report)?;
+    let meta = twin_meta(&rig, &log.name, &calibration_name);
+    // A log found damaged part-way leaves nothing behind: the twin's log is written under a
+    // temporary name, and a folder made for it is removed again.
+    let made = !out.exists();
+    std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
+    let mut replayed = || -> anyhow::Result<()> {
+        let mut twin = twinbots_log::mcap_file::FileWriter::create(&out.join("twin.mcap"), &meta, &rig.joints)?;
+        let (report, plot) = replay_stream(&rig, &params, &mut log, args.threshold, label, |sample| {
+            twin.write(&twinbots_log::Entry::State(sample))
+        })?;
+        print!("{}", report.table());
+        twinbots_sysid::plot::replay_png(&out.join("replay.png"), &rig, &plot)?;
+        twin.finish()?;
+        twinbots_api::files::write_json(&out.join("replay.json"), &report)
+    };
+    if let Err(e) = replayed() {
+        if made {
+            let _ = std::fs::remove_dir(&out);
+        }
+        return Err(e);
+    }
     println!("wrote {}/replay.png, twin.mcap, replay.json", out.display());
     Ok(())
 }

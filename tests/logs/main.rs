@@ -5,3 +5,4 @@ mod cli;
 mod fuzz;
 mod real_ur5;
 mod recovery;
+mod stream;

@@ -13,7 +13,7 @@ pub mod log;
 pub mod mcap_file;
 pub mod rtde_csv;
 
-pub use log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog, ToolSample};
+pub use log::{Checker, CommandMode, CommandSample, Entry, JointSample, LogMeta, RobotLog, ToolSample};
 
 use std::path::Path;
 
@@ -59,26 +59,182 @@ pub fn read_with(path: &Path, efforts: &rtde_csv::Efforts) -> anyhow::Result<Rob
 
 /// How a recording maps onto the robot: where a UR recording's efforts come from, and the
 /// robot's controller order of its joints, which commands that name no joints follow (a ROS 2
-/// forward controller's, [`mcap_file::from_bytes_mapped`]).
+/// forward controller's, [`mcap_file::Reader`]).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Mapping {
     pub efforts: rtde_csv::Efforts,
     pub controller_joints: Vec<String>,
 }
 
-/// [`read`] with a [`Mapping`].
+/// [`read`] with a [`Mapping`]: the whole log in memory, which spans at most
+/// [`MAX_READ_SECONDS`] (a longer one is refused as it is read; [`open`] streams any length).
 pub fn read_mapped(path: &Path, mapping: &Mapping) -> anyhow::Result<RobotLog> {
-    let efforts = &mapping.efforts;
-    let log = match Format::of(path)? {
-        Format::Mcap => mcap_file::read(path, &mapping.controller_joints),
-        Format::Csv => csv_text(path).and_then(|text| {
-            let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
-            if rtde_csv::is_rtde_header(first) { rtde_csv::from_str(&text, efforts) } else { csv_file::from_str(&text) }
-        }),
+    let read = || -> anyhow::Result<RobotLog> {
+        let log = match Format::of(path)? {
+            Format::Mcap => return open(path, mapping)?.into_log(),
+            Format::Csv => {
+                let text = csv_text(path)?;
+                let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
+                if rtde_csv::is_rtde_header(first) {
+                    rtde_csv::from_str(&text, &mapping.efforts)?
+                } else {
+                    csv_file::from_str(&text)?
+                }
+            }
+        };
+        log.validate()?;
+        Ok(log)
     };
-    let log = log.map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
-    log.validate().map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
-    Ok(log)
+    read().map_err(|e| named(e, &path.display().to_string()))
+}
+
+/// `e` prefixed with the file's name, unless it starts with it already.
+fn named(e: anyhow::Error, name: &str) -> anyhow::Error {
+    if e.to_string().starts_with(name) { e } else { anyhow::anyhow!("{name}: {e:#}") }
+}
+
+/// The longest span a log read whole ([`read_mapped`]) may hold (s): an hour.
+pub const MAX_READ_SECONDS: f64 = 3600.0;
+
+/// The most records a log may hold before its first joint state (which tells its joints).
+pub const MAX_RECORDS_BEFORE_STATES: usize = 100_000;
+
+/// A log read as a stream: its metadata, joints and first time up front, then its records as
+/// they are read ([`Entry`]), each checked as it comes ([`Checker`]: joint states in time order;
+/// commands' values, not their order, since a trajectory's points come ahead of their times).
+/// An MCAP file is read a chunk at a time, so memory does not grow with the log; a CSV file is
+/// read whole first ([`MAX_CSV_BYTES`]). Errors name the file.
+pub struct LogStream {
+    /// The file, as errors name it.
+    pub name: String,
+    pub meta: LogMeta,
+    /// The joints the states name, in their order.
+    pub joints: Vec<String>,
+    /// The first joint state's time (s).
+    pub start: f64,
+    ahead: std::collections::VecDeque<Entry>,
+    rest: Box<dyn Iterator<Item = anyhow::Result<Entry>>>,
+    check: Checker,
+    failed: bool,
+}
+
+/// Opens a log as a [`LogStream`], MCAP or CSV by its extension, a UR recording's efforts and
+/// a controller's joint order taken from `mapping`.
+pub fn open(path: &Path, mapping: &Mapping) -> anyhow::Result<LogStream> {
+    let name = path.display().to_string();
+    let opened = || -> anyhow::Result<LogStream> {
+        match Format::of(path)? {
+            Format::Mcap => {
+                let file = std::io::BufReader::new(std::fs::File::open(path)?);
+                let (meta, reader) = mcap_file::open(file, &mapping.controller_joints)?;
+                LogStream::new(name.clone(), meta, reader)
+            }
+            Format::Csv => {
+                let log = read_mapped(path, mapping)?;
+                LogStream::of_log(name.clone(), log)
+            }
+        }
+    };
+    opened().map_err(|e| named(e, &name))
+}
+
+impl LogStream {
+    /// A stream of `reader`'s records: reads ahead to the first joint state, which tells the
+    /// joints (an MCAP reader's order).
+    pub(crate) fn new<R: std::io::Read + 'static>(
+        name: String,
+        meta: LogMeta,
+        mut reader: mcap_file::Reader<R>,
+    ) -> anyhow::Result<Self> {
+        let mut ahead = std::collections::VecDeque::new();
+        let start = loop {
+            match reader.next().transpose()? {
+                Some(entry) => {
+                    let time = matches!(entry, Entry::State(_)).then(|| entry.time());
+                    ahead.push_back(entry);
+                    if let Some(time) = time {
+                        break time;
+                    }
+                    anyhow::ensure!(
+                        ahead.len() < MAX_RECORDS_BEFORE_STATES,
+                        "no {} message in its first {MAX_RECORDS_BEFORE_STATES} records",
+                        mcap_file::JOINT_STATES_TOPIC
+                    );
+                }
+                None => {
+                    anyhow::bail!("no {} messages (sensor_msgs/msg/JointState, CDR)", mcap_file::JOINT_STATES_TOPIC)
+                }
+            }
+        };
+        let joints = reader.joints.clone();
+        let check = Checker::new(&joints)?;
+        Ok(Self { name, meta, joints, start, ahead, rest: Box::new(reader), check, failed: false })
+    }
+
+    /// A stream of a log in memory (checked already), in time order ([`RobotLog::entries`]).
+    pub fn of_log(name: String, log: RobotLog) -> anyhow::Result<Self> {
+        let check = Checker::new(&log.joints)?;
+        let start = log.states.first().map(|s| s.time).ok_or_else(|| anyhow::anyhow!("the log has no joint states"))?;
+        let (meta, joints) = (log.meta.clone(), log.joints.clone());
+        let rest = Box::new(log.into_entries().map(Ok));
+        Ok(Self { name, meta, joints, start, ahead: Default::default(), rest, check, failed: false })
+    }
+
+    /// The whole log in memory, refused as it is read once it spans more than
+    /// [`MAX_READ_SECONDS`]; commands in time order (trajectories may overlap), the whole checked.
+    pub fn into_log(mut self) -> anyhow::Result<RobotLog> {
+        let mut log = RobotLog { meta: self.meta.clone(), joints: self.joints.clone(), ..Default::default() };
+        let t0 = self.start;
+        for entry in self.by_ref() {
+            match entry? {
+                Entry::State(s) => {
+                    anyhow::ensure!(
+                        s.time - t0 <= MAX_READ_SECONDS,
+                        "the log lasts over {MAX_READ_SECONDS} s (a joint state at {} s): a log read whole spans at most that; `replay` of a built-in robot streams any length (docs/logs.md)",
+                        s.time
+                    );
+                    log.states.push(s)
+                }
+                Entry::Command(c) => log.commands.push(c),
+                Entry::Tool(t) => log.tool.push(t),
+            }
+        }
+        log.commands.sort_by(|a, b| a.time.total_cmp(&b.time));
+        log.validate().map_err(|e| named(e, &self.name))?;
+        Ok(log)
+    }
+
+    /// Checks that the log is of `robot` with the joints `expected` ([`log::check_robot`]).
+    pub fn check_robot(&self, robot: &str, expected: &[String]) -> anyhow::Result<()> {
+        log::check_robot(&self.meta, &self.joints, robot, expected).map_err(|e| named(e, &self.name))
+    }
+
+    fn checked(&mut self, entry: Entry) -> anyhow::Result<Entry> {
+        match &entry {
+            Entry::State(s) => self.check.state(s)?,
+            Entry::Command(c) => self.check.command_values(c)?,
+            Entry::Tool(t) => self.check.tool(t)?,
+        }
+        Ok(entry)
+    }
+}
+
+impl Iterator for LogStream {
+    type Item = anyhow::Result<Entry>;
+
+    /// The next record; after an error, none.
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        let entry = match self.ahead.pop_front() {
+            Some(entry) => Ok(entry),
+            None => self.rest.next()?,
+        };
+        let checked = entry.and_then(|e| self.checked(e));
+        self.failed = checked.is_err();
+        Some(checked.map_err(|e| named(e, &self.name)))
+    }
 }
 
 /// Whether `path` names a gzip file (`.gz`, any case).
@@ -244,6 +400,33 @@ mod tests {
         let err =
             mcap_file::from_bytes_mapped(&ros2_bag("/my_controller/commands", 2), &order).unwrap_err().to_string();
         assert!(err.contains("/my_controller/commands") && err.contains("does not say their interface"), "{err}");
+    }
+
+    /// A log spanning more than an hour streams to its end, and is refused as it is read whole.
+    #[test]
+    fn a_log_over_an_hour_streams_and_is_not_read_whole() {
+        let mut log = sample_log();
+        log.states = (0..70)
+            .map(|i| JointSample {
+                time: i as f64 * 55.0,
+                position: vec![0.0, 0.0],
+                velocity: vec![0.0, 0.0],
+                effort: vec![],
+            })
+            .collect();
+        let path = std::env::temp_dir().join(format!("twinbots-log-hours-{}.mcap", std::process::id()));
+        write(&log, &path).unwrap();
+        let mapping = Mapping::default();
+        let stream = open(&path, &mapping).unwrap();
+        assert_eq!((stream.joints.clone(), stream.meta.robot.clone()), (log.joints.clone(), "arm".to_string()));
+        let entries: Vec<Entry> = stream.collect::<anyhow::Result<_>>().unwrap();
+        assert_eq!(entries, log.entries().collect::<Vec<_>>());
+        let err = read(&path).unwrap_err().to_string();
+        assert!(
+            err.starts_with(&path.display().to_string()) && err.contains("lasts over 3600 s (a joint state at 3630 s)"),
+            "{err}"
+        );
+        let _ = std::fs::remove_file(&path);
     }
 
     #[test]

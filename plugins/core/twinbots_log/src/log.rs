@@ -114,106 +114,213 @@ impl RobotLog {
         }
     }
 
+    /// The records in time order across the kinds (at one time: states, then commands, then
+    /// tool poses), as a recorder writes them.
+    pub fn entries(&self) -> impl Iterator<Item = Entry> + '_ {
+        let mut cursor = [0; 3];
+        std::iter::from_fn(move || self.next_entry(&mut cursor))
+    }
+
+    /// [`Self::entries`], owning the log.
+    pub fn into_entries(self) -> impl Iterator<Item = Entry> {
+        let mut cursor = [0; 3];
+        std::iter::from_fn(move || self.next_entry(&mut cursor))
+    }
+
+    /// The earliest record at or after `cursor` (per kind: states, commands, tool poses).
+    fn next_entry(&self, cursor: &mut [usize; 3]) -> Option<Entry> {
+        let times = [
+            self.states.get(cursor[0]).map(|s| s.time),
+            self.commands.get(cursor[1]).map(|c| c.time),
+            self.tool.get(cursor[2]).map(|t| t.time),
+        ];
+        // The first of equal times: a state before a command before a tool pose.
+        let kind = (0..3).filter_map(|k| Some((k, times[k]?))).min_by(|a, b| a.1.total_cmp(&b.1))?.0;
+        let i = cursor[kind];
+        cursor[kind] += 1;
+        Some(match kind {
+            0 => Entry::State(self.states[i].clone()),
+            1 => Entry::Command(self.commands[i].clone()),
+            _ => Entry::Tool(self.tool[i].clone()),
+        })
+    }
+
     /// Checks what every reader relies on; the error names the problem and where it is.
     pub fn validate(&self) -> anyhow::Result<()> {
-        anyhow::ensure!(!self.joints.is_empty(), "the log names no joints");
+        let mut check = Checker::new(&self.joints)?;
         anyhow::ensure!(!self.states.is_empty(), "the log has no joint states");
-        for (i, name) in self.joints.iter().enumerate() {
-            anyhow::ensure!(!name.is_empty(), "joint {i} has an empty name");
-            anyhow::ensure!(!self.joints[..i].contains(name), "joint '{name}' is named twice");
+        for s in &self.states {
+            check.state(s)?;
         }
-        let n = self.joints.len();
-        let mut last = f64::NEG_INFINITY;
-        for (i, s) in self.states.iter().enumerate() {
-            let at = || format!("joint state {i} (t = {} s)", s.time);
-            anyhow::ensure!(s.time.is_finite(), "{}: time is not a finite number", at());
-            anyhow::ensure!(s.time > last, "{}: times are not increasing (previous {last} s)", at());
-            anyhow::ensure!(
-                i == 0 || s.time - last <= MAX_GAP,
-                "{}: {:.3} s after the sample before (previous {last} s): a log's samples are at most {MAX_GAP} s apart",
-                at(),
-                s.time - last
-            );
-            last = s.time;
-            anyhow::ensure!(s.position.len() == n, "{}: {} positions for {n} joints", at(), s.position.len());
-            anyhow::ensure!(s.velocity.len() == n, "{}: {} velocities for {n} joints", at(), s.velocity.len());
-            anyhow::ensure!(
-                s.effort.is_empty() || s.effort.len() == n,
-                "{}: {} efforts for {n} joints",
-                at(),
-                s.effort.len()
-            );
-            for (what, values, bound) in [
-                ("position", &s.position, MAX_POSITION),
-                ("velocity", &s.velocity, MAX_VELOCITY),
-                ("effort", &s.effort, MAX_EFFORT),
-            ] {
-                if let Some(j) = values.iter().position(|v| !v.is_finite()) {
-                    anyhow::bail!("{}: {what} of '{}' is {}", at(), self.joints[j], values[j]);
-                }
-                if let Some(j) = values.iter().position(|v| v.abs() > bound) {
-                    anyhow::bail!(
-                        "{}: {what} of '{}' is {:e}, beyond ±{bound:e} (rad or m and their rates, N·m or N)",
-                        at(),
-                        self.joints[j],
-                        values[j]
-                    );
-                }
-            }
+        for c in &self.commands {
+            check.command(c)?;
         }
-        let mut last = f64::NEG_INFINITY;
-        for (i, c) in self.commands.iter().enumerate() {
-            let at = || format!("command {i} (t = {} s)", c.time);
-            anyhow::ensure!(c.time.is_finite(), "{}: time is not a finite number", at());
-            anyhow::ensure!(c.time >= last, "{}: times go backwards (previous {last} s)", at());
-            last = c.time;
-            anyhow::ensure!(
-                c.joints.len() == c.modes.len() && c.joints.len() == c.values.len(),
-                "{}: {} joints, {} modes, {} values",
-                at(),
-                c.joints.len(),
-                c.modes.len(),
-                c.values.len()
-            );
-            for (j, v) in c.joints.iter().zip(&c.values) {
-                anyhow::ensure!(
-                    self.joints.contains(j),
-                    "{}: joint '{j}' is not among the logged joints ({})",
-                    at(),
-                    self.joints.join(", ")
-                );
-                anyhow::ensure!(v.is_finite(), "{}: the command to '{j}' is {v}", at());
-                anyhow::ensure!(
-                    v.abs() <= MAX_EFFORT,
-                    "{}: the command to '{j}' is {v:e}, beyond ±{MAX_EFFORT:e}",
-                    at()
-                );
-            }
-        }
-        for (i, t) in self.tool.iter().enumerate() {
-            anyhow::ensure!(
-                t.time.is_finite() && t.position.iter().chain(&t.orientation).all(|v| v.is_finite()),
-                "tool pose {i} (t = {} s) holds a value that is not a finite number",
-                t.time
-            );
+        for t in &self.tool {
+            check.tool(t)?;
         }
         Ok(())
     }
 
-    /// Checks that the log is of `robot` with the joints `expected`: the metadata's robot (when
-    /// it names one) and every expected joint present. Extra joints are allowed (a driver may
-    /// publish more); the error lists what is missing.
+    /// Checks that the log is of `robot` with the joints `expected` ([`check_robot`]).
     pub fn check_robot(&self, robot: &str, expected: &[String]) -> anyhow::Result<()> {
-        if !self.meta.robot.is_empty() && self.meta.robot != robot {
-            anyhow::bail!("the log is of robot '{}', not '{robot}'", self.meta.robot);
+        check_robot(&self.meta, &self.joints, robot, expected)
+    }
+}
+
+/// Checks that a log (its metadata and joints) is of `robot` with the joints `expected`: the
+/// metadata's robot (when it names one) and every expected joint present. Extra joints are
+/// allowed (a driver may publish more); the error lists what is missing.
+pub fn check_robot(meta: &LogMeta, joints: &[String], robot: &str, expected: &[String]) -> anyhow::Result<()> {
+    if !meta.robot.is_empty() && meta.robot != robot {
+        anyhow::bail!("the log is of robot '{}', not '{robot}'", meta.robot);
+    }
+    let missing: Vec<&str> = expected.iter().filter(|j| !joints.contains(j)).map(|s| s.as_str()).collect();
+    anyhow::ensure!(
+        missing.is_empty(),
+        "the log lacks joint(s) {} of robot '{robot}' (it has: {})",
+        missing.join(", "),
+        joints.join(", ")
+    );
+    Ok(())
+}
+
+/// One record of a log as a reader meets it: what a stream of a log ([`crate::LogStream`])
+/// yields.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Entry {
+    State(JointSample),
+    Command(CommandSample),
+    Tool(ToolSample),
+}
+
+impl Entry {
+    pub fn time(&self) -> f64 {
+        match self {
+            Self::State(s) => s.time,
+            Self::Command(c) => c.time,
+            Self::Tool(t) => t.time,
         }
-        let missing: Vec<&str> = expected.iter().filter(|j| !self.joints.contains(j)).map(|s| s.as_str()).collect();
+    }
+}
+
+/// [`RobotLog::validate`] a record at a time, for a log read as a stream: each kind's records
+/// in time order (joint states increasing, at most [`MAX_GAP`] apart; commands not going
+/// backwards), every value finite and within its bound, every command to a logged joint.
+pub struct Checker {
+    joints: Vec<String>,
+    states: usize,
+    commands: usize,
+    tools: usize,
+    last_state: f64,
+    last_command: f64,
+}
+
+impl Checker {
+    /// A checker of a log whose states name `joints`; an error if the names themselves are bad.
+    pub fn new(joints: &[String]) -> anyhow::Result<Self> {
+        anyhow::ensure!(!joints.is_empty(), "the log names no joints");
+        for (i, name) in joints.iter().enumerate() {
+            anyhow::ensure!(!name.is_empty(), "joint {i} has an empty name");
+            anyhow::ensure!(!joints[..i].contains(name), "joint '{name}' is named twice");
+        }
+        Ok(Self {
+            joints: joints.to_vec(),
+            states: 0,
+            commands: 0,
+            tools: 0,
+            last_state: f64::NEG_INFINITY,
+            last_command: f64::NEG_INFINITY,
+        })
+    }
+
+    /// Checks the next joint state.
+    pub fn state(&mut self, s: &JointSample) -> anyhow::Result<()> {
+        let (i, last, n) = (self.states, self.last_state, self.joints.len());
+        let at = || format!("joint state {i} (t = {} s)", s.time);
+        anyhow::ensure!(s.time.is_finite(), "{}: time is not a finite number", at());
+        anyhow::ensure!(s.time > last, "{}: times are not increasing (previous {last} s)", at());
         anyhow::ensure!(
-            missing.is_empty(),
-            "the log lacks joint(s) {} of robot '{robot}' (it has: {})",
-            missing.join(", "),
-            self.joints.join(", ")
+            i == 0 || s.time - last <= MAX_GAP,
+            "{}: {:.3} s after the sample before (previous {last} s): a log's samples are at most {MAX_GAP} s apart",
+            at(),
+            s.time - last
         );
+        anyhow::ensure!(s.position.len() == n, "{}: {} positions for {n} joints", at(), s.position.len());
+        anyhow::ensure!(s.velocity.len() == n, "{}: {} velocities for {n} joints", at(), s.velocity.len());
+        anyhow::ensure!(
+            s.effort.is_empty() || s.effort.len() == n,
+            "{}: {} efforts for {n} joints",
+            at(),
+            s.effort.len()
+        );
+        for (what, values, bound) in [
+            ("position", &s.position, MAX_POSITION),
+            ("velocity", &s.velocity, MAX_VELOCITY),
+            ("effort", &s.effort, MAX_EFFORT),
+        ] {
+            if let Some(j) = values.iter().position(|v| !v.is_finite()) {
+                anyhow::bail!("{}: {what} of '{}' is {}", at(), self.joints[j], values[j]);
+            }
+            if let Some(j) = values.iter().position(|v| v.abs() > bound) {
+                anyhow::bail!(
+                    "{}: {what} of '{}' is {:e}, beyond ±{bound:e} (rad or m and their rates, N·m or N)",
+                    at(),
+                    self.joints[j],
+                    values[j]
+                );
+            }
+        }
+        self.states += 1;
+        self.last_state = s.time;
+        Ok(())
+    }
+
+    /// Checks the next command (in time order).
+    pub fn command(&mut self, c: &CommandSample) -> anyhow::Result<()> {
+        let (i, last) = (self.commands, self.last_command);
+        anyhow::ensure!(!(c.time < last), "command {i} (t = {} s): times go backwards (previous {last} s)", c.time);
+        self.command_values(c)?;
+        self.last_command = c.time;
+        Ok(())
+    }
+
+    /// Checks a command's time and values, not its order: for a stream, where a trajectory's
+    /// points come ahead of their times.
+    pub fn command_values(&mut self, c: &CommandSample) -> anyhow::Result<()> {
+        let i = self.commands;
+        let at = || format!("command {i} (t = {} s)", c.time);
+        anyhow::ensure!(c.time.is_finite(), "{}: time is not a finite number", at());
+        anyhow::ensure!(
+            c.joints.len() == c.modes.len() && c.joints.len() == c.values.len(),
+            "{}: {} joints, {} modes, {} values",
+            at(),
+            c.joints.len(),
+            c.modes.len(),
+            c.values.len()
+        );
+        for (j, v) in c.joints.iter().zip(&c.values) {
+            anyhow::ensure!(
+                self.joints.contains(j),
+                "{}: joint '{j}' is not among the logged joints ({})",
+                at(),
+                self.joints.join(", ")
+            );
+            anyhow::ensure!(v.is_finite(), "{}: the command to '{j}' is {v}", at());
+            anyhow::ensure!(v.abs() <= MAX_EFFORT, "{}: the command to '{j}' is {v:e}, beyond ±{MAX_EFFORT:e}", at());
+        }
+        self.commands += 1;
+        Ok(())
+    }
+
+    /// Checks the next tool pose.
+    pub fn tool(&mut self, t: &ToolSample) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            t.time.is_finite() && t.position.iter().chain(&t.orientation).all(|v| v.is_finite()),
+            "tool pose {} (t = {} s) holds a value that is not a finite number",
+            self.tools,
+            t.time
+        );
+        self.tools += 1;
         Ok(())
     }
 }

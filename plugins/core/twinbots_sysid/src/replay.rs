@@ -2,10 +2,13 @@
 //! the logged times, and is compared with the log joint by joint.
 
 use serde::Serialize;
-use twinbots_log::{CommandMode, JointSample, LogMeta, RobotLog};
+use twinbots_log::{CommandMode, CommandSample, Entry, JointSample, LogMeta, LogStream, RobotLog};
 use twinbots_sim::{MotorCommand, Parameters};
 
-use crate::rig::{Program, Reading, Rig, Trajectory};
+use std::collections::{BinaryHeap, VecDeque};
+
+use crate::plot::ReplayPlot;
+use crate::rig::{Program, Reading, Rig, Stand, Trajectory};
 
 /// A log made ready to replay on a rig: its commands by physics step and its measurements
 /// interpolated onto the twin's physics steps.
@@ -46,26 +49,11 @@ pub fn prepare(rig: &Rig, log: &RobotLog, name: &str) -> anyhow::Result<Prepared
     anyhow::ensure!(steps >= 10, "the log lasts {:.3} s, under 10 physics steps of {dt} s", log.duration());
     let mut changes = vec![Vec::new(); steps];
     for (i, c) in log.commands.iter().enumerate() {
-        // A command acts from the first physics step that starts at or after it.
-        let k = ((c.time - t0) / dt - 1e-3).ceil().max(0.0) as usize;
+        let k = command_step(c.time, t0, dt);
         if k >= steps {
             continue;
         }
-        for ((joint, mode), value) in c.joints.iter().zip(&c.modes).zip(&c.values) {
-            let j = rig.joints.iter().position(|n| n == joint).ok_or_else(|| {
-                anyhow::anyhow!(
-                    "command {i} (t = {} s) drives '{joint}', which robot '{}' does not have",
-                    c.time,
-                    rig.robot
-                )
-            })?;
-            anyhow::ensure!(rig.actuated[j], "command {i} (t = {} s) drives '{joint}', which has no motor", c.time);
-            let v = *value as f32;
-            let command = match mode {
-                CommandMode::Velocity => MotorCommand::Velocity(v),
-                CommandMode::Position => MotorCommand::Position(v),
-                CommandMode::Torque => MotorCommand::Torque(v),
-            };
+        for (j, command) in motor_commands(rig, i, c)? {
             changes[k].retain(|(other, _)| *other != j);
             changes[k].push((j, command));
         }
@@ -95,6 +83,42 @@ pub fn prepare(rig: &Rig, log: &RobotLog, name: &str) -> anyhow::Result<Prepared
     Ok(PreparedLog { name: name.to_string(), start, program: Program { changes }, reference, has_effort, scale })
 }
 
+/// The physics step (from the log's start `t0`) a command at `time` acts from: the first that
+/// starts at or after it.
+fn command_step(time: f64, t0: f64, dt: f64) -> usize {
+    ((time - t0) / dt - 1e-3).ceil().max(0.0) as usize
+}
+
+/// Command `i` as motor commands to the rig's joints (index into [`Rig::joints`]).
+fn motor_commands(rig: &Rig, i: usize, c: &CommandSample) -> anyhow::Result<Vec<(usize, MotorCommand)>> {
+    let mut out = Vec::with_capacity(c.joints.len());
+    for ((joint, mode), value) in c.joints.iter().zip(&c.modes).zip(&c.values) {
+        let j = rig.joints.iter().position(|n| n == joint).ok_or_else(|| {
+            anyhow::anyhow!(
+                "command {i} (t = {} s) drives '{joint}', which robot '{}' does not have",
+                c.time,
+                rig.robot
+            )
+        })?;
+        anyhow::ensure!(rig.actuated[j], "command {i} (t = {} s) drives '{joint}', which has no motor", c.time);
+        let v = *value as f32;
+        let command = match mode {
+            CommandMode::Velocity => MotorCommand::Velocity(v),
+            CommandMode::Position => MotorCommand::Position(v),
+            CommandMode::Torque => MotorCommand::Torque(v),
+        };
+        out.push((j, command));
+    }
+    Ok(out)
+}
+
+/// Where the twin's joints start for parameters `params`: the logged readings `start` (by
+/// [`Rig::joints`]) less their bias.
+fn start_positions(rig: &Rig, start: &[f64], params: &Parameters) -> Vec<(String, f32)> {
+    let bias = rig.biases(params);
+    rig.joints.iter().zip(start).zip(bias).map(|((j, q), b)| (j.clone(), (q - b) as f32)).collect()
+}
+
 /// A signal's measurement noise, estimated from how far each sample lies off the midpoint of its
 /// neighbours (for white noise σ, that has variance 1.5 σ²; a smooth signal adds only its
 /// curvature over one step). At least `floor` and a ten-thousandth of the signal's spread, so
@@ -115,15 +139,18 @@ fn interpolate(a: &JointSample, b: &JointSample, t: f64, index: &[usize], effort
     Reading {
         position: lerp(&a.position, &b.position),
         velocity: lerp(&a.velocity, &b.velocity),
-        effort: if effort { lerp(&a.effort, &b.effort) } else { Vec::new() },
+        effort: if effort && !a.effort.is_empty() && !b.effort.is_empty() {
+            lerp(&a.effort, &b.effort)
+        } else {
+            Vec::new()
+        },
     }
 }
 
 impl PreparedLog {
     /// Where the twin's joints start for parameters `params`: the logged readings less their bias.
     pub fn start_positions(&self, rig: &Rig, params: &Parameters) -> Vec<(String, f32)> {
-        let bias = rig.biases(params);
-        rig.joints.iter().zip(&self.start).zip(bias).map(|((j, q), b)| (j.clone(), (q - b) as f32)).collect()
+        start_positions(rig, &self.start, params)
     }
 }
 
@@ -198,44 +225,71 @@ pub struct ReplayReport {
     pub position_rmse: f64,
 }
 
+/// A replay's errors, tallied a physics step at a time: what [`compare`] folds over a whole
+/// trajectory and [`replay_stream`] over a log as it is read.
+struct Comparison {
+    threshold: f64,
+    dt: f64,
+    steps: usize,
+    /// Per joint: sums of squared position, speed and effort errors, the largest position and
+    /// speed errors, when the position error first passed the threshold.
+    tallies: Vec<([f64; 3], [f64; 2], Option<f64>)>,
+}
+
+impl Comparison {
+    fn new(rig: &Rig, threshold: f64) -> Self {
+        Self { threshold, dt: rig.dt(), steps: 0, tallies: vec![([0.0; 3], [0.0; 2], None); rig.joints.len()] }
+    }
+
+    /// The twin's reading `twin` after the next step against the log's `reference` there.
+    fn add(&mut self, reference: &Reading, twin: &Reading, bias: &[f64]) {
+        self.steps += 1;
+        for (j, (sums, max, diverged_at)) in self.tallies.iter_mut().enumerate() {
+            let eq = (twin.position[j] as f64 + bias[j] - reference.position[j] as f64).abs();
+            let ev = (twin.velocity[j] - reference.velocity[j]).abs() as f64;
+            sums[0] += eq * eq;
+            sums[1] += ev * ev;
+            max[0] = max[0].max(eq);
+            max[1] = max[1].max(ev);
+            if !reference.effort.is_empty() {
+                sums[2] += ((twin.effort[j] - reference.effort[j]) as f64).powi(2);
+            }
+            if eq > self.threshold && diverged_at.is_none() {
+                *diverged_at = Some(self.steps as f64 * self.dt);
+            }
+        }
+    }
+
+    fn report(self, rig: &Rig, log: &str, has_effort: bool) -> ReplayReport {
+        let n = self.steps.max(1) as f64;
+        let joints: Vec<JointError> = rig
+            .joints
+            .iter()
+            .zip(self.tallies)
+            .enumerate()
+            .map(|(j, (name, (sums, max, diverged_at)))| JointError {
+                joint: name.clone(),
+                position_rmse: (sums[0] / n).sqrt(),
+                position_max: max[0],
+                velocity_rmse: (sums[1] / n).sqrt(),
+                velocity_max: max[1],
+                effort_rmse: (has_effort && rig.actuated[j]).then(|| (sums[2] / n).sqrt()),
+                diverged_at,
+            })
+            .collect();
+        let position_rmse = (joints.iter().map(|j| j.position_rmse.powi(2)).sum::<f64>() / joints.len() as f64).sqrt();
+        let seconds = self.steps as f64 * self.dt;
+        ReplayReport { log: log.to_string(), seconds, threshold: self.threshold, joints, position_rmse }
+    }
+}
+
 /// Compares a twin trajectory with the log.
 pub fn compare(rig: &Rig, log: &PreparedLog, twin: &Trajectory, bias: &[f64], threshold: f64) -> ReplayReport {
-    let dt = rig.dt();
-    let joints: Vec<JointError> = rig
-        .joints
-        .iter()
-        .enumerate()
-        .map(|(j, name)| {
-            let (mut sq, mut sv, mut se, mut mq, mut mv) = (0.0, 0.0, 0.0, 0.0f64, 0.0f64);
-            let mut diverged_at = None;
-            for (k, (r, t)) in log.reference.iter().zip(&twin.steps).enumerate() {
-                let eq = (t.position[j] as f64 + bias[j] - r.position[j] as f64).abs();
-                let ev = (t.velocity[j] - r.velocity[j]).abs() as f64;
-                sq += eq * eq;
-                sv += ev * ev;
-                mq = mq.max(eq);
-                mv = mv.max(ev);
-                if log.has_effort {
-                    se += ((t.effort[j] - r.effort[j]) as f64).powi(2);
-                }
-                if eq > threshold && diverged_at.is_none() {
-                    diverged_at = Some((k + 1) as f64 * dt);
-                }
-            }
-            let n = log.reference.len().max(1) as f64;
-            JointError {
-                joint: name.clone(),
-                position_rmse: (sq / n).sqrt(),
-                position_max: mq,
-                velocity_rmse: (sv / n).sqrt(),
-                velocity_max: mv,
-                effort_rmse: (log.has_effort && rig.actuated[j]).then(|| (se / n).sqrt()),
-                diverged_at,
-            }
-        })
-        .collect();
-    let position_rmse = (joints.iter().map(|j| j.position_rmse.powi(2)).sum::<f64>() / joints.len() as f64).sqrt();
-    ReplayReport { log: log.name.clone(), seconds: log.reference.len() as f64 * dt, threshold, joints, position_rmse }
+    let mut comparison = Comparison::new(rig, threshold);
+    for (r, t) in log.reference.iter().zip(&twin.steps) {
+        comparison.add(r, t, bias);
+    }
+    comparison.report(rig, &log.name, log.has_effort)
 }
 
 impl ReplayReport {
@@ -272,14 +326,161 @@ impl ReplayReport {
 /// The twin's replay as a log (what its encoders would have read, bias included), beside the
 /// robot's for tools that overlay them.
 pub fn twin_log(rig: &Rig, log: &PreparedLog, twin: &Trajectory, bias: &[f64], calibration: &str) -> RobotLog {
-    let dt = rig.dt();
-    let states = twin.samples(dt, bias);
-    let meta = LogMeta {
-        robot: rig.robot.to_string(),
-        source: format!("twinbots {} replay of {}", env!("CARGO_PKG_VERSION"), log.name),
-        calibration: calibration.to_string(),
-        control_period: dt * rig.description.command_steps.max(1) as f64,
-        extra: Default::default(),
-    };
+    let states = twin.samples(rig.dt(), bias);
+    let meta = twin_meta(rig, &log.name, calibration);
     RobotLog { meta, joints: rig.joints.clone(), states, commands: Vec::new(), tool: Vec::new() }
+}
+
+/// The metadata of the twin's replay of log `name` as a log.
+pub fn twin_meta(rig: &Rig, name: &str, calibration: &str) -> LogMeta {
+    LogMeta {
+        robot: rig.robot.to_string(),
+        source: format!("twinbots {} replay of {name}", env!("CARGO_PKG_VERSION")),
+        calibration: calibration.to_string(),
+        control_period: rig.dt() * rig.description.command_steps.max(1) as f64,
+        extra: Default::default(),
+    }
+}
+
+/// How far behind its time a command may come in a log's file and still act at its step (s):
+/// a trajectory's header stamp and the time a bag logged it may differ by this much.
+pub const COMMAND_LOOKAHEAD: f64 = 1.0;
+
+/// A command read from a stream and waiting for its step: the earliest first, then the first read.
+struct Pending {
+    time: f64,
+    index: usize,
+    command: CommandSample,
+}
+
+impl Ord for Pending {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        // Reversed: the heap's top is the earliest.
+        other.time.total_cmp(&self.time).then(other.index.cmp(&self.index))
+    }
+}
+
+impl PartialOrd for Pending {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl PartialEq for Pending {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other).is_eq()
+    }
+}
+
+impl Eq for Pending {}
+
+/// A log's stream read [`COMMAND_LOOKAHEAD`] ahead of the replay: the joint states from the
+/// pair around the replay's time on, and the commands not yet due.
+struct Feed<'a> {
+    stream: &'a mut LogStream,
+    ended: bool,
+    states: VecDeque<JointSample>,
+    pending: BinaryHeap<Pending>,
+    commands: usize,
+    /// Whether every joint state read holds efforts.
+    efforts: bool,
+}
+
+impl Feed<'_> {
+    /// Reads until a joint state at or after `until`, or the log's end.
+    fn fill(&mut self, until: f64) -> anyhow::Result<()> {
+        while !self.ended && self.states.back().is_none_or(|s| s.time < until) {
+            match self.stream.next().transpose()? {
+                None => self.ended = true,
+                Some(Entry::State(s)) => {
+                    self.efforts &= !s.effort.is_empty();
+                    self.states.push_back(s);
+                }
+                Some(Entry::Command(command)) => {
+                    self.pending.push(Pending { time: command.time, index: self.commands, command });
+                    self.commands += 1;
+                }
+                Some(Entry::Tool(_)) => {}
+            }
+        }
+        Ok(())
+    }
+}
+
+/// [`prepare`], [`run`](crate::rig::run) and [`compare`] as the log is read: the twin (on
+/// `params`) steps along the stream, each step's reading handed to `on_twin` as the twin's log
+/// sample and tallied against the log, so memory does not grow with the log's length. The same
+/// report as the three on the whole log, and the plot of it (`label` the twin's line).
+pub fn replay_stream(
+    rig: &Rig,
+    params: &Parameters,
+    log: &mut LogStream,
+    threshold: f64,
+    label: &str,
+    mut on_twin: impl FnMut(JointSample) -> anyhow::Result<()>,
+) -> anyhow::Result<(ReplayReport, ReplayPlot)> {
+    log.check_robot(rig.robot, &rig.joints)?;
+    let name = log.name.clone();
+    let index: Vec<usize> = rig
+        .joints
+        .iter()
+        .map(|j| log.joints.iter().position(|n| n == j).expect("checked: every joint is logged"))
+        .collect();
+    let (dt, t0) = (rig.dt(), log.start);
+    let mut feed = Feed {
+        stream: log,
+        ended: false,
+        states: VecDeque::new(),
+        pending: BinaryHeap::new(),
+        commands: 0,
+        efforts: true,
+    };
+    feed.fill(t0 + COMMAND_LOOKAHEAD)?;
+    let first = feed.states.front().expect("a log stream starts at a joint state");
+    let start: Vec<f64> = index.iter().map(|&i| first.position[i]).collect();
+    let mut stand = Stand::new(rig, &start_positions(rig, &start, params), std::slice::from_ref(params));
+    let bias = rig.biases(params);
+    on_twin(stand.reading(0).sample(0.0, &bias))?;
+    let mut comparison = Comparison::new(rig, threshold);
+    let mut plot = ReplayPlot::new(&name, &[label], rig.joints.len());
+    for k in 0.. {
+        let t = t0 + (k + 1) as f64 * dt;
+        feed.fill(t + COMMAND_LOOKAHEAD)?;
+        let last = feed.states.back().expect("states from the first on").time;
+        // As `prepare`: the whole physics steps the log spans.
+        if feed.ended && k + 1 > ((last - t0) / dt + 1e-6).floor() as usize {
+            break;
+        }
+        while feed.states.len() > 2 && feed.states[1].time < t {
+            feed.states.pop_front();
+        }
+        while feed.pending.peek().is_some_and(|p| command_step(p.time, t0, dt) <= k) {
+            let p = feed.pending.pop().expect("peeked");
+            anyhow::ensure!(
+                command_step(p.time, t0, dt) == k || k == 0,
+                "{name}: command {} of the file (t = {} s) comes after joint states over {COMMAND_LOOKAHEAD} s later than it: a command may stand at most {COMMAND_LOOKAHEAD} s behind its time",
+                p.index,
+                p.time
+            );
+            for (j, command) in
+                motor_commands(rig, p.index, &p.command).map_err(|e| anyhow::anyhow!("{name}: {e:#}"))?
+            {
+                stand.command(0, j, command);
+            }
+        }
+        stand.step();
+        let twin = stand.reading(0);
+        let (a, b) = (&feed.states[0], &feed.states[feed.states.len().min(2) - 1]);
+        let reference = interpolate(a, b, t, &index, true);
+        comparison.add(&reference, &twin, &bias);
+        let time = (k + 1) as f64 * dt;
+        plot.push(time, &reference.position, &[(&twin, &bias)]);
+        on_twin(twin.sample(time, &bias))?;
+    }
+    anyhow::ensure!(
+        comparison.steps >= 10,
+        "{name}: the log lasts {:.3} s, under 10 physics steps of {dt} s",
+        comparison.steps as f64 * dt
+    );
+    Ok((comparison.report(rig, &name, feed.efforts), plot))
 }

@@ -34,12 +34,9 @@ pub fn validate(
     let before = position_rmse(rig, logs, nominal, 0.05);
     let after = position_rmse(rig, logs, calibrated, 0.05);
     let twins = run(rig, &first.start_positions(rig, nominal), &first.program, &[nominal.clone(), calibrated.clone()]);
-    crate::plot::replay_png(
-        validation_png,
-        rig,
-        first,
-        &[("twin (nominal)", &twins[0], rig.biases(nominal)), ("twin (calibrated)", &twins[1], rig.biases(calibrated))],
-    )?;
+    let twins =
+        [("twin (nominal)", &twins[0], rig.biases(nominal)), ("twin (calibrated)", &twins[1], rig.biases(calibrated))];
+    crate::plot::replay_png(validation_png, rig, &crate::plot::ReplayPlot::of(rig, first, &twins))?;
     Ok(Some(Validation {
         logs: logs.iter().map(|l| l.name.clone()).collect(),
         nominal: before,

@@ -129,15 +129,22 @@ impl Trajectory {
     /// The trajectory as a log's joint samples, every `dt` from 0: what the encoders read
     /// (the joints' positions plus `bias`), the speeds and the efforts.
     pub fn samples(&self, dt: f64, bias: &[f64]) -> Vec<JointSample> {
-        let sample = |r: &Reading, time: f64| JointSample {
-            time,
-            position: r.position.iter().zip(bias).map(|(&q, b)| q as f64 + b).collect(),
-            velocity: r.velocity.iter().map(|&v| v as f64).collect(),
-            effort: r.effort.iter().map(|&e| e as f64).collect(),
-        };
-        std::iter::once(sample(&self.start, 0.0))
-            .chain(self.steps.iter().enumerate().map(|(k, r)| sample(r, (k + 1) as f64 * dt)))
+        std::iter::once(self.start.sample(0.0, bias))
+            .chain(self.steps.iter().enumerate().map(|(k, r)| r.sample((k + 1) as f64 * dt, bias)))
             .collect()
+    }
+}
+
+impl Reading {
+    /// The reading as a log's joint sample at `time`: what the encoders read (the joints'
+    /// positions plus `bias`), the speeds and the efforts.
+    pub fn sample(&self, time: f64, bias: &[f64]) -> JointSample {
+        JointSample {
+            time,
+            position: self.position.iter().zip(bias).map(|(&q, b)| q as f64 + b).collect(),
+            velocity: self.velocity.iter().map(|&v| v as f64).collect(),
+            effort: self.effort.iter().map(|&e| e as f64).collect(),
+        }
     }
 }
 
