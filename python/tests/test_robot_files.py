@@ -111,5 +111,9 @@ def test_the_ur5_twin_follows_the_real_arms_targets(tmp_path, recording, bound_m
     log = DATA / f"{recording}.csv.gz"
     out = tmp_path / "replay"
     run("replay", "assets/robots/ur5.toml", str(log), "--servo", "--efforts", "target_moment", "--out", str(out))
-    rmse = json.loads((out / "replay.json").read_text())["servo_position_rmse_rad"]
+    report = json.loads((out / "replay.json").read_text())
+    rmse = report["servo_position_rmse_rad"]
     assert len(rmse) == 6 and max(rmse) <= bound_mrad * 1e-3, rmse
+    # The drives' own efforts beside the controller's model torques: reported, per joint.
+    effort = report["servo_effort_rmse"]
+    assert len(effort) == 6 and all(0.0 < e < 1e3 for e in effort), effort

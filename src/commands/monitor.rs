@@ -9,9 +9,9 @@ use std::time::Duration;
 
 use twinbots_ops::live::{ALARM, RobotJoints, RobotView};
 use twinbots_ops::monitor::recording::{SHADOW, follow};
-use twinbots_ops::monitor::{Monitor, MonitorOptions, Report};
+use twinbots_ops::monitor::source::Source;
+use twinbots_ops::monitor::{Monitor, MonitorOptions};
 use twinbots_render::{Renderer, View};
-use twinbots_rtde::{DataPackage, RtdeClient};
 use twinbots_run::live::LiveArgs;
 use twinbots_run::settings::CalibrationSetting;
 use twinbots_sim::urdf::dynamics::Dynamics;
@@ -87,76 +87,6 @@ pub struct Args {
     pub live: LiveArgs,
 }
 
-/// Where the robot's reports come from (one per run: its size does not matter).
-#[allow(clippy::large_enum_variant)]
-enum Source {
-    Rtde(RtdeClient),
-    #[cfg(feature = "ros2")]
-    Ros2(twinbots_ops::monitor::ros2::Ros2Source),
-}
-
-impl Source {
-    fn open(args: &Args, patience: Duration) -> anyhow::Result<Self> {
-        if let Some(address) = &args.rtde {
-            let mut client = RtdeClient::connect(address, patience)?;
-            client.setup_outputs(
-                &["timestamp", "actual_q", "actual_qd", "target_qd", "target_moment"],
-                twinbots_rtde::MAX_FREQUENCY,
-            )?;
-            client.start()?;
-            return Ok(Source::Rtde(client));
-        }
-        Self::open_ros2(args, patience)
-    }
-
-    #[cfg(feature = "ros2")]
-    fn open_ros2(args: &Args, patience: Duration) -> anyhow::Result<Self> {
-        use twinbots_ros2::node::{domain_from_env, parse_domain};
-        let domain = match &args.domain {
-            Some(d) => parse_domain(d)?,
-            None => domain_from_env()?,
-        };
-        let name = format!("twinbots_monitor_{}", std::process::id());
-        Ok(Source::Ros2(twinbots_ops::monitor::ros2::Ros2Source::open(domain, &name, patience)?))
-    }
-
-    #[cfg(not(feature = "ros2"))]
-    fn open_ros2(_: &Args, _: Duration) -> anyhow::Result<Self> {
-        anyhow::bail!("this twinbots was built without the ros2 feature: --ros2 needs it (docs/ros2.md)")
-    }
-
-    fn label(args: &Args) -> String {
-        match &args.rtde {
-            Some(a) => format!("RTDE at {a}"),
-            None => "ROS 2 (/joint_states)".into(),
-        }
-    }
-
-    /// The next report; `Err(reason)` inside when the robot went (the run ends, what was
-    /// followed is written); the outer error for a report that is not one.
-    fn next(&mut self) -> anyhow::Result<Result<Report, String>> {
-        match self {
-            Source::Rtde(client) => match client.receive() {
-                Ok(p) => Ok(Ok(report(&p)?)),
-                Err(e) => Ok(Err(e.to_string())),
-            },
-            #[cfg(feature = "ros2")]
-            Source::Ros2(source) => {
-                use twinbots_ops::monitor::ros2::Next;
-                loop {
-                    match source.next()? {
-                        Next::Report(r) => return Ok(Ok(r)),
-                        Next::Silent(wait) => {
-                            return Ok(Err(format!("no joint state for {:.1} s", wait.as_secs_f64())));
-                        }
-                        Next::Note(note) => println!("monitor: {note}"),
-                    }
-                }
-            }
-        }
-    }
-}
-
 /// The twin rendered as it follows.
 struct TwinFrames {
     renderer: Renderer,
@@ -222,7 +152,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         .map(|c| c.parameters())
         .unwrap_or_default();
     std::fs::create_dir_all(&args.out).map_err(|e| anyhow::anyhow!("{}: {e}", args.out.display()))?;
-    let label = Source::label(&args);
+    let label = Source::label(args.rtde.as_deref());
     let options = MonitorOptions {
         calibration,
         position_threshold: args.position_threshold_mrad / 1e3,
@@ -239,8 +169,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     };
     let mut frames = TwinFrames::new(&args, &entry)?;
     let live = args.live.start()?;
-    let mut source = Source::open(&args, Duration::from_secs_f64(args.patience_ms / 1e3))?;
-    let first = source.next()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
+    let patience = Duration::from_secs_f64(args.patience_ms / 1e3);
+    let mut source = Source::open(args.rtde.as_deref(), args.domain.as_deref(), patience)?;
+    let first = source.receive()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
     let joints: Vec<String> = ur5e::kinematics::JOINTS.iter().map(|j| j.to_string()).collect();
     let mut view = live.map(|server| RobotView::new(server, &entry, &joints)).transpose()?;
@@ -261,7 +192,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         if let Some(signal) = twinbots_ops::stop_signal::requested() {
             break Some(format!("stopped by {signal}"));
         }
-        let r = match source.next() {
+        let r = match source.receive() {
             Ok(Ok(r)) => r,
             Ok(Err(e)) => break Some(e),
             Err(e) => {
@@ -348,21 +279,6 @@ fn print_line(monitor: &Monitor, time: f64) {
         account.motions.len(),
         account.alarms.len()
     );
-}
-
-fn report(p: &DataPackage) -> anyhow::Result<Report> {
-    let six = |name: &str| -> anyhow::Result<[f64; 6]> {
-        let v = p.vector6(name).ok_or_else(|| anyhow::anyhow!("the controller's report has no {name}"))?;
-        anyhow::ensure!(v.iter().all(|x| x.is_finite()), "the controller reported {name} = {v:?}");
-        Ok(v)
-    };
-    Ok(Report {
-        time: p.double("timestamp").ok_or_else(|| anyhow::anyhow!("the controller's report has no timestamp"))?,
-        q: six("actual_q")?,
-        qd: six("actual_qd")?,
-        command: six("target_qd")?,
-        effort: six("target_moment")?,
-    })
 }
 
 /// `monitor ROBOT.toml --replay LOG`: the recording through the calibrated shadow, sample by

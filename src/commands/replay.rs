@@ -125,11 +125,16 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
             None => println!("  {joint:<24} nominal {:>8.3}", rmse_nominal[j]),
         }
     }
-    let servo = args.servo.then(|| servo_rmse(&robot, &log, &name)).transpose()?;
+    let followed = args.servo.then(|| twinbots_arm::servo::follow_log(&robot, &log, &name)).transpose()?;
+    let servo = followed.as_ref().map(|f| rmse(&f.measured, &f.twin.positions));
+    // From the first period on: the start has no period behind it.
+    let servo_effort =
+        followed.as_ref().and_then(|f| Some(rmse(&f.measured_efforts.as_ref()?[1..], &f.twin.efforts[1..])));
     if let Some(rmse) = &servo {
-        println!("{name}: the twin's position servo on the logged targets, position RMSE per joint (mrad)");
-        for (joint, e) in robot.joints.iter().zip(rmse) {
-            println!("  {joint:<24} {:>8.3}", 1e3 * e);
+        println!("{name}: the twin under its position servo on the logged targets, RMSE per joint");
+        for (j, joint) in robot.joints.iter().enumerate() {
+            let effort = servo_effort.as_ref().map_or(String::new(), |e| format!("  effort {:>8.3} N*m", e[j]));
+            println!("  {joint:<24} position {:>8.3} mrad{effort}", 1e3 * rmse[j]);
         }
     }
     let residual = residuals(&motion.effort, calibrated.as_ref().unwrap_or(&nominal));
@@ -178,45 +183,10 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
         "rmse_nominal": rmse_nominal,
         "rmse_calibrated": rmse_calibrated,
         "servo_position_rmse_rad": servo,
+        "servo_effort_rmse": servo_effort,
         "flagged": flagged,
     });
     twinbots_api::files::write_json(&out.join("replay.json"), &report)?;
     println!("wrote {}/replay.png, efforts.png, replay.json", out.display());
     Ok(())
-}
-
-/// The arm's twin under its position servo along the log's position targets
-/// (`twinbots_arm::servo`), from the log's first measured pose: each controlled joint's RMSE
-/// (rad) against the measured positions. A log whose commands are not positions is an error.
-fn servo_rmse(robot: &RobotFile, log: &twinbots_log::RobotLog, name: &str) -> anyhow::Result<Vec<f64>> {
-    use twinbots_log::CommandMode;
-    let positions = |c: &twinbots_log::CommandSample| c.modes.iter().all(|m| *m == CommandMode::Position);
-    anyhow::ensure!(
-        !log.commands.is_empty() && log.commands.iter().all(positions),
-        "{name}: --servo follows position targets, and the log's commands are not all positions"
-    );
-    anyhow::ensure!(
-        log.commands.len() == log.states.len()
-            && log.commands.iter().zip(&log.states).all(|(c, s)| (c.time - s.time).abs() < 1e-9),
-        "{name}: the position targets are not one per measured sample, at its time"
-    );
-    let column = |joints: &[String], joint: &str| {
-        joints.iter().position(|j| j == joint).ok_or_else(|| anyhow::anyhow!("{name}: no joint '{joint}'"))
-    };
-    let state_columns: Vec<usize> =
-        robot.joints.iter().map(|j| column(&log.joints, j)).collect::<anyhow::Result<_>>()?;
-    let pick = |values: &[f64], columns: &[usize]| columns.iter().map(|&c| values[c]).collect::<Vec<f64>>();
-    let targets: Vec<Vec<f64>> = log
-        .commands
-        .iter()
-        .map(|c| {
-            let columns: Vec<usize> =
-                robot.joints.iter().map(|j| column(&c.joints, j)).collect::<anyhow::Result<_>>()?;
-            Ok(pick(&c.values, &columns))
-        })
-        .collect::<anyhow::Result<_>>()?;
-    let measured: Vec<Vec<f64>> = log.states.iter().map(|s| pick(&s.position, &state_columns)).collect();
-    let times: Vec<f64> = log.states.iter().map(|s| s.time).collect();
-    let twin = twinbots_arm::servo::follow_targets(robot, &measured[0], &times, &targets)?;
-    Ok(rmse(&measured, &twin))
 }

@@ -7,6 +7,7 @@
 //! with the recording's `actual_q`.
 
 use bevy::prelude::*;
+use twinbots_log::{CommandMode, CommandSample, RobotLog};
 use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_sim::{Arena, JointState, Motor, MotorCommand, PhysicsSubstep, SimPlugin, SpawnOptions, spawn_robot};
 
@@ -18,16 +19,23 @@ use crate::arm::Arm;
 /// trails by 20 mrad, at 50 it is unstable.
 pub const SERVO_INTEGRAL_GAIN: f64 = 3.0;
 
-/// The twin's joints (the file's controlled joints, in its order) at each target's time, from
-/// `start` at `times[0]`, driven towards `targets[k + 1]` over `times[k]..times[k + 1]`.
-/// `targets` and `times` are as long as each other; a gap between times is stepped in whole
-/// physics steps (at least one).
+/// Where the twin's joints (the file's controlled joints, in its order) were at each target's
+/// time, and the efforts its drives applied over the period before it (their mean over its
+/// physics steps, as a current measurement averages; 0 at the start).
+pub struct Followed {
+    pub positions: Vec<Vec<f64>>,
+    pub efforts: Vec<Vec<f64>>,
+}
+
+/// The twin from `start` at `times[0]`, driven towards `targets[k + 1]` over
+/// `times[k]..times[k + 1]`. `targets` and `times` are as long as each other; a gap between
+/// times is stepped in whole physics steps (at least one).
 pub fn follow_targets(
     file: &RobotFile,
     start: &[f64],
     times: &[f64],
     targets: &[Vec<f64>],
-) -> anyhow::Result<Vec<Vec<f64>>> {
+) -> anyhow::Result<Followed> {
     let arm = Arm::of(file.clone())?;
     let dof = arm.dof();
     anyhow::ensure!(
@@ -73,14 +81,15 @@ pub fn follow_targets(
     }
     // Start-up: the world as built.
     app.update();
-    let read = |world: &World| -> Vec<f64> {
-        joints.iter().map(|&j| world.get::<JointState>(j).map_or(f64::NAN, |s| s.position as f64)).collect()
+    let read = |world: &World, what: fn(&JointState) -> f32| -> Vec<f64> {
+        joints.iter().map(|&j| world.get::<JointState>(j).map_or(f64::NAN, |s| what(s) as f64)).collect()
     };
-    let mut out = Vec::with_capacity(times.len());
-    out.push(read(app.world()));
+    let mut out = Followed { positions: Vec::with_capacity(times.len()), efforts: Vec::with_capacity(times.len()) };
+    out.positions.push(read(app.world(), |s| s.position));
+    out.efforts.push(vec![0.0; dof]);
     // The drives' reference: where the trajectory generator has put it (it moves the reference
     // a speed × the physics steps each period, as the motors integrate it).
-    let mut reference = out[0].clone();
+    let mut reference = out.positions[0].clone();
     // What the drives' position loops leave under load (gravity holds a shoulder a little
     // below its reference), integrated and added to the reference: the servo's integral action.
     let mut integral = vec![0.0; dof];
@@ -97,14 +106,67 @@ pub fn follow_targets(
             reference[j] += speed * span;
             motor.command = MotorCommand::Velocity(speed as f32);
         }
+        let mut effort = vec![0.0; dof];
         for _ in 0..steps {
-            world.run_schedule(PhysicsSubstep);
+            app.world_mut().run_schedule(PhysicsSubstep);
+            for (sum, e) in effort.iter_mut().zip(read(app.world(), |s| s.effort)) {
+                *sum += e / steps as f64;
+            }
         }
-        let q = read(app.world());
+        let q = read(app.world(), |s| s.position);
         for j in 0..dof {
             integral[j] += SERVO_INTEGRAL_GAIN * (targets[k + 1][j] - q[j]) * span;
         }
-        out.push(q);
+        out.positions.push(q);
+        out.efforts.push(effort);
     }
     Ok(out)
+}
+
+/// A log's measured joints, efforts (where it holds them) and the twin under the servo along
+/// its position targets, per sample, in the robot file's joint order.
+pub struct FollowedLog {
+    pub measured: Vec<Vec<f64>>,
+    pub measured_efforts: Option<Vec<Vec<f64>>>,
+    pub twin: Followed,
+}
+
+/// The twin under the servo along `log`'s position targets (one per measured sample, at its
+/// time: a UR recording's `target_q`), from its first measured pose. A log whose commands are
+/// not positions, one per sample, is an error naming it (`name`).
+pub fn follow_log(file: &RobotFile, log: &RobotLog, name: &str) -> anyhow::Result<FollowedLog> {
+    let positions = |c: &CommandSample| c.modes.iter().all(|m| *m == CommandMode::Position);
+    anyhow::ensure!(
+        !log.commands.is_empty() && log.commands.iter().all(positions),
+        "{name}: the servo follows position targets, and the log's commands are not all positions"
+    );
+    anyhow::ensure!(
+        log.commands.len() == log.states.len()
+            && log.commands.iter().zip(&log.states).all(|(c, s)| (c.time - s.time).abs() < 1e-9),
+        "{name}: the position targets are not one per measured sample, at its time"
+    );
+    let column = |joints: &[String], joint: &str| {
+        joints.iter().position(|j| j == joint).ok_or_else(|| anyhow::anyhow!("{name}: no joint '{joint}'"))
+    };
+    let state_columns: Vec<usize> =
+        file.joints.iter().map(|j| column(&log.joints, j)).collect::<anyhow::Result<_>>()?;
+    let pick = |values: &[f64], columns: &[usize]| columns.iter().map(|&c| values[c]).collect::<Vec<f64>>();
+    let targets: Vec<Vec<f64>> = log
+        .commands
+        .iter()
+        .map(|c| {
+            let columns: Vec<usize> =
+                file.joints.iter().map(|j| column(&c.joints, j)).collect::<anyhow::Result<_>>()?;
+            Ok(pick(&c.values, &columns))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let measured: Vec<Vec<f64>> = log.states.iter().map(|s| pick(&s.position, &state_columns)).collect();
+    let measured_efforts = log
+        .states
+        .iter()
+        .all(|s| !s.effort.is_empty())
+        .then(|| log.states.iter().map(|s| pick(&s.effort, &state_columns)).collect());
+    let times: Vec<f64> = log.states.iter().map(|s| s.time).collect();
+    let twin = follow_targets(file, &measured[0], &times, &targets)?;
+    Ok(FollowedLog { measured, measured_efforts, twin })
 }

@@ -25,6 +25,7 @@ use crate::ur_sim::{CYCLE, controller_stand};
 pub mod recording;
 #[cfg(feature = "ros2")]
 pub mod ros2;
+pub mod source;
 
 /// The errors of the last window, per joint: position (rad) and effort (N·m), one pair a report.
 #[derive(Default)]
