@@ -17,6 +17,7 @@ pub mod rig;
 pub mod search;
 pub mod sensitivity;
 pub mod shadow_stream;
+pub mod trace;
 pub mod uncertainty;
 
 pub use excitation::Excitation;

@@ -7,8 +7,8 @@ use twinbots_sim::{MotorCommand, Parameters};
 
 use std::collections::{BinaryHeap, VecDeque};
 
-use crate::plot::ReplayPlot;
 use crate::rig::{Program, Reading, Rig, Stand, Trajectory};
+use crate::trace::ReplayPlot;
 
 /// A log made ready to replay on a rig: its commands by physics step and its measurements
 /// interpolated onto the twin's physics steps.
@@ -151,6 +151,17 @@ impl PreparedLog {
     /// Where the twin's joints start for parameters `params`: the logged readings less their bias.
     pub fn start_positions(&self, rig: &Rig, params: &Parameters) -> Vec<(String, f32)> {
         start_positions(rig, &self.start, params)
+    }
+
+    /// The figure of the log and whole twin trajectories (with their biases) replayed on it.
+    pub fn plot(&self, rig: &Rig, twins: &[(&str, &Trajectory, Vec<f64>)]) -> ReplayPlot {
+        let labels: Vec<&str> = twins.iter().map(|t| t.0).collect();
+        let mut plot = ReplayPlot::new(&self.name, &labels, rig.joints.len());
+        for (k, reference) in self.reference.iter().enumerate() {
+            let readings: Vec<(&Reading, &[f64])> = twins.iter().map(|(_, t, b)| (&t.steps[k], b.as_slice())).collect();
+            plot.push((k + 1) as f64 * rig.dt(), &reference.position, &readings);
+        }
+        plot
     }
 }
 

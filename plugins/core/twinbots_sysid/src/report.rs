@@ -36,7 +36,7 @@ pub fn validate(
     let twins = run(rig, &first.start_positions(rig, nominal), &first.program, &[nominal.clone(), calibrated.clone()]);
     let twins =
         [("twin (nominal)", &twins[0], rig.biases(nominal)), ("twin (calibrated)", &twins[1], rig.biases(calibrated))];
-    crate::plot::replay_png(validation_png, rig, &crate::plot::ReplayPlot::of(rig, first, &twins))?;
+    crate::plot::replay_png(validation_png, rig, &first.plot(rig, &twins))?;
     Ok(Some(Validation {
         logs: logs.iter().map(|l| l.name.clone()).collect(),
         nominal: before,
