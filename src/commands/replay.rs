@@ -32,11 +32,11 @@ pub struct Args {
     /// Where to write replay.png, twin.mcap and replay.json; default: `<log>.replay/` beside it.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// With a robot file: also run the arm's twin under its position servo along the log's
-    /// position targets (`target_q`) and compare its joints with the measured ones (the
-    /// twin's physics: the URDF's meshes must be found).
-    #[arg(long)]
-    pub servo: bool,
+    /// With a robot file: also run the arm's twin (the twin's physics: the URDF's meshes must be
+    /// found) along the log's position targets (`target_q`) under a servo, `position` (the
+    /// default) or `computed-torque`, and compare its joints and efforts with the measured ones.
+    #[arg(long, num_args = 0..=1, default_missing_value = "position", value_parser = twinbots_arm::servo::Servo::parse)]
+    pub servo: Option<twinbots_arm::servo::Servo>,
     /// Where a UR recording's efforts come from (docs/logs.md): `none`, `target_moment` (the
     /// controller's model torque) or `current:K0,…,K5` (actual currents × torque constants).
     #[arg(long, default_value = "none", value_parser = twinbots_log::rtde_csv::Efforts::parse)]
@@ -49,7 +49,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         return exec_arm(args);
     }
     anyhow::ensure!(
-        !args.servo,
+        args.servo.is_none(),
         "--servo runs a robot file's arm under its position servo; '{}' replays its own way",
         args.robot
     );
@@ -125,13 +125,14 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
             None => println!("  {joint:<24} nominal {:>8.3}", rmse_nominal[j]),
         }
     }
-    let followed = args.servo.then(|| twinbots_arm::servo::follow_log(&robot, &log, &name)).transpose()?;
+    let followed = args.servo.map(|servo| twinbots_arm::servo::follow_log(&robot, servo, &log, &name)).transpose()?;
     let servo = followed.as_ref().map(|f| rmse(&f.measured, &f.twin.positions));
     // From the first period on: the start has no period behind it.
     let servo_effort =
         followed.as_ref().and_then(|f| Some(rmse(&f.measured_efforts.as_ref()?[1..], &f.twin.efforts[1..])));
     if let Some(rmse) = &servo {
-        println!("{name}: the twin under its position servo on the logged targets, RMSE per joint");
+        let servo = args.servo.map_or("", |s| s.name());
+        println!("{name}: the twin under its {servo} servo on the logged targets, RMSE per joint");
         for (j, joint) in robot.joints.iter().enumerate() {
             let effort = servo_effort.as_ref().map_or(String::new(), |e| format!("  effort {:>8.3} N*m", e[j]));
             println!("  {joint:<24} position {:>8.3} mrad{effort}", 1e3 * rmse[j]);
@@ -182,6 +183,7 @@ fn exec_arm(args: Args) -> anyhow::Result<()> {
         "joints": joints,
         "rmse_nominal": rmse_nominal,
         "rmse_calibrated": rmse_calibrated,
+        "servo": args.servo.map(|s| s.name()),
         "servo_position_rmse_rad": servo,
         "servo_effort_rmse": servo_effort,
         "flagged": flagged,

@@ -8,6 +8,7 @@
 
 use bevy::prelude::*;
 use twinbots_log::{CommandMode, CommandSample, RobotLog};
+use twinbots_sim::urdf::dynamics::{Dynamics, GRAVITY};
 use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_sim::{Arena, JointState, Motor, MotorCommand, PhysicsSubstep, SimPlugin, SpawnOptions, spawn_robot};
 
@@ -19,6 +20,37 @@ use crate::arm::Arm;
 /// trails by 20 mrad, at 50 it is unstable.
 pub const SERVO_INTEGRAL_GAIN: f64 = 3.0;
 
+/// How the twin's drives follow the targets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Servo {
+    /// A UR's `servoj` as the drives' own position loops can have it: speeds that reach each
+    /// target within the period, an integral action for what gravity leaves; the positions
+    /// follow the arm's closely, the drives' efforts are the constraint solver's and do not.
+    Position,
+    /// The description's inverse dynamics plus a feedback, as torques
+    /// ([`COMPUTED_TORQUE_NATURAL_FREQUENCY`]): efforts near the arm's, positions a little
+    /// less close.
+    ComputedTorque,
+}
+
+impl Servo {
+    /// `position` or `computed-torque`.
+    pub fn parse(s: &str) -> anyhow::Result<Self> {
+        match s {
+            "position" => Ok(Self::Position),
+            "computed-torque" => Ok(Self::ComputedTorque),
+            _ => anyhow::bail!("unknown servo '{s}' (known: position, computed-torque)"),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Position => "position",
+            Self::ComputedTorque => "computed-torque",
+        }
+    }
+}
+
 /// Where the twin's joints (the file's controlled joints, in its order) were at each target's
 /// time, and the efforts its drives applied over the period before it (their mean over its
 /// physics steps, as a current measurement averages; 0 at the start).
@@ -27,11 +59,12 @@ pub struct Followed {
     pub efforts: Vec<Vec<f64>>,
 }
 
-/// The twin from `start` at `times[0]`, driven towards `targets[k + 1]` over
+/// The twin from `start` at `times[0]`, driven by `servo` towards `targets[k + 1]` over
 /// `times[k]..times[k + 1]`. `targets` and `times` are as long as each other; a gap between
 /// times is stepped in whole physics steps (at least one).
 pub fn follow_targets(
     file: &RobotFile,
+    servo: Servo,
     start: &[f64],
     times: &[f64],
     targets: &[Vec<f64>],
@@ -81,6 +114,9 @@ pub fn follow_targets(
     }
     // Start-up: the world as built.
     app.update();
+    if servo == Servo::ComputedTorque {
+        return computed_torque(file, &mut app, &joints, settings.dt as f64, times, targets);
+    }
     let read = |world: &World, what: fn(&JointState) -> f32| -> Vec<f64> {
         joints.iter().map(|&j| world.get::<JointState>(j).map_or(f64::NAN, |s| what(s) as f64)).collect()
     };
@@ -134,7 +170,7 @@ pub struct FollowedLog {
 /// The twin under the servo along `log`'s position targets (one per measured sample, at its
 /// time: a UR recording's `target_q`), from its first measured pose. A log whose commands are
 /// not positions, one per sample, is an error naming it (`name`).
-pub fn follow_log(file: &RobotFile, log: &RobotLog, name: &str) -> anyhow::Result<FollowedLog> {
+pub fn follow_log(file: &RobotFile, servo: Servo, log: &RobotLog, name: &str) -> anyhow::Result<FollowedLog> {
     let positions = |c: &CommandSample| c.modes.iter().all(|m| *m == CommandMode::Position);
     anyhow::ensure!(
         !log.commands.is_empty() && log.commands.iter().all(positions),
@@ -167,6 +203,77 @@ pub fn follow_log(file: &RobotFile, log: &RobotLog, name: &str) -> anyhow::Resul
         .all(|s| !s.effort.is_empty())
         .then(|| log.states.iter().map(|s| pick(&s.effort, &state_columns)).collect());
     let times: Vec<f64> = log.states.iter().map(|s| s.time).collect();
-    let twin = follow_targets(file, &measured[0], &times, &targets)?;
+    let twin = follow_targets(file, servo, &measured[0], &times, &targets)?;
     Ok(FollowedLog { measured, measured_efforts, twin })
+}
+
+/// The computed-torque servo's natural frequency (rad/s): the error closes as a critically
+/// damped second-order system at this rate (gains ω² and 2ω on the error and its rate). Chosen on
+/// the real UR5's fitting runs (No5, No6; docs/logs.md): the highest, in steps of 5, at which
+/// the twin stays stable on both; at 25 it oscillates away on No6, whose pose lines the pan and
+/// wrist-2 axes up, where the physics' coupled joints answer a torque less stiffly than the
+/// description's mass matrix says.
+pub const COMPUTED_TORQUE_NATURAL_FREQUENCY: f64 = 20.0;
+
+/// Computed torque: each physics step the drives take the torque the description's inverse
+/// dynamics gives at the joints' state for the targets' acceleration plus a feedback on the
+/// error (the targets linearly interpolated within the period, their speed and acceleration by
+/// differences), so the drives' efforts are what such a controller would command.
+fn computed_torque(
+    file: &RobotFile,
+    app: &mut App,
+    joints: &[Entity],
+    dt: f64,
+    times: &[f64],
+    targets: &[Vec<f64>],
+) -> anyhow::Result<Followed> {
+    let dynamics = Dynamics::of(&file.chain);
+    let dof = joints.len();
+    anyhow::ensure!(
+        dynamics.dof() == dof,
+        "the computed-torque servo drives every movable joint: the description has {}, the file controls {dof}",
+        dynamics.dof()
+    );
+    let wn = COMPUTED_TORQUE_NATURAL_FREQUENCY;
+    let (kp, kd) = (wn * wn, 2.0 * wn);
+    let state = |world: &World, what: fn(&JointState) -> f32| -> Vec<f64> {
+        joints.iter().map(|&j| world.get::<JointState>(j).map_or(f64::NAN, |s| what(s) as f64)).collect()
+    };
+    for &joint in joints {
+        if let Some(mut motor) = app.world_mut().get_mut::<Motor>(joint) {
+            motor.holds_position = false;
+            motor.command = MotorCommand::Torque(0.0);
+        }
+    }
+    let mut out = Followed { positions: vec![state(app.world(), |s| s.position)], efforts: vec![vec![0.0; dof]] };
+    let n = times.len();
+    let speed = |a: usize, b: usize, j: usize| (targets[b][j] - targets[a][j]) / (times[b] - times[a]).max(1e-9);
+    for k in 0..n.saturating_sub(1) {
+        let steps = (((times[k + 1] - times[k]) / dt).round() as usize).max(1);
+        let span = steps as f64 * dt;
+        let qd_d: Vec<f64> = (0..dof).map(|j| speed(k, k + 1, j)).collect();
+        let qdd_d: Vec<f64> =
+            (0..dof).map(|j| if k + 2 < n { (speed(k + 1, k + 2, j) - qd_d[j]) / span } else { 0.0 }).collect();
+        let mut effort = vec![0.0; dof];
+        for step in 0..steps {
+            let (q, qd) = (state(app.world(), |s| s.position), state(app.world(), |s| s.velocity));
+            let s = step as f64 * dt;
+            let acc: Vec<f64> = (0..dof)
+                .map(|j| qdd_d[j] + kp * (targets[k][j] + qd_d[j] * s - q[j]) + kd * (qd_d[j] - qd[j]))
+                .collect();
+            let tau = dynamics.inverse(&q, &qd, &acc, GRAVITY);
+            for (&joint, t) in joints.iter().zip(&tau) {
+                if let Some(mut motor) = app.world_mut().get_mut::<Motor>(joint) {
+                    motor.command = MotorCommand::Torque(*t as f32);
+                }
+            }
+            app.world_mut().run_schedule(PhysicsSubstep);
+            for (sum, e) in effort.iter_mut().zip(state(app.world(), |s| s.effort)) {
+                *sum += e / steps as f64;
+            }
+        }
+        out.positions.push(state(app.world(), |s| s.position));
+        out.efforts.push(effort);
+    }
+    Ok(out)
 }
