@@ -140,3 +140,24 @@ def test_the_computed_torque_twin_commands_the_arms_efforts(tmp_path):
         assert effort <= 4.0 * model + 0.1, (j, effort, model)
     assert max(torque["servo_position_rmse_rad"]) <= 1e-3, torque["servo_position_rmse_rad"]
     assert position["servo_effort_rmse"][2] >= 10.0 * nominal[2], position["servo_effort_rmse"]
+
+
+def test_a_robot_file_arm_records_on_its_test_stand(tmp_path):
+    """`record assets/robots/ur10.toml`: a robot file's arm has a test stand as a built-in robot
+    does: 3 s of multisine excitation, every physics step's joint states (4 ms) and a speed
+    command per control period (8 ms) to each of the file's joints, read back with the `mcap`
+    packages."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    log = tmp_path / "ur10.mcap"
+    run("record", "assets/robots/ur10.toml", "--seconds", "3", "--out", str(log))
+    with open(log, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        states = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/joint_states"])]
+    with open(log, "rb") as f:
+        commands = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/twinbots/joint_commands"])]
+    assert len(states) == 751 and list(states[0].name)[:2] == ["shoulder_pan_joint", "shoulder_lift_joint"]
+    assert len(commands) == 375 and all(c["mode"] == ["velocity"] * 6 for c in commands)
+    moved = np.ptp(np.array([s.position for s in states]), axis=0)
+    assert (moved > 0.05).all(), moved

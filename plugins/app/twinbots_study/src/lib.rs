@@ -309,6 +309,7 @@ fn put_on_payloads(
 fn payload(entry: &RobotEntry, world: &mut World, arena: Entity, link: &str, mass: f64) -> anyhow::Result<Payload> {
     let rig = entry
         .rig
+        .as_ref()
         .ok_or_else(|| anyhow::anyhow!("payload: {} has no robot model to take the link's mass from", entry.name))?;
     let model = (rig.model)();
     let nominal = model

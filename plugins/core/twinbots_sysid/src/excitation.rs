@@ -99,7 +99,7 @@ impl Signal {
 /// `seed`.
 pub fn program(rig: &Rig, kind: Excitation, seconds: f64, seed: u64) -> Program {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let excitation = rig.description.excitation;
+    let excitation = &rig.description.excitation;
     let mut signals: Vec<(u8, Signal)> = Vec::new();
     for e in excitation {
         if !signals.iter().any(|(c, _)| *c == e.channel) {
@@ -114,7 +114,7 @@ pub fn program(rig: &Rig, kind: Excitation, seconds: f64, seed: u64) -> Program 
         .map(|e| {
             rig.joints
                 .iter()
-                .position(|j| j == e.joint)
+                .position(|j| *j == e.joint)
                 .unwrap_or_else(|| panic!("the rig excites '{}', not a joint of it", e.joint))
         })
         .collect();

@@ -36,7 +36,7 @@ pub fn random_truth(rig: &Rig, seed: u64) -> Parameters {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let prior = rig.description.prior_parameters();
     let mut truth = Parameters::default();
-    for name in rig.description.fit {
+    for name in &rig.description.fit {
         let start = rig.value(&prior, name);
         let value = if start > 0.0 { start * 2f64.powf(rng.random_range(-1.0..=1.0)) } else { start };
         truth.0.insert(name.to_string(), value);

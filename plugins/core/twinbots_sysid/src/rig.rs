@@ -33,7 +33,7 @@ pub struct Rig {
 impl Rig {
     /// The rig of a registered robot; an error for a robot that has none.
     pub fn of(robot: &RobotDescription) -> anyhow::Result<Self> {
-        let Some(description) = robot.rig else {
+        let Some(description) = robot.rig.clone() else {
             anyhow::bail!("robot '{}' has no test rig: it cannot record, replay or identify", robot.name);
         };
         let model = (description.model)();
@@ -42,7 +42,7 @@ impl Rig {
         let movable = model.joints.iter().filter(|j| j.kind.is_movable());
         let (joints, actuated): (Vec<String>, Vec<bool>) =
             movable.map(|j| (j.name.clone(), j.limits.effort > 0.0)).unzip();
-        let settings = (description.settings)();
+        let settings = description.settings;
         let ancestors = ancestors(&model, &joints);
         Ok(Self { robot: robot.name, description, model, settings, nominal, catalogue, joints, actuated, ancestors })
     }

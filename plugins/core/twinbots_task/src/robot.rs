@@ -3,6 +3,7 @@
 //! how cameras frame it) and how to build an app of it. Every front (the CLI, the RobotServer's
 //! handshake, evaluation) reads that description from a [`Registry`]; none keeps its own copy.
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
 use bevy::prelude::*;
@@ -173,37 +174,51 @@ pub struct CellDescription {
 pub type Feedback = fn(&[f32]) -> Vec<f32>;
 
 /// A robot alone on a test stand (no cell, no task): what `record`, `replay` and `identify`
-/// drive with logged or generated commands, one parameter set per arena.
-#[derive(Clone, Copy, Debug)]
+/// drive with logged or generated commands, one parameter set per arena. Data, so a robot
+/// file's arm has one as a built-in robot does.
+#[derive(Clone)]
 pub struct RigDescription {
     /// The robot's model (its URDF).
-    pub model: fn() -> RobotModel,
+    pub model: Arc<dyn Fn() -> RobotModel + Send + Sync>,
     /// The twin's timing (the physics step is the rig's).
-    pub settings: fn() -> SimSettings,
+    pub settings: SimSettings,
     /// Nominal values of parameters beyond the URDF's `<dynamics>`, as a calibration file's
     /// TOML (`[parameters]`, `name = value`): the twin always runs with them (its plugin inserts
     /// them), and calibrations start there.
-    pub nominal: &'static str,
+    pub nominal: Cow<'static, str>,
     /// Where a calibration starts, over `nominal` (same format): a robot's published orders of
     /// magnitude where the twin runs with lighter placeholders; empty: from `nominal`.
-    pub prior: &'static str,
+    pub prior: Cow<'static, str>,
     /// The parameters `identify` fits unless told which.
-    pub fit: &'static [&'static str],
+    pub fit: Vec<String>,
     /// Spawns the robot and what it stands on into an arena, its joints at the positions given
     /// (by name; the others where the rig starts them).
-    pub spawn: fn(&mut Commands, Entity, &mut Arena, &[(String, f32)]) -> SpawnedRobot,
+    pub spawn: RigSpawn,
     /// The commanded joints and how excitation moves them.
-    pub excitation: &'static [JointExcitation],
+    pub excitation: Vec<JointExcitation>,
     /// The controller's command period, in physics steps.
     pub command_steps: u32,
+}
+
+/// How a rig spawns its robot: commands, the arena's entity, the arena, the joints' start.
+pub type RigSpawn = Arc<dyn Fn(&mut Commands, Entity, &mut Arena, &[(String, f32)]) -> SpawnedRobot + Send + Sync>;
+
+impl std::fmt::Debug for RigDescription {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RigDescription")
+            .field("fit", &self.fit)
+            .field("excitation", &self.excitation)
+            .field("command_steps", &self.command_steps)
+            .finish_non_exhaustive()
+    }
 }
 
 /// How an excitation program may drive one joint: by speed, up to `speed` (rad/s or m/s),
 /// and at most `travel` (rad or m) either side of where it starts. Joints on the same
 /// `channel` get the same signal (a vehicle's wheels, so it drives straight).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct JointExcitation {
-    pub joint: &'static str,
+    pub joint: Cow<'static, str>,
     pub channel: u8,
     pub speed: f32,
     pub travel: f32,
@@ -212,21 +227,25 @@ pub struct JointExcitation {
 impl RigDescription {
     /// The nominal parameters as a resource; a built-in table that does not read is a bug.
     pub fn nominal_parameters(&self) -> Parameters {
-        nominal_parameters(self.nominal)
+        nominal_parameters(&self.nominal)
     }
 
     /// Where a calibration starts: the nominal parameters with the prior's over them.
     pub fn prior_parameters(&self) -> Parameters {
         let mut out = self.nominal_parameters();
         if !self.prior.is_empty() {
-            out.extend(&nominal_parameters(self.prior));
+            out.extend(&nominal_parameters(&self.prior));
         }
         out
     }
 }
 
-/// Parses a robot's built-in nominal parameters (a calibration file's `[parameters]`).
+/// Parses a robot's built-in nominal parameters (a calibration file's `[parameters]`; none
+/// for an empty text).
 pub fn nominal_parameters(text: &str) -> Parameters {
+    if text.trim().is_empty() {
+        return Parameters::default();
+    }
     crate::calibration::Calibration::parse(text)
         .map(|c| c.parameters)
         .expect("a robot's nominal parameters read (checked by the tests)")

@@ -23,7 +23,9 @@ use twinbots_sim::{
     ArenaConfig, Framing, JointState, Motor, MotorCommand, PhysicsSubstep, PositionSensor, SimSet, SimSettings,
     SpawnOptions, SubstepSet, Supervisor, spawn_robot,
 };
-use twinbots_task::robot::{AlgoDefaults, RobotDescription, TaskDescription, TrainingDefaults, headless_app};
+use twinbots_task::robot::{
+    AlgoDefaults, JointExcitation, RigDescription, RobotDescription, TaskDescription, TrainingDefaults, headless_app,
+};
 use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
 use twinbots_task::{Action, DesignPattern, Episode, TaskTermsPlugin};
 
@@ -118,7 +120,7 @@ pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
         build: Arc::new(move |request| {
             headless_app(settings, request, ArmPlugin { arm: build_arm.clone(), pattern: request.pattern, kind: name })
         }),
-        rig: None,
+        rig: Some(rig(&arm, settings)),
         feedback: None,
         cell: None,
     })
@@ -190,6 +192,55 @@ fn home(
                 m.command = MotorCommand::Velocity(speed);
             }
         }
+    }
+}
+
+/// The arm on its test stand (what `record`, `replay`, `identify` and the UR controller
+/// stand-in drive): welded at its base on the ground, as in its cell, its controlled joints'
+/// drives holding position and taking speeds (a UR's `speedj`) every control period.
+/// Calibrations fit each controlled joint's damping, friction and armature and the command
+/// delay, from the URDF's values (no prior beyond them); excitation moves each joint within
+/// ±0.3 rad of where it starts at up to 0.5 rad/s (or half its rated speed, if lower).
+fn rig(arm: &Arm, settings: SimSettings) -> RigDescription {
+    let (model, spawned) = (arm.model.clone(), arm.clone());
+    let joints = arm.file.joints.clone();
+    let mut fit: Vec<String> =
+        joints.iter().flat_map(|j| ["damping", "friction", "armature"].map(|p| format!("{j}.{p}"))).collect();
+    fit.push("command_delay".into());
+    let excitation = joints
+        .iter()
+        .enumerate()
+        .map(|(i, j)| {
+            let rated = arm.model.joint(j).map_or(f32::INFINITY, |joint| joint.limits.velocity);
+            JointExcitation { joint: j.clone().into(), channel: i as u8, speed: (0.5 * rated).min(0.5), travel: 0.3 }
+        })
+        .collect();
+    RigDescription {
+        model: Arc::new(move || model.clone()),
+        settings,
+        nominal: "".into(),
+        prior: "".into(),
+        fit,
+        spawn: Arc::new(move |commands, arena_entity, arena, start| {
+            arena.add_ground(0.8);
+            let home = spawned.home();
+            let joint_positions = (spawned.file.joints.iter().zip(home))
+                .map(|(name, q)| (name.clone(), start.iter().find(|(n, _)| n == name).map_or(q, |(_, q)| *q)))
+                .collect();
+            let options = SpawnOptions { fixed_base: true, joint_positions, ..default() };
+            let robot = spawn_robot(commands, arena_entity, arena, &spawned.model, options);
+            for name in &spawned.file.joints {
+                let joint = robot.joint(name).expect("the robot file's joints are the URDF's");
+                commands.entity(joint).entry::<Motor>().and_modify(|mut m| {
+                    m.holds_position = true;
+                    m.command = MotorCommand::Velocity(0.0);
+                    m.initial_command = MotorCommand::Velocity(0.0);
+                });
+            }
+            robot
+        }),
+        excitation,
+        command_steps: (arm.file.control_period / PHYSICS_STEP).round().max(1.0) as u32,
     }
 }
 

@@ -10,6 +10,7 @@
 
 use std::path::Path;
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
 use bevy::prelude::*;
@@ -174,19 +175,19 @@ pub const PRIOR: &str = include_str!("../../../../assets/robots/cartpole/prior.t
 /// pole free. Logs command the wheels every physics step (16 ms).
 pub fn rig() -> RigDescription {
     const WHEELS: [JointExcitation; 4] = [
-        JointExcitation { channel: 0, joint: "wheel1_joint", speed: WHEEL_SPEED, travel: 5.0 },
-        JointExcitation { channel: 0, joint: "wheel2_joint", speed: WHEEL_SPEED, travel: 5.0 },
-        JointExcitation { channel: 0, joint: "wheel3_joint", speed: WHEEL_SPEED, travel: 5.0 },
-        JointExcitation { channel: 0, joint: "wheel4_joint", speed: WHEEL_SPEED, travel: 5.0 },
+        JointExcitation { channel: 0, joint: Cow::Borrowed("wheel1_joint"), speed: WHEEL_SPEED, travel: 5.0 },
+        JointExcitation { channel: 0, joint: Cow::Borrowed("wheel2_joint"), speed: WHEEL_SPEED, travel: 5.0 },
+        JointExcitation { channel: 0, joint: Cow::Borrowed("wheel3_joint"), speed: WHEEL_SPEED, travel: 5.0 },
+        JointExcitation { channel: 0, joint: Cow::Borrowed("wheel4_joint"), speed: WHEEL_SPEED, travel: 5.0 },
     ];
     RigDescription {
-        model,
-        settings: sim_settings,
-        nominal: PARAMETERS,
-        prior: PRIOR,
-        fit: &["pole_joint.damping", "pole_joint.friction", "command_delay"],
-        spawn: spawn_rig,
-        excitation: &WHEELS,
+        model: Arc::new(model),
+        settings: sim_settings(),
+        nominal: PARAMETERS.into(),
+        prior: PRIOR.into(),
+        fit: ["pole_joint.damping", "pole_joint.friction", "command_delay"].map(String::from).to_vec(),
+        spawn: Arc::new(spawn_rig),
+        excitation: WHEELS.to_vec(),
         command_steps: 1,
     }
 }

@@ -7,6 +7,7 @@
 
 use std::path::Path;
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
 use bevy::prelude::*;
@@ -171,19 +172,19 @@ pub const PRIOR: &str = include_str!("../../../../assets/robots/pioneer3at/prior
 /// Logs command the wheels every physics step.
 pub fn rig() -> RigDescription {
     const WHEELS: [JointExcitation; 4] = [
-        JointExcitation { channel: 0, joint: "front_left_wheel_joint", speed: 3.0, travel: 20.0 },
-        JointExcitation { channel: 0, joint: "front_right_wheel_joint", speed: 3.0, travel: 20.0 },
-        JointExcitation { channel: 0, joint: "back_left_wheel_joint", speed: 3.0, travel: 20.0 },
-        JointExcitation { channel: 0, joint: "back_right_wheel_joint", speed: 3.0, travel: 20.0 },
+        JointExcitation { channel: 0, joint: Cow::Borrowed("front_left_wheel_joint"), speed: 3.0, travel: 20.0 },
+        JointExcitation { channel: 0, joint: Cow::Borrowed("front_right_wheel_joint"), speed: 3.0, travel: 20.0 },
+        JointExcitation { channel: 0, joint: Cow::Borrowed("back_left_wheel_joint"), speed: 3.0, travel: 20.0 },
+        JointExcitation { channel: 0, joint: Cow::Borrowed("back_right_wheel_joint"), speed: 3.0, travel: 20.0 },
     ];
     RigDescription {
-        model,
-        settings: sim_settings,
-        nominal: PARAMETERS,
-        prior: PRIOR,
-        fit: &["pendulum_joint.damping", "pendulum_joint.friction", "command_delay"],
-        spawn: spawn_rig,
-        excitation: &WHEELS,
+        model: Arc::new(model),
+        settings: sim_settings(),
+        nominal: PARAMETERS.into(),
+        prior: PRIOR.into(),
+        fit: ["pendulum_joint.damping", "pendulum_joint.friction", "command_delay"].map(String::from).to_vec(),
+        spawn: Arc::new(spawn_rig),
+        excitation: WHEELS.to_vec(),
         command_steps: 1,
     }
 }

@@ -2,6 +2,9 @@
 //! home, its six servo drives under speed commands (a UR's `speedj`) every 8 ms (125 Hz). What
 //! `record`, `replay` and `identify` drive; no table, so excitation cannot collide.
 
+use std::borrow::Cow;
+use std::sync::Arc;
+
 use bevy::prelude::*;
 use twinbots_sim::{Arena, Motor, MotorCommand, SpawnOptions, SpawnedRobot, spawn_robot};
 use twinbots_task::robot::{JointExcitation, RigDescription};
@@ -18,12 +21,12 @@ pub const PRIOR: &str = include_str!("../../../../assets/robots/ur5e/prior.toml"
 
 /// Excitation: each joint within ±0.6 rad of home at up to 1 rad/s.
 const EXCITATION: [JointExcitation; 6] = [
-    JointExcitation { joint: JOINTS[0], channel: 0, speed: 1.0, travel: 0.6 },
-    JointExcitation { joint: JOINTS[1], channel: 1, speed: 1.0, travel: 0.6 },
-    JointExcitation { joint: JOINTS[2], channel: 2, speed: 1.0, travel: 0.6 },
-    JointExcitation { joint: JOINTS[3], channel: 3, speed: 1.0, travel: 0.6 },
-    JointExcitation { joint: JOINTS[4], channel: 4, speed: 1.0, travel: 0.6 },
-    JointExcitation { joint: JOINTS[5], channel: 5, speed: 1.0, travel: 0.6 },
+    JointExcitation { joint: Cow::Borrowed(JOINTS[0]), channel: 0, speed: 1.0, travel: 0.6 },
+    JointExcitation { joint: Cow::Borrowed(JOINTS[1]), channel: 1, speed: 1.0, travel: 0.6 },
+    JointExcitation { joint: Cow::Borrowed(JOINTS[2]), channel: 2, speed: 1.0, travel: 0.6 },
+    JointExcitation { joint: Cow::Borrowed(JOINTS[3]), channel: 3, speed: 1.0, travel: 0.6 },
+    JointExcitation { joint: Cow::Borrowed(JOINTS[4]), channel: 4, speed: 1.0, travel: 0.6 },
+    JointExcitation { joint: Cow::Borrowed(JOINTS[5]), channel: 5, speed: 1.0, travel: 0.6 },
 ];
 
 /// The 6 joints' damping, friction and armature, and the command delay: 19 parameters.
@@ -51,13 +54,13 @@ const FIT: [&str; 19] = [
 
 pub fn rig() -> RigDescription {
     RigDescription {
-        model,
-        settings: sim_settings,
-        nominal: PARAMETERS,
-        prior: PRIOR,
-        fit: &FIT,
-        spawn: spawn_arm,
-        excitation: &EXCITATION,
+        model: Arc::new(model),
+        settings: sim_settings(),
+        nominal: PARAMETERS.into(),
+        prior: PRIOR.into(),
+        fit: FIT.map(String::from).to_vec(),
+        spawn: Arc::new(spawn_arm),
+        excitation: EXCITATION.to_vec(),
         command_steps: 2,
     }
 }
