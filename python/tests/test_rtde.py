@@ -29,10 +29,10 @@ def twinbots_bin():
     return binary
 
 
-def start_ur_sim(host):
-    """`ur-sim` on host:30004, or None when that address's port is taken."""
+def start_ur_sim(host, *extra):
+    """`ur-sim` on host:30004 (with `extra` arguments), or None when that address's port is taken."""
     process = subprocess.Popen(
-        [twinbots_bin(), "ur-sim", "--listen", f"{host}:30004", "--seconds", "120"],
+        [twinbots_bin(), "ur-sim", "--listen", f"{host}:30004", "--seconds", "120", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     line = process.stdout.readline()
     if f"serving RTDE on {host}:30004" in line:
@@ -43,17 +43,22 @@ def start_ur_sim(host):
     return None
 
 
-@pytest.fixture
-def ur_sim():
-    """The stand-in's address: a random loopback one whose port 30004 is free."""
+def serve(*extra):
+    """A stand-in (with `extra` arguments) on a random loopback address whose port 30004 is
+    free: the address, and the process."""
     draw = random.Random(os.getpid() ^ time.monotonic_ns())
     for _ in range(20):
         host = f"127.{draw.randrange(1, 255)}.{draw.randrange(0, 256)}.{draw.randrange(1, 255)}"
-        process = start_ur_sim(host)
+        process = start_ur_sim(host, *extra)
         if process is not None:
-            break
-    else:
-        pytest.fail("port 30004 was taken on 20 loopback addresses")
+            return host, process
+    pytest.fail("port 30004 was taken on 20 loopback addresses")
+
+
+@pytest.fixture
+def ur_sim():
+    """The stand-in's address."""
+    host, process = serve()
     yield host
     process.kill()
     process.wait()
@@ -159,3 +164,42 @@ def test_a_guide_client_drives_speedj_and_ur_rtde_sees_it(ur_sim):
     finally:
         r.disconnect()
         c.sock.close()
+
+
+def test_ur_sim_serves_a_robot_files_arm(tmp_path):
+    """`ur-sim --robot assets/robots/ur10.toml`: the stand-in serves the UR10 from its
+    description: ur_rtde reads its home from the robot file, its tool pose as the twin's URDF
+    kinematics put it (`twinbots urdf --fk`, checked against Pinocchio in test_kinematics.py),
+    and a `speedj` through the registers turns its base at the commanded speed."""
+    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    robot = os.path.join(repo, "assets", "robots", "ur10.toml")
+    home = [0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0]
+    fk = subprocess.run([twinbots_bin(), "urdf", robot, "--tool", "tool0", "--fk", ",".join(map(str, home))],
+                        capture_output=True, text=True, timeout=60)
+    assert fk.returncode == 0, fk.stderr
+    tcp = [float(v) for v in fk.stdout.split()[:3]]
+    host, process = serve("--robot", robot)
+    r = rtde_receive.RTDEReceiveInterface(host)
+    c = GuideClient(host)
+    try:
+        q = r.getActualQ()
+        assert all(abs(a - b) < 0.01 for a, b in zip(q, home)), q
+        pose = r.getActualTCPPose()
+        assert all(abs(a - b) < 0.005 for a, b in zip(pose[:3], tcp)), (pose, tcp)
+        assert c.request("V", struct.pack(">H", 2)) == b"\x01"
+        names = ["input_int_register_24", "input_int_register_25"]
+        names += [f"input_double_register_{i}" for i in range(24, 30)]
+        recipe = c.request("I", ",".join(names).encode())[0]
+        assert c.request("O", struct.pack(">d", 10.0) + b"output_int_register_24")[1:] == b"INT32"
+        assert c.request("S") == b"\x01"
+        start, counter = time.monotonic(), 0
+        while time.monotonic() - start < 1.0:
+            counter += 1
+            c.send("U", struct.pack(">Bii6d", recipe, 1, counter, 0.3, 0, 0, 0, 0, 0))
+            time.sleep(0.008)
+        qd = r.getActualQd()
+        assert abs(qd[0] - 0.3) < 0.02 and all(abs(v) < 0.02 for v in qd[1:]), qd
+    finally:
+        r.disconnect()
+        process.kill()
+        process.wait()

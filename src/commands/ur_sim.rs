@@ -1,16 +1,23 @@
-//! `twinbots ur-sim [--listen ADDR] [--truth FILE]`: a UR controller stand-in serving RTDE,
-//! backed by the UR5e twin (docs/rtde.md).
+//! `twinbots ur-sim [--robot ur5e|FILE] [--listen ADDR] [--truth FILE]`: a UR controller
+//! stand-in serving RTDE, backed by the UR5e's twin or a robot file's six-joint arm's
+//! (docs/rtde.md).
 
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
-use twinbots_ops::ur_sim::{UrSim, UrSimOptions, controller_info};
+use twinbots_ops::ur_sim::{ServedArm, UrSim, UrSimOptions, controller_info};
 use twinbots_rtde::server::RtdeServer;
+use twinbots_run::registry;
+use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_sysid::{Rig, SensorNoise};
 
 /// The command's arguments.
 #[derive(clap::Args)]
 pub struct Args {
+    /// The arm it serves: the built-in `ur5e`, or a robot file (`*.toml`) of a six-joint arm
+    /// (a UR10 from its description, say).
+    #[arg(long, default_value = "ur5e")]
+    pub robot: String,
     /// Where to serve RTDE.
     #[arg(long, default_value = "127.0.0.1:30004")]
     pub listen: String,
@@ -49,7 +56,18 @@ pub struct Args {
 
 /// `twinbots ur-sim`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let rig = Rig::of(&ur5e::robot())?;
+    let arm = if RobotFile::is_path(&args.robot) {
+        let file = RobotFile::read(std::path::Path::new(&args.robot))?;
+        ServedArm::of_file(&file, registry::find(&args.robot)?)?
+    } else {
+        anyhow::ensure!(
+            args.robot == "ur5e",
+            "ur-sim serves the built-in ur5e or a robot file's six-joint arm, not '{}'",
+            args.robot
+        );
+        ServedArm::ur5e()
+    };
+    let rig = Rig::of(&arm.robot)?;
     let truth = rig.read_calibration(args.truth.as_deref())?;
     let ur = SensorNoise::default();
     let default = |v: f64| if args.truth.is_some() { v } else { 0.0 };
@@ -66,11 +84,12 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
     check_exposure(&args.listen, args.insecure)?;
-    let options = UrSimOptions { truth, noise, seed: args.seed, watchdog: args.watchdog, payload: args.payload };
+    let name = arm.robot.name;
+    let options = UrSimOptions { arm, truth, noise, seed: args.seed, watchdog: args.watchdog, payload: args.payload };
     let mut sim = UrSim::new(&options)?;
     let server = RtdeServer::bind(&args.listen, controller_info())?;
     println!(
-        "ur-sim: UR5e twin ({}) serving RTDE on {} at 500 Hz",
+        "ur-sim: {name} twin ({}) serving RTDE on {} at 500 Hz",
         args.truth.as_ref().map_or("nominal".to_string(), |p| format!("truth {}", p.display())),
         server.local_addr()
     );

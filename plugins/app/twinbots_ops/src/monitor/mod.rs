@@ -20,7 +20,7 @@ use ur5e::deploy::Shadow;
 use ur5e::kinematics::JOINTS;
 
 use crate::live::{ALARM, RobotJoints, RobotView};
-use crate::ur_sim::{CYCLE, controller_stand};
+use crate::ur_sim::{CYCLE, ServedArm, controller_stand};
 
 pub mod recording;
 #[cfg(feature = "ros2")]
@@ -175,7 +175,7 @@ impl Monitor {
             options.position_threshold > 0.0 && options.effort_threshold > 0.0 && options.window > 0.0,
             "the thresholds and the window must be positive"
         );
-        let (mut stand, bias) = controller_stand(&options.calibration, &first.q)?;
+        let (mut stand, bias) = controller_stand(&ServedArm::ur5e(), &options.calibration, &first.q)?;
         // Settled under its own weight first (its drives take up the load), then put exactly
         // where the robot stands: it holds there as the robot does.
         for _ in 0..SETTLE_CYCLES {

@@ -15,9 +15,12 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use twinbots_rtde::server::{ControllerInfo, InputState, OutputState, RtdeServer};
 use twinbots_rtde::{ControllerVersion, Value};
+use twinbots_sim::urdf::chain::Chain;
+use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_sim::{MotorCommand, Parameters};
 use twinbots_sysid::{Rig, SensorNoise, Stand};
-use ur5e::kinematics::{self, HOME, JOINT_RANGES, JOINTS, MAX_JOINT_SPEED};
+use twinbots_task::RobotDescription;
+use ur5e::kinematics::{self, HOME, JOINT_RANGES, MAX_JOINT_SPEED};
 
 use self::program::{APPLIED, ControlProgram, Limits, Note, STATE};
 
@@ -28,9 +31,97 @@ pub const CYCLE: f64 = 0.002;
 /// variables exist from it on; clients such as ur_rtde ask for them by version).
 pub const VERSION: ControllerVersion = ControllerVersion { major: 5, minor: 11, bugfix: 0, build: 0 };
 
+/// The arm a stand-in serves: six joints in the controller's order, where they start, their
+/// ranges and top speeds, and how the controller computes the tool's pose and the elbow's
+/// position from them. The built-in UR5e (its DH table), or a robot file's six-joint arm (its
+/// URDF chain: poses in the file's base link's frame).
+#[derive(Clone)]
+pub struct ServedArm {
+    pub robot: RobotDescription,
+    pub home: [f64; 6],
+    /// Per joint: the position range (rad, ±) and the fastest speed (rad/s).
+    pub range: [f64; 6],
+    pub speed: [f64; 6],
+    /// The link a payload hangs on.
+    pub flange: String,
+    chain: Option<Chain>,
+}
+
+impl ServedArm {
+    pub fn ur5e() -> Self {
+        Self {
+            robot: ur5e::robot(),
+            home: HOME.map(|v| v as f64),
+            range: JOINT_RANGES.map(|r| r as f64),
+            speed: [MAX_JOINT_SPEED as f64; 6],
+            flange: FLANGE.into(),
+            chain: None,
+        }
+    }
+
+    /// A robot file's arm (`robot`, the file's description): six controlled joints, home from
+    /// the file, ranges and speeds from its URDF's limits (a range the widest side of its stops);
+    /// anything else is an error naming the file.
+    pub fn of_file(file: &RobotFile, robot: RobotDescription) -> anyhow::Result<Self> {
+        let at = file.path.display();
+        anyhow::ensure!(
+            file.joints.len() == 6 && file.chain.dof() == 6,
+            "{at}: a UR controller serves six joints; the file controls {} ({} in its chain)",
+            file.joints.len(),
+            file.chain.dof()
+        );
+        let model = (robot.rig.as_ref().expect("a robot file's arm has a test stand").model)();
+        let limits = |k: usize| {
+            let joint = model.joint(&file.joints[k]).expect("the robot file's joints are the URDF's");
+            let range = joint.limits.position.map_or(std::f64::consts::TAU, |[lo, hi]| lo.abs().max(hi.abs()) as f64);
+            (range, joint.limits.velocity as f64)
+        };
+        Ok(Self {
+            robot,
+            home: std::array::from_fn(|k| file.home[k]),
+            range: std::array::from_fn(|k| limits(k).0),
+            speed: std::array::from_fn(|k| limits(k).1),
+            flange: file.chain.tool.clone(),
+            chain: Some(file.chain.clone()),
+        })
+    }
+
+    /// The TCP pose as the controller reports it: position (m) and rotation vector (rad) in
+    /// the base frame.
+    pub fn tcp_pose(&self, q: &[f64; 6]) -> [f64; 6] {
+        let Some(chain) = &self.chain else { return tcp_pose(q) };
+        let frame = chain.forward(q);
+        let mut rotation = frame.rotation;
+        // The rotation vector of the shorter way round: angle in [0, π].
+        if rotation.w < 0.0 {
+            rotation = -rotation;
+        }
+        let (axis, angle) = rotation.to_axis_angle();
+        let (t, r) = (frame.translation, axis * angle);
+        [t.x, t.y, t.z, r.x, r.y, r.z]
+    }
+
+    /// The TCP's linear and angular speed (J(q)·q̇).
+    pub fn tcp_speed(&self, q: &[f64; 6], qd: &[f64; 6]) -> [f64; 6] {
+        let Some(chain) = &self.chain else { return tcp_speed(q, qd) };
+        let j = chain.jacobian(q);
+        std::array::from_fn(|k| (0..6).map(|i| j[i][k] * qd[i]).sum())
+    }
+
+    /// The elbow's position: the origin of the frame the third joint (a UR's elbow) turns in.
+    fn elbow(&self, q: &[f64; 6]) -> DVec3 {
+        match &self.chain {
+            Some(chain) => chain.joint_origins(q)[2],
+            None => elbow(q),
+        }
+    }
+}
+
 /// How the stand-in is built.
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct UrSimOptions {
+    /// The arm it serves.
+    pub arm: ServedArm,
     /// The robot's true parameters over the twin's nominal ones (a calibration file's).
     pub truth: Parameters,
     pub noise: SensorNoise,
@@ -45,6 +136,7 @@ pub struct UrSimOptions {
 impl Default for UrSimOptions {
     fn default() -> Self {
         Self {
+            arm: ServedArm::ur5e(),
             truth: Parameters::default(),
             noise: SensorNoise { position: 0.0, velocity: 0.0, effort: 0.0 },
             seed: 0,
@@ -54,22 +146,27 @@ impl Default for UrSimOptions {
     }
 }
 
-/// The link a payload hangs on.
+/// The UR5e's flange, the link a payload hangs on.
 pub const FLANGE: &str = "tool0";
 
-/// The UR5e on its test stand at the controller's 2 ms step, with `truth` over its nominal
+/// `arm` on its test stand at the controller's 2 ms step, with `truth` over its nominal
 /// parameters, its joints where encoders reading `q` say they are; and the encoders' biases.
 /// What the stand-in runs as the robot and the monitor as the robot's twin.
-pub fn controller_stand(truth: &Parameters, q: &[f64; 6]) -> anyhow::Result<(Stand, Vec<f64>)> {
-    let mut rig = Rig::of(&ur5e::robot())?;
-    anyhow::ensure!(rig.joints.iter().map(String::as_str).eq(JOINTS), "the UR5e rig's joints are not the DH table's");
+pub fn controller_stand(arm: &ServedArm, truth: &Parameters, q: &[f64; 6]) -> anyhow::Result<(Stand, Vec<f64>)> {
+    let mut rig = Rig::of(&arm.robot)?;
+    anyhow::ensure!(
+        rig.joints.len() == 6,
+        "{}: the rig has {} joints, a UR controller six",
+        arm.robot.name,
+        rig.joints.len()
+    );
     anyhow::ensure!(q.iter().all(|v| v.is_finite()), "a start pose of {q:?} is not one");
     rig.settings.dt = CYCLE as f32;
     let params = rig.parameters(truth)?;
     let bias = rig.biases(&params);
     // The encoders read the joint plus its bias: the joint stands at the reading less it.
     let at: Vec<(String, f32)> =
-        JOINTS.iter().zip(q).zip(&bias).map(|((n, v), b)| (n.to_string(), (v - b) as f32)).collect();
+        rig.joints.iter().zip(q).zip(&bias).map(|((n, v), b)| (n.clone(), (v - b) as f32)).collect();
     Ok((Stand::new(&rig, &at, std::slice::from_ref(&params)), bias))
 }
 
@@ -85,6 +182,7 @@ pub struct UrSim {
     measured_q: [f64; 6],
     elbow: DVec3,
     slots: Slots,
+    arm: ServedArm,
 }
 
 impl UrSim {
@@ -99,17 +197,14 @@ impl UrSim {
             "--watchdog must be positive, not {}",
             options.watchdog
         );
-        let q = start.unwrap_or(HOME.map(|v| v as f64));
-        let (mut stand, bias) = controller_stand(&options.truth, &q)?;
+        let arm = &options.arm;
+        let q = start.unwrap_or(arm.home);
+        let (mut stand, bias) = controller_stand(arm, &options.truth, &q)?;
         if let Some(mass) = options.payload {
             anyhow::ensure!(mass.is_finite() && mass > 0.0, "a payload of {mass} kg is not one");
-            stand.add_payload(0, FLANGE, mass, Vec3::new(0.0, 0.0, 0.05))?;
+            stand.add_payload(0, &arm.flange, mass, Vec3::new(0.0, 0.0, 0.05))?;
         }
-        let limits = Limits {
-            range: JOINT_RANGES.map(|r| r as f64),
-            speed: [MAX_JOINT_SPEED as f64; 6],
-            watchdog: options.watchdog,
-        };
+        let limits = Limits { range: arm.range, speed: arm.speed, watchdog: options.watchdog };
         Ok(Self {
             stand,
             bias,
@@ -118,7 +213,8 @@ impl UrSim {
             program: ControlProgram::new(limits, q),
             cycles: 0,
             measured_q: q,
-            elbow: elbow(&q),
+            elbow: arm.elbow(&q),
+            arm: arm.clone(),
             slots: Slots::new(),
         })
     }
@@ -168,11 +264,11 @@ impl UrSim {
         out.set(s.target_qd, v6(p.target_qd));
         out.set(s.target_qdd, v6(p.target_qdd));
         out.set(s.target_moment, v6(effort));
-        out.set(s.actual_tcp_pose, v6(tcp_pose(&q)));
-        out.set(s.actual_tcp_speed, v6(tcp_speed(&q, &qd)));
-        out.set(s.target_tcp_pose, v6(tcp_pose(&p.target_q)));
-        out.set(s.target_tcp_speed, v6(tcp_speed(&p.target_q, &p.target_qd)));
-        let elbow_now = elbow(&q);
+        out.set(s.actual_tcp_pose, v6(self.arm.tcp_pose(&q)));
+        out.set(s.actual_tcp_speed, v6(self.arm.tcp_speed(&q, &qd)));
+        out.set(s.target_tcp_pose, v6(self.arm.tcp_pose(&p.target_q)));
+        out.set(s.target_tcp_speed, v6(self.arm.tcp_speed(&p.target_q, &p.target_qd)));
+        let elbow_now = self.arm.elbow(&q);
         out.set(s.elbow_position, Value::Vector3d(elbow_now.to_array()));
         out.set(s.elbow_velocity, Value::Vector3d(((elbow_now - self.elbow) / CYCLE).to_array()));
         self.elbow = elbow_now;

@@ -246,6 +246,11 @@ impl Chain {
         speeds.iter().copied().collect()
     }
 
+    /// Each movable joint's origin (where its axis passes) in the base frame at `q`.
+    pub fn joint_origins(&self, q: &[f64]) -> Vec<DVec3> {
+        self.frames(q).0.into_iter().map(|(_, at)| at).collect()
+    }
+
     /// Each movable joint's axis and origin in the base frame at `q`, and the tool's frame.
     fn frames(&self, q: &[f64]) -> (Vec<(Motion, DVec3)>, Frame) {
         assert_eq!(q.len(), self.dof(), "{} joint positions for a chain of {} movable joints", q.len(), self.dof());
