@@ -22,7 +22,7 @@ import threading
 import time
 
 from mcap.reader import make_reader
-from mcap.writer import Writer
+from mcap.writer import CompressionType, Writer
 
 
 def binary() -> str:
@@ -40,7 +40,8 @@ def tile(segment: str, out: str, target_bytes: int) -> int:
     span = messages[-1][1] - messages[0][1] + 4_000_000
     rounds = 0
     with open(out, "wb") as f:
-        writer = Writer(f)
+        # Uncompressed chunks: what twinbots reads (compressed logs are refused, docs/logs.md).
+        writer = Writer(f, compression=CompressionType.NONE)
         writer.start(profile="ros2")
         schema_ids = {
             sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()
@@ -81,6 +82,7 @@ def replay(log: str, out: str) -> dict:
             try:
                 with open(f"/proc/{process.pid}/status") as status:
                     samples.extend(int(line.split()[1]) for line in status if line.startswith("VmRSS:"))
+                samples[:] = [s for s in samples if s > 0]
             except OSError:
                 return
             time.sleep(5)
