@@ -12,6 +12,7 @@ import shutil
 import socket
 import struct
 import subprocess
+import sysconfig
 import time
 
 import pytest
@@ -29,11 +30,18 @@ def twinbots_bin():
     return binary
 
 
+def robot_packages():
+    """The environment with `package://example-robot-data/…` found through ROS_PACKAGE_PATH, as
+    a user who installed the package would set it (robot files' URDFs)."""
+    share = os.path.join(sysconfig.get_paths()["purelib"], "cmeel.prefix", "share")
+    return dict(os.environ, ROS_PACKAGE_PATH=share)
+
+
 def start_ur_sim(host, *extra):
     """`ur-sim` on host:30004 (with `extra` arguments), or None when that address's port is taken."""
     process = subprocess.Popen(
         [twinbots_bin(), "ur-sim", "--listen", f"{host}:30004", "--seconds", "120", *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=robot_packages())
     line = process.stdout.readline()
     if f"serving RTDE on {host}:30004" in line:
         return process
@@ -175,7 +183,7 @@ def test_ur_sim_serves_a_robot_files_arm(tmp_path):
     robot = os.path.join(repo, "assets", "robots", "ur10.toml")
     home = [0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0]
     fk = subprocess.run([twinbots_bin(), "urdf", robot, "--tool", "tool0", "--fk", ",".join(map(str, home))],
-                        capture_output=True, text=True, timeout=60)
+                        capture_output=True, text=True, timeout=60, env=robot_packages())
     assert fk.returncode == 0, fk.stderr
     tcp = [float(v) for v in fk.stdout.split()[:3]]
     host, process = serve("--robot", robot)
