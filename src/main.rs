@@ -67,8 +67,9 @@ enum Command {
     /// Follow a robot live with its twin (RTDE): divergence per joint, alarms, robot and twin
     /// logged side by side.
     Monitor(commands::monitor::Args),
-    /// A UR controller stand-in: serves RTDE on 127.0.0.1:30004, backed by the UR5e twin
-    /// (optionally a truth twin) running the shipped control program every 2 ms.
+    /// A UR controller stand-in: serves RTDE on 127.0.0.1:30004, backed by the UR5e's twin or
+    /// a robot file's six-joint arm's (optionally a truth twin) running the shipped control
+    /// program every 2 ms.
     #[command(name = "ur-sim")]
     UrSim(commands::ur_sim::Args),
     /// The twin as a ROS 2 robot on DDS (no ROS install): publishes /joint_states and /tf,

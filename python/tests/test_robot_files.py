@@ -161,3 +161,31 @@ def test_a_robot_file_arm_records_on_its_test_stand(tmp_path):
     assert len(commands) == 375 and all(c["mode"] == ["velocity"] * 6 for c in commands)
     moved = np.ptp(np.array([s.position for s in states]), axis=0)
     assert (moved > 0.05).all(), moved
+
+
+def test_a_robot_file_arm_is_calibrated_on_its_test_stand(tmp_path):
+    """`identify ur10.toml LOG --twin`: a robot file's twin calibrated as a built-in robot's, on
+    its test stand, to a log of a stand-in with hidden physics (an 8 ms command delay, a stiffer
+    elbow damping and shoulder friction): the delay found within a physics step (4 ms), the
+    held-out position error cut by over half; `replay --twin` the held-out log on the
+    calibrated stand."""
+    truth = tmp_path / "truth.toml"
+    truth.write_text("[parameters]\nelbow_joint.damping = 3.0\nshoulder_lift_joint.friction = 2.0\n"
+                     "command_delay = 0.008\n")
+    robot = "assets/robots/ur10.toml"
+    fit, held_out = tmp_path / "fit.mcap", tmp_path / "held_out.mcap"
+    run("record", robot, "--truth", str(truth), "--seconds", "10", "--out", str(fit))
+    run("record", robot, "--truth", str(truth), "--seconds", "5", "--seed", "2", "--excitation", "chirp",
+        "--out", str(held_out))
+    out = tmp_path / "cal"
+    run("identify", robot, str(fit), "--twin", "--validate", str(held_out), "--generations", "8", "--out", str(out))
+    fitted = json.loads((out / "fit.json").read_text())
+    delay = next(p for p in fitted["fit"]["parameters"] if p["name"] == "command_delay")
+    assert abs(delay["value"] - 0.008) < 0.004, delay
+    validation = fitted["validation"]
+    assert validation["calibrated"] < 0.5 * validation["nominal"], validation
+    replayed = tmp_path / "replay"
+    run("replay", robot, str(held_out), "--twin", "--calibration", str(out / "calibration.toml"),
+        "--out", str(replayed))
+    report = json.loads((replayed / "replay.json").read_text())
+    assert abs(report["position_rmse"] - validation["calibrated"]) < 1e-3, (report["position_rmse"], validation)

@@ -22,8 +22,13 @@ use twinbots_run::registry;
 #[derive(clap::Args)]
 pub struct Args {
     /// The robot (`twinbots robots` lists them), or a robot file (`*.toml`: its effort model is
-    /// fitted to the logs' efforts, docs/logs.md).
+    /// fitted to the logs' efforts, docs/logs.md; with --twin, its twin's physics).
     pub robot: String,
+    /// With a robot file: fit its twin's physics on its test stand (damping, friction,
+    /// armature, the command delay) to the logs, as for a built-in robot, instead of its effort
+    /// model.
+    #[arg(long)]
+    pub twin: bool,
     /// Logs to fit (`.mcap` or `.csv`).
     pub logs: Vec<PathBuf>,
     /// Print every parameter the robot's twin has, one per line: name, default value, unit.
@@ -64,7 +69,7 @@ pub struct Args {
 
 /// `twinbots identify`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    if RobotFile::is_path(&args.robot) {
+    if RobotFile::is_path(&args.robot) && !args.twin {
         return exec_arm(args);
     }
     let rig = Rig::of(&registry::find(&args.robot)?)?;

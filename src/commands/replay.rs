@@ -21,6 +21,10 @@ use twinbots_run::registry;
 pub struct Args {
     /// The robot (`twinbots robots` lists them), or a robot file (`*.toml`).
     pub robot: String,
+    /// With a robot file: replay the log's commands on its twin's test stand, as for a built-in
+    /// robot, instead of judging its efforts by the effort model.
+    #[arg(long)]
+    pub twin: bool,
     /// The robot's log (`.mcap` or `.csv`, see docs/logs.md).
     pub log: PathBuf,
     /// Run the twin with this calibration (`twinbots identify`'s calibration.toml).
@@ -45,7 +49,7 @@ pub struct Args {
 
 /// `twinbots replay`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    if RobotFile::is_path(&args.robot) {
+    if RobotFile::is_path(&args.robot) && !args.twin {
         return exec_arm(args);
     }
     anyhow::ensure!(
