@@ -101,7 +101,16 @@ fn main() {
 
 fn run(args: Args) -> anyhow::Result<()> {
     // `robots` writes its listing in one piece and ends with status 0 on a closed pipe itself.
-    if matches!(args.command, Command::Algos(_) | Command::Bench(_) | Command::Compare(_) | Command::Urdf(_)) {
+    if matches!(
+        args.command,
+        Command::Algos(_)
+            | Command::Bench(_)
+            | Command::Compare(_)
+            | Command::Urdf(_)
+            | Command::Record(_)
+            | Command::Replay(_)
+            | Command::Identify(_)
+    ) {
         end_quietly_when_the_reader_leaves();
     }
     match args.command {

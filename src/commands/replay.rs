@@ -72,22 +72,23 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     // temporary name, and a folder made for it is removed again.
     let made = !out.exists();
     std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
-    let mut replayed = || -> anyhow::Result<()> {
+    let mut replayed = || -> anyhow::Result<twinbots_sysid::ReplayReport> {
         let mut twin = twinbots_log::mcap_file::FileWriter::create(&out.join("twin.mcap"), &meta, &rig.joints)?;
         let (report, plot) = replay_stream(&rig, &params, &mut log, args.threshold, label, |sample| {
             twin.write(&twinbots_log::Entry::State(sample))
         })?;
-        print!("{}", report.table());
         twinbots_sysid::plot::replay_png(&out.join("replay.png"), &rig, &plot)?;
         twin.finish()?;
-        twinbots_api::files::write_json(&out.join("replay.json"), &report)
+        twinbots_api::files::write_json(&out.join("replay.json"), &report)?;
+        Ok(report)
     };
-    if let Err(e) = replayed() {
+    let report = replayed().inspect_err(|_| {
         if made {
             let _ = std::fs::remove_dir(&out);
         }
-        return Err(e);
-    }
+    })?;
+    // The table once the files stand: a reader that leaves (`| head`) ends the command here.
+    print!("{}", report.table());
     println!("wrote {}/replay.png, twin.mcap, replay.json", out.display());
     Ok(())
 }

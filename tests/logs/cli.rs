@@ -88,6 +88,21 @@ fn record_replay_identify_write_their_files() {
     // The twin's own log reads back as a log of the robot.
     let twin = twinbots_log::read(&replay.join("twin.mcap")).unwrap();
     assert_eq!(twin.meta.robot, "ur5e");
+    // Its report piped into a reader that has left: the files stand, whole, and the
+    // command ends as Unix tools do, without a panic.
+    let piped = dir.join("piped");
+    let command = format!(
+        "'{}' replay ur5e '{}' --out '{}' 2>'{}' | true",
+        env!("CARGO_BIN_EXE_twinbots"),
+        log.display(),
+        piped.display(),
+        dir.join("piped.err").display()
+    );
+    let status = Command::new("sh").args(["-c", &command]).stdout(std::process::Stdio::null()).status().unwrap();
+    let err = std::fs::read_to_string(dir.join("piped.err")).unwrap();
+    assert!(status.success() && !err.contains("panicked"), "{err}");
+    assert_eq!(twinbots_log::read(&piped.join("twin.mcap")).unwrap().states.len(), twin.states.len());
+    assert!(piped.join("replay.json").is_file() && piped.join("replay.png").is_file());
     let cal = dir.join("cal");
     let (ok, out, err) = twinbots(&[
         "identify",
