@@ -70,22 +70,28 @@ pub struct Mapping {
 /// [`MAX_READ_SECONDS`] (a longer one is refused as it is read; [`open`] streams any length).
 pub fn read_mapped(path: &Path, mapping: &Mapping) -> anyhow::Result<RobotLog> {
     let read = || -> anyhow::Result<RobotLog> {
-        let log = match Format::of(path)? {
-            Format::Mcap => return open(path, mapping)?.into_log(),
+        match Format::of(path)? {
+            Format::Mcap => open(path, mapping)?.into_log(),
             Format::Csv => {
-                let text = csv_text(path)?;
-                let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
-                if rtde_csv::is_rtde_header(first) {
-                    rtde_csv::from_str(&text, &mapping.efforts)?
-                } else {
-                    csv_file::from_str(&text)?
-                }
+                let log = csv_log(path, mapping)?;
+                log.validate()?;
+                Ok(log)
             }
-        };
-        log.validate()?;
-        Ok(log)
+        }
     };
     read().map_err(|e| named(e, &path.display().to_string()))
+}
+
+/// A CSV log as its text says, not yet checked: a UR recording by its header ([`rtde_csv`]),
+/// else the project's layout ([`csv_file`]).
+fn csv_log(path: &Path, mapping: &Mapping) -> anyhow::Result<RobotLog> {
+    let text = csv_text(path)?;
+    let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
+    if rtde_csv::is_rtde_header(first) {
+        rtde_csv::from_str(&text, &mapping.efforts)
+    } else {
+        csv_file::from_str(&text)
+    }
 }
 
 /// `e` prefixed with the file's name, unless it starts with it already.
@@ -114,7 +120,8 @@ pub struct LogStream {
     pub start: f64,
     ahead: std::collections::VecDeque<Entry>,
     rest: Box<dyn Iterator<Item = anyhow::Result<Entry>>>,
-    check: Checker,
+    /// Checks each record as it comes; none for a log checked whole already.
+    check: Option<Checker>,
     failed: bool,
 }
 
@@ -129,10 +136,7 @@ pub fn open(path: &Path, mapping: &Mapping) -> anyhow::Result<LogStream> {
                 let (meta, reader) = mcap_file::open(file, &mapping.controller_joints)?;
                 LogStream::new(name.clone(), meta, reader)
             }
-            Format::Csv => {
-                let log = read_mapped(path, mapping)?;
-                LogStream::of_log(name.clone(), log)
-            }
+            Format::Csv => LogStream::of_log(name.clone(), csv_log(path, mapping)?),
         }
     };
     opened().map_err(|e| named(e, &name))
@@ -167,21 +171,24 @@ impl LogStream {
             }
         };
         let joints = reader.joints.clone();
-        let check = Checker::new(&joints)?;
+        let check = Some(Checker::new(&joints)?);
         Ok(Self { name, meta, joints, start, ahead, rest: Box::new(reader), check, failed: false })
     }
 
-    /// A stream of a log in memory (checked already), in time order ([`RobotLog::entries`]).
+    /// A stream of a log in memory, in time order ([`RobotLog::entries`]): checked whole here
+    /// ([`RobotLog::validate`]), so not again record by record.
     pub fn of_log(name: String, log: RobotLog) -> anyhow::Result<Self> {
-        let check = Checker::new(&log.joints)?;
-        let start = log.states.first().map(|s| s.time).ok_or_else(|| anyhow::anyhow!("the log has no joint states"))?;
+        log.validate()?;
+        let start = log.states[0].time;
         let (meta, joints) = (log.meta.clone(), log.joints.clone());
         let rest = Box::new(log.into_entries().map(Ok));
-        Ok(Self { name, meta, joints, start, ahead: Default::default(), rest, check, failed: false })
+        Ok(Self { name, meta, joints, start, ahead: Default::default(), rest, check: None, failed: false })
     }
 
     /// The whole log in memory, refused as it is read once it spans more than
-    /// [`MAX_READ_SECONDS`]; commands in time order (trajectories may overlap), the whole checked.
+    /// [`MAX_READ_SECONDS`]; commands in time order (trajectories may overlap). Every record was
+    /// checked as it came, and sorted the commands keep their order: it passes
+    /// [`RobotLog::validate`] without a second pass.
     pub fn into_log(mut self) -> anyhow::Result<RobotLog> {
         let mut log = RobotLog { meta: self.meta.clone(), joints: self.joints.clone(), ..Default::default() };
         let t0 = self.start;
@@ -200,7 +207,6 @@ impl LogStream {
             }
         }
         log.commands.sort_by(|a, b| a.time.total_cmp(&b.time));
-        log.validate().map_err(|e| named(e, &self.name))?;
         Ok(log)
     }
 
@@ -210,10 +216,11 @@ impl LogStream {
     }
 
     fn checked(&mut self, entry: Entry) -> anyhow::Result<Entry> {
+        let Some(check) = self.check.as_mut() else { return Ok(entry) };
         match &entry {
-            Entry::State(s) => self.check.state(s)?,
-            Entry::Command(c) => self.check.command_values(c)?,
-            Entry::Tool(t) => self.check.tool(t)?,
+            Entry::State(s) => check.state(s)?,
+            Entry::Command(c) => check.command_values(c)?,
+            Entry::Tool(t) => check.tool(t)?,
         }
         Ok(entry)
     }

@@ -45,8 +45,12 @@ pub fn prepare(rig: &Rig, log: &RobotLog, name: &str) -> anyhow::Result<Prepared
         "the log lasts {:.0} s: a replay takes at most {MAX_REPLAY_SECONDS} s (cut it into parts)",
         log.duration()
     );
-    let steps = ((log.duration() / dt) + 1e-6).floor() as usize;
-    anyhow::ensure!(steps >= 10, "the log lasts {:.3} s, under 10 physics steps of {dt} s", log.duration());
+    let steps = physics_steps(log.duration(), dt);
+    anyhow::ensure!(
+        steps >= MIN_STEPS,
+        "the log lasts {:.3} s, under {MIN_STEPS} physics steps of {dt} s",
+        log.duration()
+    );
     let mut changes = vec![Vec::new(); steps];
     for (i, c) in log.commands.iter().enumerate() {
         let k = command_step(c.time, t0, dt);
@@ -81,6 +85,14 @@ pub fn prepare(rig: &Rig, log: &RobotLog, name: &str) -> anyhow::Result<Prepared
         .collect();
     let start = index.iter().map(|&i| log.states[0].position[i]).collect();
     Ok(PreparedLog { name: name.to_string(), start, program: Program { changes }, reference, has_effort, scale })
+}
+
+/// The fewest physics steps a replay takes.
+const MIN_STEPS: usize = 10;
+
+/// The whole physics steps of `dt` a log spanning `span` seconds replays over.
+fn physics_steps(span: f64, dt: f64) -> usize {
+    (span / dt + 1e-6).floor() as usize
 }
 
 /// The physics step (from the log's start `t0`) a command at `time` acts from: the first that
@@ -334,15 +346,8 @@ impl ReplayReport {
     }
 }
 
-/// The twin's replay as a log (what its encoders would have read, bias included), beside the
-/// robot's for tools that overlay them.
-pub fn twin_log(rig: &Rig, log: &PreparedLog, twin: &Trajectory, bias: &[f64], calibration: &str) -> RobotLog {
-    let states = twin.samples(rig.dt(), bias);
-    let meta = twin_meta(rig, &log.name, calibration);
-    RobotLog { meta, joints: rig.joints.clone(), states, commands: Vec::new(), tool: Vec::new() }
-}
-
-/// The metadata of the twin's replay of log `name` as a log.
+/// The metadata of the twin's replay of log `name` as a log (what its encoders would have read,
+/// bias included, beside the robot's for tools that overlay them).
 pub fn twin_meta(rig: &Rig, name: &str, calibration: &str) -> LogMeta {
     LogMeta {
         robot: rig.robot.to_string(),
@@ -459,7 +464,7 @@ pub fn replay_stream(
         feed.fill(t + COMMAND_LOOKAHEAD)?;
         let last = feed.states.back().expect("states from the first on").time;
         // As `prepare`: the whole physics steps the log spans.
-        if feed.ended && k + 1 > ((last - t0) / dt + 1e-6).floor() as usize {
+        if feed.ended && k + 1 > physics_steps(last - t0, dt) {
             break;
         }
         while feed.states.len() > 2 && feed.states[1].time < t {
@@ -489,8 +494,8 @@ pub fn replay_stream(
         on_twin(twin.sample(time, &bias))?;
     }
     anyhow::ensure!(
-        comparison.steps >= 10,
-        "{name}: the log lasts {:.3} s, under 10 physics steps of {dt} s",
+        comparison.steps >= MIN_STEPS,
+        "{name}: the log lasts {:.3} s, under {MIN_STEPS} physics steps of {dt} s",
         comparison.steps as f64 * dt
     );
     Ok((comparison.report(rig, &name, feed.efforts), plot))

@@ -117,12 +117,8 @@ pub fn follow_targets(
     if servo == Servo::ComputedTorque {
         return computed_torque(file, &mut app, &joints, settings.dt as f64, times, targets);
     }
-    let read = |world: &World, what: fn(&JointState) -> f32| -> Vec<f64> {
-        joints.iter().map(|&j| world.get::<JointState>(j).map_or(f64::NAN, |s| what(s) as f64)).collect()
-    };
-    let mut out = Followed { positions: Vec::with_capacity(times.len()), efforts: Vec::with_capacity(times.len()) };
-    out.positions.push(read(app.world(), |s| s.position));
-    out.efforts.push(vec![0.0; dof]);
+    let dt = settings.dt as f64;
+    let mut out = Followed::from(joint_values(app.world(), &joints, |s| s.position));
     // The drives' reference: where the trajectory generator has put it (it moves the reference
     // a speed × the physics steps each period, as the motors integrate it).
     let mut reference = out.positions[0].clone();
@@ -130,8 +126,8 @@ pub fn follow_targets(
     // below its reference), integrated and added to the reference: the servo's integral action.
     let mut integral = vec![0.0; dof];
     for k in 0..times.len().saturating_sub(1) {
-        let steps = (((times[k + 1] - times[k]) / settings.dt as f64).round() as usize).max(1);
-        let span = steps as f64 * settings.dt as f64;
+        let steps = period_steps(times[k + 1] - times[k], dt);
+        let span = steps as f64 * dt;
         let world = app.world_mut();
         for (j, &joint) in joints.iter().enumerate() {
             let Some(mut motor) = world.get_mut::<Motor>(joint) else { continue };
@@ -142,14 +138,8 @@ pub fn follow_targets(
             reference[j] += speed * span;
             motor.command = MotorCommand::Velocity(speed as f32);
         }
-        let mut effort = vec![0.0; dof];
-        for _ in 0..steps {
-            app.world_mut().run_schedule(PhysicsSubstep);
-            for (sum, e) in effort.iter_mut().zip(read(app.world(), |s| s.effort)) {
-                *sum += e / steps as f64;
-            }
-        }
-        let q = read(app.world(), |s| s.position);
+        let effort = run_period(&mut app, &joints, steps, |_, _| {});
+        let q = joint_values(app.world(), &joints, |s| s.position);
         for j in 0..dof {
             integral[j] += SERVO_INTEGRAL_GAIN * (targets[k + 1][j] - q[j]) * span;
         }
@@ -157,6 +147,43 @@ pub fn follow_targets(
         out.efforts.push(effort);
     }
     Ok(out)
+}
+
+impl Followed {
+    /// The twin standing at `start`, no period behind it (its efforts 0).
+    fn from(start: Vec<f64>) -> Self {
+        let efforts = vec![vec![0.0; start.len()]];
+        Self { positions: vec![start], efforts }
+    }
+}
+
+/// Each of `joints`' `what` (position, speed or effort) as its joint state reads now.
+fn joint_values(world: &World, joints: &[Entity], what: fn(&JointState) -> f32) -> Vec<f64> {
+    joints.iter().map(|&j| world.get::<JointState>(j).map_or(f64::NAN, |s| what(s) as f64)).collect()
+}
+
+/// The whole physics steps of `dt` a control period of `span` seconds takes (at least one).
+fn period_steps(span: f64, dt: f64) -> usize {
+    ((span / dt).round() as usize).max(1)
+}
+
+/// One control period of `steps` physics steps, `before_step` (given the app and the step's
+/// index) setting the drives before each; the drives' mean effort over the period.
+fn run_period(
+    app: &mut App,
+    joints: &[Entity],
+    steps: usize,
+    mut before_step: impl FnMut(&mut App, usize),
+) -> Vec<f64> {
+    let mut effort = vec![0.0; joints.len()];
+    for step in 0..steps {
+        before_step(app, step);
+        app.world_mut().run_schedule(PhysicsSubstep);
+        for (sum, e) in effort.iter_mut().zip(joint_values(app.world(), joints, |s| s.effort)) {
+            *sum += e / steps as f64;
+        }
+    }
+    effort
 }
 
 /// A log's measured joints, efforts (where it holds them) and the twin under the servo along
@@ -236,27 +263,24 @@ fn computed_torque(
     );
     let wn = COMPUTED_TORQUE_NATURAL_FREQUENCY;
     let (kp, kd) = (wn * wn, 2.0 * wn);
-    let state = |world: &World, what: fn(&JointState) -> f32| -> Vec<f64> {
-        joints.iter().map(|&j| world.get::<JointState>(j).map_or(f64::NAN, |s| what(s) as f64)).collect()
-    };
     for &joint in joints {
         if let Some(mut motor) = app.world_mut().get_mut::<Motor>(joint) {
             motor.holds_position = false;
             motor.command = MotorCommand::Torque(0.0);
         }
     }
-    let mut out = Followed { positions: vec![state(app.world(), |s| s.position)], efforts: vec![vec![0.0; dof]] };
+    let mut out = Followed::from(joint_values(app.world(), joints, |s| s.position));
     let n = times.len();
     let speed = |a: usize, b: usize, j: usize| (targets[b][j] - targets[a][j]) / (times[b] - times[a]).max(1e-9);
     for k in 0..n.saturating_sub(1) {
-        let steps = (((times[k + 1] - times[k]) / dt).round() as usize).max(1);
+        let steps = period_steps(times[k + 1] - times[k], dt);
         let span = steps as f64 * dt;
         let qd_d: Vec<f64> = (0..dof).map(|j| speed(k, k + 1, j)).collect();
         let qdd_d: Vec<f64> =
             (0..dof).map(|j| if k + 2 < n { (speed(k + 1, k + 2, j) - qd_d[j]) / span } else { 0.0 }).collect();
-        let mut effort = vec![0.0; dof];
-        for step in 0..steps {
-            let (q, qd) = (state(app.world(), |s| s.position), state(app.world(), |s| s.velocity));
+        let effort = run_period(app, joints, steps, |app, step| {
+            let q = joint_values(app.world(), joints, |s| s.position);
+            let qd = joint_values(app.world(), joints, |s| s.velocity);
             let s = step as f64 * dt;
             let acc: Vec<f64> = (0..dof)
                 .map(|j| qdd_d[j] + kp * (targets[k][j] + qd_d[j] * s - q[j]) + kd * (qd_d[j] - qd[j]))
@@ -267,12 +291,8 @@ fn computed_torque(
                     motor.command = MotorCommand::Torque(*t as f32);
                 }
             }
-            app.world_mut().run_schedule(PhysicsSubstep);
-            for (sum, e) in effort.iter_mut().zip(state(app.world(), |s| s.effort)) {
-                *sum += e / steps as f64;
-            }
-        }
-        out.positions.push(state(app.world(), |s| s.position));
+        });
+        out.positions.push(joint_values(app.world(), joints, |s| s.position));
         out.efforts.push(effort);
     }
     Ok(out)

@@ -20,7 +20,7 @@ use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_sim::{MotorCommand, Parameters};
 use twinbots_sysid::{Rig, SensorNoise, Stand};
 use twinbots_task::RobotDescription;
-use ur5e::kinematics::{self, HOME, JOINT_RANGES, MAX_JOINT_SPEED};
+use ur5e::kinematics::{self, HOME, JOINT_RANGES, JOINTS, MAX_JOINT_SPEED};
 
 use self::program::{APPLIED, ControlProgram, Limits, Note, STATE};
 
@@ -38,6 +38,8 @@ pub const VERSION: ControllerVersion = ControllerVersion { major: 5, minor: 11, 
 #[derive(Clone)]
 pub struct ServedArm {
     pub robot: RobotDescription,
+    /// The joints in the controller's order (RTDE's `_0` … `_5`).
+    pub joints: Vec<String>,
     pub home: [f64; 6],
     /// Per joint: the position range (rad, ±) and the fastest speed (rad/s).
     pub range: [f64; 6],
@@ -51,6 +53,7 @@ impl ServedArm {
     pub fn ur5e() -> Self {
         Self {
             robot: ur5e::robot(),
+            joints: JOINTS.map(String::from).to_vec(),
             home: HOME.map(|v| v as f64),
             range: JOINT_RANGES.map(|r| r as f64),
             speed: [MAX_JOINT_SPEED as f64; 6],
@@ -78,6 +81,7 @@ impl ServedArm {
         };
         Ok(Self {
             robot,
+            joints: file.joints.clone(),
             home: std::array::from_fn(|k| file.home[k]),
             range: std::array::from_fn(|k| limits(k).0),
             speed: std::array::from_fn(|k| limits(k).1),
@@ -103,8 +107,11 @@ impl ServedArm {
 
     /// The TCP's linear and angular speed (J(q)·q̇).
     pub fn tcp_speed(&self, q: &[f64; 6], qd: &[f64; 6]) -> [f64; 6] {
-        let Some(chain) = &self.chain else { return tcp_speed(q, qd) };
-        let j = chain.jacobian(q);
+        // A column per joint: (vx, vy, vz, ωx, ωy, ωz).
+        let j = match &self.chain {
+            Some(chain) => chain.jacobian(q),
+            None => kinematics::jacobian(&q.map(|v| v as f32)).to_vec(),
+        };
         std::array::from_fn(|k| (0..6).map(|i| j[i][k] * qd[i]).sum())
     }
 
@@ -154,11 +161,13 @@ pub const FLANGE: &str = "tool0";
 /// What the stand-in runs as the robot and the monitor as the robot's twin.
 pub fn controller_stand(arm: &ServedArm, truth: &Parameters, q: &[f64; 6]) -> anyhow::Result<(Stand, Vec<f64>)> {
     let mut rig = Rig::of(&arm.robot)?;
+    // The program's vectors are in the controller's order, the stand's joints in its model's.
     anyhow::ensure!(
-        rig.joints.len() == 6,
-        "{}: the rig has {} joints, a UR controller six",
+        rig.joints == arm.joints,
+        "{}: the test stand's joints ({}) are not the controller's six in its order ({})",
         arm.robot.name,
-        rig.joints.len()
+        rig.joints.join(", "),
+        arm.joints.join(", ")
     );
     anyhow::ensure!(q.iter().all(|v| v.is_finite()), "a start pose of {q:?} is not one");
     rig.settings.dt = CYCLE as f32;
@@ -343,8 +352,9 @@ pub fn controller_info() -> ControllerInfo {
     ControllerInfo { version: VERSION, cycle_hz: 1.0 / CYCLE, source: "twinbots ur-sim".into() }
 }
 
-/// The TCP pose as the controller reports it: position (m) and rotation vector (rad) in the base frame.
-pub fn tcp_pose(q: &[f64; 6]) -> [f64; 6] {
+/// The UR5e's TCP pose as the controller reports it (its DH table, in single precision as the
+/// tasks compute it): position (m) and rotation vector (rad) in the base frame.
+fn tcp_pose(q: &[f64; 6]) -> [f64; 6] {
     let pose = kinematics::tcp(&q.map(|v| v as f32));
     let mut rotation = pose.rotation;
     // The rotation vector of the shorter way round: angle in [0, π].
@@ -355,12 +365,6 @@ pub fn tcp_pose(q: &[f64; 6]) -> [f64; 6] {
     let r: Vec3 = axis * angle;
     let t = pose.translation;
     [t.x as f64, t.y as f64, t.z as f64, r.x as f64, r.y as f64, r.z as f64]
-}
-
-/// The TCP's linear and angular speed (J(q)·q̇).
-pub fn tcp_speed(q: &[f64; 6], qd: &[f64; 6]) -> [f64; 6] {
-    let j = kinematics::jacobian(&q.map(|v| v as f32));
-    std::array::from_fn(|k| (0..6).map(|i| j[i][k] * qd[i]).sum())
 }
 
 /// The elbow's position: the origin of the frame the elbow joint turns in.
