@@ -5,6 +5,7 @@ the shipped control program's registers. ur_rtde always connects to port 30004, 
 listens on a loopback address of its own (127.x.y.z: Linux routes all of 127/8 to the loopback
 device), and two test runs on one machine do not collide."""
 
+import json
 import math
 import os
 import random
@@ -211,3 +212,42 @@ def test_ur_sim_serves_a_robot_files_arm(tmp_path):
         r.disconnect()
         process.kill()
         process.wait()
+
+
+def test_a_robot_files_policy_deploys_through_rtde_on_its_standin(tmp_path):
+    """`train ur10.toml`, `export --bundle`, `deploy ur10.toml --rtde` against `ur-sim --robot
+    ur10.toml`: the whole chain with the vendor's description, the bundle naming the file's
+    joints and each joint's speed, the deployment through RTDE drawing the dry run's targets.
+    A short training: the chain is what is tested here (a trained UR10's success through RTDE
+    is measured in docs/deploy.md; a policy that reaches is tested in tests/rl/deploy.rs)."""
+    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    robot = os.path.join(repo, "assets", "robots", "ur10.toml")
+
+    def cli(*args):
+        done = subprocess.run([twinbots_bin(), *args], capture_output=True, text=True, timeout=300,
+                              env=robot_packages())
+        assert done.returncode == 0, done.stderr + done.stdout
+        return done.stdout
+
+    run, bundle = tmp_path / "run", tmp_path / "bundle"
+    cli("train", robot, "--timesteps", "1500", "--out", str(run))
+    cli("export", str(run), "--bundle", str(bundle))
+    with open(bundle / "bundle.json") as f:
+        manifest = json.load(f)
+    assert manifest["robot"] == robot
+    assert [j["name"] for j in manifest["joints"]][:3] == ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
+    assert len(manifest["action"]["scale"]) == 6 and manifest["control_period_s"] == 0.04
+    host, process = serve("--robot", robot)
+    try:
+        cli("deploy", robot, "--bundle", str(bundle), "--rtde", host, "--episodes", "2", "--deadline-ms", "250",
+            "--out", str(tmp_path / "rtde.json"))
+    finally:
+        process.kill()
+        process.wait()
+    cli("deploy", robot, "--bundle", str(bundle), "--dry-run", "--episodes", "2", "--out", str(tmp_path / "dry.json"))
+    with open(tmp_path / "rtde.json") as f:
+        through_rtde = json.load(f)
+    with open(tmp_path / "dry.json") as f:
+        dry = json.load(f)
+    assert through_rtde["arm"] == f"RTDE {host}" and through_rtde["commands"] >= 2
+    assert [e["target"] for e in through_rtde["episodes"]] == [e["target"] for e in dry["episodes"]]

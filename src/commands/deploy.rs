@@ -20,7 +20,8 @@ use twinbots_run::registry;
 #[derive(clap::Args)]
 #[command(group = clap::ArgGroup::new("robot_link").required(true).multiple(true).args(["rtde", "dry_run"]))]
 pub struct Args {
-    /// The robot (only ur5e has a controller link).
+    /// The robot: ur5e, or a robot file (`*.toml`) of a six-joint arm behind a UR controller
+    /// (the bundle's robot file, as this command finds it).
     pub robot: String,
     /// The bundle of `twinbots export <run> --bundle DIR`.
     #[arg(long)]
@@ -58,15 +59,13 @@ pub struct Args {
 
 /// `twinbots deploy`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let entry = registry::find(&args.robot)?;
-    anyhow::ensure!(args.robot == "ur5e", "robot '{}' has no controller link: only ur5e deploys (RTDE)", args.robot);
     anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
     anyhow::ensure!(
         args.deadline_ms > 0.0 && args.patience_ms > 0.0,
         "--deadline-ms and --patience-ms must be positive"
     );
-    let bundle = Bundle::read(&args.bundle)?;
-    bundle.check(&args.robot, &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
+    let bundle = Bundle::read_for(&args.bundle, &args.robot)?;
+    let served = bundle.robot.served_arm()?;
     if let Some(p) = args.rt_priority {
         twinbots_ops::realtime::set_rt_priority(p)?;
     }
@@ -79,19 +78,18 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     };
     let mut arm: Box<dyn Arm> = if args.dry_run {
         let start = args.rtde.as_deref().map(|address| robot_joints(address, patience)).transpose()?;
-        let rig = Rig::of(&entry)?;
+        let rig = Rig::of(&served.robot)?;
         let truth = match &bundle.manifest.calibration {
             Some(file) => Calibration::read(&bundle.dir.join(file), &rig.catalogue, rig.robot)?.parameters,
             None => Default::default(),
         };
-        Box::new(TwinArm::new(&UrSimOptions { truth, ..Default::default() }, start)?)
+        Box::new(TwinArm::new(&UrSimOptions { arm: served.clone(), truth, ..Default::default() }, start)?)
     } else {
         Box::new(RtdeArm::connect(args.rtde.as_deref().expect("clap requires --rtde without --dry-run"), patience)?)
     };
     let live = args.live.start()?;
     if let Some(server) = &live {
-        let joints: Vec<String> = ur5e::kinematics::JOINTS.iter().map(|j| j.to_string()).collect();
-        let view = RobotView::new(server.clone(), &entry, &joints)?;
+        let view = RobotView::new(server.clone(), &registry::find(&args.robot)?, &served.joints)?;
         // A dry run's twin in real time, as the robot would move: it is there to be watched.
         let watched = WatchedArm::new(arm, view);
         arm = Box::new(if args.dry_run { watched.real_time() } else { watched });

@@ -162,9 +162,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         shadow: match &args.cell {
             Some(path) => {
                 let layout = ur5e::layout::CellLayout::read(path).map_err(anyhow::Error::msg)?;
-                ur5e::deploy::Shadow { keepouts: ur5e::deploy::Keepout::of_cell(&layout), ..Default::default() }
+                twinbots_task::shadow::Shadow { keepouts: ur5e::deploy::keepouts(&layout), ..ur5e::deploy::shadow() }
             }
-            None => Default::default(),
+            None => ur5e::deploy::shadow(),
         },
     };
     let mut frames = TwinFrames::new(&args, &entry)?;

@@ -15,6 +15,7 @@ use twinbots_rtde::RtdeClient;
 use ur5e::deploy::lowest_point;
 
 use crate::delivery::{failed, fixture_run, succeeded, twinbots};
+use crate::robot_file_arm::{resolved_rate, six_joint_robot_file};
 use crate::rtde::Standin;
 
 fn bundle(test: &str) -> PathBuf {
@@ -48,6 +49,50 @@ fn deploy_reaches_through_rtde_as_in_the_dry_run() {
     assert!(through_rtde.episodes.iter().zip(&dry.episodes).all(|(a, b)| a.target == b.target));
     assert!(through_rtde.latency_p50_us < 20_000.0 && through_rtde.commands > 8 * 10, "{through_rtde:#?}");
     assert_eq!(through_rtde.refused, 0);
+}
+
+/// A robot file's six-joint arm deploys as the UR5e does: `export --bundle` of its run carries
+/// its joints, each joint's speed and its policy period; `deploy` drives it through RTDE on the
+/// stand-in serving the same file as in the dry run. A resolved-rate policy over the
+/// deployment's observation (the reach's own terms over the joints as RTDE reports them)
+/// arrives, so that observation is the one the twin trains on. Another robot file is refused.
+#[test]
+fn a_robot_file_arm_deploys_through_rtde_as_in_the_dry_run() {
+    use twinbots_ops::bundle::Scale;
+    use twinbots_sim::urdf::robot_file::RobotFile;
+    let path = six_joint_robot_file("deploy");
+    let run = path.with_file_name("run");
+    succeeded(twinbots().arg("train").arg(&path).args(["--timesteps", "1000", "--out"]).arg(&run).output().unwrap());
+    let dir = path.with_file_name("bundle");
+    succeeded(twinbots().arg("export").arg(&run).arg("--bundle").arg(&dir).output().unwrap());
+    let robot = path.to_str().unwrap();
+    let bundle = Bundle::read_for(&dir, robot).unwrap();
+    let file = RobotFile::read(&path).unwrap();
+    let m = &bundle.manifest;
+    assert_eq!(m.robot, robot);
+    assert_eq!(m.joints.iter().map(|j| j.name.as_str()).collect::<Vec<_>>(), file.joints);
+    assert_eq!(m.action.scale, Scale::PerJoint(file.speed_limits.clone()));
+    assert_eq!(m.control_period_s, 0.04);
+
+    let policy = |obs: &[f32]| Ok(resolved_rate(&file, obs));
+    let options = DeployOptions { seed: 3, ..patient(8) };
+    let served = bundle.robot.served_arm().unwrap();
+    let standin = Standin::serving(UrSimOptions { arm: served.clone(), watchdog: 0.1, ..Default::default() });
+    let mut arm = RtdeArm::connect(&standin.address(), Duration::from_secs(2)).unwrap();
+    let through_rtde = deploy_policy(&mut arm, &bundle, &policy, &options, |_| {}).unwrap();
+    let mut twin = TwinArm::new(&UrSimOptions { arm: served, ..Default::default() }, None).unwrap();
+    let dry = deploy_policy(&mut twin, &bundle, &policy, &options, |_| {}).unwrap();
+    let successes = |r: &twinbots_ops::deploy::DeployReport| r.episodes.iter().filter(|e| e.success).count();
+    assert!(successes(&through_rtde) >= 7, "{:#?}", through_rtde.episodes);
+    assert!(successes(&dry) >= 7, "{:#?}", dry.episodes);
+    assert!(through_rtde.episodes.iter().zip(&dry.episodes).all(|(a, b)| a.target == b.target));
+    assert_eq!(through_rtde.refused, 0, "{through_rtde:#?}");
+
+    // The same arm under another file's name is another robot.
+    let other = path.with_file_name("other.toml");
+    std::fs::copy(&path, &other).unwrap();
+    let err = Bundle::read_for(&dir, other.to_str().unwrap()).err().expect("another robot").to_string();
+    assert!(err.contains("is for the robot") && err.contains("other.toml"), "{err}");
 }
 
 #[test]
@@ -169,7 +214,7 @@ fn deploy_refuses_mismatched_bundles_and_stops_a_late_or_silent_robot() {
 /// The twin arm, watched: the closest its skeleton came to the shadow's obstacles.
 struct WatchedArm {
     twin: TwinArm,
-    shadow: ur5e::deploy::Shadow,
+    shadow: twinbots_task::shadow::Shadow,
     closest: f64,
 }
 

@@ -42,13 +42,64 @@ command = "speed"
 home = [0.0, 0.5, 1.0]
 "#;
 
-/// The arm's robot file in a folder of its own.
+/// A six-joint arm of boxes in a UR's order of axes: a base turning about z, shoulder, elbow
+/// and wrist 1 about y, wrist 2 about z, wrist 3 about y, the tool 0.1 m past it.
+const URDF6: &str = r#"<robot name="arm6">
+  <link name="base"><inertial><origin xyz="0 0 0.05"/><mass value="5"/><inertia ixx="0.02" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.02"/></inertial>
+    <collision><origin xyz="0 0 0.05"/><geometry><cylinder radius="0.08" length="0.1"/></geometry></collision></link>
+  <joint name="turn" type="revolute"><parent link="base"/><child link="column"/><origin xyz="0 0 0.1"/><axis xyz="0 0 1"/>
+    <limit lower="-2.5" upper="2.5" effort="80" velocity="2"/></joint>
+  <link name="column"><inertial><origin xyz="0 0 0.05"/><mass value="2"/><inertia ixx="0.005" ixy="0" ixz="0" iyy="0.005" iyz="0" izz="0.005"/></inertial>
+    <collision><origin xyz="0 0 0.05"/><geometry><box size="0.08 0.08 0.1"/></geometry></collision></link>
+  <joint name="shoulder" type="revolute"><parent link="column"/><child link="upper"/><origin xyz="0 0 0.1"/><axis xyz="0 1 0"/>
+    <limit lower="-2" upper="2" effort="80" velocity="2"/></joint>
+  <link name="upper"><inertial><origin xyz="0 0 0.2"/><mass value="1.5"/><inertia ixx="0.02" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.001"/></inertial>
+    <collision><origin xyz="0 0 0.2"/><geometry><box size="0.05 0.05 0.4"/></geometry></collision></link>
+  <joint name="elbow" type="revolute"><parent link="upper"/><child link="fore"/><origin xyz="0 0 0.4"/><axis xyz="0 1 0"/>
+    <limit lower="-2.5" upper="2.5" effort="60" velocity="2"/></joint>
+  <link name="fore"><inertial><origin xyz="0 0 0.15"/><mass value="1"/><inertia ixx="0.008" ixy="0" ixz="0" iyy="0.008" iyz="0" izz="0.001"/></inertial>
+    <collision><origin xyz="0 0 0.15"/><geometry><box size="0.04 0.04 0.3"/></geometry></collision></link>
+  <joint name="wrist_1" type="revolute"><parent link="fore"/><child link="wrist_a"/><origin xyz="0 0 0.3"/><axis xyz="0 1 0"/>
+    <limit lower="-2.5" upper="2.5" effort="20" velocity="2"/></joint>
+  <link name="wrist_a"><inertial><origin xyz="0 0 0.05"/><mass value="0.3"/><inertia ixx="0.0005" ixy="0" ixz="0" iyy="0.0005" iyz="0" izz="0.0002"/></inertial>
+    <collision><origin xyz="0 0 0.05"/><geometry><box size="0.03 0.03 0.08"/></geometry></collision></link>
+  <joint name="wrist_2" type="revolute"><parent link="wrist_a"/><child link="wrist_b"/><origin xyz="0 0 0.1"/><axis xyz="0 0 1"/>
+    <limit lower="-2.5" upper="2.5" effort="20" velocity="2"/></joint>
+  <link name="wrist_b"><inertial><origin xyz="0 0 0.05"/><mass value="0.3"/><inertia ixx="0.0005" ixy="0" ixz="0" iyy="0.0005" iyz="0" izz="0.0002"/></inertial>
+    <collision><origin xyz="0 0 0.05"/><geometry><box size="0.03 0.03 0.08"/></geometry></collision></link>
+  <joint name="wrist_3" type="revolute"><parent link="wrist_b"/><child link="hand"/><origin xyz="0 0 0.1"/><axis xyz="0 1 0"/>
+    <limit lower="-2.5" upper="2.5" effort="20" velocity="2"/></joint>
+  <link name="hand"><inertial><origin xyz="0 0 0.05"/><mass value="0.2"/><inertia ixx="0.0003" ixy="0" ixz="0" iyy="0.0003" iyz="0" izz="0.0001"/></inertial>
+    <collision><origin xyz="0 0 0.05"/><geometry><box size="0.03 0.03 0.08"/></geometry></collision></link>
+  <joint name="flange" type="fixed"><parent link="hand"/><child link="tool"/><origin xyz="0 0 0.1"/></joint>
+  <link name="tool"/>
+</robot>"#;
+
+pub const ROBOT_FILE6: &str = r#"urdf = "arm6.urdf"
+base = "base"
+tool = "tool"
+joints = ["turn", "shoulder", "elbow", "wrist_1", "wrist_2", "wrist_3"]
+control_period = 0.008
+command = "speed"
+home = [0.0, 0.5, 1.0, 0.5, 0.0, 0.0]
+"#;
+
+/// The three-joint arm's robot file in a folder of its own.
 fn robot_file(name: &str) -> PathBuf {
+    robot_file_of(name, "arm3", URDF, ROBOT_FILE)
+}
+
+/// The six-joint arm's robot file in a folder of its own.
+pub fn six_joint_robot_file(name: &str) -> PathBuf {
+    robot_file_of(name, "arm6", URDF6, ROBOT_FILE6)
+}
+
+fn robot_file_of(name: &str, arm: &str, urdf: &str, file: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("twinbots-arm-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("arm3.urdf"), URDF).unwrap();
-    std::fs::write(dir.join("arm3.toml"), ROBOT_FILE).unwrap();
-    dir.join("arm3.toml")
+    std::fs::write(dir.join(format!("{arm}.urdf")), urdf).unwrap();
+    std::fs::write(dir.join(format!("{arm}.toml")), file).unwrap();
+    dir.join(format!("{arm}.toml"))
 }
 
 fn env(path: &Path, arenas: usize) -> AppVecEnv {
@@ -58,7 +109,7 @@ fn env(path: &Path, arenas: usize) -> AppVecEnv {
 
 /// Joint speeds (as actions) that move the tool towards the target by damped least squares on
 /// the position rows of the chain's Jacobian.
-fn resolved_rate(file: &RobotFile, obs: &[f32]) -> Vec<f32> {
+pub fn resolved_rate(file: &RobotFile, obs: &[f32]) -> Vec<f32> {
     let n = file.joints.len();
     let q: Vec<f64> = obs[9..9 + n].iter().map(|&v| v as f64).collect();
     let columns = file.chain.jacobian(&file.chain_order(&q));

@@ -26,13 +26,18 @@ pub struct Standin {
 
 impl Standin {
     pub fn start(watchdog: f64) -> Self {
+        Self::serving(UrSimOptions { watchdog, ..Default::default() })
+    }
+
+    /// The stand-in built with `options` (another arm, say).
+    pub fn serving(options: UrSimOptions) -> Self {
         let server = RtdeServer::bind("127.0.0.1:0", controller_info()).unwrap();
         let address = server.local_addr();
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
         // The twin's app stays on the thread that steps it.
         let thread = std::thread::spawn(move || {
-            let mut sim = UrSim::new(&UrSimOptions { watchdog, ..Default::default() }).unwrap();
+            let mut sim = UrSim::new(&options).unwrap();
             sim.serve(&server, Some(60.0), &flag, 1e9);
             server.take_events()
         });

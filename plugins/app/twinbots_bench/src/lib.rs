@@ -24,8 +24,7 @@ pub fn print_rtde(bundle: Option<&std::path::Path>, seconds: f64, rt_priority: O
     let dir = bundle
         .ok_or_else(|| anyhow::anyhow!("bench rtde needs --bundle DIR (`twinbots export <ur5e run> --bundle DIR`)"))?;
     anyhow::ensure!(seconds > 0.0 && seconds.is_finite(), "--seconds must be positive");
-    let bundle = twinbots_ops::bundle::Bundle::read(dir)?;
-    bundle.check("ur5e", &ur5e::deploy::ROBOT_JOINTS, ur5e::sim_settings().control_seconds())?;
+    let bundle = twinbots_ops::bundle::Bundle::read_for(dir, "ur5e")?;
     let scheduling =
         rt_priority.map_or("default scheduling".to_string(), |p| format!("SCHED_FIFO {p}, the stand-in {}", p - 1));
     println!(

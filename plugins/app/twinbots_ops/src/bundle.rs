@@ -11,6 +11,8 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use twinbots_onnx::OnnxPolicy;
 
+use crate::deploy::robot::Deployable;
+
 /// The bundle's files.
 pub const MANIFEST: &str = "bundle.json";
 pub const POLICY: &str = "policy.onnx";
@@ -67,8 +69,26 @@ pub struct ActionMapping {
     pub kind: String,
     /// The joints the action's values drive, in order; the others hold still.
     pub joints: Vec<String>,
-    pub scale: f64,
+    pub scale: Scale,
     pub clip: [f64; 2],
+}
+
+/// An action's scale: one for every joint (the UR5e's π/2 rad/s), or one per joint of
+/// `joints` (a robot file's arm: each joint's task speed).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Scale {
+    All(f64),
+    PerJoint(Vec<f64>),
+}
+
+impl std::fmt::Display for Scale {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::All(v) => write!(f, "{v}"),
+            Self::PerJoint(v) => write!(f, "{v:?}"),
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -87,53 +107,76 @@ pub struct Bundle {
     pub policy: OnnxPolicy,
     /// The cell (`manifest.cell`), else the default one.
     pub cell: ur5e::layout::CellLayout,
+    /// The robot it drives.
+    pub robot: Deployable,
 }
 
-/// What a robot's deployment needs: the UR5e's (the only robot with a controller link so far).
+/// What a robot's deployment needs: the UR5e's, or a robot file's six-joint arm's (its joints,
+/// their ranges and task speeds from the file and its URDF).
 pub fn manifest_for(
-    robot: &str,
+    robot: &Deployable,
     metadata: &twinbots_onnx::PolicyMetadata,
     calibration: Option<String>,
     cell: Option<String>,
 ) -> anyhow::Result<Manifest> {
     anyhow::ensure!(
-        robot == "ur5e",
-        "robot '{robot}' has no deployment (joint order, signs and limits on a real controller): only ur5e does; `export --onnx` writes its policy alone"
-    );
-    anyhow::ensure!(
         metadata.task == "reach",
-        "task '{}' has no deployment yet: the UR5e's controller program drives the reach's joint speeds (a learned pick-and-place moves the tool and the suction); `export --onnx` writes its policy alone",
+        "task '{}' has no deployment yet: a UR controller's program drives the reach's joint speeds (a learned pick-and-place moves the tool and the suction); `export --onnx` writes its policy alone",
         metadata.task
     );
-    use ur5e::kinematics::{JOINT_RANGES, MAX_JOINT_SPEED};
-    let shadow = ur5e::deploy::Shadow::default();
-    let joints = ur5e::deploy::ROBOT_JOINTS
-        .iter()
-        .enumerate()
-        .map(|(j, name)| BundleJoint {
-            name: name.to_string(),
-            sign: ur5e::deploy::JOINT_SIGNS[j],
-            range_rad: decimal(JOINT_RANGES[j]),
-            max_speed_rad_s: decimal(MAX_JOINT_SPEED),
-        })
-        .collect();
+    let shadow = robot.shadow(&Default::default());
+    let (joints, action) = match robot {
+        Deployable::Ur5e => {
+            use ur5e::kinematics::{JOINT_RANGES, MAX_JOINT_SPEED};
+            let joints = ur5e::deploy::ROBOT_JOINTS
+                .iter()
+                .enumerate()
+                .map(|(j, name)| BundleJoint {
+                    name: name.to_string(),
+                    sign: ur5e::deploy::JOINT_SIGNS[j],
+                    range_rad: decimal(JOINT_RANGES[j]),
+                    max_speed_rad_s: decimal(MAX_JOINT_SPEED),
+                })
+                .collect();
+            let action = ActionMapping {
+                kind: "joint_speeds".into(),
+                joints: ur5e::deploy::ROBOT_JOINTS[..ur5e::deploy::COMMANDED_JOINTS]
+                    .iter()
+                    .map(|s| s.to_string())
+                    .collect(),
+                scale: Scale::All(decimal(ur5e::arm::ACTION_SPEED)),
+                clip: [-1.0, 1.0],
+            };
+            (joints, action)
+        }
+        Deployable::File { arm, .. } => {
+            let f = &arm.file;
+            let joints = (f.joints.iter().zip(&f.ranges).zip(&f.speed_limits))
+                .map(|((name, &(lo, hi)), &speed)| BundleJoint {
+                    name: name.clone(),
+                    sign: 1.0,
+                    range_rad: lo.abs().max(hi.abs()),
+                    max_speed_rad_s: speed,
+                })
+                .collect();
+            let action = ActionMapping {
+                kind: "joint_speeds".into(),
+                joints: f.joints.clone(),
+                scale: Scale::PerJoint(f.speed_limits.clone()),
+                clip: [-1.0, 1.0],
+            };
+            (joints, action)
+        }
+    };
     Ok(Manifest {
         format: FORMAT.into(),
         twinbots_version: metadata.twinbots_version.clone(),
-        robot: robot.into(),
+        robot: robot.name().into(),
         task: metadata.task.clone(),
         // To the microsecond, as the twin's timing is set (0.04, not 10 × 0.004 in f32).
         control_period_s: (metadata.control_period_s as f64 * 1e6).round() / 1e6,
         joints,
-        action: ActionMapping {
-            kind: "joint_speeds".into(),
-            joints: ur5e::deploy::ROBOT_JOINTS[..ur5e::deploy::COMMANDED_JOINTS]
-                .iter()
-                .map(|s| s.to_string())
-                .collect(),
-            scale: decimal(ur5e::arm::ACTION_SPEED),
-            clip: [-1.0, 1.0],
-        },
+        action,
         observation_names: metadata.observation_names.clone(),
         observation_normalization: if metadata.normalizes_observations { "folded" } else { "none" }.into(),
         shadow: ShadowLimits {
@@ -197,6 +240,11 @@ impl Bundle {
     /// Reads a bundle; a missing file, a manifest of another format or one that disagrees with
     /// its policy's own metadata is an error naming it.
     pub fn read(dir: &Path) -> anyhow::Result<Self> {
+        Self::read_as(dir, None)
+    }
+
+    /// Reads a bundle for `robot`, or (none) the robot its manifest names.
+    fn read_as(dir: &Path, robot: Option<Deployable>) -> anyhow::Result<Self> {
         let path = dir.join(MANIFEST);
         let text = std::fs::read_to_string(&path).map_err(|e| {
             anyhow::anyhow!("{}: {e} (is {} a bundle of `twinbots export --bundle`?)", path.display(), dir.display())
@@ -231,7 +279,32 @@ impl Bundle {
                 .map_err(|e| anyhow::anyhow!("{}: the manifest's cell: {e}", dir.display()))?,
             None => Default::default(),
         };
-        Ok(Self { dir: dir.to_path_buf(), manifest, policy, cell })
+        let robot = match robot {
+            Some(robot) => robot,
+            None => {
+                Deployable::of(&manifest.robot).map_err(|e| anyhow::anyhow!("{}: its robot: {e}", dir.display()))?
+            }
+        };
+        Ok(Self { dir: dir.to_path_buf(), manifest, policy, cell, robot })
+    }
+
+    /// [`Self::read`] for `robot` (a command's ROBOT argument): an error unless the bundle is
+    /// for it, with its joints (names and order) and control period; a robot file's bundle
+    /// needs the robot file, found as the command names it, wherever the bundle was made.
+    pub fn read_for(dir: &Path, robot: &str) -> anyhow::Result<Self> {
+        let deployable = Deployable::of(robot)?;
+        let mut bundle = Self::read_as(dir, Some(deployable.clone()))?;
+        anyhow::ensure!(
+            deployable.is(&bundle.manifest.robot),
+            "the bundle {} is for the robot '{}', not '{robot}'",
+            dir.display(),
+            bundle.manifest.robot
+        );
+        let joints = deployable.joints();
+        let names: Vec<&str> = joints.iter().map(String::as_str).collect();
+        bundle.check_joints(&names, deployable.control_period())?;
+        bundle.robot = deployable;
+        Ok(bundle)
     }
 
     /// An error unless this bundle fits `robot` with these joints (controller order) and
@@ -244,6 +317,13 @@ impl Bundle {
             self.dir.display(),
             m.robot
         );
+        self.check_joints(joints, control_period_s)
+    }
+
+    /// An error unless this bundle's joints are these (names and order) and its policy acts
+    /// every `control_period_s`.
+    fn check_joints(&self, joints: &[&str], control_period_s: f64) -> anyhow::Result<()> {
+        let m = &self.manifest;
         let names: Vec<&str> = m.joints.iter().map(|j| j.name.as_str()).collect();
         anyhow::ensure!(
             names == joints,

@@ -13,6 +13,7 @@ pub mod randomization;
 pub mod replay;
 pub mod robot;
 pub mod safety;
+pub mod shadow;
 pub mod task;
 
 pub use env::AppVecEnv;

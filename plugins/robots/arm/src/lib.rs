@@ -10,6 +10,7 @@
 //! joint runs beyond its URDF velocity or effort limit.
 
 pub mod arm;
+pub mod deploy;
 pub mod reach;
 pub mod servo;
 

@@ -1,11 +1,14 @@
 //! The reach policy on a real UR5e (or its stand-in): the controller's side of an episode
 //! without the twin's app — the task's own observation terms over the arm as RTDE reports it,
-//! targets from the task's own sampler, actions as joint speeds — and the **shadow**, the
-//! twin's check of every command before it reaches the robot.
+//! targets from the task's own sampler, actions as joint speeds — and the arm's geometry for
+//! the **shadow**, the twin's check of every command before it reaches the robot.
+
+use std::sync::Arc;
 
 use bevy::math::{DVec3, Vec3};
 use rand::Rng;
 use twinbots_task::TaskTerms;
+use twinbots_task::shadow::{ArmGeometry, Keepout, Shadow};
 
 use crate::arm::{self, ACTION_DIM, ActionHistory, ArmState};
 use crate::kinematics::{self, JOINT_RANGES, JOINTS, MAX_JOINT_SPEED};
@@ -84,206 +87,54 @@ impl ReachController {
     }
 }
 
-/// What the shadow does with a command.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Verdict {
-    /// The command that may go to the robot (joint speeds, rad/s).
-    pub command: [f64; 6],
-    /// Whether any joint's command was changed.
-    pub clipped: bool,
-    /// Whether the command was refused: the robot is told to stop instead.
-    pub refused: bool,
-    /// Why, for the log.
-    pub notes: Vec<String>,
-}
+/// The UR5e's geometry for the shadow ([`twinbots_task::shadow`]): its DH frames, its stops.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Ur5eGeometry;
 
-/// A box the arm keeps clear of (a cell's `[[obstacle]]`), in the base frame: its centre, its
-/// half sides along its own axes, and its turn about the base's z axis (rad).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Keepout {
-    pub centre: DVec3,
-    pub half: DVec3,
-    pub yaw: f64,
-}
-
-impl Keepout {
-    /// The distance (m) from `p` (base frame) to the box; 0 inside it.
-    pub fn distance(&self, p: DVec3) -> f64 {
-        let d = p - self.centre;
-        let (s, c) = self.yaw.sin_cos();
-        let local = DVec3::new(c * d.x + s * d.y, -s * d.x + c * d.y, d.z);
-        (local.abs() - self.half).max(DVec3::ZERO).length()
+impl ArmGeometry for Ur5eGeometry {
+    fn range(&self, joint: usize) -> (f64, f64) {
+        let r = JOINT_RANGES[joint] as f64;
+        (-r, r)
     }
 
-    /// A cell's obstacles in its robot's base frame.
-    pub fn of_cell(layout: &CellLayout) -> Vec<Keepout> {
-        let base = layout.base_pose().inverse();
-        let yaw = -(layout.robot.yaw as f64).to_radians();
-        layout
-            .obstacles
-            .iter()
-            .map(|o| Keepout {
-                centre: (base * Pose::from_translation(Vec3::from_array(o.centre))).translation.as_dvec3(),
-                half: Vec3::from_array(o.size).as_dvec3() / 2.0,
-                yaw,
-            })
-            .collect()
+    fn skeleton(&self, q: &[f64; 6]) -> Vec<(String, DVec3)> {
+        skeleton(q).into_iter().map(|(name, p)| (name.to_string(), p)).collect()
+    }
+
+    fn lowest_point(&self, q: &[f64; 6]) -> (String, f64) {
+        let (name, z) = lowest_point(q);
+        (name.to_string(), z)
     }
 }
 
-/// The twin's check of a joint-speed command before it goes to the robot: the joints' speed
-/// and acceleration limits, their ranges and the workspace (no link or the tool near or under
-/// the table, none within `keepout_clearance` of the cell's obstacles) over the next
-/// `lookahead` seconds of the command. Speeds and accelerations past a limit are clipped to it;
-/// a command that would take a joint out of its range or a point of the arm into the table or
-/// towards an obstacle is refused.
-#[derive(Clone, Debug)]
-pub struct Shadow {
-    /// Fastest joint speed (rad/s).
-    pub max_speed: f64,
-    /// Largest change of commanded speed (rad/s²).
-    pub max_acceleration: f64,
-    /// How far ahead a command is followed (s).
-    pub lookahead: f64,
-    /// The closest a joint may come to its stop (rad).
-    pub range_margin: f64,
-    /// The lowest the elbow, wrists, flange and tool may go, above the table (m, base frame).
-    pub table_clearance: f64,
-    /// The cell's obstacles (none in the default cell).
-    pub keepouts: Vec<Keepout>,
-    /// The closest the arm's skeleton (the DH frames' origins, the tool, and the links between
-    /// them) may come to an obstacle (m): the links' radius and a margin.
-    pub keepout_clearance: f64,
+/// The UR5e's shadow: its joints' π rad/s, its stops, its DH frames.
+pub fn shadow() -> Shadow {
+    Shadow::new(Arc::new(Ur5eGeometry), [MAX_JOINT_SPEED as f64; 6])
 }
 
-impl Default for Shadow {
-    fn default() -> Self {
-        Self {
-            max_speed: MAX_JOINT_SPEED as f64,
-            max_acceleration: 40.0,
-            lookahead: 0.08,
-            range_margin: 0.05,
-            table_clearance: 0.005,
-            keepouts: Vec::new(),
-            keepout_clearance: 0.1,
-        }
-    }
-}
-
-impl Shadow {
-    /// Checks `command` from measured joints `q` given the previous command, `period` seconds
-    /// before.
-    pub fn check(&self, q: &[f64; 6], command: &[f64; 6], previous: &[f64; 6], period: f64) -> Verdict {
-        let mut notes = Vec::new();
-        let mut out = *command;
-        let mut clipped = false;
-        for j in 0..6 {
-            if !out[j].is_finite() {
-                notes.push(format!("joint {}: command {} is not a number", j + 1, out[j]));
-                return Verdict { command: [0.0; 6], clipped: true, refused: true, notes };
-            }
-            let limited = out[j].clamp(-self.max_speed, self.max_speed);
-            let step = self.max_acceleration * period;
-            let limited = limited.clamp(previous[j] - step, previous[j] + step);
-            if limited != out[j] {
-                notes.push(format!(
-                    "joint {}: {:.3} rad/s clipped to {:.3} (speed ≤ {:.3}, acceleration ≤ {:.0} rad/s²)",
-                    j + 1,
-                    out[j],
-                    limited,
-                    self.max_speed,
-                    self.max_acceleration
-                ));
-                out[j] = limited;
-                clipped = true;
-            }
-        }
-        let ahead: [f64; 6] = std::array::from_fn(|j| q[j] + out[j] * self.lookahead);
-        for j in 0..6 {
-            let range = JOINT_RANGES[j] as f64 - self.range_margin;
-            if ahead[j].abs() > range && ahead[j].abs() > q[j].abs() {
-                notes.push(format!(
-                    "joint {}: {:.3} rad in {:.2} s is past its range ±{range:.3}",
-                    j + 1,
-                    ahead[j],
-                    self.lookahead
-                ));
-                return Verdict { command: [0.0; 6], clipped, refused: true, notes };
-            }
-        }
-        let lowest = lowest_point(&ahead);
-        if lowest.1 < self.table_clearance && lowest.1 < lowest_point(q).1 {
-            notes.push(format!("{} at z = {:.3} m in {:.2} s: into the table", lowest.0, lowest.1, self.lookahead));
-            return Verdict { command: [0.0; 6], clipped, refused: true, notes };
-        }
-        if let Some((what, obstacle, gap)) = self.closest_keepout(&ahead)
-            && gap < self.keepout_clearance
-            && self.closest_keepout(q).is_none_or(|now| gap < now.2)
-        {
-            notes.push(format!(
-                "{what} {gap:.3} m from obstacle[{obstacle}] in {:.2} s (clearance {:.3} m)",
-                self.lookahead, self.keepout_clearance
-            ));
-            return Verdict { command: [0.0; 6], clipped, refused: true, notes };
-        }
-        Verdict { command: out, clipped, refused: false, notes }
-    }
-
-    /// The point of the arm at `q` closest to an obstacle: what it is, which obstacle, how far.
-    /// None without obstacles (nothing is computed: this runs every control cycle).
-    pub fn closest_keepout(&self, q: &[f64; 6]) -> Option<(String, usize, f64)> {
-        if self.keepouts.is_empty() {
-            return None;
-        }
-        let mut best: Option<(SkeletonPoint, usize, f64)> = None;
-        for (point, p) in skeleton(q) {
-            for (i, k) in self.keepouts.iter().enumerate() {
-                let d = k.distance(p);
-                if best.as_ref().is_none_or(|b| d < b.2) {
-                    best = Some((point, i, d));
-                }
-            }
-        }
-        best.map(|(point, i, d)| (point.to_string(), i, d))
-    }
-}
-
-/// Where on the arm a [`skeleton`] point is: at joint frame `at` (0 the shoulder … 5 the
-/// flange, 6 the tool face), or `at` and a fifth of the way further per `fifths` along the link
-/// to the next.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SkeletonPoint {
-    pub at: usize,
-    pub fifths: usize,
+/// A cell's obstacles in its robot's base frame.
+pub fn keepouts(layout: &CellLayout) -> Vec<Keepout> {
+    let base = layout.base_pose().inverse();
+    let yaw = -(layout.robot.yaw as f64).to_radians();
+    layout
+        .obstacles
+        .iter()
+        .map(|o| Keepout {
+            centre: (base * Pose::from_translation(Vec3::from_array(o.centre))).translation.as_dvec3(),
+            half: Vec3::from_array(o.size).as_dvec3() / 2.0,
+            yaw,
+        })
+        .collect()
 }
 
 const SKELETON_NAMES: [&str; 7] = ["shoulder", "elbow", "wrist 1", "wrist 2", "wrist 3", "flange", "tool"];
 
-impl std::fmt::Display for SkeletonPoint {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self.fifths {
-            0 => write!(f, "{}", SKELETON_NAMES[self.at]),
-            _ => write!(f, "the link from {} to {}", SKELETON_NAMES[self.at], SKELETON_NAMES[self.at + 1]),
-        }
-    }
-}
-
-/// Points along the arm at `q` (base frame): the DH frames' origins from the shoulder to the
-/// flange, the tool face, and four points on each link between them.
-pub fn skeleton(q: &[f64; 6]) -> Vec<(SkeletonPoint, DVec3)> {
+/// The arm at `q` (base frame): the DH frames' origins from the shoulder to the flange, and
+/// the tool face.
+pub fn skeleton(q: &[f64; 6]) -> Vec<(&'static str, DVec3)> {
     let f = kinematics::frames(&q.map(|v| v as f32));
     let tool = kinematics::tool_face(f[6]).w_axis.truncate();
-    let joints: Vec<DVec3> = f[1..].iter().map(|m| m.w_axis.truncate()).chain([tool]).collect();
-    let mut out = Vec::with_capacity(joints.len() * 5);
-    for (at, &p) in joints.iter().enumerate() {
-        out.push((SkeletonPoint { at, fifths: 0 }, p));
-        if let Some(&next) = joints.get(at + 1) {
-            for fifths in 1..5 {
-                out.push((SkeletonPoint { at, fifths }, p.lerp(next, fifths as f64 / 5.0)));
-            }
-        }
-    }
-    out
+    f[1..].iter().map(|m| m.w_axis.truncate()).chain([tool]).zip(SKELETON_NAMES).map(|(p, name)| (name, p)).collect()
 }
 
 /// The lowest of the elbow, wrists, flange and tool face at `q`: its name and height (m, base
@@ -312,7 +163,7 @@ mod tests {
 
     #[test]
     fn the_shadow_clips_speed_and_acceleration_and_refuses_the_table_and_the_stops() {
-        let shadow = Shadow::default();
+        let shadow = shadow();
         let home = HOME.map(|v| v as f64);
         let ok = shadow.check(&home, &[0.1, 0.0, 0.0, 0.0, 0.0, 0.0], &[0.0; 6], 0.04);
         assert!(!ok.clipped && !ok.refused, "{ok:?}");
@@ -355,14 +206,14 @@ mod tests {
             1,
         );
         let layout = CellLayout::parse(&text, "column.toml").unwrap();
-        let keepouts = Keepout::of_cell(&layout);
+        let keepouts = keepouts(&layout);
         assert_eq!(keepouts.len(), 1);
         assert!(
             keepouts[0].distance(tool) < 1e-6,
             "the tool at the turned pose is inside the column: {:?}",
             keepouts[0]
         );
-        let shadow = Shadow { keepouts, ..Shadow::default() };
+        let shadow = Shadow { keepouts, ..shadow() };
         // At home the arm is clear; a turn towards the column, from just outside the clearance,
         // is refused; a turn away from it is not.
         let mut near = home;
@@ -383,7 +234,7 @@ mod tests {
             "turned.toml",
         )
         .unwrap();
-        let k = Keepout::of_cell(&turned_layout)[0];
+        let k = super::keepouts(&turned_layout)[0];
         assert!(k.distance(tool) < 1e-5, "{k:?}");
     }
 

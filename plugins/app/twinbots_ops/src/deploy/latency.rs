@@ -95,7 +95,7 @@ pub fn measure(
             if controller.arrived() {
                 controller.new_reach(&mut rng);
             }
-            let observation = controller.observation().to_vec();
+            let observation = controller.observation();
             let action = bundle.policy.act(&observation)?;
             let wanted = controller.act(&action);
             let verdict = shadow.check(&m.q, &wanted, &last, CYCLE);

@@ -8,15 +8,17 @@
 
 pub mod arm;
 pub mod latency;
+pub mod robot;
 
 use std::time::Duration;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use ur5e::deploy::{ReachController, Shadow};
+use twinbots_task::shadow::Shadow;
 
 use self::arm::{Arm, Measured};
+use self::robot::ReachOnRobot;
 use crate::bundle::Bundle;
 
 /// How a deployment runs.
@@ -70,25 +72,23 @@ pub struct DeployReport {
     pub commands: usize,
 }
 
-/// The shadow a bundle's limits describe.
+/// The shadow a bundle's limits describe, for the bundle's robot in its cell.
 pub fn shadow_of(bundle: &Bundle) -> Shadow {
     let m = &bundle.manifest;
     Shadow {
-        max_speed: m.joints.iter().map(|j| j.max_speed_rad_s).fold(f64::INFINITY, f64::min),
+        max_speed: std::array::from_fn(|k| m.joints[k].max_speed_rad_s),
         max_acceleration: m.shadow.max_acceleration_rad_s2,
         lookahead: m.shadow.lookahead_s,
         range_margin: m.shadow.range_margin_rad,
         table_clearance: m.shadow.table_clearance_m,
-        keepouts: ur5e::deploy::Keepout::of_cell(&bundle.cell),
-        ..Shadow::default()
+        ..bundle.robot.shadow(&bundle.cell)
     }
 }
 
-/// The reach controller in the bundle's cell: its targets avoid the cell's own pick fixture.
-pub fn controller_of(bundle: &Bundle) -> ReachController {
-    let mut controller = ReachController::default();
-    controller.state.fixtures = bundle.cell.fixtures();
-    controller
+/// The reach controller of the bundle's robot in its cell (the UR5e's targets avoid the cell's
+/// own pick fixture).
+pub fn controller_of(bundle: &Bundle) -> Box<dyn ReachOnRobot> {
+    bundle.robot.controller(&bundle.cell)
 }
 
 /// A policy: raw observation in, action out.
@@ -137,8 +137,9 @@ pub fn deploy_policy(
 /// The deployment's state between control steps.
 struct Deployment<'a> {
     policy: PolicyFn<'a>,
-    controller: ReachController,
+    controller: Box<dyn ReachOnRobot>,
     shadow: Shadow,
+    episode_steps: u32,
     rng: ChaCha8Rng,
     period: f64,
     deadline: Duration,
@@ -161,6 +162,7 @@ impl<'a> Deployment<'a> {
             policy,
             controller: controller_of(bundle),
             shadow: shadow_of(bundle),
+            episode_steps: bundle.robot.episode_steps(),
             rng: ChaCha8Rng::seed_from_u64(options.seed),
             period: bundle.manifest.control_period_s,
             deadline: options.deadline,
@@ -289,8 +291,8 @@ impl<'a> Deployment<'a> {
         let (mut clipped, mut refused, mut steps) = (0, 0, 0);
         let mut m = self.wait_step(arm)?;
         let mut success = self.controller.arrived();
-        while !success && steps < ur5e::reach::EPISODE_STEPS {
-            let observation = self.controller.observation().to_vec();
+        while !success && steps < self.episode_steps {
+            let observation = self.controller.observation();
             let action = (self.policy)(&observation)?;
             let speeds = self.controller.act(&action);
             let (c, r) = self.send(arm, &m, speeds)?;

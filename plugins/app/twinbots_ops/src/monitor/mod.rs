@@ -16,7 +16,7 @@ use twinbots_live::{JsonSchema, Place};
 use twinbots_log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog};
 use twinbots_sim::{MotorCommand, Parameters};
 use twinbots_sysid::Stand;
-use ur5e::deploy::Shadow;
+use twinbots_task::shadow::Shadow;
 use ur5e::kinematics::JOINTS;
 
 use crate::live::{ALARM, RobotJoints, RobotView};
@@ -77,7 +77,7 @@ impl Default for MonitorOptions {
             effort_threshold: 1.5,
             window: 1.0,
             source: "robot (RTDE)".into(),
-            shadow: Shadow::default(),
+            shadow: ur5e::deploy::shadow(),
         }
     }
 }
