@@ -251,3 +251,39 @@ def test_a_robot_files_policy_deploys_through_rtde_on_its_standin(tmp_path):
         dry = json.load(f)
     assert through_rtde["arm"] == f"RTDE {host}" and through_rtde["commands"] >= 2
     assert [e["target"] for e in through_rtde["episodes"]] == [e["target"] for e in dry["episodes"]]
+
+
+def test_monitor_follows_a_robot_files_arm(tmp_path):
+    """`monitor ur10.toml --rtde` beside `ur-sim --robot ur10.toml` moved by a `speedj` client: the
+    UR10's own twin follows it (its joints' names in the logs and the report), quiet beside a
+    matching arm."""
+    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    robot = os.path.join(repo, "assets", "robots", "ur10.toml")
+    host, process = serve("--robot", robot)
+    monitor = subprocess.Popen([twinbots_bin(), "monitor", robot, "--rtde", host, "--seconds", "3",
+                                "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env=robot_packages())
+    c = GuideClient(host)
+    try:
+        assert c.request("V", struct.pack(">H", 2)) == b"\x01"
+        names = ["input_int_register_24", "input_int_register_25"]
+        names += [f"input_double_register_{i}" for i in range(24, 30)]
+        recipe = c.request("I", ",".join(names).encode())[0]
+        assert c.request("O", struct.pack(">d", 10.0) + b"output_int_register_24")[1:] == b"INT32"
+        assert c.request("S") == b"\x01"
+        start, counter = time.monotonic(), 0
+        while monitor.poll() is None and time.monotonic() - start < 30:
+            counter += 1
+            speed = 0.3 if (time.monotonic() - start) % 2 < 1 else -0.3
+            c.send("U", struct.pack(">Bii6d", recipe, 1, counter, 0.0, speed, 0, 0, 0, 0))
+            time.sleep(0.008)
+        out, err = monitor.communicate(timeout=30)
+    finally:
+        c.sock.close()
+        process.kill()
+        process.wait()
+    assert monitor.returncode == 0, err + out
+    with open(tmp_path / "monitor.json") as f:
+        report = json.load(f)
+    assert report["reports"] > 1000 and report["alarms"] == [], report["alarms"]
+    assert "shoulder_pan_joint" in out or "wrist" in out or "elbow" in out, out

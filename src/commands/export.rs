@@ -57,7 +57,7 @@ pub fn export_bundle(run: &Path, dir: &Path) -> anyhow::Result<twinbots_ops::bun
         )
     });
     let named = |text: &Option<String>, file: &str| text.as_ref().map(|_| file.to_string());
-    let robot = twinbots_ops::deploy::robot::Deployable::of(&settings.robot)?;
+    let robot = twinbots_ops::linked_arm::LinkedArm::of(&settings.robot)?;
     let manifest = twinbots_ops::bundle::manifest_for(
         &robot,
         &metadata,

@@ -1,12 +1,13 @@
-//! `twinbots monitor ur5e (--rtde HOST[:PORT] | --ros2) [--calibration FILE] [--cell FILE]
+//! `twinbots monitor ur5e|ROBOT.toml (--rtde HOST[:PORT] | --ros2) [--calibration FILE] [--cell FILE]
 //! [--seconds S] [--frames-every S] --out DIR`: the twin follows the robot live and says where they part
-//! (docs/monitor.md). `twinbots monitor ROBOT.toml --replay LOG --calibration FILE --out DIR`: a
+//! (docs/monitor.md; a robot file's six-joint arm through RTDE). `twinbots monitor ROBOT.toml --replay LOG --calibration FILE --out DIR`: a
 //! recording played back as the arm would stream it, its efforts judged by the calibrated shadow
 //! as they arrive.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use twinbots_ops::linked_arm::LinkedArm;
 use twinbots_ops::live::{ALARM, RobotJoints, RobotView};
 use twinbots_ops::monitor::recording::{SHADOW, follow};
 use twinbots_ops::monitor::source::Source;
@@ -24,7 +25,8 @@ use twinbots_run::registry;
 #[derive(clap::Args)]
 #[command(group = clap::ArgGroup::new("source").required(true).args(["rtde", "ros2", "replay"]))]
 pub struct Args {
-    /// The robot: ur5e (RTDE, ROS 2), or a robot file (`*.toml`) with --replay.
+    /// The robot: ur5e (RTDE, ROS 2), or a robot file (`*.toml`): a six-joint arm through RTDE,
+    /// any arm with --replay.
     pub robot: String,
     /// The robot's controller: RTDE at HOST[:PORT] (port 30004 by default).
     #[arg(long)]
@@ -139,11 +141,17 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         return exec_replay(&args, log);
     }
     let entry = registry::find(&args.robot)?;
+    let arm = LinkedArm::of(&args.robot)?;
+    let is_ur5e = matches!(arm, LinkedArm::Ur5e);
     anyhow::ensure!(
-        args.robot == "ur5e",
-        "robot '{}' has no controller link: only ur5e is monitored (RTDE, ROS 2)",
-        args.robot
+        is_ur5e || !args.ros2,
+        "--ros2 follows the UR5e's driver (its joint names); a robot file's arm is followed through --rtde"
     );
+    anyhow::ensure!(
+        is_ur5e || args.cell.is_none(),
+        "--cell lays out the UR5e's cell; a robot file's arm stands in an empty one"
+    );
+    let served = arm.served_arm()?;
     if let Some(s) = args.seconds {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
@@ -164,8 +172,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 let layout = ur5e::layout::CellLayout::read(path).map_err(anyhow::Error::msg)?;
                 twinbots_task::shadow::Shadow { keepouts: ur5e::deploy::keepouts(&layout), ..ur5e::deploy::shadow() }
             }
-            None => ur5e::deploy::shadow(),
+            None => arm.shadow(&Default::default()),
         },
+        arm: served.clone(),
     };
     let mut frames = TwinFrames::new(&args, &entry)?;
     let live = args.live.start()?;
@@ -173,8 +182,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let mut source = Source::open(args.rtde.as_deref(), args.domain.as_deref(), patience)?;
     let first = source.receive()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
-    let joints: Vec<String> = ur5e::kinematics::JOINTS.iter().map(|j| j.to_string()).collect();
-    let mut view = live.map(|server| RobotView::new(server, &entry, &joints)).transpose()?;
+    let mut view = live.map(|server| RobotView::new(server, &entry, &served.joints)).transpose()?;
     if let Some(view) = &view {
         Monitor::advertise_live(view)?;
     }
@@ -239,7 +247,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let alarms: Vec<f64> = account.alarms.iter().map(|a| a.time).collect();
     twinbots_sysid::plot::divergence_png(
         &args.out.join("divergence.png"),
-        "ur5e: robot vs twin, live",
+        &format!("{}: robot vs twin, live", served.robot.name),
         &monitor.robot_log,
         &monitor.twin_log,
         &alarms,
@@ -273,7 +281,7 @@ fn print_line(monitor: &Monitor, time: f64) {
         .map_or(String::new(), |m| format!(", last motion {:.2} s, {:.1} J", m.duration_s, m.energy_j));
     println!(
         "[{time:9.3} s] worst joint {}: position RMSE {:.3} mrad, effort RMSE {:.3} N*m; {} motion(s){last}; {} alarm(s)",
-        ur5e::kinematics::JOINTS[worst],
+        monitor.joints()[worst],
         rmse[worst] * 1e3,
         effort[worst],
         account.motions.len(),

@@ -1,6 +1,7 @@
 //! The monitor: a twin that follows the robot notices a load it does not know within a second
 //! of motion, and stays quiet beside a robot it matches.
 
+use twinbots_ops::linked_arm::LinkedArm;
 use twinbots_ops::monitor::{Monitor, MonitorOptions, Report};
 use twinbots_ops::ur_sim::program::{COUNTER, MODE, MODE_SPEEDJ, TARGET};
 use twinbots_ops::ur_sim::{CYCLE, UrSim, UrSimOptions};
@@ -44,11 +45,22 @@ fn follow_tampered(
     skip: Option<usize>,
     tamper: fn(&mut Report),
 ) -> (Vec<(f64, String, String)>, f64) {
+    follow_with(robot, MonitorOptions::default(), seconds, skip, tamper)
+}
+
+/// [`follow_tampered`] with the monitor's `options` (another arm's twin, say).
+fn follow_with(
+    robot: &UrSimOptions,
+    options: MonitorOptions,
+    seconds: f64,
+    skip: Option<usize>,
+    tamper: fn(&mut Report),
+) -> (Vec<(f64, String, String)>, f64) {
     let mut sim = UrSim::new(robot).unwrap();
     let mut inputs = InputState::new();
     inputs.set(MODE, Value::Int32(MODE_SPEEDJ));
     let (first, _) = sim.cycle(&inputs);
-    let mut monitor = Monitor::new(MonitorOptions::default(), &report_of(&first)).unwrap();
+    let mut monitor = Monitor::new(options, &report_of(&first)).unwrap();
     let mut alarms = Vec::new();
     for k in 0..(seconds / CYCLE) as usize {
         let t = k as f64 * CYCLE;
@@ -95,6 +107,30 @@ fn the_monitor_stays_quiet_beside_a_matching_robot() {
     // each gap and stays quiet.
     let (alarms, worst) = follow(&UrSimOptions::default(), 20.0, Some(37));
     assert!(alarms.is_empty(), "{alarms:?} (worst effort RMSE {worst} N*m)");
+}
+
+/// A robot file's six-joint arm is followed as the UR5e is: its own twin (its URDF on its test
+/// stand) on the same commands stays quiet beside a matching arm, and notices a 1 kg load it
+/// does not know within a second of motion, naming the arm's own joints.
+#[test]
+fn the_monitor_follows_a_robot_file_arm() {
+    let path = crate::robot_file_arm::six_joint_robot_file("monitor");
+    let arm = LinkedArm::of(path.to_str().unwrap()).unwrap();
+    let served = arm.served_arm().unwrap();
+    let options = MonitorOptions { shadow: arm.shadow(&Default::default()), arm: served.clone(), ..Default::default() };
+    let matching = UrSimOptions { arm: served.clone(), ..Default::default() };
+    let (alarms, worst) = follow_with(&matching, options.clone(), 8.0, None, |_| {});
+    assert!(alarms.is_empty(), "{alarms:?}");
+    assert!(worst < 0.5, "worst effort RMSE {worst} N*m beside a matching arm");
+    let loaded = UrSimOptions { payload: Some(1.0), ..matching };
+    let (alarms, worst) = follow_with(&loaded, options, 4.0, None, |_| {});
+    let first = alarms
+        .iter()
+        .find(|(_, k, _)| k == "divergence")
+        .unwrap_or_else(|| panic!("no divergence alarm: {alarms:?}, worst effort RMSE {worst}"));
+    assert!(first.0 < 1.5, "the alarm came at {} s", first.0);
+    let named = served.joints.iter().any(|j| first.2.starts_with(j.as_str()));
+    assert!(named, "the alarm names one of the arm's joints: {}", first.2);
 }
 
 /// Joints alarm independently: with the shoulder's alarm standing (its effort reads 5 N·m over

@@ -14,10 +14,17 @@ fn sac_reaches_minus_200_on_pendulum_within_20k_steps() {
     let mut env = ClassicPendulum::new(1);
     let config = SacConfig { hidden: vec![64, 64], ..SacConfig::default() };
     let mut model = Sac::new(config, env.observation_space().clone(), env.action_space().clone(), 0).unwrap();
+    reaches_minus_200_on_pendulum(&mut model, &mut env);
+}
+
+/// Trains `model` 20 k steps on `env` (the analytic Pendulum-v1), its progress on stderr, and
+/// asserts that the last 10 training episodes (the window holds the last 100: judge the recent
+/// ones) average −200 or better. SAC's test and TD3's.
+pub fn reaches_minus_200_on_pendulum(model: &mut dyn Learner, env: &mut ClassicPendulum) {
     let started = Instant::now();
     let mut rows = Vec::new();
     model
-        .learn(&mut env, 20_000, &mut |s: &UpdateStats, _: &dyn Agent| {
+        .learn(env, 20_000, &mut |s: &UpdateStats, _: &dyn Agent| {
             rows.push((s.timesteps, s.mean_reward, s.train("actor_loss"), s.train("critic_loss")));
             eprintln!(
                 "{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)",
@@ -30,9 +37,8 @@ fn sac_reaches_minus_200_on_pendulum_within_20k_steps() {
             Ok(Flow::Continue)
         })
         .unwrap();
-    assert_eq!(model.state.timesteps, 20_000);
-    // The last 10 training episodes (the window holds the last 100: judge the recent ones).
-    let recent: Vec<f32> = model.state.history.recent_scores.iter().rev().take(10).copied().collect();
+    assert_eq!(model.state().timesteps, 20_000);
+    let recent: Vec<f32> = model.state().history.recent_scores.iter().rev().take(10).copied().collect();
     let mean = recent.iter().sum::<f32>() / recent.len() as f32;
     assert!(mean >= -200.0, "mean of the last 10 episodes {mean}; rows {rows:?}");
 }

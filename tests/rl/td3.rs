@@ -1,8 +1,6 @@
 //! TD3, the algorithm added as one folder and one line of the algorithm table: it learns, and
 //! everything that finds algorithms in the table (loading, export) handles it.
 
-use std::time::Instant;
-
 use twinbots_api::VecEnv;
 use twinbots_learn::classic::ClassicPendulum;
 use twinbots_learn::{Agent, Flow, Learner, OffPolicyConfig, Td3, Td3Config, UpdateStats};
@@ -24,26 +22,7 @@ fn td3_reaches_minus_200_on_pendulum_within_20k_steps() {
     let mut env = ClassicPendulum::new(1);
     let mut model =
         Td3::new(pendulum_config(), env.observation_space().clone(), env.action_space().clone(), 0).unwrap();
-    let started = Instant::now();
-    let mut rows = Vec::new();
-    model
-        .learn(&mut env, 20_000, &mut |s: &UpdateStats, _: &dyn Agent| {
-            rows.push((s.timesteps, s.mean_reward));
-            eprintln!(
-                "{} steps: mean {:.0}, actor {:.2}, critic {:.3} ({:.0} s)",
-                s.timesteps,
-                s.mean_reward,
-                s.train("actor_loss"),
-                s.train("critic_loss"),
-                started.elapsed().as_secs_f32()
-            );
-            Ok(Flow::Continue)
-        })
-        .unwrap();
-    assert_eq!(model.state.timesteps, 20_000);
-    let recent: Vec<f32> = model.state.history.recent_scores.iter().rev().take(10).copied().collect();
-    let mean = recent.iter().sum::<f32>() / recent.len() as f32;
-    assert!(mean >= -200.0, "mean of the last 10 episodes {mean}; rows {rows:?}");
+    crate::sac::reaches_minus_200_on_pendulum(&mut model, &mut env);
 }
 
 #[test]

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use twinbots_onnx::OnnxPolicy;
 
-use crate::deploy::robot::Deployable;
+use crate::linked_arm::LinkedArm;
 
 /// The bundle's files.
 pub const MANIFEST: &str = "bundle.json";
@@ -108,13 +108,13 @@ pub struct Bundle {
     /// The cell (`manifest.cell`), else the default one.
     pub cell: ur5e::layout::CellLayout,
     /// The robot it drives.
-    pub robot: Deployable,
+    pub robot: LinkedArm,
 }
 
 /// What a robot's deployment needs: the UR5e's, or a robot file's six-joint arm's (its joints,
 /// their ranges and task speeds from the file and its URDF).
 pub fn manifest_for(
-    robot: &Deployable,
+    robot: &LinkedArm,
     metadata: &twinbots_onnx::PolicyMetadata,
     calibration: Option<String>,
     cell: Option<String>,
@@ -126,7 +126,7 @@ pub fn manifest_for(
     );
     let shadow = robot.shadow(&Default::default());
     let (joints, action) = match robot {
-        Deployable::Ur5e => {
+        LinkedArm::Ur5e => {
             use ur5e::kinematics::{JOINT_RANGES, MAX_JOINT_SPEED};
             let joints = ur5e::deploy::ROBOT_JOINTS
                 .iter()
@@ -149,7 +149,7 @@ pub fn manifest_for(
             };
             (joints, action)
         }
-        Deployable::File { arm, .. } => {
+        LinkedArm::File { arm, .. } => {
             let f = &arm.file;
             let joints = (f.joints.iter().zip(&f.ranges).zip(&f.speed_limits))
                 .map(|((name, &(lo, hi)), &speed)| BundleJoint {
@@ -244,7 +244,7 @@ impl Bundle {
     }
 
     /// Reads a bundle for `robot`, or (none) the robot its manifest names.
-    fn read_as(dir: &Path, robot: Option<Deployable>) -> anyhow::Result<Self> {
+    fn read_as(dir: &Path, robot: Option<LinkedArm>) -> anyhow::Result<Self> {
         let path = dir.join(MANIFEST);
         let text = std::fs::read_to_string(&path).map_err(|e| {
             anyhow::anyhow!("{}: {e} (is {} a bundle of `twinbots export --bundle`?)", path.display(), dir.display())
@@ -281,9 +281,7 @@ impl Bundle {
         };
         let robot = match robot {
             Some(robot) => robot,
-            None => {
-                Deployable::of(&manifest.robot).map_err(|e| anyhow::anyhow!("{}: its robot: {e}", dir.display()))?
-            }
+            None => LinkedArm::of(&manifest.robot).map_err(|e| anyhow::anyhow!("{}: its robot: {e}", dir.display()))?,
         };
         Ok(Self { dir: dir.to_path_buf(), manifest, policy, cell, robot })
     }
@@ -292,18 +290,18 @@ impl Bundle {
     /// for it, with its joints (names and order) and control period; a robot file's bundle
     /// needs the robot file, found as the command names it, wherever the bundle was made.
     pub fn read_for(dir: &Path, robot: &str) -> anyhow::Result<Self> {
-        let deployable = Deployable::of(robot)?;
-        let mut bundle = Self::read_as(dir, Some(deployable.clone()))?;
+        let arm = LinkedArm::of(robot)?;
+        let mut bundle = Self::read_as(dir, Some(arm.clone()))?;
         anyhow::ensure!(
-            deployable.is(&bundle.manifest.robot),
+            arm.is(&bundle.manifest.robot),
             "the bundle {} is for the robot '{}', not '{robot}'",
             dir.display(),
             bundle.manifest.robot
         );
-        let joints = deployable.joints();
+        let joints = arm.joints();
         let names: Vec<&str> = joints.iter().map(String::as_str).collect();
-        bundle.check_joints(&names, deployable.control_period())?;
-        bundle.robot = deployable;
+        bundle.check_joints(&names, arm.control_period())?;
+        bundle.robot = arm;
         Ok(bundle)
     }
 

@@ -7,6 +7,7 @@
 pub mod bundle;
 pub mod deploy;
 pub mod fleet;
+pub mod linked_arm;
 pub mod live;
 pub mod monitor;
 pub mod pacer;

@@ -9,6 +9,7 @@
 pub mod bridge;
 pub mod calibration;
 pub mod env;
+pub mod on_robot;
 pub mod randomization;
 pub mod replay;
 pub mod robot;

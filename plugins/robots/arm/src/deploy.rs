@@ -5,8 +5,9 @@
 use std::sync::Arc;
 
 use bevy::math::{DVec3, Vec3};
-use rand::Rng;
+use rand::RngCore;
 use twinbots_task::TaskTerms;
+use twinbots_task::on_robot::ReachOnRobot;
 use twinbots_task::shadow::{ArmGeometry, Shadow};
 
 use crate::arm::Arm;
@@ -33,17 +34,18 @@ impl ReachController {
         let terms = reach::reach_task(&arm).terms;
         Self { arm, terms, state: ReachState::default(), observation: Vec::new() }
     }
+}
 
-    /// A new reach: a target from the task's sampler, no action yet.
-    pub fn new_reach(&mut self, rng: &mut impl Rng) {
-        self.state.target = self.arm.sample_target(rng);
+impl ReachOnRobot for ReachController {
+    fn new_reach(&mut self, mut rng: &mut dyn RngCore) {
+        self.state.target = self.arm.sample_target(&mut rng);
         self.state.last_action.clear();
         self.state.previous_action.clear();
     }
 
-    /// The arm as measured (the controller's order): joints, and the tool through the
-    /// controller's own kinematics, as the twin's controller reads them.
-    pub fn read(&mut self, q: &[f64], qd: &[f64]) {
+    /// The joints, and the tool through the controller's own kinematics, as the twin's
+    /// controller reads them.
+    fn read(&mut self, q: &[f64], qd: &[f64]) {
         let q: Vec<f32> = q.iter().map(|&v| v as f32).collect();
         let qd: Vec<f32> = qd.iter().map(|&v| v as f32).collect();
         let (tool, velocity) = self.arm.tool_motion(&q, &qd);
@@ -55,43 +57,39 @@ impl ReachController {
         self.state.qd = qd;
     }
 
-    /// The task's observation of the arm as last read.
-    pub fn observation(&mut self) -> &[f32] {
+    fn observation(&mut self) -> &[f32] {
         self.terms.observe(&self.state, &mut self.observation);
         &self.observation
     }
 
-    /// Joint speeds (rad/s or m/s, the controller's order) for the policy's action, which the
-    /// next observation shows as the last action: each value within [-1, 1] times its joint's
-    /// task speed, as in the twin.
-    pub fn act(&mut self, action: &[f32]) -> Vec<f64> {
+    /// Each value within [-1, 1] times its joint's task speed, as in the twin.
+    fn act(&mut self, action: &[f32]) -> Vec<f64> {
         self.state.push_action(action);
         self.state.last_action.iter().zip(&self.arm.file.speed_limits).map(|(&a, &s)| a as f64 * s).collect()
     }
 
-    /// Joint speeds that take the arm home.
-    pub fn homing(&self) -> Vec<f64> {
+    /// Towards the file's home at up to each joint's task speed.
+    fn homing(&self) -> Vec<f64> {
         let home = &self.arm.file.home;
         (self.state.q.iter().zip(home).zip(&self.arm.file.speed_limits))
             .map(|((&q, &h), &limit)| (HOMING_GAIN * (h - q as f64)).clamp(-limit, limit))
             .collect()
     }
 
-    pub fn is_home(&self) -> bool {
+    fn is_home(&self) -> bool {
         let near = self.state.q.iter().zip(&self.arm.file.home).all(|(&q, &h)| (q as f64 - h).abs() < HOME_TOLERANCE);
         near && self.state.qd.iter().all(|v| (v.abs() as f64) < HOME_SPEED)
     }
 
-    pub fn arrived(&self) -> bool {
+    fn arrived(&self) -> bool {
         self.state.arrived()
     }
 
-    pub fn target(&self) -> Vec3 {
+    fn target(&self) -> Vec3 {
         self.state.target
     }
 
-    /// The tool's distance to the target (m).
-    pub fn error(&self) -> f32 {
+    fn error(&self) -> f32 {
         self.state.distance()
     }
 }

@@ -6,8 +6,9 @@
 use std::sync::Arc;
 
 use bevy::math::{DVec3, Vec3};
-use rand::Rng;
+use rand::RngCore;
 use twinbots_task::TaskTerms;
+use twinbots_task::on_robot::ReachOnRobot;
 use twinbots_task::shadow::{ArmGeometry, Keepout, Shadow};
 
 use crate::arm::{self, ACTION_DIM, ActionHistory, ArmState};
@@ -36,53 +37,49 @@ impl Default for ReachController {
     }
 }
 
-impl ReachController {
-    /// A new reach: a target from the task's sampler, no action yet.
-    pub fn new_reach(&mut self, rng: &mut impl Rng) {
-        self.state.target = crate::reach::sample_target(rng, self.state.fixtures.pick);
+impl ReachOnRobot for ReachController {
+    fn new_reach(&mut self, mut rng: &mut dyn RngCore) {
+        self.state.target = crate::reach::sample_target(&mut rng, self.state.fixtures.pick);
         self.state.actions = ActionHistory::default();
     }
 
     /// The arm as measured (robot order and signs).
-    pub fn read(&mut self, q: &[f64; 6], qd: &[f64; 6]) {
-        let twin = |v: &[f64; 6]| std::array::from_fn(|j| (v[j] * JOINT_SIGNS[j]) as f32);
+    fn read(&mut self, q: &[f64], qd: &[f64]) {
+        let twin = |v: &[f64]| std::array::from_fn(|j| (v[j] * JOINT_SIGNS[j]) as f32);
         self.state.arm = ArmState::from_joints(twin(q), twin(qd));
         self.state.read = true;
     }
 
-    /// The task's observation of the arm as last read.
-    pub fn observation(&mut self) -> &[f32] {
+    fn observation(&mut self) -> &[f32] {
         self.terms.observe(&self.state, &mut self.observation);
         &self.observation
     }
 
-    /// Joint speeds (rad/s, robot order and signs) for the policy's action, which the next
-    /// observation will show as the last action.
-    pub fn act(&mut self, action: &[f32]) -> [f64; 6] {
+    /// Joint speeds (rad/s, robot order and signs): the first five joints at the task's speed.
+    fn act(&mut self, action: &[f32]) -> Vec<f64> {
         self.state.actions.push(action);
         let speeds = arm::joint_speeds(action);
-        std::array::from_fn(|j| speeds[j] as f64 * JOINT_SIGNS[j])
+        (0..6).map(|j| speeds[j] as f64 * JOINT_SIGNS[j]).collect()
     }
 
-    /// Joint speeds that take the arm home (the controller's homing move).
-    pub fn homing(&self) -> [f64; 6] {
-        arm::homing_speeds(&self.state.arm.q).map(|v| v as f64)
+    /// The controller's homing move.
+    fn homing(&self) -> Vec<f64> {
+        arm::homing_speeds(&self.state.arm.q).iter().map(|&v| v as f64).collect()
     }
 
-    pub fn arrived(&self) -> bool {
+    fn arrived(&self) -> bool {
         self.state.arm.has_reached(self.state.target)
     }
 
-    pub fn is_home(&self) -> bool {
+    fn is_home(&self) -> bool {
         self.state.arm.is_home()
     }
 
-    pub fn target(&self) -> Vec3 {
+    fn target(&self) -> Vec3 {
         self.state.target
     }
 
-    /// The tool's distance to the target (m).
-    pub fn error(&self) -> f32 {
+    fn error(&self) -> f32 {
         self.state.arm.distance_to(self.state.target)
     }
 }

@@ -95,9 +95,8 @@ pub fn measure(
             if controller.arrived() {
                 controller.new_reach(&mut rng);
             }
-            let observation = controller.observation();
-            let action = bundle.policy.act(&observation)?;
-            let wanted = controller.act(&action);
+            let action = bundle.policy.act(controller.observation())?;
+            let wanted = super::six(controller.act(&action));
             let verdict = shadow.check(&m.q, &wanted, &last, CYCLE);
             if verdict.refused {
                 arm.stop()?

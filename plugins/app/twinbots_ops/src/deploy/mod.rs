@@ -8,7 +8,6 @@
 
 pub mod arm;
 pub mod latency;
-pub mod robot;
 
 use std::time::Duration;
 
@@ -17,8 +16,9 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use twinbots_task::shadow::Shadow;
 
+use twinbots_task::on_robot::ReachOnRobot;
+
 use self::arm::{Arm, Measured};
-use self::robot::ReachOnRobot;
 use crate::bundle::Bundle;
 
 /// How a deployment runs.
@@ -277,7 +277,7 @@ impl<'a> Deployment<'a> {
                 self.homing_limit,
                 m.q
             );
-            let speeds = self.controller.homing();
+            let speeds = six(self.controller.homing());
             self.send(arm, &m, speeds)?;
             m = self.wait_step(arm)?;
         }
@@ -292,9 +292,8 @@ impl<'a> Deployment<'a> {
         let mut m = self.wait_step(arm)?;
         let mut success = self.controller.arrived();
         while !success && steps < self.episode_steps {
-            let observation = self.controller.observation();
-            let action = (self.policy)(&observation)?;
-            let speeds = self.controller.act(&action);
+            let action = (self.policy)(self.controller.observation())?;
+            let speeds = six(self.controller.act(&action));
             let (c, r) = self.send(arm, &m, speeds)?;
             clipped += u32::from(c);
             refused += u32::from(r);
@@ -336,6 +335,12 @@ impl<'a> Deployment<'a> {
             episodes,
         }
     }
+}
+
+/// A six-joint arm's vector (a deployable robot's controller has six joints, checked when it
+/// was taken on); anything else as zeros would be wrong, so it is a bug.
+pub fn six(v: Vec<f64>) -> [f64; 6] {
+    v.try_into().expect("a deployed arm has six joints")
 }
 
 /// The median, 99th percentile and largest of `values` (0 for none).

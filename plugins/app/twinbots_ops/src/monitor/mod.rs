@@ -17,7 +17,6 @@ use twinbots_log::{CommandMode, CommandSample, JointSample, LogMeta, RobotLog};
 use twinbots_sim::{MotorCommand, Parameters};
 use twinbots_sysid::Stand;
 use twinbots_task::shadow::Shadow;
-use ur5e::kinematics::JOINTS;
 
 use crate::live::{ALARM, RobotJoints, RobotView};
 use crate::ur_sim::{CYCLE, ServedArm, controller_stand};
@@ -67,6 +66,8 @@ pub struct MonitorOptions {
     pub source: String,
     /// What the predicted alarm checks each command against (the cell's obstacles with `--cell`).
     pub shadow: Shadow,
+    /// The arm the robot is, as the twin models it (the UR5e, or a robot file's six-joint arm).
+    pub arm: ServedArm,
 }
 
 impl Default for MonitorOptions {
@@ -78,6 +79,7 @@ impl Default for MonitorOptions {
             window: 1.0,
             source: "robot (RTDE)".into(),
             shadow: ur5e::deploy::shadow(),
+            arm: ServedArm::ur5e(),
         }
     }
 }
@@ -169,13 +171,13 @@ pub struct Monitor {
 }
 
 impl Monitor {
-    /// The UR5e twin (the controller's 2 ms step) standing where the robot's first report says.
+    /// The arm's twin (the controller's 2 ms step) standing where the robot's first report says.
     pub fn new(options: MonitorOptions, first: &Report) -> anyhow::Result<Self> {
         anyhow::ensure!(
             options.position_threshold > 0.0 && options.effort_threshold > 0.0 && options.window > 0.0,
             "the thresholds and the window must be positive"
         );
-        let (mut stand, bias) = controller_stand(&ServedArm::ur5e(), &options.calibration, &first.q)?;
+        let (mut stand, bias) = controller_stand(&options.arm, &options.calibration, &first.q)?;
         // Settled under its own weight first (its drives take up the load), then put exactly
         // where the robot stands: it holds there as the robot does.
         for _ in 0..SETTLE_CYCLES {
@@ -184,12 +186,12 @@ impl Monitor {
         let at: Vec<f32> = (0..6).map(|j| (first.q[j] - bias[j]) as f32).collect();
         stand.place(0, &at);
         let meta = |source: &str| LogMeta {
-            robot: "ur5e".into(),
+            robot: options.arm.robot.name.into(),
             source: source.into(),
             control_period: CYCLE,
             ..Default::default()
         };
-        let joints: Vec<String> = JOINTS.iter().map(|s| s.to_string()).collect();
+        let joints = options.arm.joints.clone();
         let log = |source: &str| RobotLog {
             meta: meta(source),
             joints: joints.clone(),
@@ -280,7 +282,7 @@ impl Monitor {
                     kind: "divergence".into(),
                     message: format!(
                         "{} diverged over the last {:.1} s: position RMSE {:.2} mrad (threshold {:.2}), effort RMSE {:.2} N*m (threshold {:.2})",
-                        JOINTS[j],
+                        self.options.arm.joints[j],
                         self.options.window,
                         rmse[j] * 1e3,
                         self.options.position_threshold * 1e3,
@@ -342,7 +344,7 @@ impl Monitor {
         });
         self.robot_log.commands.push(CommandSample {
             time: r.time,
-            joints: JOINTS.iter().map(|s| s.to_string()).collect(),
+            joints: self.options.arm.joints.clone(),
             modes: vec![CommandMode::Velocity; 6],
             values: r.command.to_vec(),
         });
@@ -386,7 +388,7 @@ impl Monitor {
             let Some(twin) = twin else { return };
             let residuals = serde_json::json!({
                 "time": r.time,
-                "name": JOINTS,
+                "name": &self.options.arm.joints,
                 "position_error_mrad": (0..6).map(|j| 1e3 * (r.q[j] - twin.position[j])).collect::<Vec<_>>(),
                 "effort_error": (0..6).map(|j| r.effort[j] - twin.effort[j]).collect::<Vec<_>>(),
                 "position_rmse_mrad": rmse.map(|e| 1e3 * e),
@@ -398,6 +400,11 @@ impl Monitor {
     }
 
     /// The account so far.
+    /// The arm's joints, the controller's order.
+    pub fn joints(&self) -> &[String] {
+        &self.options.arm.joints
+    }
+
     pub fn report(&self) -> &MonitorReport {
         &self.report
     }

@@ -49,6 +49,15 @@ pub struct ServedArm {
     chain: Option<Chain>,
 }
 
+impl std::fmt::Debug for ServedArm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ServedArm")
+            .field("robot", &self.robot.name)
+            .field("joints", &self.joints)
+            .finish_non_exhaustive()
+    }
+}
+
 impl ServedArm {
     pub fn ur5e() -> Self {
         Self {

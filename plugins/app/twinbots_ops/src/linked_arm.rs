@@ -1,106 +1,23 @@
-//! The robots a deployment can drive: the built-in UR5e, or a robot file's six-joint arm (a
-//! UR10 from its vendor's description, say). Each brings its reach task's controller side (the
-//! task's observation over the joints as the controller reports them, its targets, actions as
-//! joint speeds, homing) and its shadow; the deployment itself is the same for both.
+//! The arms twinbots reaches through a UR controller's link (RTDE): the built-in UR5e, or a
+//! robot file's six-joint arm (a UR10 from its vendor's description, say). `deploy` drives one,
+//! `monitor` follows one, `ur-sim` stands in for one. Each brings its reach task's controller
+//! side ([`ReachOnRobot`]: the task's observation over the joints as the controller reports
+//! them, its targets, actions as joint speeds, homing), its shadow and the stand-in's arm; the
+//! loops themselves are the same for both.
 
 use std::path::Path;
 use std::sync::Arc;
 
-use bevy::math::Vec3;
-use rand_chacha::ChaCha8Rng;
 use twinbots_sim::urdf::robot_file::RobotFile;
+use twinbots_task::on_robot::ReachOnRobot;
 use twinbots_task::shadow::Shadow;
 use ur5e::layout::CellLayout;
 
 use crate::ur_sim::ServedArm;
 
-/// The reach task's controller side on a robot, the controller's joint order.
-pub trait ReachOnRobot {
-    /// A new reach: a target from the task's sampler, no action yet.
-    fn new_reach(&mut self, rng: &mut ChaCha8Rng);
-    /// The joints as the controller reports them.
-    fn read(&mut self, q: &[f64; 6], qd: &[f64; 6]);
-    /// The task's observation of the arm as last read.
-    fn observation(&mut self) -> Vec<f32>;
-    /// Joint speeds for the policy's action.
-    fn act(&mut self, action: &[f32]) -> [f64; 6];
-    /// Joint speeds that take the arm home.
-    fn homing(&self) -> [f64; 6];
-    fn is_home(&self) -> bool;
-    fn arrived(&self) -> bool;
-    fn target(&self) -> Vec3;
-    /// The tool's distance to the target (m).
-    fn error(&self) -> f32;
-}
-
-impl ReachOnRobot for ur5e::deploy::ReachController {
-    fn new_reach(&mut self, rng: &mut ChaCha8Rng) {
-        ur5e::deploy::ReachController::new_reach(self, rng)
-    }
-    fn read(&mut self, q: &[f64; 6], qd: &[f64; 6]) {
-        ur5e::deploy::ReachController::read(self, q, qd)
-    }
-    fn observation(&mut self) -> Vec<f32> {
-        ur5e::deploy::ReachController::observation(self).to_vec()
-    }
-    fn act(&mut self, action: &[f32]) -> [f64; 6] {
-        ur5e::deploy::ReachController::act(self, action)
-    }
-    fn homing(&self) -> [f64; 6] {
-        ur5e::deploy::ReachController::homing(self)
-    }
-    fn is_home(&self) -> bool {
-        ur5e::deploy::ReachController::is_home(self)
-    }
-    fn arrived(&self) -> bool {
-        ur5e::deploy::ReachController::arrived(self)
-    }
-    fn target(&self) -> Vec3 {
-        ur5e::deploy::ReachController::target(self)
-    }
-    fn error(&self) -> f32 {
-        ur5e::deploy::ReachController::error(self)
-    }
-}
-
-/// Six values of a six-joint arm's vector (checked six when the arm was taken on).
-fn six(v: Vec<f64>) -> [f64; 6] {
-    v.try_into().expect("a deployed arm has six joints")
-}
-
-impl ReachOnRobot for twinbots_arm::deploy::ReachController {
-    fn new_reach(&mut self, rng: &mut ChaCha8Rng) {
-        twinbots_arm::deploy::ReachController::new_reach(self, rng)
-    }
-    fn read(&mut self, q: &[f64; 6], qd: &[f64; 6]) {
-        twinbots_arm::deploy::ReachController::read(self, q, qd)
-    }
-    fn observation(&mut self) -> Vec<f32> {
-        twinbots_arm::deploy::ReachController::observation(self).to_vec()
-    }
-    fn act(&mut self, action: &[f32]) -> [f64; 6] {
-        six(twinbots_arm::deploy::ReachController::act(self, action))
-    }
-    fn homing(&self) -> [f64; 6] {
-        six(twinbots_arm::deploy::ReachController::homing(self))
-    }
-    fn is_home(&self) -> bool {
-        twinbots_arm::deploy::ReachController::is_home(self)
-    }
-    fn arrived(&self) -> bool {
-        twinbots_arm::deploy::ReachController::arrived(self)
-    }
-    fn target(&self) -> Vec3 {
-        twinbots_arm::deploy::ReachController::target(self)
-    }
-    fn error(&self) -> f32 {
-        twinbots_arm::deploy::ReachController::error(self)
-    }
-}
-
-/// A robot a deployment can drive.
+/// An arm behind a UR controller's link.
 #[derive(Clone)]
-pub enum Deployable {
+pub enum LinkedArm {
     Ur5e,
     /// A robot file's arm: the file's path as the command was given it, the arm.
     File {
@@ -109,16 +26,16 @@ pub enum Deployable {
     },
 }
 
-impl Deployable {
+impl LinkedArm {
     /// `robot` as a command's ROBOT argument names it: `ur5e`, or a robot file of a six-joint
-    /// arm; any other robot is an error saying which deploy.
+    /// arm; any other robot is an error saying which have a controller link.
     pub fn of(robot: &str) -> anyhow::Result<Self> {
         if RobotFile::is_path(robot) {
             let file = RobotFile::read(Path::new(robot))?;
             let arm = Arc::new(twinbots_arm::Arm::of(file)?);
             anyhow::ensure!(
                 arm.dof() == 6 && arm.file.chain.dof() == 6,
-                "{robot}: deploy drives six-joint arms through a UR controller's RTDE; the file controls {} ({} in its chain)",
+                "{robot}: a UR controller's link (RTDE) drives six-joint arms; the file controls {} ({} in its chain)",
                 arm.dof(),
                 arm.file.chain.dof()
             );
