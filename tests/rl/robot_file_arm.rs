@@ -257,3 +257,33 @@ fn a_robot_file_arm_is_served_under_design_pattern_3_and_homes_itself() {
     let (served, _) = server.wait().unwrap();
     assert!(served.timesteps() >= 512, "{} steps", served.timesteps());
 }
+
+/// The built-in UR5e's kinematics, written out from UR's DH table (its fast path), equal its
+/// robot file's URDF chain (`assets/robots/ur5e.toml`): the tool face's pose and the geometric
+/// Jacobian at 1,000 random configurations, within what the URDF's six-digit angles allow.
+#[test]
+fn the_ur5es_written_out_kinematics_equal_its_robot_files_chain() {
+    use bevy::math::DQuat;
+    use rand::{Rng, SeedableRng};
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/robots/ur5e.toml");
+    let file = RobotFile::read(&path).unwrap();
+    assert_eq!(file.joints, ur5e::kinematics::JOINTS);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let (mut worst_position, mut worst_angle, mut worst_column) = (0.0f64, 0.0f64, 0.0f64);
+    for _ in 0..1000 {
+        let q: [f32; 6] = std::array::from_fn(|_| rng.random_range(-3.0f32..3.0));
+        let chain_q: Vec<f64> = q.iter().map(|&v| v as f64).collect();
+        let dh = ur5e::kinematics::tool_face(ur5e::kinematics::frames(&q)[6]);
+        let urdf = file.chain.forward(&chain_q);
+        worst_position = worst_position.max((dh.w_axis.truncate() - urdf.translation).length());
+        let rotation = DQuat::from_mat4(&dh);
+        worst_angle = worst_angle.max(rotation.angle_between(urdf.rotation));
+        let (written, columns) = (ur5e::kinematics::jacobian(&q), file.chain.jacobian(&chain_q));
+        for (a, b) in written.iter().zip(&columns) {
+            worst_column = worst_column.max(a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max));
+        }
+    }
+    assert!(worst_position < 2e-6, "tool face {worst_position} m apart");
+    assert!(worst_angle < 2e-6, "tool face turned {worst_angle} rad apart");
+    assert!(worst_column < 2e-6, "Jacobian entries {worst_column} apart");
+}
