@@ -175,6 +175,18 @@ def test_a_guide_client_drives_speedj_and_ur_rtde_sees_it(ur_sim):
         c.sock.close()
 
 
+def start_speedj(c):
+    """Sets up a guide client for the shipped program's speedj registers (mode, counter, six
+    speeds; the program's state as an output) and starts it; returns the input recipe's id."""
+    assert c.request("V", struct.pack(">H", 2)) == b"\x01"
+    names = ["input_int_register_24", "input_int_register_25"]
+    names += [f"input_double_register_{i}" for i in range(24, 30)]
+    recipe = c.request("I", ",".join(names).encode())[0]
+    assert c.request("O", struct.pack(">d", 10.0) + b"output_int_register_24")[1:] == b"INT32"
+    assert c.request("S") == b"\x01"
+    return recipe
+
+
 def test_ur_sim_serves_a_robot_files_arm(tmp_path):
     """`ur-sim --robot assets/robots/ur10.toml`: the stand-in serves the UR10 from its
     description: ur_rtde reads its home from the robot file, its tool pose as the twin's URDF
@@ -195,12 +207,7 @@ def test_ur_sim_serves_a_robot_files_arm(tmp_path):
         assert all(abs(a - b) < 0.01 for a, b in zip(q, home)), q
         pose = r.getActualTCPPose()
         assert all(abs(a - b) < 0.005 for a, b in zip(pose[:3], tcp)), (pose, tcp)
-        assert c.request("V", struct.pack(">H", 2)) == b"\x01"
-        names = ["input_int_register_24", "input_int_register_25"]
-        names += [f"input_double_register_{i}" for i in range(24, 30)]
-        recipe = c.request("I", ",".join(names).encode())[0]
-        assert c.request("O", struct.pack(">d", 10.0) + b"output_int_register_24")[1:] == b"INT32"
-        assert c.request("S") == b"\x01"
+        recipe = start_speedj(c)
         start, counter = time.monotonic(), 0
         while time.monotonic() - start < 1.0:
             counter += 1
@@ -265,12 +272,7 @@ def test_monitor_follows_a_robot_files_arm(tmp_path):
                                env=robot_packages())
     c = GuideClient(host)
     try:
-        assert c.request("V", struct.pack(">H", 2)) == b"\x01"
-        names = ["input_int_register_24", "input_int_register_25"]
-        names += [f"input_double_register_{i}" for i in range(24, 30)]
-        recipe = c.request("I", ",".join(names).encode())[0]
-        assert c.request("O", struct.pack(">d", 10.0) + b"output_int_register_24")[1:] == b"INT32"
-        assert c.request("S") == b"\x01"
+        recipe = start_speedj(c)
         start, counter = time.monotonic(), 0
         while monitor.poll() is None and time.monotonic() - start < 30:
             counter += 1

@@ -15,8 +15,9 @@ use twinbots_rtde::RtdeClient;
 use ur5e::deploy::lowest_point;
 
 use crate::delivery::{failed, fixture_run, succeeded, twinbots};
-use crate::robot_file_arm::{resolved_rate, six_joint_robot_file};
+use crate::robot_file_arm::six_joint_robot_file;
 use crate::rtde::Standin;
+use twinbots_arm::reach::resolved_rate;
 
 fn bundle(test: &str) -> PathBuf {
     let run = fixture_run("ur5e-reach", test);

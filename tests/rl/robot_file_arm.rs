@@ -6,8 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use twinbots_api::{DesignPattern, VecEnv};
-use twinbots_arm::reach::{ReachState, STOP_TERM};
-use twinbots_sim::rapier::na::{DMatrix, DVector};
+use twinbots_arm::reach::{ReachState, STOP_TERM, resolved_rate};
 use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_sim::{InArena, Link, physics_in};
 use twinbots_task::AppVecEnv;
@@ -105,20 +104,6 @@ fn robot_file_of(name: &str, arm: &str, urdf: &str, file: &str) -> PathBuf {
 fn env(path: &Path, arenas: usize) -> AppVecEnv {
     let robot = twinbots_arm::robot(path).unwrap();
     AppVecEnv::new(robot.app(None, arenas, 7, DesignPattern::Supervised).unwrap())
-}
-
-/// Joint speeds (as actions) that move the tool towards the target by damped least squares on
-/// the position rows of the chain's Jacobian.
-pub fn resolved_rate(file: &RobotFile, obs: &[f32]) -> Vec<f32> {
-    let n = file.joints.len();
-    let q: Vec<f64> = obs[9..9 + n].iter().map(|&v| v as f64).collect();
-    let columns = file.chain.jacobian(&file.chain_order(&q));
-    let j = DMatrix::from_fn(3, n, |r, c| columns[c][r]);
-    let error = DVector::from_iterator(3, obs[3..6].iter().map(|&v| v as f64));
-    let velocity = error * 4.0;
-    let damped = (&j * j.transpose() + DMatrix::identity(3, 3) * 1e-4).cholesky().unwrap();
-    let speeds = j.transpose() * damped.solve(&velocity);
-    (0..n).map(|k| (speeds[k] / file.speed_limits[k]).clamp(-1.0, 1.0) as f32).collect()
 }
 
 #[test]
@@ -286,4 +271,24 @@ fn the_ur5es_written_out_kinematics_equal_its_robot_files_chain() {
     assert!(worst_position < 2e-6, "tool face {worst_position} m apart");
     assert!(worst_angle < 2e-6, "tool face turned {worst_angle} rad apart");
     assert!(worst_column < 2e-6, "Jacobian entries {worst_column} apart");
+}
+
+/// A robot file's arm has a classical controller (`classic`: resolved-rate control over the
+/// reach's observation), so `demos` writes a LeRobot dataset of its reaches with no training.
+#[test]
+fn a_robot_file_arms_classical_controller_records_demonstrations() {
+    let path = robot_file("demos");
+    let out = path.with_file_name("demos");
+    let _ = std::fs::remove_dir_all(&out);
+    let output =
+        crate::delivery::twinbots().arg("demos").arg(&path).args(["--episodes", "6", "--out"]).arg(&out).output();
+    let stdout = crate::delivery::succeeded(output.unwrap());
+    let met: usize = stdout
+        .split_once("frames (")
+        .and_then(|(_, rest)| rest.split_once(" of 6 episodes run met the goal"))
+        .map(|(n, _)| n.parse().unwrap())
+        .unwrap_or_else(|| panic!("{stdout}"));
+    assert!(met >= 5, "{stdout}");
+    let info: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("meta/info.json")).unwrap()).unwrap();
+    assert_eq!(info["total_episodes"], 6, "{info}");
 }

@@ -113,7 +113,7 @@ impl NamedController {
     /// The actions for rows of observations (`dim` values each).
     pub fn act(&self, obs: &[f32], dim: usize) -> anyhow::Result<Vec<f32>> {
         match &self.controller {
-            Controller::Classic(feedback) => Ok(obs.chunks(dim).flat_map(feedback).collect()),
+            Controller::Classic(feedback) => Ok(obs.chunks(dim).flat_map(|o| feedback(o)).collect()),
             Controller::Run { model, .. } => model.predict_deterministic(obs),
             Controller::Onnx(policy) => policy.act(obs),
         }

@@ -170,8 +170,9 @@ pub struct CellDescription {
     pub install: fn(app: &mut App, text: &str, file: &str) -> Result<(), String>,
 }
 
-/// A classical controller: an observation in, an action out.
-pub type Feedback = fn(&[f32]) -> Vec<f32>;
+/// A classical controller: an observation in, an action out. Shared, as it may hold its robot's
+/// data (a robot file's arm: its chain and limits).
+pub type Feedback = Arc<dyn Fn(&[f32]) -> Vec<f32> + Send + Sync>;
 
 /// A robot alone on a test stand (no cell, no task): what `record`, `replay` and `identify`
 /// drive with logged or generated commands, one parameter set per arena. Data, so a robot
@@ -297,7 +298,7 @@ impl RobotDescription {
     pub fn classic(&self, task: Option<&str>) -> anyhow::Result<Feedback> {
         let found = self.find_task(task)?;
         let main = found.name == self.main_task().name;
-        found.scripted.or(if main { self.feedback } else { None }).ok_or_else(|| {
+        found.scripted.clone().or_else(|| if main { self.feedback.clone() } else { None }).ok_or_else(|| {
             anyhow::anyhow!("{}'s task '{}' has no classical or scripted controller", self.name, found.name)
         })
     }

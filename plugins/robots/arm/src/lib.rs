@@ -83,6 +83,7 @@ pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
     let settings = sim_settings(&arm.file);
     let spec_arm = arm.clone();
     let build_arm = arm.clone();
+    let feedback_arm = arm.clone();
     Ok(RobotDescription {
         name,
         description,
@@ -122,7 +123,7 @@ pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
             headless_app(settings, request, ArmPlugin { arm: build_arm.clone(), pattern: request.pattern, kind: name })
         }),
         rig: Some(rig(&arm, settings)),
-        feedback: None,
+        feedback: Some(Arc::new(move |obs: &[f32]| reach::resolved_rate(&feedback_arm.file, obs))),
         cell: None,
     })
 }

@@ -16,6 +16,9 @@ use twinbots_task::{
     TerminationTerm,
 };
 
+use twinbots_sim::rapier::na::{DMatrix, DVector};
+use twinbots_sim::urdf::robot_file::RobotFile;
+
 use crate::arm::{Arm, START_SPREAD};
 
 /// The name of the termination term a protective stop ends an episode with.
@@ -199,10 +202,33 @@ fn point(values: &[f32]) -> Vec3 {
     Vec3::new(values[0], values[1], values[2])
 }
 
-/// Where the tool, target offset and tool velocity are in the observation.
+/// Where the tool, target offset, tool velocity and joint positions are in the observation.
 const TOOL: usize = 0;
 const OFFSET: usize = 3;
 const VELOCITY: usize = 6;
+const JOINT_POSITIONS: usize = 9;
+
+/// Gain of the classical controller (1/s): the tool's speed towards the target per metre away.
+const RESOLVED_RATE_GAIN: f64 = 4.0;
+/// Its damping (m²): keeps the least-squares step finite near a singularity.
+const RESOLVED_RATE_DAMPING: f64 = 1e-4;
+
+/// The reach's classical controller (what `classic` names for a robot file's arm in `demos`,
+/// `study` and `eval`): joint speeds, as actions, that move the tool towards the target by
+/// damped least squares on the position rows of the chain's Jacobian (resolved-rate control),
+/// each within its joint's task speed. From the observation alone, as a policy acts.
+pub fn resolved_rate(file: &RobotFile, obs: &[f32]) -> Vec<f32> {
+    let n = file.joints.len();
+    let q: Vec<f64> = obs[JOINT_POSITIONS..JOINT_POSITIONS + n].iter().map(|&v| v as f64).collect();
+    let columns = file.chain.jacobian(&file.chain_order(&q));
+    let j = DMatrix::from_fn(3, n, |r, c| columns[c][r]);
+    let velocity = DVector::from_iterator(3, obs[OFFSET..OFFSET + 3].iter().map(|&v| RESOLVED_RATE_GAIN * v as f64));
+    let Some(damped) = (&j * j.transpose() + DMatrix::identity(3, 3) * RESOLVED_RATE_DAMPING).cholesky() else {
+        return vec![0.0; n];
+    };
+    let speeds = j.transpose() * damped.solve(&velocity);
+    (0..n).map(|k| (speeds[k] / file.speed_limits[k]).clamp(-1.0, 1.0) as f32).collect()
+}
 
 fn achieved(obs: &[f32]) -> Vec<f32> {
     obs[TOOL..TOOL + 3].to_vec()

@@ -161,7 +161,7 @@ pub fn robot() -> RobotDescription {
             robot::headless_app(sim_settings(), request, CartPolePlugin { pattern: request.pattern, ..default() })
         }),
         rig: Some(rig()),
-        feedback: Some(feedback),
+        feedback: Some(Arc::new(feedback)),
         cell: None,
     }
 }

@@ -158,7 +158,7 @@ pub fn robot() -> RobotDescription {
         settings: Arc::new(sim_settings),
         build: Arc::new(|request| headless_app(sim_settings(), request, Pioneer3atPlugin)),
         rig: Some(rig()),
-        feedback: Some(feedback),
+        feedback: Some(Arc::new(feedback)),
         cell: None,
     }
 }

@@ -171,7 +171,7 @@ pub fn robot() -> RobotDescription {
                 spec: Arc::new(|| pick_place_learned::pick_place_learned_task().spec()),
                 server: false,
                 training: Some(pick_place_learned_training),
-                scripted: Some(pick_place_learned::scripted),
+                scripted: Some(Arc::new(pick_place_learned::scripted)),
             },
         ],
         patterns: vec![DesignPattern::Supervised],
@@ -211,7 +211,7 @@ pub fn robot() -> RobotDescription {
             headless_app(sim_settings(), request, Ur5ePlugin { task, pattern: request.pattern })
         }),
         rig: Some(rig::rig()),
-        feedback: Some(controller::act),
+        feedback: Some(Arc::new(controller::act)),
         cell: Some(twinbots_task::robot::CellDescription { default: layout::DEFAULT, install: layout::install }),
     }
 }
