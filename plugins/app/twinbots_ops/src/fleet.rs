@@ -199,7 +199,9 @@ pub fn with_policy(
         );
         let app = entry.app(None, 1, seed, twinbots_api::DesignPattern::Server)?;
         let period = app.world().resource::<twinbots_sim::SimSettings>().control_seconds();
-        let joints: Vec<&str> = if robot == "ur5e" { ur5e::deploy::ROBOT_JOINTS.to_vec() } else { Vec::new() };
+        // The bundle's robot (its manifest's, checked to be this one) knows its joints.
+        let joints = bundle.robot.joints();
+        let joints: Vec<&str> = joints.iter().map(String::as_str).collect();
         bundle.check(robot, &joints, period)?;
         bundle.policy
     } else {
