@@ -14,7 +14,6 @@ use twinbots_sysid::Rig;
 use twinbots_task::calibration::Calibration;
 
 use twinbots_run::live::LiveArgs;
-use twinbots_run::registry;
 
 /// The command's arguments.
 #[derive(clap::Args)]
@@ -89,7 +88,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     };
     let live = args.live.start()?;
     if let Some(server) = &live {
-        let view = RobotView::new(server.clone(), &registry::find(&args.robot)?, &served.joints)?;
+        let view = RobotView::new(server.clone(), &served.robot, &served.joints)?;
         // A dry run's twin in real time, as the robot would move: it is there to be watched.
         let watched = WatchedArm::new(arm, view);
         arm = Box::new(if args.dry_run { watched.real_time() } else { watched });

@@ -140,7 +140,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     if let Some(log) = &args.replay {
         return exec_replay(&args, log);
     }
-    let entry = registry::find(&args.robot)?;
     let arm = LinkedArm::of(&args.robot)?;
     let is_ur5e = matches!(arm, LinkedArm::Ur5e);
     anyhow::ensure!(
@@ -152,11 +151,13 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         "--cell lays out the UR5e's cell; a robot file's arm stands in an empty one"
     );
     let served = arm.served_arm()?;
+    // The robot as `registry::find` would describe it, made once with the arm.
+    let entry = &served.robot;
     if let Some(s) = args.seconds {
         anyhow::ensure!(s > 0.0 && s.is_finite(), "--seconds must be positive, not {s}");
     }
     anyhow::ensure!(args.patience_ms > 0.0, "--patience-ms must be positive");
-    let calibration = CalibrationSetting::read_optional(&entry, args.calibration.as_deref())?
+    let calibration = CalibrationSetting::read_optional(entry, args.calibration.as_deref())?
         .map(|c| c.parameters())
         .unwrap_or_default();
     std::fs::create_dir_all(&args.out).map_err(|e| anyhow::anyhow!("{}: {e}", args.out.display()))?;
@@ -176,13 +177,13 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         },
         arm: served.clone(),
     };
-    let mut frames = TwinFrames::new(&args, &entry)?;
+    let mut frames = TwinFrames::new(&args, entry)?;
     let live = args.live.start()?;
     let patience = Duration::from_secs_f64(args.patience_ms / 1e3);
     let mut source = Source::open(args.rtde.as_deref(), args.domain.as_deref(), patience)?;
     let first = source.receive()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
-    let mut view = live.map(|server| RobotView::new(server, &entry, &served.joints)).transpose()?;
+    let mut view = live.map(|server| RobotView::new(server, entry, &served.joints)).transpose()?;
     if let Some(view) = &view {
         Monitor::advertise_live(view)?;
     }

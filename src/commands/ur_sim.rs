@@ -5,10 +5,9 @@
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
-use twinbots_ops::ur_sim::{ServedArm, UrSim, UrSimOptions, controller_info};
+use twinbots_ops::linked_arm::LinkedArm;
+use twinbots_ops::ur_sim::{UrSim, UrSimOptions, controller_info};
 use twinbots_rtde::server::RtdeServer;
-use twinbots_run::registry;
-use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_sysid::{Rig, SensorNoise};
 
 /// The command's arguments.
@@ -56,17 +55,8 @@ pub struct Args {
 
 /// `twinbots ur-sim`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let arm = if RobotFile::is_path(&args.robot) {
-        let file = RobotFile::read(std::path::Path::new(&args.robot))?;
-        ServedArm::of_file(&file, registry::find(&args.robot)?)?
-    } else {
-        anyhow::ensure!(
-            args.robot == "ur5e",
-            "ur-sim serves the built-in ur5e or a robot file's six-joint arm, not '{}'",
-            args.robot
-        );
-        ServedArm::ur5e()
-    };
+    // The built-in UR5e or a robot file's six-joint arm; any other, an error saying so.
+    let arm = LinkedArm::of(&args.robot)?.served_arm()?;
     let rig = Rig::of(&arm.robot)?;
     let truth = rig.read_calibration(args.truth.as_deref())?;
     let ur = SensorNoise::default();

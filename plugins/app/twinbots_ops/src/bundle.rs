@@ -290,8 +290,8 @@ impl Bundle {
     /// for it, with its joints (names and order) and control period; a robot file's bundle
     /// needs the robot file, found as the command names it, wherever the bundle was made.
     pub fn read_for(dir: &Path, robot: &str) -> anyhow::Result<Self> {
-        let arm = LinkedArm::of(robot)?;
-        let mut bundle = Self::read_as(dir, Some(arm.clone()))?;
+        let bundle = Self::read_as(dir, Some(LinkedArm::of(robot)?))?;
+        let arm = &bundle.robot;
         anyhow::ensure!(
             arm.is(&bundle.manifest.robot),
             "the bundle {} is for the robot '{}', not '{robot}'",
@@ -301,7 +301,6 @@ impl Bundle {
         let joints = arm.joints();
         let names: Vec<&str> = joints.iter().map(String::as_str).collect();
         bundle.check_joints(&names, arm.control_period())?;
-        bundle.robot = arm;
         Ok(bundle)
     }
 

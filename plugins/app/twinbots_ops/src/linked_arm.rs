@@ -9,6 +9,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use twinbots_sim::urdf::robot_file::RobotFile;
+use twinbots_task::RobotDescription;
 use twinbots_task::on_robot::ReachOnRobot;
 use twinbots_task::shadow::Shadow;
 use ur5e::layout::CellLayout;
@@ -19,10 +20,13 @@ use crate::ur_sim::ServedArm;
 #[derive(Clone)]
 pub enum LinkedArm {
     Ur5e,
-    /// A robot file's arm: the file's path as the command was given it, the arm.
+    /// A robot file's arm: the file's path as the command was given it, the arm, its
+    /// description (as `registry::find` gives it) and its shadow, each made once.
     File {
         path: String,
         arm: Arc<twinbots_arm::Arm>,
+        robot: Box<RobotDescription>,
+        shadow: Box<Shadow>,
     },
 }
 
@@ -33,17 +37,14 @@ impl LinkedArm {
         if RobotFile::is_path(robot) {
             let file = RobotFile::read(Path::new(robot))?;
             let arm = Arc::new(twinbots_arm::Arm::of(file)?);
-            anyhow::ensure!(
-                arm.dof() == 6 && arm.file.chain.dof() == 6,
-                "{robot}: a UR controller's link (RTDE) drives six-joint arms; the file controls {} ({} in its chain)",
-                arm.dof(),
-                arm.file.chain.dof()
-            );
-            return Ok(Self::File { path: robot.to_string(), arm });
+            // Its shadow takes six joints, as a UR controller does: an error naming the file.
+            let shadow = Box::new(twinbots_arm::deploy::shadow(&arm)?);
+            let description = Box::new(twinbots_arm::describe(Path::new(robot), arm.clone()));
+            return Ok(Self::File { path: robot.to_string(), arm, robot: description, shadow });
         }
         anyhow::ensure!(
             robot == "ur5e",
-            "robot '{robot}' has no controller link: ur5e and robot files of six-joint arms deploy (RTDE)"
+            "robot '{robot}' has no controller link: the UR5e and robot files of six-joint arms have one (RTDE)"
         );
         Ok(Self::Ur5e)
     }
@@ -110,15 +111,15 @@ impl LinkedArm {
     pub fn shadow(&self, cell: &CellLayout) -> Shadow {
         match self {
             Self::Ur5e => Shadow { keepouts: ur5e::deploy::keepouts(cell), ..ur5e::deploy::shadow() },
-            Self::File { arm, .. } => twinbots_arm::deploy::shadow(arm).expect("a deployed arm has six joints"),
+            Self::File { shadow, .. } => (**shadow).clone(),
         }
     }
 
-    /// The arm as the UR controller stand-in serves it (the dry run's twin).
+    /// The arm as the UR controller stand-in serves it (the dry run's twin, the monitor's).
     pub fn served_arm(&self) -> anyhow::Result<ServedArm> {
         match self {
             Self::Ur5e => Ok(ServedArm::ur5e()),
-            Self::File { path, arm } => ServedArm::of_file(&arm.file, twinbots_arm::robot(Path::new(path))?),
+            Self::File { arm, robot, .. } => ServedArm::of_file(&arm.file, (**robot).clone()),
         }
     }
 }

@@ -14,10 +14,11 @@ pub trait ArmGeometry: Send + Sync + Debug {
     fn range(&self, joint: usize) -> (f64, f64);
     /// The arm at `q` as a line of named points from the first that moves to the tool face, in
     /// order along the arm (the links run between consecutive points).
-    fn skeleton(&self, q: &[f64; 6]) -> Vec<(String, DVec3)>;
+    fn skeleton(&self, q: &[f64; 6]) -> Vec<(&str, DVec3)>;
     /// The lowest of the points that must stay above the table (the elbow and what follows
-    /// it): its name and its height above the table's surface (m).
-    fn lowest_point(&self, q: &[f64; 6]) -> (String, f64);
+    /// it): its name and its height above the table's surface (m). Borrowed names: this runs
+    /// twice a command, at the controller's rate.
+    fn lowest_point(&self, q: &[f64; 6]) -> (&str, f64);
 }
 
 /// What the shadow does with a command.
@@ -178,7 +179,7 @@ impl Shadow {
         }
         best.map(|(at, fifths, i, d)| {
             let what = match fifths {
-                0 => points[at].0.clone(),
+                0 => points[at].0.to_string(),
                 _ => format!("the link from {} to {}", points[at].0, points[at + 1].0),
             };
             (what, i, d)

@@ -106,7 +106,7 @@ impl ChainGeometry {
     pub fn new(arm: Arc<Arm>) -> anyhow::Result<Self> {
         anyhow::ensure!(
             arm.dof() == 6 && arm.file.chain.dof() == 6,
-            "{}: the shadow checks six-joint arms; the file controls {} ({} in its chain)",
+            "{}: a UR controller's link (RTDE) and its shadow take six-joint arms; the file controls {} ({} in its chain)",
             arm.file.path.display(),
             arm.dof(),
             arm.file.chain.dof()
@@ -116,10 +116,8 @@ impl ChainGeometry {
 
     /// The joints' origins (chain order; the base frame) and the tool's, at controller-order `q`.
     fn points(&self, q: &[f64; 6]) -> (Vec<DVec3>, DVec3) {
-        let index = self.arm.file.controller_index();
-        let chain_q: Vec<f64> = index.iter().map(|&k| q[k]).collect();
-        let chain = &self.arm.file.chain;
-        (chain.joint_origins(&chain_q), chain.forward(&chain_q).translation)
+        let (origins, tool) = self.arm.file.chain.joint_origins_and_tool(&self.arm.file.chain_order(q));
+        (origins, tool.translation)
     }
 
     /// The movable joints' names, chain order.
@@ -140,22 +138,21 @@ impl ArmGeometry for ChainGeometry {
     }
 
     /// The origins of the second joint on (the first's never moves) and the tool.
-    fn skeleton(&self, q: &[f64; 6]) -> Vec<(String, DVec3)> {
+    fn skeleton(&self, q: &[f64; 6]) -> Vec<(&str, DVec3)> {
         let (origins, tool) = self.points(q);
-        let names = self.names().map(String::from).chain([self.arm.file.chain.tool.clone()]);
+        let names = self.names().chain([self.arm.file.chain.tool.as_str()]);
         names.zip(origins.into_iter().chain([tool])).skip(1).collect()
     }
 
     /// The lowest of the third joint's origin on (a UR's elbow) and the tool, above the floor.
-    fn lowest_point(&self, q: &[f64; 6]) -> (String, f64) {
+    fn lowest_point(&self, q: &[f64; 6]) -> (&str, f64) {
         let (origins, tool) = self.points(q);
         let names = self.names().chain([self.arm.file.chain.tool.as_str()]);
-        let lowest = names
+        names
             .zip(origins.into_iter().chain([tool]))
             .skip(2)
             .map(|(name, p)| (name, self.height(p)))
-            .fold(("", f64::INFINITY), |low, p| if p.1 < low.1 { p } else { low });
-        (lowest.0.to_string(), lowest.1)
+            .fold(("", f64::INFINITY), |low, p| if p.1 < low.1 { p } else { low })
     }
 }
 

@@ -64,7 +64,11 @@ pub fn sim_settings(file: &RobotFile) -> SimSettings {
 /// records it, and `eval`/`export` find the arm again by it).
 pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
     let file = RobotFile::read(path)?;
-    let arm = Arc::new(Arm::of(file)?);
+    Ok(describe(path, Arc::new(Arm::of(file)?)))
+}
+
+/// [`robot`] of an arm already read from the robot file at `path` (its meshes loaded once).
+pub fn describe(path: &std::path::Path, arm: Arc<Arm>) -> RobotDescription {
     // A description's names are static (a built-in robot's are literals); a process reads
     // one robot file per command, so the few bytes live as long as it.
     let name: &'static str = Box::leak(path.display().to_string().into_boxed_str());
@@ -84,7 +88,7 @@ pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
     let spec_arm = arm.clone();
     let build_arm = arm.clone();
     let feedback_arm = arm.clone();
-    Ok(RobotDescription {
+    RobotDescription {
         name,
         description,
         tasks: vec![TaskDescription {
@@ -125,7 +129,7 @@ pub fn robot(path: &std::path::Path) -> anyhow::Result<RobotDescription> {
         rig: Some(rig(&arm, settings)),
         feedback: Some(Arc::new(move |obs: &[f32]| reach::resolved_rate(&feedback_arm.file, obs))),
         cell: None,
-    })
+    }
 }
 
 /// The arm's cell and reach task.

@@ -94,13 +94,12 @@ impl ArmGeometry for Ur5eGeometry {
         (-r, r)
     }
 
-    fn skeleton(&self, q: &[f64; 6]) -> Vec<(String, DVec3)> {
-        skeleton(q).into_iter().map(|(name, p)| (name.to_string(), p)).collect()
+    fn skeleton(&self, q: &[f64; 6]) -> Vec<(&str, DVec3)> {
+        skeleton(q)
     }
 
-    fn lowest_point(&self, q: &[f64; 6]) -> (String, f64) {
-        let (name, z) = lowest_point(q);
-        (name.to_string(), z)
+    fn lowest_point(&self, q: &[f64; 6]) -> (&str, f64) {
+        lowest_point(q)
     }
 }
 

@@ -399,12 +399,12 @@ impl Monitor {
         });
     }
 
-    /// The account so far.
     /// The arm's joints, the controller's order.
     pub fn joints(&self) -> &[String] {
         &self.options.arm.joints
     }
 
+    /// The account so far.
     pub fn report(&self) -> &MonitorReport {
         &self.report
     }

@@ -248,7 +248,13 @@ impl Chain {
 
     /// Each movable joint's origin (where its axis passes) in the base frame at `q`.
     pub fn joint_origins(&self, q: &[f64]) -> Vec<DVec3> {
-        self.frames(q).0.into_iter().map(|(_, at)| at).collect()
+        self.joint_origins_and_tool(q).0
+    }
+
+    /// [`Chain::joint_origins`] and [`Chain::forward`] at `q` from one pass along the chain.
+    pub fn joint_origins_and_tool(&self, q: &[f64]) -> (Vec<DVec3>, Frame) {
+        let (axes, tool) = self.frames(q);
+        (axes.into_iter().map(|(_, at)| at).collect(), tool)
     }
 
     /// Each movable joint's axis and origin in the base frame at `q`, and the tool's frame.
