@@ -59,7 +59,7 @@ fn deploy_reaches_through_rtde_as_in_the_dry_run() {
 /// arrives, so that observation is the one the twin trains on. Another robot file is refused.
 #[test]
 fn a_robot_file_arm_deploys_through_rtde_as_in_the_dry_run() {
-    use twinbots_ops::bundle::Scale;
+    use twinbots_ops::bundle::JointValues;
     use twinbots_sim::urdf::robot_file::RobotFile;
     let path = six_joint_robot_file("deploy");
     let run = path.with_file_name("run");
@@ -72,7 +72,7 @@ fn a_robot_file_arm_deploys_through_rtde_as_in_the_dry_run() {
     let m = &bundle.manifest;
     assert_eq!(m.robot, robot);
     assert_eq!(m.joints.iter().map(|j| j.name.as_str()).collect::<Vec<_>>(), file.joints);
-    assert_eq!(m.action.scale, Scale::PerJoint(file.speed_limits.clone()));
+    assert_eq!(m.action.scale, JointValues::PerJoint(file.speed_limits.clone()));
     assert_eq!(m.control_period_s, 0.04);
 
     let policy = |obs: &[f32]| Ok(resolved_rate(&file, obs));
@@ -88,6 +88,28 @@ fn a_robot_file_arm_deploys_through_rtde_as_in_the_dry_run() {
     assert!(successes(&dry) >= 7, "{:#?}", dry.episodes);
     assert!(through_rtde.episodes.iter().zip(&dry.episodes).all(|(a, b)| a.target == b.target));
     assert_eq!(through_rtde.refused, 0, "{through_rtde:#?}");
+
+    // The shadow's acceleration limits: a UR's 40 rad/s² where the file gives none, else one
+    // per joint; a list that does not fit the joints is named.
+    assert_eq!(m.shadow.max_acceleration_rad_s2, JointValues::All(40.0));
+    let manifest = dir.join("bundle.json");
+    let written: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&manifest).unwrap()).unwrap();
+    for (limits, expected) in
+        [(vec![10.0, 20.0, 30.0, 40.0, 50.0, 60.0], None), (vec![1.0, 2.0], Some("2 values for 6 joints"))]
+    {
+        let mut edited = written.clone();
+        edited["shadow"]["max_acceleration_rad_s2"] = serde_json::json!(limits);
+        std::fs::write(&manifest, serde_json::to_string_pretty(&edited).unwrap()).unwrap();
+        match (Bundle::read_for(&dir, robot), expected) {
+            (Ok(b), None) => assert_eq!(twinbots_ops::deploy::shadow_of(&b).max_acceleration.to_vec(), limits),
+            (Err(e), Some(expected)) => {
+                let e = e.to_string();
+                assert!(e.contains("bundle.json: shadow.max_acceleration_rad_s2") && e.contains(expected), "{e}")
+            }
+            (got, _) => panic!("{limits:?}: {:?}", got.map(|_| ())),
+        }
+    }
+    std::fs::write(&manifest, serde_json::to_string_pretty(&written).unwrap()).unwrap();
 
     // The same arm under another file's name is another robot.
     let other = path.with_file_name("other.toml");

@@ -165,6 +165,27 @@ fn a_joint_driven_into_its_stop_ends_the_reach_in_a_protective_stop() {
 }
 
 #[test]
+fn a_speed_command_ramps_within_the_files_acceleration_limits() {
+    // The elbow's speed (joint_velocities[2]) after each control step of 40 ms at full action.
+    let elbow_speeds = |path: &Path| {
+        let mut env = env(path, 1);
+        env.reset(Some(4)).unwrap();
+        (0..15).map(|_| env.step(&[0.0, 0.0, 1.0]).unwrap().obs[9 + 3 + 2]).collect::<Vec<f32>>()
+    };
+    // Without the key the drive takes the task's 1 rad/s (half the URDF's 2) within one step.
+    let free = elbow_speeds(&robot_file("free"));
+    assert!(free[0] > 0.9, "{free:?}");
+    // 4 rad/s² in the file, half by the safety factor: 0.08 rad/s a control step, 1 rad/s at 0.5 s.
+    let path = robot_file_of("ramped", "arm3", URDF, &format!("{ROBOT_FILE}acceleration_limits = [4, 4, 4]\n"));
+    assert_eq!(RobotFile::read(&path).unwrap().acceleration_limits, Some(vec![2.0; 3]));
+    let ramped = elbow_speeds(&path);
+    for (k, speed) in ramped.iter().enumerate() {
+        let ramp = (2.0 * 0.04 * (k + 1) as f32).min(1.0);
+        assert!((speed - ramp).abs() < 0.03, "step {k}: {speed} rad/s against the ramp's {ramp}: {ramped:?}");
+    }
+}
+
+#[test]
 fn a_forearm_knocked_beyond_the_elbows_speed_limit_trips_the_safety_systems_stop() {
     let mut env = env(&robot_file("knock"), 1);
     env.reset(Some(2)).unwrap();

@@ -69,20 +69,53 @@ pub struct ActionMapping {
     pub kind: String,
     /// The joints the action's values drive, in order; the others hold still.
     pub joints: Vec<String>,
-    pub scale: Scale,
+    pub scale: JointValues,
     pub clip: [f64; 2],
 }
 
-/// An action's scale: one for every joint (the UR5e's π/2 rad/s), or one per joint of
-/// `joints` (a robot file's arm: each joint's task speed).
+/// A joint figure written once for every joint (the UR5e's action scale, π/2 rad/s) or once
+/// per joint of `joints` (a robot file's arm: each joint's task speed).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
-pub enum Scale {
+pub enum JointValues {
     All(f64),
     PerJoint(Vec<f64>),
 }
 
-impl std::fmt::Display for Scale {
+impl JointValues {
+    /// The values as written: one for all if they are all the same.
+    pub fn of(values: &[f64]) -> Self {
+        match values.split_first() {
+            Some((first, rest)) if rest.iter().all(|v| v == first) => Self::All(*first),
+            _ => Self::PerJoint(values.to_vec()),
+        }
+    }
+
+    /// Joint `k`'s value (`k` below the count [`Self::check`] was given).
+    pub fn at(&self, k: usize) -> f64 {
+        match self {
+            Self::All(v) => *v,
+            Self::PerJoint(v) => v[k],
+        }
+    }
+
+    /// An error naming `key` unless the values are positive numbers, one or `joints` of them.
+    fn check(&self, key: &str, joints: usize) -> anyhow::Result<()> {
+        let values = match self {
+            Self::All(v) => std::slice::from_ref(v),
+            Self::PerJoint(v) => v.as_slice(),
+        };
+        anyhow::ensure!(
+            matches!(self, Self::All(_)) || values.len() == joints,
+            "{key}: {} values for {joints} joints",
+            values.len()
+        );
+        anyhow::ensure!(values.iter().all(|v| v.is_finite() && *v > 0.0), "{key}: {values:?} are not all positive");
+        Ok(())
+    }
+}
+
+impl std::fmt::Display for JointValues {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Self::All(v) => write!(f, "{v}"),
@@ -94,7 +127,8 @@ impl std::fmt::Display for Scale {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ShadowLimits {
-    pub max_acceleration_rad_s2: f64,
+    /// rad/s², for every joint or each (a robot file's `acceleration_limits`).
+    pub max_acceleration_rad_s2: JointValues,
     pub lookahead_s: f64,
     pub range_margin_rad: f64,
     pub table_clearance_m: f64,
@@ -144,7 +178,7 @@ pub fn manifest_for(
                     .iter()
                     .map(|s| s.to_string())
                     .collect(),
-                scale: Scale::All(decimal(ur5e::arm::ACTION_SPEED)),
+                scale: JointValues::All(decimal(ur5e::arm::ACTION_SPEED)),
                 clip: [-1.0, 1.0],
             };
             (joints, action)
@@ -162,7 +196,7 @@ pub fn manifest_for(
             let action = ActionMapping {
                 kind: "joint_speeds".into(),
                 joints: f.joints.clone(),
-                scale: Scale::PerJoint(f.speed_limits.clone()),
+                scale: JointValues::PerJoint(f.speed_limits.clone()),
                 clip: [-1.0, 1.0],
             };
             (joints, action)
@@ -180,7 +214,7 @@ pub fn manifest_for(
         observation_names: metadata.observation_names.clone(),
         observation_normalization: if metadata.normalizes_observations { "folded" } else { "none" }.into(),
         shadow: ShadowLimits {
-            max_acceleration_rad_s2: shadow.max_acceleration,
+            max_acceleration_rad_s2: JointValues::of(&shadow.max_acceleration),
             lookahead_s: shadow.lookahead,
             range_margin_rad: shadow.range_margin,
             table_clearance_m: shadow.table_clearance,
@@ -267,6 +301,10 @@ impl Bundle {
             m.robot,
             m.task
         );
+        let joints = manifest.joints.len();
+        (manifest.action.scale.check("action.scale", joints))
+            .and_then(|()| manifest.shadow.max_acceleration_rad_s2.check("shadow.max_acceleration_rad_s2", joints))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         if let Some(file) = &manifest.calibration {
             anyhow::ensure!(
                 dir.join(file).is_file(),

@@ -65,8 +65,8 @@ pub struct Shadow {
     pub geometry: Arc<dyn ArmGeometry>,
     /// Each joint's fastest speed (rad/s).
     pub max_speed: [f64; 6],
-    /// Largest change of commanded speed (rad/s²).
-    pub max_acceleration: f64,
+    /// Each joint's largest change of commanded speed (rad/s²).
+    pub max_acceleration: [f64; 6],
     /// How far ahead a command is followed (s).
     pub lookahead: f64,
     /// The closest a joint may come to its stop (rad).
@@ -87,7 +87,7 @@ impl Shadow {
         Self {
             geometry,
             max_speed,
-            max_acceleration: 40.0,
+            max_acceleration: [40.0; 6],
             lookahead: 0.08,
             range_margin: 0.05,
             table_clearance: 0.005,
@@ -108,7 +108,7 @@ impl Shadow {
                 return Verdict { command: [0.0; 6], clipped: true, refused: true, notes };
             }
             let limited = out[j].clamp(-self.max_speed[j], self.max_speed[j]);
-            let step = self.max_acceleration * period;
+            let step = self.max_acceleration[j] * period;
             let limited = limited.clamp(previous[j] - step, previous[j] + step);
             if limited != out[j] {
                 notes.push(format!(
@@ -117,7 +117,7 @@ impl Shadow {
                     out[j],
                     limited,
                     self.max_speed[j],
-                    self.max_acceleration
+                    self.max_acceleration[j]
                 ));
                 out[j] = limited;
                 clipped = true;

@@ -156,9 +156,14 @@ impl ArmGeometry for ChainGeometry {
     }
 }
 
-/// The arm's shadow: its geometry, each joint's task speed.
+/// The arm's shadow: its geometry, each joint's task speed and, where the file gives them, its
+/// acceleration limits (else a UR's 40 rad/s², [`Shadow::new`]'s).
 pub fn shadow(arm: &Arc<Arm>) -> anyhow::Result<Shadow> {
     let geometry = ChainGeometry::new(arm.clone())?;
     let speeds = &arm.file.speed_limits;
-    Ok(Shadow::new(Arc::new(geometry), std::array::from_fn(|k| speeds[k])))
+    let mut shadow = Shadow::new(Arc::new(geometry), std::array::from_fn(|k| speeds[k]));
+    if let Some(limits) = &arm.file.acceleration_limits {
+        shadow.max_acceleration = std::array::from_fn(|k| limits[k]);
+    }
+    Ok(shadow)
 }

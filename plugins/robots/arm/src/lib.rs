@@ -235,14 +235,10 @@ fn rig(arm: &Arm, settings: SimSettings) -> RigDescription {
                 .collect();
             let options = SpawnOptions { fixed_base: true, joint_positions, ..default() };
             let robot = spawn_robot(commands, arena_entity, arena, &spawned.model, options);
-            for name in &spawned.file.joints {
-                let joint = robot.joint(name).expect("the robot file's joints are the URDF's");
-                commands.entity(joint).entry::<Motor>().and_modify(|mut m| {
-                    m.holds_position = true;
-                    m.command = MotorCommand::Velocity(0.0);
-                    m.initial_command = MotorCommand::Velocity(0.0);
-                });
-            }
+            let joints: Vec<Entity> = (spawned.file.joints.iter())
+                .map(|name| robot.joint(name).expect("the robot file's joints are the URDF's"))
+                .collect();
+            take_speeds(commands, &joints, &spawned.file);
             robot
         }),
         excitation,
@@ -268,15 +264,24 @@ fn spawn_cells(mut commands: Commands, arm: Res<Arm>, config: Res<ArenaConfig>, 
             .iter()
             .map(|name| robot.joint(name).expect("the robot file's joints are the URDF's"))
             .collect();
-        for &joint in &joints {
-            commands.entity(joint).entry::<Motor>().and_modify(|mut m| {
-                m.holds_position = true;
-                m.command = MotorCommand::Velocity(0.0);
-                m.initial_command = MotorCommand::Velocity(0.0);
-            });
-        }
+        take_speeds(commands, &joints, &arm.file);
         (ArmJoints(joints), ReachState { start_pose: home.clone(), ..default() })
     });
+}
+
+/// The controlled joints' drives (the controller's order) as a speed-commanded servo's: they
+/// hold position (zero speed until told otherwise, as a powered UR does) and ramp a new speed
+/// within the file's `acceleration_limits`.
+fn take_speeds(commands: &mut Commands, joints: &[Entity], file: &RobotFile) {
+    for (k, &joint) in joints.iter().enumerate() {
+        let acceleration = file.acceleration_limits.as_ref().map(|limits| limits[k] as f32);
+        commands.entity(joint).entry::<Motor>().and_modify(move |mut m| {
+            m.holds_position = true;
+            m.command = MotorCommand::Velocity(0.0);
+            m.initial_command = MotorCommand::Velocity(0.0);
+            m.max_acceleration = acceleration;
+        });
+    }
 }
 
 /// The policy's action becomes joint speeds (each joint's task speed limit at full scale),

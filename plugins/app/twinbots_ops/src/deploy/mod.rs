@@ -77,7 +77,7 @@ pub fn shadow_of(bundle: &Bundle) -> Shadow {
     let m = &bundle.manifest;
     Shadow {
         max_speed: std::array::from_fn(|k| m.joints[k].max_speed_rad_s),
-        max_acceleration: m.shadow.max_acceleration_rad_s2,
+        max_acceleration: std::array::from_fn(|k| m.shadow.max_acceleration_rad_s2.at(k)),
         lookahead: m.shadow.lookahead_s,
         range_margin: m.shadow.range_margin_rad,
         table_clearance: m.shadow.table_clearance_m,

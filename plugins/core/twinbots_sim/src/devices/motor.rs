@@ -63,6 +63,13 @@ pub struct Motor {
     /// Torque constant relative to the rating (1: as rated): the drive delivers `gain` × the
     /// torque it is asked for, and its limit scales with it. Set by a calibration (`<joint>.gain`).
     pub gain: f32,
+    /// The fastest the drive changes the speed it moves at (rad/s² or m/s²), as a servo's
+    /// trajectory generator ramps a speed command (a UR's `speedj` acceleration, a Franka's
+    /// rate limiter); a stop's braking ahead of the joint's range is not ramped. `None`: the
+    /// speed changes as fast as the effort limit allows (the URDF's only bound).
+    pub max_acceleration: Option<f32>,
+    /// The speed the drive moved at last physics step, while `max_acceleration` ramps it.
+    speed: f32,
     /// The held position reference (rad or m), once the motor holds.
     reference: Option<f32>,
     /// The commands of the last physics steps, newest first, while `delay` > 0.
@@ -83,6 +90,8 @@ impl Motor {
             holds_position: false,
             delay: 0.0,
             gain: 1.0,
+            max_acceleration: None,
+            speed: 0.0,
             reference: None,
             history: VecDeque::new(),
             applied: MotorCommand::Off,
@@ -131,10 +140,11 @@ impl Motor {
         self.max_effort * self.strength * self.gain
     }
 
-    /// Drops the held reference, so it restarts from the joint's position: after the joint
-    /// was moved from outside (a reset, a teleport).
+    /// Drops the held reference, so it restarts from the joint's position, and the ramped
+    /// speed: after the joint was moved from outside (a reset, a teleport) or stopped.
     pub fn forget_reference(&mut self) {
         self.reference = None;
+        self.speed = 0.0;
     }
 
     /// Moves the held reference by `delta` with the joint: after the joint was moved from
@@ -177,8 +187,9 @@ impl Motor {
     /// control approaches its target (speed at most `position_gain` × distance), so a heavy
     /// load has time to stop (Webots' minPosition/maxPosition; a UR controller's software
     /// limits). Rapier enforces stops only within one turn, so for wider ranges (the UR5e's
-    /// ±2π) this is what holds them.
-    pub fn target_velocity(&self, state: &JointState, limits: Option<[f32; 2]>, dt: f32) -> Option<f32> {
+    /// ±2π) this is what holds them. With `max_acceleration` the speed moves from the last
+    /// step's by at most that much per second.
+    pub fn target_velocity(&mut self, state: &JointState, limits: Option<[f32; 2]>, dt: f32) -> Option<f32> {
         // A holding motor eases its reference to the target (a servo's trajectory generator),
         // and its position loop makes the joint follow the reference.
         let from = if self.holds_position { self.reference.unwrap_or(state.position) } else { state.position };
@@ -189,16 +200,26 @@ impl Motor {
                 let p = limits.map_or(p, |[lo, hi]| p.clamp(lo, hi));
                 self.position_gain * (p - from)
             }
-            MotorCommand::Off | MotorCommand::Torque(_) => return None,
+            MotorCommand::Off | MotorCommand::Torque(_) => {
+                // A speed command after these ramps from how the joint moves.
+                self.speed = state.velocity;
+                return None;
+            }
         };
         let v = v.clamp(-self.max_velocity, self.max_velocity);
+        let v = match self.max_acceleration {
+            Some(a) => self.speed + (v - self.speed).clamp(-a * dt, a * dt),
+            None => v,
+        };
         let brake = self.position_gain.min(1.0 / dt);
-        Some(match limits {
+        let v = match limits {
             Some([lo, hi]) => {
                 v.clamp(((lo - state.position) * brake).min(0.0), ((hi - state.position) * brake).max(0.0))
             }
             None => v,
-        })
+        };
+        self.speed = v;
+        Some(v)
     }
 
     /// A torque command, clamped to what the motor delivers and cut where it would push the
@@ -230,7 +251,7 @@ pub(crate) fn drive_motors(
                 Some(motor.advance_reference(state.position, v, settings.dt, joint.limits))
             }
             _ => {
-                motor.forget_reference();
+                motor.reference = None;
                 None
             }
         };

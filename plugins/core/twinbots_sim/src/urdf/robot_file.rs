@@ -25,6 +25,7 @@ struct Written {
     command: Command,
     home: Option<Vec<f64>>,
     speed_limits: Option<Vec<f64>>,
+    acceleration_limits: Option<Vec<f64>>,
     safety_factor: Option<f64>,
     policy_period: Option<f64>,
     hull_vertices: Option<usize>,
@@ -43,6 +44,8 @@ pub const STOP_MARGIN: f64 = 0.01;
 /// Where home is when the file does not say: 0, unless that is within this much (rad or m) of
 /// a stop; then the middle of the range.
 const DEFAULT_HOME_CLEARANCE: f64 = 0.1;
+/// The largest `acceleration_limits` entry (rad/s² or m/s²): well past any arm's drives.
+pub const MAX_ACCELERATION: f64 = 1000.0;
 /// The range of `hull_vertices`: fewer than 8 is hardly a hull, more than 4,096 no robot needs.
 pub const HULL_VERTICES: std::ops::RangeInclusive<usize> = 8..=4096;
 /// The twin's physics step (s) for a robot file's arm: the UR5e's, whose accuracy is tested.
@@ -74,6 +77,10 @@ pub struct RobotFile {
     /// Each controlled joint's top speed in the twin's tasks (rad/s or m/s), the controller's
     /// order: the file's `speed_limits` or the URDF's `velocity`, times the safety factor.
     pub speed_limits: Vec<f64>,
+    /// Each controlled joint's top acceleration in the twin (rad/s² or m/s²), the controller's
+    /// order: the file's `acceleration_limits` times the safety factor. `None`: a URDF has no
+    /// acceleration limit, so the drives change speed as fast as their `effort` allows.
+    pub acceleration_limits: Option<Vec<f64>>,
     /// Each controlled joint's range (rad or m), the controller's order; ±2π for a continuous joint.
     pub ranges: Vec<(f64, f64)>,
     /// Seconds between a trained policy's actions: a multiple of [`PHYSICS_STEP`].
@@ -207,6 +214,21 @@ impl RobotFile {
                 path.display()
             );
         }
+        if let Some(limits) = &written.acceleration_limits {
+            anyhow::ensure!(
+                limits.len() == n,
+                "{}: key 'acceleration_limits': {} limits for {n} joints",
+                path.display(),
+                limits.len()
+            );
+            for (limit, joint) in limits.iter().zip(&written.joints) {
+                anyhow::ensure!(
+                    limit.is_finite() && *limit > 0.0 && *limit <= MAX_ACCELERATION,
+                    "{}: key 'acceleration_limits': {limit} for '{joint}' is not in (0, {MAX_ACCELERATION}]",
+                    path.display()
+                );
+            }
+        }
         let policy_period = written.policy_period.unwrap_or(DEFAULT_POLICY_PERIOD);
         let steps = policy_period / PHYSICS_STEP;
         anyhow::ensure!(
@@ -234,6 +256,7 @@ impl RobotFile {
             command: written.command,
             home,
             speed_limits: vendor.iter().map(|v| v * safety).collect(),
+            acceleration_limits: written.acceleration_limits.map(|limits| limits.iter().map(|a| a * safety).collect()),
             ranges,
             policy_period,
             packages,
@@ -283,6 +306,7 @@ mod tests {
         assert_eq!(robot.home, vec![0.0; 6]);
         assert_eq!(robot.speed_limits, [3.15, 3.15, 3.15, 3.2, 3.2, 3.2].map(|v| 0.5 * v).to_vec());
         assert_eq!(robot.policy_period, DEFAULT_POLICY_PERIOD);
+        assert_eq!(robot.acceleration_limits, None);
 
         let dir = std::env::temp_dir().join(format!("twinbots-robot-file-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
@@ -312,6 +336,16 @@ mod tests {
                 "speeds.toml",
                 format!("{head}{joints}speed_limits = [1, 1, 0, 1, 1, 1]\n"),
                 "'elbow_joint' has no speed limit",
+            ),
+            (
+                "accelerations.toml",
+                format!("{head}{joints}acceleration_limits = [10, 10, -1, 10, 10, 10]\n"),
+                "key 'acceleration_limits': -1 for 'elbow_joint' is not in (0, 1000]",
+            ),
+            (
+                "accelerations_len.toml",
+                format!("{head}{joints}acceleration_limits = [10]\n"),
+                "key 'acceleration_limits': 1 limits for 6 joints",
             ),
             ("safety.toml", format!("{head}{joints}safety_factor = 0\n"), "key 'safety_factor'"),
             ("policy.toml", format!("{head}{joints}policy_period = 0.005\n"), "key 'policy_period'"),
