@@ -83,6 +83,23 @@ command = "speed"
 home = [0.0, 0.5, 1.0, 0.5, 0.0, 0.0]
 "#;
 
+/// A cell for the six-joint arm: its base on a table top 0.75 m up, the fixtures 0.47 m out,
+/// where its tool reaches pointing down.
+const CELL6: &str = r#"[table]
+centre = [0.3, 0.0]
+size = [1.0, 1.0]
+height = 0.75
+
+[robot]
+position = [0.0, 0.0]
+
+[pick]
+position = [0.45, 0.15]
+
+[place]
+position = [0.45, -0.15]
+"#;
+
 /// The three-joint arm's robot file in a folder of its own.
 fn robot_file(name: &str) -> PathBuf {
     robot_file_of(name, "arm3", URDF, ROBOT_FILE)
@@ -183,6 +200,44 @@ fn a_speed_command_ramps_within_the_files_acceleration_limits() {
         let ramp = (2.0 * 0.04 * (k + 1) as f32).min(1.0);
         assert!((speed - ramp).abs() < 0.03, "step {k}: {speed} rad/s against the ramp's {ramp}: {ramped:?}");
     }
+}
+
+#[test]
+fn a_robot_file_arm_in_its_cell_picks_and_places_the_part_with_its_classical_controller() {
+    let keys = "cell = \"cell.toml\"\n[gripper]\nradius = 0.02\nstroke = 0.015\n";
+    let path = robot_file_of("pick", "arm6", URDF6, &format!("{ROBOT_FILE6}{keys}"));
+    std::fs::write(path.with_file_name("cell.toml"), CELL6).unwrap();
+    let file = RobotFile::read(&path).unwrap();
+    let robot = twinbots_arm::robot(&path).unwrap();
+    let tasks: Vec<&str> = robot.tasks.iter().map(|t| t.name).collect();
+    assert_eq!(tasks, ["reach", "pick-place"]);
+    let mut env = AppVecEnv::new(robot.app(Some("pick-place"), 2, 5, DesignPattern::Supervised).unwrap());
+    let mut obs = env.reset(Some(5)).unwrap();
+    let dim = obs.len() / 2;
+    let (mut placed, mut ended) = (0, 0);
+    while ended < 6 {
+        // The classical controller makes the free moves; the program's straight moves are its own.
+        let actions: Vec<f32> = obs.chunks(dim).flat_map(|o| resolved_rate(&file, o)).collect();
+        let step = env.step(&actions).unwrap();
+        for summary in step.episodes.iter().flatten() {
+            ended += 1;
+            let metrics = &summary.metrics;
+            let outcomes: f32 = metrics.iter().filter(|(k, _)| k.starts_with("outcome_")).map(|(_, v)| v).sum();
+            assert_eq!(outcomes, 1.0, "one outcome per episode: {metrics:?}");
+            if summary.success == Some(true) {
+                placed += 1;
+                assert!(metrics["cycle_time_s"] > 1.0 && metrics["place_offset_mm"] < 16.0, "{metrics:?}");
+            }
+        }
+        obs = step.obs;
+    }
+    assert!(placed >= 5, "{placed} of {ended} programs placed the part");
+
+    // A cell whose plates overlap is named with the robot file's key.
+    std::fs::write(path.with_file_name("cell.toml"), CELL6.replace("[0.45, -0.15]", "[0.45, 0.1]")).unwrap();
+    let Err(err) = twinbots_arm::robot(&path) else { panic!("a bad cell read") };
+    let err = format!("{err:#}");
+    assert!(err.contains("arm6.toml: key 'cell'") && err.contains("overlaps the pick fixture's"), "{err}");
 }
 
 #[test]

@@ -192,8 +192,8 @@ fn mutated_urdfs_load_or_name_their_file_and_never_panic() {
         "cartpole/cartpole.urdf",
         "pioneer3at/pioneer3at.urdf",
         "ur5e/ur5e.urdf",
-        "ur5e/part.urdf",
-        "ur5e/fixture.urdf",
+        "../cells/part.urdf",
+        "../cells/fixture.urdf",
     ]
     .iter()
     .map(|f| {

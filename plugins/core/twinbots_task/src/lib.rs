@@ -3,11 +3,13 @@
 //! The [`task`] machinery robot plugins fill in (observation, reward and termination terms,
 //! reset events) evaluated per arena, the vectorised [`env`] over a Bevy app whose arenas are
 //! the envs, the channel [`bridge`] a learner thread steps it through, domain [`randomization`],
-//! episode [`replay`] for checkpoints, and the [`robot`] registry every front reads. The API
-//! types it works with are `twinbots_api`'s, re-exported here.
+//! episode [`replay`] for checkpoints, the assembly [`cell`] and its pick-and-place program, and
+//! the [`robot`] registry every front reads. The API types it works with are `twinbots_api`'s,
+//! re-exported here.
 
 pub mod bridge;
 pub mod calibration;
+pub mod cell;
 pub mod env;
 pub mod on_robot;
 pub mod randomization;

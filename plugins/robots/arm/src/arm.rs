@@ -1,6 +1,6 @@
 //! The arm a robot file describes, as its controller knows it: the chain's kinematics in the
 //! controller's joint order, the joints' ranges and speed limits, home, and where the base
-//! stands in the arena.
+//! stands in the arena: on an empty floor, or on the table of its cell.
 
 use bevy::math::DVec3;
 use bevy::prelude::*;
@@ -8,6 +8,7 @@ use rand::Rng;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::RobotModel;
 use twinbots_sim::urdf::robot_file::RobotFile;
+use twinbots_task::cell::layout::{CellLayout, Fixtures};
 
 /// A joint this close to a stop (rad or m) counts as at its limit: the protective stop.
 pub use twinbots_sim::urdf::robot_file::STOP_MARGIN as LIMIT_MARGIN;
@@ -19,10 +20,14 @@ pub const SOFT_LIMIT_ZONE: f64 = 0.2;
 /// of home, each joint drawn on its own within its range: reachable by construction, and
 /// around where the arm works.
 pub const TARGET_SPREAD: f64 = 0.6;
-/// …and at least this high above the floor (m).
+/// …and at least this high above the floor, or the table of the arm's cell (m).
 pub const TARGET_CLEARANCE: f64 = 0.1;
 /// Episode starts: home with every joint off by up to this much (rad or m).
 pub const START_SPREAD: f64 = 0.05;
+/// Gain (1/s) with which a straight move turns the tool's axis down, as the UR5e's controller.
+const TILT_GAIN: f64 = 3.0;
+/// Damping of a straight move's least-squares solve (m), the UR5e controller's.
+const STRAIGHT_DAMPING: f64 = 0.02;
 
 /// The arm, shared by every arena of an app.
 #[derive(Resource, Clone, Debug)]
@@ -30,8 +35,13 @@ pub struct Arm {
     pub file: RobotFile,
     /// The URDF with its meshes (what the simulator spawns).
     pub model: RobotModel,
-    /// The base link's pose in the arena (the root link stands at the origin, welded).
+    /// The base link's pose in the arena (the root link welded at the origin, or where the
+    /// cell's layout puts the robot).
     pub base: Pose,
+    /// The cell's layout (the file's `cell`), if any.
+    pub cell: Option<CellLayout>,
+    /// The height (m) of what the arm works over in the arena: the floor, or its cell's table top.
+    pub surface: f32,
     /// For each of the chain's movable joints, its place in the controller's order (the robot
     /// file's mapping, computed once).
     controller_index: Vec<usize>,
@@ -41,15 +51,22 @@ impl Arm {
     /// The arm of a robot file, its URDF's meshes read.
     pub fn of(file: RobotFile) -> anyhow::Result<Self> {
         let model = file.model()?;
-        let root_poses = model.link_poses(Pose::IDENTITY, |j| {
-            file.joints.iter().position(|n| *n == j.name).map_or(0.0, |k| file.home[k] as f32)
-        });
+        let cell = match &file.cell {
+            Some(path) => {
+                Some(CellLayout::read(path).map_err(|e| anyhow::anyhow!("{}: key 'cell': {e}", file.path.display()))?)
+            }
+            None => None,
+        };
+        let root = cell.as_ref().map_or(Pose::IDENTITY, CellLayout::base_pose);
+        let surface = cell.as_ref().map_or(0.0, |c| c.table.height);
+        let root_poses = model
+            .link_poses(root, |j| file.joints.iter().position(|n| *n == j.name).map_or(0.0, |k| file.home[k] as f32));
         let base_link = model
             .link_index(&file.chain.base)
             .ok_or_else(|| anyhow::anyhow!("{}: the URDF has no link '{}'", file.path.display(), file.chain.base))?;
         let base = root_poses[base_link];
         let controller_index = file.controller_index();
-        Ok(Self { file, model, base, controller_index })
+        Ok(Self { file, model, base, cell, surface, controller_index })
     }
 
     pub fn dof(&self) -> usize {
@@ -114,7 +131,7 @@ impl Arm {
     pub fn sample_target(&self, rng: &mut impl Rng) -> Vec3 {
         for _ in 0..32 {
             let tool = self.tool(&self.sample_around_home(rng, TARGET_SPREAD));
-            let height = self.base.translation.z as f64 + tool.z;
+            let height = (self.base.translation.z - self.surface) as f64 + tool.z;
             if height >= TARGET_CLEARANCE {
                 return tool.as_vec3();
             }
@@ -124,6 +141,49 @@ impl Arm {
 
     pub fn home(&self) -> Vec<f32> {
         self.file.home.iter().map(|&h| h as f32).collect()
+    }
+
+    /// The root link's pose in the arena: where the robot is welded.
+    pub fn root(&self) -> Pose {
+        self.cell.as_ref().map_or(Pose::IDENTITY, CellLayout::base_pose)
+    }
+
+    /// Where the cell's fixtures' plates are centred on the table top, in the base link's frame
+    /// (what the program and the controller work in), if the arm has a cell.
+    pub fn fixtures(&self) -> Option<Fixtures> {
+        let cell = self.cell.as_ref()?;
+        let local = |f| (self.base.inverse() * cell.fixture_pose(f)).translation;
+        Some(Fixtures { pick: local(&cell.pick), place: local(&cell.place) })
+    }
+
+    /// The tool link's position and its z axis (the gripper's) in the base frame.
+    pub fn tool_and_axis(&self, q: &[f32]) -> (DVec3, DVec3) {
+        let frame = self.file.chain.forward(&self.chain_q(q));
+        (frame.translation, frame.rotation * DVec3::Z)
+    }
+
+    /// Joint speeds (controller order; rad/s or m/s) of a straight move of the tool towards
+    /// `target` (base frame) that turns its z axis down (a UR's MoveL with the tool pointing
+    /// down): damped least squares on the chain Jacobian's linear rows and the two angular rows
+    /// that tilt the axis (its turn about the vertical is free), the whole scaled so that no
+    /// joint exceeds its task speed and the tool no `max_speed` (m/s).
+    pub fn straight_move(&self, q: &[f32], target: DVec3, gain: f64, max_speed: f64) -> Vec<f32> {
+        use twinbots_sim::rapier::na::{DMatrix, DVector};
+        let (frame, columns) = self.file.chain.forward_and_jacobian(&self.chain_q(q));
+        let down = self.base.rotation.as_dquat().inverse() * -DVec3::Z;
+        let v = ((target - frame.translation) * gain).clamp_length_max(max_speed);
+        let w = (frame.rotation * DVec3::Z).cross(down) * TILT_GAIN;
+        let twist = DVector::from_row_slice(&[v.x, v.y, v.z, w.x, w.y]);
+        let j = DMatrix::from_fn(5, columns.len(), |r, c| columns[c][r]);
+        let damped = (&j * j.transpose() + DMatrix::identity(5, 5) * STRAIGHT_DAMPING.powi(2)).cholesky();
+        let Some(damped) = damped else { return vec![0.0; self.dof()] };
+        let chain_speeds = j.transpose() * damped.solve(&twist);
+        let mut speeds = vec![0.0; self.dof()];
+        for (c, &k) in self.controller_index.iter().enumerate() {
+            speeds[k] = chain_speeds[c];
+        }
+        let top = (speeds.iter().zip(&self.file.speed_limits)).fold(1.0f64, |m, (s, limit)| m.max(s.abs() / limit));
+        speeds.iter().map(|s| (s / top) as f32).collect()
     }
 
     /// How far the tool can get from the base: the chain's joint offsets laid end to end.

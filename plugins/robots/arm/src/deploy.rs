@@ -126,9 +126,10 @@ impl ChainGeometry {
     }
 
     /// Height above the floor of a base-frame point.
+    /// Above the floor, or the table of the arm's cell.
     fn height(&self, p: DVec3) -> f64 {
         let base = &self.arm.base;
-        (base.rotation.as_dquat() * p).z + base.translation.z as f64
+        (base.rotation.as_dquat() * p).z + (base.translation.z - self.arm.surface) as f64
     }
 }
 

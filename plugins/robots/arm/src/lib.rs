@@ -11,6 +11,7 @@
 
 pub mod arm;
 pub mod deploy;
+pub mod pick_place;
 pub mod reach;
 pub mod servo;
 
@@ -19,11 +20,13 @@ use std::sync::Arc;
 use bevy::math::Vec3;
 use bevy::prelude::*;
 use twinbots_link::robot::{AtHome, Controller, Phase, RobotCycleSet, ServerRobotPlugin};
+use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::robot_file::{PHYSICS_STEP, RobotFile};
 use twinbots_sim::{
-    ArenaConfig, Framing, JointState, Motor, MotorCommand, PhysicsSubstep, PositionSensor, SimSet, SimSettings,
-    SpawnOptions, SubstepSet, Supervisor, spawn_robot,
+    ArenaConfig, Framing, InArena, JointState, Motor, MotorCommand, Mount, PhysicsSubstep, PositionSensor, SimSet,
+    SimSettings, SpawnOptions, SubstepSet, Supervisor, VacuumGripper, spawn_robot,
 };
+use twinbots_task::cell::parts::CellFurniture;
 use twinbots_task::robot::{
     AlgoDefaults, JointExcitation, RigDescription, RobotDescription, TaskDescription, TrainingDefaults, headless_app,
 };
@@ -31,6 +34,7 @@ use twinbots_task::task::{EnvReset, ResetSet, Resetting, TaskSet, spawn_arenas};
 use twinbots_task::{Action, DesignPattern, Episode, TaskTermsPlugin};
 
 pub use crate::arm::Arm;
+use crate::pick_place::ArmCell;
 use crate::reach::ReachState;
 
 /// SAC + HER settings of the reach: the UR5e reach's (RL Zoo's FetchReach settings with
@@ -88,17 +92,30 @@ pub fn describe(path: &std::path::Path, arm: Arc<Arm>) -> RobotDescription {
     let spec_arm = arm.clone();
     let build_arm = arm.clone();
     let feedback_arm = arm.clone();
+    let mut tasks = vec![TaskDescription {
+        name: "reach",
+        description: "tool link to a target around home, at rest within 1 cm (position only)",
+        spec: Arc::new(move || reach::reach_task(&spec_arm).spec()),
+        server: true,
+        training: None,
+        scripted: None,
+    }];
+    if arm.cell.is_some() && arm.file.gripper.is_some() {
+        let (spec_arm, classic_arm) = (arm.clone(), arm.clone());
+        tasks.push(TaskDescription {
+            name: "pick-place",
+            description: "the part from the pick fixture to the place fixture: the cell program's waypoints driven by the reach policy",
+            spec: Arc::new(move || pick_place::pick_place_task(&spec_arm).spec()),
+            server: false,
+            training: None,
+            // Its classical controller: the reach's, between the program's straight moves.
+            scripted: Some(Arc::new(move |obs: &[f32]| reach::resolved_rate(&classic_arm.file, obs))),
+        });
+    }
     RobotDescription {
         name,
         description,
-        tasks: vec![TaskDescription {
-            name: "reach",
-            description: "tool link to a target around home, at rest within 1 cm (position only)",
-            spec: Arc::new(move || reach::reach_task(&spec_arm).spec()),
-            server: true,
-            training: None,
-            scripted: None,
-        }],
+        tasks,
         patterns: vec![DesignPattern::Supervised],
         // Cameras 1.6 reaches away, looking at 0.4 of the arm's height.
         framing: Framing { target: Vec3::new(0.0, 0.0, 0.4 * reach), distance: 1.6 * reach.max(0.3), facing: 0.0 },
@@ -124,7 +141,9 @@ pub fn describe(path: &std::path::Path, arm: Arc<Arm>) -> RobotDescription {
         },
         settings: Arc::new(move || settings),
         build: Arc::new(move |request| {
-            headless_app(settings, request, ArmPlugin { arm: build_arm.clone(), pattern: request.pattern, kind: name })
+            let task = if request.task == "pick-place" { ArmTask::PickPlace } else { ArmTask::Reach };
+            let plugin = ArmPlugin { arm: build_arm.clone(), task, pattern: request.pattern, kind: name };
+            headless_app(settings, request, plugin)
         }),
         rig: Some(rig(&arm, settings)),
         feedback: Some(Arc::new(move |obs: &[f32]| reach::resolved_rate(&feedback_arm.file, obs))),
@@ -132,9 +151,19 @@ pub fn describe(path: &std::path::Path, arm: Arc<Arm>) -> RobotDescription {
     }
 }
 
-/// The arm's cell and reach task.
+/// Which task the arm's cell runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ArmTask {
+    #[default]
+    Reach,
+    /// Pick-and-place ([`pick_place`]): an arm with a cell and a gripper.
+    PickPlace,
+}
+
+/// The arm's cell and its task.
 pub struct ArmPlugin {
     pub arm: Arc<Arm>,
+    pub task: ArmTask,
     pub pattern: DesignPattern,
     /// The robot's name as the registry knows it (what a pattern-3 robot announces).
     pub kind: &'static str,
@@ -146,12 +175,31 @@ pub struct ArmJoints(pub Vec<Entity>);
 
 impl Plugin for ArmPlugin {
     fn build(&self, app: &mut App) {
+        let definition = match self.task {
+            ArmTask::Reach => reach::reach_task(&self.arm),
+            ArmTask::PickPlace => pick_place::pick_place_task(&self.arm),
+        };
         app.insert_resource((*self.arm).clone())
-            .add_plugins(TaskTermsPlugin::new(reach::reach_task(&self.arm), self.pattern))
+            .add_plugins(TaskTermsPlugin::new(definition, self.pattern))
             .add_systems(Startup, spawn_cells)
             .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)))
-            .add_systems(Update, report.in_set(TaskSet::Report))
             .add_systems(PhysicsSubstep, (meter_energy, watch_limits).in_set(SubstepSet::Record));
+        match self.task {
+            ArmTask::Reach => {
+                app.add_systems(Update, report.in_set(TaskSet::Report));
+            }
+            ArmTask::PickPlace => {
+                app.add_systems(
+                    Update,
+                    (
+                        pick_place::apply_suction.in_set(SimSet::Actuate),
+                        pick_place::run_program.after(read_arm).in_set(TaskSet::Read),
+                        pick_place::report.in_set(TaskSet::Report),
+                    ),
+                )
+                .add_systems(EnvReset, pick_place::place_part.in_set(ResetSet::Place));
+            }
+        }
         if self.pattern == DesignPattern::Server {
             // Design pattern 3: no Supervisor; the arm homes with its own motors.
             app.add_plugins(ServerRobotPlugin::<ReachState>::new(self.kind))
@@ -246,17 +294,26 @@ fn rig(arm: &Arm, settings: SimSettings) -> RigDescription {
     }
 }
 
+/// Each arena: the arm welded on an empty floor, or in its cell (the table, the fixtures and
+/// the part of its layout, the arm on the table top, the gripper at its tool link).
 fn spawn_cells(mut commands: Commands, arm: Res<Arm>, config: Res<ArenaConfig>, settings: Res<SimSettings>) {
     let home = arm.home();
+    let furniture = arm.cell.as_ref().map(|_| CellFurniture::default());
     spawn_arenas(&mut commands, &config, &settings, |commands, arena_entity, arena| {
-        arena.add_ground(0.8);
+        let part = match (&arm.cell, &furniture) {
+            (Some(layout), Some(furniture)) => Some(furniture.spawn(commands, arena_entity, arena, layout)),
+            _ => {
+                arena.add_ground(0.8);
+                None
+            }
+        };
         let joint_positions = arm.file.joints.iter().cloned().zip(home.iter().copied()).collect();
         let robot = spawn_robot(
             commands,
             arena_entity,
             arena,
             &arm.model,
-            SpawnOptions { fixed_base: true, joint_positions, ..default() },
+            SpawnOptions { base: arm.root(), fixed_base: true, joint_positions, ..default() },
         );
         let joints: Vec<Entity> = arm
             .file
@@ -265,7 +322,18 @@ fn spawn_cells(mut commands: Commands, arm: Res<Arm>, config: Res<ArenaConfig>, 
             .map(|name| robot.joint(name).expect("the robot file's joints are the URDF's"))
             .collect();
         take_speeds(commands, &joints, &arm.file);
-        (ArmJoints(joints), ReachState { start_pose: home.clone(), ..default() })
+        let state = ReachState { start_pose: home.clone(), ..default() };
+        let gripper = arm.file.gripper.map(|g| {
+            let tool = robot.link(&arm.file.chain.tool).expect("the robot file's tool is a link of its URDF");
+            // The cup sucks along the tool link's z; a mounted device's forward axis is its +X.
+            let cup = Mount { link: tool, offset: Pose::from_rotation(Quat::from_rotation_arc(Vec3::X, Vec3::Z)) };
+            let gripper = VacuumGripper::new(g.radius as f32, g.stroke as f32);
+            commands.spawn((gripper, cup, InArena(arena_entity))).id()
+        });
+        if let (Some(part), Some(gripper), Some(fixtures)) = (part, gripper, arm.fixtures()) {
+            commands.entity(arena_entity).insert(ArmCell { part, gripper, fixtures });
+        }
+        (ArmJoints(joints), state)
     });
 }
 
@@ -296,9 +364,15 @@ fn apply_action(
             continue;
         }
         let stopped = state.stopped;
+        // The pick-and-place program's straight moves are the controller's (MoveL).
+        let straight = pick_place::straight_move(&arm, &state);
         for (k, &joint) in joints.0.iter().enumerate() {
             let a = action.0.get(k).copied().unwrap_or(0.0).clamp(-1.0, 1.0);
-            let speed = if stopped { 0.0 } else { a * arm.file.speed_limits[k] as f32 };
+            let speed = match &straight {
+                _ if stopped => 0.0,
+                Some(speeds) => speeds[k],
+                None => a * arm.file.speed_limits[k] as f32,
+            };
             if let Ok(mut m) = motors.get_mut(joint) {
                 m.command = MotorCommand::Velocity(speed);
             }
@@ -320,6 +394,7 @@ fn read_arm(
         let (tool, velocity) = arm.tool_motion(&q, &qd);
         state.tool = tool.as_vec3();
         state.tool_velocity = velocity.as_vec3();
+        state.tool_axis = arm.tool_and_axis(&q).1.as_vec3();
         state.limit_depth = arm.limit_depth(&q);
         let at_limit = arm.at_limit(&q);
         state.stopped |= at_limit && !state.at_limit;

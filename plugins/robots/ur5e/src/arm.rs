@@ -157,3 +157,15 @@ pub fn homing_speeds(q: &[f32; 6]) -> [f32; 6] {
 pub fn speeds_towards(q: &[f32; 6], pose: &[f32; 6]) -> [f32; 6] {
     std::array::from_fn(|i| (HOMING_GAIN * (pose[i] - q[i])).clamp(-HOMING_SPEED, HOMING_SPEED))
 }
+
+/// The cell program reads the TCP; every move of the UR5e's ends with its tool pointing down
+/// (its reach policy's too), so a move has reached its waypoint only level.
+impl twinbots_task::cell::program::ToolReading for ArmState {
+    fn tool(&self) -> Vec3 {
+        self.tcp.translation
+    }
+
+    fn has_reached_within(&self, target: Vec3, tolerance: f32, _level: bool) -> bool {
+        ArmState::has_reached_within(self, target, tolerance)
+    }
+}

@@ -8,24 +8,18 @@ use bevy::prelude::*;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
 use twinbots_sim::{
-    Arena, ContactSensor, Handled, InArena, Motor, MotorCommand, Mount, SpawnOptions, VacuumGripper, spawn_robot,
+    Arena, ContactSensor, InArena, Motor, MotorCommand, Mount, SpawnOptions, VacuumGripper, spawn_robot,
 };
+use twinbots_task::cell::parts::CellFurniture;
+pub use twinbots_task::cell::parts::{PART_HEIGHT, PART_RADIUS, POCKET_FLOOR, POCKET_PLAY, part_seat};
 
 use crate::kinematics::JOINTS;
 use crate::layout::CellLayout;
 
 pub const URDF: &str = include_str!("../../../../assets/robots/ur5e/ur5e.urdf");
 pub const URDF_PATH: &str = "assets/robots/ur5e/ur5e.urdf";
-const FIXTURE_URDF: &str = include_str!("../../../../assets/robots/ur5e/fixture.urdf");
-const PART_URDF: &str = include_str!("../../../../assets/robots/ur5e/part.urdf");
 const ASSETS: &str = "assets/robots/ur5e";
 
-/// Thickness of a fixture's plate: the pocket floor's height.
-pub const POCKET_FLOOR: f32 = 0.02;
-/// How far the part can sit off its pocket's centre (m): an 8 cm pocket for a 5 cm part.
-pub const POCKET_PLAY: f32 = 0.015;
-pub const PART_HEIGHT: f32 = 0.05;
-pub const PART_RADIUS: f32 = 0.025;
 /// The suction cup: radius and bellows stroke (m).
 pub const CUP_RADIUS: f32 = 0.02;
 pub const CUP_STROKE: f32 = 0.015;
@@ -40,33 +34,24 @@ pub fn base_pose() -> Pose {
     CellLayout::default().base_pose()
 }
 
-/// Where the part rests in a fixture: its bottom on the pocket floor, in the base frame.
-pub fn part_seat(fixture: Vec3) -> Vec3 {
-    fixture + Vec3::new(0.0, 0.0, POCKET_FLOOR)
-}
-
 /// The cell's models, parsed once.
 #[derive(Resource, Clone)]
 pub struct CellModels {
     pub robot: RobotModel,
-    pub fixture: RobotModel,
-    pub part: RobotModel,
-}
-
-fn parse(text: &str, file: &str) -> RobotModel {
-    let path = Path::new(ASSETS).join(file);
-    parse_urdf(text, &path, Path::new(ASSETS)).unwrap_or_else(|e| panic!("built-in URDF {}: {e}", path.display()))
+    /// The fixtures and the part.
+    pub furniture: CellFurniture,
 }
 
 impl Default for CellModels {
     fn default() -> Self {
-        Self { robot: model(), fixture: parse(FIXTURE_URDF, "fixture.urdf"), part: parse(PART_URDF, "part.urdf") }
+        Self { robot: model(), furniture: CellFurniture::default() }
     }
 }
 
 /// The UR5e's model (checked by the tests).
 pub fn model() -> RobotModel {
-    parse(URDF, "ur5e.urdf")
+    let path = Path::new(ASSETS).join("ur5e.urdf");
+    parse_urdf(URDF, &path, Path::new(ASSETS)).unwrap_or_else(|e| panic!("built-in URDF {}: {e}", path.display()))
 }
 
 /// The entities of an arena's cell, on the arena entity.
@@ -97,32 +82,7 @@ pub fn spawn_cell(
     start: [f32; 6],
 ) -> CellParts {
     let base = layout.base_pose();
-    arena.add_ground(layout.floor.friction);
-    let table = &layout.table;
-    let half = Vec3::new(table.size[0] / 2.0, table.size[1] / 2.0, table.height / 2.0);
-    arena.add_static_box(half, Vec3::new(table.centre[0], table.centre[1], table.height / 2.0), table.friction);
-    for obstacle in &layout.obstacles {
-        arena.add_static_box(Vec3::from(obstacle.size) / 2.0, Vec3::from(obstacle.centre), 0.8);
-    }
-    for fixture in [&layout.pick, &layout.place] {
-        let pose = layout.fixture_pose(fixture);
-        spawn_robot(
-            commands,
-            arena_entity,
-            arena,
-            &models.fixture,
-            SpawnOptions { base: pose, fixed_base: true, environment: true, ..default() },
-        );
-    }
-    let part_pose = base * Pose::from_translation(part_seat(layout.fixtures().pick));
-    let part = spawn_robot(
-        commands,
-        arena_entity,
-        arena,
-        &models.part,
-        SpawnOptions { base: part_pose, environment: true, friction: 0.8, ..default() },
-    );
-
+    let part = models.furniture.spawn(commands, arena_entity, arena, layout);
     let joint_positions = JOINTS.iter().zip(start).map(|(name, q)| (name.to_string(), q)).collect();
     let robot = spawn_robot(
         commands,
@@ -151,8 +111,5 @@ pub fn spawn_cell(
         let mount = Mount { link: get(robot.link(name), name), offset: Pose::IDENTITY };
         commands.spawn((ContactSensor::default(), mount, InArena(arena_entity))).id()
     });
-    // The workpiece: the one thing of the cell a person puts back by hand.
-    let part = get(part.link("part"), "part");
-    commands.entity(part).insert(Handled);
     CellParts { robot: robot.robot(), joints, tcp, gripper, contact_sensors, part, base }
 }

@@ -23,11 +23,13 @@ pub mod controller;
 pub mod deploy;
 pub mod goal;
 pub mod kinematics;
-pub mod layout;
+/// The cell's layout, every arm's: [`twinbots_task::cell::layout`].
+pub use twinbots_task::cell::layout;
 pub mod metrics;
 pub mod pick_place;
 pub mod pick_place_learned;
-pub mod program;
+/// The pick-and-place program, every arm's: [`twinbots_task::cell::program`].
+pub use twinbots_task::cell::program;
 mod protective_stop;
 pub mod reach;
 pub mod rig;

@@ -21,18 +21,14 @@ use twinbots_task::task::Resetting;
 use twinbots_task::{Episode, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
 
 use crate::arm::{ACTION_DIM, ActionHistory};
-use crate::cell::{CellParts, POCKET_PLAY, part_seat};
+use crate::cell::{CellParts, part_seat};
 use crate::metrics::TwinMeter;
 pub use crate::program::{ALIGN_HEIGHT, CLEARANCE, DROP_HEIGHT, GRIP_GAP, Program, SUCTION_STEPS, Stage, waypoint};
 use crate::reach::{motion_costs, observations, sample_start};
 use crate::state::CellState;
 
 pub const EPISODE_STEPS: u32 = 400;
-/// A placed part's centre lies within the pocket's play of its centre along each side of the
-/// square pocket (m: a part in a corner is in the pocket too)…
-pub const PLACE_TOLERANCE: f32 = POCKET_PLAY + 0.001;
-/// …and it stands upright within this angle (rad).
-pub const UPRIGHT_TOLERANCE: f32 = 0.2;
+pub use twinbots_task::cell::parts::{Outcome, PLACE_TOLERANCE, Placement, UPRIGHT_TOLERANCE};
 
 /// Runs each arena's program on the controller's reading: the next tool target and whether the
 /// suction should be on (applied by [`apply_suction`] at the next actuation).
@@ -109,78 +105,6 @@ pub fn place_part(mut supervisor: Supervisor, arenas: Query<(&CellParts, &CellSt
     }
 }
 
-/// Where the part stands against the place fixture's seat, as the evaluator (who may look)
-/// sees it: off the pocket's centre along each side (m), off the pocket floor (m), tilted (rad).
-struct Placement {
-    off_centre: Vec2,
-    height: f32,
-    tilt: f32,
-}
-
-impl Placement {
-    fn of(supervisor: &Supervisor, parts: &CellParts, state: &CellState) -> Option<Self> {
-        let part = supervisor.link_state(parts.part)?;
-        let pose = parts.base.inverse() * part.pose;
-        let seat = part_seat(state.fixtures.place);
-        Some(Self {
-            off_centre: (pose.translation - seat).truncate().abs(),
-            height: (pose.translation.z - seat.z).abs(),
-            tilt: (pose.rotation * Vec3::Z).angle_between(Vec3::Z),
-        })
-    }
-
-    /// In the pocket and upright.
-    fn placed(&self) -> bool {
-        self.off_centre.max_element() < PLACE_TOLERANCE && self.height < 0.005 && self.tilt < UPRIGHT_TOLERANCE
-    }
-}
-
-/// How a pick-and-place episode ended: placed, or the first failure that explains it. `eval`
-/// reports each as the share of episodes (`outcome_<name>`), so failures can be told apart.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Outcome {
-    Placed,
-    /// A protective stop halted the program.
-    ProtectiveStop,
-    /// The suction found no part to seize.
-    GraspMissed,
-    /// The part was seized and lost before the program let it go.
-    PartDropped,
-    /// The program ran to its end and the part is not in fixture B's pocket.
-    PlaceMissed,
-    /// The episode's step limit came first.
-    TimeLimit,
-}
-
-impl Outcome {
-    pub const ALL: [Outcome; 6] =
-        [Self::Placed, Self::ProtectiveStop, Self::GraspMissed, Self::PartDropped, Self::PlaceMissed, Self::TimeLimit];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Placed => "placed",
-            Self::ProtectiveStop => "protective_stop",
-            Self::GraspMissed => "grasp_missed",
-            Self::PartDropped => "part_dropped",
-            Self::PlaceMissed => "place_missed",
-            Self::TimeLimit => "time_limit",
-        }
-    }
-
-    /// The outcome of an episode that ended with the program at `stage`.
-    pub fn of(stage: Stage, stopped: bool, holding: bool, placed: bool) -> Self {
-        let carrying = matches!(stage, Stage::Lift | Stage::Transfer | Stage::Align | Stage::Lower);
-        match stage {
-            Stage::Done if placed => Self::Placed,
-            _ if stopped => Self::ProtectiveStop,
-            Stage::Failed => Self::GraspMissed,
-            Stage::Done => Self::PlaceMissed,
-            _ if carrying && !holding => Self::PartDropped,
-            _ => Self::TimeLimit,
-        }
-    }
-}
-
 /// The figures of a program that ended: success (the part placed), its outcome, cycle time,
 /// the meter's.
 pub fn report(
@@ -190,40 +114,17 @@ pub fn report(
 ) {
     for (parts, state, meter, mut e) in &mut arenas {
         if e.done() {
-            let placement = Placement::of(&supervisor, parts, state);
+            let placement = Placement::of(&supervisor, parts.part, parts.base, state.fixtures.place);
             let placed = state.program.stage == Stage::Done && placement.as_ref().is_some_and(Placement::placed);
             if let Some(p) = placement.filter(|_| state.program.stage == Stage::Done) {
-                // How well a finished program put the part down: what a failed place is told by.
-                e.running.metrics.insert("place_offset_mm".into(), 1e3 * p.off_centre.length());
-                e.running.metrics.insert("part_tilt_rad".into(), p.tilt);
+                p.record(&mut e.running.metrics);
             }
             let outcome = Outcome::of(state.program.stage, state.safety.stopped(), state.program.holding, placed);
             e.running.success = Some(outcome == Outcome::Placed);
-            for o in Outcome::ALL {
-                e.running.metrics.insert(format!("outcome_{}", o.name()), f32::from(u8::from(o == outcome)));
-            }
+            outcome.record(&mut e.running.metrics);
             let cycle_time =
                 (outcome == Outcome::Placed).then(|| (e.running.length + 1) as f32 * settings.control_dt());
             meter.report(&mut e, cycle_time);
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn an_ended_program_is_told_by_its_first_failure() {
-        use Outcome::*;
-        assert_eq!(Outcome::of(Stage::Done, false, false, true), Placed);
-        assert_eq!(Outcome::of(Stage::Done, false, false, false), PlaceMissed);
-        assert_eq!(Outcome::of(Stage::Lower, true, true, false), ProtectiveStop);
-        assert_eq!(Outcome::of(Stage::Failed, false, false, false), GraspMissed);
-        assert_eq!(Outcome::of(Stage::Transfer, false, false, false), PartDropped);
-        assert_eq!(Outcome::of(Stage::Transfer, false, true, false), TimeLimit);
-        assert_eq!(Outcome::of(Stage::Approach, false, false, false), TimeLimit);
-        let names: std::collections::BTreeSet<_> = Outcome::ALL.iter().map(|o| o.name()).collect();
-        assert_eq!(names.len(), Outcome::ALL.len(), "one figure per outcome");
     }
 }

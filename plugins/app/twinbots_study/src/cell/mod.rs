@@ -95,8 +95,13 @@ pub fn run(entry: &RobotEntry, path: &Path, controllers: &[String]) -> anyhow::R
     let base = path.parent().unwrap_or(Path::new("."));
     let layouts = study.layouts(base).map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
     let named = open_all(entry, path, &study.controllers, controllers)?;
-    let nominal_part =
-        ur5e::cell::CellModels::default().part.links.iter().find_map(|l| l.inertial.map(|i| i.mass)).unwrap_or(0.0);
+    let nominal_part = ur5e::cell::CellModels::default()
+        .furniture
+        .part
+        .links
+        .iter()
+        .find_map(|l| l.inertial.map(|i| i.mass))
+        .unwrap_or(0.0);
     let combinations = study.combinations(named.len(), layouts.len());
     // Which waypoints of each layout the arm cannot reach.
     let unreachable: Vec<Vec<Stage>> = layouts

@@ -29,8 +29,19 @@ struct Written {
     safety_factor: Option<f64>,
     policy_period: Option<f64>,
     hull_vertices: Option<usize>,
+    cell: Option<PathBuf>,
+    gripper: Option<Gripper>,
     #[serde(default)]
     packages: BTreeMap<String, PathBuf>,
+}
+
+/// A vacuum gripper at the tool link, sucking along the tool link's +z (a UR's `tool0`, a
+/// Franka's `panda_hand_tcp`: the approach axis): its cup's radius and its bellows' stroke (m).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Gripper {
+    pub radius: f64,
+    pub stroke: f64,
 }
 
 /// The fraction of the vendor's speed limits a task drives the joints at, unless the file says
@@ -90,6 +101,11 @@ pub struct RobotFile {
     /// The most vertices a link's collision hull keeps (`hull_vertices`; see
     /// [`super::MAX_HULL_VERTICES`], the default).
     pub hull_vertices: usize,
+    /// The cell the arm works in (`cell`: a layout file, docs/cells.md, the path made the
+    /// file's), if any: without one it stands on an empty floor.
+    pub cell: Option<PathBuf>,
+    /// Its vacuum gripper (`[gripper]`), if any.
+    pub gripper: Option<Gripper>,
 }
 
 impl RobotFile {
@@ -246,6 +262,19 @@ impl RobotFile {
             HULL_VERTICES.start(),
             HULL_VERTICES.end()
         );
+        let cell = written.cell.map(|cell| folder.join(cell));
+        if let Some(cell) = &cell {
+            anyhow::ensure!(cell.is_file(), "{}: key 'cell': no file {}", path.display(), cell.display());
+        }
+        if let Some(g) = &written.gripper {
+            for (key, value, most) in [("radius", g.radius, 0.5), ("stroke", g.stroke, 0.2)] {
+                anyhow::ensure!(
+                    value.is_finite() && value > 0.0 && value <= most,
+                    "{}: key 'gripper.{key}': {value} m is not in (0, {most}]",
+                    path.display()
+                );
+            }
+        }
         Ok(RobotFile {
             path: path.to_path_buf(),
             name,
@@ -261,6 +290,8 @@ impl RobotFile {
             policy_period,
             packages,
             hull_vertices,
+            cell,
+            gripper: written.gripper,
         })
     }
 
@@ -317,7 +348,13 @@ mod tests {
         );
         let joints = "joints = [\"shoulder_pan_joint\", \"shoulder_lift_joint\", \"elbow_joint\", \"wrist_1_joint\", \"wrist_2_joint\", \"wrist_3_joint\"]\n";
         let cases = [
-            ("unknown.toml", format!("{head}{joints}gripper = true\n"), "unknown field `gripper`"),
+            ("unknown.toml", format!("{head}{joints}grip = true\n"), "unknown field `grip`"),
+            ("cell.toml", format!("{head}{joints}cell = \"no-cell.toml\"\n"), "key 'cell': no file"),
+            (
+                "gripper.toml",
+                format!("{head}{joints}[gripper]\nradius = 0.02\nstroke = 0\n"),
+                "key 'gripper.stroke': 0 m is not in (0, 0.2]",
+            ),
             (
                 "joint.toml",
                 format!("{head}{}", joints.replace("elbow_joint", "knee")),

@@ -1,11 +1,11 @@
 //! The pick-and-place cell program: its stages, the tool target of each, and how it moves on
-//! (as a UR program of MoveL waypoints and digital outputs).
+//! (as a UR program of MoveL waypoints and digital outputs), for any arm whose controller can
+//! tell where its tool is ([`ToolReading`]).
 
 use bevy::prelude::*;
 
-use crate::arm::ArmState;
-use crate::cell::{PART_HEIGHT, part_seat};
-use crate::layout::Fixtures;
+use super::layout::Fixtures;
+use super::parts::{PART_HEIGHT, part_seat};
 
 /// Height of the approach and retract waypoints above the part's top (m).
 pub const CLEARANCE: f32 = 0.10;
@@ -24,6 +24,19 @@ pub const DROP_HEIGHT: f32 = 0.012;
 pub const ALIGN_HEIGHT: f32 = 0.04;
 /// Control steps the suction is given to seize or release.
 pub const SUCTION_STEPS: u32 = 3;
+
+/// What the program reads of the arm: its controller's view of the tool.
+pub trait ToolReading {
+    /// The tool centre point in the base frame.
+    fn tool(&self) -> Vec3;
+    /// Whether the tool is within `tolerance` (m) of `target` and at rest; `level`: and
+    /// pointing down, as a straight move must leave it to seize or let go of the part (an arm
+    /// whose every move keeps it so may check that always).
+    fn has_reached_within(&self, target: Vec3, tolerance: f32, level: bool) -> bool;
+}
+
+/// How close (m) a free move brings the tool to its waypoint: a reach's 1 cm.
+pub const REACH_TOLERANCE: f32 = 0.01;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stage {
     Approach,
@@ -116,16 +129,14 @@ impl Program {
 
     /// One control step of the program: moves on when the arm has reached the waypoint or the
     /// suction has had its time; returns whether the suction should be on.
-    pub fn step(&mut self, arm: &ArmState, holding: bool) -> bool {
+    pub fn step(&mut self, arm: &impl ToolReading, holding: bool) -> bool {
         self.holding = holding;
         let target = self.target();
-        let reached = if self.moves_straight() {
-            arm.has_reached_within(target, STRAIGHT_TOLERANCE)
-        } else {
-            arm.has_reached(target)
-        };
+        let straight = self.moves_straight();
+        let tolerance = if straight { STRAIGHT_TOLERANCE } else { REACH_TOLERANCE };
+        let reached = arm.has_reached_within(target, tolerance, straight);
         if self.stage == Stage::Grip && holding {
-            self.grip_offset = (arm.tcp.translation - waypoint(Stage::Grip, &self.fixtures)).with_z(0.0);
+            self.grip_offset = (arm.tool() - waypoint(Stage::Grip, &self.fixtures)).with_z(0.0);
         }
         let next = match self.stage {
             Stage::Approach if reached => Some(Stage::Descend),
@@ -159,15 +170,22 @@ impl Program {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kinematics::HOME;
 
-    /// An arm at rest with its TCP at `tcp` (the kinematics of home, moved: the program reads
-    /// only the TCP, its tilt and its speed).
-    fn arm_at(tcp: Vec3) -> ArmState {
-        let mut arm = ArmState::from_joints(HOME, [0.0; 6]);
-        arm.tcp.translation = tcp;
-        arm.tcp.rotation = Quat::from_rotation_x(std::f32::consts::PI);
-        arm
+    /// An arm at rest, pointing down, with its tool at a point.
+    struct ArmAt(Vec3);
+
+    impl ToolReading for ArmAt {
+        fn tool(&self) -> Vec3 {
+            self.0
+        }
+
+        fn has_reached_within(&self, target: Vec3, tolerance: f32, _level: bool) -> bool {
+            self.0.distance(target) < tolerance
+        }
+    }
+
+    fn arm_at(tool: Vec3) -> ArmAt {
+        ArmAt(tool)
     }
 
     #[test]

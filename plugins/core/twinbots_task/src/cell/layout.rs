@@ -1,7 +1,7 @@
 //! The cell's layout as data (docs/cells.md): the table, the robot's place on it, the pick and
-//! place fixtures and any obstacles, from a TOML file. The default cell is
-//! `assets/cells/ur5e.toml`, compiled in; a study or a run may give each arena its own
-//! ([`CellLayouts`]).
+//! place fixtures and any obstacles, from a TOML file. The default cell is the UR5e's,
+//! `assets/cells/ur5e.toml`, compiled in; a run or a robot file may name another, and a study
+//! may give each arena its own ([`CellLayouts`]).
 
 use std::path::Path;
 use std::sync::LazyLock;
@@ -11,10 +11,10 @@ use serde::{Deserialize, Serialize};
 use twinbots_sim::rapier::math::Pose;
 
 /// The default cell's file, compiled in.
-pub const DEFAULT: &str = include_str!("../../../../assets/cells/ur5e.toml");
+pub const DEFAULT: &str = include_str!("../../../../../assets/cells/ur5e.toml");
 pub const DEFAULT_PATH: &str = "assets/cells/ur5e.toml";
 
-/// Half the side of a fixture's square plate (m): `assets/robots/ur5e/fixture.urdf`.
+/// Half the side of a fixture's square plate (m): `assets/cells/fixture.urdf`.
 pub const FIXTURE_HALF: f32 = 0.06;
 /// The robot's base: a cylinder of this radius (m) must stand on the table top.
 pub const BASE_RADIUS: f32 = 0.075;
@@ -132,7 +132,7 @@ impl CellLayouts {
     }
 }
 
-/// [`twinbots_task::robot::CellDescription::install`]: the layout of `text` in every arena.
+/// [`crate::robot::CellDescription::install`]: the layout of `text` in every arena.
 pub fn install(app: &mut App, text: &str, file: &str) -> Result<(), String> {
     app.insert_resource(CellLayouts(vec![CellLayout::parse(text, file)?]));
     Ok(())
