@@ -238,26 +238,36 @@ const OFFSET: usize = 3;
 const VELOCITY: usize = 6;
 const JOINT_POSITIONS: usize = 9;
 
-/// Gain of the classical controller (1/s): the tool's speed towards the target per metre away.
+/// Gain of the classical controller (1/s): the tool's speed towards the target per metre away…
 const RESOLVED_RATE_GAIN: f64 = 4.0;
+/// …up to this tool speed (m/s): the UR5e controller's.
+const RESOLVED_RATE_MAX_SPEED: f64 = 0.5;
 /// Its damping (m²): keeps the least-squares step finite near a singularity.
 const RESOLVED_RATE_DAMPING: f64 = 1e-4;
 
 /// The reach's classical controller (what `classic` names for a robot file's arm in `demos`,
 /// `study` and `eval`): joint speeds, as actions, that move the tool towards the target by
 /// damped least squares on the position rows of the chain's Jacobian (resolved-rate control),
-/// each within its joint's task speed. From the observation alone, as a policy acts.
+/// the tool at most 0.5 m/s, scaled as a whole so that no joint exceeds its task speed (the
+/// motion keeps its direction). From the observation alone, as a policy acts.
 pub fn resolved_rate(file: &RobotFile, obs: &[f32]) -> Vec<f32> {
     let n = file.joints.len();
     let q: Vec<f64> = obs[JOINT_POSITIONS..JOINT_POSITIONS + n].iter().map(|&v| v as f64).collect();
     let columns = file.chain.jacobian(&file.chain_order(&q));
     let j = DMatrix::from_fn(3, n, |r, c| columns[c][r]);
-    let velocity = DVector::from_iterator(3, obs[OFFSET..OFFSET + 3].iter().map(|&v| RESOLVED_RATE_GAIN * v as f64));
+    let offset = point(&obs[OFFSET..]).as_dvec3();
+    let v = (offset * RESOLVED_RATE_GAIN).clamp_length_max(RESOLVED_RATE_MAX_SPEED);
     let Some(damped) = (&j * j.transpose() + DMatrix::identity(3, 3) * RESOLVED_RATE_DAMPING).cholesky() else {
         return vec![0.0; n];
     };
-    let speeds = j.transpose() * damped.solve(&velocity);
-    (0..n).map(|k| (speeds[k] / file.speed_limits[k]).clamp(-1.0, 1.0) as f32).collect()
+    let chain_speeds = j.transpose() * damped.solve(&DVector::from_row_slice(&[v.x, v.y, v.z]));
+    // The Jacobian's columns are the chain's order; actions are the controller's.
+    let mut actions = vec![0.0; n];
+    for (c, k) in file.controller_index().into_iter().enumerate() {
+        actions[k] = chain_speeds[c] / file.speed_limits[k];
+    }
+    let top = actions.iter().fold(1.0f64, |m, a| m.max(a.abs()));
+    actions.iter().map(|a| (a / top) as f32).collect()
 }
 
 fn achieved(obs: &[f32]) -> Vec<f32> {
