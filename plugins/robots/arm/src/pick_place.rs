@@ -18,8 +18,8 @@ use rand::Rng;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{SimSettings, Supervisor, VacuumGripper};
 use twinbots_task::cell::layout::Fixtures;
-use twinbots_task::cell::parts::{Outcome, Placement, part_seat};
-use twinbots_task::cell::program::{Program, Stage};
+use twinbots_task::cell::parts::{Placement, part_seat};
+use twinbots_task::cell::program::{Outcome, Program, Stage};
 use twinbots_task::task::Resetting;
 use twinbots_task::{Episode, StartEvent, TaskDefinition, TerminationTerm};
 

@@ -28,7 +28,8 @@ use crate::reach::{motion_costs, observations, sample_start};
 use crate::state::CellState;
 
 pub const EPISODE_STEPS: u32 = 400;
-pub use twinbots_task::cell::parts::{Outcome, PLACE_TOLERANCE, Placement, UPRIGHT_TOLERANCE};
+pub use twinbots_task::cell::parts::{PLACE_TOLERANCE, Placement, UPRIGHT_TOLERANCE};
+pub use twinbots_task::cell::program::Outcome;
 
 /// Runs each arena's program on the controller's reading: the next tool target and whether the
 /// suction should be on (applied by [`apply_suction`] at the next actuation).

@@ -1,6 +1,6 @@
 //! The assembly cell any arm works in (docs/cells.md): its layout as data ([`layout`]), what
-//! it is built of besides the robot and how a finished program is judged ([`parts`]), and the
-//! pick-and-place program a reach policy drives ([`program`]).
+//! it is built of besides the robot and where a finished program left the part ([`parts`]),
+//! and the pick-and-place program a reach policy drives, and how it ended ([`program`]).
 
 pub mod layout;
 pub mod parts;

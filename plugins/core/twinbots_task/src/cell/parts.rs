@@ -1,6 +1,6 @@
 //! What an assembly cell is built of besides its robot: the floor, the table, its obstacles,
 //! the two nest fixtures and the part (`assets/cells/fixture.urdf`, `part.urdf`), where the part
-//! rests in a fixture, and how a finished program is judged ([`Placement`], [`Outcome`]).
+//! rests in a fixture, and where a finished program left the part ([`Placement`]).
 
 use std::path::Path;
 
@@ -10,7 +10,6 @@ use twinbots_sim::urdf::{RobotModel, parse_urdf};
 use twinbots_sim::{Arena, Handled, SpawnOptions, Supervisor, spawn_robot};
 
 use super::layout::CellLayout;
-use super::program::Stage;
 
 const FIXTURE_URDF: &str = include_str!("../../../../../assets/cells/fixture.urdf");
 const PART_URDF: &str = include_str!("../../../../../assets/cells/part.urdf");
@@ -126,77 +125,5 @@ impl Placement {
     pub fn record(&self, metrics: &mut std::collections::BTreeMap<String, f32>) {
         metrics.insert("place_offset_mm".into(), 1e3 * self.off_centre.length());
         metrics.insert("part_tilt_rad".into(), self.tilt);
-    }
-}
-
-/// How a pick-and-place episode ended: placed, or the first failure that explains it. `eval`
-/// reports each as the share of episodes (`outcome_<name>`), so failures can be told apart.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Outcome {
-    Placed,
-    /// A protective stop halted the program.
-    ProtectiveStop,
-    /// The suction found no part to seize.
-    GraspMissed,
-    /// The part was seized and lost before the program let it go.
-    PartDropped,
-    /// The program ran to its end and the part is not in fixture B's pocket.
-    PlaceMissed,
-    /// The episode's step limit came first.
-    TimeLimit,
-}
-
-impl Outcome {
-    pub const ALL: [Outcome; 6] =
-        [Self::Placed, Self::ProtectiveStop, Self::GraspMissed, Self::PartDropped, Self::PlaceMissed, Self::TimeLimit];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Placed => "placed",
-            Self::ProtectiveStop => "protective_stop",
-            Self::GraspMissed => "grasp_missed",
-            Self::PartDropped => "part_dropped",
-            Self::PlaceMissed => "place_missed",
-            Self::TimeLimit => "time_limit",
-        }
-    }
-
-    /// The outcome of an episode that ended with the program at `stage`.
-    pub fn of(stage: Stage, stopped: bool, holding: bool, placed: bool) -> Self {
-        let carrying = matches!(stage, Stage::Lift | Stage::Transfer | Stage::Align | Stage::Lower);
-        match stage {
-            Stage::Done if placed => Self::Placed,
-            _ if stopped => Self::ProtectiveStop,
-            Stage::Failed => Self::GraspMissed,
-            Stage::Done => Self::PlaceMissed,
-            _ if carrying && !holding => Self::PartDropped,
-            _ => Self::TimeLimit,
-        }
-    }
-
-    /// Adds the outcome to an episode's figures: one `outcome_<name>` per outcome, 1 for this.
-    pub fn record(self, metrics: &mut std::collections::BTreeMap<String, f32>) {
-        for o in Self::ALL {
-            metrics.insert(format!("outcome_{}", o.name()), f32::from(u8::from(o == self)));
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn an_ended_program_is_told_by_its_first_failure() {
-        use Outcome::*;
-        assert_eq!(Outcome::of(Stage::Done, false, false, true), Placed);
-        assert_eq!(Outcome::of(Stage::Done, false, false, false), PlaceMissed);
-        assert_eq!(Outcome::of(Stage::Lower, true, true, false), ProtectiveStop);
-        assert_eq!(Outcome::of(Stage::Failed, false, false, false), GraspMissed);
-        assert_eq!(Outcome::of(Stage::Transfer, false, false, false), PartDropped);
-        assert_eq!(Outcome::of(Stage::Transfer, false, true, false), TimeLimit);
-        assert_eq!(Outcome::of(Stage::Approach, false, false, false), TimeLimit);
-        let names: std::collections::BTreeSet<_> = Outcome::ALL.iter().map(|o| o.name()).collect();
-        assert_eq!(names.len(), Outcome::ALL.len(), "one figure per outcome");
     }
 }
