@@ -1,8 +1,10 @@
 //! Any serial arm from a robot file (`*.toml`: a URDF plus the keys of
 //! `twinbots_sim::urdf::robot_file`), with no Rust of its own: the arm welded to the floor of an
-//! empty cell, its joints under speed-commanded servos that hold position (a UR's `speedj`, a
-//! Franka's joint velocity interface), and a goal-conditioned reach ([`reach`]) that trains
-//! with SAC + HER or PPO. `twinbots train path/to/arm.toml` reaches it through [`robot`].
+//! empty cell or to the table of its own (the file's `cell`), its joints under speed-commanded
+//! servos that hold position (a UR's `speedj`, a Franka's joint velocity interface), a
+//! goal-conditioned reach ([`reach`]) that trains with SAC + HER or PPO and, with a cell and a
+//! vacuum gripper, the cell's pick-and-place program ([`pick_place`]). `twinbots train
+//! path/to/arm.toml` reaches it through [`robot`].
 //!
 //! The controller knows only its encoders and the chain's kinematics (the tool from the
 //! URDF in double precision). Its protective stop, which ends the episode as a failure, trips as
