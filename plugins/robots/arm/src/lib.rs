@@ -58,11 +58,12 @@ batch_size = 256
 hidden = [128, 128]
 log_std_init = -1.0";
 
-/// The twin's timing: 4 ms physics steps of 8 solver iterations (the UR5e's, whose accuracy the
-/// sim tests hold), as many per control step as the file's `policy_period` takes.
+/// The twin's timing: 4 ms physics steps of the file's `solver_iterations` (8 by default, the
+/// UR5e's, whose accuracy the sim tests hold), as many per control step as the file's
+/// `policy_period` takes.
 pub fn sim_settings(file: &RobotFile) -> SimSettings {
     let substeps = (file.policy_period / PHYSICS_STEP).round() as u32;
-    SimSettings { dt: PHYSICS_STEP as f32, substeps, solver_iterations: 8, ..default() }
+    SimSettings { dt: PHYSICS_STEP as f32, substeps, solver_iterations: file.solver_iterations as usize, ..default() }
 }
 
 /// The description of the arm in the robot file at `path`: what `twinbots_run::registry::find`

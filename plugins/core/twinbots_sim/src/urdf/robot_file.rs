@@ -29,6 +29,7 @@ struct Written {
     safety_factor: Option<f64>,
     policy_period: Option<f64>,
     hull_vertices: Option<usize>,
+    solver_iterations: Option<u32>,
     cell: Option<PathBuf>,
     gripper: Option<Gripper>,
     #[serde(default)]
@@ -61,6 +62,10 @@ pub const MAX_ACCELERATION: f64 = 1000.0;
 pub const HULL_VERTICES: std::ops::RangeInclusive<usize> = 8..=4096;
 /// The twin's physics step (s) for a robot file's arm: the UR5e's, whose accuracy is tested.
 pub const PHYSICS_STEP: f64 = 0.004;
+/// Solver iterations of a physics step unless the file says `solver_iterations`: the UR5e's.
+pub const DEFAULT_SOLVER_ITERATIONS: u32 = 8;
+/// The range of `solver_iterations`.
+pub const SOLVER_ITERATIONS: std::ops::RangeInclusive<u32> = 1..=64;
 
 /// What the controller sends its joints each period.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
@@ -101,6 +106,8 @@ pub struct RobotFile {
     /// The most vertices a link's collision hull keeps (`hull_vertices`; see
     /// [`super::MAX_HULL_VERTICES`], the default).
     pub hull_vertices: usize,
+    /// How many iterations the physics solves each step in (`solver_iterations`).
+    pub solver_iterations: u32,
     /// The cell the arm works in (`cell`: a layout file, docs/cells.md, the path made the
     /// file's), if any: without one it stands on an empty floor.
     pub cell: Option<PathBuf>,
@@ -262,6 +269,14 @@ impl RobotFile {
             HULL_VERTICES.start(),
             HULL_VERTICES.end()
         );
+        let solver_iterations = written.solver_iterations.unwrap_or(DEFAULT_SOLVER_ITERATIONS);
+        anyhow::ensure!(
+            SOLVER_ITERATIONS.contains(&solver_iterations),
+            "{}: key 'solver_iterations': {solver_iterations} is not from {} to {}",
+            path.display(),
+            SOLVER_ITERATIONS.start(),
+            SOLVER_ITERATIONS.end()
+        );
         let cell = written.cell.map(|cell| folder.join(cell));
         if let Some(cell) = &cell {
             anyhow::ensure!(cell.is_file(), "{}: key 'cell': no file {}", path.display(), cell.display());
@@ -290,6 +305,7 @@ impl RobotFile {
             policy_period,
             packages,
             hull_vertices,
+            solver_iterations,
             cell,
             gripper: written.gripper,
         })
@@ -387,6 +403,11 @@ mod tests {
             ("safety.toml", format!("{head}{joints}safety_factor = 0\n"), "key 'safety_factor'"),
             ("policy.toml", format!("{head}{joints}policy_period = 0.005\n"), "key 'policy_period'"),
             ("hull.toml", format!("{head}{joints}hull_vertices = 3\n"), "key 'hull_vertices': 3 is not from 8 to 4096"),
+            (
+                "solver.toml",
+                format!("{head}{joints}solver_iterations = 0\n"),
+                "key 'solver_iterations': 0 is not from 1 to 64",
+            ),
             ("packages.toml", format!("{head}{joints}[packages]\nur = \"no/such/folder\"\n"), "key 'packages.ur'"),
         ];
         for (name, text, expected) in cases {
