@@ -83,15 +83,16 @@ def test_a_robot_file_trains_evaluates_and_exports(tmp_path):
     assert onnx.stat().st_size > 1000
 
 
-def test_the_ur10_in_its_cell_picks_and_places_with_its_classical_controller(tmp_path):
-    """`assets/robots/ur10-cell.toml`: the UR10 on the table of `assets/cells/ur10.toml` with a
-    vacuum cup at its flange runs the cell program (the reach's classical controller between the
-    stations, the controller's straight moves onto the part and into the pocket) and places the
-    part; its demonstrations are a LeRobot dataset."""
-    if not (ROBOTS / ARMS[1][1]).is_file():
-        pytest.skip("example-robot-data has no UR10")
+@pytest.mark.parametrize("name,urdf", [("ur10-cell", ARMS[1][1]), ("panda-cell", ARMS[0][1])])
+def test_an_arm_in_its_cell_picks_and_places_with_its_classical_controller(tmp_path, name, urdf):
+    """`assets/robots/ur10-cell.toml` and `panda-cell.toml`: the arm on the table of its cell
+    (`assets/cells/`) with a vacuum cup at its tool runs the cell program (the reach's classical
+    controller between the stations, the controller's straight moves onto the part and into the
+    pocket) and places the part; its demonstrations are a LeRobot dataset."""
+    if not (ROBOTS / urdf).is_file():
+        pytest.skip(f"example-robot-data has no {urdf}")
     dataset = tmp_path / "d"
-    out = run("demos", "assets/robots/ur10-cell.toml", "--task", "pick-place", "--episodes", "8", "--out", str(dataset))
+    out = run("demos", f"assets/robots/{name}.toml", "--task", "pick-place", "--episodes", "8", "--out", str(dataset))
     placed = int(re.search(r"\((\d+) of 8 episodes run met the goal\)", out)[1])
     assert placed >= 7, out
     info = json.loads((dataset / "meta" / "info.json").read_text())

@@ -24,6 +24,25 @@ pub const TARGET_SPREAD: f64 = 0.6;
 pub const TARGET_CLEARANCE: f64 = 0.1;
 /// Episode starts: home with every joint off by up to this much (rad or m).
 pub const START_SPREAD: f64 = 0.05;
+/// A station target lies this far (m) across either fixture's plate centre…
+pub const STATION_SPREAD: f32 = 0.05;
+/// …and this high above its plate (m): from the part's top (7 cm) plus the cell program's 4 cm
+/// align height to its 10 cm clearance and beyond, where the program's free moves end.
+pub const STATION_HEIGHTS: std::ops::RangeInclusive<f32> = 0.11..=0.25;
+
+/// A reach target over one of the cell's fixtures (either, at even odds): where the cell
+/// program's free moves (approach, transfer) send the tool, which targets around home need not
+/// cover (the Panda's reach model, trained on those alone, placed 1.5 % of its cell's parts).
+fn station_target(fixtures: Fixtures, rng: &mut impl Rng) -> Vec3 {
+    let plate = if rng.random_bool(0.5) { fixtures.pick } else { fixtures.place };
+    let across = Vec3::new(
+        rng.random_range(-STATION_SPREAD..=STATION_SPREAD),
+        rng.random_range(-STATION_SPREAD..=STATION_SPREAD),
+        0.0,
+    );
+    plate + across + Vec3::Z * rng.random_range(STATION_HEIGHTS)
+}
+
 /// Gain (1/s) with which a straight move turns the tool's axis down, as the UR5e's controller.
 const TILT_GAIN: f64 = 3.0;
 /// Damping of a straight move's least-squares solve (m), the UR5e controller's.
@@ -127,8 +146,14 @@ impl Arm {
     }
 
     /// A reach target in the base frame: the tool at joint positions around home, high enough
-    /// above the floor (a few draws; home's own tool position if none is).
+    /// above the floor (a few draws; home's own tool position if none is). An arm in a cell
+    /// draws every other target over its fixtures instead ([`Self::station_target`]).
     pub fn sample_target(&self, rng: &mut impl Rng) -> Vec3 {
+        if let Some(fixtures) = self.fixtures()
+            && rng.random_bool(0.5)
+        {
+            return station_target(fixtures, rng);
+        }
         for _ in 0..32 {
             let tool = self.tool(&self.sample_around_home(rng, TARGET_SPREAD));
             let height = (self.base.translation.z - self.surface) as f64 + tool.z;
