@@ -290,7 +290,11 @@ def test_a_foxglove_client_sees_what_a_pixel_task_observes(tmp_path):
     command += ["--out", str(tmp_path / "run"), "--live", "127.0.0.1:0"]
     train, port = start(command)
     try:
-        channels, received, _ = asyncio.run(watch(port, ["/arena_0/image", "/arena_1/image"], 4.0))
+        # Until each arena's image has come (up to a minute: rendering off-screen on two busy
+        # cores, one arena's first image once took longer than the 4 s this waited).
+        topics = ["/arena_0/image", "/arena_1/image"]
+        both = lambda received, _: all(received[t] for t in topics)  # noqa: E731
+        channels, received, _ = asyncio.run(watch(port, topics, 60.0, enough=both))
         assert train.poll() is None, "training stopped while watched"
     finally:
         train.kill()
