@@ -233,6 +233,12 @@ fn a_robot_file_arm_in_its_cell_picks_and_places_the_part_with_its_classical_con
     }
     assert!(placed >= 5, "{placed} of {ended} programs placed the part");
 
+    // A held joint must be a movable joint outside `joints`.
+    let held = robot_file_of("held", "arm6", URDF6, &format!("{ROBOT_FILE6}[held_positions]\nelbow = 0.1\n"));
+    let Err(err) = twinbots_arm::robot(&held) else { panic!("a controlled joint held") };
+    let err = format!("{err:#}");
+    assert!(err.contains("key 'held_positions': 'elbow' is not a movable joint of the URDF outside"), "{err}");
+
     // A cell whose plates overlap is named with the robot file's key.
     std::fs::write(path.with_file_name("cell.toml"), CELL6.replace("[0.45, -0.15]", "[0.45, 0.1]")).unwrap();
     let Err(err) = twinbots_arm::robot(&path) else { panic!("a bad cell read") };

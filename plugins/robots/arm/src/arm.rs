@@ -76,10 +76,30 @@ impl Arm {
             }
             None => None,
         };
+        for (name, value) in &file.held_positions {
+            let joint = model.joint(name).filter(|j| j.kind.is_movable() && !file.joints.contains(name));
+            let Some(joint) = joint else {
+                anyhow::bail!(
+                    "{}: key 'held_positions': '{name}' is not a movable joint of the URDF outside `joints`",
+                    file.path.display()
+                );
+            };
+            let [lo, hi] = joint.limits.position.unwrap_or([f32::NEG_INFINITY, f32::INFINITY]);
+            // In the URDF's single precision, as the simulator holds it.
+            anyhow::ensure!(
+                value.is_finite() && (lo..=hi).contains(&(*value as f32)),
+                "{}: key 'held_positions': {value} for '{name}' is outside its range [{lo}, {hi}]",
+                file.path.display()
+            );
+            anyhow::ensure!(
+                joint.limits.effort > 0.0,
+                "{}: key 'held_positions': '{name}' has no drive to hold it (its URDF effort is 0)",
+                file.path.display()
+            );
+        }
         let root = cell.as_ref().map_or(Pose::IDENTITY, CellLayout::base_pose);
         let surface = cell.as_ref().map_or(0.0, |c| c.table.height);
-        let root_poses = model
-            .link_poses(root, |j| file.joints.iter().position(|n| *n == j.name).map_or(0.0, |k| file.home[k] as f32));
+        let root_poses = model.link_poses(root, |j| file.start_position(&j.name) as f32);
         let base_link = model
             .link_index(&file.chain.base)
             .ok_or_else(|| anyhow::anyhow!("{}: the URDF has no link '{}'", file.path.display(), file.chain.base))?;

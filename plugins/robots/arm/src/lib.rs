@@ -280,17 +280,10 @@ fn rig(arm: &Arm, settings: SimSettings) -> RigDescription {
         fit,
         spawn: Arc::new(move |commands, arena_entity, arena, start| {
             arena.add_ground(0.8);
-            let home = spawned.home();
-            let joint_positions = (spawned.file.joints.iter().zip(home))
-                .map(|(name, q)| (name.clone(), start.iter().find(|(n, _)| n == name).map_or(q, |(_, q)| *q)))
+            let at: Vec<f32> = (spawned.file.joints.iter().zip(spawned.home()))
+                .map(|(name, q)| start.iter().find(|(n, _)| n == name).map_or(q, |(_, q)| *q))
                 .collect();
-            let options = SpawnOptions { fixed_base: true, joint_positions, ..default() };
-            let robot = spawn_robot(commands, arena_entity, arena, &spawned.model, options);
-            let joints: Vec<Entity> = (spawned.file.joints.iter())
-                .map(|name| robot.joint(name).expect("the robot file's joints are the URDF's"))
-                .collect();
-            take_speeds(commands, &joints, &spawned.file);
-            robot
+            spawn_arm(commands, arena_entity, arena, &spawned, Pose::IDENTITY, &at).0
         }),
         excitation,
         command_steps: (arm.file.control_period / PHYSICS_STEP).round().max(1.0) as u32,
@@ -310,21 +303,7 @@ fn spawn_cells(mut commands: Commands, arm: Res<Arm>, config: Res<ArenaConfig>, 
                 None
             }
         };
-        let joint_positions = arm.file.joints.iter().cloned().zip(home.iter().copied()).collect();
-        let robot = spawn_robot(
-            commands,
-            arena_entity,
-            arena,
-            &arm.model,
-            SpawnOptions { base: arm.root(), fixed_base: true, joint_positions, ..default() },
-        );
-        let joints: Vec<Entity> = arm
-            .file
-            .joints
-            .iter()
-            .map(|name| robot.joint(name).expect("the robot file's joints are the URDF's"))
-            .collect();
-        take_speeds(commands, &joints, &arm.file);
+        let (robot, joints) = spawn_arm(commands, arena_entity, arena, &arm, arm.root(), &home);
         let state = ReachState { start_pose: home.clone(), ..default() };
         let gripper = arm.file.gripper.map(|g| {
             let tool = robot.link(&arm.file.chain.tool).expect("the robot file's tool is a link of its URDF");
@@ -340,12 +319,31 @@ fn spawn_cells(mut commands: Commands, arm: Res<Arm>, config: Res<ArenaConfig>, 
     });
 }
 
-/// The controlled joints' drives (the controller's order) as a speed-commanded servo's: they
-/// hold position (zero speed until told otherwise, as a powered UR does) and ramp a new speed
-/// within the file's `acceleration_limits`.
-fn take_speeds(commands: &mut Commands, joints: &[Entity], file: &RobotFile) {
-    for (k, &joint) in joints.iter().enumerate() {
-        let acceleration = file.acceleration_limits.as_ref().map(|limits| limits[k] as f32);
+/// Spawns the arm, its root link welded at `root`, its controlled joints at `start` (the
+/// controller's order) and its `held_positions` joints where the file holds them. The
+/// controlled joints' drives are a speed-commanded servo's: they hold position (zero speed until
+/// told otherwise, as a powered UR does) and ramp a new speed within the file's
+/// `acceleration_limits`; the held joints' drives hold them. Returns the robot and its
+/// controlled joints.
+fn spawn_arm(
+    commands: &mut Commands,
+    arena_entity: Entity,
+    arena: &mut twinbots_sim::Arena,
+    arm: &Arm,
+    root: Pose,
+    start: &[f32],
+) -> (twinbots_sim::SpawnedRobot, Vec<Entity>) {
+    let file = &arm.file;
+    let held = file.held_positions.iter().map(|(name, q)| (name.clone(), *q as f32));
+    let joint_positions = file.joints.iter().cloned().zip(start.iter().copied()).chain(held).collect();
+    let options = SpawnOptions { base: root, fixed_base: true, joint_positions, ..default() };
+    let robot = spawn_robot(commands, arena_entity, arena, &arm.model, options);
+    let joint = |name: &str| robot.joint(name).expect("the robot file's joints are the URDF's (checked on reading)");
+    let joints: Vec<Entity> = file.joints.iter().map(|name| joint(name)).collect();
+    let drives = (joints.iter().enumerate())
+        .map(|(k, &j)| (j, file.acceleration_limits.as_ref().map(|limits| limits[k] as f32)))
+        .chain(file.held_positions.iter().map(|(name, _)| (joint(name), None)));
+    for (joint, acceleration) in drives {
         commands.entity(joint).entry::<Motor>().and_modify(move |mut m| {
             m.holds_position = true;
             m.command = MotorCommand::Velocity(0.0);
@@ -353,6 +351,7 @@ fn take_speeds(commands: &mut Commands, joints: &[Entity], file: &RobotFile) {
             m.max_acceleration = acceleration;
         });
     }
+    (robot, joints)
 }
 
 /// The policy's action becomes joint speeds (each joint's task speed limit at full scale),

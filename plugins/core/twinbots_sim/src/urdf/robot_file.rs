@@ -30,6 +30,8 @@ struct Written {
     policy_period: Option<f64>,
     hull_vertices: Option<usize>,
     solver_iterations: Option<u32>,
+    #[serde(default)]
+    held_positions: BTreeMap<String, f64>,
     cell: Option<PathBuf>,
     gripper: Option<Gripper>,
     #[serde(default)]
@@ -108,6 +110,10 @@ pub struct RobotFile {
     pub hull_vertices: usize,
     /// How many iterations the physics solves each step in (`solver_iterations`).
     pub solver_iterations: u32,
+    /// Movable joints of the URDF outside `joints` (a gripper's fingers) whose drives hold
+    /// them at these positions (`[held_positions]`, rad or m; checked against the URDF by the
+    /// arm that spawns them). The others outside `joints` move freely.
+    pub held_positions: Vec<(String, f64)>,
     /// The cell the arm works in (`cell`: a layout file, docs/cells.md, the path made the
     /// file's), if any: without one it stands on an empty floor.
     pub cell: Option<PathBuf>,
@@ -306,6 +312,7 @@ impl RobotFile {
             packages,
             hull_vertices,
             solver_iterations,
+            held_positions: written.held_positions.into_iter().collect(),
             cell,
             gripper: written.gripper,
         })
@@ -317,6 +324,15 @@ impl RobotFile {
     pub fn model(&self) -> anyhow::Result<RobotModel> {
         load_urdf_in(&self.urdf, &self.packages, self.hull_vertices)
             .map_err(|e| anyhow::anyhow!("{}: key 'urdf': {e}", self.path.display()))
+    }
+
+    /// Where joint `name` of the URDF starts: its `home` if it is one of `joints`, its
+    /// `held_positions` entry, else 0.
+    pub fn start_position(&self, name: &str) -> f64 {
+        match self.joints.iter().position(|n| n == name) {
+            Some(k) => self.home[k],
+            None => self.held_positions.iter().find(|(n, _)| n == name).map_or(0.0, |(_, q)| *q),
+        }
     }
 
     /// The chain's joint positions (chain order) of controller-order positions `q`.
