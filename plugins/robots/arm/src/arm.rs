@@ -122,15 +122,16 @@ impl Arm {
         self.file.chain.forward(&self.chain_q(q)).translation
     }
 
-    /// The tool's position and linear velocity (J·q̇) in the base frame.
-    pub fn tool_motion(&self, q: &[f32], qd: &[f32]) -> (DVec3, DVec3) {
+    /// The tool's position, linear velocity (J·q̇) and z axis (its gripper's) in the base frame,
+    /// from one pass along the chain.
+    pub fn tool_motion(&self, q: &[f32], qd: &[f32]) -> (DVec3, DVec3, DVec3) {
         let (tool, columns) = self.file.chain.forward_and_jacobian(&self.chain_q(q));
         let velocity = columns
             .iter()
             .zip(&self.controller_index)
             .map(|(col, &k)| DVec3::new(col[0], col[1], col[2]) * qd[k] as f64)
             .sum();
-        (tool.translation, velocity)
+        (tool.translation, velocity, tool.rotation * DVec3::Z)
     }
 
     /// Whether any joint is within [`LIMIT_MARGIN`] of a stop.
@@ -199,12 +200,6 @@ impl Arm {
         let cell = self.cell.as_ref()?;
         let local = |f| (self.base.inverse() * cell.fixture_pose(f)).translation;
         Some(Fixtures { pick: local(&cell.pick), place: local(&cell.place) })
-    }
-
-    /// The tool link's position and its z axis (the gripper's) in the base frame.
-    pub fn tool_and_axis(&self, q: &[f32]) -> (DVec3, DVec3) {
-        let frame = self.file.chain.forward(&self.chain_q(q));
-        (frame.translation, frame.rotation * DVec3::Z)
     }
 
     /// Joint speeds (controller order; rad/s or m/s) of a straight move of the tool towards

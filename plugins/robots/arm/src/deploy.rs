@@ -48,13 +48,7 @@ impl ReachOnRobot for ReachController {
     fn read(&mut self, q: &[f64], qd: &[f64]) {
         let q: Vec<f32> = q.iter().map(|&v| v as f32).collect();
         let qd: Vec<f32> = qd.iter().map(|&v| v as f32).collect();
-        let (tool, velocity) = self.arm.tool_motion(&q, &qd);
-        self.state.tool = tool.as_vec3();
-        self.state.tool_velocity = velocity.as_vec3();
-        self.state.limit_depth = self.arm.limit_depth(&q);
-        self.state.at_limit = self.arm.at_limit(&q);
-        self.state.q = q;
-        self.state.qd = qd;
+        self.state.at_limit = self.state.read(&self.arm, q, qd);
     }
 
     fn observation(&mut self) -> &[f32] {

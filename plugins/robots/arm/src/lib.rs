@@ -393,16 +393,9 @@ fn read_arm(
     for (joints, mut state) in &mut arenas {
         let (q, qd): (Vec<f32>, Vec<f32>) =
             joints.0.iter().map(|&j| sensors.get(j).map_or((0.0, 0.0), |(p, s)| (p.value, s.velocity))).unzip();
-        let (tool, velocity) = arm.tool_motion(&q, &qd);
-        state.tool = tool.as_vec3();
-        state.tool_velocity = velocity.as_vec3();
-        state.tool_axis = arm.tool_and_axis(&q).1.as_vec3();
-        state.limit_depth = arm.limit_depth(&q);
-        let at_limit = arm.at_limit(&q);
+        let at_limit = state.read(&arm, q, qd);
         state.stopped |= at_limit && !state.at_limit;
         state.at_limit = at_limit;
-        state.q = q;
-        state.qd = qd;
     }
 }
 

@@ -14,11 +14,10 @@
 use std::sync::Arc;
 
 use bevy::prelude::*;
-use rand::Rng;
-use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{SimSettings, Supervisor, VacuumGripper};
 use twinbots_task::cell::layout::Fixtures;
-use twinbots_task::cell::parts::{Placement, part_seat};
+use twinbots_task::cell::parts::{Placement, draw_part_start, part_start_pose};
+pub use twinbots_task::cell::program::EPISODE_STEPS;
 use twinbots_task::cell::program::{Outcome, Program, Stage};
 use twinbots_task::task::Resetting;
 use twinbots_task::{Episode, StartEvent, TaskDefinition, TerminationTerm};
@@ -26,10 +25,6 @@ use twinbots_task::{Episode, StartEvent, TaskDefinition, TerminationTerm};
 use crate::arm::{Arm, START_SPREAD};
 use crate::reach::{self, ReachState, STOP_TERM};
 
-/// Control steps before a program is given up: the UR5e's.
-pub const EPISODE_STEPS: u32 = 400;
-/// How far (m) the part may sit off its pocket's centre at the start: the UR5e cell's.
-pub const PART_PLAY: f32 = 0.005;
 /// A straight move's gain (1/s) and top tool speed (m/s): the UR5e controller's MoveL.
 const LINEAR_GAIN: f64 = 8.0;
 const LINEAR_SPEED: f64 = 0.25;
@@ -73,9 +68,7 @@ fn new_program(arm: &Arc<Arm>) -> StartEvent<ReachState> {
         s.start_pose = arm.sample_around_home(rng, START_SPREAD);
         s.last_action.clear();
         s.previous_action.clear();
-        s.part_offset =
-            Vec3::new(rng.random_range(-PART_PLAY..=PART_PLAY), rng.random_range(-PART_PLAY..=PART_PLAY), 0.0);
-        s.part_yaw = rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI);
+        (s.part_offset, s.part_yaw) = draw_part_start(rng);
     })
 }
 
@@ -123,8 +116,8 @@ pub fn apply_suction(mut grippers: Query<&mut VacuumGripper>, arenas: Query<(&Ar
 /// Patterns 1 and 2: the Supervisor seats the part where the start drew it.
 pub fn place_part(arm: Res<Arm>, mut supervisor: Supervisor, arenas: Query<(&ArmCell, &ReachState), With<Resetting>>) {
     for (cell, state) in &arenas {
-        let seat = part_seat(cell.fixtures.pick) + state.part_offset;
-        supervisor.set_link_pose(cell.part, arm.base * Pose::from_parts(seat, Quat::from_rotation_z(state.part_yaw)));
+        let seat = part_start_pose(cell.fixtures.pick, state.part_offset, state.part_yaw);
+        supervisor.set_link_pose(cell.part, arm.base * seat);
     }
 }
 
@@ -141,15 +134,8 @@ pub fn report(
             continue;
         }
         let Some(program) = state.program else { continue };
-        let done = program.stage == Stage::Done;
         let placement = Placement::of(&supervisor, cell.part, arm.base, cell.fixtures.place);
-        let placed = done && placement.as_ref().is_some_and(Placement::placed);
-        if let Some(p) = placement.filter(|_| done) {
-            p.record(&mut e.running.metrics);
-        }
-        let outcome = Outcome::of(program.stage, state.stopped, program.holding, placed);
-        e.running.success = Some(outcome == Outcome::Placed);
-        outcome.record(&mut e.running.metrics);
+        let outcome = Outcome::judge(&program, state.stopped, placement, &mut e.running);
         if outcome == Outcome::Placed {
             let cycle_time = (e.running.length + 1) as f32 * settings.control_dt();
             e.running.metrics.insert("cycle_time_s".into(), cycle_time);

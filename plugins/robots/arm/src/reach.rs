@@ -102,6 +102,21 @@ impl ToolReading for ReachState {
 }
 
 impl ReachState {
+    /// Takes the joints' readings (the controller's order) and what the controller's kinematics
+    /// make of them: the tool, the soft limits' depth. Returns whether a joint is within the
+    /// stop's margin (the caller decides what the stop does).
+    pub fn read(&mut self, arm: &Arm, q: Vec<f32>, qd: Vec<f32>) -> bool {
+        let (tool, velocity, axis) = arm.tool_motion(&q, &qd);
+        self.tool = tool.as_vec3();
+        self.tool_velocity = velocity.as_vec3();
+        self.tool_axis = axis.as_vec3();
+        self.limit_depth = arm.limit_depth(&q);
+        let at_limit = arm.at_limit(&q);
+        self.q = q;
+        self.qd = qd;
+        at_limit
+    }
+
     pub fn distance(&self) -> f32 {
         (self.target - self.tool).length()
     }

@@ -13,9 +13,7 @@
 //! after [`EPISODE_STEPS`].
 
 use bevy::prelude::*;
-use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{SimSettings, Supervisor, VacuumGripper};
 use twinbots_task::task::Resetting;
 use twinbots_task::{Episode, Space, StartEvent, TaskDefinition, TaskTerms, TerminationTerm};
@@ -26,8 +24,10 @@ use crate::metrics::TwinMeter;
 pub use crate::program::{ALIGN_HEIGHT, CLEARANCE, DROP_HEIGHT, GRIP_GAP, Program, SUCTION_STEPS, Stage, waypoint};
 use crate::reach::{motion_costs, observations, sample_start};
 use crate::state::CellState;
+use twinbots_task::cell::parts::draw_part_start;
+pub use twinbots_task::cell::parts::{PART_PLAY, part_start_pose};
+pub use twinbots_task::cell::program::EPISODE_STEPS;
 
-pub const EPISODE_STEPS: u32 = 400;
 pub use twinbots_task::cell::parts::{PLACE_TOLERANCE, Placement, UPRIGHT_TOLERANCE};
 pub use twinbots_task::cell::program::Outcome;
 
@@ -54,10 +54,6 @@ pub fn apply_suction(mut grippers: Query<&mut VacuumGripper>, arenas: Query<(&Ce
         }
     }
 }
-
-/// How far (m) the part may sit off its pocket's centre at the start. With the reach's 1 cm,
-/// the part then never lands more than the pocket's play of its centre.
-pub const PART_PLAY: f32 = 0.005;
 
 /// Pick-and-place as a task: the reach's observation and motion costs (the same spaces, so a
 /// reach model runs it), over when the program is, at most [`EPISODE_STEPS`]. Its success is
@@ -89,8 +85,7 @@ fn new_program(s: &mut CellState, rng: &mut ChaCha8Rng) {
     s.suction = false;
     s.actions = ActionHistory::default();
     s.start_pose = sample_start(rng);
-    s.part_offset = Vec3::new(rng.random_range(-PART_PLAY..=PART_PLAY), rng.random_range(-PART_PLAY..=PART_PLAY), 0.0);
-    s.part_yaw = rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI);
+    (s.part_offset, s.part_yaw) = draw_part_start(rng);
 }
 
 /// Where the start drew the part (its bottom centre, base frame): its pick seat plus its offset.
@@ -101,7 +96,7 @@ pub fn part_start(s: &CellState) -> Vec3 {
 /// Patterns 1 and 2: the Supervisor seats the part where the start drew it.
 pub fn place_part(mut supervisor: Supervisor, arenas: Query<(&CellParts, &CellState), With<Resetting>>) {
     for (parts, state) in &arenas {
-        let seat = Pose::from_parts(part_start(state), Quat::from_rotation_z(state.part_yaw));
+        let seat = part_start_pose(state.fixtures.pick, state.part_offset, state.part_yaw);
         supervisor.set_link_pose(parts.part, parts.base * seat);
     }
 }
@@ -116,13 +111,7 @@ pub fn report(
     for (parts, state, meter, mut e) in &mut arenas {
         if e.done() {
             let placement = Placement::of(&supervisor, parts.part, parts.base, state.fixtures.place);
-            let placed = state.program.stage == Stage::Done && placement.as_ref().is_some_and(Placement::placed);
-            if let Some(p) = placement.filter(|_| state.program.stage == Stage::Done) {
-                p.record(&mut e.running.metrics);
-            }
-            let outcome = Outcome::of(state.program.stage, state.safety.stopped(), state.program.holding, placed);
-            e.running.success = Some(outcome == Outcome::Placed);
-            outcome.record(&mut e.running.metrics);
+            let outcome = Outcome::judge(&state.program, state.safety.stopped(), placement, &mut e.running);
             let cycle_time =
                 (outcome == Outcome::Placed).then(|| (e.running.length + 1) as f32 * settings.control_dt());
             meter.report(&mut e, cycle_time);

@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use bevy::prelude::*;
+use rand::Rng;
 use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::urdf::{RobotModel, parse_urdf};
 use twinbots_sim::{Arena, Handled, SpawnOptions, Supervisor, spawn_robot};
@@ -27,9 +28,26 @@ pub const PLACE_TOLERANCE: f32 = POCKET_PLAY + 0.001;
 /// …and it stands upright within this angle (rad).
 pub const UPRIGHT_TOLERANCE: f32 = 0.2;
 
+/// How far (m) the part may sit off its pocket's centre at a program's start. With the reach's
+/// 1 cm, the part then never lands more than the pocket's play of its centre.
+pub const PART_PLAY: f32 = 0.005;
+
 /// Where the part rests in a fixture: its bottom on the pocket floor, in the base frame.
 pub fn part_seat(fixture: Vec3) -> Vec3 {
     fixture + Vec3::new(0.0, 0.0, POCKET_FLOOR)
+}
+
+/// A program's start draw of the part in its pick pocket: its offset from the seat (up to
+/// [`PART_PLAY`] along x and y) and its yaw (any).
+pub fn draw_part_start(rng: &mut impl Rng) -> (Vec3, f32) {
+    let offset = Vec3::new(rng.random_range(-PART_PLAY..=PART_PLAY), rng.random_range(-PART_PLAY..=PART_PLAY), 0.0);
+    (offset, rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI))
+}
+
+/// The part's pose in the base frame, seated in the pick fixture at `pick` off its seat by
+/// `offset`, turned `yaw` about the vertical.
+pub fn part_start_pose(pick: Vec3, offset: Vec3, yaw: f32) -> Pose {
+    Pose::from_parts(part_seat(pick) + offset, Quat::from_rotation_z(yaw))
 }
 
 /// The fixture's and the part's models, parsed once.

@@ -5,7 +5,8 @@
 use bevy::prelude::*;
 
 use super::layout::Fixtures;
-use super::parts::{PART_HEIGHT, part_seat};
+use super::parts::{PART_HEIGHT, Placement, part_seat};
+use crate::task::EpisodeFigures;
 
 /// Height of the approach and retract waypoints above the part's top (m).
 pub const CLEARANCE: f32 = 0.10;
@@ -22,6 +23,8 @@ pub const DROP_HEIGHT: f32 = 0.012;
 /// Before lowering it, the part is aligned over the pocket this high above its seat (m): its
 /// bottom clear of the rails, so the last descent is short and straight.
 pub const ALIGN_HEIGHT: f32 = 0.04;
+/// Control steps before a program is given up.
+pub const EPISODE_STEPS: u32 = 400;
 /// Control steps the suction is given to seize or release.
 pub const SUCTION_STEPS: u32 = 3;
 
@@ -210,6 +213,21 @@ impl Outcome {
             _ if carrying && !holding => Self::PartDropped,
             _ => Self::TimeLimit,
         }
+    }
+
+    /// Judges the episode of a program that ended, `stopped` in a protective stop or not, the
+    /// part where the evaluator sees it (`placement`): its outcome, written into `figures` with
+    /// the success (the part placed) and, for a finished program, how well it put the part down.
+    pub fn judge(program: &Program, stopped: bool, placement: Option<Placement>, figures: &mut EpisodeFigures) -> Self {
+        let done = program.stage == Stage::Done;
+        let placed = done && placement.as_ref().is_some_and(Placement::placed);
+        if let Some(p) = placement.filter(|_| done) {
+            p.record(&mut figures.metrics);
+        }
+        let outcome = Self::of(program.stage, stopped, program.holding, placed);
+        figures.success = Some(outcome == Self::Placed);
+        outcome.record(&mut figures.metrics);
+        outcome
     }
 
     /// Adds the outcome to an episode's figures: one `outcome_<name>` per outcome, 1 for this.
