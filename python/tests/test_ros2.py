@@ -10,9 +10,11 @@ import os
 import random
 import shutil
 import subprocess
+import sysconfig
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
@@ -24,6 +26,10 @@ from cyclonedds.idl.types import float64, int32, sequence, uint32  # noqa: E402
 from cyclonedds.pub import DataWriter  # noqa: E402
 from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+# Where example-robot-data puts its robots' descriptions (`package://example-robot-data/…`).
+SHARE = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share"
 
 
 @dataclass
@@ -273,18 +279,21 @@ def test_a_cyclonedds_peer_reads_joint_states_and_frames_and_moves_the_twin(twin
     assert twin.process.poll() is None
 
 
-def follow_with_monitor(tmp_path, robot_args):
-    """`twinbots ros2 ur5e ROBOT_ARGS` as the robot (500 Hz states, as ur_robot_driver), and
-    `twinbots monitor ur5e --ros2` following it for 8 s of its clock while the peer moves the
-    arm through its forward velocity controller. Returns monitor.json and the monitor's output."""
+def follow_with_monitor(tmp_path, robot_args, robot="ur5e", monitor_args=()):
+    """`twinbots ros2 ROBOT ROBOT_ARGS` as the robot (500 Hz states, as ur_robot_driver), and
+    `twinbots monitor ROBOT --ros2` following it for 8 s of its clock while the peer moves the
+    arm through its forward velocity controller. Returns monitor.json and the monitor's output.
+    A robot file's `package://` URDF is found through ROS_PACKAGE_PATH, as a user sets it."""
     domain = random.Random().randrange(100, 230)
-    robot = subprocess.Popen(
-        [twinbots_bin(), "ros2", "ur5e", "--domain", str(domain), "--rate", "500", "--seconds", "60", *robot_args],
-        stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    env = dict(os.environ, ROS_PACKAGE_PATH=str(SHARE))
+    robot_process = subprocess.Popen(
+        [twinbots_bin(), "ros2", robot, "--domain", str(domain), "--rate", "500", "--seconds", "60", *robot_args],
+        stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, env=env, cwd=REPO)
     out = tmp_path / "monitor"
     monitor = subprocess.Popen(
-        [twinbots_bin(), "monitor", "ur5e", "--ros2", "--domain", str(domain), "--seconds", "8", "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        [twinbots_bin(), "monitor", robot, "--ros2", "--domain", str(domain), "--seconds", "8", "--out", str(out),
+         *monitor_args],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO)
     lines = []
     threading.Thread(target=lambda: lines.extend(monitor.stdout), daemon=True).start()
     try:
@@ -308,8 +317,8 @@ def follow_with_monitor(tmp_path, robot_args):
         assert monitor.wait(timeout=60) == 0, "".join(lines)
     finally:
         monitor.kill()
-        robot.kill()
-        robot.wait()
+        robot_process.kill()
+        robot_process.wait()
     return json.loads((out / "monitor.json").read_text()), "".join(lines), out
 
 
@@ -320,6 +329,22 @@ def test_the_monitor_follows_a_ros2_robot_and_stays_quiet_when_it_matches(tmp_pa
     assert len(report["motions"]) >= 1 and report["motions"][0]["duration_s"] > 2.0, report["motions"]
     assert max(report["worst_rmse"]) < 0.005, report["worst_rmse"]
     assert (out / "robot.mcap").stat().st_size > 0 and (out / "divergence.png").stat().st_size > 0
+
+
+def test_the_monitor_follows_a_robot_file_arm_on_ros2_by_its_joint_names(tmp_path):
+    """The UR10 of `assets/robots/ur10.toml` (example-robot-data's URDF) on ROS 2: its joint
+    states found by the robot file's joint names, followed as the UR5e's are (at the effort
+    threshold of a heavier arm: the UR5e's 1.5 N·m is the start of the UR10's elbow motion, as
+    the RTDE test found)."""
+    if not (SHARE / "example-robot-data/robots/ur_description/urdf/ur10_robot.urdf").is_file():
+        pytest.skip("example-robot-data is not installed")
+    report, output, _ = follow_with_monitor(
+        tmp_path, [], robot="assets/robots/ur10.toml", monitor_args=["--effort-threshold", "5"])
+    assert report["alarms"] == [], output
+    # The UR10's twin steps every 4 ms: a state a step, whatever the rate asked.
+    assert report["reports"] > 1000, output
+    assert len(report["motions"]) >= 1 and report["motions"][0]["duration_s"] > 2.0, report["motions"]
+    assert max(report["worst_rmse"]) < 0.005, report["worst_rmse"]
 
 
 def test_the_monitor_notices_an_unmodelled_payload_on_a_ros2_robot(tmp_path):

@@ -1,6 +1,6 @@
 //! `twinbots monitor ur5e|ROBOT.toml (--rtde HOST[:PORT] | --ros2) [--calibration FILE] [--cell FILE]
 //! [--seconds S] [--frames-every S] --out DIR`: the twin follows the robot live and says where they part
-//! (docs/monitor.md; a robot file's six-joint arm through RTDE). `twinbots monitor ROBOT.toml --replay LOG --calibration FILE --out DIR`: a
+//! (docs/monitor.md; a robot file's six-joint arm through RTDE or ROS 2). `twinbots monitor ROBOT.toml --replay LOG --calibration FILE --out DIR`: a
 //! recording played back as the arm would stream it, its efforts judged by the calibrated shadow
 //! as they arrive.
 
@@ -25,8 +25,8 @@ use twinbots_run::registry;
 #[derive(clap::Args)]
 #[command(group = clap::ArgGroup::new("source").required(true).args(["rtde", "ros2", "replay"]))]
 pub struct Args {
-    /// The robot: ur5e (RTDE, ROS 2), or a robot file (`*.toml`): a six-joint arm through RTDE,
-    /// any arm with --replay.
+    /// The robot: ur5e, or a robot file (`*.toml`): a six-joint arm through RTDE or ROS 2 (its
+    /// joint states found by the file's joint names), any arm with --replay.
     pub robot: String,
     /// The robot's controller: RTDE at HOST[:PORT] (port 30004 by default).
     #[arg(long)]
@@ -143,10 +143,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let arm = LinkedArm::of(&args.robot)?;
     let is_ur5e = matches!(arm, LinkedArm::Ur5e);
     anyhow::ensure!(
-        is_ur5e || !args.ros2,
-        "--ros2 follows the UR5e's driver (its joint names); a robot file's arm is followed through --rtde"
-    );
-    anyhow::ensure!(
         is_ur5e || args.cell.is_none(),
         "--cell lays out the UR5e's cell; a robot file's arm stands in an empty one"
     );
@@ -180,7 +176,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let mut frames = TwinFrames::new(&args, entry)?;
     let live = args.live.start()?;
     let patience = Duration::from_secs_f64(args.patience_ms / 1e3);
-    let mut source = Source::open(args.rtde.as_deref(), args.domain.as_deref(), patience)?;
+    let mut source = Source::open(args.rtde.as_deref(), args.domain.as_deref(), &served.joints, patience)?;
     let first = source.receive()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
     let mut view = live.map(|server| RobotView::new(server, entry, &served.joints)).transpose()?;

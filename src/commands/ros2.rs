@@ -26,7 +26,7 @@ pub struct Args {
     /// Stop after this many seconds (default: until killed).
     #[arg(long)]
     pub seconds: Option<f64>,
-    /// The node's name (default: twinbots_<robot>).
+    /// The node's name (default: twinbots_<robot>; a robot file: its file name's stem).
     #[arg(long)]
     pub node: Option<String>,
     /// The physics step (ms); default: the robot's, the UR5e's controller cycle (2 ms, as ur-sim).
@@ -66,7 +66,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         at: bevy::math::Vec3::new(0.0, 0.0, 0.05),
     });
     let mut twin = Ros2Twin::new(&entry, &TwinOptions { step, truth, payload })?;
-    let name = args.node.unwrap_or_else(|| format!("twinbots_{}", twin.robot()));
+    // A robot file's name is its path: the node takes the file's stem, in a ROS name's characters.
+    let robot = std::path::Path::new(twin.robot()).file_stem().map_or(twin.robot().into(), |s| s.to_string_lossy());
+    let robot: String = robot.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
+    let name = args.node.unwrap_or_else(|| format!("twinbots_{robot}"));
     let node = Ros2Node::open(domain, &name)?;
     let joints: Vec<&str> = twin.commandable().collect();
     println!(

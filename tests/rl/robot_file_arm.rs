@@ -5,6 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
+use bevy::math::Vec2;
 use twinbots_api::{DesignPattern, VecEnv};
 use twinbots_arm::reach::{ReachState, STOP_TERM, resolved_rate};
 use twinbots_sim::urdf::robot_file::RobotFile;
@@ -110,6 +111,15 @@ pub fn six_joint_robot_file(name: &str) -> PathBuf {
     robot_file_of(name, "arm6", URDF6, ROBOT_FILE6)
 }
 
+/// The six-joint arm's robot file with its cell ([`CELL6`]) and a vacuum cup, in a folder of
+/// its own.
+pub fn six_joint_cell_robot_file(name: &str) -> PathBuf {
+    let keys = "cell = \"cell.toml\"\n[gripper]\nradius = 0.02\nstroke = 0.015\n";
+    let path = robot_file_of(name, "arm6", URDF6, &format!("{ROBOT_FILE6}{keys}"));
+    std::fs::write(path.with_file_name("cell.toml"), CELL6).unwrap();
+    path
+}
+
 fn robot_file_of(name: &str, arm: &str, urdf: &str, file: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("twinbots-arm-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -204,13 +214,11 @@ fn a_speed_command_ramps_within_the_files_acceleration_limits() {
 
 #[test]
 fn a_robot_file_arm_in_its_cell_picks_and_places_the_part_with_its_classical_controller() {
-    let keys = "cell = \"cell.toml\"\n[gripper]\nradius = 0.02\nstroke = 0.015\n";
-    let path = robot_file_of("pick", "arm6", URDF6, &format!("{ROBOT_FILE6}{keys}"));
-    std::fs::write(path.with_file_name("cell.toml"), CELL6).unwrap();
+    let path = six_joint_cell_robot_file("pick");
     let file = RobotFile::read(&path).unwrap();
     let robot = twinbots_arm::robot(&path).unwrap();
     let tasks: Vec<&str> = robot.tasks.iter().map(|t| t.name).collect();
-    assert_eq!(tasks, ["reach", "pick-place"]);
+    assert_eq!(tasks, ["reach", "pick-place", "pick-place-learned"]);
     let mut env = AppVecEnv::new(robot.app(Some("pick-place"), 2, 5, DesignPattern::Supervised).unwrap());
     let mut obs = env.reset(Some(5)).unwrap();
     let dim = obs.len() / 2;
@@ -244,6 +252,67 @@ fn a_robot_file_arm_in_its_cell_picks_and_places_the_part_with_its_classical_con
     let Err(err) = twinbots_arm::robot(&path) else { panic!("a bad cell read") };
     let err = format!("{err:#}");
     assert!(err.contains("arm6.toml: key 'cell'") && err.contains("overlaps the pick fixture's"), "{err}");
+}
+
+/// Pick-and-place learned end to end on a robot file's arm in its cell: the goal's terms lie
+/// where the goal interface reads them, parts start and goals lie on the free table in reach,
+/// and the scripted baseline (`classic`) meets the goals in the twin, on the table and in the
+/// air; a met goal is met under hindsight's judgement too.
+#[test]
+fn a_robot_file_arm_in_its_cell_takes_the_part_to_learned_pick_and_places_goals() {
+    let path = six_joint_cell_robot_file("learned");
+    let robot = twinbots_arm::robot(&path).unwrap();
+    let task = robot.tasks.iter().find(|t| t.name == "pick-place-learned").expect("an arm with a cell learns it");
+    assert!(task.training.is_some() && task.scripted.is_some());
+    let spec = (task.spec)();
+    let at = |name: &str| spec.observation_names.iter().position(|n| n == name).unwrap();
+    let terms = twinbots_arm::pick_place_learned::GOAL_TERMS;
+    assert_eq!(
+        [at("tool_position[0]"), at("part_position[0]"), at("part_velocity[0]"), at("suction")],
+        [terms.tcp_position, terms.part_position, terms.part_velocity, terms.suction]
+    );
+    assert_eq!([at("holding"), at("goal_position[0]")], [terms.holding, terms.goal_position]);
+    assert_eq!(spec.observation_names.len(), 20 + 6);
+    let goal = spec.goal.expect("goal-conditioned");
+
+    let arm = twinbots_arm::Arm::of(RobotFile::read(&path).unwrap()).unwrap();
+    let area = arm.work_area.clone().expect("a work area");
+    let [lo, hi] = area.bounds();
+    for corner in [lo, hi, Vec2::new(lo.x, hi.y), Vec2::new(hi.x, lo.y)] {
+        let grip = corner.extend(area.table + 0.05);
+        assert!(arm.reachable(grip), "the area's corner {corner} out of reach");
+    }
+
+    let mut env = AppVecEnv::new(robot.app(Some("pick-place-learned"), 4, 3, DesignPattern::Supervised).unwrap());
+    let mut obs = env.reset(Some(3)).unwrap();
+    let dim = obs.len() / 4;
+    let (mut met, mut ended, mut in_air, mut met_in_air) = (0, 0, 0, 0);
+    while ended < 24 {
+        let actions: Vec<f32> = obs.chunks(dim).flat_map(twinbots_arm::pick_place_learned::scripted).collect();
+        let step = env.step(&actions).unwrap();
+        for (i, summary) in step.episodes.iter().enumerate() {
+            let Some(summary) = summary else { continue };
+            ended += 1;
+            let last = step.final_obs[i].as_deref().expect("an ended episode's last observation");
+            assert!(area.contains(Vec2::new(last[terms.goal_position], last[terms.goal_position + 1])));
+            in_air += usize::from(summary.metrics["goal_in_air"] > 0.5);
+            if summary.success == Some(true) {
+                met += 1;
+                met_in_air += usize::from(summary.metrics["goal_in_air"] > 0.5);
+                assert!(summary.metrics["final_distance_mm"] < 20.0, "{:?}", summary.metrics);
+                let (desired, achieved) = ((goal.desired)(last), (goal.achieved)(last));
+                assert!((goal.change)(last, last, None, &desired, &achieved).ends_at_to, "{:?}", summary.metrics);
+            }
+        }
+        obs = step.obs;
+    }
+    // This arm of boxes carries a part on a 0.2 kg hand: its wrist is knocked past its speed
+    // limit as often as not on the way (protective stops), so the bar is goals of both kinds
+    // met, not a rate (the UR10's rate is in docs/cells.md).
+    assert!(
+        met >= 3 && met_in_air >= 1 && met_in_air < met,
+        "the scripted baseline met {met} of {ended} goals ({met_in_air} of {in_air} in the air)"
+    );
 }
 
 #[test]

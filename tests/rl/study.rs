@@ -301,6 +301,60 @@ fn a_cell_study_finds_the_unreachable_layout_and_the_heavier_part() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A cell study of a robot file's arm (the six-joint arm of boxes, its cell and cup in the
+/// file): the study's layouts change the file's own cell, a place fixture beyond the arm's
+/// reach shows as reach failures, a failed grasp never places, and the speed slider slows
+/// every cycle.
+#[test]
+fn a_cell_study_runs_a_robot_file_arm_in_the_studys_layouts() {
+    let robot = crate::robot_file_arm::six_joint_cell_robot_file("study");
+    let dir = temp("arm-cell");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("study.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "robot = \"{}\"\nepisodes = 2\n[[layout]]\nname = \"default\"\n[[layout]]\nname = \"place-far\"\nrobot = [-0.12, 0.42]\nplace = [0.72, -0.42]\n\
+             [factors]\nspeed = [1.0, 0.5]\nfailure = [\"none\", \"failed-grasp\"]\n",
+            robot.display()
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let stdout = succeeded(study(&[robot.as_os_str(), file.as_os_str(), "--out".as_ref(), out.as_os_str()]));
+    assert!(stdout.contains("16 episodes"), "{stdout}");
+    let rows = summary(&out);
+    assert_eq!(rows.len(), 2 * 2 * 2, "layouts × speeds × failures");
+    let row = |layout: &str, speed: &str, failure: &str| {
+        rows.iter()
+            .find(|r| r["layout"] == layout && r["speed"] == speed && r["failure"] == failure)
+            .unwrap_or_else(|| panic!("{layout} {speed} {failure}: {rows:?}"))
+    };
+    for speed in ["1", "0.5"] {
+        assert_eq!(row("default", speed, "none")["success_rate"], "1.0000", "{rows:?}");
+        assert_eq!(row("default", speed, "none")["reach_failures"], "0");
+        assert_eq!(row("place-far", speed, "none")["success_rate"], "0.0000");
+        assert_eq!(row("place-far", speed, "none")["reach_failures"], "2");
+        assert_eq!(row("default", speed, "failed-grasp")["success_rate"], "0.0000");
+    }
+    let cycle = |speed: &str| row("default", speed, "none")["cycle_time_mean_s"].parse::<f64>().unwrap();
+    assert!(cycle("0.5") > 1.3 * cycle("1"), "half speed, a longer cycle: {} vs {}", cycle("0.5"), cycle("1"));
+    for plot in ["reach-default.png", "reach-place-far.png", "phases.png", "success-classic.png"] {
+        assert!(image::open(out.join("plots").join(plot)).is_ok(), "{plot}");
+    }
+
+    // A study for another robot, and an arm without a cell, are refused with the file named.
+    std::fs::write(&file, "robot = \"ur5e\"\n").unwrap();
+    let stderr = failed(study(&[robot.as_os_str(), file.as_os_str(), "--out".as_ref(), out.as_os_str()]));
+    assert!(stderr.contains("study.toml: robot = 'ur5e', but the study runs"), "{stderr}");
+    let bare = crate::robot_file_arm::six_joint_robot_file("study-bare");
+    let stderr = failed(study(&[bare.as_os_str(), file.as_os_str(), "--out".as_ref(), out.as_os_str()]));
+    assert!(stderr.contains("arm6.toml: a cell study runs the pick-and-place program, which needs"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(robot.parent().unwrap());
+    let _ = std::fs::remove_dir_all(bare.parent().unwrap());
+}
+
 /// A push beyond any cell (1e30 N on a 0.2 kg pole, which the solver dropped: the run reported
 /// "survived") is refused, naming the key; a run whose observations leave the plausible ends
 /// as not survived ("physics_blew_up", `twinbots_study::BLOWN_UP`).

@@ -10,6 +10,8 @@ use twinbots_sim::urdf::RobotModel;
 use twinbots_sim::urdf::robot_file::RobotFile;
 use twinbots_task::cell::layout::{CellLayout, Fixtures};
 
+use crate::work_area::WorkArea;
+
 /// A joint this close to a stop (rad or m) counts as at its limit: the protective stop.
 pub use twinbots_sim::urdf::robot_file::STOP_MARGIN as LIMIT_MARGIN;
 /// How far inside each end of a joint's range the soft limit is (rad or m): the reach's
@@ -47,6 +49,10 @@ fn station_target(fixtures: Fixtures, rng: &mut impl Rng) -> Vec3 {
 const TILT_GAIN: f64 = 3.0;
 /// Damping of a straight move's least-squares solve (m), the UR5e controller's.
 const STRAIGHT_DAMPING: f64 = 0.02;
+/// The reachability check's straight move: gain (1/s) and top tool speed (m/s), quick enough
+/// to cross a cell within its 12 s.
+const REACH_CHECK_GAIN: f64 = 4.0;
+const REACH_CHECK_SPEED: f64 = 1.0;
 
 /// The arm, shared by every arena of an app.
 #[derive(Resource, Clone, Debug)]
@@ -61,6 +67,8 @@ pub struct Arm {
     pub cell: Option<CellLayout>,
     /// The height (m) of what the arm works over in the arena: the floor, or its cell's table top.
     pub surface: f32,
+    /// The learned pick-and-place's work area, for an arm with a cell and a gripper.
+    pub work_area: Option<WorkArea>,
     /// For each of the chain's movable joints, its place in the controller's order (the robot
     /// file's mapping, computed once).
     controller_index: Vec<usize>,
@@ -97,15 +105,35 @@ impl Arm {
                 file.path.display()
             );
         }
+        let controller_index = file.controller_index();
+        let arm =
+            Self { file, model, base: Pose::IDENTITY, cell: None, surface: 0.0, work_area: None, controller_index };
+        arm.in_cell(cell)
+    }
+
+    /// The same arm standing in `cell` (its table, where the layout puts the robot), or on an
+    /// empty floor: what a cell study runs in each of its layouts.
+    pub fn in_cell(mut self, cell: Option<CellLayout>) -> anyhow::Result<Self> {
         let root = cell.as_ref().map_or(Pose::IDENTITY, CellLayout::base_pose);
-        let surface = cell.as_ref().map_or(0.0, |c| c.table.height);
-        let root_poses = model.link_poses(root, |j| file.start_position(&j.name) as f32);
-        let base_link = model
+        let file = &self.file;
+        let root_poses = self.model.link_poses(root, |j| file.start_position(&j.name) as f32);
+        let base_link = self
+            .model
             .link_index(&file.chain.base)
             .ok_or_else(|| anyhow::anyhow!("{}: the URDF has no link '{}'", file.path.display(), file.chain.base))?;
-        let base = root_poses[base_link];
-        let controller_index = file.controller_index();
-        Ok(Self { file, model, base, cell, surface, controller_index })
+        self.base = root_poses[base_link];
+        self.surface = cell.as_ref().map_or(0.0, |c| c.table.height);
+        self.work_area = match (&cell, &self.file.gripper) {
+            (Some(layout), Some(_)) => {
+                let home = self.tool(&self.home()).as_vec3();
+                let area = WorkArea::of(layout, self.base, home)
+                    .map_err(|e| anyhow::anyhow!("{}: key 'cell': {e}", self.file.path.display()))?;
+                Some(area)
+            }
+            _ => None,
+        };
+        self.cell = cell;
+        Ok(self)
     }
 
     pub fn dof(&self) -> usize {
@@ -208,10 +236,17 @@ impl Arm {
     /// that tilt the axis (its turn about the vertical is free), the whole scaled so that no
     /// joint exceeds its task speed and the tool no `max_speed` (m/s).
     pub fn straight_move(&self, q: &[f32], target: DVec3, gain: f64, max_speed: f64) -> Vec<f32> {
+        self.tool_velocity(q, |tool| ((target - tool) * gain).clamp_length_max(max_speed))
+    }
+
+    /// Joint speeds (controller order) that move the tool at the velocity `velocity(tool)`
+    /// (m/s, base frame; `tool` its position) while turning its z axis down: the straight
+    /// move's law, and the learned pick-and-place's tool moves.
+    pub fn tool_velocity(&self, q: &[f32], velocity: impl FnOnce(DVec3) -> DVec3) -> Vec<f32> {
         use twinbots_sim::rapier::na::{DMatrix, DVector};
         let (frame, columns) = self.file.chain.forward_and_jacobian(&self.chain_q(q));
         let down = self.base.rotation.as_dquat().inverse() * -DVec3::Z;
-        let v = ((target - frame.translation) * gain).clamp_length_max(max_speed);
+        let v = velocity(frame.translation);
         let w = (frame.rotation * DVec3::Z).cross(down) * TILT_GAIN;
         let twist = DVector::from_row_slice(&[v.x, v.y, v.z, w.x, w.y]);
         let j = DMatrix::from_fn(5, columns.len(), |r, c| columns[c][r]);
@@ -224,6 +259,34 @@ impl Arm {
         }
         let top = (speeds.iter().zip(&self.file.speed_limits)).fold(1.0f64, |m, (s, limit)| m.max(s.abs() / limit));
         speeds.iter().map(|s| (s / top) as f32).collect()
+    }
+
+    /// Whether the arm can bring its tool to `target` (base frame) pointing down, within the
+    /// reach's 1 cm and [`crate::reach::TILT_TOLERANCE`]: the straight move's law run on the
+    /// kinematics alone from home (12 s of control steps; no physics), joints inside their
+    /// ranges all the way. Cell studies map reachability over the table with it and call a
+    /// program sent to a waypoint it cannot reach a reach failure (the UR5e's
+    /// `controller::reachable`).
+    pub fn reachable(&self, target: Vec3) -> bool {
+        const DT: f64 = 0.04;
+        let mut q = self.home();
+        for _ in 0..300 {
+            if self.at_limit(&q) {
+                return false;
+            }
+            let (tool, _, axis) = self.tool_motion(&q, &vec![0.0; q.len()]);
+            let down = self.base.rotation.as_dquat().inverse() * -DVec3::Z;
+            if (tool - target.as_dvec3()).length() < f64::from(crate::reach::REACH_TOLERANCE)
+                && axis.angle_between(down) < f64::from(crate::reach::TILT_TOLERANCE)
+            {
+                return true;
+            }
+            let speeds = self.straight_move(&q, target.as_dvec3(), REACH_CHECK_GAIN, REACH_CHECK_SPEED);
+            for (q, s) in q.iter_mut().zip(speeds) {
+                *q += (f64::from(s) * DT) as f32;
+            }
+        }
+        false
     }
 
     /// How far the tool can get from the base: the chain's joint offsets laid end to end.

@@ -3,8 +3,9 @@
 //! empty cell or to the table of its own (the file's `cell`), its joints under speed-commanded
 //! servos that hold position (a UR's `speedj`, a Franka's joint velocity interface), a
 //! goal-conditioned reach ([`reach`]) that trains with SAC + HER or PPO and, with a cell and a
-//! vacuum gripper, the cell's pick-and-place program ([`pick_place`]). `twinbots train
-//! path/to/arm.toml` reaches it through [`robot`].
+//! vacuum gripper, the cell's pick-and-place program ([`pick_place`]) and pick-and-place learned
+//! end to end ([`pick_place_learned`]). `twinbots train path/to/arm.toml` reaches it through
+//! [`robot`].
 //!
 //! The controller knows only its encoders and the chain's kinematics (the tool from the
 //! URDF in double precision). Its protective stop, which ends the episode as a failure, trips as
@@ -14,8 +15,10 @@
 pub mod arm;
 pub mod deploy;
 pub mod pick_place;
+pub mod pick_place_learned;
 pub mod reach;
 pub mod servo;
+pub mod work_area;
 
 use std::sync::Arc;
 
@@ -29,6 +32,7 @@ use twinbots_sim::{
     SimSettings, SpawnOptions, SubstepSet, Supervisor, VacuumGripper, spawn_robot,
 };
 use twinbots_task::cell::parts::CellFurniture;
+use twinbots_task::cell::program::SpeedSlider;
 use twinbots_task::robot::{
     AlgoDefaults, JointExcitation, RigDescription, RobotDescription, TaskDescription, TrainingDefaults, headless_app,
 };
@@ -114,6 +118,15 @@ pub fn describe(path: &std::path::Path, arm: Arc<Arm>) -> RobotDescription {
             // Its classical controller: the reach's, between the program's straight moves.
             scripted: Some(Arc::new(move |obs: &[f32]| reach::resolved_rate(&classic_arm.file, obs))),
         });
+        let spec_arm = arm.clone();
+        tasks.push(TaskDescription {
+            name: "pick-place-learned",
+            description: "the part to a goal on the table or in the air, the policy moving the tool and switching the suction (SAC + HER)",
+            spec: Arc::new(move || pick_place_learned::pick_place_learned_task(&spec_arm).spec()),
+            server: false,
+            training: Some(twinbots_task::cell::learned::training),
+            scripted: Some(Arc::new(pick_place_learned::scripted)),
+        });
     }
     RobotDescription {
         name,
@@ -144,7 +157,11 @@ pub fn describe(path: &std::path::Path, arm: Arc<Arm>) -> RobotDescription {
         },
         settings: Arc::new(move || settings),
         build: Arc::new(move |request| {
-            let task = if request.task == "pick-place" { ArmTask::PickPlace } else { ArmTask::Reach };
+            let task = match request.task {
+                "pick-place" => ArmTask::PickPlace,
+                "pick-place-learned" => ArmTask::PickPlaceLearned,
+                _ => ArmTask::Reach,
+            };
             let plugin = ArmPlugin { arm: build_arm.clone(), task, pattern: request.pattern, kind: name };
             headless_app(settings, request, plugin)
         }),
@@ -161,6 +178,8 @@ pub enum ArmTask {
     Reach,
     /// Pick-and-place ([`pick_place`]): an arm with a cell and a gripper.
     PickPlace,
+    /// Pick-and-place learned end to end ([`pick_place_learned`]): the same arm.
+    PickPlaceLearned,
 }
 
 /// The arm's cell and its task.
@@ -181,12 +200,22 @@ impl Plugin for ArmPlugin {
         let definition = match self.task {
             ArmTask::Reach => reach::reach_task(&self.arm),
             ArmTask::PickPlace => pick_place::pick_place_task(&self.arm),
+            ArmTask::PickPlaceLearned => pick_place_learned::pick_place_learned_task(&self.arm),
         };
         app.insert_resource((*self.arm).clone())
             .add_plugins(TaskTermsPlugin::new(definition, self.pattern))
             .add_systems(Startup, spawn_cells)
-            .add_systems(Update, (apply_action.in_set(SimSet::Actuate), read_arm.in_set(TaskSet::Read)))
+            .add_systems(Update, read_arm.in_set(TaskSet::Read))
             .add_systems(PhysicsSubstep, (meter_energy, watch_limits).in_set(SubstepSet::Record));
+        if self.task == ArmTask::PickPlaceLearned {
+            // The policy moves the tool and switches the suction (no cell program).
+            app.add_systems(
+                Update,
+                (pick_place_learned::apply_action, pick_place::apply_suction).chain().in_set(SimSet::Actuate),
+            );
+        } else {
+            app.add_systems(Update, apply_action.in_set(SimSet::Actuate));
+        }
         match self.task {
             ArmTask::Reach => {
                 app.add_systems(Update, report.in_set(TaskSet::Report));
@@ -201,6 +230,18 @@ impl Plugin for ArmPlugin {
                     ),
                 )
                 .add_systems(EnvReset, pick_place::place_part.in_set(ResetSet::Place));
+            }
+            ArmTask::PickPlaceLearned => {
+                let read_part =
+                    || (pick_place_learned::read_part, pick_place_learned::read_vacuum).chain().after(read_arm);
+                app.add_systems(
+                    Update,
+                    (read_part().in_set(TaskSet::Read), pick_place_learned::report.in_set(TaskSet::Report)),
+                )
+                .add_systems(
+                    EnvReset,
+                    (pick_place::place_part.in_set(ResetSet::Place), read_part().in_set(ResetSet::Read)),
+                );
             }
         }
         if self.pattern == DesignPattern::Server {
@@ -305,15 +346,15 @@ fn spawn_cells(mut commands: Commands, arm: Res<Arm>, config: Res<ArenaConfig>, 
         };
         let (robot, joints) = spawn_arm(commands, arena_entity, arena, &arm, arm.root(), &home);
         let state = ReachState { start_pose: home.clone(), ..default() };
+        let tool = robot.link(&arm.file.chain.tool).expect("the robot file's tool is a link of its URDF");
         let gripper = arm.file.gripper.map(|g| {
-            let tool = robot.link(&arm.file.chain.tool).expect("the robot file's tool is a link of its URDF");
             // The cup sucks along the tool link's z; a mounted device's forward axis is its +X.
             let cup = Mount { link: tool, offset: Pose::from_rotation(Quat::from_rotation_arc(Vec3::X, Vec3::Z)) };
             let gripper = VacuumGripper::new(g.radius as f32, g.stroke as f32);
             commands.spawn((gripper, cup, InArena(arena_entity))).id()
         });
         if let (Some(part), Some(gripper), Some(fixtures)) = (part, gripper, arm.fixtures()) {
-            commands.entity(arena_entity).insert(ArmCell { part, gripper, fixtures });
+            commands.entity(arena_entity).insert(ArmCell { part, gripper, tool, fixtures });
         }
         (ArmJoints(joints), state)
     });
@@ -354,26 +395,28 @@ fn spawn_arm(
     (robot, joints)
 }
 
-/// The policy's action becomes joint speeds (each joint's task speed limit at full scale),
-/// unless the arm is in a protective stop: then it holds.
+/// The policy's action becomes joint speeds (each joint's task speed limit at full scale,
+/// times the arena's speed slider if it has one), unless the arm is in a protective stop: then
+/// it holds.
 fn apply_action(
     arm: Res<Arm>,
-    mut arenas: Query<(&ArmJoints, &Action, &mut ReachState)>,
+    mut arenas: Query<(&ArmJoints, &Action, &mut ReachState, Option<&SpeedSlider>)>,
     mut motors: Query<&mut Motor>,
 ) {
-    for (joints, action, mut state) in &mut arenas {
+    for (joints, action, mut state, slider) in &mut arenas {
         if action.0.is_empty() {
             continue;
         }
         let stopped = state.stopped;
+        let scale = slider.map_or(1.0, |s| s.0);
         // The pick-and-place program's straight moves are the controller's (MoveL).
         let straight = pick_place::straight_move(&arm, &state);
         for (k, &joint) in joints.0.iter().enumerate() {
             let a = action.0.get(k).copied().unwrap_or(0.0).clamp(-1.0, 1.0);
             let speed = match &straight {
                 _ if stopped => 0.0,
-                Some(speeds) => speeds[k],
-                None => a * arm.file.speed_limits[k] as f32,
+                Some(speeds) => speeds[k] * scale,
+                None => a * arm.file.speed_limits[k] as f32 * scale,
             };
             if let Ok(mut m) = motors.get_mut(joint) {
                 m.command = MotorCommand::Velocity(speed);

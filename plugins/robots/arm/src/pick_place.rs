@@ -34,6 +34,8 @@ const LINEAR_SPEED: f64 = 0.25;
 pub struct ArmCell {
     pub part: Entity,
     pub gripper: Entity,
+    /// The tool link, which carries the gripper.
+    pub tool: Entity,
     pub fixtures: Fixtures,
 }
 

@@ -18,6 +18,7 @@ use twinbots_task::{
 
 use twinbots_sim::rapier::na::{DMatrix, DVector};
 use twinbots_sim::urdf::robot_file::RobotFile;
+use twinbots_task::cell::learned::PartReading;
 use twinbots_task::cell::program::{Program, ToolReading};
 
 use crate::arm::{Arm, START_SPREAD};
@@ -77,6 +78,10 @@ pub struct ReachState {
     pub suction: bool,
     pub part_offset: Vec3,
     pub part_yaw: f32,
+    /// Learned pick-and-place ([`crate::pick_place_learned`]): the part as the cell measures it
+    /// and where the task wants it, in the task's frame (the base frame from the table top).
+    pub part: PartReading,
+    pub part_goal: Vec3,
 }
 
 /// A straight move has brought the tool down only once its axis is within this of the

@@ -118,10 +118,8 @@ impl ActionHistory {
     }
 }
 
-/// The controller's speed slider on an arena (a UR's: a fraction of every commanded joint
-/// speed, the program's straight moves included); absent, full speed.
-#[derive(Component, Clone, Copy, Debug, PartialEq)]
-pub struct SpeedSlider(pub f32);
+/// The controller's speed slider, every arm's: [`twinbots_task::cell::program::SpeedSlider`].
+pub use twinbots_task::cell::program::SpeedSlider;
 
 /// Joint speed commands for an action in [−1, 1]⁵ (wrist 3 at rest).
 pub fn joint_speeds(action: &[f32]) -> [f32; 6] {

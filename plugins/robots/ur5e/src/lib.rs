@@ -100,42 +100,6 @@ learning_starts = 1000
 gradient_steps = 8
 log_interval = 250";
 
-/// SAC + HER settings of the learned pick-and-place (`train ur5e --task pick-place-learned`,
-/// keys of `[sac]`): RL Zoo's for FetchPickAndPlace (τ 0.05, 4 future goals per sample) with
-/// SB3's learning rate 3e-4 (RL Zoo's 1e-3 solved 3 of 5 seeds: two learnt and then unlearnt;
-/// at 3e-4 all 5 solve, median 380 k steps), the HER paper's γ 0.98 (a pick-and-place takes
-/// ≈ 50 steps; measured, seed 0, with the approach cost: 31.5 % success at 260 k steps where
-/// γ 0.95 with the dense part distance too had 0 % at 120 k), 128-unit layers (RL Zoo's TQC
-/// uses 3 × 512, too slow a gradient step for two cores), observation normalisation, and half
-/// a gradient step per env step of the 4 arenas (the HER paper's 40 batches per 100 steps of 2
-/// episodes).
-pub const PICK_PLACE_SAC_HYPERPARAMS: &str = "learning_rate = 3e-4
-gamma = 0.98
-tau = 0.05
-hidden = [128, 128]
-batch_size = 256
-her_goals = 4
-normalize_observations = true
-learning_starts = 1000
-gradient_steps = 2
-log_interval = 1000";
-
-/// How the learned pick-and-place trains: SAC + HER, 4 arenas, a million steps at most (the
-/// issue's budget), evaluated on 200 episodes every 5 rows (20,000 steps).
-fn pick_place_learned_training() -> TrainingDefaults {
-    TrainingDefaults {
-        algo: "sac",
-        eval_episodes: 200,
-        algos: vec![AlgoDefaults {
-            algo: "sac",
-            arenas: 4,
-            timesteps: 1_000_000,
-            eval_every: 5,
-            hyperparams: PICK_PLACE_SAC_HYPERPARAMS,
-        }],
-    }
-}
-
 /// The reach task's spaces, criterion and goal interface (pick-and-place shares the spaces).
 pub fn task_spec() -> TaskSpec {
     goal::reach_with_goal().spec()
@@ -172,7 +136,7 @@ pub fn robot() -> RobotDescription {
                 description: "the part to a goal on the table or in the air, the policy moving the tool and switching the suction (SAC + HER)",
                 spec: Arc::new(|| pick_place_learned::pick_place_learned_task().spec()),
                 server: false,
-                training: Some(pick_place_learned_training),
+                training: Some(twinbots_task::cell::learned::training),
                 scripted: Some(Arc::new(pick_place_learned::scripted)),
             },
         ],

@@ -33,79 +33,29 @@ use crate::kinematics::JOINT_RANGE;
 use crate::layout::FIXTURE_HALF;
 use crate::metrics::TwinMeter;
 use crate::reach::{STOP_TERM, sample_start};
-use crate::state::{CellState, PartReading};
+use crate::state::CellState;
 
-/// Control steps before an episode is given up (4 s, the reach's).
-pub const EPISODE_STEPS: u32 = 100;
-/// Tool speed (m/s) of a full-scale action: 2 cm a control step.
-pub const TOOL_SPEED: f32 = 0.5;
-/// The part's centre within this distance (m) of the goal meets it.
-pub const GOAL_TOLERANCE: f32 = 0.02;
-/// A part let go on the table counts only once at rest: slower than this (m/s).
-pub const REST_SPEED: f32 = 0.05;
-/// The table top in the base frame (the base stands on it): z = 0.
+pub use twinbots_task::cell::learned::{
+    ACTION_DIM, AIR_GOALS, AIR_HEIGHT, APPROACH_WEIGHT, EPISODE_STEPS, GOAL_TOLERANCE, PART_REST_Z, REST_SPEED,
+    STOP_PENALTY, TOOL_SPEED, in_air,
+};
+use twinbots_task::cell::learned::{GoalTerms, Judged, PLANE_CEILING, TOOL_FLOOR, approach, flag};
+
+/// The table top in the base frame (the base stands on it): z = 0, so the base frame is the
+/// learned task's frame ([`twinbots_task::cell::learned`]).
 const TABLE_TOP: f32 = 0.0;
-/// A part standing on the table has its centre this high.
-pub const PART_REST_Z: f32 = TABLE_TOP + PART_HEIGHT / 2.0;
 /// Where parts start and goals lie (base frame, m): the free table between the default cell's
 /// fixtures, in front of the arm (Fetch draws within ±15 cm)…
 pub const PART_AREA: [[f32; 2]; 2] = [[-0.60, -0.30], [-0.20, 0.08]];
 /// …clear of any fixture's plate by this much (m), whatever the layout.
 const FIXTURE_CLEARANCE: f32 = FIXTURE_HALF + PART_RADIUS + 0.02;
-/// The share of goals in the air, and how high above its resting height (m) such a goal holds
-/// the part's centre.
-pub const AIR_GOALS: f64 = 0.5;
-pub const AIR_HEIGHT: [f32; 2] = [0.03, 0.20];
-/// The safety planes the tool stays within (base frame, m; `[min, max]` per axis): the floor is a
-/// grip gap above a standing part's top, where the cup seizes it and a part it holds hangs just
-/// clear of the table.
-pub const TOOL_BOX: [[f32; 2]; 3] = [[-0.72, -0.18], [-0.32, 0.18], [TABLE_TOP + PART_HEIGHT + 0.003, 0.40]];
-/// Gain (1/s) of the planes: within d of one the tool may close on it at most this × d a second.
-const PLANE_GAIN: f32 = 8.0;
-/// A protective stop costs this many steps' −1: more than a failing episode's discounted rest
-/// for γ ≤ 0.98 (1 / (1 − 0.98)), so stopping on purpose never pays.
-pub const STOP_PENALTY: f32 = 50.0;
-/// Weight (per m) of the cost of the cup's distance from the part's top.
-pub const APPROACH_WEIGHT: f32 = 1.0;
+/// The safety planes the tool stays within (base frame, m; `[min, max]` per axis), the floor
+/// [`TOOL_FLOOR`] above the table.
+pub const TOOL_BOX: [[f32; 2]; 3] = [[-0.72, -0.18], [-0.32, 0.18], [TABLE_TOP + TOOL_FLOOR, PLANE_CEILING]];
 
-/// The cup's distance from the top of the part centred at `part` (m), within its bounds.
-fn approach(tcp: Vec3, part: Vec3) -> f32 {
-    (part + Vec3::Z * (PART_HEIGHT / 2.0) - tcp).length().min(3.0)
-}
-
-/// The action: the tool's velocity and the suction.
-pub const ACTION_DIM: usize = 4;
-
-/// What the judge of a goal needs: where the part is, how it moves, whether the cup holds it or
-/// sucks, whether the arm stands in a protective stop.
-#[derive(Clone, Copy, Debug)]
-struct Judged {
-    part: PartReading,
-    suction: bool,
-    stopped: bool,
-}
-
-impl Judged {
-    fn of(s: &CellState) -> Self {
-        Self { part: s.part, suction: s.suction, stopped: s.safety.stopped() }
-    }
-
-    /// Whether the goal is met: the part's centre within [`GOAL_TOLERANCE`] — held there for a
-    /// goal in the air; for one on the table, let go (suction off, nothing held) and at rest.
-    fn meets(&self, goal: Vec3) -> bool {
-        let close = (self.part.position - goal).length() < GOAL_TOLERANCE;
-        let released = !self.part.held && !self.suction && self.part.velocity.length() < REST_SPEED;
-        !self.stopped && close && if in_air(goal) { self.part.held } else { released }
-    }
-}
-
-/// Whether a goal lies in the air (the part must be held there) rather than on the table.
-pub fn in_air(goal: Vec3) -> bool {
-    goal.z > PART_REST_Z + 0.01
-}
-
-fn flag(on: bool) -> f32 {
-    f32::from(u8::from(on))
+/// What the goal's judge reads of the state.
+fn judged(s: &CellState) -> Judged {
+    Judged { part: s.part, suction: s.suction, stopped: s.safety.stopped() }
 }
 
 fn observations() -> Vec<ObservationTerm<CellState>> {
@@ -156,7 +106,7 @@ pub fn pick_place_learned_task() -> TaskDefinition<CellState> {
         terms: TaskTerms {
             observations: observations(),
             rewards: vec![
-                RewardTerm::new("goal_missed", -1.0, |s: &CellState| flag(!Judged::of(s).meets(s.part_goal)))
+                RewardTerm::new("goal_missed", -1.0, |s: &CellState| flag(!judged(s).meets(s.part_goal)))
                     .bounded(0.0, 1.0),
                 RewardTerm::new(STOP_TERM, -STOP_PENALTY, |s: &CellState| flag(s.safety.stopped())).bounded(0.0, 1.0),
                 // Where the cup is against the part's top (m): it leads exploration to the part,
@@ -168,7 +118,7 @@ pub fn pick_place_learned_task() -> TaskDefinition<CellState> {
                 .bounded(0.0, 3.0),
             ],
             terminations: vec![
-                TerminationTerm::goal("goal_met", |s: &CellState| Judged::of(s).meets(s.part_goal)),
+                TerminationTerm::goal("goal_met", |s: &CellState| judged(s).meets(s.part_goal)),
                 TerminationTerm::new(STOP_TERM, |s: &CellState| s.safety.stopped()),
             ],
             time_limit: Some(EPISODE_STEPS),
@@ -211,14 +161,10 @@ fn new_pick(s: &mut CellState, rng: &mut ChaCha8Rng) {
     s.target = s.part_goal;
 }
 
-/// The tool velocity `v` (m/s) held within the safety planes: towards a plane at most
-/// [`PLANE_GAIN`] × the distance left (a tool outside is sent back).
+/// The tool velocity `v` (m/s) held within the safety planes [`TOOL_BOX`]
+/// ([`twinbots_task::cell::learned::within_planes`]).
 pub fn within_planes(tcp: Vec3, v: Vec3) -> Vec3 {
-    let axis = |i: usize| {
-        let [lo, hi] = TOOL_BOX[i];
-        v[i].clamp(PLANE_GAIN * (lo - tcp[i]), PLANE_GAIN * (hi - tcp[i]))
-    };
-    Vec3::new(axis(0), axis(1), axis(2))
+    twinbots_task::cell::learned::within_planes(&TOOL_BOX, tcp, v)
 }
 
 /// The policy's action: the tool's velocity through the controller's resolved-rate law, and
@@ -278,60 +224,21 @@ pub fn report(settings: Res<SimSettings>, mut arenas: Query<(&CellState, &TwinMe
 }
 
 /// A scripted pick-and-place over this task's observation, the baseline a learned policy is
-/// measured against (Fetch's scripted demonstrations do the same): over the part, down onto it
-/// with the suction on, up and over the goal, then down and let go (a goal on the table) or
-/// hold the part there (in the air). It steers the part, not the tool, once it holds it: the
-/// cup seizes a part wherever under its face it is.
+/// measured against ([`GoalTerms::scripted`]).
 pub fn scripted(obs: &[f32]) -> Vec<f32> {
-    let o = offsets();
-    let tcp = point(&obs[o.tcp_position..]);
-    let part = point(&obs[o.part_position..]);
-    let goal = point(&obs[o.goal_position..]);
-    let held = obs[o.holding] > 0.5;
-    let top = Vec3::Z * (PART_HEIGHT / 2.0);
-    let carry = 0.06;
-    let flat = |v: Vec3| v.truncate().length();
-    let (target, suction) = if held {
-        // The tool where it would put the part at `at`.
-        let tool_for = |at: Vec3| tcp + (at - part);
-        if in_air(goal) {
-            (tool_for(goal), true)
-        } else if flat(goal - part) > 0.005 {
-            (tool_for(goal + Vec3::Z * carry).with_z(tcp.z.max(goal.z + top.z + carry)), true)
-        } else {
-            let above = part.z - goal.z;
-            (tool_for(goal), above > 0.004)
-        }
-    } else if flat(goal - part) < GOAL_TOLERANCE / 2.0 && !in_air(goal) {
-        // Placed: let go and stay clear.
-        (tcp, false)
-    } else if flat(part - tcp) > 0.005 {
-        ((part + top).with_z(tcp.z.max(part.z + top.z + carry)), false)
-    } else {
-        (part + top, true)
-    };
-    let v = ((target - tcp) * 8.0).clamp_length_max(TOOL_SPEED) / TOOL_SPEED;
-    vec![v.x, v.y, v.z, if suction { 1.0 } else { -1.0 }]
+    // The suction on all the way down: the cup seizes the part at the end of its stroke.
+    offsets().scripted(obs, f32::INFINITY)
 }
 
 /// Where the observation terms the goal is judged by (and the scripted policy reads) start.
-struct Offsets {
-    tcp_position: usize,
-    part_position: usize,
-    part_velocity: usize,
-    suction: usize,
-    holding: usize,
-    goal_position: usize,
-}
-
-fn offsets() -> &'static Offsets {
-    static OFFSETS: OnceLock<Offsets> = OnceLock::new();
+fn offsets() -> &'static GoalTerms {
+    static OFFSETS: OnceLock<GoalTerms> = OnceLock::new();
     OFFSETS.get_or_init(|| {
         let terms = TaskTerms { observations: observations(), ..Default::default() };
         let at = |name: &str| {
             terms.observation_offset(name).unwrap_or_else(|| panic!("the learned pick-and-place observes no {name}"))
         };
-        Offsets {
+        GoalTerms {
             tcp_position: at("tcp_position"),
             part_position: at("part_position"),
             part_velocity: at("part_velocity"),
@@ -342,41 +249,21 @@ fn offsets() -> &'static Offsets {
     })
 }
 
-fn point(values: &[f32]) -> Vec3 {
-    Vec3::new(values[0], values[1], values[2])
-}
-
 fn achieved(obs: &[f32]) -> Vec<f32> {
-    let at = offsets().part_position;
-    obs[at..at + 3].to_vec()
+    offsets().achieved(obs)
 }
 
 fn desired(obs: &[f32]) -> Vec<f32> {
-    let at = offsets().goal_position;
-    obs[at..at + 3].to_vec()
+    offsets().desired(obs)
 }
 
 fn substitute(obs: &mut [f32], goal: &[f32]) {
-    let at = offsets().goal_position;
-    obs[at..at + 3].copy_from_slice(&goal[..3]);
+    offsets().substitute(obs, goal)
 }
 
-/// The step's reward and end under another goal, judged from the observation it led to as the
-/// task's terms judge the state: whether the goal is met (the stop's penalty and the approach
-/// do not depend on the goal).
+/// The step's reward and end under another goal ([`GoalTerms::change`]).
 fn change(_obs: &[f32], next_obs: &[f32], ended_by: Option<&str>, from: &[f32], to: &[f32]) -> GoalChange {
-    let o = offsets();
-    let judged = Judged {
-        part: PartReading {
-            position: point(&next_obs[o.part_position..]),
-            velocity: point(&next_obs[o.part_velocity..]),
-            held: next_obs[o.holding] > 0.5,
-        },
-        suction: next_obs[o.suction] > 0.5,
-        stopped: ended_by == Some(STOP_TERM),
-    };
-    let (at_from, at_to) = (judged.meets(point(from)), judged.meets(point(to)));
-    GoalChange { reward: flag(at_to) - flag(at_from), ends_at_from: at_from, ends_at_to: at_to }
+    offsets().change(next_obs, ended_by == Some(STOP_TERM), from, to)
 }
 
 /// The task's goal interface.
@@ -387,6 +274,8 @@ pub fn goal_spec() -> GoalSpec {
 #[cfg(test)]
 mod tests {
     use rand::SeedableRng;
+
+    use crate::state::PartReading;
 
     use super::*;
     use crate::arm::ArmState;
@@ -422,36 +311,6 @@ mod tests {
             assert!(crate::controller::reachable(s.part_goal + Vec3::Z * PART_HEIGHT / 2.0), "{}", s.part_goal);
         }
         assert!((160..240).contains(&in_the_air), "{in_the_air} of 400 goals in the air");
-    }
-
-    #[test]
-    fn a_goal_on_the_table_is_met_by_a_part_let_go_at_rest_and_one_in_the_air_by_a_part_held_there() {
-        let on_table = Vec3::new(-0.45, 0.0, PART_REST_Z);
-        let in_the_air = on_table + Vec3::Z * 0.1;
-        let part = |position: Vec3, held: bool| PartReading { position, velocity: Vec3::ZERO, held };
-        assert!(
-            Judged { part: part(on_table + Vec3::X * 0.015, false), suction: false, stopped: false }.meets(on_table)
-        );
-        assert!(
-            !Judged { part: part(on_table + Vec3::X * 0.025, false), suction: false, stopped: false }.meets(on_table),
-            "2 cm"
-        );
-        assert!(!Judged { part: part(on_table, true), suction: true, stopped: false }.meets(on_table), "still held");
-        assert!(
-            !Judged { part: part(on_table, false), suction: true, stopped: false }.meets(on_table),
-            "still sucking"
-        );
-        let moving = PartReading { velocity: Vec3::X * 0.2, ..part(on_table, false) };
-        assert!(!Judged { part: moving, suction: false, stopped: false }.meets(on_table), "rolling");
-        assert!(Judged { part: part(in_the_air, true), suction: true, stopped: false }.meets(in_the_air));
-        assert!(
-            !Judged { part: part(in_the_air, false), suction: false, stopped: false }.meets(in_the_air),
-            "let go in the air"
-        );
-        assert!(
-            !Judged { part: part(in_the_air, true), suction: true, stopped: true }.meets(in_the_air),
-            "in a protective stop"
-        );
     }
 
     #[test]
@@ -491,22 +350,11 @@ mod tests {
             let c = (goal.change)(&obs, &obs, None, &goal_at.to_array(), &here);
             let at_here = CellState { part_goal: part.position, ..s.clone() };
             assert!((reward(&s) + c.reward - reward(&at_here)).abs() < 1e-6, "{c:?}");
-            assert_eq!(c.ends_at_from, Judged::of(&s).meets(goal_at));
-            assert_eq!(c.ends_at_to, Judged::of(&at_here).meets(part.position));
+            assert_eq!(c.ends_at_from, judged(&s).meets(goal_at));
+            assert_eq!(c.ends_at_to, judged(&at_here).meets(part.position));
             let mut relabelled = obs.clone();
             (goal.substitute)(&mut relabelled, &here);
             assert_eq!((goal.desired)(&relabelled), here.to_vec());
         }
-    }
-
-    #[test]
-    fn the_safety_planes_slow_the_tool_towards_them_and_send_it_back_from_outside() {
-        let floor = TOOL_BOX[2][0];
-        let near = Vec3::new(-0.45, 0.0, floor + 0.01);
-        let v = within_planes(near, Vec3::new(0.3, 0.0, -0.5));
-        assert_eq!(v.x, 0.3);
-        assert!((v.z + PLANE_GAIN * 0.01).abs() < 1e-5, "{v}");
-        let below = Vec3::new(-0.45, 0.0, floor - 0.01);
-        assert!(within_planes(below, Vec3::new(0.0, 0.0, -0.5)).z > 0.0);
     }
 }

@@ -37,15 +37,8 @@ pub struct CellState {
     pub part_goal: Vec3,
 }
 
-/// The part as the cell measures it (learned pick-and-place): its centre and velocity in the
-/// base frame — a cell camera's reading on a real cell, the physics' in the twin — and whether
-/// the cup holds it (the gripper's vacuum sensor).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct PartReading {
-    pub position: Vec3,
-    pub velocity: Vec3,
-    pub held: bool,
-}
+/// The part as the cell measures it (learned pick-and-place), every arm's.
+pub use twinbots_task::cell::learned::PartReading;
 
 impl CellState {
     /// Whether the tool has reached the target: an arm the safety system has stopped has not.

@@ -1,12 +1,12 @@
 //! The monitor's ROS 2 source (`twinbots monitor --ros2`): a robot driver's `/joint_states`
 //! and the velocity commands sent to its forward velocity controller, overheard on DDS. The
-//! node only listens: it never commands the robot.
+//! node only listens: it never commands the robot. The arm's joints are found by name (the
+//! UR5e's, or those a robot file lists), in any order among others.
 
 use std::time::{Duration, Instant};
 
 use twinbots_ros2::node::TRAJECTORY_TOPIC;
 use twinbots_ros2::{Command, Interface, JointState, Ros2Listener};
-use ur5e::kinematics::JOINTS;
 
 use super::Report;
 
@@ -16,7 +16,9 @@ pub const FIRST_STATE_WAIT: Duration = Duration::from_secs(20);
 /// The robot on ROS 2, as reports.
 pub struct Ros2Source {
     listener: Ros2Listener,
-    /// The joint speeds last commanded (rad/s, [`JOINTS`]' order): zero until a command comes.
+    /// The arm's joints in the controller's order, as its joint states name them.
+    joints: [String; 6],
+    /// The joint speeds last commanded (rad/s, `joints`' order): zero until a command comes.
     command: [f64; 6],
     patience: Duration,
     /// States taken but not yet handed out.
@@ -38,11 +40,15 @@ pub enum Next {
 }
 
 impl Ros2Source {
-    /// Joins `domain` as node `/<name>`.
-    pub fn open(domain: u16, name: &str, patience: Duration) -> anyhow::Result<Self> {
+    /// Joins `domain` as node `/<name>`, to follow the six `joints` (controller order).
+    pub fn open(domain: u16, name: &str, joints: &[String], patience: Duration) -> anyhow::Result<Self> {
+        let joints: [String; 6] = joints.to_vec().try_into().map_err(|j: Vec<String>| {
+            anyhow::anyhow!("the monitor follows six-joint arms; this one has {} ({})", j.len(), j.join(", "))
+        })?;
         let listener = Ros2Listener::open(domain, name)?;
         Ok(Self {
             listener,
+            joints,
             command: [0.0; 6],
             patience,
             pending: Default::default(),
@@ -74,7 +80,7 @@ impl Ros2Source {
                 }
             }
             for state in self.listener.take_joint_states() {
-                let r = report(&state?, self.command)?;
+                let r = report(&state?, &self.joints, self.command)?;
                 self.pending.push_back(r);
             }
             if self.pending.is_empty() && self.notes.is_empty() {
@@ -97,7 +103,7 @@ impl Ros2Source {
             Ok(Command::Forward(Interface::Velocity, v)) => {
                 return Some(format!(
                     "a velocity command of {v:?} is not 6 finite speeds ({}): the robot's driver refuses it, the twin keeps the last",
-                    JOINTS.join(", ")
+                    self.joints.join(", ")
                 ));
             }
             Ok(Command::Forward(interface, _)) => (interface.name().to_string(), interface.topic()),
@@ -114,9 +120,9 @@ impl Ros2Source {
     }
 }
 
-/// A joint state as a report: the UR5e's joints by name (any order, others ignored), its
+/// A joint state as a report: the arm's `joints` by name (any order, others ignored), its
 /// stamp as the time (the robot's clock).
-pub fn report(state: &JointState, command: [f64; 6]) -> anyhow::Result<Report> {
+pub fn report(state: &JointState, joints: &[String; 6], command: [f64; 6]) -> anyhow::Result<Report> {
     let n = state.name.len();
     anyhow::ensure!(
         state.position.len() == n && state.velocity.len() == n && state.effort.len() == n,
@@ -130,7 +136,7 @@ pub fn report(state: &JointState, command: [f64; 6]) -> anyhow::Result<Report> {
         "an unstamped joint state: the monitor steps the twin by the robot's stamps"
     );
     let mut out = Report { time: state.header.stamp.seconds(), q: [0.0; 6], qd: [0.0; 6], command, effort: [0.0; 6] };
-    for (j, joint) in JOINTS.iter().enumerate() {
+    for (j, joint) in joints.iter().enumerate() {
         let i = state
             .name
             .iter()
@@ -151,6 +157,11 @@ pub fn report(state: &JointState, command: [f64; 6]) -> anyhow::Result<Report> {
 mod tests {
     use super::*;
     use twinbots_ros2::messages::{Header, Time};
+    use ur5e::kinematics::JOINTS;
+
+    fn ur5e() -> [String; 6] {
+        JOINTS.map(String::from)
+    }
 
     fn state(names: &[&str]) -> JointState {
         let n = names.len();
@@ -168,7 +179,7 @@ mod tests {
         // Any order, extra joints ignored.
         let mut names: Vec<&str> = JOINTS.iter().rev().copied().collect();
         names.push("gripper_joint");
-        let r = report(&state(&names), [0.1; 6]).unwrap();
+        let r = report(&state(&names), &ur5e(), [0.1; 6]).unwrap();
         assert_eq!(r.time, 12.5);
         assert_eq!(r.q, [5.0, 4.0, 3.0, 2.0, 1.0, 0.0]);
         assert_eq!((r.qd[0], r.effort[0], r.command[0]), (0.5, 2.0, 0.1));
@@ -176,18 +187,18 @@ mod tests {
         let mut no_effort = state(&JOINTS);
         no_effort.effort.clear();
         assert!(
-            report(&no_effort, [0.0; 6])
+            report(&no_effort, &ur5e(), [0.0; 6])
                 .unwrap_err()
                 .to_string()
                 .contains("6 names, 6 positions, 6 velocities and 0 efforts")
         );
-        let err = report(&state(&JOINTS[..5]), [0.0; 6]).unwrap_err().to_string();
+        let err = report(&state(&JOINTS[..5]), &ur5e(), [0.0; 6]).unwrap_err().to_string();
         assert!(err.contains("without wrist_3_joint"), "{err}");
         let mut unstamped = state(&JOINTS);
         unstamped.header.stamp = Time::default();
-        assert!(report(&unstamped, [0.0; 6]).unwrap_err().to_string().contains("unstamped"));
+        assert!(report(&unstamped, &ur5e(), [0.0; 6]).unwrap_err().to_string().contains("unstamped"));
         let mut nan = state(&JOINTS);
         nan.position[2] = f64::NAN;
-        assert!(report(&nan, [0.0; 6]).unwrap_err().to_string().contains("not finite"));
+        assert!(report(&nan, &ur5e(), [0.0; 6]).unwrap_err().to_string().contains("not finite"));
     }
 }

@@ -17,8 +17,14 @@ pub enum Source {
 
 impl Source {
     /// The controller at `rtde` (`HOST[:PORT]`), else a ROS 2 driver on DDS domain `domain`
-    /// (default `ROS_DOMAIN_ID`, else 0); each waits `patience` for a first report.
-    pub fn open(rtde: Option<&str>, domain: Option<&str>, patience: Duration) -> anyhow::Result<Self> {
+    /// (default `ROS_DOMAIN_ID`, else 0) whose joint states name `joints` (the arm's six, in
+    /// the controller's order); each waits `patience` for a first report.
+    pub fn open(
+        rtde: Option<&str>,
+        domain: Option<&str>,
+        joints: &[String],
+        patience: Duration,
+    ) -> anyhow::Result<Self> {
         if let Some(address) = rtde {
             let mut client = RtdeClient::connect(address, patience)?;
             client.setup_outputs(
@@ -28,22 +34,22 @@ impl Source {
             client.start()?;
             return Ok(Source::Rtde(client));
         }
-        Self::open_ros2(domain, patience)
+        Self::open_ros2(domain, joints, patience)
     }
 
     #[cfg(feature = "ros2")]
-    fn open_ros2(domain: Option<&str>, patience: Duration) -> anyhow::Result<Self> {
+    fn open_ros2(domain: Option<&str>, joints: &[String], patience: Duration) -> anyhow::Result<Self> {
         use twinbots_ros2::node::{domain_from_env, parse_domain};
         let domain = match domain {
             Some(d) => parse_domain(d)?,
             None => domain_from_env()?,
         };
         let name = format!("twinbots_monitor_{}", std::process::id());
-        Ok(Source::Ros2(super::ros2::Ros2Source::open(domain, &name, patience)?))
+        Ok(Source::Ros2(super::ros2::Ros2Source::open(domain, &name, joints, patience)?))
     }
 
     #[cfg(not(feature = "ros2"))]
-    fn open_ros2(_: Option<&str>, _: Duration) -> anyhow::Result<Self> {
+    fn open_ros2(_: Option<&str>, _: &[String], _: Duration) -> anyhow::Result<Self> {
         anyhow::bail!("this twinbots was built without the ros2 feature: --ros2 needs it (docs/ros2.md)")
     }
 

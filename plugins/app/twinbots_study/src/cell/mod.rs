@@ -1,9 +1,12 @@
-//! Cell studies (`twinbots study ur5e STUDY.toml`, docs/studies.md): the pick-and-place cell
-//! under every combination of layout, speed slider, payload, command latency and failure
-//! scenario, for each controller, N episodes each, one arena per combination, side by side.
-//! A production engineer's figures per episode (success, outcome, cycle time and its phases,
-//! energy, collisions, protective stops, reach failures) and per combination.
+//! Cell studies (`twinbots study ur5e STUDY.toml`, `twinbots study ARM.toml STUDY.toml`,
+//! docs/studies.md): the pick-and-place cell under every combination of layout, speed slider,
+//! payload, command latency and failure scenario, for each controller, N episodes each, one
+//! arena per combination, side by side. A production engineer's figures per episode (success,
+//! outcome, cycle time and its phases, energy, collisions, protective stops, reach failures)
+//! and per combination. The arm is the UR5e or a robot file's arm with a cell and a gripper
+//! ([`CellArm`]).
 
+pub mod arm;
 pub mod plan;
 pub mod plots;
 pub mod report;
@@ -16,12 +19,11 @@ use bevy::prelude::*;
 use serde::Serialize;
 use twinbots_api::{EpisodeSummary, VecEnv};
 use twinbots_sim::{Push, SimSettings, VacuumGripper};
-use ur5e::CellState;
-use ur5e::arm::SpeedSlider;
-use ur5e::cell::CellParts;
-use ur5e::layout::{CellLayout, CellLayouts};
-use ur5e::pick_place::{Stage, waypoint};
+use twinbots_task::cell::layout::{CellLayout, CellLayouts};
+use twinbots_task::cell::parts::CellFurniture;
+use twinbots_task::cell::program::{EPISODE_STEPS, SpeedSlider, Stage, waypoint};
 
+pub use self::arm::{CellArm, PlacedArm};
 use self::plan::{CellStudy, Combination, Failure};
 use super::controller::{NamedController, open_all, reset_alike};
 use super::{Payload, add_payloads};
@@ -55,7 +57,7 @@ pub struct EpisodeRecord {
     pub collision_events: u32,
     pub joint_limit_events: u32,
     pub protective_stops: u32,
-    /// The program sent the arm to a waypoint it cannot reach ([`ur5e::controller::reachable`]).
+    /// The program sent the arm to a waypoint it cannot reach ([`PlacedArm::reachable`]).
     pub reach_failure: bool,
     pub steps: u32,
     /// Seconds spent in each of [`PHASES`].
@@ -68,6 +70,8 @@ pub struct CellStudyResult {
     pub study: CellStudy,
     pub controllers: Vec<String>,
     pub layouts: Vec<(String, CellLayout)>,
+    /// The arm in each of the layouts.
+    pub arms: Vec<PlacedArm>,
     pub combinations: Vec<Combination>,
     pub episodes: Vec<EpisodeRecord>,
     pub control_dt: f64,
@@ -79,39 +83,30 @@ pub struct CellStudyResult {
 pub fn run(entry: &RobotEntry, path: &Path, controllers: &[String]) -> anyhow::Result<CellStudyResult> {
     let started = Instant::now();
     let study = CellStudy::read(path)?;
+    let arm = CellArm::of(entry)?;
     if let Some(robot) = &study.robot {
         anyhow::ensure!(
-            robot == entry.name,
+            arm.is(robot, path),
             "{}: robot = '{robot}', but the study runs {}",
             path.display(),
             entry.name
         );
     }
-    anyhow::ensure!(
-        entry.name == "ur5e",
-        "cell studies run the UR5e's pick-and-place program; {} has none",
-        entry.name
-    );
     let base = path.parent().unwrap_or(Path::new("."));
-    let layouts = study.layouts(base).map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
+    let layouts =
+        study.layouts(base, &arm.default_layout()).map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
+    let arms = (layouts.iter())
+        .map(|(name, l)| arm.placed(l).map_err(|e| anyhow::anyhow!("{}: layout '{name}': {e:#}", path.display())))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let named = open_all(entry, path, &study.controllers, controllers)?;
-    let nominal_part = ur5e::cell::CellModels::default()
-        .furniture
-        .part
-        .links
-        .iter()
-        .find_map(|l| l.inertial.map(|i| i.mass))
-        .unwrap_or(0.0);
+    let nominal_part =
+        CellFurniture::default().part.links.iter().find_map(|l| l.inertial.map(|i| i.mass)).unwrap_or(0.0);
     let combinations = study.combinations(named.len(), layouts.len());
     // Which waypoints of each layout the arm cannot reach.
-    let unreachable: Vec<Vec<Stage>> = layouts
+    let unreachable: Vec<Vec<Stage>> = arms
         .iter()
-        .map(|(_, l)| {
-            PHASES
-                .iter()
-                .map(|(s, _)| *s)
-                .filter(|&s| !ur5e::controller::reachable(waypoint(s, &l.fixtures())))
-                .collect()
+        .map(|placed| {
+            PHASES.iter().map(|(s, _)| *s).filter(|&s| !placed.reachable(waypoint(s, &placed.fixtures))).collect()
         })
         .collect();
     let total = combinations.len() * study.episodes;
@@ -128,18 +123,32 @@ pub fn run(entry: &RobotEntry, path: &Path, controllers: &[String]) -> anyhow::R
     let mut progress = Progress::new(total);
     for (c, controller) in named.iter().enumerate() {
         let mine: Vec<usize> = (0..combinations.len()).filter(|&i| combinations[i].controller == c).collect();
-        for batch in mine.chunks(BATCH) {
-            let setup = Batch {
-                study: &study,
-                layouts: &layouts,
-                unreachable: &unreachable,
-                combinations: &combinations,
-                members: batch,
-                nominal_part,
+        // The UR5e's cell lays out each arena on its own; a robot file's arm stands in one
+        // layout per app.
+        let groups: Vec<(Option<usize>, Vec<usize>)> = match &arm {
+            CellArm::Ur5e => vec![(None, mine)],
+            CellArm::File(_) => (0..layouts.len())
+                .map(|l| (Some(l), mine.iter().copied().filter(|&i| combinations[i].layout == l).collect()))
+                .collect(),
+        };
+        for (layout, group) in &groups {
+            let batch_entry = match layout {
+                Some(l) => arms[*l].entry(entry)?,
+                None => entry.clone(),
             };
-            let (records, dt) = setup.run(entry, controller, &mut progress)?;
-            episodes.extend(records);
-            control_dt = dt;
+            for batch in group.chunks(BATCH) {
+                let setup = Batch {
+                    study: &study,
+                    layouts: &layouts,
+                    unreachable: &unreachable,
+                    combinations: &combinations,
+                    members: batch,
+                    nominal_part,
+                };
+                let (records, dt) = setup.run(&batch_entry, controller, &mut progress)?;
+                episodes.extend(records);
+                control_dt = dt;
+            }
         }
     }
     episodes.sort_by_key(|e| (e.combination, e.episode));
@@ -149,6 +158,7 @@ pub fn run(entry: &RobotEntry, path: &Path, controllers: &[String]) -> anyhow::R
         controllers: named.iter().map(|c| c.label.clone()).collect(),
         study,
         layouts,
+        arms,
         combinations,
         episodes,
         control_dt,
@@ -226,6 +236,8 @@ impl Batch<'_> {
         let combos: Vec<&Combination> = self.members.iter().map(|&i| &self.combinations[i]).collect();
         let cell_layouts = CellLayouts(combos.iter().map(|c| self.layouts[c.layout].1.clone()).collect());
         let mut env = controller.env(entry, Some("pick-place"), combos.len(), self.study.seed, |app| {
+            // The UR5e's cell reads each arena's layout from it; a robot file's arm was built
+            // standing in its batch's one layout.
             app.insert_resource(cell_layouts);
             add_payloads(app);
             Ok(())
@@ -235,7 +247,7 @@ impl Batch<'_> {
         let arenas = env.arenas().to_vec();
         let world = env.app_mut().world_mut();
         for (&arena, combo) in arenas.iter().zip(&combos) {
-            let parts = world.get::<CellParts>(arena).expect("a UR5e cell").clone();
+            let parts = arm::cell_parts(world, arena)?;
             world.entity_mut(arena).insert(SpeedSlider(combo.speed));
             if let Some(mass) = combo.payload {
                 // The study's payloads are positive: the part keeps a mass.
@@ -258,7 +270,7 @@ impl Batch<'_> {
         );
         let mut tallies: Vec<Tally> = (0..arenas.len()).map(|_| Tally::default()).collect();
         let mut records = Vec::new();
-        let limit = (self.study.episodes as u64 + 1) * u64::from(ur5e::pick_place::EPISODE_STEPS) + 10;
+        let limit = (self.study.episodes as u64 + 1) * u64::from(EPISODE_STEPS) + 10;
         for _ in 0..limit {
             if tallies.iter().all(|t| t.done >= self.study.episodes) {
                 break;
@@ -271,8 +283,8 @@ impl Batch<'_> {
                 }
                 if t.step == push_at && matches!(combo.failure, Failure::PushTool | Failure::PushPart) {
                     let world = env.app_mut().world_mut();
-                    let parts = world.get::<CellParts>(arenas[i]).expect("a UR5e cell").clone();
-                    let link = if combo.failure == Failure::PushTool { parts.tcp } else { parts.part };
+                    let parts = arm::cell_parts(world, arenas[i])?;
+                    let link = if combo.failure == Failure::PushTool { parts.tool } else { parts.part };
                     let push = Push::lasting(
                         Vec3::from(self.study.push.force),
                         Vec3::ZERO,
@@ -293,12 +305,12 @@ impl Batch<'_> {
                     vec![0.0; action_dim]
                 };
                 actions.extend(applied);
-                let state = env.app().world().get::<CellState>(arenas[i]).expect("a UR5e cell");
-                let stage = state.program.stage;
-                if let Some(p) = PHASES.iter().position(|(s, _)| *s == stage) {
-                    t.phases_s[p] += dt;
+                if let Some(stage) = arm::stage(env.app().world(), arenas[i]) {
+                    if let Some(p) = PHASES.iter().position(|(s, _)| *s == stage) {
+                        t.phases_s[p] += dt;
+                    }
+                    t.reach_failure |= self.unreachable[combo.layout].contains(&stage);
                 }
-                t.reach_failure |= self.unreachable[combo.layout].contains(&stage);
             }
             let out = env.step(&actions)?;
             for (i, t) in tallies.iter_mut().enumerate() {

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use serde::Deserialize;
-use ur5e::layout::CellLayout;
+use twinbots_task::cell::layout::CellLayout;
 
 /// The study file.
 #[derive(Clone, Debug, Deserialize)]
@@ -243,10 +243,11 @@ impl CellStudy {
         Ok(())
     }
 
-    /// The layouts, each checked as a layout file is (errors name the study file's entry).
-    pub fn layouts(&self, base: &Path) -> anyhow::Result<Vec<(String, CellLayout)>> {
+    /// The layouts, each checked as a layout file is (errors name the study file's entry):
+    /// `default` (the robot's own cell) changed by each entry's keys.
+    pub fn layouts(&self, base: &Path, default: &CellLayout) -> anyhow::Result<Vec<(String, CellLayout)>> {
         if self.layouts.is_empty() {
-            return Ok(vec![("default".into(), CellLayout::default())]);
+            return Ok(vec![("default".into(), default.clone())]);
         }
         self.layouts
             .iter()
@@ -255,7 +256,7 @@ impl CellStudy {
                 let entry = format!("layout[{i}] ('{}')", v.name);
                 let mut layout = match &v.file {
                     Some(file) => CellLayout::read(&base.join(file)).map_err(|e| anyhow::anyhow!("{entry}: {e}"))?,
-                    None => CellLayout::default(),
+                    None => default.clone(),
                 };
                 if let Some(p) = v.pick {
                     layout.pick.position = p;
@@ -316,7 +317,7 @@ mod tests {
         assert_eq!(combos.len(), 2 * 2 * 2);
         assert_eq!(combos[1].failure, Failure::FailedGrasp);
         assert_eq!(combos[2].speed, 0.5);
-        let layouts = study.layouts(Path::new(".")).unwrap();
+        let layouts = study.layouts(Path::new("."), &CellLayout::default()).unwrap();
         assert_eq!(layouts[1].1.place.position, [-0.3, -0.45]);
     }
 
@@ -334,7 +335,7 @@ mod tests {
             assert!(err.contains(expected), "{text}: {err}");
         }
         let study = parse("[[layout]]\nname = \"off\"\nplace = [-1.2, 0.0]\n").unwrap();
-        let err = study.layouts(Path::new(".")).unwrap_err().to_string();
+        let err = study.layouts(Path::new("."), &CellLayout::default()).unwrap_err().to_string();
         assert!(
             err.contains(
                 "layout[0] ('off'): place.position = [-1.2, 0.0]: the fixture's 12 cm plate leaves the table top"

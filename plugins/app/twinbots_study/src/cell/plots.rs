@@ -6,7 +6,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 use twinbots_learn::plot::png;
-use ur5e::layout::{CellLayout, FIXTURE_HALF};
+use twinbots_task::cell::layout::{CellLayout, FIXTURE_HALF};
 
 /// Grouped bars: for each category (a factor's level), one bar per series (a controller);
 /// `None` draws no bar (nothing to average: no successful episode).

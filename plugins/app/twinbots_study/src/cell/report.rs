@@ -6,12 +6,12 @@ use std::path::Path;
 
 use bevy::math::Vec3;
 use twinbots_api::files::write_atomic;
-use ur5e::cell::{PART_HEIGHT, POCKET_FLOOR};
-use ur5e::layout::CellLayout;
-use ur5e::pick_place::CLEARANCE;
+use twinbots_task::cell::layout::CellLayout;
+use twinbots_task::cell::parts::{PART_HEIGHT, POCKET_FLOOR};
+use twinbots_task::cell::program::CLEARANCE;
 
 use super::plan::Combination;
-use super::{CellStudyResult, EpisodeRecord, PHASES, plots};
+use super::{CellStudyResult, EpisodeRecord, PHASES, PlacedArm, plots};
 
 /// Grid step of the reachability maps (m).
 const REACH_STEP: f32 = 0.05;
@@ -267,14 +267,14 @@ fn draw(
         )?;
         figures.push((format!("Success of {controller}, layouts × failure scenarios"), file));
     }
-    for (name, layout) in &result.layouts {
+    for ((name, layout), arm) in result.layouts.iter().zip(&result.arms) {
         let file = format!("reach-{name}.png");
         plots::reach_map(
             &dir.join(&file),
             &format!("{name}: where the tool reaches, {:.2} m above the table", approach_height()),
             layout,
             REACH_STEP,
-            &reach_grid(layout),
+            &reach_grid(layout, arm),
         )?;
         figures.push((format!("Reachability over the table, layout {name}"), file));
     }
@@ -295,17 +295,17 @@ fn approach_height() -> f32 {
 
 /// Reachability (tool pointing down, at the approach height) over the table top, on a grid of
 /// [`REACH_STEP`]: columns along x, rows along y, in the cell frame.
-pub fn reach_grid(layout: &CellLayout) -> Vec<Vec<bool>> {
+pub fn reach_grid(layout: &CellLayout, arm: &PlacedArm) -> Vec<Vec<bool>> {
     let t = &layout.table;
     let (nx, ny) = ((t.size[0] / REACH_STEP).round() as usize, (t.size[1] / REACH_STEP).round() as usize);
-    let base = layout.base_pose().inverse();
+    let base = arm.base.inverse();
     (0..nx)
         .map(|i| {
             (0..ny)
                 .map(|j| {
                     let x = t.centre[0] - t.size[0] / 2.0 + (i as f32 + 0.5) * REACH_STEP;
                     let y = t.centre[1] - t.size[1] / 2.0 + (j as f32 + 0.5) * REACH_STEP;
-                    ur5e::controller::reachable(base.transform_point(Vec3::new(x, y, t.height + approach_height())))
+                    arm.reachable(base.transform_point(Vec3::new(x, y, t.height + approach_height())))
                 })
                 .collect()
         })

@@ -8,6 +8,11 @@ use super::layout::Fixtures;
 use super::parts::{PART_HEIGHT, Placement, part_seat};
 use crate::task::EpisodeFigures;
 
+/// The controller's speed slider on an arena (a UR's: a fraction of every commanded joint
+/// speed, the program's straight moves included); absent, full speed. Cell studies sweep it.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct SpeedSlider(pub f32);
+
 /// Height of the approach and retract waypoints above the part's top (m).
 pub const CLEARANCE: f32 = 0.10;
 /// The TCP stops this far above the part's top to seize it: inside the cup's stroke.
