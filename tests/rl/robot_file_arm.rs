@@ -43,7 +43,8 @@ home = [0.0, 0.5, 1.0]
 "#;
 
 /// A six-joint arm of boxes in a UR's order of axes: a base turning about z, shoulder, elbow
-/// and wrist 1 about y, wrist 2 about z, wrist 3 about y, the tool 0.1 m past it.
+/// and wrist 1 about y, wrist 2 about z, wrist 3 about y, the tool 0.1 m past it on a 1 kg hand
+/// (a tool changer and cup's worth).
 const URDF6: &str = r#"<robot name="arm6">
   <link name="base"><inertial><origin xyz="0 0 0.05"/><mass value="5"/><inertia ixx="0.02" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.02"/></inertial>
     <collision><origin xyz="0 0 0.05"/><geometry><cylinder radius="0.08" length="0.1"/></geometry></collision></link>
@@ -69,7 +70,7 @@ const URDF6: &str = r#"<robot name="arm6">
     <collision><origin xyz="0 0 0.05"/><geometry><box size="0.03 0.03 0.08"/></geometry></collision></link>
   <joint name="wrist_3" type="revolute"><parent link="wrist_b"/><child link="hand"/><origin xyz="0 0 0.1"/><axis xyz="0 1 0"/>
     <limit lower="-2.5" upper="2.5" effort="20" velocity="2"/></joint>
-  <link name="hand"><inertial><origin xyz="0 0 0.05"/><mass value="0.2"/><inertia ixx="0.0003" ixy="0" ixz="0" iyy="0.0003" iyz="0" izz="0.0001"/></inertial>
+  <link name="hand"><inertial><origin xyz="0 0 0.05"/><mass value="1"/><inertia ixx="0.002" ixy="0" ixz="0" iyy="0.002" iyz="0" izz="0.001"/></inertial>
     <collision><origin xyz="0 0 0.05"/><geometry><box size="0.03 0.03 0.08"/></geometry></collision></link>
   <joint name="flange" type="fixed"><parent link="hand"/><child link="tool"/><origin xyz="0 0 0.1"/></joint>
   <link name="tool"/>
@@ -306,11 +307,10 @@ fn a_robot_file_arm_in_its_cell_takes_the_part_to_learned_pick_and_places_goals(
         }
         obs = step.obs;
     }
-    // This arm of boxes carries a part on a 0.2 kg hand: its wrist is knocked past its speed
-    // limit as often as not on the way (protective stops), so the bar is goals of both kinds
-    // met, not a rate (the UR10's rate is in docs/cells.md).
+    // Measured: 23 of 24 (on a hand of 0.2 kg, 11: its wrist whipped past its speed limit by
+    // the part it carried).
     assert!(
-        met >= 3 && met_in_air >= 1 && met_in_air < met,
+        met >= 21 && met_in_air >= 1 && met_in_air < met,
         "the scripted baseline met {met} of {ended} goals ({met_in_air} of {in_air} in the air)"
     );
 }

@@ -38,9 +38,6 @@ use crate::pick_place::ArmCell;
 use crate::reach::{ReachState, STOP_TERM};
 use crate::work_area::WorkArea;
 
-/// The scripted baseline switches the suction on within this much (m) of the part's top.
-const SUCK_WITHIN: f32 = 0.005;
-
 /// Where the goal's terms lie in the observation.
 pub const GOAL_TERMS: GoalTerms =
     GoalTerms { tcp_position: 0, part_position: 6, part_velocity: 12, suction: 15, holding: 16, goal_position: 17 };
@@ -219,7 +216,7 @@ pub fn report(settings: Res<SimSettings>, mut arenas: Query<(&ReachState, &mut E
 /// The scripted pick-and-place over this task's observation ([`GoalTerms::scripted`]): what
 /// `classic` names for it.
 pub fn scripted(obs: &[f32]) -> Vec<f32> {
-    GOAL_TERMS.scripted(obs, SUCK_WITHIN)
+    GOAL_TERMS.scripted(obs)
 }
 
 fn achieved(obs: &[f32]) -> Vec<f32> {

@@ -226,8 +226,7 @@ pub fn report(settings: Res<SimSettings>, mut arenas: Query<(&CellState, &TwinMe
 /// A scripted pick-and-place over this task's observation, the baseline a learned policy is
 /// measured against ([`GoalTerms::scripted`]).
 pub fn scripted(obs: &[f32]) -> Vec<f32> {
-    // The suction on all the way down: the cup seizes the part at the end of its stroke.
-    offsets().scripted(obs, f32::INFINITY)
+    offsets().scripted(obs)
 }
 
 /// Where the observation terms the goal is judged by (and the scripted policy reads) start.

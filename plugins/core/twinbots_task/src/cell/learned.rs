@@ -187,9 +187,8 @@ impl GoalTerms {
     /// measured against (Fetch's scripted demonstrations do the same): over the part, down onto
     /// it with the suction on, up and over the goal, then down and let go (a goal on the table)
     /// or hold the part there (in the air). It steers the part, not the tool, once it holds it:
-    /// the cup seizes a part wherever under its face it is. The suction goes on over the part
-    /// once the cup is within `suck_within` (m) of its top.
-    pub fn scripted(&self, obs: &[f32], suck_within: f32) -> Vec<f32> {
+    /// the cup seizes a part wherever under its face it is.
+    pub fn scripted(&self, obs: &[f32]) -> Vec<f32> {
         let tcp = point(&obs[self.tcp_position..]);
         let part = point(&obs[self.part_position..]);
         let goal = point(&obs[self.goal_position..]);
@@ -214,7 +213,7 @@ impl GoalTerms {
         } else if flat(part - tcp) > 0.005 {
             ((part + top).with_z(tcp.z.max(part.z + top.z + carry)), false)
         } else {
-            (part + top, tcp.z - (part.z + top.z) < suck_within)
+            (part + top, true)
         };
         let v = ((target - tcp) * 8.0).clamp_length_max(TOOL_SPEED) / TOOL_SPEED;
         vec![v.x, v.y, v.z, if suction { 1.0 } else { -1.0 }]
