@@ -99,6 +99,29 @@ def test_an_arm_in_its_cell_picks_and_places_with_its_classical_controller(tmp_p
     assert info["total_episodes"] == 8, info
 
 
+def test_the_ur10_in_its_cell_studies_and_meets_learned_pick_and_place_goals(tmp_path):
+    """The UR10 cell beyond its program: the scripted baseline of its learned pick-and-place
+    (the UR5e's task over the work area between its fixtures) meets the goals it draws, and a
+    cell study of the robot file sweeps its own cell's layouts."""
+    if not (ROBOTS / ARMS[1][1]).is_file():
+        pytest.skip(f"example-robot-data has no {ARMS[1][1]}")
+    dataset = tmp_path / "d"
+    out = run("demos", "assets/robots/ur10-cell.toml", "--task", "pick-place-learned", "--episodes", "20",
+              "--out", str(dataset))
+    met = int(re.search(r"\((\d+) of 20 episodes run met the goal\)", out)[1])
+    assert met >= 19, out  # 200 of 200 measured
+    study = tmp_path / "study.toml"
+    study.write_text("episodes = 1\n"
+                     '[[layout]]\nname = "default"\n[[layout]]\nname = "pick-far"\n'
+                     "robot = [-0.12, -0.42]\npick = [1.03, 0.62]\n")
+    run("study", "assets/robots/ur10-cell.toml", str(study), "--out", str(tmp_path / "s"))
+    rows = (tmp_path / "s" / "summary.csv").read_text().splitlines()
+    header = rows[0].split(",")
+    by_layout = {r.split(",")[header.index("layout")]: dict(zip(header, r.split(","))) for r in rows[1:]}
+    assert by_layout["default"]["success_rate"] == "1.0000", rows
+    assert (by_layout["pick-far"]["success_rate"], by_layout["pick-far"]["reach_failures"]) == ("0.0000", "1"), rows
+
+
 def test_a_listing_read_only_in_part_ends_quietly():
     """`twinbots robots --json | head`: a reader that closes the pipe before the listing is
     written ends it with status 0 and no panic (Rust's standard output would panic on EPIPE)."""

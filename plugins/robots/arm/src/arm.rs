@@ -45,6 +45,14 @@ fn station_target(fixtures: Fixtures, rng: &mut impl Rng) -> Vec3 {
     plate + across + Vec3::Z * rng.random_range(STATION_HEIGHTS)
 }
 
+/// A reach succeeds when the tool is this close to its target (m), and so does the
+/// reachability check.
+pub const REACH_TOLERANCE: f32 = 0.01;
+/// A straight move has brought the tool down only once its axis is within this of the
+/// vertical (rad). The UR5e reach's 0.1 rad let parts go tilted: 10 % of the UR10's programs
+/// with its reach model left the part leaning 0.2–0.45 rad against a rail.
+pub const TILT_TOLERANCE: f32 = 0.01;
+
 /// Gain (1/s) with which a straight move turns the tool's axis down, as the UR5e's controller.
 const TILT_GAIN: f64 = 3.0;
 /// Damping of a straight move's least-squares solve (m), the UR5e controller's.
@@ -262,7 +270,7 @@ impl Arm {
     }
 
     /// Whether the arm can bring its tool to `target` (base frame) pointing down, within the
-    /// reach's 1 cm and [`crate::reach::TILT_TOLERANCE`]: the straight move's law run on the
+    /// reach's 1 cm and [`TILT_TOLERANCE`]: the straight move's law run on the
     /// kinematics alone from home (12 s of control steps; no physics), joints inside their
     /// ranges all the way. Cell studies map reachability over the table with it and call a
     /// program sent to a waypoint it cannot reach a reach failure (the UR5e's
@@ -276,8 +284,8 @@ impl Arm {
             }
             let (tool, _, axis) = self.tool_motion(&q, &vec![0.0; q.len()]);
             let down = self.base.rotation.as_dquat().inverse() * -DVec3::Z;
-            if (tool - target.as_dvec3()).length() < f64::from(crate::reach::REACH_TOLERANCE)
-                && axis.angle_between(down) < f64::from(crate::reach::TILT_TOLERANCE)
+            if (tool - target.as_dvec3()).length() < f64::from(REACH_TOLERANCE)
+                && axis.angle_between(down) < f64::from(TILT_TOLERANCE)
             {
                 return true;
             }

@@ -28,7 +28,7 @@ pub const STOP_TERM: &str = "protective_stop";
 /// Control steps before a reach is given up.
 pub const EPISODE_STEPS: u32 = 100;
 /// A reach succeeds when the tool is this close to the target (m)…
-pub const REACH_TOLERANCE: f32 = 0.01;
+pub use crate::arm::REACH_TOLERANCE;
 /// …and has come to rest: slower than this (m/s).
 pub const SETTLED_SPEED: f32 = 0.05;
 /// The bonus for arriving (which ends the reach).
@@ -85,9 +85,8 @@ pub struct ReachState {
 }
 
 /// A straight move has brought the tool down only once its axis is within this of the
-/// vertical (rad). The UR5e reach's 0.1 rad let parts go tilted: 10 % of the UR10's programs
-/// with its reach model left the part leaning 0.2–0.45 rad against a rail.
-pub const TILT_TOLERANCE: f32 = 0.01;
+/// vertical (rad): [`crate::arm::TILT_TOLERANCE`].
+pub use crate::arm::TILT_TOLERANCE;
 
 /// The cell program reads the tool as the controller does: close, at rest, not stopped; level
 /// (pointing down) where a straight move must leave it. A free move is the reach policy's,
