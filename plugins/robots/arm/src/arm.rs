@@ -253,7 +253,7 @@ impl Arm {
     pub fn tool_velocity(&self, q: &[f32], velocity: impl FnOnce(DVec3) -> DVec3) -> Vec<f32> {
         use twinbots_sim::rapier::na::{DMatrix, DVector};
         let (frame, columns) = self.file.chain.forward_and_jacobian(&self.chain_q(q));
-        let down = self.base.rotation.as_dquat().inverse() * -DVec3::Z;
+        let down = self.down();
         let v = velocity(frame.translation);
         let w = (frame.rotation * DVec3::Z).cross(down) * TILT_GAIN;
         let twist = DVector::from_row_slice(&[v.x, v.y, v.z, w.x, w.y]);
@@ -277,24 +277,29 @@ impl Arm {
     /// `controller::reachable`).
     pub fn reachable(&self, target: Vec3) -> bool {
         const DT: f64 = 0.04;
+        let (target, down) = (target.as_dvec3(), self.down());
         let mut q = self.home();
         for _ in 0..300 {
             if self.at_limit(&q) {
                 return false;
             }
-            let (tool, _, axis) = self.tool_motion(&q, &vec![0.0; q.len()]);
-            let down = self.base.rotation.as_dquat().inverse() * -DVec3::Z;
-            if (tool - target.as_dvec3()).length() < f64::from(REACH_TOLERANCE)
-                && axis.angle_between(down) < f64::from(TILT_TOLERANCE)
+            let tool = self.file.chain.forward(&self.chain_q(&q));
+            if (tool.translation - target).length() < f64::from(REACH_TOLERANCE)
+                && (tool.rotation * DVec3::Z).angle_between(down) < f64::from(TILT_TOLERANCE)
             {
                 return true;
             }
-            let speeds = self.straight_move(&q, target.as_dvec3(), REACH_CHECK_GAIN, REACH_CHECK_SPEED);
+            let speeds = self.straight_move(&q, target, REACH_CHECK_GAIN, REACH_CHECK_SPEED);
             for (q, s) in q.iter_mut().zip(speeds) {
                 *q += (f64::from(s) * DT) as f32;
             }
         }
         false
+    }
+
+    /// The arena's downward direction in the base frame: where a straight move turns the tool.
+    fn down(&self) -> DVec3 {
+        self.base.rotation.as_dquat().inverse() * -DVec3::Z
     }
 
     /// How far the tool can get from the base: the chain's joint offsets laid end to end.
