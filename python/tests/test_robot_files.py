@@ -135,16 +135,14 @@ def test_a_listing_read_only_in_part_ends_quietly():
 DATA = REPO.parent / "shared" / "data" / "ur5-real"
 
 
-@pytest.mark.parametrize(
-    "recording, bound_mrad",
-    [("Movement_No1", 2.0), ("Movement_No2", 2.0), ("Movement_No3_Acc", 3.0)],
-)
-def test_the_ur5_twin_follows_the_real_arms_targets(tmp_path, recording, bound_mrad):
+@pytest.mark.parametrize("recording", ["Movement_No1", "Movement_No2", "Movement_No3_Acc", "Movement_No4_Acc"])
+def test_the_ur5_twin_follows_the_real_arms_targets(tmp_path, recording):
     """`replay assets/robots/ur5.toml RUN --servo`: the UR5 (CB) twin from its robot file, under
     its position servo at the CB's 125 Hz, on the recorded `target_q` of the real UR5 (the
     recordings of ../shared/data/ur5-real): its joints within 2 mrad RMS of the measured ones on
-    No1 and No2, within 3 mrad on the fast No3, whose elbow moves at 3.2 rad/s, past the 3.15 rad/s
-    its URDF rates the twin's drive for."""
+    every held-out run, the fast No3 and No4 among them, whose elbow was commanded 3.2 rad/s, past
+    the 3.15 rad/s its URDF rates the drive for (held to the rating, the twin's elbow trailed by
+    2.87 mrad RMS)."""
     if not DATA.is_dir():
         pytest.skip(f"{DATA} is not there")
     log = DATA / f"{recording}.csv.gz"
@@ -152,7 +150,7 @@ def test_the_ur5_twin_follows_the_real_arms_targets(tmp_path, recording, bound_m
     run("replay", "assets/robots/ur5.toml", str(log), "--servo", "--efforts", "target_moment", "--out", str(out))
     report = json.loads((out / "replay.json").read_text())
     rmse = report["servo_position_rmse_rad"]
-    assert len(rmse) == 6 and max(rmse) <= bound_mrad * 1e-3, rmse
+    assert len(rmse) == 6 and max(rmse) <= 2.0e-3, rmse
     # The drives' own efforts beside the controller's model torques: reported, per joint.
     effort = report["servo_effort_rmse"]
     assert len(effort) == 6 and all(0.0 < e < 1e3 for e in effort), effort

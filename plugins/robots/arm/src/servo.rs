@@ -105,11 +105,15 @@ pub fn follow_targets(
         .map(|name| robot.joint(name).ok_or_else(|| anyhow::anyhow!("the twin has no joint '{name}'")))
         .collect::<anyhow::Result<_>>()?;
     // Drives that hold a position reference (the robot's own joint position loops), which
-    // the servo's trajectory generator below moves along the targets.
-    for &joint in &joints {
+    // the servo's trajectory generator below moves along the targets, as fast as the drive is
+    // rated for or as the targets were commanded, whichever is more: a recording is what the
+    // robot did (the real UR5's elbow followed 3.2 rad/s where its URDF rates it for 3.15).
+    let commanded = peak_speeds(times, targets, dof);
+    for (&joint, &peak) in joints.iter().zip(&commanded) {
         if let Some(mut motor) = world.get_mut::<Motor>(joint) {
             motor.holds_position = true;
             motor.command = MotorCommand::Velocity(0.0);
+            motor.max_velocity = motor.max_velocity.max(peak as f32);
         }
     }
     // Start-up: the world as built.
@@ -131,8 +135,7 @@ pub fn follow_targets(
         let world = app.world_mut();
         for (j, &joint) in joints.iter().enumerate() {
             let Some(mut motor) = world.get_mut::<Motor>(joint) else { continue };
-            // Within the drive's rated speed (the URDF's), not the tasks' safety factor: a
-            // recording is what the robot did.
+            // Within the drive's speed above (not the tasks' safety factor).
             let limit = motor.max_velocity as f64;
             let speed = ((targets[k + 1][j] + integral[j] - reference[j]) / span).clamp(-limit, limit);
             reference[j] += speed * span;
@@ -147,6 +150,22 @@ pub fn follow_targets(
         out.efforts.push(effort);
     }
     Ok(out)
+}
+
+/// Each joint's fastest commanded speed: the largest change of its target between two
+/// consecutive targets over the time between them (0 with fewer than two targets).
+fn peak_speeds(times: &[f64], targets: &[Vec<f64>], dof: usize) -> Vec<f64> {
+    let mut peak = vec![0.0f64; dof];
+    for k in 1..targets.len() {
+        let span = times[k] - times[k - 1];
+        if span <= 0.0 {
+            continue;
+        }
+        for (p, (a, b)) in peak.iter_mut().zip(targets[k - 1].iter().zip(&targets[k])) {
+            *p = p.max((b - a).abs() / span);
+        }
+    }
+    peak
 }
 
 impl Followed {
