@@ -56,6 +56,7 @@ async def watch(port, topics, seconds, enough=None, from_first=False):
         await ws.send(json.dumps({"op": "no-such-op"}))
         await ws.send("{not json")
         received = {t: [] for t in topics}
+        retried = set()
         end = loop.time() + (60 if from_first else seconds)
         first = not from_first
         while loop.time() < end and not (enough and enough(received, statuses)):
@@ -67,6 +68,15 @@ async def watch(port, topics, seconds, enough=None, from_first=False):
                 message = json.loads(frame)
                 if message["op"] == "status":
                     statuses.append(message)
+                    # foxglove 0.30 sends an advertisement before it takes subscriptions to the
+                    # channel: one made while this client is connected can be refused for a
+                    # moment. A client asks again (once a channel, as Foxglove's would on the
+                    # next advertisement).
+                    refused = message["message"].removeprefix("Unknown channel ID: ")
+                    retry = [s for s in subscriptions if str(s["channelId"]) == refused]
+                    if retry and refused not in retried:
+                        retried.add(refused)
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": retry}))
                 continue
             assert frame[0] == 0x01, f"opcode {frame[0]}"
             if not first:

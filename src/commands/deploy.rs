@@ -86,9 +86,12 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     } else {
         Box::new(RtdeArm::connect(args.rtde.as_deref().expect("clap requires --rtde without --dry-run"), patience)?)
     };
-    let live = args.live.start()?;
-    if let Some(server) = &live {
-        let view = RobotView::new(server.clone(), &served.robot, &served.joints)?;
+    let live = args.live.start_with(|server| {
+        server.advertise("/episodes", twinbots_live::EPISODE)?;
+        Ok((server.clone(), RobotView::new(server, &served.robot, &served.joints)?))
+    })?;
+    let (live, view) = live.unzip();
+    if let Some(view) = view {
         // A dry run's twin in real time, as the robot would move: it is there to be watched.
         let watched = WatchedArm::new(arm, view);
         arm = Box::new(if args.dry_run { watched.real_time() } else { watched });

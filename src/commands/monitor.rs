@@ -174,15 +174,15 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         arm: served.clone(),
     };
     let mut frames = TwinFrames::new(&args, entry)?;
-    let live = args.live.start()?;
+    let mut view = args.live.start_with(|server| {
+        let view = RobotView::new(server, entry, &served.joints)?;
+        Monitor::advertise_live(&view)?;
+        Ok(view)
+    })?;
     let patience = Duration::from_secs_f64(args.patience_ms / 1e3);
     let mut source = Source::open(args.rtde.as_deref(), args.domain.as_deref(), &served.joints, patience)?;
     let first = source.receive()?.map_err(|e| anyhow::anyhow!("the robot never reported ({label}): {e}"))?;
     let mut monitor = Monitor::new(options, &first)?;
-    let mut view = live.map(|server| RobotView::new(server, entry, &served.joints)).transpose()?;
-    if let Some(view) = &view {
-        Monitor::advertise_live(view)?;
-    }
     if let Some(f) = frames.as_mut() {
         f.offer(&mut monitor, first.time, first.time)?;
     }
@@ -313,14 +313,11 @@ fn exec_replay(args: &Args, log: &Path) -> anyhow::Result<()> {
     let motion = Motion::of_log(&robot, &twinbots_log::read_mapped(log, &mapping)?, &name)?;
     let joints: Vec<String> = robot.chain.movable().map(|j| j.name.clone()).collect();
     std::fs::create_dir_all(&args.out).map_err(|e| anyhow::anyhow!("{}: {e}", args.out.display()))?;
-    let mut view = match args.live.start()? {
-        Some(server) => {
-            server.advertise("/alarms", ALARM)?;
-            server.advertise("/shadow", SHADOW)?;
-            Some(RobotView::new(server, &registry::find(&args.robot)?, &joints)?)
-        }
-        None => None,
-    };
+    let mut view = args.live.start_with(|server| {
+        server.advertise("/alarms", ALARM)?;
+        server.advertise("/shadow", SHADOW)?;
+        RobotView::new(server, &registry::find(&args.robot)?, &joints)
+    })?;
     twinbots_ops::stop_signal::install();
     println!(
         "monitor: following {name} ({:.1} s) through the shadow of {}",

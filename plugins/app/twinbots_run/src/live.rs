@@ -26,10 +26,25 @@ pub struct LiveArgs {
 impl LiveArgs {
     /// Starts the live view if asked for, and says where it is.
     pub fn start(&self) -> anyhow::Result<Option<Arc<LiveServer>>> {
+        self.start_with(Ok)
+    }
+
+    /// Starts the live view if asked for, lets `advertise` add the command's own channels (and
+    /// make what it needs of the server), then says where it is: a viewer that connects on
+    /// reading the address finds every channel in its first advertisement. A channel advertised
+    /// to a client already connected can be refused for a moment: foxglove 0.30 sends the
+    /// advertisement before it takes subscriptions to it, and a client that subscribes at once
+    /// is told "Unknown channel ID" (seen under load, the test's client subscribing on receipt).
+    pub fn start_with<T>(
+        &self,
+        advertise: impl FnOnce(Arc<LiveServer>) -> anyhow::Result<T>,
+    ) -> anyhow::Result<Option<T>> {
         let Some(addr) = self.live else { return Ok(None) };
         let pace = if self.live_every_step { Pace::EveryStep } else { Pace::RealTime };
         let server = LiveServer::start(addr, self.insecure, pace)?;
-        println!("live view on ws://{}:{} (Foxglove or Lichtblick: open connection)", addr.ip(), server.port());
-        Ok(Some(server))
+        let port = server.port();
+        let made = advertise(server)?;
+        println!("live view on ws://{}:{port} (Foxglove or Lichtblick: open connection)", addr.ip());
+        Ok(Some(made))
     }
 }
