@@ -86,10 +86,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     } else {
         Box::new(RtdeArm::connect(args.rtde.as_deref().expect("clap requires --rtde without --dry-run"), patience)?)
     };
-    let live = args.live.start_with(|server| {
-        server.advertise("/episodes", twinbots_live::EPISODE)?;
-        Ok((server.clone(), RobotView::new(server, &served.robot, &served.joints)?))
-    })?;
+    // `/episodes` is every live server's from its start; the robot's channels come with its view.
+    let live =
+        args.live.start_with(|server| Ok((server.clone(), RobotView::new(server, &served.robot, &served.joints)?)))?;
     let (live, view) = live.unzip();
     if let Some(view) = view {
         // A dry run's twin in real time, as the robot would move: it is there to be watched.

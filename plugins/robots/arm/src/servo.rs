@@ -105,9 +105,10 @@ pub fn follow_targets(
         .map(|name| robot.joint(name).ok_or_else(|| anyhow::anyhow!("the twin has no joint '{name}'")))
         .collect::<anyhow::Result<_>>()?;
     // Drives that hold a position reference (the robot's own joint position loops), which
-    // the servo's trajectory generator below moves along the targets, as fast as the drive is
-    // rated for or as the targets were commanded, whichever is more: a recording is what the
-    // robot did (the real UR5's elbow followed 3.2 rad/s where its URDF rates it for 3.15).
+    // the servo's trajectory generator below moves along the targets. Either servo lets a drive
+    // go as fast as it is rated for or as the targets were commanded, whichever is more: a
+    // recording is what the robot did (the real UR5's elbow followed 3.2 rad/s where its URDF
+    // rates it for 3.15).
     let commanded = peak_speeds(times, targets, dof);
     for (&joint, &peak) in joints.iter().zip(&commanded) {
         if let Some(mut motor) = world.get_mut::<Motor>(joint) {
