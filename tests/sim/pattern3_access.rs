@@ -9,7 +9,9 @@ use bevy::prelude::*;
 use twinbots_api::DesignPattern;
 use twinbots_link::audit::pattern_3_violations as violations;
 use twinbots_run::registry;
-use twinbots_sim::{Arena, Handled, Operator, SupervisorAccess, SupervisorPlugin};
+use twinbots_sim::{
+    Arena, Handled, JointState, Link, Motor, MotorCommand, Operator, SupervisorAccess, SupervisorPlugin,
+};
 
 /// Every built-in robot task that runs under pattern 3, as a built app (start-up done).
 fn pattern_3_apps() -> Vec<(String, App)> {
@@ -133,4 +135,50 @@ fn the_operator_reaches_only_handled_objects_in_the_arena_named() {
     assert_eq!(&seen[..6], &expected, "{seen:?}");
     let world = app.world_mut();
     assert_eq!(world.query_filtered::<(), With<Handled>>().iter(world).count(), 2, "one part per cell is handled");
+}
+
+/// What the pattern-3 cart-pole knows of itself comes from devices that measure the cart and
+/// the pole (a GPS and an inertial unit on the cart, a gyro on the pole), not from its wheels:
+/// they reach a new speed within a step and slip under the cart, so at a reversal they read
+/// the speed commanded while the cart still rolls the other way. Driven back and forth, its
+/// readings follow the true world (read here through the Supervisor the test adds) while the
+/// pole is within the task's range.
+#[test]
+fn the_pattern_3_cart_pole_measures_its_cart_and_pole_not_its_wheels() {
+    let cartpole = registry::find("cartpole").unwrap();
+    let mut app = cartpole.app(None, 1, 0, DesignPattern::Server).unwrap();
+    app.add_plugins(SupervisorPlugin);
+    // Start-up mounts the devices; the step after, the cart at rest, they read it first.
+    app.update();
+    app.update();
+    let (arena, parts) = app.world_mut().query::<(Entity, &cartpole::CartPoleParts)>().single(app.world()).unwrap();
+    let parts = *parts;
+    let truth = |world: &World| {
+        let physics = twinbots_sim::physics_in(world, arena).unwrap();
+        let (cart, pole) = (world.get::<Link>(parts.cart).unwrap(), world.get::<Link>(parts.pole_link).unwrap());
+        let (cart, pole) = (&physics.bodies[cart.body], &physics.bodies[pole.body]);
+        (cart.translation().x, cart.linvel().x, pole.angvel().y)
+    };
+    let (start_x, _, _) = truth(app.world());
+    let mut wheels_off = 0.0f32;
+    for step in 0..60 {
+        let speed = if (step / 4) % 2 == 0 { cartpole::WHEEL_SPEED } else { -cartpole::WHEEL_SPEED };
+        for wheel in parts.wheels {
+            app.world_mut().get_mut::<Motor>(wheel).unwrap().command = MotorCommand::Velocity(speed);
+        }
+        app.update();
+        let state = *app.world().get::<cartpole::CartPoleState>(arena).unwrap();
+        if state.angle.abs() > cartpole::MAX_POLE_ANGLE {
+            // An episode would have ended; the pole falls to its stops.
+            assert!(step > 8, "the pole fell before the cart reversed twice, at step {step}");
+            break;
+        }
+        let (x, v, rate) = truth(app.world());
+        assert!((state.x - (x - start_x)).abs() < 2e-3, "step {step}: x {} vs the cart's {}", state.x, x - start_x);
+        assert!((state.v - v).abs() < 1e-3, "step {step}: speed {} vs the cart's {v}", state.v);
+        assert!((state.rate - rate).abs() < 1e-3, "step {step}: rate {} vs the pole's {rate}", state.rate);
+        let wheel = app.world().get::<JointState>(parts.wheels[0]).unwrap().velocity * 0.04;
+        wheels_off = wheels_off.max((wheel - v).abs());
+    }
+    assert!(wheels_off > 0.1, "the wheels read the cart's speed within {wheels_off} m/s: they did not slip");
 }

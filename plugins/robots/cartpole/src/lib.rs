@@ -6,7 +6,7 @@
 //! terminated past 15° or ±0.4 m; truncated once the score exceeds 1950. The task's terms
 //! ([`balance_task`]) are the same under every design pattern; where the controller's
 //! [`CartPoleState`] comes from is the pattern's: the Supervisor (1), the radio link (2,
-//! [`radio`]), or the robot's own encoders (3, [`server`]).
+//! [`radio`]), or the robot's own devices (3, [`server`]).
 
 use std::path::Path;
 

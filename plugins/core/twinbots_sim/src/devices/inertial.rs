@@ -33,12 +33,14 @@ pub struct Accelerometer {
     previous_velocity: Option<Vec3>,
 }
 
-/// Position (m) in the arena and speed (m/s) of the mount point.
+/// Position (m) in the arena, speed (m/s) and velocity (m/s, in the arena's frame: Webots'
+/// `getSpeedVector`) of the mount point.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct Gps {
     pub noise: f32,
     pub position: Vec3,
     pub speed: f32,
+    pub velocity: Vec3,
 }
 
 /// Webots' TouchSensor: `touching` as the bumper type reports it, and `force` (N), the contact
@@ -135,6 +137,7 @@ pub(crate) fn sample_gps(
     sample_each(clock.control_steps, &links, &mut arenas, &mut sensors, false, |s, state, arena, _| {
         s.position = state.pose.translation + noise3(arena, s.noise);
         s.speed = state.linvel.length();
+        s.velocity = state.linvel;
     });
 }
 
