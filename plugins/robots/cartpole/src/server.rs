@@ -86,7 +86,8 @@ fn read_devices(
     }
 }
 
-/// Homing with the robot's own motors: a P controller on the odometry drives back to x = 0.
+/// Homing with the robot's own motors: a P controller on the distance travelled drives back to
+/// x = 0.
 fn home(mut robots: Query<(&CartPoleParts, &CartPoleState, &Controller, &mut AtHome)>, mut motors: Query<&mut Motor>) {
     for (parts, state, controller, mut at_home) in &mut robots {
         if controller.phase() != Phase::Homing {
