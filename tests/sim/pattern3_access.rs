@@ -177,8 +177,7 @@ fn the_pattern_3_cart_pole_measures_its_cart_and_pole_not_its_wheels() {
         assert!((state.x - (x - start_x)).abs() < 2e-3, "step {step}: x {} vs the cart's {}", state.x, x - start_x);
         assert!((state.v - v).abs() < 1e-3, "step {step}: speed {} vs the cart's {v}", state.v);
         assert!((state.rate - rate).abs() < 1e-3, "step {step}: rate {} vs the pole's {rate}", state.rate);
-        // The wheels' reading of the speed: their rate times their 4 cm radius.
-        let wheel = app.world().get::<JointState>(parts.wheels[0]).unwrap().velocity * 0.04;
+        let wheel = app.world().get::<JointState>(parts.wheels[0]).unwrap().velocity * cartpole::WHEEL_RADIUS;
         wheels_off = wheels_off.max((wheel - v).abs());
     }
     assert!(wheels_off > 0.1, "the wheels read the cart's speed within {wheels_off} m/s: they did not slip");

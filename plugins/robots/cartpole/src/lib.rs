@@ -38,6 +38,8 @@ use twinbots_sim::{
 pub const URDF: &str = include_str!("../../../../assets/robots/cartpole/cartpole.urdf");
 pub const URDF_PATH: &str = "assets/robots/cartpole/cartpole.urdf";
 
+/// The wheels' radius (m), as the URDF has them.
+pub const WHEEL_RADIUS: f32 = 0.04;
 /// Wheel speed of the two actions (rad/s): ±5 rad/s is ±0.2 m/s on 0.04 m wheels.
 pub const WHEEL_SPEED: f32 = 5.0;
 /// Episode ends when the pole passes this angle (15°).
@@ -47,7 +49,7 @@ pub const MAX_CART_X: f32 = 0.4;
 /// Episode is truncated once its score exceeds this.
 pub const MAX_SCORE: f32 = 1950.0;
 /// Height of the cart's centre: the wheels' radius, so they touch the ground.
-pub const CART_HEIGHT: f32 = 0.04;
+pub const CART_HEIGHT: f32 = WHEEL_RADIUS;
 /// Start angles are drawn uniformly from ±this (rad) at every reset.
 pub const INITIAL_TILT: f32 = 0.05;
 

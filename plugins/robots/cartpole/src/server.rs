@@ -19,9 +19,7 @@ use twinbots_sim::rapier::math::Pose;
 use twinbots_sim::{Gps, Gyro, InArena, InertialUnit, Motor, MotorCommand, Mount, Operator, PositionSensor};
 use twinbots_task::task::TaskSet;
 
-use crate::{CartPoleParts, CartPoleState, WHEEL_SPEED};
-
-const WHEEL_RADIUS: f32 = 0.04;
+use crate::{CartPoleParts, CartPoleState, WHEEL_RADIUS, WHEEL_SPEED};
 
 /// The robot's devices beyond its URDF's (mounted when the app starts), and its dead
 /// reckoning: how far the cart went along its heading since it was switched on. A cart on the
